@@ -1,0 +1,380 @@
+"""Model configuration (contracts §2) as validated, frozen dataclasses.
+
+The YAML has the contract's top level (``joints``, ``rate_hz``, ``model``) plus optional
+sections this project adds (``estimator``, ``kinematics``, ``learning``, ``hardware``).
+Every section is a frozen dataclass; unknown keys, missing keys and values out of range
+raise :class:`~sea_daemon.errors.ConfigError` naming the key and the allowed values.
+
+To add an option, add a field with a default to the section's dataclass and, if it needs
+a range check, a line in its ``_check``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .effects import Effect, effect_from_dict
+from .errors import ConfigError
+
+
+# ---------------------------------------------------------------------------- helpers
+
+def _num(source: str, key: str, v: Any, *, positive=False, non_negative=False,
+         lo: float | None = None, hi: float | None = None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise ConfigError(source, key, f"must be a finite number, got {v!r}")
+    v = float(v)
+    if positive and v <= 0:
+        raise ConfigError(source, key, f"must be > 0, got {v}")
+    if non_negative and v < 0:
+        raise ConfigError(source, key, f"must be >= 0, got {v}")
+    if lo is not None and v < lo or hi is not None and v > hi:
+        raise ConfigError(source, key, f"must be in [{lo}, {hi}], got {v}")
+    return v
+
+
+def _matrix(source: str, key: str, v: Any, n: int, *, positive_definite=False,
+            non_negative=False) -> np.ndarray:
+    """scalar -> s·I (n=1 or diagonal), list of n -> diag, n×n nested list -> matrix."""
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(source, key, f"must be a number, a list of {n} or an {n}x{n} matrix, got {v!r}") from None
+    if a.ndim == 0:
+        a = np.eye(n) * float(a)
+    elif a.ndim == 1 and a.shape[0] == n:
+        a = np.diag(a)
+    elif not (a.ndim == 2 and a.shape == (n, n)):
+        raise ConfigError(source, key, f"must be a number, a list of {n} or an {n}x{n} matrix, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ConfigError(source, key, f"must be finite, got {v!r}")
+    if positive_definite:
+        if not np.allclose(a, a.T) or np.any(np.linalg.eigvalsh(0.5 * (a + a.T)) <= 0):
+            raise ConfigError(source, key, f"must be positive (symmetric positive definite), got {v!r}")
+    if non_negative:
+        if not np.allclose(a, a.T) or np.any(np.linalg.eigvalsh(0.5 * (a + a.T)) < -1e-12):
+            raise ConfigError(source, key, f"must be >= 0 (symmetric positive semi-definite), got {v!r}")
+    a.setflags(write=False)
+    return a
+
+
+def _vector(source: str, key: str, v: Any, n: int, *, non_negative=False, positive=False) -> np.ndarray:
+    """scalar -> repeated, list of n -> vector."""
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(source, key, f"must be a number or a list of {n} numbers, got {v!r}") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.ndim != 1 or a.shape[0] != n:
+        raise ConfigError(source, key, f"must be a number or a list of {n} numbers, got {v!r}")
+    if not np.all(np.isfinite(a)):
+        raise ConfigError(source, key, f"must be finite, got {v!r}")
+    if positive and np.any(a <= 0):
+        raise ConfigError(source, key, f"every entry must be > 0, got {v!r}")
+    if non_negative and np.any(a < 0):
+        raise ConfigError(source, key, f"every entry must be >= 0, got {v!r}")
+    a.setflags(write=False)
+    return a
+
+
+def _diag_or_matrix(source: str, key: str, v: Any, n: int) -> np.ndarray:
+    """Covariances: list of n -> diag, n×n -> matrix; must be symmetric PSD."""
+    a = np.asarray(v, dtype=float) if not isinstance(v, (str, bytes, Mapping)) else None
+    if a is None or a.ndim not in (1, 2):
+        raise ConfigError(source, key, f"must be a list of {n} variances or an {n}x{n} matrix, got {v!r}")
+    if a.ndim == 1:
+        return _matrix(source, key, a if a.shape[0] == n else v, n, non_negative=True)
+    return _matrix(source, key, a, n, non_negative=True)
+
+
+def _check_keys(source: str, prefix: str, d: Mapping, allowed: list[str], required: list[str]) -> None:
+    if not isinstance(d, Mapping):
+        raise ConfigError(source, prefix or "<top level>", f"must be a mapping, got {type(d).__name__}")
+    for k in d:
+        if k not in allowed:
+            raise ConfigError(source, f"{prefix}{k}", f"unknown key; allowed: {', '.join(allowed)}")
+    for k in required:
+        if k not in d:
+            raise ConfigError(source, f"{prefix}{k}", f"missing required key (required: {', '.join(required)})")
+
+
+# ---------------------------------------------------------------------------- sections
+
+@dataclass(frozen=True)
+class SEAParams:
+    """Nominal SEA model (``eq:sea``, ``eq:spring_torque``), joint side, SI units."""
+
+    M: np.ndarray          # load-side inertia [kg m^2]            eq:loadside
+    J: np.ndarray          # motor inertia through the gear        eq:motorside
+    D_m: np.ndarray        # motor viscous damping [N m s/rad]     eq:motorside
+    K_s: np.ndarray        # spring stiffness [N m/rad]            eq:spring_torque
+    D_s: np.ndarray        # spring damping [N m s/rad]            eq:spring_torque
+    gravity: np.ndarray    # m g l per joint: C(q) = gravity*sin(q) [N m]
+    effects: tuple[Effect, ...] = ()
+
+    KEYS = ["M", "J", "D_m", "K_s", "D_s", "gravity", "effects"]
+    REQUIRED = ["M", "J", "D_m", "K_s", "D_s"]
+
+    @property
+    def n(self) -> int:
+        return self.M.shape[0]
+
+    def with_effects(self, effects) -> "SEAParams":
+        return dataclasses.replace(self, effects=tuple(effects))
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "SEAParams":
+        _check_keys(source, "model.", d, cls.KEYS, cls.REQUIRED)
+        eff = d.get("effects") or []
+        if not isinstance(eff, list):
+            raise ConfigError(source, "model.effects", f"must be a list of effect mappings, got {eff!r}")
+        return cls(
+            M=_matrix(source, "model.M", d["M"], n, positive_definite=True),
+            J=_matrix(source, "model.J", d["J"], n, positive_definite=True),
+            D_m=_matrix(source, "model.D_m", d["D_m"], n, non_negative=True),
+            K_s=_matrix(source, "model.K_s", d["K_s"], n, positive_definite=True),
+            D_s=_matrix(source, "model.D_s", d["D_s"], n, non_negative=True),
+            gravity=_vector(source, "model.gravity", d.get("gravity", 0.0), n),
+            effects=tuple(effect_from_dict(e, n, source, f"model.effects[{i}]") for i, e in enumerate(eff)),
+        )
+
+    def to_dict(self) -> dict:
+        def m(a):
+            if self.n == 1:
+                return float(a[0, 0])
+            return a.tolist()
+        return {
+            "M": m(self.M), "J": m(self.J), "D_m": m(self.D_m), "K_s": m(self.K_s), "D_s": m(self.D_s),
+            "gravity": float(self.gravity[0]) if self.n == 1 else self.gravity.tolist(),
+            "effects": [e.to_dict(self.n) for e in self.effects],
+        }
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """AKF / GP-AKF settings (Alg. 1, Alg. 2; Sec. V-B)."""
+
+    R: np.ndarray                  # measurement noise, y = [θ_m, θ_s, θ̇_m, θ̇_s]   (4n×4n)
+    Sigma_nom: np.ndarray          # nominal process noise per step, x order     (5n×5n)
+    P0: np.ndarray                 # initial covariance                          (5n×5n)
+    delta: float = 0.05            # probability level of the bounds (eq:bounds)
+    sign_eps: float = 0.01         # [rad/s] smoothing of sign() in declared friction
+
+    KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps"]
+
+    @classmethod
+    def default(cls, n: int) -> "EstimatorConfig":
+        return cls.from_dict({}, n, "<default>")
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "EstimatorConfig":
+        _check_keys(source, "estimator.", d, cls.KEYS, [])
+        # Sec. V-B: R identified by ALS, Sigma_nom hand-set, P0 = R (plus τ_h,act)
+        R = _diag_or_matrix(source, "estimator.R", d.get("R", np.repeat([0.0461, 3.6e-6, 0.1288, 1.01e-5], n)), 4 * n)
+        S = _diag_or_matrix(source, "estimator.Sigma_nom",
+                            d.get("Sigma_nom", np.repeat([1e-1, 1e3, 1e2, 1e-9, 1e-2], n)), 5 * n)
+        P0_tau = _num(source, "estimator.P0_tau", d.get("P0_tau", 1.0), positive=True)
+        if "P0" in d:
+            P0 = _diag_or_matrix(source, "estimator.P0", d["P0"], 5 * n)
+        else:
+            P0 = np.zeros((5 * n, 5 * n))
+            P0[: 4 * n, : 4 * n] = R
+            P0[4 * n:, 4 * n:] = np.eye(n) * P0_tau
+            P0.setflags(write=False)
+        delta = _num(source, "estimator.delta", d.get("delta", 0.05))
+        if not 0 < delta < 1:
+            raise ConfigError(source, "estimator.delta", f"must be in (0, 1), got {delta}")
+        return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
+                   sign_eps=_num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True))
+
+    def to_dict(self) -> dict:
+        def dg(a):
+            return np.diag(a).tolist() if np.allclose(a, np.diag(np.diag(a))) else a.tolist()
+        return {"R": dg(self.R), "Sigma_nom": dg(self.Sigma_nom), "P0": dg(self.P0),
+                "delta": self.delta, "sign_eps": self.sign_eps}
+
+
+@dataclass(frozen=True)
+class KinematicsConfig:
+    """Numerical differentiation of the encoder angles (Sec. V-A)."""
+
+    window: int = 5          # moving-average length [samples] of the causal differentiator
+
+    KEYS = ["window"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "KinematicsConfig":
+        _check_keys(source, "kinematics.", d, cls.KEYS, [])
+        w = d.get("window", 5)
+        if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 100:
+            raise ConfigError(source, "kinematics.window", f"must be an integer in 1..100, got {w!r}")
+        return cls(window=w)
+
+    def to_dict(self) -> dict:
+        return {"window": self.window}
+
+
+@dataclass(frozen=True)
+class LearningConfig:
+    """LoG-GP online learning (Sec. IV-A, V-B)."""
+
+    max_points: int = 100            # N̄: points per leaf
+    max_leaves: int = 2000           # memory bound: leaves kept
+    overlap: float = 0.1             # relative width of a split's overlapping region
+    lengthscales: tuple[float, ...] = (0.5, 1.0, 10.0)   # initial l_i for z = [q, q̇, q̈]
+    sigma_f: float = 1.0             # initial signal std [N m]
+    sigma_n: float = 0.05            # initial noise std σ_on [N m]
+    hyperopt: bool = True            # online gradient-based hyperparameter adaptation
+    seed: int = 0
+
+    KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
+        _check_keys(source, "learning.", d, cls.KEYS, [])
+        out = {}
+        for k in ("max_points", "max_leaves", "seed"):
+            if k in d:
+                v = d[k]
+                lo = 0 if k == "seed" else 2
+                if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                    raise ConfigError(source, f"learning.{k}", f"must be an integer >= {lo}, got {v!r}")
+                out[k] = v
+        if "overlap" in d:
+            out["overlap"] = _num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
+        if "lengthscales" in d:
+            out["lengthscales"] = tuple(_vector(source, "learning.lengthscales", d["lengthscales"], 3 * n, positive=True))
+        for k in ("sigma_f", "sigma_n"):
+            if k in d:
+                out[k] = _num(source, f"learning.{k}", d[k], positive=True)
+        if "hyperopt" in d:
+            if not isinstance(d["hyperopt"], bool):
+                raise ConfigError(source, "learning.hyperopt", f"must be true or false, got {d['hyperopt']!r}")
+            out["hyperopt"] = d["hyperopt"]
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus."""
+
+    gear_ratio: float = 100.0        # motor turns per joint turn
+    encoder_bits: int = 19           # both absolute encoders
+    torque_limit: float = 10.0       # |τ_m| limit, joint side [N m]
+    torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
+
+    KEYS = ["gear_ratio", "encoder_bits", "torque_limit", "torque_noise"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "HardwareConfig":
+        _check_keys(source, "hardware.", d, cls.KEYS, [])
+        out = {}
+        if "gear_ratio" in d:
+            out["gear_ratio"] = _num(source, "hardware.gear_ratio", d["gear_ratio"], positive=True)
+        if "encoder_bits" in d:
+            b = d["encoder_bits"]
+            if isinstance(b, bool) or not isinstance(b, int) or not 8 <= b <= 32:
+                raise ConfigError(source, "hardware.encoder_bits", f"must be an integer in 8..32, got {b!r}")
+            out["encoder_bits"] = b
+        if "torque_limit" in d:
+            out["torque_limit"] = _num(source, "hardware.torque_limit", d["torque_limit"], positive=True)
+        if "torque_noise" in d:
+            out["torque_noise"] = _num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The whole YAML of contracts §2 (plus the optional sections)."""
+
+    joints: int
+    rate_hz: float
+    model: SEAParams
+    estimator: EstimatorConfig
+    kinematics: KinematicsConfig = field(default_factory=KinematicsConfig)
+    learning: LearningConfig = field(default_factory=LearningConfig)
+    hardware: HardwareConfig = field(default_factory=HardwareConfig)
+    source: str = "<memory>"
+
+    TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware"]
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str = "<memory>") -> "ModelConfig":
+        _check_keys(source, "", d, cls.TOP_KEYS, ["joints", "rate_hz", "model"])
+        n = d["joints"]
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 16:
+            raise ConfigError(source, "joints", f"must be an integer in 1..16, got {n!r}")
+        rate = _num(source, "rate_hz", d["rate_hz"], lo=1.0, hi=100000.0)
+        return cls(
+            joints=n, rate_hz=rate,
+            model=SEAParams.from_dict(d["model"], n, source),
+            estimator=EstimatorConfig.from_dict(d.get("estimator") or {}, n, source),
+            kinematics=KinematicsConfig.from_dict(d.get("kinematics") or {}, n, source),
+            learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),
+            hardware=HardwareConfig.from_dict(d.get("hardware") or {}, n, source),
+            source=source,
+        )
+
+    def to_dict(self) -> dict:
+        return {
+            "joints": self.joints, "rate_hz": self.rate_hz, "model": self.model.to_dict(),
+            "estimator": self.estimator.to_dict(), "kinematics": self.kinematics.to_dict(),
+            "learning": self.learning.to_dict(), "hardware": self.hardware.to_dict(),
+        }
+
+    def with_effects(self, effects) -> "ModelConfig":
+        return dataclasses.replace(self, model=self.model.with_effects(effects))
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file; a missing file or a syntax error is an InputError naming the file."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise ConfigError(str(p), "<file>", f"cannot read: {e.strerror or e}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "<file>"
+        raise ConfigError(str(p), where, f"not valid YAML: {getattr(e, 'problem', e)}") from None
+
+
+def load_config(path: str | Path) -> ModelConfig:
+    """Load and validate a model configuration (contracts §2)."""
+    return ModelConfig.from_dict(load_yaml(path), source=str(path))
+
+
+def save_config(cfg: ModelConfig, path: str | Path, header: str | None = None) -> None:
+    """Write a configuration that :func:`load_config` reads back to an equal object."""
+    text = yaml.safe_dump(cfg.to_dict(), sort_keys=False, default_flow_style=None)
+    if header:
+        text = "".join(f"# {line}\n" for line in header.splitlines()) + text
+    Path(path).write_text(text)
+
+
+def repo_root() -> Path:
+    """The project checkout (configs/ lives beside the package)."""
+    return Path(__file__).resolve().parent.parent
+
+
+def default_config_path() -> Path:
+    return repo_root() / "configs" / "exo_1dof.yaml"

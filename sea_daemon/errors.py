@@ -1,0 +1,44 @@
+"""One exception hierarchy for the whole project (python-can style).
+
+Every message names the offending value and, where there is one, the allowed range, so
+that the CLI can print it as the single line a user sees (exit status 2 for
+:class:`InputError`, 1 for anything else).
+"""
+from __future__ import annotations
+
+
+class SeaDaemonError(Exception):
+    """Base class of every error raised on purpose by sea-daemon."""
+
+
+class InputError(SeaDaemonError):
+    """Bad input from a user: a file, a flag, a config value.  CLI exit status 2."""
+
+
+class ConfigError(InputError):
+    """A YAML configuration is malformed; the message names the key and allowed values."""
+
+    def __init__(self, source: str, key: str, problem: str):
+        self.source, self.key, self.problem = source, key, problem
+        super().__init__(f"{source}: {key}: {problem}")
+
+
+class LogFormatError(InputError):
+    """A measured-log CSV is malformed; the message names the file and the line."""
+
+    def __init__(self, path: str, line: int | None, problem: str):
+        self.path, self.line, self.problem = path, line, problem
+        where = f"{path}:{line}" if line is not None else str(path)
+        super().__init__(f"{where}: {problem}")
+
+
+class ModelFileError(InputError):
+    """A saved model file is corrupt, from an incompatible version, or unreadable."""
+
+
+class EstimatorFault(SeaDaemonError):
+    """The estimator lost numerical health (NaN/inf, covariance not positive definite)."""
+
+
+class HardwareError(SeaDaemonError):
+    """Base of faults raised by the hardware layer (``drivers``)."""

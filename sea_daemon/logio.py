@@ -1,0 +1,156 @@
+"""Measured log CSV (contracts §1): read with validation, write.
+
+Columns (joint side, SI): ``t, q, theta_m, tau_m`` required, ``tau_h_act`` optional; with
+n > 1 joints every per-joint column carries a 1-based suffix (``q_1 … q_n``).  Other columns
+are kept in :attr:`MeasuredLog.extra` and otherwise ignored.
+
+A bad file raises :class:`~sea_daemon.errors.LogFormatError` naming the file, the line and
+the problem (the CLI turns it into exit status 2 and one line).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from .errors import LogFormatError
+
+REQUIRED = ("q", "theta_m", "tau_m")
+OPTIONAL = ("tau_h_act",)
+
+
+def column_names(base: str, n: int) -> list[str]:
+    """``q`` for one joint, ``q_1 … q_n`` for n > 1 (contracts §1)."""
+    return [base] if n == 1 else [f"{base}_{i + 1}" for i in range(n)]
+
+
+@dataclass
+class MeasuredLog:
+    """One measured log: time (N,), per-joint arrays (N, n)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    theta_m: np.ndarray
+    tau_m: np.ndarray
+    tau_h_act: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    path: str = "<memory>"
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+    def __len__(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def dt(self) -> float:
+        """Median sample period [s]."""
+        return float(np.median(np.diff(self.t)))
+
+    def slice(self, start: int, stop: int | None = None) -> "MeasuredLog":
+        s = slice(start, stop)
+        return MeasuredLog(self.t[s], self.q[s], self.theta_m[s], self.tau_m[s],
+                           None if self.tau_h_act is None else self.tau_h_act[s],
+                           {k: v[s] for k, v in self.extra.items()}, self.path)
+
+
+def _parse_float(text: str) -> float:
+    return float(text)
+
+
+def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> MeasuredLog:
+    """Read and validate a measured log.
+
+    ``n``: number of joints expected (None: inferred from the header).  ``min_rows``: the
+    fewest data rows the caller's operation needs.
+    """
+    p = str(path)
+    try:
+        with open(p, newline="") as fh:
+            text = fh.read()
+    except OSError as e:
+        raise LogFormatError(p, None, f"cannot read: {e.strerror or e}") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise LogFormatError(p, 1, "empty file: expected a header row with t, q, theta_m, tau_m") from None
+    header = [h.strip() for h in header]
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise LogFormatError(p, 1, f"duplicate column(s) {', '.join(dup)}")
+    if n is None:
+        n = 1 if "q" in header else sum(1 for h in header if h.startswith("q_") and h[2:].isdigit())
+        n = max(n, 1)
+    need = ["t"] + [c for base in REQUIRED for c in column_names(base, n)]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
+                                   f"(need {', '.join(need)} for {n} joint(s))")
+    rows = []
+    for lineno, row in enumerate(reader, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise LogFormatError(p, lineno, f"has {len(row)} fields, the header has {len(header)} "
+                                            "(truncated or malformed row)")
+        vals = []
+        for name, cell in zip(header, row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()!r} is not a number") from None
+            if not math.isfinite(v):
+                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()} is not finite")
+            vals.append(v)
+        rows.append(vals)
+    if len(rows) < min_rows:
+        raise LogFormatError(p, None, f"has {len(rows)} data rows; this operation needs at least {min_rows}")
+    data = np.asarray(rows, dtype=float)
+    col = {h: i for i, h in enumerate(header)}
+    t = data[:, col["t"]]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LogFormatError(p, i + 2, f"time does not increase: t = {t[i]} after {t[i - 1]}")
+
+    def block(base):
+        return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)
+
+    tau_h = None
+    if all(c in col for c in column_names("tau_h_act", n)):
+        tau_h = block("tau_h_act")
+    known = set(need) | set(column_names("tau_h_act", n))
+    extra = {h: data[:, i] for h, i in col.items() if h not in known}
+    return MeasuredLog(t=t, q=block("q"), theta_m=block("theta_m"), tau_m=block("tau_m"),
+                       tau_h_act=tau_h, extra=extra, path=p)
+
+
+def write_log(path: str | Path, log: MeasuredLog, extra: Mapping[str, np.ndarray] | None = None,
+              fmt: str = "%.9g") -> None:
+    """Write a measured log (contracts §1) plus optional extra columns."""
+    n = log.n
+    cols = {"t": log.t}
+    for base, arr in (("q", log.q), ("theta_m", log.theta_m), ("tau_m", log.tau_m), ("tau_h_act", log.tau_h_act)):
+        if arr is None:
+            continue
+        for j, name in enumerate(column_names(base, n)):
+            cols[name] = arr[:, j]
+    for k, v in {**log.extra, **(extra or {})}.items():
+        cols[k] = np.asarray(v)
+    write_columns(path, cols, fmt)
+
+
+def write_columns(path: str | Path, cols: Mapping[str, np.ndarray], fmt: str = "%.9g") -> None:
+    """Write equal-length columns as a CSV with one header row."""
+    names = list(cols)
+    data = np.column_stack([np.asarray(cols[k], dtype=float).reshape(-1) for k in names])
+    tmp = Path(str(path) + ".tmp")
+    np.savetxt(tmp, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    tmp.replace(path)

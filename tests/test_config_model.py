@@ -1,0 +1,106 @@
+"""Config loading/validation and the SEA model's Jacobians."""
+import numpy as np
+import pytest
+
+from sea_daemon.config import ModelConfig, load_config, default_config_path
+from sea_daemon.effects import EFFECT_TYPES, make_effect
+from sea_daemon.errors import ConfigError
+from sea_daemon.model import SEAModel, discretize
+
+
+def base_dict():
+    return {"joints": 1, "rate_hz": 100,
+            "model": {"M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 2.9,
+                      "effects": [{"type": "human_viscoelastic", "k_h": 1.2, "q_h0": 0.6, "b_h": 0.25},
+                                  {"type": "coulomb", "side": "load", "F_c": 0.35}]}}
+
+
+def test_contract_example_loads():
+    cfg = ModelConfig.from_dict(base_dict())
+    assert cfg.joints == 1 and cfg.dt == pytest.approx(0.01)
+    assert [e.type for e in cfg.model.effects] == ["human_viscoelastic", "coulomb"]
+    assert cfg.estimator.P0.shape == (5, 5)
+
+
+def test_default_config_loads_and_roundtrips(tmp_path):
+    from sea_daemon.config import save_config
+    cfg = load_config(default_config_path())
+    p = tmp_path / "c.yaml"
+    save_config(cfg.with_effects([make_effect("viscous", "motor", b=0.1)]), p)
+    back = load_config(p)
+    assert back.model.effects[0].params == {"b": 0.1}
+    np.testing.assert_allclose(back.estimator.R, cfg.estimator.R)
+
+
+@pytest.mark.parametrize("mutate, key", [
+    (lambda d: d.update(extra=1), "extra"),
+    (lambda d: d["model"].pop("K_s"), "model.K_s"),
+    (lambda d: d["model"].update(M=-0.1), "model.M"),
+    (lambda d: d["model"].update(K_s=0.0), "model.K_s"),
+    (lambda d: d["model"]["effects"].append({"type": "magic"}), "model.effects[2].type"),
+    (lambda d: d["model"]["effects"].append({"type": "coulomb", "side": "spring", "F_c": 1}), "model.effects[2].side"),
+    (lambda d: d["model"]["effects"].append({"type": "viscous", "side": "load"}), "model.effects[2].b"),
+    (lambda d: d.update(joints=0), "joints"),
+    (lambda d: d.update(estimator={"delta": 1.5}), "estimator.delta"),
+])
+def test_bad_config_names_key(mutate, key):
+    d = base_dict()
+    mutate(d)
+    with pytest.raises(ConfigError) as ei:
+        ModelConfig.from_dict(d, source="x.yaml")
+    assert ei.value.key == key
+    assert "x.yaml" in str(ei.value)
+
+
+def _all_effects():
+    vals = {"F_c": 0.3, "b": 0.2, "F_s": 0.4, "v_s": 0.3, "dI": 0.02, "a": 0.5, "phi": 0.2, "k_h": 1.2,
+            "q_h0": 0.4, "b_h": 0.3, "k3": 300.0, "width": 0.004, "kappa": 0.9, "delta": 0.01,
+            "seconds": 0.02, "A": 0.1, "periods": 6.0, "theta_max": 0.02, "k_stop": 500.0}
+    out = []
+    for t, cls in EFFECT_TYPES.items():
+        for side in cls.sides:
+            out.append(make_effect(t, side, **{p: vals[p] for p in cls.param_names}))
+    return out
+
+
+@pytest.mark.parametrize("effect", _all_effects(), ids=lambda e: f"{e.type}-{e.side}")
+def test_jacobian_matches_finite_differences(effect):
+    cfg = ModelConfig.from_dict(base_dict()).with_effects([effect])
+    m = SEAModel.from_config(cfg)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        x = rng.normal(size=5) * [0.5, 0.01, 1.0, 0.3, 1.0]
+        x[1] = 0.03 if effect.type == "spring_backlash" else x[1]   # away from the kink
+        u = rng.normal(size=1)
+        A = m.F_nom(x, u)
+        h = 1e-6
+        An = np.column_stack([(m.f_nom(x + h * e, u) - m.f_nom(x - h * e, u)) / (2 * h) for e in np.eye(5)])
+        np.testing.assert_allclose(A, An, rtol=1e-5, atol=1e-4 * max(1.0, np.abs(An).max()))
+        Bn = np.column_stack([(m.f_nom(x, u + h) - m.f_nom(x, u - h)) / (2 * h)])
+        np.testing.assert_allclose(m.B_nom(), Bn, rtol=1e-6, atol=1e-6)
+
+
+def test_two_joint_jacobian():
+    d = base_dict()
+    d["joints"] = 2
+    d["model"] = {"M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": 0.6, "K_s": [110, 90],
+                  "D_s": 0.25, "gravity": [2.9, 1.0],
+                  "effects": [{"type": "coulomb", "side": "load", "joint": 2, "F_c": 0.2}]}
+    m = SEAModel.from_config(ModelConfig.from_dict(d))
+    x = np.array([0.1, -0.2, 0.01, 0.02, 0.5, -0.3, 0.1, 0.05, 0.4, -0.2])
+    u = np.array([0.5, -1.0])
+    h = 1e-6
+    An = np.column_stack([(m.f_nom(x + h * e, u) - m.f_nom(x - h * e, u)) / (2 * h) for e in np.eye(10)])
+    np.testing.assert_allclose(m.F_nom(x, u), An, rtol=1e-5, atol=1e-5)
+
+
+def test_discretize_is_exact_for_linear_system():
+    from scipy.linalg import expm
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(4, 4))
+    B = rng.normal(size=(4, 1))
+    x, u, dt = rng.normal(size=4), rng.normal(size=1), 0.05
+    dx, Fd = discretize(A, A @ x + B @ u, dt)
+    big = expm(np.block([[A, B], [np.zeros((1, 5))]]) * dt)
+    np.testing.assert_allclose(Fd, big[:4, :4], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(x + dx, big[:4, :4] @ x + big[:4, 4:] @ u, rtol=1e-10, atol=1e-12)
