@@ -171,6 +171,7 @@ class CanopenHardware(HardwareInterface):
         bus = self._bus if self._bus is not None else make_bus(self.bus_cfg)
         self._bus = bus
         net = canopen.Network(bus)
+        net.NOTIFIER_CYCLE = 0.05          # bounded shutdown: the rx thread wakes every 50 ms
         net.listeners.append(self._errors)
         net.connect()
         self.network = net

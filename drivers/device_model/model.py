@@ -44,6 +44,7 @@ class DeviceModel:
         self.lock_step = lock_step
         self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
         self.network = DeviceNetwork(bus)
+        self.network.NOTIFIER_CYCLE = 0.05       # bounded shutdown
         self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
         self.encoders = [EncoderNode(i) for i in encoder_nodes]
         for node in self.drives + self.encoders:

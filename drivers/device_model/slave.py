@@ -67,7 +67,15 @@ class DeviceNetwork(canopen.Network):
 
 
 class _Nmt(NmtSlave):
-    """NmtSlave that reports state changes to its node and honours a suppressed heartbeat."""
+    """NmtSlave that reports state changes to its node and produces the heartbeat itself.
+
+    The heartbeat is sent by a small thread through the network's gate (so a bus-off node
+    falls silent) instead of the bus's periodic-send task: python-can-remote's task cannot
+    change its data (heartbeat state) and stops with the client."""
+
+    def __init__(self, node_id: int, local_node):
+        super().__init__(node_id, local_node)
+        self._hb_stop: threading.Event | None = None
 
     def on_command(self, can_id, data, timestamp):
         old = self._state
@@ -76,11 +84,28 @@ class _Nmt(NmtSlave):
             self._local_node.on_nmt_state(old, self._state)
 
     def start_heartbeat(self, heartbeat_time_ms: int):
-        if self._local_node.heartbeat_suppressed:
-            self._heartbeat_time_ms = heartbeat_time_ms
-            self.stop_heartbeat()
+        self._heartbeat_time_ms = heartbeat_time_ms
+        self.stop_heartbeat()
+        if heartbeat_time_ms <= 0 or self._local_node.heartbeat_suppressed:
             return
-        super().start_heartbeat(heartbeat_time_ms)
+        stop = self._hb_stop = threading.Event()
+        period = heartbeat_time_ms / 1000.0
+
+        def produce():
+            while not stop.wait(period):
+                try:
+                    self.network.send_message(0x700 + self.id, [self._state])
+                except Exception:  # noqa: BLE001 - bus closed: the node is gone
+                    return
+        threading.Thread(target=produce, name=f"heartbeat-{self.id}", daemon=True).start()
+
+    def stop_heartbeat(self):
+        if self._hb_stop is not None:
+            self._hb_stop.set()
+            self._hb_stop = None
+
+    def update_heartbeat(self):
+        pass                               # the producer reads the current state every period
 
 
 class SlaveNode(canopen.LocalNode):
