@@ -145,6 +145,8 @@ class CanopenHardware(HardwareInterface):
         self._rx_lock = threading.Lock()
         self._all_rx = threading.Event()
         self._arrived = 0
+        self._window_open = False
+        self._late_frames = 0
         self._hb_last = {}
         self._hb_state = {}
         self._emcy: dict[int, tuple[int, int, bytes] | None] = {}
@@ -369,6 +371,9 @@ class CanopenHardware(HardwareInterface):
 
         def on_tpdo(can_id, data, timestamp):
             with lock:
+                if not self._window_open:      # no SYNC waiting: a frame of an earlier cycle
+                    self._late_frames += 1
+                    return
                 k = min(len(data), 8)
                 slot.buf[:k] = data[:k]
                 slot.count += 1
@@ -423,10 +428,19 @@ class CanopenHardware(HardwareInterface):
                 s.count = 0
             self._arrived = 0
             self._all_rx.clear()
+            if self._late_frames:
+                m.faults |= FaultFlag.FRAME_LATE
+                self._late_frames = 0
+            self._window_open = True
         t_sync = self.clock()
-        self._send(self._sync_msg, "SYNC")
+        try:
+            self._send(self._sync_msg, "SYNC")
+        except BaseException:
+            self._window_open = False
+            raise
         self._all_rx.wait(self.pdo_timeout)
         with self._rx_lock:
+            self._window_open = False
             for s in self._slots:
                 s.snap[:] = s.buf
                 s.snap_count = s.count

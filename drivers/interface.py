@@ -19,7 +19,7 @@ class FaultFlag(enum.IntFlag):
 
     NONE = 0
     PDO_MISSING = 1 << 0        # a TPDO of this cycle did not arrive (values held from the last cycle)
-    FRAME_LATE = 1 << 1         # a TPDO arrived twice in one cycle: the first was a late one
+    FRAME_LATE = 1 << 1         # a TPDO arrived outside its cycle's window (after the timeout)
     HEARTBEAT_LOST = 1 << 2
     EMCY = 1 << 3
     ENCODER_JUMP = 1 << 4

@@ -17,11 +17,12 @@ class StandInPlant:
         self.dq = np.zeros(n)
         self.dtheta_m = np.zeros(n)
         self.M, self.J, self.D_m, self.K_s, self.D_s, self.g = M, J, D_m, K_s, D_s, gravity
-        self.steps = []          # (t, tau_m, tau_h_act) of every step, for assertions
+        self.steps = []          # (t, tau_m, tau_h_act, q, theta_m) at the start of every step
 
     def step(self, tau_m, dt, tau_h_act):
         tau_m = np.asarray(tau_m, float)
-        self.steps.append((self.t, tau_m.copy(), np.asarray(tau_h_act, float).copy()))
+        self.steps.append((self.t, tau_m.copy(), np.asarray(tau_h_act, float).copy(), self.q.copy(),
+                           self.theta_m.copy()))
         h = dt / 10
         for _ in range(10):
             tau_s = self.K_s * (self.theta_m - self.q) + self.D_s * (self.dtheta_m - self.dq)

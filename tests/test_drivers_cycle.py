@@ -1,0 +1,120 @@
+"""HIL: the PDO-only cycle — torque to the plant, positions back, conversions, unwrapping."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from _hil import bus_kind, make_rig, remote_url  # noqa: F401  (fixtures)
+from _plant_standin import StandInPlant
+from drivers.canopen_hw import interpolation_period
+
+Q = 2 * math.pi / 2**19               # load encoder quantum [rad]
+QM = 2 * math.pi / (2**19 * 100)      # motor encoder quantum, joint side [rad]
+
+
+def step_at(plant, i, timeout=2.0):
+    """plant.steps[i], waiting for the device model's thread to have made that step."""
+    deadline = time.monotonic() + timeout
+    while len(plant.steps) <= i:
+        assert time.monotonic() < deadline, f"the device model made only {len(plant.steps)} steps"
+        time.sleep(0.0005)
+    return plant.steps[i]
+
+
+def test_torque_reaches_plant_and_positions_come_back(make_rig):
+    rig = make_rig()
+    rig.hw.start()
+    plant = rig.plant
+    first = len(plant.steps)                       # the priming cycle stepped the plant once
+    taus = 3.0 * np.sin(np.arange(60) * 0.2)
+    for k, tau in enumerate(taus):
+        m = rig.hw.read()
+        # the TPDOs of SYNC k show the plant at the start of the step that SYNC k triggered
+        t0, _, _, q_true, th_true = step_at(plant, first + k)
+        assert q_true[0] - Q <= m.q[0] <= q_true[0] + 1e-15
+        assert th_true[0] - QM <= m.theta_m[0] <= th_true[0] + 1e-15
+        assert m.t == pytest.approx((k + 1) * 0.01) and m.valid and m.faults == 0
+        rig.hw.write(np.array([tau]))
+    rig.hw.read()
+    step_at(plant, first + len(taus))
+    # synchronous RPDO: the torque written in cycle k is actuated at SYNC k+1, quantised to 1 ‰ = 0.01 N m
+    applied = np.array([s[1][0] for s in plant.steps[first + 1:first + 1 + len(taus)]])
+    assert np.allclose(applied, np.round(taus / 0.01) * 0.01, atol=1e-12)
+    assert np.ptp([s[3][0] for s in plant.steps]) > 0.01          # the link really moved
+
+
+def test_counts_to_radians_exact(make_rig):
+    rig = make_rig(plant=StandInPlant(q0=1.0))
+    rig.hw.start()
+    m = rig.hw.read()
+    qc, pc = int(m.q_counts[0]), int(m.theta_m_counts[0])
+    assert m.q[0] == qc * (2 * math.pi / 2**19)
+    assert m.theta_m[0] == pc * (2 * math.pi / (2**19 * 100.0))
+    # and the counts are the floor-quantised true angles
+    assert qc == math.floor(1.0 / Q) and pc == math.floor(1.0 / QM)
+
+
+def test_offsets_are_subtracted(make_rig):
+    rig = make_rig(plant=StandInPlant(q0=0.5), q_offset=(0.1,), theta_m_offset=(-0.2,))
+    rig.hw.start()
+    m = rig.hw.read()
+    assert m.q[0] == pytest.approx(0.4, abs=Q) and m.theta_m[0] == pytest.approx(0.7, abs=QM)
+
+
+def test_load_encoder_unwraps_across_zero(make_rig):
+    # single-turn load encoder: q crossing 0 makes the raw count wrap between 0 and 2^19 - 1
+    rig = make_rig(plant=StandInPlant(q0=0.004))
+    rig.hw.start()
+    plant, raw, q = rig.plant, [], []
+    for k in range(80):
+        m = rig.hw.read()
+        raw.append(int(m.q_counts[0]))
+        q.append(m.q[0])
+        assert abs(m.q[0] - step_at(plant, k + 1)[3][0]) <= Q
+        rig.hw.write(np.array([-2.0]))
+    assert max(raw) > 2**19 - 2**16 and min(raw) < 2**16          # the raw count wrapped
+    assert min(q) < -0.01 and np.all(np.abs(np.diff(q)) < 0.05)   # the angle did not
+
+
+def test_motor_position_unwraps_across_int32(make_rig):
+    # 0x6064 is int32: start just below +2^31 and drive the motor forward through the wrap
+    counts0 = math.floor(0.3 / QM)
+    preset = 2**31 - 200_000 - counts0
+    rig = make_rig(position_preset=preset, theta_m_offset=(preset * QM,))
+    rig.hw.start()
+    raw, err = [], []
+    for k in range(60):
+        m = rig.hw.read()
+        raw.append(int(m.theta_m_counts[0]))
+        err.append(m.theta_m[0] - step_at(rig.plant, k + 1)[4][0])
+        rig.hw.write(np.array([4.0]))
+    assert max(raw) > 2**31 - 200_000 and min(raw) < -2**31 + 2**24              # wrapped
+    assert np.max(np.abs(err)) < QM * (1 + 1e-3) + abs(preset * QM) * 1e-15     # θ_m stayed continuous
+
+
+def test_torque_permille_round_trip_and_limit(make_rig):
+    rig = make_rig()
+    rig.hw.start()
+    hw, plant = rig.hw, rig.plant
+    for tau, expect in ((1.234, 1.23), (-0.016, -0.02), (50.0, 10.0), (-50.0, -10.0), (float("nan"), 0.0)):
+        hw.read()
+        hw.write(np.array([tau]))
+        hw.read()                                          # SYNC that actuates it
+        assert step_at(plant, rig.model.syncs - 1)[1][0] == pytest.approx(expect, abs=1e-12)
+        assert rig.drive.applied_permille == round(expect * 100)
+        hw.write(np.array([tau]))
+        m = hw.read()                                      # 0x6077: torque over the cycle that ended
+        assert m.tau_m_applied[0] == pytest.approx(expect, abs=1e-12)
+    assert hw.nm_per_permille == pytest.approx(100 / 1e6 * 100)
+
+
+def test_interpolation_period_encoding():
+    assert interpolation_period(0.01) == (10, -3)
+    assert interpolation_period(0.001) == (1, -3)
+    assert interpolation_period(0.0025) == (25, -4)
+    assert interpolation_period(0.5) == (5, -1)
+    with pytest.raises(ValueError):
+        interpolation_period(1000.0)
