@@ -445,6 +445,7 @@ class CanopenHardware(HardwareInterface):
                 s.snap[:] = s.buf
                 s.snap_count = s.count
         self._cycle += 1
+        self._check_emcy()                 # an EMCY sent before the TPDOs has arrived before them
         m.cycle = self._cycle
         m.t = self._cycle * self.period
         m.t_mono = t_sync
@@ -468,15 +469,18 @@ class CanopenHardware(HardwareInterface):
         self._decode(m)
         return m
 
-    def _check_async(self) -> None:
-        """Faults that arrive between cycles: EMCY, heartbeat, bus-off."""
-        if self._errors.bus_off:
-            raise BusOff("error frame with the bus-off flag received")
+    def _check_emcy(self) -> None:
         for node, e in self._emcy.items():
             if e is not None:
                 self._emcy[node] = None
                 self.meas.faults |= FaultFlag.EMCY
                 raise EmcyReceived(node, e[0], e[1], e[2], EmcyError(e[0], e[1], e[2], 0.0).get_desc())
+
+    def _check_async(self) -> None:
+        """Faults that arrive between cycles: EMCY, heartbeat, bus-off."""
+        if self._errors.bus_off:
+            raise BusOff("error frame with the bus-off flag received")
+        self._check_emcy()
         now = self.clock()
         for node, last in self._hb_last.items():
             if last is None or now - last > self.hb_timeout:
