@@ -152,3 +152,12 @@ def test_scheduled_fault_fires_at_device_time(bench):
         net.sync.transmit()
     wait(lambda: model.syncs == 5)
     assert e.frozen is not None
+
+
+def test_device_model_command_rejects_bad_input(capsys):
+    from sea_daemon.cli import main
+    assert main(["device-model", "--bus", "remote", "--channel", "127.0.0.1:5000"]) == 2
+    assert "the remote bus needs ws://HOST:PORT/" in capsys.readouterr().err
+    assert main(["device-model", "--fault", "melt"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fault kind 'melt': allowed drop, delay" in err

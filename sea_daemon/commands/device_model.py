@@ -56,14 +56,20 @@ def run(args) -> int:
     from drivers.bus import make_bus
     from drivers.device_model import DeviceModel, parse_fault
 
+    from drivers.errors import DeviceMismatch
+
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]
-    plant, cfg = _plant(args, cfg)
     b = cfg.hardware.bus
     b = dataclasses.replace(b, interface=args.bus or b.interface, channel=args.channel or b.channel)
     if b.interface == "remote" and not b.channel.startswith(("ws://", "wss://")):
         raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
-    bus = make_bus(b)
+    plant, cfg = _plant(args, cfg)
+    b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel)
+    try:
+        bus = make_bus(b)
+    except DeviceMismatch as e:
+        raise InputError(str(e)) from None
     model = DeviceModel(bus, plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
                         lock_step=not args.free_running, position_preset=args.position_preset, owns_bus=True)
     stop = threading.Event()
