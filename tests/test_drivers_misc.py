@@ -1,0 +1,68 @@
+"""Two joints on one bus, the simulator-backed hardware, the bus factory."""
+from __future__ import annotations
+
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from _plant_standin import StandInPlant
+from drivers.bus import make_bus, socketcan_available
+from drivers.canopen_hw import CanopenHardware
+from drivers.device_model import DeviceModel
+from drivers.errors import DeviceMismatch
+from drivers.sim_hw import SimHardware
+from sea_daemon.config import BusConfig, ModelConfig, default_config_path, load_yaml
+
+
+def test_two_joints_on_one_bus():
+    raw = load_yaml(default_config_path())
+    raw.update(joints=2, estimator={}, learning={})
+    raw["hardware"]["bus"] = {"channel": f"two-{uuid.uuid4().hex[:6]}", "heartbeat_ms": 20, "pdo_timeout_ms": 500}
+    cfg = ModelConfig.from_dict(raw, "two.yaml")
+    b = cfg.hardware.bus
+    assert b.drive_node == (1, 3) and b.encoder_node == (2, 4)
+    plant = StandInPlant(n=2, q0=0.2)
+    model = DeviceModel(can.Bus(interface="virtual", channel=b.channel), plant, drive_nodes=b.drive_node,
+                        encoder_nodes=b.encoder_node, owns_bus=True).start()
+    bus = can.Bus(interface="virtual", channel=b.channel)
+    hw = CanopenHardware(cfg, bus)
+    try:
+        hw.start()
+        for _ in range(40):
+            m = hw.read()
+            hw.write(np.array([1.0, -1.0]))
+        assert m.tau_m_applied.tolist() == [1.0, -1.0]
+        assert m.q[0] > 0.25 and m.q[1] < 0.15                 # each joint got its own torque
+    finally:
+        hw.stop()
+        model.stop()
+        bus.shutdown()
+
+
+def test_sim_hardware_steps_the_plant():
+    plant = StandInPlant(q0=0.1)
+    hw = SimHardware(plant, 0.01, torque_limit=5.0)
+    with hw:
+        m = hw.read()
+        assert m.q[0] == 0.1 and m.t == 0.0
+        hw.write(np.array([9.0]))
+        assert plant.steps[-1][1][0] == 5.0 and plant.t == pytest.approx(0.01)
+        hw.safe_stop()
+        hw.write(np.array([3.0]))
+        assert plant.steps[-1][1][0] == 0.0
+        hw.reset_fault()
+        hw.write(np.array([3.0]))
+        assert hw.read().tau_m_applied[0] == 3.0 and hw.meas.cycle == 1
+
+
+def test_make_bus_reports_what_it_cannot_open():
+    ok, why = socketcan_available("vcan0")
+    if not ok:
+        with pytest.raises(DeviceMismatch, match=r"bus: socketcan vcan0: no network interface 'vcan0'"):
+            make_bus(BusConfig(interface="socketcan", channel="vcan0"))
+    with pytest.raises(DeviceMismatch, match=r"bus: remote bus 'ws://127.0.0.1:9/': cannot open"):
+        make_bus(BusConfig(interface="remote", channel="ws://127.0.0.1:9/"))
+    bus = make_bus(BusConfig(interface="virtual", channel="x"))
+    bus.shutdown()
