@@ -118,16 +118,17 @@ def test_starts_in_static_equilibrium():
 
 
 def test_substep_refinement_converges():
-    """RK4 at the default substep agrees with a 4x finer one (friction with stiction included)."""
+    """RK4 at the default 1 kHz agrees with 8 kHz (friction with stiction included) to 1e-4 rad."""
     effs = [make_effect("coulomb", "load", F_c=0.4), make_effect("stribeck", "load", F_s=0.3, v_s=0.07),
             make_effect("gravity", "load", a=2.2, phi=0.0)]
     out = []
-    for hz in (2000.0, 8000.0):
+    for hz in (1000.0, 8000.0):
         p = Plant(quiet(nominal(), effs), q0=0.2, substep_hz=hz)
         for k in range(200):
             p.step(p.hold_torque + 2.0 * math.sin(0.05 * k), 0.01, 0.0)
         out.append(p.state)
-    np.testing.assert_allclose(out[0], out[1], atol=1e-5)
+    np.testing.assert_allclose(out[0][:2], out[1][:2], atol=1e-4)     # angles [rad]
+    np.testing.assert_allclose(out[0][2:4], out[1][2:4], atol=1e-3)   # velocities [rad/s]
 
 
 def test_too_coarse_substep_rejected():

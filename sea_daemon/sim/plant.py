@@ -14,8 +14,8 @@ Every effect type is honoured: additive ones through SEAModel's sums, ``inertia`
 into M/J, ``torque_scale`` κ, ``spring_backlash`` g, ``delay`` d through an input history,
 ``encoder_offset`` in the encoders (:mod:`.sensors`).
 
-Integration: classical RK4 on (q, θ_m, q̇, θ̇_m) at a fixed substep (default 2 kHz, i.e.
-20 substeps per 10 ms sample) with the motor torque and τ_h,act held over each
+Integration: classical RK4 on (q, θ_m, q̇, θ̇_m) at a fixed substep (default 1 kHz, i.e.
+10 substeps per 10 ms sample) with the motor torque and τ_h,act held over each
 ``step`` call (zero-order hold).  The friction sign is smoothed with tanh(v/sign_eps)
 (default 3e-3 rad/s): small enough to behave like stiction (the link sticks while
 |torque| < F_c + F_s), large enough that RK4 stays stable at the substep; the
@@ -40,7 +40,7 @@ from .sensors import Encoders, torque_noise
 #: default friction-sign smoothing of the true plant [rad/s]
 PLANT_SIGN_EPS = 3e-3
 #: default internal integration rate [Hz]
-SUBSTEP_HZ = 2000.0
+SUBSTEP_HZ = 1000.0
 
 
 class Plant:
@@ -249,11 +249,10 @@ class Plant:
         self._s_Dm = float(m.D_m[0, 0])
         self._s_Ks = float(m.K_s[0, 0])
         self._s_Ds = float(m.D_s[0, 0])
-        self._s_g = float(m.gravity[0])
         self._s_kappa = float(m.kappa[0])
-        self._s_load = [e.torque for e in m.load_effects]
-        self._s_motor = [e.torque for e in m.motor_effects]
-        self._s_spring = [e.torque for e in m.spring_effects]
+        self._s_load = _compile_side(m.load_effects, gravity=float(m.gravity[0]))
+        self._s_motor = _compile_side(m.motor_effects)
+        self._s_spring = _compile_side(m.spring_effects)
         bl = m.backlash.get(0)
         self._s_backlash = bl.deadband if bl is not None else None
 
@@ -262,19 +261,11 @@ class Plant:
         dths = dq - dth
         g = ths if self._s_backlash is None else self._s_backlash(ths)[0]
         # eq:spring_torque
-        tau_s = self._s_Ks * g + self._s_Ds * dths
-        for f in self._s_spring:
-            tau_s += f(ths, 0.0, 0.0)
-        mo = 0.0
-        for f in self._s_motor:
-            mo += f(th, dth, 0.0)
-        lo = 0.0
-        for f in self._s_load:
-            lo += f(q, dq, 0.0)
+        tau_s = self._s_Ks * g + self._s_Ds * dths + self._s_spring(ths, 0.0)
         # eq:thetadd
-        ddth = (self._s_kappa * u + tau_s - self._s_Dm * dth - mo) / self._s_J
-        # eq:unknwn_load solved for q̈ (f_res = None)
-        ddq = (tau_h - self._s_g * math.sin(q) - lo - tau_s) / self._s_M
+        ddth = (self._s_kappa * u + tau_s - self._s_Dm * dth - self._s_motor(th, dth)) / self._s_J
+        # eq:unknwn_load solved for q̈ (f_res = None); C(q) is inside the compiled load sum
+        ddq = (tau_h - self._s_load(q, dq) - tau_s) / self._s_M
         return ddq, ddth
 
     def _integrate_scalar(self, t0: float, h: float, k: int) -> None:
@@ -318,3 +309,75 @@ class Plant:
         if lam * self.h_max > 2.5:
             raise ValueError(f"substep {self.h_max:g} s too coarse for the plant's stiffest mode "
                              f"(|λ| ≈ {lam:.0f} 1/s); use substep_hz >= {lam / 2.5:.0f}")
+
+
+def _compile_side(effects, gravity: float = 0.0):
+    """Σ e.torque(angle, vel, 0) (+ gravity·sin(angle)) as one fast scalar function.
+
+    The common types are folded into coefficients (same formulas as :mod:`sea_daemon.effects`):
+    linear a0 + a1·angle + b·vel (viscous, human_viscoelastic), A sin + B cos (gravity:
+    Σ a sin(angle + φ) = (Σ a cos φ) sin angle + (Σ a sin φ) cos angle), Coulomb and
+    Stribeck friction, the spring stop; any other type is called as is.
+    """
+    from ..effects import (Coulomb, Gravity, HumanViscoelastic, SpringSaturation, Stribeck, Viscous)
+    c0 = c1 = b = 0.0
+    A, B = gravity, 0.0
+    coul: list[tuple[float, float]] = []
+    strib: list[tuple[float, float, float]] = []
+    stops: list[tuple[float, float, float]] = []
+    other = []
+    for e in effects:
+        if isinstance(e, Viscous):
+            b += e.b
+        elif isinstance(e, HumanViscoelastic):
+            c1 += e.k_h
+            c0 -= e.k_h * e.q_h0
+            b += e.b_h
+        elif isinstance(e, Gravity):
+            A += e.a * math.cos(e.phi)
+            B += e.a * math.sin(e.phi)
+        elif isinstance(e, Coulomb):
+            coul.append((e.F_c, e.eps))
+        elif isinstance(e, Stribeck):
+            strib.append((e.F_s, 1.0 / e.v_s, e.eps))
+        elif isinstance(e, SpringSaturation):
+            stops.append((e.theta_max, e.k_stop, e.smooth))
+        else:
+            other.append(e.torque)
+    tanh, exp, sin, cos, log1p = math.tanh, math.exp, math.sin, math.cos, math.log1p
+
+    def softplus(x: float, w: float) -> float:
+        z = x / w
+        if z > 30.0:
+            return x
+        if z < -30.0:
+            return 0.0
+        return w * log1p(exp(z))
+
+    def f(angle: float, vel: float) -> float:
+        tau = c0 + c1 * angle + b * vel
+        if A:
+            tau += A * sin(angle)
+        if B:
+            tau += B * cos(angle)
+        for F, eps in coul:
+            tau += F * tanh(vel / eps)
+        for F, ivs, eps in strib:
+            r = vel * ivs
+            tau += F * exp(-r * r) * tanh(vel / eps)
+        for tm, k, w in stops:
+            if angle > tm - 30.0 * w:
+                tau += k * softplus(angle - tm, w)
+            elif angle < 30.0 * w - tm:
+                tau -= k * softplus(-angle - tm, w)
+        for g in other:
+            tau += g(angle, vel, 0.0)
+        return tau
+
+    if not (effects or gravity):
+        return _zero
+    return f
+
+
+def _zero(angle: float, vel: float) -> float:
+    return 0.0

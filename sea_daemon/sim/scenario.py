@@ -8,7 +8,7 @@ drives the exoskeleton, and how long the training and estimation phases are::
     seed: 1                        # motor-torque noise (overridable by --seed)
     human: passive                 # passive (τ_h,act = 0) | resist (τ_h,act = −τ_des)
     plant:
-      substep_hz: 2000             # internal RK4 rate [Hz]
+      substep_hz: 1000             # internal RK4 rate [Hz]
       sign_eps: 0.003              # friction-sign smoothing of the true plant [rad/s]
       torque_noise: 0.02           # optional override of hardware.torque_noise [N m]
       effects:                     # hidden effects, contracts §2 vocabulary
@@ -63,7 +63,7 @@ class PlantSpec:
     """The true plant: hidden effects and integration settings."""
 
     effects: tuple[Effect, ...] = ()
-    substep_hz: float = 2000.0
+    substep_hz: float = 1000.0
     sign_eps: float = 3e-3
     torque_noise: float | None = None
 
@@ -79,7 +79,7 @@ class PlantSpec:
             raise ConfigError(source, "plant.effects", f"must be a list of effect mappings, got {eff!r}")
         return cls(
             effects=tuple(effect_from_dict(e, n, source, f"plant.effects[{i}]") for i, e in enumerate(eff)),
-            substep_hz=_num(source, "plant.substep_hz", d.get("substep_hz", 2000.0), lo=10.0, hi=1e6),
+            substep_hz=_num(source, "plant.substep_hz", d.get("substep_hz", 1000.0), lo=10.0, hi=1e6),
             sign_eps=_num(source, "plant.sign_eps", d.get("sign_eps", 3e-3), positive=True),
             torque_noise=(None if d.get("torque_noise") is None else
                           _num(source, "plant.torque_noise", d["torque_noise"], non_negative=True)),
