@@ -3,7 +3,7 @@
 Bus kinds: ``virtual`` (python-can, in-process), ``remote`` (python-can-remote: a
 ``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
 (``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
-the test-only stand-in plant until the simulator lands.
+the simulator's true plant (:class:`sea_daemon.sim.plant.Plant`), recording its steps.
 """
 from __future__ import annotations
 
@@ -15,15 +15,41 @@ import time
 import uuid
 
 import can
+import numpy as np
 import pytest
 
-from _plant_standin import StandInPlant
 from drivers.bus import make_bus, socketcan_available
 from drivers.canopen_hw import CanopenHardware
 from drivers.device_model import DeviceModel
-from sea_daemon.config import default_config_path, load_config
+from sea_daemon.config import ModelConfig, default_config_path, load_config, load_yaml
+from sea_daemon.sim.plant import Plant
 
 BUS_KINDS = ["virtual", "remote", "socketcan"]
+
+
+class RecordingPlant(Plant):
+    """The simulator's plant, remembering (t, tau_m, tau_h_act, q, theta_m) at the start of every step."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.steps = []
+
+    def step(self, tau_m, dt, tau_h_act=0.0):
+        self.steps.append((self.t, np.array(tau_m, dtype=float), np.array(tau_h_act, dtype=float),
+                           self.q, self.theta_m))
+        super().step(tau_m, dt, tau_h_act)
+
+
+def true_config(joints: int = 1) -> ModelConfig:
+    raw = load_yaml(default_config_path())
+    if joints != 1:
+        raw.update(joints=joints, estimator={}, learning={})
+    return ModelConfig.from_dict(raw, f"exo_{joints}dof")
+
+
+def recording_plant(q0=0.3, joints: int = 1) -> RecordingPlant:
+    """The default exoskeleton at rest at q0 (motor holding it), without torque noise."""
+    return RecordingPlant(true_config(joints), q0=q0, seed=0, torque_noise=0.0)
 
 
 def free_port() -> int:
@@ -76,7 +102,7 @@ class Rig:
 
     def __init__(self, cfg, plant=None, position_preset: int = 0, lock_step: bool = True, tau_h_act=None):
         self.cfg = cfg
-        self.plant = plant or StandInPlant(q0=0.3)
+        self.plant = plant or recording_plant(0.3)
         self.dev_bus = make_bus(cfg.hardware.bus)
         self.drv_bus = make_bus(cfg.hardware.bus)
         b = cfg.hardware.bus

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from _plant_standin import StandInPlant
+from _hil import recording_plant
 from drivers import cia402
 from drivers.canopen_hw import DRIVE_EDS
 from drivers.device_model import DeviceModel, parse_fault
@@ -21,7 +21,7 @@ from sea_daemon.errors import InputError
 def bench():
     """Device model + a bare canopen master (RemoteNode for the drive) on one virtual channel."""
     ch = f"dm-{uuid.uuid4().hex[:8]}"
-    plant = StandInPlant(q0=0.2)
+    plant = recording_plant(q0=0.2)
     model = DeviceModel(can.Bus(interface="virtual", channel=ch), plant, owns_bus=True).start()
     net = canopen.Network(can.Bus(interface="virtual", channel=ch))
     net.NOTIFIER_CYCLE = 0.05
@@ -119,7 +119,7 @@ def test_rpdo_acts_at_the_next_sync_and_tpdo_every_nth_sync(bench):
 
 def test_free_running_mode_steps_without_sync():
     ch = f"dm-{uuid.uuid4().hex[:8]}"
-    plant = StandInPlant()
+    plant = recording_plant()
     model = DeviceModel(can.Bus(interface="virtual", channel=ch), plant, lock_step=False, owns_bus=True).start()
     try:
         wait(lambda: plant.t >= 0.05)

@@ -7,8 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from _hil import bus_kind, make_rig, remote_url  # noqa: F401  (fixtures)
-from _plant_standin import StandInPlant
+from _hil import bus_kind, make_rig, recording_plant, remote_url  # noqa: F401  (fixtures)
 from drivers.canopen_hw import interpolation_period
 
 Q = 2 * math.pi / 2**19               # load encoder quantum [rad]
@@ -47,26 +46,29 @@ def test_torque_reaches_plant_and_positions_come_back(make_rig):
 
 
 def test_counts_to_radians_exact(make_rig):
-    rig = make_rig(plant=StandInPlant(q0=1.0))
+    rig = make_rig(plant=recording_plant(q0=1.0))
     rig.hw.start()
     m = rig.hw.read()
     qc, pc = int(m.q_counts[0]), int(m.theta_m_counts[0])
     assert m.q[0] == qc * (2 * math.pi / 2**19)
     assert m.theta_m[0] == pc * (2 * math.pi / (2**19 * 100.0))
-    # and the counts are the floor-quantised true angles
-    assert qc == math.floor(1.0 / Q) and pc == math.floor(1.0 / QM)
+    # and the counts are the floor-quantised true angles of that SYNC
+    _, _, _, q_true, th_true = step_at(rig.plant, 1)
+    assert qc == math.floor(q_true[0] / Q) and pc == math.floor(th_true[0] / QM)
 
 
 def test_offsets_are_subtracted(make_rig):
-    rig = make_rig(plant=StandInPlant(q0=0.5), q_offset=(0.1,), theta_m_offset=(-0.2,))
+    rig = make_rig(plant=recording_plant(q0=0.5), q_offset=(0.1,), theta_m_offset=(-0.2,))
     rig.hw.start()
     m = rig.hw.read()
-    assert m.q[0] == pytest.approx(0.4, abs=Q) and m.theta_m[0] == pytest.approx(0.7, abs=QM)
+    _, _, _, q_true, th_true = step_at(rig.plant, 1)
+    assert m.q[0] == pytest.approx(q_true[0] - 0.1, abs=Q)
+    assert m.theta_m[0] == pytest.approx(th_true[0] + 0.2, abs=QM)
 
 
 def test_load_encoder_unwraps_across_zero(make_rig):
     # single-turn load encoder: q crossing 0 makes the raw count wrap between 0 and 2^19 - 1
-    rig = make_rig(plant=StandInPlant(q0=0.004))
+    rig = make_rig(plant=recording_plant(q0=0.004))
     rig.hw.start()
     plant, raw, q = rig.plant, [], []
     for k in range(80):
@@ -81,9 +83,10 @@ def test_load_encoder_unwraps_across_zero(make_rig):
 
 def test_motor_position_unwraps_across_int32(make_rig):
     # 0x6064 is int32: start just below +2^31 and drive the motor forward through the wrap
-    counts0 = math.floor(0.3 / QM)
+    plant = recording_plant(0.3)
+    counts0 = math.floor(plant.theta_m[0] / QM)
     preset = 2**31 - 200_000 - counts0
-    rig = make_rig(position_preset=preset, theta_m_offset=(preset * QM,))
+    rig = make_rig(plant=plant, position_preset=preset, theta_m_offset=(preset * QM,))
     rig.hw.start()
     raw, err = [], []
     for k in range(60):

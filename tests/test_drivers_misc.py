@@ -7,7 +7,7 @@ import can
 import numpy as np
 import pytest
 
-from _plant_standin import StandInPlant
+from _hil import recording_plant
 from drivers.bus import make_bus, socketcan_available
 from drivers.canopen_hw import CanopenHardware
 from drivers.device_model import DeviceModel
@@ -23,7 +23,7 @@ def test_two_joints_on_one_bus():
     cfg = ModelConfig.from_dict(raw, "two.yaml")
     b = cfg.hardware.bus
     assert b.drive_node == (1, 3) and b.encoder_node == (2, 4)
-    plant = StandInPlant(n=2, q0=0.2)
+    plant = recording_plant(0.2, joints=2)
     model = DeviceModel(can.Bus(interface="virtual", channel=b.channel), plant, drive_nodes=b.drive_node,
                         encoder_nodes=b.encoder_node, owns_bus=True).start()
     bus = can.Bus(interface="virtual", channel=b.channel)
@@ -42,11 +42,11 @@ def test_two_joints_on_one_bus():
 
 
 def test_sim_hardware_steps_the_plant():
-    plant = StandInPlant(q0=0.1)
+    plant = recording_plant(q0=0.1)
     hw = SimHardware(plant, 0.01, torque_limit=5.0)
     with hw:
         m = hw.read()
-        assert m.q[0] == 0.1 and m.t == 0.0
+        assert m.q[0] == pytest.approx(0.1, abs=2e-5) and m.t == 0.0
         hw.write(np.array([9.0]))
         assert plant.steps[-1][1][0] == 5.0 and plant.t == pytest.approx(0.01)
         hw.safe_stop()
