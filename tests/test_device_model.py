@@ -161,3 +161,19 @@ def test_device_model_command_rejects_bad_input(capsys):
     assert main(["device-model", "--fault", "melt"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "fault kind 'melt': allowed drop, delay" in err
+
+
+def test_human_torque_follows_the_scenario():
+    from drivers.device_model.human import human_torque
+    from sea_daemon.config import repo_root
+    from sea_daemon.control import cosine_torque
+    from sea_daemon.sim.scenario import load_scenario
+    active = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
+    passive = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
+    assert active.human == "resist" and passive.human == "passive"
+    f = human_torque(active)
+    t_est = active.training_samples * active.nominal.dt
+    c = active.controller
+    assert f(0.5 * t_est)[0] == 0.0
+    assert f(t_est + 2.5)[0] == pytest.approx(-cosine_torque(2.5, c.amplitude, c.frequency_hz, c.offset))
+    assert not np.any(human_torque(passive)(t_est + 2.5))

@@ -47,9 +47,10 @@ def _plant(args, cfg):
     if args.scenario:
         from ..sim.runner import make_plant
         from ..sim.scenario import load_scenario
+        from drivers.device_model.human import human_torque
         sc = load_scenario(args.scenario)
-        return make_plant(sc, args.seed), sc.nominal
-    return Plant(cfg, q0=args.q0, seed=args.seed), cfg
+        return make_plant(sc, args.seed), sc.nominal, human_torque(sc)
+    return Plant(cfg, q0=args.q0, seed=args.seed), cfg, None
 
 
 def run(args) -> int:
@@ -64,14 +65,15 @@ def run(args) -> int:
     b = dataclasses.replace(b, interface=args.bus or b.interface, channel=args.channel or b.channel)
     if b.interface == "remote" and not b.channel.startswith(("ws://", "wss://")):
         raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
-    plant, cfg = _plant(args, cfg)
+    plant, cfg, tau_h_act = _plant(args, cfg)
     b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel)
     try:
         bus = make_bus(b)
     except DeviceMismatch as e:
         raise InputError(str(e)) from None
     model = DeviceModel(bus, plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                        lock_step=not args.free_running, position_preset=args.position_preset, owns_bus=True)
+                        lock_step=not args.free_running, position_preset=args.position_preset, owns_bus=True,
+                        tau_h_act=tau_h_act)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
