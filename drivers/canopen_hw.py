@@ -154,6 +154,7 @@ class CanopenHardware(HardwareInterface):
         self._rpdo_msgs: list[can.Message] = []
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
         self._cw = cia402.CW_ENABLE_OPERATION
+        self._quick_stopped = False
         self._u_q = [0] * n            # unwrapped load counts
         self._u_m = [0] * n            # unwrapped motor counts (with the turn fixed at start)
         self._raw_q = [0] * n
@@ -504,7 +505,9 @@ class CanopenHardware(HardwareInterface):
             if sw & 0x6F != cia402.State.OPERATION_ENABLED.bits and self._primed:
                 m.faults |= FaultFlag.DRIVE_STATE
                 st = cia402.state_of(sw)
-                raise DriveFault(ds.node, sw, st.name if st else "invalid")
+                if not (self._quick_stopped and st is not cia402.State.FAULT):
+                    raise DriveFault(ds.node, sw, st.name if st else "invalid")
+                # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
             rng = self.enc_range[j]
             if not self._primed:
                 # load: single-turn absolute, centred on (-range/2, range/2]
@@ -559,6 +562,7 @@ class CanopenHardware(HardwareInterface):
         if self.network is None:
             return
         self._cw = cia402.CW_QUICK_STOP
+        self._quick_stopped = True
         try:
             for msg in self._rpdo_msgs:
                 DRIVE_RPDO.pack_into(msg.data, 0, cia402.CW_QUICK_STOP, 0)
@@ -575,6 +579,7 @@ class CanopenHardware(HardwareInterface):
             self._emcy[k] = None
         self._errors.bus_off = False
         self._cw = cia402.CW_ENABLE_OPERATION
+        self._quick_stopped = False
         for drive in self.drives:
             self._enable(drive)
         self._prime()

@@ -185,3 +185,19 @@ def test_loop_latches_and_quick_stops_the_drive(make_rig):
     assert loop.supervisor.latched is Fault.ENCODER_JUMP and loop.supervisor.latched_cycle == 6
     assert rig.drive.sm.state is cia402.State.QUICK_STOP_ACTIVE
     assert rig.drive.torque_command() == 0.0
+
+
+def test_after_safe_stop_reads_go_on_with_zero_torque(make_rig):
+    rig = started(make_rig)
+    rig.hw.safe_stop()
+    m = rig.hw.read()
+    assert rig.drive.sm.state is cia402.State.QUICK_STOP_ACTIVE
+    assert m.valid and m.faults & FaultFlag.DRIVE_STATE            # flagged, not raised: it was asked for
+    rig.hw.write(np.array([3.0]))
+    rig.hw.read()
+    assert rig.drive.applied_permille == 0
+    rig.hw.reset_fault()                                            # operator reset: enabled again
+    rig.hw.write(np.array([3.0]))
+    rig.hw.read()
+    m = rig.hw.read()
+    assert m.faults == 0 and rig.drive.applied_permille == 300
