@@ -176,10 +176,17 @@ class AKF:
 
     # ------------------------------------------------------------------ API
 
-    def reset(self, q, theta_m, tau_m=None, x0=None, P0=None) -> Estimate:
+    def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """Initialise from the first sample: x̂₀ measured (velocities 0, τ_h,act = 0),
-        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau)."""
+        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).
+
+        Without a sample (``reset()``) the next :meth:`update` initialises instead.
+        """
         n = self.n
+        if q is None or theta_m is None:
+            self._ready = False
+            self.est.k = 0
+            return self.est
         self.kin._primed = False
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
         y = self.measure(q, theta_m)
@@ -292,7 +299,7 @@ class AKF:
         P *= 0.5
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
-                                 f"(|x| max {np.nanmax(np.abs(x)):.3g}); the model or noise settings diverge")
+                                 f"(non-finite measurement or diverging model/noise settings)")
         self.est.k += 1
         return self._fill_estimate()
 

@@ -38,7 +38,8 @@ class Estimate:
 class Estimator(Protocol):
     """Online estimator of τ_h,act from the encoders and the motor torque.
 
-    ``reset(q, theta_m, tau_m)`` initialises from the first sample; ``update(q, theta_m,
+    ``reset(q, theta_m, tau_m)`` initialises from the first sample (``reset()`` without a
+    sample: the next ``update`` initialises); ``update(q, theta_m,
     tau_m, dt)`` consumes one sample (raw encoder angles, joint side; motor torque; time
     since the previous sample, default the configured period) and returns the estimator's
     preallocated :class:`Estimate` (overwritten by the next call).
@@ -47,7 +48,7 @@ class Estimator(Protocol):
     n: int
     name: str
 
-    def reset(self, q, theta_m, tau_m=None) -> Estimate: ...
+    def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate: ...
 
     def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate: ...
 

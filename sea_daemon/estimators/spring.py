@@ -42,8 +42,13 @@ class SpringTorqueEstimator:
         self.est = Estimate.zeros(n)
         self._ready = False
 
-    def reset(self, q, theta_m, tau_m=None) -> Estimate:
+    def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate:
+        """Restart the differentiator at this sample (``reset()``: at the next update)."""
         self.kin._primed = False
+        if q is None or theta_m is None:
+            self._ready = False
+            self.est.k = 0
+            return self.est
         self._ready = True
         self.est.k = -1
         return self.update(q, theta_m, tau_m)
