@@ -12,7 +12,7 @@ from sea_daemon.model import SEAModel
 
 
 def simulate(model: SEAModel, T: float = 3.0, rate: float = 100.0, tau_m=None, tau_h=None,
-             substeps: int = 10, bits: int | None = 19, seed: int = 0, x0=None) -> MeasuredLog:
+             substeps: int = 4, bits: int | None = 19, seed: int = 0, x0=None) -> MeasuredLog:
     """Simulate; ``tau_m(t)``/``tau_h(t)`` callables returning (n,) arrays (default: sines / 0)."""
     n = model.n
     rng = np.random.default_rng(seed)

@@ -79,7 +79,7 @@ def test_akf_equals_textbook_kf_on_linear_plant(n, est, tol):
     P = np.array(cfg.estimator.P0)
     akf.x[:] = x
     akf.P[:] = P
-    for k in range(200):
+    for k in range(100):
         u = rng.normal(size=n)
         y = rng.normal(size=4 * n) * 0.1
         x, P = kf.step(x, P, u, y)
@@ -205,7 +205,7 @@ def rmse(out, log, start=20):
 def oracle_case():
     true_cfg = plant_cfg(ALL_EFFECTS)
     tau_h = lambda t: np.array([1.5 * np.sin(2 * np.pi * 0.4 * t) + 0.5])
-    log = simulate(SEAModel.from_config(true_cfg), T=3.0, tau_h=tau_h)
+    log = simulate(SEAModel.from_config(true_cfg), T=2.0, tau_h=tau_h)
     return true_cfg, log
 
 
@@ -221,7 +221,7 @@ def test_akf_tracks_active_torque_and_bound_covers(oracle_case):
     cfg = load_config(default_config_path())
     model = SEAModel.from_config(cfg)
     tau_h = lambda t: np.array([2.0 * np.sin(2 * np.pi * 0.3 * t)])
-    log = simulate(model, T=3.0, tau_h=tau_h, seed=3)
+    log = simulate(model, T=2.0, tau_h=tau_h, seed=3)
     out = run_est(AKF(cfg), log)
     assert rmse(out, log) < 0.3
     cover = np.mean(np.abs(out[20:, 0] - log.tau_h_act[20:, 0]) <= out[20:, 1])
@@ -243,7 +243,7 @@ def test_gp_akf_hook_removes_a_known_residual():
             return super().f_nom(x, u, f_res=r.f(np.array([q, dq, 0.0])))
 
     plant = Plant(cfg.model)
-    log = simulate(plant, T=3.0, tau_h=lambda t: np.array([np.sin(2 * np.pi * 0.5 * t)]), seed=2)
+    log = simulate(plant, T=2.0, tau_h=lambda t: np.array([np.sin(2 * np.pi * 0.5 * t)]), seed=2)
     plain = rmse(run_est(AKF(cfg), log), log)
     hooked_est = AKF(cfg, residual=r)
     hooked = rmse(run_est(hooked_est, log), log)
