@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 METHODS = ("ma", "savgol")
 
@@ -158,6 +157,8 @@ def smooth_derivatives(t, angle, window: int = 11, degree: int = 3):
     ends): no phase lag, for residuals and training data, not for online use.
     ``window`` is clipped to the log length (odd, > degree).
     """
+    from scipy.signal import savgol_filter   # lazy: scipy.signal is slow to import
+
     t = np.asarray(t, dtype=float)
     x = np.asarray(angle, dtype=float)
     N = x.shape[0]

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 
 @dataclass
@@ -66,4 +66,5 @@ class Residual(Protocol):
 
 def chi2_scale(delta: float, dof: int) -> float:
     """s with Pr(ξ ∈ E(ξ̄, sC)) = 1 − δ for a Gaussian ξ of dimension dof (eq:gaussianellipsoid)."""
-    return float(chi2.ppf(1.0 - delta, dof))
+    # χ²_dof quantile: 2·P⁻¹(dof/2, 1 − δ) (regularised lower incomplete gamma inverse)
+    return float(2.0 * gammaincinv(0.5 * dof, 1.0 - delta))
