@@ -28,7 +28,7 @@ encoders, failed sends and bus-off.
 
 The synchronous RPDO written in cycle k is actuated by the drive at SYNC k+1 and acts over
 [t_k+1, t_k+2]; :attr:`Measurement.tau_m_applied` (0x6077) is the torque that acted over the
-cycle ending at the sample time.
+cycle ending at the sample time (see :mod:`drivers.interface` for the whole timing).
 """
 from __future__ import annotations
 

@@ -4,6 +4,17 @@ Everything the daemon sees of the exoskeleton goes through :class:`HardwareInter
 CANopen implementation (:mod:`drivers.canopen_hw`) and the in-process simulator
 (:mod:`drivers.sim_hw`) sit behind it.  All quantities are on the **joint side** of the gear,
 in SI units (contracts §1).
+
+Timing (CiA 301 synchronous PDOs; :mod:`drivers.sim_hw` does the same):
+
+* ``read()`` in cycle k returns the state sampled at t_k (the SYNC of cycle k);
+* the torque given to ``write()`` in cycle k is actuated at the next SYNC and acts over
+  [t_k+1, t_k+2];
+* so the torque acting over [t_k, t_k+1] is the one written in cycle k-1: that is the
+  ``tau_m`` of row k of a contracts-§1 log, and the torque an estimator updated in cycle k
+  predicts the next interval with;
+* :attr:`Measurement.tau_m_applied` of cycle k is what the drive reports (0x6077): the torque
+  that acted over [t_k-1, t_k], i.e. the one written in cycle k-2.
 """
 from __future__ import annotations
 
@@ -44,8 +55,8 @@ class Measurement:
     t_mono: float = 0.0                 # [s] time.monotonic() when the SYNC was sent
     q: np.ndarray = field(default=None)             # (n,) load angle [rad]
     theta_m: np.ndarray = field(default=None)       # (n,) motor angle / gear ratio [rad]
-    tau_m_applied: np.ndarray = field(default=None)  # (n,) torque the drive applied over the cycle
-    #                                                   that ended at t (0x6077), joint side [N m]
+    tau_m_applied: np.ndarray = field(default=None)  # (n,) torque the drive applied over
+    #                                                   [t - period, t] (0x6077), joint side [N m]
     q_counts: np.ndarray = field(default=None)      # (n,) raw load encoder position value (0x6004)
     theta_m_counts: np.ndarray = field(default=None)  # (n,) raw drive position actual value (0x6064)
     statusword: np.ndarray = field(default=None)    # (n,) CiA 402 statusword (0x6041)

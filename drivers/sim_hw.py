@@ -1,9 +1,11 @@
 """:class:`HardwareInterface` directly on the simulator's plant, without CAN (offline daemon).
 
-``read()`` samples the plant's encoders (the simulator's quantised ``measure()`` when the plant
-has one); ``write(tau_m)`` steps the plant by one period with the torque held (zero-order
-hold), so a read → update → write loop runs the plant in lock-step, as fast as the caller
-goes.  No faults happen here except the ones a plant raises.
+Same timing as the CANopen hardware against the lock-step device model (see
+:mod:`drivers.interface`): ``read()`` of cycle k samples the plant's encoders at t_k (the
+simulator's quantised ``measure()`` when the plant has one), then latches the torque written
+in cycle k-1 and steps the plant over [t_k, t_k+1] with it; ``write(tau_m)`` only stores the
+set-point.  A read → update → write loop thus runs the plant in lock-step, as fast as the
+caller goes.  No faults happen here except the ones a plant raises.
 """
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ class SimHardware(HardwareInterface):
         self.torque_limit = float(torque_limit)
         self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
         self.meas = Measurement(self.n)
-        self._tau = np.zeros(self.n)
+        self._tau = np.zeros(self.n)          # latched: acts over the current cycle
+        self._pending = np.zeros(self.n)      # written, acts from the next read()
         self._cycle = -1
         self._stopped = False
         self.running = False
@@ -44,18 +47,19 @@ class SimHardware(HardwareInterface):
             q, th = self.plant.q, self.plant.theta_m
         m.q[:] = q
         m.theta_m[:] = th
-        m.tau_m_applied[:] = self._tau
+        m.tau_m_applied[:] = self._tau                 # the torque over [t_k-1, t_k]
         m.faults, m.valid = 0, True
+        self._tau[:] = 0.0 if self._stopped else self._pending
+        self.plant.step(self._tau.copy(), self.period, self.tau_h_act(self.plant.t))
         return m
 
     def write(self, tau_m: np.ndarray) -> None:
         tau = np.clip(np.nan_to_num(np.asarray(tau_m, dtype=float), nan=0.0), -self.torque_limit, self.torque_limit)
-        self._tau[:] = 0.0 if self._stopped else tau
-        self.plant.step(self._tau.copy(), self.period, self.tau_h_act(self.plant.t))
+        self._pending[:] = tau
 
     def safe_stop(self) -> None:
         self._stopped = True
-        self._tau[:] = 0.0
+        self._pending[:] = 0.0
 
     def reset_fault(self) -> None:
         self._stopped = False

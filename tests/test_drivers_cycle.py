@@ -105,11 +105,11 @@ def test_torque_permille_round_trip_and_limit(make_rig):
     for tau, expect in ((1.234, 1.23), (-0.016, -0.02), (50.0, 10.0), (-50.0, -10.0), (float("nan"), 0.0)):
         hw.read()
         hw.write(np.array([tau]))
-        hw.read()                                          # SYNC that actuates it
+        hw.read()                                          # SYNC that actuates it: acts over the next step
         assert step_at(plant, rig.model.syncs - 1)[1][0] == pytest.approx(expect, abs=1e-12)
         assert rig.drive.applied_permille == round(expect * 100)
-        hw.write(np.array([tau]))
-        m = hw.read()                                      # 0x6077: torque over the cycle that ended
+        hw.write(np.array([0.5]))
+        m = hw.read()                                      # 0x6077: the torque over the cycle that ended
         assert m.tau_m_applied[0] == pytest.approx(expect, abs=1e-12)
     assert hw.nm_per_permille == pytest.approx(100 / 1e6 * 100)
 

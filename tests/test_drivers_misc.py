@@ -41,20 +41,27 @@ def test_two_joints_on_one_bus():
         bus.shutdown()
 
 
-def test_sim_hardware_steps_the_plant():
+def test_sim_hardware_has_the_can_timing():
     plant = recording_plant(q0=0.1)
     hw = SimHardware(plant, 0.01, torque_limit=5.0)
     with hw:
+        m = hw.read()                                       # t_0; steps [t_0, t_1] with nothing written
+        assert m.q[0] == pytest.approx(0.1, abs=2e-5) and m.t == 0.0 and plant.t == pytest.approx(0.01)
+        hw.write(np.array([9.0]))                           # written in cycle 0 ...
+        assert plant.steps[-1][1][0] == 0.0
+        hw.read()                                           # ... acts over [t_1, t_2], clipped
+        assert plant.steps[-1][1][0] == 5.0
+        hw.write(np.array([1.0]))
         m = hw.read()
-        assert m.q[0] == pytest.approx(0.1, abs=2e-5) and m.t == 0.0
-        hw.write(np.array([9.0]))
-        assert plant.steps[-1][1][0] == 5.0 and plant.t == pytest.approx(0.01)
+        assert m.tau_m_applied[0] == 5.0 and plant.steps[-1][1][0] == 1.0   # 0x6077: the last interval
         hw.safe_stop()
         hw.write(np.array([3.0]))
+        hw.read()
         assert plant.steps[-1][1][0] == 0.0
         hw.reset_fault()
         hw.write(np.array([3.0]))
-        assert hw.read().tau_m_applied[0] == 3.0 and hw.meas.cycle == 1
+        hw.read()
+        assert plant.steps[-1][1][0] == 3.0 and hw.meas.cycle == 4
 
 
 def test_make_bus_reports_what_it_cannot_open():

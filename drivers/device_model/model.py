@@ -6,12 +6,14 @@ load encoder (:class:`EncoderNode`) on one canopen Network, and a plant with the
 dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
 
 1. writes the buffered synchronous RPDOs into the dictionaries (controlword, target torque),
-2. samples the encoders at the plant's current state and sends the synchronous TPDOs,
-3. in **lock-step** mode steps the plant by the drive's interpolation period (0x60C2) with the
-   torque just latched — so the TPDOs of SYNC k show the state at t_k, and the torque written
-   before SYNC k acts over [t_k, t_k+1];
+2. samples the encoders at the plant's current state and sends the synchronous TPDOs (torque
+   actual 0x6077 = the torque that acted over the cycle now ending),
+3. latches the drives' new torque set-points, and in **lock-step** mode steps the plant by the
+   drive's interpolation period (0x60C2) with them — so the TPDOs of SYNC k show the state at
+   t_k, and the torque written before SYNC k acts over [t_k, t_k+1];
 
-in **free-running** mode a thread steps the plant in real time instead and SYNC only samples.
+in **free-running** mode a thread steps the plant in real time with the latched torques instead,
+and SYNC only samples and latches.
 Faults (:mod:`.faults`) can be injected now or scheduled at a device time.
 """
 from __future__ import annotations
@@ -136,10 +138,10 @@ class DeviceModel:
                 self._run_scheduled()
                 for node in self.drives + self.encoders:
                     node.apply_pending_rpdos()
-                self._latch_torque()
                 self._sample()
                 for node in self.drives + self.encoders:
-                    node.transmit_sync_tpdos()
+                    node.transmit_sync_tpdos()          # 0x6077: the torque over [t_k-1, t_k]
+                self._latch_torque()                    # the new set-point acts over [t_k, t_k+1]
                 if self.lock_step:
                     self._step(self.period)
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
@@ -150,7 +152,6 @@ class DeviceModel:
         while self._running:
             dt = self.period
             with self._lock:
-                self._latch_torque()
                 self._step(dt)
             next_t += dt
             delay = next_t - time.monotonic()
