@@ -15,7 +15,7 @@ Start-up (:meth:`CanopenHardware.start`), over SDO, after CiA 301 / 402 / 406:
 4. heartbeat producer 0x1017 on every node, first heartbeat awaited;
 5. NMT operational, mode 10 (0x6060, checked on 0x6061), CiA 402 state machine walked to
    OPERATION_ENABLED (fault reset first if needed);
-6. one zero-torque cycle that sets the unwrapping reference (the load encoder's single-turn
+6. one priming cycle (zero torque, or ``start(initial_torque)``) that sets the unwrapping reference (the load encoder's single-turn
    count is centred on (-π, π]).
 
 Cycle — PDOs only: ``write(tau)`` sends the RPDO; ``read()`` sends SYNC and takes that cycle's
@@ -123,6 +123,8 @@ class CanopenHardware(HardwareInterface):
         self.res = 1 << hw.encoder_bits
         self.torque_limit = hw.torque_limit
         self.pdo_timeout = pdo_timeout if pdo_timeout is not None else b.pdo_timeout_ms / 1e3
+        #: cycles between write() and the interval the torque acts over (see drivers.interface)
+        self.actuation_delay = 1 if b.sync_rpdo else 0
         self.hb_timeout = b.heartbeat_timeout_ms / 1e3
         self.clock = clock
         self._bus, self._owns_bus = bus, bus is None
@@ -168,9 +170,12 @@ class CanopenHardware(HardwareInterface):
         self._started = False
 
     # ================================================================== start-up (SDO)
-    def start(self) -> None:
+    def start(self, initial_torque: np.ndarray | None = None) -> None:
+        """Start-up sequence; the priming cycle commands ``initial_torque`` [N m] (default 0)."""
         if self._started:
             return
+        self._initial_torque = np.zeros(self.n) if initial_torque is None else \
+            np.asarray(initial_torque, dtype=float).reshape(self.n)
         bus = self._bus if self._bus is not None else make_bus(self.bus_cfg)
         self._bus = bus
         net = canopen.Network(bus)
@@ -287,7 +292,8 @@ class CanopenHardware(HardwareInterface):
         return res * turns
 
     # ---------------------------------------------------------------- PDO configuration
-    def _map(self, node, pdo, number: int, entries, cob_id: int, expected_bytes: int | None) -> None:
+    def _map(self, node, pdo, number: int, entries, cob_id: int, expected_bytes: int | None,
+             trans_type: int = 1) -> None:
         """Write one PDO's communication and mapping parameters; read the mapping back."""
         m = pdo[number]
         what = f"0x{m.map_array.od.index:04X} {'TPDO' if m.map_array.od.index >= 0x1A00 else 'RPDO'}{number} mapping"
@@ -295,7 +301,7 @@ class CanopenHardware(HardwareInterface):
         for index, sub in entries:
             m.add_variable(index, sub)
         m.cob_id = cob_id
-        m.trans_type = 1                      # synchronous, every SYNC
+        m.trans_type = trans_type             # 1: synchronous, every SYNC; 255: on event / reception
         m.enabled = bool(entries)
         try:
             m.save()
@@ -320,7 +326,8 @@ class CanopenHardware(HardwareInterface):
         self._sdo_write(d, 0x6072, 0, self.max_permille, "max torque")
         self._map(d, d.tpdo, 1, DRIVE_TPDO_MAP, 0x180 + d.id, DRIVE_TPDO.size)
         self._map(d, d.tpdo, 2, (), 0x280 + d.id, None)
-        self._map(d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size)
+        self._map(d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size,
+                  1 if self.bus_cfg.sync_rpdo else 255)
         self._map(d, d.rpdo, 2, (), 0x300 + d.id, None)
         self._slots.append(_Slot(d.id, 0x180 + d.id))
         self.network.subscribe(0x180 + d.id, self._rx_callback(self._slots[-1]))
@@ -361,10 +368,16 @@ class CanopenHardware(HardwareInterface):
                              f"drive did not reach OPERATION_ENABLED, stays in {state.name if state else 'invalid state'}")
 
     def _prime(self) -> None:
-        """First cycle at zero torque: sets the unwrapping reference."""
+        """First cycle (at the initial torque): sets the unwrapping reference."""
         self._primed = False
-        self.write(np.zeros(self.n))
+        self.write(getattr(self, "_initial_torque", np.zeros(self.n)))
         self.read()
+
+    def actuated(self, tau_m: np.ndarray) -> np.ndarray:
+        """The joint-side torque the drive applies for a ``write(tau_m)``: per-mille steps, max torque."""
+        tau = np.nan_to_num(np.asarray(tau_m, dtype=float).reshape(self.n), nan=0.0, posinf=0.0, neginf=0.0)
+        pm = np.clip(np.round(tau / self.nm_per_permille), -self.max_permille, self.max_permille)
+        return pm * self.nm_per_permille
 
     # ================================================================== rx callbacks
     def _rx_callback(self, slot: _Slot):
@@ -403,7 +416,7 @@ class CanopenHardware(HardwareInterface):
         tau = np.asarray(tau_m, dtype=float)
         for j, msg in enumerate(self._rpdo_msgs):
             t = float(tau[j])
-            permille = round(t / self.nm_per_permille) if math.isfinite(t) else 0
+            permille = int(round(t / self.nm_per_permille)) if math.isfinite(t) else 0
             permille = max(-self.max_permille, min(self.max_permille, permille))
             DRIVE_RPDO.pack_into(msg.data, 0, self._cw, permille)
             self._send(msg, "RPDO1 (controlword, target torque)")

@@ -5,16 +5,20 @@ CANopen implementation (:mod:`drivers.canopen_hw`) and the in-process simulator
 (:mod:`drivers.sim_hw`) sit behind it.  All quantities are on the **joint side** of the gear,
 in SI units (contracts §1).
 
-Timing (CiA 301 synchronous PDOs; :mod:`drivers.sim_hw` does the same):
+Timing: ``read()`` in cycle k returns the state sampled at t_k (the SYNC of cycle k).  The
+torque given to ``write()`` in cycle k acts over [t_k+d, t_k+d+1], d = :attr:`actuation_delay`:
 
-* ``read()`` in cycle k returns the state sampled at t_k (the SYNC of cycle k);
-* the torque given to ``write()`` in cycle k is actuated at the next SYNC and acts over
-  [t_k+1, t_k+2];
-* so the torque acting over [t_k, t_k+1] is the one written in cycle k-1: that is the
-  ``tau_m`` of row k of a contracts-§1 log, and the torque an estimator updated in cycle k
-  predicts the next interval with;
-* :attr:`Measurement.tau_m_applied` of cycle k is what the drive reports (0x6077): the torque
-  that acted over [t_k-1, t_k], i.e. the one written in cycle k-2.
+* d = 0 when the drive actuates the RPDO on reception (``hardware.bus.sync_rpdo: false``, the
+  default; :class:`drivers.sim_hw.SimHardware` by default): the torque written in cycle k acts
+  over [t_k, t_k+1], like the offline simulator's zero-order hold — it is the ``tau_m`` of row
+  k of a contracts-§1 log, and an estimator updated in cycle k after the write gets it;
+* d = 1 for a synchronous RPDO (actuated at the next SYNC, ``sync_rpdo: true``): the torque
+  acting over [t_k, t_k+1] is the one written in cycle k-1, known when cycle k starts.
+  This one cycle more of delay is enough to make the passive scenario's PID (kp 100, kd 8)
+  chatter at the torque limit.
+
+:attr:`Measurement.tau_m_applied` of cycle k is what the drive reports (0x6077): the torque
+that acted over [t_k-1, t_k].
 """
 from __future__ import annotations
 
@@ -87,6 +91,7 @@ class HardwareInterface(abc.ABC):
 
     n: int
     period: float
+    actuation_delay: int = 0     # cycles from write() to the interval the torque acts over
 
     @abc.abstractmethod
     def start(self) -> None:

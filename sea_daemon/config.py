@@ -309,10 +309,12 @@ class BusConfig:
     max_joint_speed: float = 20.0         # encoder jump: |dq| > max_joint_speed*dt + 2 quanta [rad/s]
     stuck_cycles: int = 20                # encoder stuck: same count this many cycles ...
     stuck_motion: float = 0.05            # ... while the other encoder of the joint moved this far [rad]
+    sync_rpdo: bool = False               # false: the drive actuates the torque RPDO on reception (type 255);
+    #                                       true: at the next SYNC (type 1, one cycle more delay)
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
-            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion"]
+            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo"]
     INTERFACES = ("virtual", "socketcan", "remote")
 
     @classmethod
@@ -348,8 +350,11 @@ class BusConfig:
         if len(set(drive) | set(enc)) != 2 * n:
             raise ConfigError(source, k + "encoder_node", f"node ids must all differ, got drives {list(drive)} "
                                                           f"and encoders {list(enc)}")
+        sync_rpdo = d.get("sync_rpdo", False)
+        if not isinstance(sync_rpdo, bool):
+            raise ConfigError(source, k + "sync_rpdo", f"must be true or false, got {sync_rpdo!r}")
         return cls(
-            interface=iface, channel=channel, drive_node=drive, encoder_node=enc, **ints,
+            interface=iface, channel=channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
             pdo_timeout_ms=_num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
             rated_torque=_num(source, k + "rated_torque", d.get("rated_torque", 100.0), positive=True),
             q_offset=tuple(float(x) for x in _vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),

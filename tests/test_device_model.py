@@ -114,7 +114,7 @@ def test_rpdo_acts_at_the_next_sync_and_tpdo_every_nth_sync(bench):
         net.sync.transmit()
         time.sleep(0.02)
     assert d.target_permille == 250 and plant.steps[-1][1][0] == pytest.approx(2.5)
-    assert len(got) == 2 and len(plant.steps) == 4               # 4 SYNCs: 4 steps, 2 TPDOs
+    assert len(got) == 2 and len(plant.steps) == 3               # 4 SYNCs: 3 intervals, 2 TPDOs
 
 
 def test_free_running_mode_steps_without_sync():

@@ -23,25 +23,29 @@ def step_at(plant, i, timeout=2.0):
     return plant.steps[i]
 
 
-def test_torque_reaches_plant_and_positions_come_back(make_rig):
-    rig = make_rig()
+@pytest.mark.parametrize("sync_rpdo", [True, False])
+def test_torque_reaches_plant_and_positions_come_back(make_rig, sync_rpdo):
+    rig = make_rig(sync_rpdo=sync_rpdo)
     rig.hw.start()
-    plant = rig.plant
-    first = len(plant.steps)                       # the priming cycle stepped the plant once
+    plant, hw = rig.plant, rig.hw
+    assert hw.actuation_delay == (1 if sync_rpdo else 0)
+    assert rig.drive.rpdos[0x201].trans_type == (1 if sync_rpdo else 255)
     taus = 3.0 * np.sin(np.arange(60) * 0.2)
     for k, tau in enumerate(taus):
-        m = rig.hw.read()
-        # the TPDOs of SYNC k show the plant at the start of the step that SYNC k triggered
-        t0, _, _, q_true, th_true = step_at(plant, first + k)
-        assert q_true[0] - Q <= m.q[0] <= q_true[0] + 1e-15
-        assert th_true[0] - QM <= m.theta_m[0] <= th_true[0] + 1e-15
+        m = hw.read()
+        # the TPDOs of SYNC k show the plant at t_k (the model steps before it samples)
+        assert plant.q[0] - Q <= m.q[0] <= plant.q[0] + 1e-15
+        assert plant.theta_m[0] - QM <= m.theta_m[0] <= plant.theta_m[0] + 1e-15
         assert m.t == pytest.approx((k + 1) * 0.01) and m.valid and m.faults == 0
-        rig.hw.write(np.array([tau]))
-    rig.hw.read()
-    step_at(plant, first + len(taus))
-    # synchronous RPDO: the torque written in cycle k is actuated at SYNC k+1, quantised to 1 ‰ = 0.01 N m
-    applied = np.array([s[1][0] for s in plant.steps[first + 1:first + 1 + len(taus)]])
+        assert len(plant.steps) == k + 1
+        hw.write(np.array([tau]))
+    for _ in range(2):
+        hw.read()
+    # the torque written in cycle k acts over [t_k+d, t_k+d+1] = steps[k + d + 1] (steps[0] ends at SYNC 1 of the loop)
+    d = hw.actuation_delay
+    applied = np.array([plant.steps[k + d + 1][1][0] for k in range(len(taus))])
     assert np.allclose(applied, np.round(taus / 0.01) * 0.01, atol=1e-12)
+    assert np.allclose(applied, [hw.actuated(np.array([t]))[0] for t in taus])
     assert np.ptp([s[3][0] for s in plant.steps]) > 0.01          # the link really moved
 
 
@@ -53,17 +57,15 @@ def test_counts_to_radians_exact(make_rig):
     assert m.q[0] == qc * (2 * math.pi / 2**19)
     assert m.theta_m[0] == pc * (2 * math.pi / (2**19 * 100.0))
     # and the counts are the floor-quantised true angles of that SYNC
-    _, _, _, q_true, th_true = step_at(rig.plant, 1)
-    assert qc == math.floor(q_true[0] / Q) and pc == math.floor(th_true[0] / QM)
+    assert qc == math.floor(rig.plant.q[0] / Q) and pc == math.floor(rig.plant.theta_m[0] / QM)
 
 
 def test_offsets_are_subtracted(make_rig):
     rig = make_rig(plant=recording_plant(q0=0.5), q_offset=(0.1,), theta_m_offset=(-0.2,))
     rig.hw.start()
     m = rig.hw.read()
-    _, _, _, q_true, th_true = step_at(rig.plant, 1)
-    assert m.q[0] == pytest.approx(q_true[0] - 0.1, abs=Q)
-    assert m.theta_m[0] == pytest.approx(th_true[0] + 0.2, abs=QM)
+    assert m.q[0] == pytest.approx(rig.plant.q[0] - 0.1, abs=Q)
+    assert m.theta_m[0] == pytest.approx(rig.plant.theta_m[0] + 0.2, abs=QM)
 
 
 def test_load_encoder_unwraps_across_zero(make_rig):
@@ -75,7 +77,7 @@ def test_load_encoder_unwraps_across_zero(make_rig):
         m = rig.hw.read()
         raw.append(int(m.q_counts[0]))
         q.append(m.q[0])
-        assert abs(m.q[0] - step_at(plant, k + 1)[3][0]) <= Q
+        assert abs(m.q[0] - plant.q[0]) <= Q
         rig.hw.write(np.array([-2.0]))
     assert max(raw) > 2**19 - 2**16 and min(raw) < 2**16          # the raw count wrapped
     assert min(q) < -0.01 and np.all(np.abs(np.diff(q)) < 0.05)   # the angle did not
@@ -92,25 +94,25 @@ def test_motor_position_unwraps_across_int32(make_rig):
     for k in range(60):
         m = rig.hw.read()
         raw.append(int(m.theta_m_counts[0]))
-        err.append(m.theta_m[0] - step_at(rig.plant, k + 1)[4][0])
+        err.append(m.theta_m[0] - rig.plant.theta_m[0])
         rig.hw.write(np.array([4.0]))
     assert max(raw) > 2**31 - 200_000 and min(raw) < -2**31 + 2**24              # wrapped
     assert np.max(np.abs(err)) < QM * (1 + 1e-3) + abs(preset * QM) * 1e-15     # θ_m stayed continuous
 
 
 def test_torque_permille_round_trip_and_limit(make_rig):
-    rig = make_rig()
+    rig = make_rig(sync_rpdo=True)
     rig.hw.start()
     hw, plant = rig.hw, rig.plant
     for tau, expect in ((1.234, 1.23), (-0.016, -0.02), (50.0, 10.0), (-50.0, -10.0), (float("nan"), 0.0)):
-        hw.read()
         hw.write(np.array([tau]))
-        hw.read()                                          # SYNC that actuates it: acts over the next step
-        assert step_at(plant, rig.model.syncs - 1)[1][0] == pytest.approx(expect, abs=1e-12)
-        assert rig.drive.applied_permille == round(expect * 100)
+        hw.read()                                          # SYNC that actuates it (synchronous RPDO)
+        assert rig.drive.target_permille == round(expect * 100) or not math.isfinite(tau) or abs(tau) > 10
         hw.write(np.array([0.5]))
-        m = hw.read()                                      # 0x6077: the torque over the cycle that ended
-        assert m.tau_m_applied[0] == pytest.approx(expect, abs=1e-12)
+        m = hw.read()                                      # the interval it acted over ends here
+        assert plant.steps[-1][1][0] == pytest.approx(expect, abs=1e-12)
+        assert m.tau_m_applied[0] == pytest.approx(expect, abs=1e-12)      # 0x6077
+        assert hw.actuated(np.array([tau]))[0] == pytest.approx(expect, abs=1e-12)
     assert hw.nm_per_permille == pytest.approx(100 / 1e6 * 100)
 
 

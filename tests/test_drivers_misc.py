@@ -41,27 +41,30 @@ def test_two_joints_on_one_bus():
         bus.shutdown()
 
 
-def test_sim_hardware_has_the_can_timing():
+@pytest.mark.parametrize("delay", [0, 1])
+def test_sim_hardware_timing(delay):
     plant = recording_plant(q0=0.1)
-    hw = SimHardware(plant, 0.01, torque_limit=5.0)
+    hw = SimHardware(plant, 0.01, torque_limit=5.0, actuation_delay=delay)
     with hw:
-        m = hw.read()                                       # t_0; steps [t_0, t_1] with nothing written
-        assert m.q[0] == pytest.approx(0.1, abs=2e-5) and m.t == 0.0 and plant.t == pytest.approx(0.01)
-        hw.write(np.array([9.0]))                           # written in cycle 0 ...
-        assert plant.steps[-1][1][0] == 0.0
-        hw.read()                                           # ... acts over [t_1, t_2], clipped
-        assert plant.steps[-1][1][0] == 5.0
-        hw.write(np.array([1.0]))
-        m = hw.read()
-        assert m.tau_m_applied[0] == 5.0 and plant.steps[-1][1][0] == 1.0   # 0x6077: the last interval
+        m = hw.read()                                       # t_0: nothing stepped yet
+        assert m.q[0] == pytest.approx(0.1, abs=2e-5) and m.t == 0.0 and plant.t == 0.0
+        for k, tau in enumerate([9.0, 1.0, 2.0, 3.0]):      # written in cycle k, acts over [t_k+d, t_k+d+1]
+            hw.write(np.array([tau]))
+            m = hw.read()
+            assert m.q[0] == pytest.approx(plant.q[0], abs=2e-5)
+        applied = [s[1][0] for s in plant.steps]            # steps[i] = [t_i, t_i+1]
+        assert applied == ([5.0, 1.0, 2.0, 3.0] if delay == 0 else [0.0, 5.0, 1.0, 2.0])
+        assert m.tau_m_applied[0] == applied[-1]            # 0x6077: the interval that just ended
         hw.safe_stop()
         hw.write(np.array([3.0]))
+        hw.read()
         hw.read()
         assert plant.steps[-1][1][0] == 0.0
         hw.reset_fault()
         hw.write(np.array([3.0]))
         hw.read()
-        assert plant.steps[-1][1][0] == 3.0 and hw.meas.cycle == 4
+        hw.read()
+        assert plant.steps[-1][1][0] == 3.0
 
 
 def test_make_bus_reports_what_it_cannot_open():

@@ -31,13 +31,13 @@ def test_startup_configures_and_enables(make_rig):
     assert len(d.tpdos) == 1 and len(e.tpdos) == 1                  # TPDO2 disabled on both
     assert e.tpdos[0].entries == [(0x6004, 0, 4)]
     rp = d.rpdos[0x200 + d.id]
-    assert rp.entries == [(0x6040, 0, 2), (0x6071, 0, 2)] and rp.trans_type == 1
+    assert rp.entries == [(0x6040, 0, 2), (0x6071, 0, 2)] and rp.trans_type == 255   # actuated on reception
     # interpolation period = loop period (10 ms), max torque from torque_limit (10 N m = 1000 ‰)
     assert d.period == pytest.approx(0.01)
     assert d.sdo[0x6072].raw == 1000
     # the priming cycle produced a first measurement of the true plant
     assert rig.hw.meas.q[0] == pytest.approx(0.3, abs=2e-5)
-    assert rig.hw.meas.theta_m[0] == pytest.approx(rig.plant.steps[0][4][0], abs=2e-7)   # motor holds the link
+    assert rig.hw.meas.theta_m[0] == pytest.approx(rig.plant.theta_m[0], abs=2e-7)   # motor holds the link
 
 
 

@@ -5,15 +5,17 @@ load encoder (:class:`EncoderNode`) on one canopen Network, and a plant with the
 :class:`sea_daemon.sim.plant.Plant` (``step(tau_m, dt, tau_h_act)``, ``t, q, theta_m, dq,
 dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
 
-1. writes the buffered synchronous RPDOs into the dictionaries (controlword, target torque),
-2. samples the encoders at the plant's current state and sends the synchronous TPDOs (torque
-   actual 0x6077 = the torque that acted over the cycle now ending),
-3. latches the drives' new torque set-points, and in **lock-step** mode steps the plant by the
-   drive's interpolation period (0x60C2) with them — so the TPDOs of SYNC k show the state at
-   t_k, and the torque written before SYNC k acts over [t_k, t_k+1];
+1. in **lock-step** mode steps the plant over the interval since the previous SYNC (the drive's
+   interpolation period 0x60C2) with the torque set-point in force — actuated at that SYNC
+   for a synchronous RPDO, on reception for an asynchronous one (transmission type 255) — and
+   reports it as torque actual 0x6077;
+2. writes the buffered synchronous RPDOs into the dictionaries (controlword, target torque);
+3. samples the encoders at the plant's state and sends the synchronous TPDOs.
 
-in **free-running** mode a thread steps the plant in real time with the latched torques instead,
-and SYNC only samples and latches.
+So the TPDOs of SYNC k show the state at t_k; a torque written after SYNC k acts over
+[t_k+1, t_k+2] with a synchronous RPDO and over [t_k, t_k+1] with an asynchronous one.  In
+**free-running** mode a thread steps the plant in real time with the set-point in force, and
+SYNC only samples.
 Faults (:mod:`.faults`) can be injected now or scheduled at a device time.
 """
 from __future__ import annotations
@@ -62,6 +64,7 @@ class DeviceModel:
         self._thread: threading.Thread | None = None
         self._running = False
         self.syncs = 0
+        self._synced = False
         self.last_tau_h_act = np.zeros(self.n)
         self.error: BaseException | None = None
 
@@ -136,14 +139,17 @@ class DeviceModel:
             with self._lock:
                 self.syncs += 1
                 self._run_scheduled()
+                if self.lock_step and self._synced:
+                    # the interval since the last SYNC, with the set-point in force now: a synchronous
+                    # RPDO was actuated at that SYNC, an asynchronous one when it arrived
+                    self._latch_torque()                # 0x6077 = the torque over [t_k-1, t_k]
+                    self._step(self.period)
+                self._synced = True
                 for node in self.drives + self.encoders:
-                    node.apply_pending_rpdos()
+                    node.apply_pending_rpdos()          # synchronous RPDOs take effect now
                 self._sample()
                 for node in self.drives + self.encoders:
-                    node.transmit_sync_tpdos()          # 0x6077: the torque over [t_k-1, t_k]
-                self._latch_torque()                    # the new set-point acts over [t_k, t_k+1]
-                if self.lock_step:
-                    self._step(self.period)
+                    node.transmit_sync_tpdos()
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
             self.error = e
 
@@ -152,6 +158,7 @@ class DeviceModel:
         while self._running:
             dt = self.period
             with self._lock:
+                self._latch_torque()
                 self._step(dt)
             next_t += dt
             delay = next_t - time.monotonic()
