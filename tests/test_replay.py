@@ -134,3 +134,11 @@ def test_bad_csv_through_subprocess(tmp_path):
                         "--out", str(tmp_path / "e.csv")], capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr and f"{p}:3" in r.stderr
+
+
+def test_bench_latency_runs(capsys):
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1"])
+    out, _ = capsys.readouterr()
+    assert code == 0
+    assert "machine:" in out and "akf: per step median" in out and "(50 runs)" in out
+    assert cli.main(["bench", "latency", "--estimators", "magic"]) == 2
