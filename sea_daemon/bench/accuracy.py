@@ -108,7 +108,8 @@ def run(args) -> int:
         raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(CASES)}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"machine: {machine()}")
+    import os
+    print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     table = {}
     for sc_path in args.scenarios or default_scenarios():
         sc = load_scenario(sc_path)

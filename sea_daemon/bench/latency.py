@@ -95,7 +95,8 @@ def run(args) -> int:
     if args.repeat < 1:
         raise InputError(f"--repeat must be >= 1, got {args.repeat}")
     log = read_log(args.log, n=cfg.joints, min_rows=100) if args.log else synthetic_log(cfg, args.seconds)
-    print(f"machine: {machine()}")
+    import os
+    print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     print(f"data: {log.path}, {len(log)} samples at {1 / log.dt:.0f} Hz, {cfg.joints} joint(s), "
           f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass")
     for label in labels:
