@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, expm, LinAlgError
+from scipy.linalg import expm
 
 from ..config import ModelConfig
 from ..errors import EstimatorFault
@@ -275,13 +275,16 @@ class AKF:
         # Alg. 1 line 6: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹  (H = [I 0])
         S = self.S_k
         np.add(Pm[:m, :m], self.R, out=S)
+        # positive-definiteness check of S (Cholesky), then K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ
         try:
-            cf = cho_factor(S, check_finite=True)
-        except (LinAlgError, ValueError):
+            if not np.isfinite(S).all():
+                raise np.linalg.LinAlgError
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
             raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
                                  f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0") from None
         K = self.K_k
-        K[:] = cho_solve(cf, Pm[:, :m].T, check_finite=False).T
+        K[:] = np.linalg.solve(S, Pm[:m, :]).T
         # Alg. 1 line 7: x̂ = x̂⁻ + K (y − H x̂⁻)
         np.subtract(y, self.x_prior[:m], out=self.innovation)
         np.dot(K, self.innovation, out=x)
