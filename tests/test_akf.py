@@ -308,3 +308,24 @@ def test_passive_scenario_akf_error_is_large_like_table_1():
         ("spring", SpringTorqueEstimator(sc.nominal, dt=log.dt))]}
     assert r["akf"] > 1.0 and r["spring"] > 1.0
     assert r["oracle"] < 0.1 * r["akf"]
+
+
+def test_nis_is_chi_square_on_a_consistent_linear_model():
+    """Data drawn from the filter's own linear model: mean NIS ≈ dim(y) = 4n (consistency)."""
+    cfg = linear_cfg(1, R=[1e-4, 1e-5, 1e-2, 1e-3], Sigma_nom=[1e-6, 1e-6, 1e-3, 1e-3, 1e-3], P0=1e-3)
+    akf = AKF(cfg)
+    A, B = akf.model.F_nom(np.zeros(5), np.zeros(1)), akf.model.B_nom()
+    kf = TextbookKF(A, B, akf.H, akf.Sigma_nom, akf.R, akf.dt)
+    rng = np.random.default_rng(7)
+    x = np.zeros(5)
+    akf.x[:] = 0.0
+    akf.P[:] = cfg.estimator.P0
+    Lq, Lr = np.linalg.cholesky(akf.Sigma_nom), np.linalg.cholesky(akf.R)
+    nis = []
+    for k in range(1500):
+        u = np.array([np.sin(0.05 * k)])
+        x = kf.Ad @ x + kf.Bd @ u + Lq @ rng.normal(size=5)
+        y = akf.H @ x + Lr @ rng.normal(size=4)
+        akf.step(y, u, akf.dt)
+        nis.append(akf.nis)
+    assert np.mean(nis[100:]) == pytest.approx(4.0, rel=0.1)

@@ -24,7 +24,10 @@ input history.  An "oracle" AKF is this class built from the true plant's config
 Pure numerics: no I/O, no clock, no threads.  Per-step quantities the Theorem-1 bounds
 need are kept as attributes: ``A_k`` (continuous Jacobian), ``F_k`` (discrete transition),
 ``Gamma_mu`` (discrete map of a torque error held over the step to the state), ``Q_k``,
-``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``y``, ``P`` (posterior).
+``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior);
+and the causal kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
+[q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
+step's own dt.
 """
 from __future__ import annotations
 
@@ -117,6 +120,7 @@ class AKF:
         self.K_k = np.zeros((d, m))
         self.S_k = np.zeros((m, m))
         self.innovation = np.zeros(m)
+        self.nis = 0.0
         self.y = np.zeros(m)
         self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
         self.mu = np.zeros(n)
@@ -155,6 +159,9 @@ class AKF:
         y[2 * n:3 * n] = vel[n:]
         np.subtract(vel[:n], vel[n:], out=y[3 * n:])
         self._ddq[:] = acc[:n]
+        # the causal kinematics of this sample, [q, θ_m] each (views, overwritten next sample):
+        # what a learner needs for training pairs (eq:loadsidewmotor) with the same filter
+        self.kin_angle, self.kin_vel, self.kin_acc = ang, vel, acc
         return y
 
     def _push_input(self, tau_m) -> None:
@@ -287,6 +294,8 @@ class AKF:
         K[:] = np.linalg.solve(S, Pm[:m, :]).T
         # Alg. 1 line 7: x̂ = x̂⁻ + K (y − H x̂⁻)
         np.subtract(y, self.x_prior[:m], out=self.innovation)
+        # normalised innovation squared νᵀ S⁻¹ ν (χ²_{4n} when the filter is consistent)
+        self.nis = float(self.innovation @ np.linalg.solve(S, self.innovation))
         np.dot(K, self.innovation, out=x)
         x += self.x_prior
         # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
