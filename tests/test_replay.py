@@ -173,3 +173,10 @@ def test_replay_two_joints_suffixed_columns(tmp_path, capsys):
 
 def log_path_one(tmp_path):
     return _write(tmp_path / "one.csv", GOOD_HEAD + "0,0,0,0\n0.01,0,0,0\n")
+
+
+def test_train_is_validated_and_noted_for_akf(log_path, tmp_path, capsys):
+    code, out, err = run_cli(["replay", str(log_path), "--config", CFG, "--train", str(log_path),
+                              "--estimator", "spring", "--out", str(tmp_path / "e.csv")], capsys)
+    assert code == 0 and "--train is used only by gp-akf" in err
+    assert json.loads(out)["estimator"] == "spring"
