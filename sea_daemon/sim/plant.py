@@ -140,6 +140,10 @@ class Plant:
         """Encoder readings (q, θ_m) on the joint side: quantised, with encoder offsets."""
         return self.encoders.read(self._y[:self.n], self._y[self.n:2 * self.n])
 
+    def raw_counts(self) -> dict[str, np.ndarray]:
+        """What the encoders put on the bus: single-turn counts and motor-shaft turns (:meth:`Encoders.raw`)."""
+        return self.encoders.raw(self._y[:self.n], self._y[self.n:2 * self.n])
+
     # ------------------------------------------------------------------ statics
 
     def static_equilibrium(self, q: np.ndarray, tau_h_act=None) -> tuple[np.ndarray, np.ndarray]:
