@@ -459,6 +459,15 @@ def test_cli_bad_scenario_exit_2_one_line(tmp_path, capsys, name, content, key):
     assert not (tmp_path / "o.csv").exists()
 
 
+def test_cli_bad_out_dir_and_seed(tmp_path, capsys):
+    from sea_daemon.cli import main
+    assert main(["simulate", str(SCEN / "active.yaml"), "--out", str(tmp_path / "no" / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0]
+    assert main(["simulate", str(SCEN / "active.yaml"), "--out", str(tmp_path / "o.csv"), "--seed", "-1"]) == 2
+    assert "--seed" in capsys.readouterr().err
+
+
 def test_cli_missing_scenario_file(tmp_path):
     r = _cli(str(tmp_path / "none.yaml"), "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "none.yaml" in r.stderr
