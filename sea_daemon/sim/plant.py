@@ -168,9 +168,13 @@ class Plant:
                     v[j] = ts
                     return m.spring_torque(v, z)[j] - target[j]
                 lo_b, hi_b = -0.5, 0.5
-                while g(lo_b) > 0:
+                for _ in range(60):        # τ_s is non-decreasing and unbounded in θ_s
+                    if g(lo_b) <= 0:
+                        break
                     lo_b *= 2
-                while g(hi_b) < 0:
+                for _ in range(60):
+                    if g(hi_b) >= 0:
+                        break
                     hi_b *= 2
                 th_s[j] = brentq(g, lo_b, hi_b, xtol=1e-14, rtol=1e-14)
         else:
