@@ -193,7 +193,10 @@ class Plant:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         n = self.n
-        u = np.clip(np.broadcast_to(np.asarray(tau_m, dtype=float), (n,)), -self.torque_limit, self.torque_limit)
+        u = np.broadcast_to(np.asarray(tau_m, dtype=float), (n,))
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(tau_h_act))):
+            raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
+        u = np.clip(u, -self.torque_limit, self.torque_limit)
         u = u + torque_noise(self.rng, self.noise_std, n)
         self._u_applied = u
         self._tau_h = np.broadcast_to(np.asarray(tau_h_act, dtype=float), (n,)).copy()
