@@ -61,3 +61,17 @@ def test_estimation_run_over_can_as_good_as_offline():
     # replay starts afresh at the phase, the online AKF ran through training: compare after 1 s
     again = replay(est, make_estimator("akf", sc.nominal, dt=dt))
     assert np.allclose(again.tau_h_act_hat[100:, 0], est.extra["tau_h_act_hat"][100:], atol=0.02)
+
+
+def test_demo_command_quick(tmp_path, capsys):
+    from sea_daemon.cli import main
+    assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40"]) == 0
+    printed = capsys.readouterr().out
+    assert "active    akf" in printed and "CAN cycles" in printed
+    import json
+    s = json.loads((tmp_path / "summary.json").read_text())["scenarios"]["active"]
+    assert s["cycles"] == 80 and s["estimators"]["akf"]["samples"] == 40
+    assert s["estimators"]["akf"]["rmse"] > 0
+    for f in ("active_train.csv", "active_est.csv", "active_akf.csv", "active_spring.csv", "active.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    assert main(["demo", "--out", str(tmp_path), "--samples", "3"]) == 2
