@@ -13,9 +13,8 @@ torque given to ``write()`` in cycle k acts over [t_k+d, t_k+d+1], d = :attr:`ac
   over [t_k, t_k+1], like the offline simulator's zero-order hold — it is the ``tau_m`` of row
   k of a contracts-§1 log, and an estimator updated in cycle k after the write gets it;
 * d = 1 for a synchronous RPDO (actuated at the next SYNC, ``sync_rpdo: true``): the torque
-  acting over [t_k, t_k+1] is the one written in cycle k-1, known when cycle k starts.
-  This one cycle more of delay is enough to make the passive scenario's PID (kp 100, kd 8)
-  chatter at the torque limit.
+  acting over [t_k, t_k+1] is the one written in cycle k-1, known when cycle k starts (one
+  cycle more of delay in every control loop closed through the bus).
 
 :attr:`Measurement.tau_m_applied` of cycle k is what the drive reports (0x6077): the torque
 that acted over [t_k-1, t_k].
