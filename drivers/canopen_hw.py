@@ -158,7 +158,7 @@ class CanopenHardware(HardwareInterface):
         self._cw = cia402.CW_ENABLE_OPERATION
         self._quick_stopped = False
         self._u_q = [0] * n            # unwrapped load counts
-        self._u_m = [0] * n            # unwrapped motor counts (with the turn fixed at start)
+        self._u_m = [0] * n            # unwrapped motor counts (int32 wraps undone)
         self._raw_q = [0] * n
         self._raw_m = [0] * n
         self._primed = False
@@ -422,6 +422,8 @@ class CanopenHardware(HardwareInterface):
             self._send(msg, "RPDO1 (controlword, target torque)")
 
     def _send(self, msg: can.Message, what: str) -> None:
+        if self.network is None:
+            raise RuntimeError("CanopenHardware: call start() before read() / write()")
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
         try:

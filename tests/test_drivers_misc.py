@@ -76,3 +76,11 @@ def test_make_bus_reports_what_it_cannot_open():
         make_bus(BusConfig(interface="remote", channel="ws://127.0.0.1:9/"))
     bus = make_bus(BusConfig(interface="virtual", channel="x"))
     bus.shutdown()
+
+
+def test_read_before_start_is_a_clear_error():
+    from sea_daemon.config import load_config
+    hw = CanopenHardware(load_config(default_config_path()), can.Bus(interface="virtual", channel="unused"))
+    with pytest.raises(RuntimeError, match=r"call start\(\) before read\(\) / write\(\)"):
+        hw.write(np.zeros(1))
+    hw._bus.shutdown()
