@@ -413,6 +413,8 @@ class CanopenHardware(HardwareInterface):
     # ================================================================== the cycle (PDO only)
     def write(self, tau_m: np.ndarray) -> None:
         """Target torque [N m, joint side] → ‰ of 0x6076 in the drives' RPDOs."""
+        if self.network is None:
+            raise RuntimeError("CanopenHardware: call start() before read() / write()")
         tau = np.asarray(tau_m, dtype=float)
         for j, msg in enumerate(self._rpdo_msgs):
             t = float(tau[j])
@@ -422,8 +424,6 @@ class CanopenHardware(HardwareInterface):
             self._send(msg, "RPDO1 (controlword, target torque)")
 
     def _send(self, msg: can.Message, what: str) -> None:
-        if self.network is None:
-            raise RuntimeError("CanopenHardware: call start() before read() / write()")
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
         try:
@@ -436,6 +436,8 @@ class CanopenHardware(HardwareInterface):
 
     def read(self) -> Measurement:
         """SYNC → this cycle's TPDOs → joint-side measurement (reused object)."""
+        if self.network is None:
+            raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
         m.faults = 0
         self._check_async()
