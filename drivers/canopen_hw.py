@@ -196,6 +196,7 @@ class CanopenHardware(HardwareInterface):
             self.drives.append(net.add_node(self.drive_ids[j], str(DRIVE_EDS)))
             self.encoders.append(net.add_node(self.encoder_ids[j], str(ENCODER_EDS)))
         for node in self.drives + self.encoders:
+            node.sdo.RESPONSE_TIMEOUT = self.bus_cfg.sdo_timeout_ms / 1e3
             self._hb_last[node.id] = None
             self._hb_state[node.id] = None
             self._emcy[node.id] = None

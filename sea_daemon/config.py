@@ -316,10 +316,11 @@ class BusConfig:
     stuck_motion: float = 0.05            # ... while the other encoder of the joint moved this far [rad]
     sync_rpdo: bool = False               # false: the drive actuates the torque RPDO on reception (type 255);
     #                                       true: at the next SYNC (type 1, one cycle more delay)
+    sdo_timeout_ms: int = 300             # start-up: wait this long for each SDO answer (one retry)
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
-            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo"]
+            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms"]
     INTERFACES = ("virtual", "socketcan", "remote")
 
     @classmethod
@@ -341,7 +342,7 @@ class BusConfig:
         ints = {}
         for key, lo, hi, default in (("bitrate", 10000, 1000000, 1000000), ("heartbeat_ms", 1, 65535, 50),
                                      ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, 0),
-                                     ("stuck_cycles", 2, 100000, 20)):
+                                     ("stuck_cycles", 2, 100000, 20), ("sdo_timeout_ms", 10, 60000, 300)):
             v = d.get(key, default)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(source, k + key, f"must be an integer in {lo}..{hi}, got {v!r}")

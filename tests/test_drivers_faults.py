@@ -18,7 +18,7 @@ from sea_daemon.daemon.safety import Fault
 
 
 def started(make_rig, **kw):
-    rig = make_rig(pdo_timeout_ms=kw.pop("pdo_timeout_ms", 100.0), **kw)
+    rig = make_rig(pdo_timeout_ms=kw.pop("pdo_timeout_ms", 300.0), **kw)
     rig.hw.start()
     for _ in range(3):
         rig.hw.read()
@@ -51,10 +51,10 @@ def test_missed_cycles_tolerated_up_to_the_limit(make_rig):
 
 def test_delayed_frame_is_missing_then_flagged_late(make_rig):
     rig = started(make_rig, max_missed_cycles=1)
-    rig.model.inject(FaultSpec("delay", target="drive", params={"count": 1, "seconds": 0.2}))
-    m = rig.hw.read()
+    rig.model.inject(FaultSpec("delay", target="drive", params={"count": 1, "seconds": 0.5}))
+    m = rig.hw.read()                                              # waits 0.3 s
     assert not m.valid and m.faults & FaultFlag.PDO_MISSING
-    time.sleep(0.3)                                                # the late frame lands between cycles
+    time.sleep(0.5)                                                # the late frame lands between cycles
     m = rig.hw.read()
     assert m.valid and m.faults & FaultFlag.FRAME_LATE
 
@@ -114,17 +114,17 @@ def test_encoder_emcy(make_rig):
 
 
 def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
-    rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=100)
+    rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=250)
     rig.model.inject(FaultSpec("heartbeat", target="encoder"))
     starts = []
-    with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms, allowed <= 100 ms"):
+    with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms, allowed <= 250 ms"):
         for _ in range(200):
             starts.append(time.monotonic())
             rig.hw.read()
             rig.hw.write(np.zeros(1))
             time.sleep(0.005)
     last_hb = rig.hw._hb_last[rig.encoder.id]
-    assert starts[-2] - last_hb <= 0.1 < starts[-1] - last_hb + 1e-3       # the cycle before was still in time
+    assert starts[-2] - last_hb <= 0.25 < starts[-1] - last_hb + 1e-3     # the cycle before was still in time
 
 
 def test_device_bus_off_is_seen_as_missing_frames(make_rig):

@@ -94,7 +94,7 @@ def test_rejected_pdo_mapping_is_reported(make_rig):
 
 def test_missing_device_is_reported(make_rig):
     rig = make_rig()
-    b = dataclasses.replace(rig.cfg.hardware.bus, encoder_node=(5,))           # nobody answers as node 5
+    b = dataclasses.replace(rig.cfg.hardware.bus, encoder_node=(5,), sdo_timeout_ms=200)   # nobody answers as node 5
     rig.hw = CanopenHardware(dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware, bus=b)),
                              rig.drv_bus)
     with pytest.raises(DeviceMismatch, match=r"node 5: 0x1000:00 device type: no SDO answer"):
