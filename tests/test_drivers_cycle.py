@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -12,15 +11,6 @@ from drivers.canopen_hw import interpolation_period
 
 Q = 2 * math.pi / 2**19               # load encoder quantum [rad]
 QM = 2 * math.pi / (2**19 * 100)      # motor encoder quantum, joint side [rad]
-
-
-def step_at(plant, i, timeout=2.0):
-    """plant.steps[i], waiting for the device model's thread to have made that step."""
-    deadline = time.monotonic() + timeout
-    while len(plant.steps) <= i:
-        assert time.monotonic() < deadline, f"the device model made only {len(plant.steps)} steps"
-        time.sleep(0.0005)
-    return plant.steps[i]
 
 
 @pytest.mark.parametrize("sync_rpdo", [True, False])

@@ -13,7 +13,7 @@ from drivers.device_model import FaultSpec
 from drivers.errors import (BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
                             PdoTimeout, SendFailed)
 from drivers.interface import FaultFlag
-from sea_daemon.daemon.loop import FixedRateLoop, ZeroTorque
+from sea_daemon.daemon.loop import FixedRateLoop
 from sea_daemon.daemon.safety import Fault
 
 

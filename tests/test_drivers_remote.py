@@ -6,7 +6,6 @@ model (``sea-daemon device-model --bus remote``) and the driver join it as clien
 """
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 import os
 import queue
