@@ -114,3 +114,15 @@ def test_bus_section_validation():
     cfg = ModelConfig.from_dict(dict(raw, hardware=dict(raw["hardware"], bus={"rated_torque": 120})), "t.yaml")
     assert cfg.hardware.bus.rated_torque == 120.0
     assert ModelConfig.from_dict(cfg.to_dict(), "rt").hardware.bus == cfg.hardware.bus
+
+
+def test_wrong_pdo_length_on_read_back_is_named(make_rig):
+    rig = make_rig()
+
+    def lie(index, subindex, od):                # a device that reports a 2-byte position value
+        if index == 0x1A00 and subindex == 1:
+            return 0x60040010
+    rig.encoder.add_read_callback(lie)
+    with pytest.raises(DeviceMismatch, match=r"node 2: 0x1A00 TPDO1 mapping: reads back 1 objects, 2 bytes; "
+                                             r"expected 1 objects, 4 bytes"):
+        rig.hw.start()
