@@ -13,8 +13,12 @@ Start-up (:meth:`CanopenHardware.start`), over SDO, after CiA 301 / 402 / 406:
    position value 0x6004 (4 bytes, every SYNC), drive RPDO1 = controlword 0x6040 + target torque
    0x6071 (synchronous); every other PDO disabled;
 4. heartbeat producer 0x1017 on every node, first heartbeat awaited;
-5. NMT operational, mode 10 (0x6060, checked on 0x6061), CiA 402 state machine walked to
-   OPERATION_ENABLED (fault reset first if needed);
+5. NMT operational; our own heartbeat (node ``master_node``) starts and each drive watches it
+   (consumer heartbeat 0x1016 = ``heartbeat_timeout_ms``, reaction 0x6007 = quick stop): the
+   heartbeat is sent from ``read()``, so a daemon that dies or stops cycling leaves the drive
+   quick-stopped — call ``read()`` within ``heartbeat_timeout_ms`` after ``start()``;
+   mode 10 (0x6060, checked on 0x6061), CiA 402 state machine walked to OPERATION_ENABLED
+   (fault reset first if needed);
 6. one priming cycle (zero torque, or ``start(initial_torque)``) that sets the unwrapping reference (the load encoder's single-turn
    count is centred on (-π, π]).
 
@@ -57,6 +61,7 @@ ENCODER_EDS = EDS_DIR / "sea_load_encoder.eds"
 
 PROFILE_DRIVE, PROFILE_ENCODER = 402, 406
 NMT_OPERATIONAL = 0x05
+ABORT_QUICK_STOP = 3                    # 0x6007: reaction of the drive to a lost connection
 
 DRIVE_TPDO = struct.Struct("<Hhi")      # 0x6041 statusword, 0x6077 torque actual [‰], 0x6064 position
 ENCODER_TPDO = struct.Struct("<I")      # 0x6004 position value
@@ -155,6 +160,11 @@ class CanopenHardware(HardwareInterface):
         self._errors = _ErrorFrames()
         self._rpdo_msgs: list[can.Message] = []
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        self._hb_msg = can.Message(arbitration_id=0x700 + b.master_node, data=bytes([NMT_OPERATIONAL]),
+                                   is_extended_id=False)
+        self._hb_period = b.heartbeat_ms / 1e3
+        self._hb_next = 0.0
+        self._hb_on = False
         self._cw = cia402.CW_ENABLE_OPERATION
         self._quick_stopped = False
         self._u_q = [0] * n            # unwrapped load counts
@@ -216,6 +226,13 @@ class CanopenHardware(HardwareInterface):
             node.nmt.state = "OPERATIONAL"
         self._await_heartbeats(NMT_OPERATIONAL)
         for drive in self.drives:
+            # the drive watches our heartbeat; losing it means quick stop (the daemon died or hangs)
+            self._sdo_write(drive, 0x6007, 0, ABORT_QUICK_STOP, "abort connection option code")
+            self._sdo_write(drive, 0x1016, 1, (self.bus_cfg.master_node << 16) | self.bus_cfg.heartbeat_timeout_ms,
+                            "consumer heartbeat time")
+        self._send_master_heartbeat(force=True)        # the drives' watch starts with this one
+        self._hb_on = True
+        for drive in self.drives:
             self._sdo_write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
             mode = self._sdo_read(drive, 0x6060 + 1, 0, "modes of operation display")
             if mode != cia402.MODE_CST:
@@ -226,6 +243,8 @@ class CanopenHardware(HardwareInterface):
 
     # ---------------------------------------------------------------- SDO helpers
     def _sdo_read(self, node, index: int, sub: int, what: str) -> int:
+        if self._hb_on:
+            self._send_master_heartbeat()            # keep the drives' watch happy during SDO sequences
         try:
             var = node.sdo[index] if sub == 0 and not isinstance(node.sdo[index], canopen.sdo.SdoRecord) \
                 else node.sdo[index][sub]
@@ -236,6 +255,8 @@ class CanopenHardware(HardwareInterface):
             raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"no SDO answer: {e}") from None
 
     def _sdo_write(self, node, index: int, sub: int, value: int, what: str) -> None:
+        if self._hb_on:
+            self._send_master_heartbeat()
         try:
             obj = node.sdo[index]
             (obj[sub] if isinstance(obj, (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) else obj).raw = value
@@ -424,6 +445,13 @@ class CanopenHardware(HardwareInterface):
             DRIVE_RPDO.pack_into(msg.data, 0, self._cw, permille)
             self._send(msg, "RPDO1 (controlword, target torque)")
 
+    def _send_master_heartbeat(self, force: bool = False) -> None:
+        """Our heartbeat, from the cycle itself: it stops when the loop stops calling read()."""
+        now = self.clock()
+        if force or now >= self._hb_next:
+            self._hb_next = now + self._hb_period
+            self._send(self._hb_msg, "master heartbeat")
+
     def _send(self, msg: can.Message, what: str) -> None:
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
@@ -442,6 +470,7 @@ class CanopenHardware(HardwareInterface):
         m = self.meas
         m.faults = 0
         self._check_async()
+        self._send_master_heartbeat()
         with self._rx_lock:
             for s in self._slots:
                 s.count = 0
@@ -610,8 +639,10 @@ class CanopenHardware(HardwareInterface):
         for drive in self.drives:
             try:
                 drive.sdo[0x6040].raw = cia402.CW_DISABLE_VOLTAGE
+                drive.sdo[0x1016][1].raw = 0           # a clean stop: stop watching our heartbeat
             except Exception:  # noqa: BLE001 - best effort on the way out
                 pass
+        self._hb_on = False
         try:
             self.network.nmt.state = "PRE-OPERATIONAL"
         except Exception:  # noqa: BLE001
@@ -621,6 +652,7 @@ class CanopenHardware(HardwareInterface):
     def _release(self) -> None:
         net, self.network = self.network, None
         self._started = False
+        self._hb_on = False
         if net is not None and net.notifier is not None:
             net.notifier.stop(2.0)
         if self._owns_bus and self._bus is not None:

@@ -317,10 +317,13 @@ class BusConfig:
     sync_rpdo: bool = False               # false: the drive actuates the torque RPDO on reception (type 255);
     #                                       true: at the next SYNC (type 1, one cycle more delay)
     sdo_timeout_ms: int = 300             # start-up: wait this long for each SDO answer (one retry)
+    master_node: int = 127                # the daemon's own node id: its heartbeat, watched by the drives
+    #                                       (0x1016, heartbeat_timeout_ms; reaction 0x6007 = quick stop)
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
-            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms"]
+            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms",
+            "master_node"]
     INTERFACES = ("virtual", "socketcan", "remote")
 
     @classmethod
@@ -342,7 +345,8 @@ class BusConfig:
         ints = {}
         for key, lo, hi, default in (("bitrate", 10000, 1000000, 1000000), ("heartbeat_ms", 1, 65535, 50),
                                      ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, 0),
-                                     ("stuck_cycles", 2, 100000, 20), ("sdo_timeout_ms", 10, 60000, 300)):
+                                     ("stuck_cycles", 2, 100000, 20), ("sdo_timeout_ms", 10, 60000, 300),
+                                     ("master_node", 1, 127, 127)):
             v = d.get(key, default)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(source, k + key, f"must be an integer in {lo}..{hi}, got {v!r}")
@@ -353,9 +357,9 @@ class BusConfig:
         # default: joint i has drive 2i+1 and load encoder 2i+2
         drive = _node_ids(source, k + "drive_node", d.get("drive_node", [2 * i + 1 for i in range(n)]), n)
         enc = _node_ids(source, k + "encoder_node", d.get("encoder_node", [2 * i + 2 for i in range(n)]), n)
-        if len(set(drive) | set(enc)) != 2 * n:
-            raise ConfigError(source, k + "encoder_node", f"node ids must all differ, got drives {list(drive)} "
-                                                          f"and encoders {list(enc)}")
+        if len(set(drive) | set(enc) | {ints["master_node"]}) != 2 * n + 1:
+            raise ConfigError(source, k + "encoder_node", f"node ids must all differ, got drives {list(drive)}, "
+                                                          f"encoders {list(enc)}, master {ints['master_node']}")
         sync_rpdo = d.get("sync_rpdo", False)
         if not isinstance(sync_rpdo, bool):
             raise ConfigError(source, k + "sync_rpdo", f"must be true or false, got {sync_rpdo!r}")

@@ -201,3 +201,26 @@ def test_after_safe_stop_reads_go_on_with_zero_torque(make_rig):
     rig.hw.read()
     m = rig.hw.read()
     assert m.faults == 0 and rig.drive.applied_permille == 300
+
+
+def test_drive_quick_stops_when_the_daemon_goes_silent(make_rig):
+    """The daemon's heartbeat comes from its cycle; without it the drive quick-stops (0x1016/0x6007)."""
+    rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=150)
+    rig.hw.write(np.array([2.0]))
+    rig.hw.read()
+    deadline = time.monotonic() + 3.0
+    while rig.drive.sm.state is cia402.State.OPERATION_ENABLED:      # the loop hangs: no read()
+        assert time.monotonic() < deadline, "the drive kept its torque without the daemon's heartbeat"
+        time.sleep(0.01)
+    assert rig.drive.sm.state is cia402.State.QUICK_STOP_ACTIVE and rig.drive.torque_command() == 0.0
+    with pytest.raises(EmcyReceived, match=r"node 1: EMCY 0x8130"):     # and the daemon learns why
+        rig.hw.read()
+    rig.hw.reset_fault()
+    assert rig.drive.sm.state is cia402.State.OPERATION_ENABLED
+
+
+def test_clean_stop_ends_the_watch(make_rig):
+    rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=150)
+    rig.hw.stop()
+    time.sleep(0.3)
+    assert rig.drive.master_timeout == 0.0 and rig.drive.error_register == 0      # no EMCY after a clean stop

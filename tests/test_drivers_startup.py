@@ -32,6 +32,9 @@ def test_startup_configures_and_enables(make_rig):
     assert e.tpdos[0].entries == [(0x6004, 0, 4)]
     rp = d.rpdos[0x200 + d.id]
     assert rp.entries == [(0x6040, 0, 2), (0x6071, 0, 2)] and rp.trans_type == 255   # actuated on reception
+    # the drive watches the daemon's heartbeat (node 127, heartbeat_timeout_ms) and quick-stops without it
+    assert d.sdo[0x1016][1].raw == (127 << 16) | 1000 and d.sdo[0x6007].raw == 3
+    assert d.master_node == 127 and d.master_timeout == 1.0
     # interpolation period = loop period (10 ms), max torque from torque_limit (10 N m = 1000 ‰)
     assert d.period == pytest.approx(0.01)
     assert d.sdo[0x6072].raw == 1000

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import struct
+import time
 
 from canopen.sdo import SdoAbortedError
 
@@ -41,8 +42,33 @@ class DriveNode(SlaveNode):
         self.velocity = 0                    # 0x606C increments/s
         self.frozen: int | None = None       # stuck encoder fault
         self.jump_counts = 0                 # jumping encoder fault
+        self.master_node = 0                 # 0x1016:1 consumer heartbeat: whose, and how long
+        self.master_timeout = 0.0
+        self.master_last: float | None = None  # time.monotonic() of its last heartbeat (None: not yet)
         self.add_read_callback(self._on_read)
         self.add_write_callback(self._on_write)
+
+    # ------------------------------------------------------------ connection to the master
+    def _on_master_heartbeat(self, can_id, data, timestamp) -> None:
+        if not self.muted:
+            self.master_last = time.monotonic()
+
+    def check_master(self, now: float) -> bool:
+        """Consumer heartbeat: the master silent for longer than 0x1016 → EMCY 0x8130 and the
+        reaction of 0x6007 (1 fault, 2 disable voltage, 3 quick stop).  True when it fired."""
+        if not self.master_timeout or self.master_last is None or now - self.master_last <= self.master_timeout:
+            return False
+        self.master_last = None                 # once per loss; re-armed by the next heartbeat
+        option = self._raw(0x6007, 0)
+        if option == 1:
+            self.error_code = 0x8130
+            self.sm.fault()
+        elif option == 2:
+            self.sm.controlword(cia402.CW_DISABLE_VOLTAGE)
+        elif option == 3 and self.sm.state is cia402.State.OPERATION_ENABLED:
+            self.sm.controlword(cia402.CW_QUICK_STOP)
+        self.emergency(0x8130, 0x11)            # life guard / heartbeat error; communication bit
+        return True
 
     # ------------------------------------------------------------ physics side
     def set_motor_counts(self, counts: int, dtheta_m_joint: float) -> None:
@@ -105,6 +131,17 @@ class DriveNode(SlaveNode):
             self.mode = mode
         elif index == 0x6071:
             self.target_permille = struct.unpack_from("<h", data)[0]
+        elif index == 0x1016 and subindex == 1:
+            value = struct.unpack_from("<I", data)[0]
+            node, ms = (value >> 16) & 0x7F, value & 0xFFFF
+            if self.master_node:
+                try:
+                    self.network.unsubscribe(0x700 + self.master_node, self._on_master_heartbeat)
+                except (KeyError, ValueError):
+                    pass
+            self.master_node, self.master_timeout, self.master_last = node, ms / 1000.0, None
+            if node and ms:
+                self.network.subscribe(0x700 + node, self._on_master_heartbeat)
         elif index == 0x60C2 and subindex == 2:
             if not -6 <= struct.unpack_from("<b", data)[0] <= 0:
                 raise SdoAbortedError(0x06090030)

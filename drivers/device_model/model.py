@@ -62,6 +62,7 @@ class DeviceModel:
         self._delay: dict[int, tuple[int, float]] = {}
         self._timers: list[threading.Timer] = []
         self._thread: threading.Thread | None = None
+        self._monitor: threading.Thread | None = None
         self._running = False
         self.syncs = 0
         self._synced = False
@@ -75,6 +76,8 @@ class DeviceModel:
         for node in self.drives + self.encoders:
             node.boot()
         self._running = True
+        self._monitor = threading.Thread(target=self._watch_master, name="device-model-consumer-hb", daemon=True)
+        self._monitor.start()
         if not self.lock_step:
             self._thread = threading.Thread(target=self._free_run, name="device-model-physics", daemon=True)
             self._thread.start()
@@ -84,6 +87,8 @@ class DeviceModel:
         self._running = False
         if self._thread is not None:
             self._thread.join(2.0)
+        if self._monitor is not None:
+            self._monitor.join(2.0)
         for t in self._timers:
             t.cancel()
         for node in self.drives + self.encoders:
@@ -152,6 +157,18 @@ class DeviceModel:
                     node.transmit_sync_tpdos()
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
             self.error = e
+
+    def _watch_master(self) -> None:
+        """The drives' consumer heartbeat (0x1016): checked every 5 ms in real time."""
+        while self._running:
+            time.sleep(0.005)
+            now = time.monotonic()
+            with self._lock:
+                for d in self.drives:
+                    try:
+                        d.check_master(now)
+                    except Exception as e:  # noqa: BLE001 - bus gone while stopping
+                        self.error = self.error or e
 
     def _free_run(self) -> None:
         next_t = time.monotonic()
