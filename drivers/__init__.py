@@ -9,6 +9,10 @@
 * :mod:`drivers.device_model` — CANopen slaves (drive, encoder) on canopen's LocalNode with the
   pieces LocalNode lacks, their physics from the simulator, and fault injection.
 * :mod:`drivers.errors` — the HardwareError subclasses, each naming node, object and range.
+* :mod:`drivers.hil_session` — a simulator scenario run through device model, bus and driver
+  (the HIL twin of ``sea_daemon.sim.runner.simulate``; used by ``sea-daemon demo``).
+
+See ``docs/can.md``.
 """
 from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
                      HeartbeatLost, PdoTimeout, SendFailed)
