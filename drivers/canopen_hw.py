@@ -637,6 +637,7 @@ class CanopenHardware(HardwareInterface):
             return
         self.safe_stop()
         for drive in self.drives:
+            drive.sdo.RESPONSE_TIMEOUT = min(drive.sdo.RESPONSE_TIMEOUT, 0.2)   # do not hang on the way out
             try:
                 drive.sdo[0x6040].raw = cia402.CW_DISABLE_VOLTAGE
                 drive.sdo[0x1016][1].raw = 0           # a clean stop: stop watching our heartbeat
