@@ -1,0 +1,89 @@
+"""Online GP hyperparameter adaptation in bounded slices (Sec. V-B, gradient-based as cited).
+
+Each slice is one Adam ascent step (Kingma & Ba 2015) on the log marginal likelihood of one
+local GP, in log space ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``, with the analytic
+gradient of :func:`sea_daemon.gp.log_marginal_likelihood`; then the GP's Cholesky factor is
+rebuilt with the new values and swapped in (:meth:`IncrementalGP.set_log_theta`).  The work of
+one slice is O(N̄³) for a local model of at most N̄ points — bounded, independent of how much
+data the tree holds — and the whole slice happens inside one call, so a caller never sees a
+half-updated model.  The loop calls one slice every ``hyper_every`` updates
+(:class:`sea_daemon.loggp.LoGGP`), which bounds the added work per step; the slices are
+deterministic (no randomness, no clock), so replays reproduce them exactly.
+
+Log-space bounds keep a slice from driving a leaf to a degenerate model (σ_on → 0 makes the
+factor ill-conditioned; l → 0 or ∞ make the GP useless).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import EstimatorFault, InputError
+from .gp import IncrementalGP
+
+
+class AdamHyper:
+    """Adam ascent on a local GP's log marginal likelihood, one step per call.
+
+    Parameters
+    ----------
+    input_dim: ρ.
+    lr: step size in log space (0.05 = about 5 % change of a hyperparameter per step).
+    beta1, beta2, eps: Adam constants.
+    bounds: ``{"sigma_f": (lo, hi), "lengthscales": (lo, hi), "sigma_n": (lo, hi)}``.
+    """
+
+    DEFAULT_BOUNDS = {"sigma_f": (1e-3, 1e3), "lengthscales": (1e-3, 1e4), "sigma_n": (1e-4, 1e2)}
+
+    def __init__(self, input_dim: int, lr: float = 0.05, beta1: float = 0.9,
+                 beta2: float = 0.999, eps: float = 1e-8, bounds: dict | None = None):
+        if not (isinstance(lr, (int, float)) and math.isfinite(lr) and lr > 0):
+            raise InputError(f"hyper_lr must be a finite number > 0, got {lr!r}")
+        self.input_dim = int(input_dim)
+        self.lr, self.beta1, self.beta2, self.eps = float(lr), float(beta1), float(beta2), float(eps)
+        b = dict(self.DEFAULT_BOUNDS)
+        b.update(bounds or {})
+        d = self.input_dim
+        self.lo = np.log(np.array([b["sigma_f"][0]] + [b["lengthscales"][0]] * d + [b["sigma_n"][0]]))
+        self.hi = np.log(np.array([b["sigma_f"][1]] + [b["lengthscales"][1]] * d + [b["sigma_n"][1]]))
+
+    # state: [t, m (ρ+2), v (ρ+2)] as one array
+    def new_state(self) -> np.ndarray:
+        return np.zeros(1 + 2 * (self.input_dim + 2))
+
+    @staticmethod
+    def copy_state(st: np.ndarray) -> np.ndarray:
+        return st.copy()
+
+    @staticmethod
+    def state_to_dict(st: np.ndarray) -> list[float]:
+        return st.tolist()
+
+    @staticmethod
+    def state_from_dict(d) -> np.ndarray:
+        return np.asarray(d, dtype=float)
+
+    def step(self, gp: IncrementalGP, st: np.ndarray) -> float:
+        """One ascent step on ``gp`` (in place, factor rebuilt); returns the LML before it."""
+        p = self.input_dim + 2
+        lml, g = gp.log_marginal_likelihood(grad=True)
+        if not (math.isfinite(lml) and np.all(np.isfinite(g))):
+            return lml
+        t = st[0] + 1.0
+        m, v = st[1:1 + p], st[1 + p:]
+        # Adam moments (in place in the state array)
+        m *= self.beta1
+        m += (1.0 - self.beta1) * g
+        v *= self.beta2
+        v += (1.0 - self.beta2) * g * g
+        st[0] = t
+        mhat = m / (1.0 - self.beta1 ** t)
+        vhat = v / (1.0 - self.beta2 ** t)
+        theta = np.clip(gp.log_theta + self.lr * mhat / (np.sqrt(vhat) + self.eps), self.lo, self.hi)
+        old = gp.log_theta
+        try:
+            gp.set_log_theta(theta)
+        except EstimatorFault:
+            gp.set_log_theta(old)            # keep the last good model
+        return lml
