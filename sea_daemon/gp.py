@@ -84,15 +84,23 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
     """Log marginal likelihood ``log p(y | X, θ)`` and its gradient w.r.t. ``log θ``.
 
     ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``.  Returns ``lml`` or ``(lml, grad)``.
-    ``L`` (lower Cholesky factor of ``K + (σ_on² + jitter) I``) may be passed when already known.
+    ``L`` (lower Cholesky factor of ``K + (σ_on² + jitter) I``, zeros above the diagonal) may
+    be passed when already known.  Cost: one kernel matrix, one ``dpotri`` and a few
+    matrix–vector products — no per-dimension N×N arrays.
     """
     X = np.atleast_2d(np.asarray(X, dtype=float))
     y = np.asarray(y, dtype=float).ravel()
     n, d = X.shape
-    il = 1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,))
-    D2 = _sq_dists(X * il, X * il)                       # (x_i − x_j)² / l²  per dimension
-    # eq:SE
-    Kf = sigma_f ** 2 * np.exp(-0.5 * sum(D2))
+    il2 = 1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,)) ** 2
+    Xb = X - X[0]
+    B = Xb * il2
+    h = -0.5 * np.einsum("ij,ij->i", Xb, B)
+    # eq:SE expanded: K_f = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
+    Kf = B @ Xb.T
+    Kf += h[:, None]
+    Kf += h[None, :]
+    np.exp(Kf, out=Kf)
+    Kf *= sigma_f ** 2
     if L is None:
         K = Kf.copy()
         K.flat[:: n + 1] += sigma_n ** 2 + jitter
@@ -103,18 +111,23 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
     # α = (K + σ_on² I)⁻¹ y
     alpha, _ = lapack.dpotrs(L, y, lower=1)
     # R&W eq. 2.30: −½ yᵀα − Σ log L_ii − n/2 log 2π
-    lml = -0.5 * float(y @ alpha) - float(np.log(np.diag(L)).sum()) - 0.5 * n * _LOG2PI
+    lml = -0.5 * float(y @ alpha) - float(np.log(np.diagonal(L)).sum()) - 0.5 * n * _LOG2PI
     if not grad:
         return lml
-    Kinv, _ = lapack.dpotri(L, lower=1)
-    Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
-    # R&W eq. 5.9: ∂lml/∂θ_j = ½ tr((ααᵀ − K⁻¹) ∂K/∂θ_j)
-    W = np.outer(alpha, alpha) - Kinv
-    WK = W * Kf
+    Kinv, _ = lapack.dpotri(L, lower=1)           # lower triangle of K⁻¹ (upper: L's zeros)
+    Kinv += Kinv.T
+    Kinv.flat[:: n + 1] *= 0.5
+    # R&W eq. 5.9: ∂lml/∂θ_j = ½ tr(W ∂K/∂θ_j), W = ααᵀ − K⁻¹ (symmetric)
+    WK = np.outer(alpha, alpha)
+    WK -= Kinv
+    WK *= Kf                                      # W ∘ K_f
     g = np.empty(d + 2)
-    g[0] = WK.sum()                                      # ∂K/∂log σ_f = 2 K_f
-    g[1:d + 1] = 0.5 * (np.stack(D2, axis=-1).reshape(-1, d).T @ WK.ravel())  # ∂K/∂log l_j = K_f ∘ D2_j
-    g[d + 1] = sigma_n ** 2 * float(np.trace(W))         # ∂K/∂log σ_on = 2 σ_on² I
+    g[0] = WK.sum()                               # ∂K/∂log σ_f = 2 K_f
+    # ∂K/∂log l_j = K_f ∘ (x_aj − x_bj)²/l_j²;  ½ Σ_ab WK_ab (x_aj − x_bj)² = Σ_a r_a x_aj² − x_jᵀ WK x_j
+    r = WK.sum(axis=1)
+    P = WK @ Xb
+    g[1:d + 1] = il2 * (r @ (Xb * Xb) - np.einsum("ij,ij->j", Xb, P))
+    g[d + 1] = sigma_n ** 2 * (float(alpha @ alpha) - float(np.trace(Kinv)))   # ∂K/∂log σ_on = 2σ_on² I
     return lml, g
 
 

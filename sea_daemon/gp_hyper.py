@@ -7,8 +7,10 @@ rebuilt with the new values and swapped in (:meth:`IncrementalGP.set_log_theta`)
 one slice is O(N̄³) for a local model of at most N̄ points — bounded, independent of how much
 data the tree holds — and the whole slice happens inside one call, so a caller never sees a
 half-updated model.  The loop calls one slice every ``hyper_every`` updates
-(:class:`sea_daemon.loggp.LoGGP`), which bounds the added work per step; the slices are
-deterministic (no randomness, no clock), so replays reproduce them exactly.
+(:class:`sea_daemon.loggp.LoGGP`), which bounds the added work per step.  Inside the loop a
+slice is cut in two phases that run on two consecutive updates — :meth:`AdamHyper.propose`
+(gradient + Adam step, the model untouched) and :meth:`AdamHyper.apply` (rebuild and swap) —
+so no single step carries both.  The slices are deterministic (no randomness, no clock), so replays reproduce them exactly.
 
 Log-space bounds keep a slice from driving a leaf to a degenerate model (σ_on → 0 makes the
 factor ill-conditioned; l → 0 or ∞ make the GP useless).
@@ -64,12 +66,16 @@ class AdamHyper:
     def state_from_dict(d) -> np.ndarray:
         return np.asarray(d, dtype=float)
 
-    def step(self, gp: IncrementalGP, st: np.ndarray) -> float:
-        """One ascent step on ``gp`` (in place, factor rebuilt); returns the LML before it."""
+    def propose(self, gp: IncrementalGP, st: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """Phase 1: LML gradient of ``gp`` and one Adam ascent step on ``st`` (in place).
+
+        Returns ``(lml, new log θ)``; the model itself is not touched.  ``None`` for log θ when
+        the gradient is not finite (the step is skipped).
+        """
         p = self.input_dim + 2
         lml, g = gp.log_marginal_likelihood(grad=True)
         if not (math.isfinite(lml) and np.all(np.isfinite(g))):
-            return lml
+            return lml, None
         t = st[0] + 1.0
         m, v = st[1:1 + p], st[1 + p:]
         # Adam moments (in place in the state array)
@@ -81,9 +87,26 @@ class AdamHyper:
         mhat = m / (1.0 - self.beta1 ** t)
         vhat = v / (1.0 - self.beta2 ** t)
         theta = np.clip(gp.log_theta + self.lr * mhat / (np.sqrt(vhat) + self.eps), self.lo, self.hi)
+        return lml, theta
+
+    @staticmethod
+    def apply(gp: IncrementalGP, theta: np.ndarray) -> bool:
+        """Phase 2: swap ``theta`` into ``gp`` and rebuild its factor (O(N̄³), one dpotrf).
+
+        The new factor is computed before anything is replaced; if it fails the model keeps its
+        previous hyperparameters.  Returns whether the swap happened.
+        """
         old = gp.log_theta
         try:
             gp.set_log_theta(theta)
         except EstimatorFault:
             gp.set_log_theta(old)            # keep the last good model
+            return False
+        return True
+
+    def step(self, gp: IncrementalGP, st: np.ndarray) -> float:
+        """Both phases at once; returns the LML before the step."""
+        lml, theta = self.propose(gp, st)
+        if theta is not None:
+            self.apply(gp, theta)
         return lml

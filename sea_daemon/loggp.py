@@ -33,8 +33,9 @@ split and uses the same rule.
 
 Online hyperparameters: see :mod:`sea_daemon.gp_hyper` (``hyperopt=True``): every
 ``hyper_every`` updates one bounded slice runs — one Adam step of the log marginal likelihood
-of the leaf that just received data, followed by the rebuild of that leaf's factor, swapped in
-at once.  Deterministic under ``seed``.
+of the leaf that just received data (phase 1, in that update), then the rebuild of that leaf's
+factor with the new values, swapped in at once (phase 2, in the next update).  Each phase costs
+O(N̄³) for one leaf, independent of the tree size.  Deterministic under ``seed``.
 
 Update and prediction cost O(depth + N̄²) — flat in the number of points, since the depth of
 the tree grows only logarithmically.  No I/O, no clock, no threads.
@@ -121,6 +122,7 @@ class LoGGP:
         self.n_evicted = 0
         self.n_hyper_steps = 0
         self.last_leaf = 0
+        self._pending: tuple[int, np.ndarray] | None = None
 
     def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
         d = self.input_dim
@@ -174,8 +176,17 @@ class LoGGP:
         self.n_points += 1
         self.n_updates += 1
         self.last_leaf = node
-        if self.hyperopt and self.n_updates % self.hyper_every == 0:
-            self.hyper_slice(node)
+        if self.hyperopt:
+            if self._pending is not None:
+                # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
+                pnode, theta = self._pending
+                self._pending = None
+                g = self._gp[pnode]
+                if g is not None:              # (a leaf that split meanwhile keeps its values)
+                    self.hyper.apply(g, theta)
+            elif self.n_updates % self.hyper_every == 0:
+                # phase 1: gradient + Adam step on the leaf that just received data
+                self._propose(node)
 
     def _split(self, node: int, x: np.ndarray, y: float) -> int:
         """Split the full leaf ``node`` with the new point (LoG-GP).
@@ -232,13 +243,32 @@ class LoGGP:
         self.n_leaves += 1
         return children[0] if go_left[n] else children[1]
 
+    def _propose(self, node: int) -> float | None:
+        gp = self._gp[node]
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        if st is None:
+            st = self._adam[node] = self.hyper.new_state()
+        lml, theta = self.hyper.propose(gp, st)
+        if theta is not None:
+            self._pending = (node, theta)
+        self.n_hyper_steps += 1
+        return lml
+
     def hyper_slice(self, leaf: int | None = None) -> float | None:
         """One bounded hyperparameter slice on ``leaf`` (default: the last updated one).
 
         One Adam ascent step on that leaf's log marginal likelihood, then its factor is
-        rebuilt with the new values and swapped in.  Cost O(N̄³) with N̄ = ``max_points``,
+        rebuilt with the new values and swapped in (both phases in this call; ``update`` runs
+        the two phases on consecutive calls instead).  Cost O(N̄³) with N̄ = ``max_points``,
         independent of the tree size.  Returns the leaf's LML before the step (None if skipped).
         """
+        if self._pending is not None:
+            pnode, theta = self._pending
+            self._pending = None
+            if self._gp[pnode] is not None:
+                self.hyper.apply(self._gp[pnode], theta)
         node = self.last_leaf if leaf is None else leaf
         gp = self._gp[node] if 0 <= node < len(self._gp) else None
         if gp is None or gp.n_ < self.hyper_min_points:
@@ -395,6 +425,8 @@ class LoGGP:
                 "counters": {"n_points": self.n_points, "n_updates": self.n_updates,
                              "n_evicted": self.n_evicted, "n_hyper_steps": self.n_hyper_steps,
                              "last_leaf": self.last_leaf},
+                "pending": None if self._pending is None else
+                [self._pending[0], self._pending[1].tolist()],
                 "rng_state": [state[0], list(state[1]), state[2]]}
 
     @classmethod
@@ -424,6 +456,8 @@ class LoGGP:
             self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
             self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
             self.last_leaf = int(c["last_leaf"])
+            pend = d.get("pending")
+            self._pending = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
             rs = d["rng_state"]
             self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))
             return self
