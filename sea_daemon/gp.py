@@ -251,8 +251,46 @@ class IncrementalGP:
         self._rebuild()
         return self
 
-    def _rebuild(self) -> None:
-        """Refactorise ``K + σ_on² I`` from the stored data with the current hyperparameters."""
+    def kernel_matrix(self, X) -> np.ndarray:
+        """Noise-free kernel matrix ``k(x_a, x_b)`` of the rows of ``X`` (eq:SE, one gemm)."""
+        Xb = np.asarray(X, dtype=float) - (self.center_ if self.center_ is not None else 0.0)
+        B = Xb * self._il2
+        h = -0.5 * np.einsum("ij,ij->i", Xb, B)
+        # eq:SE expanded: k(x_a, x_b) = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
+        K = B @ Xb.T
+        K += h[:, None]
+        K += h[None, :] + self._log_sf2
+        return np.exp(K, out=K)
+
+    def spawn(self, X: np.ndarray, y: np.ndarray, K: np.ndarray | None = None,
+              capacity: int | None = None) -> "IncrementalGP":
+        """A new model with this one's hyperparameters on data ``(X, y)`` (no re-validation).
+
+        ``K``: the noise-free kernel matrix of ``X`` under these hyperparameters, if known
+        (e.g. a sub-matrix of the parent's at a LoG-GP split).
+        """
+        n = X.shape[0]
+        child = IncrementalGP.__new__(IncrementalGP)
+        child.input_dim, child.max_capacity, child.jitter = self.input_dim, self.max_capacity, self.jitter
+        for a in ("sigma_f", "lengthscales", "sigma_n", "_il2", "_il2l", "_sf2", "_log_sf2", "_sn2"):
+            setattr(child, a, getattr(self, a))
+        cap = max(n, 1) if capacity is None else max(n, 1, int(capacity))
+        if child.max_capacity is not None:
+            cap = max(n, min(cap, child.max_capacity))
+        child._alloc(cap)
+        child.n_ = n
+        child.center_, child._c = None, []
+        if n:
+            child.X_[:n], child.y_[:n] = X, y
+            child._set_center(X[0])
+            child._rebuild(K)
+        return child
+
+    def _rebuild(self, K: np.ndarray | None = None) -> None:
+        """Refactorise ``K + σ_on² I`` from the stored data with the current hyperparameters.
+
+        ``K``: the noise-free kernel matrix of the stored inputs, if already known.
+        """
         n = self.n_
         d = self.input_dim
         self._alpha_ok = False
@@ -263,11 +301,12 @@ class IncrementalGP:
         np.multiply(Xb, self._il2, out=A[:, :d])
         A[:, d] = self._log_sf2 - 0.5 * np.einsum("ij,ij->i", Xb, A[:, :d])
         A[:, d + 1] = 1.0
-        # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
-        K = A[:, :d] @ Xb.T
-        K += A[:, d][:, None]
-        K += A[:, d][None, :] - self._log_sf2
-        np.exp(K, out=K)
+        if K is None:
+            # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
+            K = A[:, :d] @ Xb.T
+            K += A[:, d][:, None]
+            K += A[:, d][None, :] - self._log_sf2
+            np.exp(K, out=K)
         jit = self.jitter
         for _ in range(8):
             Kj = K.copy()

@@ -210,22 +210,19 @@ class LoGGP:
         s = 0.5 * (ma[j] + mi[j])
         o = self.overlap * width[j]
         lo, hi = s - 0.5 * o, s + 0.5 * o
-        go_left = np.empty(n + 1, dtype=bool)
+        xj = X[:, j]
+        go_left = xj <= lo
+        # points inside the overlap go left with probability p = (hi − x_j)/o (in index order)
         rnd = self._rng.random
-        for i, xj in enumerate(X[:, j].tolist()):
-            if xj <= lo:
-                go_left[i] = True
-            elif xj >= hi:
-                go_left[i] = False
-            else:
-                go_left[i] = rnd() < (hi - xj) / (hi - lo)
-        theta = gp.log_theta
+        for i in np.flatnonzero((xj > lo) & (xj < hi)).tolist():
+            go_left[i] = rnd() < (hi - xj[i]) / (hi - lo)
+        # one kernel matrix of all N̄ + 1 points; the children's are its sub-matrices
+        Kall = gp.kernel_matrix(X)
         cap = min(self.max_points, n // 2 + 16)
         children = []
         for mask in (go_left, ~go_left):
-            leaf = self._new_leaf(theta, capacity=max(cap, int(mask.sum())))
-            if mask.any():
-                leaf.fit(X[mask], Y[mask])
+            idx = np.flatnonzero(mask)
+            leaf = gp.spawn(X[idx], Y[idx], Kall[np.ix_(idx, idx)], capacity=cap)
             children.append(len(self._gp))
             self._gp.append(leaf)
             self._dim.append(-1)

@@ -212,3 +212,18 @@ def test_bad_inputs_raise_input_error():
         LoGGP(3, overlap=1.5)
     with pytest.raises(InputError, match="max_points"):
         LoGGP(3, max_points=1)
+
+
+def test_hyper_slice_runs_in_two_phases_on_consecutive_updates():
+    X, y = _stream(40, seed=10)
+    gp = LoGGP(3, max_points=100, hyperopt=True, hyper_every=20, hyper_min_points=10)
+    for xi, yi in zip(X[:19], y[:19]):
+        gp.update(xi, yi)
+    theta0 = gp.leaf(0).log_theta
+    gp.update(X[19], y[19])                          # 20th update: phase 1 (propose)
+    assert gp._pending is not None and np.array_equal(gp.leaf(0).log_theta, theta0)
+    gp.update(X[20], y[20])                          # 21st: phase 2 (swap in, rebuilt)
+    assert gp._pending is None and not np.array_equal(gp.leaf(0).log_theta, theta0)
+    ref = IncrementalGP(3, *(lambda t: (np.exp(t[0]), np.exp(t[1:4]), np.exp(t[4])))(gp.leaf(0).log_theta))
+    ref.fit(X[:21], y[:21])
+    assert gp.predict(X[30]) == pytest.approx(ref.predict(X[30]), rel=1e-8)
