@@ -12,6 +12,13 @@ slice is cut in two phases that run on two consecutive updates — :meth:`AdamHy
 (gradient + Adam step, the model untouched) and :meth:`AdamHyper.apply` (rebuild and swap) —
 so no single step carries both.  The slices are deterministic (no randomness, no clock), so replays reproduce them exactly.
 
+Off the loop.  Instead of in-loop slices, a caller may run the adaptation in another process:
+:meth:`LoGGP.hyper_request` takes a JSON-able snapshot of one leaf (data, log θ, Adam state),
+:func:`adam_steps` (pure, picklable-free: plain dicts in and out) runs any number of Adam steps
+on it wherever the caller likes, and :meth:`LoGGP.hyper_apply` swaps the result in at a step
+boundary in one call (one O(N̄³) rebuild), if that leaf still exists.  With ``steps=1`` the
+result equals one synchronous slice on the same data.
+
 Log-space bounds keep a slice from driving a leaf to a degenerate model (σ_on → 0 makes the
 factor ill-conditioned; l → 0 or ∞ make the GP useless).
 """
@@ -110,3 +117,25 @@ class AdamHyper:
         if theta is not None:
             self.apply(gp, theta)
         return lml
+
+
+def adam_steps(request: dict, steps: int = 1, lr: float = 0.05, bounds: dict | None = None) -> dict:
+    """Run ``steps`` Adam ascent steps on the leaf snapshot ``request`` (see
+    :meth:`sea_daemon.loggp.LoGGP.hyper_request`); pure, plain dicts in and out, so it can run
+    in a worker process.  Returns ``{"node", "log_theta", "adam", "lml"}`` for
+    :meth:`LoGGP.hyper_apply` (``lml``: the LML before each step).
+    """
+    d = int(request["input_dim"])
+    X = np.asarray(request["X"], dtype=float).reshape(-1, d)
+    t = np.asarray(request["log_theta"], dtype=float)
+    gp = IncrementalGP(d, math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1]),
+                       capacity=max(1, X.shape[0]), jitter=float(request.get("jitter", 1e-10)))
+    gp.fit(X, request["y"])
+    if request.get("center") is not None:
+        gp._set_center(request["center"])
+        gp._rebuild()
+    hyp = AdamHyper(d, lr=lr, bounds=bounds)
+    st = hyp.new_state() if request.get("adam") is None else np.asarray(request["adam"], dtype=float)
+    lmls = [hyp.step(gp, st) for _ in range(int(steps))]
+    return {"node": int(request["node"]), "log_theta": gp.log_theta.tolist(),
+            "adam": st.tolist(), "lml": lmls}

@@ -277,6 +277,37 @@ class LoGGP:
         self.n_hyper_steps += 1
         return lml
 
+    def hyper_request(self, leaf: int | None = None) -> dict | None:
+        """JSON-able snapshot of one leaf (default: the last updated) for off-loop adaptation
+        with :func:`sea_daemon.gp_hyper.adam_steps`; None if the leaf has too few points."""
+        node = self.last_leaf if leaf is None else int(leaf)
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        n = gp.n_
+        return {"node": node, "input_dim": self.input_dim, "X": gp.X_[:n].ravel().tolist(),
+                "y": gp.y_[:n].tolist(), "center": gp.center_.tolist(),
+                "log_theta": gp.log_theta.tolist(), "jitter": gp.jitter,
+                "adam": None if st is None else st.tolist()}
+
+    def hyper_apply(self, result: dict) -> bool:
+        """Swap in a result of :func:`~sea_daemon.gp_hyper.adam_steps` (one O(N̄³) rebuild).
+
+        Applied only if that node is still a leaf (a leaf that split meanwhile keeps the values
+        it passed on to its children).  Returns whether it was applied.
+        """
+        node = int(result["node"])
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None:
+            return False
+        theta = np.clip(np.asarray(result["log_theta"], dtype=float), self.hyper.lo, self.hyper.hi)
+        if not self.hyper.apply(gp, theta):
+            return False
+        self._adam[node] = np.asarray(result["adam"], dtype=float)
+        self.n_hyper_steps += len(result.get("lml", [1]))
+        return True
+
     def optimize_hyperparameters(self, steps: int = 20) -> None:
         """Off-line: ``steps`` Adam slices on every leaf (e.g. at the end of calibration)."""
         for _ in range(int(steps)):

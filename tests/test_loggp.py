@@ -227,3 +227,26 @@ def test_hyper_slice_runs_in_two_phases_on_consecutive_updates():
     ref = IncrementalGP(3, *(lambda t: (np.exp(t[0]), np.exp(t[1:4]), np.exp(t[4])))(gp.leaf(0).log_theta))
     ref.fit(X[:21], y[:21])
     assert gp.predict(X[30]) == pytest.approx(ref.predict(X[30]), rel=1e-8)
+
+
+def test_off_loop_adaptation_equals_in_loop_slice():
+    from sea_daemon.gp_hyper import adam_steps
+    X, y = _stream(300, seed=12)
+    a = LoGGP(3, max_points=60, seed=2)
+    b = LoGGP(3, max_points=60, seed=2)
+    for xi, yi in zip(X, y):
+        a.update(xi, yi)
+        b.update(xi, yi)
+    node = a.last_leaf
+    a.hyper_slice(node)
+    req = b.hyper_request(node)
+    res = adam_steps(json.loads(json.dumps(req)), steps=1, lr=b.hyper.lr)
+    assert b.hyper_apply(json.loads(json.dumps(res)))
+    assert np.allclose(a.leaf(node).log_theta, b.leaf(node).log_theta, rtol=1e-10)
+    assert b.predict(X[5]) == pytest.approx(a.predict(X[5]), rel=1e-9)
+    # several steps off the loop raise the leaf's LML
+    res5 = adam_steps(b.hyper_request(node), steps=5)
+    assert res5["lml"][-1] > res5["lml"][0]
+    b.update(X[0] + 5.0, 0.0)                         # a result for a node that split is dropped
+    stale = dict(res5, node=0)
+    assert not b.hyper_apply(stale)
