@@ -35,7 +35,9 @@ Online hyperparameters: see :mod:`sea_daemon.gp_hyper` (``hyperopt=True``): ever
 ``hyper_every`` updates one bounded slice runs — one Adam step of the log marginal likelihood
 of the leaf that just received data (phase 1, in that update), then the rebuild of that leaf's
 factor with the new values, swapped in at once (phase 2, in the next update).  Each phase costs
-O(N̄³) for one leaf, independent of the tree size.  Deterministic under ``seed``.
+O(N̄³) for one leaf, independent of the tree size, and a call that splits or evicts runs no
+phase (at most one O(N̄³) piece of work per call).  Deterministic under ``seed``.  For
+adaptation in another process see :meth:`LoGGP.hyper_request` / :meth:`LoGGP.hyper_apply`.
 
 Update and prediction cost O(depth + N̄²) — flat in the number of points, since the depth of
 the tree grows only logarithmically.  No I/O, no clock, no threads.
@@ -123,6 +125,7 @@ class LoGGP:
         self.n_hyper_steps = 0
         self.last_leaf = 0
         self._pending: tuple[int, np.ndarray] | None = None
+        self._hyper_due = False
 
     def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
         d = self.input_dim
@@ -162,8 +165,10 @@ class LoGGP:
                 node = left[node] if self._rng.random() < p else right[node]
             j = dim[node]
         gp = self._gp[node]
+        heavy = True                             # a split or an eviction: O(N̄³) in this call
         if gp.n_ < self.max_points:
             gp.add(x, y)
+            heavy = False
         elif (self.max_leaves is None or self.n_leaves < self.max_leaves) \
                 and (child := self._split(node, x, y)) >= 0:
             node = child                         # the leaf the new point went to
@@ -177,6 +182,12 @@ class LoGGP:
         self.n_updates += 1
         self.last_leaf = node
         if self.hyperopt:
+            if self.n_updates % self.hyper_every == 0:
+                self._hyper_due = True
+            # at most one O(N̄³) piece of work per call: a hyperparameter phase waits for a
+            # call without a split or an eviction
+            if heavy:
+                return
             if self._pending is not None:
                 # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
                 pnode, theta = self._pending
@@ -184,8 +195,9 @@ class LoGGP:
                 g = self._gp[pnode]
                 if g is not None:              # (a leaf that split meanwhile keeps its values)
                     self.hyper.apply(g, theta)
-            elif self.n_updates % self.hyper_every == 0:
+            elif self._hyper_due:
                 # phase 1: gradient + Adam step on the leaf that just received data
+                self._hyper_due = False
                 self._propose(node)
 
     def _split(self, node: int, x: np.ndarray, y: float) -> int:
@@ -452,7 +464,7 @@ class LoGGP:
                 "leaves": leaves,
                 "counters": {"n_points": self.n_points, "n_updates": self.n_updates,
                              "n_evicted": self.n_evicted, "n_hyper_steps": self.n_hyper_steps,
-                             "last_leaf": self.last_leaf},
+                             "last_leaf": self.last_leaf, "hyper_due": self._hyper_due},
                 "pending": None if self._pending is None else
                 [self._pending[0], self._pending[1].tolist()],
                 "rng_state": [state[0], list(state[1]), state[2]]}
@@ -484,6 +496,7 @@ class LoGGP:
             self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
             self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
             self.last_leaf = int(c["last_leaf"])
+            self._hyper_due = bool(c.get("hyper_due", False))
             pend = d.get("pending")
             self._pending = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
             rs = d["rng_state"]
