@@ -13,12 +13,3 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_v, "1")
 
 __version__ = "0.1.0"
-
-import os as _os
-
-# The estimator's linear algebra is on small matrices (N̄ ≈ 100) inside a fixed-rate loop;
-# a multithreaded BLAS only adds thread wake-ups and contention there (measured: dpotri on a
-# 100×100 matrix 3.5 ms threaded vs 0.12 ms single-threaded on the 2-core target).  This must
-# run before numpy is first imported; an explicit setting in the environment still wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
