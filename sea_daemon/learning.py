@@ -4,6 +4,10 @@
   ``f(z) = τ_m − (τ_l(z) + J θ̈_m + D_m θ̇_m)`` (``eq:loadsidewmotor`` under
   ``ass:passive_human``: τ_h,act = 0 during training), from causal kinematics, through
   :meth:`sea_daemon.model.SEAModel.residual_from_kinematics`.
+* :func:`training_pairs_from_log` — the same from a measured log (contracts §1): encoder
+  offsets removed, kinematics by the causal differentiator the estimator uses
+  (:class:`sea_daemon.kinematics.CausalDifferentiator`, Sec. V-A) or, offline, zero-phase
+  smoothing, and a declared torque delay applied.
 * :class:`ResidualGP` — one LoG-GP per joint (an independent GP per target dimension, Sec.
   IV-A), exposing the GP-AKF's residual hook ``predict(z) -> (μ (n,), ∂μ/∂z (n, 3n), σ² (n,))``
   (``alg:torqueresidualAKF`` line 5, ``eq:moejac``) and ``update(z, f)``.
@@ -50,6 +54,45 @@ def training_pairs(model, q, dq, ddq, theta_m, dtheta_m, ddtheta_m, tau_m):
         # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0)
         F[k] = model.residual_from_kinematics(q[k], dq[k], ddq[k], th[k], dth[k], ddth[k], tau[k])
     return Z, F
+
+
+def training_pairs_from_log(model, log, kinematics=None, causal: bool = True, skip: int | None = None):
+    """``(Z, F)`` from a passive-human log (ass:passive_human) for ``model`` (an SEAModel).
+
+    ``kinematics``: a :class:`~sea_daemon.config.KinematicsConfig` (default: its defaults).
+    ``causal``: differentiate online as the estimator does (the GP then sees the same
+    kinematics in training and in estimation); ``False``: offline zero-phase smoothing.
+    ``skip``: initial samples dropped while the causal filter fills (default: its length).
+    """
+    from .config import KinematicsConfig
+    from .kinematics import CausalDifferentiator, smooth_derivatives
+
+    kc = kinematics or KinematicsConfig()
+    n = model.n
+    q, th = model.correct_measurement(np.asarray(log.q, dtype=float), np.asarray(log.theta_m, dtype=float))
+    q, th = _cols("q", q, None, n), _cols("theta_m", th, None, n)
+    t = np.asarray(log.t, dtype=float)
+    N = t.shape[0]
+    if causal:
+        diff = CausalDifferentiator(log.dt, kc.window, 2 * n, kc.method, kc.degree)
+        kin = np.empty((N, 3, 2 * n))
+        for k in range(N):
+            a, v, acc = diff.update(np.concatenate([q[k], th[k]]))
+            kin[k, 0], kin[k, 1], kin[k, 2] = a, v, acc
+        qa, dq, ddq = kin[:, 0, :n], kin[:, 1, :n], kin[:, 2, :n]
+        tha, dth, ddth = kin[:, 0, n:], kin[:, 1, n:], kin[:, 2, n:]
+        skip = diff.L if skip is None else int(skip)
+    else:
+        qa, dq, ddq = (np.asarray(a).reshape(N, n) for a in smooth_derivatives(t, q))
+        tha, dth, ddth = (np.asarray(a).reshape(N, n) for a in smooth_derivatives(t, th))
+        skip = 0 if skip is None else int(skip)
+    tau = _cols("tau_m", log.tau_m, N, n).copy()
+    for j in range(n):
+        if model.delay[j] > 0:
+            # a declared delay: the motor side felt τ_m(t − delay)
+            tau[:, j] = np.interp(t - model.delay[j], t, tau[:, j])
+    Z, F = training_pairs(model, qa, dq, ddq, tha, dth, ddth, tau)
+    return Z[skip:], F[skip:]
 
 
 class ResidualGP:

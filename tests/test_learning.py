@@ -7,7 +7,7 @@ import pytest
 from sea_daemon.config import load_config, default_config_path
 from sea_daemon.effects import make_effect
 from sea_daemon.errors import InputError
-from sea_daemon.learning import ResidualGP, training_pairs
+from sea_daemon.learning import ResidualGP, training_pairs, training_pairs_from_log
 from sea_daemon.model import SEAModel
 
 EXTRA = [make_effect("human_viscoelastic", "load", k_h=1.2, q_h0=0.6, b_h=0.25),
@@ -80,3 +80,19 @@ def test_two_joints_shapes_and_roundtrip():
         res.update(Z[0], [1.0])
     with pytest.raises(InputError, match="shape"):
         res.predict(Z[0][:3])
+
+
+def test_training_pairs_from_a_log():
+    from sea_daemon.logio import MeasuredLog
+    cfg, nominal, kin, extra = _passive_run(N=600)
+    q, dq, ddq, th, dth, ddth, tau = kin
+    t = np.arange(600) * 0.01
+    log = MeasuredLog(t, q[:, None], th[:, None], tau[:, None])
+    Z, F = training_pairs_from_log(nominal, log, cfg.kinematics, causal=False)
+    inner = slice(20, -20)                            # away from the smoothing edges
+    assert np.allclose(Z[inner, 0], q[inner], atol=1e-9)
+    assert np.allclose(F[inner, 0], extra[inner], atol=1e-3)
+    Zc, Fc = training_pairs_from_log(nominal, log, cfg.kinematics, causal=True)
+    assert Zc.shape[0] < 600 and Zc.shape[1] == 3
+    # causal kinematics lag (group delay) but stay close on this slow motion
+    assert np.sqrt(np.mean((Fc[:, 0] - extra[600 - Fc.shape[0]:]) ** 2)) < 0.03
