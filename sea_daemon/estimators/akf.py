@@ -299,6 +299,7 @@ class AKF:
             # eq:linearization: F = F_nom − I_μ M⁻¹ F_GP, F_GP = ∂μ/∂z · ∂z/∂x
             A -= self.G_mu @ (np.asarray(dmu_dz, dtype=float) @ self.dz_dx)
         self.A_k[:] = A
+        self.xdot_k = xdot          # ẋ of the prediction model at (x̂_{k−1}, u_{k−1})
         # time discretisation (Sec. IV-B, "e.g. as in Wahrburg et al."): local linearisation
         dx, F, Gam = discretize_affine(A, xdot, self.G_mu, dt, out=self._aug)
         self.F_k[:] = F
