@@ -166,8 +166,15 @@ class EstimatorConfig:
     P0: np.ndarray                 # initial covariance                          (5n×5n)
     delta: float = 0.05            # probability level of the bounds (eq:bounds)
     sign_eps: float = 0.01         # [rad/s] smoothing of sign() in declared friction
+    # estimator health (sea_daemon.estimators.health, docs/safety.md)
+    nis_window: int = 100          # steps of the windowed mean NIS
+    nis_alpha: float = 1e-3        # two-sided level of its chi2 band
+    nis_scale: float = 10.0        # divergence: windowed mean > nis_scale x the band's upper edge
+    pd_check_every: int = 1        # Cholesky of P every k steps (0: never)
+    gp_input_margin: float = 0.1   # GP inputs clipped to the training box +- this fraction of its width
 
-    KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps"]
+    KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
+            "pd_check_every", "gp_input_margin"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -191,14 +198,32 @@ class EstimatorConfig:
         delta = _num(source, "estimator.delta", d.get("delta", 0.05))
         if not 0 < delta < 1:
             raise ConfigError(source, "estimator.delta", f"must be in (0, 1), got {delta}")
+        def _int(key, default, lo, hi):
+            v = d.get(key, default)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(source, f"estimator.{key}", f"must be an integer in {lo}..{hi}, got {v!r}")
+            return v
+        nis_alpha = _num(source, "estimator.nis_alpha", d.get("nis_alpha", 1e-3))
+        if not 0 < nis_alpha < 1:
+            raise ConfigError(source, "estimator.nis_alpha", f"must be in (0, 1), got {nis_alpha}")
+        nis_scale = _num(source, "estimator.nis_scale", d.get("nis_scale", 10.0))
+        if not nis_scale >= 1:
+            raise ConfigError(source, "estimator.nis_scale", f"must be >= 1, got {nis_scale}")
+        margin = _num(source, "estimator.gp_input_margin", d.get("gp_input_margin", 0.1))
+        if not margin >= 0:
+            raise ConfigError(source, "estimator.gp_input_margin", f"must be >= 0, got {margin}")
         return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
-                   sign_eps=_num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True))
+                   sign_eps=_num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True),
+                   nis_window=_int("nis_window", 100, 1, 100000), nis_alpha=nis_alpha, nis_scale=nis_scale,
+                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin)
 
     def to_dict(self) -> dict:
         def dg(a):
             return np.diag(a).tolist() if np.allclose(a, np.diag(np.diag(a))) else a.tolist()
         return {"R": dg(self.R), "Sigma_nom": dg(self.Sigma_nom), "P0": dg(self.P0),
-                "delta": self.delta, "sign_eps": self.sign_eps}
+                "delta": self.delta, "sign_eps": self.sign_eps, "nis_window": self.nis_window,
+                "nis_alpha": self.nis_alpha, "nis_scale": self.nis_scale, "pd_check_every": self.pd_check_every,
+                "gp_input_margin": self.gp_input_margin}
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ from ..errors import EstimatorFault
 from ..kinematics import CausalDifferentiator
 from ..model import SEAModel
 from .base import Estimate, Residual, chi2_scale
+from .health import EstimatorHealth
 
 
 def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
@@ -133,6 +134,8 @@ class AKF:
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
+        # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
+        self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale, est.pd_check_every)
         # --- input history for the declared delay (τ_m(t − delay), linear interpolation
         # of the sample sequence = the exact interval average of a zero-order-hold input)
         self.delay = np.array(self.model.delay, dtype=float)
@@ -206,6 +209,7 @@ class AKF:
         Without a sample (``reset()``) the next :meth:`update` initialises instead.
         """
         n = self.n
+        self.health.reset()
         if q is None or theta_m is None:
             self._ready = False
             self.est.k = 0
@@ -354,6 +358,8 @@ class AKF:
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
                                  f"(non-finite measurement or diverging model/noise settings)")
+        # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
+        self.health.check(self.nis, P, self.est.k + 1)
         self.est.k += 1
         return self._fill_estimate()
 

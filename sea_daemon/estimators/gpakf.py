@@ -30,6 +30,7 @@ from ..logio import MeasuredLog
 from ..model import SEAModel
 from .akf import AKF
 from .base import Estimate
+from .health import InputBox
 
 
 class _ResidualHook:
@@ -40,17 +41,29 @@ class _ResidualHook:
     validated); the returned arrays are overwritten by the next call.
     """
 
-    def __init__(self, gp: ResidualGP):
+    def __init__(self, gp: ResidualGP, margin: float = 0.1):
         self.gp = gp
         n = gp.n
         self.mu = np.zeros(n)
         self.jac = np.zeros((n, 3 * n))
         self.var = np.zeros(n)
+        # bounded GP inputs (health.InputBox): the box of the training inputs, from the data a
+        # loaded model already holds, widened by ``margin`` of its width on each side
+        self.box = InputBox(3 * n, margin)
+        for g in gp.gps:
+            for leaf in g.leaves():
+                lg = g.leaf(leaf)
+                if lg.n_:
+                    self.box.add_many(lg.X_[:lg.n_])
 
     def predict(self, z):
+        # z clipped to the training box ± margin; the clipped coordinates get a zero Jacobian
+        zc = self.box.clip(z)
         for i, g in enumerate(self.gp.gps):
             # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
-            self.mu[i], self.var[i], self.jac[i] = g.predict_with_grad(z)
+            self.mu[i], self.var[i], self.jac[i] = g.predict_with_grad(zc)
+        if self.box.clipped.any():
+            self.jac[:, self.box.clipped] = 0.0
         return self.mu, self.jac, self.var
 
 
@@ -69,7 +82,7 @@ class GPAKF(AKF):
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: ResidualGP | None = None,
                  learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0):
         self.gp = residual if residual is not None else ResidualGP.from_config(cfg)
-        super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp), model=model)
+        super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp, cfg.estimator.gp_input_margin), model=model)
         self.learning = bool(learning)
         self.tau_lag = int(tau_lag)
         n = self.n
@@ -130,6 +143,7 @@ class GPAKF(AKF):
 
     def _learn(self, tau_m) -> None:
         z, f = self._training_pair(tau_m)
+        self.residual.box.add(z)
         # one independent GP per joint (Sec. IV-A); the LoG-GP runs its bounded
         # hyperparameter slices inside update (learning.hyperopt)
         for i, g in enumerate(self.gp.gps):
