@@ -42,7 +42,7 @@ from ..errors import EstimatorFault
 from ..kinematics import CausalDifferentiator
 from ..model import SEAModel
 from .base import Estimate, Residual, chi2_scale
-from .health import EstimatorHealth
+from .health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 
 
 def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
@@ -333,9 +333,12 @@ class AKF:
         rhs = self._rhs
         rhs[:, :d] = Pm[:m, :]
         rhs[:, d] = self.innovation
+        if not (np.isfinite(S).all() and np.isfinite(self.innovation).all()):
+            raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: prediction became non-finite "
+                                     f"(non-finite state, measurement or covariance)")
         L, info = _dpotrf(S, lower=1)
-        if info != 0 or not np.isfinite(S).all():
-            raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
+        if info != 0:
+            raise CovarianceNotPD(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
                                  f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0")
         sol, _ = _dpotrs(L, rhs, lower=1)
         K = self.K_k
@@ -356,7 +359,7 @@ class AKF:
         P += P.T
         P *= 0.5
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
-            raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
+            raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
                                  f"(non-finite measurement or diverging model/noise settings)")
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(self.nis, P, self.est.k + 1)

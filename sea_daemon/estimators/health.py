@@ -41,6 +41,12 @@ class NISDivergence(EstimatorFault):
     fault = Fault.NIS_DIVERGENCE
 
 
+class EstimatorNonFinite(EstimatorFault):
+    """The state, its covariance or the innovation became NaN/inf."""
+
+    fault = Fault.ESTIMATOR_NONFINITE
+
+
 class CovarianceNotPD(EstimatorFault):
     """The state covariance P lost symmetry, finiteness or positive definiteness."""
 
@@ -56,7 +62,7 @@ def check_pd(P: np.ndarray, what: str = "P", step: int | None = None) -> None:
     """Raise :class:`EstimatorFault` unless ``P`` is finite, symmetric and positive definite."""
     where = f" at step {step}" if step is not None else ""
     if not np.isfinite(P).all():
-        raise CovarianceNotPD(f"covariance {what}{where} is not finite")
+        raise EstimatorNonFinite(f"covariance {what}{where} is not finite")
     asym = float(np.max(np.abs(P - P.T)))
     scale = float(np.max(np.abs(P))) or 1.0
     if asym > 1e-9 * scale:
