@@ -52,7 +52,7 @@ from sea_daemon.config import ModelConfig, repo_root
 from . import cia402
 from .bus import make_bus
 from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
-                     HeartbeatLost, PdoTimeout, SendFailed)
+                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed)
 from .interface import FaultFlag, HardwareInterface, Measurement
 
 EDS_DIR = repo_root() / "configs" / "eds"
@@ -93,10 +93,12 @@ def interpolation_period(period: float) -> tuple[int, int]:
 class _Slot:
     """One TPDO of the cycle: the rx callback's buffer and its copy for ``read()``."""
 
-    __slots__ = ("node", "cob_id", "buf", "snap", "count", "snap_count", "missed")
+    __slots__ = ("node", "cob_id", "buf", "snap", "count", "snap_count", "missed", "length", "bad_len")
 
-    def __init__(self, node: int, cob_id: int):
+    def __init__(self, node: int, cob_id: int, length: int = 0):
         self.node, self.cob_id = node, cob_id
+        self.length = length          # bytes the mapping defines (0: not checked)
+        self.bad_len = 0              # length of a frame that did not match, this cycle
         self.buf = bytearray(8)
         self.snap = bytearray(8)
         self.count = 0
@@ -351,7 +353,7 @@ class CanopenHardware(HardwareInterface):
         self._map(d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size,
                   1 if self.bus_cfg.sync_rpdo else 255)
         self._map(d, d.rpdo, 2, (), 0x300 + d.id, None)
-        self._slots.append(_Slot(d.id, 0x180 + d.id))
+        self._slots.append(_Slot(d.id, 0x180 + d.id, DRIVE_TPDO.size))
         self.network.subscribe(0x180 + d.id, self._rx_callback(self._slots[-1]))
         self._rpdo_msgs.append(can.Message(arbitration_id=0x200 + d.id, data=bytearray(DRIVE_RPDO.size),
                                            is_extended_id=False))
@@ -359,7 +361,7 @@ class CanopenHardware(HardwareInterface):
     def _configure_encoder(self, e) -> None:
         self._map(e, e.tpdo, 1, ENCODER_TPDO_MAP, 0x180 + e.id, ENCODER_TPDO.size)
         self._map(e, e.tpdo, 2, (), 0x280 + e.id, None)
-        self._slots.append(_Slot(e.id, 0x180 + e.id))
+        self._slots.append(_Slot(e.id, 0x180 + e.id, ENCODER_TPDO.size))
         self.network.subscribe(0x180 + e.id, self._rx_callback(self._slots[-1]))
 
     def _await_heartbeats(self, state: int | None = None) -> None:
@@ -411,7 +413,10 @@ class CanopenHardware(HardwareInterface):
                     self._late_frames += 1
                     return
                 k = min(len(data), 8)
-                slot.buf[:k] = data[:k]
+                if slot.length and len(data) != slot.length:
+                    slot.bad_len = len(data) or -1        # reported by read(), never decoded
+                else:
+                    slot.buf[:k] = data[:k]
                 slot.count += 1
                 if slot.count == 1:
                     self._arrived += 1
@@ -474,6 +479,7 @@ class CanopenHardware(HardwareInterface):
         with self._rx_lock:
             for s in self._slots:
                 s.count = 0
+                s.bad_len = 0
             self._arrived = 0
             self._all_rx.clear()
             if self._late_frames:
@@ -500,6 +506,10 @@ class CanopenHardware(HardwareInterface):
         m.valid = True
         missing = None
         for s in self._slots:
+            if s.bad_len:
+                m.faults |= FaultFlag.PDO_MISSING
+                m.valid = False
+                raise PdoLengthError(s.node, s.cob_id, max(s.bad_len, 0), s.length, self._cycle)
             if s.snap_count == 0:
                 s.missed += 1
                 m.faults |= FaultFlag.PDO_MISSING

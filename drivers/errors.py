@@ -28,6 +28,18 @@ class PdoTimeout(HardwareError):
                          f"(waited {timeout_s * 1e3:.1f} ms after SYNC; {missed} consecutive cycle(s) missed)")
 
 
+class PdoLengthError(HardwareError):
+    """A TPDO of this cycle arrived with a length other than its mapping's (CiA 301: a PDO
+    length error; the data cannot be decoded).  Treated as a missing TPDO."""
+
+    fault, flag = Fault.TPDO_MISSING, FaultFlag.PDO_MISSING
+
+    def __init__(self, node: int, cob_id: int, got: int, expected: int, cycle: int):
+        self.node, self.cob_id, self.got, self.expected, self.cycle = node, cob_id, got, expected, cycle
+        super().__init__(f"{_node(node)}: TPDO 0x{cob_id:03X} has {got} bytes, expected {expected} "
+                         f"(PDO length error in cycle {cycle}: mapping on the device differs)")
+
+
 class HeartbeatLost(HardwareError):
     """No heartbeat from a node within its consumer time (canopen itself does not check)."""
 

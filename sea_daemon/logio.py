@@ -64,6 +64,11 @@ def _parse_float(text: str) -> float:
     return float(text)
 
 
+#: angle columns checked for units by range (joint side, rad)
+ANGLE_COLUMNS = ("q", "theta_m")
+ANGLE_LIMIT = 2 * math.pi
+
+
 def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> MeasuredLog:
     """Read and validate a measured log.
 
@@ -119,6 +124,22 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
     if bad.size:
         i = int(bad[0]) + 1
         raise LogFormatError(p, i + 2, f"time does not increase: t = {t[i]} after {t[i - 1]}")
+
+    # angles in degrees instead of radians, detected by range: an exoskeleton joint moves less
+    # than one turn, so every angle of a valid log (joint side, rad) lies within ±2π and spans
+    # less than 2π; a log in degrees breaks that for any motion of more than 6.3°, or any
+    # angle beyond ±6.3°
+    for base in ANGLE_COLUMNS:
+        for c in column_names(base, n):
+            a = data[:, col[c]]
+            over = np.nonzero(np.abs(a) > ANGLE_LIMIT)[0]
+            span = float(a.max() - a.min())
+            if over.size or span > ANGLE_LIMIT:
+                i = int(over[0]) if over.size else int(np.argmax(np.abs(a - a[0]) > ANGLE_LIMIT))
+                raise LogFormatError(p, i + 2, f"column {c}: {a[i]:g} rad"
+                                     + (f" (|{c}| > 2π)" if over.size else f" spans {span:g} rad (> 2π)")
+                                     + ": degrees instead of radians? (a joint moves less than one turn; "
+                                       "angles must be in rad, within ±2π)")
 
     def block(base):
         return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)

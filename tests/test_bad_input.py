@@ -1,0 +1,293 @@
+"""Bad input everywhere: every CLI command and config path with malformed files.
+
+Each case: exit status 2, exactly one line on stderr naming the file / key / value, no
+traceback, nothing written.  Devices answering wrongly on the bus are reported by node and
+object (start-up checks in tests/test_drivers_startup.py; here: an EDS with a wrong device
+type and a TPDO of the wrong length at run time).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import shutil
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sea_daemon.cli import main
+from sea_daemon.config import default_config_path, load_config, repo_root
+from sea_daemon.errors import InputError, LogFormatError
+from sea_daemon.logio import read_log
+
+CFG = str(default_config_path())
+SCEN = str(repo_root() / "configs" / "scenarios" / "passive.yaml")
+
+
+def cli(argv, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as e:             # argparse errors
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line(code, err, *expect):
+    lines = err.strip().splitlines()
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for e in expect:
+        assert re.search(e, lines[0]), (e, lines[0])
+
+
+# ------------------------------------------------------------------ measured logs
+def good_rows(N=40, deg=False):
+    t = np.arange(N) * 0.01
+    q = 0.3 + 0.2 * np.sin(2 * np.pi * t)
+    th = q - 0.01
+    if deg:
+        q, th = np.degrees(q), np.degrees(th)
+    return [f"{a:.6g},{b:.9g},{c:.9g},{d:.6g}" for a, b, c, d in zip(t, q, th, 0.5 * np.cos(t))]
+
+
+HEAD = "t,q,theta_m,tau_m\n"
+BAD_CSV = {
+    "truncated": (HEAD + "\n".join(good_rows()) + "\n0.4,0.3", r":42: has 2 fields, the header has 4 \(truncated"),
+    "wrong columns": ("t,q,theta,tau\n" + "\n".join(r for r in good_rows()) + "\n",
+                      r":1: missing required column\(s\) theta_m, tau_m"),
+    "nan": (HEAD + "\n".join(good_rows()[:5]) + "\n0.05,nan,0.29,0\n", r":7: column q: nan is not finite"),
+    "time going back": (HEAD + "\n".join(good_rows()[:5]) + "\n0.03,0.3,0.29,0\n", r":7: time does not increase"),
+    "degrees": (HEAD + "\n".join(good_rows(deg=True)) + "\n", r"column q: .*degrees instead of radians\?"),
+    "header only": (HEAD, r"has 0 data rows"),
+    "binary": ("\x00\x01\x02garbage\n\x00", r"missing required column"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CSV))
+@pytest.mark.parametrize("role", ["log", "train"])
+def test_replay_bad_csv(tmp_path, capsys, case, role):
+    text, expect = BAD_CSV[case]
+    bad = tmp_path / "bad.csv"
+    bad.write_text(text)
+    good = tmp_path / "good.csv"
+    good.write_text(HEAD + "\n".join(good_rows()) + "\n")
+    log, train = (bad, good) if role == "log" else (good, bad)
+    out = tmp_path / "est.csv"
+    code, stdout, err = cli(["replay", str(log), "--config", CFG, "--train", str(train), "--estimator", "gp-akf",
+                             "--out", str(out)], capsys)
+    assert_one_line(code, err, re.escape(str(bad)), expect)
+    assert not out.exists()
+
+
+def test_radian_logs_of_a_real_joint_are_never_taken_for_degrees(tmp_path):
+    # a full range of motion just under one turn, near ±π, and a still joint at 6 rad
+    t = np.arange(200) * 0.01
+    for q in (-3.1 + 6.2 * t / t[-1], 3.1 * np.sin(2 * np.pi * t), np.full(t.size, 6.0) + 1e-4 * np.sin(t)):
+        p = tmp_path / "ok.csv"
+        p.write_text(HEAD + "".join(f"{a},{b},{b - 0.01},0\n" for a, b in zip(t, q)))
+        assert read_log(p).q.shape == (200, 1)
+    # a small motion logged in degrees but beyond 2π in value is caught, in theta_m too
+    p.write_text(HEAD + "".join(f"{a},0.1,{10 + a},0\n" for a in t))
+    with pytest.raises(LogFormatError, match=r":2: column theta_m: 10 rad \(\|theta_m\| > 2π\): degrees"):
+        read_log(p)
+
+
+# ------------------------------------------------------------------ model configuration (YAML)
+def bad_config(tmp_path, mutate) -> Path:
+    raw = yaml.safe_load(Path(CFG).read_text())
+    mutate(raw)
+    p = tmp_path / "model.yaml"
+    p.write_text(yaml.safe_dump(raw))
+    return p
+
+
+BAD_CONFIGS = {
+    "unknown top key": (lambda r: r.update(rate=100), r"rate"),
+    "unknown model key": (lambda r: r["model"].update(K_spring=1.0), r"K_spring"),
+    "unknown estimator key": (lambda r: r["estimator"].update(nis_windw=10), r"nis_windw"),
+    "negative inertia": (lambda r: r["model"].update(M=-0.12), r"model\.M.*-0\.12"),
+    "zero stiffness": (lambda r: r["model"].update(K_s=0.0), r"model\.K_s"),
+    "missing key": (lambda r: r["model"].pop("J"), r"J"),
+    "unknown effect": (lambda r: r["model"].update(effects=[{"type": "magic", "x": 1}]), r"magic"),
+    "bad nis level": (lambda r: r["estimator"].update(nis_alpha=2.0), r"estimator\.nis_alpha: must be in \(0, 1\)"),
+    "bad bus": (lambda r: r.setdefault("hardware", {}).update(bus={"interface": "pcan"}),
+                r"interface.*virtual, socketcan, remote"),
+    "nan in R": (lambda r: r["estimator"].update(R=[float("nan"), 1, 1, 1]), r"estimator\.R"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CONFIGS))
+def test_replay_bad_config(tmp_path, capsys, case):
+    mutate, expect = BAD_CONFIGS[case]
+    cfg = bad_config(tmp_path, mutate)
+    log = tmp_path / "log.csv"
+    log.write_text(HEAD + "\n".join(good_rows()) + "\n")
+    code, _, err = cli(["replay", str(log), "--config", str(cfg), "--estimator", "akf",
+                        "--out", str(tmp_path / "e.csv")], capsys)
+    assert_one_line(code, err, re.escape(str(cfg)), expect)
+
+
+@pytest.mark.parametrize("text,expect", [
+    ("joints: 1\nrate_hz: [100\n", r"YAML|yaml|parse|line"),           # truncated / malformed YAML
+    ("- 1\n- 2\n", r"mapping|dict|top"),                                  # not a mapping
+    ("", r"empty|mapping|missing"),                                      # empty file
+])
+def test_replay_malformed_yaml(tmp_path, capsys, text, expect):
+    cfg = tmp_path / "model.yaml"
+    cfg.write_text(text)
+    log = tmp_path / "log.csv"
+    log.write_text(HEAD + "\n".join(good_rows()) + "\n")
+    code, _, err = cli(["replay", str(log), "--config", str(cfg), "--estimator", "akf",
+                        "--out", str(tmp_path / "e.csv")], capsys)
+    assert_one_line(code, err, re.escape(str(cfg)), expect)
+
+
+def test_missing_files_are_named(tmp_path, capsys):
+    log = tmp_path / "log.csv"
+    log.write_text(HEAD + "\n".join(good_rows()) + "\n")
+    code, _, err = cli(["replay", str(tmp_path / "nope.csv"), "--config", CFG, "--estimator", "akf",
+                        "--out", str(tmp_path / "e.csv")], capsys)
+    assert_one_line(code, err, "nope.csv")
+    code, _, err = cli(["replay", str(log), "--config", str(tmp_path / "nope.yaml"), "--estimator", "akf",
+                        "--out", str(tmp_path / "e.csv")], capsys)
+    assert_one_line(code, err, "nope.yaml")
+    code, _, err = cli(["replay", str(log), "--config", str(tmp_path), "--estimator", "akf",
+                        "--out", str(tmp_path / "e.csv")], capsys)     # a directory
+    assert_one_line(code, err, re.escape(str(tmp_path)))
+
+
+# ------------------------------------------------------------------ simulate (scenario YAML)
+def test_simulate_bad_scenario_and_its_model(tmp_path, capsys):
+    raw = yaml.safe_load(Path(SCEN).read_text())
+    raw["model"] = str(bad_config(tmp_path, lambda r: r["model"].update(M=-1.0)))
+    sc = tmp_path / "sc.yaml"
+    sc.write_text(yaml.safe_dump(raw))
+    code, _, err = cli(["simulate", str(sc), "--out", str(tmp_path / "o.csv")], capsys)
+    assert_one_line(code, err, r"model\.M")
+    raw = yaml.safe_load(Path(SCEN).read_text())
+    raw["model"] = str(Path(SCEN).parent / raw["model"])
+    raw["unknwn"] = 1
+    sc.write_text(yaml.safe_dump(raw))
+    code, _, err = cli(["simulate", str(sc), "--out", str(tmp_path / "o.csv")], capsys)
+    assert_one_line(code, err, r"unknwn")
+    assert not (tmp_path / "o.csv").exists()
+
+
+# ------------------------------------------------------------------ device-model and bench
+@pytest.mark.parametrize("argv,expect", [
+    (["device-model", "--fault", "melt:target=drive"], r"fault kind 'melt'"),
+    (["device-model", "--fault", "drop:target=gearbox"], r"target 'gearbox'"),
+    (["device-model", "--fault", "drop:count=-3"], r"count must be a number >= 0"),
+    (["device-model", "--bus", "remote", "--channel", "127.0.0.1:5"], r"ws://"),
+    (["bench", "faults", "--kinds", "tpdo_missing,meteor"], r"--kinds meteor"),
+    (["bench", "faults", "--cycles", "10"], r"--cycles 10"),
+    (["bench", "soak", "--cycles", "1000", "--warmup", "5000"], r"--warmup 5000"),
+    (["replay", "x.csv", "--config", CFG, "--estimator", "kalman", "--out", "e.csv"], r"invalid choice: 'kalman'"),
+])
+def test_other_commands_bad_arguments(capsys, argv, expect):
+    code, _, err = cli(argv, capsys)
+    assert_one_line(code, err, expect)
+
+
+def test_device_model_bad_config(tmp_path, capsys):
+    cfg = bad_config(tmp_path, lambda r: r["model"].update(D_m=-0.6, extra_key=1))
+    code, _, err = cli(["device-model", "--config", str(cfg), "--duration", "0"], capsys)
+    assert_one_line(code, err, re.escape(str(cfg)))
+
+
+def test_bad_input_through_a_real_process_has_no_traceback(tmp_path):
+    bad = tmp_path / "deg.csv"
+    bad.write_text(BAD_CSV["degrees"][0])
+    r = subprocess.run([sys.executable, "-m", "sea_daemon", "replay", str(bad), "--config", CFG,
+                        "--estimator", "akf", "--out", str(tmp_path / "e.csv")],
+                       capture_output=True, text=True, cwd=repo_root(), timeout=120)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert "degrees instead of radians" in r.stderr
+
+
+# ------------------------------------------------------------------ saved model files
+def test_model_files_corrupt_foreign_or_pickled_are_refused(tmp_path):
+    from sea_daemon.modelfile import load_model, save_model
+    p = tmp_path / "m.npz"
+    save_model(p, {"a": np.arange(5.0)}, {"what": "test"})
+    data = p.read_bytes()
+    (tmp_path / "trunc.npz").write_bytes(data[: len(data) // 2])
+    np.save(tmp_path / "obj.npy", np.array([{"x": 1}], dtype=object), allow_pickle=True)
+    np.savez(tmp_path / "pickled.npz", a=np.array([{"x": 1}], dtype=object))
+    for name, expect in (("trunc.npz", "corrupt"), ("obj.npy", "corrupt|not a sea-daemon model"),
+                         ("pickled.npz", "corrupt|not a sea-daemon model"), ("none.npz", "no such model file")):
+        with pytest.raises(InputError, match=expect):
+            load_model(tmp_path / name)
+
+
+# ------------------------------------------------------------------ devices on the bus
+@pytest.fixture
+def eds_rig(tmp_path, monkeypatch):
+    """Device model whose drive is built from a copied EDS with 0x1000 changed (a CiA 406 device)."""
+    from drivers.bus import make_bus
+    from drivers.canopen_hw import CanopenHardware, DRIVE_EDS
+    from drivers.device_model import DeviceModel
+    from drivers.device_model.drive import DriveNode
+    from sea_daemon.sim.plant import Plant
+
+    eds = tmp_path / "wrong_drive.eds"
+    shutil.copy(DRIVE_EDS, eds)
+    text = eds.read_text()
+    sec = re.search(r"\[1000\][^\[]*", text).group(0)
+    new = re.sub(r"(?im)^DefaultValue\s*=.*$", "DefaultValue=0x00010196", sec)
+    eds.write_text(text.replace(sec, new))
+    monkeypatch.setattr(DriveNode, "EDS", str(eds))          # absolute: EDS_DIR / abs == abs
+    cfg = load_config(default_config_path())
+    b = dataclasses.replace(cfg.hardware.bus, channel=f"bad-{uuid.uuid4().hex[:8]}", sdo_timeout_ms=1000,
+                            heartbeat_ms=20, heartbeat_timeout_ms=1000, pdo_timeout_ms=500.0)
+    cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
+    dev_bus, drv_bus = make_bus(b), make_bus(b)
+    model = DeviceModel(dev_bus, Plant(cfg, q0=0.3, seed=0, torque_noise=0.0)).start()
+    hw = CanopenHardware(cfg, drv_bus)
+    yield model, hw
+    try:
+        hw.stop()
+    finally:
+        model.stop()
+        dev_bus.shutdown()
+        drv_bus.shutdown()
+
+
+def test_eds_with_a_wrong_device_type_is_named(eds_rig):
+    from drivers.errors import DeviceMismatch
+    model, hw = eds_rig
+    assert model.drives[0].sdo[0x1000].raw == 0x00010196
+    with pytest.raises(DeviceMismatch, match=r"^node 1: 0x1000 device type: is 0x00010196 \(profile 406\), "
+                                             r"expected profile 402"):
+        hw.start()
+
+
+def test_tpdo_of_the_wrong_length_is_named_at_run_time():
+    from drivers.device_model import FaultSpec  # noqa: F401
+    from drivers.errors import PdoLengthError
+    from sea_daemon.bench._rig import Rig, bench_config
+    from sea_daemon.daemon.safety import Fault
+    rig = Rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
+    try:
+        rig.hw.read()
+        rig.hw.write(np.zeros(1))
+        gate = rig.model.network.gate
+
+        def short(can_id, data):                 # the encoder sends 2 of its 4 bytes
+            if can_id == 0x182:
+                rig.model.network.send_now(can_id, data[:2])
+                return False
+            return gate(can_id, data)
+        rig.model.network.gate = short
+        with pytest.raises(PdoLengthError, match=r"node 2: TPDO 0x182 has 2 bytes, expected 4") as e:
+            rig.hw.read()
+        assert e.value.fault is Fault.TPDO_MISSING
+    finally:
+        rig.close()
