@@ -469,6 +469,71 @@ class LoGGP:
                 [self._pending[0], self._pending[1].tolist()],
                 "rng_state": [state[0], list(state[1]), state[2]]}
 
+    def to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict]:
+        """``(arrays, meta)`` for :func:`sea_daemon.modelfile.save_model`: numeric arrays
+        (tree, leaf data, hyperparameters) named with ``prefix``, and a JSON-able ``meta``
+        (options, counters, random state).  Inverse: :meth:`from_arrays`."""
+        d = self.to_dict()
+        leaves = d.pop("leaves")
+        tree = d.pop("tree")
+        p = self.input_dim + 2
+        L = len(leaves)
+        ns = [len(lf["gp"]["y"]) for lf in leaves]
+        X = np.empty((sum(ns), self.input_dim))
+        y = np.empty(sum(ns))
+        theta = np.empty((L, p))
+        center = np.full((L, self.input_dim), np.nan)
+        adam = np.full((L, 1 + 2 * p), np.nan)
+        off = 0
+        for i, lf in enumerate(leaves):
+            g = self._gp[lf["node"]]
+            n = g.n_
+            X[off:off + n], y[off:off + n] = g.X_[:n], g.y_[:n]
+            off += n
+            theta[i, 0], theta[i, 1:p - 1], theta[i, p - 1] = g.sigma_f, g.lengthscales, g.sigma_n
+            if g.center_ is not None:
+                center[i] = g.center_
+            if lf["adam"] is not None:
+                adam[i] = lf["adam"]
+        arrays = {"tree_dim": np.asarray(tree["dim"], dtype=np.int64),
+                  "tree_lo": np.asarray(tree["lo"], dtype=float),
+                  "tree_hi": np.asarray(tree["hi"], dtype=float),
+                  "tree_left": np.asarray(tree["left"], dtype=np.int64),
+                  "tree_right": np.asarray(tree["right"], dtype=np.int64),
+                  "leaf_node": np.asarray([lf["node"] for lf in leaves], dtype=np.int64),
+                  "leaf_n": np.asarray(ns, dtype=np.int64), "leaf_hyp": theta,
+                  "leaf_center": center, "leaf_adam": adam, "X": X, "y": y}
+        return {prefix + k: v for k, v in arrays.items()}, d
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, meta: dict, prefix: str = "") -> "LoGGP":
+        """Inverse of :meth:`to_arrays` (raises ModelFileError on malformed input)."""
+        try:
+            a = {k[len(prefix):]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
+            d = dict(meta)
+            d["tree"] = {k: a["tree_" + k].tolist() for k in ("dim", "lo", "hi", "left", "right")}
+            dim_in = int(d["options"]["input_dim"])
+            leaves, off = [], 0
+            opts = d["options"]
+            for i, node in enumerate(a["leaf_node"].tolist()):
+                n = int(a["leaf_n"][i])
+                t = a["leaf_hyp"][i]                 # [σ_f, l_1 … l_ρ, σ_on]
+                c = a["leaf_center"][i]
+                ad = a["leaf_adam"][i]
+                leaves.append({"node": node, "adam": None if np.isnan(ad).all() else ad.tolist(),
+                               "gp": {"input_dim": dim_in, "sigma_f": float(t[0]),
+                                      "lengthscales": t[1:dim_in + 1].tolist(),
+                                      "sigma_n": float(t[dim_in + 1]),
+                                      "jitter": opts.get("jitter", 1e-10),
+                                      "max_capacity": opts["max_points"],
+                                      "center": None if np.isnan(c).any() else c.tolist(),
+                                      "X": a["X"][off:off + n].tolist(), "y": a["y"][off:off + n].tolist()}})
+                off += n
+            d["leaves"] = leaves
+        except (KeyError, IndexError, TypeError, ValueError) as e:
+            raise ModelFileError(f"LoG-GP model arrays are malformed: {e}") from None
+        return cls.from_dict(d)
+
     @classmethod
     def from_dict(cls, d: dict) -> "LoGGP":
         """Inverse of :meth:`to_dict` (raises ModelFileError on a malformed dict)."""
