@@ -262,3 +262,15 @@ def test_repeated_identical_inputs_stay_finite():
     mu, var, dmu = gp.predict_with_grad(x)
     assert np.isfinite(mu) and np.isfinite(var) and np.all(np.isfinite(dmu))
     assert abs(mu - ys[-gp.leaf(0).n_:].mean()) < 0.01
+
+
+def test_offline_optimisation_raises_every_leaf_lml():
+    X, y = _stream(240, seed=14)
+    gp = LoGGP(3, max_points=60, lengthscales=3.0, sigma_n=0.3)
+    for xi, yi in zip(X, y):
+        gp.update(xi, yi)
+    before = {i: gp.leaf(i).log_marginal_likelihood(grad=False) for i in gp.leaves()}
+    gp.optimize_hyperparameters(steps=15)
+    assert gp.n_hyper_steps == 15 * len(before)
+    for i, b in before.items():
+        assert gp.leaf(i).log_marginal_likelihood(grad=False) > b
