@@ -75,6 +75,8 @@ class LoGGP:
     hyper_every: updates between two hyperparameter slices.
     hyper_lr: Adam step size in log space.
     hyper_min_points: a leaf needs this many points before it is adapted.
+    hyper_points: in-loop slices use the LML gradient of a leaf's oldest ``hyper_points``
+        points only (``None``: all); 50 of 100 cuts the cost of phase 1 several-fold.
     evict: points a full leaf forgets at once when it may not split (default ``N̄ // 10``).
     seed: seed of the random split assignment.
     """
@@ -82,7 +84,8 @@ class LoGGP:
     def __init__(self, input_dim: int, max_points: int = 100, *, max_leaves: int | None = 2000,
                  overlap: float = 0.1, lengthscales=1.0, sigma_f: float = 1.0,
                  sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
-                 hyper_lr: float = 0.05, hyper_min_points: int = 10, evict: int | None = None,
+                 hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
+                 evict: int | None = None,
                  seed: int = 0, jitter: float = 1e-10):
         def _int(name, v, lo):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -99,6 +102,7 @@ class LoGGP:
         self.hyperopt = bool(hyperopt)
         self.hyper_every = _int("hyper_every", hyper_every, 1)
         self.hyper_min_points = _int("hyper_min_points", hyper_min_points, 2)
+        self.hyper_points = None if hyper_points is None else _int("hyper_points", hyper_points, 2)
         self.evict = max(1, self.max_points // 10) if evict is None else _int("evict", evict, 1)
         self.evict = min(self.evict, self.max_points)
         self.seed = _int("seed", seed, 0)
@@ -262,7 +266,7 @@ class LoGGP:
         st = self._adam.get(node)
         if st is None:
             st = self._adam[node] = self.hyper.new_state()
-        lml, theta = self.hyper.propose(gp, st)
+        lml, theta = self.hyper.propose(gp, st, self.hyper_points)
         if theta is not None:
             self._pending = (node, theta)
         self.n_hyper_steps += 1
@@ -288,7 +292,7 @@ class LoGGP:
         st = self._adam.get(node)
         if st is None:
             st = self._adam[node] = self.hyper.new_state()
-        lml = self.hyper.step(gp, st)
+        lml = self.hyper.step(gp, st, self.hyper_points)
         self.n_hyper_steps += 1
         return lml
 
@@ -461,6 +465,7 @@ class LoGGP:
                             "sigma_n": math.exp(self._theta0[-1]),
                             "hyperopt": self.hyperopt, "hyper_every": self.hyper_every,
                             "hyper_lr": self.hyper.lr, "hyper_min_points": self.hyper_min_points,
+                            "hyper_points": self.hyper_points,
                             "evict": self.evict, "seed": self.seed, "jitter": self.jitter},
                 "tree": {"dim": list(self._dim), "lo": list(self._lo), "hi": list(self._hi),
                          "left": list(self._left), "right": list(self._right)},

@@ -126,10 +126,13 @@ def _time_slices(m, max_points: int, count: int = 200) -> dict | None:
     if not leaves:
         return None
     hyp = AdamHyper(m.input_dim)
-    tp, ta = [], []
+    tp, ta, th = [], [], []
     pc = time.perf_counter_ns
     for leaf in leaves:
         st = hyp.new_state()
+        t0 = pc()
+        hyp.propose(leaf, hyp.new_state(), points=max_points // 2)
+        th.append((pc() - t0) * 1e-9)
         t0 = pc()
         _, theta = hyp.propose(leaf, st)
         t1 = pc()
@@ -138,7 +141,8 @@ def _time_slices(m, max_points: int, count: int = 200) -> dict | None:
         t2 = pc()
         tp.append((t1 - t0) * 1e-9)
         ta.append((t2 - t1) * 1e-9)
-    return {"n": len(leaves), "min_n": min_n, "propose": tp, "apply": ta}
+    return {"n": len(leaves), "min_n": min_n, "propose": tp, "apply": ta, "propose_half": th,
+            "half": max_points // 2}
 
 
 def run(args) -> int:
@@ -221,6 +225,7 @@ def run(args) -> int:
         print(f"hyperparameter slice on {sl['n']} leaves holding >= {sl['min_n']} points "
               f"(one Adam step of the LML; the loop runs the two phases on consecutive updates):")
         print(f"  phase 1 propose (LML gradient + Adam): {summarize(sl['propose'])}")
+        print(f"  phase 1 with hyper_points={sl['half']}        : {summarize(sl['propose_half'])}")
         print(f"  phase 2 apply (rebuild + swap)       : {summarize(sl['apply'])}")
     for c in sizes:
         print(f"== {c} training points ==")
