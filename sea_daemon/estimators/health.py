@@ -58,9 +58,19 @@ def chi2_quantile(p: float, dof: int) -> float:
     return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
-def check_pd(P: np.ndarray, what: str = "P", step: int | None = None) -> None:
-    """Raise :class:`EstimatorFault` unless ``P`` is finite, symmetric and positive definite."""
+def check_pd(P: np.ndarray, what: str = "P", step: int | None = None, full: bool = True) -> None:
+    """Raise :class:`EstimatorFault` unless ``P`` is finite, symmetric and positive definite.
+
+    ``full=False``: the Cholesky attempt only, for a P the caller has already checked finite
+    and symmetrised (the AKF's Joseph-form update does both).
+    """
     where = f" at step {step}" if step is not None else ""
+    if not full:
+        _, info = _dpotrf(P, lower=1)
+        if info != 0:
+            raise CovarianceNotPD(f"covariance {what}{where} is not positive definite "
+                                  f"(Cholesky fails at pivot {info}, diagonal min {float(np.min(np.diag(P))):.3g})")
+        return
     if not np.isfinite(P).all():
         raise EstimatorNonFinite(f"covariance {what}{where} is not finite")
     asym = float(np.max(np.abs(P - P.T)))
@@ -154,7 +164,7 @@ class EstimatorHealth:
     def check(self, nis: float, P: np.ndarray, step: int | None = None) -> None:
         self._k += 1
         if self.pd_every and self._k % self.pd_every == 0:
-            check_pd(P, "P", step)
+            check_pd(P, "P", step, full=False)     # the AKF checked finiteness and symmetrised
         self.nis.update(nis, step)
 
 
