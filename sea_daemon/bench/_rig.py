@@ -134,6 +134,8 @@ class DriveProbe:
                 with self._lock:
                     self._recv += 1
         net.notify = notify
+        self.reset_error: BaseException | None = None
+        self.reset_failures: list[str] = []
         self.fail_sends = 0                 # injected send failures still to come
         self._orig_send = send
 
@@ -165,6 +167,12 @@ class DriveProbe:
 
     # --------------------------------------------------------------- HardwareInterface
     def read(self):
+        if self.reset_error is not None:
+            # the operator reset failed: the fault it was meant to clear is still there;
+            # report it in the cycle (the loop latches it) instead of dying in the reset path
+            e, self.reset_error = self.reset_error, None
+            self.reset_failures.append(f"{type(e).__name__}: {e}")
+            raise e
         k = self.k
         if k > 0 and k - 1 < len(self.applied):
             self.observe(k - 1)
@@ -180,7 +188,10 @@ class DriveProbe:
         self.hw.safe_stop()
 
     def reset_fault(self):
-        self.hw.reset_fault()
+        try:
+            self.hw.reset_fault()
+        except Exception as e:  # noqa: BLE001 - see read()
+            self.reset_error = e
 
 
 class VirtualClock:

@@ -139,6 +139,7 @@ class _Run:
         self.latched_at = np.zeros(n, dtype=bool)
         self.injections: list[Injection] = []
         self.false_alarms: list[tuple[int, str]] = []
+        self.reset_failed: list[tuple[int, str]] = []     # an operator reset that did not take
         self.cur: Injection | None = None
         self.next_at = warmup + int(self.rng.integers(*gap))
         self.reset_at = -1
@@ -254,8 +255,13 @@ class _Run:
                 self.cur = None
                 self.next_at = k + 1 + int(self.rng.integers(*self.gap))
             return
-        if latched:                           # no injection pending: a false alarm
-            self.false_alarms.append((k, f"{sup.latched.name}: {sup.latched_detail}"))
+        if latched:                           # no injection pending: a false alarm (or a failed reset)
+            if self.reset_at < 0:
+                rec = (k, f"{sup.latched.name}: {sup.latched_detail}")
+                if self.probe.reset_failures and self.probe.reset_failures[-1] in sup.latched_detail:
+                    self.reset_failed.append(rec)
+                else:
+                    self.false_alarms.append(rec)
             if self.reset_at < 0:
                 self.reset_at = k + HOLD
             if k >= self.reset_at:
@@ -360,6 +366,7 @@ def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 10000
             "reaction": [x.reaction for x in inj],
             "held": sum(x.held for x in inj),
             "false_alarms": r.false_alarms,
+            "reset_failed": r.reset_failed,
             "barrier_misses": r.probe.barrier_misses,
             "wall_s": time.monotonic() - t0,
             "injections": [dataclasses.asdict(x) | {"detected": x.detected} for x in inj],
@@ -370,6 +377,7 @@ def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 10000
         t0 = time.monotonic()
         r = _Run(None, fault_free_cycles, seed + 99991, gap, max_wait, warmup).run()
         out["fault_free"] = {"cycles": fault_free_cycles, "false_alarms": r.false_alarms,
+                             "reset_failed": r.reset_failed,
                              "barrier_misses": r.probe.barrier_misses, "wall_s": time.monotonic() - t0}
     return out
 
@@ -383,10 +391,11 @@ def _stat(xs) -> str:
 
 def table(res: dict) -> str:
     lines = [f"{'fault':<22}{'injected':>9}{'detected':>9}  {'latched as':<28}{'latency med/max':>16}"
-             f"{'reaction med/max':>18}{'held':>6}{'false':>7}"]
+             f"{'reaction med/max':>18}{'held':>6}{'false':>7}{'reset failed':>14}"]
     for kind, r in res["kinds"].items():
         lines.append(f"{kind:<22}{r['injected']:>9}{r['detected']:>9}  {','.join(r['latched_as']):<28}"
-                     f"{_stat(r['latency']):>16}{_stat(r['reaction']):>18}{r['held']:>6}{len(r['false_alarms']):>7}")
+                     f"{_stat(r['latency']):>16}{_stat(r['reaction']):>18}{r['held']:>6}{len(r['false_alarms']):>7}"
+                     f"{len(r.get('reset_failed', [])):>14}")
     tot_i = sum(r["injected"] for r in res["kinds"].values())
     tot_d = sum(r["detected"] for r in res["kinds"].values())
     lines.append(f"detected / injected: {tot_d} / {tot_i}"
@@ -394,8 +403,13 @@ def table(res: dict) -> str:
     ff = res.get("fault_free")
     if ff:
         lines.append(f"false alarms in {ff['cycles']} fault-free cycles: {len(ff['false_alarms'])}"
+                     f" (failed resets after them: {len(ff.get('reset_failed', []))})"
                      + (f"  ({'; '.join(f'cycle {k}: {d}' for k, d in ff['false_alarms'][:5])})"
                         if ff["false_alarms"] else ""))
+    fails = [x for r in res["kinds"].values() for x in r.get("reset_failed", [])]
+    if fails:
+        lines.append("failed operator resets (the fault stayed latched, reset again): "
+                     + "; ".join(f"cycle {k}: {d}" for k, d in fails[:5]))
     return "\n".join(lines)
 
 

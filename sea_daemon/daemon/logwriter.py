@@ -32,6 +32,7 @@ def _writer_main(shm_name, capacity, ncols, path, columns, flush_interval, rotat
     try:
         hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
         data = np.ndarray((capacity, ncols), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
+        float(data.sum())        # map every page of the ring now (steady memory from the start)
         path = Path(path)
         header = ",".join(columns) + "\n"
         seg = 0
@@ -90,6 +91,7 @@ class LogWriter:
         self._hdr[:] = 0
         self._hdr[_FILES] = 1
         self._data = np.ndarray((self.capacity, self.ncols), dtype=np.float64, buffer=self._shm.buf, offset=_NHDR * 8)
+        self._data[:] = 0.0      # pre-fault the ring: the loop never takes a page fault on it
         self.dropped = 0
         self.appended = 0
         ctx = mp.get_context("spawn")
