@@ -23,6 +23,7 @@ import dataclasses
 import gc
 import json
 import os
+import signal
 import tempfile
 import time
 from pathlib import Path
@@ -101,10 +102,14 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                          supervisor=sup, realtime=True, on_cycle=on_cycle)
     rss["after_start"] = vm_rss_kb()
     gc.collect()
+    # SIGTERM / SIGINT end the soak early and cleanly: the figures are of the cycles run
+    old_handlers = {sig: signal.signal(sig, lambda *_: loop.request_stop()) for sig in (signal.SIGTERM, signal.SIGINT)}
     t0 = time.monotonic()
     try:
         st = loop.run(cycles)
     finally:
+        for sig, h in old_handlers.items():
+            signal.signal(sig, h)
         wall = time.monotonic() - t0
         end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
         trace.append(end)
@@ -161,6 +166,8 @@ def run(args) -> int:
             tmp.cleanup()
     m = r["rss_kb"]
     lg = r["log"]
+    if r["cycles"] < args.cycles:
+        print(f"# stopped by a signal after {r['cycles']} of {args.cycles} cycles")
     print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
           f"{r['rate_hz']:g} Hz asked)")
     print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms)")
