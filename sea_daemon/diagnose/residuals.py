@@ -1,0 +1,223 @@
+"""The two model residuals of a measured log (issue 6, item 1).
+
+From the log's encoder angles and motor torque, with zero-phase smoothed derivatives (an
+offline log allows a non-causal filter), and the configured model:
+
+load side  (eq:unknwn_load solved for what the model does not explain)
+    r_load  = τ_h,act − (M q̈ + C(q) + Σ_load e + τ_s)
+motor side (eq:motorside)
+    r_motor = κ τ_m(t − d) − (J θ̈_m + D_m θ̇_m + Σ_motor e − τ_s)
+
+τ_h,act is the log's ``tau_h_act`` column when present, else 0 (ass:passive_human).  An
+undeclared effect that the load side must overcome shows up as +e in r_load only, one on the
+motor side as +e in r_motor only, and an error Δτ_s of the spring torque as +Δτ_s in r_load
+and −Δτ_s in r_motor: opposite signs.  r_load + r_motor is f(z) of eq:loadsidewmotor.
+
+Consistent filtering ("filter every signal of the equation with the same filter", Ljung,
+System Identification, §14.3): each balance is formed sample by sample from the measured
+angles, the central second difference of the angles for q̈ and θ̈_m, the zero-phase
+smoothed velocities (:func:`sea_daemon.kinematics.smooth_derivatives`) for the velocity
+arguments, and the logged torque; the whole balance is then passed through one zero-phase
+Savitzky–Golay smoother S.  An effect e therefore appears in the residual as S(e), exactly
+as the candidates' regressors do (:mod:`.candidates` builds them through this function),
+and the inertial terms see the same filter as the torques at every frequency (a separate
+SG second-derivative filter does not, and a lightly damped controller's oscillation then
+leaks into the residual).  The logged torque is the command
+held over the sample (zero-order hold): its continuous-time equivalent at the sample
+instant is the mean of the two neighbouring commands, i.e. the command sequence
+interpolated at t − dt/2; a declared delay d shifts it further.
+
+Arrays are (N, n) per channel; :func:`residual_channels` returns (N, 2n) with the load
+channels first.  Everything here is vectorised over time; the per-sample maths is the
+:class:`~sea_daemon.model.SEAModel` (its attributes and the effects' own ``torque``), and
+``tests/test_diagnose_residuals.py`` checks r_load + r_motor against
+``SEAModel.residual_from_kinematics``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ..config import ModelConfig
+from ..effects import Effect
+try:  # TEMP until the akf branch lands on main
+    from ..kinematics import smooth_derivatives
+except ImportError:  # pragma: no cover
+    from scipy.signal import savgol_filter
+
+    def smooth_derivatives(t, angle, window=11, degree=3):
+        dt = float(np.median(np.diff(t)))
+        kw = dict(window_length=window, polyorder=degree, delta=dt, axis=0, mode="interp")
+        return tuple(savgol_filter(np.asarray(angle, float), deriv=d, **kw) for d in range(3))
+from ..logio import MeasuredLog
+from ..model import SEAModel
+
+
+@dataclass
+class Kinematics:
+    """Smoothed kinematics of a log (encoder readings as logged, offsets not yet removed)."""
+
+    t: np.ndarray          # (N,)
+    q_raw: np.ndarray      # (N, n) load angle as logged
+    theta_m_raw: np.ndarray  # (N, n) motor angle as logged
+    q: np.ndarray          # (N, n) load angle as read (= q_raw)
+    dq: np.ndarray         # (N, n) short-window velocity
+    ddq: np.ndarray        # (N, n) S(second difference)
+    theta_m: np.ndarray    # (N, n) motor angle as read (= theta_m_raw)
+    dtheta_m: np.ndarray
+    ddtheta_m: np.ndarray
+    d2q: np.ndarray        # (N, n) central second difference of q_raw (unsmoothed)
+    d2theta_m: np.ndarray
+    tau_m: np.ndarray      # (N, n) motor torque command as logged (raw)
+    tau_h_act: np.ndarray | None
+    window: int
+    degree: int
+    _tau_cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def N(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def dt(self) -> float:
+        return float(np.median(np.diff(self.t)))
+
+    def smooth(self, x: np.ndarray) -> np.ndarray:
+        """S: the zero-phase filter of the derivatives, derivative 0 (same window and degree
+        as :func:`sea_daemon.kinematics.smooth_derivatives`, scipy's Savitzky–Golay)."""
+        w = min(self.window, self.N if self.N % 2 else self.N - 1)
+        return savgol_filter(x, w, min(self.degree, w - 1), deriv=0, axis=0, mode="interp")
+
+
+#: default length [s] of the zero-phase Savitzky–Golay window (degree 3).  Long enough that
+#: the acceleration noise from the motor-torque noise does not bias inertia-like terms
+#: (errors in variables), short against the human motions (≳ 1 s).
+WINDOW_S = 0.25
+#: default length [s] of the velocity window (degree 3) for the nonlinear terms
+VELOCITY_WINDOW_S = 0.05
+
+
+def window_samples(t: np.ndarray, window_s: float = WINDOW_S) -> int:
+    """Odd window length [samples] for ``window_s`` seconds at the log's rate (≥ 5, ≤ N)."""
+    dt = float(np.median(np.diff(t)))
+    w = max(5, int(round(window_s / dt)))
+    w = min(w, len(t) if len(t) % 2 else len(t) - 1)
+    return w if w % 2 else w + 1
+
+
+def second_difference(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(x[k+1] − 2x[k] + x[k−1]) / dt² on a uniform grid; the end rows repeat their neighbour."""
+    dt = float(np.median(np.diff(t)))
+    x = np.asarray(x, dtype=float)
+    d = np.empty_like(x)
+    d[1:-1] = (x[2:] - 2.0 * x[1:-1] + x[:-2]) / dt**2
+    d[0], d[-1] = d[1], d[-2]
+    return d
+
+
+def kinematics_from_log(log: MeasuredLog, window: int | None = None, degree: int = 3,
+                        velocity_window: int | None = None) -> Kinematics:
+    """Kinematics of a log for the residuals.
+
+    ``window`` [samples] of the smoother S (default :data:`WINDOW_S` seconds);
+    ``velocity_window`` [samples] of the velocity estimate used inside nonlinear terms
+    (default :data:`VELOCITY_WINDOW_S`): short, so that e(q̇) sees the velocity the plant
+    had (19-bit encoders make short-window velocities precise), and S is applied after the
+    non-linearity.  Accelerations ``ddq``/``ddtheta_m`` are S(central second difference),
+    the ones the balances use.
+    """
+    if window is None:
+        window = window_samples(log.t)
+    if velocity_window is None:
+        velocity_window = window_samples(log.t, VELOCITY_WINDOW_S)
+    _, dq, _ = smooth_derivatives(log.t, log.q, velocity_window, degree)
+    _, dth, _ = smooth_derivatives(log.t, log.theta_m, velocity_window, degree)
+    kin = Kinematics(t=np.asarray(log.t, float), q_raw=np.asarray(log.q, float),
+                     theta_m_raw=np.asarray(log.theta_m, float),
+                     d2q=second_difference(log.t, log.q), d2theta_m=second_difference(log.t, log.theta_m),
+                     q=np.asarray(log.q, float), dq=dq, ddq=None, theta_m=np.asarray(log.theta_m, float),
+                     dtheta_m=dth, ddtheta_m=None, tau_m=np.asarray(log.tau_m, float),
+                     tau_h_act=None if log.tau_h_act is None else np.asarray(log.tau_h_act, float),
+                     window=window, degree=degree)
+    kin.ddq = kin.smooth(kin.d2q)
+    kin.ddtheta_m = kin.smooth(kin.d2theta_m)
+    return kin
+
+
+def vtorque(e: Effect, angle: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """An effect's own ``torque`` evaluated elementwise over arrays."""
+    return np.vectorize(e.torque, otypes=[float])(angle, vel, acc)
+
+
+def _effect_sum(effects, n, angle, vel, acc) -> np.ndarray:
+    out = np.zeros_like(angle)
+    for e in effects:
+        j = e.joint
+        out[:, j] += vtorque(e, angle[:, j], vel[:, j], acc[:, j])
+    return out
+
+
+def applied_torque(model: SEAModel, kin: Kinematics, zoh: bool = True) -> np.ndarray:
+    """κ τ_m(t − d) (eq:motorside), ZOH-centred (t − dt/2); not yet smoothed."""
+    shift = 0.5 * kin.dt if zoh else 0.0
+    key = (shift, *np.round(model.delay, 12).tolist())
+    sm = kin._tau_cache.get(key)
+    if sm is None:
+        tau = np.empty_like(kin.tau_m)
+        for j in range(kin.n):
+            tq = kin.t - shift - model.delay[j]
+            tau[:, j] = np.interp(tq, kin.t, kin.tau_m[:, j])
+        sm = tau
+        if len(kin._tau_cache) < 256:
+            kin._tau_cache[key] = sm
+    return model.kappa[None, :] * sm
+
+
+def spring_torque(model: SEAModel, theta_s: np.ndarray, dtheta_s: np.ndarray) -> np.ndarray:
+    """τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s)  (eq:spring_torque), vectorised over time."""
+    g = np.array(theta_s, dtype=float)
+    for j, e in model.backlash.items():
+        # dead band of total width w: g = θ_s − clip(θ_s, −w/2, w/2)  (SpringBacklash.deadband)
+        h = 0.5 * e.width
+        g[:, j] = theta_s[:, j] - np.clip(theta_s[:, j], -h, h)
+    z = np.zeros_like(theta_s)
+    return g @ model.K_s.T + dtheta_s @ model.D_s.T + _effect_sum(model.spring_effects, model.n, theta_s, z, z)
+
+
+def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
+                      passive: bool = False) -> np.ndarray:
+    """(N, 2n) array [r_load, r_motor] of the model on the log (see module docstring).
+
+    ``passive``: ignore the log's tau_h_act column (ass:passive_human).
+    """
+    n = kin.n
+    # declared encoder offsets: the encoders read angle + δ (contracts §2)
+    q, th = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
+    dq, dth = kin.dq, kin.dtheta_m
+    tau_s = spring_torque(model, q - th, dq - dth)
+    # load side: M q̈ + C(q) + Σ_load e + τ_s − τ_h,act   (eq:unknwn_load)
+    lo = kin.d2q @ model.M.T + model.C(q) + _effect_sum(model.load_effects, n, q, dq, kin.ddq) + tau_s
+    if kin.tau_h_act is not None and not passive:
+        lo = lo - kin.tau_h_act
+    # motor side: κ τ_m − (J θ̈_m + D_m θ̇_m + Σ_motor e − τ_s)   (eq:motorside)
+    mo = (applied_torque(model, kin, zoh) - kin.d2theta_m @ model.J.T - dth @ model.D_m.T
+          - _effect_sum(model.motor_effects, n, th, dth, kin.ddtheta_m) + tau_s)
+    # r_load = S(τ_h,act − (M q̈ + C + Σ e + τ_s)),  r_motor = S(κτ_m − (J θ̈_m + D_m θ̇_m + Σ e − τ_s))
+    return kin.smooth(np.hstack([-lo, mo]))
+
+
+def residuals_for(cfg: ModelConfig, kin: Kinematics, effects=(), **kw) -> np.ndarray:
+    """Residual channels of ``cfg`` with ``effects`` appended to its declared ones."""
+    c = cfg.with_effects(list(cfg.model.effects) + list(effects)) if effects else cfg
+    return residual_channels(SEAModel.from_config(c), kin, **kw)
+
+
+def rms(r: np.ndarray) -> float:
+    """RMS over all samples and channels [N m]."""
+    return float(np.sqrt(np.mean(np.square(r))))

@@ -1,0 +1,430 @@
+"""Choosing the effects the evidence supports (issue 6, item 2).
+
+Forward selection on the stacked two-channel residual y = [r_load, r_motor] (flattened):
+
+1. At each step every remaining candidate is fitted jointly with the effects already
+   chosen: its nonlinear parameter θ on a grid (plus a bounded 1-D refinement between the
+   best grid neighbours), all linear coefficients by least squares.
+2. The best candidate (lowest residual sum of squares) is accepted only if all hold:
+   * BIC falls, with the *effective* sample size N_eff = M / τ_int (τ_int the integrated
+     autocorrelation time of the current residual: smoothed derivatives make neighbouring
+     samples dependent, so M samples carry fewer independent observations);
+   * blocked cross-validation (K contiguous time segments held out in turn, the linear
+     coefficients refitted on the rest) lowers the held-out mean square by at least
+     ``min_cv_gain`` (relative);
+   * the step explains at least ``min_fraction`` of the *initial* mean square (a practical
+     size floor: statistically real but negligible structure is not worth a model term).
+   Otherwise selection stops.
+3. The chosen effects' natural parameters (F_c, v_s, δ, width, ...) are refined jointly by
+   nonlinear least squares on the exact residual of the augmented model
+   (scipy.optimize.least_squares); confidence intervals from the Gauss–Newton covariance
+   s²(JᵀJ)⁻¹ inflated by τ_int of the final residual (Wald, 95 %).
+4. Explained fractions: sequential decrease of the mean square, in the order chosen, at the
+   final parameters, divided by the initial mean square; the rest is unexplained.
+5. What remains is checked for structure that no candidate took: bin means of the final
+   residual against q, q̇, θ_s, θ_m and (q, sign q̇); the largest share of the remaining
+   mean square such a lookup explains (less its chance level) is reported as
+   ``structured_unexplained_fraction`` of the initial mean square, with the signals it
+   follows.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares, minimize_scalar
+
+from .candidates import Candidate, Context
+
+Z95 = 1.959963984540054
+
+
+@dataclass
+class SelectOptions:
+    min_fraction: float = 0.05      # of the initial mean square, per accepted effect
+    min_cv_gain: float = 0.05       # relative decrease of the held-out mean square
+    folds: int = 5                  # blocked CV segments
+    max_effects: int = 4
+    min_effect_rms: float = 0.01    # [N m] smallest effect worth a model term (RMS of its share)
+    ambiguity: float = 0.9          # alternatives explaining ≥ this share of the best's ΔRSS
+    structure_threshold: float = 0.10   # structured unexplained share that triggers the warning
+    edge: int | None = None         # samples dropped at each end (default: the smoothing window)
+    #: samples with |q̇| or |θ̇_m| below this [rad/s] are left out of the fit (stiction: the
+    #: smoothed sign of the model cannot follow sticking); default 3 × the model's sign_eps
+    v_min: float | None = None
+    max_masked: float = 0.5         # never leave out more than this share of the samples
+
+
+@dataclass
+class CandidateFit:
+    cand: Candidate
+    theta: float | None
+    beta: np.ndarray               # coefficients of [selected X ..., this X]
+    rss: float
+    o: np.ndarray | None
+    X: np.ndarray
+    bic: float = math.inf
+    cv: float = math.inf
+    params: dict = field(default_factory=dict)
+
+
+@dataclass
+class StepRecord:
+    step: int
+    rows: list[dict]               # one per candidate tried at this step
+    chosen: str | None
+    reason: str
+
+
+@dataclass
+class Selection:
+    chosen: list[tuple[Candidate, dict]]          # (candidate, natural params)
+    ci: list[dict]                                # per chosen: {param: (lo, hi)}
+    explained: list[float]
+    unexplained: float
+    steps: list[StepRecord]
+    alternatives: list[list[str]]
+    tau_int: float
+    structure: dict
+    rss0: float
+    rss_final: float
+    r_final: np.ndarray
+
+
+def integrated_autocorr_time(y: np.ndarray, max_lag: int = 200) -> float:
+    """τ_int = 1 + 2 Σ ρ_k (summed until ρ_k first drops below 0.05), per column, max over columns.
+
+    Sokal's estimator (Monte Carlo textbook); y (N, c)."""
+    y = np.atleast_2d(y.T).T
+    taus = []
+    for col in y.T:
+        x = col - col.mean()
+        v = float(np.dot(x, x))
+        if v <= 0:
+            continue
+        L = min(max_lag, len(x) // 4)
+        f = np.fft.rfft(x, 2 * len(x))
+        ac = np.fft.irfft(f * np.conj(f))[:L + 1] / v
+        s = 1.0
+        for k in range(1, L + 1):
+            if ac[k] < 0.05:
+                break
+            s += 2.0 * ac[k]
+        taus.append(s)
+    return float(max(taus)) if taus else 1.0
+
+
+def _lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    if A.shape[1] == 0:
+        return np.zeros(0)
+    return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+class Selector:
+    def __init__(self, ctx: Context, cands: list[Candidate], opts: SelectOptions | None = None):
+        self.ctx = ctx
+        self.cands = cands
+        self.opts = opts or SelectOptions()
+        kin = ctx.kin
+        N, c = ctx.r0.shape
+        edge = self.opts.edge if self.opts.edge is not None else kin.window
+        edge = min(edge, max(0, (N - 10) // 4))
+        keep_t = np.zeros(N, dtype=bool)
+        keep_t[edge:N - edge] = True
+        v_min = self.opts.v_min if self.opts.v_min is not None else 3.0 * ctx.cfg.estimator.sign_eps
+        slow = np.any((np.abs(kin.dq) < v_min) | (np.abs(kin.dtheta_m) < v_min), axis=1)
+        if np.mean(slow & keep_t) <= self.opts.max_masked * np.mean(keep_t):
+            keep_t &= ~slow
+        self.masked_share = 1.0 - float(np.mean(keep_t))
+        self.keep_t = keep_t
+        mask = np.repeat(keep_t[:, None], c, axis=1)
+        self.valid = mask.reshape(-1)
+        self.time_index = np.repeat(np.arange(N), c)[self.valid]
+        self.y0 = ctx.r0.reshape(-1)[self.valid]
+        self.M = self.y0.size
+        self._cache: dict = {}
+        # blocked CV folds over time
+        K = max(2, self.opts.folds)
+        edges = np.linspace(self.time_index.min(), self.time_index.max() + 1, K + 1)
+        self.fold = np.clip(np.searchsorted(edges, self.time_index, side="right") - 1, 0, K - 1)
+
+    # ---------------------------------------------------------------- designs
+    def design(self, cand: Candidate, theta):
+        key = (id(cand), None if theta is None else round(float(theta), 12))
+        if key not in self._cache:
+            o, X = cand.design(self.ctx, theta)
+            self._cache[key] = (None if o is None else o[self.valid], X[self.valid])
+        return self._cache[key]
+
+    def _fit_with(self, y, base_X, o, X):
+        yy = y if o is None else y - o
+        A = np.hstack([base_X, X]) if base_X.shape[1] else X
+        beta = _lstsq(A, yy)
+        res = yy - (A @ beta if A.shape[1] else 0.0)
+        return beta, float(res @ res)
+
+    def fit_candidate(self, cand: Candidate, y, base_X) -> CandidateFit:
+        grid = cand.grid(self.ctx)
+        fast = getattr(cand, "fast_design", None)
+        best = None
+        if fast is not None and len(grid) > 40:
+            # cheap scan (additive effect: columns straight from the signal), exact design after
+            scores = []
+            for th in grid:
+                cols = np.column_stack([c[self.valid] for c in fast(self.ctx, th)])
+                _, rss = self._fit_with(y, base_X, None, cols)
+                scores.append(rss)
+            order = np.argsort(scores)[:3]
+            grid_eval = [grid[i] for i in order]
+        else:
+            grid_eval = grid
+        results = []
+        if not grid_eval:
+            return CandidateFit(cand, None, np.zeros(0), math.inf, None, np.zeros((self.M, 0)))
+        for th in grid_eval:
+            o, X = self.design(cand, th)
+            beta, rss = self._fit_with(y, base_X, o, X)
+            results.append((rss, th, beta))
+        results.sort(key=lambda r: r[0])
+        rss, th, beta = results[0]
+        if th is not None and len(grid) > 1:
+            # bounded 1-D refinement between the best grid point's neighbours
+            g = np.asarray(grid, float)
+            i = int(np.argmin(np.abs(g - th)))
+            lo, hi = g[max(i - 1, 0)], g[min(i + 1, len(g) - 1)]
+            if hi > lo:
+                def f(t):
+                    o, X = cand.design(self.ctx, t)
+                    o = None if o is None else o[self.valid]
+                    return self._fit_with(y, base_X, o, X[self.valid])[1]
+                r = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": (hi - lo) * 1e-3, "maxiter": 20})
+                if r.fun < rss:
+                    th = float(r.x)
+                    o, X = self.design(cand, th)
+                    beta, rss = self._fit_with(y, base_X, o, X)
+        o, X = self.design(cand, th)
+        fit = CandidateFit(cand, th, beta, rss, o, X)
+        fit.params = cand.natural(beta[base_X.shape[1]:], th)
+        return fit
+
+    def cv_mse(self, y, base_X, o=None, X=None) -> float:
+        yy = y if o is None else y - o
+        A = base_X if X is None else (np.hstack([base_X, X]) if base_X.shape[1] else X)
+        err = 0.0
+        for f in range(self.fold.max() + 1):
+            te = self.fold == f
+            tr = ~te
+            beta = _lstsq(A[tr], yy[tr])
+            pred = A[te] @ beta if A.shape[1] else 0.0
+            e = yy[te] - pred
+            err += float(e @ e)
+        return err / yy.size
+
+    # ---------------------------------------------------------------- forward selection
+    def run(self) -> Selection:
+        o_cfg = self.opts
+        y = self.y0.copy()                 # target minus chosen structural offsets
+        base_X = np.zeros((self.M, 0))
+        chosen: list[CandidateFit] = []
+        n_par = 0
+        rss0 = float(self.y0 @ self.y0)
+        rss_cur = rss0
+        steps: list[StepRecord] = []
+        alternatives: list[list[str]] = []
+        remaining = list(self.cands)
+        for step in range(1, o_cfg.max_effects + 1):
+            beta_cur = _lstsq(base_X, y)
+            res_cur = y - (base_X @ beta_cur if base_X.shape[1] else 0.0)
+            rss_cur = float(res_cur @ res_cur)
+            tau = integrated_autocorr_time(self._as_channels(res_cur))
+            n_eff = max(self.M / tau, 2.0)
+            bic_cur = n_eff * math.log(rss_cur / self.M) + n_par * math.log(n_eff)
+            cv_cur = self.cv_mse(y, base_X)
+            fits = []
+            for cand in remaining:
+                fit = self.fit_candidate(cand, y, base_X)
+                k = n_par + len(cand.linear) + (1 if cand.nonlinear else 0)
+                # a parameter chosen from G grid values costs ≈ 2 ln G more (the best of G
+                # tries fits noise better: Bonferroni-style look-elsewhere penalty)
+                look = 2.0 * math.log(max(len(cand.grid(self.ctx)), 1)) if cand.nonlinear else 0.0
+                fit.bic = n_eff * math.log(max(fit.rss, 1e-300) / self.M) + k * math.log(n_eff) + look
+                fits.append(fit)
+            fits = [f for f in fits if np.isfinite(f.rss)]
+            if not fits:
+                steps.append(StepRecord(step, [], None, "no candidate applicable"))
+                break
+            # rank by BIC: of two that fit equally well, the one with fewer parameters
+            fits.sort(key=lambda f: f.bic)
+            best = fits[0]
+            best.cv = self.cv_mse(y, base_X, best.o, best.X)
+            frac = (rss_cur - best.rss) / rss0
+            rows = []
+            for f in fits:
+                rows.append({"candidate": f.cand.name, "type": f.cand.type, "side": f.cand.side,
+                             "params": {k: round(v, 6) for k, v in f.params.items()},
+                             "explains": (rss_cur - f.rss) / rss0, "delta_bic": f.bic - bic_cur})
+            reasons = []
+            if not best.bic < bic_cur:
+                reasons.append(f"BIC does not fall ({best.bic - bic_cur:+.1f})")
+            if not best.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
+                reasons.append(f"held-out mean square falls only {100 * (1 - best.cv / cv_cur):.1f} % "
+                               f"(< {100 * o_cfg.min_cv_gain:.0f} %)")
+            eff_rms = math.sqrt(max(rss_cur - best.rss, 0.0) / max(len(np.unique(self.time_index)), 1))
+            if eff_rms < o_cfg.min_effect_rms:
+                reasons.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
+            if frac < o_cfg.min_fraction:
+                reasons.append(f"explains {100 * frac:.1f} % of the initial mean square "
+                               f"(< {100 * o_cfg.min_fraction:.0f} %)")
+            if reasons:
+                steps.append(StepRecord(step, rows, None, f"best candidate {best.cand.name} rejected: " + "; ".join(reasons)))
+                break
+            gain = rss_cur - best.rss
+            alts = [f.cand.name for f in fits[1:] if gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain]
+            alternatives.append(alts)
+            steps.append(StepRecord(step, rows, best.cand.name,
+                                    f"{best.cand.name} explains {100 * frac:.1f} % of the initial mean square; "
+                                    f"ΔBIC {best.bic - bic_cur:+.1f}; held-out mean square −{100 * (1 - best.cv / cv_cur):.1f} %"
+                                    + (f"; nearly as good: {', '.join(alts)}" if alts else "")))
+            chosen.append(best)
+            n_par += len(best.cand.linear) + (1 if best.cand.nonlinear else 0)
+            if best.o is not None:
+                y = y - best.o
+            base_X = np.hstack([base_X, best.X]) if best.X.shape[1] else base_X
+            # no second copy of the same type on the same side and joint
+            remaining = [c for c in remaining if not (c.type == best.cand.type and c.side == best.cand.side
+                                                      and c.joint == best.cand.joint)]
+            if not remaining:
+                break
+        # initial natural parameters from the joint linear solution
+        beta_all = _lstsq(base_X, y)
+        init = []
+        col = 0
+        for f in chosen:
+            k = f.X.shape[1]
+            init.append(f.cand.natural(beta_all[col:col + k], f.theta))
+            col += k
+        return self._finish(chosen, init, steps, alternatives, rss0)
+
+    def _as_channels(self, v: np.ndarray) -> np.ndarray:
+        c = self.ctx.r0.shape[1]
+        return v.reshape(-1, c)
+
+    # ---------------------------------------------------------------- refinement, CIs
+    def _pack(self, chosen, params_list):
+        x0, lo, hi, idx = [], [], [], []
+        for i, (f, p) in enumerate(zip(chosen, params_list)):
+            b = f.cand.bounds(self.ctx)
+            for name in f.cand.params:
+                v = float(p[name])
+                l, h = b.get(name, (-np.inf, np.inf))
+                v = min(max(v, l + 1e-12 if np.isfinite(l) else v), h - 1e-12 if np.isfinite(h) else v)
+                x0.append(v)
+                lo.append(l)
+                hi.append(h)
+                idx.append((i, name))
+        return np.array(x0), np.array(lo), np.array(hi), idx
+
+    def _effects(self, chosen, x, idx):
+        ps = [dict() for _ in chosen]
+        for v, (i, name) in zip(x, idx):
+            ps[i][name] = float(v)
+        return [f.cand.effect(p) for f, p in zip(chosen, ps)], ps
+
+    def _resid(self, effects) -> np.ndarray:
+        return self.ctx.residual(effects).reshape(-1)[self.valid]
+
+    def _finish(self, chosen, init, steps, alternatives, rss0) -> Selection:
+        if not chosen:
+            r = self.y0
+            return Selection([], [], [], 1.0, steps, [], integrated_autocorr_time(self._as_channels(r)),
+                             self.structure(r, rss0), rss0, rss0, self.ctx.r0)
+        x0, lo, hi, idx = self._pack(chosen, init)
+
+        def fun(x):
+            eff, _ = self._effects(chosen, x, idx)
+            return self._resid(eff)
+
+        scale = np.maximum(np.abs(x0), 1e-3)
+        try:
+            sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-4, max_nfev=60 * len(x0))
+            x, J, res = sol.x, sol.jac, sol.fun
+            if float(res @ res) > float(fun(x0) @ fun(x0)):
+                x, res = x0, fun(x0)
+        except (ValueError, np.linalg.LinAlgError):
+            x, res, J = x0, fun(x0), None
+        effects, params = self._effects(chosen, x, idx)
+        rss = float(res @ res)
+        tau = integrated_autocorr_time(self._as_channels(res))
+        ci = [dict() for _ in chosen]
+        if J is not None and J.shape[1]:
+            p = J.shape[1]
+            s2 = rss / max(self.M - p, 1)
+            try:
+                cov = np.linalg.pinv(J.T @ J) * s2 * tau
+                se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            except np.linalg.LinAlgError:
+                se = np.full(p, np.nan)
+            for k, (i, name) in enumerate(idx):
+                ci[i][name] = (float(x[k] - Z95 * se[k]), float(x[k] + Z95 * se[k]))
+        # sequential explained fractions at the final parameters
+        rss_seq = [rss0]
+        for k in range(1, len(effects) + 1):
+            r = self._resid(effects[:k])
+            rss_seq.append(float(r @ r))
+        explained = [max(rss_seq[k] - rss_seq[k + 1], 0.0) / rss0 for k in range(len(effects))]
+        unexplained = rss_seq[-1] / rss0
+        r_final = self.ctx.residual(effects)
+        return Selection(list(zip([f.cand for f in chosen], params)), ci, explained, unexplained, steps,
+                         alternatives, tau, self.structure(res, rss0), rss0, rss_seq[-1], r_final)
+
+    # ---------------------------------------------------------------- leftover structure
+    def structure(self, res: np.ndarray, rss0: float) -> dict:
+        """Share of the leftover explained by bin means against state signals (chance-corrected)."""
+        ctx = self.ctx
+        kin = ctx.kin
+        q, th = ctx.angles()
+        c = ctx.r0.shape[1]
+        n = ctx.n
+        t_idx = np.arange(kin.N)
+        valid_t = np.unique(self.time_index)
+        R = np.full((kin.N, c), np.nan)
+        R.reshape(-1)[np.flatnonzero(self.valid)] = res
+        R = R[valid_t]
+        tau = integrated_autocorr_time(R)
+        best = {"fraction": 0.0, "signals": [], "channel": None}
+        for j in range(n):
+            sig = {
+                "q": q[valid_t, j], "q̇": kin.dq[valid_t, j], "θ_s": (q - th)[valid_t, j],
+                "θ_m": th[valid_t, j],
+            }
+            sgn = np.sign(kin.dq[valid_t, j])
+            for ch in range(c):
+                r = R[:, ch]
+                ss = float(r @ r)
+                if ss <= 0:
+                    continue
+                for name, s in list(sig.items()) + [("q, sign q̇", None)]:
+                    if s is None:
+                        bins = self._bins(sig["q"], 10) * 2 + (sgn > 0)
+                        nb = 20
+                    else:
+                        bins = self._bins(s, 16)
+                        nb = 16
+                    sums = np.bincount(bins, weights=r, minlength=nb)
+                    cnt = np.bincount(bins, minlength=nb)
+                    means = np.divide(sums, cnt, out=np.zeros(nb), where=cnt > 0)
+                    expl = float(np.sum(cnt * means**2))
+                    # chance level: each bin mean of pure noise carries ≈ τ·σ² of sum of squares
+                    chance = min(1.0, nb * tau / len(r))
+                    share = max(expl / ss - chance, 0.0) * ss / rss0
+                    if share > best["fraction"]:
+                        chname = ("load" if ch < n else "motor") + (f"[{ch % n + 1}]" if n > 1 else "")
+                        best = {"fraction": share, "signals": [name], "channel": chname}
+        best["warn"] = best["fraction"] >= self.opts.structure_threshold
+        return best
+
+    @staticmethod
+    def _bins(s: np.ndarray, k: int) -> np.ndarray:
+        qs = np.quantile(s, np.linspace(0, 1, k + 1)[1:-1])
+        return np.searchsorted(qs, s)
