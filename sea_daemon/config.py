@@ -250,7 +250,7 @@ class LearningConfig:
         if "overlap" in d:
             out["overlap"] = _num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
         if "lengthscales" in d:
-            out["lengthscales"] = tuple(_vector(source, "learning.lengthscales", d["lengthscales"], 3 * n, positive=True))
+            out["lengthscales"] = tuple(float(v) for v in _vector(source, "learning.lengthscales", d["lengthscales"], 3 * n, positive=True))
         for k in ("sigma_f", "sigma_n"):
             if k in d:
                 out[k] = _num(source, f"learning.{k}", d[k], positive=True)

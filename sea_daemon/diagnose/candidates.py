@@ -78,6 +78,8 @@ class Candidate:
     nonlinear: str | None = None        # name of θ, if any
     #: natural parameters that the final refinement fits, with bounds (see bounds())
     params: tuple[str, ...] = ()
+    #: linear coefficients that the vocabulary requires to be >= 0 (contracts §2 validation)
+    nonneg: tuple[int, ...] = ()
 
     def __init__(self, side: str, joint: int = 0):
         self.side = side
@@ -143,6 +145,7 @@ class Candidate:
 
 class CoulombC(Candidate):
     type, linear, params = "coulomb", ("F_c",), ("F_c",)
+    nonneg = (0,)
 
     def design(self, ctx, theta):
         return None, self._unit(ctx, F_c=1.0)[:, None]
@@ -278,6 +281,7 @@ class EncoderOffsetC(Candidate):
 
 class StribeckC(Candidate):
     type, linear, nonlinear, params = "stribeck", ("F_s",), "v_s", ("F_s", "v_s")
+    nonneg = (0,)
 
     def grid(self, ctx):
         _, v, _ = self._side_signals(ctx)
@@ -335,6 +339,7 @@ class CoggingC(Candidate):
 
 class SpringSaturationC(Candidate):
     type, linear, nonlinear, params = "spring_saturation", ("k_stop",), "theta_max", ("theta_max", "k_stop")
+    nonneg = (0,)
 
     def grid(self, ctx):
         a, _, _ = self._side_signals(ctx)

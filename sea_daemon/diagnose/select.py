@@ -48,6 +48,7 @@ class SelectOptions:
     max_effects: int = 4
     min_effect_rms: float = 0.01    # [N m] smallest effect worth a model term (RMS of its share)
     ambiguity: float = 0.9          # alternatives explaining ≥ this share of the best's ΔRSS
+    ambiguity_bic: float = 10.0     # ... and with a BIC within this of the best's
     structure_threshold: float = 0.10   # structured unexplained share that triggers the warning
     edge: int | None = None         # samples dropped at each end (default: the smoothing window)
     #: samples with |q̇| or |θ̇_m| below this [rad/s] are left out of the fit (stiction: the
@@ -157,10 +158,18 @@ class Selector:
             self._cache[key] = (None if o is None else o[self.valid], X[self.valid])
         return self._cache[key]
 
-    def _fit_with(self, y, base_X, o, X):
+    def _fit_with(self, y, base_X, o, X, nonneg=()):
+        """Least squares of y − o on [base_X, X]; coefficients of X listed in ``nonneg`` are
+        held at 0 when they come out negative (the vocabulary's sign constraints)."""
         yy = y if o is None else y - o
         A = np.hstack([base_X, X]) if base_X.shape[1] else X
         beta = _lstsq(A, yy)
+        k0 = base_X.shape[1]
+        bad = [k0 + i for i in nonneg if beta[k0 + i] < 0]
+        if bad:
+            keep = [i for i in range(A.shape[1]) if i not in bad]
+            beta = np.zeros(A.shape[1])
+            beta[keep] = _lstsq(A[:, keep], yy)
         res = yy - (A @ beta if A.shape[1] else 0.0)
         return beta, float(res @ res)
 
@@ -173,7 +182,7 @@ class Selector:
             scores = []
             for th in grid:
                 cols = np.column_stack([c[self.valid] for c in fast(self.ctx, th)])
-                _, rss = self._fit_with(y, base_X, None, cols)
+                _, rss = self._fit_with(y, base_X, None, cols, cand.nonneg)
                 scores.append(rss)
             order = np.argsort(scores)[:3]
             grid_eval = [grid[i] for i in order]
@@ -184,7 +193,7 @@ class Selector:
             return CandidateFit(cand, None, np.zeros(0), math.inf, None, np.zeros((self.M, 0)))
         for th in grid_eval:
             o, X = self.design(cand, th)
-            beta, rss = self._fit_with(y, base_X, o, X)
+            beta, rss = self._fit_with(y, base_X, o, X, cand.nonneg)
             results.append((rss, th, beta))
         results.sort(key=lambda r: r[0])
         rss, th, beta = results[0]
@@ -197,12 +206,12 @@ class Selector:
                 def f(t):
                     o, X = cand.design(self.ctx, t)
                     o = None if o is None else o[self.valid]
-                    return self._fit_with(y, base_X, o, X[self.valid])[1]
+                    return self._fit_with(y, base_X, o, X[self.valid], cand.nonneg)[1]
                 r = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": (hi - lo) * 1e-3, "maxiter": 20})
                 if r.fun < rss:
                     th = float(r.x)
                     o, X = self.design(cand, th)
-                    beta, rss = self._fit_with(y, base_X, o, X)
+                    beta, rss = self._fit_with(y, base_X, o, X, cand.nonneg)
         o, X = self.design(cand, th)
         fit = CandidateFit(cand, th, beta, rss, o, X)
         fit.params = cand.natural(beta[base_X.shape[1]:], th)
@@ -280,7 +289,10 @@ class Selector:
                 steps.append(StepRecord(step, rows, None, f"best candidate {best.cand.name} rejected: " + "; ".join(reasons)))
                 break
             gain = rss_cur - best.rss
-            alts = [f.cand.name for f in fits[1:] if gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain]
+            # nearly as good: explains ≥ 90 % as much and BIC not worse by 10 or more (Kass &
+            # Raftery: ΔBIC > 10 is very strong evidence for the better one)
+            alts = [f.cand.name for f in fits[1:] if gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain
+                    and f.bic - best.bic < o_cfg.ambiguity_bic]
             alternatives.append(alts)
             steps.append(StepRecord(step, rows, best.cand.name,
                                     f"{best.cand.name} explains {100 * frac:.1f} % of the initial mean square; "
