@@ -24,15 +24,16 @@ afterwards (:mod:`.select`).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..config import ModelConfig
-from ..effects import Effect, make_effect
+from ..effects import Effect, Inertia, make_effect
 from ..model import SEAModel
-from .residuals import Kinematics, residual_channels
+from .residuals import Kinematics, residual_channels, vtorque
 
 
 @dataclass
@@ -62,7 +63,46 @@ class Context:
 
     def delta_r(self, effects) -> np.ndarray:
         """Δr = r(cfg) − r(cfg + effects), flattened (N·2n,)."""
+        if len(effects) == 1:
+            d = self._additive_delta(effects[0])
+            if d is not None:
+                return d.reshape(-1)
         return (self.r0 - self.residual(effects)).reshape(-1)
+
+    def _additive_delta(self, e: Effect) -> np.ndarray | None:
+        """Δr of one additive effect without recomputing the model (None for structural ones).
+
+        The balances of :func:`.residuals.residual_channels` are linear in an added torque:
+        a load-side e adds S(e) to r_load's explained part, a motor-side one S(e) to r_motor's,
+        a spring one S(e) and −S(e); an inertia dI·(second difference) likewise.
+        ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.
+        """
+        if not e.additive:
+            return None
+        kin = self.kin
+        n = self.n
+        j = e.joint
+        q, th = self.angles()
+        if isinstance(e, Inertia):
+            col = e.dI * (kin.d2q if e.side == "load" else kin.d2theta_m)[:, j]
+        else:
+            if hasattr(e, "eps"):  # declared friction uses the estimator's sign smoothing (SEAModel)
+                e = dataclasses.replace(e, eps=self.cfg.estimator.sign_eps)
+            if e.side == "load":
+                a, v = q[:, j], kin.dq[:, j]
+            elif e.side == "motor":
+                a, v = th[:, j], kin.dtheta_m[:, j]
+            else:
+                a, v = q[:, j] - th[:, j], np.zeros(kin.N)
+            col = vtorque(e, a, v, np.zeros(kin.N))
+        out = np.zeros((kin.N, 2 * n))
+        if e.side in ("load", "spring"):
+            out[:, j] = col
+        if e.side == "motor":
+            out[:, n + j] = col
+        if e.side == "spring":
+            out[:, n + j] = -col
+        return kin.smooth(out)
 
     # signals with the declared offsets removed
     def angles(self):
@@ -257,17 +297,20 @@ class TorqueScaleC(Candidate):
 
 
 class EncoderOffsetC(Candidate):
-    """Linearised for the search: X = ∂Δr/∂δ at δ = 0 (central difference), β = δ."""
+    """The encoder reads angle + δ: enters every term that uses that angle (C(q), τ_s, the
+    declared effects), so Δr(δ) is computed exactly from the model and δ found by
+    Gauss–Newton from δ = 0 (:meth:`.select.Selector.fit_candidate`): linearised
+    ∂Δr/∂δ as the regressor, re-linearised at each iterate."""
 
-    type, linear, params = "encoder_offset", ("delta",), ("delta",)
+    type, linear, nonlinear, params = "encoder_offset", (), "delta", ("delta",)
+    gauss_newton = True
     H = 1e-4
 
     def design(self, ctx, theta):
-        d = (self._unit(ctx, delta=self.H) - self._unit(ctx, delta=-self.H)) / (2 * self.H)
-        return None, d[:, None]
+        return self._unit(ctx, delta=float(theta)), np.zeros((ctx.r0.size, 0))
 
     def natural(self, beta, theta):
-        return {"delta": float(beta[0])}
+        return {"delta": float(theta)}
 
     def bounds(self, ctx):
         return {"delta": (-0.5, 0.5)}

@@ -150,8 +150,33 @@ def kinematics_from_log(log: MeasuredLog, window: int | None = None, degree: int
     return kin
 
 
+def _softplus(x: np.ndarray, s: float) -> np.ndarray:
+    # s·log(1 + exp(x/s)), as SpringSaturation._sp (linear above 30 s, 0 below −30 s)
+    z = x / s
+    return np.where(z > 30, x, np.where(z < -30, 0.0, s * np.log1p(np.exp(np.clip(z, -30, 30)))))
+
+
+#: array versions of the vocabulary's ``torque`` (same formulas as :mod:`sea_daemon.effects`;
+#: ``tests/test_diagnose_residuals.py`` checks each against the effect's own scalar torque)
+_VECTOR = {
+    "coulomb": lambda e, a, v, c: e.F_c * np.tanh(v / e.eps),
+    "viscous": lambda e, a, v, c: e.b * v,
+    "stribeck": lambda e, a, v, c: e.F_s * np.exp(-((v / e.v_s) ** 2)) * np.tanh(v / e.eps),
+    "inertia": lambda e, a, v, c: e.dI * c,
+    "gravity": lambda e, a, v, c: e.a * np.sin(a + e.phi),
+    "human_viscoelastic": lambda e, a, v, c: e.k_h * (a - e.q_h0) + e.b_h * v,
+    "cogging": lambda e, a, v, c: e.A * np.sin(e.periods * a + e.phi),
+    "spring_cubic": lambda e, a, v, c: e.k3 * a**3,
+    "spring_saturation": lambda e, a, v, c: e.k_stop * (_softplus(a - e.theta_max, e.smooth)
+                                                        - _softplus(-a - e.theta_max, e.smooth)),
+}
+
+
 def vtorque(e: Effect, angle: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    """An effect's own ``torque`` evaluated elementwise over arrays."""
+    """An effect's ``torque`` evaluated elementwise over arrays."""
+    f = _VECTOR.get(e.type)
+    if f is not None and type(e).torque is not Effect.torque:
+        return np.asarray(f(e, np.asarray(angle, float), np.asarray(vel, float), np.asarray(acc, float)), dtype=float)
     return np.vectorize(e.torque, otypes=[float])(angle, vel, acc)
 
 

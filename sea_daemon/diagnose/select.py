@@ -135,6 +135,10 @@ class Selector:
         keep_t[edge:N - edge] = True
         v_min = self.opts.v_min if self.opts.v_min is not None else 3.0 * ctx.cfg.estimator.sign_eps
         slow = np.any((np.abs(kin.dq) < v_min) | (np.abs(kin.dtheta_m) < v_min), axis=1)
+        # the smoother S spreads what happens while sticking over half a window either side
+        half = kin.window // 2
+        if half and slow.any():
+            slow = np.convolve(slow.astype(float), np.ones(2 * half + 1), mode="same") > 0
         if np.mean(slow & keep_t) <= self.opts.max_masked * np.mean(keep_t):
             keep_t &= ~slow
         self.masked_share = 1.0 - float(np.mean(keep_t))
@@ -173,7 +177,32 @@ class Selector:
         res = yy - (A @ beta if A.shape[1] else 0.0)
         return beta, float(res @ res)
 
+    def _gauss_newton(self, cand: Candidate, y, base_X, iters: int = 6) -> CandidateFit:
+        """Δr(θ) exact, θ by Gauss–Newton from 0 with the chosen columns refitted each step."""
+        lo, hi = cand.bounds(self.ctx)[cand.nonlinear]
+        th = 0.0
+        h = getattr(cand, "H", 1e-4)
+        for _ in range(iters):
+            o_p, _ = self.design(cand, th + h)
+            o_m, _ = self.design(cand, th - h)
+            o, _ = self.design(cand, th) if th != 0.0 else (None, None)
+            J = ((o_p - o_m) / (2 * h))[:, None]
+            beta, _ = self._fit_with(y, base_X, o, J)
+            step = float(beta[-1])
+            th_new = float(np.clip(th + step, lo, hi))
+            done = abs(th_new - th) < 1e-7 + 1e-4 * abs(th_new)
+            th = th_new
+            if done:
+                break
+        o, X = self.design(cand, th)
+        beta, rss = self._fit_with(y, base_X, o, X)
+        fit = CandidateFit(cand, th, beta, rss, o, X)
+        fit.params = cand.natural(beta[base_X.shape[1]:], th)
+        return fit
+
     def fit_candidate(self, cand: Candidate, y, base_X) -> CandidateFit:
+        if getattr(cand, "gauss_newton", False):
+            return self._gauss_newton(cand, y, base_X)
         grid = cand.grid(self.ctx)
         fast = getattr(cand, "fast_design", None)
         best = None
@@ -256,7 +285,8 @@ class Selector:
                 k = n_par + len(cand.linear) + (1 if cand.nonlinear else 0)
                 # a parameter chosen from G grid values costs ≈ 2 ln G more (the best of G
                 # tries fits noise better: Bonferroni-style look-elsewhere penalty)
-                look = 2.0 * math.log(max(len(cand.grid(self.ctx)), 1)) if cand.nonlinear else 0.0
+                look = (2.0 * math.log(max(len(cand.grid(self.ctx)), 1))
+                        if cand.nonlinear and not getattr(cand, "gauss_newton", False) else 0.0)
                 fit.bic = n_eff * math.log(max(fit.rss, 1e-300) / self.M) + k * math.log(n_eff) + look
                 fits.append(fit)
             fits = [f for f in fits if np.isfinite(f.rss)]
