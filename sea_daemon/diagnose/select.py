@@ -149,6 +149,7 @@ class Selector:
         self.y0 = ctx.r0.reshape(-1)[self.valid]
         self.M = self.y0.size
         self._cache: dict = {}
+        self._full: dict = {}
         # blocked CV folds over time
         K = max(2, self.opts.folds)
         edges = np.linspace(self.time_index.min(), self.time_index.max() + 1, K + 1)
@@ -160,7 +161,21 @@ class Selector:
         if key not in self._cache:
             o, X = cand.design(self.ctx, theta)
             self._cache[key] = (None if o is None else o[self.valid], X[self.valid])
+            self._full[key] = (o, X)
         return self._cache[key]
+
+    def contribution_rms(self, fit: CandidateFit) -> float:
+        """RMS [N m] over all samples (not only the fitted ones) of what the candidate explains."""
+        key = (id(fit.cand), None if fit.theta is None else round(float(fit.theta), 12))
+        if key not in self._full:
+            self.design(fit.cand, fit.theta)
+        o, X = self._full.get(key, (None, np.zeros((0, 0))))
+        if o is None and X.shape[0] == 0:
+            return 0.0
+        k = X.shape[1]
+        d = (o if o is not None else 0.0) + (X @ fit.beta[len(fit.beta) - k:] if k else 0.0)
+        d = np.asarray(d, dtype=float)
+        return float(np.sqrt(np.sum(d**2) / self.ctx.kin.N))
 
     def _fit_with(self, y, base_X, o, X, nonneg=()):
         """Least squares of y − o on [base_X, X]; coefficients of X listed in ``nonneg`` are
@@ -309,7 +324,7 @@ class Selector:
             if not best.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
                 reasons.append(f"held-out mean square falls only {100 * (1 - best.cv / cv_cur):.1f} % "
                                f"(< {100 * o_cfg.min_cv_gain:.0f} %)")
-            eff_rms = math.sqrt(max(rss_cur - best.rss, 0.0) / max(len(np.unique(self.time_index)), 1))
+            eff_rms = self.contribution_rms(best)
             if eff_rms < o_cfg.min_effect_rms:
                 reasons.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
             if frac < o_cfg.min_fraction:
