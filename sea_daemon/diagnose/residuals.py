@@ -42,15 +42,7 @@ from scipy.signal import savgol_filter
 
 from ..config import ModelConfig
 from ..effects import Effect
-try:  # TEMP until the akf branch lands on main
-    from ..kinematics import smooth_derivatives
-except ImportError:  # pragma: no cover
-    from scipy.signal import savgol_filter
-
-    def smooth_derivatives(t, angle, window=11, degree=3):
-        dt = float(np.median(np.diff(t)))
-        kw = dict(window_length=window, polyorder=degree, delta=dt, axis=0, mode="interp")
-        return tuple(savgol_filter(np.asarray(angle, float), deriv=d, **kw) for d in range(3))
+from ..kinematics import smooth_derivatives
 from ..logio import MeasuredLog
 from ..model import SEAModel
 
