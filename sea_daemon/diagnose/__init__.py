@@ -109,6 +109,7 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         },
         "unexplained_structure": {
             "fraction": _num(sel.structure.get("fraction", 0.0)),
+            "rms": _num(sel.structure.get("rms", 0.0)),
             "follows": sel.structure.get("signals", []),
             "channel": sel.structure.get("channel"),
             "matches_no_candidate": warn,

@@ -448,7 +448,6 @@ class Selector:
         R = np.full((kin.N, c), np.nan)
         R.reshape(-1)[np.flatnonzero(self.valid)] = res
         R = R[valid_t]
-        tau = integrated_autocorr_time(R)
         best = {"fraction": 0.0, "signals": [], "channel": None}
         for j in range(n):
             sig = {
@@ -472,13 +471,18 @@ class Selector:
                     cnt = np.bincount(bins, minlength=nb)
                     means = np.divide(sums, cnt, out=np.zeros(nb), where=cnt > 0)
                     expl = float(np.sum(cnt * means**2))
-                    # chance level: each bin mean of pure noise carries ≈ τ·σ² of sum of squares
+                    # chance level: with N/τ independent samples, nb bin means of structureless
+                    # noise explain ≈ nb·τ/N of its sum of squares (τ of what the bins leave)
+                    tau = integrated_autocorr_time((r - means[bins])[:, None])
                     chance = min(1.0, nb * tau / len(r))
                     share = max(expl / ss - chance, 0.0) * ss / rss0
                     if share > best["fraction"]:
                         chname = ("load" if ch < n else "motor") + (f"[{ch % n + 1}]" if n > 1 else "")
                         best = {"fraction": share, "signals": [name], "channel": chname}
-        best["warn"] = best["fraction"] >= self.opts.structure_threshold
+        # RMS [N m] of the structured part (over the fitted samples): a share of pure noise is no news
+        best["rms"] = math.sqrt(best["fraction"] * rss0 / max(len(valid_t), 1))
+        best["warn"] = bool(best["fraction"] >= self.opts.structure_threshold
+                            and best["rms"] >= self.opts.min_effect_rms)
         return best
 
     @staticmethod
