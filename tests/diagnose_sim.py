@@ -20,16 +20,17 @@ from sea_daemon.sim.scenario import load_scenario
 
 
 def passive_log(extra=(), moves: int = 3, seed: int = 1, gravity_compensated: bool = False,
-                plant_cls=None):
+                plant_cls=None, pid: dict | None = None):
     """(estimation log, declared config) of a shortened passive run with ``extra`` undeclared.
 
     ``gravity_compensated``: the link and arm weights are balanced (gravity 0 in plant and
     model), so the spring deflection changes sign with the human's stiffness about q_h0.
     ``plant_cls``: a Plant subclass for effects outside the vocabulary.
+    ``pid``: other PID gains (kp, ki, kd) for the same moves.
     """
     sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
     tr = dataclasses.replace(sc.controller.trajectory, moves=moves)
-    ctrl = dataclasses.replace(sc.controller, trajectory=tr)
+    ctrl = dataclasses.replace(sc.controller, trajectory=tr, **(pid or {}))
     effects = tuple(sc.plant.effects)
     nominal = sc.nominal
     if gravity_compensated:

@@ -103,6 +103,10 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         "estimate_rmse_before": _num(est["before"]),
         "estimate_rmse_after": _num(est["after"]),
         # --- extensions (contracts §4 allows additions)
+        # RMS over the samples the fit used (moving, away from the filter's edges): without
+        # the turning points, where sticking friction leaves a residual no smooth model explains
+        "residual_rms_fit_before": _num(rms(ctx.r0[selector.keep_t])),
+        "residual_rms_fit_after": _num(rms(r_after[selector.keep_t])),
         "residual_rms_channels": {
             "before": {"load": _num(rms(ctx.r0[:, :nch])), "motor": _num(rms(ctx.r0[:, nch:]))},
             "after": {"load": _num(rms(r_after[:, :nch])), "motor": _num(rms(r_after[:, nch:]))},

@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import ModelConfig
-from ..effects import Effect, Inertia, make_effect
+from ..effects import Coulomb, Effect, Inertia, Stribeck, make_effect
 from ..model import SEAModel
-from .residuals import Kinematics, residual_channels, vtorque
+from .residuals import Kinematics, residuals_for, vtorque
 
 
 @dataclass
@@ -58,8 +58,7 @@ class Context:
         return self.kin.n
 
     def residual(self, effects=()) -> np.ndarray:
-        c = self.cfg.with_effects(list(self.cfg.model.effects) + list(effects)) if effects else self.cfg
-        return residual_channels(SEAModel.from_config(c), self.kin, zoh=self.zoh, passive=self.passive)
+        return residuals_for(self.cfg, self.kin, effects, zoh=self.zoh, passive=self.passive)
 
     def delta_r(self, effects) -> np.ndarray:
         """Δr = r(cfg) − r(cfg + effects), flattened (N·2n,)."""
@@ -77,8 +76,8 @@ class Context:
         a spring one S(e) and −S(e); an inertia dI·(second difference) likewise.
         ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.
         """
-        if not e.additive:
-            return None
+        if not e.additive or isinstance(e, (Coulomb, Stribeck)):
+            return None      # structural, or friction (set-valued while sticking): recompute
         kin = self.kin
         n = self.n
         j = e.joint

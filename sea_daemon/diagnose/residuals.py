@@ -41,7 +41,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from ..config import ModelConfig
-from ..effects import Effect
+from ..effects import Coulomb, Effect, Stribeck
 from ..kinematics import smooth_derivatives
 from ..logio import MeasuredLog
 from ..model import SEAModel
@@ -207,32 +207,76 @@ def spring_torque(model: SEAModel, theta_s: np.ndarray, dtheta_s: np.ndarray) ->
     return g @ model.K_s.T + dtheta_s @ model.D_s.T + _effect_sum(model.spring_effects, model.n, theta_s, z, z)
 
 
+def _static_limit(effects, n) -> np.ndarray:
+    """Largest friction torque at rest per joint, Σ (F_c + F_s) of the declared friction."""
+    F = np.zeros(n)
+    for e in effects:
+        if isinstance(e, (Coulomb, Stribeck)):
+            F[e.joint] += e.F_c if isinstance(e, Coulomb) else e.F_s
+    return F
+
+
+def _deadzone(x: np.ndarray, F: float) -> np.ndarray:
+    """x − clip(x, −F, F): what a friction bounded by F cannot take up."""
+    return x - np.clip(x, -F, F)
+
+
 def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
-                      passive: bool = False) -> np.ndarray:
+                      passive: bool = False, v_stick: float = 0.0) -> np.ndarray:
     """(N, 2n) array [r_load, r_motor] of the model on the log (see module docstring).
 
     ``passive``: ignore the log's tau_h_act column (ass:passive_human).
+    ``v_stick`` [rad/s]: below this speed a side with declared Coulomb/Stribeck friction is
+    taken as sticking, and its friction as set-valued (any torque up to the static limit
+    Σ F_c + F_s, Coulomb's law at rest): the residual there is only what exceeds the limit.
+    The smoothed sign of the model (tanh(v/ε), for the estimator's Jacobians) cannot hold a
+    stuck joint, so without this every turning point would leave a residual of up to the
+    static friction that no candidate could ever explain.  0 disables it.
     """
     n = kin.n
     # declared encoder offsets: the encoders read angle + δ (contracts §2)
     q, th = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
     dq, dth = kin.dq, kin.dtheta_m
     tau_s = spring_torque(model, q - th, dq - dth)
+    fric = [e for e in model.load_effects if isinstance(e, (Coulomb, Stribeck))]
+    fric_m = [e for e in model.motor_effects if isinstance(e, (Coulomb, Stribeck))]
     # load side: M q̈ + C(q) + Σ_load e + τ_s − τ_h,act   (eq:unknwn_load)
-    lo = kin.d2q @ model.M.T + model.C(q) + _effect_sum(model.load_effects, n, q, dq, kin.ddq) + tau_s
+    fr_l = _effect_sum(fric, n, q, dq, kin.ddq)
+    lo = (kin.d2q @ model.M.T + model.C(q) + fr_l
+          + _effect_sum([e for e in model.load_effects if e not in fric], n, q, dq, kin.ddq) + tau_s)
     if kin.tau_h_act is not None and not passive:
         lo = lo - kin.tau_h_act
     # motor side: κ τ_m − (J θ̈_m + D_m θ̇_m + Σ_motor e − τ_s)   (eq:motorside)
-    mo = (applied_torque(model, kin, zoh) - kin.d2theta_m @ model.J.T - dth @ model.D_m.T
-          - _effect_sum(model.motor_effects, n, th, dth, kin.ddtheta_m) + tau_s)
+    fr_m = _effect_sum(fric_m, n, th, dth, kin.ddtheta_m)
+    mo = (applied_torque(model, kin, zoh) - kin.d2theta_m @ model.J.T - dth @ model.D_m.T - fr_m
+          - _effect_sum([e for e in model.motor_effects if e not in fric_m], n, th, dth, kin.ddtheta_m) + tau_s)
+    r_l, r_m = -lo, mo
+    if v_stick > 0:
+        F_l, F_m = _static_limit(fric, n), _static_limit(fric_m, n)
+        for j in range(n):
+            if F_l[j] > 0:
+                st = np.abs(dq[:, j]) < v_stick
+                # the friction that balances the load side, bounded by the static limit
+                r_l[st, j] = _deadzone(r_l[st, j] + fr_l[st, j], F_l[j])
+            if F_m[j] > 0:
+                st = np.abs(dth[:, j]) < v_stick
+                r_m[st, j] = _deadzone(r_m[st, j] + fr_m[st, j], F_m[j])
     # r_load = S(τ_h,act − (M q̈ + C + Σ e + τ_s)),  r_motor = S(κτ_m − (J θ̈_m + D_m θ̇_m + Σ e − τ_s))
-    return kin.smooth(np.hstack([-lo, mo]))
+    return kin.smooth(np.hstack([r_l, r_m]))
 
 
 def residuals_for(cfg: ModelConfig, kin: Kinematics, effects=(), **kw) -> np.ndarray:
-    """Residual channels of ``cfg`` with ``effects`` appended to its declared ones."""
+    """Residual channels of ``cfg`` with ``effects`` appended to its declared ones
+    (sticking below 3 × the configured sign_eps unless ``v_stick`` is given)."""
     c = cfg.with_effects(list(cfg.model.effects) + list(effects)) if effects else cfg
+    kw.setdefault("v_stick", stick_velocity(cfg))
     return residual_channels(SEAModel.from_config(c), kin, **kw)
+
+
+def stick_velocity(cfg: ModelConfig) -> float:
+    """Speed [rad/s] below which a joint counts as sticking: 3 × the sign smoothing ε
+    (tanh(3) = 0.995: above it the smoothed sign is the sign)."""
+    return 3.0 * float(cfg.estimator.sign_eps)
 
 
 def rms(r: np.ndarray) -> float:
