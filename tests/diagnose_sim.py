@@ -19,7 +19,7 @@ from sea_daemon.sim.plant import Plant
 from sea_daemon.sim.scenario import load_scenario
 
 
-def passive_log(extra=(), moves: int = 3, seed: int = 1, gravity_compensated: bool = False,
+def passive_log(extra=(), moves: int = 2, seed: int = 1, gravity_compensated: bool = False,
                 plant_cls=None, pid: dict | None = None):
     """(estimation log, declared config) of a shortened passive run with ``extra`` undeclared.
 

@@ -38,7 +38,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.ndimage import correlate1d
+from scipy.signal import savgol_coeffs
 
 from ..config import ModelConfig
 from ..effects import Coulomb, Effect, Stribeck
@@ -67,6 +68,7 @@ class Kinematics:
     window: int
     degree: int
     _tau_cache: dict = field(default_factory=dict, repr=False)
+    _sg: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -81,10 +83,13 @@ class Kinematics:
         return float(np.median(np.diff(self.t)))
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
-        """S: the zero-phase filter of the derivatives, derivative 0 (same window and degree
-        as :func:`sea_daemon.kinematics.smooth_derivatives`, scipy's Savitzky–Golay)."""
-        w = min(self.window, self.N if self.N % 2 else self.N - 1)
-        return savgol_filter(x, w, min(self.degree, w - 1), deriv=0, axis=0, mode="interp")
+        """S: zero-phase Savitzky–Golay smoothing (derivative 0) of ``window`` samples and
+        ``degree``; the ends are padded with the end value (what S does there matters little:
+        it is the same for every term, and the fit leaves the ends out)."""
+        if self._sg is None:
+            w = min(self.window, self.N if self.N % 2 else self.N - 1)
+            self._sg = savgol_coeffs(w, min(self.degree, w - 1))
+        return correlate1d(np.asarray(x, dtype=float), self._sg, axis=0, mode="nearest")
 
 
 #: default length [s] of the zero-phase Savitzky–Golay window (degree 3).  Long enough that
