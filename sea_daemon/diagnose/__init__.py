@@ -74,7 +74,8 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
     effects = [c.effect(p) for c, p in sel.chosen]
     cfg_after = cfg.with_effects(list(cfg.model.effects) + effects)
     r_after = ctx.residual(effects)
-    est = estimate_rmse(log, cfg, cfg_after) if estimate else {"before": None, "after": None}
+    est = (estimate_rmse(log, cfg, cfg_after if effects else None) if estimate
+           else {"before": None, "after": None})
 
     warn = bool(sel.structure.get("warn"))
     added = []

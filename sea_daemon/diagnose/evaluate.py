@@ -15,13 +15,17 @@ def akf_estimates(log: MeasuredLog, cfg: ModelConfig) -> np.ndarray:
     return replay(log, make_estimator("akf", cfg, dt=log.dt)).tau_h_act_hat
 
 
-def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after: ModelConfig) -> dict:
+def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after: ModelConfig | None) -> dict:
     """RMS error [N m] of the AKF's τ̂_h,act against the log's tau_h_act (zero when absent).
 
-    ``None`` for a model whose filter faults on this log (no estimate can be formed)."""
+    ``cfg_after`` None: the model is unchanged, after = before.  ``None`` values for a model
+    whose filter faults on this log (no estimate can be formed)."""
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
     out: dict = {}
     for key, c in (("before", cfg_before), ("after", cfg_after)):
+        if c is None:
+            out[key], out[f"{key}_series"] = out["before"], out["before_series"]
+            continue
         try:
             est = akf_estimates(log, c)
         except (EstimatorFault, np.linalg.LinAlgError, FloatingPointError):

@@ -12,8 +12,10 @@ Forward selection on the stacked two-channel residual y = [r_load, r_motor] (fla
    * blocked cross-validation (K contiguous time segments held out in turn, the linear
      coefficients refitted on the rest) lowers the held-out mean square by at least
      ``min_cv_gain`` (relative);
-   * the step explains at least ``min_fraction`` of the *initial* mean square (a practical
-     size floor: statistically real but negligible structure is not worth a model term).
+   * the step explains at least ``min_fraction`` of the *initial* mean square or
+     ``min_fraction_current`` of what is still unexplained, and its share of the residual is
+     at least ``min_effect_rms`` N m RMS over the whole log (a practical size floor:
+     statistically real but negligible structure is not worth a model term).
    Otherwise selection stops.
 3. The chosen effects' natural parameters (F_c, v_s, δ, width, ...) are refined jointly by
    nonlinear least squares on the exact residual of the augmented model
@@ -42,10 +44,11 @@ Z95 = 1.959963984540054
 
 @dataclass
 class SelectOptions:
-    min_fraction: float = 0.05      # of the initial mean square, per accepted effect
+    min_fraction: float = 0.05      # of the initial mean square, per accepted effect ...
+    min_fraction_current: float = 0.3   # ... or of the mean square still unexplained
     min_cv_gain: float = 0.05       # relative decrease of the held-out mean square
     folds: int = 5                  # blocked CV segments
-    max_effects: int = 4
+    max_effects: int = 6
     min_effect_rms: float = 0.01    # [N m] smallest effect worth a model term (RMS of its share)
     ambiguity: float = 0.9          # alternatives explaining ≥ this share of the best's ΔRSS
     ambiguity_bic: float = 10.0     # ... and with a BIC within this of the best's
@@ -327,9 +330,11 @@ class Selector:
             eff_rms = self.contribution_rms(best)
             if eff_rms < o_cfg.min_effect_rms:
                 reasons.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
-            if frac < o_cfg.min_fraction:
+            frac_cur = (rss_cur - best.rss) / rss_cur
+            if frac < o_cfg.min_fraction and frac_cur < o_cfg.min_fraction_current:
                 reasons.append(f"explains {100 * frac:.1f} % of the initial mean square "
-                               f"(< {100 * o_cfg.min_fraction:.0f} %)")
+                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * frac_cur:.1f} % of what is left "
+                               f"(< {100 * o_cfg.min_fraction_current:.0f} %)")
             if reasons:
                 steps.append(StepRecord(step, rows, None, f"best candidate {best.cand.name} rejected: " + "; ".join(reasons)))
                 break
