@@ -32,8 +32,10 @@ def plot_residuals(dg, path: Path) -> None:
         ax = axes[ch, 0]
         side = "load" if ch < n else "motor"
         j = ch % n
-        ax.plot(t, ctx.r0[:, ch], lw=0.9, color="tab:red", label=f"before (RMS {np.sqrt(np.mean(ctx.r0[:, ch]**2)):.3g} N m)")
-        ax.plot(t, dg.r_after[:, ch], lw=0.9, color="tab:blue", label=f"after (RMS {np.sqrt(np.mean(dg.r_after[:, ch]**2)):.3g} N m)")
+        ax.plot(t, ctx.r0[:, ch], lw=1.6, color="tab:red", alpha=0.7,
+                label=f"before (RMS {np.sqrt(np.mean(ctx.r0[:, ch]**2)):.3g} N m)")
+        ax.plot(t, dg.r_after[:, ch], lw=0.8, color="tab:blue",
+                label=f"after (RMS {np.sqrt(np.mean(dg.r_after[:, ch]**2)):.3g} N m)")
         ax.axhline(0, color="k", lw=0.5)
         ax.set_ylabel(f"r_{side}{'' if n == 1 else f'[{j + 1}]'} [N m]")
         ax.legend(loc="upper right", fontsize=8)
@@ -42,6 +44,35 @@ def plot_residuals(dg, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
+    """The AKF's τ̂_h,act with the model before and after, and the truth."""
+    b, a = dg.est.get("before_series"), dg.est.get("after_series")
+    if b is None and a is None:
+        return False
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = log.n
+    truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 3.4 * n), sharex=True, squeeze=False)
+    for j in range(n):
+        ax = axes[j, 0]
+        ax.plot(log.t, truth[:, j], "k:", lw=1.2, label="truth" if log.tau_h_act is not None else "truth (passive: 0)")
+        if b is not None:
+            ax.plot(log.t, b[:, j], color="tab:red", lw=0.9, label=f"AKF, model before (RMSE {dg.est['before']:.3g} N m)")
+        if a is not None:
+            ax.plot(log.t, a[:, j], color="tab:blue", lw=0.9, label=f"AKF, model after (RMSE {dg.est['after']:.3g} N m)")
+        ax.set_ylabel(f"τ̂_h,act{'' if n == 1 else f'[{j + 1}]'} [N m]")
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle("Estimated active human torque with the model before and after")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
 
 
 def plot_effect(dg, k: int, path: Path) -> None:
@@ -133,7 +164,12 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
               "penalty for grid-searched parameters), the blocked cross-validated mean square on held-out "
               "time segments falls by at least "
               f"{100 * dg.selector.opts.min_cv_gain:.0f} %, it explains at least {100 * dg.selector.opts.min_fraction:.0f} % "
-              f"of the initial mean square and its share is at least {dg.selector.opts.min_effect_rms} N m RMS.", ""]
+              f"of the initial mean square or {100 * dg.selector.opts.min_fraction_current:.0f} % of what is left, and its "
+              f"share is at least {dg.selector.opts.min_effect_rms} N m RMS over the log.  Of two that fit about equally "
+              "well, BIC prefers the one with fewer parameters; near-ties are reported as alternatives.  Shares of "
+              "the mean square are counted on the samples the fit used, in the order chosen, at the final "
+              "parameters (refined jointly by nonlinear least squares on the exact residual); the 95 % intervals "
+              "come from the Gauss–Newton covariance widened by the residual's autocorrelation time.", ""]
     for st in sel.steps:
         lines += [f"### Step {st.step}: {st.reason}", "",
                   "| candidate | parameters at best fit | explains (of initial MS) | ΔBIC |", "|---|---|---|---|"]
@@ -159,6 +195,8 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
     if plots:
         plot_residuals(dg, out / "residuals.png")
         lines += ["## Plots", "", "![residuals before and after](residuals.png)", ""]
+        if plot_estimates(dg, log, out / "estimate.png"):
+            lines += ["![AKF estimate before and after](estimate.png)", ""]
         for k, (cand, _) in enumerate(sel.chosen):
             name = f"effect_{k + 1}_{cand.type}_{cand.side}.png"
             plot_effect(dg, k, out / name)
