@@ -118,3 +118,29 @@ def test_passive_flag_ignores_tau_h_act(ctx):
     passive = residual_channels(m, ctx.kin, passive=True)
     np.testing.assert_allclose(with_col[:, 0] - passive[:, 0], ctx.kin.smooth(ctx.kin.tau_h_act)[:, 0], atol=1e-12)
     np.testing.assert_allclose(with_col[:, 1], passive[:, 1])
+
+
+def test_two_joints_run_end_to_end(tmp_path):
+    """n = 2: candidates per joint, the JSON names the joint, the augmented model loads."""
+    import dataclasses
+    from sea_daemon.config import ModelConfig, load_config
+    from sea_daemon.diagnose import diagnose
+
+    base = load_config(default_config_path()).to_dict()
+    base["joints"] = 2
+    for k in ("M", "J", "D_m", "K_s", "D_s"):
+        base["model"][k] = [base["model"][k]] * 2
+    base["model"]["gravity"] = [base["model"]["gravity"]] * 2
+    base["estimator"] = {}
+    base["learning"] = {"lengthscales": [0.5, 0.5, 1.0, 1.0, 10.0, 10.0]}   # 3n (the default is for n = 1)
+    cfg = ModelConfig.from_dict(base, "<two joints>")
+    one = _log(N=500)
+    two = MeasuredLog(t=one.t, q=np.hstack([one.q, 0.8 * one.q]), theta_m=np.hstack([one.theta_m, 0.8 * one.theta_m]),
+                      tau_m=np.hstack([one.tau_m, 0.8 * one.tau_m]))
+    res = diagnose(two, cfg, tmp_path, plots=False)
+    assert res["samples"] == 500
+    assert set(res["residual_rms_channels"]["before"]) == {"load", "motor"}
+    for d in res["effects_added"]:
+        assert d["joint"] in (1, 2)
+    aug = load_config(tmp_path / "model_augmented.yaml")
+    assert aug.joints == 2 and len(aug.model.effects) == len(res["effects_added"])
