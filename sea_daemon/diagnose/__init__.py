@@ -142,7 +142,9 @@ def _num(v):
 def _statements(sel: Selection, added: list[dict], warn: bool, selector: Selector) -> list[str]:
     out = []
     st = sel.structure
-    if not added:
+    if not added and sel.dropped:
+        out.append("No effect added: what the candidates explain, this log cannot pin down (see below).")
+    elif not added:
         out.append("No undeclared effect found: no candidate of the vocabulary explains a worthwhile part "
                    "of the residual (see the candidate table for the best one and why it was rejected).")
     else:
@@ -154,6 +156,16 @@ def _statements(sel: Selection, added: list[dict], warn: bool, selector: Selecto
                    f"{st['channel']} side) follows {', '.join(st['signals'])} but matches no candidate "
                    "of the vocabulary: the model lacks an effect diagnose cannot name"
                    + ("; the effects above are at best a partial explanation." if added else "."))
+    for name, params, ci in sel.dropped:
+        ps = ", ".join(f"{k}={v:.4g} [{ci[k][0]:.3g}, {ci[k][1]:.3g}]" for k, v in params.items() if k in ci)
+        out.append(f"{name} would explain part of the residual, but this log does not determine its parameters "
+                   f"(95 % intervals wider than the values: {ps}); not added.")
+    kin = selector.ctx.kin
+    span = float(np.max(np.ptp(kin.q, axis=0)))
+    if span < 0.05:
+        out.append(f"The log hardly moves the joint (q spans {span:.3g} rad): effects that depend on the "
+                   "angle or the velocity look alike (a constant torque); parameters of such effects are "
+                   "weakly determined.  A log with motion over the working range tells them apart.")
     for d, alts in zip(added, sel.alternatives):
         if alts:
             msg = (f"{d['type']} ({d['side']}) and {', '.join(alts)} explain the residual almost equally "

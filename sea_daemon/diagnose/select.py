@@ -94,6 +94,7 @@ class Selection:
     rss0: float
     rss_final: float
     r_final: np.ndarray
+    dropped: list = field(default_factory=list)   # (candidate name, params, CI) not determined
 
 
 def integrated_autocorr_time(y: np.ndarray, max_lag: int = 200) -> float:
@@ -366,7 +367,26 @@ class Selector:
             k = f.X.shape[1]
             init.append(f.cand.natural(beta_all[col:col + k], f.theta))
             col += k
-        return self._finish(chosen, init, steps, alternatives, rss0)
+        sel = self._finish(chosen, init, steps, alternatives, rss0)
+        # an effect whose parameters this log does not determine (95 % CI wider than the
+        # value on both sides) is not added: refit without it
+        dropped = []
+        while True:
+            # (angles and rest positions — phi, q_h0 — may rightly be near 0: not judged this way)
+            bad = [i for i, ((cand, p), ci) in enumerate(zip(sel.chosen, sel.ci))
+                   if any(abs(hi - lo) / 2 > abs(p[k]) for k, (lo, hi) in ci.items()
+                          if np.isfinite(lo) and k not in ("phi", "q_h0"))]
+            if not bad:
+                break
+            i = bad[0]
+            dropped.append((sel.chosen[i][0].name, sel.chosen[i][1], sel.ci[i]))
+            keep = [k for k in range(len(chosen)) if k != i]
+            chosen = [chosen[k] for k in keep]
+            init = [sel.chosen[k][1] for k in keep]
+            alternatives = [alternatives[k] for k in keep]
+            sel = self._finish(chosen, init, steps, alternatives, rss0)
+        sel.dropped = dropped
+        return sel
 
     def _as_channels(self, v: np.ndarray) -> np.ndarray:
         c = self.ctx.r0.shape[1]
