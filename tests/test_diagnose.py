@@ -89,3 +89,24 @@ def test_effect_outside_the_vocabulary_is_reported_unexplained(tmp_path):
     assert "sign q̇" in " ".join(st["follows"]) and st["channel"] == "load", st
     assert all(d["confidence"] == "low" and d["explained_fraction"] < 0.6 for d in res["effects_added"]), res
     assert any("matches no candidate" in s for s in res["statements"])
+
+
+def test_static_log_claims_nothing_it_cannot_determine(tmp_path):
+    """Sec. V-C's task holds the joint still (open loop at 10°): against the bare nominal model
+    the residual is a large near-constant torque that several candidates explain with
+    parameters the log cannot determine — nothing is added, and the report says why."""
+    import dataclasses
+
+    from sea_daemon.config import repo_root
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
+    sc = dataclasses.replace(sc, training_samples=2, estimation_samples=600)
+    log = simulate(sc).estimation
+    res = diagnose(log, sc.nominal, tmp_path, plots=False)
+    assert res["residual_rms_before"] > 0.5
+    for d in res["effects_added"]:
+        for p, (lo, hi) in d["ci95"].items():
+            assert p in ("phi", "q_h0") or (hi - lo) / 2 <= abs(d["params"][p]), d
+    assert any("hardly moves the joint" in s for s in res["statements"])
