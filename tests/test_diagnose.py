@@ -32,7 +32,8 @@ CASES = [
     ("viscous-load", "viscous", "load", dict(b=0.5), {}, "a damper-like soft tissue / cuff, 0.5 N m s/rad"),
     ("viscous-motor", "viscous", "motor", dict(b=0.5), {}, "gearbox viscous loss, D_m under-estimated by 0.5"),
     ("stribeck-load", "stribeck", "load", dict(F_s=0.3, v_s=0.5), {}, "velocity-weakening friction of the cuff"),
-    ("stribeck-motor", "stribeck", "motor", dict(F_s=0.4, v_s=0.1), {}, "gearbox breakaway peak 0.4 N m"),
+    ("stribeck-motor", "stribeck", "motor", dict(F_s=0.4, v_s=0.2), {},
+     "gearbox breakaway peak 0.4 N m, Stribeck speed 20 rad/s at the motor"),
     ("inertia-load", "inertia", "load", dict(dI=0.2), {}, "an arm brace/orthosis of 0.2 kg m^2 not in the model"),
     ("inertia-motor", "inertia", "motor", dict(dI=0.16), {}, "reflected inertia 3x the datasheet rotor's (gear input stage)"),
     ("gravity", "gravity", "load", dict(a=0.8, phi=0.3), {}, "a tool of 0.8 N m at 17 deg off the link axis"),
@@ -48,8 +49,8 @@ CASES = [
      "20 ms (CAN round trip + current loop); the same moves under a softer PID, since the scenario's "
      "stiff PID oscillates beyond ~7 ms of delay"),
     ("cogging", "cogging", "motor", dict(A=0.3, periods=40.0, phi=0.5), {}, "0.3 N m transmission ripple, 40 per turn"),
-    ("spring-saturation", "spring_saturation", "spring", dict(theta_max=0.03, k_stop=300.0), {},
-     "(extension type) mechanical stop at 1.7 deg of deflection"),
+    ("spring-saturation", "spring_saturation", "spring", dict(theta_max=0.04, k_stop=300.0), {},
+     "(extension type) mechanical stop at 2.3 deg of deflection"),
 ]
 
 

@@ -314,35 +314,49 @@ class Selector:
                 break
             # rank by BIC: of two that fit equally well, the one with fewer parameters
             fits.sort(key=lambda f: f.bic)
-            best = fits[0]
-            best.cv = self.cv_mse(y, base_X, best.o, best.X)
-            frac = (rss_cur - best.rss) / rss0
             rows = []
             for f in fits:
                 rows.append({"candidate": f.cand.name, "type": f.cand.type, "side": f.cand.side,
                              "params": {k: round(v, 6) for k, v in f.params.items()},
                              "explains": (rss_cur - f.rss) / rss0, "delta_bic": f.bic - bic_cur})
-            reasons = []
-            if not best.bic < bic_cur:
-                reasons.append(f"BIC does not fall ({best.bic - bic_cur:+.1f})")
-            if not best.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
-                reasons.append(f"held-out mean square falls only {100 * (1 - best.cv / cv_cur):.1f} % "
+
+            def reasons_against(f: CandidateFit) -> list[str]:
+                out = []
+                if not f.bic < bic_cur:
+                    out.append(f"BIC does not fall ({f.bic - bic_cur:+.1f})")
+                    return out
+                f.cv = self.cv_mse(y, base_X, f.o, f.X)
+                if not f.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
+                    out.append(f"held-out mean square falls only {100 * (1 - f.cv / cv_cur):.1f} % "
                                f"(< {100 * o_cfg.min_cv_gain:.0f} %)")
-            eff_rms = self.contribution_rms(best)
-            if eff_rms < o_cfg.min_effect_rms:
-                reasons.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
-            frac_cur = (rss_cur - best.rss) / rss_cur
-            if frac < o_cfg.min_fraction and frac_cur < o_cfg.min_fraction_current:
-                reasons.append(f"explains {100 * frac:.1f} % of the initial mean square "
-                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * frac_cur:.1f} % of what is left "
+                eff_rms = self.contribution_rms(f)
+                if eff_rms < o_cfg.min_effect_rms:
+                    out.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
+                fr, fr_cur = (rss_cur - f.rss) / rss0, (rss_cur - f.rss) / rss_cur
+                if fr < o_cfg.min_fraction and fr_cur < o_cfg.min_fraction_current:
+                    out.append(f"explains {100 * fr:.1f} % of the initial mean square "
+                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * fr_cur:.1f} % of what is left "
                                f"(< {100 * o_cfg.min_fraction_current:.0f} %)")
-            if reasons:
-                steps.append(StepRecord(step, rows, None, f"best candidate {best.cand.name} rejected: " + "; ".join(reasons)))
+                return out
+
+            # the best by BIC that passes every test; candidates whose BIC does not fall end the search
+            best, rejected = None, []
+            for f in fits:
+                why = reasons_against(f)
+                if not why:
+                    best = f
+                    break
+                rejected.append(f"{f.cand.name}: " + "; ".join(why))
+                if not f.bic < bic_cur:
+                    break
+            if best is None:
+                steps.append(StepRecord(step, rows, None, "no candidate accepted — " + " | ".join(rejected[:3])))
                 break
+            frac = (rss_cur - best.rss) / rss0
             gain = rss_cur - best.rss
             # nearly as good: explains ≥ 90 % as much and BIC not worse by 10 or more (Kass &
             # Raftery: ΔBIC > 10 is very strong evidence for the better one)
-            alts = [f.cand.name for f in fits[1:] if gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain
+            alts = [f.cand.name for f in fits if f is not best and gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain
                     and f.bic - best.bic < o_cfg.ambiguity_bic]
             alternatives.append(alts)
             steps.append(StepRecord(step, rows, best.cand.name,
