@@ -24,7 +24,7 @@ from ..errors import InputError, LogFormatError
 from ..logio import MeasuredLog
 from .candidates import Context, build_candidates
 from .evaluate import estimate_rmse
-from .residuals import kinematics_from_log, residual_channels, rms, window_samples
+from .residuals import kinematics_from_log, rms, window_samples
 from .select import SelectOptions, Selection, Selector
 
 __all__ = ["diagnose", "SelectOptions", "run_diagnosis", "Diagnosis"]

@@ -74,7 +74,9 @@ class Context:
         The balances of :func:`.residuals.residual_channels` are linear in an added torque:
         a load-side e adds S(e) to r_load's explained part, a motor-side one S(e) to r_motor's,
         a spring one S(e) and −S(e); an inertia dI·(second difference) likewise.
-        ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.
+        ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.  (The
+        one difference: while a side sticks inside its declared static-friction band the full
+        residual takes up the added torque there; the fit leaves those samples out.)
         """
         if not e.additive or isinstance(e, (Coulomb, Stribeck)):
             return None      # structural, or friction (set-valued while sticking): recompute

@@ -44,6 +44,8 @@ Z95 = 1.959963984540054
 
 @dataclass
 class SelectOptions:
+    """Thresholds of the selection (see the module docstring)."""
+
     min_fraction: float = 0.05      # of the initial mean square, per accepted effect ...
     min_fraction_current: float = 0.3   # ... or of the mean square still unexplained
     min_cv_gain: float = 0.05       # relative decrease of the held-out mean square
@@ -62,6 +64,8 @@ class SelectOptions:
 
 @dataclass
 class CandidateFit:
+    """One candidate fitted at one step: θ, coefficients, RSS, its design, BIC and CV score."""
+
     cand: Candidate
     theta: float | None
     beta: np.ndarray               # coefficients of [selected X ..., this X]
@@ -75,6 +79,8 @@ class CandidateFit:
 
 @dataclass
 class StepRecord:
+    """The candidate table of one selection step and the decision taken."""
+
     step: int
     rows: list[dict]               # one per candidate tried at this step
     chosen: str | None
@@ -83,6 +89,8 @@ class StepRecord:
 
 @dataclass
 class Selection:
+    """What the selection found: effects with parameters, CIs and shares, and the record."""
+
     chosen: list[tuple[Candidate, dict]]          # (candidate, natural params)
     ci: list[dict]                                # per chosen: {param: (lo, hi)}
     explained: list[float]
@@ -482,7 +490,6 @@ class Selector:
         q, th = ctx.angles()
         c = ctx.r0.shape[1]
         n = ctx.n
-        t_idx = np.arange(kin.N)
         valid_t = np.unique(self.time_index)
         R = np.full((kin.N, c), np.nan)
         R.reshape(-1)[np.flatnonzero(self.valid)] = res
