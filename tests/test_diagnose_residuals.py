@@ -132,6 +132,7 @@ def test_two_joints_run_end_to_end(tmp_path):
         base["model"][k] = [base["model"][k]] * 2
     base["model"]["gravity"] = [base["model"]["gravity"]] * 2
     base["estimator"] = {}
+    base.pop("hardware", None)      # per-joint bus settings: the defaults for two joints
     base["learning"] = {"lengthscales": [0.5, 0.5, 1.0, 1.0, 10.0, 10.0]}   # 3n (the default is for n = 1)
     cfg = ModelConfig.from_dict(base, "<two joints>")
     one = _log(N=500)
