@@ -119,7 +119,11 @@ def plot_structure(dg, path: Path) -> None:
     for row, ch in enumerate((0, n)):
         for col, (x, lab) in enumerate(((ctx.kin.q[:, 0], "q [rad]"), (ctx.kin.dq[:, 0], "q̇ [rad/s]"))):
             ax = axes[row, col]
-            ax.plot(x[keep], dg.r_after[keep, ch], ".", ms=2)
+            up = keep & (ctx.kin.dq[:, 0] > 0)
+            dn = keep & (ctx.kin.dq[:, 0] <= 0)
+            ax.plot(x[up], dg.r_after[up, ch], ".", ms=2, color="tab:blue", label="q̇ > 0")
+            ax.plot(x[dn], dg.r_after[dn, ch], ".", ms=2, color="tab:orange", label="q̇ ≤ 0")
+            ax.legend(fontsize=7)
             ax.set_xlabel(lab)
             ax.set_ylabel(f"r_{'load' if ch < n else 'motor'} after [N m]")
     fig.suptitle("Residual left after the effects found, against the joint's state")
@@ -159,8 +163,8 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
     lines += ["## Candidates tried", "",
               "Every type of the effect vocabulary on every side it may sit on.  At each step all "
               "remaining candidates are fitted jointly with the effects already chosen (nonlinear "
-              "parameter on a grid, linear ones by least squares); the best by BIC is accepted only if "
-              "BIC falls (effective sample size from the residual's autocorrelation, plus a look-elsewhere "
+              "parameter on a grid, linear ones by least squares); the best by BIC that passes every test is "
+              "accepted: BIC falls (effective sample size from the residual's autocorrelation, plus a look-elsewhere "
               "penalty for grid-searched parameters), the blocked cross-validated mean square on held-out "
               "time segments falls by at least "
               f"{100 * dg.selector.opts.min_cv_gain:.0f} %, it explains at least {100 * dg.selector.opts.min_fraction:.0f} % "

@@ -5,7 +5,7 @@ Forward selection on the stacked two-channel residual y = [r_load, r_motor] (fla
 1. At each step every remaining candidate is fitted jointly with the effects already
    chosen: its nonlinear parameter θ on a grid (plus a bounded 1-D refinement between the
    best grid neighbours), all linear coefficients by least squares.
-2. The best candidate (lowest residual sum of squares) is accepted only if all hold:
+2. Candidates are ranked by BIC; the best one that passes every test is accepted:
    * BIC falls, with the *effective* sample size N_eff = M / τ_int (τ_int the integrated
      autocorrelation time of the current residual: smoothed derivatives make neighbouring
      samples dependent, so M samples carry fewer independent observations);
@@ -16,7 +16,7 @@ Forward selection on the stacked two-channel residual y = [r_load, r_motor] (fla
      ``min_fraction_current`` of what is still unexplained, and its share of the residual is
      at least ``min_effect_rms`` N m RMS over the whole log (a practical size floor:
      statistically real but negligible structure is not worth a model term).
-   Otherwise selection stops.
+   When none passes, selection stops.
 3. The chosen effects' natural parameters (F_c, v_s, δ, width, ...) are refined jointly by
    nonlinear least squares on the exact residual of the augmented model
    (scipy.optimize.least_squares); confidence intervals from the Gauss–Newton covariance
