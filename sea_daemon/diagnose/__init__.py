@@ -81,7 +81,9 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
     added = []
     for k, ((cand, params), ci, frac, alts) in enumerate(zip(sel.chosen, sel.ci, sel.explained,
                                                              sel.alternatives + [[]] * len(sel.chosen))):
-        rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()]
+        # relative CI half-widths (angles and rest positions, which may rightly be ≈ 0, aside)
+        rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()
+               if p not in ("phi", "q_h0")]
         confident = (not warn) and (not alts) and sel.unexplained < 0.5 and all(r < 0.2 for r in rel)
         d = {"type": cand.type, "side": cand.side}
         if n > 1:

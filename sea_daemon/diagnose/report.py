@@ -171,12 +171,13 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
               f"of the initial mean square or {100 * dg.selector.opts.min_fraction_current:.0f} % of what is left, and its "
               f"share is at least {dg.selector.opts.min_effect_rms} N m RMS over the log.  Of two that fit about equally "
               "well, BIC prefers the one with fewer parameters; near-ties are reported as alternatives.  Shares of "
-              "the mean square are counted on the samples the fit used, in the order chosen, at the final "
-              "parameters (refined jointly by nonlinear least squares on the exact residual); the 95 % intervals "
+              "the mean square are counted over the whole log, as Shapley values (each effect's decrease of the "
+              "sum of squares averaged over every order of adding them), at the final parameters (refined "
+              "jointly by nonlinear least squares on the exact residual); the 95 % intervals "
               "come from the Gauss–Newton covariance widened by the residual's autocorrelation time.", ""]
     for st in sel.steps:
         lines += [f"### Step {st.step}: {st.reason}", "",
-                  "| candidate | parameters at best fit | explains (of initial MS) | ΔBIC |", "|---|---|---|---|"]
+                  "| candidate | parameters at best fit | explains (of the initial MS of the fitted samples) | ΔBIC |", "|---|---|---|---|"]
         for r in sorted(st.rows, key=lambda r: r["delta_bic"]):
             ps = ", ".join(f"{k}={_fmt(v)}" for k, v in r["params"].items())
             mark = " **(chosen)**" if r["candidate"] == st.chosen else ""

@@ -13,7 +13,8 @@ Forward selection on the stacked two-channel residual y = [r_load, r_motor] (fla
      coefficients refitted on the rest) lowers the held-out mean square by at least
      ``min_cv_gain`` (relative);
    * the step explains at least ``min_fraction`` of the *initial* mean square or
-     ``min_fraction_current`` of what is still unexplained, and its share of the residual is
+     ``min_fraction_current`` of what is still unexplained (on the fitted samples or on the
+     whole log, sticking phases included), and its share of the residual is
      at least ``min_effect_rms`` N m RMS over the whole log (a practical size floor:
      statistically real but negligible structure is not worth a model term).
    When none passes, selection stops.
@@ -75,6 +76,7 @@ class CandidateFit:
     bic: float = math.inf
     cv: float = math.inf
     params: dict = field(default_factory=dict)
+    frac_all: float = 0.0          # share of the initial mean square (whole log) it removes
 
 
 @dataclass
@@ -143,6 +145,7 @@ class Selector:
         N, c = ctx.r0.shape
         edge = self.opts.edge if self.opts.edge is not None else kin.window
         edge = min(edge, max(0, (N - 10) // 4))
+        self.edge = edge
         keep_t = np.zeros(N, dtype=bool)
         keep_t[edge:N - edge] = True
         v_min = self.opts.v_min if self.opts.v_min is not None else 3.0 * ctx.cfg.estimator.sign_eps
@@ -295,6 +298,7 @@ class Selector:
         n_par = 0
         rss0 = float(self.y0 @ self.y0)
         rss_cur = rss0
+        all0 = self.rss_all([])
         steps: list[StepRecord] = []
         alternatives: list[list[str]] = []
         remaining = list(self.cands)
@@ -306,6 +310,7 @@ class Selector:
             n_eff = max(self.M / tau, 2.0)
             bic_cur = n_eff * math.log(rss_cur / self.M) + n_par * math.log(n_eff)
             cv_cur = self.cv_mse(y, base_X)
+            all_cur = self.rss_all(self._effects_from(chosen, beta_cur)) if chosen else all0
             fits = []
             for cand in remaining:
                 fit = self.fit_candidate(cand, y, base_X)
@@ -340,11 +345,16 @@ class Selector:
                 eff_rms = self.contribution_rms(f)
                 if eff_rms < o_cfg.min_effect_rms:
                     out.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
-                fr, fr_cur = (rss_cur - f.rss) / rss0, (rss_cur - f.rss) / rss_cur
-                if fr < o_cfg.min_fraction and fr_cur < o_cfg.min_fraction_current:
-                    out.append(f"explains {100 * fr:.1f} % of the initial mean square "
-                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * fr_cur:.1f} % of what is left "
-                               f"(< {100 * o_cfg.min_fraction_current:.0f} %)")
+                # its size, on the fitted samples and on the whole log (sticking phases included,
+                # which the fit leaves out): worth a term if it takes a good part of either
+                gain_all = all_cur - self.rss_all(self._effects_from(chosen + [f], f.beta))
+                fr, fr_cur = gain_all / all0, gain_all / all_cur
+                fit_fr, fit_cur = (rss_cur - f.rss) / rss0, (rss_cur - f.rss) / rss_cur
+                f.frac_all = fr
+                if max(fr, fit_fr) < o_cfg.min_fraction and max(fr_cur, fit_cur) < o_cfg.min_fraction_current:
+                    out.append(f"explains {100 * max(fr, fit_fr):.1f} % of the initial mean square "
+                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * max(fr_cur, fit_cur):.1f} % of "
+                               f"what is left (< {100 * o_cfg.min_fraction_current:.0f} %)")
                 return out
 
             # the best by BIC that passes every test; candidates whose BIC does not fall end the search
@@ -360,7 +370,7 @@ class Selector:
             if best is None:
                 steps.append(StepRecord(step, rows, None, "no candidate accepted — " + " | ".join(rejected[:3])))
                 break
-            frac = (rss_cur - best.rss) / rss0
+            frac = best.frac_all
             gain = rss_cur - best.rss
             # nearly as good: explains ≥ 90 % as much and BIC not worse by 10 or more (Kass &
             # Raftery: ΔBIC > 10 is very strong evidence for the better one)
@@ -410,6 +420,22 @@ class Selector:
         sel.dropped = dropped
         return sel
 
+    def _effects_from(self, fits: list[CandidateFit], beta: np.ndarray):
+        """Effects with natural parameters from the joint coefficients of ``fits``' columns."""
+        out, col = [], 0
+        for f in fits:
+            k = f.X.shape[1]
+            out.append(f.cand.effect(f.cand.natural(beta[col:col + k], f.theta)))
+            col += k
+        return out
+
+    def rss_all(self, effects) -> float:
+        """Sum of squares of the exact residual over every sample (the smoother's ends aside)."""
+        r = self.ctx.residual(list(effects))
+        e = self.edge
+        r = r[e:r.shape[0] - e] if e else r
+        return float(np.sum(r * r))
+
     def _as_channels(self, v: np.ndarray) -> np.ndarray:
         c = self.ctx.r0.shape[1]
         return v.reshape(-1, c)
@@ -442,7 +468,7 @@ class Selector:
         if not chosen:
             r = self.y0
             return Selection([], [], [], 1.0, steps, [], integrated_autocorr_time(self._as_channels(r)),
-                             self.structure(r, rss0), rss0, rss0, self.ctx.r0)
+                             self.structure(r, rss0), rss0, self.rss_all([]), self.ctx.r0)
         x0, lo, hi, idx = self._pack(chosen, init)
 
         def fun(x):
@@ -471,20 +497,48 @@ class Selector:
                 se = np.full(p, np.nan)
             for k, (i, name) in enumerate(idx):
                 ci[i][name] = (float(x[k] - Z95 * se[k]), float(x[k] + Z95 * se[k]))
-        # sequential explained fractions at the final parameters
-        rss_seq = [rss0]
-        for k in range(1, len(effects) + 1):
-            r = self._resid(effects[:k])
-            rss_seq.append(float(r @ r))
-        explained = [max(rss_seq[k] - rss_seq[k + 1], 0.0) / rss0 for k in range(len(effects))]
-        unexplained = rss_seq[-1] / rss0
+        explained, unexplained, rss_all_final = self.shares(effects)
         r_final = self.ctx.residual(effects)
         return Selection(list(zip([f.cand for f in chosen], params)), ci, explained, unexplained, steps,
-                         alternatives, tau, self.structure(res, rss0), rss0, rss_seq[-1], r_final)
+                         alternatives, tau, self.structure(res, rss0), rss0, rss_all_final, r_final)
+
+    def shares(self, effects) -> tuple[list[float], float, float]:
+        """Shares of the initial mean square (whole log) per effect, and the unexplained share.
+
+        Shapley values (Shapley 1953; the usual attribution of R² among correlated
+        regressors, Lipovetsky & Conklin 2001): each effect's decrease of the sum of squares
+        averaged over every order of adding the effects, so the shares do not depend on the
+        order chosen and add up to 1 − unexplained = 1 − RMS_after² / RMS_before².
+        """
+        K = len(effects)
+        v = {}
+        for mask in range(1 << K):
+            v[mask] = self.rss_all([effects[i] for i in range(K) if mask >> i & 1])
+        full = (1 << K) - 1
+        v0 = v[0] if v[0] > 0 else 1.0
+        out = []
+        for i in range(K):
+            phi = 0.0
+            for mask in range(1 << K):
+                if mask >> i & 1:
+                    continue
+                m = bin(mask).count("1")
+                w = math.factorial(m) * math.factorial(K - m - 1) / math.factorial(K)
+                phi += w * (v[mask] - v[mask | 1 << i])
+            out.append(phi / v0)
+        # a negative Shapley share (an effect that only helps together with others) is shown
+        # as 0; the others are scaled so the shares still add up to 1 − unexplained
+        total = sum(out)
+        pos = [max(x, 0.0) for x in out]
+        if sum(pos) > 0 and total > 0:
+            pos = [x * total / sum(pos) for x in pos]
+        return pos, v[full] / v0, v[full]
 
     # ---------------------------------------------------------------- leftover structure
     def structure(self, res: np.ndarray, rss0: float) -> dict:
-        """Share of the leftover explained by bin means against state signals (chance-corrected)."""
+        """Share of the leftover explained by bin means against state signals (chance-corrected),
+        as a fraction of the initial sum of squares over the whole log."""
+        all0 = max(self.rss_all([]), 1e-300)
         ctx = self.ctx
         kin = ctx.kin
         q, th = ctx.angles()
@@ -521,12 +575,13 @@ class Selector:
                     # noise explain ≈ nb·τ/N of its sum of squares (τ of what the bins leave)
                     tau = integrated_autocorr_time((r - means[bins])[:, None])
                     chance = min(1.0, nb * tau / len(r))
-                    share = max(expl / ss - chance, 0.0) * ss / rss0
-                    if share > best["fraction"]:
+                    share_ss = max(expl / ss - chance, 0.0) * ss
+                    if share_ss / all0 > best["fraction"]:
                         chname = ("load" if ch < n else "motor") + (f"[{ch % n + 1}]" if n > 1 else "")
-                        best = {"fraction": share, "signals": [name], "channel": chname}
+                        best = {"fraction": share_ss / all0, "signals": [name], "channel": chname,
+                                "rms": math.sqrt(share_ss / max(len(valid_t), 1))}
         # RMS [N m] of the structured part (over the fitted samples): a share of pure noise is no news
-        best["rms"] = math.sqrt(best["fraction"] * rss0 / max(len(valid_t), 1))
+        best.setdefault("rms", 0.0)
         best["warn"] = bool(best["fraction"] >= self.opts.structure_threshold
                             and best["rms"] >= self.opts.min_effect_rms)
         return best
