@@ -23,8 +23,6 @@ from sea_daemon.effects import make_effect
 
 from diagnose_sim import PositionFrictionPlant, passive_log
 
-SOFT_PID = dict(kp=40.0, ki=60.0, kd=3.0)
-
 #: (id, type, side, params, passive_log options, why this magnitude)
 CASES = [
     ("coulomb-load", "coulomb", "load", dict(F_c=0.3), {}, "a cuff/bearing rubbing 0.3 N m more than declared"),
@@ -45,9 +43,7 @@ CASES = [
     ("torque-scale", "torque_scale", "motor", dict(kappa=0.85), {}, "torque constant 15 % below the datasheet"),
     ("encoder-offset-load", "encoder_offset", "load", dict(delta=0.005), {}, "load encoder mounted 0.29 deg off zero"),
     ("encoder-offset-motor", "encoder_offset", "motor", dict(delta=0.005), {}, "motor encoder zeroed 0.29 deg off"),
-    ("delay", "delay", "motor", dict(seconds=0.02), dict(pid=SOFT_PID),
-     "20 ms (CAN round trip + current loop); the same moves under a softer PID, since the scenario's "
-     "stiff PID oscillates beyond ~7 ms of delay"),
+    ("delay", "delay", "motor", dict(seconds=0.02), {}, "20 ms (CAN round trip + current loop)"),
     ("cogging", "cogging", "motor", dict(A=0.3, periods=40.0, phi=0.5), {}, "0.3 N m transmission ripple, 40 per turn"),
     ("spring-saturation", "spring_saturation", "spring", dict(theta_max=0.04, k_stop=300.0), {},
      "(extension type) mechanical stop at 2.3 deg of deflection"),
