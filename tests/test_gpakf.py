@@ -225,14 +225,3 @@ def test_bench_latency_gp_akf_case_runs(capsys):
     assert "gp-akf-1e3: pre-filled 1000 points" in out and "gp-akf-1e3: per step median" in out
     assert "load average" in out and "gp-akf-1e4" not in out
 
-
-def test_expm_small_equals_scipy():
-    from scipy.linalg import expm
-
-    from sea_daemon.estimators.akf import expm_small
-    rng = np.random.default_rng(0)
-    for scale in (1e-4, 0.3, 3.0, 30.0):
-        M = rng.normal(size=(7, 7)) * scale
-        M[5:] = 0.0
-        E = expm(M)
-        assert np.allclose(expm_small(M), E, rtol=1e-12, atol=1e-13 * np.abs(E).max())

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg import expm
 from scipy.linalg.lapack import dpotrf as _dpotrf, dpotrs as _dpotrs
 
 from ..config import ModelConfig
@@ -41,38 +42,6 @@ from ..errors import EstimatorFault
 from ..kinematics import CausalDifferentiator
 from ..model import SEAModel
 from .base import Estimate, Residual, chi2_scale
-
-
-# Padé(13) coefficients of the scaling-and-squaring matrix exponential (Higham, SIAM J. Matrix
-# Anal. Appl. 26 (2005) 1179-1193, Table 10.4 of Higham's "Functions of Matrices"); θ₁₃ bound.
-_PADE13 = (64764752532480000., 32382376266240000., 7771770303897600., 1187353796428800.,
-           129060195264000., 10559470521600., 670442572800., 33522128640., 1323241920.,
-           40840800., 960960., 16380., 182., 1.)
-_THETA13 = 5.371920351148152
-
-
-def expm_small(M: np.ndarray) -> np.ndarray:
-    """e^M of a small dense matrix: Padé(13) with scaling and squaring (Higham 2005).
-
-    The algorithm scipy.linalg.expm uses for ‖M‖₁ > θ₉, without its per-call checks and
-    lower-degree branches (which only save work for small norms): 6 products, one solve,
-    s squarings.  Agrees with scipy.linalg.expm to round-off.
-    """
-    b = _PADE13
-    nrm = float(np.abs(M).sum(axis=0).max())
-    s = max(0, int(math.ceil(math.log2(nrm / _THETA13)))) if nrm > _THETA13 else 0
-    A = M * (0.5 ** s) if s else M
-    I = np.eye(M.shape[0])
-    A2 = A @ A
-    A4 = A2 @ A2
-    A6 = A4 @ A2
-    U = A @ (A6 @ (b[13] * A6 + b[11] * A4 + b[9] * A2) + b[7] * A6 + b[5] * A4 + b[3] * A2 + b[1] * I)
-    V = A6 @ (b[12] * A6 + b[10] * A4 + b[8] * A2) + b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * I
-    # r₁₃(A) = (V − U)⁻¹ (V + U), then e^M = r₁₃(A)^(2^s)
-    E = np.linalg.solve(V - U, V + U)
-    for _ in range(s):
-        E = E @ E
-    return E
 
 
 def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
@@ -92,7 +61,7 @@ def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float,
     aug[:d, d + 1:] = G
     aug[d:, :] = 0.0
     aug *= dt
-    E = expm_small(aug)
+    E = expm(aug)
     return E[:d, d], E[:d, :d], E[:d, d + 1:]
 
 
