@@ -60,8 +60,9 @@ class GPAKF(AKF):
     ``cfg``: model configuration (nominal model, estimator noise, kinematics, learning
     options).  ``residual``: a :class:`ResidualGP` (default: a fresh one from ``cfg.learning``).
     ``learning``: learn from every sample (passive subject, ass:passive_human).
-    ``tau_lag``: which motor torque a training target pairs with the sample's kinematics,
-    in samples back (see :meth:`_training_pair`).
+    ``tau_lag``: which motor torque a training target pairs with the sample's kinematics, in
+    samples back (0: the torque commanded at the sample, as
+    :func:`~sea_daemon.learning.training_pairs_from_log`).
     """
 
     name = "gp-akf"
