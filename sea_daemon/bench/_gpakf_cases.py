@@ -26,7 +26,8 @@ def label(n_points: int) -> str:
     return f"gp-akf-1e{int(round(np.log10(n_points)))}" if n_points in SIZES else f"gp-akf-{n_points}"
 
 
-def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = True):
+def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = True,
+                    hyper_every: int | None = None):
     """A learning GP-AKF whose LoG-GP already holds ``n_points`` points near ``log``'s inputs."""
     from ..estimators.gpakf import GPAKF
     from ..learning import ResidualGP, training_pairs_from_log
@@ -36,7 +37,8 @@ def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = 
     Z, F = training_pairs_from_log(model, log, kinematics=cfg.kinematics, causal=True)
     rng = np.random.default_rng(seed)
     spread = Z.std(axis=0) + 1e-9
-    gp = ResidualGP(cfg.joints, cfg.learning, max_leaves=None, hyperopt=False)
+    extra = {} if hyper_every is None else {"hyper_every": int(hyper_every)}
+    gp = ResidualGP(cfg.joints, cfg.learning, max_leaves=None, hyperopt=False, **extra)
     t0 = time.perf_counter()
     N = Z.shape[0]
     for k in range(int(n_points)):
@@ -60,12 +62,13 @@ def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = 
     return est
 
 
-def register(register_fn, max_points: int = SIZES[-1]) -> list[str]:
-    """Register ``gp-akf-1eK`` cases up to ``max_points`` with ``register_fn(label, builder)``."""
+def register(register_fn, max_points: int = SIZES[-1], hyper_every: int | None = None) -> list[str]:
+    """Register ``gp-akf-1eK`` cases up to ``max_points`` with ``register_fn(label, builder)``
+    (``hyper_every``: updates between hyperparameter slices, default the LoG-GP's)."""
     labels = []
     for n in SIZES:
         if n > max_points:
             break
-        register_fn(label(n), lambda cfg, dt, log, n=n: prefilled_gpakf(cfg, dt, log, n))
+        register_fn(label(n), lambda cfg, dt, log, n=n: prefilled_gpakf(cfg, dt, log, n, hyper_every=hyper_every))
         labels.append(label(n))
     return labels

@@ -98,17 +98,20 @@ def add_arguments(p) -> None:
                         "(known: akf, spring, gp-akf-1e3 … gp-akf-1e6)")
     p.add_argument("--max-points", type=float, default=1e6,
                    help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~150 us per point)")
+    p.add_argument("--hyper-every", type=int, default=None,
+                   help="gp-akf cases: updates between two hyperparameter slices (default: the LoG-GP "
+                        "default, 10; each slice is two O(N̄³) phases on consecutive updates)")
     p.add_argument("--quick", action="store_true",
                    help="quick run: 10 s log, 1 pass, gp-akf up to 1e4 points")
 
 
-def _try_register_gp_akf(max_points: float) -> list[str]:
+def _try_register_gp_akf(max_points: float, hyper_every: int | None = None) -> list[str]:
     """The GP-AKF cases (``sea_daemon.bench._gpakf_cases``), when the GP-AKF is installed."""
     import importlib.util
     if importlib.util.find_spec("sea_daemon.estimators.gpakf") is None:
         return []
     from . import _gpakf_cases
-    return _gpakf_cases.register(register, int(max_points))
+    return _gpakf_cases.register(register, int(max_points), hyper_every)
 
 
 def run(args) -> int:
@@ -116,7 +119,9 @@ def run(args) -> int:
     cfg = load_config(args.config)
     if args.quick:
         args.seconds, args.repeat, args.max_points = min(args.seconds, 10.0), 1, min(args.max_points, 1e4)
-    gp_labels = _try_register_gp_akf(args.max_points)
+    if args.hyper_every is not None and args.hyper_every < 1:
+        raise InputError(f"--hyper-every must be >= 1, got {args.hyper_every}")
+    gp_labels = _try_register_gp_akf(args.max_points, args.hyper_every)
     labels = []
     for s in args.estimators.split(","):
         s = s.strip()
