@@ -167,9 +167,13 @@ class AKF:
     def measure(self, q, theta_m) -> np.ndarray:
         """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
         n = self.n
-        qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
-        self._ang[:n] = qc
-        self._ang[n:] = thc
+        if self._affine:                    # no declared effects, so no encoder offsets
+            self._ang[:n] = q
+            self._ang[n:] = theta_m
+        else:
+            qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
+            self._ang[:n] = qc
+            self._ang[n:] = thc
         ang, vel, acc = self.kin.update(self._ang)
         y = self.y
         y[:n] = ang[n:]
@@ -333,13 +337,13 @@ class AKF:
         rhs = self._rhs
         rhs[:, :d] = Pm[:m, :]
         rhs[:, d] = self.innovation
-        if not (np.isfinite(S).all() and np.isfinite(self.innovation).all()):
+        if not math.isfinite(float(S.sum()) + float(self.innovation.sum())):     # one reduction
             raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: prediction became non-finite "
                                      f"(non-finite state, measurement or covariance)")
         L, info = _dpotrf(S, lower=1)
         if info != 0:
             raise CovarianceNotPD(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
-                                 f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0")
+                                  f"(min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0")
         sol, _ = _dpotrs(L, rhs, lower=1)
         K = self.K_k
         K[:] = sol[:, :d].T
@@ -350,7 +354,7 @@ class AKF:
         # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
         IKH = self._IKH
         IKH[:] = 0.0
-        IKH[np.diag_indices(d)] = 1.0
+        IKH.flat[::d + 1] = 1.0
         IKH[:, :m] -= K
         P = self.P
         np.dot(IKH @ Pm, IKH.T, out=P)
@@ -358,7 +362,8 @@ class AKF:
         # symmetrise
         P += P.T
         P *= 0.5
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        # one reduction: a NaN or ±inf anywhere makes the sum non-finite
+        if not math.isfinite(float(x.sum()) + float(P.sum())):
             raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
                                  f"(non-finite measurement or diverging model/noise settings)")
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
