@@ -291,3 +291,25 @@ def test_tpdo_of_the_wrong_length_is_named_at_run_time():
         assert e.value.fault is Fault.TPDO_MISSING
     finally:
         rig.close()
+
+
+# ------------------------------------------------------------------ diagnose
+@pytest.mark.parametrize("case", ["truncated", "wrong columns", "nan", "time going back", "degrees"])
+def test_diagnose_bad_csv(tmp_path, capsys, case):
+    text, expect = BAD_CSV[case]
+    bad = tmp_path / "bad.csv"
+    bad.write_text(text)
+    code, _, err = cli(["diagnose", str(bad), "--config", CFG, "--out", str(tmp_path / "d"), "--no-plots"], capsys)
+    assert_one_line(code, err, re.escape(str(bad)), expect)
+    assert not (tmp_path / "d" / "diagnosis.json").exists()
+
+
+@pytest.mark.parametrize("case", ["unknown top key", "negative inertia", "bad nis level"])
+def test_diagnose_bad_config(tmp_path, capsys, case):
+    mutate, expect = BAD_CONFIGS[case]
+    cfg = bad_config(tmp_path, mutate)
+    log = tmp_path / "log.csv"
+    log.write_text(HEAD + "\n".join(good_rows(400)) + "\n")
+    code, _, err = cli(["diagnose", str(log), "--config", str(cfg), "--out", str(tmp_path / "d"), "--no-plots"],
+                       capsys)
+    assert_one_line(code, err, re.escape(str(cfg)), expect)
