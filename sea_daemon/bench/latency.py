@@ -81,14 +81,37 @@ def add_arguments(p) -> None:
     p.add_argument("--log", default=None, help="measured log to replay (default: synthetic)")
     p.add_argument("--seconds", type=float, default=30.0, help="length of the synthetic log [s]")
     p.add_argument("--repeat", type=int, default=3, help="passes over the log per estimator")
-    p.add_argument("--estimators", default="akf,spring",
-                   help=f"comma-separated labels (known: {', '.join(CASES)})")
+    p.add_argument("--estimators", default="akf,spring,gp-akf",
+                   help="comma-separated labels; 'gp-akf' = every gp-akf-1eK case up to --max-points "
+                        "(known: akf, spring, gp-akf-1e3 … gp-akf-1e6)")
+    p.add_argument("--max-points", type=float, default=1e6,
+                   help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~150 us per point)")
+    p.add_argument("--quick", action="store_true",
+                   help="quick run: 10 s log, 1 pass, gp-akf up to 1e4 points")
+
+
+def _try_register_gp_akf(max_points: float) -> list[str]:
+    """The GP-AKF cases (``sea_daemon.bench._gpakf_cases``), when the GP-AKF is installed."""
+    import importlib.util
+    if importlib.util.find_spec("sea_daemon.estimators.gpakf") is None:
+        return []
+    from . import _gpakf_cases
+    return _gpakf_cases.register(register, int(max_points))
 
 
 def run(args) -> int:
     from ..errors import InputError
     cfg = load_config(args.config)
-    labels = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    if args.quick:
+        args.seconds, args.repeat, args.max_points = min(args.seconds, 10.0), 1, min(args.max_points, 1e4)
+    gp_labels = _try_register_gp_akf(args.max_points)
+    labels = []
+    for s in args.estimators.split(","):
+        s = s.strip()
+        if s == "gp-akf":
+            labels += gp_labels
+        elif s:
+            labels.append(s)
     unknown = [s for s in labels if s not in CASES]
     if unknown:
         raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(CASES)}")
@@ -99,8 +122,12 @@ def run(args) -> int:
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     print(f"data: {log.path}, {len(log)} samples at {1 / log.dt:.0f} Hz, {cfg.joints} joint(s), "
           f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass")
+    if gp_labels:
+        print("gp-akf-1eK: GP-AKF step WITH online learning (GP mean + Jacobian + variance, filter step, "
+              "training pair, LoG-GP update incl. hyperparameter slices) with the LoG-GP pre-filled to "
+              "1eK points; LoG-GP vs lgrt4gps on the same data: `sea-daemon bench loggp`")
     for label in labels:
         est = CASES[label](cfg, log.dt, log)
         times = np.concatenate([time_steps(est, log) for _ in range(args.repeat)])
-        print(f"{label:>10s}: per step {summarize(times)}")
+        print(f"{label:>12s}: per step {summarize(times)}; load average {os.getloadavg()[0]:.2f}", flush=True)
     return 0
