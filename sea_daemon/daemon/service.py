@@ -198,8 +198,8 @@ class ScenarioController:
                            derivative=ctrl.derivative)
             self.derivative = ctrl.derivative
         else:
-            self.ol = OpenLoopTorque(tau_comp=np.zeros(self.n), amplitude=ctrl.amplitude,
-                                     frequency_hz=ctrl.frequency_hz, offset=ctrl.offset)
+            self._ol_spec = ctrl                      # OpenLoopTorque built at the first sample (τ_comp)
+            self._ol_cls = OpenLoopTorque
         self.active = phase == "estimation"
         self.limit = cfg.hardware.torque_limit
         self.t0 = None
@@ -219,7 +219,9 @@ class ScenarioController:
             if self.pid is not None:
                 self.pid.reset(q if self.derivative == "load" else theta_m, u0)     # bumpless
             else:
-                self.ol.tau_comp = u0.copy()
+                c = self._ol_spec
+                self.ol = self._ol_cls(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
+                                       offset=c.offset)
         tp = t - self.t0
         if self.pid is not None:
             q_ref, dq_ref, _ = self.traj.reference(tp)
