@@ -316,7 +316,8 @@ class ServeResult:
 def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path, *,
           cycles: int | None = None, realtime: bool = True, notifier: Notifier | None = None,
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
-          rt_priority: int | None = 80, record_periods: bool = False, label: str = "run") -> ServeResult:
+          rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
+          supervisor: SafetySupervisor | None = None) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal."""
     notifier = notifier or Notifier()
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
@@ -350,7 +351,7 @@ def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path
     try:
         loop = FixedRateLoop(rig.hw, estimator, controller, n=n, period=period, log=log, notifier=notifier,
                              realtime=realtime, record_periods=record_periods, on_cycle=on_cycle,
-                             initial_torque=rig.initial_torque)
+                             initial_torque=rig.initial_torque, supervisor=supervisor)
         signal.signal(signal.SIGTERM, on_stop)
         signal.signal(signal.SIGINT, on_stop)
         signal.signal(signal.SIGUSR1, on_reset)
