@@ -63,6 +63,8 @@ def add_arguments(p) -> None:
                    help="virtual: device model in this process; remote: device model in its own process "
                         "behind python -m can_remote")
     p.add_argument("--train", type=int, default=700, help="lock-step calibration cycles before (default 700)")
+    p.add_argument("--estimator", choices=("gp-akf", "akf"), default="gp-akf",
+                   help="estimator in the loop (default gp-akf; akf: without the GP, for comparison)")
     p.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority tried (0: do not)")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
@@ -128,7 +130,11 @@ def run(args) -> int:
             print(f"sea-daemon bench loop: calibration failed: {buf.getvalue()}", file=sys.stderr)
             return 1
         residual, _ = load_gp_model(tmp / "model.npz", cfg)
-        estimator = GPAKF(cfg, dt=dt, residual=residual, learning=False)
+        if args.estimator == "gp-akf":
+            estimator = GPAKF(cfg, dt=dt, residual=residual, learning=False)
+        else:
+            from ..estimators import make_estimator
+            estimator = make_estimator("akf", cfg, dt=dt)
         if args.bus == "virtual":
             rig = make_rig(cfg, device_model=scen, phase="estimation", count_frames=True)
         else:
@@ -193,7 +199,7 @@ def run(args) -> int:
     load_typ = (b1 - b0) / cyc * args.rate / 1e6
     load_worst = (w1 - w0) / cyc * args.rate / 1e6
     out = {
-        "machine": machine(), "rate_hz": args.rate, "bus": args.bus, "hardware": rig.description,
+        "machine": machine(), "rate_hz": args.rate, "estimator": args.estimator, "bus": args.bus, "hardware": rig.description,
         "cycles_measured": measured, "realtime": res.realtime, "fault": res.supervisor.latched.name,
         "loadavg_before": load_before, "loadavg_after": load_after,
         "jitter_us": {"median": float(np.median(dev) * 1e6), "p99": float(np.percentile(dev, 99) * 1e6),
@@ -209,8 +215,9 @@ def run(args) -> int:
     }
     print(f"bench loop on {out['machine']}")
     print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine)")
-    print(f"{args.rate} Hz, {out['hardware']}; GP-AKF ({residual.n_points} GP points, learned by calibrate, "
-          f"{args.train} lock-step cycles) + passive-scenario PID; real-time pace; {res.realtime}")
+    what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate, {args.train} lock-step cycles)"
+            if args.estimator == "gp-akf" else "AKF (no GP)")
+    print(f"{args.rate} Hz, {out['hardware']}; {what} + passive-scenario PID; real-time pace; {res.realtime}")
     print(f"measured {n_cycles} cycles ({measured} periods), OVERRUN_STREAK fault "
           f"{'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}")
     j, pr, c = out["jitter_us"], out["period_us"], out["compute_us"]
