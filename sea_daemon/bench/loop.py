@@ -187,6 +187,7 @@ def run(args) -> int:
         from ..logio import read_log
         log = read_log(tmp / "run.csv", n=cfg.joints)
         compute = log.extra["compute"]
+        read_s = log.extra["read"]
     load_after = _loadavg()
     st = res.stats
     periods = np.asarray(st.periods, dtype=float)
@@ -210,6 +211,8 @@ def run(args) -> int:
         "max_late_us": st.max_late_s * 1e6,
         "compute_us": {"median": float(np.median(compute) * 1e6), "p99": float(np.percentile(compute, 99) * 1e6),
                        "max": float(compute.max() * 1e6)},
+        "read_us": {"median": float(np.median(read_s) * 1e6), "p99": float(np.percentile(read_s, 99) * 1e6),
+                    "max": float(read_s.max() * 1e6)},
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
         "log_rows_dropped": res.log["rows_dropped"],
     }
@@ -226,6 +229,9 @@ def run(args) -> int:
     print(f"overruns: {st.overruns} in {n_cycles} cycles = {out['overruns_per_1e5']:.0f} per 1e5 cycles "
           f"(max late {out['max_late_us']:.0f} us, deadlines skipped {st.skipped})")
     print(f"cycle compute (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
+    r = out["read_us"]
+    print(f"  of which hw.read() (SYNC -> TPDOs, incl. the device model's answer): median {r['median']:.0f} us, "
+          f"p99 {r['p99']:.0f} us, max {r['max']:.0f} us")
     print(f"CAN frames per cycle {fpc:.2f} (all frames on the bus over the measured cycles); at 1 Mbit/s: "
           f"bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with worst-case stuffing")
     print(f"log rows dropped: {out['log_rows_dropped']}")

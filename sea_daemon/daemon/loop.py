@@ -87,7 +87,7 @@ class LoopStats:
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute"]
+             "period", "compute", "read"]
 
 
 def log_columns(n: int) -> list[str]:
@@ -98,7 +98,8 @@ def log_columns(n: int) -> list[str]:
         cols += column_names(base, n)
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
-    return cols + ["valid", "fault", "cycle", "period", "compute"]
+    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s]
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read"]
 
 
 class FixedRateLoop:
@@ -180,6 +181,7 @@ class FixedRateLoop:
                 meas = self.hw.read()
             except Exception as e:  # noqa: BLE001 - every hardware fault latches
                 self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            t_read = self.clock()
             if meas is not None and sup.ok:
                 try:
                     cmd = self.controller.update(meas.t, meas.q, meas.theta_m, self.last_estimate)
@@ -232,6 +234,7 @@ class FixedRateLoop:
                 row[i + 2] = k
                 row[i + 3] = start - last_start
                 row[i + 4] = done - start
+                row[i + 5] = t_read - start
                 self.log.append(row)
             if self.notifier is not None and sup.ok:
                 self.notifier.watchdog()
