@@ -142,7 +142,8 @@ def run(args) -> int:
             server, url = _server()
             procs.append(server)
             cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
-                cfg.hardware.bus, interface="remote", channel=url, pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000)))
+                cfg.hardware.bus, interface="remote", channel=url, pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000,
+                sdo_timeout_ms=3000)))
             save_config(cfg_r, cfg_path)
             dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote",
                                     "--channel", url, "--config", str(cfg_path), "--scenario", scen],

@@ -117,7 +117,7 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
     from drivers.device_model import DeviceModel
     # a fresh virtual channel per run; timeouts fit for a loaded machine (the device model shares it)
     b = dataclasses.replace(cfg.hardware.bus, interface="virtual", channel=f"sea-daemon-{uuid.uuid4().hex[:8]}",
-                            pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000)
+                            pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
     cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
     model = DeviceModel(make_bus(b), plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
                         tau_h_act=tau_h, owns_bus=True)
@@ -324,12 +324,14 @@ def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path
     rt = try_realtime(rt_priority) if (realtime and rt_priority) else {"sched": "other (not asked)",
                                                                        "mlockall": "skipped (not asked)"}
     loop = None
-    status_every = max(1, int(round(1.0 / period)))
+    next_status = [0.0]
     rt_text = f"sched {rt['sched']}; mlockall {rt['mlockall']}"
     stopped = {"signal": False}
 
     def on_cycle(k, meas, est, tau):
-        if k % status_every == 0 and k:
+        now = time.monotonic()
+        if now >= next_status[0]:                        # STATUS= once a second (wall clock)
+            next_status[0] = now + 1.0
             st = loop.stats
             notifier.status(f"{label}: {k} cycles, {st.overruns} overruns, {st.skipped} skipped, "
                             f"log drops {log.dropped}, {loop.supervisor.status_line()}")
