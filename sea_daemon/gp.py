@@ -447,13 +447,19 @@ class IncrementalGP:
         dvar = np.array([-2.0 * (g2[j] - vv * il2[j] * xb[j]) for j in range(d)])
         return mu, var, dmu, dvar
 
-    def log_marginal_likelihood(self, grad: bool = True):
-        """LML of the stored data (and its gradient w.r.t. ``log θ``), reusing the factor."""
-        n = self.n_
+    def log_marginal_likelihood(self, grad: bool = True, points: int | None = None):
+        """LML of the stored data (and its gradient w.r.t. ``log θ``), reusing the factor.
+
+        ``points``: use only the oldest ``points`` points, whose factor is the leading block of
+        the stored one (free); the cubic cost then shrinks by ``(points / N)³``.
+        """
+        n = self.n_ if points is None else max(0, min(int(points), self.n_))
         if n == 0:
             return (0.0, np.zeros(self.input_dim + 2)) if grad else 0.0
+        L = np.zeros((n, n))
+        L[_tril(n)] = self.ap_[: n * (n + 1) // 2]
         return log_marginal_likelihood(self.X_[:n], self.y_[:n], self.sigma_f, self.lengthscales,
-                                       self.sigma_n, grad=grad, jitter=self.jitter, L=self.L_)
+                                       self.sigma_n, grad=grad, jitter=self.jitter, L=L)
 
     # ------------------------------------------------------------------ persistence
     def to_dict(self) -> dict:

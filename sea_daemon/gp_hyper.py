@@ -73,14 +73,18 @@ class AdamHyper:
     def state_from_dict(d) -> np.ndarray:
         return np.asarray(d, dtype=float)
 
-    def propose(self, gp: IncrementalGP, st: np.ndarray) -> tuple[float, np.ndarray | None]:
+    def propose(self, gp: IncrementalGP, st: np.ndarray,
+                points: int | None = None) -> tuple[float, np.ndarray | None]:
         """Phase 1: LML gradient of ``gp`` and one Adam ascent step on ``st`` (in place).
+
+        ``points``: the gradient of the LML of the oldest ``points`` points only (cheaper; see
+        :meth:`IncrementalGP.log_marginal_likelihood`).
 
         Returns ``(lml, new log θ)``; the model itself is not touched.  ``None`` for log θ when
         the gradient is not finite (the step is skipped).
         """
         p = self.input_dim + 2
-        lml, g = gp.log_marginal_likelihood(grad=True)
+        lml, g = gp.log_marginal_likelihood(grad=True, points=points)
         if not (math.isfinite(lml) and np.all(np.isfinite(g))):
             return lml, None
         t = st[0] + 1.0
@@ -111,9 +115,9 @@ class AdamHyper:
             return False
         return True
 
-    def step(self, gp: IncrementalGP, st: np.ndarray) -> float:
+    def step(self, gp: IncrementalGP, st: np.ndarray, points: int | None = None) -> float:
         """Both phases at once; returns the LML before the step."""
-        lml, theta = self.propose(gp, st)
+        lml, theta = self.propose(gp, st, points)
         if theta is not None:
             self.apply(gp, theta)
         return lml

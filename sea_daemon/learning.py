@@ -166,6 +166,32 @@ class ResidualGP:
         return {"format": "sea-daemon-residual-gp", "version": 1, "joints": self.n,
                 "gps": [gp.to_dict() for gp in self.gps]}
 
+    def to_arrays(self) -> tuple[dict[str, np.ndarray], dict]:
+        """``(arrays, meta)`` for :func:`sea_daemon.modelfile.save_model` (joint i's arrays are
+        prefixed ``gp{i}_``).  Inverse: :meth:`from_arrays`."""
+        arrays, metas = {}, []
+        for i, gp in enumerate(self.gps):
+            a, m = gp.to_arrays(prefix=f"gp{i}_")
+            arrays.update(a)
+            metas.append(m)
+        return arrays, {"residual_gp": {"format": "sea-daemon-residual-gp", "version": 1,
+                                        "joints": self.n, "gps": metas}}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, meta: dict) -> "ResidualGP":
+        try:
+            m = meta["residual_gp"]
+            if m.get("format") != "sea-daemon-residual-gp" or m.get("version") != 1:
+                raise ModelFileError(f"not a residual-GP model of version 1: format {m.get('format')!r}")
+            self = cls.__new__(cls)
+            self.n = int(m["joints"])
+            self.gps = [LoGGP.from_arrays(arrays, g, prefix=f"gp{i}_") for i, g in enumerate(m["gps"])]
+        except (KeyError, TypeError, ValueError) as e:
+            raise ModelFileError(f"residual-GP model is malformed: {e}") from None
+        if len(self.gps) != self.n or any(g.input_dim != 3 * self.n for g in self.gps):
+            raise ModelFileError("residual-GP model: number or input size of the GPs does not match joints")
+        return self
+
     @classmethod
     def from_dict(cls, d: dict) -> "ResidualGP":
         try:

@@ -144,3 +144,13 @@ def test_bad_hyperparameters_name_the_value():
         g = IncrementalGP(1, capacity=2, max_capacity=2)
         for v in (0.0, 1.0, 2.0):
             g.add([v], v)
+
+
+def test_lml_of_the_oldest_points_uses_the_leading_factor_block():
+    X, y = _data(n=40)
+    gp = IncrementalGP(3, SF, L_TRUE, SN)
+    for xi, yi in zip(X, y):
+        gp.add(xi, yi)
+    lml, g = gp.log_marginal_likelihood(points=25)
+    lml2, g2 = log_marginal_likelihood(X[:25], y[:25], SF, L_TRUE, SN)
+    assert lml == pytest.approx(lml2, rel=1e-9) and np.allclose(g, g2, rtol=1e-7, atol=1e-8)

@@ -250,3 +250,27 @@ def test_off_loop_adaptation_equals_in_loop_slice():
     b.update(X[0] + 5.0, 0.0)                         # a result for a node that split is dropped
     stale = dict(res5, node=0)
     assert not b.hyper_apply(stale)
+
+
+def test_repeated_identical_inputs_stay_finite():
+    gp = LoGGP(3, max_points=10, sigma_n=1e-3)
+    x = np.array([0.3, -0.1, 0.2])
+    ys = np.random.default_rng(13).normal(1.0, 0.01, 60)
+    for yi in ys:
+        gp.update(x, yi)                              # a leaf of identical points cannot split
+    assert gp.n_leaves == 1 and gp.leaf(0).n_ <= 10 and gp.n_evicted > 0
+    mu, var, dmu = gp.predict_with_grad(x)
+    assert np.isfinite(mu) and np.isfinite(var) and np.all(np.isfinite(dmu))
+    assert abs(mu - ys[-gp.leaf(0).n_:].mean()) < 0.01
+
+
+def test_offline_optimisation_raises_every_leaf_lml():
+    X, y = _stream(240, seed=14)
+    gp = LoGGP(3, max_points=60, lengthscales=3.0, sigma_n=0.3)
+    for xi, yi in zip(X, y):
+        gp.update(xi, yi)
+    before = {i: gp.leaf(i).log_marginal_likelihood(grad=False) for i in gp.leaves()}
+    gp.optimize_hyperparameters(steps=15)
+    assert gp.n_hyper_steps == 15 * len(before)
+    for i, b in before.items():
+        assert gp.leaf(i).log_marginal_likelihood(grad=False) > b
