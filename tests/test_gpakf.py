@@ -224,3 +224,56 @@ def test_bench_latency_gp_akf_case_runs(capsys):
     assert code == 0
     assert "gp-akf-1e3: pre-filled 1000 points" in out and "gp-akf-1e3: per step median" in out
     assert "load average" in out and "gp-akf-1e4" not in out
+
+
+
+
+def _two_joint_log(cfg, seconds, tau_h_amp, seed):
+    """Encoder-quantised log of ``cfg``'s model (declared effects = the true plant)."""
+    from sea_daemon.model import discretize
+    m = SEAModel.from_config(cfg)
+    n, dt = m.n, cfg.dt
+    N = int(seconds / dt) + 1
+    t = np.arange(N) * dt
+    rng = np.random.default_rng(seed)
+    ph = rng.uniform(0, 2 * np.pi, size=(2, n))
+    tau_m = 1.5 * np.sin(2 * np.pi * 0.4 * t[:, None] + ph[0]) + 0.6 * np.sin(2 * np.pi * 1.1 * t[:, None] + ph[1])
+    tau_h = tau_h_amp * np.sin(2 * np.pi * 0.25 * t[:, None]) * np.array([1.0, -0.5])
+    res = 2 * np.pi / 2 ** 19
+    x = np.zeros(5 * n)
+    q, th = np.zeros((N, n)), np.zeros((N, n))
+    for k in range(N):
+        q[k] = np.floor((x[:n] + x[n:2 * n]) / res) * res
+        th[k] = np.floor(x[:n] / (res / 100)) * (res / 100)
+        x[4 * n:] = tau_h[k]
+        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), dt)
+        x = x + dx
+    return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<two>")
+
+
+def test_two_joints_learn_a_hidden_load_torque_per_joint():
+    """n = 2: one GP per joint on z = [q₁, q₂, q̇₁, q̇₂, q̈₁, q̈₂]; a hidden viscoelastic load per
+    joint is learned from a passive log and no longer biases the estimate."""
+    from sea_daemon.config import ModelConfig
+    from sea_daemon.effects import make_effect
+
+    d = {"joints": 2, "rate_hz": 100, "model": {
+        "M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": [0.6, 0.4], "K_s": [110.0, 80.0],
+        "D_s": [0.25, 0.2], "gravity": [2.0, 0.5]},
+        "estimator": {"R": [1e-12, 1e-12, 1e-12, 1e-12, 1e-5, 1e-5, 1e-5, 1e-5],
+                      "Sigma_nom": [1e-9, 1e-9, 1e-9, 1e-9, 1e-5, 1e-5, 1e-5, 1e-5, 1e-2, 1e-2]},
+        "kinematics": {"method": "savgol", "window": 5, "degree": 3}}
+    cfg = ModelConfig.from_dict(d)
+    hidden = [make_effect("human_viscoelastic", "load", joint=j, k_h=k, q_h0=0.2, b_h=0.1)
+              for j, k in ((0, 1.5), (1, 0.8))]
+    true = cfg.with_effects(hidden)
+    train = _two_joint_log(true, 10.0, 0.0, seed=1)          # passive subject
+    log = _two_joint_log(true, 8.0, 0.5, seed=1)             # same motion, active torque
+    est = build(cfg, train, cfg.dt)
+    assert est.gp.n == 2 and len(est.gp.gps) == 2 and est.gp.gps[0].input_dim == 6
+    r_gp = replay(log, est)
+    r_akf = replay(log, AKF(cfg))
+    e_gp = np.sqrt(np.mean((r_gp.tau_h_act_hat - log.tau_h_act)[100:] ** 2, axis=0))
+    e_akf = np.sqrt(np.mean((r_akf.tau_h_act_hat - log.tau_h_act)[100:] ** 2, axis=0))
+    assert np.all(e_akf > 0.2), e_akf
+    assert np.all(e_gp < e_akf / 3), (e_gp, e_akf)

@@ -17,7 +17,12 @@ Estimators (:data:`CASES`, label -> ``builder(nominal_cfg, true_cfg, train_log, 
 ``spring`` (τ_s), ``akf`` (Park et al., nominal model), ``oracle-akf`` (the same AKF given
 the true plant's configuration, every hidden effect declared: what the AKF can do with a
 perfect model).  Extension point: ``register('gp-akf', builder)`` adds a column (the
-GP-AKF learns from ``train_log``).
+GP-AKF learns from ``train_log``); ``sea_daemon.estimators.gpakf`` is registered automatically.
+
+Estimator settings: ``--settings MODEL.yaml`` (default ``configs/exo_1dof_sim.yaml``, R identified
+for the simulated sensors) gives its estimator, kinematics and learning sections to EVERY
+estimator (one setting for all); ``--settings scenario`` keeps each scenario's model config
+(the paper's R, Σ_nom).  See docs/gpakf.md.
 """
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import ModelConfig
-from ..errors import InputError
+from ..errors import EstimatorFault, InputError
 from ..learning import ResidualGP
 from ..logio import MeasuredLog
 from ..model import SEAModel
@@ -60,8 +60,9 @@ class GPAKF(AKF):
     ``cfg``: model configuration (nominal model, estimator noise, kinematics, learning
     options).  ``residual``: a :class:`ResidualGP` (default: a fresh one from ``cfg.learning``).
     ``learning``: learn from every sample (passive subject, ass:passive_human).
-    ``tau_lag``: which motor torque a training target pairs with the sample's kinematics,
-    in samples back (see :meth:`_training_pair`).
+    ``tau_lag``: which motor torque a training target pairs with the sample's kinematics, in
+    samples back (0: the torque commanded at the sample, as
+    :func:`~sea_daemon.learning.training_pairs_from_log`).
     """
 
     name = "gp-akf"
@@ -140,9 +141,13 @@ class GPAKF(AKF):
 def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
     """Stream a passive-subject log through ``est`` with learning on (the training phase)."""
     est.learning = True
-    est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-    for k in range(1, len(log)):
-        est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    k = 0
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    except EstimatorFault as exc:
+        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
     return est
 
 
