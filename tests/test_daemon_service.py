@@ -138,15 +138,17 @@ def test_run_as_notify_service_ready_watchdog_status_reset_sigterm(calibrated, t
     env = dict(os.environ, NOTIFY_SOCKET=ns.path, PYTHONPATH=str(ROOT), WATCHDOG_USEC="2000000")
     logs = tmp_path / "logs"
     proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "run", "--config", CFG, "--model", str(model),
-                             "--sim", PASSIVE, "--pace", "realtime", "--rt-priority", "0", "--log-dir", str(logs)],
+                             "--sim", PASSIVE, "--pace", "realtime", "--rt-priority", "0", "--log-dir", str(logs),
+                             # timing is not under test: the shared machine's load must not latch OVERRUN_STREAK
+                             "--overrun-streak", "0"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert ns.wait_for("READY=1", 60), ns.messages
         t_ready = next(t for t, m in ns.messages if "READY=1" in m)
         ns.pump(2.5)
         wd = [t for t, m in ns.messages if m == "WATCHDOG=1" and t >= t_ready]
-        # periodic: from the loop, 100 Hz here; gaps far below WatchdogSec (2 s)
-        assert len(wd) > 50 and np.max(np.diff(wd)) < 1.0
+        # periodic: from the loop, 100 Hz here; gaps below WatchdogSec (2 s) even on a loaded machine
+        assert len(wd) > 20 and np.max(np.diff(wd)) < 1.5
         status = [m for _, m in ns.messages if m.startswith("STATUS=run:")]
         assert 1 <= len(status) <= 4 and "cycles" in status[-1] and "overruns" in status[-1]   # once a second
         assert (logs / "sea-daemon.pid").exists()

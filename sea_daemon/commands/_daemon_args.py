@@ -26,6 +26,8 @@ def add_common(p, *, cycles_help: str) -> None:
                    help="realtime: sleep to each absolute deadline (default on a real bus); lockstep: no sleep, "
                         "the simulated plant steps once per cycle as fast as the loop goes (default with "
                         "--device-model / --sim)")
+    p.add_argument("--overrun-streak", type=int, default=5,
+                   help="consecutive overruns that latch the OVERRUN_STREAK fault (default 5; 0: never)")
     p.add_argument("--rt-priority", type=int, default=80,
                    help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
 
@@ -36,6 +38,8 @@ def load(args):
     cfg = bus_overrides(load_config(args.config), args.bus, args.channel)
     if args.cycles is not None and args.cycles < 1:
         raise InputError(f"--cycles {args.cycles}: allowed >= 1")
+    if args.overrun_streak < 0:
+        raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
     if not 0 <= args.rt_priority <= 99:
         raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
     log_dir = Path(args.log_dir)
@@ -61,3 +65,9 @@ def log_name(log_dir: Path, prefix: str) -> Path:
         p = log_dir / f"{prefix}-{stamp}-{i}.csv"
         i += 1
     return p
+
+
+def supervisor(args):
+    """The fault supervisor with the ``--overrun-streak`` limit."""
+    from ..daemon.safety import SafetySupervisor
+    return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62)

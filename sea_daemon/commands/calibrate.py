@@ -92,7 +92,7 @@ def run(args) -> int:
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
                     notifier=Notifier(), state=StateFile(state_dir), progress=progress,
-                    rt_priority=args.rt_priority, label="calibrate")
+                    rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args), label="calibrate")
     finally:
         progress.close(cycles)
     st, sup = res.stats, res.supervisor

@@ -54,7 +54,8 @@ def run(args) -> int:
         controller = ZeroTorque(cfg.joints)
     log_path = _daemon_args.log_name(log_dir, "run")
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
-                notifier=Notifier(), state=StateFile(state_dir), rt_priority=args.rt_priority, label="run")
+                notifier=Notifier(), state=StateFile(state_dir), rt_priority=args.rt_priority,
+                supervisor=_daemon_args.supervisor(args), label="run")
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,
                "cycles": st.cycles, "overruns": st.overruns, "skipped": st.skipped,
