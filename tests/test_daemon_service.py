@@ -192,3 +192,11 @@ def test_calibrate_diagnose_calibrate_augmented(calibrated, tmp_path, capsys):
         from sea_daemon.errors import ModelFileError
         with pytest.raises(ModelFileError, match="'model' section"):
             load_gp_model(tmp_path / "m2.npz", load_config(CFG))
+
+
+def test_hardware_that_does_not_come_up_exit_1_without_leftovers(calibrated, tmp_path, capsys):
+    model, _ = calibrated
+    rc, _, err = _cli(capsys, "run", "--config", CFG, "--model", str(model), "--bus", "remote",
+                      "--channel", "ws://127.0.0.1:1/", "--log-dir", str(tmp_path / "logs"), "--cycles", "5")
+    assert rc == 1 and "ws://127.0.0.1:1/" in err and len(err.strip().splitlines()) == 1
+    assert not list((tmp_path / "logs").iterdir())        # no empty log, no stale pid file

@@ -372,6 +372,9 @@ def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path
                 rig.stop()
         finally:
             final = log.close()
+            if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log
+                for f in final["files"]:
+                    Path(f).unlink(missing_ok=True)
             if state is not None:
                 state.remove()
             for s, h in old.items():
