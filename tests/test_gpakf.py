@@ -181,6 +181,7 @@ def test_replay_cli_gp_akf_with_train(tmp_path, passive, capsys):
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["estimator"] == "gp-akf" and summary["samples"] == 200 and summary["rmse"] is not None
+    assert summary["train"]["pairs"] == n - 1 - 4 and summary["train"]["leaves"][0] >= 1   # first W samples skipped
     assert out.exists() and "tau_h_act_bound" in out.read_text().splitlines()[0]
     # bad --train: missing, malformed, absent
     bad = tmp_path / "bad.csv"

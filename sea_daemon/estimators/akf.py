@@ -164,9 +164,13 @@ class AKF:
     def measure(self, q, theta_m) -> np.ndarray:
         """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
         n = self.n
-        qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
-        self._ang[:n] = qc
-        self._ang[n:] = thc
+        if self._affine:                    # no declared effects, so no encoder offsets
+            self._ang[:n] = q
+            self._ang[n:] = theta_m
+        else:
+            qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
+            self._ang[:n] = qc
+            self._ang[n:] = thc
         ang, vel, acc = self.kin.update(self._ang)
         y = self.y
         y[:n] = ang[n:]
@@ -343,7 +347,7 @@ class AKF:
         # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
         IKH = self._IKH
         IKH[:] = 0.0
-        IKH[np.diag_indices(d)] = 1.0
+        IKH.flat[::d + 1] = 1.0
         IKH[:, :m] -= K
         P = self.P
         np.dot(IKH @ Pm, IKH.T, out=P)
@@ -351,7 +355,8 @@ class AKF:
         # symmetrise
         P += P.T
         P *= 0.5
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        # one reduction: a NaN or ±inf anywhere makes the sum non-finite
+        if not math.isfinite(float(x.sum()) + float(P.sum())):
             raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
                                  f"(non-finite measurement or diverging model/noise settings)")
         self.est.k += 1
