@@ -49,8 +49,10 @@ class _Progress:
         self.bar = None
         if enabled:
             from tqdm import tqdm
-            self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25,
-                            dynamic_ncols=True)
+            import shutil
+            # a terminal that reports 0 columns would hide the bar: fall back to 100
+            cols = shutil.get_terminal_size((100, 20)).columns or 100
+            self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25, ncols=cols)
         self._next = 0.0
         self._done = 0
 
