@@ -50,9 +50,10 @@ class _Progress:
         if enabled:
             from tqdm import tqdm
             import shutil
-            # a terminal that reports 0 columns would hide the bar: fall back to 100
-            cols = shutil.get_terminal_size((100, 20)).columns or 100
-            self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25, ncols=cols)
+            # a terminal that reports a size of 0 x 0 would hide the bar (tqdm): fall back to 100 x 20
+            size = shutil.get_terminal_size((100, 20))
+            self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25,
+                            ncols=size.columns or 100, nrows=size.lines or 20)
         self._next = 0.0
         self._done = 0
 
