@@ -125,3 +125,60 @@ def test_fault_mapping_by_exception_type():
     assert fault_of(HeartbeatLost("x")) == Fault.HEARTBEAT_LOST
     assert fault_of(EstimatorFault("P is not positive definite")) == Fault.COVARIANCE_NOT_PD
     assert fault_of(RuntimeError("?")) == Fault.INTERNAL
+
+
+class TorqueRecorder(ConstEstimator):
+    def __init__(self):
+        super().__init__()
+        self.taus = []
+
+    def update(self, q, theta_m, tau_m):
+        self.taus.append(float(tau_m[0]))
+        return super().update(q, theta_m, tau_m)
+
+
+class Ramp:
+    def update(self, t, q, theta_m, est):
+        return np.array([round(t * 100) + 1.0])      # cycle k commands k + 1
+
+
+@pytest.mark.parametrize("delay", [0, 1])
+def test_estimator_and_log_get_the_torque_acting_over_the_cycle(delay):
+    """Row k / update k carry the torque over [t_k, t_k+1]: this cycle's command with an
+    asynchronous RPDO (delay 0), the previous one with a synchronous RPDO (delay 1)."""
+    hw = FakeHW()
+    hw.actuation_delay = delay
+    est = TorqueRecorder()
+    loop = FixedRateLoop(hw, est, Ramp(), n=1, period=0.01, log=ListLog(), realtime=False,
+                         initial_torque=np.array([-7.0]))
+    loop.run(5)
+    expect = [1.0, 2.0, 3.0, 4.0, 5.0] if delay == 0 else [-7.0, 1.0, 2.0, 3.0, 4.0]
+    assert est.taus == expect
+    rows = np.array(loop.log.rows)
+    assert list(rows[:, log_columns(1).index("tau_m")]) == expect
+    assert [w for _, w in hw.writes] == [1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+def test_missed_deadlines_are_skipped_not_caught_up():
+    t = [0.0]
+    hw = FakeHW()
+    orig = hw.read
+
+    def read():
+        if hw.k == 3:
+            t[0] += 0.035          # one cycle takes 3.5 periods
+        return orig()
+
+    hw.read = read
+    sleeps = []
+
+    def sleep(s):
+        sleeps.append(s)
+        t[0] += s
+
+    loop = FixedRateLoop(hw, ConstEstimator(), Push(), n=1, period=0.01, clock=lambda: t[0], sleep=sleep,
+                         supervisor=SafetySupervisor(overrun_streak=5))
+    st = loop.run(8)
+    assert st.overruns == 1 and st.skipped == 2 and loop.supervisor.ok   # ends at 65 ms: 50, 60 ms missed
+    # after the overrun the loop sleeps again to the re-phased deadlines: no burst of zero-length cycles
+    assert len(sleeps) == 7 and all(s > 0 for s in sleeps)

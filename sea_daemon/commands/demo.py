@@ -1,20 +1,31 @@
-"""``sea-daemon demo``: the main job on the embedded default, through the CAN stack.
+"""``sea-daemon demo``: the main job on the embedded default — device model + daemon on a virtual CAN bus.
 
 For each embedded scenario (``configs/scenarios/passive.yaml``: Sec. V-B, PID moves with a
 passive subject; ``active.yaml``: Sec. V-C, a subject resisting a cosine torque) the simulated
-exoskeleton runs as CANopen devices (drive + load encoder, :mod:`drivers.device_model`) on a
-virtual CAN bus, the CANopen driver reads it at 100 Hz and the scenario's controller drives it:
+exoskeleton runs as CANopen devices (drive + load encoder, :mod:`drivers.device_model`, the
+scenario's true plant with its hidden effects, lock-step with SYNC) on a fresh virtual CAN bus,
+and the daemon talks to it through its own code paths:
 
-1. calibration — the training phase, passive subject: its log is what the GP learns from;
-2. estimation — the AKF runs online in the cycle; afterwards every estimator (spring torque,
-   AKF, GP-AKF trained on the calibration log when available) replays the estimation log.
+1. ``sea-daemon calibrate`` — the training phase (subject passive; the scenario's controller
+   moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
+2. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
+   online in the loop (the scenario's controller drives, the subject acts as the scenario says).
 
-Writes, in ``--out``: per scenario ``<name>_train.csv`` / ``<name>_est.csv`` (contracts §1),
-``<name>_<estimator>.csv`` (EST.csv columns) and ``<name>.png``; ``summary.json``; prints the
-RMSE table.
+Then the daemon's measured log of the estimation phase, with the subject's true torque added
+(known from the device model), is replayed with the AKF and the spring-torque estimate, and the
+GP-AKF's own online estimate from the log is scored with them: RMSE table, plots.
+
+Writes, in ``--out``: ``config.yaml`` (the configuration used), per scenario
+``<name>/`` (the daemon's logs: calibration-*.csv, run-*.csv), ``<name>_model.npz``,
+``<name>_train.csv`` / ``<name>_est.csv`` (contracts §1, with the truth), ``<name>_<estimator>.csv``
+(EST.csv columns), ``<name>.png``; ``summary.json``.  The loops run lock-step (as fast as the
+device model answers); ``--pace realtime`` runs them at the configured rate.
 """
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import io
 import json
 import time
 from pathlib import Path
@@ -25,7 +36,7 @@ from ..config import repo_root
 from ..errors import InputError
 
 NAME = "demo"
-HELP = "simulated exoskeleton on a virtual CAN bus: calibration, estimation, RMSE table and plots"
+HELP = "device model + daemon on a virtual CAN bus: calibration, estimation, RMSE table and plots"
 ORDER = 10
 DESCRIPTION = __doc__
 
@@ -37,10 +48,15 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
     p.add_argument("--scenario", action="append", choices=SCENARIOS, default=None,
                    help="run only this embedded scenario (repeatable; default: both)")
+    p.add_argument("--config", default=str(repo_root() / "configs" / "exo_1dof_sim.yaml"),
+                   help="daemon configuration (default: configs/exo_1dof_sim.yaml, the estimator settings "
+                        "for the simulated sensors)")
     p.add_argument("--samples", type=int, default=None,
                    help="shorten both phases to this many samples each (quick look)")
     p.add_argument("--sync-rpdo", action="store_true",
                    help="torque RPDO actuated at the next SYNC (one cycle more delay) instead of on reception")
+    p.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep (default): as fast as the device model answers; realtime: at the configured rate")
 
 
 def _plot(path: Path, name: str, est_log, results: dict) -> None:
@@ -48,7 +64,7 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t = est_log.t
+    t = est_log.t - est_log.t[0]
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     truth = est_log.tau_h_act[:, 0]
     ax[0].plot(t, truth, "k", lw=2, label="true τ_h,act")
@@ -59,7 +75,7 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
                                res.tau_h_act_hat[:, 0] + res.tau_h_act_bound[:, 0], color=line.get_color(), alpha=0.12)
     ax[0].set_ylabel("τ_h,act [N m]")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[0].set_title(f"{name}: estimation phase over the virtual CAN bus (bands: guaranteed bound)")
+    ax[0].set_title(f"{name}: estimation phase, daemon on the virtual CAN bus (bands: guaranteed bound)")
     ax[1].plot(t, np.degrees(est_log.q[:, 0]), label="q (load encoder)")
     ax[1].plot(t, np.degrees(est_log.theta_m[:, 0]), "--", label="θ_m (motor encoder / gear)")
     ax[1].set_ylabel("angle [deg]")
@@ -70,14 +86,34 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
     plt.close(fig)
 
 
-def run(args) -> int:
-    from drivers.hil_session import run_scenario
+def _daemon(argv: list[str]) -> dict:
+    """Run a daemon command in this process; its JSON summary (stdout) is returned."""
+    from ..cli import main
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(argv)
+    lines = [ln for ln in buf.getvalue().splitlines() if ln.startswith("{")]
+    summary = json.loads(lines[-1]) if lines else {}
+    if rc != 0:
+        raise RuntimeError(f"sea-daemon {argv[0]} exited with {rc}: {summary}")
+    return summary
 
+
+def _with_truth(log_path: str, tau_h, n: int):
+    """The daemon's log as a MeasuredLog with the subject's true torque over each row's interval."""
+    from ..logio import MeasuredLog, read_log
+    log = read_log(log_path, n=n)
+    truth = np.array([np.array(tau_h(t), dtype=float).reshape(n) for t in log.t])
+    return MeasuredLog(t=log.t, q=log.q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=truth, extra=log.extra)
+
+
+def run(args) -> int:
+    from ..config import load_config, save_config
+    from ..daemon.service import _human
     from ..estimators import make_estimator
     from ..logio import write_columns, write_log
-    from ..replay import est_columns, replay, summarize
+    from ..replay import ReplayResult, est_columns, replay, summarize
     from ..sim.scenario import load_scenario
-    from .replay import build_estimator
 
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
@@ -86,48 +122,73 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"--out {out}: cannot create: {e.strerror or e}") from None
-    summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "scenarios": {}}
+    cfg = load_config(args.config)
+    if args.sync_rpdo:
+        cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(
+            cfg.hardware, bus=dataclasses.replace(cfg.hardware.bus, sync_rpdo=True)))
+    cfg_path = out / "config.yaml"
+    save_config(cfg, cfg_path, header="configuration used by sea-daemon demo")
+    n, dt = cfg.joints, cfg.dt
+    summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
+                     "pace": args.pace, "scenarios": {}}
     rows = []
+    t_all = time.perf_counter()
     for name in args.scenario or SCENARIOS:
-        sc = load_scenario(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
-        cfg, dt = sc.nominal, sc.nominal.dt
-        n_tr = n_est = args.samples
+        sc_path = str(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
+        sc = load_scenario(sc_path)
+        n_tr = args.samples or sc.training_samples
+        n_est = args.samples or sc.estimation_samples
+        logs = out / name
+        model = out / f"{name}_model.npz"
+        common = ["--config", str(cfg_path), "--device-model", sc_path, "--log-dir", str(logs), "--pace", args.pace]
         t0 = time.perf_counter()
-        hil = run_scenario(sc, estimator=make_estimator("akf", cfg, dt=dt), sync_rpdo=args.sync_rpdo,
-                           training_samples=n_tr, estimation_samples=n_est)
-        wall = time.perf_counter() - t0
-        write_log(out / f"{name}_train.csv", hil.training)
-        write_log(out / f"{name}_est.csv", hil.estimation)
+        cal = _daemon(["calibrate", *common, "--scenario", sc_path, "--out", str(model), "--cycles", str(n_tr)])
+        t1 = time.perf_counter()
+        est = _daemon(["run", *common, "--model", str(model), "--scenario", sc_path, "--cycles", str(n_est)])
+        t2 = time.perf_counter()
+        # the device model's subject: passive in calibration, the scenario's in estimation
+        train_log = _with_truth(cal["log"], _human(sc, "training"), n)
+        est_log = _with_truth(est["log"], _human(sc, "estimation"), n)
+        write_log(out / f"{name}_train.csv", train_log)
+        write_log(out / f"{name}_est.csv", est_log)
+        x = est_log.extra
+        gp = ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
+                          tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
+                          tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
+                          x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
+                          step_time_s=x["compute"], estimator="gp-akf")
         results = {}
-        entry: dict = {"cycles": int(hil.cycle_s.size), "wall_s": round(wall, 2),
-                       "cycle_us_median": round(float(np.median(hil.cycle_s)) * 1e6, 1),
-                       "cycle_us_p99": round(float(np.percentile(hil.cycle_s, 99)) * 1e6, 1),
-                       "startup_ms": round(hil.startup_s * 1e3, 1), "estimators": {}}
-        online = hil.estimation.extra["tau_h_act_hat"] - hil.estimation.tau_h_act[:, 0]
-        entry["akf_online_rmse"] = float(np.sqrt(np.mean(online ** 2)))
+        entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
+                       "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
+                       "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
+                       "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
+                       "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
+                       "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
+                       "estimators": {}}
         for est_name in ESTIMATORS:
-            try:
-                est = build_estimator(est_name, cfg, dt, hil.training)
-            except InputError as e:
-                entry["estimators"][est_name] = {"skipped": str(e)}
-                continue
-            res = replay(hil.estimation, est, clock=time.perf_counter)
-            res.estimator = est_name
+            if est_name == "gp-akf":
+                res = gp                                  # the daemon's own online estimate
+            else:
+                res = replay(est_log, make_estimator(est_name, cfg, dt=dt), clock=time.perf_counter)
+                res.estimator = est_name
             results[est_name] = res
             write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
             s = summarize(res)
+            if est_name == "gp-akf":
+                s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
             entry["estimators"][est_name] = s
             rows.append((name, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
-        _plot(out / f"{name}.png", name, hil.estimation, results)
+        _plot(out / f"{name}.png", name, est_log, results)
         summary["scenarios"][name] = entry
+    summary["wall_s"] = round(time.perf_counter() - t_all, 2)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
     for name, est_name, rmse, cov, bound in rows:
         print(f"{name:<9} {est_name:<8} {rmse:>10.4f} {cov if cov is not None else float('nan'):>9.3f} {bound:>11.3f}")
     for name, e in summary["scenarios"].items():
-        skipped = [k for k, v in e["estimators"].items() if "skipped" in v]
-        print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (cycle median {e['cycle_us_median']} us, "
-              f"p99 {e['cycle_us_p99']} us), start-up {e['startup_ms']} ms, online AKF RMSE "
-              f"{e['akf_online_rmse']:.4f} N m" + (f"; not run: {', '.join(skipped)}" if skipped else ""))
-    print(f"wrote {out}/summary.json, logs, estimates and plots")
+        print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
+              f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
+              f"{e['cycle_compute_us_median']} us, p99 {e['cycle_compute_us_p99']} us; overruns "
+              f"{e['calibrate']['overruns'] + e['run']['overruns']})")
+    print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
     return 0

@@ -28,6 +28,12 @@ def segment_path(path: Path, index: int) -> Path:
 
 
 def _writer_main(shm_name, capacity, ncols, path, columns, flush_interval, rotate_bytes, fmt, parent_pid):
+    try:
+        # the writer must never compete with the loop: back to SCHED_OTHER when it inherited
+        # SCHED_FIFO (systemd's CPUSchedulingPolicy=fifo applies to the whole service)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
     shm = shared_memory.SharedMemory(name=shm_name)
     try:
         hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)

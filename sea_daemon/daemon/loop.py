@@ -1,13 +1,19 @@
-"""The fixed-rate loop: read → update → write → sleep to an absolute deadline (ros2_control).
+"""The fixed-rate loop: read → control → write → estimate → log → sleep to an absolute deadline.
 
-One cycle:
+One cycle k (ros2_control order, with the estimator after the write so that it gets the
+torque that acts over [t_k, t_k+1] — see :mod:`drivers.interface`):
 
-1. ``hw.read()``          measurement of this cycle (raises a HardwareError on a fault)
-2. ``estimator.update()`` the estimate (raises EstimatorFault instead of emitting NaN)
-3. ``controller.update()`` the torque command (zero while a fault is latched)
-4. ``hw.write(tau_m)``    the command (or ``hw.safe_stop()`` in the cycle a fault latches)
-5. one row into the off-loop log writer, WATCHDOG=1 to systemd while healthy
-6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun
+1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault)
+2. ``controller.update()``   the torque command from the measurement and the last estimate
+3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
+4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: the one written now with
+   ``hw.actuation_delay`` 0 (asynchronous RPDO), the previous cycle's with delay 1 (as the
+   drive applies it: ``hw.actuated()`` when the hardware has it); raises EstimatorFault
+   instead of emitting NaN
+5. one row into the off-loop log writer (row k's ``tau_m`` is that same torque, contracts §1),
+   WATCHDOG=1 to systemd while healthy
+6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
+   deadlines missed by a whole period or more are skipped (counted), not caught up in a burst
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
 row vector is preallocated and the log writer only copies it.  Faults follow the single
@@ -77,10 +83,11 @@ class LoopStats:
     max_late_s: float = 0.0
     periods: list = field(default_factory=list)   # filled only when record_periods=True
     faults: int = 0
+    skipped: int = 0                               # deadlines skipped after overruns >= 1 period
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute"]
+             "period", "compute", "read"]
 
 
 def log_columns(n: int) -> list[str]:
@@ -91,17 +98,23 @@ def log_columns(n: int) -> list[str]:
         cols += column_names(base, n)
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
-    return cols + ["valid", "fault", "cycle", "period", "compute"]
+    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s]
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read"]
 
 
 class FixedRateLoop:
-    """read → update → write → sleep to an absolute deadline, with the fault policy."""
+    """read → control → write → estimate → log → sleep to an absolute deadline, with the fault policy.
+
+    ``initial_torque``: the torque in force when the loop starts (what ``hw.start()`` primed
+    with); with ``hw.actuation_delay`` 1 it is the torque acting over the first interval.
+    """
 
     def __init__(self, hw: Hardware, estimator: Estimator, controller: Controller, n: int, period: float,
                  log=None, notifier=None, supervisor: SafetySupervisor | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  realtime: bool = True, record_periods: bool = False,
-                 on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None):
+                 on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
+                 initial_torque: np.ndarray | None = None):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -113,7 +126,10 @@ class FixedRateLoop:
         self.stats = LoopStats()
         self._row = np.zeros(len(log_columns(n)))
         self._zero = np.zeros(n)
-        self._tau = np.zeros(n)
+        self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
+        self._act_prev = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
+        self._delay = int(getattr(hw, "actuation_delay", 0) or 0)
+        self._actuated = getattr(hw, "actuated", None)
         self._stop = False
         self._reset_requested = False
         self.last_estimate = None
@@ -165,21 +181,32 @@ class FixedRateLoop:
                 meas = self.hw.read()
             except Exception as e:  # noqa: BLE001 - every hardware fault latches
                 self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            t_read = self.clock()
+            if meas is not None and sup.ok:
+                try:
+                    cmd = self.controller.update(meas.t, meas.q, meas.theta_m, self.last_estimate)
+                    self.hw.write(cmd)
+                    act = self._actuated(cmd) if self._actuated is not None else cmd
+                    if self._delay:
+                        # synchronous RPDO: the previous command acts over [t_k, t_k+1]
+                        self._tau[:] = self._act_prev
+                        self._act_prev[:] = act
+                    else:
+                        # actuated on reception: this command acts over [t_k, t_k+1]
+                        self._tau[:] = act
+                except Exception as e:  # noqa: BLE001
+                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
             if meas is not None and sup.ok:
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
                     valid = 1.0
                 except Exception as e:  # noqa: BLE001
                     self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
-            if sup.ok:
-                try:
-                    self._tau = self.controller.update(meas.t if meas is not None else start, meas.q, meas.theta_m, est)
-                    self.hw.write(self._tau)
-                except Exception as e:  # noqa: BLE001
-                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
             if not sup.ok:
-                self._tau = self._zero
+                self._tau[:] = 0.0
+                self._act_prev[:] = 0.0
                 valid = 0.0
+                est = None
                 try:
                     self.hw.write(self._zero)
                 except Exception:  # noqa: BLE001 - the bus may be gone; safe_stop was already asked
@@ -207,6 +234,7 @@ class FixedRateLoop:
                 row[i + 2] = k
                 row[i + 3] = start - last_start
                 row[i + 4] = done - start
+                row[i + 5] = t_read - start
                 self.log.append(row)
             if self.notifier is not None and sup.ok:
                 self.notifier.watchdog()
@@ -222,6 +250,11 @@ class FixedRateLoop:
                 if late > 0:
                     st.overruns += 1
                     st.max_late_s = max(st.max_late_s, late)
+                    if late >= self.period:
+                        # skip the deadlines already missed: re-phase instead of a catch-up burst
+                        skip = int(late // self.period)
+                        st.skipped += skip
+                        t0 += skip * self.period
                     if sup.overrun(True, k, now):
                         self._latched()
                 else:
