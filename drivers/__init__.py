@@ -15,8 +15,9 @@
 See ``docs/can.md``.
 """
 from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
-                     HeartbeatLost, PdoTimeout, SendFailed)
+                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
 from .interface import FaultFlag, HardwareInterface, Measurement
 
 __all__ = ["HardwareInterface", "Measurement", "FaultFlag", "PdoTimeout", "HeartbeatLost", "EmcyReceived",
-           "EncoderJump", "EncoderStuck", "BusOff", "SendFailed", "DeviceMismatch", "DriveFault"]
+           "EncoderJump", "EncoderStuck", "BusOff", "SendFailed", "DeviceMismatch", "WrongDevice",
+           "PdoLengthError", "DriveFault"]

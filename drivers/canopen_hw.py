@@ -52,7 +52,7 @@ from sea_daemon.config import ModelConfig, repo_root
 from . import cia402
 from .bus import make_bus
 from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
-                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed)
+                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
 from .interface import FaultFlag, HardwareInterface, Measurement
 
 EDS_DIR = repo_root() / "configs" / "eds"
@@ -238,7 +238,7 @@ class CanopenHardware(HardwareInterface):
             self._sdo_write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
             mode = self._sdo_read(drive, 0x6060 + 1, 0, "modes of operation display")
             if mode != cia402.MODE_CST:
-                raise DeviceMismatch(drive.id, "0x6061 modes of operation display",
+                raise WrongDevice(drive.id, "0x6061 modes of operation display",
                                      f"is {mode}, expected {cia402.MODE_CST} (cyclic synchronous torque)")
             self._enable(drive)
         self._prime()
@@ -252,7 +252,7 @@ class CanopenHardware(HardwareInterface):
                 else node.sdo[index][sub]
             return var.raw
         except SdoAbortedError as e:
-            raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"SDO read aborted: {e}") from None
+            raise WrongDevice(node.id, f"0x{index:04X}:{sub:02X} {what}", f"SDO read aborted: {e}") from None
         except SdoCommunicationError as e:
             raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"no SDO answer: {e}") from None
 
@@ -263,7 +263,7 @@ class CanopenHardware(HardwareInterface):
             obj = node.sdo[index]
             (obj[sub] if isinstance(obj, (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) else obj).raw = value
         except SdoAbortedError as e:
-            raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}",
+            raise WrongDevice(node.id, f"0x{index:04X}:{sub:02X} {what}",
                                  f"SDO write of {value} aborted: {e}") from None
         except SdoCommunicationError as e:
             raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"no SDO answer: {e}") from None
@@ -271,13 +271,13 @@ class CanopenHardware(HardwareInterface):
     def _check_identity(self, node, profile: int, kind: str) -> None:
         dtype = self._sdo_read(node, 0x1000, 0, "device type")
         if dtype & 0xFFFF != profile:
-            raise DeviceMismatch(node.id, "0x1000 device type",
+            raise WrongDevice(node.id, "0x1000 device type",
                                  f"is 0x{dtype:08X} (profile {dtype & 0xFFFF}), expected profile {profile} ({kind})")
         info = node.object_dictionary.device_information
         for sub, what, expected in ((1, "vendor-ID", info.vendor_number), (2, "product code", info.product_number)):
             got = self._sdo_read(node, 0x1018, sub, what)
             if expected is not None and got != expected:
-                raise DeviceMismatch(node.id, f"0x1018:{sub:02X} {what}",
+                raise WrongDevice(node.id, f"0x1018:{sub:02X} {what}",
                                      f"is 0x{got:08X}, expected 0x{expected:08X} ({kind} of our EDS)")
 
     def _check_drive(self, d) -> None:
@@ -285,21 +285,21 @@ class CanopenHardware(HardwareInterface):
         inc = self._sdo_read(d, 0x608F, 1, "position encoder resolution, encoder increments")
         rev = self._sdo_read(d, 0x608F, 2, "position encoder resolution, motor revolutions")
         if rev == 0 or inc != self.res * rev:
-            raise DeviceMismatch(d.id, "0x608F position encoder resolution",
+            raise WrongDevice(d.id, "0x608F position encoder resolution",
                                  f"is {inc} increments per {rev} motor revolution(s), expected {self.res} per 1 "
                                  f"(hardware.encoder_bits = {self.res.bit_length() - 1})")
         motor = self._sdo_read(d, 0x6091, 1, "gear ratio, motor revolutions")
         shaft = self._sdo_read(d, 0x6091, 2, "gear ratio, shaft revolutions")
         if shaft == 0 or abs(motor / shaft - self.gear) > 1e-9 * self.gear:
-            raise DeviceMismatch(d.id, "0x6091 gear ratio",
+            raise WrongDevice(d.id, "0x6091 gear ratio",
                                  f"is {motor}:{shaft}, expected {self.gear:g}:1 (hardware.gear_ratio)")
         modes = self._sdo_read(d, 0x6502, 0, "supported drive modes")
         if not modes & cia402.SUPPORTED_MODE_BIT[cia402.MODE_CST]:
-            raise DeviceMismatch(d.id, "0x6502 supported drive modes",
+            raise WrongDevice(d.id, "0x6502 supported drive modes",
                                  f"is 0x{modes:08X}, needs bit 9 (cyclic synchronous torque, mode 10)")
         rated = self._sdo_read(d, 0x6076, 0, "motor rated torque")
         if abs(rated - self.bus_cfg.rated_torque) > 1e-9 * self.bus_cfg.rated_torque:
-            raise DeviceMismatch(d.id, "0x6076 motor rated torque",
+            raise WrongDevice(d.id, "0x6076 motor rated torque",
                                  f"is {rated} mN m, expected {self.bus_cfg.rated_torque:g} mN m "
                                  f"(hardware.bus.rated_torque)")
 
@@ -307,11 +307,11 @@ class CanopenHardware(HardwareInterface):
         self._check_identity(e, PROFILE_ENCODER, "CiA 406 encoder")
         res = self._sdo_read(e, 0x6501, 0, "singleturn resolution")
         if res != self.res:
-            raise DeviceMismatch(e.id, "0x6501 singleturn resolution",
+            raise WrongDevice(e.id, "0x6501 singleturn resolution",
                                  f"is {res}, expected {self.res} (hardware.encoder_bits = {self.res.bit_length() - 1})")
         turns = self._sdo_read(e, 0x6502, 0, "number of distinguishable revolutions")
         if not 1 <= turns <= (1 << 32) // res:
-            raise DeviceMismatch(e.id, "0x6502 number of distinguishable revolutions",
+            raise WrongDevice(e.id, "0x6502 number of distinguishable revolutions",
                                  f"is {turns}, allowed 1..{(1 << 32) // res}")
         return res * turns
 
@@ -330,7 +330,7 @@ class CanopenHardware(HardwareInterface):
         try:
             m.save()
         except SdoAbortedError as e:
-            raise DeviceMismatch(node.id, what, f"rejected by the device: {e}") from None
+            raise WrongDevice(node.id, what, f"rejected by the device: {e}") from None
         except SdoCommunicationError as e:
             raise DeviceMismatch(node.id, what, f"no SDO answer: {e}") from None
         if m.enabled:
@@ -340,7 +340,7 @@ class CanopenHardware(HardwareInterface):
         count = self._sdo_read(node, m.map_array.od.index, 0, "number of mapped objects")
         bits = sum(self._sdo_read(node, m.map_array.od.index, s, "mapping entry") & 0xFF for s in range(1, count + 1))
         if count != len(entries) or bits != 8 * expected_bytes:
-            raise DeviceMismatch(node.id, what, f"reads back {count} objects, {bits // 8} bytes; "
+            raise WrongDevice(node.id, what, f"reads back {count} objects, {bits // 8} bytes; "
                                                 f"expected {len(entries)} objects, {expected_bytes} bytes")
 
     def _configure_drive(self, d) -> None:

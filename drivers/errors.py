@@ -8,7 +8,7 @@ sets in :attr:`drivers.interface.Measurement.faults`.
 from __future__ import annotations
 
 from sea_daemon.daemon.safety import Fault
-from sea_daemon.errors import HardwareError
+from sea_daemon.errors import HardwareError, InputError
 
 from .interface import FaultFlag
 
@@ -116,6 +116,14 @@ class DeviceMismatch(HardwareError):
     def __init__(self, node: int, obj: str, problem: str):
         self.node, self.obj, self.problem = node, obj, problem
         super().__init__(f"{_node(node)}: {obj}: {problem}")
+
+
+class WrongDevice(DeviceMismatch, InputError):
+    """A device answers, but is not the one the configuration and our EDS describe (device type,
+    identity, resolution, gear, modes, rated torque, an object it refuses, a PDO mapping it
+    rejects or reads back differently).  Also an :class:`InputError`: the bus does not match
+    the configuration, so the CLI exits 2 with this one line (contracts §3).  A device that does
+    not answer, or a bus that cannot be opened, stays a :class:`DeviceMismatch` (exit 1)."""
 
 
 class DriveFault(HardwareError):

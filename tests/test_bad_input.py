@@ -313,3 +313,83 @@ def test_diagnose_bad_config(tmp_path, capsys, case):
     code, _, err = cli(["diagnose", str(log), "--config", str(cfg), "--out", str(tmp_path / "d"), "--no-plots"],
                        capsys)
     assert_one_line(code, err, re.escape(str(cfg)), expect)
+
+
+# ------------------------------------------------------------------ calibrate / run / reset
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cal")
+    code = main(["calibrate", "--config", CFG, "--log-dir", str(d / "L"), "--out", str(d / "m.npz"),
+                 "--device-model", SCEN, "--cycles", "120", "--no-progress"])
+    assert code == 0
+    return d / "m.npz"
+
+
+def _corrupt_models(tmp_path, good: Path) -> dict:
+    data = good.read_bytes()
+    (tmp_path / "trunc.npz").write_bytes(data[: len(data) // 2])
+    flipped = bytearray(data)
+    flipped[len(flipped) // 2] ^= 0xFF
+    (tmp_path / "flipped.npz").write_bytes(bytes(flipped))
+    np.savez(tmp_path / "pickled.npz", a=np.array([{"x": 1}], dtype=object))
+    from sea_daemon.modelfile import load_model, save_model
+    arrays, meta = load_model(good)
+    save_model(tmp_path / "future.npz", arrays, {k: v for k, v in meta.items() if k not in ("format", "version", "sha256")})
+    z = dict(np.load(tmp_path / "future.npz"))
+    import json as _json
+    m = _json.loads(bytes(z["__meta__"]).decode())
+    m["version"] = 99
+    z["__meta__"] = np.frombuffer(_json.dumps(m).encode(), dtype=np.uint8)
+    np.savez(tmp_path / "future.npz", **z)
+    return {"trunc.npz": r"corrupt|checksum", "flipped.npz": r"corrupt|checksum", "pickled.npz": r"not a sea-daemon model",
+            "future.npz": r"version 99 is incompatible", "missing.npz": r"no such model file"}
+
+
+def test_run_refuses_bad_model_files(tmp_path, capsys, model_file):
+    for name, expect in _corrupt_models(tmp_path, model_file).items():
+        code, _, err = cli(["run", "--model", str(tmp_path / name), "--config", CFG, "--log-dir", str(tmp_path / "L"),
+                            "--device-model", SCEN, "--cycles", "5"], capsys)
+        assert_one_line(code, err, re.escape(name), expect)
+
+
+@pytest.mark.parametrize("cmd", ["run", "calibrate"])
+@pytest.mark.parametrize("case", ["unknown top key", "negative inertia", "unknown estimator key"])
+def test_daemon_commands_bad_config(tmp_path, capsys, model_file, cmd, case):
+    mutate, expect = BAD_CONFIGS[case]
+    cfg = bad_config(tmp_path, mutate)
+    extra = ["--model", str(model_file)] if cmd == "run" else ["--out", str(tmp_path / "m.npz")]
+    code, _, err = cli([cmd, *extra, "--config", str(cfg), "--log-dir", str(tmp_path / "L"), "--device-model", SCEN,
+                        "--cycles", "5", *([] if cmd == "run" else ["--no-progress"])], capsys)
+    assert_one_line(code, err, re.escape(str(cfg)), expect)
+    assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("argv,expect", [
+    (["reset", "--state-dir", "{tmp}/nobody"], r"no running sea-daemon"),
+    (["run", "--model", "{model}", "--config", CFG, "--log-dir", "{tmp}/L", "--cycles", "0"], r"--cycles 0"),
+    (["run", "--model", "{model}", "--config", CFG, "--log-dir", "{tmp}/L", "--pace", "lockstep"], r"--pace lockstep"),
+    (["calibrate", "--config", CFG, "--log-dir", "{tmp}/L", "--out", "{tmp}/m.npz", "--device-model", "{tmp}/none.yaml",
+      "--cycles", "5", "--no-progress"], r"none\.yaml"),
+    (["calibrate", "--config", CFG, "--log-dir", "{tmp}/L", "--out", "{tmp}/m.npz", "--sim", SCEN,
+      "--overrun-streak", "-1"], r"--overrun-streak -1"),
+])
+def test_daemon_commands_bad_arguments(tmp_path, capsys, model_file, argv, expect):
+    argv = [a.format(tmp=tmp_path, model=model_file) for a in argv]
+    code, _, err = cli(argv, capsys)
+    assert_one_line(code, err, expect)
+
+
+def test_run_on_a_device_with_the_wrong_eds_names_node_and_object(tmp_path, capsys, model_file, monkeypatch):
+    from drivers.canopen_hw import DRIVE_EDS
+    from drivers.device_model.drive import DriveNode
+    eds = tmp_path / "wrong_drive.eds"
+    text = DRIVE_EDS.read_text()
+    sec = re.search(r"\[1000\][^\[]*", text).group(0)
+    eds.write_text(text.replace(sec, re.sub(r"(?im)^DefaultValue\s*=.*$", "DefaultValue=0x00010196", sec)))
+    monkeypatch.setattr(DriveNode, "EDS", str(eds))
+    code, _, err = cli(["run", "--model", str(model_file), "--config", CFG, "--log-dir", str(tmp_path / "L"),
+                        "--device-model", SCEN, "--cycles", "5"], capsys)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "node 1: 0x1000 device type: is 0x00010196 (profile 406), expected profile 402" in lines[0]
+    assert code == 2, f"exit {code}: a wrong device on the bus is a configuration error (issue 7 item 4)"
