@@ -145,6 +145,7 @@ class _Run:
         self.reset_at = -1
         self._restore = None
         self._pending_cond = None
+        self._slow: list[float] = []          # injected slowness still to come, one entry per cycle
 
     # ------------------------------------------------------------------ injection
     def _inject(self, k: int) -> None:
@@ -222,15 +223,26 @@ class _Run:
             inj.cond = k + 1
             inj.note = f"P[{i},{i}] < 0"
         elif kind == "overrun_streak":
-            stall = float(rng.uniform(OVERRUN_STREAK + 0.5, 2 * OVERRUN_STREAK)) * self.cfg.dt
-            self.clock.t += stall             # the loop stalls in this very cycle
+            # the loop turns slow: each of m >= streak consecutive cycles (from this one on) takes
+            # 1.1..3 periods (the loop re-phases after a single long stall, so one stall alone is
+            # one overrun; a streak needs consecutive slow cycles)
+            m = OVERRUN_STREAK + int(rng.integers(0, 4))
+            self._slow = [float(x) * self.cfg.dt for x in rng.uniform(1.1, 3.0, size=m)]
+            slow = list(self._slow)
+            self._slow_cycle()                # this cycle is the first slow one
             inj.cycle = k
             inj.cond = k + OVERRUN_STREAK - 1
-            inj.note = f"stall {stall * 1e3:.0f} ms"
+            inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
         self.injections.append(inj)
         self.cur = inj
 
+    def _slow_cycle(self) -> None:
+        """Injected slowness of this cycle (advances the loop's virtual clock)."""
+        if self._slow:
+            self.clock.t += self._slow.pop(0)
+
     def _on_cycle(self, k, meas, est, tau) -> None:
+        self._slow_cycle()                    # an injected slowdown in progress
         m = self.rig.hw.meas
         self.qc[k], self.mc[k] = m.q_counts[0], m.theta_m_counts[0]
         self.qa[k], self.ma[k] = m.q[0], m.theta_m[0]
