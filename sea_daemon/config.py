@@ -203,11 +203,14 @@ class EstimatorConfig:
 
 @dataclass(frozen=True)
 class KinematicsConfig:
-    """Numerical differentiation of the encoder angles (Sec. V-A)."""
+    """Numerical differentiation of the encoder angles (Sec. V-A; sea_daemon.kinematics)."""
 
     window: int = 5          # moving-average length [samples] of the causal differentiator
+    method: str = "ma"       # "ma": differences + moving average (paper); "savgol": causal LS polynomial
+    degree: int = 2          # polynomial degree of "savgol" (2 <= degree < window)
 
-    KEYS = ["window"]
+    KEYS = ["window", "method", "degree"]
+    METHODS = ("ma", "savgol")
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "KinematicsConfig":
@@ -215,10 +218,19 @@ class KinematicsConfig:
         w = d.get("window", 5)
         if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 100:
             raise ConfigError(source, "kinematics.window", f"must be an integer in 1..100, got {w!r}")
-        return cls(window=w)
+        m = d.get("method", "ma")
+        if m not in cls.METHODS:
+            raise ConfigError(source, "kinematics.method", f"must be one of {', '.join(cls.METHODS)}, got {m!r}")
+        g = d.get("degree", 2)
+        if isinstance(g, bool) or not isinstance(g, int) or not 2 <= g <= 5:
+            raise ConfigError(source, "kinematics.degree", f"must be an integer in 2..5, got {g!r}")
+        if m == "savgol" and g >= w:
+            raise ConfigError(source, "kinematics.degree",
+                              f"must be < kinematics.window ({w}) for method savgol, got {g}")
+        return cls(window=w, method=m, degree=g)
 
     def to_dict(self) -> dict:
-        return {"window": self.window}
+        return {"window": self.window, "method": self.method, "degree": self.degree}
 
 
 @dataclass(frozen=True)

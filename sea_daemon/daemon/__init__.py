@@ -1,0 +1,1 @@
+"""The estimation service on the exoskeleton controller: loop, logging, systemd glue."""

@@ -1,0 +1,30 @@
+"""Estimators of the active human torque τ_h,act (pure: no I/O, clock or threads).
+
+* :class:`~sea_daemon.estimators.akf.AKF` — augmented-state EKF of Park et al. (Alg. 1),
+  with a hook for a learned residual f(z) that turns it into the GP-AKF (Alg. 2).
+* :class:`~sea_daemon.estimators.spring.SpringTorqueEstimator` — τ̂_h,act = τ_s(θ_s, θ̇_s).
+
+All follow :class:`~sea_daemon.estimators.base.Estimator`; :func:`make_estimator` builds
+one by name.
+"""
+from __future__ import annotations
+
+from .akf import AKF
+from .base import Estimate, Estimator, Residual
+from .spring import SpringTorqueEstimator
+
+#: names accepted by :func:`make_estimator` (gp-akf needs a learned residual; see
+#: :func:`make_estimator`)
+NAMES = ("akf", "spring")
+
+
+def make_estimator(name: str, cfg, dt: float | None = None, residual=None) -> Estimator:
+    """Build the estimator ``name`` ('akf', 'spring') for configuration ``cfg``."""
+    if name == "akf":
+        return AKF(cfg, dt=dt, residual=residual)
+    if name == "spring":
+        return SpringTorqueEstimator(cfg, dt=dt)
+    raise ValueError(f"unknown estimator {name!r}; allowed: {', '.join(NAMES)}")
+
+
+__all__ = ["AKF", "Estimate", "Estimator", "Residual", "SpringTorqueEstimator", "make_estimator", "NAMES"]

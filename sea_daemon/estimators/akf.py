@@ -1,0 +1,316 @@
+"""Augmented-state extended Kalman filter (AKF) of Park et al., with the GP-AKF hook.
+
+State (Sec. IV-B)  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] ∈ R^{5n},  input u = τ_m,
+measurement        y = [θ_m, θ_s, θ̇_m, θ̇_s] = H x + v,  H = [I_4n 0]   (eq:nonlinkOsys)
+
+from the two encoders: θ_s = q − θ_m, velocities from the causal differentiator of
+:mod:`sea_daemon.kinematics`, declared encoder offsets removed first
+(:meth:`SEAModel.correct_measurement`).
+
+Prediction (Alg. 1 lines 3-5; with a residual, Alg. 2 lines 4-10)
+    ẋ = f_nom(x, u) − I_μ M⁻¹ μ(ẑ)                          eq:fwdynwtorqueresidual1
+    A = F_nom(x̂, u) − I_μ M⁻¹ F_GP                           eq:linearization
+    discretised by local linearisation over the step (one matrix exponential, see
+    :func:`discretize_affine`): exact zero-order hold for a linear plant, so on a linear
+    plant this filter equals the textbook discrete KF step for step.
+    Q_k = Σ_nom + Γ_μ diag(σ²) Γ_μᵀ                          eq:gpakf_covariance, eq:GPvarfwd
+Update (Alg. 1 lines 6-8), with the covariance in Joseph form (symmetrised).
+
+Declared model effects all act through :class:`SEAModel` (friction, gravity, human
+viscoelasticity, spring non-linearities, torque scale, inertia); encoder offsets through
+``correct_measurement``; a declared ``delay`` by applying τ_m(t − delay) from a short
+input history.  An "oracle" AKF is this class built from the true plant's configuration.
+
+Pure numerics: no I/O, no clock, no threads.  Per-step quantities the Theorem-1 bounds
+need are kept as attributes: ``A_k`` (continuous Jacobian), ``F_k`` (discrete transition),
+``Gamma_mu`` (discrete map of a torque error held over the step to the state), ``Q_k``,
+``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``y``, ``P`` (posterior).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, expm, LinAlgError
+
+from ..config import ModelConfig
+from ..errors import EstimatorFault
+from ..kinematics import CausalDifferentiator
+from ..model import SEAModel
+from .base import Estimate, Residual, chi2_scale
+
+
+def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
+    """Local-linearisation step of ẋ = f(x,u) + G w over dt, with u and w held.
+
+    One matrix exponential of [[A, f, G], [0, 0, 0]]·dt gives
+        F_d = e^{A dt},  Δx = ∫₀^dt e^{As} ds · f,  Γ = ∫₀^dt e^{As} ds · G,
+    i.e. :func:`sea_daemon.model.discretize` plus the held-input block Γ (textbook ZOH,
+    e.g. Franklin, Powell & Workman, Digital Control, §4.3.3).  Returns (Δx, F_d, Γ);
+    ``out`` (work matrix of size (d+1+r)²) is reused when given.
+    """
+    d = A.shape[0]
+    r = G.shape[1]
+    aug = out if out is not None else np.zeros((d + 1 + r, d + 1 + r))
+    aug[:d, :d] = A
+    aug[:d, d] = xdot
+    aug[:d, d + 1:] = G
+    aug[d:, :] = 0.0
+    aug *= dt
+    E = expm(aug)
+    return E[:d, d], E[:d, :d], E[:d, d + 1:]
+
+
+class AKF:
+    """Augmented-state EKF (Alg. 1); with ``residual`` the GP-AKF (Alg. 2).
+
+    ``cfg``: model configuration (nominal model + declared effects, R, Σ_nom, P0, δ,
+    kinematics).  ``dt``: nominal sample period (default ``1/cfg.rate_hz``).
+    ``residual``: optional :class:`~sea_daemon.estimators.base.Residual` (learned f(z)).
+
+    ``tau_h_act_bound`` is, until the Theorem-1 bounds are wired in, the KF's own
+    ellipsoidal bound sqrt(s·P_ττ) with s the χ² quantile for 5n degrees of freedom at
+    1 − δ (eq:gaussianellipsoid): the confidence set C_k of Theorem 1 with a point set of
+    means (X̂_k = 0), projected on each τ_h,act component.
+    """
+
+    name = "akf"
+
+    def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: Residual | None = None,
+                 model: SEAModel | None = None):
+        self.cfg = cfg
+        self.model = model if model is not None else SEAModel.from_config(cfg)
+        n = self.n = self.model.n
+        d = self.d = 5 * n
+        m = self.m = 4 * n
+        self.dt = float(dt) if dt else cfg.dt
+        est = cfg.estimator
+        self.R = np.array(est.R, dtype=float)
+        self.Sigma_nom = np.array(est.Sigma_nom, dtype=float)
+        self.P0 = np.array(est.P0, dtype=float)
+        self.delta = est.delta
+        # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
+        self.s = chi2_scale(self.delta, d)
+        self.H = np.hstack([np.eye(m), np.zeros((m, n))])
+        self.residual = residual
+        # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
+        self.G_mu = self.model.I_mu @ self.model.Minv
+        kin = cfg.kinematics
+        self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
+        # ∂z/∂x for z = [q, q̇, q̈]: q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s; q̈ comes from the
+        # differentiator (a measurement, not a state function), so ∂q̈/∂x = 0.
+        I = np.eye(n)
+        self.dz_dx = np.zeros((3 * n, d))
+        self.dz_dx[:n, :n] = I
+        self.dz_dx[:n, n:2 * n] = I
+        self.dz_dx[n:2 * n, 2 * n:3 * n] = I
+        self.dz_dx[n:2 * n, 3 * n:4 * n] = I
+        # --- preallocated state and per-step quantities
+        self.x = np.zeros(d)
+        self.P = np.zeros((d, d))
+        self.x_prior = np.zeros(d)
+        self.P_prior = np.zeros((d, d))
+        self.A_k = np.zeros((d, d))
+        self.F_k = np.eye(d)
+        self.Gamma_mu = np.zeros((d, n))
+        self.Q_k = self.Sigma_nom.copy()
+        self.K_k = np.zeros((d, m))
+        self.S_k = np.zeros((m, m))
+        self.innovation = np.zeros(m)
+        self.y = np.zeros(m)
+        self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
+        self.mu = np.zeros(n)
+        self.sigma2 = np.zeros(n)
+        self.u_applied = np.zeros(n)
+        self._aug = np.zeros((d + 1 + n, d + 1 + n))
+        self._IKH = np.eye(d)
+        self._ang = np.zeros(2 * n)
+        self._ddq = np.zeros(n)
+        self.est = Estimate.zeros(n)
+        # --- input history for the declared delay (τ_m(t − delay), linear interpolation
+        # of the sample sequence = the exact interval average of a zero-order-hold input)
+        self.delay = np.array(self.model.delay, dtype=float)
+        self._has_delay = bool(np.any(self.delay > 0))
+        cap = int(math.ceil(float(self.delay.max(initial=0.0)) / self.dt)) + 4
+        self._hcap = cap
+        self._ht = np.zeros(2 * cap)
+        self._hu = np.zeros((2 * cap, n))
+        self._hhead = cap - 1
+        self._t = 0.0
+        self._ready = False
+
+    # ------------------------------------------------------------------ measurement
+
+    def measure(self, q, theta_m) -> np.ndarray:
+        """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
+        n = self.n
+        qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
+        self._ang[:n] = qc
+        self._ang[n:] = thc
+        ang, vel, acc = self.kin.update(self._ang)
+        y = self.y
+        y[:n] = ang[n:]
+        # θ_s = q − θ_m (eq:spring_torque)
+        np.subtract(ang[:n], ang[n:], out=y[n:2 * n])
+        y[2 * n:3 * n] = vel[n:]
+        np.subtract(vel[:n], vel[n:], out=y[3 * n:])
+        self._ddq[:] = acc[:n]
+        return y
+
+    def _push_input(self, tau_m) -> None:
+        h = self._hhead + 1
+        if h >= self._hcap:
+            h = 0
+        self._hhead = h
+        self._ht[h] = self._ht[h + self._hcap] = self._t
+        self._hu[h] = self._hu[h + self._hcap] = tau_m
+
+    def _delayed_input(self, t_query: float) -> np.ndarray:
+        """τ_m(t_query − delay) per joint from the history (clamped at its ends)."""
+        h = self._hhead + 1
+        ts = self._ht[h:h + self._hcap]
+        us = self._hu[h:h + self._hcap]
+        for j in range(self.n):
+            self.u_applied[j] = np.interp(t_query - self.delay[j], ts, us[:, j])
+        return self.u_applied
+
+    # ------------------------------------------------------------------ API
+
+    def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
+        """Initialise from the first sample: x̂₀ measured (velocities 0, τ_h,act = 0),
+        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).
+
+        Without a sample (``reset()``) the next :meth:`update` initialises instead.
+        """
+        n = self.n
+        if q is None or theta_m is None:
+            self._ready = False
+            self.est.k = 0
+            return self.est
+        self.kin._primed = False
+        tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
+        y = self.measure(q, theta_m)
+        if x0 is None:
+            self.x[:] = 0.0
+            self.x[:2 * n] = y[:2 * n]
+        else:
+            self.x[:] = x0
+        self.P[:] = self.P0 if P0 is None else P0
+        self._t = 0.0
+        # history primed with τ_m held before the first sample (times strictly increasing)
+        self._hhead = self._hcap - 1
+        past = -self.dt * np.arange(self._hcap - 1, -1, -1, dtype=float)
+        self._ht[:self._hcap] = past
+        self._ht[self._hcap:] = past
+        self._hu[:] = tau_m
+        self.u_applied[:] = tau_m
+        self._ready = True
+        self.est.k = 0
+        return self._fill_estimate()
+
+    def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
+        """One sample: predict over dt with τ_m of the previous sample, update with y_k."""
+        if not self._ready:
+            return self.reset(q, theta_m, tau_m)
+        dt = self.dt if dt is None else float(dt)
+        n = self.n
+        # ẑ_{k−1} = [q̂, q̂̇, q̈] at the previous posterior (Alg. 2 line 5)
+        x = self.x
+        np.add(x[:n], x[n:2 * n], out=self.z[:n])
+        np.add(x[2 * n:3 * n], x[3 * n:4 * n], out=self.z[n:2 * n])
+        self.z[2 * n:] = self._ddq
+        if self._has_delay:
+            u = self._delayed_input(self._t)
+        else:
+            u = self._hu[self._hhead]
+        y = self.measure(q, theta_m)
+        self.step(y, u, dt)
+        self._t += dt
+        self._push_input(np.asarray(tau_m, dtype=float))
+        return self.est
+
+    def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> Estimate:
+        """The filter proper: predict with input u over dt, then update with y (4n,).
+
+        With a residual, μ, ∂μ/∂z, σ² are evaluated at ``self.z`` (set by :meth:`update`).
+        Raises :class:`EstimatorFault` if the state or covariance is not finite, or the
+        innovation covariance is not positive definite.
+        """
+        model = self.model
+        x = self.x
+        n, d, m = self.n, self.d, self.m
+        # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
+        A = model.F_nom(x, u)
+        # eq:nonlindyn
+        xdot = model.f_nom(x, u)
+        if self.residual is not None:
+            # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
+            mu, dmu_dz, var = self.residual.predict(self.z)
+            self.mu[:] = mu
+            self.sigma2[:] = var
+            # eq:fwdynwtorqueresidual1: f = f_nom − I_μ M⁻¹ μ
+            xdot -= self.G_mu @ self.mu
+            # eq:linearization: F = F_nom − I_μ M⁻¹ F_GP, F_GP = ∂μ/∂z · ∂z/∂x
+            A -= self.G_mu @ (np.asarray(dmu_dz, dtype=float) @ self.dz_dx)
+        self.A_k[:] = A
+        # time discretisation (Sec. IV-B, "e.g. as in Wahrburg et al."): local linearisation
+        dx, F, Gam = discretize_affine(A, xdot, self.G_mu, dt, out=self._aug)
+        self.F_k[:] = F
+        self.Gamma_mu[:] = Gam
+        # Alg. 2 line 7: x̂⁻ = x̂ + Δx
+        np.add(x, dx, out=self.x_prior)
+        # Alg. 2 line 9 (eq:gpakf_covariance, eq:GPvarfwd): Σ_nom is per step; the GP error
+        # is a torque error held over the step (the GP is evaluated once per step), so it
+        # reaches the state through the same ZOH map as an input: Γ_μ diag(σ²) Γ_μᵀ with
+        # Γ_μ = ∫₀^dt e^{As}ds I_μ M⁻¹ ≈ dt·I_μ M⁻¹.  (The continuous-time I_μ M⁻¹ σ² M⁻ᵀ I_μᵀ
+        # has units of acceleration², not of a per-step state covariance.)
+        Q = self.Q_k
+        Q[:] = self.Sigma_nom
+        if self.residual is not None:
+            Q += (Gam * self.sigma2) @ Gam.T
+        # Alg. 2 line 10: P⁻ = F P Fᵀ + Q
+        Pm = self.P_prior
+        np.dot(F @ self.P, F.T, out=Pm)
+        Pm += Q
+        # Alg. 1 line 6: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹  (H = [I 0])
+        S = self.S_k
+        np.add(Pm[:m, :m], self.R, out=S)
+        try:
+            cf = cho_factor(S, check_finite=True)
+        except (LinAlgError, ValueError):
+            raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
+                                 f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0") from None
+        K = self.K_k
+        K[:] = cho_solve(cf, Pm[:, :m].T, check_finite=False).T
+        # Alg. 1 line 7: x̂ = x̂⁻ + K (y − H x̂⁻)
+        np.subtract(y, self.x_prior[:m], out=self.innovation)
+        np.dot(K, self.innovation, out=x)
+        x += self.x_prior
+        # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
+        IKH = self._IKH
+        IKH[:] = 0.0
+        IKH[np.diag_indices(d)] = 1.0
+        IKH[:, :m] -= K
+        P = self.P
+        np.dot(IKH @ Pm, IKH.T, out=P)
+        P += K @ self.R @ K.T
+        # symmetrise
+        P += P.T
+        P *= 0.5
+        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+            raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
+                                 f"(non-finite measurement or diverging model/noise settings)")
+        self.est.k += 1
+        return self._fill_estimate()
+
+    def _fill_estimate(self) -> Estimate:
+        n = self.n
+        e = self.est
+        e.x_hat[:] = self.x
+        e.P[:] = self.P
+        e.tau_h_act_hat[:] = self.x[4 * n:]
+        var = np.diagonal(self.P)[4 * n:]
+        np.sqrt(np.maximum(var, 0.0), out=e.tau_h_act_sigma)
+        # eq:gaussianellipsoid projected on τ_h,act: ρ = sqrt(s P_ττ)
+        np.multiply(e.tau_h_act_sigma, math.sqrt(self.s), out=e.tau_h_act_bound)
+        return e

@@ -1,0 +1,70 @@
+"""The estimator interface shared by the AKF, the GP-AKF and the spring-torque estimate."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from scipy.special import gammaincinv
+
+
+@dataclass
+class Estimate:
+    """One step's estimate; estimators own one preallocated instance and overwrite it.
+
+    ``tau_h_act_hat`` (n,) [N m] estimate of the active human torque; ``tau_h_act_sigma``
+    (n,) its standard deviation from P; ``tau_h_act_bound`` (n,) the error bound ρ at the
+    configured δ (eq:bounds); ``x_hat`` (5n,) the state estimate; ``P`` (5n, 5n) its
+    covariance; ``k`` the step counter (0 after reset).
+    """
+
+    tau_h_act_hat: np.ndarray
+    tau_h_act_sigma: np.ndarray
+    tau_h_act_bound: np.ndarray
+    x_hat: np.ndarray
+    P: np.ndarray
+    k: int = 0
+
+    @classmethod
+    def zeros(cls, n: int) -> "Estimate":
+        return cls(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(5 * n), np.zeros((5 * n, 5 * n)))
+
+    def copy(self) -> "Estimate":
+        return Estimate(self.tau_h_act_hat.copy(), self.tau_h_act_sigma.copy(), self.tau_h_act_bound.copy(),
+                        self.x_hat.copy(), self.P.copy(), self.k)
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """Online estimator of τ_h,act from the encoders and the motor torque.
+
+    ``reset(q, theta_m, tau_m)`` initialises from the first sample (``reset()`` without a
+    sample: the next ``update`` initialises); ``update(q, theta_m,
+    tau_m, dt)`` consumes one sample (raw encoder angles, joint side; motor torque; time
+    since the previous sample, default the configured period) and returns the estimator's
+    preallocated :class:`Estimate` (overwritten by the next call).
+    """
+
+    n: int
+    name: str
+
+    def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate: ...
+
+    def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate: ...
+
+
+@runtime_checkable
+class Residual(Protocol):
+    """A learned load-side residual f(z) (eq:unknwn_load), e.g. the LoG-GP of issue 3.
+
+    ``predict(z)`` with z = [q, q̇, q̈] (3n,) returns ``(mu (n,), dmu_dz (n, 3n), var (n,))``:
+    the mean μ(z) [N m], its Jacobian (eq:moejac) and the posterior variance σ²(z) [N² m²].
+    """
+
+    def predict(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def chi2_scale(delta: float, dof: int) -> float:
+    """s with Pr(ξ ∈ E(ξ̄, sC)) = 1 − δ for a Gaussian ξ of dimension dof (eq:gaussianellipsoid)."""
+    # χ²_dof quantile: 2·P⁻¹(dof/2, 1 − δ) (regularised lower incomplete gamma inverse)
+    return float(2.0 * gammaincinv(0.5 * dof, 1.0 - delta))

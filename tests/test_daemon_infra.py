@@ -1,0 +1,113 @@
+"""Model files, the off-loop log writer, sd_notify and the systemd unit."""
+import json
+import os
+import shutil
+import socket
+import subprocess
+import zipfile
+
+import numpy as np
+import pytest
+
+from sea_daemon.daemon.logwriter import LogWriter
+from sea_daemon.daemon.notify import Notifier
+from sea_daemon.errors import ModelFileError
+from sea_daemon.logio import read_log
+from sea_daemon.modelfile import load_model, save_model
+from sea_daemon.config import repo_root
+
+
+def test_model_roundtrip_and_refusals(tmp_path):
+    p = tmp_path / "m.npz"
+    arrays = {"X": np.arange(12.0).reshape(4, 3), "y": np.ones(4)}
+    save_model(p, arrays, {"kind": "test", "n": 4})
+    back, meta = load_model(p)
+    np.testing.assert_array_equal(back["X"], arrays["X"])
+    assert meta["kind"] == "test" and meta["version"] == 1
+    # corrupt: flip bytes in the middle
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(ModelFileError, match="corrupt|checksum"):
+        load_model(bad)
+    # truncated
+    (tmp_path / "trunc.npz").write_bytes(p.read_bytes()[:100])
+    with pytest.raises(ModelFileError):
+        load_model(tmp_path / "trunc.npz")
+    # incompatible version: rewrite meta with version 99 and a valid checksum is still refused
+    with zipfile.ZipFile(p) as z:
+        meta_raw = json.loads(np.load(z.open("__meta__.npy"), allow_pickle=False).tobytes())
+    meta_raw["version"] = 99
+    from sea_daemon import modelfile
+    meta_raw["sha256"] = modelfile._digest(meta_raw, arrays)
+    v = tmp_path / "v99.npz"
+    np.savez(v, **arrays, __meta__=np.frombuffer(json.dumps(meta_raw).encode(), dtype=np.uint8))
+    with pytest.raises(ModelFileError, match="version 99 is incompatible"):
+        load_model(v)
+    with pytest.raises(ModelFileError, match="no such"):
+        load_model(tmp_path / "missing.npz")
+    with pytest.raises(ValueError, match="no pickle"):
+        save_model(tmp_path / "o.npz", {"o": np.array([object()])}, {})
+
+
+def test_logwriter_writes_every_row_and_rotates(tmp_path):
+    cols = ["t", "q", "theta_m", "tau_m"]
+    path = tmp_path / "run.csv"
+    w = LogWriter(path, cols, capacity=4096, flush_interval=0.1, rotate_bytes=20000)
+    row = np.zeros(4)
+    n = 3000
+    for i in range(n):
+        row[0] = i * 0.001
+        row[1] = np.sin(i * 0.01)
+        row[2] = row[1] * 0.99
+        row[3] = 0.5
+        while not w.append(row):   # the test waits; the daemon would count the drop
+            pass
+    stats = w.close()
+    assert stats["rows_written"] == n and stats["rows_appended"] == n
+    assert len(stats["files"]) > 1          # rotated
+    total = 0
+    last_t = -1.0
+    for f in stats["files"]:
+        log = read_log(f)
+        assert log.t[0] > last_t
+        last_t = log.t[-1]
+        total += len(log)
+    assert total == n
+
+
+def test_logwriter_counts_drops_when_full(tmp_path):
+    w = LogWriter(tmp_path / "x.csv", ["t", "q", "theta_m", "tau_m"], capacity=8, flush_interval=0.5)
+    os.kill(w._proc.pid, 19)   # SIGSTOP the writer: the ring must fill and drops be counted
+    try:
+        ok = [w.append(np.full(4, float(i))) for i in range(20)]
+    finally:
+        os.kill(w._proc.pid, 18)  # SIGCONT
+    assert sum(ok) == 8 and w.dropped == 12
+    assert w.close()["rows_written"] == 8
+
+
+def test_notifier_sends_datagrams(tmp_path):
+    sock_path = str(tmp_path / "notify.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    srv.bind(sock_path)
+    srv.settimeout(2)
+    n = Notifier(sock_path)
+    assert n.ready("estimating") and n.watchdog()
+    assert srv.recv(100) == b"READY=1\nSTATUS=estimating"
+    assert srv.recv(100) == b"WATCHDOG=1"
+    assert not Notifier("").enabled and not Notifier("").ready()
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_systemd_unit_verifies(tmp_path):
+    exe = shutil.which("sea-daemon")
+    if exe is None:
+        pytest.skip("sea-daemon console script not installed")
+    unit = (repo_root() / "systemd" / "sea-daemon.service").read_text()
+    assert "Type=notify" in unit and "WatchdogSec=" in unit and "AF_CAN" in unit
+    (tmp_path / "sea-daemon.service").write_text(unit.replace("/usr/local/bin/sea-daemon", exe))
+    r = subprocess.run(["systemd-analyze", "verify", str(tmp_path / "sea-daemon.service")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr

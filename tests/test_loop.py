@@ -1,0 +1,127 @@
+"""The fixed-rate loop and its fault policy, with test doubles for hardware and estimator."""
+import types
+
+import numpy as np
+import pytest
+
+from sea_daemon.daemon.loop import FixedRateLoop, fault_of, log_columns
+from sea_daemon.daemon.safety import Fault, SafetySupervisor
+from sea_daemon.errors import EstimatorFault, HardwareError
+
+
+class HeartbeatLost(HardwareError):
+    pass
+
+
+class FakeHW:
+    def __init__(self, fail_at=None, exc=HeartbeatLost("drive heartbeat missing for 120 ms")):
+        self.k = 0
+        self.fail_at, self.exc = fail_at, exc
+        self.writes = []
+        self.safe_stops = []
+
+    def read(self):
+        k = self.k
+        self.k += 1
+        if self.fail_at is not None and k >= self.fail_at:
+            raise self.exc
+        return types.SimpleNamespace(t=k * 0.01, q=np.array([0.1]), theta_m=np.array([0.09]))
+
+    def write(self, tau):
+        self.writes.append((self.k - 1, float(tau[0])))
+
+    def safe_stop(self):
+        self.safe_stops.append(self.k - 1)
+
+
+class ConstEstimator:
+    def __init__(self, nan_at=None):
+        self.k = 0
+        self.nan_at = nan_at
+
+    def update(self, q, theta_m, tau_m):
+        self.k += 1
+        if self.nan_at is not None and self.k > self.nan_at:
+            raise EstimatorFault("state became non-finite")
+        return types.SimpleNamespace(tau_h_act_hat=np.array([0.5]), tau_h_act_bound=np.array([0.2]),
+                                     tau_h_act_sigma=np.array([0.1]))
+
+
+class Push:
+    def update(self, t, q, theta_m, est):
+        return np.array([1.5])
+
+
+class ListLog:
+    def __init__(self):
+        self.rows = []
+
+    def append(self, row):
+        self.rows.append(row.copy())
+        return True
+
+
+def make(hw, est, **kw):
+    return FixedRateLoop(hw, est, Push(), n=1, period=0.01, log=ListLog(), realtime=False, **kw)
+
+
+def test_hardware_fault_zeroes_torque_in_the_same_cycle_and_latches():
+    hw = FakeHW(fail_at=30)
+    loop = make(hw, ConstEstimator())
+    loop.run(60)
+    assert loop.supervisor.latched == Fault.HEARTBEAT_LOST and loop.supervisor.latched_cycle == 30
+    assert hw.safe_stops == [30]
+    writes = dict(hw.writes)
+    assert all(writes[k] == 1.5 for k in range(30))
+    assert all(writes[k] == 0.0 for k in range(30, 60))       # zero from the faulty cycle on
+    assert "reset needed" in loop.supervisor.status_line()
+
+
+def test_estimator_fault_never_publishes_nan_and_reset_is_explicit():
+    hw = FakeHW()
+    loop = make(hw, ConstEstimator(nan_at=10))
+    loop.run(20)
+    rows = np.array(loop.log.rows)
+    cols = log_columns(1)
+    valid = rows[:, cols.index("valid")]
+    assert np.all(np.isfinite(rows))
+    assert valid[:10].all() and not valid[10:].any()
+    assert loop.supervisor.latched == Fault.ESTIMATOR_NONFINITE
+    loop.estimator.nan_at = None
+    loop.run(5)  # still latched: the cause went away, but nobody reset
+    assert loop.supervisor.latched == Fault.ESTIMATOR_NONFINITE
+    loop.request_reset()
+    loop.stats = type(loop.stats)()
+    loop.run(3)
+    assert loop.supervisor.ok and dict(hw.writes)[hw.k - 1] == 1.5
+
+
+def test_overrun_streak_trips():
+    t = [0.0]
+
+    def clock():
+        return t[0]
+
+    def slow_hw_read_clock():
+        t[0] += 0.02   # every cycle takes two periods
+
+    hw = FakeHW()
+    orig = hw.read
+
+    def read():
+        slow_hw_read_clock()
+        return orig()
+
+    hw.read = read
+    loop = FixedRateLoop(hw, ConstEstimator(), Push(), n=1, period=0.01, clock=clock, sleep=lambda s: None,
+                         supervisor=SafetySupervisor(overrun_streak=5))
+    st = loop.run(10)
+    assert st.overruns == 10
+    assert loop.supervisor.latched == Fault.OVERRUN_STREAK
+    assert hw.safe_stops == [4]
+
+
+def test_fault_mapping_by_exception_type():
+    assert fault_of(HeartbeatLost("x")) == Fault.HEARTBEAT_LOST
+    assert fault_of(EstimatorFault("P is not positive definite")) == Fault.COVARIANCE_NOT_PD
+    assert fault_of(RuntimeError("?")) == Fault.INTERNAL
