@@ -138,3 +138,14 @@ def test_more_leaves_and_smaller_delta_widen_the_bound():
     assert sample_lipschitz_se(1.0, [2.0, 2.0], 0.01) > sample_lipschitz_se(1.0, [2.0, 2.0], 0.1)
     with pytest.raises(ValueError):
         error_bound([leaf], [0, 0], [1, 1], 0.05)          # no L_f and no δ_L
+
+
+def test_leaves_with_different_hyperparameters_use_the_maxima():
+    rng = np.random.default_rng(7)
+    X = rng.uniform(0, 1, (10, 2))
+    a = LeafGP.from_data(X, np.sin(X[:, 0]), 1.0, [0.5, 0.5], 0.1)
+    b = LeafGP.from_data(X, np.cos(X[:, 1]), 2.0, [0.2, 0.9], 0.05)
+    both = error_bound([a, b], [0, 0], [1, 1], 0.05, L_f=1.0)
+    for one in (a, b):
+        c = error_bound([one], [0, 0], [1, 1], 0.05, L_f=1.0, n_leaves=2, tau_grid=[both.tau])
+        assert c.sqrt_beta <= both.sqrt_beta + 1e-12 and c.gamma <= both.gamma + 1e-12

@@ -172,8 +172,8 @@ def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta:
                 tau_grid: np.ndarray = TAU_GRID) -> BoundConstants:
     """Constants of |f(x) − μ̃(x)| ≤ √β σ̃(x) + γ for all x in the box [lo, hi] (one output).
 
-    leaves          the leaf GPs (one for a plain GP); all must share σ_f and the length scales
-                    (LoG-GP with shared hyperparameters; otherwise call per leaf and take maxima)
+    leaves          the leaf GPs (one for a plain GP); leaves may have their own
+                    hyperparameters: the bound then uses max_i √β_i and max_i γ_i
     delta           total failure probability of the statement (δ_GP + δ_L)
     n_leaves        L of the union bound; default len(leaves) (use max_leaves while growing)
     L_f             known Lipschitz bound of f: a scalar (raw-coordinate ‖∇f‖₂ bound) or one
@@ -185,45 +185,66 @@ def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta:
         raise ValueError("error_bound needs at least one leaf GP")
     if not 0 < delta < 1:
         raise ValueError(f"delta must be in (0, 1), got {delta}")
-    ls = np.asarray(leaves[0].lengthscales, dtype=float)
-    sf = float(leaves[0].sigma_f)
-    for lf in leaves[1:]:
-        if lf.sigma_f != sf or not np.allclose(lf.lengthscales, ls):
-            raise ValueError("error_bound: leaves with different hyperparameters; bound them separately")
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    if lo.shape != ls.shape or hi.shape != ls.shape or np.any(hi < lo):
-        raise ValueError(f"box [lo, hi] must have {ls.size} entries with lo <= hi")
+    dim = np.size(leaves[0].lengthscales)
+    if lo.shape != (dim,) or hi.shape != (dim,) or np.any(hi < lo):
+        raise ValueError(f"box [lo, hi] must have {dim} entries with lo <= hi")
     L = int(n_leaves if n_leaves is not None else len(leaves))
-    widths = (hi - lo) / ls                                              # normalised box
-    # Lipschitz constant of f in normalised coordinates
-    if L_f is None:
-        if not 0 < delta_lipschitz < delta:
-            raise ValueError("without a known L_f, delta_lipschitz must be in (0, delta) (LUH19 Thm 3.2)")
-        Lf = sample_lipschitz_se(sf, widths, delta_lipschitz)
-        d_gp = delta - delta_lipschitz
-    else:
-        Lv = np.atleast_1d(np.asarray(L_f, dtype=float))
-        # |f(x) − f(x')| ≤ Σ|∂_i f||Δx_i| = Σ (l_i |∂_i f|)|Δx̃_i| ≤ ‖l ⊙ ∂f‖₂ ‖Δx̃‖₂
-        Lf = float(np.linalg.norm(ls * Lv)) if Lv.size == ls.size else float(Lv[0] * ls.max())
-        d_gp = delta
-    L_k = se_lipschitz(sf)
-    terms = [_leaf_terms(lf, L_k) for lf in leaves]
-    L_mu = max(t[0] for t in terms)
-    c_sig = max(t[1] for t in terms)
+    if L < len(leaves):
+        raise ValueError(f"n_leaves={L} is smaller than the {len(leaves)} leaves given")
+    if L_f is None and not 0 < delta_lipschitz < delta:
+        raise ValueError("without a known L_f, delta_lipschitz must be in (0, delta) (LUH19 Thm 3.2)")
+    d_gp = delta - (delta_lipschitz if L_f is None else 0.0)
+    # per leaf (own hyperparameters allowed): normalised box, L_f, L_μ, ω_σ² / τ
+    per = []
+    for lf in leaves:
+        ls = np.asarray(lf.lengthscales, dtype=float)
+        widths = (hi - lo) / ls                                          # normalised box
+        if L_f is None:
+            Lf = sample_lipschitz_se(float(lf.sigma_f), widths, delta_lipschitz)
+        else:
+            Lv = np.atleast_1d(np.asarray(L_f, dtype=float))
+            # |f(x) − f(x')| ≤ Σ|∂_i f||Δx_i| = Σ (l_i |∂_i f|)|Δx̃_i| ≤ ‖l ⊙ ∂f‖₂ ‖Δx̃‖₂
+            Lf = float(np.linalg.norm(ls * Lv)) if Lv.size == ls.size else float(Lv[0] * ls.max())
+        L_mu, c_sig = _leaf_terms(lf, se_lipschitz(float(lf.sigma_f)))
+        per.append((widths, Lf, L_mu, c_sig))
     s_ref = sigma_ref if sigma_ref is not None else min(lf.sigma_n for lf in leaves)
     G = len(tau_grid)
     best = None
     for tau in tau_grid:
-        # β(τ) = 2 log(M(τ, X) / δ_i), δ_i = δ_GP / (L · G): union over leaves and the τ grid
-        beta = 2.0 * (log_covering_number(widths, tau) + math.log(L * G / d_gp))
-        sb = math.sqrt(beta)
-        omega = math.sqrt(c_sig * tau)
-        # γ(τ) = (L_μ + L_f) τ + √β ω_σ(τ); the merged bound takes the max over leaves
-        gamma = (L_mu + Lf) * tau + sb * omega
-        val = sb * s_ref + gamma
+        sb_max = g_max = 0.0
+        for widths, Lf, L_mu, c_sig in per:
+            # β(τ) = 2 log(M(τ, X) / δ_i), δ_i = δ_GP / (L · G): union over leaves and the τ grid
+            sb = math.sqrt(2.0 * (log_covering_number(widths, tau) + math.log(L * G / d_gp)))
+            # γ(τ) = (L_μ + L_f) τ + √β ω_σ(τ)
+            g = (L_mu + Lf) * tau + sb * math.sqrt(c_sig * tau)
+            sb_max, g_max = max(sb_max, sb), max(g_max, g)
+        # merged bound: √β_max Σ w σ_i + max γ_i  (module docstring)
+        val = sb_max * s_ref + g_max
         if best is None or val < best[0]:
-            best = (val, BoundConstants(sb, float(gamma), float(tau), float(Lf), float(L_mu), float(omega), float(delta), L))
-    return best[1]
+            best = (val, float(tau), sb_max, g_max)
+    _, tau, sb, g = best
+    return BoundConstants(float(sb), float(g), tau, float(max(p[1] for p in per)),
+                          float(max(p[2] for p in per)), float(max(math.sqrt(p[3] * tau) for p in per)),
+                          float(delta), L)
+
+
+def loggp_leaves(gp) -> list[LeafGP]:
+    """LeafGP records of every leaf of a :class:`sea_daemon.loggp.LoGGP` (leaf GPs are
+    :class:`sea_daemon.gp.IncrementalGP` with ``alpha_``, ``L_`` (Cholesky of K + σ_n² I),
+    ``sigma_f``, ``lengthscales``, ``sigma_n``)."""
+    out = []
+    for node in gp.leaves():
+        g = gp.leaf(node)
+        if g.n_ == 0:
+            continue
+        Lc = np.asarray(g.L_)
+        # ‖(K + σ_n² I)⁻¹‖₂ = 1/λ_min(K + σ_n² I) = 1/σ_min(L)²
+        smin = float(np.linalg.svd(Lc, compute_uv=False).min())
+        out.append(LeafGP(np.asarray(g.alpha_, dtype=float).copy(), float(g.sigma_f),
+                          np.asarray(g.lengthscales, dtype=float).copy(), float(g.sigma_n),
+                          1.0 / smin ** 2 if smin > 0 else None))
+    return out
 
 
 def merged_sigma(weights: np.ndarray, sigmas: np.ndarray, mus: np.ndarray | None = None) -> float:
