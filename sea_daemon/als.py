@@ -1,0 +1,168 @@
+"""Autocovariance least squares (ALS): noise covariances Q, R from a filter's innovations.
+
+Odelson, Rajamani & Rawlings, "A new autocovariance least-squares method for estimating
+noise covariances", Automatica 42 (2006) 303-308 — the method Sec. V-B of the paper uses to
+set R.
+
+Model (linear time-invariant)      x_{k+1} = A x_k + G w_k,   y_k = C x_k + v_k,
+                                   w ~ N(0, Q), v ~ N(0, R) independent,
+run with a stable, possibly sub-optimal, fixed filter gain L (x̂_{k|k} = x̂_{k|k−1} + L e_k,
+x̂_{k+1|k} = A x̂_{k|k}).  The innovations e_k = y_k − C x̂_{k|k−1} then obey
+    ε_{k+1} = Ā ε_k + G w_k − A L v_k,   e_k = C ε_k + v_k,   Ā = A − A L C,
+so with P = Ā P Āᵀ + G Q Gᵀ + A L R Lᵀ Aᵀ (discrete Lyapunov):
+    C_0 = E[e_k e_kᵀ]     = C P Cᵀ + R
+    C_j = E[e_{k+j} e_kᵀ] = C Ā^j P Cᵀ − C Ā^{j−1} A L R,      j = 1 … N−1.
+Every C_j is linear in (Q, R).  The sample autocovariances Ĉ_j of a long innovation
+sequence give an over-determined linear system for the unknown entries of Q and R (the
+stacked "autocovariance matrix" of Odelson et al.); we build its matrix column by column
+(one Lyapunov solve per unknown), which is the same linear map as their Kronecker form.
+
+Positive semi-definiteness: with ``diag=True`` the unknowns are diag(Q), diag(R) ≥ 0 and
+the problem is solved by non-negative least squares (scipy.optimize.nnls); with
+``diag=False`` by least squares over symmetric Q, R followed by projection onto the PSD
+cone (eigenvalues clipped at 0).  Conditioning: innovations are whitened per channel by
+their sample standard deviation and the design columns are normalised; the result is
+mapped back.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+from scipy.optimize import nnls
+
+from .errors import InputError
+
+
+def sample_autocov(e: np.ndarray, lags: int) -> np.ndarray:
+    """Ĉ_j = 1/(N − j) Σ_k e_{k+j} e_kᵀ for j = 0 … lags−1 → (lags, p, p)."""
+    e = np.asarray(e, dtype=float)
+    if e.ndim == 1:
+        e = e[:, None]
+    N = e.shape[0]
+    if N <= 2 * lags:
+        raise InputError(f"ALS needs more than {2 * lags} innovations for {lags} lags, got {N}")
+    out = np.empty((lags, e.shape[1], e.shape[1]))
+    for j in range(lags):
+        out[j] = e[j:].T @ e[:N - j] / (N - j)
+    return out
+
+
+def model_autocov(A, G, C, L, Q, R, lags: int) -> np.ndarray:
+    """Theoretical innovation autocovariances C_0 … C_{lags−1} (Odelson et al. 2006, eq. above)."""
+    A, G, C, L = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (A, G, C, L))
+    AL = A @ L
+    Abar = A - AL @ C
+    W = G @ Q @ G.T + AL @ R @ AL.T
+    P = solve_discrete_lyapunov(Abar, W)
+    out = np.empty((lags, C.shape[0], C.shape[0]))
+    out[0] = C @ P @ C.T + R
+    Aj = np.eye(A.shape[0])            # Ā^{j−1}
+    for j in range(1, lags):
+        out[j] = C @ (Aj @ Abar) @ P @ C.T - C @ Aj @ AL @ R
+        Aj = Aj @ Abar
+    return out
+
+
+def _stack(Cs: np.ndarray) -> np.ndarray:
+    """C_0 upper triangle (symmetric) then C_1 … C_{N−1} in full."""
+    p = Cs.shape[1]
+    iu = np.triu_indices(p)
+    return np.concatenate([Cs[0][iu], Cs[1:].ravel()])
+
+
+def _basis(n: int, diag: bool) -> list[np.ndarray]:
+    if diag:
+        return [np.diag(np.eye(n)[i]) for i in range(n)]
+    out = []
+    for i in range(n):
+        for j in range(i, n):
+            E = np.zeros((n, n))
+            E[i, j] = E[j, i] = 1.0
+            out.append(E)
+    return out
+
+
+def _psd(X: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eigh(0.5 * (X + X.T))
+    return (V * np.clip(w, 0.0, None)) @ V.T
+
+
+def stable_gain(A, C, Q, R) -> np.ndarray:
+    """Steady-state Kalman filter gain L = P Cᵀ (C P Cᵀ + R)⁻¹ from the DARE (a guess of Q, R
+    suffices: ALS only needs L to make A − A L C stable)."""
+    A, C = np.atleast_2d(A), np.atleast_2d(C)
+    P = solve_discrete_are(A.T, C.T, np.asarray(Q, float), np.asarray(R, float))
+    return P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+
+
+def innovations(A, C, L, y: np.ndarray, x0: np.ndarray | None = None, Bu: np.ndarray | None = None) -> np.ndarray:
+    """e_k = y_k − C x̂_{k|k−1} of the fixed-gain filter (``Bu[k]``: known input term added to
+    x̂_{k+1|k}, e.g. Γ_u u_k plus an affine offset of a linearisation)."""
+    A, C, L = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (A, C, L))
+    y = np.atleast_2d(np.asarray(y, dtype=float))
+    N = y.shape[0]
+    x = np.zeros(A.shape[0]) if x0 is None else np.array(x0, dtype=float)
+    e = np.empty_like(y)
+    for k in range(N):
+        e[k] = y[k] - C @ x
+        x = A @ (x + L @ e[k])
+        if Bu is not None:
+            x = x + Bu[k]
+    return e
+
+
+def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = True,
+             Q: np.ndarray | None = None, burn_in: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """ALS estimate (Q, R) from the innovations of the fixed-gain filter (A, C, L).
+
+    A (d×d), G (d×g), C (p×d), L (d×p); ``innovations`` (N, p); ``lags`` the number N of
+    autocovariance lags; ``diag`` estimates diagonal Q, R (nnls, ≥ 0) or full symmetric ones
+    (least squares + PSD projection); ``Q`` given → only R is estimated (Q returned as given);
+    ``burn_in`` leading innovations dropped (filter transient).
+    Raises InputError if A − A L C is not stable or the data are too short.
+    """
+    A, G, C, L = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (A, G, C, L))
+    d, g, p = A.shape[0], G.shape[1], C.shape[0]
+    if C.shape[1] != d or G.shape[0] != d or L.shape != (d, p):
+        raise InputError(f"ALS: inconsistent shapes A {A.shape}, G {G.shape}, C {C.shape}, L {L.shape}")
+    rad = np.max(np.abs(np.linalg.eigvals(A - A @ L @ C)))
+    if not rad < 1.0:
+        raise InputError(f"ALS: the filter gain does not stabilise A − A L C (spectral radius {rad:.4g}, "
+                         f"must be < 1)")
+    e = np.asarray(innovations, dtype=float)[burn_in:]
+    if e.ndim == 1:
+        e = e[:, None]
+    if e.shape[1] != p:
+        raise InputError(f"ALS: innovations have {e.shape[1]} channels, C has {p} rows")
+    if not np.all(np.isfinite(e)):
+        raise InputError("ALS: innovations contain NaN or inf")
+    # whiten the channels: e' = S⁻¹ e  ⇒  C' = S⁻¹ C, L' = L S, R' = S⁻¹ R S⁻¹
+    s = e.std(axis=0)
+    s[s <= 0] = 1.0
+    Cw, Lw, ew = C / s[:, None], L * s[None, :], e / s
+    b = _stack(sample_autocov(ew, lags))
+    Zg, Zp = np.zeros((g, g)), np.zeros((p, p))
+    q_basis = [] if Q is not None else _basis(g, diag)
+    r_basis = _basis(p, diag)
+    cols = [_stack(model_autocov(A, G, Cw, Lw, Eq, Zp, lags)) for Eq in q_basis]
+    cols += [_stack(model_autocov(A, G, Cw, Lw, Zg, Er, lags)) for Er in r_basis]
+    M = np.column_stack(cols)
+    if Q is not None:
+        b = b - _stack(model_autocov(A, G, Cw, Lw, np.asarray(Q, float), Zp, lags))
+    norms = np.linalg.norm(M, axis=0)
+    norms[norms == 0] = 1.0
+    Mn = M / norms
+    if diag:
+        theta, _ = nnls(Mn, b)
+    else:
+        theta = np.linalg.lstsq(Mn, b, rcond=None)[0]
+    theta = theta / norms
+    nq = len(q_basis)
+    Qhat = np.asarray(Q, float) if Q is not None else sum(t * E for t, E in zip(theta[:nq], q_basis))
+    Rw = sum(t * E for t, E in zip(theta[nq:], r_basis))
+    Rhat = Rw * np.outer(s, s)
+    if not diag:
+        Rhat = _psd(Rhat)
+        if Q is None:
+            Qhat = _psd(Qhat)
+    return Qhat, Rhat
