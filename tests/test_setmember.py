@@ -30,6 +30,7 @@ def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
     x_true = np.array([0.1, 0.01, 0.0, 0.0, 0.5])
     x, P = x_true + rng.multivariate_normal(np.zeros(d), cfg.estimator.P0), cfg.estimator.P0.copy()
     sm = SetMembershipBound(d, [4], delta=0.05)
+    sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal")
     A = model.F_nom(x, np.zeros(n))                # constant: the plant is linear
     Gamma = input_matrix(A, model.I_mu @ model.Minv, dt)
     G_u = input_matrix(A, model.B_nom(), dt)
@@ -49,9 +50,13 @@ def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
         x_new, P_new, K = kf_step(x, P, F, dx, Q, H, R, y)
         rho = sm.step(x_hat=x, P=P, F=F, K=K, H=H, P_post=P_new, resid=discrete_residual(fd, x, F),
                       Gamma=Gamma, eta=np.zeros(n))
+        rho_m = sm_marg.step(x_hat=x, P=P, F=F, K=K, H=H, P_post=P_new, resid=discrete_residual(fd, x, F),
+                             Gamma=Gamma, eta=np.zeros(n))
         x, P = x_new, P_new
         assert np.max(np.abs(sm.X_)) == 0.0                  # the set of means stays a point
-        assert rho[0] == pytest.approx(np.sqrt(s_1 * P[4, 4]), rel=1e-12)
+        # ρ = half-width of the KF's χ² ellipsoid E(x̂, sP) along τ_h,act
+        assert rho[0] == pytest.approx(np.sqrt(s_d * P[4, 4]), rel=1e-12)
+        assert rho_m[0] == pytest.approx(np.sqrt(s_1 * P[4, 4]), rel=1e-12)
 
 
 class Pendulum:
@@ -82,7 +87,7 @@ def run_pendulum(seed, steps=250, eta=0.3, delta=0.05):
     x_true = np.array([rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1)])
     P = np.diag([0.05, 0.05, 1.0])
     x = x_true + rng.multivariate_normal(np.zeros(d), P)
-    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0)
+    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal")
     sign = rng.choice([-1.0, 1.0])
     hit_set, hit_kf = [], []
     s_1 = chi2.ppf(1 - delta, 1)

@@ -19,8 +19,10 @@ One step k → k+1 (proof of Theorem 1):
 
 Probability levels.  δ is split into δ_GP (the GP uniform bound, eq:gpmeanbounds, whose
 constants the caller computes with gp_bound.error_bound) and δ_N = δ − δ_GP for the
-Gaussian part: s_τ = χ²_{n_τ}(1 − δ_N) (simultaneous over the n_τ torque states) is used for
-ρ, s_d = χ²_d(1 − δ_N) for the set C_k on which the linearisation error is bounded.  With
+Gaussian part: s_d = χ²_d(1 − δ_N) for the set C_k (on which the linearisation error is
+bounded) and, by default, for ρ (the paper's projection of C_k); with projection="marginal"
+ρ uses s_τ = χ²_{n_τ}(1 − δ_N), the confidence set of the τ marginal (simultaneous over the
+n_τ torque states), which is also valid and tighter.  With
 the union bound Pr(|τ̂ − τ| ≤ ρ) ≥ 1 − δ_GP − δ_N = 1 − δ at each step, conditional on the
 previous step's x_k ∈ C_k (as in the paper's theorem).
 
@@ -43,7 +45,7 @@ from typing import Callable
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from .ellipsoid import Ellipsoid, minkowski_shape, segments_shapes, sqrtm_psd
 
@@ -60,6 +62,11 @@ def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
     aug[:d, :d] = A * dt
     aug[:d, d:] = B * dt
     return expm(aug)[:d, d:]
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """χ²_dof quantile at probability p (scipy.special, no scipy.stats import at start-up)."""
+    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
@@ -81,10 +88,15 @@ class SetMembershipBound:
     weight   W of the tr(W X)-minimal Minkowski sum (default I, the plain trace)
     n_dirs   extra quasi-random directions for the linearisation-error point set
     margin   relative inflation of the sampled linearisation error
+    projection  "state" (default, the paper's construction): ρ is the projection of the
+             state confidence set C_k with s_d = χ²_d(1 − δ_N); "marginal": s_τ = χ²_{n_τ}(1 − δ_N),
+             the confidence set of the τ marginal alone — also valid for eq:bounds and tighter
+             (for one joint √χ²_1 = 1.96 instead of √χ²_5 = 3.33 at δ_N = 0.05)
     """
 
     def __init__(self, d: int, tau_idx, delta: float, *, delta_gp: float = 0.0,
-                 weight: np.ndarray | None = None, n_dirs: int = 8, margin: float = 0.25, seed: int = 0):
+                 weight: np.ndarray | None = None, n_dirs: int = 8, margin: float = 0.25, seed: int = 0,
+                 projection: str = "state"):
         if not 0 < delta < 1:
             raise ValueError(f"delta must be in (0, 1), got {delta}")
         if not 0 <= delta_gp < delta:
@@ -94,8 +106,12 @@ class SetMembershipBound:
         self.delta, self.delta_gp = float(delta), float(delta_gp)
         self.delta_noise = self.delta - self.delta_gp
         # eq:gaussianellipsoid: s from the χ² quantile
-        self.s_state = float(chi2.ppf(1.0 - self.delta_noise, self.d))
-        self.s_tau = float(chi2.ppf(1.0 - self.delta_noise, self.tau_idx.size))
+        self.s_state = chi2_quantile(1.0 - self.delta_noise, self.d)
+        if projection not in ("state", "marginal"):
+            raise ValueError(f"projection must be 'state' or 'marginal', got {projection!r}")
+        self.projection = projection
+        self.s_tau = (self.s_state if projection == "state"
+                      else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size))
         self.weight = weight
         self.margin = float(margin)
         self._U = _unit_directions(self.d, n_dirs, seed)
