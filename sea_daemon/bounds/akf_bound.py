@@ -33,7 +33,7 @@ from .setmember import SetMembershipBound, input_matrix
 class AKFTheoremBound:
     """The Theorem-1 companion of one AKF instance (see module docstring)."""
 
-    def __init__(self, akf, *, gp_constants: list[BoundConstants] | None = None,
+    def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "state", seed: int = 0):
@@ -44,8 +44,12 @@ class AKFTheoremBound:
         if delta_gp is None:
             delta_gp = 0.5 * delta if has_gp else 0.0
         if has_gp and gp_constants is None:
-            raise ValueError("a GP-AKF needs gp_constants (sea_daemon.bounds.akf_bound.gp_constants)")
-        self.gp_constants = list(gp_constants) if (has_gp and gp_constants is not None) else None
+            raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
+                             "see sea_daemon.bounds.akf_bound.gp_constants)")
+        self._auto = has_gp and isinstance(gp_constants, str)
+        if self._auto and gp_constants != "auto":
+            raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
+        self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
         self.gp_box = gp_box
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection)
@@ -58,8 +62,16 @@ class AKFTheoremBound:
 
     # ------------------------------------------------------------------ hooks
 
+    def refresh_gp_constants(self) -> None:
+        """Recompute the GP constants and input box from the residual's current leaves
+        (``gp_constants='auto'``; call after the GP learned more data)."""
+        self.gp_constants, self.gp_box = gp_constants(self.akf.residual, self.sm.delta_gp)
+
     def reset(self, *args, **kwargs):
         est = self._reset(*args, **kwargs)
+        if self._auto:
+            # 'auto': the constants of the GP as trained when estimation starts
+            self.refresh_gp_constants()
         self.sm.reset()
         self.gp_box_violations_ = 0
         if getattr(self.akf, "_ready", True):
@@ -130,6 +142,18 @@ def attach_theorem_bound(akf, **kwargs) -> AKFTheoremBound:
     akf.reset = tb.reset
     akf.theorem_bound = tb
     return akf.theorem_bound
+
+
+def attach_default_bound(akf) -> AKFTheoremBound | None:
+    """What :func:`sea_daemon.estimators.make_estimator` attaches: the Theorem-1 bound for a
+    plain AKF, and for a GP-AKF whose residual is a ResidualGP (one LoG-GP per joint, constants
+    computed at every reset).  An unknown residual type has no GP error constants, so the
+    AKF keeps its own bound and None is returned."""
+    if akf.residual is None:
+        return attach_theorem_bound(akf)
+    if hasattr(akf.residual, "gps"):
+        return attach_theorem_bound(akf, gp_constants="auto")
+    return None
 
 
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
