@@ -88,3 +88,16 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
                                                         * outs[0.3][20:, 2]))
     with pytest.raises(ValueError, match="gp_constants"):
         attach_theorem_bound(AKF(cfg, residual=BiasedResidual(f, 0.0)))
+
+
+def test_phi_shortcut_matches_expm():
+    from sea_daemon.bounds.setmember import input_matrix
+    cfg = load_config(default_config_path())
+    akf = AKF(cfg)
+    tb = attach_theorem_bound(akf)
+    akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
+    akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
+    b = np.array([0, 0, 0, 1.0, 0])
+    full = input_matrix(akf.A_k, np.eye(5), akf.dt)
+    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)

@@ -8,11 +8,15 @@ per step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu``
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 * C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
-* the GP-enhanced drift f(x) = f_nom(x, u) − I_μ M⁻¹ μ(z(x)) (eq:fwdynwtorqueresidual1) on the
-  point set of C_{k−1}; continuous-time linearisation error ε_c = f(x) − f(x̂) − A_k (x − x̂)
-  per dimension (max over the points, inflated by ``margin``), mapped by Φ = ∫₀^dt e^{A s} ds
+* continuous-time linearisation error ε_c = f(x) − f(x̂) − A_k (x − x̂) of the GP-enhanced
+  drift f(x) = f_nom(x, u) − I_μ M⁻¹ μ(z(x)) (eq:fwdynwtorqueresidual1), per dimension, as the
+  sum of two parts, mapped by Φ = ∫₀^dt e^{A s} ds:
+  - nominal model: without declared effects its only non-linearity is gravity, bounded
+    analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
+    with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
+  - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
 * GP error (eq:Dmuhat): η_j = √β_j max_points σ_j(z(x)) + γ_j per joint — σ is taken over
-  the whole set C_{k−1} (not just at ẑ), because the true z is only known to lie in it;
+  the projected set (not just at ẑ), because the true z is only known to lie in it;
   mapped by Γ_μ
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
@@ -26,8 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ellipsoid import Ellipsoid
 from .gp_bound import BoundConstants, error_bound, input_box, loggp_leaves
-from .setmember import SetMembershipBound, input_matrix
+from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
 
 
 class AKFTheoremBound:
@@ -54,6 +59,14 @@ class AKFTheoremBound:
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection)
         self._I = np.eye(d)
+        m = akf.model
+        # only gravity is non-linear in a nominal model without declared effects
+        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
+        self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._grid = np.linspace(-1.0, 1.0, 65)
+        self._grid_step = 2.0 / 64
+        self._Uz = _directions(2 * n, n_dirs, seed)
         self._step = akf.step
         self._reset = akf.reset
         self.gp_box_violations_ = 0
@@ -78,54 +91,124 @@ class AKFTheoremBound:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
         return est
 
-    def _drift(self, x: np.ndarray, u: np.ndarray, ddq: np.ndarray):
-        """f(x) of eq:fwdynwtorqueresidual1 and σ(z(x)) (zeros without a residual)."""
+    # ------------------------------------------------------------------ linearisation error
+
+    def _gravity_box(self, x0: np.ndarray, C: Ellipsoid) -> np.ndarray:
+        """Rigorous bound of the gravity term's linearisation error (no sampling).
+
+        C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
+        ±r_j of q̂_j on C (r_j = half-width of C along e_θm,j + e_θs,j), the scalar error
+        h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
+        the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
+        the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
+        """
         akf = self.akf
         n = akf.n
-        f = akf.model.f_nom(x, u)
-        if akf.residual is None:
-            return f, None, None
-        z = np.concatenate([x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n], ddq])
-        mu, _, var = akf.residual.predict(z)
-        return f - akf.G_mu @ np.asarray(mu, dtype=float), np.sqrt(np.maximum(np.asarray(var, float), 0.0)), z
+        model = akf.model
+        b = np.zeros(akf.d)
+        g = np.abs(np.asarray(model.gravity, dtype=float)) * np.ones(n)
+        if not np.any(g):
+            return b
+        qh = x0[:n] + x0[n:2 * n]
+        v = np.empty(n)
+        for j in range(n):
+            e = np.zeros(akf.d)
+            e[j] = e[n + j] = 1.0
+            r = C.half_width(e)
+            # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
+            # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
+            D = self._grid * r
+            h = np.abs(np.sin(qh[j] + D) - np.sin(qh[j]) - np.cos(qh[j]) * D)
+            # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
+            v[j] = g[j] * min(h.max() + min(2.0, r) * r * self._grid_step / 2.0, r * r / 2.0)
+        b[3 * n:4 * n] = np.abs(model.Minv) @ v
+        return b
+
+    def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
+        """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
+        f_nom = self.akf.model.f_nom
+        f0 = f_nom(x0, u)
+        b = np.zeros(self.akf.d)
+        for x in self.sm.sample_points(C):
+            fx = f_nom(x, u)
+            lin = A_nom @ (x - x0)
+            r = np.abs(fx - f0 - lin)
+            # rounding floor, so an exactly linear drift gives exactly 0
+            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
+            np.maximum(b, r, out=b)
+        return b
+
+    def _gp_box(self, zhat: np.ndarray, C: Ellipsoid):
+        """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
+        projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
+        them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
+        akf = self.akf
+        n = akf.n
+        res = akf.residual
+        mu0, J0, var0 = res.predict(zhat)
+        mu0 = np.asarray(mu0, dtype=float)
+        J0 = np.asarray(J0, dtype=float)[:, :2 * n]
+        Cz = C.affine(self._T)                                     # exact: affine image
+        smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
+        e = np.zeros(n)
+        out = False
+        z = zhat.copy()
+        for p in ellipsoid_points(Cz, self._Uz):
+            z[:2 * n] = p
+            mu, _, var = res.predict(z)
+            dz = p - zhat[:2 * n]
+            np.maximum(e, np.abs(np.asarray(mu, float) - mu0 - J0 @ dz), out=e)
+            np.maximum(smax, np.sqrt(np.maximum(np.asarray(var, float), 0.0)), out=smax)
+            if self.gp_box is not None and (np.any(z < self.gp_box[0]) or np.any(z > self.gp_box[1])):
+                out = True
+        # ε_μ = −I_μ M⁻¹ (μ(z) − μ̄(z)): rows θ̈_s, bounded elementwise by |M⁻¹| e
+        b = np.zeros(akf.d)
+        b[3 * n:4 * n] = np.abs(akf.model.Minv) @ e
+        return b, smax, out
+
+    def _phi(self, A, b, dt):
+        """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
+        already has Γ_μ = Φ I_μ M⁻¹); any other column costs one expm."""
+        if not np.any(b):
+            return None
+        akf = self.akf
+        n = akf.n
+        nz = np.flatnonzero(b)
+        if np.all((nz >= 3 * n) & (nz < 4 * n)):
+            Phi = np.zeros((akf.d, akf.d))
+            Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
+            return Phi
+        return input_matrix(A, self._I, dt)
 
     def step(self, y, u, dt):
         akf = self.akf
         n = akf.n
         x0 = akf.x.copy()
         P0 = akf.P.copy()
-        ddq = akf.z[2 * n:].copy()
+        zhat = akf.z.copy()                       # ẑ_{k−1}, where the AKF evaluates the GP
         u = np.array(u, dtype=float)
         est = self._step(y, u, dt)
-        A = akf.A_k
         sm = self.sm
-        # C_{k−1} and its point set
-        C = sm.confidence_set(x0, P0)
-        pts = sm.sample_points(C)
-        f0, s0, _ = self._drift(x0, u, ddq)
-        b = np.zeros(akf.d)
-        smax = None if s0 is None else s0.copy()
-        out_of_box = False
-        for x in pts:
-            fx, sx, z = self._drift(x, u, ddq)
-            lin = A @ (x - x0)
-            r = fx - f0 - lin
-            # rounding floor, so an exactly linear drift gives exactly 0
-            tol = 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))
-            np.maximum(b, np.where(np.abs(r) <= tol, 0.0, np.abs(r)), out=b)
-            if sx is not None:
-                np.maximum(smax, sx, out=smax)
-                if self.gp_box is not None and (np.any(z < self.gp_box[0]) or np.any(z > self.gp_box[1])):
-                    out_of_box = True
-        self.gp_box_violations_ += int(out_of_box)
-        b *= 1.0 + sm.margin
-        self.lin_err_ = b
-        Phi = input_matrix(A, self._I, dt) if np.any(b) else None
+        C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
+        # eq:linerrsetdx / eq:linearerrellipsoid, split by source
+        if self._fast:
+            b = self._gravity_box(x0, C)          # analytic, rigorous
+        else:
+            A_nom = akf.A_k.copy()
+            if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
+                _, J, _ = akf.residual.predict(zhat)
+                A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
+            b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
-        if self.gp_constants is not None:
-            # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j
-            eta = np.array([c.eta(s) for c, s in zip(self.gp_constants, smax)])
+        if akf.residual is not None:
+            bg, smax, out = self._gp_box(zhat, C)
+            b = b + (1.0 + sm.margin) * bg
+            self.gp_box_violations_ += int(out)
+            # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
+            eta = np.array([c.eta(sj) for c, sj in zip(self.gp_constants, smax)])
             self.eta_ = eta
+        self.lin_err_ = b
+        Phi = self._phi(akf.A_k, b, dt)
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         sm.update(akf.K_k, akf.H)

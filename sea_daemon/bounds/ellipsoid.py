@@ -193,19 +193,21 @@ def minkowski_shape(shapes: Sequence[np.ndarray], weight: np.ndarray | None = No
     contributes nothing; a shape that is non-zero but invisible to W (tr(W X_i) = 0 with
     X_i ≠ 0) falls back to the plain trace for that term so containment is kept.
     """
-    shapes = [_sym(np.asarray(X, dtype=float)) for X in shapes]
     if not shapes:
         raise ValueError("minkowski_shape needs at least one shape")
-    d = shapes[0].shape[0]
-    W = np.eye(d) if weight is None else np.asarray(weight, dtype=float)
+    d = np.shape(shapes[0])[0]
+    W = None if weight is None else np.asarray(weight, dtype=float)
     t = []
     keep = []
     for X in shapes:
-        if not np.any(X):
+        X = np.asarray(X, dtype=float)
+        tr = float(np.trace(X))
+        if tr <= 0.0 and not np.any(X):
             continue  # a point: adds only to the centre
-        ti = float(np.sqrt(max(np.sum(W * X), 0.0)))
+        ti = tr if W is None else float(np.sum(W * X))
+        ti = float(np.sqrt(max(ti, 0.0)))
         if ti <= 1e-300:
-            ti = float(np.sqrt(max(np.trace(X), 0.0)))  # invisible to W: use the trace for it
+            ti = float(np.sqrt(max(tr, 0.0)))  # invisible to W: use the trace for it
         if ti <= 1e-300:
             continue
         t.append(ti)
@@ -213,9 +215,12 @@ def minkowski_shape(shapes: Sequence[np.ndarray], weight: np.ndarray | None = No
     if not keep:
         return np.zeros((d, d))
     if len(keep) == 1:
-        return keep[0].copy()
+        return _sym(keep[0])
     T = sum(t)
-    return _sym(T * sum(X / ti for X, ti in zip(keep, t)))
+    out = keep[0] * (T / t[0])
+    for X, ti in zip(keep[1:], t[1:]):
+        out += X * (T / ti)
+    return _sym(out)
 
 
 def minkowski_sum(ellipsoids: Iterable[Ellipsoid], weight: np.ndarray | None = None) -> Ellipsoid:

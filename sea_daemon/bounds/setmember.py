@@ -47,7 +47,7 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.special import gammaincinv
 
-from .ellipsoid import Ellipsoid, minkowski_shape, segments_shapes, sqrtm_psd
+from .ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
 
 
 def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
@@ -73,6 +73,23 @@ def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed + 7919 * d)
     U = rng.standard_normal((m, d))
     return U / np.linalg.norm(U, axis=1, keepdims=True)
+
+
+def ellipsoid_points(C: Ellipsoid, U: np.ndarray) -> np.ndarray:
+    """Deterministic points of C = E(c, X): the centre, c ± principal semi-axes, the
+    coordinate-extreme points c ± X e_i/√X_ii, c ± X^{1/2} u and c ± ½ X^{1/2} u for the unit
+    directions u in the rows of U ((m, dim); may be empty)."""
+    d = C.dim
+    w, V = np.linalg.eigh(C.X)
+    VS = V * np.sqrt(np.clip(w, 0.0, None))
+    ax = VS.T                                                   # principal semi-axes
+    dx = np.diag(C.X)
+    ext = np.zeros((d, d))
+    ok = dx > 0
+    ext[ok] = (C.X[:, ok] / np.sqrt(dx[ok])).T                  # argmax_{x∈C} x_i − c_i
+    rnd = np.asarray(U).reshape(-1, d) @ (VS @ V.T)             # X^{1/2} u (symmetric root)
+    offs = np.vstack([np.zeros((1, d)), ax, -ax, ext, -ext, rnd, -rnd, 0.5 * rnd, -0.5 * rnd])
+    return C.c + offs
 
 
 class SetMembershipBound:
@@ -143,17 +160,7 @@ class SetMembershipBound:
 
     def sample_points(self, C: Ellipsoid) -> np.ndarray:
         """The deterministic point set of C on which the linearisation error is maximised."""
-        d = self.d
-        w, V = np.linalg.eigh(C.X)
-        ax = (V * np.sqrt(np.clip(w, 0.0, None))).T                 # principal semi-axes
-        dx = np.diag(C.X)
-        ext = np.zeros((d, d))
-        ok = dx > 0
-        ext[ok] = (C.X[:, ok] / np.sqrt(dx[ok])).T                  # argmax_{x∈C} x_i − c_i
-        R = sqrtm_psd(C.X)
-        rnd = self._U @ R.T
-        offs = np.vstack([np.zeros((1, d)), ax, -ax, ext, -ext, rnd, -rnd, 0.5 * rnd, -0.5 * rnd])
-        return C.c + offs
+        return ellipsoid_points(C, self._U)
 
     def linearization_error_box(self, resid: Callable[[np.ndarray], np.ndarray], C: Ellipsoid) -> np.ndarray:
         """b_i ≈ max_{x∈C} |ε_i(x)| (eq:linerrsetdx), ε = resid(x) = f(x) − f̄(x).
