@@ -112,13 +112,15 @@ def innovations(A, C, L, y: np.ndarray, x0: np.ndarray | None = None, Bu: np.nda
 
 
 def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = True,
-             Q: np.ndarray | None = None, burn_in: int = 0) -> tuple[np.ndarray, np.ndarray]:
+             Q: np.ndarray | None = None, burn_in: int = 0,
+             R_basis: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """ALS estimate (Q, R) from the innovations of the fixed-gain filter (A, C, L).
 
     A (d×d), G (d×g), C (p×d), L (d×p); ``innovations`` (N, p); ``lags`` the number N of
     autocovariance lags; ``diag`` estimates diagonal Q, R (nnls, ≥ 0) or full symmetric ones
     (least squares + PSD projection); ``Q`` given → only R is estimated (Q returned as given);
-    ``burn_in`` leading innovations dropped (filter transient).
+    ``burn_in`` leading innovations dropped (filter transient); ``R_basis``: R = Σ θ_i B_i
+    with θ ≥ 0 over the given PSD matrices (a structured R, e.g. from independent sensors).
     Raises InputError if A − A L C is not stable or the data are too short.
     """
     A, G, C, L = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (A, G, C, L))
@@ -143,7 +145,8 @@ def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = T
     b = _stack(sample_autocov(ew, lags))
     Zg, Zp = np.zeros((g, g)), np.zeros((p, p))
     q_basis = [] if Q is not None else _basis(g, diag)
-    r_basis = _basis(p, diag)
+    # whitened basis S⁻¹ B S⁻¹ for a structured R
+    r_basis = _basis(p, diag) if R_basis is None else [np.asarray(B, float) / np.outer(s, s) for B in R_basis]
     cols = [_stack(model_autocov(A, G, Cw, Lw, Eq, Zp, lags)) for Eq in q_basis]
     cols += [_stack(model_autocov(A, G, Cw, Lw, Zg, Er, lags)) for Er in r_basis]
     M = np.column_stack(cols)
@@ -152,7 +155,7 @@ def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = T
     norms = np.linalg.norm(M, axis=0)
     norms[norms == 0] = 1.0
     Mn = M / norms
-    if diag:
+    if diag or (R_basis is not None and Q is not None):
         theta, _ = nnls(Mn, b)
     else:
         theta = np.linalg.lstsq(Mn, b, rcond=None)[0]
@@ -161,8 +164,120 @@ def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = T
     Qhat = np.asarray(Q, float) if Q is not None else sum(t * E for t, E in zip(theta[:nq], q_basis))
     Rw = sum(t * E for t, E in zip(theta[nq:], r_basis))
     Rhat = Rw * np.outer(s, s)
+    if R_basis is not None:
+        identify.theta_R_ = theta[nq:].copy()      # the coefficients of the structured R
     if not diag:
         Rhat = _psd(Rhat)
         if Q is None:
             Qhat = _psd(Qhat)
     return Qhat, Rhat
+
+
+# ---------------------------------------------------------------------------- SEA logs
+
+def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = True,
+                   q_known: bool = False, channels: str = "angles") -> dict:
+    """ALS on a measured log for the SEA AKF's R (and Q), as Sec. V-B does.
+
+    1. run the AKF of ``cfg`` over ``log`` (its measurement y = [θ_m, θ_s, θ̇_m, θ̇_s] from the
+       encoders and its state estimates);
+    2. linearise the SEA model at the log's mean operating point (x̄, ū) and discretise it
+       (SEAModel.F_nom + local-linearisation step): x_{k+1} = F x_k + Γ_u u_k + c, with the
+       affine term c of the linearisation;
+    3. fixed gain L from the DARE with the configured Σ_nom, R (ALS only needs A − ALC stable);
+    4. innovations of that fixed-gain filter over the same y, u; ALS (:func:`identify`).
+
+    The fixed-gain linear filter (not the AKF's own time-varying innovations) is what the
+    ALS theory assumes; non-linearities away from the operating point are absorbed in Q.
+
+    ``channels``: ALS needs white measurement noise.  The encoder angles have it; the
+    velocities of y come from the causal differentiator, i.e. they are the angle noise
+    passed through an FIR filter — coloured and correlated with the angles.  "angles"
+    (default) therefore runs ALS on y_angles = [θ_m, θ_s] only, with R structured as two
+    independent encoders per joint (θ_m sees ν_m, θ_s = q − θ_m sees ν_q − ν_m, so
+    Cov(θ_m, θ_s) = −σ²_m): the unknowns are the encoder variances σ²_m, σ²_q ≥ 0 (nnls).
+    The velocity block follows from the differentiator's FIR rows c_a, c_v
+    (CausalDifferentiator.C): R_vel = ‖c_v‖² R_ang, R_ang,vel = (c_a·c_v) R_ang — the
+    covariance of the differentiated white noise at one instant (its time correlation is
+    not representable in R).  The returned R is then a full 4n×4n matrix.  "all" runs ALS on the four channels as
+    the paper does (the white-noise assumption is then violated for the velocities).
+    Returns a dict with R, Q (G = I, the AKF's Σ_nom convention), the operating point,
+    the number of innovations used and the spectral radius of A − A L C.
+    """
+    from .estimators.akf import AKF
+    from .model import discretize
+    from .bounds.setmember import input_matrix
+
+    n = cfg.joints
+    N = len(log)
+    if N <= burn_in + 2 * lags + 1:
+        raise InputError(f"{log.path}: identify-noise needs more than {burn_in + 2 * lags + 1} samples "
+                         f"(burn-in {burn_in} + 2 × {lags} lags), got {N}")
+    akf = AKF(cfg, dt=log.dt)
+    model = akf.model
+    Y = np.empty((N, 4 * n))
+    X = np.empty((N, 5 * n))
+    U = np.empty((N, n))                      # input applied over step k → k+1
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    Y[0], X[0] = akf.y, akf.x
+    for k in range(1, N):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        U[k - 1] = akf.u_applied if akf._has_delay else log.tau_m[k - 1]
+        Y[k], X[k] = akf.y, akf.x
+    U[N - 1] = log.tau_m[N - 1]
+    dt = float(np.median(np.diff(log.t)))
+    x_op, u_op = X.mean(axis=0), U.mean(axis=0)
+    A = model.F_nom(x_op, u_op)
+    dx_op, F = discretize(A, model.f_nom(x_op, u_op), dt)
+    G_u = input_matrix(A, model.B_nom(), dt)
+    # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
+    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    if channels not in ("angles", "all"):
+        raise InputError(f"channels must be 'angles' or 'all', got {channels!r}")
+    p = 2 * n if channels == "angles" else 4 * n
+    H = akf.H[:p]
+    Y = Y[:, :p]
+    R0 = np.array(cfg.estimator.R, dtype=float)[:p, :p]
+    Q0 = np.array(cfg.estimator.Sigma_nom, dtype=float)
+    try:
+        L = stable_gain(F, H, Q0 + 1e-12 * np.eye(5 * n), R0 + 1e-12 * np.eye(p))
+    except (np.linalg.LinAlgError, ValueError) as e:
+        raise InputError(f"identify-noise: no stabilising filter gain for the linearised model ({e}); "
+                         f"check estimator.R and estimator.Sigma_nom") from None
+    e = innovations(F, H, L, Y, x0=X[0], Bu=U @ G_u.T + c)
+    basis = None
+    if channels == "angles":
+        # y_angles = [θ_m, θ_s] = T_e [θ_m,enc, q_enc] + noise of two independent encoders per joint:
+        # θ_m sees ν_m, θ_s = q − θ_m sees ν_q − ν_m  ⇒  R = Σ_j σ²_m,j B_m,j + σ²_q,j B_q,j
+        basis = []
+        for j in range(n):
+            t_m = np.zeros(2 * n)
+            t_m[j], t_m[n + j] = 1.0, -1.0
+            t_q = np.zeros(2 * n)
+            t_q[n + j] = 1.0
+            basis += [np.outer(t_m, t_m), np.outer(t_q, t_q)]
+    # process noise enters through the velocity and τ_h,act states only (G = [0; I_3n]):
+    # angles integrate the velocities, so their own per-step noise is not identifiable from
+    # measurement noise on them and is physically negligible
+    Gq = np.eye(5 * n)[:, 2 * n:]
+    Qhat, Rhat = identify(F, Gq, H, L, e, lags=lags, diag=diag,
+                          Q=Q0[2 * n:, 2 * n:] if q_known else None, burn_in=burn_in, R_basis=basis)
+    Q_full = np.zeros((5 * n, 5 * n))
+    Q_full[2 * n:, 2 * n:] = Qhat
+    Qhat = Q_full
+    rad = float(np.max(np.abs(np.linalg.eigvals(F - F @ L @ H))))
+    enc = None
+    if channels == "angles":
+        Cf = np.asarray(akf.kin.C, dtype=float)     # FIR rows (angle, velocity, acceleration)
+        g_v2 = float(Cf[1] @ Cf[1])                 # velocity noise gain²
+        c_av = float(Cf[0] @ Cf[1])                 # angle–velocity noise cross gain
+        R_full = np.zeros((4 * n, 4 * n))
+        # velocity noise = the differentiator's FIR applied to the same white angle noise
+        R_full[:2 * n, :2 * n] = Rhat
+        R_full[2 * n:, 2 * n:] = g_v2 * Rhat
+        R_full[:2 * n, 2 * n:] = R_full[2 * n:, :2 * n] = c_av * Rhat
+        Rhat = R_full
+        th = identify.theta_R_
+        enc = {"theta_m": th[0::2].tolist(), "q": th[1::2].tolist()}
+    return {"R": Rhat, "channels": channels, "encoder_variances": enc, "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
+            "lags": lags, "spectral_radius": rad}
