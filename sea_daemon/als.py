@@ -175,6 +175,32 @@ def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = T
 
 # ---------------------------------------------------------------------------- SEA logs
 
+def encoder_R(var_m, var_q, fir) -> np.ndarray:
+    """R (4n×4n) of y = [θ_m, θ_s, θ̇_m, θ̇_s] from independent white encoder noises.
+
+    θ_m sees ν_m, θ_s = q − θ_m sees ν_q − ν_m; the velocities are the differentiator's FIR
+    (rows c_a, c_v of ``fir``) applied to the same noise: R_vel = ‖c_v‖² R_ang,
+    R_ang,vel = (c_a·c_v) R_ang.
+    """
+    var_m = np.atleast_1d(np.asarray(var_m, dtype=float))
+    var_q = np.atleast_1d(np.asarray(var_q, dtype=float))
+    n = var_m.size
+    Ra = np.zeros((2 * n, 2 * n))
+    for j in range(n):
+        t_m = np.zeros(2 * n)
+        t_m[j], t_m[n + j] = 1.0, -1.0
+        Ra += var_m[j] * np.outer(t_m, t_m)
+        Ra[n + j, n + j] += var_q[j]
+    Cf = np.asarray(fir, dtype=float)
+    g_v2 = float(Cf[1] @ Cf[1])
+    c_av = float(Cf[0] @ Cf[1])
+    R = np.zeros((4 * n, 4 * n))
+    R[:2 * n, :2 * n] = Ra
+    R[2 * n:, 2 * n:] = g_v2 * Ra
+    R[:2 * n, 2 * n:] = R[2 * n:, :2 * n] = c_av * Ra
+    return R
+
+
 def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = True,
                    q_known: bool = False, channels: str = "angles") -> dict:
     """ALS on a measured log for the SEA AKF's R (and Q), as Sec. V-B does.
@@ -268,16 +294,8 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     rad = float(np.max(np.abs(np.linalg.eigvals(F - F @ L @ H))))
     enc = None
     if channels == "angles":
-        Cf = np.asarray(akf.kin.C, dtype=float)     # FIR rows (angle, velocity, acceleration)
-        g_v2 = float(Cf[1] @ Cf[1])                 # velocity noise gain²
-        c_av = float(Cf[0] @ Cf[1])                 # angle–velocity noise cross gain
-        R_full = np.zeros((4 * n, 4 * n))
-        # velocity noise = the differentiator's FIR applied to the same white angle noise
-        R_full[:2 * n, :2 * n] = Rhat
-        R_full[2 * n:, 2 * n:] = g_v2 * Rhat
-        R_full[:2 * n, 2 * n:] = R_full[2 * n:, :2 * n] = c_av * Rhat
-        Rhat = R_full
         th = identify.theta_R_
         enc = {"theta_m": th[0::2].tolist(), "q": th[1::2].tolist()}
-    return {"R": Rhat, "channels": channels, "encoder_variances": enc, "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
+        Rhat = encoder_R(th[0::2], th[1::2], akf.kin.C)
+    return {"R": Rhat, "channels": channels, "encoder_variances": enc, "fir": np.asarray(akf.kin.C, float), "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
             "lags": lags, "spectral_radius": rad}

@@ -55,19 +55,30 @@ def run(args) -> int:
         raise InputError(f"--burn-in must be >= 0, got {args.burn_in}")
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
-    from ..als import identify_noise
+    from ..als import encoder_R, identify_noise
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints
     R = np.array(res["R"])
-    floored = [int(i) for i in np.flatnonzero(np.diag(R) < R_FLOOR)]
-    R[np.diag_indices(4 * n)] = np.maximum(np.diag(R), R_FLOOR)
+    enc = res["encoder_variances"]
+    if enc is not None:
+        # floor: the quantisation noise of a hardware.encoder_bits encoder, (2π/2^bits)²/12
+        q_var = (2 * np.pi / 2 ** cfg.hardware.encoder_bits) ** 2 / 12.0
+        vm, vq = np.array(enc["theta_m"]), np.array(enc["q"])
+        floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < q_var)]
+        floored += [f"q_{j + 1}" for j in np.flatnonzero(vq < q_var)]
+        vm, vq = np.maximum(vm, q_var), np.maximum(vq, q_var)
+        enc = {"theta_m": vm.tolist(), "q": vq.tolist()}
+        R = encoder_R(vm, vq, res["fir"])
+    else:
+        floored = [int(i) for i in np.flatnonzero(np.diag(R) < R_FLOOR)]
+        R[np.diag_indices(4 * n)] = np.maximum(np.diag(R), R_FLOOR)
     full = args.full or args.channels == "angles"     # the angles mode gives a structured full R
     out = {"log": str(args.log), "config": str(args.config), "samples": len(log),
            "innovations": res["innovations"], "lags": res["lags"], "channels": res["channels"],
            "R": R.tolist() if full else np.diag(R).tolist(),
            "R_diag": np.diag(R).tolist(),
-           "encoder_variances": res["encoder_variances"],
+           "encoder_variances": enc,
            "R_config": np.diag(cfg.estimator.R).tolist(),
            "floored": floored, "filter_spectral_radius": round(res["spectral_radius"], 6),
            "operating_point": {"x": res["x_op"].tolist(), "tau_m": res["u_op"].tolist()}}
