@@ -261,8 +261,13 @@ class LearningConfig:
                 out[k] = v
         if "overlap" in d:
             out["overlap"] = _num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
-        if "lengthscales" in d:
-            out["lengthscales"] = tuple(_vector(source, "learning.lengthscales", d["lengthscales"], 3 * n, positive=True))
+        # one length scale per input dimension of z = [q, q̇, q̈] (3n); three values are
+        # taken as (l_q, l_q̇, l_q̈) for every joint
+        ls = d.get("lengthscales", cls.lengthscales)
+        if isinstance(ls, (list, tuple)) and len(ls) == 3 and n > 1:
+            ls = list(np.repeat(np.asarray(ls, dtype=float), n)) if all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in ls) else ls
+        out["lengthscales"] = tuple(float(v) for v in _vector(source, "learning.lengthscales", ls, 3 * n, positive=True))
         for k in ("sigma_f", "sigma_n"):
             if k in d:
                 out[k] = _num(source, f"learning.{k}", d[k], positive=True)

@@ -32,13 +32,15 @@ class MinJerkTrajectory:
     """``moves`` minimum-jerk moves alternating q_start → q_end → q_start …, each ``move_s`` long.
 
     Angles in rad.  Before t = 0 the reference is q_start; after the last move it holds the
-    last target.
+    last target, unless ``cyclic``: then the moves go on back and forth forever (so a run of
+    any length continues seamlessly).
     """
 
     q_start: float
     q_end: float
     move_s: float
     moves: int
+    cyclic: bool = False
 
     @property
     def duration(self) -> float:
@@ -48,7 +50,9 @@ class MinJerkTrajectory:
         """(q_ref, q̇_ref, q̈_ref) at time t [s]."""
         if t <= 0.0:
             return self.q_start, 0.0, 0.0
-        i = min(int(t // self.move_s), self.moves - 1)
+        i = int(t // self.move_s)
+        if not self.cyclic:
+            i = min(i, self.moves - 1)
         tau = min((t - i * self.move_s) / self.move_s, 1.0)
         a, b = (self.q_start, self.q_end) if i % 2 == 0 else (self.q_end, self.q_start)
         s, ds, dds = min_jerk(tau)

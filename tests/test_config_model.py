@@ -104,3 +104,14 @@ def test_discretize_is_exact_for_linear_system():
     big = expm(np.block([[A, B], [np.zeros((1, 5))]]) * dt)
     np.testing.assert_allclose(Fd, big[:4, :4], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(x + dx, big[:4, :4] @ x + big[:4, 4:] @ u, rtol=1e-10, atol=1e-12)
+
+
+def test_two_joint_config_roundtrips_with_default_learning(tmp_path):
+    from sea_daemon.config import save_config
+    d = {"joints": 2, "rate_hz": 100, "model": {"M": 0.1, "J": 0.1, "D_m": 0.1, "K_s": 100, "D_s": 0.1}}
+    cfg = ModelConfig.from_dict(d)
+    assert len(cfg.learning.lengthscales) == 6
+    save_config(cfg, tmp_path / "c.yaml")
+    assert load_config(tmp_path / "c.yaml").learning.lengthscales == cfg.learning.lengthscales
+    d["learning"] = {"lengthscales": [1, 2, 3]}
+    assert ModelConfig.from_dict(d).learning.lengthscales == (1, 1, 2, 2, 3, 3)

@@ -134,3 +134,49 @@ def test_bad_csv_through_subprocess(tmp_path):
                         "--out", str(tmp_path / "e.csv")], capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr and f"{p}:3" in r.stderr
+
+
+def test_bench_latency_runs(capsys):
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1"])
+    out, _ = capsys.readouterr()
+    assert code == 0
+    assert "machine:" in out and "akf: per step median" in out and "(50 runs)" in out
+    assert cli.main(["bench", "latency", "--estimators", "magic"]) == 2
+
+
+def test_replay_two_joints_suffixed_columns(tmp_path, capsys):
+    import yaml
+    from sea_daemon.config import ModelConfig
+    d = {"joints": 2, "rate_hz": 100, "model": {
+        "M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": [0.6, 0.4], "K_s": [110.0, 80.0],
+        "D_s": [0.25, 0.2], "gravity": [2.0, 0.5]}}
+    cfg = ModelConfig.from_dict(d)
+    cp = tmp_path / "two.yaml"
+    cp.write_text(yaml.safe_dump(d))
+    log = simulate(SEAModel.from_config(cfg), T=1.0, tau_h=lambda t: np.array([0.5, -0.3 * t]), seed=5)
+    lp = tmp_path / "two.csv"
+    write_log(lp, log)
+    code, out, err = run_cli(["replay", str(lp), "--config", str(cp), "--estimator", "akf",
+                              "--out", str(tmp_path / "e.csv")], capsys)
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["joints"] == 2 and len(s["rmse_per_joint"]) == 2 and s["rmse"] < 0.3
+    header = (tmp_path / "e.csv").read_text().splitlines()[0].split(",")
+    for c in ("tau_h_act_hat_1", "tau_h_act_hat_2", "tau_h_act_bound_2", "tau_h_act_sigma_1", "tau_h_act_2",
+              "dtheta_s_hat_2"):
+        assert c in header
+    # a one-joint log against the two-joint config names the missing columns
+    code, _, err = run_cli(["replay", str(log_path_one(tmp_path)), "--config", str(cp), "--estimator", "akf",
+                            "--out", str(tmp_path / "e2.csv")], capsys)
+    assert code == 2 and "q_1" in err
+
+
+def log_path_one(tmp_path):
+    return _write(tmp_path / "one.csv", GOOD_HEAD + "0,0,0,0\n0.01,0,0,0\n")
+
+
+def test_train_is_validated_and_noted_for_akf(log_path, tmp_path, capsys):
+    code, out, err = run_cli(["replay", str(log_path), "--config", CFG, "--train", str(log_path),
+                              "--estimator", "spring", "--out", str(tmp_path / "e.csv")], capsys)
+    assert code == 0 and "--train is used only by gp-akf" in err
+    assert json.loads(out)["estimator"] == "spring"

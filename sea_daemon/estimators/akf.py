@@ -24,14 +24,17 @@ input history.  An "oracle" AKF is this class built from the true plant's config
 Pure numerics: no I/O, no clock, no threads.  Per-step quantities the Theorem-1 bounds
 need are kept as attributes: ``A_k`` (continuous Jacobian), ``F_k`` (discrete transition),
 ``Gamma_mu`` (discrete map of a torque error held over the step to the state), ``Q_k``,
-``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``y``, ``P`` (posterior).
+``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior);
+and the causal kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
+[q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
+step's own dt.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, expm, LinAlgError
+from scipy.linalg import expm
 
 from ..config import ModelConfig
 from ..errors import EstimatorFault
@@ -117,6 +120,7 @@ class AKF:
         self.K_k = np.zeros((d, m))
         self.S_k = np.zeros((m, m))
         self.innovation = np.zeros(m)
+        self.nis = 0.0
         self.y = np.zeros(m)
         self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
         self.mu = np.zeros(n)
@@ -155,6 +159,9 @@ class AKF:
         y[2 * n:3 * n] = vel[n:]
         np.subtract(vel[:n], vel[n:], out=y[3 * n:])
         self._ddq[:] = acc[:n]
+        # the causal kinematics of this sample, [q, θ_m] each (views, overwritten next sample):
+        # what a learner needs for training pairs (eq:loadsidewmotor) with the same filter
+        self.kin_angle, self.kin_vel, self.kin_acc = ang, vel, acc
         return y
 
     def _push_input(self, tau_m) -> None:
@@ -275,15 +282,20 @@ class AKF:
         # Alg. 1 line 6: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹  (H = [I 0])
         S = self.S_k
         np.add(Pm[:m, :m], self.R, out=S)
+        # positive-definiteness check of S (Cholesky), then K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ
         try:
-            cf = cho_factor(S, check_finite=True)
-        except (LinAlgError, ValueError):
+            if not np.isfinite(S).all():
+                raise np.linalg.LinAlgError
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
             raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
                                  f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0") from None
         K = self.K_k
-        K[:] = cho_solve(cf, Pm[:, :m].T, check_finite=False).T
+        K[:] = np.linalg.solve(S, Pm[:m, :]).T
         # Alg. 1 line 7: x̂ = x̂⁻ + K (y − H x̂⁻)
         np.subtract(y, self.x_prior[:m], out=self.innovation)
+        # normalised innovation squared νᵀ S⁻¹ ν (χ²_{4n} when the filter is consistent)
+        self.nis = float(self.innovation @ np.linalg.solve(S, self.innovation))
         np.dot(K, self.innovation, out=x)
         x += self.x_prior
         # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)

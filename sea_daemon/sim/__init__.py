@@ -6,6 +6,9 @@
 - :mod:`.runner`    runs a scenario's training and estimation phases to measured logs
 """
 from .plant import Plant
+from .runner import SimResult, simulate
+from .scenario import Scenario, load_scenario
 from .sensors import Encoders, load_quantum, motor_quantum
 
-__all__ = ["Plant", "Encoders", "load_quantum", "motor_quantum"]
+__all__ = ["Plant", "Encoders", "load_quantum", "motor_quantum", "Scenario", "load_scenario",
+           "SimResult", "simulate"]

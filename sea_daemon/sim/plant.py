@@ -140,6 +140,10 @@ class Plant:
         """Encoder readings (q, θ_m) on the joint side: quantised, with encoder offsets."""
         return self.encoders.read(self._y[:self.n], self._y[self.n:2 * self.n])
 
+    def raw_counts(self) -> dict[str, np.ndarray]:
+        """What the encoders put on the bus: single-turn counts and motor-shaft turns (:meth:`Encoders.raw`)."""
+        return self.encoders.raw(self._y[:self.n], self._y[self.n:2 * self.n])
+
     # ------------------------------------------------------------------ statics
 
     def static_equilibrium(self, q: np.ndarray, tau_h_act=None) -> tuple[np.ndarray, np.ndarray]:
@@ -164,9 +168,13 @@ class Plant:
                     v[j] = ts
                     return m.spring_torque(v, z)[j] - target[j]
                 lo_b, hi_b = -0.5, 0.5
-                while g(lo_b) > 0:
+                for _ in range(60):        # τ_s is non-decreasing and unbounded in θ_s
+                    if g(lo_b) <= 0:
+                        break
                     lo_b *= 2
-                while g(hi_b) < 0:
+                for _ in range(60):
+                    if g(hi_b) >= 0:
+                        break
                     hi_b *= 2
                 th_s[j] = brentq(g, lo_b, hi_b, xtol=1e-14, rtol=1e-14)
         else:
@@ -185,7 +193,10 @@ class Plant:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         n = self.n
-        u = np.clip(np.broadcast_to(np.asarray(tau_m, dtype=float), (n,)), -self.torque_limit, self.torque_limit)
+        u = np.broadcast_to(np.asarray(tau_m, dtype=float), (n,))
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(tau_h_act))):
+            raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
+        u = np.clip(u, -self.torque_limit, self.torque_limit)
         u = u + torque_noise(self.rng, self.noise_std, n)
         self._u_applied = u
         self._tau_h = np.broadcast_to(np.asarray(tau_h_act, dtype=float), (n,)).copy()

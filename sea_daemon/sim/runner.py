@@ -8,7 +8,9 @@ Per sample k (period dt = 1/rate_hz of the nominal model config), at t_k:
 
 The training phase is followed seamlessly by the estimation phase (same plant, same
 controller state; time keeps running, so the estimation log starts at t = N_train·dt).
-Passive scenario (Sec. V-B): the same trajectory is run again.  Active scenario (Sec. V-C):
+Passive scenario (Sec. V-B): the moves continue back and forth, so with the training phase a
+whole number of move pairs (2100 samples = 6 moves) the estimation phase runs the same
+trajectory again.  Active scenario (Sec. V-C):
 τ_des = 0 in training, the cosine profile (phase time) in estimation, and the subject
 holds the arm: τ_h,act = −τ_des exactly.
 """
@@ -52,7 +54,10 @@ def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
     pid = traj = ol = None
     if isinstance(ctrl, PIDSpec):
         tr = ctrl.trajectory
-        traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves)
+        # cyclic: the estimation phase continues the back-and-forth moves seamlessly (with the
+        # shipped 2100 = 6 moves of training it starts again at q_start: the same trajectory)
+        traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
+                                 cyclic=True)
         pid = PID(ctrl.kp, ctrl.ki, ctrl.kd, dt, sc.nominal.hardware.torque_limit, ctrl.velocity_filter_hz,
                   derivative=ctrl.derivative)
         q_meas, th_meas = plant.measure()
@@ -72,7 +77,7 @@ def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
             q_meas, th_meas = plant.measure()
             tau_des = 0.0
             if pid is not None:
-                q_ref, dq_ref, _ = traj.reference(tp)
+                q_ref, dq_ref, _ = traj.reference((k0 + k) * dt)
                 u = pid.step(q_ref, q_meas, dq_ref, th_meas)
             else:
                 q_ref = ctrl.q0

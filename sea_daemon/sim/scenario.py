@@ -16,9 +16,9 @@ drives the exoskeleton, and how long the training and estimation phases are::
     controller:                    # one of:
       type: pid                    #   PID position control on a minimum-jerk trajectory
       kp: 40.0                     #   [N m/rad]
-      ki: 60.0                     #   [N m/(rad s)]
-      kd: 3.0                      #   [N m s/rad]
-      velocity_filter_hz: 20.0
+      ki: 80.0                     #   [N m/(rad s)]
+      kd: 2.0                      #   [N m s/rad]
+      velocity_filter_hz: 30.0     #   low-pass of the differentiated angle [Hz]
       derivative: motor            #   D term on the motor (collocated) or load velocity
       trajectory: {q_start_deg: 10, q_end_deg: 75, move_s: 3.5, moves: 6}
     # controller: {type: open_loop, q0_deg: 10,
