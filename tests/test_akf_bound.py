@@ -101,3 +101,24 @@ def test_phi_shortcut_matches_expm():
     full = input_matrix(akf.A_k, np.eye(5), akf.dt)
     np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
+
+
+def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.estimators import make_estimator
+    cfg = load_config(default_config_path())
+    res = learning.ResidualGP(1, cfg.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(120):
+        z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
+        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0]]))
+    est = make_estimator("akf", cfg, residual=res)
+    tb = est.theorem_bound
+    log = simulate(SEAModel.from_config(cfg), T=0.3, seed=4)
+    out = run(est, log)
+    assert tb.gp_constants is not None and len(tb.gp_constants) == 1
+    assert tb.gp_constants[0].n_leaves == cfg.learning.max_leaves
+    assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
+    # ρ ≥ the Gaussian part alone, at the GP-AKF's δ_N = δ/2
+    s = chi2_quantile(1 - cfg.estimator.delta / 2, 5)
+    assert np.all(out[1:, 1] >= np.sqrt(s * out[1:, 2]) - 1e-12)

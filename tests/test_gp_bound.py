@@ -149,3 +149,21 @@ def test_leaves_with_different_hyperparameters_use_the_maxima():
     for one in (a, b):
         c = error_bound([one], [0, 0], [1, 1], 0.05, L_f=1.0, n_leaves=2, tau_grid=[both.tau])
         assert c.sqrt_beta <= both.sqrt_beta + 1e-12 and c.gamma <= both.gamma + 1e-12
+
+
+def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
+    loggp = pytest.importorskip("sea_daemon.loggp")
+    rng = np.random.default_rng(8)
+    gp = loggp.LoGGP(input_dim=1, max_points=15, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.05, seed=0)
+    Xg = np.linspace(0.0, 3.0, 150)[:, None]
+    Lc = np.linalg.cholesky(se_kernel(Xg, Xg, 1.0, np.array([0.3])) + 1e-10 * np.eye(len(Xg)))
+    f = Lc @ rng.standard_normal(len(Xg))
+    for i in rng.choice(len(Xg), 60, replace=True):
+        gp.update(Xg[i], float(f[i] + 0.05 * rng.standard_normal()))
+    from sea_daemon.bounds.gp_bound import loggp_leaves
+    leaves = loggp_leaves(gp)
+    assert len(leaves) == len(gp.leaves()) > 1 and sum(lf.N for lf in leaves) == 60
+    c = error_bound(leaves, [0.0], [3.0], 0.05, delta_lipschitz=0.005, n_leaves=50)
+    pred = np.array([gp.predict(x) for x in Xg])
+    # the merged prediction with its (mixture) σ̃ satisfies the bound on this sample
+    assert np.all(np.abs(f - pred[:, 0]) <= c.eta(np.sqrt(pred[:, 1])))
