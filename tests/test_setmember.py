@@ -75,7 +75,7 @@ class Pendulum:
         return x + self.dt * self.f(x, u)
 
 
-def run_pendulum(seed, steps=250, eta=0.3, delta=0.05):
+def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
     """EKF + Theorem-1 bound on a pendulum with a persistent bounded disturbance |d| ≤ η."""
     pl = Pendulum()
     rng = np.random.default_rng(seed)
@@ -87,7 +87,7 @@ def run_pendulum(seed, steps=250, eta=0.3, delta=0.05):
     x_true = np.array([rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1)])
     P = np.diag([0.05, 0.05, 1.0])
     x = x_true + rng.multivariate_normal(np.zeros(d), P)
-    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal")
+    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal", n_dirs=4)
     sign = rng.choice([-1.0, 1.0])
     hit_set, hit_kf = [], []
     s_1 = chi2.ppf(1 - delta, 1)
