@@ -8,6 +8,10 @@ the theorem's assumptions hold), the coverage of the KF's own χ² bound √(s P
 run, mean ρ, mean |error|, median step time; plus a plot of the estimate with the ρ band
 against the truth.
 
+Known result (docs/bounds.md §4): with the true plant's smoothed Coulomb/Stribeck friction
+declared (oracle), the EKF's Jacobian at θ̇ ≈ 0 has slope F_c/sign_eps, and the first-order
+linearisation error over the confidence set is huge — ρ_k is valid but far too wide.
+
 Estimators: ``akf`` (nominal model: the unmodelled human/friction dynamics are an
 *unbounded* model error for Theorem 1, so no coverage is promised), ``oracle-akf`` (the true
 plant's configuration: no model error — Theorem 1's assumptions hold up to the noise model),
@@ -147,6 +151,11 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
         ax.plot(t0, h[:, 0], color=c, lw=1.2, label=f"{label} ± ρ")
         ax.fill_between(t0, h[:, 0] - r[:, 0], h[:, 0] + r[:, 0], color=c, alpha=0.15, lw=0)
     ax.plot(t0, truth[:, 0], "k:", lw=1.6, label="truth")
+    # keep the estimates readable when a ρ band is huge (it is then clipped by the axes)
+    lo = min(truth[:, 0].min(), *(h[:, 0].min() for h, _ in curves.values()))
+    hi = max(truth[:, 0].max(), *(h[:, 0].max() for h, _ in curves.values()))
+    pad = max(2.0, 0.5 * (hi - lo))
+    ax.set_ylim(lo - pad, hi + pad)
     ax.set_xlabel("t [s]")
     ax.set_ylabel(r"$\hat\tau_{h,act}$ [N m]")
     ax.set_title(title)
