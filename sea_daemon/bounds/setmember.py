@@ -34,7 +34,7 @@ radius), then inflated by a relative margin (default 25 %).  This is exact when 
 quadratic form in a principal direction of C_k (e.g. the gravity term sin q in 1-D) and
 approximate otherwise: a sharp nonlinearity between the points (Coulomb friction, a
 backlash corner) can be under-sampled.  A caller with an analytic bound passes
-``lin_err_box`` instead (see ``sea_model_residual``).  The residual is evaluated either
+``lin_err_box`` instead (the AKF adapter does so for the gravity term, akf_bound.py).  The residual is evaluated either
 in discrete time (ε = f_d(x) − f_d(x̂) − F_d(x − x̂), Φ = I: exact for the discrete model)
 or in continuous time (ε_c = f(x) − f(x̂) − A(x − x̂) mapped by Φ = ∫₀^dt e^{As} ds, the
 zero-order-hold approximation: exact if ε_c is constant over the step).
