@@ -113,14 +113,15 @@ def innovations(A, C, L, y: np.ndarray, x0: np.ndarray | None = None, Bu: np.nda
 
 def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = True,
              Q: np.ndarray | None = None, burn_in: int = 0,
-             R_basis: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+             R_basis: list[np.ndarray] | None = None, return_coefficients: bool = False):
     """ALS estimate (Q, R) from the innovations of the fixed-gain filter (A, C, L).
 
     A (d×d), G (d×g), C (p×d), L (d×p); ``innovations`` (N, p); ``lags`` the number N of
     autocovariance lags; ``diag`` estimates diagonal Q, R (nnls, ≥ 0) or full symmetric ones
     (least squares + PSD projection); ``Q`` given → only R is estimated (Q returned as given);
     ``burn_in`` leading innovations dropped (filter transient); ``R_basis``: R = Σ θ_i B_i
-    with θ ≥ 0 over the given PSD matrices (a structured R, e.g. from independent sensors).
+    with θ ≥ 0 over the given PSD matrices (a structured R, e.g. from independent sensors);
+    ``return_coefficients``: return (Q, R, θ_R) with the coefficients of R in its basis.
     Raises InputError if A − A L C is not stable or the data are too short.
     """
     A, G, C, L = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (A, G, C, L))
@@ -164,12 +165,12 @@ def identify(A, G, C, L, innovations: np.ndarray, lags: int = 15, diag: bool = T
     Qhat = np.asarray(Q, float) if Q is not None else sum(t * E for t, E in zip(theta[:nq], q_basis))
     Rw = sum(t * E for t, E in zip(theta[nq:], r_basis))
     Rhat = Rw * np.outer(s, s)
-    if R_basis is not None:
-        identify.theta_R_ = theta[nq:].copy()      # the coefficients of the structured R
     if not diag:
         Rhat = _psd(Rhat)
         if Q is None:
             Qhat = _psd(Qhat)
+    if return_coefficients:
+        return Qhat, Rhat, theta[nq:].copy()
     return Qhat, Rhat
 
 
@@ -286,15 +287,16 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     # angles integrate the velocities, so their own per-step noise is not identifiable from
     # measurement noise on them and is physically negligible
     Gq = np.eye(5 * n)[:, 2 * n:]
-    Qhat, Rhat = identify(F, Gq, H, L, e, lags=lags, diag=diag,
-                          Q=Q0[2 * n:, 2 * n:] if q_known else None, burn_in=burn_in, R_basis=basis)
+    Qhat, Rhat, theta_R = identify(F, Gq, H, L, e, lags=lags, diag=diag,
+                                   Q=Q0[2 * n:, 2 * n:] if q_known else None, burn_in=burn_in,
+                                   R_basis=basis, return_coefficients=True)
     Q_full = np.zeros((5 * n, 5 * n))
     Q_full[2 * n:, 2 * n:] = Qhat
     Qhat = Q_full
     rad = float(np.max(np.abs(np.linalg.eigvals(F - F @ L @ H))))
     enc = None
     if channels == "angles":
-        th = identify.theta_R_
+        th = theta_R
         enc = {"theta_m": th[0::2].tolist(), "q": th[1::2].tolist()}
         Rhat = encoder_R(th[0::2], th[1::2], akf.kin.C)
     return {"R": Rhat, "channels": channels, "encoder_variances": enc, "fir": np.asarray(akf.kin.C, float), "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
