@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
 from .gp_bound import BoundConstants, error_bound, input_box, loggp_leaves
 from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
@@ -189,6 +190,8 @@ class AKFTheoremBound:
         u = np.array(u, dtype=float)
         est = self._step(y, u, dt)
         sm = self.sm
+        if not np.all(np.isfinite(sm.X_)):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
         if self._fast:
@@ -212,6 +215,10 @@ class AKFTheoremBound:
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         sm.update(akf.K_k, akf.H)
+        if not np.all(np.isfinite(sm.X_)):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
+                                 f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
+                                 f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
         return est
 
