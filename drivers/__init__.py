@@ -1,0 +1,22 @@
+"""Hardware layer of sea-daemon: the SEA exoskeleton behind one narrow interface.
+
+* :mod:`drivers.interface` — :class:`HardwareInterface` (``start/read/write/safe_stop/stop``) and
+  the :class:`Measurement` a ``read()`` returns.
+* :mod:`drivers.canopen_hw` — the CANopen implementation (CiA 402 drive + CiA 406 load encoder):
+  start-up over SDO, then a PDO-only cycle (RPDO, SYNC, the cycle's TPDOs).
+* :mod:`drivers.sim_hw` — the same interface directly on the simulator, no CAN.
+* :mod:`drivers.bus` — ``make_bus(config)`` for virtual / socketcan / remote buses.
+* :mod:`drivers.device_model` — CANopen slaves (drive, encoder) on canopen's LocalNode with the
+  pieces LocalNode lacks, their physics from the simulator, and fault injection.
+* :mod:`drivers.errors` — the HardwareError subclasses, each naming node, object and range.
+* :mod:`drivers.hil_session` — a simulator scenario run through device model, bus and driver
+  (the HIL twin of ``sea_daemon.sim.runner.simulate``; used by ``sea-daemon demo``).
+
+See ``docs/can.md``.
+"""
+from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
+                     HeartbeatLost, PdoTimeout, SendFailed)
+from .interface import FaultFlag, HardwareInterface, Measurement
+
+__all__ = ["HardwareInterface", "Measurement", "FaultFlag", "PdoTimeout", "HeartbeatLost", "EmcyReceived",
+           "EncoderJump", "EncoderStuck", "BusOff", "SendFailed", "DeviceMismatch", "DriveFault"]

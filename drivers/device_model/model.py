@@ -1,0 +1,248 @@
+"""The device model: the exoskeleton's CANopen devices around the simulator's true plant.
+
+One :class:`DeviceModel` holds, per joint, a CiA 402 drive (:class:`DriveNode`) and a CiA 406
+load encoder (:class:`EncoderNode`) on one canopen Network, and a plant with the API of
+:class:`sea_daemon.sim.plant.Plant` (``step(tau_m, dt, tau_h_act)``, ``t, q, theta_m, dq,
+dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
+
+1. in **lock-step** mode steps the plant over the interval since the previous SYNC (the drive's
+   interpolation period 0x60C2) with the torque set-point in force — actuated at that SYNC
+   for a synchronous RPDO, on reception for an asynchronous one (transmission type 255) — and
+   reports it as torque actual 0x6077;
+2. writes the buffered synchronous RPDOs into the dictionaries (controlword, target torque);
+3. samples the encoders at the plant's state and sends the synchronous TPDOs.
+
+So the TPDOs of SYNC k show the state at t_k; a torque written after SYNC k acts over
+[t_k+1, t_k+2] with a synchronous RPDO and over [t_k, t_k+1] with an asynchronous one.  In
+**free-running** mode a thread steps the plant in real time with the set-point in force, and
+SYNC only samples.
+Faults (:mod:`.faults`) can be injected now or scheduled at a device time.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .drive import DriveNode
+from .encoder import EncoderNode
+from .faults import FaultSpec
+from .slave import DeviceNetwork
+
+TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
+
+
+class DeviceModel:
+    """Drives + load encoders + plant on a bus.  ``start()`` boots the nodes, ``stop()`` leaves."""
+
+    def __init__(self, bus, plant, *, drive_nodes: Sequence[int] = (1,), encoder_nodes: Sequence[int] = (2,),
+                 tau_h_act: Callable[[float], np.ndarray] | None = None, lock_step: bool = True,
+                 position_preset: int = 0, owns_bus: bool = False):
+        if len(drive_nodes) != len(encoder_nodes):
+            raise ValueError(f"one load encoder per drive: got {len(drive_nodes)} drives, "
+                             f"{len(encoder_nodes)} encoders")
+        self.bus, self.plant, self.owns_bus = bus, plant, owns_bus
+        self.n = len(drive_nodes)
+        self.lock_step = lock_step
+        self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
+        self.network = DeviceNetwork(bus)
+        self.network.NOTIFIER_CYCLE = 0.05       # bounded shutdown
+        self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
+        self.encoders = [EncoderNode(i) for i in encoder_nodes]
+        for node in self.drives + self.encoders:
+            self.network.add_node(node)
+        self.network.gate = self._gate
+        self.network.subscribe(0x80, self._on_sync)
+        self._lock = threading.RLock()
+        self._tau = np.zeros(self.n)
+        self._scheduled: list[FaultSpec] = []
+        self._drop: dict[int, int] = {}          # node id -> TPDO frames still to drop
+        self._delay: dict[int, tuple[int, float]] = {}
+        self._timers: list[threading.Timer] = []
+        self._thread: threading.Thread | None = None
+        self._monitor: threading.Thread | None = None
+        self._running = False
+        self.syncs = 0
+        self._synced = False
+        self.last_tau_h_act = np.zeros(self.n)
+        self.error: BaseException | None = None
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> "DeviceModel":
+        self.network.connect()
+        self._sample()
+        for node in self.drives + self.encoders:
+            node.boot()
+        self._running = True
+        self._monitor = threading.Thread(target=self._watch_master, name="device-model-consumer-hb", daemon=True)
+        self._monitor.start()
+        if not self.lock_step:
+            self._thread = threading.Thread(target=self._free_run, name="device-model-physics", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(2.0)
+        if self._monitor is not None:
+            self._monitor.join(2.0)
+        for t in self._timers:
+            t.cancel()
+        for node in self.drives + self.encoders:
+            node.nmt.stop_heartbeat()
+        if self.network.notifier is not None:
+            self.network.notifier.stop(2.0)
+        if self.owns_bus:
+            self.bus.shutdown()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    @property
+    def period(self) -> float:
+        return self.drives[0].period
+
+    # ------------------------------------------------------------------ physics
+    def _counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Total encoder counts (load, motor shaft) of the plant's current state.
+
+        The simulator's encoders (``plant.encoders``, with offsets and floor quantisation) when
+        the plant has them, else floor quantisation at the devices' resolutions."""
+        p = self.plant
+        q, th = np.atleast_1d(p.q), np.atleast_1d(p.theta_m)
+        enc = getattr(p, "encoders", None)
+        if enc is not None:
+            return enc.counts(q, th)
+        d, e = self.drives[0], self.encoders[0]
+        return (np.floor(q / (2 * np.pi) * e.resolution).astype(np.int64),
+                np.floor(th * d.gear / (2 * np.pi) * d.increments).astype(np.int64))
+
+    def _sample(self) -> None:
+        cq, cm = self._counts()
+        dth = np.atleast_1d(self.plant.dtheta_m)
+        for j in range(self.n):
+            self.drives[j].set_motor_counts(int(cm[j]), float(dth[j]))
+            self.encoders[j].set_counts(int(cq[j]))
+
+    def _latch_torque(self) -> None:
+        for j, d in enumerate(self.drives):
+            self._tau[j] = d.torque_command()
+
+    def _step(self, dt: float) -> None:
+        tau_h = np.asarray(self.tau_h_act(self.plant.t), dtype=float).reshape(self.n)
+        self.last_tau_h_act = tau_h
+        self.plant.step(self._tau.copy(), dt, tau_h)
+
+    def _on_sync(self, can_id, data, timestamp) -> None:
+        try:
+            with self._lock:
+                self.syncs += 1
+                self._run_scheduled()
+                if self.lock_step and self._synced:
+                    # the interval since the last SYNC, with the set-point in force now: a synchronous
+                    # RPDO was actuated at that SYNC, an asynchronous one when it arrived
+                    self._latch_torque()                # 0x6077 = the torque over [t_k-1, t_k]
+                    self._step(self.period)
+                self._synced = True
+                for node in self.drives + self.encoders:
+                    node.apply_pending_rpdos()          # synchronous RPDOs take effect now
+                self._sample()
+                for node in self.drives + self.encoders:
+                    node.transmit_sync_tpdos()
+        except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
+            self.error = e
+
+    def _watch_master(self) -> None:
+        """The drives' consumer heartbeat (0x1016): checked every 5 ms in real time."""
+        while self._running:
+            time.sleep(0.005)
+            now = time.monotonic()
+            with self._lock:
+                for d in self.drives:
+                    try:
+                        d.check_master(now)
+                    except Exception as e:  # noqa: BLE001 - bus gone while stopping
+                        self.error = self.error or e
+
+    def _free_run(self) -> None:
+        next_t = time.monotonic()
+        while self._running:
+            dt = self.period
+            with self._lock:
+                self._latch_torque()
+                self._step(dt)
+            next_t += dt
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = time.monotonic()
+
+    # ------------------------------------------------------------------ faults
+    def schedule(self, fault: FaultSpec) -> None:
+        """Inject ``fault`` now, or at device time ``fault.at`` (checked at every SYNC)."""
+        with self._lock:
+            if fault.at is None or fault.at <= self.plant.t:
+                self.inject(fault)
+            else:
+                self._scheduled.append(fault)
+
+    def _run_scheduled(self) -> None:
+        if self._scheduled:
+            due = [f for f in self._scheduled if f.at <= self.plant.t + 1e-12]
+            for f in due:
+                self._scheduled.remove(f)
+                self.inject(f)
+
+    def inject(self, fault: FaultSpec) -> None:
+        """Apply a fault at once."""
+        if not 0 <= fault.joint < self.n:
+            raise ValueError(f"fault joint {fault.joint}: allowed 0..{self.n - 1}")
+        node = (self.drives if fault.target == "drive" else self.encoders)[fault.joint]
+        k = fault.kind
+        with self._lock:
+            if k == "drop":
+                self._drop[node.id] = self._drop.get(node.id, 0) + int(fault["count"])
+            elif k == "delay":
+                self._delay[node.id] = (int(fault["count"]), float(fault["seconds"]))
+            elif k == "stuck":
+                node.frozen = node.position
+            elif k == "jump":
+                res = node.increments * node.gear if isinstance(node, DriveNode) else node.resolution
+                node.jump_counts += int(round(fault["rad"] / (2 * np.pi) * res))
+                self._sample()
+            elif k == "emcy":
+                if isinstance(node, DriveNode):
+                    node.drive_fault(int(fault["code"]))
+                else:
+                    node.emergency(int(fault["code"]))
+            elif k == "heartbeat":
+                node.suppress_heartbeat()
+            elif k == "busoff":
+                node.go_bus_off()
+
+    def _gate(self, can_id: int, data: bytes) -> bool:
+        """Outgoing frames of the model: drop / delay TPDOs, silence bus-off nodes."""
+        node = can_id & 0x7F
+        if can_id != 0x80 and any(n.id == node and n.muted for n in self.drives + self.encoders):
+            return False
+        if can_id & 0x780 in TPDO_FUNCTIONS:
+            left = self._drop.get(node, 0)
+            if left:
+                self._drop[node] = left - 1
+                return False
+            count, seconds = self._delay.get(node, (0, 0.0))
+            if count:
+                self._delay[node] = (count - 1, seconds)
+                t = threading.Timer(seconds, self.network.send_now, args=(can_id, data))
+                t.daemon = True
+                self._timers.append(t)
+                t.start()
+                return False
+        return True

@@ -1,0 +1,274 @@
+"""A CANopen slave on canopen's :class:`~canopen.LocalNode` with the pieces LocalNode lacks.
+
+canopen's LocalNode answers SDO, follows NMT commands and produces heartbeats, but it neither
+sends TPDOs on SYNC nor copies received RPDOs into its object dictionary.  :class:`SlaveNode`
+adds, after CiA 301:
+
+* PDO configuration read from its own dictionary (0x1400/0x1600, 0x1800/0x1A00) when the node
+  enters OPERATIONAL; mapping entries are checked when written (abort 0x06040041 / 0x06040042);
+* synchronous TPDOs (transmission type 1..240: every n-th SYNC) built from the mapped objects;
+* synchronous RPDOs buffered on reception and written into the dictionary at the next SYNC
+  (transmission type 0..240) or at once (254/255), firing the write callbacks;
+* EMCY with the error register (0x1001) kept up to date;
+* device-side faults: heartbeat loss, bus-off (the node goes silent and deaf).
+"""
+from __future__ import annotations
+
+import struct
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import canopen
+from canopen.nmt import NmtSlave
+from canopen.sdo import SdoAbortedError
+
+from sea_daemon.config import repo_root
+
+EDS_DIR = repo_root() / "configs" / "eds"
+PDO_INVALID = 0x80000000
+
+
+@dataclass
+class PdoConfig:
+    cob_id: int
+    trans_type: int
+    entries: list = field(default_factory=list)     # [(index, subindex, n_bytes)]
+    counter: int = 0
+    length: int = 0
+
+
+class DeviceNetwork(canopen.Network):
+    """canopen Network of the device model: outgoing frames pass a gate (drop / delay / mute)."""
+
+    def __init__(self, bus):
+        super().__init__(bus)
+        self.gate = None           # callable(can_id, data) -> bool: True = send now (gate may send later)
+        self.deaf: set[int] = set()   # node ids that ignore what they receive (bus-off)
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if self.gate is not None and not self.gate(can_id, bytes(data)):
+            return
+        super().send_message(can_id, data, remote)
+
+    def send_now(self, can_id: int, data: bytes) -> None:
+        """Bypass the gate (used by the gate itself for delayed frames)."""
+        try:
+            super().send_message(can_id, data)
+        except Exception:  # noqa: BLE001 - the bus may have been closed meanwhile
+            pass
+
+    def notify(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.deaf:
+            node = can_id & 0x7F
+            if node in self.deaf and can_id & 0x780 in (0x200, 0x300, 0x400, 0x500, 0x600):
+                return
+        super().notify(can_id, data, timestamp)
+
+
+class _Nmt(NmtSlave):
+    """NmtSlave that reports state changes to its node and produces the heartbeat itself.
+
+    The heartbeat is sent by a small thread through the network's gate (so a bus-off node
+    falls silent) instead of the bus's periodic-send task: python-can-remote's task cannot
+    change its data (heartbeat state) and stops with the client."""
+
+    def __init__(self, node_id: int, local_node):
+        super().__init__(node_id, local_node)
+        self._hb_stop: threading.Event | None = None
+
+    def on_command(self, can_id, data, timestamp):
+        old = self._state
+        super().on_command(can_id, data, timestamp)
+        if self._state != old or self._state == 0:
+            self._local_node.on_nmt_state(old, self._state)
+
+    def start_heartbeat(self, heartbeat_time_ms: int):
+        self._heartbeat_time_ms = heartbeat_time_ms
+        self.stop_heartbeat()
+        if heartbeat_time_ms <= 0 or self._local_node.heartbeat_suppressed:
+            return
+        stop = self._hb_stop = threading.Event()
+        period = heartbeat_time_ms / 1000.0
+
+        def produce():
+            while not stop.wait(period):
+                try:
+                    self.network.send_message(0x700 + self.id, [self._state])
+                except Exception:  # noqa: BLE001 - bus closed: the node is gone
+                    return
+        threading.Thread(target=produce, name=f"heartbeat-{self.id}", daemon=True).start()
+
+    def stop_heartbeat(self):
+        if self._hb_stop is not None:
+            self._hb_stop.set()
+            self._hb_stop = None
+
+    def update_heartbeat(self):
+        pass                               # the producer reads the current state every period
+
+
+class SlaveNode(canopen.LocalNode):
+    """LocalNode + SYNC-triggered TPDOs, RPDO → dictionary, EMCY register, device faults."""
+
+    EDS: str = ""
+
+    def __init__(self, node_id: int, eds: str | Path | None = None):
+        od = canopen.import_od(str(eds or EDS_DIR / self.EDS), node_id)
+        super().__init__(node_id, od)
+        self._write_callbacks.remove(self.nmt.on_write)
+        self.nmt = _Nmt(node_id, self)
+        self.add_write_callback(self.nmt.on_write)
+        self.add_write_callback(self._check_mapping)
+        self.heartbeat_suppressed = False
+        self.muted = False
+        self.tpdos: list[PdoConfig] = []
+        self.rpdos: dict[int, PdoConfig] = {}
+        self._rpdo_pending: dict[int, bytes] = {}
+        self._lock = threading.RLock()
+        self.error_register = 0
+
+    # ---------------------------------------------------------------- NMT
+    def boot(self) -> None:
+        """Power-up: boot-up message, PRE-OPERATIONAL, heartbeat from 0x1017."""
+        self.nmt._state = 0
+        self.nmt.send_command(0x80)     # INITIALISING -> PRE-OPERATIONAL (sends boot-up first)
+
+    def on_nmt_state(self, old: int, new: int) -> None:
+        if new == 0:                    # reset node / reset communication: reboot
+            for index in list(self.data_store):
+                if 0x1000 <= index < 0x2000:
+                    del self.data_store[index]
+            self.nmt._state = 0
+            self.network.send_message(0x700 + self.id, [0])
+            self.nmt._state = 127
+            self.nmt.start_heartbeat(self.sdo[0x1017].raw)
+            self._stop_pdos()
+            return
+        if new == 5:                    # OPERATIONAL: PDOs from the dictionary
+            self.load_pdo_config()
+        elif old == 5:
+            self._stop_pdos()
+
+    # ---------------------------------------------------------------- PDO engine
+    def _raw(self, index: int, subindex: int) -> int:
+        obj = self._find_object(index, subindex)
+        return obj.decode_raw(self.get_data(index, subindex))
+
+    def _check_mapping(self, index: int, subindex: int, od, data: bytes) -> None:
+        """Mapping entries (0x1600.., 0x1A00..): object must exist, be mappable, size must match."""
+        if not (0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF) or subindex == 0:
+            return
+        value = struct.unpack_from("<I", data)[0]
+        if value == 0:
+            return
+        idx, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        try:
+            obj = self._find_object(idx, sub)
+        except SdoAbortedError:
+            raise SdoAbortedError(0x06040041) from None          # object cannot be mapped
+        if not obj.pdo_mappable:
+            raise SdoAbortedError(0x06040041)
+        if bits != len(obj) or bits % 8:
+            raise SdoAbortedError(0x06040042)                   # PDO length exceeded / mismatch
+
+    def _read_pdo(self, com: int, mapping: int) -> PdoConfig | None:
+        cob = self._raw(com, 1)
+        if cob & PDO_INVALID:
+            return None
+        cfg = PdoConfig(cob_id=cob & 0x7FF, trans_type=self._raw(com, 2))
+        for sub in range(1, self._raw(mapping, 0) + 1):
+            value = self._raw(mapping, sub)
+            idx, s, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+            if idx:
+                cfg.entries.append((idx, s, bits // 8))
+                cfg.length += bits // 8
+        return cfg
+
+    def load_pdo_config(self) -> None:
+        with self._lock:
+            self._stop_pdos()
+            od = self.object_dictionary
+            for i in range(512):
+                if 0x1800 + i in od:
+                    cfg = self._read_pdo(0x1800 + i, 0x1A00 + i)
+                    if cfg is not None:
+                        self.tpdos.append(cfg)
+                if 0x1400 + i in od:
+                    cfg = self._read_pdo(0x1400 + i, 0x1600 + i)
+                    if cfg is not None:
+                        self.rpdos[cfg.cob_id] = cfg
+                        self.network.subscribe(cfg.cob_id, self._on_rpdo)
+
+    def _stop_pdos(self) -> None:
+        with self._lock:
+            for cob in self.rpdos:
+                try:
+                    self.network.unsubscribe(cob, self._on_rpdo)
+                except (KeyError, ValueError):
+                    pass
+            self.tpdos = []
+            self.rpdos = {}
+            self._rpdo_pending = {}
+
+    def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.muted or self.nmt._state != 5:
+            return
+        cfg = self.rpdos.get(can_id)
+        if cfg is None or len(data) < cfg.length:
+            return
+        if cfg.trans_type <= 240:
+            self._rpdo_pending[can_id] = bytes(data)      # actuated at the next SYNC
+        else:
+            self._apply_rpdo(cfg, bytes(data))
+
+    def _apply_rpdo(self, cfg: PdoConfig, data: bytes) -> None:
+        off = 0
+        for idx, sub, nbytes in cfg.entries:
+            self.set_data(idx, sub, data[off:off + nbytes])
+            off += nbytes
+
+    def apply_pending_rpdos(self) -> None:
+        """SYNC: write the buffered synchronous RPDOs into the dictionary."""
+        with self._lock:
+            pending, self._rpdo_pending = self._rpdo_pending, {}
+            for cob, data in pending.items():
+                cfg = self.rpdos.get(cob)
+                if cfg is not None:
+                    self._apply_rpdo(cfg, data)
+
+    def transmit_sync_tpdos(self) -> None:
+        """SYNC: build and send every synchronous TPDO that is due."""
+        if self.muted or self.nmt._state != 5:
+            return
+        with self._lock:
+            for cfg in self.tpdos:
+                if cfg.trans_type > 240:
+                    continue
+                cfg.counter += 1
+                if cfg.trans_type and cfg.counter < cfg.trans_type:
+                    continue
+                cfg.counter = 0
+                payload = b"".join(self.get_data(i, s)[:n] for i, s, n in cfg.entries)
+                self.network.send_message(cfg.cob_id, payload)
+
+    # ---------------------------------------------------------------- EMCY and faults
+    def emergency(self, code: int, register_bits: int = 0x01, data: bytes = b"") -> None:
+        """Send an EMCY frame and set the error register (0x1001)."""
+        self.error_register |= register_bits
+        self.emcy.send(code, self.error_register, data)
+
+    def suppress_heartbeat(self) -> None:
+        self.heartbeat_suppressed = True
+        self.nmt.stop_heartbeat()
+
+    def go_bus_off(self) -> None:
+        """The node's controller leaves the bus: it sends nothing and hears nothing."""
+        self.muted = True
+        self.nmt.stop_heartbeat()
+        self.network.deaf.add(self.id)
+
+    def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
+        if index == 0x1001:
+            return bytes([self.error_register])
+        return super().get_data(index, subindex, check_readable)

@@ -1,0 +1,171 @@
+"""HIL test rig: the CANopen driver against the device model on a real python-can bus.
+
+Bus kinds: ``virtual`` (python-can, in-process), ``remote`` (python-can-remote: a
+``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
+(``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
+the simulator's true plant (:class:`sea_daemon.sim.plant.Plant`), recording its steps.
+"""
+from __future__ import annotations
+
+import dataclasses
+import socket
+import subprocess
+import sys
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from drivers.bus import make_bus, socketcan_available
+from drivers.canopen_hw import CanopenHardware
+from drivers.device_model import DeviceModel
+from sea_daemon.config import ModelConfig, default_config_path, load_config, load_yaml
+from sea_daemon.sim.plant import Plant
+
+BUS_KINDS = ["virtual", "remote", "socketcan"]
+
+
+class RecordingPlant(Plant):
+    """The simulator's plant, remembering (t, tau_m, tau_h_act, q, theta_m) at the start of every step."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.steps = []
+
+    def step(self, tau_m, dt, tau_h_act=0.0):
+        self.steps.append((self.t, np.array(tau_m, dtype=float), np.array(tau_h_act, dtype=float),
+                           self.q, self.theta_m))
+        super().step(tau_m, dt, tau_h_act)
+
+
+def true_config(joints: int = 1) -> ModelConfig:
+    raw = load_yaml(default_config_path())
+    if joints != 1:
+        raw.update(joints=joints, estimator={}, learning={})
+    return ModelConfig.from_dict(raw, f"exo_{joints}dof")
+
+
+def recording_plant(q0=0.3, joints: int = 1) -> RecordingPlant:
+    """The default exoskeleton at rest at q0 (motor holding it), without torque noise."""
+    return RecordingPlant(true_config(joints), q0=q0, seed=0, torque_noise=0.0)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RemoteServer:
+    """``python -m can_remote`` on a free local port (virtual bus behind it); bounded clean-up."""
+
+    def __init__(self, channel: str = "hil"):
+        self.port = free_port()
+        self.url = f"ws://127.0.0.1:{self.port}/"
+        self.proc = subprocess.Popen([sys.executable, "-m", "can_remote", "-i", "virtual", "-c", channel,
+                                      "-H", "127.0.0.1", "-p", str(self.port)],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 15
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.2).close()
+                break
+            except OSError:
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    self.close()
+                    raise RuntimeError("python -m can_remote did not start")
+                time.sleep(0.05)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+
+
+def hil_config(kind: str = "virtual", channel: str = "", **bus):
+    """Default model config with a test bus section: fast heartbeats, and timeouts generous enough
+    for a loaded 2-core machine (tests that measure a timeout set their own)."""
+    cfg = load_config(default_config_path())
+    b = dataclasses.replace(cfg.hardware.bus, interface=kind, channel=channel or f"hil-{uuid.uuid4().hex[:8]}",
+                            heartbeat_ms=20, heartbeat_timeout_ms=1000, pdo_timeout_ms=1000.0,
+                            sdo_timeout_ms=2000)
+    b = dataclasses.replace(b, **bus)
+    return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
+
+
+class Rig:
+    """Device model (stand-in plant) + CanopenHardware on two bus handles of one channel."""
+
+    def __init__(self, cfg, plant=None, position_preset: int = 0, lock_step: bool = True, tau_h_act=None):
+        self.cfg = cfg
+        self.plant = plant or recording_plant(0.3)
+        self.dev_bus = make_bus(cfg.hardware.bus)
+        self.drv_bus = make_bus(cfg.hardware.bus)
+        b = cfg.hardware.bus
+        self.model = DeviceModel(self.dev_bus, self.plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
+                                 position_preset=position_preset, lock_step=lock_step, tau_h_act=tau_h_act)
+        self.model.start()
+        self.hw = CanopenHardware(cfg, self.drv_bus)
+
+    @property
+    def drive(self):
+        return self.model.drives[0]
+
+    @property
+    def encoder(self):
+        return self.model.encoders[0]
+
+    def close(self) -> None:
+        try:
+            self.hw.stop()
+        finally:
+            self.model.stop()
+            for b in (self.drv_bus, self.dev_bus):
+                try:
+                    b.shutdown()
+                except Exception:  # noqa: BLE001
+                    pass
+
+
+@pytest.fixture(scope="module")
+def remote_url():
+    server = RemoteServer()
+    try:
+        yield server.url
+    finally:
+        server.close()
+
+
+@pytest.fixture(params=BUS_KINDS)
+def bus_kind(request):
+    kind = request.param
+    if kind == "socketcan":
+        ok, why = socketcan_available("vcan0")
+        if not ok:
+            pytest.skip(f"socketcan: {why}")
+    return kind
+
+
+@pytest.fixture
+def make_rig(bus_kind, request):
+    """Factory: make_rig(plant=..., **bus_overrides) → started-up-able Rig; closed after the test."""
+    rigs = []
+
+    def factory(plant=None, position_preset=0, lock_step=True, tau_h_act=None, **bus):
+        if bus_kind == "remote":
+            bus.setdefault("channel", request.getfixturevalue("remote_url"))
+        elif bus_kind == "socketcan":
+            bus.setdefault("channel", "vcan0")
+        rig = Rig(hil_config(bus_kind, **bus), plant, position_preset, lock_step, tau_h_act)
+        rigs.append(rig)
+        return rig
+
+    yield factory
+    for r in rigs:
+        r.close()
