@@ -1,0 +1,514 @@
+"""Exact Gaussian-process regression (Sec. III-B) with an incremental Cholesky factor.
+
+* :func:`se_kernel` — the squared-exponential ARD kernel (``eq:SE``).
+* :func:`log_marginal_likelihood` — log marginal likelihood and its analytic gradient with
+  respect to the log hyperparameters ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``
+  (Rasmussen & Williams 2006, eq. 2.30 and 5.9).
+* :class:`IncrementalGP` — posterior mean and variance (``eq:GPmean``, ``eq:GPvariance``), the
+  mean's Jacobian (``eq:moejac`` with ``eq:kernelderivative``) and, optionally, the variance's,
+  with the Cholesky factor of ``K + σ_on² I`` grown one row per point in O(N²).  It is the local
+  model of every LoG-GP leaf (:mod:`sea_daemon.loggp`).
+* :func:`fit_hyperparameters` — batch maximisation of the log marginal likelihood (L-BFGS-B).
+
+Storage.  The lower Cholesky factor ``L`` is kept *packed*, row by row (the first ``n(n+1)/2``
+entries hold rows ``0 … n-1``).  Read as a column-major packed upper triangle this is
+``Lᵀ``, the layout BLAS ``dtpsv`` takes with an explicit order ``n``: appending a point appends
+one row at the end, and every triangular solve runs on a prefix of one contiguous buffer,
+without copies.  Inputs are stored scaled, ``x̃ = (x − c) / l`` around a centre ``c`` (the first
+point), so a kernel vector is one matrix–vector product and one ``exp``:
+``k_i(x) = exp(h_i + x̃_i·x̃ − |x̃|²/2)`` with ``h_i = log σ_f² − |x̃_i|²/2`` (eq:SE expanded).
+
+Learned state ends in ``_`` (``X_``, ``y_``, ``n_``, ``alpha_``, ``L_``).  No I/O, no clock.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+from scipy.linalg import lapack
+from scipy.linalg.blas import dtpsv
+
+from .errors import EstimatorFault, InputError
+
+_LOG2PI = math.log(2.0 * math.pi)
+_TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _tril(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major lower-triangle indices of an n×n matrix (the packed order used here)."""
+    t = _TRIL_CACHE.get(n)
+    if t is None:
+        t = _TRIL_CACHE[n] = np.tril_indices(n)
+    return t
+
+
+def _vec(name: str, v, d: int, positive: bool = True) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    if a.ndim == 0:
+        a = np.full(d, float(a))
+    if a.shape != (d,) or not np.all(np.isfinite(a)) or (positive and np.any(a <= 0)):
+        raise InputError(f"{name} must be {'a positive' if positive else 'a finite'} number or "
+                         f"{d} of them, got {v!r}")
+    return a
+
+
+def _pos(name: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(float(v)) or float(v) <= 0:
+        raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+    return float(v)
+
+
+def _sq_dists(A: np.ndarray, B: np.ndarray) -> list[np.ndarray]:
+    """Per-dimension squared differences ``(a_j − b_j)²`` as a list of (len A, len B) arrays."""
+    return [np.subtract.outer(A[:, j], B[:, j]) ** 2 for j in range(A.shape[1])]
+
+
+def se_kernel(A, B, lengthscales, sigma_f: float) -> np.ndarray:
+    """Squared-exponential ARD kernel matrix ``k(a_i, b_j)`` (``eq:SE``).
+
+    ``A``: (m, ρ), ``B``: (p, ρ) (1-D arrays are one point), ``lengthscales``: scalar or (ρ,).
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    B = np.atleast_2d(np.asarray(B, dtype=float))
+    il = 1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (A.shape[1],))
+    # eq:SE: σ_f² exp(−Σ_i (x_i − x'_i)² / (2 l_i²))
+    r2 = sum(_sq_dists(A * il, B * il))
+    return sigma_f ** 2 * np.exp(-0.5 * r2)
+
+
+def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, *,
+                            grad: bool = True, jitter: float = 1e-10,
+                            L: np.ndarray | None = None):
+    """Log marginal likelihood ``log p(y | X, θ)`` and its gradient w.r.t. ``log θ``.
+
+    ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``.  Returns ``lml`` or ``(lml, grad)``.
+    ``L`` (lower Cholesky factor of ``K + (σ_on² + jitter) I``, zeros above the diagonal) may
+    be passed when already known.  Cost: one kernel matrix, one ``dpotri`` and a few
+    matrix–vector products — no per-dimension N×N arrays.
+    """
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    y = np.asarray(y, dtype=float).ravel()
+    n, d = X.shape
+    il2 = 1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,)) ** 2
+    Xb = X - X[0]
+    B = Xb * il2
+    h = -0.5 * np.einsum("ij,ij->i", Xb, B)
+    # eq:SE expanded: K_f = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
+    Kf = B @ Xb.T
+    Kf += h[:, None]
+    Kf += h[None, :]
+    np.exp(Kf, out=Kf)
+    Kf *= sigma_f ** 2
+    if L is None:
+        K = Kf.copy()
+        K.flat[:: n + 1] += sigma_n ** 2 + jitter
+        L, info = lapack.dpotrf(K, lower=1, clean=1)
+        if info != 0:
+            raise EstimatorFault(f"K + σ_on² I is not positive definite (dpotrf info {info}); "
+                                 f"σ_on = {sigma_n} must be > 0")
+    # α = (K + σ_on² I)⁻¹ y
+    alpha, _ = lapack.dpotrs(L, y, lower=1)
+    # R&W eq. 2.30: −½ yᵀα − Σ log L_ii − n/2 log 2π
+    lml = -0.5 * float(y @ alpha) - float(np.log(np.diagonal(L)).sum()) - 0.5 * n * _LOG2PI
+    if not grad:
+        return lml
+    Kinv, _ = lapack.dpotri(L, lower=1)           # lower triangle of K⁻¹ (upper: L's zeros)
+    Kinv += Kinv.T
+    Kinv.flat[:: n + 1] *= 0.5
+    # R&W eq. 5.9: ∂lml/∂θ_j = ½ tr(W ∂K/∂θ_j), W = ααᵀ − K⁻¹ (symmetric)
+    WK = np.outer(alpha, alpha)
+    WK -= Kinv
+    WK *= Kf                                      # W ∘ K_f
+    g = np.empty(d + 2)
+    g[0] = WK.sum()                               # ∂K/∂log σ_f = 2 K_f
+    # ∂K/∂log l_j = K_f ∘ (x_aj − x_bj)²/l_j²;  ½ Σ_ab WK_ab (x_aj − x_bj)² = Σ_a r_a x_aj² − x_jᵀ WK x_j
+    r = WK.sum(axis=1)
+    P = WK @ Xb
+    g[1:d + 1] = il2 * (r @ (Xb * Xb) - np.einsum("ij,ij->j", Xb, P))
+    g[d + 1] = sigma_n ** 2 * (float(alpha @ alpha) - float(np.trace(Kinv)))   # ∂K/∂log σ_on = 2σ_on² I
+    return lml, g
+
+
+class IncrementalGP:
+    """Exact GP posterior with an O(N²) rank-one-row update of its Cholesky factor.
+
+    Parameters
+    ----------
+    input_dim: ρ, the input dimension.
+    sigma_f, lengthscales, sigma_n: hyperparameters of ``eq:SE`` and the target noise σ_on.
+    capacity: initial storage (grows by 1.5× when full, never beyond ``max_capacity``).
+    jitter: added to the diagonal on top of σ_on² for numerical safety.
+
+    Internals (for speed at N ≈ 100, where numpy's per-call overhead dominates): with
+    ``x̄ = x − c`` (c: the first point), row i of ``A_`` is ``[x̄_i / l², h_i, 1]`` with
+    ``h_i = log σ_f² − ½ Σ_j x̄_ij² / l_j²``, so for the augmented query
+    ``a(x) = [x̄, 1, −½ Σ_j x̄_j² / l_j²]`` the kernel vector is ``k = exp(A a(x))`` (eq:SE).
+    """
+
+    __slots__ = ("input_dim", "n_", "X_", "y_", "A_", "beta_", "ap_", "_alpha", "_alpha_ok",
+                 "center_", "_c", "_il2", "_il2l", "_log_sf2", "_sf2", "_sn2",
+                 "sigma_f", "lengthscales", "sigma_n", "jitter", "max_capacity", "_cap")
+
+    def __init__(self, input_dim: int, sigma_f: float = 1.0, lengthscales=1.0,
+                 sigma_n: float = 0.1, *, capacity: int = 16, max_capacity: int | None = None,
+                 jitter: float = 1e-10):
+        if isinstance(input_dim, bool) or not isinstance(input_dim, (int, np.integer)) or input_dim < 1:
+            raise InputError(f"input_dim must be an integer >= 1, got {input_dim!r}")
+        self.input_dim = int(input_dim)
+        self.max_capacity = None if max_capacity is None else int(max_capacity)
+        self.jitter = float(jitter)
+        self.n_ = 0
+        self.center_: np.ndarray | None = None
+        self._c: list[float] = []
+        cap = max(1, int(capacity))
+        if self.max_capacity is not None:
+            cap = min(cap, self.max_capacity)
+        self._alloc(cap)
+        self._set_hyp(sigma_f, lengthscales, sigma_n)
+
+    # ------------------------------------------------------------------ storage
+    def _alloc(self, cap: int) -> None:
+        d = self.input_dim
+        self._cap = cap
+        self.X_ = np.empty((cap, d))
+        self.A_ = np.empty((cap, d + 2))
+        self.y_ = np.empty(cap)
+        self.beta_ = np.empty(cap)
+        self.ap_ = np.empty(cap * (cap + 1) // 2)
+        self._alpha = np.empty(cap)
+        self._alpha_ok = False
+
+    def _grow(self, need: int) -> None:
+        cap = max(need, self._cap + max(8, self._cap // 2))
+        if self.max_capacity is not None:
+            if need > self.max_capacity:
+                raise InputError(f"GP holds {self.n_} points; capacity {self.max_capacity} is the limit")
+            cap = min(cap, self.max_capacity)
+        old = (self.X_, self.A_, self.y_, self.beta_, self.ap_)
+        n, m = self.n_, self.n_ * (self.n_ + 1) // 2
+        self._alloc(cap)
+        self.X_[:n], self.A_[:n], self.y_[:n] = old[0][:n], old[1][:n], old[2][:n]
+        self.beta_[:n], self.ap_[:m] = old[3][:n], old[4][:m]
+
+    @property
+    def capacity(self) -> int:
+        return self._cap
+
+    def nbytes(self) -> int:
+        """Bytes held by this model's arrays."""
+        return sum(a.nbytes for a in (self.X_, self.A_, self.y_, self.beta_, self.ap_, self._alpha))
+
+    # ------------------------------------------------------------------ hyperparameters
+    def _set_hyp(self, sigma_f, lengthscales, sigma_n) -> None:
+        self.sigma_f = _pos("sigma_f", sigma_f)
+        self.lengthscales = _vec("lengthscales", lengthscales, self.input_dim)
+        self.sigma_n = _pos("sigma_n", sigma_n)
+        self._il2 = 1.0 / (self.lengthscales * self.lengthscales)
+        self._il2l = self._il2.tolist()
+        self._sf2 = self.sigma_f ** 2
+        self._log_sf2 = math.log(self._sf2)
+        self._sn2 = self.sigma_n ** 2
+
+    @property
+    def log_theta(self) -> np.ndarray:
+        """``[log σ_f, log l_1 … log l_ρ, log σ_on]``."""
+        return np.concatenate(([math.log(self.sigma_f)], np.log(self.lengthscales),
+                               [math.log(self.sigma_n)]))
+
+    def set_hyperparameters(self, sigma_f: float, lengthscales, sigma_n: float) -> None:
+        """Swap in new hyperparameters and rebuild the factor (O(N³), one LAPACK dpotrf)."""
+        self._set_hyp(sigma_f, lengthscales, sigma_n)
+        self._rebuild()
+
+    def set_log_theta(self, log_theta) -> None:
+        t = np.asarray(log_theta, dtype=float)
+        d = self.input_dim
+        self.set_hyperparameters(math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1]))
+
+    # ------------------------------------------------------------------ data
+    def _set_center(self, c) -> None:
+        self.center_ = np.array(c, dtype=float)
+        self._c = self.center_.tolist()
+
+    def fit(self, X, y) -> "IncrementalGP":
+        """Replace the data by ``X`` (N, ρ), ``y`` (N,) and factorise (O(N³))."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        y = np.asarray(y, dtype=float).ravel()
+        if X.shape[1] != self.input_dim or X.shape[0] != y.shape[0]:
+            raise InputError(f"fit needs X of shape (N, {self.input_dim}) and y of shape (N,), "
+                             f"got {X.shape} and {y.shape}")
+        n = X.shape[0]
+        if n > self._cap:
+            if self.max_capacity is not None and n > self.max_capacity:
+                raise InputError(f"fit got {n} points; capacity {self.max_capacity} is the limit")
+            self._alloc(n if self.max_capacity is None else max(n, min(self.max_capacity, n + 8)))
+        self.n_ = n
+        self.X_[:n], self.y_[:n] = X, y
+        if n:
+            self._set_center(X[0])
+        self._rebuild()
+        return self
+
+    def kernel_matrix(self, X) -> np.ndarray:
+        """Noise-free kernel matrix ``k(x_a, x_b)`` of the rows of ``X`` (eq:SE, one gemm)."""
+        Xb = np.asarray(X, dtype=float) - (self.center_ if self.center_ is not None else 0.0)
+        B = Xb * self._il2
+        h = -0.5 * np.einsum("ij,ij->i", Xb, B)
+        # eq:SE expanded: k(x_a, x_b) = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
+        K = B @ Xb.T
+        K += h[:, None]
+        K += h[None, :] + self._log_sf2
+        return np.exp(K, out=K)
+
+    def spawn(self, X: np.ndarray, y: np.ndarray, K: np.ndarray | None = None,
+              capacity: int | None = None) -> "IncrementalGP":
+        """A new model with this one's hyperparameters on data ``(X, y)`` (no re-validation).
+
+        ``K``: the noise-free kernel matrix of ``X`` under these hyperparameters, if known
+        (e.g. a sub-matrix of the parent's at a LoG-GP split).
+        """
+        n = X.shape[0]
+        child = IncrementalGP.__new__(IncrementalGP)
+        child.input_dim, child.max_capacity, child.jitter = self.input_dim, self.max_capacity, self.jitter
+        for a in ("sigma_f", "lengthscales", "sigma_n", "_il2", "_il2l", "_sf2", "_log_sf2", "_sn2"):
+            setattr(child, a, getattr(self, a))
+        cap = max(n, 1) if capacity is None else max(n, 1, int(capacity))
+        if child.max_capacity is not None:
+            cap = max(n, min(cap, child.max_capacity))
+        child._alloc(cap)
+        child.n_ = n
+        child.center_, child._c = None, []
+        if n:
+            child.X_[:n], child.y_[:n] = X, y
+            child._set_center(X[0])
+            child._rebuild(K)
+        return child
+
+    def _rebuild(self, K: np.ndarray | None = None) -> None:
+        """Refactorise ``K + σ_on² I`` from the stored data with the current hyperparameters.
+
+        ``K``: the noise-free kernel matrix of the stored inputs, if already known.
+        """
+        n = self.n_
+        d = self.input_dim
+        self._alpha_ok = False
+        if n == 0:
+            return
+        Xb = self.X_[:n] - self.center_
+        A = self.A_[:n]
+        np.multiply(Xb, self._il2, out=A[:, :d])
+        A[:, d] = self._log_sf2 - 0.5 * np.einsum("ij,ij->i", Xb, A[:, :d])
+        A[:, d + 1] = 1.0
+        if K is None:
+            # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
+            K = A[:, :d] @ Xb.T
+            K += A[:, d][:, None]
+            K += A[:, d][None, :] - self._log_sf2
+            np.exp(K, out=K)
+        jit = self.jitter
+        for _ in range(8):
+            Kj = K.copy()
+            Kj.flat[:: n + 1] += self._sn2 + jit
+            L, info = lapack.dpotrf(Kj, lower=1, clean=1)
+            if info == 0:
+                break
+            jit = max(10.0 * jit, 1e-10 * self._sf2)
+        else:
+            raise EstimatorFault(f"GP kernel matrix not positive definite with jitter {jit:g} "
+                                 f"(sigma_n = {self.sigma_n:g} must be > 0)")
+        m = n * (n + 1) // 2
+        self.ap_[:m] = L[_tril(n)]
+        # β = L⁻¹ y, so that μ = (L⁻¹k)ᵀβ (eq:GPmean)
+        self.beta_[:n] = dtpsv(n, self.ap_, self.y_[:n], lower=0, trans=1)
+
+    def _query(self, x):
+        """``(x̄ as list, a(x) as array)`` for a query ``x`` (see the class docstring)."""
+        xl = x.tolist() if isinstance(x, np.ndarray) else list(x)
+        c, il2 = self._c, self._il2l
+        xb = [xl[j] - c[j] for j in range(self.input_dim)]
+        s = 0.0
+        for j in range(self.input_dim):
+            s += il2[j] * xb[j] * xb[j]
+        return xb, np.array(xb + [1.0, -0.5 * s])
+
+    def add(self, x, y: float) -> None:
+        """Append one training pair; O(N²): one triangular solve for the new factor row."""
+        n = self.n_
+        d = self.input_dim
+        if n == self._cap:
+            self._grow(n + 1)
+        if self.center_ is None:
+            self._set_center(x)
+        xb, a = self._query(x)
+        if n:
+            # eq:SE: k_i = exp(A_i a(x))
+            k = self.A_[:n].dot(a)
+            np.exp(k, out=k)
+            # new factor row: L c = k, d = sqrt(k(x,x) + σ_on² − cᵀc)
+            cr = dtpsv(n, self.ap_, k, lower=0, trans=1, overwrite_x=1)
+            d2 = self._sf2 + self._sn2 + self.jitter - float(cr.dot(cr))
+            off = n * (n + 1) // 2
+            self.ap_[off:off + n] = cr
+            bc = float(cr.dot(self.beta_[:n]))
+        else:
+            d2 = self._sf2 + self._sn2 + self.jitter
+            off, bc = 0, 0.0
+        dd = math.sqrt(max(d2, self._sn2 * 1e-6 + self.jitter))
+        self.ap_[off + n] = dd
+        # β_n = (y − cᵀβ) / d  (forward substitution, last row)
+        self.beta_[n] = (float(y) - bc) / dd
+        self.X_[n] = x
+        row = self.A_[n]
+        row[:d] = xb
+        row[:d] *= self._il2
+        row[d] = self._log_sf2 + a[d + 1]
+        row[d + 1] = 1.0
+        self.y_[n] = y
+        self.n_ = n + 1
+        self._alpha_ok = False
+
+    def remove_oldest(self, m: int = 1) -> None:
+        """Drop the ``m`` oldest points and refactorise (O(N³) once; amortise over ≥ m adds)."""
+        n = self.n_
+        m = max(0, min(int(m), n))
+        if m == 0:
+            return
+        for a in (self.X_, self.y_):
+            a[: n - m] = a[m:n]
+        self.n_ = n - m
+        self._rebuild()
+
+    # ------------------------------------------------------------------ read-outs
+    @property
+    def alpha_(self) -> np.ndarray:
+        """``(K + σ_on² I)⁻¹ y`` (eq:GPmean), computed lazily from ``β`` (one triangular solve)."""
+        n = self.n_
+        if not self._alpha_ok:
+            if n:
+                self._alpha[:n] = dtpsv(n, self.ap_, self.beta_[:n], lower=0, trans=0)
+            self._alpha_ok = True
+        return self._alpha[:n]
+
+    @property
+    def L_(self) -> np.ndarray:
+        """Dense lower Cholesky factor of ``K + σ_on² I`` (a copy)."""
+        n = self.n_
+        L = np.zeros((n, n))
+        L[_tril(n)] = self.ap_[: n * (n + 1) // 2]
+        return L
+
+    def predict(self, x) -> tuple[float, float]:
+        """Posterior mean and variance at one input ``x`` (ρ,) (eq:GPmean, eq:GPvariance)."""
+        n = self.n_
+        if n == 0:
+            return 0.0, self._sf2
+        _, a = self._query(x)
+        # eq:SE
+        k = self.A_[:n].dot(a)
+        np.exp(k, out=k)
+        # v = L⁻¹ k
+        v = dtpsv(n, self.ap_, k, lower=0, trans=1, overwrite_x=1)
+        # eq:GPmean: μ = yᵀ(K+σ²I)⁻¹k = vᵀβ ; eq:GPvariance: σ² = k(x,x) − vᵀv
+        mu = float(v.dot(self.beta_[:n]))
+        var = self._sf2 - float(v.dot(v))
+        return mu, (var if var > 0.0 else 0.0)
+
+    def predict_with_grad(self, x, var_grad: bool = False):
+        """``(μ, σ², ∂μ/∂x)`` or, with ``var_grad``, ``(μ, σ², ∂μ/∂x, ∂σ²/∂x)`` at ``x``."""
+        n = self.n_
+        d = self.input_dim
+        if n == 0:
+            z = np.zeros(d)
+            return (0.0, self._sf2, z, z.copy()) if var_grad else (0.0, self._sf2, z)
+        xb, a = self._query(x)
+        A = self.A_[:n]
+        # eq:SE
+        k = A.dot(a)
+        np.exp(k, out=k)
+        v = dtpsv(n, self.ap_, k, lower=0, trans=1)
+        vv = float(v.dot(v))
+        var = self._sf2 - vv
+        if var < 0.0:
+            var = 0.0
+        # eq:moejac with eq:kernelderivative: ∂μ/∂x = Σ_i α_i k_i (x_i − x)/l²
+        #   = Σ_i α_i k_i A_i[:ρ] − (Σ_i α_i k_i) x̄/l²,  and Σ_i α_i k_i = μ (A's column of ones)
+        g = (self.alpha_ * k).dot(A).tolist()
+        mu = g[d + 1]
+        il2 = self._il2l
+        dmu = np.array([g[j] - mu * il2[j] * xb[j] for j in range(d)])
+        if not var_grad:
+            return mu, var, dmu
+        # ∂σ²/∂x = −2 Σ_i w_i ∂k_i/∂x with w = (K+σ²I)⁻¹k = L⁻ᵀv, and Σ_i w_i k_i = vᵀv
+        w = dtpsv(n, self.ap_, v, lower=0, trans=0, overwrite_x=1)
+        w *= k
+        g2 = w.dot(A).tolist()
+        dvar = np.array([-2.0 * (g2[j] - vv * il2[j] * xb[j]) for j in range(d)])
+        return mu, var, dmu, dvar
+
+    def log_marginal_likelihood(self, grad: bool = True, points: int | None = None):
+        """LML of the stored data (and its gradient w.r.t. ``log θ``), reusing the factor.
+
+        ``points``: use only the oldest ``points`` points, whose factor is the leading block of
+        the stored one (free); the cubic cost then shrinks by ``(points / N)³``.
+        """
+        n = self.n_ if points is None else max(0, min(int(points), self.n_))
+        if n == 0:
+            return (0.0, np.zeros(self.input_dim + 2)) if grad else 0.0
+        L = np.zeros((n, n))
+        L[_tril(n)] = self.ap_[: n * (n + 1) // 2]
+        return log_marginal_likelihood(self.X_[:n], self.y_[:n], self.sigma_f, self.lengthscales,
+                                       self.sigma_n, grad=grad, jitter=self.jitter, L=L)
+
+    # ------------------------------------------------------------------ persistence
+    def to_dict(self) -> dict:
+        """JSON-serialisable state (data and hyperparameters); the factor is rebuilt on load."""
+        n = self.n_
+        return {"input_dim": self.input_dim, "sigma_f": self.sigma_f,
+                "lengthscales": self.lengthscales.tolist(), "sigma_n": self.sigma_n,
+                "jitter": self.jitter, "max_capacity": self.max_capacity,
+                "center": None if self.center_ is None else self.center_.tolist(),
+                "X": self.X_[:n].tolist(), "y": self.y_[:n].tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "IncrementalGP":
+        n = len(d["y"])
+        gp = cls(d["input_dim"], d["sigma_f"], d["lengthscales"], d["sigma_n"],
+                 capacity=max(n, 1), max_capacity=d.get("max_capacity"), jitter=d["jitter"])
+        if d.get("center") is not None:
+            gp._set_center(d["center"])
+        if n:
+            gp.n_ = n
+            gp.X_[:n] = np.asarray(d["X"], dtype=float).reshape(n, -1)
+            gp.y_[:n] = d["y"]
+            gp._rebuild()
+        return gp
+
+
+def fit_hyperparameters(X, y, sigma_f: float = 1.0, lengthscales=1.0, sigma_n: float = 0.1, *,
+                        bounds: Sequence[tuple[float, float]] | None = None,
+                        maxiter: int = 200) -> tuple[float, np.ndarray, float]:
+    """Maximise the log marginal likelihood over ``log θ`` (L-BFGS-B, analytic gradient).
+
+    Returns ``(sigma_f, lengthscales, sigma_n)``.
+    """
+    from scipy.optimize import minimize
+
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    d = X.shape[1]
+    t0 = np.concatenate(([math.log(sigma_f)], np.log(np.broadcast_to(lengthscales, (d,))),
+                         [math.log(sigma_n)]))
+
+    def nll(t):
+        try:
+            lml, g = log_marginal_likelihood(X, y, math.exp(t[0]), np.exp(t[1:d + 1]),
+                                             math.exp(t[d + 1]))
+        except EstimatorFault:
+            return 1e25, np.zeros_like(t)
+        return -lml, -g
+
+    res = minimize(nll, t0, jac=True, method="L-BFGS-B", bounds=bounds,
+                   options={"maxiter": maxiter})
+    t = res.x
+    return math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1])

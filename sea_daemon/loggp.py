@@ -1,0 +1,581 @@
+"""Locally growing random tree of Gaussian processes (LoG-GP; Lederer et al., ICML 2021).
+
+The face of contracts §5::
+
+    from sea_daemon.loggp import LoGGP
+    gp = LoGGP(input_dim=3, max_points=100)
+    gp.update(x, y)          # x: (input_dim,) array, y: float
+    mu, var = gp.predict(x)  # floats
+
+Method (as in the LoG-GP paper and its reference implementation ``lgrt4gps``):
+
+* Every leaf is an exact GP (:class:`sea_daemon.gp.IncrementalGP`) holding at most
+  ``N̄ = max_points`` points; adding a point costs O(N̄²) (one new Cholesky row).
+* A full leaf that receives a point splits: dimension ``j`` of the widest spread of its
+  ``N̄ + 1`` points, split value ``s`` the centre of that spread, overlap width
+  ``o = overlap · width``.  The probability of the *left* child (smaller values) is the linear
+  ramp ``p(x) = clip(½ − (x_j − s)/o, 0, 1)``: 1 below ``s − o/2``, 0 above ``s + o/2``.  Each
+  point goes to exactly one child, drawn with ``p`` (seeded, deterministic).  Children inherit
+  the parent's hyperparameters.
+* Prediction merges every leaf the input reaches with non-zero probability, weighted by the
+  product ``ω`` of the branch probabilities on its path (mixture of experts):
+  ``μ = Σ ω_i μ_i``, ``σ² = Σ ω_i (σ_i² + μ_i²) − μ²``.  Because the ramp is continuous, so
+  are the merged mean and variance.  The Jacobian is the exact derivative of that mixture,
+  ``∂μ/∂x = Σ (ω_i ∂μ_i/∂x + μ_i ∂ω_i/∂x)`` with ``∂μ_i/∂x`` from ``eq:moejac`` /
+  ``eq:kernelderivative``; outside overlaps (the common case) it is exactly ``eq:moejac``.
+
+Memory bound (``max_leaves``): once the tree has ``max_leaves`` leaves, full leaves stop
+splitting.  A full leaf that receives a point forgets its oldest ``evict`` points (FIFO,
+default ``max(1, N̄ // 10)``) and refactorises once (O(N̄³)/evict amortised per update =
+O(N̄²)); the new point is then appended in O(N̄²).  So memory is O(max_leaves · N̄²) and the
+model keeps tracking slowly changing dynamics.  A leaf whose points are all identical cannot
+split and uses the same rule.
+
+Online hyperparameters: see :mod:`sea_daemon.gp_hyper` (``hyperopt=True``): every
+``hyper_every`` updates one bounded slice runs — one Adam step of the log marginal likelihood
+of the leaf that just received data (phase 1, in that update), then the rebuild of that leaf's
+factor with the new values, swapped in at once (phase 2, in the next update).  Each phase costs
+O(N̄³) for one leaf, independent of the tree size, and a call that splits or evicts runs no
+phase (at most one O(N̄³) piece of work per call).  Deterministic under ``seed``.  For
+adaptation in another process see :meth:`LoGGP.hyper_request` / :meth:`LoGGP.hyper_apply`.
+
+Cost: an update is O(depth + N̄²); a prediction O(depth + m N̄²) for the m leaves it reaches.
+The depth grows logarithmically with the data, and m grows like (1 + overlap)^depth: with a
+small overlap (0.01, the ``lgrt4gps`` default) m stays ≈ 1.1 up to 10⁶ points (flat cost); with
+0.1, m went from 1.5 to 3.7 between 10³ and 10⁶ points on the bench trajectory (better
+averaging, gentler weight ramps, costlier predictions).  No I/O, no clock, no threads.
+"""
+from __future__ import annotations
+
+import math
+import random
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError, ModelFileError
+from .gp import IncrementalGP
+from .gp_hyper import AdamHyper
+
+_FORMAT = "sea-daemon-loggp"
+_VERSION = 1
+
+
+class LoGGP:
+    """Locally growing random tree of GPs (contracts §5).
+
+    Parameters
+    ----------
+    input_dim: ρ, the input dimension (3 per joint for ``z = [q, q̇, q̈]``).
+    max_points: N̄, the maximum number of points per leaf (paper: 100).
+    max_leaves: memory bound on the number of leaves (``None``: unbounded).
+    overlap: relative width of a split's overlapping region, in [0, 0.9].
+    lengthscales, sigma_f, sigma_n: initial hyperparameters of every leaf (eq:SE, σ_on).
+    hyperopt: adapt the hyperparameters online (bounded slices, see :mod:`sea_daemon.gp_hyper`).
+    hyper_every: updates between two hyperparameter slices.
+    hyper_lr: Adam step size in log space.
+    hyper_min_points: a leaf needs this many points before it is adapted.
+    hyper_points: in-loop slices use the LML gradient of a leaf's oldest ``hyper_points``
+        points only (``None``: all); 50 of 100 cuts the cost of phase 1 several-fold.
+    evict: points a full leaf forgets at once when it may not split (default ``N̄ // 10``).
+    seed: seed of the random split assignment.
+    """
+
+    def __init__(self, input_dim: int, max_points: int = 100, *, max_leaves: int | None = 2000,
+                 overlap: float = 0.1, lengthscales=1.0, sigma_f: float = 1.0,
+                 sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
+                 hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
+                 evict: int | None = None,
+                 seed: int = 0, jitter: float = 1e-10):
+        def _int(name, v, lo):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
+            return int(v)
+
+        self.input_dim = _int("input_dim", input_dim, 1)
+        self.max_points = _int("max_points", max_points, 2)
+        self.max_leaves = None if max_leaves is None else _int("max_leaves", max_leaves, 1)
+        if isinstance(overlap, bool) or not isinstance(overlap, (int, float)) \
+                or not 0.0 <= float(overlap) <= 0.9:
+            raise InputError(f"overlap must be in [0, 0.9], got {overlap!r}")
+        self.overlap = float(overlap)
+        self.hyperopt = bool(hyperopt)
+        self.hyper_every = _int("hyper_every", hyper_every, 1)
+        self.hyper_min_points = _int("hyper_min_points", hyper_min_points, 2)
+        self.hyper_points = None if hyper_points is None else _int("hyper_points", hyper_points, 2)
+        self.evict = max(1, self.max_points // 10) if evict is None else _int("evict", evict, 1)
+        self.evict = min(self.evict, self.max_points)
+        self.seed = _int("seed", seed, 0)
+        self.jitter = float(jitter)
+        # validates the hyperparameters (raises InputError naming the value)
+        proto = IncrementalGP(self.input_dim, sigma_f, lengthscales, sigma_n, capacity=1)
+        self._theta0 = proto.log_theta
+        self.hyper = AdamHyper(self.input_dim, lr=hyper_lr)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget all data (hyperparameters back to their initial values)."""
+        self._rng = random.Random(self.seed)
+        # tree as parallel lists; node 0 is the root; dim −1 marks a leaf
+        self._dim: list[int] = [-1]
+        self._lo: list[float] = [0.0]
+        self._hi: list[float] = [0.0]
+        self._left: list[int] = [-1]
+        self._right: list[int] = [-1]
+        self._gp: list[IncrementalGP | None] = [self._new_leaf(self._theta0)]
+        self._adam: dict[int, Any] = {}
+        self.n_leaves = 1
+        self.n_points = 0
+        self.n_updates = 0
+        self.n_evicted = 0
+        self.n_hyper_steps = 0
+        self.last_leaf = 0
+        self._pending: tuple[int, np.ndarray] | None = None
+        self._hyper_due = False
+
+    def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
+        d = self.input_dim
+        return IncrementalGP(d, math.exp(log_theta[0]), np.exp(log_theta[1:d + 1]),
+                             math.exp(log_theta[d + 1]), capacity=min(capacity, self.max_points),
+                             max_capacity=self.max_points, jitter=self.jitter)
+
+    def _check_x(self, x) -> tuple[np.ndarray, list[float]]:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.input_dim,):
+            raise InputError(f"x must have shape ({self.input_dim},), got {x.shape}")
+        xl = x.tolist()
+        for v in xl:
+            if not math.isfinite(v):
+                raise InputError(f"x must be finite, got {xl}")
+        return x, xl
+
+    # ------------------------------------------------------------------ learning
+    def update(self, x, y: float) -> None:
+        """Add one training pair ``(x, y)``; O(depth + N̄²) (a split or eviction: O(N̄³) once)."""
+        x, xl = self._check_x(x)
+        y = float(y)
+        if not math.isfinite(y):
+            raise InputError(f"y must be finite, got {y}")
+        dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
+        node = 0
+        j = dim[0]
+        while j >= 0:
+            xj = xl[j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                # overlap: left with probability p = (hi − x_j)/o (linear ramp)
+                p = (hi[node] - xj) / (hi[node] - lo[node])
+                node = left[node] if self._rng.random() < p else right[node]
+            j = dim[node]
+        gp = self._gp[node]
+        heavy = True                             # a split or an eviction: O(N̄³) in this call
+        if gp.n_ < self.max_points:
+            gp.add(x, y)
+            heavy = False
+        elif (self.max_leaves is None or self.n_leaves < self.max_leaves) \
+                and (child := self._split(node, x, y)) >= 0:
+            node = child                         # the leaf the new point went to
+        else:
+            # memory bound: forget the oldest points, then append (FIFO)
+            gp.remove_oldest(self.evict)
+            self.n_evicted += self.evict
+            self.n_points -= self.evict
+            gp.add(x, y)
+        self.n_points += 1
+        self.n_updates += 1
+        self.last_leaf = node
+        if self.hyperopt:
+            if self.n_updates % self.hyper_every == 0:
+                self._hyper_due = True
+            # at most one O(N̄³) piece of work per call: a hyperparameter phase waits for a
+            # call without a split or an eviction
+            if heavy:
+                return
+            if self._pending is not None:
+                # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
+                pnode, theta = self._pending
+                self._pending = None
+                g = self._gp[pnode]
+                if g is not None:              # (a leaf that split meanwhile keeps its values)
+                    self.hyper.apply(g, theta)
+            elif self._hyper_due:
+                # phase 1: gradient + Adam step on the leaf that just received data
+                self._hyper_due = False
+                self._propose(node)
+
+    def _split(self, node: int, x: np.ndarray, y: float) -> int:
+        """Split the full leaf ``node`` with the new point (LoG-GP).
+
+        Returns the child leaf that received the new point, or −1 if the leaf cannot split
+        (all its points coincide).
+        """
+        gp = self._gp[node]
+        n = gp.n_
+        X = np.empty((n + 1, self.input_dim))
+        X[:n] = gp.X_[:n]
+        X[n] = x
+        Y = np.empty(n + 1)
+        Y[:n] = gp.y_[:n]
+        Y[n] = y
+        mi, ma = X.min(axis=0), X.max(axis=0)
+        width = ma - mi
+        j = int(np.argmax(width))
+        if not width[j] > 0.0:
+            return -1
+        s = 0.5 * (ma[j] + mi[j])
+        o = self.overlap * width[j]
+        lo, hi = s - 0.5 * o, s + 0.5 * o
+        xj = X[:, j]
+        go_left = xj <= lo
+        # points inside the overlap go left with probability p = (hi − x_j)/o (in index order)
+        rnd = self._rng.random
+        for i in np.flatnonzero((xj > lo) & (xj < hi)).tolist():
+            go_left[i] = rnd() < (hi - xj[i]) / (hi - lo)
+        # one kernel matrix of all N̄ + 1 points; the children's are its sub-matrices
+        Kall = gp.kernel_matrix(X)
+        cap = min(self.max_points, n // 2 + 16)
+        children = []
+        for mask in (go_left, ~go_left):
+            idx = np.flatnonzero(mask)
+            leaf = gp.spawn(X[idx], Y[idx], Kall[np.ix_(idx, idx)], capacity=cap)
+            children.append(len(self._gp))
+            self._gp.append(leaf)
+            self._dim.append(-1)
+            self._lo.append(0.0)
+            self._hi.append(0.0)
+            self._left.append(-1)
+            self._right.append(-1)
+        self._dim[node], self._lo[node], self._hi[node] = j, lo, hi
+        self._left[node], self._right[node] = children
+        self._gp[node] = None
+        st = self._adam.pop(node, None)
+        if st is not None:
+            for c in children:
+                self._adam[c] = self.hyper.copy_state(st)
+        self.n_leaves += 1
+        return children[0] if go_left[n] else children[1]
+
+    def _propose(self, node: int) -> float | None:
+        gp = self._gp[node]
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        if st is None:
+            st = self._adam[node] = self.hyper.new_state()
+        lml, theta = self.hyper.propose(gp, st, self.hyper_points)
+        if theta is not None:
+            self._pending = (node, theta)
+        self.n_hyper_steps += 1
+        return lml
+
+    def hyper_slice(self, leaf: int | None = None) -> float | None:
+        """One bounded hyperparameter slice on ``leaf`` (default: the last updated one).
+
+        One Adam ascent step on that leaf's log marginal likelihood, then its factor is
+        rebuilt with the new values and swapped in (both phases in this call; ``update`` runs
+        the two phases on consecutive calls instead).  Cost O(N̄³) with N̄ = ``max_points``,
+        independent of the tree size.  Returns the leaf's LML before the step (None if skipped).
+        """
+        if self._pending is not None:
+            pnode, theta = self._pending
+            self._pending = None
+            if self._gp[pnode] is not None:
+                self.hyper.apply(self._gp[pnode], theta)
+        node = self.last_leaf if leaf is None else leaf
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        if st is None:
+            st = self._adam[node] = self.hyper.new_state()
+        lml = self.hyper.step(gp, st, self.hyper_points)
+        self.n_hyper_steps += 1
+        return lml
+
+    def hyper_request(self, leaf: int | None = None) -> dict | None:
+        """JSON-able snapshot of one leaf (default: the last updated) for off-loop adaptation
+        with :func:`sea_daemon.gp_hyper.adam_steps`; None if the leaf has too few points."""
+        node = self.last_leaf if leaf is None else int(leaf)
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        n = gp.n_
+        return {"node": node, "input_dim": self.input_dim, "X": gp.X_[:n].ravel().tolist(),
+                "y": gp.y_[:n].tolist(), "center": gp.center_.tolist(),
+                "log_theta": gp.log_theta.tolist(), "jitter": gp.jitter,
+                "adam": None if st is None else st.tolist()}
+
+    def hyper_apply(self, result: dict) -> bool:
+        """Swap in a result of :func:`~sea_daemon.gp_hyper.adam_steps` (one O(N̄³) rebuild).
+
+        Applied only if that node is still a leaf (a leaf that split meanwhile keeps the values
+        it passed on to its children).  Returns whether it was applied.
+        """
+        node = int(result["node"])
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None:
+            return False
+        theta = np.clip(np.asarray(result["log_theta"], dtype=float), self.hyper.lo, self.hyper.hi)
+        if not self.hyper.apply(gp, theta):
+            return False
+        self._adam[node] = np.asarray(result["adam"], dtype=float)
+        self.n_hyper_steps += len(result.get("lml", [1]))
+        return True
+
+    def optimize_hyperparameters(self, steps: int = 20) -> None:
+        """Off-line: ``steps`` Adam slices on every leaf (e.g. at the end of calibration)."""
+        for _ in range(int(steps)):
+            for node in self.leaves():
+                self.hyper_slice(node)
+
+    # ------------------------------------------------------------------ prediction
+    def _route(self, xl: list[float], grad: bool):
+        """Leaves reached by ``x`` as ``[(node, ω, ∂ω/∂x or None)]``."""
+        dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
+        node = 0
+        while True:                                  # fast path: no overlap on the way
+            j = dim[node]
+            if j < 0:
+                return [(node, 1.0, None)]
+            xj = xl[j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                break
+        out = []
+        stack = [(node, 1.0, None)]
+        while stack:
+            node, w, dw = stack.pop()
+            j = dim[node]
+            if j < 0:
+                out.append((node, w, dw))
+                continue
+            xj = xl[j]
+            if xj <= lo[node]:
+                stack.append((left[node], w, dw))
+            elif xj >= hi[node]:
+                stack.append((right[node], w, dw))
+            else:
+                io = 1.0 / (hi[node] - lo[node])
+                p = (hi[node] - xj) * io
+                dwl = dwr = None
+                if grad:
+                    # ∂(ω p)/∂x = p ∂ω/∂x + ω ∂p/∂x, with ∂p/∂x_j = −1/o
+                    dwl = np.zeros(self.input_dim) if dw is None else dw * p
+                    dwr = np.zeros(self.input_dim) if dw is None else dw * (1.0 - p)
+                    dwl[j] -= w * io
+                    dwr[j] += w * io
+                stack.append((right[node], w * (1.0 - p), dwr))
+                stack.append((left[node], w * p, dwl))
+        return out
+
+    def predict(self, x) -> tuple[float, float]:
+        """Merged posterior mean and variance at ``x`` (floats)."""
+        x, xl = self._check_x(x)
+        route = self._route(xl, False)
+        gps = self._gp
+        if len(route) == 1:
+            return gps[route[0][0]].predict(x)
+        mu = m2 = 0.0
+        for node, w, _ in route:
+            m, v = gps[node].predict(x)
+            mu += w * m
+            m2 += w * (v + m * m)
+        var = m2 - mu * mu
+        return mu, (var if var > 0.0 else 0.0)
+
+    def predict_with_grad(self, x, var_grad: bool = False):
+        """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
+        x, xl = self._check_x(x)
+        route = self._route(xl, True)
+        gps = self._gp
+        if len(route) == 1:
+            return gps[route[0][0]].predict_with_grad(x, var_grad)
+        d = self.input_dim
+        mu = m2 = 0.0
+        dmu = np.zeros(d)
+        dm2 = np.zeros(d)
+        for node, w, dw in route:
+            r = gps[node].predict_with_grad(x, var_grad)
+            m, v, dm = r[0], r[1], r[2]
+            mu += w * m
+            m2 += w * (v + m * m)
+            # ∂(ω μ_i) = ω ∂μ_i + μ_i ∂ω
+            dmu += w * dm + m * dw
+            if var_grad:
+                # ∂(ω (σ_i² + μ_i²)) = ∂ω (σ_i² + μ_i²) + ω (∂σ_i² + 2 μ_i ∂μ_i)
+                dm2 += dw * (v + m * m) + w * (r[3] + 2.0 * m * dm)
+        var = m2 - mu * mu
+        if var < 0.0:
+            var = 0.0
+        if not var_grad:
+            return mu, var, dmu
+        return mu, var, dmu, dm2 - 2.0 * mu * dmu
+
+    # ------------------------------------------------------------------ introspection
+    def leaves(self) -> list[int]:
+        """Node ids of the leaves, in creation order."""
+        return [i for i, g in enumerate(self._gp) if g is not None]
+
+    def leaf(self, node: int) -> IncrementalGP:
+        g = self._gp[node]
+        if g is None:
+            raise InputError(f"node {node} is not a leaf")
+        return g
+
+    @property
+    def depth(self) -> int:
+        """Depth of the deepest leaf (root = 0)."""
+        best, stack = 0, [(0, 0)]
+        while stack:
+            node, dep = stack.pop()
+            if self._dim[node] < 0:
+                best = max(best, dep)
+            else:
+                stack.append((self._left[node], dep + 1))
+                stack.append((self._right[node], dep + 1))
+        return best
+
+    def memory_bytes(self) -> int:
+        """Bytes in the leaves' arrays plus an estimate of the tree's Python lists."""
+        return sum(g.nbytes() for g in self._gp if g is not None) + 8 * 6 * len(self._dim)
+
+    # ------------------------------------------------------------------ persistence
+    def to_dict(self) -> dict:
+        """JSON-serialisable state (no numpy, no pickle); factors are rebuilt on load."""
+        leaves = []
+        for node in self.leaves():
+            g = self._gp[node]
+            st = self._adam.get(node)
+            leaves.append({"node": node, "gp": g.to_dict(),
+                           "adam": None if st is None else self.hyper.state_to_dict(st)})
+        state = self._rng.getstate()
+        return {"format": _FORMAT, "version": _VERSION,
+                "options": {"input_dim": self.input_dim, "max_points": self.max_points,
+                            "max_leaves": self.max_leaves, "overlap": self.overlap,
+                            "lengthscales": np.exp(self._theta0[1:self.input_dim + 1]).tolist(),
+                            "sigma_f": math.exp(self._theta0[0]),
+                            "sigma_n": math.exp(self._theta0[-1]),
+                            "hyperopt": self.hyperopt, "hyper_every": self.hyper_every,
+                            "hyper_lr": self.hyper.lr, "hyper_min_points": self.hyper_min_points,
+                            "hyper_points": self.hyper_points,
+                            "evict": self.evict, "seed": self.seed, "jitter": self.jitter},
+                "tree": {"dim": list(self._dim), "lo": list(self._lo), "hi": list(self._hi),
+                         "left": list(self._left), "right": list(self._right)},
+                "leaves": leaves,
+                "counters": {"n_points": self.n_points, "n_updates": self.n_updates,
+                             "n_evicted": self.n_evicted, "n_hyper_steps": self.n_hyper_steps,
+                             "last_leaf": self.last_leaf, "hyper_due": self._hyper_due},
+                "pending": None if self._pending is None else
+                [self._pending[0], self._pending[1].tolist()],
+                "rng_state": [state[0], list(state[1]), state[2]]}
+
+    def to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict]:
+        """``(arrays, meta)`` for :func:`sea_daemon.modelfile.save_model`: numeric arrays
+        (tree, leaf data, hyperparameters) named with ``prefix``, and a JSON-able ``meta``
+        (options, counters, random state).  Inverse: :meth:`from_arrays`."""
+        d = self.to_dict()
+        leaves = d.pop("leaves")
+        tree = d.pop("tree")
+        p = self.input_dim + 2
+        L = len(leaves)
+        ns = [len(lf["gp"]["y"]) for lf in leaves]
+        X = np.empty((sum(ns), self.input_dim))
+        y = np.empty(sum(ns))
+        theta = np.empty((L, p))
+        center = np.full((L, self.input_dim), np.nan)
+        adam = np.full((L, 1 + 2 * p), np.nan)
+        off = 0
+        for i, lf in enumerate(leaves):
+            g = self._gp[lf["node"]]
+            n = g.n_
+            X[off:off + n], y[off:off + n] = g.X_[:n], g.y_[:n]
+            off += n
+            theta[i, 0], theta[i, 1:p - 1], theta[i, p - 1] = g.sigma_f, g.lengthscales, g.sigma_n
+            if g.center_ is not None:
+                center[i] = g.center_
+            if lf["adam"] is not None:
+                adam[i] = lf["adam"]
+        arrays = {"tree_dim": np.asarray(tree["dim"], dtype=np.int64),
+                  "tree_lo": np.asarray(tree["lo"], dtype=float),
+                  "tree_hi": np.asarray(tree["hi"], dtype=float),
+                  "tree_left": np.asarray(tree["left"], dtype=np.int64),
+                  "tree_right": np.asarray(tree["right"], dtype=np.int64),
+                  "leaf_node": np.asarray([lf["node"] for lf in leaves], dtype=np.int64),
+                  "leaf_n": np.asarray(ns, dtype=np.int64), "leaf_hyp": theta,
+                  "leaf_center": center, "leaf_adam": adam, "X": X, "y": y}
+        return {prefix + k: v for k, v in arrays.items()}, d
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, meta: dict, prefix: str = "") -> "LoGGP":
+        """Inverse of :meth:`to_arrays` (raises ModelFileError on malformed input)."""
+        try:
+            a = {k[len(prefix):]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
+            d = dict(meta)
+            d["tree"] = {k: a["tree_" + k].tolist() for k in ("dim", "lo", "hi", "left", "right")}
+            dim_in = int(d["options"]["input_dim"])
+            leaves, off = [], 0
+            opts = d["options"]
+            for i, node in enumerate(a["leaf_node"].tolist()):
+                n = int(a["leaf_n"][i])
+                t = a["leaf_hyp"][i]                 # [σ_f, l_1 … l_ρ, σ_on]
+                c = a["leaf_center"][i]
+                ad = a["leaf_adam"][i]
+                leaves.append({"node": node, "adam": None if np.isnan(ad).all() else ad.tolist(),
+                               "gp": {"input_dim": dim_in, "sigma_f": float(t[0]),
+                                      "lengthscales": t[1:dim_in + 1].tolist(),
+                                      "sigma_n": float(t[dim_in + 1]),
+                                      "jitter": opts.get("jitter", 1e-10),
+                                      "max_capacity": opts["max_points"],
+                                      "center": None if np.isnan(c).any() else c.tolist(),
+                                      "X": a["X"][off:off + n].tolist(), "y": a["y"][off:off + n].tolist()}})
+                off += n
+            d["leaves"] = leaves
+        except (KeyError, IndexError, TypeError, ValueError) as e:
+            raise ModelFileError(f"LoG-GP model arrays are malformed: {e}") from None
+        return cls.from_dict(d)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LoGGP":
+        """Inverse of :meth:`to_dict` (raises ModelFileError on a malformed dict)."""
+        try:
+            if d.get("format") != _FORMAT or d.get("version") != _VERSION:
+                raise ModelFileError(f"not a LoG-GP model of version {_VERSION}: "
+                                     f"format {d.get('format')!r}, version {d.get('version')!r}")
+            self = cls(**d["options"])
+            t = d["tree"]
+            self._dim, self._lo, self._hi = list(t["dim"]), list(t["lo"]), list(t["hi"])
+            self._left, self._right = list(t["left"]), list(t["right"])
+            self._gp = [None] * len(self._dim)
+            self._adam = {}
+            for leaf in d["leaves"]:
+                node = int(leaf["node"])
+                g = IncrementalGP.from_dict(leaf["gp"])
+                g.max_capacity = self.max_points
+                self._gp[node] = g
+                if leaf.get("adam") is not None:
+                    self._adam[node] = self.hyper.state_from_dict(leaf["adam"])
+            if any((self._dim[i] < 0) != (self._gp[i] is not None) for i in range(len(self._dim))):
+                raise ModelFileError("LoG-GP model: leaves and tree do not match")
+            self.n_leaves = len(d["leaves"])
+            c = d["counters"]
+            self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
+            self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
+            self.last_leaf = int(c["last_leaf"])
+            self._hyper_due = bool(c.get("hyper_due", False))
+            pend = d.get("pending")
+            self._pending = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
+            rs = d["rng_state"]
+            self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))
+            return self
+        except ModelFileError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError, InputError) as e:
+            raise ModelFileError(f"LoG-GP model is malformed: {e}") from None
