@@ -53,6 +53,8 @@ class AKFTheoremBound:
             raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
                              "see sea_daemon.bounds.akf_bound.gp_constants)")
         self._auto = has_gp and isinstance(gp_constants, str)
+        self.refresh_every = 200          # 'auto': recompute after this many new training points
+        self._learned_at = 0
         if self._auto and gp_constants != "auto":
             raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
@@ -79,7 +81,16 @@ class AKFTheoremBound:
     def refresh_gp_constants(self) -> None:
         """Recompute the GP constants and input box from the residual's current leaves
         (``gp_constants='auto'``; call after the GP learned more data)."""
-        self.gp_constants, self.gp_box = gp_constants(self.akf.residual, self.sm.delta_gp)
+        self.gp_constants, self.gp_box = gp_constants(residual_gps(self.akf), self.sm.delta_gp)
+        self._learned_at = self._n_learned()
+
+    def _n_learned(self) -> int:
+        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
+        else the points held by the LoG-GPs."""
+        n = getattr(self.akf, "n_learned", None)
+        if n is not None:
+            return int(n)
+        return int(sum(g.n_points for g in residual_gps(self.akf) or []))
 
     def reset(self, *args, **kwargs):
         est = self._reset(*args, **kwargs)
@@ -147,21 +158,36 @@ class AKFTheoremBound:
         n = akf.n
         res = akf.residual
         mu0, J0, var0 = res.predict(zhat)
-        mu0 = np.asarray(mu0, dtype=float)
-        J0 = np.asarray(J0, dtype=float)[:, :2 * n]
+        # copies: a residual hook may return preallocated arrays overwritten by the next call
+        mu0 = np.array(mu0, dtype=float)
+        J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
+        var0 = np.array(var0, dtype=float)
         Cz = C.affine(self._T)                                     # exact: affine image
         smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
         e = np.zeros(n)
         out = False
         z = zhat.copy()
+        gps = residual_gps(akf)
+        mu = np.empty(n)
+        var = np.empty(n)
         for p in ellipsoid_points(Cz, self._Uz):
             z[:2 * n] = p
-            mu, _, var = res.predict(z)
+            if gps is not None:
+                # mean and variance only (no Jacobian needed here): cheaper than the hook
+                for j, g in enumerate(gps):
+                    mu[j], var[j] = g.predict(z)
+            else:
+                m_, _, v_ = res.predict(z)
+                mu[:], var[:] = m_, v_
             dz = p - zhat[:2 * n]
-            np.maximum(e, np.abs(np.asarray(mu, float) - mu0 - J0 @ dz), out=e)
-            np.maximum(smax, np.sqrt(np.maximum(np.asarray(var, float), 0.0)), out=smax)
-            if self.gp_box is not None and (np.any(z < self.gp_box[0]) or np.any(z > self.gp_box[1])):
-                out = True
+            np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
+            np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
+        if self.gp_box is not None:
+            # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
+            hw = Cz.axis_half_widths()
+            lo, hi = self.gp_box
+            out = bool(np.any(Cz.c - hw < lo[:2 * n]) or np.any(Cz.c + hw > hi[:2 * n])
+                       or np.any(zhat[2 * n:] < lo[2 * n:]) or np.any(zhat[2 * n:] > hi[2 * n:]))
         # ε_μ = −I_μ M⁻¹ (μ(z) − μ̄(z)): rows θ̈_s, bounded elementwise by |M⁻¹| e
         b = np.zeros(akf.d)
         b[3 * n:4 * n] = np.abs(akf.model.Minv) @ e
@@ -192,6 +218,9 @@ class AKFTheoremBound:
         sm = self.sm
         if not np.all(np.isfinite(sm.X_)):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
+        if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
+            # the GP keeps learning (GP-AKF with learning on): constants of the current data
+            self.refresh_gp_constants()
         C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
         if self._fast:
@@ -234,21 +263,34 @@ def attach_theorem_bound(akf, **kwargs) -> AKFTheoremBound:
     return akf.theorem_bound
 
 
+def residual_gps(akf) -> list | None:
+    """The per-joint LoG-GPs behind an AKF's residual: a ResidualGP (``.gps``), a hook over
+    one (``.gp.gps``, the GP-AKF's), or the estimator's own ``.gp``; None if unknown."""
+    for obj in (akf.residual, getattr(akf.residual, "gp", None), getattr(akf, "gp", None)):
+        if obj is not None and hasattr(obj, "gps"):
+            return list(obj.gps)
+    return None
+
+
 def attach_default_bound(akf) -> AKFTheoremBound | None:
-    """What :func:`sea_daemon.estimators.make_estimator` attaches: the Theorem-1 bound for a
-    plain AKF, and for a GP-AKF whose residual is a ResidualGP (one LoG-GP per joint, constants
-    computed at every reset).  An unknown residual type has no GP error constants, so the
-    AKF keeps its own bound and None is returned."""
+    """What :func:`sea_daemon.estimators.make_estimator` (and ``replay --estimator gp-akf``)
+    attach: the Theorem-1 bound for a plain AKF, and for a GP-AKF whose residual is backed by
+    LoG-GPs (constants computed at every reset, and refreshed while it keeps learning).  An
+    unknown residual type has no GP error constants, so the AKF keeps its own bound and
+    None is returned."""
+    if getattr(akf, "theorem_bound", None) is not None:
+        return akf.theorem_bound
     if akf.residual is None:
         return attach_theorem_bound(akf)
-    if hasattr(akf.residual, "gps"):
+    if residual_gps(akf) is not None:
         return attach_theorem_bound(akf, gp_constants="auto")
     return None
 
 
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
                  n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None):
-    """GP error constants per joint for a :class:`sea_daemon.learning.ResidualGP` (one LoG-GP per joint).
+    """GP error constants per joint for a :class:`sea_daemon.learning.ResidualGP` (one LoG-GP per
+    joint) or a list of LoG-GPs.
 
     δ_GP is split over the n joints' GPs (union bound); within each, a share
     ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
@@ -256,7 +298,7 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     constants stay valid while the tree grows).  The input box is the box of all training
     points widened by ``box_margin`` of its range.  Returns (constants list, (lo, hi)).
     """
-    gps = residual.gps
+    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
     n = len(gps)
     per_joint = delta_gp / n
     Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
