@@ -301,3 +301,38 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
         Rhat = encoder_R(th[0::2], th[1::2], akf.kin.C)
     return {"R": Rhat, "channels": channels, "encoder_variances": enc, "fir": np.asarray(akf.kin.C, float), "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
             "lags": lags, "spectral_radius": rad}
+
+
+#: floor for identified variances of the "all"-channel mode, so a configuration stays valid
+R_FLOOR = 1e-12
+
+
+def floored_R(cfg, res: dict) -> tuple[np.ndarray, dict | None, list]:
+    """R of :func:`identify_noise`'s result with variances floored: encoder variances at the
+    quantisation noise (2π/2^bits)²/12 of a ``hardware.encoder_bits`` encoder (R rebuilt, stays
+    PSD), or diagonal entries at :data:`R_FLOOR`.  Returns (R, encoder variances, floored names)."""
+    n = cfg.joints
+    R = np.array(res["R"], dtype=float)
+    enc = res.get("encoder_variances")
+    if enc is not None:
+        q_var = (2 * np.pi / 2 ** cfg.hardware.encoder_bits) ** 2 / 12.0
+        vm, vq = np.array(enc["theta_m"]), np.array(enc["q"])
+        floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < q_var)]
+        floored += [f"q_{j + 1}" for j in np.flatnonzero(vq < q_var)]
+        vm, vq = np.maximum(vm, q_var), np.maximum(vq, q_var)
+        return encoder_R(vm, vq, res["fir"]), {"theta_m": vm.tolist(), "q": vq.tolist()}, floored
+    floored = [int(i) for i in np.flatnonzero(np.diag(R) < R_FLOOR)]
+    R[np.diag_indices(4 * n)] = np.maximum(np.diag(R), R_FLOOR)
+    return R, None, floored
+
+
+def config_with_R(cfg, R: np.ndarray, Q: np.ndarray | None = None):
+    """``cfg`` with estimator.R = R and P0's measurement block = R (Sec. V-B: P0 set to R);
+    with ``Q`` also Sigma_nom = Q."""
+    import dataclasses
+    n = cfg.joints
+    est = cfg.estimator
+    P0 = np.array(est.P0, dtype=float)
+    P0[:4 * n, :4 * n] = R
+    kw = {"Sigma_nom": Q} if Q is not None else {}
+    return dataclasses.replace(cfg, estimator=dataclasses.replace(est, R=R, P0=P0, **kw))

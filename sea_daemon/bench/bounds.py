@@ -64,6 +64,9 @@ def add_arguments(p) -> None:
                    help="scenario files (default: configs/scenarios/passive.yaml active.yaml)")
     p.add_argument("--out", default="bench_bounds", help="directory for the plots and results.json")
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all available)")
+    p.add_argument("--als", action="store_true",
+                   help="identify R from each scenario's training log by ALS (identify-noise) and use it "
+                        "(and P0 = R) for every estimator instead of the configured R")
 
 
 def _run_one(est, log):
@@ -109,12 +112,19 @@ def run(args) -> int:
         log, train = sim.estimation, sim.training
         name = Path(sc_path).stem
         delta = sc.nominal.estimator.delta
+        nominal, true = sc.nominal, sc.true_config()
         print(f"\nscenario {name}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
+        if args.als:
+            from ..als import config_with_R, floored_R, identify_noise
+            R, enc, _ = floored_R(nominal, identify_noise(nominal, train))
+            nominal, true = config_with_R(nominal, R), config_with_R(true, R)
+            print(f"  R identified by ALS on the training log ({len(train)} samples): encoder variances "
+                  f"{enc}; diag R = {np.array2string(np.diag(R), precision=3)}")
         print(f"  {'estimator':<11s} {'cover rho':>9s} {'cover KF':>9s} {'mean rho':>9s} {'mean KF':>8s} "
               f"{'mean|e|':>8s} {'max|e|':>8s}  step time")
         rows, curves = {}, {}
         for label in labels:
-            est = builders[label](sc.nominal, sc.true_config(), train, log.dt)
+            est = builders[label](nominal, true, train, log.dt)
             hat, rho, kf, times = _run_one(est, log)
             err = np.abs(hat - log.tau_h_act)
             row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),

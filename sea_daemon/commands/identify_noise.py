@@ -7,7 +7,6 @@ the new R (and, as in Sec. V-B, P0's measurement block set to R).
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np
@@ -27,10 +26,6 @@ DESCRIPTION = (
     "with R (diagonal, y = [theta_m, theta_s, dtheta_m, dtheta_s]) and, with --with-Q, Q "
     "(x = [theta_m, theta_s, dtheta_m, dtheta_s, tau_h_act]). --write OUT.yaml saves the config "
     "with the new R (and P0's measurement block = R, as in the paper).")
-
-#: floor for identified variances, so the written configuration stays positive definite
-R_FLOOR = 1e-12
-
 
 def add_arguments(p) -> None:
     p.add_argument("log", metavar="LOG.csv", help="measured log (contracts §1)")
@@ -55,24 +50,11 @@ def run(args) -> int:
         raise InputError(f"--burn-in must be >= 0, got {args.burn_in}")
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
-    from ..als import encoder_R, identify_noise
+    from ..als import R_FLOOR, config_with_R, floored_R, identify_noise
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints
-    R = np.array(res["R"])
-    enc = res["encoder_variances"]
-    if enc is not None:
-        # floor: the quantisation noise of a hardware.encoder_bits encoder, (2π/2^bits)²/12
-        q_var = (2 * np.pi / 2 ** cfg.hardware.encoder_bits) ** 2 / 12.0
-        vm, vq = np.array(enc["theta_m"]), np.array(enc["q"])
-        floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < q_var)]
-        floored += [f"q_{j + 1}" for j in np.flatnonzero(vq < q_var)]
-        vm, vq = np.maximum(vm, q_var), np.maximum(vq, q_var)
-        enc = {"theta_m": vm.tolist(), "q": vq.tolist()}
-        R = encoder_R(vm, vq, res["fir"])
-    else:
-        floored = [int(i) for i in np.flatnonzero(np.diag(R) < R_FLOOR)]
-        R[np.diag_indices(4 * n)] = np.maximum(np.diag(R), R_FLOOR)
+    R, enc, floored = floored_R(cfg, res)
     full = args.full or args.channels == "angles"     # the angles mode gives a structured full R
     out = {"log": str(args.log), "config": str(args.config), "samples": len(log),
            "innovations": res["innovations"], "lags": res["lags"], "channels": res["channels"],
@@ -87,12 +69,10 @@ def run(args) -> int:
         Q[np.diag_indices(5 * n)] = np.maximum(np.diag(Q), R_FLOOR)
         out["Q"] = np.diag(Q).tolist() if not args.full else Q.tolist()
     if args.write:
-        est = cfg.estimator
-        P0 = np.array(est.P0, dtype=float)
-        P0[:4 * n, :4 * n] = R          # Sec. V-B: P0 set to the measurement noise R
-        new_est = dataclasses.replace(est, R=R, P0=P0, **({"Sigma_nom": Q} if args.with_q else {}))
+        # Sec. V-B: P0's measurement block set to the measurement noise R
+        new_cfg = config_with_R(cfg, R, Q if args.with_q else None)
         try:
-            save_config(dataclasses.replace(cfg, estimator=new_est), args.write,
+            save_config(new_cfg, args.write,
                         header=f"identify-noise: R{' and Q' if args.with_q else ''} identified by ALS "
                                f"from {args.log}")
         except OSError as e:
