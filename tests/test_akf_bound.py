@@ -122,3 +122,17 @@ def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
     # ρ ≥ the Gaussian part alone, at the GP-AKF's δ_N = δ/2
     s = chi2_quantile(1 - cfg.estimator.delta / 2, 5)
     assert np.all(out[1:, 1] >= np.sqrt(s * out[1:, 2]) - 1e-12)
+
+
+def test_gp_akf_estimator_gets_the_theorem_bound():
+    gpakf = pytest.importorskip("sea_daemon.estimators.gpakf")
+    from sea_daemon.bounds.akf_bound import attach_default_bound, residual_gps
+    cfg = load_config(default_config_path())
+    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+    est = gpakf.build(cfg, train, train.dt)
+    tb = attach_default_bound(est)
+    assert tb is not None and residual_gps(est) is not None
+    log = simulate(SEAModel.from_config(cfg), T=0.3, seed=7)
+    out = run(est, log)
+    assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
+    assert attach_default_bound(est) is tb                     # idempotent
