@@ -137,7 +137,7 @@ def test_bad_csv_through_subprocess(tmp_path):
 
 
 def test_bench_latency_runs(capsys):
-    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1"])
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1", "--estimators", "akf,spring"])
     out, _ = capsys.readouterr()
     assert code == 0
     assert "machine:" in out and "akf: per step median" in out and "(50 runs)" in out

@@ -17,7 +17,12 @@ Estimators (:data:`CASES`, label -> ``builder(nominal_cfg, true_cfg, train_log, 
 ``spring`` (τ_s), ``akf`` (Park et al., nominal model), ``oracle-akf`` (the same AKF given
 the true plant's configuration, every hidden effect declared: what the AKF can do with a
 perfect model).  Extension point: ``register('gp-akf', builder)`` adds a column (the
-GP-AKF learns from ``train_log``).
+GP-AKF learns from ``train_log``); ``sea_daemon.estimators.gpakf`` is registered automatically.
+
+Estimator settings: ``--settings MODEL.yaml`` (default ``configs/exo_1dof_sim.yaml``, R identified
+for the simulated sensors) gives its estimator, kinematics and learning sections to EVERY
+estimator (one setting for all); ``--settings scenario`` keeps each scenario's model config
+(the paper's R, Σ_nom).  See docs/gpakf.md.
 """
 from __future__ import annotations
 
@@ -64,9 +69,27 @@ def default_scenarios() -> list[str]:
     return [str(d / "passive.yaml"), str(d / "active.yaml")]
 
 
+def default_settings() -> str:
+    return str(repo_root() / "configs" / "exo_1dof_sim.yaml")
+
+
+def apply_settings(cfg, settings):
+    """``cfg`` with the estimator, kinematics and learning sections of ``settings`` (the model,
+    i.e. what the estimator knows of the plant, is kept): one setting for every estimator."""
+    import dataclasses
+    if settings is None:
+        return cfg
+    return dataclasses.replace(cfg, estimator=settings.estimator, kinematics=settings.kinematics,
+                               learning=settings.learning)
+
+
 def add_arguments(p) -> None:
     p.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO.yaml",
                    help="scenario files (default: configs/scenarios/passive.yaml active.yaml)")
+    p.add_argument("--settings", default=None, metavar="MODEL.yaml",
+                   help="estimator settings (estimator, kinematics, learning sections) used by EVERY "
+                        "estimator (default: configs/exo_1dof_sim.yaml, R identified for the simulated "
+                        "sensors); 'scenario': each scenario's own model config (the paper's R, Sigma_nom)")
     p.add_argument("--out", default="bench_accuracy", help="directory for the plots and results.json")
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all registered)")
 
@@ -109,13 +132,24 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     import os
+
+    from ..config import load_config
+    settings_path = args.settings or default_settings()
+    settings = None if settings_path == "scenario" else load_config(settings_path)
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
+    if settings is None:
+        print("estimator settings: each scenario's own model config")
+    else:
+        e = settings.estimator
+        print(f"estimator settings (all estimators): {settings_path}: R diag {np.diag(e.R).tolist()}, "
+              f"Sigma_nom diag {np.diag(e.Sigma_nom).tolist()}, kinematics {settings.kinematics.method} "
+              f"W={settings.kinematics.window} d={settings.kinematics.degree}")
     table = {}
     for sc_path in args.scenarios or default_scenarios():
         sc = load_scenario(sc_path)
         sim = simulate(sc)
         log, train = sim.estimation, sim.training
-        nominal, true = sc.nominal, sc.true_config()
+        nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
         name = Path(sc_path).stem
         print(f"\nscenario {name}: {sc.description}; estimation {len(log)} samples, training {len(train)}, "
               f"seed {sc.seed}")
@@ -134,10 +168,19 @@ def run(args) -> int:
             print(f"  {label:<11s} {s['rmse']:8.3f} {s['mean_abs_error']:8.3f} {s['max_abs_error']:8.3f} "
                   f"{s['mean_bound']:8.3f} {s['coverage']:6.2f} {st.get('median', float('nan')):7.1f}us "
                   f"{st.get('p99', float('nan')):7.1f}us")
+        if "gp-akf" in rows:
+            g = rows["gp-akf"]["rmse"]
+            parts = [f"GP-AKF RMSE {g:.4f} N m"]
+            if "akf" in rows:
+                parts.append(f"AKF / GP-AKF = {rows['akf']['rmse'] / g:.1f}x")
+            if "oracle-akf" in rows:
+                parts.append(f"GP-AKF / oracle AKF = {g / rows['oracle-akf']['rmse']:.2f}x")
+            print("  " + "; ".join(parts))
         png = out / f"{name}.png"
         plot(png, f"{name}: estimated active human torque (shaded: 2σ of P_k)", log.t, log.tau_h_act, results)
         print(f"  plot: {png}")
         table[name] = rows
+    print(f"load average {os.getloadavg()[0]:.2f} at the end")
     (out / "results.json").write_text(json.dumps(table, indent=1))
     print(f"\nresults: {out / 'results.json'}  (RMSE in N m; bound = KF chi-square bound at delta; "
           "cover = fraction of samples with |error| <= bound)")

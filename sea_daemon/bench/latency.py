@@ -63,17 +63,29 @@ def synthetic_log(cfg, seconds: float = 20.0, seed: int = 0) -> MeasuredLog:
     return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<synthetic>")
 
 
-def time_steps(est, log: MeasuredLog, warmup: int = 50) -> np.ndarray:
-    """Seconds per ``update`` call over the log (first ``warmup`` steps not recorded)."""
+def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False):
+    """Seconds per ``update`` call over the log (first ``warmup`` steps not recorded).
+
+    With ``cpu``: ``(wall, cpu)``, the second the CPU time of this thread per call
+    (``time.thread_time_ns``), which excludes the time the scheduler gave to other processes
+    -- on a shared machine the closer figure to what the step costs on an idle one.
+    """
     est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-    clock = time.perf_counter
+    clock = time.perf_counter_ns
+    tclock = time.thread_time_ns
     out = np.empty(len(log) - 1)
+    cout = np.empty(len(log) - 1)
     for k in range(1, len(log)):
         q, th, u, dt = log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1]
+        c0 = tclock()
         t0 = clock()
         est.update(q, th, u, dt)
-        out[k - 1] = clock() - t0
-    return out[warmup:]
+        t1 = clock()
+        cout[k - 1] = tclock() - c0
+        out[k - 1] = t1 - t0
+    if cpu:
+        return out[warmup:] * 1e-9, cout[warmup:] * 1e-9
+    return out[warmup:] * 1e-9
 
 
 def add_arguments(p) -> None:
@@ -81,14 +93,42 @@ def add_arguments(p) -> None:
     p.add_argument("--log", default=None, help="measured log to replay (default: synthetic)")
     p.add_argument("--seconds", type=float, default=30.0, help="length of the synthetic log [s]")
     p.add_argument("--repeat", type=int, default=3, help="passes over the log per estimator")
-    p.add_argument("--estimators", default="akf,spring",
-                   help=f"comma-separated labels (known: {', '.join(CASES)})")
+    p.add_argument("--estimators", default="akf,spring,gp-akf",
+                   help="comma-separated labels; 'gp-akf' = every gp-akf-1eK case up to --max-points "
+                        "(known: akf, spring, gp-akf-1e3 … gp-akf-1e6)")
+    p.add_argument("--max-points", type=float, default=1e6,
+                   help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~150 us per point)")
+    p.add_argument("--hyper-every", type=int, default=None,
+                   help="gp-akf cases: updates between two hyperparameter slices (default: the LoG-GP "
+                        "default, 10; each slice is two O(N̄³) phases on consecutive updates)")
+    p.add_argument("--quick", action="store_true",
+                   help="quick run: 10 s log, 1 pass, gp-akf up to 1e4 points")
+
+
+def _try_register_gp_akf(max_points: float, hyper_every: int | None = None) -> list[str]:
+    """The GP-AKF cases (``sea_daemon.bench._gpakf_cases``), when the GP-AKF is installed."""
+    import importlib.util
+    if importlib.util.find_spec("sea_daemon.estimators.gpakf") is None:
+        return []
+    from . import _gpakf_cases
+    return _gpakf_cases.register(register, int(max_points), hyper_every)
 
 
 def run(args) -> int:
     from ..errors import InputError
     cfg = load_config(args.config)
-    labels = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    if args.quick:
+        args.seconds, args.repeat, args.max_points = min(args.seconds, 10.0), 1, min(args.max_points, 1e4)
+    if args.hyper_every is not None and args.hyper_every < 1:
+        raise InputError(f"--hyper-every must be >= 1, got {args.hyper_every}")
+    gp_labels = _try_register_gp_akf(args.max_points, args.hyper_every)
+    labels = []
+    for s in args.estimators.split(","):
+        s = s.strip()
+        if s == "gp-akf":
+            labels += gp_labels
+        elif s:
+            labels.append(s)
     unknown = [s for s in labels if s not in CASES]
     if unknown:
         raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(CASES)}")
@@ -97,10 +137,19 @@ def run(args) -> int:
     log = read_log(args.log, n=cfg.joints, min_rows=100) if args.log else synthetic_log(cfg, args.seconds)
     import os
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
+    print("per step: wall-clock time (perf_counter); 'CPU time': thread CPU time of the same calls "
+          "(thread_time), without the time other processes had the core")
     print(f"data: {log.path}, {len(log)} samples at {1 / log.dt:.0f} Hz, {cfg.joints} joint(s), "
           f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass")
+    if gp_labels:
+        print("gp-akf-1eK: GP-AKF step WITH online learning (GP mean + Jacobian + variance, filter step, "
+              "training pair, LoG-GP update incl. hyperparameter slices) with the LoG-GP pre-filled to "
+              "1eK points; LoG-GP vs lgrt4gps on the same data: `sea-daemon bench loggp`")
     for label in labels:
         est = CASES[label](cfg, log.dt, log)
-        times = np.concatenate([time_steps(est, log) for _ in range(args.repeat)])
-        print(f"{label:>10s}: per step {summarize(times)}")
+        runs = [time_steps(est, log, cpu=True) for _ in range(args.repeat)]
+        times = np.concatenate([r[0] for r in runs])
+        cpu = np.concatenate([r[1] for r in runs])
+        print(f"{label:>12s}: per step {summarize(times)}; load average {os.getloadavg()[0]:.2f}", flush=True)
+        print(f"{'':>12s}  CPU time of the step {summarize(cpu)}", flush=True)
     return 0

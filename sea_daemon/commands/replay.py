@@ -69,6 +69,11 @@ def run(args) -> int:
         write_columns(args.out, est_columns(res))
     except OSError as e:
         raise InputError(f"--out {args.out}: cannot write: {e.strerror or e}") from None
-    summary = summarize(res, log=str(args.log), config=str(args.config), out=str(args.out))
+    extra = {}
+    if getattr(est, "gp", None) is not None and train is not None:
+        # GP-AKF: what was learned from --train (one LoG-GP per joint)
+        extra["train"] = {"log": str(args.train), "pairs": int(est.n_learned),
+                          "leaves": [int(g.n_leaves) for g in est.gp.gps]}
+    summary = summarize(res, log=str(args.log), config=str(args.config), out=str(args.out), **extra)
     print(json.dumps(summary))
     return 0

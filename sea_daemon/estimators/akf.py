@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.linalg.lapack import dpotrf as _dpotrf, dpotrs as _dpotrs
 
 from ..config import ModelConfig
 from ..errors import EstimatorFault
@@ -128,6 +129,7 @@ class AKF:
         self.u_applied = np.zeros(n)
         self._aug = np.zeros((d + 1 + n, d + 1 + n))
         self._IKH = np.eye(d)
+        self._rhs = np.zeros((m, d + 1))
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
@@ -142,15 +144,33 @@ class AKF:
         self._hhead = cap - 1
         self._t = 0.0
         self._ready = False
+        # --- specialised path for the plain nominal model (no declared effects): f_nom is
+        # affine in x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of
+        # F_nom and f_nom are built once here (same values as SEAModel.F_nom / f_nom).
+        self._affine = not self.model.effects
+        if self._affine:
+            m_ = self.model
+            # F_nom at q = 0 contains −M⁻¹ diag(g cos 0) in the θ̈_s rows; add it back
+            A_lin = m_.F_nom(np.zeros(d), np.zeros(n))
+            self._MinvG = m_.Minv * m_.gravity[None, :]           # M⁻¹ diag(g)
+            A_lin[3 * n:4 * n, :n] += self._MinvG
+            A_lin[3 * n:4 * n, n:2 * n] += self._MinvG
+            self._A_lin = A_lin
+            self._B_lin = m_.B_nom()
+            self._q = np.zeros(n)
 
     # ------------------------------------------------------------------ measurement
 
     def measure(self, q, theta_m) -> np.ndarray:
         """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
         n = self.n
-        qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
-        self._ang[:n] = qc
-        self._ang[n:] = thc
+        if self._affine:                    # no declared effects, so no encoder offsets
+            self._ang[:n] = q
+            self._ang[n:] = theta_m
+        else:
+            qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
+            self._ang[:n] = qc
+            self._ang[n:] = thc
         ang, vel, acc = self.kin.update(self._ang)
         y = self.y
         y[:n] = ang[n:]
@@ -236,6 +256,26 @@ class AKF:
         self._push_input(np.asarray(tau_m, dtype=float))
         return self.est
 
+    def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks.
+
+        f_nom(x, u) = A_lin x + B u − I_μ M⁻¹ g ⊙ sin q,  F_nom = A_lin − I_μ M⁻¹ diag(g cos q) ∂q/∂x
+        (eq:nonlindyn with C(q) = g ⊙ sin q, q = θ_m + θ_s); equal to SEAModel.f_nom/F_nom.
+        """
+        n = self.n
+        q = self._q
+        np.add(x[:n], x[n:2 * n], out=q)
+        A = self._A_lin.copy()
+        # ∂(−M⁻¹ C(q))/∂θ_m = ∂/∂θ_s = −M⁻¹ diag(g cos q)   (θ̈_s rows, eq:xsdd)
+        gc = self._MinvG * np.cos(q)[None, :]
+        A[3 * n:4 * n, :n] -= gc
+        A[3 * n:4 * n, n:2 * n] -= gc
+        # eq:nonlindyn
+        xdot = self._A_lin @ x
+        xdot += self._B_lin @ u
+        xdot[3 * n:4 * n] -= self._MinvG @ np.sin(q)
+        return A, xdot
+
     def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> Estimate:
         """The filter proper: predict with input u over dt, then update with y (4n,).
 
@@ -246,10 +286,13 @@ class AKF:
         model = self.model
         x = self.x
         n, d, m = self.n, self.d, self.m
-        # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
-        A = model.F_nom(x, u)
-        # eq:nonlindyn
-        xdot = model.f_nom(x, u)
+        if self._affine:
+            A, xdot = self._nominal_affine(x, u)
+        else:
+            # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
+            A = model.F_nom(x, u)
+            # eq:nonlindyn
+            xdot = model.f_nom(x, u)
         if self.residual is not None:
             # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
             mu, dmu_dz, var = self.residual.predict(self.z)
@@ -260,6 +303,7 @@ class AKF:
             # eq:linearization: F = F_nom − I_μ M⁻¹ F_GP, F_GP = ∂μ/∂z · ∂z/∂x
             A -= self.G_mu @ (np.asarray(dmu_dz, dtype=float) @ self.dz_dx)
         self.A_k[:] = A
+        self.xdot_k = xdot          # ẋ of the prediction model at (x̂_{k−1}, u_{k−1})
         # time discretisation (Sec. IV-B, "e.g. as in Wahrburg et al."): local linearisation
         dx, F, Gam = discretize_affine(A, xdot, self.G_mu, dt, out=self._aug)
         self.F_k[:] = F
@@ -282,26 +326,28 @@ class AKF:
         # Alg. 1 line 6: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹  (H = [I 0])
         S = self.S_k
         np.add(Pm[:m, :m], self.R, out=S)
-        # positive-definiteness check of S (Cholesky), then K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ
-        try:
-            if not np.isfinite(S).all():
-                raise np.linalg.LinAlgError
-            np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
-                                 f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0") from None
-        K = self.K_k
-        K[:] = np.linalg.solve(S, Pm[:m, :]).T
-        # Alg. 1 line 7: x̂ = x̂⁻ + K (y − H x̂⁻)
+        # Alg. 1 line 7: innovation ν = y − H x̂⁻
         np.subtract(y, self.x_prior[:m], out=self.innovation)
+        # Cholesky of S (LAPACK dpotrf; fails unless S is positive definite), then one solve
+        # for both K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ and S⁻¹ν
+        rhs = self._rhs
+        rhs[:, :d] = Pm[:m, :]
+        rhs[:, d] = self.innovation
+        L, info = _dpotrf(S, lower=1)
+        if info != 0 or not np.isfinite(S).all():
+            raise EstimatorFault(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
+                                 f"or not finite (min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0")
+        sol, _ = _dpotrs(L, rhs, lower=1)
+        K = self.K_k
+        K[:] = sol[:, :d].T
         # normalised innovation squared νᵀ S⁻¹ ν (χ²_{4n} when the filter is consistent)
-        self.nis = float(self.innovation @ np.linalg.solve(S, self.innovation))
+        self.nis = float(self.innovation @ sol[:, d])
         np.dot(K, self.innovation, out=x)
         x += self.x_prior
         # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
         IKH = self._IKH
         IKH[:] = 0.0
-        IKH[np.diag_indices(d)] = 1.0
+        IKH.flat[::d + 1] = 1.0
         IKH[:, :m] -= K
         P = self.P
         np.dot(IKH @ Pm, IKH.T, out=P)
@@ -309,7 +355,8 @@ class AKF:
         # symmetrise
         P += P.T
         P *= 0.5
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        # one reduction: a NaN or ±inf anywhere makes the sum non-finite
+        if not math.isfinite(float(x.sum()) + float(P.sum())):
             raise EstimatorFault(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
                                  f"(non-finite measurement or diverging model/noise settings)")
         self.est.k += 1

@@ -1,0 +1,76 @@
+"""Simulated logs for the diagnose tests: the passive scenario (Sec. V-B) with undeclared effects.
+
+The *declared* model is the passive scenario's true plant (nominal model + every hidden effect
+of configs/scenarios/passive.yaml), so the only thing the configuration lacks is what a test
+adds.  Motion, noise and quantisation are the scenario's (min-jerk 10°→75° moves tracked by
+the PID, 19-bit encoders, motor-torque noise); only the number of moves is shortened.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from sea_daemon.config import repo_root
+from sea_daemon.effects import Gravity
+from sea_daemon.sim import runner
+from sea_daemon.sim.plant import Plant
+from sea_daemon.sim.scenario import load_scenario
+
+
+def passive_log(extra=(), moves: int = 2, seed: int = 1, gravity_compensated: bool = False,
+                plant_cls=None, pid: dict | None = None):
+    """(estimation log, declared config) of a shortened passive run with ``extra`` undeclared.
+
+    ``gravity_compensated``: the link and arm weights are balanced (gravity 0 in plant and
+    model), so the spring deflection changes sign with the human's stiffness about q_h0.
+    ``plant_cls``: a Plant subclass for effects outside the vocabulary.
+    ``pid``: other PID gains (kp, ki, kd) for the same moves.
+    """
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
+    tr = dataclasses.replace(sc.controller.trajectory, moves=moves)
+    ctrl = dataclasses.replace(sc.controller, trajectory=tr, **(pid or {}))
+    effects = tuple(sc.plant.effects)
+    nominal = sc.nominal
+    if gravity_compensated:
+        effects = tuple(e for e in effects if not isinstance(e, Gravity))
+        g0 = np.zeros_like(nominal.model.gravity)
+        g0.setflags(write=False)
+        nominal = dataclasses.replace(nominal, model=dataclasses.replace(nominal.model, gravity=g0))
+    n = int(round(moves * tr.move_s * nominal.rate_hz))
+    declared = dataclasses.replace(sc, nominal=nominal, plant=dataclasses.replace(sc.plant, effects=effects))
+    run = dataclasses.replace(declared, controller=ctrl, training_samples=2, estimation_samples=n,
+                              plant=dataclasses.replace(sc.plant, effects=effects + tuple(extra)))
+    if plant_cls is None:
+        log = runner.simulate(run, seed).estimation
+    else:
+        orig = runner.make_plant
+
+        def make(s, seed=None):
+            return plant_cls(s.true_config(), q0=s.controller.q0, seed=s.seed if seed is None else seed,
+                             substep_hz=s.plant.substep_hz, sign_eps=s.plant.sign_eps,
+                             torque_noise=s.plant.torque_noise)
+        runner.make_plant = make
+        try:
+            log = runner.simulate(run, seed).estimation
+        finally:
+            runner.make_plant = orig
+    return log, declared.true_config()
+
+
+class PositionFrictionPlant(Plant):
+    """Outside the vocabulary: load friction that exists only over a band of positions,
+    F(q) = F0 · exp(−((q − q_c)/w)²) · sign(q̇) (a cuff or cable rubbing at mid-range)."""
+
+    F0, q_c, w = 0.6, math.radians(42.0), math.radians(8.0)
+
+    def _compile_scalar(self) -> None:
+        super()._compile_scalar()
+        base = self._s_load
+        eps = self.sign_eps
+        F0, qc, w = self.F0, self.q_c, self.w
+
+        def load(q, dq):
+            return base(q, dq) + F0 * math.exp(-((q - qc) / w) ** 2) * math.tanh(dq / eps)
+        self._s_load = load

@@ -1,0 +1,280 @@
+"""GP-AKF (Alg. 2): online learning from a passive log, prediction/linearisation/covariance
+with the GP (eq:fwdynwtorqueresidual1, eq:linearization, eq:gpakf_covariance, eq:GPvarfwd),
+determinism, and ``replay --estimator gp-akf --train``."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sea_daemon import cli
+from sea_daemon.bench.accuracy import apply_settings
+from sea_daemon.config import load_config, repo_root
+from sea_daemon.estimators import AKF
+from sea_daemon.estimators.gpakf import GPAKF, build, learn_from_log
+from sea_daemon.logio import MeasuredLog, write_log
+from sea_daemon.model import SEAModel
+from sea_daemon.replay import replay, summarize
+
+SETTINGS = str(repo_root() / "configs" / "exo_1dof_sim.yaml")
+
+
+@pytest.fixture(scope="module")
+def passive():
+    """Shortened passive scenario (Sec. V-B): two moves to learn, the same two moves to estimate."""
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
+    ctrl = sc.controller
+    sc = dataclasses.replace(sc, training_samples=700, estimation_samples=700,
+                             controller=dataclasses.replace(ctrl, trajectory=dataclasses.replace(ctrl.trajectory, moves=4)))
+    sim = simulate(sc)
+    settings = load_config(SETTINGS)
+    return apply_settings(sc.nominal, settings), sim.training, sim.estimation
+
+
+@pytest.fixture(scope="module")
+def trained(passive):
+    cfg, train, _ = passive
+    return build(cfg, train, train.dt)
+
+
+def test_gp_akf_is_much_better_than_the_akf_on_a_passive_subject(passive, trained):
+    cfg, train, est_log = passive
+    rmse_akf = summarize(replay(est_log, AKF(cfg)))["rmse"]
+    rmse_gp = summarize(replay(est_log, trained))["rmse"]
+    assert trained.n_learned > 600 and not trained.learning
+    # the plain AKF misses the arm (gravity, stiffness) and friction: ~1.5 N m; the GP-AKF
+    # has learned them (measured ≈ 0.15 N m on this short run)
+    assert rmse_akf > 1.0
+    assert rmse_gp < rmse_akf / 5.0
+    assert rmse_gp < 0.3
+
+
+class _Zero:
+    """A residual that is exactly zero: μ = 0, ∂μ/∂z = 0, σ² = 0."""
+
+    def __init__(self, n):
+        self.n = n
+
+    def predict(self, z):
+        return np.zeros(self.n), np.zeros((self.n, 3 * self.n)), np.zeros(self.n)
+
+
+def test_zero_residual_gp_akf_equals_the_akf_step_for_step(passive):
+    cfg, _, log = passive
+    g = GPAKF(cfg, learning=False)
+    g.residual = _Zero(1)
+    a = AKF(cfg)
+    ra, rg = replay(log, a), replay(log, g)
+    assert np.array_equal(ra.x_hat, rg.x_hat)
+    assert np.array_equal(ra.tau_h_act_sigma, rg.tau_h_act_sigma)
+    assert np.array_equal(a.P, g.P)
+
+
+def test_untrained_gp_gives_the_akf_prediction_plus_prior_variance(passive):
+    """An empty GP: μ = 0 and F_GP = 0, so x⁻ and F are the AKF's; Q adds the prior σ_f²."""
+    cfg, _, log = passive
+    g = GPAKF(cfg, learning=False)
+    a = AKF(cfg)
+    for est in (a, g):
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        est.update(log.q[1], log.theta_m[1], log.tau_m[1])
+    assert np.allclose(g.x_prior, a.x_prior, rtol=0, atol=1e-15)
+    assert np.array_equal(g.F_k, a.F_k)
+    sf2 = cfg.learning.sigma_f ** 2
+    assert np.allclose(g.Q_k - g.Sigma_nom, sf2 * g.Gamma_mu @ g.Gamma_mu.T, rtol=1e-12, atol=0)
+
+
+def _step_at(est, log, k):
+    """Run ``est`` to sample k, return (x̂_{k−1}, u_{k−1}, ẑ_{k−1}) used by the k-th prediction."""
+    est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for i in range(1, k):
+        est.update(log.q[i], log.theta_m[i], log.tau_m[i])
+    x, P = est.x.copy(), est.P.copy()
+    est.update(log.q[k], log.theta_m[k], log.tau_m[k])
+    return x, P, est.u_applied.copy() if est._has_delay else log.tau_m[k - 1].copy(), est.z.copy()
+
+
+def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passive, trained):
+    """eq:linearization: A_k = ∂/∂x [f_nom(x, u) − I_μ M⁻¹ μ(z(x))] at x̂_{k−1}."""
+    cfg, _, log = passive
+    est = trained
+    model = SEAModel.from_config(cfg)
+    G = model.I_mu @ model.Minv
+    gp = est.gp
+    for k in (150, 333, 520):                      # moving, in the learned region
+        x0, _, u, z0 = _step_at(est, log, k)
+        ddq = z0[2:]
+
+        def f(x):
+            z = np.concatenate([x[:1] + x[1:2], x[2:3] + x[3:4], ddq])
+            mu, _, _ = gp.predict(z)
+            # eq:fwdynwtorqueresidual1
+            return model.f_nom(x, u) - G @ mu
+
+        assert np.allclose(f(x0), est.xdot_k, rtol=1e-10, atol=1e-10)
+        h = np.array([1e-6, 1e-6, 1e-5, 1e-5, 1e-4])
+        A_fd = np.column_stack([(f(x0 + h[i] * e) - f(x0 - h[i] * e)) / (2 * h[i]) for i, e in enumerate(np.eye(5))])
+        scale = np.abs(est.A_k).max()
+        assert np.allclose(est.A_k, A_fd, rtol=1e-5, atol=1e-6 * scale), (k, est.A_k - A_fd)
+        # the GP part is really there (F_GP ≠ 0 in the θ̈_s row)
+        assert np.abs(est.A_k - model.F_nom(x0, u)).max() > 1e-3
+
+
+def test_process_noise_includes_the_gp_variance_exactly(passive, trained):
+    """eq:gpakf_covariance / eq:GPvarfwd: Q_k = Σ_nom + Γ_μ diag(σ²(ẑ)) Γ_μᵀ, Γ_μ the ZOH map of
+    I_μ M⁻¹ over the step (the discrete form of I_μ M⁻¹ diag(σ²) M⁻ᵀ I_μᵀ, ≈ dt I_μ M⁻¹)."""
+    cfg, _, log = passive
+    est = trained
+    model = SEAModel.from_config(cfg)
+    _, _, _, z = _step_at(est, log, 400)
+    _, _, var = est.gp.predict(z)
+    assert var[0] > 0
+    assert np.allclose(est.sigma2, var, rtol=1e-12)
+    expect = est.Sigma_nom + var[0] * est.Gamma_mu @ est.Gamma_mu.T
+    assert np.allclose(est.Q_k, expect, rtol=1e-12, atol=0)
+    # Γ_μ = ∫₀^dt e^{A s} ds I_μ M⁻¹ (ZOH, Van Loan block exponential), A the GP-AKF Jacobian
+    from scipy.linalg import expm
+    G = model.I_mu @ model.Minv
+    blk = np.zeros((6, 6))
+    blk[:5, :5], blk[:5, 5:] = est.A_k, G
+    assert np.allclose(est.Gamma_mu, expm(blk * est.dt)[:5, 5:], rtol=1e-9, atol=1e-15)
+
+
+def test_affine_path_equals_the_model(passive):
+    """The AKF's cached-block path for an effect-free model equals SEAModel.F_nom / f_nom."""
+    cfg, _, _ = passive
+    a = AKF(cfg)
+    assert a._affine
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        x = rng.normal(size=5) * [1.0, 0.05, 1.0, 0.5, 2.0]
+        u = rng.normal(size=1)
+        A, xd = a._nominal_affine(x, u)
+        assert np.allclose(A, a.model.F_nom(x, u), rtol=1e-13, atol=1e-12)
+        assert np.allclose(xd, a.model.f_nom(x, u), rtol=1e-13, atol=1e-12)
+
+
+def test_deterministic_under_a_seed(passive):
+    cfg, train, log = passive
+    short = MeasuredLog(t=train.t[:300], q=train.q[:300], theta_m=train.theta_m[:300],
+                        tau_m=train.tau_m[:300], tau_h_act=None, path="<short>")
+    r1 = replay(log, build(cfg, short, short.dt))
+    r2 = replay(log, build(cfg, short, short.dt))
+    assert np.array_equal(r1.tau_h_act_hat, r2.tau_h_act_hat)
+    assert np.array_equal(r1.tau_h_act_sigma, r2.tau_h_act_sigma)
+
+
+def test_replay_cli_gp_akf_with_train(tmp_path, passive, capsys):
+    import json
+
+    cfg, train, log = passive
+    tp, lp, out = tmp_path / "train.csv", tmp_path / "log.csv", tmp_path / "est.csv"
+    n = 300
+    write_log(tp, MeasuredLog(t=train.t[:n], q=train.q[:n], theta_m=train.theta_m[:n], tau_m=train.tau_m[:n],
+                              tau_h_act=None))
+    write_log(lp, MeasuredLog(t=log.t[:200], q=log.q[:200], theta_m=log.theta_m[:200], tau_m=log.tau_m[:200],
+                              tau_h_act=log.tau_h_act[:200]))
+    code = cli.main(["replay", str(lp), "--config", SETTINGS, "--train", str(tp), "--estimator", "gp-akf",
+                     "--out", str(out)])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["estimator"] == "gp-akf" and summary["samples"] == 200 and summary["rmse"] is not None
+    assert summary["train"]["pairs"] == n - 1 - 4 and summary["train"]["leaves"][0] >= 1   # first W samples skipped
+    assert out.exists() and "tau_h_act_bound" in out.read_text().splitlines()[0]
+    # bad --train: missing, malformed, absent
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,q,theta_m\n0,1,2\n0.01,1,2\n")
+    for extra in (["--train", str(tmp_path / "nope.csv")], ["--train", str(bad)], []):
+        code = cli.main(["replay", str(lp), "--config", SETTINGS, *extra, "--estimator", "gp-akf",
+                         "--out", str(out)])
+        assert code == 2
+        err = capsys.readouterr().err
+        assert err.strip() and "Traceback" not in err
+
+
+def test_learning_pairs_use_the_filter_kinematics(passive):
+    """Training targets come from the same causal kinematics as the filter (eq:loadsidewmotor)."""
+    from sea_daemon.learning import training_pairs_from_log
+
+    cfg, train, _ = passive
+    est = GPAKF(cfg)
+    seen = []
+    orig = est._learn
+
+    def spy(tau_m):
+        orig(tau_m)
+        seen.append((est.z_train.copy(), est.f_train.copy()))
+
+    est._learn = spy
+    learn_from_log(est, train)
+    Z, F = training_pairs_from_log(SEAModel.from_config(cfg), train, kinematics=cfg.kinematics, causal=True)
+    # the learner skips the samples while the differentiator fills, like training_pairs_from_log
+    Zs = np.array([s[0] for s in seen])
+    Fs = np.array([s[1] for s in seen])
+    m = min(len(Zs), len(Z))
+    assert np.allclose(Zs[-m:], Z[-m:], rtol=1e-9, atol=1e-9)
+    assert np.allclose(Fs[-m:], F[-m:], rtol=1e-8, atol=1e-8)
+
+
+def test_bench_latency_gp_akf_case_runs(capsys):
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1", "--estimators", "gp-akf",
+                     "--max-points", "1000"])
+    out, _ = capsys.readouterr()
+    assert code == 0
+    assert "gp-akf-1e3: pre-filled 1000 points" in out and "gp-akf-1e3: per step median" in out
+    assert "load average" in out and "gp-akf-1e4" not in out
+
+
+
+
+def _two_joint_log(cfg, seconds, tau_h_amp, seed):
+    """Encoder-quantised log of ``cfg``'s model (declared effects = the true plant)."""
+    from sea_daemon.model import discretize
+    m = SEAModel.from_config(cfg)
+    n, dt = m.n, cfg.dt
+    N = int(seconds / dt) + 1
+    t = np.arange(N) * dt
+    rng = np.random.default_rng(seed)
+    ph = rng.uniform(0, 2 * np.pi, size=(2, n))
+    tau_m = 1.5 * np.sin(2 * np.pi * 0.4 * t[:, None] + ph[0]) + 0.6 * np.sin(2 * np.pi * 1.1 * t[:, None] + ph[1])
+    tau_h = tau_h_amp * np.sin(2 * np.pi * 0.25 * t[:, None]) * np.array([1.0, -0.5])
+    res = 2 * np.pi / 2 ** 19
+    x = np.zeros(5 * n)
+    q, th = np.zeros((N, n)), np.zeros((N, n))
+    for k in range(N):
+        q[k] = np.floor((x[:n] + x[n:2 * n]) / res) * res
+        th[k] = np.floor(x[:n] / (res / 100)) * (res / 100)
+        x[4 * n:] = tau_h[k]
+        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), dt)
+        x = x + dx
+    return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<two>")
+
+
+def test_two_joints_learn_a_hidden_load_torque_per_joint():
+    """n = 2: one GP per joint on z = [q₁, q₂, q̇₁, q̇₂, q̈₁, q̈₂]; a hidden viscoelastic load per
+    joint is learned from a passive log and no longer biases the estimate."""
+    from sea_daemon.config import ModelConfig
+    from sea_daemon.effects import make_effect
+
+    d = {"joints": 2, "rate_hz": 100, "model": {
+        "M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": [0.6, 0.4], "K_s": [110.0, 80.0],
+        "D_s": [0.25, 0.2], "gravity": [2.0, 0.5]},
+        "estimator": {"R": [1e-12, 1e-12, 1e-12, 1e-12, 1e-5, 1e-5, 1e-5, 1e-5],
+                      "Sigma_nom": [1e-9, 1e-9, 1e-9, 1e-9, 1e-5, 1e-5, 1e-5, 1e-5, 1e-2, 1e-2]},
+        "kinematics": {"method": "savgol", "window": 5, "degree": 3}}
+    cfg = ModelConfig.from_dict(d)
+    hidden = [make_effect("human_viscoelastic", "load", joint=j, k_h=k, q_h0=0.2, b_h=0.1)
+              for j, k in ((0, 1.5), (1, 0.8))]
+    true = cfg.with_effects(hidden)
+    train = _two_joint_log(true, 10.0, 0.0, seed=1)          # passive subject
+    log = _two_joint_log(true, 8.0, 0.5, seed=1)             # same motion, active torque
+    est = build(cfg, train, cfg.dt)
+    assert est.gp.n == 2 and len(est.gp.gps) == 2 and est.gp.gps[0].input_dim == 6
+    r_gp = replay(log, est)
+    r_akf = replay(log, AKF(cfg))
+    e_gp = np.sqrt(np.mean((r_gp.tau_h_act_hat - log.tau_h_act)[100:] ** 2, axis=0))
+    e_akf = np.sqrt(np.mean((r_akf.tau_h_act_hat - log.tau_h_act)[100:] ** 2, axis=0))
+    assert np.all(e_akf > 0.2), e_akf
+    assert np.all(e_gp < e_akf / 3), (e_gp, e_akf)
