@@ -47,7 +47,11 @@ def build_estimator(name: str, cfg, dt: float, train_log=None):
         if importlib.util.find_spec(GP_AKF_MODULE) is None:
             raise InputError("--estimator gp-akf: not available yet (the online-learning part has not "
                              "landed); use --estimator akf or spring")
-        return importlib.import_module(GP_AKF_MODULE).build(cfg, train_log, dt)
+        est = importlib.import_module(GP_AKF_MODULE).build(cfg, train_log, dt)
+        # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (GP error constants from the trained LoG-GPs)
+        from ..bounds.akf_bound import attach_default_bound
+        attach_default_bound(est)
+        return est
     return make_estimator(name, cfg, dt=dt)
 
 

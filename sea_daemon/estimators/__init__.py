@@ -18,10 +18,19 @@ from .spring import SpringTorqueEstimator
 NAMES = ("akf", "spring")
 
 
-def make_estimator(name: str, cfg, dt: float | None = None, residual=None) -> Estimator:
-    """Build the estimator ``name`` ('akf', 'spring') for configuration ``cfg``."""
+def make_estimator(name: str, cfg, dt: float | None = None, residual=None,
+                   theorem_bound: bool = True) -> Estimator:
+    """Build the estimator ``name`` ('akf', 'spring') for configuration ``cfg``.
+
+    ``theorem_bound``: the AKF publishes the Theorem-1 bound ρ_k as ``tau_h_act_bound``
+    (:func:`sea_daemon.bounds.akf_bound.attach_default_bound`).
+    """
     if name == "akf":
-        return AKF(cfg, dt=dt, residual=residual)
+        akf = AKF(cfg, dt=dt, residual=residual)
+        if theorem_bound:
+            from ..bounds.akf_bound import attach_default_bound
+            attach_default_bound(akf)
+        return akf
     if name == "spring":
         return SpringTorqueEstimator(cfg, dt=dt)
     raise ValueError(f"unknown estimator {name!r}; allowed: {', '.join(NAMES)}")

@@ -1,0 +1,313 @@
+"""Theorem-1 bound attached to a running (GP-)AKF: ``tau_h_act_bound`` becomes ρ_k.
+
+:func:`attach_theorem_bound` wraps an :class:`~sea_daemon.estimators.akf.AKF` instance (plain
+AKF or GP-AKF: an AKF with a residual) without changing its class: after every filter step
+it propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps
+per step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
+``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.
+
+Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
+* C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
+* continuous-time linearisation error ε_c = f(x) − f(x̂) − A_k (x − x̂) of the GP-enhanced
+  drift f(x) = f_nom(x, u) − I_μ M⁻¹ μ(z(x)) (eq:fwdynwtorqueresidual1), per dimension, as the
+  sum of two parts, mapped by Φ = ∫₀^dt e^{A s} ds:
+  - nominal model: without declared effects its only non-linearity is gravity, bounded
+    analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
+    with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
+  - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
+* GP error (eq:Dmuhat): η_j = √β_j max_points σ_j(z(x)) + γ_j per joint — σ is taken over
+  the projected set (not just at ẑ), because the true z is only known to lie in it;
+  mapped by Γ_μ
+* X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
+
+Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
+With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
+constants (:func:`gp_constants`); ρ then holds with probability ≥ 1 − δ.
+States whose z leaves the GP constants' input box have no GP guarantee: such steps are
+counted in ``bound.gp_box_violations_`` (and ρ is still published).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import EstimatorFault
+from .ellipsoid import Ellipsoid
+from .gp_bound import BoundConstants, error_bound, input_box, loggp_leaves
+from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
+
+
+class AKFTheoremBound:
+    """The Theorem-1 companion of one AKF instance (see module docstring)."""
+
+    def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
+                 gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
+                 delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
+                 projection: str = "state", seed: int = 0):
+        self.akf = akf
+        n, d = akf.n, akf.d
+        delta = akf.delta if delta is None else float(delta)
+        has_gp = akf.residual is not None
+        if delta_gp is None:
+            delta_gp = 0.5 * delta if has_gp else 0.0
+        if has_gp and gp_constants is None:
+            raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
+                             "see sea_daemon.bounds.akf_bound.gp_constants)")
+        self._auto = has_gp and isinstance(gp_constants, str)
+        self.refresh_every = 200          # 'auto': recompute after this many new training points
+        self._learned_at = 0
+        if self._auto and gp_constants != "auto":
+            raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
+        self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
+        self.gp_box = gp_box
+        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection)
+        self._I = np.eye(d)
+        m = akf.model
+        # only gravity is non-linear in a nominal model without declared effects
+        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
+        self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._grid = np.linspace(-1.0, 1.0, 65)
+        self._grid_step = 2.0 / 64
+        self._Uz = _directions(2 * n, n_dirs, seed)
+        self._step = akf.step
+        self._reset = akf.reset
+        self.gp_box_violations_ = 0
+        self.eta_ = np.zeros(n)
+        self.lin_err_ = np.zeros(d)
+
+    # ------------------------------------------------------------------ hooks
+
+    def refresh_gp_constants(self) -> None:
+        """Recompute the GP constants and input box from the residual's current leaves
+        (``gp_constants='auto'``; call after the GP learned more data)."""
+        self.gp_constants, self.gp_box = gp_constants(residual_gps(self.akf), self.sm.delta_gp)
+        self._learned_at = self._n_learned()
+
+    def _n_learned(self) -> int:
+        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
+        else the points held by the LoG-GPs."""
+        n = getattr(self.akf, "n_learned", None)
+        if n is not None:
+            return int(n)
+        return int(sum(g.n_points for g in residual_gps(self.akf) or []))
+
+    def reset(self, *args, **kwargs):
+        est = self._reset(*args, **kwargs)
+        if self._auto:
+            # 'auto': the constants of the GP as trained when estimation starts
+            self.refresh_gp_constants()
+        self.sm.reset()
+        self.gp_box_violations_ = 0
+        if getattr(self.akf, "_ready", True):
+            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+        return est
+
+    # ------------------------------------------------------------------ linearisation error
+
+    def _gravity_box(self, x0: np.ndarray, C: Ellipsoid) -> np.ndarray:
+        """Rigorous bound of the gravity term's linearisation error (no sampling).
+
+        C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
+        ±r_j of q̂_j on C (r_j = half-width of C along e_θm,j + e_θs,j), the scalar error
+        h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
+        the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
+        the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
+        """
+        akf = self.akf
+        n = akf.n
+        model = akf.model
+        b = np.zeros(akf.d)
+        g = np.abs(np.asarray(model.gravity, dtype=float)) * np.ones(n)
+        if not np.any(g):
+            return b
+        qh = x0[:n] + x0[n:2 * n]
+        v = np.empty(n)
+        for j in range(n):
+            e = np.zeros(akf.d)
+            e[j] = e[n + j] = 1.0
+            r = C.half_width(e)
+            # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
+            # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
+            D = self._grid * r
+            h = np.abs(np.sin(qh[j] + D) - np.sin(qh[j]) - np.cos(qh[j]) * D)
+            # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
+            v[j] = g[j] * min(h.max() + min(2.0, r) * r * self._grid_step / 2.0, r * r / 2.0)
+        b[3 * n:4 * n] = np.abs(model.Minv) @ v
+        return b
+
+    def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
+        """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
+        f_nom = self.akf.model.f_nom
+        f0 = f_nom(x0, u)
+        b = np.zeros(self.akf.d)
+        for x in self.sm.sample_points(C):
+            fx = f_nom(x, u)
+            lin = A_nom @ (x - x0)
+            r = np.abs(fx - f0 - lin)
+            # rounding floor, so an exactly linear drift gives exactly 0
+            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
+            np.maximum(b, r, out=b)
+        return b
+
+    def _gp_box(self, zhat: np.ndarray, C: Ellipsoid):
+        """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
+        projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
+        them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
+        akf = self.akf
+        n = akf.n
+        res = akf.residual
+        mu0, J0, var0 = res.predict(zhat)
+        # copies: a residual hook may return preallocated arrays overwritten by the next call
+        mu0 = np.array(mu0, dtype=float)
+        J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
+        var0 = np.array(var0, dtype=float)
+        Cz = C.affine(self._T)                                     # exact: affine image
+        smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
+        e = np.zeros(n)
+        out = False
+        z = zhat.copy()
+        gps = residual_gps(akf)
+        mu = np.empty(n)
+        var = np.empty(n)
+        for p in ellipsoid_points(Cz, self._Uz):
+            z[:2 * n] = p
+            if gps is not None:
+                # mean and variance only (no Jacobian needed here): cheaper than the hook
+                for j, g in enumerate(gps):
+                    mu[j], var[j] = g.predict(z)
+            else:
+                m_, _, v_ = res.predict(z)
+                mu[:], var[:] = m_, v_
+            dz = p - zhat[:2 * n]
+            np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
+            np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
+        if self.gp_box is not None:
+            # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
+            hw = Cz.axis_half_widths()
+            lo, hi = self.gp_box
+            out = bool(np.any(Cz.c - hw < lo[:2 * n]) or np.any(Cz.c + hw > hi[:2 * n])
+                       or np.any(zhat[2 * n:] < lo[2 * n:]) or np.any(zhat[2 * n:] > hi[2 * n:]))
+        # ε_μ = −I_μ M⁻¹ (μ(z) − μ̄(z)): rows θ̈_s, bounded elementwise by |M⁻¹| e
+        b = np.zeros(akf.d)
+        b[3 * n:4 * n] = np.abs(akf.model.Minv) @ e
+        return b, smax, out
+
+    def _phi(self, A, b, dt):
+        """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
+        already has Γ_μ = Φ I_μ M⁻¹); any other column costs one expm."""
+        if not np.any(b):
+            return None
+        akf = self.akf
+        n = akf.n
+        nz = np.flatnonzero(b)
+        if np.all((nz >= 3 * n) & (nz < 4 * n)):
+            Phi = np.zeros((akf.d, akf.d))
+            Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
+            return Phi
+        return input_matrix(A, self._I, dt)
+
+    def step(self, y, u, dt):
+        akf = self.akf
+        n = akf.n
+        x0 = akf.x.copy()
+        P0 = akf.P.copy()
+        zhat = akf.z.copy()                       # ẑ_{k−1}, where the AKF evaluates the GP
+        u = np.array(u, dtype=float)
+        est = self._step(y, u, dt)
+        sm = self.sm
+        if not np.all(np.isfinite(sm.X_)):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
+        if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
+            # the GP keeps learning (GP-AKF with learning on): constants of the current data
+            self.refresh_gp_constants()
+        C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
+        # eq:linerrsetdx / eq:linearerrellipsoid, split by source
+        if self._fast:
+            b = self._gravity_box(x0, C)          # analytic, rigorous
+        else:
+            A_nom = akf.A_k.copy()
+            if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
+                _, J, _ = akf.residual.predict(zhat)
+                A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
+            b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+        eta = None
+        if akf.residual is not None:
+            bg, smax, out = self._gp_box(zhat, C)
+            b = b + (1.0 + sm.margin) * bg
+            self.gp_box_violations_ += int(out)
+            # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
+            eta = np.array([c.eta(sj) for c, sj in zip(self.gp_constants, smax)])
+            self.eta_ = eta
+        self.lin_err_ = b
+        Phi = self._phi(akf.A_k, b, dt)
+        # eq:predwLinErrsetandGPerrset, then the filter step on the set
+        sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        sm.update(akf.K_k, akf.H)
+        if not np.all(np.isfinite(sm.X_)):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
+                                 f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
+                                 f"the confidence set")
+        est.tau_h_act_bound[:] = sm.rho(akf.P)
+        return est
+
+
+def attach_theorem_bound(akf, **kwargs) -> AKFTheoremBound:
+    """Make ``akf.update``/``akf.step``/``akf.reset`` publish the Theorem-1 ρ_k as
+    ``tau_h_act_bound`` (instance attributes shadow the class methods; the AKF code is
+    unchanged).  Returns the :class:`AKFTheoremBound` (also at ``akf.theorem_bound``)."""
+    tb = AKFTheoremBound(akf, **kwargs)
+    akf.step = tb.step
+    akf.reset = tb.reset
+    akf.theorem_bound = tb
+    return akf.theorem_bound
+
+
+def residual_gps(akf) -> list | None:
+    """The per-joint LoG-GPs behind an AKF's residual: a ResidualGP (``.gps``), a hook over
+    one (``.gp.gps``, the GP-AKF's), or the estimator's own ``.gp``; None if unknown."""
+    for obj in (akf.residual, getattr(akf.residual, "gp", None), getattr(akf, "gp", None)):
+        if obj is not None and hasattr(obj, "gps"):
+            return list(obj.gps)
+    return None
+
+
+def attach_default_bound(akf) -> AKFTheoremBound | None:
+    """What :func:`sea_daemon.estimators.make_estimator` (and ``replay --estimator gp-akf``)
+    attach: the Theorem-1 bound for a plain AKF, and for a GP-AKF whose residual is backed by
+    LoG-GPs (constants computed at every reset, and refreshed while it keeps learning).  An
+    unknown residual type has no GP error constants, so the AKF keeps its own bound and
+    None is returned."""
+    if getattr(akf, "theorem_bound", None) is not None:
+        return akf.theorem_bound
+    if akf.residual is None:
+        return attach_theorem_bound(akf)
+    if residual_gps(akf) is not None:
+        return attach_theorem_bound(akf, gp_constants="auto")
+    return None
+
+
+def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
+                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None):
+    """GP error constants per joint for a :class:`sea_daemon.learning.ResidualGP` (one LoG-GP per
+    joint) or a list of LoG-GPs.
+
+    δ_GP is split over the n joints' GPs (union bound); within each, a share
+    ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
+    union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
+    constants stay valid while the tree grows).  The input box is the box of all training
+    points widened by ``box_margin`` of its range.  Returns (constants list, (lo, hi)).
+    """
+    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+    n = len(gps)
+    per_joint = delta_gp / n
+    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
+                   if gp.leaf(node).n_ > 0])
+    lo, hi = input_box(Z, box_margin)
+    consts = []
+    for gp in gps:
+        leaves = loggp_leaves(gp)
+        L = n_leaves if n_leaves is not None else max(len(leaves), int(getattr(gp, "max_leaves", 0) or 0))
+        kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
+        consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
+    return consts, (lo, hi)

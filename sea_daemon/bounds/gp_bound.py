@@ -1,0 +1,277 @@
+"""Uniform GP error bound |f(x) − μ(x)| ≤ √β σ(x) + γ on a compact box (eq:gpmeanbounds).
+
+Lederer, Umlauft & Hirche, "Uniform error bounds for Gaussian process regression with
+application to safe control", NeurIPS 2019 (LUH19):
+
+Theorem 3.1.  f ~ GP(0, k), k with Lipschitz constant L_k on a compact X, f Lipschitz with
+L_f, N noisy observations (noise N(0, σ_n²)).  Then μ_N is Lipschitz with
+    L_μ ≤ L_k √N ‖(K + σ_n² I)⁻¹ y‖      (we use the tighter L_k ‖α‖₁ ≤ L_k √N ‖α‖₂),
+σ_N has modulus of continuity
+    ω_σ(τ) ≤ sqrt(2 τ L_k (1 + N ‖(K + σ_n² I)⁻¹‖ max_{x,x'} k(x, x'))),
+and for δ ∈ (0, 1), τ > 0, with β(τ) = 2 log(M(τ, X)/δ) (M = τ-covering number of X) and
+γ(τ) = (L_μ + L_f) τ + √β(τ) ω_σ(τ):
+    P(|f(x) − μ_N(x)| ≤ √β(τ) σ_N(x) + γ(τ)  ∀x ∈ X) ≥ 1 − δ.
+The paper's eq:gpmeanbounds writes β σ; its β is our √β(τ), and γ(τ) is the (small)
+discretisation remainder that eq:gpmeanbounds drops — we keep it.
+
+Theorem 3.2 (probabilistic Lipschitz constant of a sample f when none is known from
+physics).  With the partial-derivative kernels k^∂i(x,x') = ∂²k/∂x_i∂x'_i, their Lipschitz
+constants L_k^∂i and r = max_{x,x'∈X} ‖x − x'‖, with probability ≥ 1 − δ_L
+    L_f = ‖( √(2 log(2d/δ_L)) max_x √k^∂i(x,x) + 12 √(6d) max{max_x √k^∂i(x,x), √(r L_k^∂i)} )_i‖₂.
+
+SE kernel constants (derivation in docs/bounds.md).  All the analysis is done in the
+length-scale-normalised coordinates x̃ = x / l (elementwise), where the SE kernel of
+eq:SE is isotropic with unit length scale, k = σ_f² exp(−‖x̃ − x̃'‖²/2).  The theorems hold
+for any compact set and norm, so this is a valid reparametrisation and it is tighter than
+working in raw units with l_min:
+    L_k     = σ_f² e^{−1/2}                        (max_t t e^{−t²/2} at t = 1)
+    k^∂i(x,x) = σ_f²,   L_k^∂i = c* σ_f²,  c* = √6 √(3 − √6) e^{−(3 − √6)/2} ≈ 1.3801
+    M(τ, box) ≤ Π_i ⌈ w̃_i √d / (2τ) ⌉  (grid with cell half-diagonal τ; w̃ = scaled widths)
+    r       = ‖w̃‖₂
+
+Choice of τ: τ is picked on a fixed log grid of G values after seeing the data, so the
+bound is made uniform over the grid by a union bound (δ → δ/G, costs 2 log G in β).
+
+LoG-GP (merged prediction, mixture of experts).  The prediction is μ̃ = Σ_i w_i μ_i with
+w_i ≥ 0, Σ w_i = 1, over the leaves i active at x.  With a union bound over the L leaves
+(δ_i = δ_GP / L) every leaf bound holds at once with probability ≥ 1 − δ_GP, and then
+    |f − μ̃| = |Σ w_i (f − μ_i)| ≤ Σ w_i (√β σ_i + γ_i) ≤ √β Σ w_i σ_i + max_i γ_i
+            ≤ √β σ̃ + max_i γ_i,
+because Σ w_i σ_i ≤ (Σ w_i σ_i²)^{1/2} (Jensen) ≤ (Σ w_i (σ_i² + (μ_i − μ̃)²))^{1/2}: the
+merged standard deviation σ̃ may be either the weighted-variance or the full mixture
+standard deviation (not Σ w_i² σ_i², which can be smaller than Σ w_i σ_i).  β is the same
+for every leaf because all leaves share δ_i, τ and the covering of the same box X; γ_i
+differs through ‖α_i‖₁ and ‖(K_i + σ_n² I)⁻¹‖.  L is the number of leaves that ever make
+a prediction under the bound; while the tree still grows use its cap (max_leaves).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+# sup over r of ‖∇_x k^∂i(x, x')‖ / σ_f² for the unit-length-scale SE kernel (docs/bounds.md)
+C_STAR = math.sqrt(6.0) * math.sqrt(3.0 - math.sqrt(6.0)) * math.exp(-(3.0 - math.sqrt(6.0)) / 2.0)
+TAU_GRID = np.geomspace(1e-12, 1e-1, 23)
+
+
+def se_kernel(X1: np.ndarray, X2: np.ndarray, sigma_f: float, lengthscales: np.ndarray) -> np.ndarray:
+    """SE kernel matrix k(x, x') = σ_f² exp(−Σ (x_i − x'_i)²/(2 l_i²))   (eq:SE)."""
+    A = np.atleast_2d(X1) / lengthscales
+    B = np.atleast_2d(X2) / lengthscales
+    d2 = np.sum(A ** 2, 1)[:, None] + np.sum(B ** 2, 1)[None, :] - 2 * A @ B.T
+    return sigma_f ** 2 * np.exp(-0.5 * np.clip(d2, 0.0, None))
+
+
+def se_lipschitz(sigma_f: float, lengthscales: np.ndarray | None = None) -> float:
+    """Lipschitz constant of x ↦ k(x, x') for the SE kernel: σ_f² e^{−1/2} / l_min.
+
+    In normalised coordinates (lengthscales=None) it is σ_f² e^{−1/2}: ‖∇_x k‖ =
+    σ_f² t e^{−t²/2} with t = ‖x̃ − x̃'‖, maximal at t = 1.  In raw coordinates
+    ‖∇_x k‖ = σ_f² e^{−t²/2} ‖D⁻¹ (x̃ − x̃')‖ ≤ σ_f² t e^{−t²/2} / l_min (no √d factor).
+    """
+    L = sigma_f ** 2 * math.exp(-0.5)
+    if lengthscales is not None:
+        L /= float(np.min(lengthscales))
+    return L
+
+
+def log_covering_number(widths: np.ndarray, tau: float) -> float:
+    """log M(τ, box) for a box with edge lengths ``widths`` in the Euclidean norm.
+
+    A regular grid with spacing h = 2τ/√d has cells of half-diagonal τ, so
+    M ≤ Π_i max(1, ⌈w_i / h⌉).
+    """
+    w = np.asarray(widths, dtype=float)
+    d = w.size
+    h = 2.0 * tau / math.sqrt(d)
+    return float(np.sum(np.log(np.maximum(1.0, np.ceil(w / h)))))
+
+
+def covering_grid(lo: np.ndarray, hi: np.ndarray, tau: float) -> np.ndarray:
+    """The grid of :func:`log_covering_number` (cell centres), for tests on small boxes."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    d = lo.size
+    h = 2.0 * tau / math.sqrt(d)
+    axes = []
+    for a, b in zip(lo, hi):
+        m = max(1, int(math.ceil((b - a) / h)))
+        step = (b - a) / m
+        axes.append(a + step * (np.arange(m) + 0.5))
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, d)
+
+
+def sample_lipschitz_se(sigma_f: float, scaled_widths: np.ndarray, delta_L: float) -> float:
+    """LUH19 Theorem 3.2 for the SE kernel in normalised coordinates (prob. ≥ 1 − δ_L)."""
+    w = np.asarray(scaled_widths, dtype=float)
+    d = w.size
+    r = float(np.linalg.norm(w))
+    root_kd = sigma_f                      # √k^∂i(x, x) = σ_f (unit length scale)
+    L_kd = C_STAR * sigma_f ** 2           # Lipschitz constant of k^∂i
+    entry = (math.sqrt(2.0 * math.log(2.0 * d / delta_L)) * root_kd
+             + 12.0 * math.sqrt(6.0 * d) * max(root_kd, math.sqrt(r * L_kd)))
+    return math.sqrt(d) * entry            # every component equal → ‖·‖₂ = √d · entry
+
+
+@dataclass(frozen=True)
+class LeafGP:
+    """What the bound needs from one (leaf) GP: α = (K + σ_n² I)⁻¹ y and its hyperparameters.
+
+    ``Kinv_norm`` is ‖(K + σ_n² I)⁻¹‖₂ = 1/(λ_min(K) + σ_n²); None uses its upper bound 1/σ_n².
+    """
+
+    alpha: np.ndarray
+    sigma_f: float
+    lengthscales: np.ndarray
+    sigma_n: float
+    Kinv_norm: float | None = None
+
+    @property
+    def N(self) -> int:
+        return int(np.size(self.alpha))
+
+    @classmethod
+    def from_data(cls, X: np.ndarray, y: np.ndarray, sigma_f: float, lengthscales, sigma_n: float) -> "LeafGP":
+        """Exact GP posterior pieces (eq:GPmean) for a data set — for tests and small leaves."""
+        ls = np.asarray(lengthscales, dtype=float)
+        K = se_kernel(X, X, sigma_f, ls) + sigma_n ** 2 * np.eye(len(X))
+        w = np.linalg.eigvalsh(K)
+        return cls(np.linalg.solve(K, np.asarray(y, float)), sigma_f, ls, sigma_n, float(1.0 / w.min()))
+
+
+@dataclass(frozen=True)
+class BoundConstants:
+    """|f − μ| ≤ sqrt_beta·σ + gamma on the box, with probability ≥ 1 − delta."""
+
+    sqrt_beta: float
+    gamma: float
+    tau: float
+    L_f: float          # Lipschitz constant of f used (normalised coordinates)
+    L_mu: float         # max over leaves of the posterior-mean Lipschitz constant
+    omega_sigma: float  # max over leaves of ω_σ(τ)
+    delta: float
+    n_leaves: int
+
+    def eta(self, sigma: np.ndarray | float) -> np.ndarray:
+        """Error half-width η = √β σ + γ (the interval of lem:interval_bound)."""
+        return self.sqrt_beta * np.asarray(sigma, dtype=float) + self.gamma
+
+
+def _leaf_terms(leaf: LeafGP, L_k: float):
+    L_mu = L_k * float(np.sum(np.abs(leaf.alpha)))                      # LUH19 Thm 3.1, ‖α‖₁ form
+    Kn = leaf.Kinv_norm if leaf.Kinv_norm is not None else 1.0 / leaf.sigma_n ** 2
+    c_sigma = 2.0 * L_k * (1.0 + leaf.N * Kn * leaf.sigma_f ** 2)        # ω_σ(τ)² = c_sigma τ
+    return L_mu, c_sigma
+
+
+def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta: float, *,
+                n_leaves: int | None = None, L_f: float | Sequence[float] | None = None,
+                delta_lipschitz: float = 0.0, sigma_ref: float | None = None,
+                tau_grid: np.ndarray = TAU_GRID) -> BoundConstants:
+    """Constants of |f(x) − μ̃(x)| ≤ √β σ̃(x) + γ for all x in the box [lo, hi] (one output).
+
+    leaves          the leaf GPs (one for a plain GP); leaves may have their own
+                    hyperparameters: the bound then uses max_i √β_i and max_i γ_i
+    delta           total failure probability of the statement (δ_GP + δ_L)
+    n_leaves        L of the union bound; default len(leaves) (use max_leaves while growing)
+    L_f             known Lipschitz bound of f: a scalar (raw-coordinate ‖∇f‖₂ bound) or one
+                    |∂f/∂x_i| bound per input; None → LUH19 Thm 3.2 with δ_L = delta_lipschitz
+    sigma_ref       σ at which η = √β σ + γ is minimised over τ (default: smallest σ_n)
+    """
+    leaves = list(leaves)
+    if not leaves:
+        raise ValueError("error_bound needs at least one leaf GP")
+    if not 0 < delta < 1:
+        raise ValueError(f"delta must be in (0, 1), got {delta}")
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    dim = np.size(leaves[0].lengthscales)
+    if lo.shape != (dim,) or hi.shape != (dim,) or np.any(hi < lo):
+        raise ValueError(f"box [lo, hi] must have {dim} entries with lo <= hi")
+    L = int(n_leaves if n_leaves is not None else len(leaves))
+    if L < len(leaves):
+        raise ValueError(f"n_leaves={L} is smaller than the {len(leaves)} leaves given")
+    if L_f is None and not 0 < delta_lipschitz < delta:
+        raise ValueError("without a known L_f, delta_lipschitz must be in (0, delta) (LUH19 Thm 3.2)")
+    d_gp = delta - (delta_lipschitz if L_f is None else 0.0)
+    # per leaf (own hyperparameters allowed): normalised box, L_f, L_μ, ω_σ² / τ
+    per = []
+    for lf in leaves:
+        ls = np.asarray(lf.lengthscales, dtype=float)
+        widths = (hi - lo) / ls                                          # normalised box
+        if L_f is None:
+            Lf = sample_lipschitz_se(float(lf.sigma_f), widths, delta_lipschitz)
+        else:
+            Lv = np.atleast_1d(np.asarray(L_f, dtype=float))
+            # |f(x) − f(x')| ≤ Σ|∂_i f||Δx_i| = Σ (l_i |∂_i f|)|Δx̃_i| ≤ ‖l ⊙ ∂f‖₂ ‖Δx̃‖₂
+            Lf = float(np.linalg.norm(ls * Lv)) if Lv.size == ls.size else float(Lv[0] * ls.max())
+        L_mu, c_sig = _leaf_terms(lf, se_lipschitz(float(lf.sigma_f)))
+        per.append((widths, Lf, L_mu, c_sig))
+    s_ref = sigma_ref if sigma_ref is not None else min(lf.sigma_n for lf in leaves)
+    G = len(tau_grid)
+    best = None
+    for tau in tau_grid:
+        sb_max = g_max = 0.0
+        for widths, Lf, L_mu, c_sig in per:
+            # β(τ) = 2 log(M(τ, X) / δ_i), δ_i = δ_GP / (L · G): union over leaves and the τ grid
+            sb = math.sqrt(2.0 * (log_covering_number(widths, tau) + math.log(L * G / d_gp)))
+            # γ(τ) = (L_μ + L_f) τ + √β ω_σ(τ)
+            g = (L_mu + Lf) * tau + sb * math.sqrt(c_sig * tau)
+            sb_max, g_max = max(sb_max, sb), max(g_max, g)
+        # merged bound: √β_max Σ w σ_i + max γ_i  (module docstring)
+        val = sb_max * s_ref + g_max
+        if best is None or val < best[0]:
+            best = (val, float(tau), sb_max, g_max)
+    _, tau, sb, g = best
+    return BoundConstants(float(sb), float(g), tau, float(max(p[1] for p in per)),
+                          float(max(p[2] for p in per)), float(max(math.sqrt(p[3] * tau) for p in per)),
+                          float(delta), L)
+
+
+def loggp_leaves(gp) -> list[LeafGP]:
+    """LeafGP records of every leaf of a :class:`sea_daemon.loggp.LoGGP` (leaf GPs are
+    :class:`sea_daemon.gp.IncrementalGP` with ``alpha_``, ``L_`` (Cholesky of K + σ_n² I),
+    ``sigma_f``, ``lengthscales``, ``sigma_n``)."""
+    out = []
+    for node in gp.leaves():
+        g = gp.leaf(node)
+        if g.n_ == 0:
+            continue
+        Lc = np.asarray(g.L_)
+        # ‖(K + σ_n² I)⁻¹‖₂ = 1/λ_min(K + σ_n² I) = 1/σ_min(L)²
+        smin = float(np.linalg.svd(Lc, compute_uv=False).min())
+        out.append(LeafGP(np.asarray(g.alpha_, dtype=float).copy(), float(g.sigma_f),
+                          np.asarray(g.lengthscales, dtype=float).copy(), float(g.sigma_n),
+                          1.0 / smin ** 2 if smin > 0 else None))
+    return out
+
+
+def merged_sigma(weights: np.ndarray, sigmas: np.ndarray, mus: np.ndarray | None = None) -> float:
+    """A σ̃ valid for the merged bound: the mixture std (with ``mus``) or the weighted-variance std.
+
+    Both dominate Σ w_i σ_i (Jensen), which is what the merged bound needs.
+    """
+    w = np.asarray(weights, float)
+    s = np.asarray(sigmas, float)
+    if mus is None:
+        return float(np.sqrt(np.sum(w * s ** 2)))
+    m = np.asarray(mus, float)
+    mu = np.sum(w * m)
+    return float(np.sqrt(np.sum(w * (s ** 2 + (m - mu) ** 2))))
+
+
+def input_box(Z: np.ndarray, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Axis box around data Z (m, d), widened by ``margin`` of the range on each side.
+
+    The bound is only claimed on this box; states outside it have no guarantee.
+    """
+    Z = np.atleast_2d(Z)
+    lo, hi = Z.min(0), Z.max(0)
+    w = np.maximum(hi - lo, 1e-9)
+    return lo - margin * w, hi + margin * w
+
+
+def outputs_eta(consts: Iterable[BoundConstants], sigmas: np.ndarray) -> np.ndarray:
+    """η_i = √β_i σ_i + γ_i for the n independent output GPs (Sec. IV-A)."""
+    return np.array([c.eta(s) for c, s in zip(consts, np.atleast_1d(sigmas))], dtype=float)

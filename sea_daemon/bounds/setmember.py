@@ -1,0 +1,245 @@
+"""Set-membership propagation of Theorem 1 (Noack et al. 2010) and the torque bound ρ_k.
+
+The state is a set of Gaussians (eq:gaussianset): x_k ~ N(m, P_k) with unknown mean
+m ∈ E(x̂_k, X̂_k).  The centre x̂_k is the (GP-)AKF estimate; this class tracks the shape
+X̂_k of the set of means next to the filter and never touches the filter itself.
+
+One step k → k+1 (proof of Theorem 1):
+
+1. C_k = E(x̂_k, X̂_k) ⊕ E(0, s_d P_k)                         (eq:confidenceset; outer ellipsoid)
+2. linearisation error ε = f(x) − f̄(x) over x ∈ C_k, per dimension:
+   b_i = max_{x ∈ C_k} |ε_i(x)|                                 (eq:linerrsetdx, eq:linearerrellipsoid)
+3. prior set of means (eq:predwLinErrsetandGPerrset)
+   X⁻ = F X̂ Fᵀ ⊕ [GP error: segments Γ_j η_j] ⊕ [lin. error: segments Φ_i b_i]
+   as ONE n-ary trace-minimal Minkowski sum (Kurzhanski/Maksarov family, ellipsoid.py);
+4. filter step on the set: X̂⁺ = (I − K H) X⁻ (I − K H)ᵀ (affine, exact); the centre
+   x̂⁻ + K(y − H x̂⁻) is the filter's posterior estimate.
+5. ρ_{k+1} = half-width of C_{k+1} along the τ_h,act axis, computed exactly from the support
+   functions of the two summands: ρ_j = sqrt(X̂_jj) + sqrt(s_τ P_jj).
+
+Probability levels.  δ is split into δ_GP (the GP uniform bound, eq:gpmeanbounds, whose
+constants the caller computes with gp_bound.error_bound) and δ_N = δ − δ_GP for the
+Gaussian part: s_d = χ²_d(1 − δ_N) for the set C_k (on which the linearisation error is
+bounded) and, by default, for ρ (the paper's projection of C_k); with projection="marginal"
+ρ uses s_τ = χ²_{n_τ}(1 − δ_N), the confidence set of the τ marginal (simultaneous over the
+n_τ torque states), which is also valid and tighter.  With
+the union bound Pr(|τ̂ − τ| ≤ ρ) ≥ 1 − δ_GP − δ_N = 1 − δ at each step, conditional on the
+previous step's x_k ∈ C_k (as in the paper's theorem).
+
+Linearisation-error bound (step 2) — how it is computed and where it is approximate:
+the maximum of |ε_i| over the ellipsoid C_k is taken over a deterministic point set of C_k
+(centre; the 2d principal-axis points c ± √λ_j v_j; the 2d coordinate-extreme points
+c ± X e_i/√X_ii; 2m fixed quasi-random boundary points and the same directions at half
+radius), then inflated by a relative margin (default 25 %).  This is exact when ε is a
+quadratic form in a principal direction of C_k (e.g. the gravity term sin q in 1-D) and
+approximate otherwise: a sharp nonlinearity between the points (Coulomb friction, a
+backlash corner) can be under-sampled.  A caller with an analytic bound passes
+``lin_err_box`` instead (the AKF adapter does so for the gravity term, akf_bound.py).  The residual is evaluated either
+in discrete time (ε = f_d(x) − f_d(x̂) − F_d(x − x̂), Φ = I: exact for the discrete model)
+or in continuous time (ε_c = f(x) − f(x̂) − A(x − x̂) mapped by Φ = ∫₀^dt e^{As} ds, the
+zero-order-hold approximation: exact if ε_c is constant over the step).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.special import gammaincinv
+
+from .ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
+
+
+def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
+    """Γ = ∫₀^dt e^{As} ds · B: a constant input over one step → its effect on x_{k+1}.
+
+    With B = I_μ M⁻¹ this is the discretised I_μ M⁻¹ that maps the GP error (N m) of
+    eq:unknown into the state (eq:Dmuhat); with B = I it is Φ for the continuous-time
+    linearisation error.  One expm of [[A, B], [0, 0]]·dt (Van Loan).
+    """
+    d, m = A.shape[0], B.shape[1]
+    aug = np.zeros((d + m, d + m))
+    aug[:d, :d] = A * dt
+    aug[:d, d:] = B * dt
+    return expm(aug)[:d, d:]
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """χ²_dof quantile at probability p (scipy.special, no scipy.stats import at start-up)."""
+    return float(2.0 * gammaincinv(0.5 * dof, p))
+
+
+def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed + 7919 * d)
+    U = rng.standard_normal((m, d))
+    return U / np.linalg.norm(U, axis=1, keepdims=True)
+
+
+def ellipsoid_points(C: Ellipsoid, U: np.ndarray) -> np.ndarray:
+    """Deterministic points of C = E(c, X): the centre, c ± principal semi-axes, the
+    coordinate-extreme points c ± X e_i/√X_ii, c ± X^{1/2} u and c ± ½ X^{1/2} u for the unit
+    directions u in the rows of U ((m, dim); may be empty)."""
+    d = C.dim
+    w, V = np.linalg.eigh(C.X)
+    VS = V * np.sqrt(np.clip(w, 0.0, None))
+    ax = VS.T                                                   # principal semi-axes
+    dx = np.diag(C.X)
+    ext = np.zeros((d, d))
+    ok = dx > 0
+    ext[ok] = (C.X[:, ok] / np.sqrt(dx[ok])).T                  # argmax_{x∈C} x_i − c_i
+    rnd = np.asarray(U).reshape(-1, d) @ (VS @ V.T)             # X^{1/2} u (symmetric root)
+    offs = np.vstack([np.zeros((1, d)), ax, -ax, ext, -ext, rnd, -rnd, 0.5 * rnd, -0.5 * rnd])
+    return C.c + offs
+
+
+class SetMembershipBound:
+    """Theorem-1 set of means X̂_k next to an (GP-)AKF, and the bound ρ_k on τ_h,act.
+
+    Parameters
+    ----------
+    d        state dimension (5n for the SEA AKF)
+    tau_idx  indices of the τ_h,act states (4n … 5n−1)
+    delta    total failure probability δ of eq:bounds
+    delta_gp share of δ spent on the GP bound (the caller uses it in gp_bound.error_bound);
+             0 when there is no GP (plain AKF)
+    weight   W of the tr(W X)-minimal Minkowski sum (default I, the plain trace)
+    n_dirs   extra quasi-random directions for the linearisation-error point set
+    margin   relative inflation of the sampled linearisation error
+    projection  "state" (default, the paper's construction): ρ is the projection of the
+             state confidence set C_k with s_d = χ²_d(1 − δ_N); "marginal": s_τ = χ²_{n_τ}(1 − δ_N),
+             the confidence set of the τ marginal alone — also valid for eq:bounds and tighter
+             (for one joint √χ²_1 = 1.96 instead of √χ²_5 = 3.33 at δ_N = 0.05)
+    """
+
+    def __init__(self, d: int, tau_idx, delta: float, *, delta_gp: float = 0.0,
+                 weight: np.ndarray | None = None, n_dirs: int = 8, margin: float = 0.25, seed: int = 0,
+                 projection: str = "state"):
+        if not 0 < delta < 1:
+            raise ValueError(f"delta must be in (0, 1), got {delta}")
+        if not 0 <= delta_gp < delta:
+            raise ValueError(f"delta_gp must be in [0, delta={delta}), got {delta_gp}")
+        self.d = int(d)
+        self.tau_idx = np.atleast_1d(np.asarray(tau_idx, dtype=int))
+        self.delta, self.delta_gp = float(delta), float(delta_gp)
+        self.delta_noise = self.delta - self.delta_gp
+        # eq:gaussianellipsoid: s from the χ² quantile
+        self.s_state = chi2_quantile(1.0 - self.delta_noise, self.d)
+        if projection not in ("state", "marginal"):
+            raise ValueError(f"projection must be 'state' or 'marginal', got {projection!r}")
+        self.projection = projection
+        self.s_tau = (self.s_state if projection == "state"
+                      else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size))
+        self.weight = weight
+        self.margin = float(margin)
+        self._U = _unit_directions(self.d, n_dirs, seed)
+        self.X_ = np.zeros((self.d, self.d))       # X̂_k, shape of the set of means
+        self.Xprior_ = np.zeros((self.d, self.d))  # X⁻_{k+1}
+        self.lin_err_ = np.zeros(self.d)           # last linearisation-error box b
+        self.n_eval_ = 0                           # residual evaluations in the last box
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self, X0: np.ndarray | None = None) -> None:
+        """X̂_0 (default 0: x̂_0 measured, its uncertainty is in P_0 — Sec. V-B)."""
+        self.X_ = np.zeros((self.d, self.d)) if X0 is None else np.array(X0, dtype=float)
+        self.Xprior_ = self.X_.copy()
+
+    # ------------------------------------------------------------------ sets
+
+    def confidence_set(self, x_hat: np.ndarray, P: np.ndarray) -> Ellipsoid:
+        """Outer ellipsoid of C_k = E(x̂, X̂) ⊕ E(0, s_d P) (Theorem 1), trace-minimal."""
+        # eq:confidenceset
+        return Ellipsoid(x_hat, minkowski_shape([self.X_, self.s_state * np.asarray(P)], self.weight))
+
+    def rho(self, P: np.ndarray) -> np.ndarray:
+        """ρ_k per τ state: exact half-width of E(0, X̂) ⊕ E(0, s_τ P) along each τ axis."""
+        i = self.tau_idx
+        # support functions add over a Minkowski sum: h = sqrt(eᵀX̂e) + sqrt(s eᵀPe)
+        return (np.sqrt(np.clip(np.diag(self.X_)[i], 0.0, None))
+                + np.sqrt(self.s_tau * np.clip(np.diag(np.asarray(P))[i], 0.0, None)))
+
+    def sample_points(self, C: Ellipsoid) -> np.ndarray:
+        """The deterministic point set of C on which the linearisation error is maximised."""
+        return ellipsoid_points(C, self._U)
+
+    def linearization_error_box(self, resid: Callable[[np.ndarray], np.ndarray], C: Ellipsoid) -> np.ndarray:
+        """b_i ≈ max_{x∈C} |ε_i(x)| (eq:linerrsetdx), ε = resid(x) = f(x) − f̄(x).
+
+        Sampled on :meth:`sample_points` and inflated by ``margin`` (approximate; see module
+        docstring).  Residuals at rounding level are set to zero so a linear plant gives 0.
+        """
+        pts = self.sample_points(C)
+        E = np.array([resid(x) for x in pts])
+        self.n_eval_ = len(pts)
+        b = np.max(np.abs(E), axis=0)
+        return b * (1.0 + self.margin)
+
+    # ------------------------------------------------------------------ Theorem 1 step
+
+    def predict(self, F: np.ndarray, *, Gamma: np.ndarray | None = None, eta: np.ndarray | None = None,
+                lin_err_box: np.ndarray | None = None, Phi: np.ndarray | None = None) -> np.ndarray:
+        """X⁻_{k+1} = F X̂_k Fᵀ ⊕ Γ·box(η) ⊕ Φ·box(b)    (eq:predwLinErrsetandGPerrset).
+
+        F      discrete linearisation F_d (A_k of the theorem)
+        Gamma  d×n map of the GP error (N m) into the state (input_matrix(A, I_μ M⁻¹, dt))
+        eta    (n,) GP error half-widths √β σ_i + γ (lem:interval_bound)
+        lin_err_box (m,) linearisation-error half-widths b, mapped by Phi (default I)
+        """
+        F = np.asarray(F, dtype=float)
+        shapes = [F @ self.X_ @ F.T]
+        if eta is not None and Gamma is not None:
+            # eq:Dmuhat, eq:GPboundsellipse: the GP error box as n segments in state space
+            shapes += segments_shapes(Gamma, eta)
+        if lin_err_box is not None:
+            # eq:linearerrellipsoid: the box of per-dimension maxima as segments
+            shapes += segments_shapes(np.eye(self.d) if Phi is None else Phi, lin_err_box)
+        self.lin_err_ = np.zeros(self.d) if lin_err_box is None else np.asarray(lin_err_box, float)
+        self.Xprior_ = minkowski_shape(shapes, self.weight)
+        return self.Xprior_
+
+    def update(self, K: np.ndarray, H: np.ndarray) -> np.ndarray:
+        """X̂_{k+1} = (I − K H) X⁻ (I − K H)ᵀ: the filter step on the set of means (affine, exact)."""
+        IKH = np.eye(self.d) - np.asarray(K) @ np.asarray(H)
+        X = IKH @ self.Xprior_ @ IKH.T
+        self.X_ = 0.5 * (X + X.T)
+        return self.X_
+
+    def skip_update(self) -> np.ndarray:
+        """No measurement this step: X̂_{k+1} = X⁻."""
+        self.X_ = self.Xprior_.copy()
+        return self.X_
+
+    def step(self, *, x_hat: np.ndarray, P: np.ndarray, F: np.ndarray, K: np.ndarray, H: np.ndarray,
+             P_post: np.ndarray, resid: Callable[[np.ndarray], np.ndarray] | None = None,
+             Phi: np.ndarray | None = None, Gamma: np.ndarray | None = None,
+             eta: np.ndarray | None = None, lin_err_box: np.ndarray | None = None) -> np.ndarray:
+        """One full Theorem-1 step from (x̂_k, P_k) to ρ_{k+1}.
+
+        ``resid(x)`` = f(x) − f̄(x) about x̂_k (discrete: Φ = I; continuous: pass Φ); or pass
+        ``lin_err_box`` directly.  K, H, P_post are the filter's K_{k+1}, H and P_{k+1}.
+        """
+        if lin_err_box is None and resid is not None:
+            C = self.confidence_set(x_hat, P)
+            lin_err_box = self.linearization_error_box(resid, C)
+        self.predict(F, Gamma=Gamma, eta=eta, lin_err_box=lin_err_box, Phi=Phi)
+        self.update(K, H)
+        return self.rho(P_post)
+
+
+def discrete_residual(fd: Callable[[np.ndarray], np.ndarray], x_hat: np.ndarray, F_d: np.ndarray):
+    """ε(x) = f_d(x) − f_d(x̂) − F_d (x − x̂) (eq:ekf_linearization) with rounding noise removed."""
+    f0 = np.asarray(fd(x_hat), dtype=float)
+
+    def resid(x):
+        fx = np.asarray(fd(x), dtype=float)
+        lin = F_d @ (x - x_hat)
+        r = fx - f0 - lin
+        tol = 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin) + 1e-300)
+        return np.where(np.abs(r) <= tol, 0.0, r)
+
+    return resid
+
+
+def continuous_residual(f: Callable[[np.ndarray], np.ndarray], x_hat: np.ndarray, A: np.ndarray):
+    """ε_c(x) = f(x) − f(x̂) − A (x − x̂) for ẋ = f(x) (to be mapped with Φ = ∫e^{As}ds)."""
+    return discrete_residual(f, x_hat, A)

@@ -1,0 +1,138 @@
+"""Theorem-1 bound attached to the AKF / GP-AKF (sea_daemon.bounds.akf_bound)."""
+import numpy as np
+import pytest
+
+from sea_daemon.bounds.akf_bound import attach_theorem_bound
+from sea_daemon.bounds.gp_bound import BoundConstants
+from sea_daemon.bounds.setmember import chi2_quantile
+from sea_daemon.config import ModelConfig, default_config_path, load_config
+from sea_daemon.estimators import AKF
+from sea_daemon.model import SEAModel
+
+from synth import simulate
+
+
+def run(est, log):
+    est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    out = np.zeros((len(log), 3))
+    for k in range(1, len(log)):
+        e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        out[k] = e.tau_h_act_hat[0], e.tau_h_act_bound[0], e.P[4, 4]
+    return out
+
+
+def test_linear_plant_bound_equals_kf_chi2_projection():
+    cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
+        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
+    log = simulate(SEAModel.from_config(cfg), T=0.6, tau_h=lambda t: np.array([np.sin(3 * t)]), seed=1)
+    akf = AKF(cfg)
+    tb = attach_theorem_bound(akf)
+    out = run(akf, log)
+    plain = run(AKF(cfg), log)
+    assert np.max(np.abs(tb.sm.X_)) == 0.0                     # set of means stays a point
+    np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 5) * out[1:, 2]),
+                               rtol=1e-10)
+    np.testing.assert_allclose(out[:, :2], plain[:, :2], rtol=1e-10)   # estimate and bound unchanged
+
+
+def test_gravity_nonlinearity_widens_bound_and_it_covers():
+    cfg = load_config(default_config_path())
+    log = simulate(SEAModel.from_config(cfg), T=1.5, tau_h=lambda t: np.array([2.0 * np.sin(2 * np.pi * 0.3 * t)]),
+                   seed=3)
+    akf = AKF(cfg)
+    tb = attach_theorem_bound(akf)
+    out = run(akf, log)
+    plain = run(AKF(cfg), log)
+    np.testing.assert_allclose(out[:, 0], plain[:, 0])           # the estimate is untouched
+    assert np.all(out[1:, 1] >= plain[1:, 1] - 1e-12)            # the set of means only adds
+    assert tb.lin_err_[3] > 0 and tb.sm.X_[4, 4] > 0             # gravity: θ̈_s row is non-linear
+    err = np.abs(out[20:, 0] - log.tau_h_act[20:, 0])
+    assert np.mean(err <= out[20:, 1]) >= 1 - cfg.estimator.delta
+
+
+class BiasedResidual:
+    """μ(z) = f(z) + e with a bounded error |e| ≤ 0.3 the bound must absorb; σ = 0.1."""
+
+    def __init__(self, f, bias):
+        self.f, self.bias = f, bias
+
+    def predict(self, z):
+        mu = np.array([self.f(z) + self.bias])
+        h = 1e-6
+        jac = np.array([[(self.f(z + h * e) - self.f(z - h * e)) / (2 * h) for e in np.eye(3)]])
+        return mu, jac, np.array([0.01])
+
+
+def test_gp_akf_bound_absorbs_a_bounded_gp_error():
+    cfg = load_config(default_config_path())
+    f = lambda z: 0.8 * np.tanh(3.0 * z[1]) + 0.5 * z[0]
+
+    class Plant(SEAModel):
+        def f_nom(self, x, u, f_res=None):
+            return super().f_nom(x, u, f_res=np.array([f(np.array([x[0] + x[1], x[2] + x[3], 0.0]))]))
+
+    log = simulate(Plant(cfg.model), T=1.5, tau_h=lambda t: np.array([np.sin(2 * np.pi * 0.5 * t)]), seed=2)
+    consts = [BoundConstants(sqrt_beta=3.0, gamma=0.0, tau=0.0, L_f=0.0, L_mu=0.0, omega_sigma=0.0,
+                             delta=0.025, n_leaves=1)]               # η = 3·0.1 = 0.3 ≥ |e|
+    outs = {}
+    for bias in (0.3, -0.3):
+        akf = AKF(cfg, residual=BiasedResidual(f, bias))
+        tb = attach_theorem_bound(akf, gp_constants=consts)
+        out = run(akf, log)
+        assert tb.eta_[0] == pytest.approx(0.3)
+        err = np.abs(out[20:, 0] - log.tau_h_act[20:, 0])
+        assert np.mean(err <= out[20:, 1]) >= 1 - cfg.estimator.delta
+        outs[bias] = out
+    # the GP error term widens the bound beyond the AKF's Gaussian part
+    assert np.mean(outs[0.3][20:, 1]) > np.mean(np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 5)
+                                                        * outs[0.3][20:, 2]))
+    with pytest.raises(ValueError, match="gp_constants"):
+        attach_theorem_bound(AKF(cfg, residual=BiasedResidual(f, 0.0)))
+
+
+def test_phi_shortcut_matches_expm():
+    from sea_daemon.bounds.setmember import input_matrix
+    cfg = load_config(default_config_path())
+    akf = AKF(cfg)
+    tb = attach_theorem_bound(akf)
+    akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
+    akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
+    b = np.array([0, 0, 0, 1.0, 0])
+    full = input_matrix(akf.A_k, np.eye(5), akf.dt)
+    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
+
+
+def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.estimators import make_estimator
+    cfg = load_config(default_config_path())
+    res = learning.ResidualGP(1, cfg.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(120):
+        z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
+        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0]]))
+    est = make_estimator("akf", cfg, residual=res)
+    tb = est.theorem_bound
+    log = simulate(SEAModel.from_config(cfg), T=0.3, seed=4)
+    out = run(est, log)
+    assert tb.gp_constants is not None and len(tb.gp_constants) == 1
+    assert tb.gp_constants[0].n_leaves == cfg.learning.max_leaves
+    assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
+    # ρ ≥ the Gaussian part alone, at the GP-AKF's δ_N = δ/2
+    s = chi2_quantile(1 - cfg.estimator.delta / 2, 5)
+    assert np.all(out[1:, 1] >= np.sqrt(s * out[1:, 2]) - 1e-12)
+
+
+def test_gp_akf_estimator_gets_the_theorem_bound():
+    gpakf = pytest.importorskip("sea_daemon.estimators.gpakf")
+    from sea_daemon.bounds.akf_bound import attach_default_bound, residual_gps
+    cfg = load_config(default_config_path())
+    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+    est = gpakf.build(cfg, train, train.dt)
+    tb = attach_default_bound(est)
+    assert tb is not None and residual_gps(est) is not None
+    log = simulate(SEAModel.from_config(cfg), T=0.3, seed=7)
+    out = run(est, log)
+    assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
+    assert attach_default_bound(est) is tb                     # idempotent

@@ -1,0 +1,61 @@
+"""``sea-daemon identify-noise``: ALS on a measured log (Sec. V-B)."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from sea_daemon.cli import main
+from sea_daemon.config import default_config_path, load_config
+from sea_daemon.logio import write_log
+from sea_daemon.model import SEAModel
+
+from synth import simulate
+
+SIGMA = 1e-3     # white encoder noise added to both encoders [rad]
+
+
+@pytest.fixture(scope="module")
+def noisy_log(tmp_path_factory):
+    cfg = load_config(default_config_path())
+    log = simulate(SEAModel.from_config(cfg), T=30.0, substeps=2, bits=None, seed=4,
+                   tau_h=lambda t: np.array([0.5 * np.sin(2 * np.pi * 0.2 * t)]))
+    rng = np.random.default_rng(5)
+    log = dataclasses.replace(log, q=log.q + SIGMA * rng.standard_normal(log.q.shape),
+                              theta_m=log.theta_m + SIGMA * rng.standard_normal(log.q.shape))
+    p = tmp_path_factory.mktemp("als") / "noisy.csv"
+    write_log(p, log)
+    return p
+
+
+def test_identify_noise_recovers_encoder_noise_and_writes_config(noisy_log, tmp_path, capsys):
+    out = tmp_path / "identified.yaml"
+    rc = main(["identify-noise", str(noisy_log), "--config", str(default_config_path()), "--write", str(out)])
+    assert rc == 0
+    res = json.loads(capsys.readouterr().out)
+    R = np.array(res["R"])
+    # both encoders: σ² each (within 15 %: 2950 samples)
+    assert res["encoder_variances"]["theta_m"][0] == pytest.approx(SIGMA ** 2, rel=0.15)
+    assert res["encoder_variances"]["q"][0] == pytest.approx(SIGMA ** 2, rel=0.15)
+    # θ_m: σ_m², θ_s = q − θ_m: σ_q² + σ_m², Cov(θ_m, θ_s) = −σ_m²
+    assert R[0, 0] == pytest.approx(SIGMA ** 2, rel=0.15)
+    assert R[1, 1] == pytest.approx(2 * SIGMA ** 2, rel=0.15)
+    assert R[0, 1] == pytest.approx(-R[0, 0])
+    # velocities: the 'ma' differentiator (W = 5, 100 Hz): ‖c_v‖² = 2/(W dt)², c_a·c_v = 1/(W dt)
+    W_dt = 5 * 0.01
+    np.testing.assert_allclose(R[2:, 2:], 2 / W_dt ** 2 * R[:2, :2])
+    np.testing.assert_allclose(R[:2, 2:], 1 / W_dt * R[:2, :2])
+    assert np.all(np.linalg.eigvalsh(R) > 0)
+    cfg2 = load_config(out)
+    np.testing.assert_allclose(cfg2.estimator.R, R)
+    np.testing.assert_allclose(cfg2.estimator.P0[:4, :4], R)      # Sec. V-B: P0 = R
+
+
+def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
+    cfg = str(default_config_path())
+    assert main(["identify-noise", str(tmp_path / "missing.csv"), "--config", cfg]) == 2
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(noisy_log.read_text().splitlines()[:40]) + "\n")
+    assert main(["identify-noise", str(short), "--config", cfg]) == 2
+    assert "samples" in capsys.readouterr().err
+    assert main(["identify-noise", str(noisy_log), "--config", cfg, "--lags", "1"]) == 2
