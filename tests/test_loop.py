@@ -182,3 +182,25 @@ def test_missed_deadlines_are_skipped_not_caught_up():
     assert st.overruns == 1 and st.skipped == 2 and loop.supervisor.ok   # ends at 65 ms: 50, 60 ms missed
     # after the overrun the loop sleeps again to the re-phased deadlines: no burst of zero-length cycles
     assert len(sleeps) == 7 and all(s > 0 for s in sleeps)
+
+
+class CountingNotifier:
+    def __init__(self):
+        self.watchdogs = 0
+        self.statuses = []
+
+    def watchdog(self):
+        self.watchdogs += 1
+
+    def status(self, text):
+        self.statuses.append(text)
+
+
+def test_watchdog_keeps_going_while_latched_so_systemd_never_clears_the_fault():
+    hw = FakeHW(fail_at=5)
+    nt = CountingNotifier()
+    loop = make(hw, ConstEstimator(), notifier=nt)
+    loop.run(20)
+    assert loop.supervisor.latched == Fault.HEARTBEAT_LOST
+    assert nt.watchdogs == 20                          # alive loop: every cycle, latched or not
+    assert len(nt.statuses) == 1 and nt.statuses[0].startswith("FAULT HEARTBEAT_LOST")

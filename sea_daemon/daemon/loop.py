@@ -11,7 +11,7 @@ torque that acts over [t_k, t_k+1] — see :mod:`drivers.interface`):
    drive applies it: ``hw.actuated()`` when the hardware has it); raises EstimatorFault
    instead of emitting NaN
 5. one row into the off-loop log writer (row k's ``tau_m`` is that same torque, contracts §1),
-   WATCHDOG=1 to systemd while healthy
+   WATCHDOG=1 to systemd from every cycle the loop runs (latched or not)
 6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
    deadlines missed by a whole period or more are skipped (counted), not caught up in a burst
 
@@ -236,7 +236,9 @@ class FixedRateLoop:
                 row[i + 4] = done - start
                 row[i + 5] = t_read - start
                 self.log.append(row)
-            if self.notifier is not None and sup.ok:
+            # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
+            # only a stuck loop and never clears a latched fault behind the operator's back
+            if self.notifier is not None:
                 self.notifier.watchdog()
             if self.record_periods and k > 0:
                 st.periods.append(start - last_start)

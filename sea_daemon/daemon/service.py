@@ -10,7 +10,7 @@
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``.
 * :func:`serve` — log writer, real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset),
-  hardware start, READY=1, the loop (WATCHDOG=1 each healthy cycle, STATUS= once a second),
+  hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second),
   STOPPING=1, clean stop and log close.
 """
 from __future__ import annotations
