@@ -204,3 +204,19 @@ def test_watchdog_keeps_going_while_latched_so_systemd_never_clears_the_fault():
     assert loop.supervisor.latched == Fault.HEARTBEAT_LOST
     assert nt.watchdogs == 20                          # alive loop: every cycle, latched or not
     assert len(nt.statuses) == 1 and nt.statuses[0].startswith("FAULT HEARTBEAT_LOST")
+
+
+def test_failed_operator_reset_stays_latched_and_loop_keeps_running():
+    hw = FakeHW(fail_at=3)
+    loop = make(hw, ConstEstimator())
+    loop.run(6)
+    assert loop.supervisor.latched == Fault.HEARTBEAT_LOST
+
+    def reset_fault():
+        raise HeartbeatLost("SDO timeout while re-enabling the drive")
+    hw.reset_fault = reset_fault
+    loop.request_reset()
+    loop.run(4)                                         # no exception escapes the loop
+    assert loop.supervisor.latched == Fault.HEARTBEAT_LOST
+    assert "operator reset failed" in loop.supervisor.latched_detail
+    assert all(tau == 0.0 for k, tau in hw.writes if k >= 3)

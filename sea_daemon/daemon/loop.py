@@ -167,13 +167,18 @@ class FixedRateLoop:
             start = self.clock()
             if self._reset_requested:
                 self._reset_requested = False
-                sup.reset()
-                if hasattr(self.hw, "reset_fault"):
-                    self.hw.reset_fault()
-                if hasattr(self.estimator, "reset"):
-                    self.estimator.reset()
-                if self.notifier is not None:
-                    self.notifier.status("fault reset by operator")
+                was = sup.reset()
+                try:
+                    if hasattr(self.hw, "reset_fault"):
+                        self.hw.reset_fault()
+                    if hasattr(self.estimator, "reset"):
+                        self.estimator.reset()
+                except Exception as e:  # noqa: BLE001 - a failed reset leaves the fault latched
+                    self._trip(fault_of(e) if was == Fault.NONE else was, k, start,
+                               f"operator reset failed: {type(e).__name__}: {e}")
+                else:
+                    if self.notifier is not None:
+                        self.notifier.status("fault reset by operator")
             meas = None
             est = None
             valid = 0.0
