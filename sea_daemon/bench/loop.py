@@ -155,14 +155,6 @@ def run(args) -> int:
             frames = FrameCounter(make_bus(cfg_r.hardware.bus))
             rig = Rig(CanopenHardware(cfg_r), "can", f"device model process behind can_remote {url}",
                       np.zeros(cfg.joints), plant_hold, frames=frames)
-            stop = rig.stop
-
-            def stop_all():
-                try:
-                    stop()
-                finally:
-                    frames.close()
-            rig.stop = stop_all
         sc = load_scenario(scen)
         controller = ScenarioController(sc, cfg, "estimation", rig.hold_torque,
                                         delay=getattr(rig.hw, "actuation_delay", 0))

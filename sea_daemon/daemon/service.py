@@ -66,8 +66,12 @@ class Rig:
         try:
             self.hw.stop()
         finally:
-            if self.device_model is not None:
-                self.device_model.stop()
+            try:
+                if self.device_model is not None:
+                    self.device_model.stop()
+            finally:
+                if self.frames is not None:
+                    self.frames.close()
 
 
 def _human(sc, phase: str):
@@ -129,15 +133,6 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
     hw = CanopenHardware(cfg)
     rig = Rig(hw, "device-model", f"device model ({scen}) on virtual CAN {b.channel}", hold, hold, tau_h,
               device_model=model, bus=b, frames=frames)
-    if frames is not None:
-        stop = rig.stop
-
-        def stop_all():
-            try:
-                stop()
-            finally:
-                frames.close()
-        rig.stop = stop_all
     return rig
 
 
