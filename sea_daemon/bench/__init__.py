@@ -26,6 +26,20 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
 
 
+def choose(text: str | None, allowed, flag: str) -> list[str]:
+    """Labels named in a comma-separated option (all of ``allowed`` when empty), validated.
+
+    An unknown label is an InputError naming the flag, the value and the allowed ones.
+    """
+    from ..errors import InputError
+    allowed = list(allowed)
+    labels = [s.strip() for s in (text or "").split(",") if s.strip()] or allowed
+    unknown = [s for s in labels if s not in allowed]
+    if unknown:
+        raise InputError(f"{flag} {','.join(unknown)}: unknown; allowed: {', '.join(allowed)}")
+    return labels
+
+
 def summarize(samples_s, scale: float = 1e6, unit: str = "us") -> str:
     """'median …, p99 …, p99.9 …, max … (n runs)' of times given in seconds."""
     a = np.asarray(samples_s, dtype=float) * scale

@@ -123,12 +123,9 @@ def run(args) -> int:
         from ..sim.scenario import load_scenario
     except ImportError:
         raise InputError("bench accuracy needs the simulator (sea_daemon.sim), which is not installed") from None
-    from . import machine
+    from . import choose, machine
     _try_register_gp_akf()
-    labels = list(CASES) if not args.estimators else [s.strip() for s in args.estimators.split(",") if s.strip()]
-    unknown = [s for s in labels if s not in CASES]
-    if unknown:
-        raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(CASES)}")
+    labels = choose(args.estimators, CASES, "--estimators")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     import os

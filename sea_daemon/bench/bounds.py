@@ -94,12 +94,9 @@ def run(args) -> int:
         from ..sim.scenario import load_scenario
     except ImportError:
         raise InputError("bench bounds needs the simulator (sea_daemon.sim)") from None
-    from . import machine, summarize
+    from . import choose, machine, summarize
     builders = _builders()
-    labels = list(builders) if not args.estimators else [s.strip() for s in args.estimators.split(",") if s.strip()]
-    unknown = [s for s in labels if s not in builders]
-    if unknown:
-        raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(builders)}")
+    labels = choose(args.estimators, builders, "--estimators")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     d = repo_root() / "configs" / "scenarios"

@@ -44,7 +44,7 @@ from drivers.device_model import FaultSpec
 
 from ..daemon.loop import FixedRateLoop
 from ..daemon.safety import Fault, SafetySupervisor
-from . import machine
+from . import choose, machine
 from ._rig import DriveProbe, Rig, SineTracker, VirtualClock, bench_config
 
 NAME = "faults"
@@ -436,10 +436,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    bad = [k for k in kinds if k not in FAULTS]
-    if bad:
-        raise InputError(f"--kinds {','.join(bad)}: allowed {', '.join(FAULTS)}")
+    kinds = choose(args.kinds, FAULTS, "--kinds")
     if args.cycles < 1000 or args.fault_free_cycles < 0:
         raise InputError(f"--cycles {args.cycles}: must be >= 1000; --fault-free-cycles >= 0")
     print(f"# sea-daemon bench faults on {machine()}")
