@@ -34,13 +34,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import expm
-from scipy.linalg.lapack import dpotrf as _dpotrf, dpotrs as _dpotrs
 
+from .._jit import warm_up
 from ..config import ModelConfig
 from ..errors import EstimatorFault
 from ..kinematics import CausalDifferentiator
 from ..model import SEAModel
+from . import akf_core
 from .base import Estimate, Residual, chi2_scale
 from .health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 
@@ -52,17 +52,16 @@ def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float,
         F_d = e^{A dt},  Δx = ∫₀^dt e^{As} ds · f,  Γ = ∫₀^dt e^{As} ds · G,
     i.e. :func:`sea_daemon.model.discretize` plus the held-input block Γ (textbook ZOH,
     e.g. Franklin, Powell & Workman, Digital Control, §4.3.3).  Returns (Δx, F_d, Γ);
-    ``out`` (work matrix of size (d+1+r)²) is reused when given.
+    ``out`` (work matrix of size (d+1+r)²) is reused when given.  The compiled
+    :func:`~sea_daemon.estimators.akf_core.discretize` the filter step uses.
     """
+    A = np.ascontiguousarray(A, dtype=float)
+    G = np.ascontiguousarray(G, dtype=float)
     d = A.shape[0]
     r = G.shape[1]
     aug = out if out is not None else np.zeros((d + 1 + r, d + 1 + r))
-    aug[:d, :d] = A
-    aug[:d, d] = xdot
-    aug[:d, d + 1:] = G
-    aug[d:, :] = 0.0
-    aug *= dt
-    E = expm(aug)
+    E = np.empty_like(aug)
+    akf_core.discretize(A, np.ascontiguousarray(xdot, dtype=float), G, float(dt), aug, E)
     return E[:d, d], E[:d, :d], E[:d, d + 1:]
 
 
@@ -128,9 +127,13 @@ class AKF:
         self.mu = np.zeros(n)
         self.sigma2 = np.zeros(n)
         self.u_applied = np.zeros(n)
+        self.xdot_k = np.zeros(d)
+        self._dmu = np.zeros((n, 3 * n))
         self._aug = np.zeros((d + 1 + n, d + 1 + n))
         self._IKH = np.eye(d)
         self._rhs = np.zeros((m, d + 1))
+        self._L = np.zeros((m, m))
+        self._work = np.zeros((d, d))
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
@@ -160,7 +163,9 @@ class AKF:
             A_lin[3 * n:4 * n, n:2 * n] += self._MinvG
             self._A_lin = A_lin
             self._B_lin = m_.B_nom()
-            self._q = np.zeros(n)
+        # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
+        # the first loop cycle
+        warm_up()
 
     # ------------------------------------------------------------------ measurement
 
@@ -261,24 +266,11 @@ class AKF:
         return self.est
 
     def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks.
-
-        f_nom(x, u) = A_lin x + B u − I_μ M⁻¹ g ⊙ sin q,  F_nom = A_lin − I_μ M⁻¹ diag(g cos q) ∂q/∂x
-        (eq:nonlindyn with C(q) = g ⊙ sin q, q = θ_m + θ_s); equal to SEAModel.f_nom/F_nom.
-        """
-        n = self.n
-        q = self._q
-        np.add(x[:n], x[n:2 * n], out=q)
-        A = self._A_lin.copy()
-        # ∂(−M⁻¹ C(q))/∂θ_m = ∂/∂θ_s = −M⁻¹ diag(g cos q)   (θ̈_s rows, eq:xsdd)
-        gc = self._MinvG * np.cos(q)[None, :]
-        A[3 * n:4 * n, :n] -= gc
-        A[3 * n:4 * n, n:2 * n] -= gc
-        # eq:nonlindyn
-        xdot = self._A_lin @ x
-        xdot += self._B_lin @ u
-        xdot[3 * n:4 * n] -= self._MinvG @ np.sin(q)
-        return A, xdot
+        """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks,
+        written into ``A_k`` and ``xdot_k`` (:func:`akf_core.nominal_affine`; equal to
+        SEAModel.F_nom / f_nom)."""
+        akf_core.nominal_affine(x, u, self._A_lin, self._B_lin, self._MinvG, self.A_k, self.xdot_k)
+        return self.A_k, self.xdot_k
 
     def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> Estimate:
         """The filter proper: predict with input u over dt, then update with y (4n,).
@@ -286,88 +278,47 @@ class AKF:
         With a residual, μ, ∂μ/∂z, σ² are evaluated at ``self.z`` (set by :meth:`update`).
         Raises :class:`EstimatorFault` if the state or covariance is not finite, or the
         innovation covariance is not positive definite.
+
+        The numerics are :func:`akf_core.filter_step` (compiled); ``self.Sigma_nom`` is read
+        every step (the nominal process noise of this step).
         """
-        model = self.model
         x = self.x
-        n, d, m = self.n, self.d, self.m
         if self._affine:
-            A, xdot = self._nominal_affine(x, u)
+            self._nominal_affine(x, np.asarray(u, dtype=float))
         else:
             # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
-            A = model.F_nom(x, u)
+            self.A_k[:] = self.model.F_nom(x, u)
             # eq:nonlindyn
-            xdot = model.f_nom(x, u)
-        if self.residual is not None:
+            self.xdot_k[:] = self.model.f_nom(x, u)
+        use_gp = self.residual is not None
+        dmu = self._dmu
+        if use_gp:
             # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
             mu, dmu_dz, var = self.residual.predict(self.z)
             self.mu[:] = mu
             self.sigma2[:] = var
-            # eq:fwdynwtorqueresidual1: f = f_nom − I_μ M⁻¹ μ
-            xdot -= self.G_mu @ self.mu
-            # eq:linearization: F = F_nom − I_μ M⁻¹ F_GP, F_GP = ∂μ/∂z · ∂z/∂x
-            A -= self.G_mu @ (np.asarray(dmu_dz, dtype=float) @ self.dz_dx)
-        self.A_k[:] = A
-        self.xdot_k = xdot          # ẋ of the prediction model at (x̂_{k−1}, u_{k−1})
-        # time discretisation (Sec. IV-B, "e.g. as in Wahrburg et al."): local linearisation
-        dx, F, Gam = discretize_affine(A, xdot, self.G_mu, dt, out=self._aug)
-        self.F_k[:] = F
-        self.Gamma_mu[:] = Gam
-        # Alg. 2 line 7: x̂⁻ = x̂ + Δx
-        np.add(x, dx, out=self.x_prior)
-        # Alg. 2 line 9 (eq:gpakf_covariance, eq:GPvarfwd): Σ_nom is per step; the GP error
-        # is a torque error held over the step (the GP is evaluated once per step), so it
-        # reaches the state through the same ZOH map as an input: Γ_μ diag(σ²) Γ_μᵀ with
-        # Γ_μ = ∫₀^dt e^{As}ds I_μ M⁻¹ ≈ dt·I_μ M⁻¹.  (The continuous-time I_μ M⁻¹ σ² M⁻ᵀ I_μᵀ
-        # has units of acceleration², not of a per-step state covariance.)
-        Q = self.Q_k
-        Q[:] = self.Sigma_nom
-        if self.residual is not None:
-            Q += (Gam * self.sigma2) @ Gam.T
-        # Alg. 2 line 10: P⁻ = F P Fᵀ + Q
-        Pm = self.P_prior
-        np.dot(F @ self.P, F.T, out=Pm)
-        Pm += Q
-        # Alg. 1 line 6: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹  (H = [I 0])
-        S = self.S_k
-        np.add(Pm[:m, :m], self.R, out=S)
-        # Alg. 1 line 7: innovation ν = y − H x̂⁻
-        np.subtract(y, self.x_prior[:m], out=self.innovation)
-        # Cholesky of S (LAPACK dpotrf; fails unless S is positive definite), then one solve
-        # for both K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ and S⁻¹ν
-        rhs = self._rhs
-        rhs[:, :d] = Pm[:m, :]
-        rhs[:, d] = self.innovation
-        if not math.isfinite(float(S.sum()) + float(self.innovation.sum())):     # one reduction
-            raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: prediction became non-finite "
-                                     f"(non-finite state, measurement or covariance)")
-        L, info = _dpotrf(S, lower=1)
-        if info != 0:
-            raise CovarianceNotPD(f"AKF step {self.est.k + 1}: innovation covariance S is not positive definite "
-                                  f"(min diag {np.min(np.diag(S)):.3g}); check R, Sigma_nom, P0")
-        sol, _ = _dpotrs(L, rhs, lower=1)
-        K = self.K_k
-        K[:] = sol[:, :d].T
-        # normalised innovation squared νᵀ S⁻¹ ν (χ²_{4n} when the filter is consistent)
-        self.nis = float(self.innovation @ sol[:, d])
-        np.dot(K, self.innovation, out=x)
-        x += self.x_prior
-        # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
-        IKH = self._IKH
-        IKH[:] = 0.0
-        IKH.flat[::d + 1] = 1.0
-        IKH[:, :m] -= K
-        P = self.P
-        np.dot(IKH @ Pm, IKH.T, out=P)
-        P += K @ self.R @ K.T
-        # symmetrise
-        P += P.T
-        P *= 0.5
-        # one reduction: a NaN or ±inf anywhere makes the sum non-finite
-        if not math.isfinite(float(x.sum()) + float(P.sum())):
-            raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: state or covariance became non-finite "
-                                 f"(non-finite measurement or diverging model/noise settings)")
+            dmu[:] = dmu_dz
+        # Alg. 2 lines 7-11 / Alg. 1 lines 3-8 (akf_core.filter_step: A_k and xdot_k get the
+        # GP terms of eq:fwdynwtorqueresidual1 / eq:linearization; x̂⁻, P⁻, S, K, ν, x̂, P)
+        status, nis = akf_core.filter_step(
+            self.A_k, self.xdot_k, use_gp, self.mu, dmu, self.dz_dx, self.sigma2, self.G_mu,
+            self.Sigma_nom, self.R, float(dt), y, x, self.P, self.F_k, self.Gamma_mu, self.Q_k,
+            self.x_prior, self.P_prior, self.S_k, self.K_k, self.innovation, self._aug, self._L,
+            self._rhs, self._IKH, self._work)
+        if status != akf_core.OK:
+            k = self.est.k + 1
+            if status == akf_core.PRIOR_NONFINITE:
+                raise EstimatorNonFinite(f"AKF step {k}: prediction became non-finite "
+                                         f"(non-finite state, measurement or covariance)")
+            if status == akf_core.S_NOT_PD:
+                raise CovarianceNotPD(f"AKF step {k}: innovation covariance S is not positive definite "
+                                      f"(min diag {np.min(np.diag(self.S_k)):.3g}); check R, Sigma_nom, P0")
+            self.nis = nis
+            raise EstimatorNonFinite(f"AKF step {k}: state or covariance became non-finite "
+                                     f"(non-finite measurement or diverging model/noise settings)")
+        self.nis = nis
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
-        self.health.check(self.nis, P, self.est.k + 1)
+        self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
         return self._fill_estimate()
 
