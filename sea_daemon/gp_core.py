@@ -1,0 +1,333 @@
+"""Compiled kernels of the exact local GP (:class:`sea_daemon.gp.IncrementalGP`).
+
+Layout (see :mod:`sea_daemon.gp`): inputs centred, ``x̄ = x − c``; row i of ``A`` is
+``[x̄_i / l², h_i, 1]`` with ``h_i = log σ_f² − ½ Σ_j x̄_ij² / l_j²``; for the augmented query
+``a(x) = [x̄, 1, −½ Σ_j x̄_j² / l_j²]`` the kernel vector is ``k_i = exp(A_i · a(x))`` (eq:SE).
+The lower Cholesky factor L of ``K + σ_on² I`` is packed row by row (row i starts at
+``i(i+1)/2``), so appending a point appends one row.
+
+* :func:`add_point` — one new factor row, O(N²) (one forward substitution).
+* :func:`predict`, :func:`predict_with_grad` — eq:GPmean, eq:GPvariance, eq:moejac with
+  eq:kernelderivative, and optionally ∂σ²/∂x.
+* :func:`fill_rows`, :func:`kernel_matrix`, :func:`cholesky_packed`, :func:`solve_lower`,
+  :func:`solve_upper` — a refactorisation with new hyperparameters, O(N³/6).
+* :func:`lml_grad` — log marginal likelihood and its gradient w.r.t. ``log θ`` from the packed
+  factor (Rasmussen & Williams 2006, eq. 2.30 and 5.9), with ``K⁻¹`` from the inverse factor.
+
+Plain loops (inner loops over contiguous memory), compiled with the :data:`~sea_daemon._jit.FAST`
+flags (reassociated, vectorised sums; no NaN/inf assumptions), deterministic.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jit import njit, warmer
+
+_LOG2PI = math.log(2.0 * math.pi)
+
+
+@njit(fast=True)
+def query(x, c, il2, a):
+    """a = a(x) = [x̄, 1, −½ Σ_j x̄_j² / l_j²] (length ρ + 2)."""
+    d = x.shape[0]
+    s = 0.0
+    for j in range(d):
+        xb = x[j] - c[j]
+        a[j] = xb
+        s += il2[j] * xb * xb
+    a[d] = 1.0
+    a[d + 1] = -0.5 * s
+
+
+@njit(fast=True)
+def kernel_vector(A, n, a, k):
+    """k_i = exp(A_i · a) for i < n (eq:SE)."""
+    p = a.shape[0]
+    for i in range(n):
+        s = 0.0
+        for j in range(p):
+            s += A[i, j] * a[j]
+        k[i] = math.exp(s)
+
+
+@njit(fast=True)
+def solve_lower(ap, n, b):
+    """b ← L⁻¹ b (forward substitution, L packed row by row)."""
+    for i in range(n):
+        off = i * (i + 1) // 2
+        s = b[i]
+        for k in range(i):
+            s -= ap[off + k] * b[k]
+        b[i] = s / ap[off + i]
+
+
+@njit(fast=True)
+def solve_upper(ap, n, b):
+    """b ← L⁻ᵀ b (back substitution with Lᵀ, column-oriented over L's packed rows)."""
+    for i in range(n - 1, -1, -1):
+        off = i * (i + 1) // 2
+        w = b[i] / ap[off + i]
+        b[i] = w
+        for k in range(i):
+            b[k] -= ap[off + k] * w
+
+
+@njit(fast=True)
+def add_point(x, y, X, A, yv, beta, ap, c, il2, n, sf2, sn2, jitter, log_sf2):
+    """Append (x, y) as point n: the new factor row L c = k, d = sqrt(k(x,x) + σ_on² − cᵀc),
+    and β_n = (y − cᵀβ)/d so that β = L⁻¹ y stays current (O(N²))."""
+    d = x.shape[0]
+    a = np.empty(d + 2)
+    query(x, c, il2, a)
+    off = n * (n + 1) // 2
+    d2 = sf2 + sn2 + jitter
+    bc = 0.0
+    if n > 0:
+        row = ap[off:off + n]
+        # eq:SE: k_i = exp(A_i a(x)); new factor row: L c = k
+        kernel_vector(A, n, a, row)
+        solve_lower(ap, n, row)
+        for i in range(n):
+            d2 -= row[i] * row[i]
+            bc += row[i] * beta[i]
+    dd = math.sqrt(max(d2, sn2 * 1e-6 + jitter))
+    ap[off + n] = dd
+    # β_n = (y − cᵀβ) / d  (forward substitution, last row)
+    beta[n] = (y - bc) / dd
+    for j in range(d):
+        X[n, j] = x[j]
+        A[n, j] = a[j] * il2[j]
+    A[n, d] = log_sf2 + a[d + 1]
+    A[n, d + 1] = 1.0
+    yv[n] = y
+
+
+@njit(fast=True)
+def predict(A, ap, beta, c, il2, n, sf2, x):
+    """(μ, σ²) at x: v = L⁻¹k, μ = vᵀβ (eq:GPmean), σ² = k(x,x) − vᵀv (eq:GPvariance)."""
+    d = x.shape[0]
+    a = np.empty(d + 2)
+    query(x, c, il2, a)
+    v = np.empty(n)
+    kernel_vector(A, n, a, v)
+    solve_lower(ap, n, v)
+    mu = 0.0
+    vv = 0.0
+    for i in range(n):
+        mu += v[i] * beta[i]
+        vv += v[i] * v[i]
+    var = sf2 - vv
+    return mu, (var if var > 0.0 else 0.0)
+
+
+@njit(fast=True)
+def update_alpha(ap, beta, n, alpha):
+    """α = (K + σ_on² I)⁻¹ y = L⁻ᵀ β (eq:GPmean)."""
+    for i in range(n):
+        alpha[i] = beta[i]
+    solve_upper(ap, n, alpha)
+
+
+@njit(fast=True)
+def predict_with_grad(A, ap, beta, alpha, c, il2, n, sf2, x, var_grad, dmu, dvar):
+    """(μ, σ²) at x; ∂μ/∂x into ``dmu`` and, with ``var_grad``, ∂σ²/∂x into ``dvar``.
+
+    ``alpha`` must be current (:func:`update_alpha`).
+    eq:moejac with eq:kernelderivative: ∂μ/∂x = Σ_i α_i k_i (x_i − x)/l²
+    = Σ_i α_i k_i A_i[:ρ] − μ x̄/l² with μ = Σ_i α_i k_i (A's column of ones).
+    """
+    d = x.shape[0]
+    p = d + 2
+    a = np.empty(p)
+    query(x, c, il2, a)
+    k = np.empty(n)
+    kernel_vector(A, n, a, k)
+    v = k.copy()
+    solve_lower(ap, n, v)
+    vv = 0.0
+    for i in range(n):
+        vv += v[i] * v[i]
+    var = sf2 - vv
+    if var < 0.0:
+        var = 0.0
+    g = np.zeros(p)
+    for i in range(n):
+        w = alpha[i] * k[i]
+        for j in range(p):
+            g[j] += w * A[i, j]
+    mu = g[d + 1]
+    for j in range(d):
+        dmu[j] = g[j] - mu * il2[j] * a[j]
+    if var_grad:
+        # ∂σ²/∂x = −2 Σ_i w_i ∂k_i/∂x with w = (K+σ²I)⁻¹k = L⁻ᵀv, and Σ_i w_i k_i = vᵀv
+        solve_upper(ap, n, v)
+        g[:] = 0.0
+        for i in range(n):
+            w = v[i] * k[i]
+            for j in range(p):
+                g[j] += w * A[i, j]
+        for j in range(d):
+            dvar[j] = -2.0 * (g[j] - vv * il2[j] * a[j])
+    return mu, var
+
+
+@njit(fast=True)
+def fill_rows(X, n, c, il2, log_sf2, A):
+    """Rows ``A_i = [x̄_i / l², h_i, 1]`` of the first n inputs for the current hyperparameters."""
+    d = X.shape[1]
+    for i in range(n):
+        s = 0.0
+        for j in range(d):
+            xb = X[i, j] - c[j]
+            A[i, j] = xb * il2[j]
+            s += xb * A[i, j]
+        A[i, d] = log_sf2 - 0.5 * s
+        A[i, d + 1] = 1.0
+
+
+@njit(fast=True)
+def kernel_matrix(X, A, n, c, log_sf2, K):
+    """Noise-free K_ij = k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²) (eq:SE
+    expanded), from the rows of :func:`fill_rows`; both triangles written."""
+    d = X.shape[1]
+    Xb = np.empty((n, d))
+    for i in range(n):
+        for l in range(d):
+            Xb[i, l] = X[i, l] - c[l]
+    for i in range(n):
+        Ai = A[i]
+        Ki = K[i]
+        for j in range(i + 1):
+            Xj = Xb[j]
+            s = Ai[d] + A[j, d] - log_sf2
+            for l in range(d):
+                s += Ai[l] * Xj[l]
+            Ki[j] = math.exp(s)
+    for i in range(n):
+        for j in range(i):
+            K[j, i] = K[i, j]
+
+
+@njit(fast=True)
+def cholesky_packed(K, n, diag_add, ap) -> int:
+    """Packed lower Cholesky factor of ``K + diag_add·I`` (K's lower triangle is read);
+    returns 0 or, like LAPACK dpotrf, the 1-based order of the first non-positive pivot."""
+    for i in range(n):
+        oi = i * (i + 1) // 2
+        for j in range(i + 1):
+            oj = j * (j + 1) // 2
+            s = K[i, j]
+            for k in range(j):
+                s -= ap[oi + k] * ap[oj + k]
+            if i == j:
+                s += diag_add
+                if not s > 0.0:
+                    return i + 1
+                ap[oi + i] = math.sqrt(s)
+            else:
+                ap[oi + j] = s / ap[oj + j]
+    return 0
+
+
+@njit(fast=True)
+def lml_grad(Xb, y, n, il2, sf2, sn2, ap, grad, g):
+    """Log marginal likelihood of the first n points (and, with ``grad``, its gradient w.r.t.
+    ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]`` into ``g``) from the packed factor ``ap``
+    of ``K + (σ_on² + jitter) I``.  ``Xb``: centred inputs (any common centre)."""
+    d = Xb.shape[1]
+    alpha = np.empty(n)
+    for i in range(n):
+        alpha[i] = y[i]
+    solve_lower(ap, n, alpha)
+    quad = 0.0
+    logdet = 0.0
+    for i in range(n):
+        quad += alpha[i] * alpha[i]
+        logdet += math.log(ap[i * (i + 1) // 2 + i])
+    # R&W eq. 2.30: −½ yᵀα − Σ log L_ii − n/2 log 2π
+    lml = -0.5 * quad - logdet - 0.5 * n * _LOG2PI
+    if not grad:
+        return lml
+    # α = (K + σ_on² I)⁻¹ y
+    solve_upper(ap, n, alpha)
+    # M = L⁻ᵀ (upper): row j of M is column j of L⁻¹; L⁻¹ by forward substitution
+    # (inner loops on 1-D row views: contiguous, vectorised)
+    M = np.zeros((n, n))
+    for j in range(n):
+        Mj = M[j]
+        Mj[j] = 1.0 / ap[j * (j + 1) // 2 + j]
+        for i in range(j + 1, n):
+            oi = i * (i + 1) // 2
+            r = ap[oi + j:oi + i]
+            m = Mj[j:i]
+            s = 0.0
+            for k in range(i - j):
+                s += r[k] * m[k]
+            Mj[i] = -s / ap[oi + i]
+    # K⁻¹_ab = Σ_{k ≥ max(a,b)} L⁻¹_ka L⁻¹_kb; R&W eq. 5.9 with W = ααᵀ − K⁻¹ (symmetric):
+    # ∂lml/∂log σ_f = Σ W∘K_f; ∂/∂log l_j = Σ_ab (W∘K_f)_ab (x_aj − x_bj)²/(2 l_j²);
+    # ∂/∂log σ_on = σ_on² (αᵀα − tr K⁻¹)
+    log_sf2 = math.log(sf2)
+    h = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(d):
+            s += Xb[i, j] * Xb[i, j] * il2[j]
+        h[i] = -0.5 * s
+    for j in range(d + 2):
+        g[j] = 0.0
+    tr = 0.0
+    aa = 0.0
+    for a in range(n):
+        aa += alpha[a] * alpha[a]
+        Ma = M[a, a:]
+        Xa = Xb[a]
+        for b in range(a + 1):
+            Mb = M[b, a:]
+            Xbb = Xb[b]
+            s = 0.0
+            for k in range(n - a):
+                s += Ma[k] * Mb[k]
+            if a == b:
+                tr += s
+            # eq:SE: K_f,ab
+            e = h[a] + h[b] + log_sf2
+            for j in range(d):
+                e += Xa[j] * Xbb[j] * il2[j]
+            wk = (alpha[a] * alpha[b] - s) * math.exp(e)
+            if a != b:
+                wk *= 2.0               # the pair (a, b) and (b, a)
+            g[0] += wk                  # ∂K/∂log σ_f = 2 K_f, times ½
+            for j in range(d):
+                dx = Xa[j] - Xbb[j]
+                g[1 + j] += 0.5 * wk * dx * dx * il2[j]
+    g[d + 1] = sn2 * (aa - tr)
+    return lml
+
+
+@warmer
+def _warm() -> None:
+    d = 3
+    X = np.array([[0.0, 0.1, 0.2], [0.3, 0.1, -0.2], [0.5, 0.0, 0.1]])
+    c = X[0].copy()
+    il2 = np.ones(d)
+    A = np.empty((4, d + 2))
+    yv = np.empty(4)
+    beta = np.empty(4)
+    ap = np.empty(10)
+    Xs = np.empty((4, d))
+    for i in range(3):
+        add_point(X[i], 0.1 * i, Xs, A, yv, beta, ap, c, il2, i, 1.0, 0.01, 1e-10, 0.0)
+    predict(A, ap, beta, c, il2, 3, 1.0, X[1])
+    alpha = np.empty(4)
+    update_alpha(ap, beta, 3, alpha)
+    dmu = np.empty(d)
+    predict_with_grad(A, ap, beta, alpha, c, il2, 3, 1.0, X[1], True, dmu, dmu.copy())
+    fill_rows(Xs, 3, c, il2, 0.0, A)
+    K = np.empty((3, 3))
+    kernel_matrix(Xs, A, 3, c, 0.0, K)
+    cholesky_packed(K, 3, 0.01, ap)
+    g = np.empty(d + 2)
+    lml_grad(Xs[:3] - c, yv, 3, il2, 1.0, 0.01, ap, True, g)
