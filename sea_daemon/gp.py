@@ -349,17 +349,18 @@ class IncrementalGP:
         return gp_core.predict(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2,
                                np.ascontiguousarray(x, dtype=float))
 
-    def predict_with_grad(self, x, var_grad: bool = False):
-        """``(μ, σ², ∂μ/∂x)`` or, with ``var_grad``, ``(μ, σ², ∂μ/∂x, ∂σ²/∂x)`` at ``x``."""
+    def predict_with_grad(self, x, var_grad: bool = False, out: np.ndarray | None = None):
+        """``(μ, σ², ∂μ/∂x)`` or, with ``var_grad``, ``(μ, σ², ∂μ/∂x, ∂σ²/∂x)`` at ``x``;
+        ``out`` (ρ,): where to write ∂μ/∂x (default a new array)."""
         n = self.n_
         d = self.input_dim
+        dmu = np.empty(d) if out is None else out
         if n == 0:
-            z = np.zeros(d)
-            return (0.0, self._sf2, z, z.copy()) if var_grad else (0.0, self._sf2, z)
+            dmu[:] = 0.0
+            return (0.0, self._sf2, dmu, np.zeros(d)) if var_grad else (0.0, self._sf2, dmu)
         if not self._alpha_ok:
             gp_core.update_alpha(self.ap_, self.beta_, n, self._alpha)
             self._alpha_ok = True
-        dmu = np.empty(d)
         dvar = np.empty(d) if var_grad else dmu
         # eq:GPmean, eq:GPvariance, eq:moejac with eq:kernelderivative (gp_core.predict_with_grad)
         mu, var = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self.center_,

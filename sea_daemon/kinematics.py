@@ -41,6 +41,8 @@ import math
 
 import numpy as np
 
+from ._jit import njit, warmer
+
 METHODS = ("ma", "savgol")
 
 
@@ -138,14 +140,35 @@ class CausalDifferentiator:
         """Push one sample; return (angle_f, vel, acc) as views of preallocated arrays."""
         if not self._primed:
             self.reset(angle)
-        h = self._head + 1
-        if h >= self.L:
-            h = 0
-        self._head = h
-        self._buf[h] = angle
-        self._buf[h + self.L] = angle
-        np.dot(self.C, self._buf[h + 1:h + 1 + self.L], out=self._out)
+        a = np.ascontiguousarray(angle, dtype=float).reshape(self.n)
+        self._head = _fir_push(self._buf, self._head, self.C, a, self._out)
         return self._out[0], self._out[1], self._out[2]
+
+
+@njit
+def _fir_push(buf, head, C, angle, out) -> int:
+    """Push ``angle`` into the doubled ring buffer and apply the FIR rows ``C`` to the L newest
+    samples (oldest … newest): out = C · buf[h+1 : h+1+L].  Returns the new head."""
+    L = C.shape[1]
+    n = angle.shape[0]
+    h = head + 1
+    if h >= L:
+        h = 0
+    for j in range(n):
+        buf[h, j] = angle[j]
+        buf[h + L, j] = angle[j]
+    for r in range(3):
+        for j in range(n):
+            s = 0.0
+            for i in range(L):
+                s += C[r, i] * buf[h + 1 + i, j]
+            out[r, j] = s
+    return h
+
+
+@warmer
+def _warm() -> None:
+    CausalDifferentiator(0.01, 5, 2).update(np.zeros(2))
 
 
 def smooth_derivatives(t, angle, window: int = 11, degree: int = 3):

@@ -394,13 +394,26 @@ class LoGGP:
     def predict_with_grad(self, x, var_grad: bool = False):
         """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
         x, xl = self._check_x(x)
+        return self._predict_with_grad(x, xl, var_grad, None)
+
+    def predict_grad_into(self, x: np.ndarray, out: np.ndarray) -> tuple[float, float]:
+        """``(μ, σ²)``, with ``∂μ/∂x`` written into ``out``: the GP-AKF's per-step call.
+
+        ``x`` must be a finite, C-contiguous float array of shape (input_dim,) (the caller has
+        validated it, e.g. clipped it into the input box); it is not checked here.
+        """
+        r = self._predict_with_grad(x, x.tolist(), False, out)
+        return r[0], r[1]
+
+    def _predict_with_grad(self, x: np.ndarray, xl: list[float], var_grad: bool, out):
         route = self._route(xl, True)
         gps = self._gp
         if len(route) == 1:
-            return gps[route[0][0]].predict_with_grad(x, var_grad)
+            return gps[route[0][0]].predict_with_grad(x, var_grad, out=out)
         d = self.input_dim
         mu = m2 = 0.0
-        dmu = np.zeros(d)
+        dmu = np.zeros(d) if out is None else out
+        dmu[:] = 0.0
         dm2 = np.zeros(d)
         for node, w, dw in route:
             r = gps[node].predict_with_grad(x, var_grad)

@@ -95,6 +95,7 @@ class AKF:
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
         self.s = chi2_scale(self.delta, d)
+        self._sqrt_s = math.sqrt(self.s)
         self.H = np.hstack([np.eye(m), np.zeros((m, n))])
         self.residual = residual
         # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
@@ -323,13 +324,8 @@ class AKF:
         return self._fill_estimate()
 
     def _fill_estimate(self) -> Estimate:
-        n = self.n
         e = self.est
-        e.x_hat[:] = self.x
-        e.P[:] = self.P
-        e.tau_h_act_hat[:] = self.x[4 * n:]
-        var = np.diagonal(self.P)[4 * n:]
-        np.sqrt(np.maximum(var, 0.0), out=e.tau_h_act_sigma)
-        # eq:gaussianellipsoid projected on τ_h,act: ρ = sqrt(s P_ττ)
-        np.multiply(e.tau_h_act_sigma, math.sqrt(self.s), out=e.tau_h_act_bound)
+        # x̂, P, τ̂_h,act, its σ and eq:gaussianellipsoid projected on τ_h,act: ρ = sqrt(s P_ττ)
+        akf_core.fill_estimate(self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat,
+                               e.tau_h_act_sigma, e.tau_h_act_bound)
         return e

@@ -181,6 +181,36 @@ def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, 
     return OK, nis
 
 
+@njit
+def residual_affine(q, dq, ddq, dth, ddth, tau, M, gravity, J, D_m, f):
+    """f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m): eq:loadsidewmotor with ass:passive_human
+    (τ_h,act = 0) for the nominal model without declared effects (training target)."""
+    n = f.shape[0]
+    for i in range(n):
+        s = tau[i] - gravity[i] * math.sin(q[i])
+        for j in range(n):
+            s -= M[i, j] * ddq[j] + J[i, j] * ddth[j] + D_m[i, j] * dth[j]
+        f[i] = s
+
+
+@njit
+def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
+    """The published estimate: x̂, P, τ̂_h,act = x̂[4n:], σ = sqrt(P_ττ) and the bound
+    ρ = sqrt(s P_ττ) (eq:gaussianellipsoid projected on each τ_h,act component)."""
+    d = x.shape[0]
+    n = tau_hat.shape[0]
+    for i in range(d):
+        x_hat[i] = x[i]
+        for j in range(d):
+            P_hat[i, j] = P[i, j]
+    for i in range(n):
+        k = 4 * n + i
+        tau_hat[i] = x[k]
+        sd = math.sqrt(max(P[k, k], 0.0))
+        tau_sigma[i] = sd
+        tau_bound[i] = sd * sqrt_s
+
+
 @warmer
 def _warm() -> None:
     """Compile with the types the AKF passes (1 joint; shapes do not change the types)."""
@@ -194,3 +224,6 @@ def _warm() -> None:
                 np.zeros((d, n)), np.zeros((d, d)), np.zeros(d), np.zeros((d, d)), np.zeros((m, m)),
                 np.zeros((d, m)), np.zeros(m), np.zeros((d + 1 + n, d + 1 + n)), np.zeros((m, m)),
                 np.zeros((m, d + 1)), np.zeros((d, d)), np.zeros((d, d)))
+    v = np.zeros(n)
+    residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
+    fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())

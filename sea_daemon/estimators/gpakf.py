@@ -28,6 +28,7 @@ from ..errors import EstimatorFault, InputError
 from ..learning import ResidualGP
 from ..logio import MeasuredLog
 from ..model import SEAModel
+from . import akf_core
 from .akf import AKF
 from .base import Estimate
 from .health import InputBox
@@ -61,8 +62,8 @@ class _ResidualHook:
         zc = self.box.clip(z)
         for i, g in enumerate(self.gp.gps):
             # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
-            self.mu[i], self.var[i], self.jac[i] = g.predict_with_grad(zc)
-        if self.box.clipped.any():
+            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i])
+        if self.box.any_clipped:
             self.jac[:, self.box.clipped] = 0.0
         return self.mu, self.jac, self.var
 
@@ -123,7 +124,7 @@ class GPAKF(AKF):
         z[:n] = ang[:n]
         z[n:2 * n] = vel[:n]
         z[2 * n:] = acc[:n]
-        tau = self._tau_hist[self.tau_lag] if self.tau_lag else np.asarray(tau_m, dtype=float)
+        tau = self._tau_hist[self.tau_lag] if self.tau_lag else np.ascontiguousarray(tau_m, dtype=float)
         if self._has_delay:
             # a declared delay: the motor side felt τ_m(t − lag·dt − delay)
             tau = self._delayed_input(self._t - self.tau_lag * self.dt).copy()
@@ -131,12 +132,8 @@ class GPAKF(AKF):
         if self._affine:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), nominal model without
             # declared effects: f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m)
-            f = self.f_train
-            f[:] = tau
-            f -= m.M @ acc[:n]
-            f -= m.gravity * np.sin(ang[:n])
-            f -= m.J @ acc[n:]
-            f -= m.D_m @ vel[n:]
+            akf_core.residual_affine(ang[:n], vel[:n], acc[:n], vel[n:], acc[n:], tau, m.M, m.gravity,
+                                     m.J, m.D_m, self.f_train)
         else:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects included
             self.f_train[:] = m.residual_from_kinematics(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:], tau)

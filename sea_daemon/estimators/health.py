@@ -31,8 +31,10 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.special import gammaincinv
 
+from .._jit import njit, warmer
 from ..daemon.safety import Fault
 from ..errors import EstimatorFault
+from ..linalg_small import is_pd
 
 
 class NISDivergence(EstimatorFault):
@@ -66,7 +68,7 @@ def check_pd(P: np.ndarray, what: str = "P", step: int | None = None, full: bool
     """
     where = f" at step {step}" if step is not None else ""
     if not full:
-        _, info = _dpotrf(P, lower=1)
+        info = is_pd(P)                     # compiled Cholesky attempt (linalg_small)
         if info != 0:
             raise CovarianceNotPD(f"covariance {what}{where} is not positive definite "
                                   f"(Cholesky fails at pivot {info}, diagonal min {float(np.min(np.diag(P))):.3g})")
@@ -186,6 +188,7 @@ class InputBox:
         self._lo = np.full(self.dim, -np.inf)
         self._hi = np.full(self.dim, np.inf)
         self.clipped = np.zeros(self.dim, dtype=bool)
+        self.any_clipped = False
         self.n_clipped = 0
         self._z = np.zeros(self.dim)
 
@@ -195,13 +198,8 @@ class InputBox:
 
     def add(self, z: np.ndarray) -> None:
         """Widen the box to contain the training input ``z`` (non-finite inputs are ignored)."""
-        if not np.isfinite(z).all():
-            return
-        np.minimum(self.lo_, z, out=self.lo_)
-        np.maximum(self.hi_, z, out=self.hi_)
-        pad = np.maximum(self.margin * (self.hi_ - self.lo_), self.min_margin)
-        np.subtract(self.lo_, pad, out=self._lo)
-        np.add(self.hi_, pad, out=self._hi)
+        _box_add(np.ascontiguousarray(z, dtype=float), self.lo_, self.hi_, self.margin, self.min_margin,
+                 self._lo, self._hi)
 
     def add_many(self, Z: np.ndarray) -> None:
         Z = np.asarray(Z, dtype=float).reshape(-1, self.dim)
@@ -214,16 +212,58 @@ class InputBox:
         """``z`` clipped into the widened box (a work array, overwritten by the next call);
         :attr:`clipped` marks the coordinates that were clipped.  Non-finite inputs are
         clipped to the box too (NaN → the box centre), never passed to the GP."""
-        out = self._z
-        if self.empty:
-            out[:] = np.nan_to_num(z, nan=0.0, posinf=1e6, neginf=-1e6)
-            self.clipped[:] = ~np.isfinite(z)
-        else:
-            np.clip(z, self._lo, self._hi, out=out)
-            bad = ~np.isfinite(out)
-            if bad.any():
-                out[bad] = 0.5 * (self._lo[bad] + self._hi[bad])
-            np.not_equal(out, z, out=self.clipped)
-        if self.clipped.any():
+        self.any_clipped = _box_clip(np.ascontiguousarray(z, dtype=float), self._lo, self._hi, self._z,
+                                     self.clipped)
+        if self.any_clipped:
             self.n_clipped += 1
-        return out
+        return self._z
+
+
+@njit
+def _box_add(z, lo_, hi_, margin, min_margin, lo, hi):
+    """lo_, hi_ ← the box widened to contain z (skipped if z is not finite); lo, hi ← the box
+    padded by max(margin × width, min_margin) on each side."""
+    d = z.shape[0]
+    for j in range(d):
+        if not math.isfinite(z[j]):
+            return
+    for j in range(d):
+        lo_[j] = min(lo_[j], z[j])
+        hi_[j] = max(hi_[j], z[j])
+        pad = max(margin * (hi_[j] - lo_[j]), min_margin[j])
+        lo[j] = lo_[j] - pad
+        hi[j] = hi_[j] + pad
+
+
+@njit
+def _box_clip(z, lo, hi, out, clipped) -> bool:
+    """out ← z clipped into [lo, hi] (NaN → the box centre; an empty box: ±inf → ±1e6, NaN → 0);
+    clipped[j] ← whether coordinate j changed.  Returns whether any did."""
+    any_ = False
+    for j in range(z.shape[0]):
+        v = z[j]
+        if not math.isfinite(lo[j]):                 # no training data yet: nothing to clip to
+            if math.isnan(v):
+                o = 0.0
+            elif math.isinf(v):
+                o = 1e6 if v > 0 else -1e6
+            else:
+                o = v
+        elif math.isnan(v):
+            o = 0.5 * (lo[j] + hi[j])
+        else:
+            o = min(max(v, lo[j]), hi[j])
+        out[j] = o
+        c = not (o == v)
+        clipped[j] = c
+        any_ = any_ or c
+    return any_
+
+
+@warmer
+def _warm() -> None:
+    box = InputBox(3, 0.1)
+    box.clip(np.zeros(3))
+    box.add(np.zeros(3))
+    box.clip(np.ones(3))
+    box.add_many(np.ones((2, 3)))
