@@ -233,15 +233,16 @@ class IncrementalGP:
         return self
 
     def kernel_matrix(self, X) -> np.ndarray:
-        """Noise-free kernel matrix ``k(x_a, x_b)`` of the rows of ``X`` (eq:SE, one gemm)."""
-        Xb = np.asarray(X, dtype=float) - (self.center_ if self.center_ is not None else 0.0)
-        B = Xb * self._il2
-        h = -0.5 * np.einsum("ij,ij->i", Xb, B)
+        """Noise-free kernel matrix ``k(x_a, x_b)`` of the rows of ``X`` (eq:SE, compiled)."""
+        X = np.ascontiguousarray(X, dtype=float)
+        m = X.shape[0]
+        c = self.center_ if self.center_ is not None else np.zeros(self.input_dim)
+        A = np.empty((m, self.input_dim + 2))
+        gp_core.fill_rows(X, m, c, self._il2, self._log_sf2, A)
+        K = np.empty((m, m))
         # eq:SE expanded: k(x_a, x_b) = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
-        K = B @ Xb.T
-        K += h[:, None]
-        K += h[None, :] + self._log_sf2
-        return np.exp(K, out=K)
+        gp_core.kernel_matrix(X, A, m, c, self._log_sf2, K)
+        return K
 
     def spawn(self, X: np.ndarray, y: np.ndarray, K: np.ndarray | None = None,
               capacity: int | None = None) -> "IncrementalGP":

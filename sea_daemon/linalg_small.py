@@ -144,22 +144,34 @@ def _pade_low(A, A2, b, U, V):
 
 @njit
 def _pade13(A, A2, U, V):
-    """U, V of the [13/13] Padé approximant (Higham 2005, eq. 2.5-2.6, 6 products)."""
+    """U, V of the [13/13] Padé approximant (Higham 2005, eq. 2.5-2.6, 6 products):
+    U = A [A6 (b13 A6 + b11 A4 + b9 A2) + b7 A6 + b5 A4 + b3 A2 + b1 I],
+    V = A6 (b12 A6 + b10 A4 + b8 A2) + b6 A6 + b4 A4 + b2 A2 + b0 I."""
     n = A.shape[0]
     b = _B13
     A4 = np.empty((n, n))
     A6 = np.empty((n, n))
     matmul(A2, A2, A4)
     matmul(A4, A2, A6)
-    I = np.eye(n)
-    T = b[13] * A6 + b[11] * A4 + b[9] * A2
+    T = np.empty((n, n))
     W = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            T[i, j] = b[13] * A6[i, j] + b[11] * A4[i, j] + b[9] * A2[i, j]
     matmul(A6, T, W)
-    W += b[7] * A6 + b[5] * A4 + b[3] * A2 + b[1] * I
+    for i in range(n):
+        for j in range(n):
+            W[i, j] += b[7] * A6[i, j] + b[5] * A4[i, j] + b[3] * A2[i, j]
+        W[i, i] += b[1]
     matmul(A, W, U)
-    T = b[12] * A6 + b[10] * A4 + b[8] * A2
+    for i in range(n):
+        for j in range(n):
+            T[i, j] = b[12] * A6[i, j] + b[10] * A4[i, j] + b[8] * A2[i, j]
     matmul(A6, T, V)
-    V += b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * I
+    for i in range(n):
+        for j in range(n):
+            V[i, j] += b[6] * A6[i, j] + b[4] * A4[i, j] + b[2] * A2[i, j]
+        V[i, i] += b[0]
 
 
 @njit
@@ -184,13 +196,19 @@ def expm(A, out):
     else:
         # scale A by 2^−s so that ‖A/2^s‖₁ ≤ θ_13
         s = max(0, int(math.ceil(math.log2(nrm / _THETA[4]))))
-        As = A * (0.5 ** s)
+        As = np.empty((n, n))
+        f = 0.5 ** s
+        for i in range(n):
+            for j in range(n):
+                As[i, j] = A[i, j] * f
         matmul(As, As, A2)
         _pade13(As, A2, U, V)
     # r_m = (V − U)⁻¹ (V + U)  (Higham 2005, eq. 2.1)
-    M = V - U
-    out[:, :] = V + U
-    lu_solve(M, out)
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = V[i, j] + U[i, j]
+            V[i, j] -= U[i, j]
+    lu_solve(V, out)
     # undo the scaling: e^A = r_m(A/2^s)^{2^s}
     tmp = np.empty((n, n))
     for _ in range(s):
