@@ -17,7 +17,7 @@ from typing import Callable
 import numba
 
 _WARMERS: list[Callable[[], None]] = []
-_warm = False
+_n_warm = 0          # warmers already run (modules imported later register more)
 
 
 #: LLVM may reassociate sums and contract a·b + c into one FMA: lets the O(N²)/O(N³) reductions
@@ -46,10 +46,9 @@ def warmer(fn: Callable[[], None]) -> Callable[[], None]:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every registered kernel, once per process."""
-    global _warm
-    if _warm:
-        return
-    for fn in _WARMERS:
+    """Compile (or load from the cache) every registered kernel not yet warmed, once each."""
+    global _n_warm
+    while _n_warm < len(_WARMERS):
+        fn = _WARMERS[_n_warm]
+        _n_warm += 1
         fn()
-    _warm = True

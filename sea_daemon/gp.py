@@ -29,7 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from . import gp_core
-from ._jit import warm_up
+from ._jit import warm_up, warmer
 from .errors import EstimatorFault, InputError
 
 _TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -435,3 +435,20 @@ def fit_hyperparameters(X, y, sigma_f: float = 1.0, lengthscales=1.0, sigma_n: f
                    options={"maxiter": maxiter})
     t = res.x
     return math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1])
+
+
+@warmer
+def _warm() -> None:
+    """Every compiled call of this module, with the argument types it uses (see _jit)."""
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((6, 3))
+    gp = IncrementalGP(3, 1.0, [1.0, 1.0, 1.0], 0.1, capacity=4)
+    for x in X:
+        gp.add(x, float(x.sum()))
+    gp.predict(X[0])
+    gp.predict_with_grad(X[1], var_grad=True)
+    gp.log_marginal_likelihood(grad=True)
+    gp.set_hyperparameters(1.1, [1.0, 0.9, 1.2], 0.1)
+    gp.spawn(X[:3], X[:3, 0].copy(), gp.kernel_matrix(X[:3]))
+    log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1)
+    log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1, L=np.linalg.cholesky(gp.kernel_matrix(X) + 0.01 * np.eye(6)))

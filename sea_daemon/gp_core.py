@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit, warmer
+from ._jit import njit
 
 _LOG2PI = math.log(2.0 * math.pi)
 
@@ -305,29 +305,3 @@ def lml_grad(Xb, y, n, il2, sf2, sn2, ap, grad, g):
                 g[1 + j] += 0.5 * wk * dx * dx * il2[j]
     g[d + 1] = sn2 * (aa - tr)
     return lml
-
-
-@warmer
-def _warm() -> None:
-    d = 3
-    X = np.array([[0.0, 0.1, 0.2], [0.3, 0.1, -0.2], [0.5, 0.0, 0.1]])
-    c = X[0].copy()
-    il2 = np.ones(d)
-    A = np.empty((4, d + 2))
-    yv = np.empty(4)
-    beta = np.empty(4)
-    ap = np.empty(10)
-    Xs = np.empty((4, d))
-    for i in range(3):
-        add_point(X[i], 0.1 * i, Xs, A, yv, beta, ap, c, il2, i, 1.0, 0.01, 1e-10, 0.0)
-    predict(A, ap, beta, c, il2, 3, 1.0, X[1])
-    alpha = np.empty(4)
-    update_alpha(ap, beta, 3, alpha)
-    dmu = np.empty(d)
-    predict_with_grad(A, ap, beta, alpha, c, il2, 3, 1.0, X[1], True, dmu, dmu.copy())
-    fill_rows(Xs, 3, c, il2, 0.0, A)
-    K = np.empty((3, 3))
-    kernel_matrix(Xs, A, 3, c, 0.0, K)
-    cholesky_packed(K, 3, 0.01, ap)
-    g = np.empty(d + 2)
-    lml_grad(Xs[:3] - c, yv, 3, il2, 1.0, 0.01, ap, True, g)

@@ -1,0 +1,135 @@
+"""The compiled numerics (numba): small dense linear algebra against scipy/numpy, the cache
+fallback, and no compilation after an estimator is constructed (warm before the first step)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm as scipy_expm
+from scipy.linalg.lapack import dpotrf
+
+from sea_daemon import _jit
+from sea_daemon.config import default_config_path, load_config
+from sea_daemon.linalg_small import cho_solve, cholesky, expm, is_pd, lu_solve
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config(default_config_path())
+
+
+def _rand(rng, n, norm1):
+    A = rng.standard_normal((n, n))
+    return A * (norm1 / np.abs(A).sum(axis=0).max())
+
+
+@pytest.mark.parametrize("norm1", [1e-8, 1e-2, 0.2, 0.9, 2.0, 5.0, 20.0])
+def test_expm_matches_scipy(norm1):
+    # every Padé degree (3, 5, 7, 9) and scaling and squaring (13 with s > 0)
+    rng = np.random.default_rng(1)
+    out = np.empty((7, 7))
+    for n in (1, 3, 7):
+        for _ in range(5):
+            A = _rand(rng, n, norm1)
+            o = out[:n, :n].copy()
+            expm(A, o)
+            ref = scipy_expm(A)
+            # both are Higham's scaling and squaring; they differ by rounding (amplified by the
+            # squarings for large norms)
+            tol = 1e-14 if norm1 <= 2.0 else 1e-11
+            assert np.abs(o - ref).max() <= tol * np.abs(ref).max()
+
+
+def test_expm_on_the_filters_local_linearisation_matrix(cfg):
+    # the matrix the AKF exponentiates every step (‖·‖₁ ≈ 37 at 100 Hz): [[A, f, G], 0]·dt
+    from sea_daemon.estimators import AKF
+    a = AKF(cfg)
+    a.reset(np.zeros(1), np.zeros(1), np.zeros(1))
+    for k in range(1, 30):
+        a.update([0.01 * k], [0.009 * k], [0.5])
+    ref = scipy_expm(a._aug)
+    out = np.empty_like(a._aug)
+    expm(a._aug.copy(), out)
+    assert np.abs(out - ref).max() <= 1e-12 * np.abs(ref).max()
+    assert np.allclose(a.F_k, ref[:5, :5], rtol=1e-12, atol=1e-15)
+
+
+def test_cholesky_and_solve_match_lapack():
+    rng = np.random.default_rng(2)
+    B = rng.standard_normal((5, 5))
+    S = B @ B.T + 0.1 * np.eye(5)
+    L = np.zeros((5, 5))
+    assert cholesky(S, L) == 0
+    assert np.allclose(L, np.linalg.cholesky(S), rtol=1e-13, atol=1e-15)
+    X = rng.standard_normal((5, 3))
+    Y = X.copy()
+    cho_solve(L, Y)
+    assert np.allclose(Y, np.linalg.solve(S, X), rtol=1e-10)
+    # not positive definite: the same pivot as LAPACK dpotrf
+    S2 = S.copy()
+    S2[3, 3] = -1.0
+    assert is_pd(S2) == dpotrf(S2, lower=1)[1] == 4
+    S2[0, 0] = np.nan
+    assert is_pd(S2) == 1
+
+
+def test_lu_solve_matches_numpy():
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((6, 6))
+    X = rng.standard_normal((6, 2))
+    Y = X.copy()
+    assert lu_solve(M.copy(), Y) == 0
+    assert np.allclose(Y, np.linalg.solve(M, X), rtol=1e-10)
+    assert lu_solve(np.zeros((2, 2)), np.ones((2, 1))) == 1
+
+
+def test_no_writable_cache_falls_back_to_in_memory_compilation(monkeypatch):
+    import numba
+    real = numba.njit
+
+    def njit(*args, **kw):
+        if kw.get("cache"):
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'f.py'")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(numba, "njit", njit)
+
+    def f(x):
+        return 2.0 * x
+
+    g = _jit.njit(f)
+    assert g(3.0) == 6.0
+    h = _jit.njit(fast=True)(f)
+    assert h(1.5) == 3.0
+
+
+def _dispatchers():
+    import sea_daemon.estimators.akf_core as a
+    import sea_daemon.estimators.health as h
+    import sea_daemon.gp_core as g
+    import sea_daemon.kinematics as k
+    import sea_daemon.linalg_small as s
+    from numba.core.registry import CPUDispatcher
+    return {f"{m.__name__}.{n}": v for m in (a, h, g, k, s) for n, v in vars(m).items()
+            if isinstance(v, CPUDispatcher)}
+
+
+def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
+    """A learning GP-AKF (predictions, updates, hyperparameter slices, a split) compiles
+    nothing after construction: the daemon is warm before its first loop cycle."""
+    from dataclasses import replace
+    from sea_daemon.estimators.gpakf import GPAKF
+    c = replace(cfg, learning=replace(cfg.learning, max_points=12))
+    est = GPAKF(c)
+    before = {k: len(d.signatures) for k, d in _dispatchers().items()}
+    for k in ("estimators.akf_core.filter_step", "gp_core.predict_with_grad", "gp_core.add_point",
+              "gp_core.lml_grad", "gp_core.cholesky_packed", "estimators.health._box_clip",
+              "kinematics._fir_push"):
+        assert before["sea_daemon." + k] > 0, k
+    est.reset([0.0], [0.0], [0.0])
+    t = np.arange(1, 200) * 0.01
+    for k, tk in enumerate(t):
+        est.update([0.3 * np.sin(2 * tk)], [0.29 * np.sin(2 * tk)], [np.cos(3 * tk)])
+    g = est.gp.gps[0]
+    assert g.n_leaves > 1 and g.n_hyper_steps > 0
+    after = {k: len(d.signatures) for k, d in _dispatchers().items()}
+    assert after == before
