@@ -252,21 +252,30 @@ def lml_grad(Xb, y, n, il2, sf2, sn2, ap, grad, g):
         return lml
     # α = (K + σ_on² I)⁻¹ y
     solve_upper(ap, n, alpha)
-    # M = L⁻ᵀ (upper): row j of M is column j of L⁻¹; L⁻¹ by forward substitution
-    # (inner loops on 1-D row views: contiguous, vectorised)
-    M = np.zeros((n, n))
-    for j in range(n):
-        Mj = M[j]
-        Mj[j] = 1.0 / ap[j * (j + 1) // 2 + j]
-        for i in range(j + 1, n):
-            oi = i * (i + 1) // 2
-            r = ap[oi + j:oi + i]
-            m = Mj[j:i]
-            s = 0.0
-            for k in range(i - j):
-                s += r[k] * m[k]
-            Mj[i] = -s / ap[oi + i]
-    # K⁻¹_ab = Σ_{k ≥ max(a,b)} L⁻¹_ka L⁻¹_kb; R&W eq. 5.9 with W = ααᵀ − K⁻¹ (symmetric):
+    # L⁻¹ row by row: row i = (e_i − Σ_{k<i} L_ik row k) / L_ii  (axpy form: contiguous,
+    # vectorised), then K⁻¹ = L⁻ᵀ L⁻¹ = Σ_k (row k)ᵀ (row k), lower triangle
+    Li = np.zeros((n, n))
+    for i in range(n):
+        oi = i * (i + 1) // 2
+        row = Li[i]
+        for k in range(i):
+            c = ap[oi + k]
+            rk = Li[k]
+            for t in range(k + 1):
+                row[t] -= c * rk[t]
+        inv = 1.0 / ap[oi + i]
+        for t in range(i):
+            row[t] *= inv
+        row[i] = inv
+    Ki = np.zeros((n, n))
+    for k in range(n):
+        rk = Li[k]
+        for a in range(k + 1):
+            c = rk[a]
+            Ka = Ki[a]
+            for b in range(a + 1):
+                Ka[b] += c * rk[b]
+    # R&W eq. 5.9 with W = ααᵀ − K⁻¹ (symmetric):
     # ∂lml/∂log σ_f = Σ W∘K_f; ∂/∂log l_j = Σ_ab (W∘K_f)_ab (x_aj − x_bj)²/(2 l_j²);
     # ∂/∂log σ_on = σ_on² (αᵀα − tr K⁻¹)
     log_sf2 = math.log(sf2)
@@ -280,28 +289,40 @@ def lml_grad(Xb, y, n, il2, sf2, sn2, ap, grad, g):
         g[j] = 0.0
     tr = 0.0
     aa = 0.0
+    kf = np.empty(n)            # K_f,ab (eq:SE), b ≤ a
+    XT = np.empty((d, n))       # inputs by dimension (contiguous rows)
+    for i in range(n):
+        for j in range(d):
+            XT[j, i] = Xb[i, j]
     for a in range(n):
         aa += alpha[a] * alpha[a]
-        Ma = M[a, a:]
-        Xa = Xb[a]
+        kin = Ki[a]                 # K⁻¹_ab, b ≤ a
+        tr += kin[a]
+        # eq:SE exponent for the row, then the exponentials
         for b in range(a + 1):
-            Mb = M[b, a:]
-            Xbb = Xb[b]
+            kf[b] = h[a] + h[b] + log_sf2
+        for j in range(d):
+            c = Xb[a, j] * il2[j]
+            xj = XT[j]
+            for b in range(a + 1):
+                kf[b] += c * xj[b]
+        for b in range(a + 1):
+            kf[b] = math.exp(kf[b])
+        # (W∘K_f)_ab, each off-diagonal pair counted twice (symmetry)
+        for b in range(a + 1):
+            kf[b] *= alpha[a] * alpha[b] - kin[b]
+        kf[a] *= 0.5
+        s0 = 0.0
+        for b in range(a + 1):
+            s0 += kf[b]
+        g[0] += 2.0 * s0            # ∂K/∂log σ_f = 2 K_f, times ½, both triangles
+        for j in range(d):
+            xa = Xb[a, j]
+            xj = XT[j]
             s = 0.0
-            for k in range(n - a):
-                s += Ma[k] * Mb[k]
-            if a == b:
-                tr += s
-            # eq:SE: K_f,ab
-            e = h[a] + h[b] + log_sf2
-            for j in range(d):
-                e += Xa[j] * Xbb[j] * il2[j]
-            wk = (alpha[a] * alpha[b] - s) * math.exp(e)
-            if a != b:
-                wk *= 2.0               # the pair (a, b) and (b, a)
-            g[0] += wk                  # ∂K/∂log σ_f = 2 K_f, times ½
-            for j in range(d):
-                dx = Xa[j] - Xbb[j]
-                g[1 + j] += 0.5 * wk * dx * dx * il2[j]
+            for b in range(a + 1):
+                dx = xa - xj[b]
+                s += kf[b] * dx * dx
+            g[1 + j] += s * il2[j]  # ½ Σ_ab (W∘K_f)_ab (x_aj − x_bj)²/l_j², both triangles
     g[d + 1] = sn2 * (aa - tr)
     return lml

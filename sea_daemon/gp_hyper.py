@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from ._jit import njit, warmer
 from .errors import EstimatorFault, InputError
 from .gp import IncrementalGP
 
@@ -83,21 +84,11 @@ class AdamHyper:
         Returns ``(lml, new log θ)``; the model itself is not touched.  ``None`` for log θ when
         the gradient is not finite (the step is skipped).
         """
-        p = self.input_dim + 2
         lml, g = gp.log_marginal_likelihood(grad=True, points=points)
-        if not (math.isfinite(lml) and np.all(np.isfinite(g))):
+        theta = gp.log_theta
+        # Adam moments in place in the state array, then the clipped ascent step (compiled)
+        if not _adam_step(lml, g, st, theta, self.lr, self.beta1, self.beta2, self.eps, self.lo, self.hi):
             return lml, None
-        t = st[0] + 1.0
-        m, v = st[1:1 + p], st[1 + p:]
-        # Adam moments (in place in the state array)
-        m *= self.beta1
-        m += (1.0 - self.beta1) * g
-        v *= self.beta2
-        v += (1.0 - self.beta2) * g * g
-        st[0] = t
-        mhat = m / (1.0 - self.beta1 ** t)
-        vhat = v / (1.0 - self.beta2 ** t)
-        theta = np.clip(gp.log_theta + self.lr * mhat / (np.sqrt(vhat) + self.eps), self.lo, self.hi)
         return lml, theta
 
     @staticmethod
@@ -143,3 +134,33 @@ def adam_steps(request: dict, steps: int = 1, lr: float = 0.05, bounds: dict | N
     lmls = [hyp.step(gp, st) for _ in range(int(steps))]
     return {"node": int(request["node"]), "log_theta": gp.log_theta.tolist(),
             "adam": st.tolist(), "lml": lmls}
+
+
+@njit
+def _adam_step(lml, g, st, theta, lr, beta1, beta2, eps, lo, hi) -> bool:
+    """One Adam ascent step (Kingma & Ba 2015, Alg. 1) on ``theta`` in place, state
+    ``st = [t, m, v]`` in place; nothing changes (returns False) if lml or g is not finite."""
+    p = g.shape[0]
+    if not math.isfinite(lml):
+        return False
+    for i in range(p):
+        if not math.isfinite(g[i]):
+            return False
+    t = st[0] + 1.0
+    st[0] = t
+    c1 = 1.0 - beta1 ** t
+    c2 = 1.0 - beta2 ** t
+    for i in range(p):
+        m = beta1 * st[1 + i] + (1.0 - beta1) * g[i]
+        v = beta2 * st[1 + p + i] + (1.0 - beta2) * g[i] * g[i]
+        st[1 + i] = m
+        st[1 + p + i] = v
+        th = theta[i] + lr * (m / c1) / (math.sqrt(v / c2) + eps)
+        theta[i] = min(max(th, lo[i]), hi[i])
+    return True
+
+
+@warmer
+def _warm() -> None:
+    h = AdamHyper(3)
+    _adam_step(0.0, np.zeros(5), h.new_state(), np.zeros(5), h.lr, h.beta1, h.beta2, h.eps, h.lo, h.hi)

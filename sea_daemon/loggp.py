@@ -336,7 +336,7 @@ class LoGGP:
 
     # ------------------------------------------------------------------ prediction
     def _route(self, xl: list[float], grad: bool):
-        """Leaves reached by ``x`` as ``[(node, ω, ∂ω/∂x or None)]``."""
+        """Leaves reached by ``x`` as ``[(node, ω, ∂ω/∂x as a list, or None)]``."""
         dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
         node = 0
         while True:                                  # fast path: no overlap on the way
@@ -368,9 +368,14 @@ class LoGGP:
                 p = (hi[node] - xj) * io
                 dwl = dwr = None
                 if grad:
-                    # ∂(ω p)/∂x = p ∂ω/∂x + ω ∂p/∂x, with ∂p/∂x_j = −1/o
-                    dwl = np.zeros(self.input_dim) if dw is None else dw * p
-                    dwr = np.zeros(self.input_dim) if dw is None else dw * (1.0 - p)
+                    # ∂(ω p)/∂x = p ∂ω/∂x + ω ∂p/∂x, with ∂p/∂x_j = −1/o  (lists: ρ is small)
+                    if dw is None:
+                        dwl = [0.0] * self.input_dim
+                        dwr = [0.0] * self.input_dim
+                    else:
+                        q = 1.0 - p
+                        dwl = [v * p for v in dw]
+                        dwr = [v * q for v in dw]
                     dwl[j] -= w * io
                     dwr[j] += w * io
                 stack.append((right[node], w * (1.0 - p), dwr))
@@ -413,25 +418,31 @@ class LoGGP:
             return gps[route[0][0]].predict_with_grad(x, var_grad, out=out)
         d = self.input_dim
         mu = m2 = 0.0
-        dmu = np.zeros(d) if out is None else out
-        dmu[:] = 0.0
-        dm2 = np.zeros(d)
+        acc = [0.0] * d
+        acc2 = [0.0] * d
         for node, w, dw in route:
             r = gps[node].predict_with_grad(x, var_grad)
-            m, v, dm = r[0], r[1], r[2]
+            m, v, dm = r[0], r[1], r[2].tolist()
             mu += w * m
             m2 += w * (v + m * m)
+            if dw is None:
+                dw = [0.0] * d
             # ∂(ω μ_i) = ω ∂μ_i + μ_i ∂ω
-            dmu += w * dm + m * dw
+            for j in range(d):
+                acc[j] += w * dm[j] + m * dw[j]
             if var_grad:
                 # ∂(ω (σ_i² + μ_i²)) = ∂ω (σ_i² + μ_i²) + ω (∂σ_i² + 2 μ_i ∂μ_i)
-                dm2 += dw * (v + m * m) + w * (r[3] + 2.0 * m * dm)
+                dv = r[3].tolist()
+                for j in range(d):
+                    acc2[j] += dw[j] * (v + m * m) + w * (dv[j] + 2.0 * m * dm[j])
         var = m2 - mu * mu
         if var < 0.0:
             var = 0.0
+        dmu = np.empty(d) if out is None else out
+        dmu[:] = acc
         if not var_grad:
             return mu, var, dmu
-        return mu, var, dmu, dm2 - 2.0 * mu * dmu
+        return mu, var, dmu, np.asarray(acc2) - 2.0 * mu * dmu
 
     # ------------------------------------------------------------------ introspection
     def leaves(self) -> list[int]:
