@@ -33,6 +33,7 @@ from ._jit import warm_up, warmer
 from .errors import EstimatorFault, InputError
 
 _TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+_EMPTY = np.empty((0, 0))
 
 
 def _tril(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -94,14 +95,14 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
     il2 = np.ascontiguousarray(1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,)) ** 2)
     Xb = np.ascontiguousarray(X - X[0])
     ap = np.empty(n * (n + 1) // 2)
+    # eq:SE: K_f
+    A = np.empty((n, d + 2))
+    log_sf2 = 2.0 * math.log(sigma_f)
+    c = np.zeros(d)
+    gp_core.fill_rows(Xb, n, c, il2, log_sf2, A)
+    K = _kernel(Xb, A, n, c, log_sf2)
     if L is None:
-        # eq:SE: K_f, then the packed factor of K_f + (σ_on² + jitter) I
-        A = np.empty((n, d + 2))
-        log_sf2 = 2.0 * math.log(sigma_f)
-        c = np.zeros(d)
-        gp_core.fill_rows(Xb, n, c, il2, log_sf2, A)
-        K = np.empty((n, n))
-        gp_core.kernel_matrix(Xb, A, n, c, log_sf2, K)
+        # the packed factor of K_f + (σ_on² + jitter) I
         info = gp_core.cholesky_packed(K, n, sigma_n ** 2 + jitter, ap)
         if info != 0:
             raise EstimatorFault(f"K + σ_on² I is not positive definite (Cholesky pivot {info}); "
@@ -110,8 +111,16 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
         ap[:] = np.asarray(L, dtype=float)[_tril(n)]
     g = np.empty(d + 2)
     # R&W eq. 2.30 and 5.9 (gp_core.lml_grad)
-    lml = gp_core.lml_grad(Xb, y, n, il2, float(sigma_f) ** 2, float(sigma_n) ** 2, ap, bool(grad), g)
+    lml = gp_core.lml_grad(Xb, y, n, il2, float(sigma_n) ** 2, ap, K, bool(grad), g)
     return (lml, g) if grad else lml
+
+
+def _kernel(X: np.ndarray, A: np.ndarray, n: int, c: np.ndarray, log_sf2: float) -> np.ndarray:
+    """Noise-free kernel matrix of the first n rows of X (eq:SE), from the rows A of
+    :func:`gp_core.fill_rows`: the exponents compiled, the exponential by numpy."""
+    K = np.empty((n, n))
+    gp_core.kernel_exponent(X, A, n, c, log_sf2, K)
+    return np.exp(K, out=K)
 
 
 class IncrementalGP:
@@ -239,10 +248,8 @@ class IncrementalGP:
         c = self.center_ if self.center_ is not None else np.zeros(self.input_dim)
         A = np.empty((m, self.input_dim + 2))
         gp_core.fill_rows(X, m, c, self._il2, self._log_sf2, A)
-        K = np.empty((m, m))
         # eq:SE expanded: k(x_a, x_b) = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
-        gp_core.kernel_matrix(X, A, m, c, self._log_sf2, K)
-        return K
+        return _kernel(X, A, m, c, self._log_sf2)
 
     def spawn(self, X: np.ndarray, y: np.ndarray, K: np.ndarray | None = None,
               capacity: int | None = None) -> "IncrementalGP":
@@ -280,9 +287,8 @@ class IncrementalGP:
         X = self.X_
         gp_core.fill_rows(X, n, self.center_, self._il2, self._log_sf2, self.A_)
         if K is None:
-            K = np.empty((n, n))
             # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
-            gp_core.kernel_matrix(X, self.A_, n, self.center_, self._log_sf2, K)
+            K = _kernel(X, self.A_, n, self.center_, self._log_sf2)
         else:
             K = np.ascontiguousarray(K)
         jit = self.jitter
@@ -379,9 +385,10 @@ class IncrementalGP:
         if n == 0:
             return (0.0, np.zeros(self.input_dim + 2)) if grad else 0.0
         g = np.empty(self.input_dim + 2)
-        # the oldest n points' factor is the leading block of the packed factor
-        lml = gp_core.lml_grad(self.X_[:n] - self.center_, self.y_, n, self._il2, self._sf2, self._sn2,
-                               self.ap_, bool(grad), g)
+        # the oldest n points' factor is the leading block of the packed factor; eq:SE K_f
+        Kf = _kernel(self.X_, self.A_, n, self.center_, self._log_sf2) if grad else _EMPTY
+        lml = gp_core.lml_grad(self.X_[:n] - self.center_, self.y_, n, self._il2, self._sn2,
+                               self.ap_, Kf, bool(grad), g)
         return (lml, g) if grad else lml
 
     # ------------------------------------------------------------------ persistence
