@@ -242,7 +242,7 @@ class LoGGP:
         children = []
         for mask in (go_left, ~go_left):
             idx = np.flatnonzero(mask)
-            leaf = gp.spawn(X[idx], Y[idx], Kall[np.ix_(idx, idx)], capacity=cap)
+            leaf = gp.spawn(X[idx], Y[idx], Kall[idx][:, idx], capacity=cap)
             children.append(len(self._gp))
             self._gp.append(leaf)
             self._dim.append(-1)
