@@ -10,7 +10,7 @@ the timed log visits: the log's own training pairs (causal kinematics, eq:loadsi
 cycled with a small jitter (2 % of each input's spread) so that every point is new.  The
 tree is unbounded (``max_leaves=None``) so it really holds N points; the pre-fill runs with
 the hyperparameter slices off (it is set-up, not measured) and they are switched on for the
-timed steps.  Pre-fill time is printed (about 150 µs per point on the 2-core bench machine).
+timed steps.  Pre-fill time is printed (about 50-100 µs per point on the 2-core bench machine).
 """
 from __future__ import annotations
 

@@ -63,29 +63,54 @@ def synthetic_log(cfg, seconds: float = 20.0, seed: int = 0) -> MeasuredLog:
     return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<synthetic>")
 
 
-def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False):
+def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds: list | None = None):
     """Seconds per ``update`` call over the log (first ``warmup`` steps not recorded).
 
     With ``cpu``: ``(wall, cpu)``, the second the CPU time of this thread per call
     (``time.thread_time_ns``), which excludes the time the scheduler gave to other processes
     -- on a shared machine the closer figure to what the step costs on an idle one.
+    ``kinds``: a list that receives, per recorded step, what the step's LoG-GP did
+    (:func:`step_kind`; GP-AKF only).
     """
     est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     clock = time.perf_counter_ns
     tclock = time.thread_time_ns
     out = np.empty(len(log) - 1)
     cout = np.empty(len(log) - 1)
+    g = est.gp.gps[0] if kinds is not None else None
     for k in range(1, len(log)):
         q, th, u, dt = log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1]
+        before = _gp_counters(g) if g is not None else None
         c0 = tclock()
         t0 = clock()
         est.update(q, th, u, dt)
         t1 = clock()
         cout[k - 1] = tclock() - c0
         out[k - 1] = t1 - t0
+        if g is not None and k > warmup:
+            kinds.append(step_kind(before, _gp_counters(g)))
     if cpu:
         return out[warmup:] * 1e-9, cout[warmup:] * 1e-9
     return out[warmup:] * 1e-9
+
+
+def _gp_counters(g) -> tuple:
+    return g.n_leaves, g.n_evicted, g.n_hyper_steps, g._pending is not None
+
+
+def step_kind(before: tuple, after: tuple) -> str:
+    """What the first joint's LoG-GP did in a step, from its counters before and after:
+    'split', 'eviction', 'hyper phase 1' (LML gradient + Adam), 'hyper phase 2' (rebuild
+    with the new values) or 'plain' (predict + one O(N̄²) append)."""
+    if after[0] != before[0]:
+        return "split"
+    if after[1] != before[1]:
+        return "eviction"
+    if after[2] != before[2]:
+        return "hyper phase 1"
+    if before[3] and not after[3]:
+        return "hyper phase 2"
+    return "plain"
 
 
 def add_arguments(p) -> None:
@@ -97,7 +122,7 @@ def add_arguments(p) -> None:
                    help="comma-separated labels; 'gp-akf' = every gp-akf-1eK case up to --max-points "
                         "(known: akf, spring, gp-akf-1e3 … gp-akf-1e6)")
     p.add_argument("--max-points", type=float, default=1e6,
-                   help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~150 us per point)")
+                   help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~50-100 us per point)")
     p.add_argument("--hyper-every", type=int, default=None,
                    help="gp-akf cases: updates between two hyperparameter slices (default: the LoG-GP "
                         "default, 10; each slice is two O(N̄³) phases on consecutive updates)")
@@ -147,9 +172,18 @@ def run(args) -> int:
               "1eK points; LoG-GP vs lgrt4gps on the same data: `sea-daemon bench loggp`")
     for label in labels:
         est = CASES[label](cfg, log.dt, log)
-        runs = [time_steps(est, log, cpu=True) for _ in range(args.repeat)]
+        kinds = [] if hasattr(est, "gp") else None
+        runs = [time_steps(est, log, cpu=True, kinds=kinds) for _ in range(args.repeat)]
         times = np.concatenate([r[0] for r in runs])
         cpu = np.concatenate([r[1] for r in runs])
         print(f"{label:>12s}: per step {summarize(times)}; load average {os.getloadavg()[0]:.2f}", flush=True)
         print(f"{'':>12s}  CPU time of the step {summarize(cpu)}", flush=True)
+        if kinds:
+            kinds = np.asarray(kinds)
+            parts = []
+            for kind in ("plain", "hyper phase 1", "hyper phase 2", "split", "eviction"):
+                c = cpu[kinds == kind]
+                if len(c):
+                    parts.append(f"{kind} {len(c)}x median {np.median(c) * 1e6:.0f} max {c.max() * 1e6:.0f} us")
+            print(f"{'':>12s}  CPU time by what the LoG-GP did: " + "; ".join(parts), flush=True)
     return 0
