@@ -225,6 +225,19 @@ def test_bench_latency_gp_akf_case_runs(capsys):
     assert code == 0
     assert "gp-akf-1e3: pre-filled 1000 points" in out and "gp-akf-1e3: per step median" in out
     assert "load average" in out and "gp-akf-1e4" not in out
+    # the CPU time split by what the LoG-GP did: 950 steps, mostly plain, slices every 10 updates
+    line = next(l for l in out.splitlines() if "CPU time by what the LoG-GP did" in l)
+    assert "plain" in line and "hyper phase 1" in line and "hyper phase 2" in line
+
+
+def test_step_kind_reads_the_loggp_counters():
+    from sea_daemon.bench.latency import step_kind
+    # (n_leaves, n_evicted, n_hyper_steps, pending)
+    assert step_kind((5, 0, 3, False), (6, 0, 3, False)) == "split"
+    assert step_kind((5, 0, 3, False), (5, 10, 3, False)) == "eviction"
+    assert step_kind((5, 0, 3, False), (5, 0, 4, True)) == "hyper phase 1"
+    assert step_kind((5, 0, 4, True), (5, 0, 4, False)) == "hyper phase 2"
+    assert step_kind((5, 0, 4, False), (5, 0, 4, False)) == "plain"
 
 
 
