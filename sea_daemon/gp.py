@@ -12,8 +12,9 @@
 
 Storage.  The lower Cholesky factor ``L`` is kept *packed*, row by row (the first ``n(n+1)/2``
 entries hold rows ``0 … n-1``): appending a point appends one row at the end, and every
-triangular solve runs on a prefix of one contiguous buffer, without copies.  Inputs are stored scaled, ``x̃ = (x − c) / l`` around a centre ``c`` (the first
-point), so a kernel vector is one matrix–vector product and one ``exp``:
+triangular solve runs on a prefix of one contiguous buffer, without copies.  Inputs are
+stored scaled, ``x̃ = (x − c) / l`` around a centre ``c`` (the first point), so a kernel
+vector is one matrix–vector product and one ``exp``:
 ``k_i(x) = exp(h_i + x̃_i·x̃ − |x̃|²/2)`` with ``h_i = log σ_f² − |x̃_i|²/2`` (eq:SE expanded).
 
 The numerics are compiled (:mod:`sea_daemon.gp_core`, numba): per call a prediction with

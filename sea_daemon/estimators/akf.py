@@ -21,11 +21,13 @@ viscoelasticity, spring non-linearities, torque scale, inertia); encoder offsets
 ``correct_measurement``; a declared ``delay`` by applying τ_m(t − delay) from a short
 input history.  An "oracle" AKF is this class built from the true plant's configuration.
 
-Pure numerics: no I/O, no clock, no threads.  Per-step quantities the Theorem-1 bounds
-need are kept as attributes: ``A_k`` (continuous Jacobian), ``F_k`` (discrete transition),
-``Gamma_mu`` (discrete map of a torque error held over the step to the state), ``Q_k``,
-``x_prior``, ``P_prior``, ``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior);
-and the causal kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
+The numerics of a step are compiled (:mod:`~sea_daemon.estimators.akf_core`, numba; compiled
+or loaded from numba's cache at construction).  Pure numerics: no I/O, no clock, no
+threads.  Per-step quantities the Theorem-1 bounds need are kept as attributes: ``A_k``
+(continuous Jacobian), ``F_k`` (discrete transition), ``Gamma_mu`` (discrete map of a torque
+error held over the step to the state), ``Q_k``, ``xdot_k``, ``x_prior``, ``P_prior``,
+``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior); and the causal
+kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
 [q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
 step's own dt.
 """
