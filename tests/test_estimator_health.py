@@ -118,6 +118,12 @@ def test_gp_inputs_are_clipped_to_the_training_box(cfg, healthy_log):
     z = box.clip(np.array([0.5, 1e3, np.nan]))
     assert z[0] == 0.5 and z[1] == pytest.approx(1.2) and z[2] == 0.0
     assert box.clipped.tolist() == [False, True, True]
+    z = box.clip(np.array([np.inf, -np.inf, 3.0]))
+    assert z.tolist() == [1.1, -1.2, 3.0] and box.clipped.tolist() == [True, True, False]
+    box.add(np.array([np.nan, 5.0, 0.0]))                      # non-finite training input: ignored
+    assert box.lo_.tolist() == [0.0, -1.0, -10.0] and box.hi_.tolist() == [1.0, 1.0, 10.0]
+    empty = InputBox(2)
+    assert empty.clip(np.array([np.nan, np.inf])).tolist() == [0.0, 1e6] and empty.clipped.all()
     # in the GP-AKF: a velocity spike far outside what was learned gives finite, bounded μ, σ²
     est = GPAKF(cfg, dt=healthy_log.dt)
     run(est, healthy_log)
