@@ -366,14 +366,13 @@ class IncrementalGP:
         if n == 0:
             dmu[:] = 0.0
             return (0.0, self._sf2, dmu, np.zeros(d)) if var_grad else (0.0, self._sf2, dmu)
-        if not self._alpha_ok:
-            gp_core.update_alpha(self.ap_, self.beta_, n, self._alpha)
-            self._alpha_ok = True
         dvar = np.empty(d) if var_grad else dmu
-        # eq:GPmean, eq:GPvariance, eq:moejac with eq:kernelderivative (gp_core.predict_with_grad)
-        mu, var = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self.center_,
-                                            self._il2, n, self._sf2, np.ascontiguousarray(x, dtype=float),
-                                            bool(var_grad), dmu, dvar)
+        # eq:GPmean, eq:GPvariance, eq:moejac with eq:kernelderivative (gp_core.predict_with_grad;
+        # α = (K + σ_on² I)⁻¹ y refreshed there after an append)
+        mu, var = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self._alpha_ok,
+                                            self.center_, self._il2, n, self._sf2,
+                                            np.ascontiguousarray(x, dtype=float), bool(var_grad), dmu, dvar)
+        self._alpha_ok = True
         return (mu, var, dmu, dvar) if var_grad else (mu, var, dmu)
 
     def log_marginal_likelihood(self, grad: bool = True, points: int | None = None):

@@ -131,13 +131,15 @@ def update_alpha(ap, beta, n, alpha):
 
 
 @njit(fast=True)
-def predict_with_grad(A, ap, beta, alpha, c, il2, n, sf2, x, var_grad, dmu, dvar):
+def predict_with_grad(A, ap, beta, alpha, alpha_ok, c, il2, n, sf2, x, var_grad, dmu, dvar):
     """(μ, σ²) at x; ∂μ/∂x into ``dmu`` and, with ``var_grad``, ∂σ²/∂x into ``dvar``.
 
-    ``alpha`` must be current (:func:`update_alpha`).
+    ``alpha``: α = L⁻ᵀβ, recomputed here first unless ``alpha_ok`` (:func:`update_alpha`).
     eq:moejac with eq:kernelderivative: ∂μ/∂x = Σ_i α_i k_i (x_i − x)/l²
     = Σ_i α_i k_i A_i[:ρ] − μ x̄/l² with μ = Σ_i α_i k_i (A's column of ones).
     """
+    if not alpha_ok:
+        update_alpha(ap, beta, n, alpha)
     d = x.shape[0]
     p = d + 2
     a = np.empty(p)
