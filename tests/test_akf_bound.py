@@ -21,18 +21,25 @@ def run(est, log):
     return out
 
 
-def test_linear_plant_bound_equals_kf_chi2_projection():
+@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
+def test_linear_plant_bound_equals_kf_chi2_projection(sets):
     cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
         "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
     log = simulate(SEAModel.from_config(cfg), T=0.6, tau_h=lambda t: np.array([np.sin(3 * t)]), seed=1)
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf)
+    tb = attach_theorem_bound(akf, projection="state", sets=sets)
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     assert np.max(np.abs(tb.sm.X_)) == 0.0                     # set of means stays a point
     np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 5) * out[1:, 2]),
                                rtol=1e-10)
     np.testing.assert_allclose(out[:, :2], plain[:, :2], rtol=1e-10)   # estimate and bound unchanged
+    # default: the τ marginal's χ²_1 quantile (scalar claim eq:bounds)
+    akf = AKF(cfg)
+    attach_theorem_bound(akf, sets=sets)
+    out = run(akf, log)
+    np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 1) * out[1:, 2]),
+                               rtol=1e-10)
 
 
 def test_gravity_nonlinearity_widens_bound_and_it_covers():
@@ -44,7 +51,10 @@ def test_gravity_nonlinearity_widens_bound_and_it_covers():
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     np.testing.assert_allclose(out[:, 0], plain[:, 0])           # the estimate is untouched
-    assert np.all(out[1:, 1] >= plain[1:, 1] - 1e-12)            # the set of means only adds
+    # the set of means only adds to the KF part √(χ²_1 P_ττ) (plain AKF publishes √(χ²_5 P_ττ))
+    d = cfg.estimator.delta
+    kf1 = plain[1:, 1] * np.sqrt(chi2_quantile(1 - d, 1) / chi2_quantile(1 - d, 5))
+    assert np.all(out[1:, 1] >= kf1 - 1e-12) and np.any(out[1:, 1] > kf1 + 1e-6)
     assert tb.lin_err_[3] > 0 and tb.sm.X_[4, 4] > 0             # gravity: θ̈_s row is non-linear
     err = np.abs(out[20:, 0] - log.tau_h_act[20:, 0])
     assert np.mean(err <= out[20:, 1]) >= 1 - cfg.estimator.delta

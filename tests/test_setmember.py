@@ -18,7 +18,8 @@ def kf_step(x, P, F, dx, Q, H, R, y):
     return xp, 0.5 * (Pp + Pp.T), K
 
 
-def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
+@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
+def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid(sets):
     cfg = load_config(default_config_path())
     import dataclasses
     params = dataclasses.replace(cfg.model, gravity=np.zeros_like(np.asarray(cfg.model.gravity)))
@@ -29,8 +30,8 @@ def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
     rng = np.random.default_rng(0)
     x_true = np.array([0.1, 0.01, 0.0, 0.0, 0.5])
     x, P = x_true + rng.multivariate_normal(np.zeros(d), cfg.estimator.P0), cfg.estimator.P0.copy()
-    sm = SetMembershipBound(d, [4], delta=0.05)
-    sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal")
+    sm = SetMembershipBound(d, [4], delta=0.05, projection="state", sets=sets)
+    sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal", sets=sets)
     A = model.F_nom(x, np.zeros(n))                # constant: the plant is linear
     Gamma = input_matrix(A, model.I_mu @ model.Minv, dt)
     G_u = input_matrix(A, model.B_nom(), dt)
@@ -75,7 +76,7 @@ class Pendulum:
         return x + self.dt * self.f(x, u)
 
 
-def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
+def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope"):
     """EKF + Theorem-1 bound on a pendulum with a persistent bounded disturbance |d| ≤ η."""
     pl = Pendulum()
     rng = np.random.default_rng(seed)
@@ -87,7 +88,8 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
     x_true = np.array([rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1)])
     P = np.diag([0.05, 0.05, 1.0])
     x = x_true + rng.multivariate_normal(np.zeros(d), P)
-    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal", n_dirs=4)
+    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal", n_dirs=4,
+                            sets=sets)
     sign = rng.choice([-1.0, 1.0])
     hit_set, hit_kf = [], []
     s_1 = chi2.ppf(1 - delta, 1)
@@ -110,11 +112,12 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
     return np.array(hit_set), np.array(hit_kf), sm
 
 
-def test_nonlinear_coverage_at_promised_rate():
+@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
+def test_nonlinear_coverage_at_promised_rate(sets):
     delta = 0.05
     hs, hk = [], []
     for seed in range(8):
-        s, k, sm = run_pendulum(seed, delta=delta)
+        s, k, sm = run_pendulum(seed, delta=delta, sets=sets)
         hs.append(s)
         hk.append(k)
     cov_set, cov_kf = np.mean(hs), np.mean(hk)

@@ -42,7 +42,7 @@ class AKFTheoremBound:
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
-                 projection: str = "state", seed: int = 0):
+                 projection: str = "marginal", sets: str = "zonotope", seed: int = 0):
         self.akf = akf
         n, d = akf.n, akf.d
         delta = akf.delta if delta is None else float(delta)
@@ -60,7 +60,8 @@ class AKFTheoremBound:
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
         self.gp_box = gp_box
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
-                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection)
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
+                                     sets=sets)
         self._I = np.eye(d)
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
@@ -105,7 +106,7 @@ class AKFTheoremBound:
 
     # ------------------------------------------------------------------ linearisation error
 
-    def _gravity_box(self, x0: np.ndarray, C: Ellipsoid) -> np.ndarray:
+    def _gravity_box(self, x0: np.ndarray, P0: np.ndarray) -> np.ndarray:
         """Rigorous bound of the gravity term's linearisation error (no sampling).
 
         C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
@@ -126,7 +127,7 @@ class AKFTheoremBound:
         for j in range(n):
             e = np.zeros(akf.d)
             e[j] = e[n + j] = 1.0
-            r = C.half_width(e)
+            r = self.sm.half_width(e, P0)
             # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
             # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
             D = self._grid * r
@@ -150,7 +151,7 @@ class AKFTheoremBound:
             np.maximum(b, r, out=b)
         return b
 
-    def _gp_box(self, zhat: np.ndarray, C: Ellipsoid):
+    def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
         projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
         them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
@@ -162,7 +163,7 @@ class AKFTheoremBound:
         mu0 = np.array(mu0, dtype=float)
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
         var0 = np.array(var0, dtype=float)
-        Cz = C.affine(self._T)                                     # exact: affine image
+        Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
         smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
         e = np.zeros(n)
         out = False
@@ -216,16 +217,16 @@ class AKFTheoremBound:
         u = np.array(u, dtype=float)
         est = self._step(y, u, dt)
         sm = self.sm
-        if not np.all(np.isfinite(sm.X_)):
+        if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
-        C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
         if self._fast:
-            b = self._gravity_box(x0, C)          # analytic, rigorous
+            b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
         else:
+            C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
             A_nom = akf.A_k.copy()
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
@@ -233,7 +234,7 @@ class AKFTheoremBound:
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
-            bg, smax, out = self._gp_box(zhat, C)
+            bg, smax, out = self._gp_box(zhat, x0, P0)
             b = b + (1.0 + sm.margin) * bg
             self.gp_box_violations_ += int(out)
             # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
@@ -244,7 +245,7 @@ class AKFTheoremBound:
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         sm.update(akf.K_k, akf.H)
-        if not np.all(np.isfinite(sm.X_)):
+        if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
