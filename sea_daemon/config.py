@@ -172,9 +172,12 @@ class EstimatorConfig:
     nis_scale: float = 10.0        # divergence: windowed mean > nis_scale x the band's upper edge
     pd_check_every: int = 1        # Cholesky of P every k steps (0: never)
     gp_input_margin: float = 0.1   # GP inputs clipped to the training box +- this fraction of its width
+    # GP error bound of the Theorem-1 bound (docs/bounds.md §2): "lederer" (LUH19, eq:gpmeanbounds)
+    # or a number beta > 0 (|f - mu| <= beta sqrt(sigma^2 + sigma_n^2), e.g. a split-conformal beta)
+    gp_beta: str | float = "lederer"
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
-            "pd_check_every", "gp_input_margin"]
+            "pd_check_every", "gp_input_margin", "gp_beta"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -212,10 +215,17 @@ class EstimatorConfig:
         margin = _num(source, "estimator.gp_input_margin", d.get("gp_input_margin", 0.1))
         if not margin >= 0:
             raise ConfigError(source, "estimator.gp_input_margin", f"must be >= 0, got {margin}")
+        gp_beta = d.get("gp_beta", "lederer")
+        if gp_beta != "lederer":
+            if isinstance(gp_beta, bool) or not isinstance(gp_beta, (int, float)) or not (
+                    np.isfinite(gp_beta) and gp_beta > 0):
+                raise ConfigError(source, "estimator.gp_beta", f"must be 'lederer' or a number > 0, got {gp_beta!r}")
+            gp_beta = float(gp_beta)
         return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
                    sign_eps=_num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True),
                    nis_window=_int("nis_window", 100, 1, 100000), nis_alpha=nis_alpha, nis_scale=nis_scale,
-                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin)
+                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin,
+                   gp_beta=gp_beta)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -223,7 +233,7 @@ class EstimatorConfig:
         return {"R": dg(self.R), "Sigma_nom": dg(self.Sigma_nom), "P0": dg(self.P0),
                 "delta": self.delta, "sign_eps": self.sign_eps, "nis_window": self.nis_window,
                 "nis_alpha": self.nis_alpha, "nis_scale": self.nis_scale, "pd_check_every": self.pd_check_every,
-                "gp_input_margin": self.gp_input_margin}
+                "gp_input_margin": self.gp_input_margin, "gp_beta": self.gp_beta}
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ import numpy as np
 
 from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
-from .gp_bound import BoundConstants, error_bound, input_box, loggp_leaves
+from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
+                       input_box, loggp_leaves)
 from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
 
 
@@ -42,8 +43,16 @@ class AKFTheoremBound:
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
-                 projection: str = "marginal", sets: str = "zonotope", seed: int = 0):
+                 projection: str = "marginal", sets: str = "zonotope", seed: int = 0,
+                 gp_beta: str | float | None = None):
         self.akf = akf
+        # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
+        # the configuration's estimator.gp_beta
+        if gp_beta is None:
+            gp_beta = getattr(getattr(getattr(akf, "cfg", None), "estimator", None), "gp_beta", "lederer")
+        if not (gp_beta == "lederer" or (isinstance(gp_beta, (int, float)) and gp_beta > 0)):
+            raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
+        self.gp_beta = gp_beta
         n, d = akf.n, akf.d
         delta = akf.delta if delta is None else float(delta)
         has_gp = akf.residual is not None
@@ -58,6 +67,8 @@ class AKFTheoremBound:
         if self._auto and gp_constants != "auto":
             raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
+        self._scales = None
+        self._update_scales()
         self.gp_box = gp_box
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
@@ -82,8 +93,19 @@ class AKFTheoremBound:
     def refresh_gp_constants(self) -> None:
         """Recompute the GP constants and input box from the residual's current leaves
         (``gp_constants='auto'``; call after the GP learned more data)."""
-        self.gp_constants, self.gp_box = gp_constants(residual_gps(self.akf), self.sm.delta_gp)
+        gps = residual_gps(self.akf)
+        self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
+        self._update_scales()
+
+    def _update_scales(self) -> None:
+        """The local scales s(z) (:class:`LocalScale`) when the constants use them."""
+        self._scales = None
+        if self.gp_constants and any(c.scale == "local" for c in self.gp_constants):
+            gps = residual_gps(self.akf)
+            if gps is None:
+                raise ValueError("GP constants with a local scale need a residual backed by LoG-GPs")
+            self._scales = [LocalScale(g) for g in gps]
 
     def _n_learned(self) -> int:
         """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
@@ -164,7 +186,11 @@ class AKFTheoremBound:
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
         var0 = np.array(var0, dtype=float)
         Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
-        smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
+        local = self._scales is not None
+        if local:
+            smax = np.array([sc(zhat, v) for sc, v in zip(self._scales, var0)])
+        else:
+            smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
         e = np.zeros(n)
         out = False
         z = zhat.copy()
@@ -182,7 +208,11 @@ class AKFTheoremBound:
                 mu[:], var[:] = m_, v_
             dz = p - zhat[:2 * n]
             np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
-            np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
+            if local:
+                for j, sc in enumerate(self._scales):
+                    smax[j] = max(smax[j], sc(z, var[j]))
+            else:
+                np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
@@ -289,7 +319,8 @@ def attach_default_bound(akf) -> AKFTheoremBound | None:
 
 
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
-                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None):
+                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
+                 beta: str | float = "lederer"):
     """GP error constants per joint for a :class:`sea_daemon.learning.ResidualGP` (one LoG-GP per
     joint) or a list of LoG-GPs.
 
@@ -297,7 +328,9 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
     union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
     constants stay valid while the tree grows).  The input box is the box of all training
-    points widened by ``box_margin`` of its range.  Returns (constants list, (lo, hi)).
+    points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
+    number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
+    Returns (constants list, (lo, hi)).
     """
     gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
     n = len(gps)
@@ -305,6 +338,8 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
                    if gp.leaf(node).n_ > 0])
     lo, hi = input_box(Z, box_margin)
+    if beta != "lederer":
+        return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
     consts = []
     for gp in gps:
         leaves = loggp_leaves(gp)
@@ -312,3 +347,47 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
         kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
         consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
     return consts, (lo, hi)
+
+
+def conformal_scores(est, log) -> np.ndarray:
+    """Calibration scores |y − μ(z)| / s(z) of a frozen GP-AKF on a held-out log (s =
+    :class:`~sea_daemon.bounds.gp_bound.LocalScale`, fixed by the training data).
+
+    ``est`` is a :class:`~sea_daemon.estimators.gpakf.GPAKF` whose GP will not learn the
+    pairs (learning is switched off here and restored); ``log`` a passive-subject log it
+    never learned from (ass:passive_human: the training pair of each sample is (z, f(z) + noise),
+    eq:loadsidewmotor, built by the GP-AKF's own causal kinematics).  μ and σ are evaluated
+    at the unclipped z, as in the bound.  Returns (pairs, n).
+    """
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("conformal_scores needs a GP-AKF backed by LoG-GPs")
+    scales = [LocalScale(g) for g in gps]
+    learning, est.learning = est.learning, False
+    out = []
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            if est._since_reset < est.kin.L:
+                continue
+            z, y = est._training_pair(log.tau_m[k])
+            row = np.empty(len(gps))
+            for j, g in enumerate(gps):
+                mu, var = g.predict(z)
+                row[j] = abs(y[j] - mu) / scales[j](z, var)
+            out.append(row)
+    finally:
+        est.learning = learning
+    return np.array(out)
+
+
+def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
+    """Split-conformal GP constants per joint from a held-out log (:func:`conformal_scores`);
+    δ_GP is split over the joints.  Returns (constants, (lo, hi) the training box, scores)."""
+    gps = residual_gps(est)
+    scores = conformal_scores(est, log)
+    per_joint = delta_gp / len(gps)
+    consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
+    _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
+    return consts, box, scores
