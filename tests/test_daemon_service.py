@@ -77,6 +77,14 @@ def test_estimation_against_device_model_gp_akf_beats_akf(calibrated, tmp_path, 
     akf_rmse = float(np.sqrt(np.mean(akf.tau_h_act_hat[skip:, 0] ** 2)))
     # measured 0.13 vs 1.5 N m (ratio 0.09); the margin allows 3x
     assert gp_rmse < 0.3 * akf_rmse, (gp_rmse, akf_rmse)
+    # the published bound is the Theorem-1 rho_k (docs/bounds.md): the KF part
+    # sqrt(chi2_1(1 - delta_N) P_tautau), delta_N = delta/2, plus the set of means of the GP error
+    from sea_daemon.bounds.setmember import chi2_quantile
+    rho, sig = log.extra["tau_h_act_bound"][skip:], log.extra["tau_h_act_sigma"][skip:]
+    kf = np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 1)) * sig
+    assert np.all(rho >= kf - 1e-9) and np.mean(rho > 1.01 * kf) > 0.5
+    assert np.ptp(rho / sig) > 0.05           # not a fixed multiple of sigma (the KF-only chi2 bound)
+    assert np.mean(np.abs(log.extra["tau_h_act_hat"][skip:]) <= rho) >= 1 - cfg.estimator.delta
 
 
 def test_corrupt_or_incompatible_model_exit_2(calibrated, tmp_path, capsys):
