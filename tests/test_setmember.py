@@ -158,3 +158,55 @@ def test_bad_arguments():
         SetMembershipBound(3, [2], delta=1.5)
     with pytest.raises(ValueError):
         SetMembershipBound(3, [2], delta=0.05, delta_gp=0.05)
+
+
+def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
+    from sea_daemon.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
+    from sea_daemon.bounds.setmember import reduce_generators, zonotope_shape
+    rng = np.random.default_rng(21)
+    d, m = 4, 30
+    G = rng.standard_normal((d, m)) * rng.uniform(0.01, 1.0, m)
+    # the outer ellipsoid equals the n-ary trace-minimal sum of the segments, and contains vertices
+    X = zonotope_shape(G)
+    assert np.allclose(X, minkowski_shape(segments_shapes(G, np.ones(m))), rtol=1e-10)
+    V = np.sign(rng.standard_normal((500, m))) @ G.T
+    assert np.all(Ellipsoid(np.zeros(d), X).contains(V))
+    # reduction keeps m generators and contains the original (support functions dominate)
+    Gr = reduce_generators(G, 12)
+    assert Gr.shape == (d, 12)
+    E = rng.standard_normal((2000, d))
+    h, hr = np.abs(E @ G).sum(1), np.abs(E @ Gr).sum(1)
+    assert np.all(hr >= h - 1e-12) and np.any(hr > h + 1e-6)
+    assert reduce_generators(G, 40) is G
+
+
+def test_zonotope_propagation_is_exact_and_bounds_the_ellipsoid_one():
+    # fixed error boxes: the set of means is exactly the zonotope of all mapped generators
+    from scipy.linalg import expm, solve_discrete_are
+    rng = np.random.default_rng(22)
+    d, steps, dt = 4, 150, 0.01
+    # a torque observer like the AKF: mass-spring [x, v], a second mass [x2, v2]... with an
+    # unknown input state w (random walk) — x = [x, v, x2, w], positions measured
+    A = np.array([[0, 1, 0, 0], [-100, -2, 50, 10], [0, 0, -5, 0], [0, 0, 0, 0.0]])
+    F = expm(A * dt)
+    H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    P = solve_discrete_are(F.T, H.T, np.diag([1e-6, 1e-3, 1e-6, 1e-2]), 1e-6 * np.eye(2))
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + 1e-6 * np.eye(2))
+    Gamma = np.array([[0, 0], [dt, 0], [0, dt], [0, 0.0]])
+    sms = {"exact": SetMembershipBound(d, [3], 0.05, sets="zonotope", max_generators=10 ** 6),
+           "reduced": SetMembershipBound(d, [3], 0.05, sets="zonotope", max_generators=40),
+           "ellipsoid": SetMembershipBound(d, [3], 0.05, sets="ellipsoid")}
+    gens = np.zeros((d, 0))
+    for k in range(steps):
+        eta = rng.uniform(0.0, 1.0, 2)
+        gens = (np.eye(d) - K @ H) @ np.hstack([F @ gens, Gamma * eta])
+        for sm in sms.values():
+            sm.predict(F, Gamma=Gamma, eta=eta)
+            sm.update(K, H)
+        exact = np.abs(gens).sum(1)
+        np.testing.assert_allclose(sms["exact"].means_half_widths(), exact, rtol=1e-9)
+        assert np.all(sms["reduced"].means_half_widths() >= exact * (1 - 1e-12))
+        assert np.all(sms["ellipsoid"].means_half_widths() >= exact * (1 - 1e-9))
+    # the outer ellipsoid is strictly looser than the exact set; the reduction stays near exact
+    assert sms["ellipsoid"].means_half_widths()[3] > 1.05 * exact[3]
+    assert sms["reduced"].means_half_widths()[3] < 1.1 * exact[3]

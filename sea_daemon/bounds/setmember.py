@@ -337,7 +337,12 @@ def zonotope_shape(G: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray
 def reduce_generators(G: np.ndarray, m: int) -> np.ndarray:
     """Zonotope order reduction (Girard 2005): keep the m − d generators with the largest
     ‖g‖₁ − ‖g‖∞ and replace the others by their interval hull diag(Σ|g_i|) (d axis-aligned
-    generators; an outer approximation, exact when the removed ones are axis-aligned)."""
+    generators; an outer approximation, exact when the removed ones are axis-aligned).
+
+    The hull is re-boxed at later reductions; under a strongly contracting filter map
+    (I − K H) F this costs little (on the simulated paper scenarios ρ with 40 generators
+    equals the unreduced propagation to 4 digits), under slowly contracting rotations it can
+    grow (tests/test_setmember.py)."""
     d, k = G.shape
     if k <= m:
         return G
