@@ -187,19 +187,25 @@ class AKFTheoremBound:
         var0 = np.array(var0, dtype=float)
         Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
         local = self._scales is not None
-        if local:
-            smax = np.array([sc(zhat, v) for sc, v in zip(self._scales, var0)])
-        else:
-            smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
+        # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
+        # filter's hook clips z to the training box, where σ can be far smaller than at z
+        smax = np.zeros(n)
         e = np.zeros(n)
         out = False
         z = zhat.copy()
         gps = residual_gps(akf)
         mu = np.empty(n)
         var = np.empty(n)
-        for p in ellipsoid_points(Cz, self._Uz):
+        pts = ellipsoid_points(Cz, self._Uz)
+        for p in pts:           # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
             z[:2 * n] = p
-            if gps is not None:
+            if local:
+                # mean, variance and local scale in one routing of each joint's LoG-GP
+                for j, sc in enumerate(self._scales):
+                    mu[j], var[j], sj = sc.predict(z)
+                    if sj > smax[j]:
+                        smax[j] = sj
+            elif gps is not None:
                 # mean and variance only (no Jacobian needed here): cheaper than the hook
                 for j, g in enumerate(gps):
                     mu[j], var[j] = g.predict(z)
@@ -208,10 +214,7 @@ class AKFTheoremBound:
                 mu[:], var[:] = m_, v_
             dz = p - zhat[:2 * n]
             np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
-            if local:
-                for j, sc in enumerate(self._scales):
-                    smax[j] = max(smax[j], sc(z, var[j]))
-            else:
+            if not local:
                 np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?

@@ -190,6 +190,19 @@ class LocalScale:
         _, xl = self.gp._check_x(z)
         return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp._route(xl, False)))
 
+    def predict(self, z) -> tuple[float, float, float]:
+        """(μ̃(z), σ̃²(z), s(z)) in one routing: the LoG-GP's merged mean and mixture variance
+        (as :meth:`sea_daemon.loggp.LoGGP.predict`) and the local scale."""
+        x, xl = self.gp._check_x(z)
+        mu = m2 = sl = 0.0
+        for node, w, _ in self.gp._route(xl, False):
+            m, v = self.gp.leaf(node).predict(x)
+            mu += w * m
+            m2 += w * (v + m * m)
+            sl += w * self.r_.get(node, 0.0)
+        var = max(m2 - mu * mu, 0.0)
+        return mu, var, float(math.sqrt(var + sl * sl))
+
     def __call__(self, z, var: float) -> float:
         s = self.local(z)
         return float(np.sqrt(max(var, 0.0) + s * s))
