@@ -15,9 +15,10 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
     analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
     with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
   - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
-* GP error (eq:Dmuhat): η_j = √β_j max_points σ_j(z(x)) + γ_j per joint — σ is taken over
-  the projected set (not just at ẑ), because the true z is only known to lie in it;
-  mapped by Γ_μ
+* GP error (eq:Dmuhat): η_j = √β_j max_points s_j(z(x)) + γ_j per joint — s = σ (LUH19) or the
+  local scale √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) is taken over
+  the projected set at unclipped z (not just at ẑ), because the true z is only known to lie
+  in it; mapped by Γ_μ.  ``gp_beta`` (default ``estimator.gp_beta``): 'lederer' or a number
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.

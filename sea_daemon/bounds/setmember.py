@@ -1,8 +1,11 @@
 """Set-membership propagation of Theorem 1 (Noack et al. 2010) and the torque bound ρ_k.
 
 The state is a set of Gaussians (eq:gaussianset): x_k ~ N(m, P_k) with unknown mean
-m ∈ E(x̂_k, X̂_k).  The centre x̂_k is the (GP-)AKF estimate; this class tracks the shape
-X̂_k of the set of means next to the filter and never touches the filter itself.
+m ∈ x̂_k + X̂_k.  The centre x̂_k is the (GP-)AKF estimate; this class tracks the shape
+X̂_k of the set of means next to the filter and never touches the filter itself.  X̂_k is a
+zonotope by default (generators G_: Minkowski sums of mapped boxes and affine maps are
+exact, order reduction is the only outer approximation) or, with sets="ellipsoid", the
+paper's ellipsoid E(0, X̂_k) (trace-minimal outer ellipsoid at every sum).
 
 One step k → k+1 (proof of Theorem 1):
 
@@ -15,14 +18,15 @@ One step k → k+1 (proof of Theorem 1):
 4. filter step on the set: X̂⁺ = (I − K H) X⁻ (I − K H)ᵀ (affine, exact); the centre
    x̂⁻ + K(y − H x̂⁻) is the filter's posterior estimate.
 5. ρ_{k+1} = half-width of C_{k+1} along the τ_h,act axis, computed exactly from the support
-   functions of the two summands: ρ_j = sqrt(X̂_jj) + sqrt(s_τ P_jj).
+   functions of the two summands: ρ_j = h_X̂(e_j) + sqrt(s_τ P_jj), h = Σ|G_j·| (zonotope)
+   or sqrt(X̂_jj) (ellipsoid).
 
 Probability levels.  δ is split into δ_GP (the GP uniform bound, eq:gpmeanbounds, whose
 constants the caller computes with gp_bound.error_bound) and δ_N = δ − δ_GP for the
 Gaussian part: s_d = χ²_d(1 − δ_N) for the set C_k (on which the linearisation error is
-bounded) and, by default, for ρ (the paper's projection of C_k); with projection="marginal"
-ρ uses s_τ = χ²_{n_τ}(1 − δ_N), the confidence set of the τ marginal (simultaneous over the
-n_τ torque states), which is also valid and tighter.  With
+bounded); for ρ by default (projection="marginal") s_τ = χ²_{n_τ}(1 − δ_N), the confidence
+set of the τ marginal (simultaneous over the n_τ torque states) — valid for the scalar
+eq:bounds and tighter; projection="state" uses s_d (the paper's projection of C_k).  With
 the union bound Pr(|τ̂ − τ| ≤ ρ) ≥ 1 − δ_GP − δ_N = 1 − δ at each step, conditional on the
 previous step's x_k ∈ C_k (as in the paper's theorem).
 
