@@ -146,3 +146,37 @@ def test_gp_akf_estimator_gets_the_theorem_bound():
     out = run(est, log)
     assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
     assert attach_default_bound(est) is tb                     # idempotent
+
+
+def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
+    import dataclasses
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.bounds.gp_bound import LocalScale
+    from sea_daemon.estimators import make_estimator
+    base = load_config(default_config_path())
+    res = learning.ResidualGP(1, base.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(120):
+        z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
+        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0] + 0.02 * rng.standard_normal()]))
+    log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
+    means = {}
+    for beta in (2.0, 4.0):
+        cfg = dataclasses.replace(base, estimator=dataclasses.replace(base.estimator, gp_beta=beta))
+        est = make_estimator("akf", cfg, residual=res)
+        tb = est.theorem_bound
+        out = run(est, log)
+        c = tb.gp_constants[0]
+        assert c.method == "fixed" and c.scale == "local" and c.sqrt_beta == beta and c.gamma == 0.0
+        # η = β · max s over the projected set ≥ β · s(ẑ) ≥ β · σ(ẑ), ẑ where the step evaluated the GP
+        zhat = est.z.copy()
+        est.update(log.q[-1], log.theta_m[-1], log.tau_m[-1], log.dt)
+        mu, var, s0 = LocalScale(res.gps[0]).predict(zhat)
+        assert tb.eta_[0] >= beta * s0 * (1 - 1e-9) and s0 >= np.sqrt(var)
+        kf = np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 1) * out[1:, 2])
+        means[beta] = out[1:, 1] - kf
+    # the GP term of ρ is linear in β (the linearisation-error part does not depend on β)
+    ratio = np.mean(means[4.0]) / np.mean(means[2.0])
+    assert 1.7 < ratio <= 2.0 + 1e-9
+    with pytest.raises(ValueError, match="gp_beta"):
+        attach_theorem_bound(AKF(base, residual=res), gp_constants="auto", gp_beta=-1.0)

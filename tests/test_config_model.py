@@ -42,6 +42,9 @@ def test_default_config_loads_and_roundtrips(tmp_path):
     (lambda d: d["model"]["effects"].append({"type": "viscous", "side": "load"}), "model.effects[2].b"),
     (lambda d: d.update(joints=0), "joints"),
     (lambda d: d.update(estimator={"delta": 1.5}), "estimator.delta"),
+    (lambda d: d.update(estimator={"gp_beta": "conformal"}), "estimator.gp_beta"),
+    (lambda d: d.update(estimator={"gp_beta": -2.0}), "estimator.gp_beta"),
+    (lambda d: d.update(estimator={"gp_beta": True}), "estimator.gp_beta"),
 ])
 def test_bad_config_names_key(mutate, key):
     d = base_dict()
@@ -115,3 +118,12 @@ def test_two_joint_config_roundtrips_with_default_learning(tmp_path):
     assert load_config(tmp_path / "c.yaml").learning.lengthscales == cfg.learning.lengthscales
     d["learning"] = {"lengthscales": [1, 2, 3]}
     assert ModelConfig.from_dict(d).learning.lengthscales == (1, 1, 2, 2, 3, 3)
+
+
+def test_gp_beta_default_number_and_round_trip():
+    d = base_dict()
+    assert ModelConfig.from_dict(d).estimator.gp_beta == "lederer"
+    d["estimator"] = {"gp_beta": 2}
+    cfg = ModelConfig.from_dict(d)
+    assert cfg.estimator.gp_beta == 2.0
+    assert ModelConfig.from_dict(cfg.to_dict()).estimator.gp_beta == 2.0
