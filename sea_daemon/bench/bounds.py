@@ -259,7 +259,8 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     t0 = t - t[0]
     for label, (h, r) in curves.items():
         c = colors.get(label)
-        ax.plot(t0, h[:, 0], color=c, lw=1.2, label=f"{label} ± ρ")
+        # variants of one estimator (gp-akf/...) share its estimate: dashed, so both stay visible
+        ax.plot(t0, h[:, 0], color=c, lw=1.2, ls="--" if "/" in label else "-", label=f"{label} ± ρ")
         ax.fill_between(t0, h[:, 0] - r[:, 0], h[:, 0] + r[:, 0], color=c, alpha=0.15, lw=0)
     ax.plot(t0, truth[:, 0], "k:", lw=1.6, label="truth")
     # keep the estimates readable when a ρ band is huge (it is then clipped by the axes)
