@@ -185,38 +185,34 @@ class AKFTheoremBound:
         # copies: a residual hook may return preallocated arrays overwritten by the next call
         mu0 = np.array(mu0, dtype=float)
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
-        var0 = np.array(var0, dtype=float)
         Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
         local = self._scales is not None
         # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
         # filter's hook clips z to the training box, where σ can be far smaller than at z
-        smax = np.zeros(n)
-        e = np.zeros(n)
         out = False
         z = zhat.copy()
         gps = residual_gps(akf)
-        mu = np.empty(n)
-        var = np.empty(n)
-        pts = ellipsoid_points(Cz, self._Uz)
-        for p in pts:           # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
+        pts = ellipsoid_points(Cz, self._Uz)     # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
+        MU = np.empty((len(pts), n))
+        S = np.empty((len(pts), n))
+        for i, p in enumerate(pts):
             z[:2 * n] = p
             if local:
                 # mean, variance and local scale in one routing of each joint's LoG-GP
                 for j, sc in enumerate(self._scales):
-                    mu[j], var[j], sj = sc.predict(z)
-                    if sj > smax[j]:
-                        smax[j] = sj
+                    MU[i, j], _, S[i, j] = sc.predict(z)
             elif gps is not None:
                 # mean and variance only (no Jacobian needed here): cheaper than the hook
                 for j, g in enumerate(gps):
-                    mu[j], var[j] = g.predict(z)
+                    MU[i, j], S[i, j] = g.predict(z)
             else:
                 m_, _, v_ = res.predict(z)
-                mu[:], var[:] = m_, v_
-            dz = p - zhat[:2 * n]
-            np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
-            if not local:
-                np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
+                MU[i], S[i] = m_, v_
+        if not local:
+            S = np.sqrt(np.maximum(S, 0.0))
+        # max over the points of |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and of σ (or s)
+        e = np.max(np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T), axis=0)
+        smax = np.max(S, axis=0)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
