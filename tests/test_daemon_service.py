@@ -208,3 +208,23 @@ def test_hardware_that_does_not_come_up_exit_1_without_leftovers(calibrated, tmp
                       "--channel", "ws://127.0.0.1:1/", "--log-dir", str(tmp_path / "logs"), "--cycles", "5")
     assert rc == 1 and "ws://127.0.0.1:1/" in err and len(err.strip().splitlines()) == 1
     assert not list((tmp_path / "logs").iterdir())        # no empty log, no stale pid file
+
+
+def test_calibrate_bound_from_a_held_out_log_writes_gp_beta(calibrated, tmp_path, capsys):
+    """docs/bounds.md §2b: split-conformal beta for the model, from a passive log it never learned."""
+    from sea_daemon.logio import write_log
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+    model, _ = calibrated
+    sc = load_scenario(PASSIVE)
+    held = tmp_path / "held.csv"
+    write_log(held, simulate(sc, seed=sc.seed + 1000).training)          # independent noise
+    out_cfg = tmp_path / "bound.yaml"
+    rc, out, _ = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(model),
+                      "--write", str(out_cfg))
+    assert rc == 0 and out["pairs"] > 2000
+    assert out["alpha"] == pytest.approx(load_config(CFG).estimator.delta / 4)
+    assert 0 < out["beta"] < 50 and out["beta"] >= out["score_quantiles"]["90"][0]
+    assert load_config(out_cfg).estimator.gp_beta == pytest.approx(out["beta"])
+    rc, _, err = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(tmp_path / "no.npz"))
+    assert rc == 2 and "no.npz" in err and "Traceback" not in err
