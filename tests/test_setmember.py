@@ -76,7 +76,7 @@ class Pendulum:
         return x + self.dt * self.f(x, u)
 
 
-def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope"):
+def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope", projection="marginal"):
     """EKF + Theorem-1 bound on a pendulum with a persistent bounded disturbance |d| ≤ η."""
     pl = Pendulum()
     rng = np.random.default_rng(seed)
@@ -88,7 +88,7 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope"):
     x_true = np.array([rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1)])
     P = np.diag([0.05, 0.05, 1.0])
     x = x_true + rng.multivariate_normal(np.zeros(d), P)
-    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal", n_dirs=4,
+    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection=projection, n_dirs=4,
                             sets=sets)
     sign = rng.choice([-1.0, 1.0])
     hit_set, hit_kf = [], []
@@ -112,12 +112,13 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope"):
     return np.array(hit_set), np.array(hit_kf), sm
 
 
-@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
-def test_nonlinear_coverage_at_promised_rate(sets):
+@pytest.mark.parametrize("sets,projection", [("zonotope", "scalar"), ("zonotope", "marginal"),
+                                            ("ellipsoid", "marginal")])
+def test_nonlinear_coverage_at_promised_rate(sets, projection):
     delta = 0.05
     hs, hk = [], []
     for seed in range(8):
-        s, k, sm = run_pendulum(seed, delta=delta, sets=sets)
+        s, k, sm = run_pendulum(seed, delta=delta, sets=sets, projection=projection)
         hs.append(s)
         hk.append(k)
     cov_set, cov_kf = np.mean(hs), np.mean(hk)
@@ -210,3 +211,24 @@ def test_zonotope_propagation_is_exact_and_bounds_the_ellipsoid_one():
     # the outer ellipsoid is strictly looser than the exact set; the reduction stays near exact
     assert sms["ellipsoid"].means_half_widths()[3] > 1.05 * exact[3]
     assert sms["reduced"].means_half_widths()[3] < 1.1 * exact[3]
+
+
+def test_shifted_gaussian_halfwidth_is_the_exact_worst_case_quantile():
+    from scipy.stats import norm
+    from sea_daemon.bounds.setmember import shifted_gaussian_halfwidth
+    h = np.array([0.0, 0.3, 1.0, 4.0, 0.2])
+    s = np.array([1.0, 0.5, 1.0, 1.0, 0.0])
+    rho = shifted_gaussian_halfwidth(h, s, 0.05)
+    # the defining equation, and the limits: two-sided at h = 0, one-sided + h for h ≫ σ, h at σ = 0
+    ok = s > 0
+    assert np.allclose(norm.sf((rho[ok] - h[ok]) / s[ok]) + norm.sf((rho[ok] + h[ok]) / s[ok]), 0.05, atol=1e-12)
+    assert rho[0] == pytest.approx(norm.ppf(0.975)) and rho[3] == pytest.approx(4.0 + norm.ppf(0.95), rel=1e-9)
+    assert rho[4] == 0.2
+    # never above the union-style h + two-sided quantile, never below h + one-sided
+    assert np.all(rho[ok] <= h[ok] + s[ok] * norm.ppf(0.975) + 1e-12)
+    assert np.all(rho[ok] >= h[ok] + s[ok] * norm.ppf(0.95) - 1e-12)
+    # Monte Carlo at the worst shift a = h (and a smaller shift covers more)
+    rng = np.random.default_rng(5)
+    g = 0.5 * rng.standard_normal(400_000)
+    assert abs(np.mean(np.abs(0.3 + g) > rho[1]) - 0.05) < 0.002
+    assert np.mean(np.abs(0.1 + g) > rho[1]) < 0.05

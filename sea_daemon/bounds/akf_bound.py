@@ -44,7 +44,7 @@ class AKFTheoremBound:
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
-                 projection: str = "marginal", sets: str = "zonotope", seed: int = 0,
+                 projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
                  gp_beta: str | float | None = None):
         self.akf = akf
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:

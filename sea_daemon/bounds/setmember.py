@@ -49,7 +49,7 @@ from typing import Callable
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.special import gammaincinv
+from scipy.special import gammaincinv, ndtr, ndtri
 
 from .ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
 
@@ -71,6 +71,30 @@ def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
 def chi2_quantile(p: float, dof: int) -> float:
     """χ²_dof quantile at probability p (scipy.special, no scipy.stats import at start-up)."""
     return float(2.0 * gammaincinv(0.5 * dof, p))
+
+
+def shifted_gaussian_halfwidth(h: np.ndarray, sigma: np.ndarray, delta: float, iters: int = 8) -> np.ndarray:
+    """Smallest ρ with max_{|a| ≤ h} Pr(|a + g| > ρ) ≤ δ for g ~ N(0, σ²), elementwise.
+
+    |a + g| ≤ ρ is a symmetric interval shifted by a; its Gaussian probability decreases with
+    |a| (g symmetric and unimodal), so the worst case is |a| = h:
+        Φ((h − ρ)/σ) + Φ((−h − ρ)/σ) = δ.
+    With t = ρ/σ, u = h/σ the root lies in [u + z_{1−δ}, u + z_{1−δ/2}] (one- to two-sided);
+    F(t) = Φ(u − t) + Φ(−u − t) is convex and decreasing there, so Newton from the left end
+    converges monotonically (quadratically) to it.  h = 0 gives the two-sided σ z_{1−δ/2}
+    = √(χ²_1(1 − δ) σ²); h ≫ σ gives h + σ z_{1−δ}.
+    """
+    h = np.asarray(h, dtype=float)
+    s = np.asarray(sigma, dtype=float)
+    pos = s > 0
+    u = np.where(pos, h / np.where(pos, s, 1.0), 0.0)
+    t = u + ndtri(1.0 - delta)
+    c = 1.0 / np.sqrt(2.0 * np.pi)
+    for _ in range(iters):
+        F = ndtr(u - t) + ndtr(-u - t) - delta
+        dF = -c * (np.exp(-0.5 * (t - u) ** 2) + np.exp(-0.5 * (t + u) ** 2))
+        t = t - F / dF
+    return np.where(pos, s * t, h)
 
 
 def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
@@ -109,7 +133,11 @@ class SetMembershipBound:
     weight   W of the tr(W X)-minimal Minkowski sum (default I, the plain trace)
     n_dirs   extra quasi-random directions for the linearisation-error point set
     margin   relative inflation of the sampled linearisation error
-    projection  "marginal" (default): s_τ = χ²_{n_τ}(1 − δ_N), the confidence set of the τ
+    projection  "scalar" (default): per joint, the exact worst case of the scalar eq:bounds — ρ_j
+             is the smallest ρ with max_{|a| ≤ h_j} Pr(|a + g| > ρ) ≤ δ_N/n_τ, g ~ N(0, P_jj), h_j the
+             set of means' half-width (:func:`shifted_gaussian_halfwidth`; Bonferroni over the
+             joints); h_j = 0 gives √(χ²_1 P_jj), h_j ≫ σ gives h_j + z_{1−δ_N/n_τ} σ;
+             "marginal": s_τ = χ²_{n_τ}(1 − δ_N), ρ_j = h_j + √(s_τ P_jj), the confidence set of the τ
              marginal alone — valid for eq:bounds (union bound δ_GP + δ_N) and tighter (for one
              joint √χ²_1 = 1.96 instead of √χ²_5 = 3.33 at δ_N = 0.05); "state": ρ is the
              projection of the state confidence set C_k with s_d = χ²_d(1 − δ_N) (the paper's
@@ -123,7 +151,7 @@ class SetMembershipBound:
 
     def __init__(self, d: int, tau_idx, delta: float, *, delta_gp: float = 0.0,
                  weight: np.ndarray | None = None, n_dirs: int = 8, margin: float = 0.25, seed: int = 0,
-                 projection: str = "marginal", sets: str = "zonotope", max_generators: int = 40):
+                 projection: str = "scalar", sets: str = "zonotope", max_generators: int = 40):
         if not 0 < delta < 1:
             raise ValueError(f"delta must be in (0, 1), got {delta}")
         if not 0 <= delta_gp < delta:
@@ -134,11 +162,13 @@ class SetMembershipBound:
         self.delta_noise = self.delta - self.delta_gp
         # eq:gaussianellipsoid: s from the χ² quantile
         self.s_state = chi2_quantile(1.0 - self.delta_noise, self.d)
-        if projection not in ("state", "marginal"):
-            raise ValueError(f"projection must be 'state' or 'marginal', got {projection!r}")
+        if projection not in ("state", "marginal", "scalar"):
+            raise ValueError(f"projection must be 'scalar', 'marginal' or 'state', got {projection!r}")
         self.projection = projection
+        # s of the KF-only part √(s P_ττ) (what ρ is when the set of means is a point)
         self.s_tau = (self.s_state if projection == "state"
-                      else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size))
+                      else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size) if projection == "marginal"
+                      else chi2_quantile(1.0 - self.delta_noise / self.tau_idx.size, 1))
         if sets not in ("zonotope", "ellipsoid"):
             raise ValueError(f"sets must be 'zonotope' or 'ellipsoid', got {sets!r}")
         self.sets = sets
@@ -222,10 +252,14 @@ class SetMembershipBound:
     def rho(self, P: np.ndarray) -> np.ndarray:
         """ρ_k per τ state: exact half-width of X̂_k ⊕ E(0, s_τ P) along each τ axis."""
         i = self.tau_idx
+        h = self.means_half_widths()[i]
+        Ptt = np.clip(np.diag(np.asarray(P))[i], 0.0, None)
+        if self.projection == "scalar":
+            # eq:bounds per joint: worst case over the set of means of a shifted Gaussian
+            return shifted_gaussian_halfwidth(h, np.sqrt(Ptt), self.delta_noise / i.size)
         # support functions add over a Minkowski sum: h = h_X̂(e) + sqrt(s eᵀPe); for a zonotope
         # h_X̂(e) = Σ_g |eᵀg|, for an ellipsoid sqrt(eᵀX̂e)
-        return (self.means_half_widths()[i]
-                + np.sqrt(self.s_tau * np.clip(np.diag(np.asarray(P))[i], 0.0, None)))
+        return h + np.sqrt(self.s_tau * Ptt)
 
     def sample_points(self, C: Ellipsoid) -> np.ndarray:
         """The deterministic point set of C on which the linearisation error is maximised."""
