@@ -17,16 +17,18 @@ One step k → k+1 (proof of Theorem 1):
    as ONE n-ary trace-minimal Minkowski sum (Kurzhanski/Maksarov family, ellipsoid.py);
 4. filter step on the set: X̂⁺ = (I − K H) X⁻ (I − K H)ᵀ (affine, exact); the centre
    x̂⁻ + K(y − H x̂⁻) is the filter's posterior estimate.
-5. ρ_{k+1} = half-width of C_{k+1} along the τ_h,act axis, computed exactly from the support
-   functions of the two summands: ρ_j = h_X̂(e_j) + sqrt(s_τ P_jj), h = Σ|G_j·| (zonotope)
-   or sqrt(X̂_jj) (ellipsoid).
+5. ρ_{k+1} from the set of means' exact half-width along the τ_h,act axis, h_j = Σ|G_j·|
+   (zonotope) or sqrt(X̂_jj) (ellipsoid), and the Gaussian part: by default (projection=
+   "scalar") the exact worst-case quantile of a Gaussian shifted anywhere in ±h_j
+   (shifted_gaussian_halfwidth); "marginal"/"state": h_j + sqrt(s P_jj) (support functions
+   add over a Minkowski sum).
 
 Probability levels.  δ is split into δ_GP (the GP uniform bound, eq:gpmeanbounds, whose
 constants the caller computes with gp_bound.error_bound) and δ_N = δ − δ_GP for the
 Gaussian part: s_d = χ²_d(1 − δ_N) for the set C_k (on which the linearisation error is
-bounded); for ρ by default (projection="marginal") s_τ = χ²_{n_τ}(1 − δ_N), the confidence
-set of the τ marginal (simultaneous over the n_τ torque states) — valid for the scalar
-eq:bounds and tighter; projection="state" uses s_d (the paper's projection of C_k).  With
+bounded); for ρ by default (projection="scalar") δ_N/n_τ per joint in the shifted-Gaussian
+quantile (valid for the scalar eq:bounds, simultaneous over joints by Bonferroni);
+"marginal": s_τ = χ²_{n_τ}(1 − δ_N); "state": s_d (the paper's projection of C_k).  With
 the union bound Pr(|τ̂ − τ| ≤ ρ) ≥ 1 − δ_GP − δ_N = 1 − δ at each step, conditional on the
 previous step's x_k ∈ C_k (as in the paper's theorem).
 
