@@ -91,7 +91,13 @@ class AKF:
         self.dt = float(dt) if dt else cfg.dt
         est = cfg.estimator
         self.R = np.array(est.R, dtype=float)
-        self.Sigma_nom = np.array(est.Sigma_nom, dtype=float)
+        # Σ_nom as configured; ``Sigma_nom`` below is the per-step value the next step uses
+        # (:meth:`fill_sigma_nom`, equal to the configured one unless Sigma_nom_dt / tau_m_noise)
+        self.Sigma_nom_cfg = np.array(est.Sigma_nom, dtype=float)
+        self.Sigma_nom = self.Sigma_nom_cfg.copy()
+        self._S_dt = float(est.Sigma_nom_dt)
+        self._tau_m_var = float(est.tau_m_noise) ** 2
+        self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
         self.P0 = np.array(est.P0, dtype=float)
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
@@ -119,6 +125,8 @@ class AKF:
         self.F_k = np.eye(d)
         self.Gamma_mu = np.zeros((d, n))
         self.Q_k = self.Sigma_nom.copy()
+        self.B_u = self.model.B_nom()                 # ∂f_nom/∂u (5n × n)
+        self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
         self.K_k = np.zeros((d, m))
         self.S_k = np.zeros((m, m))
         self.innovation = np.zeros(m)
@@ -255,10 +263,42 @@ class AKF:
         else:
             u = self._hu[self._hhead]
         y = self.measure(q, theta_m)
+        if self._S_varies:
+            self.fill_sigma_nom(dt)
         self.step(y, u, dt)
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         return self.est
+
+    def fill_sigma_nom(self, dt: float) -> np.ndarray:
+        """Σ_nom,k for the next step of length ``dt`` into :attr:`Sigma_nom` (which :meth:`step` uses).
+
+        * ``estimator.Sigma_nom_dt`` = T > 0: the configured Σ_nom holds per step of T seconds,
+          i.e. white-noise intensities Σ_nom/T, so a step of dt gets Σ_nom·dt/T (the same
+          filter at 100 Hz and 1 kHz; Van Loan, IEEE TAC 1978, to first order in dt).
+        * ``estimator.tau_m_noise`` = σ_u > 0: the motor torque applied differs from the
+          commanded one by an error of std σ_u held over the step (current ripple, torque
+          constant); it enters like the input, ẋ = f_nom + B (u + w) (eq:nonlindyn), so it adds
+          Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
+          rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
+          Γ_u ≈ (I dt + A dt²/2 + A² dt³/6) B with A the last step's Jacobian ``A_k``
+          (truncation (‖A‖dt)³/24 relative: < 0.5 % at 100 Hz for the exoskeleton).
+        """
+        S = self.Sigma_nom
+        if self._S_dt > 0:
+            np.multiply(self.Sigma_nom_cfg, dt / self._S_dt, out=S)
+        else:
+            S[:] = self.Sigma_nom_cfg
+        if self._tau_m_var > 0:
+            A, B = self.A_k, self.B_u
+            AB = A @ B
+            # Γ_u = ∫₀^dt e^{As} ds B, Taylor series to third order in dt
+            Gu = self.Gamma_u
+            np.multiply(B, dt, out=Gu)
+            Gu += AB * (0.5 * dt * dt)
+            Gu += (A @ AB) * (dt * dt * dt / 6.0)
+            S += (Gu * self._tau_m_var) @ Gu.T
+        return S
 
     def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks.
