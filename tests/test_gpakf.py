@@ -44,11 +44,31 @@ def test_gp_akf_is_much_better_than_the_akf_on_a_passive_subject(passive, traine
     rmse_akf = summarize(replay(est_log, AKF(cfg)))["rmse"]
     rmse_gp = summarize(replay(est_log, trained))["rmse"]
     assert trained.n_learned > 600 and not trained.learning
-    # the plain AKF misses the arm (gravity, stiffness) and friction: ~1.5 N m; the GP-AKF
-    # has learned them (measured ≈ 0.15 N m on this short run)
+    # the plain AKF misses the arm (gravity, stiffness) and friction: ~1.7 N m; the GP-AKF
+    # has learned them (measured 0.138 N m on this short run, 0.163 without gp_noise_in_Q)
     assert rmse_akf > 1.0
-    assert rmse_gp < rmse_akf / 5.0
-    assert rmse_gp < 0.3
+    assert rmse_gp < rmse_akf / 8.0
+    assert rmse_gp < 0.2
+
+
+def test_gp_akf_follows_an_active_subject_like_the_oracle():
+    """Shortened active scenario (Sec. V-C, 3 s training, 10 s estimation) with the benchmark's
+    settings: the GP-AKF meets the accuracy targets of issue 3 (measured: AKF 2.07, oracle 0.040,
+    GP-AKF 0.046 N m)."""
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
+    sc = dataclasses.replace(sc, training_samples=300, estimation_samples=1000)
+    sim = simulate(sc)
+    settings = load_config(SETTINGS)
+    nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
+    log = sim.estimation
+    rmse = {k: summarize(replay(log, est))["rmse"] for k, est in (
+        ("akf", AKF(nominal)), ("oracle", AKF(true)), ("gp", build(nominal, sim.training, log.dt)))}
+    assert rmse["gp"] < 0.1
+    assert rmse["gp"] < rmse["akf"] / 20.0
+    assert rmse["gp"] < 1.5 * rmse["oracle"]
 
 
 class _Zero:
