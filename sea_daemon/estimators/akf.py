@@ -98,7 +98,11 @@ class AKF:
         self._S_dt = float(est.Sigma_nom_dt)
         self._tau_m_var = float(est.tau_m_noise) ** 2
         self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
+        # estimator.init_after_kinematics: samples left until the differentiator is full
+        self._init_kin = bool(est.init_after_kinematics)
+        self._filling = 0
         self.P0 = np.array(est.P0, dtype=float)
+        self._P_init = self.P0
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
         self.s = chi2_scale(self.delta, d)
@@ -216,7 +220,9 @@ class AKF:
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """Initialise from the first sample: x̂₀ measured (velocities 0, τ_h,act = 0),
-        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).
+        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).  With
+        ``estimator.init_after_kinematics`` the filter starts once the differentiator is full,
+        with the measured velocities (:meth:`_fill_kinematics`).
 
         Without a sample (``reset()``) the next :meth:`update` initialises instead.
         """
@@ -235,6 +241,10 @@ class AKF:
         else:
             self.x[:] = x0
         self.P[:] = self.P0 if P0 is None else P0
+        # init_after_kinematics: the velocities of y are valid once the differentiator holds a
+        # full window; until then hold x̂ at the measured angles and P at P₀ (see _fill_kinematics)
+        self._P_init = self.P0 if P0 is None else np.array(P0, dtype=float)
+        self._filling = self.kin.L - 1 if (self._init_kin and x0 is None) else 0
         self._t = 0.0
         # history primed with τ_m held before the first sample (times strictly increasing)
         self._hhead = self._hcap - 1
@@ -252,6 +262,8 @@ class AKF:
         if not self._ready:
             return self.reset(q, theta_m, tau_m)
         dt = self.dt if dt is None else float(dt)
+        if self._filling:
+            return self._fill_kinematics(q, theta_m, tau_m, dt)
         n = self.n
         # ẑ_{k−1} = [q̂, q̂̇, q̈] at the previous posterior (Alg. 2 line 5)
         x = self.x
@@ -269,6 +281,30 @@ class AKF:
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         return self.est
+
+    def _fill_kinematics(self, q, theta_m, tau_m, dt: float) -> Estimate:
+        """A sample while the differentiator fills after :meth:`reset` (``init_after_kinematics``).
+
+        Sec. V-B: "the initial state x̂₀ is measured and P₀ is set to R" — but the velocities of y
+        come from the causal differentiator, which needs a full window (``kin.L`` samples) before
+        they are valid; started at once, a joint that is already moving (velocity 0 in x̂₀ with
+        P₀ = R) puts a spurious torque into τ̂_h,act.  So x̂ holds the measured angles, τ̂_h,act = 0
+        and P = P₀ until the window is full; at that sample x̂₀ = [y, 0] (angles and velocities
+        measured) and the filter runs from the next one.
+        """
+        n = self.n
+        y = self.measure(q, theta_m)
+        self._filling -= 1
+        x = self.x
+        x[:] = 0.0
+        x[:2 * n] = y[:2 * n]
+        if not self._filling:
+            x[:4 * n] = y
+        self.P[:] = self._P_init
+        self._t += dt
+        self._push_input(np.asarray(tau_m, dtype=float))
+        self.est.k += 1
+        return self._fill_estimate()
 
     def fill_sigma_nom(self, dt: float) -> np.ndarray:
         """Σ_nom,k for the next step of length ``dt`` into :attr:`Sigma_nom` (which :meth:`step` uses).
