@@ -144,6 +144,7 @@ def run(args) -> int:
               + (f" per {e.Sigma_nom_dt} s" if e.Sigma_nom_dt > 0 else " per step")
               + (f" + motor-torque noise {e.tau_m_noise} N m through Gamma_u" if e.tau_m_noise > 0 else "")
               + ("; GP-AKF Q with sigma^2 + sigma_on^2" if e.gp_noise_in_Q else "")
+              + ("; start with measured velocities" if e.init_after_kinematics else "")
               + f", kinematics {settings.kinematics.method} "
               f"W={settings.kinematics.window} d={settings.kinematics.degree}")
     table = {}
