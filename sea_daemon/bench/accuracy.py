@@ -19,10 +19,11 @@ the true plant's configuration, every hidden effect declared: what the AKF can d
 perfect model).  Extension point: ``register('gp-akf', builder)`` adds a column (the
 GP-AKF learns from ``train_log``); ``sea_daemon.estimators.gpakf`` is registered automatically.
 
-Estimator settings: ``--settings MODEL.yaml`` (default ``configs/exo_1dof_sim.yaml``, R identified
-for the simulated sensors) gives its estimator, kinematics and learning sections to EVERY
-estimator (one setting for all); ``--settings scenario`` keeps each scenario's model config
-(the paper's R, Σ_nom).  See docs/gpakf.md.
+Estimator settings: ``--settings MODEL.yaml`` (default ``configs/exo_1dof_sim.yaml``: R identified
+for the simulated sensors, process noise from the hardware's motor-torque noise plus a τ_h,act
+random walk, GP predictive variance in Q) gives its estimator, kinematics and learning sections to
+EVERY estimator (one setting for all, both scenarios); ``--settings scenario`` keeps each
+scenario's model config (the paper's R, Σ_nom).  See docs/gpakf.md.
 """
 from __future__ import annotations
 
@@ -143,7 +144,12 @@ def run(args) -> int:
     else:
         e = settings.estimator
         print(f"estimator settings (all estimators): {settings_path}: R diag {np.diag(e.R).tolist()}, "
-              f"Sigma_nom diag {np.diag(e.Sigma_nom).tolist()}, kinematics {settings.kinematics.method} "
+              f"Sigma_nom diag {np.diag(e.Sigma_nom).tolist()}"
+              + (f" per {e.Sigma_nom_dt} s" if e.Sigma_nom_dt > 0 else " per step")
+              + (f" + motor-torque noise {e.tau_m_noise} N m through Gamma_u" if e.tau_m_noise > 0 else "")
+              + ("; GP-AKF Q with sigma^2 + sigma_on^2" if e.gp_noise_in_Q else "")
+              + ("; start with measured velocities" if e.init_after_kinematics else "")
+              + f", kinematics {settings.kinematics.method} "
               f"W={settings.kinematics.window} d={settings.kinematics.degree}")
     table = {}
     for sc_path in args.scenarios or default_scenarios():
