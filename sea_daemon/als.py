@@ -309,17 +309,20 @@ R_FLOOR = 1e-12
 
 def floored_R(cfg, res: dict) -> tuple[np.ndarray, dict | None, list]:
     """R of :func:`identify_noise`'s result with variances floored: encoder variances at the
-    quantisation noise (2π/2^bits)²/12 of a ``hardware.encoder_bits`` encoder (R rebuilt, stays
-    PSD), or diagonal entries at :data:`R_FLOOR`.  Returns (R, encoder variances, floored names)."""
+    quantisation noise Δ²/12 of a ``hardware.encoder_bits`` encoder — Δ = 2π/2^bits for the load
+    encoder, 2π/(2^bits · gear_ratio) joint side for the motor encoder, which sits before the
+    gear (R rebuilt, stays PSD) — or diagonal entries at :data:`R_FLOOR`.  Returns (R, encoder
+    variances, floored names)."""
     n = cfg.joints
     R = np.array(res["R"], dtype=float)
     enc = res.get("encoder_variances")
     if enc is not None:
         q_var = (2 * np.pi / 2 ** cfg.hardware.encoder_bits) ** 2 / 12.0
+        m_var = q_var / float(cfg.hardware.gear_ratio) ** 2
         vm, vq = np.array(enc["theta_m"]), np.array(enc["q"])
-        floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < q_var)]
+        floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < m_var)]
         floored += [f"q_{j + 1}" for j in np.flatnonzero(vq < q_var)]
-        vm, vq = np.maximum(vm, q_var), np.maximum(vq, q_var)
+        vm, vq = np.maximum(vm, m_var), np.maximum(vq, q_var)
         return encoder_R(vm, vq, res["fir"]), {"theta_m": vm.tolist(), "q": vq.tolist()}, floored
     floored = [int(i) for i in np.flatnonzero(np.diag(R) < R_FLOOR)]
     R[np.diag_indices(4 * n)] = np.maximum(np.diag(R), R_FLOOR)

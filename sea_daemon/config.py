@@ -172,9 +172,17 @@ class EstimatorConfig:
     nis_scale: float = 10.0        # divergence: windowed mean > nis_scale x the band's upper edge
     pd_check_every: int = 1        # Cholesky of P every k steps (0: never)
     gp_input_margin: float = 0.1   # GP inputs clipped to the training box +- this fraction of its width
+    # GP error bound of the Theorem-1 bound (docs/bounds.md §2): "lederer" (LUH19, eq:gpmeanbounds)
+    # or a number beta > 0 (|f - mu| <= beta sqrt(sigma^2 + sigma_n^2), e.g. a split-conformal beta)
+    gp_beta: str | float = "lederer"
+    # per-step process noise (docs/estimators.md, "Process noise"); the defaults keep Σ_nom as given
+    Sigma_nom_dt: float = 0.0      # [s] step Σ_nom is given for; > 0: Σ_nom,k = Σ_nom·dt/Sigma_nom_dt
+    tau_m_noise: float = 0.0       # [N m] std of the motor-torque error held over a step: + Γ_u σ² Γ_uᵀ
+    gp_noise_in_Q: bool = False    # GP-AKF: Q with the residual's predictive variance σ² + σ_on²
+    init_after_kinematics: bool = False   # start when the differentiator is full: x̂₀ = y (velocities measured)
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
-            "pd_check_every", "gp_input_margin"]
+            "pd_check_every", "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -212,10 +220,31 @@ class EstimatorConfig:
         margin = _num(source, "estimator.gp_input_margin", d.get("gp_input_margin", 0.1))
         if not margin >= 0:
             raise ConfigError(source, "estimator.gp_input_margin", f"must be >= 0, got {margin}")
+        gp_beta = d.get("gp_beta", "lederer")
+        if gp_beta != "lederer":
+            if isinstance(gp_beta, bool) or not isinstance(gp_beta, (int, float)) or not (
+                    np.isfinite(gp_beta) and gp_beta > 0):
+                raise ConfigError(source, "estimator.gp_beta", f"must be 'lederer' or a number > 0, got {gp_beta!r}")
+            gp_beta = float(gp_beta)
+        S_dt = _num(source, "estimator.Sigma_nom_dt", d.get("Sigma_nom_dt", 0.0))
+        if not S_dt >= 0:
+            raise ConfigError(source, "estimator.Sigma_nom_dt", f"must be >= 0 [s] (0: Sigma_nom per step), got {S_dt}")
+        tau_m_noise = _num(source, "estimator.tau_m_noise", d.get("tau_m_noise", 0.0))
+        if not tau_m_noise >= 0:
+            raise ConfigError(source, "estimator.tau_m_noise", f"must be >= 0 [N m], got {tau_m_noise}")
+        def _bool(key):
+            v = d.get(key, False)
+            if not isinstance(v, bool):
+                raise ConfigError(source, f"estimator.{key}", f"must be true or false, got {v!r}")
+            return v
+        gp_noise, init_kin = _bool("gp_noise_in_Q"), _bool("init_after_kinematics")
         return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
                    sign_eps=_num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True),
                    nis_window=_int("nis_window", 100, 1, 100000), nis_alpha=nis_alpha, nis_scale=nis_scale,
-                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin)
+                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin,
+                   gp_beta=gp_beta,
+                   Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
+                   init_after_kinematics=init_kin)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -223,7 +252,10 @@ class EstimatorConfig:
         return {"R": dg(self.R), "Sigma_nom": dg(self.Sigma_nom), "P0": dg(self.P0),
                 "delta": self.delta, "sign_eps": self.sign_eps, "nis_window": self.nis_window,
                 "nis_alpha": self.nis_alpha, "nis_scale": self.nis_scale, "pd_check_every": self.pd_check_every,
-                "gp_input_margin": self.gp_input_margin}
+                "gp_input_margin": self.gp_input_margin, "gp_beta": self.gp_beta,
+                "Sigma_nom_dt": self.Sigma_nom_dt,
+                "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
+                "init_after_kinematics": self.init_after_kinematics}
 
 
 @dataclass(frozen=True)

@@ -444,6 +444,16 @@ class LoGGP:
             return mu, var, dmu
         return mu, var, dmu, np.asarray(acc2) - 2.0 * mu * dmu
 
+    def noise_variance(self, x) -> float:
+        """σ_on² of the leaves ``x`` reaches, merged with the prediction weights: Σ ω_i σ_on,i².
+
+        ``predict``'s σ² is the latent variance of f (eq:GPvariance); σ² + noise_variance(x) is
+        the predictive variance of a new target y = f(x) + ε at x.
+        """
+        x, xl = self._check_x(x)
+        gps = self._gp
+        return float(sum(w * gps[node].sigma_n ** 2 for node, w, _ in self._route(xl, False)))
+
     # ------------------------------------------------------------------ introspection
     def leaves(self) -> list[int]:
         """Node ids of the leaves, in creation order."""

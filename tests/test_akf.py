@@ -285,8 +285,12 @@ def test_make_estimator_and_bound_definition():
     e = make_estimator("akf", cfg)
     est = e.reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
     from scipy.stats import chi2
-    s = chi2.ppf(1 - cfg.estimator.delta, 5)
+    # make_estimator attaches the Theorem-1 bound: at reset the set of means is a point and ρ
+    # is the τ marginal's χ²_1 bound (docs/bounds.md §3); the bare AKF publishes χ²_5
+    s = chi2.ppf(1 - cfg.estimator.delta, 1)
     assert est.tau_h_act_bound[0] == pytest.approx(np.sqrt(s * est.P[4, 4]))
+    bare = AKF(cfg).reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
+    assert bare.tau_h_act_bound[0] == pytest.approx(np.sqrt(chi2.ppf(1 - cfg.estimator.delta, 5) * bare.P[4, 4]))
     assert make_estimator("spring", cfg).name == "spring"
     with pytest.raises(ValueError):
         make_estimator("magic", cfg)
@@ -329,3 +333,71 @@ def test_nis_is_chi_square_on_a_consistent_linear_model():
         akf.step(y, u, akf.dt)
         nis.append(akf.nis)
     assert np.mean(nis[100:]) == pytest.approx(4.0, rel=0.1)
+
+
+# ------------------------------------------------------------------ per-step process noise
+
+def test_motor_torque_noise_enters_through_the_input_map():
+    """estimator.tau_m_noise: Σ_nom,k = Σ_nom + Γ_u σ_u² Γ_uᵀ, Γ_u = ∫₀^dt e^{As}ds B (Van Loan
+    block exponential as reference), which moves θ̇_m and θ̇_s oppositely (q̇ = θ̇_m + θ̇_s barely)."""
+    cfg = load_config(default_config_path())
+    import dataclasses
+    cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_m_noise=0.02))
+    akf = AKF(cfg)
+    log = simulate(akf.model, T=0.3)
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for k in range(1, 20):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k])
+    S = akf.fill_sigma_nom(akf.dt).copy()
+    E = expm(np.block([[akf.A_k, akf.B_u], [np.zeros((1, 6))]]) * akf.dt)
+    Gu = E[:5, 5:]
+    extra = S - akf.Sigma_nom_cfg
+    np.testing.assert_allclose(extra, 0.02 ** 2 * Gu @ Gu.T, rtol=5e-3, atol=1e-6 * np.abs(extra).max())
+    # θ̇_m and θ̇_s opposite, q̇ untouched to first order in dt
+    assert extra[2, 3] < 0 and abs(extra[2, 2] + extra[2, 3]) < 0.1 * extra[2, 2]
+    # the step uses it: Q_k − Σ_nom,k is the GP term only (none here)
+    akf.update(log.q[20], log.theta_m[20], log.tau_m[20])
+    np.testing.assert_array_equal(akf.Q_k, akf.Sigma_nom)
+
+
+def test_sigma_nom_dt_scales_the_process_noise_with_the_step():
+    import dataclasses
+    cfg = load_config(default_config_path())
+    cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, Sigma_nom_dt=0.01))
+    akf = AKF(cfg)
+    np.testing.assert_allclose(akf.fill_sigma_nom(0.001), 0.1 * akf.Sigma_nom_cfg, rtol=1e-15)
+    np.testing.assert_allclose(akf.fill_sigma_nom(0.01), akf.Sigma_nom_cfg, rtol=1e-15)
+    # default (Sigma_nom_dt = 0, no tau_m_noise): Σ_nom is the configured per-step value
+    plain = AKF(load_config(default_config_path()))
+    assert not plain._S_varies
+    np.testing.assert_array_equal(plain.Sigma_nom, plain.Sigma_nom_cfg)
+
+
+def test_init_after_kinematics_starts_with_the_measured_velocity():
+    """estimator.init_after_kinematics: a joint already moving at the first sample.  Started at
+    once (velocity 0, P₀ = R) the filter explains the velocity by a torque kick; started when the
+    differentiator is full, with x̂₀ = y (Sec. V-B: x̂₀ measured), it does not."""
+    import dataclasses
+    cfg = load_config(str(default_config_path().parent / "exo_1dof_sim.yaml"))
+    model = SEAModel.from_config(cfg)
+    x0 = [0.2, 0.0, 0.5, 0.0, 0.0]                  # θ̇_m = q̇ = 0.5 rad/s at t = 0
+    log = simulate(model, T=0.5, tau_m=lambda t: np.full(1, 2.9 * np.sin(0.2 + 0.5 * t)), x0=x0)
+    out = {}
+    for init in (False, True):
+        c = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, init_after_kinematics=init))
+        akf = AKF(c)
+        hat = [akf.reset(log.q[0], log.theta_m[0], log.tau_m[0]).tau_h_act_hat[0]]
+        for k in range(1, len(log)):
+            e = akf.update(log.q[k], log.theta_m[k], log.tau_m[k])
+            hat.append(e.tau_h_act_hat[0])
+            if init and k < akf.kin.L:
+                # filling: τ̂ = 0, x̂ = measured angles, velocities set at the last filling sample
+                assert e.tau_h_act_hat[0] == 0.0 and np.array_equal(akf.P, akf.P0)
+                assert np.array_equal(akf.x[:2], akf.y[:2])
+                assert (akf.x[2] == akf.y[2]) == (k == akf.kin.L - 1)
+        out[init] = np.abs(hat)
+    # truth τ_h,act = 0 throughout
+    # (x0 excites the spring mode, 48 rad/s: measured 1.53 N m kick vs 0.26 N m)
+    assert out[False][:20].max() > 1.0
+    assert out[True].max() < 0.2 * out[False][:20].max()
+    assert out[True][40:].max() < 0.05 and out[False][40:].max() < 0.05   # both settle

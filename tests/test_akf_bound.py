@@ -21,18 +21,25 @@ def run(est, log):
     return out
 
 
-def test_linear_plant_bound_equals_kf_chi2_projection():
+@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
+def test_linear_plant_bound_equals_kf_chi2_projection(sets):
     cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
         "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
     log = simulate(SEAModel.from_config(cfg), T=0.6, tau_h=lambda t: np.array([np.sin(3 * t)]), seed=1)
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf)
+    tb = attach_theorem_bound(akf, projection="state", sets=sets)
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     assert np.max(np.abs(tb.sm.X_)) == 0.0                     # set of means stays a point
     np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 5) * out[1:, 2]),
                                rtol=1e-10)
     np.testing.assert_allclose(out[:, :2], plain[:, :2], rtol=1e-10)   # estimate and bound unchanged
+    # default: the τ marginal's χ²_1 quantile (scalar claim eq:bounds)
+    akf = AKF(cfg)
+    attach_theorem_bound(akf, sets=sets)
+    out = run(akf, log)
+    np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 1) * out[1:, 2]),
+                               rtol=1e-10)
 
 
 def test_gravity_nonlinearity_widens_bound_and_it_covers():
@@ -44,7 +51,10 @@ def test_gravity_nonlinearity_widens_bound_and_it_covers():
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     np.testing.assert_allclose(out[:, 0], plain[:, 0])           # the estimate is untouched
-    assert np.all(out[1:, 1] >= plain[1:, 1] - 1e-12)            # the set of means only adds
+    # the set of means only adds to the KF part √(χ²_1 P_ττ) (plain AKF publishes √(χ²_5 P_ττ))
+    d = cfg.estimator.delta
+    kf1 = plain[1:, 1] * np.sqrt(chi2_quantile(1 - d, 1) / chi2_quantile(1 - d, 5))
+    assert np.all(out[1:, 1] >= kf1 - 1e-12) and np.any(out[1:, 1] > kf1 + 1e-6)
     assert tb.lin_err_[3] > 0 and tb.sm.X_[4, 4] > 0             # gravity: θ̈_s row is non-linear
     err = np.abs(out[20:, 0] - log.tau_h_act[20:, 0])
     assert np.mean(err <= out[20:, 1]) >= 1 - cfg.estimator.delta
@@ -136,3 +146,42 @@ def test_gp_akf_estimator_gets_the_theorem_bound():
     out = run(est, log)
     assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
     assert attach_default_bound(est) is tb                     # idempotent
+
+
+def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
+    import dataclasses
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.bounds.gp_bound import LocalScale
+    from sea_daemon.estimators import make_estimator
+    base = load_config(default_config_path())
+    res = learning.ResidualGP(1, base.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(120):
+        z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
+        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0] + 0.02 * rng.standard_normal()]))
+    log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
+    means = {}
+    for beta in (2.0, 4.0):
+        cfg = dataclasses.replace(base, estimator=dataclasses.replace(base.estimator, gp_beta=beta))
+        est = make_estimator("akf", cfg, residual=res)
+        tb = est.theorem_bound
+        h = []
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log) - 1):
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.dt)
+            h.append(tb.sm.means_half_widths()[4])
+            # ρ ≥ the set of means' half-width plus the one-sided Gaussian quantile
+            assert e.tau_h_act_bound[0] >= h[-1] + 1.64 * np.sqrt(e.P[4, 4])
+        c = tb.gp_constants[0]
+        assert c.method == "fixed" and c.scale == "local" and c.sqrt_beta == beta and c.gamma == 0.0
+        # η = β · max s over the projected set ≥ β · s(ẑ) ≥ β · σ(ẑ), ẑ where the step evaluated the GP
+        zhat = est.z.copy()
+        est.update(log.q[-1], log.theta_m[-1], log.tau_m[-1], log.dt)
+        mu, var, s0 = LocalScale(res.gps[0]).predict(zhat)
+        assert tb.eta_[0] >= beta * s0 * (1 - 1e-9) and s0 >= np.sqrt(var)
+        means[beta] = np.array(h)
+    # the GP term of the set of means is linear in β (the linearisation-error part does not depend on β)
+    ratio = np.mean(means[4.0]) / np.mean(means[2.0])
+    assert 1.7 < ratio <= 2.0 + 1e-9
+    with pytest.raises(ValueError, match="gp_beta"):
+        attach_theorem_bound(AKF(base, residual=res), gp_constants="auto", gp_beta=-1.0)

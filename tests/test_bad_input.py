@@ -189,6 +189,9 @@ def test_simulate_bad_scenario_and_its_model(tmp_path, capsys):
     (["bench", "faults", "--kinds", "tpdo_missing,meteor"], r"--kinds meteor"),
     (["bench", "faults", "--cycles", "10"], r"--cycles 10"),
     (["bench", "soak", "--cycles", "1000", "--warmup", "5000"], r"--warmup 5000"),
+    (["bench", "bounds", "--gp-beta", "lederer,huge"], r"--gp-beta huge"),
+    (["bench", "bounds", "--gp-beta", "-1"], r"--gp-beta -1"),
+    (["bench", "accuracy", "--bound", "tight"], r"invalid choice: 'tight'"),
     (["replay", "x.csv", "--config", CFG, "--estimator", "kalman", "--out", "e.csv"], r"invalid choice: 'kalman'"),
 ])
 def test_other_commands_bad_arguments(capsys, argv, expect):

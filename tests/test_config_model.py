@@ -42,6 +42,13 @@ def test_default_config_loads_and_roundtrips(tmp_path):
     (lambda d: d["model"]["effects"].append({"type": "viscous", "side": "load"}), "model.effects[2].b"),
     (lambda d: d.update(joints=0), "joints"),
     (lambda d: d.update(estimator={"delta": 1.5}), "estimator.delta"),
+    (lambda d: d.update(estimator={"gp_beta": "conformal"}), "estimator.gp_beta"),
+    (lambda d: d.update(estimator={"gp_beta": -2.0}), "estimator.gp_beta"),
+    (lambda d: d.update(estimator={"gp_beta": True}), "estimator.gp_beta"),
+    (lambda d: d.update(estimator={"Sigma_nom_dt": -0.01}), "estimator.Sigma_nom_dt"),
+    (lambda d: d.update(estimator={"tau_m_noise": -1.0}), "estimator.tau_m_noise"),
+    (lambda d: d.update(estimator={"gp_noise_in_Q": "yes"}), "estimator.gp_noise_in_Q"),
+    (lambda d: d.update(estimator={"init_after_kinematics": 1}), "estimator.init_after_kinematics"),
 ])
 def test_bad_config_names_key(mutate, key):
     d = base_dict()
@@ -115,3 +122,25 @@ def test_two_joint_config_roundtrips_with_default_learning(tmp_path):
     assert load_config(tmp_path / "c.yaml").learning.lengthscales == cfg.learning.lengthscales
     d["learning"] = {"lengthscales": [1, 2, 3]}
     assert ModelConfig.from_dict(d).learning.lengthscales == (1, 1, 2, 2, 3, 3)
+
+
+def test_gp_beta_default_number_and_round_trip():
+    d = base_dict()
+    assert ModelConfig.from_dict(d).estimator.gp_beta == "lederer"
+    d["estimator"] = {"gp_beta": 2}
+    cfg = ModelConfig.from_dict(d)
+    assert cfg.estimator.gp_beta == 2.0
+    assert ModelConfig.from_dict(cfg.to_dict()).estimator.gp_beta == 2.0
+
+
+def test_process_noise_options_roundtrip(tmp_path):
+    from sea_daemon.config import save_config
+    cfg = load_config(default_config_path())
+    e = cfg.estimator
+    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.0, 0.0, False, False)
+    d = cfg.to_dict()
+    d["estimator"].update(Sigma_nom_dt=0.01, tau_m_noise=0.02, gp_noise_in_Q=True, init_after_kinematics=True)
+    p = tmp_path / "c.yaml"
+    save_config(ModelConfig.from_dict(d, source="x.yaml"), p)
+    e = load_config(p).estimator
+    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.01, 0.02, True, True)

@@ -77,6 +77,14 @@ def test_estimation_against_device_model_gp_akf_beats_akf(calibrated, tmp_path, 
     akf_rmse = float(np.sqrt(np.mean(akf.tau_h_act_hat[skip:, 0] ** 2)))
     # measured 0.13 vs 1.5 N m (ratio 0.09); the margin allows 3x
     assert gp_rmse < 0.3 * akf_rmse, (gp_rmse, akf_rmse)
+    # the published bound is the Theorem-1 rho_k (docs/bounds.md): the KF part
+    # sqrt(chi2_1(1 - delta_N) P_tautau), delta_N = delta/2, plus the set of means of the GP error
+    from sea_daemon.bounds.setmember import chi2_quantile
+    rho, sig = log.extra["tau_h_act_bound"][skip:], log.extra["tau_h_act_sigma"][skip:]
+    kf = np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 1)) * sig
+    assert np.all(rho >= kf - 1e-9) and np.mean(rho > 1.01 * kf) > 0.5
+    assert np.ptp(rho / sig) > 0.05           # not a fixed multiple of sigma (the KF-only chi2 bound)
+    assert np.mean(np.abs(log.extra["tau_h_act_hat"][skip:]) <= rho) >= 1 - cfg.estimator.delta
 
 
 def test_corrupt_or_incompatible_model_exit_2(calibrated, tmp_path, capsys):
@@ -200,3 +208,23 @@ def test_hardware_that_does_not_come_up_exit_1_without_leftovers(calibrated, tmp
                       "--channel", "ws://127.0.0.1:1/", "--log-dir", str(tmp_path / "logs"), "--cycles", "5")
     assert rc == 1 and "ws://127.0.0.1:1/" in err and len(err.strip().splitlines()) == 1
     assert not list((tmp_path / "logs").iterdir())        # no empty log, no stale pid file
+
+
+def test_calibrate_bound_from_a_held_out_log_writes_gp_beta(calibrated, tmp_path, capsys):
+    """docs/bounds.md §2b: split-conformal beta for the model, from a passive log it never learned."""
+    from sea_daemon.logio import write_log
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+    model, _ = calibrated
+    sc = load_scenario(PASSIVE)
+    held = tmp_path / "held.csv"
+    write_log(held, simulate(sc, seed=sc.seed + 1000).training)          # independent noise
+    out_cfg = tmp_path / "bound.yaml"
+    rc, out, _ = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(model),
+                      "--write", str(out_cfg))
+    assert rc == 0 and out["pairs"] > 2000
+    assert out["alpha"] == pytest.approx(load_config(CFG).estimator.delta / 4)
+    assert 0 < out["beta"] < 50 and out["beta"] >= out["score_quantiles"]["90"][0]
+    assert load_config(out_cfg).estimator.gp_beta == pytest.approx(out["beta"])
+    rc, _, err = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(tmp_path / "no.npz"))
+    assert rc == 2 and "no.npz" in err and "Traceback" not in err

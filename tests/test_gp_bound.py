@@ -167,3 +167,55 @@ def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
     pred = np.array([gp.predict(x) for x in Xg])
     # the merged prediction with its (mixture) σ̃ satisfies the bound on this sample
     assert np.all(np.abs(f - pred[:, 0]) <= c.eta(np.sqrt(pred[:, 1])))
+
+
+def test_conformal_quantile_finite_sample_coverage():
+    from sea_daemon.bounds.gp_bound import conformal_quantile
+    rng = np.random.default_rng(11)
+    m, alpha, trials = 19, 0.1, 4000
+    cover = np.mean([rng.exponential() <= conformal_quantile(rng.exponential(size=m), alpha) for _ in range(trials)])
+    # split conformal: 1 − α ≤ coverage ≤ 1 − α + 1/(m + 1) (exchangeable scores); 3 MC std margin
+    mc = 3 * math.sqrt(0.9 * 0.1 / trials)
+    assert 1 - alpha - mc <= cover <= 1 - alpha + 1 / (m + 1) + mc
+    # the plain empirical quantile (no (m + 1) correction) under-covers here
+    naive = np.mean([rng.exponential() <= np.quantile(rng.exponential(size=m), 1 - alpha) for _ in range(trials)])
+    assert naive < 1 - alpha - mc
+    with pytest.raises(ValueError, match="at least 19"):
+        conformal_quantile(np.ones(10), 0.05)
+
+
+def test_conformal_constants_bound_the_noise_free_error_from_noisy_targets():
+    from sea_daemon.bounds.gp_bound import conformal_constants
+    rng = np.random.default_rng(12)
+    delta, misses, trials = 0.1, 0, 300
+    for _ in range(trials):
+        # GP error e = f − μ heavy-tailed, scale s(z) known; targets y = f + symmetric noise
+        s = rng.uniform(0.5, 2.0, 201)
+        e = s * rng.standard_t(3, 201)
+        y_minus_mu = e + rng.normal(0, 0.5, 201)
+        c = conformal_constants(np.abs(y_minus_mu[:200]) / s[:200], delta)
+        misses += abs(e[200]) > c.eta(s[200])
+    assert misses / trials <= delta                  # Pr(|f − μ| > q s) ≤ 2 · δ/2
+    assert c.method == "conformal" and c.scale == "local" and c.gamma == 0.0
+
+
+def test_local_scale_is_the_leaf_residual_rms():
+    loggp = pytest.importorskip("sea_daemon.loggp")
+    from sea_daemon.bounds.gp_bound import LocalScale
+    rng = np.random.default_rng(13)
+    gp = loggp.LoGGP(input_dim=1, max_points=20, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.1, seed=0)
+    X = rng.uniform(0, 3, 80)
+    for x in X:
+        # noise grows with x: leaves on the right fit worse
+        gp.update(np.array([x]), float(np.sin(3 * x) + 0.02 * (1 + 5 * x) * rng.standard_normal()))
+    sc = LocalScale(gp)
+    assert len(sc.r_) == len(gp.leaves()) > 2
+    for node in gp.leaves():
+        lf = gp.leaf(node)
+        n = lf.n_
+        Xl, yl = np.asarray(lf.X_[:n]), np.asarray(lf.y_[:n])
+        res = yl - np.array([lf.predict(x)[0] for x in Xl])           # y − μ_leaf(X) by prediction
+        assert sc.r_[node] == pytest.approx(np.sqrt(np.mean(res ** 2)), rel=1e-6)
+    # s(z) ≥ σ(z), and the right end (noisier data) has the larger local scale
+    z0, z1 = np.array([0.2]), np.array([2.8])
+    assert sc(z0, 0.01) >= 0.1 and sc.local(z1) > sc.local(z0)

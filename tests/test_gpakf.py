@@ -44,11 +44,31 @@ def test_gp_akf_is_much_better_than_the_akf_on_a_passive_subject(passive, traine
     rmse_akf = summarize(replay(est_log, AKF(cfg)))["rmse"]
     rmse_gp = summarize(replay(est_log, trained))["rmse"]
     assert trained.n_learned > 600 and not trained.learning
-    # the plain AKF misses the arm (gravity, stiffness) and friction: ~1.5 N m; the GP-AKF
-    # has learned them (measured ≈ 0.15 N m on this short run)
+    # the plain AKF misses the arm (gravity, stiffness) and friction: ~1.7 N m; the GP-AKF
+    # has learned them (measured 0.138 N m on this short run, 0.163 without gp_noise_in_Q)
     assert rmse_akf > 1.0
-    assert rmse_gp < rmse_akf / 5.0
-    assert rmse_gp < 0.3
+    assert rmse_gp < rmse_akf / 8.0
+    assert rmse_gp < 0.2
+
+
+def test_gp_akf_follows_an_active_subject_like_the_oracle():
+    """Shortened active scenario (Sec. V-C, 3 s training, 10 s estimation) with the benchmark's
+    settings: the GP-AKF meets the accuracy targets of issue 3 (measured: AKF 2.07, oracle 0.040,
+    GP-AKF 0.046 N m)."""
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
+    sc = dataclasses.replace(sc, training_samples=300, estimation_samples=1000)
+    sim = simulate(sc)
+    settings = load_config(SETTINGS)
+    nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
+    log = sim.estimation
+    rmse = {k: summarize(replay(log, est))["rmse"] for k, est in (
+        ("akf", AKF(nominal)), ("oracle", AKF(true)), ("gp", build(nominal, sim.training, log.dt)))}
+    assert rmse["gp"] < 0.1
+    assert rmse["gp"] < rmse["akf"] / 20.0
+    assert rmse["gp"] < 1.5 * rmse["oracle"]
 
 
 class _Zero:
@@ -72,9 +92,12 @@ def test_zero_residual_gp_akf_equals_the_akf_step_for_step(passive):
     assert np.array_equal(a.P, g.P)
 
 
-def test_untrained_gp_gives_the_akf_prediction_plus_prior_variance(passive):
-    """An empty GP: μ = 0 and F_GP = 0, so x⁻ and F are the AKF's; Q adds the prior σ_f²."""
+@pytest.mark.parametrize("noise_in_Q", [False, True])
+def test_untrained_gp_gives_the_akf_prediction_plus_prior_variance(passive, noise_in_Q):
+    """An empty GP: μ = 0 and F_GP = 0, so x⁻ and F are the AKF's; Q adds the prior σ_f²
+    (eq:GPvarfwd), plus σ_on² with ``estimator.gp_noise_in_Q`` (predictive variance)."""
     cfg, _, log = passive
+    cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_noise_in_Q=noise_in_Q))
     g = GPAKF(cfg, learning=False)
     a = AKF(cfg)
     for est in (a, g):
@@ -82,8 +105,8 @@ def test_untrained_gp_gives_the_akf_prediction_plus_prior_variance(passive):
         est.update(log.q[1], log.theta_m[1], log.tau_m[1])
     assert np.allclose(g.x_prior, a.x_prior, rtol=0, atol=1e-15)
     assert np.array_equal(g.F_k, a.F_k)
-    sf2 = cfg.learning.sigma_f ** 2
-    assert np.allclose(g.Q_k - g.Sigma_nom, sf2 * g.Gamma_mu @ g.Gamma_mu.T, rtol=1e-12, atol=0)
+    var = cfg.learning.sigma_f ** 2 + (cfg.learning.sigma_n ** 2 if noise_in_Q else 0.0)
+    assert np.allclose(g.Q_k - g.Sigma_nom, var * g.Gamma_mu @ g.Gamma_mu.T, rtol=1e-12, atol=0)
 
 
 def _step_at(est, log, k):
@@ -131,6 +154,9 @@ def test_process_noise_includes_the_gp_variance_exactly(passive, trained):
     _, _, _, z = _step_at(est, log, 400)
     _, _, var = est.gp.predict(z)
     assert var[0] > 0
+    if cfg.estimator.gp_noise_in_Q:
+        # predictive variance: + Σ ω_i σ_on,i² of the leaves z reaches
+        var = var + est.gp.gps[0].noise_variance(z)
     assert np.allclose(est.sigma2, var, rtol=1e-12)
     expect = est.Sigma_nom + var[0] * est.Gamma_mu @ est.Gamma_mu.T
     assert np.allclose(est.Q_k, expect, rtol=1e-12, atol=0)

@@ -59,3 +59,20 @@ def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
     assert main(["identify-noise", str(short), "--config", cfg]) == 2
     assert "samples" in capsys.readouterr().err
     assert main(["identify-noise", str(noisy_log), "--config", cfg, "--lags", "1"]) == 2
+
+
+def test_floor_is_each_encoders_own_quantisation():
+    """The motor encoder sits before the 1:gear_ratio gear: its joint-side quantum is 2π/(2^bits·gear),
+    so its floor is gear² below the load encoder's (2π/2^bits)²/12."""
+    from sea_daemon.als import floored_R
+    from sea_daemon.kinematics import CausalDifferentiator
+    cfg = load_config(default_config_path())
+    hw = cfg.hardware
+    fir = CausalDifferentiator(cfg.dt, cfg.kinematics.window, 2, cfg.kinematics.method, cfg.kinematics.degree).C
+    res = {"R": np.zeros((4, 4)), "encoder_variances": {"theta_m": [0.0], "q": [0.0]}, "fir": fir}
+    R, enc, floored = floored_R(cfg, res)
+    q_var = (2 * np.pi / 2 ** hw.encoder_bits) ** 2 / 12
+    assert enc["q"][0] == pytest.approx(q_var, rel=1e-12)
+    assert enc["theta_m"][0] == pytest.approx(q_var / hw.gear_ratio ** 2, rel=1e-12)
+    assert floored == ["theta_m_1", "q_1"]
+    assert R[0, 0] == pytest.approx(q_var / hw.gear_ratio ** 2, rel=1e-12)

@@ -274,3 +274,20 @@ def test_offline_optimisation_raises_every_leaf_lml():
     assert gp.n_hyper_steps == 15 * len(before)
     for i, b in before.items():
         assert gp.leaf(i).log_marginal_likelihood(grad=False) > b
+
+
+def test_noise_variance_is_the_weighted_leaf_noise():
+    """σ² + noise_variance(x) is the predictive variance of a new target: Σ ω_i σ_on,i²."""
+    gp = _trained(overlap=0.3)
+    rng = np.random.default_rng(2)
+    leaves = gp.leaves()
+    for k, node in enumerate(leaves):          # distinct noise per leaf
+        lg = gp.leaf(node)
+        lg.set_hyperparameters(lg.sigma_f, lg.lengthscales, 0.01 * (k + 1))
+    for x in _inside_overlaps(gp, rng, 4) + [rng.uniform(-1, 1, 3) for _ in range(4)]:
+        route = gp._route(list(map(float, x)), False)
+        expect = sum(w * gp.leaf(node).sigma_n ** 2 for node, w, _ in route)
+        assert gp.noise_variance(x) == pytest.approx(expect, rel=1e-12)
+        assert min(gp.leaf(n).sigma_n for n in leaves) ** 2 <= gp.noise_variance(x) + 1e-15
+        assert gp.noise_variance(x) <= max(gp.leaf(n).sigma_n for n in leaves) ** 2 + 1e-15
+    assert any(len(gp._route(list(map(float, x)), False)) > 1 for x in _inside_overlaps(gp, rng, 4))

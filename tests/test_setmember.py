@@ -18,7 +18,8 @@ def kf_step(x, P, F, dx, Q, H, R, y):
     return xp, 0.5 * (Pp + Pp.T), K
 
 
-def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
+@pytest.mark.parametrize("sets", ["zonotope", "ellipsoid"])
+def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid(sets):
     cfg = load_config(default_config_path())
     import dataclasses
     params = dataclasses.replace(cfg.model, gravity=np.zeros_like(np.asarray(cfg.model.gravity)))
@@ -29,8 +30,8 @@ def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid():
     rng = np.random.default_rng(0)
     x_true = np.array([0.1, 0.01, 0.0, 0.0, 0.5])
     x, P = x_true + rng.multivariate_normal(np.zeros(d), cfg.estimator.P0), cfg.estimator.P0.copy()
-    sm = SetMembershipBound(d, [4], delta=0.05)
-    sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal")
+    sm = SetMembershipBound(d, [4], delta=0.05, projection="state", sets=sets)
+    sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal", sets=sets)
     A = model.F_nom(x, np.zeros(n))                # constant: the plant is linear
     Gamma = input_matrix(A, model.I_mu @ model.Minv, dt)
     G_u = input_matrix(A, model.B_nom(), dt)
@@ -75,7 +76,7 @@ class Pendulum:
         return x + self.dt * self.f(x, u)
 
 
-def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
+def run_pendulum(seed, steps=200, eta=0.3, delta=0.05, sets="zonotope", projection="marginal"):
     """EKF + Theorem-1 bound on a pendulum with a persistent bounded disturbance |d| ≤ η."""
     pl = Pendulum()
     rng = np.random.default_rng(seed)
@@ -87,7 +88,8 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
     x_true = np.array([rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1)])
     P = np.diag([0.05, 0.05, 1.0])
     x = x_true + rng.multivariate_normal(np.zeros(d), P)
-    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection="marginal", n_dirs=4)
+    sm = SetMembershipBound(d, [2], delta=delta, delta_gp=0.0, projection=projection, n_dirs=4,
+                            sets=sets)
     sign = rng.choice([-1.0, 1.0])
     hit_set, hit_kf = [], []
     s_1 = chi2.ppf(1 - delta, 1)
@@ -110,11 +112,13 @@ def run_pendulum(seed, steps=200, eta=0.3, delta=0.05):
     return np.array(hit_set), np.array(hit_kf), sm
 
 
-def test_nonlinear_coverage_at_promised_rate():
+@pytest.mark.parametrize("sets,projection", [("zonotope", "scalar"), ("zonotope", "marginal"),
+                                            ("ellipsoid", "marginal")])
+def test_nonlinear_coverage_at_promised_rate(sets, projection):
     delta = 0.05
     hs, hk = [], []
     for seed in range(8):
-        s, k, sm = run_pendulum(seed, delta=delta)
+        s, k, sm = run_pendulum(seed, delta=delta, sets=sets, projection=projection)
         hs.append(s)
         hk.append(k)
     cov_set, cov_kf = np.mean(hs), np.mean(hk)
@@ -155,3 +159,76 @@ def test_bad_arguments():
         SetMembershipBound(3, [2], delta=1.5)
     with pytest.raises(ValueError):
         SetMembershipBound(3, [2], delta=0.05, delta_gp=0.05)
+
+
+def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
+    from sea_daemon.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
+    from sea_daemon.bounds.setmember import reduce_generators, zonotope_shape
+    rng = np.random.default_rng(21)
+    d, m = 4, 30
+    G = rng.standard_normal((d, m)) * rng.uniform(0.01, 1.0, m)
+    # the outer ellipsoid equals the n-ary trace-minimal sum of the segments, and contains vertices
+    X = zonotope_shape(G)
+    assert np.allclose(X, minkowski_shape(segments_shapes(G, np.ones(m))), rtol=1e-10)
+    V = np.sign(rng.standard_normal((500, m))) @ G.T
+    assert np.all(Ellipsoid(np.zeros(d), X).contains(V))
+    # reduction keeps m generators and contains the original (support functions dominate)
+    Gr = reduce_generators(G, 12)
+    assert Gr.shape == (d, 12)
+    E = rng.standard_normal((2000, d))
+    h, hr = np.abs(E @ G).sum(1), np.abs(E @ Gr).sum(1)
+    assert np.all(hr >= h - 1e-12) and np.any(hr > h + 1e-6)
+    assert reduce_generators(G, 40) is G
+
+
+def test_zonotope_propagation_is_exact_and_bounds_the_ellipsoid_one():
+    # fixed error boxes: the set of means is exactly the zonotope of all mapped generators
+    from scipy.linalg import expm, solve_discrete_are
+    rng = np.random.default_rng(22)
+    d, steps, dt = 4, 150, 0.01
+    # a torque observer like the AKF: mass-spring [x, v], a second mass [x2, v2]... with an
+    # unknown input state w (random walk) — x = [x, v, x2, w], positions measured
+    A = np.array([[0, 1, 0, 0], [-100, -2, 50, 10], [0, 0, -5, 0], [0, 0, 0, 0.0]])
+    F = expm(A * dt)
+    H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    P = solve_discrete_are(F.T, H.T, np.diag([1e-6, 1e-3, 1e-6, 1e-2]), 1e-6 * np.eye(2))
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + 1e-6 * np.eye(2))
+    Gamma = np.array([[0, 0], [dt, 0], [0, dt], [0, 0.0]])
+    sms = {"exact": SetMembershipBound(d, [3], 0.05, sets="zonotope", max_generators=10 ** 6),
+           "reduced": SetMembershipBound(d, [3], 0.05, sets="zonotope", max_generators=40),
+           "ellipsoid": SetMembershipBound(d, [3], 0.05, sets="ellipsoid")}
+    gens = np.zeros((d, 0))
+    for k in range(steps):
+        eta = rng.uniform(0.0, 1.0, 2)
+        gens = (np.eye(d) - K @ H) @ np.hstack([F @ gens, Gamma * eta])
+        for sm in sms.values():
+            sm.predict(F, Gamma=Gamma, eta=eta)
+            sm.update(K, H)
+        exact = np.abs(gens).sum(1)
+        np.testing.assert_allclose(sms["exact"].means_half_widths(), exact, rtol=1e-9)
+        assert np.all(sms["reduced"].means_half_widths() >= exact * (1 - 1e-12))
+        assert np.all(sms["ellipsoid"].means_half_widths() >= exact * (1 - 1e-9))
+    # the outer ellipsoid is strictly looser than the exact set; the reduction stays near exact
+    assert sms["ellipsoid"].means_half_widths()[3] > 1.05 * exact[3]
+    assert sms["reduced"].means_half_widths()[3] < 1.1 * exact[3]
+
+
+def test_shifted_gaussian_halfwidth_is_the_exact_worst_case_quantile():
+    from scipy.stats import norm
+    from sea_daemon.bounds.setmember import shifted_gaussian_halfwidth
+    h = np.array([0.0, 0.3, 1.0, 4.0, 0.2])
+    s = np.array([1.0, 0.5, 1.0, 1.0, 0.0])
+    rho = shifted_gaussian_halfwidth(h, s, 0.05)
+    # the defining equation, and the limits: two-sided at h = 0, one-sided + h for h ≫ σ, h at σ = 0
+    ok = s > 0
+    assert np.allclose(norm.sf((rho[ok] - h[ok]) / s[ok]) + norm.sf((rho[ok] + h[ok]) / s[ok]), 0.05, atol=1e-12)
+    assert rho[0] == pytest.approx(norm.ppf(0.975)) and rho[3] == pytest.approx(4.0 + norm.ppf(0.95), rel=1e-9)
+    assert rho[4] == 0.2
+    # never above the union-style h + two-sided quantile, never below h + one-sided
+    assert np.all(rho[ok] <= h[ok] + s[ok] * norm.ppf(0.975) + 1e-12)
+    assert np.all(rho[ok] >= h[ok] + s[ok] * norm.ppf(0.95) - 1e-12)
+    # Monte Carlo at the worst shift a = h (and a smaller shift covers more)
+    rng = np.random.default_rng(5)
+    g = 0.5 * rng.standard_normal(400_000)
+    assert abs(np.mean(np.abs(0.3 + g) > rho[1]) - 0.05) < 0.002
+    assert np.mean(np.abs(0.1 + g) > rho[1]) < 0.05

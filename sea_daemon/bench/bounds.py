@@ -17,6 +17,20 @@ Estimators: ``akf`` (nominal model: the unmodelled human/friction dynamics are a
 plant's configuration: no model error — Theorem 1's assumptions hold up to the noise model),
 and ``gp-akf`` when ``sea_daemon.estimators.gpakf`` exists (the GP error bounded by
 eq:gpmeanbounds).
+
+Scenarios: ``NAME.yaml`` (training and estimation phases of the same scenario) or
+``NAME.yaml@TRAIN.yaml`` (estimation phase of NAME, training phase — and R by ALS, and the
+conformal calibration log — of TRAIN).  Default: ``passive``, ``active`` (the paper's) and two
+with an effect the GP has not seen, trained on ``passive``: ``unseen_range`` (moves up to
+110 deg, beyond the 75 deg of the training) and ``unseen_load`` (a 0.5 kg weight in the hand).
+
+GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19) and/or ``conformal``
+(split-conformal β from a held-out calibration log: the training phase of the training
+scenario simulated again with seed + 1000, which the GP never learned) or a number; one
+``gp-akf`` column per choice.
+
+Step time: ``step`` is the whole update with the bound; ``bound`` its own share (the update
+minus the filter step inside it, timed around the AKF's step).
 """
 from __future__ import annotations
 
@@ -34,7 +48,7 @@ NAME = "bounds"
 HELP = "coverage of the Theorem-1 bound rho_k (and of the KF's own bound) on the paper's scenarios; plots"
 
 
-def _builders():
+def _builders(gp_betas):
     from ..bounds.akf_bound import attach_default_bound
     from ..estimators import AKF
 
@@ -43,49 +57,110 @@ def _builders():
         attach_default_bound(e)
         return e
 
-    out = {"akf": lambda nominal, true, train, dt: akf(nominal, dt),
-           "oracle-akf": lambda nominal, true, train, dt: akf(true, dt)}
+    out = {"akf": lambda nominal, true, train, cal, dt: akf(nominal, dt),
+           "oracle-akf": lambda nominal, true, train, cal, dt: akf(true, dt)}
     import importlib.util
     if importlib.util.find_spec("sea_daemon.estimators.gpakf") is not None:
         import importlib
         mod = importlib.import_module("sea_daemon.estimators.gpakf")
+        from ..bounds.akf_bound import attach_theorem_bound, conformal_gp_constants
 
-        def gp(nominal, true, train, dt):
-            e = mod.build(nominal, train, dt)
-            if getattr(e, "theorem_bound", None) is None and hasattr(e, "residual"):
-                attach_default_bound(e)
-            return e
-        out["gp-akf"] = gp
+        def make(beta):
+            def gp(nominal, true, train, cal, dt):
+                e = mod.build(nominal, train, dt)
+                if beta == "conformal":
+                    # δ_GP = δ/2 as in the default adapter; calibrated on the held-out log
+                    consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
+                    e.conformal_info_ = (consts, len(scores))
+                    attach_theorem_bound(e, gp_constants=consts, gp_box=box)
+                else:
+                    attach_theorem_bound(e, gp_constants="auto", gp_beta=beta)
+                return e
+            return gp
+        for beta in gp_betas:
+            out["gp-akf" if beta == "lederer" else f"gp-akf/{beta}"] = make(beta)
     return out
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO.yaml",
-                   help="scenario files (default: configs/scenarios/passive.yaml active.yaml)")
+    p.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO.yaml[@TRAIN.yaml]",
+                   help="scenario files; NAME.yaml@TRAIN.yaml estimates on NAME's estimation log with the "
+                        "training (ALS, calibration) of TRAIN (default: configs/scenarios/passive.yaml "
+                        "active.yaml unseen_range.yaml@passive.yaml unseen_load.yaml@passive.yaml)")
     p.add_argument("--out", default="bench_bounds", help="directory for the plots and results.json")
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all available)")
     p.add_argument("--als", action="store_true",
                    help="identify R from each scenario's training log by ALS (identify-noise) and use it "
                         "(and P0 = R) for every estimator instead of the configured R")
+    p.add_argument("--gp-beta", default="lederer,conformal",
+                   help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, or a "
+                        "number beta (default: lederer,conformal)")
+
+
+def _gp_betas(text: str) -> list:
+    out = []
+    for s in (t.strip() for t in text.split(",") if t.strip()):
+        if s in ("lederer", "conformal"):
+            out.append(s)
+            continue
+        try:
+            v = float(s)
+        except ValueError:
+            v = float("nan")
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"--gp-beta {s}: must be lederer, conformal or a number > 0")
+        out.append(v)
+    if not out:
+        raise InputError("--gp-beta: give at least one of lederer, conformal, a number > 0")
+    return out
 
 
 def _run_one(est, log):
-    """Replay with the per-step KF-only bound recorded next to ρ_k."""
+    """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
+    into the filter step and the bound's own share."""
     from ..bounds.setmember import chi2_quantile
     N, n = len(log), log.n
-    hat, rho, kf, times = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)), np.zeros(N - 1)
+    hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
+    times, inner = np.zeros(N - 1), np.zeros(N - 1)
     tb = getattr(est, "theorem_bound", None)
     s = tb.sm.s_tau if tb is not None else chi2_quantile(1 - est.delta, 5 * n)
+    spent = [0.0]
+    if tb is not None:
+        filt = tb._step
+
+        def timed(*a, **kw):
+            t0 = time.perf_counter()
+            try:
+                return filt(*a, **kw)
+            finally:
+                spent[0] = time.perf_counter() - t0
+        tb._step = timed
     e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     hat[0], rho[0] = e.tau_h_act_hat, e.tau_h_act_bound
     kf[0] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
     for k in range(1, N):
+        spent[0] = 0.0
         t0 = time.perf_counter()
         e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
         times[k - 1] = time.perf_counter() - t0
+        inner[k - 1] = spent[0]
         hat[k], rho[k] = e.tau_h_act_hat, e.tau_h_act_bound
         kf[k] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
-    return hat, rho, kf, times
+    if tb is not None:
+        tb._step = filt
+    return hat, rho, kf, times, (times - inner if tb is not None else None)
+
+
+def _cases(paths):
+    d = repo_root() / "configs" / "scenarios"
+    if not paths:
+        return [(d / "passive.yaml", d / "passive.yaml"), (d / "active.yaml", d / "active.yaml"),
+                (d / "unseen_range.yaml", d / "passive.yaml"), (d / "unseen_load.yaml", d / "passive.yaml")]
+    out = []
+    for p in paths:
+        est, _, train = p.partition("@")
+        out.append((Path(est), Path(train or est)))
+    return out
 
 
 def run(args) -> int:
@@ -95,54 +170,83 @@ def run(args) -> int:
     except ImportError:
         raise InputError("bench bounds needs the simulator (sea_daemon.sim)") from None
     from . import choose, machine, summarize
-    builders = _builders()
+    gp_betas = _gp_betas(args.gp_beta)
+    builders = _builders(gp_betas)
     labels = choose(args.estimators, builders, "--estimators")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    d = repo_root() / "configs" / "scenarios"
-    scenarios = args.scenarios or [str(d / "passive.yaml"), str(d / "active.yaml")]
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     table = {}
-    for sc_path in scenarios:
-        sc = load_scenario(sc_path)
-        sim = simulate(sc)
-        log, train = sim.estimation, sim.training
-        name = Path(sc_path).stem
+    sims = {}
+
+    def sim_of(path, seed=None):
+        key = (str(path), seed)
+        if key not in sims:
+            sims[key] = simulate(load_scenario(path), seed=seed)
+        return sims[key]
+
+    for est_path, train_path in _cases(args.scenarios):
+        sc, sc_train = load_scenario(est_path), load_scenario(train_path)
+        log = sim_of(est_path).estimation
+        train = sim_of(train_path).training
+        cal = None
+        if "conformal" in gp_betas:
+            # held-out calibration: the training session again, independent noise (seed + 1000)
+            cal = sim_of(train_path, sc_train.seed + 1000).training
+        name = Path(est_path).stem
         delta = sc.nominal.estimator.delta
         nominal, true = sc.nominal, sc.true_config()
-        print(f"\nscenario {name}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
+        trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
+        print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
         if args.als:
             from ..als import config_with_R, floored_R, identify_noise
             R, enc, _ = floored_R(nominal, identify_noise(nominal, train))
             nominal, true = config_with_R(nominal, R), config_with_R(true, R)
             print(f"  R identified by ALS on the training log ({len(train)} samples): encoder variances "
                   f"{enc}; diag R = {np.array2string(np.diag(R), precision=3)}")
-        print(f"  {'estimator':<11s} {'cover rho':>9s} {'cover KF':>9s} {'mean rho':>9s} {'mean KF':>8s} "
-              f"{'mean|e|':>8s} {'max|e|':>8s}  step time")
+        print(f"  {'estimator':<14s} {'cover rho':>9s} {'cover KF':>9s} {'mean rho':>9s} {'mean KF':>8s} "
+              f"{'mean|e|':>8s} {'max|e|':>8s} {'rho/|e|':>8s}  step time / bound's share [us]")
         rows, curves = {}, {}
         for label in labels:
-            est = builders[label](nominal, true, train, log.dt)
-            hat, rho, kf, times = _run_one(est, log)
+            est = builders[label](nominal, true, train, cal, log.dt)
+            hat, rho, kf, times, btimes = _run_one(est, log)
             err = np.abs(hat - log.tau_h_act)
             row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
                    "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
                    "mean_abs_error": float(np.mean(err)), "max_abs_error": float(np.max(err)),
                    "step_time": summarize(times)}
+            row["rho_over_error"] = row["mean_rho"] / max(row["mean_abs_error"], 1e-300)
+            tail = f"step median {1e6 * np.median(times):.0f}, p99 {1e6 * np.percentile(times, 99):.0f}"
+            if btimes is not None:
+                row["bound_time"] = summarize(btimes)
+                row["bound_time_median_us"] = float(1e6 * np.median(btimes))
+                row["bound_time_p99_us"] = float(1e6 * np.percentile(btimes, 99))
+                tail += f"; bound median {row['bound_time_median_us']:.0f}, p99 {row['bound_time_p99_us']:.0f}"
             tb = getattr(est, "theorem_bound", None)
             if tb is not None:
                 row["gp_box_violations"] = int(tb.gp_box_violations_)
+                if tb.gp_constants:
+                    c = tb.gp_constants[0]
+                    row["gp_beta"] = float(c.sqrt_beta)
+                    row["gp_gamma"] = float(c.gamma)
+                    row["gp_beta_method"] = c.method
+                    tail += f"; beta {c.sqrt_beta:.2f} ({c.method}), box violations {tb.gp_box_violations_}"
+            info = getattr(est, "conformal_info_", None)
+            if info is not None:
+                row["conformal_calibration_pairs"] = int(info[1])
             rows[label] = row
             curves[label] = (hat, rho)
-            print(f"  {label:<11s} {row['coverage_rho']:9.3f} {row['coverage_kf']:9.3f} {row['mean_rho']:9.3f} "
-                  f"{row['mean_kf_bound']:8.3f} {row['mean_abs_error']:8.3f} {row['max_abs_error']:8.3f}  "
-                  f"{row['step_time']}")
+            print(f"  {label:<14s} {row['coverage_rho']:9.3f} {row['coverage_kf']:9.3f} {row['mean_rho']:9.3f} "
+                  f"{row['mean_kf_bound']:8.3f} {row['mean_abs_error']:8.3f} {row['max_abs_error']:8.3f} "
+                  f"{row['rho_over_error']:8.1f}  {tail}")
         png = out / f"{name}.png"
-        _plot(png, f"{name}: estimate with the Theorem-1 bound ρ_k (δ = {delta})", log.t, log.tau_h_act, curves)
+        _plot(png, f"{name}{trained}: estimate ± Theorem-1 bound ρ_k (δ = {delta})", log.t, log.tau_h_act, curves)
         print(f"  plot: {png}")
         table[name] = rows
     (out / "results.json").write_text(json.dumps(table, indent=1))
     print(f"\nresults: {out / 'results.json'}  (cover = fraction of samples with |error| <= bound; "
-          f"eq:bounds promises >= 1 - delta where Theorem 1's assumptions hold)")
+          f"eq:bounds promises >= 1 - delta where Theorem 1's assumptions hold; KF = the filter's own "
+          f"sqrt(s P_tautau) with the same s)")
     return 0
 
 
@@ -150,12 +254,13 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green"}
+    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange"}
     fig, ax = plt.subplots(figsize=(9, 4.2))
     t0 = t - t[0]
     for label, (h, r) in curves.items():
         c = colors.get(label)
-        ax.plot(t0, h[:, 0], color=c, lw=1.2, label=f"{label} ± ρ")
+        # variants of one estimator (gp-akf/...) share its estimate: dashed, so both stay visible
+        ax.plot(t0, h[:, 0], color=c, lw=1.2, ls="--" if "/" in label else "-", label=f"{label} ± ρ")
         ax.fill_between(t0, h[:, 0] - r[:, 0], h[:, 0] + r[:, 0], color=c, alpha=0.15, lw=0)
     ax.plot(t0, truth[:, 0], "k:", lw=1.6, label="truth")
     # keep the estimates readable when a ρ band is huge (it is then clipped by the axes)

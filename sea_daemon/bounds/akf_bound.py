@@ -15,9 +15,10 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
     analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
     with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
   - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
-* GP error (eq:Dmuhat): η_j = √β_j max_points σ_j(z(x)) + γ_j per joint — σ is taken over
-  the projected set (not just at ẑ), because the true z is only known to lie in it;
-  mapped by Γ_μ
+* GP error (eq:Dmuhat): η_j = √β_j max_points s_j(z(x)) + γ_j per joint — s = σ (LUH19) or the
+  local scale √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) is taken over
+  the projected set at unclipped z (not just at ẑ), because the true z is only known to lie
+  in it; mapped by Γ_μ.  ``gp_beta`` (default ``estimator.gp_beta``): 'lederer' or a number
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
@@ -32,7 +33,8 @@ import numpy as np
 
 from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
-from .gp_bound import BoundConstants, error_bound, input_box, loggp_leaves
+from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
+                       input_box, loggp_leaves)
 from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
 
 
@@ -42,8 +44,16 @@ class AKFTheoremBound:
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
-                 projection: str = "state", seed: int = 0):
+                 projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
+                 gp_beta: str | float | None = None):
         self.akf = akf
+        # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
+        # the configuration's estimator.gp_beta
+        if gp_beta is None:
+            gp_beta = getattr(getattr(getattr(akf, "cfg", None), "estimator", None), "gp_beta", "lederer")
+        if not (gp_beta == "lederer" or (isinstance(gp_beta, (int, float)) and gp_beta > 0)):
+            raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
+        self.gp_beta = gp_beta
         n, d = akf.n, akf.d
         delta = akf.delta if delta is None else float(delta)
         has_gp = akf.residual is not None
@@ -58,9 +68,12 @@ class AKFTheoremBound:
         if self._auto and gp_constants != "auto":
             raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
+        self._scales = None
+        self._update_scales()
         self.gp_box = gp_box
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
-                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection)
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
+                                     sets=sets)
         self._I = np.eye(d)
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
@@ -81,8 +94,19 @@ class AKFTheoremBound:
     def refresh_gp_constants(self) -> None:
         """Recompute the GP constants and input box from the residual's current leaves
         (``gp_constants='auto'``; call after the GP learned more data)."""
-        self.gp_constants, self.gp_box = gp_constants(residual_gps(self.akf), self.sm.delta_gp)
+        gps = residual_gps(self.akf)
+        self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
+        self._update_scales()
+
+    def _update_scales(self) -> None:
+        """The local scales s(z) (:class:`LocalScale`) when the constants use them."""
+        self._scales = None
+        if self.gp_constants and any(c.scale == "local" for c in self.gp_constants):
+            gps = residual_gps(self.akf)
+            if gps is None:
+                raise ValueError("GP constants with a local scale need a residual backed by LoG-GPs")
+            self._scales = [LocalScale(g) for g in gps]
 
     def _n_learned(self) -> int:
         """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
@@ -105,7 +129,7 @@ class AKFTheoremBound:
 
     # ------------------------------------------------------------------ linearisation error
 
-    def _gravity_box(self, x0: np.ndarray, C: Ellipsoid) -> np.ndarray:
+    def _gravity_box(self, x0: np.ndarray, P0: np.ndarray) -> np.ndarray:
         """Rigorous bound of the gravity term's linearisation error (no sampling).
 
         C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
@@ -126,7 +150,7 @@ class AKFTheoremBound:
         for j in range(n):
             e = np.zeros(akf.d)
             e[j] = e[n + j] = 1.0
-            r = C.half_width(e)
+            r = self.sm.half_width(e, P0)
             # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
             # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
             D = self._grid * r
@@ -150,7 +174,7 @@ class AKFTheoremBound:
             np.maximum(b, r, out=b)
         return b
 
-    def _gp_box(self, zhat: np.ndarray, C: Ellipsoid):
+    def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
         projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
         them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
@@ -161,27 +185,34 @@ class AKFTheoremBound:
         # copies: a residual hook may return preallocated arrays overwritten by the next call
         mu0 = np.array(mu0, dtype=float)
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
-        var0 = np.array(var0, dtype=float)
-        Cz = C.affine(self._T)                                     # exact: affine image
-        smax = np.sqrt(np.maximum(np.asarray(var0, float), 0.0))
-        e = np.zeros(n)
+        Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
+        local = self._scales is not None
+        # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
+        # filter's hook clips z to the training box, where σ can be far smaller than at z
         out = False
         z = zhat.copy()
         gps = residual_gps(akf)
-        mu = np.empty(n)
-        var = np.empty(n)
-        for p in ellipsoid_points(Cz, self._Uz):
+        pts = ellipsoid_points(Cz, self._Uz)     # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
+        MU = np.empty((len(pts), n))
+        S = np.empty((len(pts), n))
+        for i, p in enumerate(pts):
             z[:2 * n] = p
-            if gps is not None:
+            if local:
+                # mean, variance and local scale in one routing of each joint's LoG-GP
+                for j, sc in enumerate(self._scales):
+                    MU[i, j], _, S[i, j] = sc.predict(z)
+            elif gps is not None:
                 # mean and variance only (no Jacobian needed here): cheaper than the hook
                 for j, g in enumerate(gps):
-                    mu[j], var[j] = g.predict(z)
+                    MU[i, j], S[i, j] = g.predict(z)
             else:
                 m_, _, v_ = res.predict(z)
-                mu[:], var[:] = m_, v_
-            dz = p - zhat[:2 * n]
-            np.maximum(e, np.abs(mu - mu0 - J0 @ dz), out=e)
-            np.maximum(smax, np.sqrt(np.maximum(var, 0.0)), out=smax)
+                MU[i], S[i] = m_, v_
+        if not local:
+            S = np.sqrt(np.maximum(S, 0.0))
+        # max over the points of |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and of σ (or s)
+        e = np.max(np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T), axis=0)
+        smax = np.max(S, axis=0)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
@@ -216,16 +247,16 @@ class AKFTheoremBound:
         u = np.array(u, dtype=float)
         est = self._step(y, u, dt)
         sm = self.sm
-        if not np.all(np.isfinite(sm.X_)):
+        if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
-        C = sm.confidence_set(x0, P0)             # C_{k−1} (outer ellipsoid)
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
         if self._fast:
-            b = self._gravity_box(x0, C)          # analytic, rigorous
+            b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
         else:
+            C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
             A_nom = akf.A_k.copy()
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
@@ -233,7 +264,7 @@ class AKFTheoremBound:
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
-            bg, smax, out = self._gp_box(zhat, C)
+            bg, smax, out = self._gp_box(zhat, x0, P0)
             b = b + (1.0 + sm.margin) * bg
             self.gp_box_violations_ += int(out)
             # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
@@ -244,7 +275,7 @@ class AKFTheoremBound:
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         sm.update(akf.K_k, akf.H)
-        if not np.all(np.isfinite(sm.X_)):
+        if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
@@ -288,7 +319,8 @@ def attach_default_bound(akf) -> AKFTheoremBound | None:
 
 
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
-                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None):
+                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
+                 beta: str | float = "lederer"):
     """GP error constants per joint for a :class:`sea_daemon.learning.ResidualGP` (one LoG-GP per
     joint) or a list of LoG-GPs.
 
@@ -296,7 +328,9 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
     union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
     constants stay valid while the tree grows).  The input box is the box of all training
-    points widened by ``box_margin`` of its range.  Returns (constants list, (lo, hi)).
+    points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
+    number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
+    Returns (constants list, (lo, hi)).
     """
     gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
     n = len(gps)
@@ -304,6 +338,8 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
                    if gp.leaf(node).n_ > 0])
     lo, hi = input_box(Z, box_margin)
+    if beta != "lederer":
+        return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
     consts = []
     for gp in gps:
         leaves = loggp_leaves(gp)
@@ -311,3 +347,47 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
         kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
         consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
     return consts, (lo, hi)
+
+
+def conformal_scores(est, log) -> np.ndarray:
+    """Calibration scores |y − μ(z)| / s(z) of a frozen GP-AKF on a held-out log (s =
+    :class:`~sea_daemon.bounds.gp_bound.LocalScale`, fixed by the training data).
+
+    ``est`` is a :class:`~sea_daemon.estimators.gpakf.GPAKF` whose GP will not learn the
+    pairs (learning is switched off here and restored); ``log`` a passive-subject log it
+    never learned from (ass:passive_human: the training pair of each sample is (z, f(z) + noise),
+    eq:loadsidewmotor, built by the GP-AKF's own causal kinematics).  μ and σ are evaluated
+    at the unclipped z, as in the bound.  Returns (pairs, n).
+    """
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("conformal_scores needs a GP-AKF backed by LoG-GPs")
+    scales = [LocalScale(g) for g in gps]
+    learning, est.learning = est.learning, False
+    out = []
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            if est._since_reset < est.kin.L:
+                continue
+            z, y = est._training_pair(log.tau_m[k])
+            row = np.empty(len(gps))
+            for j, g in enumerate(gps):
+                mu, var = g.predict(z)
+                row[j] = abs(y[j] - mu) / scales[j](z, var)
+            out.append(row)
+    finally:
+        est.learning = learning
+    return np.array(out)
+
+
+def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
+    """Split-conformal GP constants per joint from a held-out log (:func:`conformal_scores`);
+    δ_GP is split over the joints.  Returns (constants, (lo, hi) the training box, scores)."""
+    gps = residual_gps(est)
+    scores = conformal_scores(est, log)
+    per_joint = delta_gp / len(gps)
+    consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
+    _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
+    return consts, box, scores

@@ -143,7 +143,13 @@ class LeafGP:
 
 @dataclass(frozen=True)
 class BoundConstants:
-    """|f − μ| ≤ sqrt_beta·σ + gamma on the box, with probability ≥ 1 − delta."""
+    """|f − μ| ≤ sqrt_beta·s(x) + gamma on the box, with probability ≥ 1 − delta.
+
+    ``scale`` names s: "sigma" — the posterior standard deviation σ (LUH19,
+    :func:`error_bound`: the paper's β σ plus γ); "local" — s = √(σ² + s_loc²) with s_loc the
+    LoG-GP's local residual scale (:class:`LocalScale`; split conformal,
+    :func:`conformal_constants`, and a configured β).
+    """
 
     sqrt_beta: float
     gamma: float
@@ -153,10 +159,89 @@ class BoundConstants:
     omega_sigma: float  # max over leaves of ω_σ(τ)
     delta: float
     n_leaves: int
+    scale: str = "sigma"
+    method: str = "lederer"
 
-    def eta(self, sigma: np.ndarray | float) -> np.ndarray:
-        """Error half-width η = √β σ + γ (the interval of lem:interval_bound)."""
-        return self.sqrt_beta * np.asarray(sigma, dtype=float) + self.gamma
+    def eta(self, s: np.ndarray | float) -> np.ndarray:
+        """Error half-width η = √β s + γ (the interval of lem:interval_bound), s the scale
+        named by ``scale`` (σ for LUH19)."""
+        return self.sqrt_beta * np.asarray(s, dtype=float) + self.gamma
+
+
+class LocalScale:
+    """s(z) = √(σ(z)² + s_loc(z)²), s_loc(z) = Σ_i w_i(z) r_i for a LoG-GP: r_i is the RMS of
+    leaf i's in-sample residuals y − μ_i(X_i) = σ_n,i² α_i (exact for a GP posterior mean), w_i the
+    merged prediction's leaf weights at z.  It is large where the leaf's data were badly fitted
+    (e.g. friction reversals), and fixed by the training data alone — so a split-conformal
+    quantile of |y − μ|/s on held-out pairs keeps its validity (normalised / locally adaptive
+    conformal, Lei et al. 2018 §5.2)."""
+
+    def __init__(self, gp):
+        self.gp = gp
+        self.r_ = {}
+        for node in gp.leaves():
+            lf = gp.leaf(node)
+            if lf.n_:
+                res = float(lf.sigma_n) ** 2 * np.asarray(lf.alpha_, dtype=float)[:lf.n_]
+                self.r_[node] = float(np.sqrt(np.mean(res * res)))
+
+    def local(self, z) -> float:
+        """s_loc(z) (leaf routing of the LoG-GP's merged prediction)."""
+        _, xl = self.gp._check_x(z)
+        return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp._route(xl, False)))
+
+    def predict(self, z) -> tuple[float, float, float]:
+        """(μ̃(z), σ̃²(z), s(z)) in one routing: the LoG-GP's merged mean and mixture variance
+        (as :meth:`sea_daemon.loggp.LoGGP.predict`) and the local scale."""
+        x, xl = self.gp._check_x(z)
+        mu = m2 = sl = 0.0
+        for node, w, _ in self.gp._route(xl, False):
+            m, v = self.gp.leaf(node).predict(x)
+            mu += w * m
+            m2 += w * (v + m * m)
+            sl += w * self.r_.get(node, 0.0)
+        var = max(m2 - mu * mu, 0.0)
+        return mu, var, float(math.sqrt(var + sl * sl))
+
+    def __call__(self, z, var: float) -> float:
+        s = self.local(z)
+        return float(np.sqrt(max(var, 0.0) + s * s))
+
+
+def conformal_quantile(scores: np.ndarray, alpha: float) -> float:
+    """Split-conformal quantile (Vovk et al. 2005; Lei et al. 2018): the ⌈(m + 1)(1 − α)⌉-th
+    smallest of m calibration scores.  For a new point exchangeable with the calibration
+    points, Pr(score_new ≤ q) ≥ 1 − α.  Needs m ≥ 1/α − 1 scores (else no finite q exists)."""
+    sc = np.sort(np.asarray(scores, dtype=float).ravel())
+    m = sc.size
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    r = int(math.ceil((m + 1) * (1.0 - alpha)))
+    if r > m:
+        raise ValueError(f"split conformal at alpha = {alpha:g} needs at least {int(math.ceil(1 / alpha)) - 1} "
+                         f"calibration scores, got {m}")
+    return float(sc[r - 1])
+
+
+def conformal_constants(scores: np.ndarray, delta: float, n_leaves: int = 1) -> BoundConstants:
+    """|f(z) − μ(z)| ≤ q s(z) with probability ≥ 1 − δ for a new z exchangeable with the
+    calibration pairs, s = :class:`LocalScale` (docs/bounds.md §2b).
+
+    ``scores`` are |y_i − μ(z_i)| / s(z_i) of held-out pairs (z_i, y_i = f(z_i) + ε_i)
+    that the GP never learned.  The targets are noisy; with ε symmetric and independent of the
+    rest, {|f − μ| > t} implies {|y − μ| > t} with probability ≥ 1/2, so
+    Pr(|f − μ| > t) ≤ 2 Pr(|y − μ| > t): the y-quantile is taken at α = δ/2.
+    """
+    q = conformal_quantile(scores, 0.5 * delta)
+    return BoundConstants(float(q), 0.0, 0.0, float("nan"), float("nan"), 0.0, float(delta), int(n_leaves),
+                          "local", "conformal")
+
+
+def fixed_constants(beta: float, delta: float) -> BoundConstants:
+    """A configured β (``estimator.gp_beta: <number>``): η = β s(z) with the local scale of
+    the conformal bound, so a β printed by ``bench bounds --gp-beta conformal`` can be configured."""
+    return BoundConstants(float(beta), 0.0, 0.0, float("nan"), float("nan"), 0.0, float(delta), 1,
+                          "local", "fixed")
 
 
 def _leaf_terms(leaf: LeafGP, L_k: float):

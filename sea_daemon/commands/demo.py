@@ -75,7 +75,7 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
                                res.tau_h_act_hat[:, 0] + res.tau_h_act_bound[:, 0], color=line.get_color(), alpha=0.12)
     ax[0].set_ylabel("τ_h,act [N m]")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[0].set_title(f"{name}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the filter's chi-square bound)")
+    ax[0].set_title(f"{name}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the Theorem-1 bound ρ_k)")
     ax[1].plot(t, np.degrees(est_log.q[:, 0]), label="q (load encoder)")
     ax[1].plot(t, np.degrees(est_log.theta_m[:, 0]), "--", label="θ_m (motor encoder / gear)")
     ax[1].set_ylabel("angle [deg]")

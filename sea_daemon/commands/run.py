@@ -45,6 +45,10 @@ def run(args) -> int:
     cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
     residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
     estimator = GPAKF(cfg, dt=cfg.dt, residual=residual, learning=False)
+    # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
+    # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
+    from ..bounds.akf_bound import attach_default_bound
+    attach_default_bound(estimator)
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
     if scen:

@@ -92,8 +92,20 @@ class AKF:
         self.dt = float(dt) if dt else cfg.dt
         est = cfg.estimator
         self.R = np.array(est.R, dtype=float)
-        self.Sigma_nom = np.array(est.Sigma_nom, dtype=float)
+        # Σ_nom as configured; ``Sigma_nom`` below is the per-step value the next step uses
+        # (:meth:`fill_sigma_nom`, equal to the configured one unless Sigma_nom_dt / tau_m_noise)
+        self.Sigma_nom_cfg = np.array(est.Sigma_nom, dtype=float)
+        self.Sigma_nom = self.Sigma_nom_cfg.copy()
+        self._S_dt = float(est.Sigma_nom_dt)
+        self._tau_m_var = float(est.tau_m_noise) ** 2
+        self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
+        self._S_base_dt = -1.0                        # step length of the cached Σ_nom·dt/T
+        self._S_base = self.Sigma_nom_cfg
+        # estimator.init_after_kinematics: samples left until the differentiator is full
+        self._init_kin = bool(est.init_after_kinematics)
+        self._filling = 0
         self.P0 = np.array(est.P0, dtype=float)
+        self._P_init = self.P0
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
         self.s = chi2_scale(self.delta, d)
@@ -121,6 +133,8 @@ class AKF:
         self.F_k = np.eye(d)
         self.Gamma_mu = np.zeros((d, n))
         self.Q_k = self.Sigma_nom.copy()
+        self.B_u = self.model.B_nom()                 # ∂f_nom/∂u (5n × n)
+        self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
         self.K_k = np.zeros((d, m))
         self.S_k = np.zeros((m, m))
         self.innovation = np.zeros(m)
@@ -216,7 +230,9 @@ class AKF:
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """Initialise from the first sample: x̂₀ measured (velocities 0, τ_h,act = 0),
-        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).
+        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).  With
+        ``estimator.init_after_kinematics`` the filter starts once the differentiator is full,
+        with the measured velocities (:meth:`_fill_kinematics`).
 
         Without a sample (``reset()``) the next :meth:`update` initialises instead.
         """
@@ -235,6 +251,10 @@ class AKF:
         else:
             self.x[:] = x0
         self.P[:] = self.P0 if P0 is None else P0
+        # init_after_kinematics: the velocities of y are valid once the differentiator holds a
+        # full window; until then hold x̂ at the measured angles and P at P₀ (see _fill_kinematics)
+        self._P_init = self.P0 if P0 is None else np.array(P0, dtype=float)
+        self._filling = self.kin.L - 1 if (self._init_kin and x0 is None) else 0
         self._t = 0.0
         # history primed with τ_m held before the first sample (times strictly increasing)
         self._hhead = self._hcap - 1
@@ -252,6 +272,8 @@ class AKF:
         if not self._ready:
             return self.reset(q, theta_m, tau_m)
         dt = self.dt if dt is None else float(dt)
+        if self._filling:
+            return self._fill_kinematics(q, theta_m, tau_m, dt)
         n = self.n
         # ẑ_{k−1} = [q̂, q̂̇, q̈] at the previous posterior (Alg. 2 line 5)
         x = self.x
@@ -263,10 +285,75 @@ class AKF:
         else:
             u = self._hu[self._hhead]
         y = self.measure(q, theta_m)
+        if self._S_varies:
+            self.fill_sigma_nom(dt)
         self.step(y, u, dt)
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         return self.est
+
+    def _fill_kinematics(self, q, theta_m, tau_m, dt: float) -> Estimate:
+        """A sample while the differentiator fills after :meth:`reset` (``init_after_kinematics``).
+
+        Sec. V-B: "the initial state x̂₀ is measured and P₀ is set to R" — but the velocities of y
+        come from the causal differentiator, which needs a full window (``kin.L`` samples) before
+        they are valid; started at once, a joint that is already moving (velocity 0 in x̂₀ with
+        P₀ = R) puts a spurious torque into τ̂_h,act.  So x̂ holds the measured angles, τ̂_h,act = 0
+        and P = P₀ until the window is full; at that sample x̂₀ = [y, 0] (angles and velocities
+        measured) and the filter runs from the next one.
+        """
+        n = self.n
+        y = self.measure(q, theta_m)
+        self._filling -= 1
+        x = self.x
+        x[:] = 0.0
+        x[:2 * n] = y[:2 * n]
+        if not self._filling:
+            x[:4 * n] = y
+        self.P[:] = self._P_init
+        self._t += dt
+        self._push_input(np.asarray(tau_m, dtype=float))
+        self.est.k += 1
+        return self._fill_estimate()
+
+    def fill_sigma_nom(self, dt: float) -> np.ndarray:
+        """Σ_nom,k for the next step of length ``dt`` into :attr:`Sigma_nom` (which :meth:`step` uses).
+
+        * ``estimator.Sigma_nom_dt`` = T > 0: the configured Σ_nom holds per step of T seconds,
+          i.e. white-noise intensities Σ_nom/T, so a step of dt gets Σ_nom·dt/T (the same
+          filter at 100 Hz and 1 kHz; Van Loan, IEEE TAC 1978, to first order in dt).
+        * ``estimator.tau_m_noise`` = σ_u > 0: the motor torque applied differs from the
+          commanded one by an error of std σ_u held over the step (current ripple, torque
+          constant); it enters like the input, ẋ = f_nom + B (u + w) (eq:nonlindyn), so it adds
+          Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
+          rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
+          Γ_u ≈ (I dt + A dt²/2 + A² dt³/6 + A³ dt⁴/24) B with A the last step's Jacobian
+          ``A_k`` (three matrix-vector products; truncation ≈ (‖A‖dt)⁴/120 relative, < 0.5 % at
+          100 Hz for the exoskeleton, ‖A‖dt ≈ 0.5).
+        """
+        S = self.Sigma_nom
+        if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
+            self._S_base_dt = dt
+            self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
+        if self._tau_m_var > 0:
+            A, B = self.A_k, self.B_u
+            # Γ_u = ∫₀^dt e^{As} ds B = dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) to fourth order (Horner)
+            G = A @ B
+            G *= 0.25 * dt
+            G += B
+            G = A @ G
+            G *= dt / 3.0
+            G += B
+            G = A @ G
+            G *= 0.5 * dt
+            G += B
+            G *= dt
+            self.Gamma_u[:] = G
+            np.dot(G * self._tau_m_var, G.T, out=S)
+            S += self._S_base
+        else:
+            S[:] = self._S_base
+        return S
 
     def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks,

@@ -42,8 +42,10 @@ class _ResidualHook:
     validated); the returned arrays are overwritten by the next call.
     """
 
-    def __init__(self, gp: ResidualGP, margin: float = 0.1):
+    def __init__(self, gp: ResidualGP, margin: float = 0.1, noise_in_Q: bool = False):
         self.gp = gp
+        # estimator.gp_noise_in_Q: σ² of the process noise = predictive variance σ² + σ_on²
+        self.noise_in_Q = bool(noise_in_Q)
         n = gp.n
         self.mu = np.zeros(n)
         self.jac = np.zeros((n, 3 * n))
@@ -63,6 +65,9 @@ class _ResidualHook:
         for i, g in enumerate(self.gp.gps):
             # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
             self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i])
+            if self.noise_in_Q:
+                # predictive variance of the residual torque at z: σ² + σ_on² (docs/gpakf.md)
+                self.var[i] += g.noise_variance(zc)
         if self.box.any_clipped:
             self.jac[:, self.box.clipped] = 0.0
         return self.mu, self.jac, self.var
@@ -84,7 +89,8 @@ class GPAKF(AKF):
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: ResidualGP | None = None,
                  learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0):
         self.gp = residual if residual is not None else ResidualGP.from_config(cfg)
-        super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp, cfg.estimator.gp_input_margin), model=model)
+        super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp, cfg.estimator.gp_input_margin,
+                                                                  cfg.estimator.gp_noise_in_Q), model=model)
         self.learning = bool(learning)
         self.tau_lag = int(tau_lag)
         n = self.n

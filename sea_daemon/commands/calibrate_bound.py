@@ -1,0 +1,72 @@
+"""``sea-daemon calibrate-bound LOG.csv --config MODEL.yaml --model MODEL.npz [--write OUT.yaml]``
+
+Split-conformal β of the GP error bound (docs/bounds.md §2b) for a trained GP model, from a
+held-out log with a passive subject that the model never learned: prints it as JSON and can
+write a copy of the configuration with ``estimator.gp_beta`` set to it, which ``sea-daemon
+run`` then uses for the Theorem-1 bound ρ_k (η = β √(σ² + s_loc²)).
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..config import load_config, save_config
+from ..errors import InputError
+from ..logio import read_log
+
+NAME = "calibrate-bound"
+HELP = "split-conformal beta of the GP error bound from a held-out passive log (estimator.gp_beta)"
+ORDER = 61
+DESCRIPTION = (
+    "Run the GP-AKF of --config with the GP of --model (frozen) over LOG.csv, a log with a passive "
+    "subject (ass:passive_human) that the model was NOT trained on (e.g. a second calibration "
+    "session), form each sample's training pair (z, f) with the filter's causal kinematics and "
+    "take the split-conformal quantile of |f - mu(z)| / s(z) at alpha = delta_GP / (2 n) "
+    "(delta_GP = estimator.delta / 2; the factor 2 turns the bound on the noisy targets into one on "
+    "the noise-free GP error). Valid for inputs exchangeable with the log's (the same kind of "
+    "motion, subject and plant) and per step, not uniformly (docs/bounds.md 2b). Prints JSON; "
+    "--write OUT.yaml saves the config with estimator.gp_beta = beta.")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("log", metavar="LOG.csv", help="held-out measured log, passive subject (contracts §1)")
+    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (contracts §2)")
+    p.add_argument("--model", metavar="MODEL.npz", required=True, help="model file written by sea-daemon calibrate")
+    p.add_argument("--write", metavar="OUT.yaml", default=None,
+                   help="write the config with estimator.gp_beta = the calibrated beta")
+
+
+def run(args) -> int:
+    import dataclasses
+
+    from ..bounds.akf_bound import conformal_gp_constants
+    from ..daemon.gpmodel import load_gp_model
+    from ..estimators.gpakf import GPAKF
+
+    cfg = load_config(args.config)
+    log = read_log(args.log, n=cfg.joints, min_rows=2)
+    residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
+    est = GPAKF(cfg, dt=log.dt, residual=residual, learning=False)
+    delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split
+    try:
+        consts, _, scores = conformal_gp_constants(est, log, delta_gp)
+    except ValueError as e:
+        raise InputError(f"{args.log}: {e}") from None
+    beta = max(c.sqrt_beta for c in consts)
+    out = {"log": str(args.log), "model": str(args.model), "config": str(args.config),
+           "pairs": int(len(scores)), "delta": cfg.estimator.delta, "delta_gp": delta_gp,
+           "alpha": delta_gp / (2 * cfg.joints), "beta": beta,
+           "beta_per_joint": [c.sqrt_beta for c in consts],
+           "score_quantiles": {q: np.quantile(scores, float(q) / 100, axis=0).tolist()
+                               for q in ("50", "90", "99")}}
+    if args.write:
+        new = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=float(beta)))
+        try:
+            save_config(new, args.write, header=f"calibrate-bound: estimator.gp_beta by split conformal on "
+                                                f"{args.log} ({len(scores)} pairs) for {args.model}")
+        except OSError as e:
+            raise InputError(f"--write {args.write}: cannot write: {e.strerror or e}") from None
+        out["written"] = str(args.write)
+    print(json.dumps(out))
+    return 0
