@@ -296,7 +296,7 @@ class LearningConfig:
 
     max_points: int = 100            # N̄: points per leaf
     max_leaves: int = 2000           # memory bound: leaves kept
-    overlap: float = 0.02            # relative width of a split's overlap (flat cost to 1e6 points)
+    overlap: float = 0.01            # relative width of a split's overlap (flat cost to 1e6 points)
     lengthscales: tuple[float, ...] = (0.5, 1.0, 10.0)   # initial l_i for z = [q, q̇, q̈]
     sigma_f: float = 1.0             # initial signal std [N m]
     sigma_n: float = 0.05            # initial noise std σ_on [N m]

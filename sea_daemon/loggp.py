@@ -41,8 +41,8 @@ adaptation in another process see :meth:`LoGGP.hyper_request` / :meth:`LoGGP.hyp
 
 Cost: an update is O(depth + N̄²); a prediction O(depth + m N̄²) for the m leaves it reaches.
 The depth grows logarithmically with the data, and m grows like (1 + overlap)^depth: with a
-small overlap (0.01, the ``lgrt4gps`` default) m stays ≈ 1.1 up to 10⁶ points (flat cost), with
-0.02 (the default here) 1.1 → 1.5; with 0.1, m went from 1.5 to 3.7 between 10³ and 10⁶ points
+small overlap (0.01, the default, as ``lgrt4gps``) m stays ≈ 1.1–1.3 up to 10⁶ points (flat
+cost), with 0.02 1.1 → 1.5; with 0.1, m went from 1.5 to 3.7 between 10³ and 10⁶ points
 on the bench trajectory (better averaging, gentler weight ramps, costlier predictions).  No I/O, no clock, no threads.
 """
 from __future__ import annotations
@@ -69,8 +69,8 @@ class LoGGP:
     input_dim: ρ, the input dimension (3 per joint for ``z = [q, q̇, q̈]``).
     max_points: N̄, the maximum number of points per leaf (paper: 100).
     max_leaves: memory bound on the number of leaves (``None``: unbounded).
-    overlap: relative width of a split's overlapping region, in [0, 0.9] (default 0.02: the
-        cost of a prediction stays flat as the tree deepens; ``lgrt4gps`` uses 0.01).
+    overlap: relative width of a split's overlapping region, in [0, 0.9] (default 0.01, as
+        ``lgrt4gps``: the cost of a prediction stays flat as the tree deepens).
     lengthscales, sigma_f, sigma_n: initial hyperparameters of every leaf (eq:SE, σ_on).
     hyperopt: adapt the hyperparameters online (bounded slices, see :mod:`sea_daemon.gp_hyper`).
     hyper_every: updates between two hyperparameter slices.
@@ -83,7 +83,7 @@ class LoGGP:
     """
 
     def __init__(self, input_dim: int, max_points: int = 100, *, max_leaves: int | None = 2000,
-                 overlap: float = 0.02, lengthscales=1.0, sigma_f: float = 1.0,
+                 overlap: float = 0.01, lengthscales=1.0, sigma_f: float = 1.0,
                  sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
                  hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
                  evict: int | None = None,
