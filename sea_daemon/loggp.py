@@ -402,17 +402,28 @@ class LoGGP:
         x, xl = self._check_x(x)
         return self._predict_with_grad(x, xl, var_grad, None)
 
-    def predict_grad_into(self, x: np.ndarray, out: np.ndarray) -> tuple[float, float]:
+    def predict_grad_into(self, x: np.ndarray, out: np.ndarray, noise: bool = False) -> tuple[float, float]:
         """``(μ, σ²)``, with ``∂μ/∂x`` written into ``out``: the GP-AKF's per-step call.
 
-        ``x`` must be a finite, C-contiguous float array of shape (input_dim,) (the caller has
-        validated it, e.g. clipped it into the input box); it is not checked here.
+        ``noise``: σ² + :meth:`noise_variance` (the predictive variance of a new target), from
+        the same routing.  ``x`` must be a finite, C-contiguous float array of shape
+        (input_dim,) (the caller has validated it, e.g. clipped it into the input box); it is
+        not checked here.
         """
-        r = self._predict_with_grad(x, x.tolist(), False, out)
+        r = self._predict_with_grad(x, x.tolist(), False, out, noise)
         return r[0], r[1]
 
-    def _predict_with_grad(self, x: np.ndarray, xl: list[float], var_grad: bool, out):
+    def _predict_with_grad(self, x: np.ndarray, xl: list[float], var_grad: bool, out, noise: bool = False):
         route = self._route(xl, True)
+        gps = self._gp
+        if noise:
+            # σ² + Σ ω_i σ_on,i² (noise_variance)
+            r = list(self._predict_with_grad_route(x, route, var_grad, out))
+            r[1] += sum(w * gps[node].sigma_n ** 2 for node, w, _ in route)
+            return tuple(r)
+        return self._predict_with_grad_route(x, route, var_grad, out)
+
+    def _predict_with_grad_route(self, x: np.ndarray, route: list, var_grad: bool, out):
         gps = self._gp
         if len(route) == 1:
             return gps[route[0][0]].predict_with_grad(x, var_grad, out=out)

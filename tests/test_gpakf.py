@@ -317,3 +317,25 @@ def test_two_joints_learn_a_hidden_load_torque_per_joint():
     e_akf = np.sqrt(np.mean((r_akf.tau_h_act_hat - log.tau_h_act)[100:] ** 2, axis=0))
     assert np.all(e_akf > 0.2), e_akf
     assert np.all(e_gp < e_akf / 3), (e_gp, e_akf)
+
+
+def test_residual_hook_with_noise_in_q_adds_the_merged_leaf_noise():
+    """gp_noise_in_Q: the hook's σ² is the latent variance plus Σ ω_i σ_on,i² of the leaves z
+    reaches (LoGGP.noise_variance), inside and outside split overlaps."""
+    from sea_daemon.estimators.gpakf import _ResidualHook
+    from sea_daemon.learning import ResidualGP
+    rng = np.random.default_rng(5)
+    res = ResidualGP(1, overlap=0.3, max_points=20)
+    Z = rng.uniform(-1, 1, (200, 3))
+    for z in Z:
+        res.update(z, [np.sin(3 * z[0]) + 0.1 * z[1]])
+    g = res.gps[0]
+    plain, noisy = _ResidualHook(res), _ResidualHook(res, noise_in_Q=True)
+    seen = set()
+    for z in rng.uniform(-0.9, 0.9, (40, 3)):
+        mu0, jac0, var0 = (a.copy() for a in plain.predict(z))
+        mu1, jac1, var1 = noisy.predict(z)
+        assert mu1[0] == mu0[0] and np.array_equal(jac1, jac0)
+        assert var1[0] == pytest.approx(var0[0] + g.noise_variance(z), rel=1e-12, abs=1e-15)
+        seen.add(len(g._route(z.tolist(), False)) > 1)
+    assert seen == {False, True}

@@ -64,10 +64,9 @@ class _ResidualHook:
         zc = self.box.clip(z)
         for i, g in enumerate(self.gp.gps):
             # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
-            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i])
-            if self.noise_in_Q:
-                # predictive variance of the residual torque at z: σ² + σ_on² (docs/gpakf.md)
-                self.var[i] += g.noise_variance(zc)
+            # with gp_noise_in_Q the predictive variance of the residual torque at z: σ² + σ_on²
+            # (docs/gpakf.md)
+            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i], self.noise_in_Q)
         if self.box.any_clipped:
             self.jac[:, self.box.clipped] = 0.0
         return self.mu, self.jac, self.var
