@@ -336,21 +336,10 @@ class AKF:
             self._S_base_dt = dt
             self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
         if self._tau_m_var > 0:
-            A, B = self.A_k, self.B_u
-            # Γ_u = ∫₀^dt e^{As} ds B = dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) to fourth order (Horner)
-            G = A @ B
-            G *= 0.25 * dt
-            G += B
-            G = A @ G
-            G *= dt / 3.0
-            G += B
-            G = A @ G
-            G *= 0.5 * dt
-            G += B
-            G *= dt
-            self.Gamma_u[:] = G
-            np.dot(G * self._tau_m_var, G.T, out=S)
-            S += self._S_base
+            # Γ_u = ∫₀^dt e^{As} ds B = dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) to fourth order
+            # (Horner), S = Σ_nom·dt/T + Γ_u σ_u² Γ_uᵀ (compiled: akf_core.input_noise)
+            akf_core.input_noise(self.A_k, self.B_u, float(dt), self._tau_m_var, self._S_base,
+                                 self.Gamma_u, S)
         else:
             S[:] = self._S_base
         return S

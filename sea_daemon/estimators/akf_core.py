@@ -211,6 +211,33 @@ def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
         tau_bound[i] = sd * sqrt_s
 
 
+@njit
+def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
+    """Γ_u = ∫₀^dt e^{As} ds B ≈ dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) (fourth order,
+    Horner; Franklin, Powell & Workman §4.3.3) into ``Gam_u`` and S = S_base + Γ_u σ_u² Γ_uᵀ:
+    a motor-torque error of variance σ_u² held over the step (AKF.fill_sigma_nom)."""
+    d, r = B.shape
+    G = np.empty((d, r))
+    T = np.empty((d, r))
+    for i in range(d):
+        for j in range(r):
+            G[i, j] = B[i, j]
+    for c in (0.25, 1.0 / 3.0, 0.5):
+        matmul(A, G, T)
+        for i in range(d):
+            for j in range(r):
+                G[i, j] = B[i, j] + c * dt * T[i, j]
+    for i in range(d):
+        for j in range(r):
+            Gam_u[i, j] = dt * G[i, j]
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for k in range(r):
+                s += Gam_u[i, k] * Gam_u[j, k]
+            S[i, j] = S_base[i, j] + var_u * s
+
+
 @warmer
 def _warm() -> None:
     """Compile with the types the AKF passes (1 joint; shapes do not change the types)."""
@@ -227,3 +254,4 @@ def _warm() -> None:
     v = np.zeros(n)
     residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
     fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())
+    input_noise(np.eye(d), np.ones((d, n)), 0.01, 1e-4, np.eye(d), np.zeros((d, n)), np.zeros((d, d)))
