@@ -34,8 +34,9 @@ def test_bench_bounds_runs_both_betas_and_an_unseen_pair(tmp_path, capsys):
         g, c = sc["gp-akf"], sc["gp-akf/conformal"]
         assert g["gp_beta_method"] == "lederer" and c["gp_beta_method"] == "conformal"
         assert c["conformal_calibration_pairs"] > 600
-        # same estimate, different bound: the GP-AKF's error is the same in both columns
-        assert g["mean_abs_error"] == c["mean_abs_error"]
+        # same estimate, different bound: the GP-AKF's error is the same in both columns (to
+        # rounding: the calibration run leaves the LoG-GP's cached solves computed in another order)
+        assert g["mean_abs_error"] == pytest.approx(c["mean_abs_error"], rel=1e-4)
         assert g["mean_rho"] >= g["mean_kf_bound"] and c["mean_rho"] >= c["mean_kf_bound"]
         assert g["bound_time_median_us"] > 0
     assert (tmp_path / "b" / "passive.png").stat().st_size > 10000

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sea_daemon import cli
-from sea_daemon.bench.accuracy import apply_settings
+from sea_daemon.bench import apply_settings
 from sea_daemon.config import load_config, repo_root
 from sea_daemon.estimators import AKF
 from sea_daemon.estimators.gpakf import GPAKF, build, learn_from_log

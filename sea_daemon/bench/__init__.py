@@ -48,3 +48,44 @@ def summarize(samples_s, scale: float = 1e6, unit: str = "us") -> str:
     p50, p99, p999 = np.percentile(a, [50, 99, 99.9])
     return (f"median {p50:.1f} {unit}, p99 {p99:.1f} {unit}, p99.9 {p999:.1f} {unit}, "
             f"max {a.max():.1f} {unit} ({a.size} runs)")
+
+
+def add_settings_argument(p) -> None:
+    """``--settings MODEL.yaml|scenario``: the estimator settings every estimator of a simulated
+    benchmark uses (accuracy, bounds)."""
+    p.add_argument("--settings", default=None, metavar="MODEL.yaml",
+                   help="estimator settings (estimator, kinematics, learning sections) used by EVERY "
+                        "estimator (default: configs/exo_1dof_sim.yaml, R identified for the simulated "
+                        "sensors); 'scenario': each scenario's own model config (the paper's R, Sigma_nom)")
+
+
+def load_settings(text: str | None):
+    """(path, ModelConfig or None) of a ``--settings`` value (None: the scenario's own config)."""
+    from ..config import load_config, repo_root
+    path = text or str(repo_root() / "configs" / "exo_1dof_sim.yaml")
+    return path, (None if path == "scenario" else load_config(path))
+
+
+def apply_settings(cfg, settings):
+    """``cfg`` with the estimator, kinematics and learning sections of ``settings`` (the model,
+    i.e. what the estimator knows of the plant, is kept): one setting for every estimator."""
+    import dataclasses
+    if settings is None:
+        return cfg
+    return dataclasses.replace(cfg, estimator=settings.estimator, kinematics=settings.kinematics,
+                               learning=settings.learning)
+
+
+def describe_settings(path: str, settings) -> str:
+    """One line naming the estimator settings of a run."""
+    if settings is None:
+        return "estimator settings: each scenario's own model config"
+    e = settings.estimator
+    return (f"estimator settings (all estimators): {path}: R diag {np.diag(e.R).tolist()}, "
+            f"Sigma_nom diag {np.diag(e.Sigma_nom).tolist()}"
+            + (f" per {e.Sigma_nom_dt} s" if e.Sigma_nom_dt > 0 else " per step")
+            + (f" + motor-torque noise {e.tau_m_noise} N m through Gamma_u" if e.tau_m_noise > 0 else "")
+            + ("; GP-AKF Q with sigma^2 + sigma_on^2" if e.gp_noise_in_Q else "")
+            + ("; start with measured velocities" if e.init_after_kinematics else "")
+            + f", kinematics {settings.kinematics.method} "
+            f"W={settings.kinematics.window} d={settings.kinematics.degree}")

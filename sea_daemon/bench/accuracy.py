@@ -38,6 +38,7 @@ from ..config import repo_root
 from ..errors import InputError
 from ..estimators import AKF, SpringTorqueEstimator
 from ..replay import replay, summarize
+from . import add_settings_argument, apply_settings, describe_settings, load_settings
 
 NAME = "accuracy"
 HELP = "RMSE of spring / AKF / oracle AKF (and GP-AKF when registered) on the paper's scenarios; plots"
@@ -70,27 +71,10 @@ def default_scenarios() -> list[str]:
     return [str(d / "passive.yaml"), str(d / "active.yaml")]
 
 
-def default_settings() -> str:
-    return str(repo_root() / "configs" / "exo_1dof_sim.yaml")
-
-
-def apply_settings(cfg, settings):
-    """``cfg`` with the estimator, kinematics and learning sections of ``settings`` (the model,
-    i.e. what the estimator knows of the plant, is kept): one setting for every estimator."""
-    import dataclasses
-    if settings is None:
-        return cfg
-    return dataclasses.replace(cfg, estimator=settings.estimator, kinematics=settings.kinematics,
-                               learning=settings.learning)
-
-
 def add_arguments(p) -> None:
     p.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO.yaml",
                    help="scenario files (default: configs/scenarios/passive.yaml active.yaml)")
-    p.add_argument("--settings", default=None, metavar="MODEL.yaml",
-                   help="estimator settings (estimator, kinematics, learning sections) used by EVERY "
-                        "estimator (default: configs/exo_1dof_sim.yaml, R identified for the simulated "
-                        "sensors); 'scenario': each scenario's own model config (the paper's R, Sigma_nom)")
+    add_settings_argument(p)
     p.add_argument("--out", default="bench_accuracy", help="directory for the plots and results.json")
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all registered)")
     p.add_argument("--bound", choices=["theorem", "kf"], default="theorem",
@@ -135,22 +119,9 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     import os
 
-    from ..config import load_config
-    settings_path = args.settings or default_settings()
-    settings = None if settings_path == "scenario" else load_config(settings_path)
+    settings_path, settings = load_settings(args.settings)
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
-    if settings is None:
-        print("estimator settings: each scenario's own model config")
-    else:
-        e = settings.estimator
-        print(f"estimator settings (all estimators): {settings_path}: R diag {np.diag(e.R).tolist()}, "
-              f"Sigma_nom diag {np.diag(e.Sigma_nom).tolist()}"
-              + (f" per {e.Sigma_nom_dt} s" if e.Sigma_nom_dt > 0 else " per step")
-              + (f" + motor-torque noise {e.tau_m_noise} N m through Gamma_u" if e.tau_m_noise > 0 else "")
-              + ("; GP-AKF Q with sigma^2 + sigma_on^2" if e.gp_noise_in_Q else "")
-              + ("; start with measured velocities" if e.init_after_kinematics else "")
-              + f", kinematics {settings.kinematics.method} "
-              f"W={settings.kinematics.window} d={settings.kinematics.degree}")
+    print(describe_settings(settings_path, settings))
     table = {}
     for sc_path in args.scenarios or default_scenarios():
         sc = load_scenario(sc_path)

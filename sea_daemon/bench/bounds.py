@@ -24,6 +24,11 @@ conformal calibration log — of TRAIN).  Default: ``passive``, ``active`` (the 
 with an effect the GP has not seen, trained on ``passive``: ``unseen_range`` (moves up to
 110 deg, beyond the 75 deg of the training) and ``unseen_load`` (a 0.5 kg weight in the hand).
 
+Estimator settings (``--settings``, as in ``bench accuracy``): default
+``configs/exo_1dof_sim.yaml`` for every estimator (the settings of the accuracy figures and of
+``sea-daemon demo``); ``scenario`` keeps each scenario's own config (the paper's R, Σ_nom).
+``--als`` then replaces R (and P0's measurement block) by the ALS estimate of the training log.
+
 GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19) and/or ``conformal``
 (split-conformal β from a held-out calibration log: the training phase of the training
 scenario simulated again with seed + 1000, which the GP never learned) or a number; one
@@ -43,6 +48,7 @@ import numpy as np
 
 from ..config import repo_root
 from ..errors import InputError
+from . import add_settings_argument, apply_settings, describe_settings, load_settings
 
 NAME = "bounds"
 HELP = "coverage of the Theorem-1 bound rho_k (and of the KF's own bound) on the paper's scenarios; plots"
@@ -89,6 +95,7 @@ def add_arguments(p) -> None:
                         "active.yaml unseen_range.yaml@passive.yaml unseen_load.yaml@passive.yaml)")
     p.add_argument("--out", default="bench_bounds", help="directory for the plots and results.json")
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all available)")
+    add_settings_argument(p)
     p.add_argument("--als", action="store_true",
                    help="identify R from each scenario's training log by ALS (identify-noise) and use it "
                         "(and P0 = R) for every estimator instead of the configured R")
@@ -175,7 +182,9 @@ def run(args) -> int:
     labels = choose(args.estimators, builders, "--estimators")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    settings_path, settings = load_settings(args.settings)
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
+    print(describe_settings(settings_path, settings))
     table = {}
     sims = {}
 
@@ -195,7 +204,7 @@ def run(args) -> int:
             cal = sim_of(train_path, sc_train.seed + 1000).training
         name = Path(est_path).stem
         delta = sc.nominal.estimator.delta
-        nominal, true = sc.nominal, sc.true_config()
+        nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
         trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
         print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
         if args.als:
