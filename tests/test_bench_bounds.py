@@ -40,3 +40,39 @@ def test_bench_bounds_runs_both_betas_and_an_unseen_pair(tmp_path, capsys):
         assert g["mean_rho"] >= g["mean_kf_bound"] and c["mean_rho"] >= c["mean_kf_bound"]
         assert g["bound_time_median_us"] > 0
     assert (tmp_path / "b" / "passive.png").stat().st_size > 10000
+
+
+def test_a_latched_fault_ends_the_run_and_is_reported():
+    """An estimator fault (e.g. NIS divergence on an unseen load) latches as in the daemon: the
+    samples after it are not estimates; _run_one cuts them off and returns the step and cause."""
+    import numpy as np
+    from sea_daemon.bench.bounds import _run_one
+    from sea_daemon.estimators.health import NISDivergence
+    from sea_daemon.logio import MeasuredLog
+
+    class Est:
+        delta = 0.05
+
+        def __init__(self):
+            from sea_daemon.estimators.base import Estimate
+            self.e = Estimate.zeros(1)
+            self.k = 0
+
+        def reset(self, *a):
+            return self.e
+
+        def update(self, *a):
+            self.k += 1
+            if self.k == 7:
+                raise NISDivergence("NIS divergence at step 7")
+            self.e.tau_h_act_hat[:] = 0.1 * self.k
+            return self.e
+
+    N = 20
+    t = np.arange(N) * 0.01
+    log = MeasuredLog(t=t, q=np.zeros((N, 1)), theta_m=np.zeros((N, 1)), tau_m=np.zeros((N, 1)),
+                      tau_h_act=np.zeros((N, 1)), path="<test>")
+    hat, rho, kf, times, btimes, fault = _run_one(Est(), log)
+    assert fault[0] == 7 and "NISDivergence" in fault[1]
+    assert len(hat) == len(rho) == 7 and len(times) == 6 and btimes is None
+    assert hat[6, 0] == pytest.approx(0.6)

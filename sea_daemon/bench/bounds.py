@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import repo_root
-from ..errors import InputError
+from ..errors import EstimatorFault, InputError
 from . import add_settings_argument, apply_settings, describe_settings, load_settings
 
 NAME = "bounds"
@@ -145,17 +145,26 @@ def _run_one(est, log):
     e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     hat[0], rho[0] = e.tau_h_act_hat, e.tau_h_act_bound
     kf[0] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
+    fault = None
     for k in range(1, N):
         spent[0] = 0.0
         t0 = time.perf_counter()
-        e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        try:
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        except EstimatorFault as exc:
+            # the daemon's reaction (docs/safety.md): the fault latches, the estimate is invalid
+            # from here on -- the rows after it are not estimates and are cut off
+            fault = (k, f"{type(exc).__name__}: {exc}")
+            N = k
+            hat, rho, kf, times, inner = hat[:k], rho[:k], kf[:k], times[:k - 1], inner[:k - 1]
+            break
         times[k - 1] = time.perf_counter() - t0
         inner[k - 1] = spent[0]
         hat[k], rho[k] = e.tau_h_act_hat, e.tau_h_act_bound
         kf[k] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
     if tb is not None:
         tb._step = filt
-    return hat, rho, kf, times, (times - inner if tb is not None else None)
+    return hat, rho, kf, times, (times - inner if tb is not None else None), fault
 
 
 def _cases(paths):
@@ -217,14 +226,22 @@ def run(args) -> int:
               f"{'mean|e|':>8s} {'max|e|':>8s} {'rho/|e|':>8s}  step time / bound's share [us]")
         rows, curves = {}, {}
         for label in labels:
-            est = builders[label](nominal, true, train, cal, log.dt)
-            hat, rho, kf, times, btimes = _run_one(est, log)
-            err = np.abs(hat - log.tau_h_act)
+            try:
+                est = builders[label](nominal, true, train, cal, log.dt)
+            except EstimatorFault as exc:
+                rows[label] = {"fault": f"training: {exc}"}
+                print(f"  {label:<14s} fault while learning the training log: {exc}")
+                continue
+            hat, rho, kf, times, btimes, fault = _run_one(est, log)
+            err = np.abs(hat - log.tau_h_act[:len(hat)])
             row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
                    "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
                    "mean_abs_error": float(np.mean(err)), "max_abs_error": float(np.max(err)),
                    "step_time": summarize(times)}
             row["rho_over_error"] = row["mean_rho"] / max(row["mean_abs_error"], 1e-300)
+            if fault is not None:
+                row["fault_step"], row["fault"] = fault
+                row["valid_fraction"] = len(hat) / len(log)
             tail = f"step median {1e6 * np.median(times):.0f}, p99 {1e6 * np.percentile(times, 99):.0f}"
             if btimes is not None:
                 row["bound_time"] = summarize(btimes)
@@ -243,6 +260,9 @@ def run(args) -> int:
             info = getattr(est, "conformal_info_", None)
             if info is not None:
                 row["conformal_calibration_pairs"] = int(info[1])
+            if fault is not None:
+                tail += (f"; FAULT latched at step {fault[0]} (t = {log.t[fault[0]] - log.t[0]:.2f} s, "
+                         f"{fault[1].split(':')[0]}): figures over the {len(hat)} valid samples")
             rows[label] = row
             curves[label] = (hat, rho)
             print(f"  {label:<14s} {row['coverage_rho']:9.3f} {row['coverage_kf']:9.3f} {row['mean_rho']:9.3f} "
@@ -269,8 +289,9 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     for label, (h, r) in curves.items():
         c = colors.get(label)
         # variants of one estimator (gp-akf/...) share its estimate: dashed, so both stay visible
-        ax.plot(t0, h[:, 0], color=c, lw=1.2, ls="--" if "/" in label else "-", label=f"{label} ± ρ")
-        ax.fill_between(t0, h[:, 0] - r[:, 0], h[:, 0] + r[:, 0], color=c, alpha=0.15, lw=0)
+        tt = t0[:len(h)]            # a latched fault ends an estimator's curve
+        ax.plot(tt, h[:, 0], color=c, lw=1.2, ls="--" if "/" in label else "-", label=f"{label} ± ρ")
+        ax.fill_between(tt, h[:, 0] - r[:, 0], h[:, 0] + r[:, 0], color=c, alpha=0.15, lw=0)
     ax.plot(t0, truth[:, 0], "k:", lw=1.6, label="truth")
     # keep the estimates readable when a ρ band is huge (it is then clipped by the axes)
     lo = min(truth[:, 0].min(), *(h[:, 0].min() for h, _ in curves.values()))
