@@ -72,6 +72,10 @@ def test_demo_command_quick(tmp_path, capsys):
     s = json.loads((tmp_path / "summary.json").read_text())["scenarios"]["active"]
     assert s["cycles"] == 80 and s["estimators"]["akf"]["samples"] == 40
     assert s["estimators"]["akf"]["rmse"] > 0
+    # the run used the split-conformal beta of the held-out session (calibrate-bound --write)
+    from sea_daemon.config import load_config
+    assert s["gp_beta"]["pairs"] >= 79 and "heldout" in s["gp_beta"]["log"]
+    assert load_config(tmp_path / "active_config.yaml").estimator.gp_beta == pytest.approx(s["gp_beta"]["beta"])
     for f in ("active_train.csv", "active_est.csv", "active_akf.csv", "active_spring.csv", "active.png"):
         assert (tmp_path / f).stat().st_size > 0
     assert main(["demo", "--out", str(tmp_path), "--samples", "3"]) == 2

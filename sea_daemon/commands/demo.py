@@ -8,8 +8,12 @@ and the daemon talks to it through its own code paths:
 
 1. ``sea-daemon calibrate`` — the training phase (subject passive; the scenario's controller
    moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
-2. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
-   online in the loop (the scenario's controller drives, the subject acts as the scenario says).
+2. ``sea-daemon calibrate-bound`` — a second, held-out calibration session (the same moves,
+   independent noise: the scenario's seed + 1000) gives the split-conformal β of the GP error
+   bound (docs/bounds.md §2b), written into the configuration the run uses (``estimator.gp_beta``);
+3. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
+   online in the loop (the scenario's controller drives, the subject acts as the scenario says)
+   and publishes the Theorem-1 bound ρ_k with every estimate.
 
 Then the daemon's measured log of the estimation phase, with the subject's true torque added
 (known from the device model), is replayed with the AKF and the spring-torque estimate, and the
@@ -42,6 +46,8 @@ DESCRIPTION = __doc__
 
 SCENARIOS = ("passive", "active")
 ESTIMATORS = ("spring", "akf", "gp-akf")
+#: fewest cycles of the held-out session (split conformal at alpha = delta/4 needs >= 79 pairs)
+HELD_OUT_MIN = 120
 
 
 def add_arguments(p) -> None:
@@ -99,6 +105,18 @@ def _daemon(argv: list[str]) -> dict:
     return summary
 
 
+def _held_out_scenario(sc_path: str, dest: Path) -> Path:
+    """A copy of the scenario with another noise seed (seed + 1000) and its model path made
+    absolute: a calibration session the GP never learned, for calibrate-bound."""
+    import yaml
+    src = Path(sc_path)
+    d = yaml.safe_load(src.read_text())
+    d["seed"] = int(d.get("seed", 0)) + 1000
+    d["model"] = str((src.parent / d["model"]).resolve())
+    dest.write_text(yaml.safe_dump(d, sort_keys=False))
+    return dest
+
+
 def _with_truth(log_path: str, tau_h, n: int):
     """The daemon's log as a MeasuredLog with the subject's true torque over each row's interval."""
     from ..logio import MeasuredLog, read_log
@@ -140,11 +158,19 @@ def run(args) -> int:
         n_est = args.samples or sc.estimation_samples
         logs = out / name
         model = out / f"{name}_model.npz"
-        common = ["--config", str(cfg_path), "--device-model", sc_path, "--log-dir", str(logs), "--pace", args.pace]
+        def common(config, scenario, log_dir):
+            return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
+                    "--pace", args.pace, "--scenario", str(scenario)]
         t0 = time.perf_counter()
-        cal = _daemon(["calibrate", *common, "--scenario", sc_path, "--out", str(model), "--cycles", str(n_tr)])
+        cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
+        held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
+        hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
+                        "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, HELD_OUT_MIN))])
+        run_cfg = out / f"{name}_config.yaml"
+        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(cfg_path), "--model", str(model),
+                         "--write", str(run_cfg)])
         t1 = time.perf_counter()
-        est = _daemon(["run", *common, "--model", str(model), "--scenario", sc_path, "--cycles", str(n_est)])
+        est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
         t2 = time.perf_counter()
         # the device model's subject: passive in calibration, the scenario's in estimation
         train_log = _with_truth(cal["log"], _human(sc, "training"), n)
@@ -162,6 +188,7 @@ def run(args) -> int:
                        "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
                        "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
                        "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
+                       "gp_beta": {k: bound[k] for k in ("beta", "pairs", "alpha", "log")},
                        "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
                        "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
                        "estimators": {}}
@@ -189,6 +216,7 @@ def run(args) -> int:
         print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
               f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
               f"{e['cycle_compute_us_median']} us, p99 {e['cycle_compute_us_p99']} us; overruns "
-              f"{e['calibrate']['overruns'] + e['run']['overruns']})")
+              f"{e['calibrate']['overruns'] + e['run']['overruns']}); bound: split-conformal beta "
+              f"{e['gp_beta']['beta']:.2f} from a held-out session ({e['gp_beta']['pairs']} pairs)")
     print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
     return 0
