@@ -217,21 +217,20 @@ class EstimatorConfig:
         nis_scale = _num(source, "estimator.nis_scale", d.get("nis_scale", 10.0))
         if not nis_scale >= 1:
             raise ConfigError(source, "estimator.nis_scale", f"must be >= 1, got {nis_scale}")
-        margin = _num(source, "estimator.gp_input_margin", d.get("gp_input_margin", 0.1))
-        if not margin >= 0:
-            raise ConfigError(source, "estimator.gp_input_margin", f"must be >= 0, got {margin}")
+        def _nonneg(key, default, unit=""):
+            v = _num(source, f"estimator.{key}", d.get(key, default))
+            if not v >= 0:
+                raise ConfigError(source, f"estimator.{key}", f"must be >= 0{unit}, got {v}")
+            return v
+        margin = _nonneg("gp_input_margin", 0.1)
         gp_beta = d.get("gp_beta", "lederer")
         if gp_beta != "lederer":
             if isinstance(gp_beta, bool) or not isinstance(gp_beta, (int, float)) or not (
                     np.isfinite(gp_beta) and gp_beta > 0):
                 raise ConfigError(source, "estimator.gp_beta", f"must be 'lederer' or a number > 0, got {gp_beta!r}")
             gp_beta = float(gp_beta)
-        S_dt = _num(source, "estimator.Sigma_nom_dt", d.get("Sigma_nom_dt", 0.0))
-        if not S_dt >= 0:
-            raise ConfigError(source, "estimator.Sigma_nom_dt", f"must be >= 0 [s] (0: Sigma_nom per step), got {S_dt}")
-        tau_m_noise = _num(source, "estimator.tau_m_noise", d.get("tau_m_noise", 0.0))
-        if not tau_m_noise >= 0:
-            raise ConfigError(source, "estimator.tau_m_noise", f"must be >= 0 [N m], got {tau_m_noise}")
+        S_dt = _nonneg("Sigma_nom_dt", 0.0, " [s] (0: Sigma_nom per step)")
+        tau_m_noise = _nonneg("tau_m_noise", 0.0, " [N m]")
         def _bool(key):
             v = d.get(key, False)
             if not isinstance(v, bool):
