@@ -86,8 +86,9 @@ class AKFTheoremBound:
         self._step = akf.step
         self._reset = akf.reset
         self.gp_box_violations_ = 0
-        self.eta_ = np.zeros(n)
-        self.lin_err_ = np.zeros(d)
+        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
+        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
 
     # ------------------------------------------------------------------ hooks
 
@@ -175,9 +176,10 @@ class AKFTheoremBound:
         return b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
-        """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
-        projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
-        them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
+        """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
+        depends on x only through them (q̈ is measured): the GP mean's linearisation error
+        |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and σ(z) (or s(z)).  Returns (E, S, out-of-box flag),
+        E and S of shape (points, n), in N m."""
         akf = self.akf
         n = akf.n
         res = akf.residual
@@ -210,19 +212,15 @@ class AKFTheoremBound:
                 MU[i], S[i] = m_, v_
         if not local:
             S = np.sqrt(np.maximum(S, 0.0))
-        # max over the points of |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and of σ (or s)
-        e = np.max(np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T), axis=0)
-        smax = np.max(S, axis=0)
+        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s)
+        E = np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
             lo, hi = self.gp_box
             out = bool(np.any(Cz.c - hw < lo[:2 * n]) or np.any(Cz.c + hw > hi[:2 * n])
                        or np.any(zhat[2 * n:] < lo[2 * n:]) or np.any(zhat[2 * n:] > hi[2 * n:]))
-        # ε_μ = −I_μ M⁻¹ (μ(z) − μ̄(z)): rows θ̈_s, bounded elementwise by |M⁻¹| e
-        b = np.zeros(akf.d)
-        b[3 * n:4 * n] = np.abs(akf.model.Minv) @ e
-        return b, smax, out
+        return E, S, out
 
     def _phi(self, A, b, dt):
         """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
@@ -264,12 +262,19 @@ class AKFTheoremBound:
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
-            bg, smax, out = self._gp_box(zhat, x0, P0)
-            b = b + (1.0 + sm.margin) * bg
+            E, S, out = self._gp_box(zhat, x0, P0)
             self.gp_box_violations_ += int(out)
-            # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
-            eta = np.array([c.eta(sj) for c, sj in zip(self.gp_constants, smax)])
-            self.eta_ = eta
+            # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point
+            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)])
+            # The GP error f_j(z) − μ_j(z) and the GP mean's linearisation error
+            # μ_j(z) − μ_j(ẑ) − ∂μ_j/∂z (z − ẑ) are parts of ONE torque error at the same (true) z,
+            # f_j(z) − [μ_j(ẑ) + ∂μ_j/∂z (z − ẑ)], which enters the state through Γ_μ (= Φ I_μ M⁻¹,
+            # eq:Dmuhat): bound it per joint by the max over the points of the SUM (not the sum
+            # of the two maxima, which may sit at different points), the sampled part + margin
+            Lm = (1.0 + sm.margin) * E
+            eta = np.max(H + Lm, axis=0)
+            self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
+            self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
         Phi = self._phi(akf.A_k, b, dt)
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
