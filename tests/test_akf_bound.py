@@ -218,7 +218,7 @@ def test_gp_error_and_gp_linearisation_error_are_bounded_as_one_torque_error():
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     x0, P0, zhat = akf.x.copy(), akf.P.copy(), akf.z.copy()
     # the points of the projected confidence set C_0 (X̂_0 = 0) on which the bound samples
-    pts = ellipsoid_points(tb.sm.confidence_set(x0, P0, T=tb._T), tb._Uz)
+    pts = ellipsoid_points(tb.sm.confidence_set(x0, P0, T=tb._T, s=tb._s_z), tb._Uz)
     mu0, J0, _ = res.predict(zhat)
     E, S = [], []
     for p in pts:
@@ -239,3 +239,34 @@ def test_gp_error_and_gp_linearisation_error_are_bounded_as_one_torque_error():
     assert np.all(tb.lin_err_ == 0.0)
     assert tb.eta_[0] == pytest.approx(beta * S.max(), rel=1e-12)
     assert tb.gp_lin_err_[0] == pytest.approx((1 + tb.sm.margin) * E.max(), rel=1e-12)
+
+
+def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
+    """Without declared effects the linearisation error depends on x only through q (plain AKF) or
+    (q, q̇) (GP-AKF), so the set it is bounded over is the χ²_n (χ²_2n) confidence set of those
+    coordinates — not the χ²_5n set of the whole state (Theorem 1 only needs x ∈ that set)."""
+    cfg = load_config(default_config_path())
+    log = simulate(SEAModel.from_config(cfg), T=0.1, seed=3)
+    akf = AKF(cfg)
+    tb = attach_theorem_bound(akf)
+    d = cfg.estimator.delta
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    x0, P0 = akf.x.copy(), akf.P.copy()
+    akf.update(log.q[1], log.theta_m[1], log.tau_m[1], log.dt)
+    # X̂_0 = 0: |q − q̂| ≤ r = √(χ²_1(1 − δ) eᵀ P_0 e), e = e_θm + e_θs; the exact max of the gravity
+    # term's linearisation error over it, on a fine grid
+    e = np.array([1.0, 1.0, 0, 0, 0])
+    r = np.sqrt(chi2_quantile(1 - d, 1) * e @ P0 @ e)
+    qh = x0[0] + x0[1]
+    D = np.linspace(-r, r, 20001)
+    h = np.max(np.abs(np.sin(qh + D) - np.sin(qh) - np.cos(qh) * D))
+    scale = abs(SEAModel.from_config(cfg).Minv[0, 0]) * abs(cfg.model.gravity[0])
+    assert h > 0
+    # the bound's grid (65 points) adds at most its documented gap term min(2, r)·r/64
+    assert scale * h <= tb.lin_err_[3] <= scale * (h + min(2.0, r) * r / 64)
+    assert tb._s_z == pytest.approx(chi2_quantile(1 - d, 1))
+    # with a GP the set is that of (q, q̇): χ²_2
+    consts = [BoundConstants(sqrt_beta=2.0, gamma=0.0, tau=0.0, L_f=0.0, L_mu=0.0, omega_sigma=0.0,
+                             delta=0.025, n_leaves=1)]
+    tb2 = attach_theorem_bound(AKF(cfg, residual=SplitResidual()), gp_constants=consts)
+    assert tb2._s_z == pytest.approx(chi2_quantile(1 - (d - tb2.sm.delta_gp), 2))

@@ -35,7 +35,8 @@ from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
 from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
                        input_box, loggp_leaves)
-from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
+from .setmember import (SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points,
+                        input_matrix)
 
 
 class AKFTheoremBound:
@@ -78,6 +79,13 @@ class AKFTheoremBound:
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
         self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
+        # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
+        # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
+        # for g ~ N(0, P), m = n or 2n, so the Gaussian part of that set is s_z = χ²_m, not χ²_d
+        # (d = 5n).  With declared effects f_nom depends on all of x: s_d.
+        self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
+                     else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
         self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
         self._grid = np.linspace(-1.0, 1.0, 65)
@@ -151,7 +159,7 @@ class AKFTheoremBound:
         for j in range(n):
             e = np.zeros(akf.d)
             e[j] = e[n + j] = 1.0
-            r = self.sm.half_width(e, P0)
+            r = self.sm.half_width(e, P0, s=self._s_z)
             # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
             # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
             D = self._grid * r
@@ -187,7 +195,7 @@ class AKFTheoremBound:
         # copies: a residual hook may return preallocated arrays overwritten by the next call
         mu0 = np.array(mu0, dtype=float)
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
-        Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
+        Cz = self.sm.confidence_set(x0, P0, T=self._T, s=self._s_z)  # outer ellipsoid of T·C_{k−1}
         local = self._scales is not None
         # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
         # filter's hook clips z to the training box, where σ can be far smaller than at z
