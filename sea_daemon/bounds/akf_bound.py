@@ -14,11 +14,16 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   - nominal model: without declared effects its only non-linearity is gravity, bounded
     analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
     with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
-  - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
-* GP error (eq:Dmuhat): η_j = √β_j max_points s_j(z(x)) + γ_j per joint — s = σ (LUH19) or the
-  local scale √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) is taken over
-  the projected set at unclipped z (not just at ẑ), because the true z is only known to lie
-  in it; mapped by Γ_μ.  ``gp_beta`` (default ``estimator.gp_beta``): 'lederer' or a number
+  - GP mean: |μ(z) − μ̄(z)| (μ̄ the filter's linear model at ẑ) sampled over the points of the
+    projection of C_{k−1} on (q, q̇) (+ ``margin``)
+* GP error (eq:Dmuhat): √β_j s_j(z) + γ_j at the same points — s = σ (LUH19) or the local scale
+  √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) at unclipped z (not just at
+  ẑ), because the true z is only known to lie in the set.  The GP error and the GP mean's
+  linearisation error are one torque error f − μ̄ at the true z, entering through Γ_μ:
+  η_j = max over the points of their sum (docs/bounds.md §4).  ``gp_beta`` (default
+  ``estimator.gp_beta``): 'lederer' or a number
+* without declared effects ε and η depend on x only through q and (q, q̇): the set they are
+  bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
@@ -142,7 +147,8 @@ class AKFTheoremBound:
         """Rigorous bound of the gravity term's linearisation error (no sampling).
 
         C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
-        ±r_j of q̂_j on C (r_j = half-width of C along e_θm,j + e_θs,j), the scalar error
+        ±r_j of q̂_j (r_j = half-width along e_θm,j + e_θs,j of X̂ ⊕ E(0, s_z P), s_z = χ²_m of the
+        coordinates the error depends on, see __init__), the scalar error
         h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
         the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
         the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
