@@ -14,11 +14,16 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   - nominal model: without declared effects its only non-linearity is gravity, bounded
     analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
     with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
-  - GP mean: sampled over the points of the projection of C_{k−1} on (q, q̇) (+ ``margin``)
-* GP error (eq:Dmuhat): η_j = √β_j max_points s_j(z(x)) + γ_j per joint — s = σ (LUH19) or the
-  local scale √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) is taken over
-  the projected set at unclipped z (not just at ẑ), because the true z is only known to lie
-  in it; mapped by Γ_μ.  ``gp_beta`` (default ``estimator.gp_beta``): 'lederer' or a number
+  - GP mean: |μ(z) − μ̄(z)| (μ̄ the filter's linear model at ẑ) sampled over the points of the
+    projection of C_{k−1} on (q, q̇) (+ ``margin``)
+* GP error (eq:Dmuhat): √β_j s_j(z) + γ_j at the same points — s = σ (LUH19) or the local scale
+  √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) at unclipped z (not just at
+  ẑ), because the true z is only known to lie in the set.  The GP error and the GP mean's
+  linearisation error are one torque error f − μ̄ at the true z, entering through Γ_μ:
+  η_j = max over the points of their sum (docs/bounds.md §4).  ``gp_beta`` (default
+  ``estimator.gp_beta``): 'lederer' or a number
+* without declared effects ε and η depend on x only through q and (q, q̇): the set they are
+  bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
@@ -35,7 +40,8 @@ from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
 from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
                        input_box, loggp_leaves)
-from .setmember import SetMembershipBound, _unit_directions as _directions, ellipsoid_points, input_matrix
+from .setmember import (SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points,
+                        input_matrix)
 
 
 class AKFTheoremBound:
@@ -78,6 +84,13 @@ class AKFTheoremBound:
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
         self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
+        # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
+        # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
+        # for g ~ N(0, P), m = n or 2n, so the Gaussian part of that set is s_z = χ²_m, not χ²_d
+        # (d = 5n).  With declared effects f_nom depends on all of x: s_d.
+        self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
+                     else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
         self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
         self._grid = np.linspace(-1.0, 1.0, 65)
@@ -86,8 +99,9 @@ class AKFTheoremBound:
         self._step = akf.step
         self._reset = akf.reset
         self.gp_box_violations_ = 0
-        self.eta_ = np.zeros(n)
-        self.lin_err_ = np.zeros(d)
+        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
+        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
 
     # ------------------------------------------------------------------ hooks
 
@@ -133,7 +147,8 @@ class AKFTheoremBound:
         """Rigorous bound of the gravity term's linearisation error (no sampling).
 
         C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
-        ±r_j of q̂_j on C (r_j = half-width of C along e_θm,j + e_θs,j), the scalar error
+        ±r_j of q̂_j (r_j = half-width along e_θm,j + e_θs,j of X̂ ⊕ E(0, s_z P), s_z = χ²_m of the
+        coordinates the error depends on, see __init__), the scalar error
         h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
         the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
         the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
@@ -150,7 +165,7 @@ class AKFTheoremBound:
         for j in range(n):
             e = np.zeros(akf.d)
             e[j] = e[n + j] = 1.0
-            r = self.sm.half_width(e, P0)
+            r = self.sm.half_width(e, P0, s=self._s_z)
             # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
             # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
             D = self._grid * r
@@ -175,9 +190,10 @@ class AKFTheoremBound:
         return b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
-        """GP part: max |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and max σ(z) over the points of the
-        projection of C on (q, q̇) — the GP input z = [q, q̇, q̈] depends on x only through
-        them (q̈ is measured); returns (box in ẋ coordinates, σ_max (n,), out-of-box flag)."""
+        """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
+        depends on x only through them (q̈ is measured): the GP mean's linearisation error
+        |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and σ(z) (or s(z)).  Returns (E, S, out-of-box flag),
+        E and S of shape (points, n), in N m."""
         akf = self.akf
         n = akf.n
         res = akf.residual
@@ -185,7 +201,7 @@ class AKFTheoremBound:
         # copies: a residual hook may return preallocated arrays overwritten by the next call
         mu0 = np.array(mu0, dtype=float)
         J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
-        Cz = self.sm.confidence_set(x0, P0, T=self._T)             # outer ellipsoid of T·C_{k−1}
+        Cz = self.sm.confidence_set(x0, P0, T=self._T, s=self._s_z)  # outer ellipsoid of T·C_{k−1}
         local = self._scales is not None
         # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
         # filter's hook clips z to the training box, where σ can be far smaller than at z
@@ -210,19 +226,15 @@ class AKFTheoremBound:
                 MU[i], S[i] = m_, v_
         if not local:
             S = np.sqrt(np.maximum(S, 0.0))
-        # max over the points of |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and of σ (or s)
-        e = np.max(np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T), axis=0)
-        smax = np.max(S, axis=0)
+        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s)
+        E = np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T)
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
             lo, hi = self.gp_box
             out = bool(np.any(Cz.c - hw < lo[:2 * n]) or np.any(Cz.c + hw > hi[:2 * n])
                        or np.any(zhat[2 * n:] < lo[2 * n:]) or np.any(zhat[2 * n:] > hi[2 * n:]))
-        # ε_μ = −I_μ M⁻¹ (μ(z) − μ̄(z)): rows θ̈_s, bounded elementwise by |M⁻¹| e
-        b = np.zeros(akf.d)
-        b[3 * n:4 * n] = np.abs(akf.model.Minv) @ e
-        return b, smax, out
+        return E, S, out
 
     def _phi(self, A, b, dt):
         """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
@@ -264,12 +276,19 @@ class AKFTheoremBound:
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
-            bg, smax, out = self._gp_box(zhat, x0, P0)
-            b = b + (1.0 + sm.margin) * bg
+            E, S, out = self._gp_box(zhat, x0, P0)
             self.gp_box_violations_ += int(out)
-            # eq:gpmeanbounds → lem:interval_bound: η_j = √β_j σ_j + γ_j (σ maximised over C)
-            eta = np.array([c.eta(sj) for c, sj in zip(self.gp_constants, smax)])
-            self.eta_ = eta
+            # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point
+            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)])
+            # The GP error f_j(z) − μ_j(z) and the GP mean's linearisation error
+            # μ_j(z) − μ_j(ẑ) − ∂μ_j/∂z (z − ẑ) are parts of ONE torque error at the same (true) z,
+            # f_j(z) − [μ_j(ẑ) + ∂μ_j/∂z (z − ẑ)], which enters the state through Γ_μ (= Φ I_μ M⁻¹,
+            # eq:Dmuhat): bound it per joint by the max over the points of the SUM (not the sum
+            # of the two maxima, which may sit at different points), the sampled part + margin
+            Lm = (1.0 + sm.margin) * E
+            eta = np.max(H + Lm, axis=0)
+            self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
+            self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
         Phi = self._phi(akf.A_k, b, dt)
         # eq:predwLinErrsetandGPerrset, then the filter step on the set

@@ -218,17 +218,20 @@ class SetMembershipBound:
 
     # ------------------------------------------------------------------ sets
 
-    def confidence_set(self, x_hat: np.ndarray, P: np.ndarray, T: np.ndarray | None = None) -> Ellipsoid:
+    def confidence_set(self, x_hat: np.ndarray, P: np.ndarray, T: np.ndarray | None = None,
+                       s: float | None = None) -> Ellipsoid:
         """Outer ellipsoid of C_k = X̂_k ⊕ E(0, s_d P) (Theorem 1), trace-minimal; with ``T``
         the outer ellipsoid of its image T·C_k (computed from the mapped summands, which is
-        tighter than mapping the outer ellipsoid)."""
+        tighter than mapping the outer ellipsoid).  ``s`` replaces s_d (e.g. χ²_m(1 − δ_N) for
+        the m-dimensional image T·x, when only T·x matters)."""
         P = np.asarray(P)
+        s = self.s_state if s is None else float(s)
         if T is None:
             T = None
-            sP, c = self.s_state * P, x_hat
+            sP, c = s * P, x_hat
         else:
             T = np.asarray(T, dtype=float)
-            sP, c = self.s_state * (T @ P @ T.T), T @ x_hat
+            sP, c = s * (T @ P @ T.T), T @ x_hat
         # eq:confidenceset
         if self.sets == "ellipsoid":
             X = self._X if T is None else T @ self._X @ T.T
@@ -236,14 +239,16 @@ class SetMembershipBound:
         G = self.G_ if T is None else T @ self.G_
         return Ellipsoid(c, zonotope_shape(G, extra=sP))
 
-    def half_width(self, e: np.ndarray, P: np.ndarray) -> float:
-        """Exact half-width of C_k = X̂_k ⊕ E(0, s_d P) along e (support functions add)."""
+    def half_width(self, e: np.ndarray, P: np.ndarray, s: float | None = None) -> float:
+        """Exact half-width of C_k = X̂_k ⊕ E(0, s_d P) along e (support functions add);
+        ``s`` replaces s_d as in :meth:`confidence_set`."""
         e = np.asarray(e, dtype=float)
+        s = self.s_state if s is None else float(s)
         if self.sets == "ellipsoid":
             hx = float(np.sqrt(max(e @ self._X @ e, 0.0)))
         else:
             hx = float(np.sum(np.abs(e @ self.G_)))
-        return hx + float(np.sqrt(max(self.s_state * (e @ np.asarray(P) @ e), 0.0)))
+        return hx + float(np.sqrt(max(s * (e @ np.asarray(P) @ e), 0.0)))
 
     def means_half_widths(self) -> np.ndarray:
         """Exact half-widths of the set of means X̂_k along every coordinate axis."""
