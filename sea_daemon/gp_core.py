@@ -123,6 +123,14 @@ def predict(A, ap, beta, c, il2, n, sf2, x):
 
 
 @njit(fast=True)
+def predict_many(A, ap, beta, c, il2, n, sf2, Xq, mu, var):
+    """:func:`predict` at every row of ``Xq`` (m, ρ) into ``mu``, ``var`` (m,): one compiled
+    call for a batch of inputs (the Theorem-1 bound's points of the confidence set)."""
+    for i in range(Xq.shape[0]):
+        mu[i], var[i] = predict(A, ap, beta, c, il2, n, sf2, Xq[i])
+
+
+@njit(fast=True)
 def update_alpha(ap, beta, n, alpha):
     """α = (K + σ_on² I)⁻¹ y = L⁻ᵀ β (eq:GPmean)."""
     for i in range(n):

@@ -397,6 +397,45 @@ class LoGGP:
         var = m2 - mu * mu
         return mu, (var if var > 0.0 else 0.0)
 
+    def leaf_predictions(self, Z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every (row of ``Z``, leaf it reaches) pair of a batch of inputs ``Z`` (m, input_dim),
+        in each row's routing order: (row index, node, ω, leaf μ, leaf σ²), arrays of equal
+        length.  Each row is routed once; each leaf reached predicts all its rows in one
+        compiled call (:meth:`sea_daemon.gp.IncrementalGP.predict_many`)."""
+        Z = np.ascontiguousarray(Z, dtype=float)
+        if Z.ndim != 2 or Z.shape[1] != self.input_dim:
+            raise InputError(f"Z must have shape (m, {self.input_dim}), got {Z.shape}")
+        if not np.all(np.isfinite(Z)):
+            raise InputError(f"Z must be finite, got {Z.tolist()}")
+        idx, nodes, ws = [], [], []
+        for i, xl in enumerate(Z.tolist()):
+            for node, w, _ in self._route(xl, False):
+                idx.append(i)
+                nodes.append(node)
+                ws.append(w)
+        idx, nodes = np.array(idx), np.array(nodes)
+        m, v = np.empty(len(idx)), np.empty(len(idx))
+        for node in np.unique(nodes):
+            sel = nodes == node
+            m[sel], v[sel] = self._gp[node].predict_many(Z[idx[sel]])
+        return idx, nodes, np.array(ws), m, v
+
+    def predict_many(self, Z) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` at every row of ``Z`` (m, input_dim): (μ (m,), σ² (m,)), the same
+        numbers (one routing per row, one compiled call per leaf reached)."""
+        idx, _, w, m, v = self.leaf_predictions(Z)
+        rows = int(np.asarray(Z).shape[0])
+        # μ = Σ ω_i μ_i, σ² = Σ ω_i (σ_i² + μ_i²) − μ², accumulated in routing order
+        mu, m2 = np.zeros(rows), np.zeros(rows)
+        np.add.at(mu, idx, w * m)
+        np.add.at(m2, idx, w * (v + m * m))
+        var = np.maximum(m2 - mu * mu, 0.0)
+        # a row that reaches one leaf: that leaf's prediction as is (as predict)
+        one = np.bincount(idx, minlength=rows) == 1
+        first = np.searchsorted(idx, np.flatnonzero(one))
+        mu[one], var[one] = m[first], v[first]
+        return mu, var
+
     def predict_with_grad(self, x, var_grad: bool = False):
         """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
         x, xl = self._check_x(x)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import warm_up
 from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
 from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
@@ -102,6 +103,7 @@ class AKFTheoremBound:
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
+        warm_up()                                # compiled kernels ready before the first step
 
     # ------------------------------------------------------------------ hooks
 
@@ -206,22 +208,24 @@ class AKFTheoremBound:
         # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
         # filter's hook clips z to the training box, where σ can be far smaller than at z
         out = False
-        z = zhat.copy()
         gps = residual_gps(akf)
         pts = ellipsoid_points(Cz, self._Uz)     # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
+        Z = np.empty((len(pts), zhat.size))      # z = [p, q̈̂] per point
+        Z[:, :2 * n] = pts
+        Z[:, 2 * n:] = zhat[2 * n:]
         MU = np.empty((len(pts), n))
         S = np.empty((len(pts), n))
-        for i, p in enumerate(pts):
-            z[:2 * n] = p
-            if local:
-                # mean, variance and local scale in one routing of each joint's LoG-GP
-                for j, sc in enumerate(self._scales):
-                    MU[i, j], _, S[i, j] = sc.predict(z)
-            elif gps is not None:
-                # mean and variance only (no Jacobian needed here): cheaper than the hook
-                for j, g in enumerate(gps):
-                    MU[i, j], S[i, j] = g.predict(z)
-            else:
+        if local:
+            # mean, variance and local scale of all points: one routing per point, one compiled
+            # call per leaf reached
+            for j, sc in enumerate(self._scales):
+                MU[:, j], _, S[:, j] = sc.predict_many(Z)
+        elif gps is not None:
+            # mean and variance only (no Jacobian needed here): cheaper than the hook
+            for j, g in enumerate(gps):
+                MU[:, j], S[:, j] = g.predict_many(Z)
+        else:
+            for i, z in enumerate(Z):
                 m_, _, v_ = res.predict(z)
                 MU[i], S[i] = m_, v_
         if not local:

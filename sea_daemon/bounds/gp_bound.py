@@ -190,18 +190,25 @@ class LocalScale:
         _, xl = self.gp._check_x(z)
         return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp._route(xl, False)))
 
+    def predict_many(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(μ̃, σ̃², s) at every row of ``Z`` (m, input_dim), one routing per row: the LoG-GP's
+        merged mean and mixture variance (as :meth:`sea_daemon.loggp.LoGGP.predict`) and the
+        local scale; each leaf reached predicts its rows in one compiled call."""
+        idx, nodes, w, m, v = self.gp.leaf_predictions(Z)
+        rows = int(np.asarray(Z).shape[0])
+        r = np.array([self.r_.get(node, 0.0) for node in nodes.tolist()])
+        # μ̃ = Σ ω_i μ_i, σ̃² = Σ ω_i (σ_i² + μ_i²) − μ̃², s_loc = Σ ω_i r_i (routing order)
+        mu, m2, sl = np.zeros(rows), np.zeros(rows), np.zeros(rows)
+        np.add.at(mu, idx, w * m)
+        np.add.at(m2, idx, w * (v + m * m))
+        np.add.at(sl, idx, w * r)
+        var = np.maximum(m2 - mu * mu, 0.0)
+        return mu, var, np.sqrt(var + sl * sl)
+
     def predict(self, z) -> tuple[float, float, float]:
-        """(μ̃(z), σ̃²(z), s(z)) in one routing: the LoG-GP's merged mean and mixture variance
-        (as :meth:`sea_daemon.loggp.LoGGP.predict`) and the local scale."""
-        x, xl = self.gp._check_x(z)
-        mu = m2 = sl = 0.0
-        for node, w, _ in self.gp._route(xl, False):
-            m, v = self.gp.leaf(node).predict(x)
-            mu += w * m
-            m2 += w * (v + m * m)
-            sl += w * self.r_.get(node, 0.0)
-        var = max(m2 - mu * mu, 0.0)
-        return mu, var, float(math.sqrt(var + sl * sl))
+        """(μ̃(z), σ̃²(z), s(z)) at one input (:meth:`predict_many` of one row)."""
+        mu, var, s = self.predict_many(np.asarray(z, dtype=float)[None])
+        return float(mu[0]), float(var[0]), float(s[0])
 
     def __call__(self, z, var: float) -> float:
         s = self.local(z)
