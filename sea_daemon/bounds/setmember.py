@@ -130,6 +130,10 @@ def _shifted_halfwidth(h, s, delta, z, iters, out):
 def _warm() -> None:
     """The compiled kernels of this module, with the argument types the bound uses (see _jit)."""
     shifted_gaussian_halfwidth(np.array([0.1, 0.0]), np.array([1.0, 0.0]), 0.05)
+    sm = SetMembershipBound(2, [1], 0.05, max_generators=3)
+    sm.predict(np.eye(2), Gamma=np.ones((2, 1)), eta=np.ones(1), lin_err_box=np.ones(2), Phi=np.eye(2))
+    sm.predict(np.eye(2), Gamma=np.ones((2, 1)), eta=np.ones(1), lin_err_box=np.ones(2))
+    ellipsoid_points(Ellipsoid(np.zeros(2), np.eye(2)), np.ones((1, 2)) / np.sqrt(2.0))
 
 
 def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
@@ -143,16 +147,45 @@ def ellipsoid_points(C: Ellipsoid, U: np.ndarray) -> np.ndarray:
     coordinate-extreme points c ± X e_i/√X_ii, c ± X^{1/2} u and c ± ½ X^{1/2} u for the unit
     directions u in the rows of U ((m, dim); may be empty)."""
     d = C.dim
-    w, V = np.linalg.eigh(C.X)
-    VS = V * np.sqrt(np.clip(w, 0.0, None))
-    ax = VS.T                                                   # principal semi-axes
-    dx = np.diag(C.X)
-    ext = np.zeros((d, d))
-    ok = dx > 0
-    ext[ok] = (C.X[:, ok] / np.sqrt(dx[ok])).T                  # argmax_{x∈C} x_i − c_i
-    rnd = np.asarray(U).reshape(-1, d) @ (VS @ V.T)             # X^{1/2} u (symmetric root)
-    offs = np.vstack([np.zeros((1, d)), ax, -ax, ext, -ext, rnd, -rnd, 0.5 * rnd, -0.5 * rnd])
-    return C.c + offs
+    return _ellipsoid_points(C.c, C.X, np.ascontiguousarray(np.asarray(U, dtype=float).reshape(-1, d)))
+
+
+@njit
+def _ellipsoid_points(c, X, U):
+    """:func:`ellipsoid_points` (compiled): rows centre, +axes, −axes, +ext, −ext, +r, −r, +r/2, −r/2."""
+    d = c.shape[0]
+    m = U.shape[0]
+    w, V = np.linalg.eigh(X)
+    VS = np.empty((d, d))
+    for j in range(d):
+        sw = math.sqrt(w[j]) if w[j] > 0.0 else 0.0
+        for i in range(d):
+            VS[i, j] = V[i, j] * sw
+    R = VS @ V.T                                                # X^{1/2} (symmetric root)
+    out = np.empty((1 + 4 * d + 4 * m, d))
+    out[0] = c
+    for j in range(d):
+        # principal semi-axes ±√λ_j v_j
+        for i in range(d):
+            out[1 + j, i] = c[i] + VS[i, j]
+            out[1 + d + j, i] = c[i] - VS[i, j]
+        # argmax_{x∈C} x_j − c_j = c + X e_j/√X_jj (the centre if X_jj = 0)
+        sd = math.sqrt(X[j, j]) if X[j, j] > 0.0 else 0.0
+        for i in range(d):
+            e = X[i, j] / sd if sd > 0.0 else 0.0
+            out[1 + 2 * d + j, i] = c[i] + e
+            out[1 + 3 * d + j, i] = c[i] - e
+    o = 1 + 4 * d
+    for k in range(m):
+        for i in range(d):
+            r = 0.0
+            for j in range(d):
+                r += U[k, j] * R[j, i]
+            out[o + k, i] = c[i] + r
+            out[o + m + k, i] = c[i] - r
+            out[o + 2 * m + k, i] = c[i] + 0.5 * r
+            out[o + 3 * m + k, i] = c[i] - 0.5 * r
+    return out
 
 
 class SetMembershipBound:
@@ -332,16 +365,20 @@ class SetMembershipBound:
         self.lin_err_ = np.zeros(self.d) if lin_err_box is None else np.asarray(lin_err_box, float)
         if self.sets == "zonotope":
             # exact: F·Z ⊕ Γ·box(η) ⊕ Φ·box(b) is the zonotope with the union of the generators
-            cols = [F @ self.G_]
+            # (eq:Dmuhat, eq:GPboundsellipse: the GP error box, generators Γ_j η_j;
+            # eq:linearerrellipsoid: the linearisation-error box, generators Φ_i b_i)
+            d = self.d
             if eta is not None and Gamma is not None:
-                # eq:Dmuhat, eq:GPboundsellipse: the GP error box, generators Γ_j η_j
-                cols.append(np.asarray(Gamma, float) * np.abs(np.asarray(eta, float)))
+                Gam, et = np.ascontiguousarray(Gamma, dtype=float), np.asarray(eta, dtype=float)
+            else:
+                Gam, et = np.zeros((d, 0)), np.zeros(0)
             if lin_err_box is not None:
-                # eq:linearerrellipsoid: the linearisation-error box, generators Φ_i b_i
-                cols.append((np.eye(self.d) if Phi is None else np.asarray(Phi, float))
-                            * np.abs(np.asarray(lin_err_box, float)))
-            G = np.hstack(cols)
-            self.Gprior_ = reduce_generators(G[:, np.any(G != 0.0, axis=0)], self.max_generators)
+                Ph = np.eye(d) if Phi is None else np.ascontiguousarray(Phi, dtype=float)
+                bb = np.asarray(lin_err_box, dtype=float)
+            else:
+                Ph, bb = np.zeros((d, 0)), np.zeros(0)
+            self.Gprior_ = _predict_generators(np.ascontiguousarray(F), np.ascontiguousarray(self.G_, dtype=float),
+                                               Gam, et, Ph, bb, self.max_generators)
             return self.Gprior_
         shapes = [F @ self._X @ F.T]
         if eta is not None and Gamma is not None:
@@ -421,15 +458,81 @@ def reduce_generators(G: np.ndarray, m: int) -> np.ndarray:
     (I − K H) F this costs little (on the simulated paper scenarios ρ with 40 generators
     equals the unreduced propagation to 4 digits), under slowly contracting rotations it can
     grow (tests/test_setmember.py)."""
-    d, k = G.shape
-    if k <= m:
+    G = np.asarray(G, dtype=float)
+    if G.shape[1] <= m:
         return G
-    score = np.sum(np.abs(G), axis=0) - np.max(np.abs(G), axis=0)
-    order = np.argsort(score)
-    small, big = order[:k - (m - d)], order[k - (m - d):]
-    box = np.sum(np.abs(G[:, small]), axis=1)
-    B = np.diag(box)[:, box > 0]
-    return np.hstack([G[:, big], B])
+    return _reduce_generators(np.ascontiguousarray(G), int(m))
+
+
+@njit
+def _reduce_generators(G, m):
+    """:func:`reduce_generators` (compiled; G C-contiguous with more than m columns)."""
+    d, k = G.shape
+    score = np.empty(k)
+    for j in range(k):
+        s1 = 0.0
+        mx = 0.0
+        for i in range(d):
+            a = abs(G[i, j])
+            s1 += a
+            mx = max(mx, a)
+        score[j] = s1 - mx
+    order = np.argsort(score, kind="mergesort")
+    n_small = k - (m - d)
+    box = np.zeros(d)
+    for q in range(n_small):
+        j = order[q]
+        for i in range(d):
+            box[i] += abs(G[i, j])
+    n_box = 0
+    for i in range(d):
+        if box[i] > 0.0:
+            n_box += 1
+    out = np.zeros((d, (m - d) + n_box))
+    for q in range(m - d):
+        j = order[n_small + q]
+        for i in range(d):
+            out[i, q] = G[i, j]
+    c = m - d
+    for i in range(d):
+        if box[i] > 0.0:
+            out[i, c] = box[i]
+            c += 1
+    return out
+
+
+@njit
+def _predict_generators(F, G, Gamma, eta, Phi, b, m):
+    """Generators of F·Z ⊕ Γ·box(η) ⊕ Φ·box(b) without the zero ones, reduced to at most m
+    (:meth:`SetMembershipBound.predict`, zonotope mode)."""
+    d = F.shape[0]
+    out = np.empty((d, G.shape[1] + Gamma.shape[1] + Phi.shape[1]))
+    col = np.empty(d)
+    c = 0
+    for j in range(G.shape[1]):
+        nz = False
+        for i in range(d):
+            s = 0.0
+            for q in range(d):
+                s += F[i, q] * G[q, j]
+            col[i] = s
+            nz = nz or s != 0.0
+        if nz:
+            out[:, c] = col
+            c += 1
+    for j in range(Gamma.shape[1] + Phi.shape[1]):
+        nz = False
+        for i in range(d):
+            v = Gamma[i, j] * abs(eta[j]) if j < Gamma.shape[1] else \
+                Phi[i, j - Gamma.shape[1]] * abs(b[j - Gamma.shape[1]])
+            col[i] = v
+            nz = nz or v != 0.0
+        if nz:
+            out[:, c] = col
+            c += 1
+    if c <= m:
+        return out[:, :c].copy()
+    return _reduce_generators(out[:, :c].copy(), m)
 
 
 def discrete_residual(fd: Callable[[np.ndarray], np.ndarray], x_hat: np.ndarray, F_d: np.ndarray):
