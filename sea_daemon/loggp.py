@@ -53,12 +53,89 @@ from typing import Any
 
 import numpy as np
 
+from ._jit import njit, warmer
 from .errors import InputError, ModelFileError
 from .gp import IncrementalGP
 from .gp_hyper import AdamHyper
 
 _FORMAT = "sea-daemon-loggp"
 _VERSION = 1
+
+
+@njit
+def _route_many(Z, dim, lo, hi, left, right):
+    """:meth:`LoGGP._route` (without ∂ω/∂x) of every row of Z: (row index, node, ω) of each
+    leaf reached, rows in order, each row's leaves in ``_route``'s order (same arithmetic)."""
+    cap = 2 * Z.shape[0] + 8
+    idx = np.empty(cap, dtype=np.int64)
+    nodes = np.empty(cap, dtype=np.int64)
+    ws = np.empty(cap)
+    st_node = np.empty(64, dtype=np.int64)
+    st_w = np.empty(64)
+    k = 0
+    for i in range(Z.shape[0]):
+        node = 0
+        w = 1.0
+        top = 0
+        while True:                                  # fast path: no overlap on the way
+            j = dim[node]
+            if j < 0:
+                break
+            xj = Z[i, j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                break
+        st_node[0] = node
+        st_w[0] = w
+        top = 1
+        while top > 0:
+            top -= 1
+            node = st_node[top]
+            w = st_w[top]
+            j = dim[node]
+            if j < 0:
+                if k == cap:
+                    cap *= 2
+                    idx2 = np.empty(cap, dtype=np.int64)
+                    nodes2 = np.empty(cap, dtype=np.int64)
+                    ws2 = np.empty(cap)
+                    idx2[:k] = idx[:k]
+                    nodes2[:k] = nodes[:k]
+                    ws2[:k] = ws[:k]
+                    idx, nodes, ws = idx2, nodes2, ws2
+                idx[k] = i
+                nodes[k] = node
+                ws[k] = w
+                k += 1
+                continue
+            if top + 2 > st_node.shape[0]:
+                st_node2 = np.empty(2 * st_node.shape[0], dtype=np.int64)
+                st_w2 = np.empty(2 * st_node.shape[0])
+                st_node2[:top] = st_node[:top]
+                st_w2[:top] = st_w[:top]
+                st_node, st_w = st_node2, st_w2
+            xj = Z[i, j]
+            if xj <= lo[node]:
+                st_node[top] = left[node]
+                st_w[top] = w
+                top += 1
+            elif xj >= hi[node]:
+                st_node[top] = right[node]
+                st_w[top] = w
+                top += 1
+            else:
+                io = 1.0 / (hi[node] - lo[node])
+                p = (hi[node] - xj) * io
+                # right pushed first, left popped first (as _route)
+                st_node[top] = right[node]
+                st_w[top] = w * (1.0 - p)
+                st_node[top + 1] = left[node]
+                st_w[top + 1] = w * p
+                top += 2
+    return idx[:k].copy(), nodes[:k].copy(), ws[:k].copy()
 
 
 class LoGGP:
@@ -407,18 +484,25 @@ class LoGGP:
             raise InputError(f"Z must have shape (m, {self.input_dim}), got {Z.shape}")
         if not np.all(np.isfinite(Z)):
             raise InputError(f"Z must be finite, got {Z.tolist()}")
-        idx, nodes, ws = [], [], []
-        for i, xl in enumerate(Z.tolist()):
-            for node, w, _ in self._route(xl, False):
-                idx.append(i)
-                nodes.append(node)
-                ws.append(w)
-        idx, nodes = np.array(idx), np.array(nodes)
+        idx, nodes, ws = _route_many(Z, *self._tree_arrays())
         m, v = np.empty(len(idx)), np.empty(len(idx))
         for node in np.unique(nodes):
             sel = nodes == node
             m[sel], v[sel] = self._gp[node].predict_many(Z[idx[sel]])
-        return idx, nodes, np.array(ws), m, v
+        return idx, nodes, ws, m, v
+
+    def _tree_arrays(self) -> tuple[np.ndarray, ...]:
+        """The tree's parallel lists as arrays (dim, lo, hi, left, right) for the compiled
+        routing; rebuilt when the tree changed (a split appends two nodes, a reset or a load
+        replaces the lists)."""
+        cache = self.__dict__.get("_tree_cache")
+        if cache is None or cache[0] is not self._dim or cache[1] != len(self._dim):
+            arrays = (np.array(self._dim, dtype=np.int64), np.array(self._lo, dtype=float),
+                      np.array(self._hi, dtype=float), np.array(self._left, dtype=np.int64),
+                      np.array(self._right, dtype=np.int64))
+            cache = (self._dim, len(self._dim), arrays)
+            self._tree_cache = cache
+        return cache[2]
 
     def predict_many(self, Z) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`predict` at every row of ``Z`` (m, input_dim): (μ (m,), σ² (m,)), the same
@@ -664,3 +748,10 @@ class LoGGP:
             raise
         except (KeyError, TypeError, ValueError, IndexError, InputError) as e:
             raise ModelFileError(f"LoG-GP model is malformed: {e}") from None
+
+
+@warmer
+def _warm() -> None:
+    """The compiled routing with the argument types :meth:`LoGGP.leaf_predictions` uses."""
+    _route_many(np.zeros((2, 1)), np.array([0, -1, -1]), np.array([-0.5, 0.0, 0.0]), np.array([0.5, 0.0, 0.0]),
+                np.array([1, -1, -1]), np.array([2, -1, -1]))

@@ -291,3 +291,43 @@ def test_noise_variance_is_the_weighted_leaf_noise():
         assert min(gp.leaf(n).sigma_n for n in leaves) ** 2 <= gp.noise_variance(x) + 1e-15
         assert gp.noise_variance(x) <= max(gp.leaf(n).sigma_n for n in leaves) ** 2 + 1e-15
     assert any(len(gp._route(list(map(float, x)), False)) > 1 for x in _inside_overlaps(gp, rng, 4))
+
+
+@pytest.mark.parametrize("overlap", [0.0, 0.3])
+def test_batched_prediction_equals_per_point(overlap):
+    # predict_many (compiled routing of every row, one compiled call per leaf) = predict per row,
+    # also for rows in overlap regions (several leaves) and rows outside the data; the local
+    # scale's batch (gp_bound.LocalScale.predict_many) = the mixture of _route + leaf.predict
+    from sea_daemon.bounds.gp_bound import LocalScale
+    rng = np.random.default_rng(3)
+    gp = LoGGP(3, max_points=12, overlap=overlap, lengthscales=[0.5, 0.5, 1.0], sigma_n=0.05, seed=2)
+    for x in rng.uniform(-1, 1, (150, 3)):
+        gp.update(x, float(np.sin(3 * x[0]) + x[1] * x[2]))
+    assert gp.n_leaves > 5
+    Z = rng.uniform(-1.3, 1.3, (60, 3))
+    mu, var = gp.predict_many(Z)
+    ref = np.array([gp.predict(z) for z in Z])
+    np.testing.assert_allclose(mu, ref[:, 0], rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(var, ref[:, 1], rtol=1e-12, atol=1e-15)
+    idx, nodes, w, _, _ = gp.leaf_predictions(Z)
+    multi = np.bincount(idx, minlength=len(Z)) > 1
+    assert multi.any() == (overlap > 0)
+    for i, z in enumerate(Z):                     # the same leaves, weights and order as _route
+        r = gp._route(z.tolist(), False)
+        assert nodes[idx == i].tolist() == [node for node, _, _ in r]
+        np.testing.assert_array_equal(w[idx == i], [om for _, om, _ in r])
+    sc = LocalScale(gp)
+    m2, v2, s2 = sc.predict_many(Z)
+    for i, z in enumerate(Z):
+        a = b = sl = 0.0
+        for node, om, _ in gp._route(z.tolist(), False):
+            m, v = gp.leaf(node).predict(z)
+            a, b, sl = a + om * m, b + om * (v + m * m), sl + om * sc.r_.get(node, 0.0)
+        vr = max(b - a * a, 0.0)
+        np.testing.assert_allclose([m2[i], v2[i], s2[i]], [a, vr, np.sqrt(vr + sl * sl)], rtol=1e-12, atol=1e-15)
+    # the tree grows: the routing follows the new splits
+    for x in rng.uniform(-1, 1, (100, 3)):
+        gp.update(x, float(x[0]))
+    np.testing.assert_allclose(gp.predict_many(Z)[0], [gp.predict(z)[0] for z in Z], rtol=1e-13, atol=1e-15)
+    with pytest.raises(InputError):
+        gp.predict_many(np.full((2, 3), np.nan))
