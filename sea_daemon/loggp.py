@@ -485,6 +485,10 @@ class LoGGP:
         if not np.all(np.isfinite(Z)):
             raise InputError(f"Z must be finite, got {Z.tolist()}")
         idx, nodes, ws = _route_many(Z, *self._tree_arrays())
+        if len(idx) == len(Z) and nodes.min() == nodes.max():
+            # every row reaches the same one leaf (the common case)
+            m, v = self._gp[int(nodes[0])].predict_many(Z)
+            return idx, nodes, ws, m, v
         m, v = np.empty(len(idx)), np.empty(len(idx))
         for node in np.unique(nodes):
             sel = nodes == node
@@ -510,9 +514,9 @@ class LoGGP:
         idx, _, w, m, v = self.leaf_predictions(Z)
         rows = int(np.asarray(Z).shape[0])
         # μ = Σ ω_i μ_i, σ² = Σ ω_i (σ_i² + μ_i²) − μ², accumulated in routing order
-        mu, m2 = np.zeros(rows), np.zeros(rows)
-        np.add.at(mu, idx, w * m)
-        np.add.at(m2, idx, w * (v + m * m))
+        # (bincount adds each row's terms in order, from 0)
+        mu = np.bincount(idx, w * m, rows)
+        m2 = np.bincount(idx, w * (v + m * m), rows)
         var = np.maximum(m2 - mu * mu, 0.0)
         # a row that reaches one leaf: that leaf's prediction as is (as predict)
         one = np.bincount(idx, minlength=rows) == 1

@@ -34,15 +34,38 @@ counted in ``bound.gp_box_violations_`` (and ρ is still published).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from .._jit import warm_up
+from .._jit import njit, warm_up, warmer
 from ..errors import EstimatorFault
 from .ellipsoid import Ellipsoid
 from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
                        input_box, loggp_leaves)
 from .setmember import (SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points,
                         input_matrix)
+
+
+@njit
+def _gravity_remainder(qh, r, g, grid, grid_step, v):
+    """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (:meth:`AKFTheoremBound._gravity_box`)."""
+    for j in range(qh.shape[0]):
+        s0, c0 = math.sin(qh[j]), math.cos(qh[j])
+        hmax = 0.0
+        # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
+        # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
+        for D0 in grid:
+            D = D0 * r[j]
+            hmax = max(hmax, abs(math.sin(qh[j] + D) - s0 - c0 * D))
+        # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
+        v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
+
+
+@warmer
+def _warm() -> None:
+    """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
+    _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
 
 
 class AKFTheoremBound:
@@ -94,6 +117,7 @@ class AKFTheoremBound:
                      else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
         self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
         self._Uz = _directions(2 * n, n_dirs, seed)
@@ -163,17 +187,9 @@ class AKFTheoremBound:
         if not np.any(g):
             return b
         qh = x0[:n] + x0[n:2 * n]
+        r = self.sm.half_widths(self._E_q, P0, s=self._s_z)   # along e_θm,j + e_θs,j
         v = np.empty(n)
-        for j in range(n):
-            e = np.zeros(akf.d)
-            e[j] = e[n + j] = 1.0
-            r = self.sm.half_width(e, P0, s=self._s_z)
-            # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
-            # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
-            D = self._grid * r
-            h = np.abs(np.sin(qh[j] + D) - np.sin(qh[j]) - np.cos(qh[j]) * D)
-            # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
-            v[j] = g[j] * min(h.max() + min(2.0, r) * r * self._grid_step / 2.0, r * r / 2.0)
+        _gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
         b[3 * n:4 * n] = np.abs(model.Minv) @ v
         return b
 

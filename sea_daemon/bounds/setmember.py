@@ -134,6 +134,9 @@ def _warm() -> None:
     sm.predict(np.eye(2), Gamma=np.ones((2, 1)), eta=np.ones(1), lin_err_box=np.ones(2), Phi=np.eye(2))
     sm.predict(np.eye(2), Gamma=np.ones((2, 1)), eta=np.ones(1), lin_err_box=np.ones(2))
     ellipsoid_points(Ellipsoid(np.zeros(2), np.eye(2)), np.ones((1, 2)) / np.sqrt(2.0))
+    sm.rho(np.eye(2))
+    zonotope_shape(np.ones((2, 3)), np.eye(2))
+    zonotope_shape(np.ones((2, 3)))
 
 
 def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
@@ -237,6 +240,8 @@ class SetMembershipBound:
         self.s_tau = (self.s_state if projection == "state"
                       else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size) if projection == "marginal"
                       else chi2_quantile(1.0 - self.delta_noise / self.tau_idx.size, 1))
+        # z_{1−δ_N/n_τ}, the start of shifted_gaussian_halfwidth's Newton iteration in rho
+        self._z_tau = float(ndtri(1.0 - self.delta_noise / self.tau_idx.size))
         if sets not in ("zonotope", "ellipsoid"):
             raise ValueError(f"sets must be 'zonotope' or 'ellipsoid', got {sets!r}")
         self.sets = sets
@@ -308,13 +313,16 @@ class SetMembershipBound:
     def half_width(self, e: np.ndarray, P: np.ndarray, s: float | None = None) -> float:
         """Exact half-width of C_k = X̂_k ⊕ E(0, s_d P) along e (support functions add);
         ``s`` replaces s_d as in :meth:`confidence_set`."""
-        e = np.asarray(e, dtype=float)
+        return float(self.half_widths(np.asarray(e, dtype=float)[None], P, s)[0])
+
+    def half_widths(self, E: np.ndarray, P: np.ndarray, s: float | None = None) -> np.ndarray:
+        """:meth:`half_width` along every row of ``E`` (k, d)."""
         s = self.s_state if s is None else float(s)
         if self.sets == "ellipsoid":
-            hx = float(np.sqrt(max(e @ self._X @ e, 0.0)))
+            hx = np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", E, self._X, E), 0.0))
         else:
-            hx = float(np.sum(np.abs(e @ self.G_)))
-        return hx + float(np.sqrt(max(s * (e @ np.asarray(P) @ e), 0.0)))
+            hx = np.sum(np.abs(E @ self.G_), axis=1)
+        return hx + np.sqrt(np.maximum(s * np.einsum("ki,ij,kj->k", E, np.asarray(P), E), 0.0))
 
     def means_half_widths(self) -> np.ndarray:
         """Exact half-widths of the set of means X̂_k along every coordinate axis."""
@@ -329,7 +337,9 @@ class SetMembershipBound:
         Ptt = np.clip(np.diag(np.asarray(P))[i], 0.0, None)
         if self.projection == "scalar":
             # eq:bounds per joint: worst case over the set of means of a shifted Gaussian
-            return shifted_gaussian_halfwidth(h, np.sqrt(Ptt), self.delta_noise / i.size)
+            out = np.empty(i.size)
+            _shifted_halfwidth(h, np.sqrt(Ptt), self.delta_noise / i.size, self._z_tau, 8, out)
+            return out
         # support functions add over a Minkowski sum: h = h_X̂(e) + sqrt(s eᵀPe); for a zonotope
         # h_X̂(e) = Σ_g |eᵀg|, for an ellipsoid sqrt(eᵀX̂e)
         return h + np.sqrt(self.s_tau * Ptt)
@@ -431,22 +441,54 @@ def zonotope_shape(G: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray
     The segments' shapes are g gᵀ with t_i = ‖g_i‖ (ellipsoid.minkowski_shape), so
     X* = (Σ_j t_j) Σ_i g_i g_iᵀ / t_i (+ (Σ t_j) extra / t_extra) — without building the list.
     """
-    G = np.asarray(G, dtype=float)
-    d = G.shape[0]
-    t = np.sqrt(np.sum(G * G, axis=0))
-    keep = t > 1e-300
-    G, t = G[:, keep], t[keep]
+    G = np.ascontiguousarray(G, dtype=float)
+    if extra is None:
+        return _zonotope_shape(G, np.zeros((G.shape[0], G.shape[0])), False)
+    return _zonotope_shape(G, np.ascontiguousarray(extra, dtype=float), True)
+
+
+@njit
+def _zonotope_shape(G, extra, has_extra):
+    """:func:`zonotope_shape` (compiled; ``extra`` ignored unless ``has_extra``)."""
+    d, k = G.shape
+    t = np.empty(k)
+    T = 0.0
+    for j in range(k):
+        s = 0.0
+        for i in range(d):
+            s += G[i, j] * G[i, j]
+        t[j] = math.sqrt(s)
+        if t[j] > 1e-300:
+            T += t[j]
     te = 0.0
-    if extra is not None:
-        te = float(np.sqrt(max(float(np.trace(extra)), 0.0)))
-    T = float(np.sum(t)) + te
+    if has_extra:
+        tr = 0.0
+        for i in range(d):
+            tr += extra[i, i]
+        te = math.sqrt(max(tr, 0.0))
+    T += te
+    X = np.zeros((d, d))
     if T <= 1e-300:
-        return np.zeros((d, d))
-    Gs = G / np.sqrt(t)
-    X = T * (Gs @ Gs.T)
+        return X
+    for j in range(k):
+        if t[j] > 1e-300:
+            f = T / t[j]
+            for a in range(d):
+                ga = f * G[a, j]
+                for b in range(d):
+                    X[a, b] += ga * G[b, j]
     if te > 1e-300:
-        X = X + (T / te) * np.asarray(extra, dtype=float)
-    return 0.5 * (X + X.T)
+        f = T / te
+        for a in range(d):
+            for b in range(d):
+                X[a, b] += f * extra[a, b]
+    # symmetric part (rounding)
+    for a in range(d):
+        for b in range(a + 1, d):
+            m = 0.5 * (X[a, b] + X[b, a])
+            X[a, b] = m
+            X[b, a] = m
+    return X
 
 
 def reduce_generators(G: np.ndarray, m: int) -> np.ndarray:
