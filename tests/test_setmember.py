@@ -181,6 +181,36 @@ def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
     assert reduce_generators(G, 40) is G
 
 
+def test_compiled_zonotope_prediction_equals_the_direct_formulas():
+    # SetMembershipBound.predict (one compiled call) = F·G ⊕ Γ·|η| ⊕ Φ·|b| without the zero
+    # generators and Girard's reduction written out with numpy; zonotope_shape = its formula
+    from sea_daemon.bounds.setmember import zonotope_shape
+    rng = np.random.default_rng(5)
+    d, n = 5, 1
+    sm = SetMembershipBound(d, [4], 0.05, delta_gp=0.025, max_generators=12)
+    sm.G_ = rng.standard_normal((d, 9))
+    F, Gam, Phi = rng.standard_normal((d, d)), rng.standard_normal((d, n)), rng.standard_normal((d, d))
+    eta, b = np.array([-0.3]), np.array([0.0, 0.2, 0.0, -1.0, 0.5])   # zeros: no generator
+    G = np.hstack([F @ sm.G_, Gam * np.abs(eta), Phi * np.abs(b)])
+    G = G[:, np.any(G != 0.0, axis=0)]
+    score = np.abs(G).sum(0) - np.abs(G).max(0)
+    order = np.argsort(score, kind="stable")
+    small, big = order[:G.shape[1] - (12 - d)], order[G.shape[1] - (12 - d):]
+    box = np.abs(G[:, small]).sum(1)
+    ref = np.hstack([G[:, big], np.diag(box)[:, box > 0]])
+    np.testing.assert_allclose(sm.predict(F, Gamma=Gam, eta=eta, lin_err_box=b, Phi=Phi), ref, rtol=1e-12, atol=1e-14)
+    # without boxes (and Φ = I by default): F·G only, no reduction needed
+    sm.G_ = sm.G_[:, :4]
+    np.testing.assert_allclose(sm.predict(F), F @ sm.G_, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(sm.predict(F, lin_err_box=b), np.hstack([F @ sm.G_, np.diag(np.abs(b))[:, b != 0]]),
+                               rtol=1e-12, atol=1e-14)
+    t = np.linalg.norm(ref, axis=0)
+    P = np.diag(rng.uniform(0.1, 1.0, d))
+    T = t.sum() + np.sqrt(np.trace(P))
+    X = T * (ref / t) @ ref.T + T / np.sqrt(np.trace(P)) * P
+    np.testing.assert_allclose(zonotope_shape(ref, extra=P), X, rtol=1e-12)
+
+
 def test_zonotope_propagation_is_exact_and_bounds_the_ellipsoid_one():
     # fixed error boxes: the set of means is exactly the zonotope of all mapped generators
     from scipy.linalg import expm, solve_discrete_are
