@@ -252,8 +252,10 @@ class AKFTheoremBound:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
             lo, hi = self.gp_box
-            out = bool(np.any(Cz.c - hw < lo[:2 * n]) or np.any(Cz.c + hw > hi[:2 * n])
-                       or np.any(zhat[2 * n:] < lo[2 * n:]) or np.any(zhat[2 * n:] > hi[2 * n:]))
+            zl, zh = Z[0].copy(), Z[0].copy()      # [box of the projected set, measured q̈]
+            zl[:2 * n] -= hw
+            zh[:2 * n] += hw
+            out = bool(np.any(zl < lo) or np.any(zh > hi))
         return E, S, out
 
     def _phi(self, A, b, dt):

@@ -319,10 +319,10 @@ class SetMembershipBound:
         """:meth:`half_width` along every row of ``E`` (k, d)."""
         s = self.s_state if s is None else float(s)
         if self.sets == "ellipsoid":
-            hx = np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", E, self._X, E), 0.0))
+            hx = np.sqrt(np.maximum(np.sum((E @ self._X) * E, axis=1), 0.0))
         else:
             hx = np.sum(np.abs(E @ self.G_), axis=1)
-        return hx + np.sqrt(np.maximum(s * np.einsum("ki,ij,kj->k", E, np.asarray(P), E), 0.0))
+        return hx + np.sqrt(np.maximum(s * np.sum((E @ P) * E, axis=1), 0.0))
 
     def means_half_widths(self) -> np.ndarray:
         """Exact half-widths of the set of means X̂_k along every coordinate axis."""
