@@ -293,7 +293,7 @@ def test_noise_variance_is_the_weighted_leaf_noise():
     assert any(len(gp._route(list(map(float, x)), False)) > 1 for x in _inside_overlaps(gp, rng, 4))
 
 
-@pytest.mark.parametrize("overlap", [0.0, 0.3])
+@pytest.mark.parametrize("overlap", [0.0, 0.3, 0.9])
 def test_batched_prediction_equals_per_point(overlap):
     # predict_many (compiled routing of every row, one compiled call per leaf) = predict per row,
     # also for rows in overlap regions (several leaves) and rows outside the data; the local
@@ -312,6 +312,8 @@ def test_batched_prediction_equals_per_point(overlap):
     idx, nodes, w, _, _ = gp.leaf_predictions(Z)
     multi = np.bincount(idx, minlength=len(Z)) > 1
     assert multi.any() == (overlap > 0)
+    if overlap == 0.9:                            # many leaves per row: the compiled routing's buffers grow
+        assert len(idx) > 2 * len(Z) + 8 and np.bincount(idx).max() > 10
     for i, z in enumerate(Z):                     # the same leaves, weights and order as _route
         r = gp._route(z.tolist(), False)
         assert nodes[idx == i].tolist() == [node for node, _, _ in r]
