@@ -59,13 +59,6 @@ def add_settings_argument(p) -> None:
                         "sensors); 'scenario': each scenario's own model config (the paper's R, Sigma_nom)")
 
 
-def load_settings(text: str | None):
-    """(path, ModelConfig or None) of a ``--settings`` value (None: the scenario's own config)."""
-    from ..config import load_config, repo_root
-    path = text or str(repo_root() / "configs" / "exo_1dof_sim.yaml")
-    return path, (None if path == "scenario" else load_config(path))
-
-
 def apply_settings(cfg, settings):
     """``cfg`` with the estimator, kinematics and learning sections of ``settings`` (the model,
     i.e. what the estimator knows of the plant, is kept): one setting for every estimator."""
@@ -76,7 +69,23 @@ def apply_settings(cfg, settings):
                                learning=settings.learning)
 
 
-def describe_settings(path: str, settings) -> str:
+def start_simulated(args):
+    """Start of a benchmark on simulated scenarios (accuracy, bounds): creates ``args.out``,
+    loads ``--settings`` (None: each scenario's own config) and prints the machine and the
+    settings.  Returns ``(out directory, settings)``."""
+    from pathlib import Path
+
+    from ..config import load_config, repo_root
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = args.settings or str(repo_root() / "configs" / "exo_1dof_sim.yaml")
+    settings = None if path == "scenario" else load_config(path)
+    print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
+    print(_describe_settings(path, settings))
+    return out, settings
+
+
+def _describe_settings(path: str, settings) -> str:
     """One line naming the estimator settings of a run."""
     if settings is None:
         return "estimator settings: each scenario's own model config"

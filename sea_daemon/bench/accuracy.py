@@ -28,6 +28,7 @@ scenario's model config (the paper's R, Σ_nom).  See docs/gpakf.md.
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -38,7 +39,7 @@ from ..config import repo_root
 from ..errors import InputError
 from ..estimators import AKF, SpringTorqueEstimator
 from ..replay import replay, summarize
-from . import add_settings_argument, apply_settings, describe_settings, load_settings
+from . import add_settings_argument, apply_settings, start_simulated
 
 NAME = "accuracy"
 HELP = "RMSE of spring / AKF / oracle AKF (and GP-AKF when registered) on the paper's scenarios; plots"
@@ -112,16 +113,10 @@ def run(args) -> int:
         from ..sim.scenario import load_scenario
     except ImportError:
         raise InputError("bench accuracy needs the simulator (sea_daemon.sim), which is not installed") from None
-    from . import choose, machine
+    from . import choose
     _try_register_gp_akf()
     labels = choose(args.estimators, CASES, "--estimators")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    import os
-
-    settings_path, settings = load_settings(args.settings)
-    print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
-    print(describe_settings(settings_path, settings))
+    out, settings = start_simulated(args)
     table = {}
     for sc_path in args.scenarios or default_scenarios():
         sc = load_scenario(sc_path)

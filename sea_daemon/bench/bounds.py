@@ -40,7 +40,6 @@ minus the filter step inside it, timed around the AKF's step).
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -48,7 +47,7 @@ import numpy as np
 
 from ..config import repo_root
 from ..errors import EstimatorFault, InputError
-from . import add_settings_argument, apply_settings, describe_settings, load_settings
+from . import add_settings_argument, apply_settings, start_simulated
 
 NAME = "bounds"
 HELP = "coverage of the Theorem-1 bound rho_k (and of the KF's own bound) on the paper's scenarios; plots"
@@ -185,15 +184,11 @@ def run(args) -> int:
         from ..sim.scenario import load_scenario
     except ImportError:
         raise InputError("bench bounds needs the simulator (sea_daemon.sim)") from None
-    from . import choose, machine, summarize
+    from . import choose, summarize
     gp_betas = _gp_betas(args.gp_beta)
     builders = _builders(gp_betas)
     labels = choose(args.estimators, builders, "--estimators")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    settings_path, settings = load_settings(args.settings)
-    print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
-    print(describe_settings(settings_path, settings))
+    out, settings = start_simulated(args)
     table = {}
     sims = {}
 
