@@ -270,25 +270,13 @@ def test_step_kind_reads_the_loggp_counters():
 
 def _two_joint_log(cfg, seconds, tau_h_amp, seed):
     """Encoder-quantised log of ``cfg``'s model (declared effects = the true plant)."""
-    from sea_daemon.model import discretize
-    m = SEAModel.from_config(cfg)
-    n, dt = m.n, cfg.dt
-    N = int(seconds / dt) + 1
-    t = np.arange(N) * dt
-    rng = np.random.default_rng(seed)
-    ph = rng.uniform(0, 2 * np.pi, size=(2, n))
+    from sea_daemon.bench.latency import model_log
+    n, dt = cfg.joints, cfg.dt
+    t = np.arange(int(seconds / dt) + 1) * dt
+    ph = np.random.default_rng(seed).uniform(0, 2 * np.pi, size=(2, n))
     tau_m = 1.5 * np.sin(2 * np.pi * 0.4 * t[:, None] + ph[0]) + 0.6 * np.sin(2 * np.pi * 1.1 * t[:, None] + ph[1])
     tau_h = tau_h_amp * np.sin(2 * np.pi * 0.25 * t[:, None]) * np.array([1.0, -0.5])
-    res = 2 * np.pi / 2 ** 19
-    x = np.zeros(5 * n)
-    q, th = np.zeros((N, n)), np.zeros((N, n))
-    for k in range(N):
-        q[k] = np.floor((x[:n] + x[n:2 * n]) / res) * res
-        th[k] = np.floor(x[:n] / (res / 100)) * (res / 100)
-        x[4 * n:] = tau_h[k]
-        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), dt)
-        x = x + dx
-    return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<two>")
+    return model_log(cfg, t, tau_m, tau_h, path="<two>")
 
 
 def test_two_joints_learn_a_hidden_load_torque_per_joint():

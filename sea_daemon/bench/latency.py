@@ -41,26 +41,34 @@ def register(label: str, builder: Callable) -> None:
 
 
 def synthetic_log(cfg, seconds: float = 20.0, seed: int = 0) -> MeasuredLog:
-    """Nominal-model log for timing (not for accuracy figures)."""
-    m = SEAModel.from_config(cfg)
-    n, dt = m.n, cfg.dt
-    N = int(seconds / dt) + 1
-    t = np.arange(N) * dt
-    rng = np.random.default_rng(seed)
-    ph = rng.uniform(0, 2 * np.pi, size=(2, n))
+    """Nominal-model log for timing (not for accuracy figures): a two-sine motor torque with
+    random phases and a sine human torque through :func:`model_log`."""
+    n, dt = cfg.joints, cfg.dt
+    t = np.arange(int(seconds / dt) + 1) * dt
+    ph = np.random.default_rng(seed).uniform(0, 2 * np.pi, size=(2, n))
     tau_m = 1.5 * np.sin(2 * np.pi * 0.5 * t[:, None] + ph[0]) + 0.5 * np.sin(2 * np.pi * 1.3 * t[:, None] + ph[1])
-    tau_h = 1.0 * np.sin(2 * np.pi * 0.3 * t[:, None])
-    x = np.zeros(5 * n)
-    q = np.zeros((N, n))
-    th = np.zeros((N, n))
+    tau_h = 1.0 * np.sin(2 * np.pi * 0.3 * t[:, None]) * np.ones(n)
+    return model_log(cfg, t, tau_m, tau_h)
+
+
+def model_log(cfg, t, tau_m, tau_h, path: str = "<synthetic>") -> MeasuredLog:
+    """Log of ``cfg``'s model (declared effects included) driven by ``tau_m`` with the human
+    torque ``tau_h`` (both (N, n) at the times ``t``, spaced ``cfg.dt``), integrated by the model's own
+    local-linearisation step; encoders truncated to their counts (``hardware.encoder_bits``):
+    2π/2^bits on the load side, 2π/(2^bits · gear_ratio) joint side for the motor encoder."""
+    m = SEAModel.from_config(cfg)
+    n, N = m.n, len(t)
     res = 2 * np.pi / 2 ** cfg.hardware.encoder_bits
+    res_m = res / cfg.hardware.gear_ratio
+    x = np.zeros(5 * n)
+    q, th = np.zeros((N, n)), np.zeros((N, n))
     for k in range(N):
-        q[k] = np.round((x[:n] + x[n:2 * n]) / res) * res
-        th[k] = np.round(x[:n] / res) * res
+        q[k] = np.floor((x[:n] + x[n:2 * n]) / res) * res
+        th[k] = np.floor(x[:n] / res_m) * res_m
         x[4 * n:] = tau_h[k]
-        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), dt)
+        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), cfg.dt)
         x = x + dx
-    return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path="<synthetic>")
+    return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path=path)
 
 
 def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds: list | None = None):
