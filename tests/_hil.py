@@ -14,13 +14,11 @@ import sys
 import time
 import uuid
 
-import can
 import numpy as np
 import pytest
 
-from drivers.bus import make_bus, socketcan_available
-from drivers.canopen_hw import CanopenHardware
-from drivers.device_model import DeviceModel
+from drivers.bus import socketcan_available
+from sea_daemon.bench import _rig as bench_rig
 from sea_daemon.config import ModelConfig, default_config_path, load_config, load_yaml
 from sea_daemon.sim.plant import Plant
 
@@ -99,38 +97,13 @@ def hil_config(kind: str = "virtual", channel: str = "", **bus):
     return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
 
 
-class Rig:
-    """Device model (stand-in plant) + CanopenHardware on two bus handles of one channel."""
+class Rig(bench_rig.Rig):
+    """Device model (stand-in plant) + CanopenHardware on two bus handles of one channel; the
+    driver is not started (the tests start it), no sniffer."""
 
     def __init__(self, cfg, plant=None, position_preset: int = 0, lock_step: bool = True, tau_h_act=None):
-        self.cfg = cfg
-        self.plant = plant or recording_plant(0.3)
-        self.dev_bus = make_bus(cfg.hardware.bus)
-        self.drv_bus = make_bus(cfg.hardware.bus)
-        b = cfg.hardware.bus
-        self.model = DeviceModel(self.dev_bus, self.plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                                 position_preset=position_preset, lock_step=lock_step, tau_h_act=tau_h_act)
-        self.model.start()
-        self.hw = CanopenHardware(cfg, self.drv_bus)
-
-    @property
-    def drive(self):
-        return self.model.drives[0]
-
-    @property
-    def encoder(self):
-        return self.model.encoders[0]
-
-    def close(self) -> None:
-        try:
-            self.hw.stop()
-        finally:
-            self.model.stop()
-            for b in (self.drv_bus, self.dev_bus):
-                try:
-                    b.shutdown()
-                except Exception:  # noqa: BLE001
-                    pass
+        super().__init__(cfg, plant=plant or recording_plant(0.3), position_preset=position_preset,
+                         lock_step=lock_step, tau_h_act=tau_h_act, start=False, sniff=False)
 
 
 @pytest.fixture(scope="module")

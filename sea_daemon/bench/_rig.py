@@ -59,22 +59,32 @@ class SineTracker:
 
 
 class Rig:
-    """Plant + device model + driver (started), with a bus sniffer of heartbeats."""
+    """Plant + device model + driver on bus handles of one channel.
 
-    def __init__(self, cfg: ModelConfig, q0: float = 0.6, plant=None):
+    By default the driver is started and a sniffer records heartbeats (``hb_seen``); the HIL
+    tests build it with ``start=False, sniff=False`` and start the driver themselves.
+    ``position_preset``, ``lock_step``, ``tau_h_act``: passed to the :class:`DeviceModel`.
+    """
+
+    def __init__(self, cfg: ModelConfig, q0: float = 0.6, plant=None, *, position_preset: int = 0,
+                 lock_step: bool = True, tau_h_act=None, start: bool = True, sniff: bool = True):
         from ..sim.plant import Plant
         self.cfg = cfg
         self.plant = plant or Plant(cfg, q0=q0, seed=0, torque_noise=0.0)
         b = cfg.hardware.bus
         self.dev_bus = make_bus(b)
         self.drv_bus = make_bus(b)
-        self.sniff_bus = make_bus(b)
-        self.model = DeviceModel(self.dev_bus, self.plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node)
+        self.model = DeviceModel(self.dev_bus, self.plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
+                                 position_preset=position_preset, lock_step=lock_step, tau_h_act=tau_h_act)
         self.model.start()
         self.hb_seen: dict[int, float] = {}
-        self._sniffer = can.Notifier(self.sniff_bus, [self._on_frame], timeout=0.05)
+        self.sniff_bus = self._sniffer = None
+        if sniff:
+            self.sniff_bus = make_bus(b)
+            self._sniffer = can.Notifier(self.sniff_bus, [self._on_frame], timeout=0.05)
         self.hw = CanopenHardware(cfg, self.drv_bus)
-        self.hw.start()
+        if start:
+            self.hw.start()
 
     def _on_frame(self, msg: can.Message) -> None:
         if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
@@ -93,8 +103,11 @@ class Rig:
             self.hw.stop()
         finally:
             self.model.stop()
-            self._sniffer.stop(1.0)
+            if self._sniffer is not None:
+                self._sniffer.stop(1.0)
             for bus in (self.drv_bus, self.dev_bus, self.sniff_bus):
+                if bus is None:
+                    continue
                 try:
                     bus.shutdown()
                 except Exception:  # noqa: BLE001
