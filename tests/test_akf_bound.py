@@ -113,15 +113,22 @@ def test_phi_shortcut_matches_expm():
     np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
 
 
-def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
-    learning = pytest.importorskip("sea_daemon.learning")
-    from sea_daemon.estimators import make_estimator
-    cfg = load_config(default_config_path())
+def _residual(learning, cfg, noise: float = 0.0):
+    """A 1-joint ResidualGP trained on 120 random z with f = 0.3 tanh(2 q̇) + 0.1 q (+ noise)."""
     res = learning.ResidualGP(1, cfg.learning, hyperopt=False)
     rng = np.random.default_rng(0)
     for _ in range(120):
         z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
-        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0]]))
+        f = 0.3 * np.tanh(2 * z[1]) + 0.1 * z[0]
+        res.update(z, np.array([f + noise * rng.standard_normal() if noise else f]))
+    return res
+
+
+def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.estimators import make_estimator
+    cfg = load_config(default_config_path())
+    res = _residual(learning, cfg)
     est = make_estimator("akf", cfg, residual=res)
     tb = est.theorem_bound
     log = simulate(SEAModel.from_config(cfg), T=0.3, seed=4)
@@ -154,11 +161,7 @@ def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     from sea_daemon.bounds.gp_bound import LocalScale
     from sea_daemon.estimators import make_estimator
     base = load_config(default_config_path())
-    res = learning.ResidualGP(1, base.learning, hyperopt=False)
-    rng = np.random.default_rng(0)
-    for _ in range(120):
-        z = rng.uniform([-0.2, -1.0, -5.0], [0.8, 1.0, 5.0])
-        res.update(z, np.array([0.3 * np.tanh(2 * z[1]) + 0.1 * z[0] + 0.02 * rng.standard_normal()]))
+    res = _residual(learning, base, noise=0.02)
     log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
     means = {}
     for beta in (2.0, 4.0):
