@@ -16,7 +16,7 @@ Additive effects implement ``torque(angle, vel, acc)`` and ``partials(angle, vel
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar, Mapping
 
 from .errors import ConfigError

@@ -8,7 +8,6 @@ type and a TPDO of the wrong length at run time).
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 import shutil
 import subprocess

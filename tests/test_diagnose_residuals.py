@@ -122,7 +122,6 @@ def test_passive_flag_ignores_tau_h_act(ctx):
 
 def test_two_joints_run_end_to_end(tmp_path):
     """n = 2: candidates per joint, the JSON names the joint, the augmented model loads."""
-    import dataclasses
     from sea_daemon.config import ModelConfig, load_config
     from sea_daemon.diagnose import diagnose
 

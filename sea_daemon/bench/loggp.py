@@ -10,7 +10,6 @@ not reach are reported as not measured (no extrapolation).
 """
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np

@@ -274,7 +274,6 @@ class AKFTheoremBound:
 
     def step(self, y, u, dt):
         akf = self.akf
-        n = akf.n
         x0 = akf.x.copy()
         P0 = akf.P.copy()
         zhat = akf.z.copy()                       # ẑ_{k−1}, where the AKF evaluates the GP

@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import sys
 
-from ..errors import InputError
 from . import _daemon_args
 
 NAME = "run"

@@ -21,7 +21,6 @@ policy of :mod:`sea_daemon.daemon.safety`.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol

@@ -235,7 +235,6 @@ class Selector:
             return self._gauss_newton(cand, y, base_X)
         grid = cand.grid(self.ctx)
         fast = getattr(cand, "fast_design", None)
-        best = None
         if fast is not None and len(grid) > 40:
             # cheap scan (additive effect: columns straight from the signal), exact design after
             scores = []

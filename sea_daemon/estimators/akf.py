@@ -39,7 +39,6 @@ import numpy as np
 
 from .._jit import warm_up
 from ..config import ModelConfig
-from ..errors import EstimatorFault
 from ..kinematics import CausalDifferentiator
 from ..model import SEAModel
 from . import akf_core
