@@ -13,9 +13,11 @@ from sea_daemon.model import SEAModel
 
 def simulate(model: SEAModel, T: float = 3.0, rate: float = 100.0, tau_m=None, tau_h=None,
              substeps: int = 4, bits: int | None = 19, seed: int = 0, x0=None) -> MeasuredLog:
-    """Simulate; ``tau_m(t)``/``tau_h(t)`` callables returning (n,) arrays (default: sines / 0)."""
+    """Simulate; ``tau_m(t)``/``tau_h(t)`` callables returning (n,) arrays (default: sines / 0).
+
+    Deterministic: no noise is added, so ``seed`` does not change the log (kept for the callers).
+    """
     n = model.n
-    rng = np.random.default_rng(seed)
     N = int(round(T * rate)) + 1
     dt = 1.0 / rate
     h = dt / substeps

@@ -243,7 +243,6 @@ def test_gp_akf_hook_removes_a_known_residual():
     """Plant with an extra load torque f(z) that the nominal model lacks: the AKF is biased,
     the AKF given the exact residual μ = f is not (eq:fwdynwtorqueresidual1)."""
     cfg = load_config(default_config_path())
-    model = SEAModel.from_config(cfg)
     r = QuadResidual(c=0.0)
 
     class Plant(SEAModel):

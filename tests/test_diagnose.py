@@ -14,8 +14,6 @@ residual RMS after ≤ ½ before, AKF estimation RMSE after ≤ ½ before.
 """
 from __future__ import annotations
 
-import math
-
 import pytest
 
 from sea_daemon.diagnose import diagnose

@@ -4,7 +4,6 @@ import math
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,6 @@ from sea_daemon.control import PID, MinJerkTrajectory, OpenLoopTorque, min_jerk
 from sea_daemon.effects import make_effect
 from sea_daemon.errors import ConfigError
 from sea_daemon.logio import read_log
-from sea_daemon.model import SEAModel
 from sea_daemon.sim.plant import Plant
 from sea_daemon.sim.runner import simulate
 from sea_daemon.sim.scenario import load_scenario
@@ -186,7 +184,6 @@ def _response(effects, n=30, u_extra=1.0, q0=0.3):
 
 def test_effects_change_behaviour_in_expected_direction():
     q_ref, th_ref, _ = _response([])
-    dth_ref = th_ref - th_ref[0]
 
     # torque_scale 0.8: the motor's early (inertia-dominated) response to a torque step is 0.8x
     _, th, _ = _response([make_effect("torque_scale", kappa=0.8)])
