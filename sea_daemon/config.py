@@ -180,9 +180,14 @@ class EstimatorConfig:
     tau_m_noise: float = 0.0       # [N m] std of the motor-torque error held over a step: + Γ_u σ² Γ_uᵀ
     gp_noise_in_Q: bool = False    # GP-AKF: Q with the residual's predictive variance σ² + σ_on²
     init_after_kinematics: bool = False   # start when the differentiator is full: x̂₀ = y (velocities measured)
+    # Theorem-1 bound (docs/bounds.md §6): declared bound on how fast the active human torque
+    # changes beyond the random walk of Σ_nom, |dτ_h,act/dt| <= tau_h_act_rate [N m/s]; it enters
+    # the set of means as a bounded input (0: the paper's pure random walk)
+    tau_h_act_rate: float = 0.0
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
-            "pd_check_every", "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta"]
+            "pd_check_every", "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
+            "tau_h_act_rate"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -231,6 +236,7 @@ class EstimatorConfig:
             gp_beta = float(gp_beta)
         S_dt = _nonneg("Sigma_nom_dt", 0.0, " [s] (0: Sigma_nom per step)")
         tau_m_noise = _nonneg("tau_m_noise", 0.0, " [N m]")
+        rate = _nonneg("tau_h_act_rate", 0.0, " [N m/s]")
         def _bool(key):
             v = d.get(key, False)
             if not isinstance(v, bool):
@@ -243,7 +249,7 @@ class EstimatorConfig:
                    pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin,
                    gp_beta=gp_beta,
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
-                   init_after_kinematics=init_kin)
+                   init_after_kinematics=init_kin, tau_h_act_rate=rate)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -254,7 +260,7 @@ class EstimatorConfig:
                 "gp_input_margin": self.gp_input_margin, "gp_beta": self.gp_beta,
                 "Sigma_nom_dt": self.Sigma_nom_dt,
                 "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
-                "init_after_kinematics": self.init_after_kinematics}
+                "init_after_kinematics": self.init_after_kinematics, "tau_h_act_rate": self.tau_h_act_rate}
 
 
 @dataclass(frozen=True)

@@ -122,7 +122,8 @@ def run(args) -> int:
         sc = load_scenario(sc_path)
         sim = simulate(sc)
         log, train = sim.estimation, sim.training
-        nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
+        nominal = sc.declared(apply_settings(sc.nominal, settings))
+        true = sc.declared(apply_settings(sc.true_config(), settings))
         name = Path(sc_path).stem
         print(f"\nscenario {name}: {sc.description}; estimation {len(log)} samples, training {len(train)}, "
               f"seed {sc.seed}")

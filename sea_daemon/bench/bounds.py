@@ -208,7 +208,8 @@ def run(args) -> int:
             cal = sim_of(train_path, sc_train.seed + 1000).training
         name = Path(est_path).stem
         delta = sc.nominal.estimator.delta
-        nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
+        nominal = sc.declared(apply_settings(sc.nominal, settings))
+        true = sc.declared(apply_settings(sc.true_config(), settings))
         trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
         print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
         if args.als:

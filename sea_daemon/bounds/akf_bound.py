@@ -24,7 +24,10 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   ``estimator.gp_beta``): 'lederer' or a number
 * without declared effects ε and η depend on x only through q and (q, q̇): the set they are
   bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
-* X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
+* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6): τ_h,act
+  may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
+  bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
+* X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
 With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
@@ -40,6 +43,7 @@ import numpy as np
 
 from .._jit import njit, warm_up, warmer
 from ..errors import EstimatorFault
+from ..estimators.akf_core import held_input
 from .ellipsoid import Ellipsoid
 from .gp_bound import (BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants,
                        input_box, loggp_leaves)
@@ -75,16 +79,29 @@ class AKFTheoremBound:
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
-                 gp_beta: str | float | None = None):
+                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None):
         self.akf = akf
+        est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
         # the configuration's estimator.gp_beta
         if gp_beta is None:
-            gp_beta = getattr(getattr(getattr(akf, "cfg", None), "estimator", None), "gp_beta", "lederer")
+            gp_beta = getattr(est_cfg, "gp_beta", "lederer")
         if not (gp_beta == "lederer" or (isinstance(gp_beta, (int, float)) and gp_beta > 0)):
             raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
         self.gp_beta = gp_beta
         n, d = akf.n, akf.d
+        # declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk (default estimator.tau_h_act_rate)
+        if tau_h_act_rate is None:
+            tau_h_act_rate = getattr(est_cfg, "tau_h_act_rate", 0.0)
+        if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate)
+                and tau_h_act_rate >= 0):
+            raise ValueError(f"tau_h_act_rate must be a finite number >= 0 [N m/s], got {tau_h_act_rate!r}")
+        self.tau_h_act_rate = float(tau_h_act_rate)
+        self._E_tau = np.zeros((d, n))
+        self._E_tau[4 * n:, :] = np.eye(n)
+        self._Gam_tau = np.zeros((d, n))                 # Γ_τ of the step
+        self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
+        self._eta_all = np.zeros(2 * n)                  # [η | r]
         delta = akf.delta if delta is None else float(delta)
         has_gp = akf.residual is not None
         if delta_gp is None:
@@ -312,8 +329,22 @@ class AKFTheoremBound:
             self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
         Phi = self._phi(akf.A_k, b, dt)
+        Gam = akf.Gamma_mu
+        if self.tau_h_act_rate > 0:
+            # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
+            # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
+            held_input(akf.A_k, self._E_tau, float(dt), self._Gam_tau)
+            n = akf.n
+            if eta is None:
+                Gam, eta = self._Gam_tau, np.full(n, self.tau_h_act_rate)
+            else:
+                self._Gam_all[:, :n] = akf.Gamma_mu
+                self._Gam_all[:, n:] = self._Gam_tau
+                self._eta_all[:n] = eta
+                self._eta_all[n:] = self.tau_h_act_rate
+                Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
-        sm.predict(akf.F_k, Gamma=akf.Gamma_mu, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         sm.update(akf.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
@@ -431,3 +462,99 @@ def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
     consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
     _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
     return consts, box, scores
+
+
+def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> tuple[float, int]:
+    """Fraction of the steps of ``log`` where the Theorem-1 ρ_k with η = β s(z) (local scale,
+    :func:`~sea_daemon.bounds.gp_bound.fixed_constants`) covers the τ̂_h,act error of the frozen
+    GP-AKF ``est``; ``truth`` τ_h,act per sample (default 0: a passive subject,
+    ass:passive_human).  No human-torque rate: the subject is passive.  ``est`` must not have a
+    bound attached; it is left as it was (learning restored, no bound).  Returns (coverage, steps)."""
+    if getattr(est, "theorem_bound", None) is not None:
+        raise ValueError("torque_coverage needs a GP-AKF without an attached bound")
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("torque_coverage needs a GP-AKF backed by LoG-GPs")
+    n = len(gps)
+    truth = np.zeros((len(log), n)) if truth is None else np.asarray(truth, dtype=float).reshape(len(log), n)
+    _, box = gp_constants(gps, 0.5 * est.delta, beta=1.0)
+    consts = [fixed_constants(float(beta), 0.5 * est.delta / n) for _ in range(n)]
+    learning, est.learning = est.learning, False
+    attach_theorem_bound(est, gp_constants=consts, gp_box=box, tau_h_act_rate=0.0)
+    covered = steps = 0
+    try:
+        e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            # eq:bounds, per step and joint: |τ̂_h,act − τ_h,act| ≤ ρ_k
+            covered += int(np.all(np.abs(e.tau_h_act_hat - truth[k]) <= e.tau_h_act_bound))
+            steps += 1
+    finally:
+        est.learning = learning
+        for name in ("step", "reset", "theorem_bound"):      # detach: the class methods again
+            est.__dict__.pop(name, None)
+    return covered / max(steps, 1), steps
+
+
+def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.ndarray | None = None,
+                           iters: int = 6, progress=None) -> dict:
+    """The smallest β (η = β s(z), the configured-β form of ``estimator.gp_beta``) whose
+    Theorem-1 ρ_k covers the τ̂_h,act error of the frozen GP-AKF ``est`` on a held-out log in at
+    least ⌈(m + 1)(1 − δ)⌉ of its m steps (split conformal on the torque error itself, the
+    statement of eq:bounds; docs/bounds.md §2c).  ``log`` is a session the GP never learned,
+    with a passive subject (τ_h,act = 0) unless ``truth`` is given.
+
+    Coverage grows with β; the search doubles or halves β from 1 until the target is
+    bracketed (within [2⁻¹², 2¹²]), then bisects ``iters`` times in log β and returns the upper
+    end.  ``progress(beta, coverage)`` is called after each run.  Returns a dict with
+    ``beta``, ``coverage`` (at beta), ``steps``, ``target`` and ``runs`` [(β, coverage)].
+    """
+    delta = est.delta if delta is None else float(delta)
+    if not 0 < delta < 1:
+        raise ValueError(f"delta must be in (0, 1), got {delta}")
+    runs: list[tuple[float, float]] = []
+
+    def cov(b):
+        c, m = torque_coverage(est, log, b, truth)
+        runs.append((b, c))
+        if progress is not None:
+            progress(b, c)
+        return c, m
+
+    c1, m = cov(1.0)
+    target = min(1.0, math.ceil((m + 1) * (1.0 - delta)) / m)
+    lo, hi = None, None
+    if c1 >= target:
+        hi, c_hi = 1.0, c1
+        b = 0.5
+        while b >= 2.0 ** -12:
+            c, _ = cov(b)
+            if c < target:
+                lo = b
+                break
+            hi, c_hi = b, c
+            b *= 0.5
+        if lo is None:
+            # even the smallest β covers: the filter's own part does (β → 0)
+            return {"beta": hi, "coverage": c_hi, "steps": m, "target": target, "runs": runs}
+    else:
+        lo = 1.0
+        b = 2.0
+        while b <= 2.0 ** 12:
+            c, _ = cov(b)
+            if c >= target:
+                hi, c_hi = b, c
+                break
+            lo = b
+            b *= 2.0
+        if hi is None:
+            raise ValueError(f"the bound covers only {max(c for _, c in runs):.3f} of {m} steps even with "
+                             f"beta = {2.0 ** 12:g}; the target is {target:.3f} (1 - delta = {1 - delta:g})")
+    for _ in range(int(iters)):
+        b = math.sqrt(lo * hi)
+        c, _ = cov(b)
+        if c >= target:
+            hi, c_hi = b, c
+        else:
+            lo = b
+    return {"beta": hi, "coverage": c_hi, "steps": m, "target": target, "runs": runs}

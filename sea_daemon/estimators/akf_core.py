@@ -212,10 +212,10 @@ def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
 
 
 @njit
-def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
-    """Γ_u = ∫₀^dt e^{As} ds B ≈ dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) (fourth order,
-    Horner; Franklin, Powell & Workman §4.3.3) into ``Gam_u`` and S = S_base + Γ_u σ_u² Γ_uᵀ:
-    a motor-torque error of variance σ_u² held over the step (AKF.fill_sigma_nom)."""
+def held_input(A, B, dt, Gam):
+    """Γ = ∫₀^dt e^{As} ds B ≈ dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) into ``Gam``: the
+    effect on x_{k+1} of an input B·u held over the step (fourth order, Horner; Franklin,
+    Powell & Workman §4.3.3)."""
     d, r = B.shape
     G = np.empty((d, r))
     T = np.empty((d, r))
@@ -229,7 +229,17 @@ def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
                 G[i, j] = B[i, j] + c * dt * T[i, j]
     for i in range(d):
         for j in range(r):
-            Gam_u[i, j] = dt * G[i, j]
+            Gam[i, j] = dt * G[i, j]
+
+
+@njit
+def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
+    """Γ_u = ∫₀^dt e^{As} ds B (:func:`held_input`) into ``Gam_u`` and
+    S = S_base + Γ_u σ_u² Γ_uᵀ: a motor-torque error of variance σ_u² held over the step
+    (AKF.fill_sigma_nom)."""
+    d = A.shape[0]
+    r = B.shape[1]
+    held_input(A, B, dt, Gam_u)
     for i in range(d):
         for j in range(d):
             s = 0.0

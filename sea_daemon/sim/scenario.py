@@ -7,6 +7,8 @@ drives the exoskeleton, and how long the training and estimation phases are::
     model: ../exo_1dof.yaml        # nominal model config, path relative to this file
     seed: 1                        # motor-torque noise (overridable by --seed)
     human: passive                 # passive (τ_h,act = 0) | resist (τ_h,act = −τ_des)
+    tau_h_act_rate: 1.26           # optional [N m/s]: what the experimenter declares about the
+                                   # subject, |dτ_h,act/dt| <= this (estimator.tau_h_act_rate)
     plant:
       substep_hz: 1000             # internal RK4 rate [Hz]
       sign_eps: 0.003              # friction-sign smoothing of the true plant [rad/s]
@@ -33,6 +35,7 @@ Unknown keys, missing keys, bad values and unknown effect types raise
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -180,13 +183,22 @@ class Scenario:
     estimation_samples: int
     seed: int = 0
     description: str = ""
+    tau_h_act_rate: float | None = None     # declared |dτ_h,act/dt| bound [N m/s] (None: not declared)
 
-    TOP_KEYS = ["description", "model", "seed", "human", "plant", "controller", "phases"]
+    TOP_KEYS = ["description", "model", "seed", "human", "tau_h_act_rate", "plant", "controller", "phases"]
     REQUIRED = ["model", "human", "plant", "controller", "phases"]
 
     def true_config(self) -> ModelConfig:
         """Nominal model + hidden effects: the configuration of the true plant."""
         return self.nominal.with_effects(tuple(self.nominal.model.effects) + tuple(self.plant.effects))
+
+    def declared(self, cfg: ModelConfig) -> ModelConfig:
+        """``cfg`` with what the scenario declares to the estimator: ``estimator.tau_h_act_rate``
+        when the scenario gives one (the Theorem-1 bound's human-torque rate, docs/bounds.md §6)."""
+        if self.tau_h_act_rate is None:
+            return cfg
+        return dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator,
+                                                                      tau_h_act_rate=self.tau_h_act_rate))
 
     @classmethod
     def from_dict(cls, d: Any, source: str, base_dir: Path | None = None) -> "Scenario":
@@ -227,10 +239,14 @@ class Scenario:
         desc = d.get("description", "")
         if not isinstance(desc, str):
             raise ConfigError(source, "description", f"must be a string, got {desc!r}")
+        rate = d.get("tau_h_act_rate")
+        if rate is not None:
+            rate = _num(source, "tau_h_act_rate", rate, non_negative=True)
         return cls(source=source, model_path=model_path, nominal=nominal,
                    plant=PlantSpec.from_dict(d["plant"], nominal.joints, source),
                    human=human, controller=controller, training_samples=samples["training"],
-                   estimation_samples=samples["estimation"], seed=seed, description=desc)
+                   estimation_samples=samples["estimation"], seed=seed, description=desc,
+                   tau_h_act_rate=rate)
 
 
 def load_scenario(path: str | Path) -> Scenario:
