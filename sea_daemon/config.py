@@ -307,8 +307,12 @@ class LearningConfig:
     sigma_n: float = 0.05            # initial noise std σ_on [N m]
     hyperopt: bool = True            # online gradient-based hyperparameter adaptation
     seed: int = 0
+    # c of the GP error bound's extrapolation term c·e(z) (LocalScale; docs/learning.md
+    # "Novelty"); 0: off.  The GP's predictions do not change.
+    extrapolation_scale: float = 0.0
 
-    KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed"]
+    KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
+            "extrapolation_scale"]
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
@@ -323,6 +327,9 @@ class LearningConfig:
                 out[k] = v
         if "overlap" in d:
             out["overlap"] = _num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
+        if "extrapolation_scale" in d:
+            out["extrapolation_scale"] = _num(source, "learning.extrapolation_scale", d["extrapolation_scale"],
+                                              lo=0.0, hi=10.0)
         # one length scale per input dimension of z = [q, q̇, q̈] (3n); three values are
         # taken as (l_q, l_q̇, l_q̈) for every joint
         ls = d.get("lengthscales", cls.lengthscales)

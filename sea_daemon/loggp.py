@@ -156,6 +156,10 @@ class LoGGP:
     hyper_points: in-loop slices use the LML gradient of a leaf's oldest ``hyper_points``
         points only (``None``: all); 50 of 100 cuts the cost of phase 1 several-fold.
     evict: points a full leaf forgets at once when it may not split (default ``N̄ // 10``).
+    extrapolation_scale: c of the extrapolation term ``c · e(z)`` that the local error scale of
+        the GP error bound adds (:meth:`extrapolation_many`,
+        :class:`sea_daemon.bounds.gp_bound.LocalScale`); 0 (default): off.  The predictions
+        themselves do not change.
     seed: seed of the random split assignment.
     """
 
@@ -163,7 +167,7 @@ class LoGGP:
                  overlap: float = 0.01, lengthscales=1.0, sigma_f: float = 1.0,
                  sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
                  hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
-                 evict: int | None = None,
+                 evict: int | None = None, extrapolation_scale: float = 0.0,
                  seed: int = 0, jitter: float = 1e-10):
         def _int(name, v, lo):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -185,6 +189,10 @@ class LoGGP:
         self.evict = min(self.evict, self.max_points)
         self.seed = _int("seed", seed, 0)
         self.jitter = float(jitter)
+        if isinstance(extrapolation_scale, bool) or not isinstance(extrapolation_scale, (int, float)) \
+                or not 0.0 <= float(extrapolation_scale) <= 10.0:
+            raise InputError(f"extrapolation_scale must be in [0, 10], got {extrapolation_scale!r}")
+        self.extrapolation_scale = float(extrapolation_scale)
         # validates the hyperparameters (raises InputError naming the value)
         proto = IncrementalGP(self.input_dim, sigma_f, lengthscales, sigma_n, capacity=1)
         self._theta0 = proto.log_theta
@@ -524,6 +532,24 @@ class LoGGP:
         mu[one], var[one] = m[first], v[first]
         return mu, var
 
+    def extrapolation_many(self, Z) -> np.ndarray:
+        """Merged first-order extrapolation ``e(z) = Σ_i ω_i e_i(z)`` at every row of ``Z``
+        (m, input_dim), e_i of the leaves reached (:meth:`IncrementalGP.extrapolation_many`:
+        the leaf mean's local slope times the distance to the leaf's nearest training input),
+        merged with the prediction weights as the local scale merges its terms."""
+        Z = np.ascontiguousarray(Z, dtype=float)
+        idx, nodes, w, _, _ = self.leaf_predictions(Z)
+        return self._extrapolation_rows(Z, idx, nodes, w)
+
+    def _extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Σ_i ω_i e_i(z) per row of ``Z`` from a routing (row index, node, ω) of
+        :meth:`leaf_predictions`."""
+        ex = np.empty(len(idx))
+        for node in np.unique(nodes).tolist():
+            sel = nodes == node
+            ex[sel] = self._gp[node].extrapolation_many(Z[idx[sel]])
+        return np.bincount(idx, w * ex, Z.shape[0])
+
     def predict_with_grad(self, x, var_grad: bool = False):
         """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
         x, xl = self._check_x(x)
@@ -639,7 +665,8 @@ class LoGGP:
                             "hyperopt": self.hyperopt, "hyper_every": self.hyper_every,
                             "hyper_lr": self.hyper.lr, "hyper_min_points": self.hyper_min_points,
                             "hyper_points": self.hyper_points,
-                            "evict": self.evict, "seed": self.seed, "jitter": self.jitter},
+                            "evict": self.evict, "seed": self.seed, "jitter": self.jitter,
+                            "extrapolation_scale": self.extrapolation_scale},
                 "tree": {"dim": list(self._dim), "lo": list(self._lo), "hi": list(self._hi),
                          "left": list(self._left), "right": list(self._right)},
                 "leaves": leaves,

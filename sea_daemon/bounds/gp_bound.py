@@ -174,10 +174,22 @@ class LocalScale:
     merged prediction's leaf weights at z.  It is large where the leaf's data were badly fitted
     (e.g. friction reversals), and fixed by the training data alone — so a split-conformal
     quantile of |y − μ|/s on held-out pairs keeps its validity (normalised / locally adaptive
-    conformal, Lei et al. 2018 §5.2)."""
+    conformal, Lei et al. 2018 §5.2).
+
+    Extrapolation term (``LoGGP(extrapolation_scale=c)``, ``learning.extrapolation_scale``; off
+    at c = 0): s(z) = √(σ² + s_loc² + (c e(z))²) with e(z) = Σ_i w_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij|,
+    x*_i the training input of leaf i nearest z (length-scale metric).  By the mean value theorem
+    |f(z) − μ_i(z)| ≤ |f(x*) − μ_i(x*)| + Σ_j (|∂f/∂z_j| + |∂μ_i/∂z_j|) |z_j − x*_j| (slopes
+    along the segment): the first term is what s_loc and σ measure near the data, the second is
+    the LUH19 remainder (L_μ + L_f) τ at the distance τ from the data.  Neither slope of f is
+    known; the mean's local slope stands for both, so c = 2.  It is large exactly where a leaf
+    mean extrapolates steeply off its data — where σ, bounded by σ_f and shrunk by long length
+    scales, stays small (docs/learning.md, "Novelty").  Fixed by the training data too, so the
+    conformal argument is unchanged."""
 
     def __init__(self, gp):
         self.gp = gp
+        self.c_ext = float(getattr(gp, "extrapolation_scale", 0.0))
         self.r_ = {}
         for node in gp.leaves():
             lf = gp.leaf(node)
@@ -203,6 +215,10 @@ class LocalScale:
         m2 = np.bincount(idx, w * (v + m * m), rows)
         sl = np.bincount(idx, w * r, rows)
         var = np.maximum(m2 - mu * mu, 0.0)
+        if self.c_ext > 0.0:
+            # c e(z), e = Σ ω_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij| (the extrapolation term above)
+            se = self.c_ext * self.gp._extrapolation_rows(np.ascontiguousarray(Z, dtype=float), idx, nodes, w)
+            return mu, var, np.sqrt(var + sl * sl + se * se)
         return mu, var, np.sqrt(var + sl * sl)
 
     def predict(self, z) -> tuple[float, float, float]:
@@ -211,8 +227,12 @@ class LocalScale:
         return float(mu[0]), float(var[0]), float(s[0])
 
     def __call__(self, z, var: float) -> float:
+        """s(z) given the merged σ²(z) (the extrapolation term included when on)."""
         s = self.local(z)
-        return float(np.sqrt(max(var, 0.0) + s * s))
+        se = 0.0
+        if self.c_ext > 0.0:
+            se = self.c_ext * float(self.gp.extrapolation_many(np.asarray(z, dtype=float)[None])[0])
+        return float(np.sqrt(max(var, 0.0) + s * s + se * se))
 
 
 def conformal_quantile(scores: np.ndarray, alpha: float) -> float:
