@@ -49,6 +49,8 @@ def test_default_config_loads_and_roundtrips(tmp_path):
     (lambda d: d.update(estimator={"tau_m_noise": -1.0}), "estimator.tau_m_noise"),
     (lambda d: d.update(estimator={"gp_noise_in_Q": "yes"}), "estimator.gp_noise_in_Q"),
     (lambda d: d.update(estimator={"init_after_kinematics": 1}), "estimator.init_after_kinematics"),
+    (lambda d: d.update(learning={"extrapolation_scale": -1.0}), "learning.extrapolation_scale"),
+    (lambda d: d.update(learning={"extrapolation_scale": "on"}), "learning.extrapolation_scale"),
 ])
 def test_bad_config_names_key(mutate, key):
     d = base_dict()
