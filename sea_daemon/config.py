@@ -310,9 +310,12 @@ class LearningConfig:
     # c of the GP error bound's extrapolation term c·e(z) (LocalScale; docs/learning.md
     # "Novelty"); 0: off.  The GP's predictions do not change.
     extrapolation_scale: float = 0.0
+    # every leaf's mean is evaluated at the input clipped into the box of its own data (its σ
+    # at the input): no leaf extrapolates its mean (docs/learning.md "Novelty")
+    clip_leaf_mean: bool = False
 
     KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
-            "extrapolation_scale"]
+            "extrapolation_scale", "clip_leaf_mean"]
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
@@ -340,10 +343,11 @@ class LearningConfig:
         for k in ("sigma_f", "sigma_n"):
             if k in d:
                 out[k] = _num(source, f"learning.{k}", d[k], positive=True)
-        if "hyperopt" in d:
-            if not isinstance(d["hyperopt"], bool):
-                raise ConfigError(source, "learning.hyperopt", f"must be true or false, got {d['hyperopt']!r}")
-            out["hyperopt"] = d["hyperopt"]
+        for k in ("hyperopt", "clip_leaf_mean"):
+            if k in d:
+                if not isinstance(d[k], bool):
+                    raise ConfigError(source, f"learning.{k}", f"must be true or false, got {d[k]!r}")
+                out[k] = d[k]
         return cls(**out)
 
     def to_dict(self) -> dict:

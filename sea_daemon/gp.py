@@ -133,6 +133,10 @@ class IncrementalGP:
     sigma_f, lengthscales, sigma_n: hyperparameters of ``eq:SE`` and the target noise σ_on.
     capacity: initial storage (grows by 1.5× when full, never beyond ``max_capacity``).
     jitter: added to the diagonal on top of σ_on² for numerical safety.
+    clip_mean: evaluate the mean (and ∂μ/∂x) at x clipped into the box ``[lo_, hi_]`` of the
+        stored inputs, the variance at x itself: beyond its data the mean stays at its value on
+        the box's face (∂μ/∂x = 0 in the clipped coordinates) instead of extrapolating, while σ
+        still grows with the distance (docs/learning.md, "Novelty").  Default False.
 
     Internals (for speed at N ≈ 100, where numpy's per-call overhead dominates): with
     ``x̄ = x − c`` (c: the first point), row i of ``A_`` is ``[x̄_i / l², h_i, 1]`` with
@@ -141,12 +145,12 @@ class IncrementalGP:
     """
 
     __slots__ = ("input_dim", "n_", "X_", "y_", "A_", "beta_", "ap_", "_alpha", "_alpha_ok",
-                 "center_", "_il2", "_log_sf2", "_sf2", "_sn2",
+                 "center_", "clip_mean", "lo_", "hi_", "_il2", "_log_sf2", "_sf2", "_sn2",
                  "sigma_f", "lengthscales", "sigma_n", "jitter", "max_capacity", "_cap")
 
     def __init__(self, input_dim: int, sigma_f: float = 1.0, lengthscales=1.0,
                  sigma_n: float = 0.1, *, capacity: int = 16, max_capacity: int | None = None,
-                 jitter: float = 1e-10):
+                 jitter: float = 1e-10, clip_mean: bool = False):
         if isinstance(input_dim, bool) or not isinstance(input_dim, (int, np.integer)) or input_dim < 1:
             raise InputError(f"input_dim must be an integer >= 1, got {input_dim!r}")
         self.input_dim = int(input_dim)
@@ -154,6 +158,9 @@ class IncrementalGP:
         self.jitter = float(jitter)
         self.n_ = 0
         self.center_: np.ndarray | None = None
+        self.clip_mean = bool(clip_mean)
+        self.lo_ = np.full(self.input_dim, np.inf)      # box of the stored inputs
+        self.hi_ = np.full(self.input_dim, -np.inf)
         cap = max(1, int(capacity))
         if self.max_capacity is not None:
             cap = min(cap, self.max_capacity)
@@ -262,6 +269,9 @@ class IncrementalGP:
         n = X.shape[0]
         child = IncrementalGP.__new__(IncrementalGP)
         child.input_dim, child.max_capacity, child.jitter = self.input_dim, self.max_capacity, self.jitter
+        child.clip_mean = self.clip_mean
+        child.lo_ = np.full(self.input_dim, np.inf)
+        child.hi_ = np.full(self.input_dim, -np.inf)
         for a in ("sigma_f", "lengthscales", "sigma_n", "_il2", "_sf2", "_log_sf2", "_sn2"):
             setattr(child, a, getattr(self, a))
         cap = max(n, 1) if capacity is None else max(n, 1, int(capacity))
@@ -284,8 +294,12 @@ class IncrementalGP:
         n = self.n_
         self._alpha_ok = False
         if n == 0:
+            self.lo_[:] = np.inf
+            self.hi_[:] = -np.inf
             return
         X = self.X_
+        np.min(X[:n], axis=0, out=self.lo_)
+        np.max(X[:n], axis=0, out=self.hi_)
         gp_core.fill_rows(X, n, self.center_, self._il2, self._log_sf2, self.A_)
         if K is None:
             # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
@@ -318,6 +332,8 @@ class IncrementalGP:
                           self._il2, n, self._sf2, self._sn2, self.jitter, self._log_sf2)
         self.n_ = n + 1
         self._alpha_ok = False
+        np.minimum(self.lo_, x, out=self.lo_)
+        np.maximum(self.hi_, x, out=self.hi_)
 
     def remove_oldest(self, m: int = 1) -> None:
         """Drop the ``m`` oldest points and refactorise (O(N³) once; amortise over ≥ m adds)."""
@@ -353,9 +369,15 @@ class IncrementalGP:
         n = self.n_
         if n == 0:
             return 0.0, self._sf2
+        x = np.ascontiguousarray(x, dtype=float)
         # eq:SE, v = L⁻¹ k, eq:GPmean μ = vᵀβ, eq:GPvariance σ² = k(x,x) − vᵀv
-        return gp_core.predict(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2,
-                               np.ascontiguousarray(x, dtype=float))
+        mu, var = gp_core.predict(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2, x)
+        if self.clip_mean:
+            xc = np.minimum(np.maximum(x, self.lo_), self.hi_)
+            if not np.array_equal(xc, x):
+                # clip_mean: μ at the clipped input, σ² at x
+                mu = gp_core.predict(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2, xc)[0]
+        return mu, var
 
     def predict_many(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`predict` at every row of ``X`` (m, ρ), in one compiled call: (μ (m,), σ² (m,))."""
@@ -367,6 +389,16 @@ class IncrementalGP:
         mu, var = np.empty(m), np.empty(m)
         # eq:GPmean, eq:GPvariance per row (gp_core.predict)
         gp_core.predict_many(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2, X, mu, var)
+        if self.clip_mean:
+            Xc = np.minimum(np.maximum(X, self.lo_), self.hi_)
+            out = np.flatnonzero(np.any(Xc != X, axis=1))
+            if out.size:
+                # clip_mean: μ at the clipped inputs, σ² at X
+                Xo = np.ascontiguousarray(Xc[out])
+                mo, vo = np.empty(out.size), np.empty(out.size)
+                gp_core.predict_many(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2,
+                                     Xo, mo, vo)
+                mu[out] = mo
         return mu, var
 
     def extrapolation_many(self, X: np.ndarray) -> np.ndarray:
@@ -381,6 +413,9 @@ class IncrementalGP:
         if n == 0:
             return np.zeros(X.shape[0])
         Xd = self.X_[:n]
+        if self.clip_mean:
+            # the mean is evaluated at the clipped input: its extrapolation ends on the box
+            X = np.minimum(np.maximum(X, self.lo_), self.hi_)
         il = 1.0 / self.lengthscales
         # scaled differences (m, N, ρ) and squared scaled distances (m, N)
         D = (X[:, None, :] - Xd[None, :, :]) * il
@@ -392,6 +427,25 @@ class IncrementalGP:
         dx = np.abs(X - Xd[near])
         return np.sum(np.abs(dmu) * dx, axis=1)
 
+    def _predict_with_grad_clipped(self, x, xc, var_grad, dmu, dvar):
+        """clip_mean outside the box: μ and ∂μ/∂x at the clipped input ``xc`` (∂μ/∂x = 0 in
+        the clipped coordinates), σ² (and ∂σ²/∂x) at ``x``."""
+        n = self.n_
+        if var_grad:
+            # eq:GPvariance and its gradient at x (the ∂μ/∂x written here is replaced below)
+            _, var = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self._alpha_ok,
+                                               self.center_, self._il2, n, self._sf2, x, True, dmu, dvar)
+            self._alpha_ok = True
+        else:
+            # eq:GPvariance at x
+            var = gp_core.predict(self.A_, self.ap_, self.beta_, self.center_, self._il2, n, self._sf2, x)[1]
+        # eq:GPmean, eq:moejac at the clipped input
+        mu, _ = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self._alpha_ok, self.center_,
+                                          self._il2, n, self._sf2, xc, False, dmu, dmu)
+        self._alpha_ok = True
+        dmu[xc != x] = 0.0
+        return (mu, var, dmu, dvar) if var_grad else (mu, var, dmu)
+
     def predict_with_grad(self, x, var_grad: bool = False, out: np.ndarray | None = None):
         """``(μ, σ², ∂μ/∂x)`` or, with ``var_grad``, ``(μ, σ², ∂μ/∂x, ∂σ²/∂x)`` at ``x``;
         ``out`` (ρ,): where to write ∂μ/∂x (default a new array)."""
@@ -402,11 +456,16 @@ class IncrementalGP:
             dmu[:] = 0.0
             return (0.0, self._sf2, dmu, np.zeros(d)) if var_grad else (0.0, self._sf2, dmu)
         dvar = np.empty(d) if var_grad else dmu
+        x = np.ascontiguousarray(x, dtype=float)
+        if self.clip_mean:
+            xc = np.minimum(np.maximum(x, self.lo_), self.hi_)
+            if not np.array_equal(xc, x):
+                return self._predict_with_grad_clipped(x, xc, var_grad, dmu, dvar)
         # eq:GPmean, eq:GPvariance, eq:moejac with eq:kernelderivative (gp_core.predict_with_grad;
         # α = (K + σ_on² I)⁻¹ y refreshed there after an append)
         mu, var = gp_core.predict_with_grad(self.A_, self.ap_, self.beta_, self._alpha, self._alpha_ok,
                                             self.center_, self._il2, n, self._sf2,
-                                            np.ascontiguousarray(x, dtype=float), bool(var_grad), dmu, dvar)
+                                            x, bool(var_grad), dmu, dvar)
         self._alpha_ok = True
         return (mu, var, dmu, dvar) if var_grad else (mu, var, dmu)
 

@@ -115,7 +115,8 @@ class ResidualGP:
             raise InputError(f"learning.lengthscales must have 3 or {3 * self.n} entries, got {len(ls)}")
         opts = dict(max_points=lc.max_points, max_leaves=lc.max_leaves, overlap=lc.overlap,
                     lengthscales=list(ls), sigma_f=lc.sigma_f, sigma_n=lc.sigma_n,
-                    hyperopt=lc.hyperopt, extrapolation_scale=lc.extrapolation_scale)
+                    hyperopt=lc.hyperopt, extrapolation_scale=lc.extrapolation_scale,
+                    clip_leaf_mean=lc.clip_leaf_mean)
         opts.update(overrides)
         self.gps = [LoGGP(3 * self.n, seed=lc.seed + i, **opts) for i in range(self.n)]
 

@@ -160,6 +160,10 @@ class LoGGP:
         the GP error bound adds (:meth:`extrapolation_many`,
         :class:`sea_daemon.bounds.gp_bound.LocalScale`); 0 (default): off.  The predictions
         themselves do not change.
+    clip_leaf_mean: every leaf evaluates its mean (and ∂μ/∂x) at the input clipped into the box
+        of its own training inputs and its variance at the input itself
+        (:class:`~sea_daemon.gp.IncrementalGP` ``clip_mean``): a leaf never extrapolates its
+        mean beyond its data, while its σ still grows there (docs/learning.md, "Novelty").
     seed: seed of the random split assignment.
     """
 
@@ -167,7 +171,7 @@ class LoGGP:
                  overlap: float = 0.01, lengthscales=1.0, sigma_f: float = 1.0,
                  sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
                  hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
-                 evict: int | None = None, extrapolation_scale: float = 0.0,
+                 evict: int | None = None, extrapolation_scale: float = 0.0, clip_leaf_mean: bool = False,
                  seed: int = 0, jitter: float = 1e-10):
         def _int(name, v, lo):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -193,6 +197,7 @@ class LoGGP:
                 or not 0.0 <= float(extrapolation_scale) <= 10.0:
             raise InputError(f"extrapolation_scale must be in [0, 10], got {extrapolation_scale!r}")
         self.extrapolation_scale = float(extrapolation_scale)
+        self.clip_leaf_mean = bool(clip_leaf_mean)
         # validates the hyperparameters (raises InputError naming the value)
         proto = IncrementalGP(self.input_dim, sigma_f, lengthscales, sigma_n, capacity=1)
         self._theta0 = proto.log_theta
@@ -224,7 +229,8 @@ class LoGGP:
         d = self.input_dim
         return IncrementalGP(d, math.exp(log_theta[0]), np.exp(log_theta[1:d + 1]),
                              math.exp(log_theta[d + 1]), capacity=min(capacity, self.max_points),
-                             max_capacity=self.max_points, jitter=self.jitter)
+                             max_capacity=self.max_points, jitter=self.jitter,
+                             clip_mean=self.clip_leaf_mean)
 
     def _check_x(self, x) -> tuple[np.ndarray, list[float]]:
         x = np.asarray(x, dtype=float)
@@ -666,7 +672,8 @@ class LoGGP:
                             "hyper_lr": self.hyper.lr, "hyper_min_points": self.hyper_min_points,
                             "hyper_points": self.hyper_points,
                             "evict": self.evict, "seed": self.seed, "jitter": self.jitter,
-                            "extrapolation_scale": self.extrapolation_scale},
+                            "extrapolation_scale": self.extrapolation_scale,
+                            "clip_leaf_mean": self.clip_leaf_mean},
                 "tree": {"dim": list(self._dim), "lo": list(self._lo), "hi": list(self._hi),
                          "left": list(self._left), "right": list(self._right)},
                 "leaves": leaves,
@@ -759,6 +766,7 @@ class LoGGP:
                 node = int(leaf["node"])
                 g = IncrementalGP.from_dict(leaf["gp"])
                 g.max_capacity = self.max_points
+                g.clip_mean = self.clip_leaf_mean
                 self._gp[node] = g
                 if leaf.get("adam") is not None:
                     self._adam[node] = self.hyper.state_from_dict(leaf["adam"])

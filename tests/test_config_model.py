@@ -51,6 +51,7 @@ def test_default_config_loads_and_roundtrips(tmp_path):
     (lambda d: d.update(estimator={"init_after_kinematics": 1}), "estimator.init_after_kinematics"),
     (lambda d: d.update(learning={"extrapolation_scale": -1.0}), "learning.extrapolation_scale"),
     (lambda d: d.update(learning={"extrapolation_scale": "on"}), "learning.extrapolation_scale"),
+    (lambda d: d.update(learning={"clip_leaf_mean": 1}), "learning.clip_leaf_mean"),
 ])
 def test_bad_config_names_key(mutate, key):
     d = base_dict()

@@ -101,3 +101,64 @@ def test_learning_config_passes_the_scale_to_every_joint():
     assert lc.to_dict()["extrapolation_scale"] == 2.0
     res = ResidualGP(2, lc)
     assert [g.extrapolation_scale for g in res.gps] == [2.0, 2.0]
+
+
+def test_clipped_leaf_mean_stops_at_its_data_box_and_sigma_keeps_growing():
+    rng = np.random.default_rng(7)
+    X = rng.uniform([0.0, -0.01], [1.0, 0.01], (30, 2))              # thin along x2 (a standstill)
+    y = X[:, 0] + 100.0 * X[:, 1]                                      # steep along the thin side
+    free = IncrementalGP(2, 1.0, [0.5, 0.5], 0.01)
+    clip = IncrementalGP(2, 1.0, [0.5, 0.5], 0.01, clip_mean=True)
+    for x, v in zip(X, y):
+        free.add(x, v)
+        clip.add(x, v)
+    np.testing.assert_allclose(clip.lo_, X.min(0)) and np.testing.assert_allclose(clip.hi_, X.max(0))
+    inside = np.array([0.5, 0.0])
+    assert clip.predict(inside) == pytest.approx(free.predict(inside))
+    far = np.array([0.5, 0.2])                                         # 20 widths off along x2
+    face = np.array([0.5, X[:, 1].max()])
+    m_free, v_free = free.predict(far)
+    m_clip, v_clip = clip.predict(far)
+    assert abs(m_free - m_clip) > 3.0                                  # the free mean runs off with the slope
+    assert m_clip == pytest.approx(free.predict(face)[0], rel=1e-9)    # the clipped one stays on the face
+    assert v_clip == pytest.approx(v_free, rel=1e-12) and v_clip > clip.predict(face)[1]
+    # batch, gradient (zero along the clipped coordinate) and ∂σ²/∂x at x agree with predict
+    Z = np.array([inside, far, [1.5, -0.3]])
+    mu, var = clip.predict_many(Z)
+    for z, m, v in zip(Z, mu, var):
+        assert (m, v) == pytest.approx(clip.predict(z), rel=1e-9)
+        m2, v2, dm, dv = clip.predict_with_grad(z, var_grad=True)
+        m3, v3, dm3 = clip.predict_with_grad(z)
+        assert (m2, v2) == pytest.approx((m, v), rel=1e-9) and (m3, v3) == pytest.approx((m, v), rel=1e-9)
+        np.testing.assert_allclose(dm, dm3)
+        np.testing.assert_allclose(dv, free.predict_with_grad(z, var_grad=True)[3], rtol=1e-9)
+        h = 1e-6
+        for j in range(2):
+            e = np.zeros(2)
+            e[j] = h
+            fd = (clip.predict(z + e)[0] - clip.predict(z - e)[0]) / (2 * h)
+            assert dm[j] == pytest.approx(fd, rel=1e-4, abs=1e-6)
+    assert dm3[0] == 0.0 and dm3[1] == 0.0                             # both coordinates clipped at [1.5, -0.3]
+    # the extrapolation term ends on the box too
+    assert clip.extrapolation_many(far[None])[0] < 0.2 * free.extrapolation_many(far[None])[0]
+
+
+def test_clipped_leaf_mean_survives_splits_eviction_and_persistence():
+    rng = np.random.default_rng(9)
+    gp = LoGGP(2, max_points=12, max_leaves=4, lengthscales=[0.4, 0.4], seed=1, clip_leaf_mean=True)
+    for x in rng.uniform(-1, 1, (150, 2)):
+        gp.update(x, float(np.sin(2 * x[0]) + x[1]))
+    assert gp.n_evicted > 0 and all(gp.leaf(nd).clip_mean for nd in gp.leaves())
+    for nd in gp.leaves():
+        lf = gp.leaf(nd)
+        np.testing.assert_allclose(lf.lo_, lf.X_[:lf.n_].min(0))       # the box follows eviction
+        np.testing.assert_allclose(lf.hi_, lf.X_[:lf.n_].max(0))
+    Z = rng.uniform(-2, 2, (25, 2))
+    back = LoGGP.from_dict(gp.to_dict())
+    arrays, meta = gp.to_arrays()
+    again = LoGGP.from_arrays(arrays, meta)
+    for g in (back, again):
+        assert g.clip_leaf_mean
+        np.testing.assert_allclose(g.predict_many(Z)[0], gp.predict_many(Z)[0], rtol=1e-9)
+    lc = LearningConfig.from_dict({"clip_leaf_mean": True}, 1, "x.yaml")
+    assert ResidualGP(1, lc).gps[0].clip_leaf_mean and not LearningConfig().clip_leaf_mean
