@@ -407,25 +407,18 @@ class IncrementalGP:
         length-scale metric ‖(x − x_i)/l‖.  It is how far the mean has moved, at its own local
         slope, away from the closest point where data pinned it: ≈ 0 on the data, growing with
         the distance from it where the mean is steep (eq:moejac with eq:kernelderivative for
-        ∂μ/∂x).  Zeros without data.  O(m N ρ), numpy."""
-        X = np.atleast_2d(np.asarray(X, dtype=float))
+        ∂μ/∂x).  With ``clip_mean`` x is clipped into the data box first (the mean is flat beyond
+        it).  Zeros without data.  O(m N ρ), compiled."""
+        X = np.ascontiguousarray(np.atleast_2d(np.asarray(X, dtype=float)))
         n = self.n_
+        out = np.zeros(X.shape[0])
         if n == 0:
-            return np.zeros(X.shape[0])
-        Xd = self.X_[:n]
-        if self.clip_mean:
-            # the mean is evaluated at the clipped input: its extrapolation ends on the box
-            X = np.minimum(np.maximum(X, self.lo_), self.hi_)
-        il = 1.0 / self.lengthscales
-        # scaled differences (m, N, ρ) and squared scaled distances (m, N)
-        D = (X[:, None, :] - Xd[None, :, :]) * il
-        r2 = np.einsum("mnj,mnj->mn", D, D)
-        # eq:SE k(x, x_i); eq:kernelderivative ∂k/∂x_j = −k (x_j − x_ij)/l_j²; eq:moejac ∂μ/∂x = Σ_i α_i ∂k_i/∂x
-        G = self._sf2 * np.exp(-0.5 * r2) * self.alpha_[None, :]
-        dmu = -np.einsum("mn,mnj->mj", G, D) * il
-        near = np.argmin(r2, axis=1)
-        dx = np.abs(X - Xd[near])
-        return np.sum(np.abs(dmu) * dx, axis=1)
+            return out
+        # compiled (gp_core.extrapolation_many); with clip_mean the input is clipped into the
+        # data box first: the mean's extrapolation ends on the box
+        gp_core.extrapolation_many(self.X_, n, self.alpha_, self._il2, self._sf2, self.lo_, self.hi_,
+                                   self.clip_mean, X, out)
+        return out
 
     def _predict_with_grad_clipped(self, x, xc, var_grad, dmu, dvar):
         """clip_mean outside the box: μ and ∂μ/∂x at the clipped input ``xc`` (∂μ/∂x = 0 in
@@ -549,6 +542,7 @@ def _warm() -> None:
     gp.predict(X[0])
     gp.predict_many(X[:2])
     gp.predict_with_grad(X[1], var_grad=True)
+    gp.extrapolation_many(X[:2])
     gp.log_marginal_likelihood(grad=True)
     gp.set_hyperparameters(1.1, [1.0, 0.9, 1.2], 0.1)
     gp.spawn(X[:3], X[:3, 0].copy(), gp.kernel_matrix(X[:3]))

@@ -131,6 +131,42 @@ def predict_many(A, ap, beta, c, il2, n, sf2, Xq, mu, var):
 
 
 @njit(fast=True)
+def extrapolation_many(X, n, alpha, il2, sf2, lo, hi, clip, Xq, out):
+    """e(x) = Σ_j |∂μ/∂x_j| |x_j − x*_j| at every row x of ``Xq`` into ``out``: x* the stored
+    input nearest x in the length-scale metric, ∂μ/∂x by eq:moejac with eq:kernelderivative
+    (∂μ/∂x_j = Σ_i α_i k_i (x_ij − x_j)/l_j², raw inputs ``X``).  ``clip``: x clipped into
+    [lo, hi] first (the clipped mean's extrapolation)."""
+    d = Xq.shape[1]
+    x = np.empty(d)
+    g = np.empty(d)
+    for r in range(Xq.shape[0]):
+        for j in range(d):
+            v = Xq[r, j]
+            if clip:
+                v = min(max(v, lo[j]), hi[j])
+            x[j] = v
+            g[j] = 0.0
+        best = np.inf
+        near = 0
+        for i in range(n):
+            r2 = 0.0
+            for j in range(d):
+                t = x[j] - X[i, j]
+                r2 += il2[j] * t * t
+            if r2 < best:
+                best = r2
+                near = i
+            # eq:SE k_i and eq:kernelderivative
+            w = alpha[i] * sf2 * math.exp(-0.5 * r2)
+            for j in range(d):
+                g[j] += w * (X[i, j] - x[j]) * il2[j]
+        e = 0.0
+        for j in range(d):
+            e += abs(g[j]) * abs(x[j] - X[near, j])
+        out[r] = e
+
+
+@njit(fast=True)
 def update_alpha(ap, beta, n, alpha):
     """α = (K + σ_on² I)⁻¹ y = L⁻ᵀ β (eq:GPmean)."""
     for i in range(n):
