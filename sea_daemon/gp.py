@@ -407,17 +407,15 @@ class IncrementalGP:
         length-scale metric ‖(x − x_i)/l‖.  It is how far the mean has moved, at its own local
         slope, away from the closest point where data pinned it: ≈ 0 on the data, growing with
         the distance from it where the mean is steep (eq:moejac with eq:kernelderivative for
-        ∂μ/∂x).  With ``clip_mean`` x is clipped into the data box first (the mean is flat beyond
-        it).  Zeros without data.  O(m N ρ), compiled."""
+        ∂μ/∂x).  Always of the unclipped mean, also with ``clip_mean``: its slope is the data's
+        estimate of how fast f moves away from them.  Zeros without data.  O(m N ρ), compiled."""
         X = np.ascontiguousarray(np.atleast_2d(np.asarray(X, dtype=float)))
         n = self.n_
         out = np.zeros(X.shape[0])
         if n == 0:
             return out
-        # compiled (gp_core.extrapolation_many); with clip_mean the input is clipped into the
-        # data box first: the mean's extrapolation ends on the box
-        gp_core.extrapolation_many(self.X_, n, self.alpha_, self._il2, self._sf2, self.lo_, self.hi_,
-                                   self.clip_mean, X, out)
+        # compiled (gp_core.extrapolation_many); the unclipped mean's slope also with clip_mean
+        gp_core.extrapolation_many(self.X_, n, self.alpha_, self._il2, self._sf2, X, out)
         return out
 
     def _predict_with_grad_clipped(self, x, xc, var_grad, dmu, dvar):

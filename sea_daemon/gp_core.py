@@ -131,20 +131,16 @@ def predict_many(A, ap, beta, c, il2, n, sf2, Xq, mu, var):
 
 
 @njit(fast=True)
-def extrapolation_many(X, n, alpha, il2, sf2, lo, hi, clip, Xq, out):
+def extrapolation_many(X, n, alpha, il2, sf2, Xq, out):
     """e(x) = Σ_j |∂μ/∂x_j| |x_j − x*_j| at every row x of ``Xq`` into ``out``: x* the stored
     input nearest x in the length-scale metric, ∂μ/∂x by eq:moejac with eq:kernelderivative
-    (∂μ/∂x_j = Σ_i α_i k_i (x_ij − x_j)/l_j², raw inputs ``X``).  ``clip``: x clipped into
-    [lo, hi] first (the clipped mean's extrapolation)."""
+    (∂μ/∂x_j = Σ_i α_i k_i (x_ij − x_j)/l_j², raw inputs ``X``)."""
     d = Xq.shape[1]
     x = np.empty(d)
     g = np.empty(d)
     for r in range(Xq.shape[0]):
         for j in range(d):
-            v = Xq[r, j]
-            if clip:
-                v = min(max(v, lo[j]), hi[j])
-            x[j] = v
+            x[j] = Xq[r, j]
             g[j] = 0.0
         best = np.inf
         near = 0
