@@ -29,10 +29,14 @@ Estimator settings (``--settings``, as in ``bench accuracy``): default
 ``sea-daemon demo``); ``scenario`` keeps each scenario's own config (the paper's R, Σ_nom).
 ``--als`` then replaces R (and P0's measurement block) by the ALS estimate of the training log.
 
-GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19) and/or ``conformal``
-(split-conformal β from a held-out calibration log: the training phase of the training
-scenario simulated again with seed + 1000, which the GP never learned) or a number; one
-``gp-akf`` column per choice.
+GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19), ``conformal``
+(split-conformal β of the GP error from a held-out calibration log: the training phase of the
+training scenario simulated again with seed + 1000, which the GP never learned), ``torque``
+(the smallest β whose ρ_k covers the GP-AKF's own torque error on that log, §2c) or a number;
+one ``gp-akf`` column per choice.
+
+Human-torque rate (docs/bounds.md §6): a scenario that declares ``tau_h_act_rate`` (active:
+1.26 N m/s) sets ``estimator.tau_h_act_rate`` for every estimator's bound.
 
 Step time: ``step`` is the whole update with the bound; ``bound`` its own share (the update
 minus the filter step inside it, timed around the AKF's step).
@@ -68,7 +72,7 @@ def _builders(gp_betas):
     if importlib.util.find_spec("sea_daemon.estimators.gpakf") is not None:
         import importlib
         mod = importlib.import_module("sea_daemon.estimators.gpakf")
-        from ..bounds.akf_bound import attach_theorem_bound, conformal_gp_constants
+        from ..bounds.akf_bound import attach_theorem_bound, conformal_gp_constants, torque_calibrated_beta
 
         def make(beta):
             def gp(nominal, true, train, cal, dt):
@@ -78,6 +82,11 @@ def _builders(gp_betas):
                     consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
                     e.conformal_info_ = (consts, len(scores))
                     attach_theorem_bound(e, gp_constants=consts, gp_box=box)
+                elif beta == "torque":
+                    # the smallest β whose ρ covers the torque error of the held-out passive log
+                    cal_beta = torque_calibrated_beta(e, cal, e.delta)
+                    e.torque_info_ = cal_beta
+                    attach_theorem_bound(e, gp_constants="auto", gp_beta=cal_beta["beta"])
                 else:
                     attach_theorem_bound(e, gp_constants="auto", gp_beta=beta)
                 return e
@@ -99,14 +108,14 @@ def add_arguments(p) -> None:
                    help="identify R from each scenario's training log by ALS (identify-noise) and use it "
                         "(and P0 = R) for every estimator instead of the configured R")
     p.add_argument("--gp-beta", default="lederer,conformal",
-                   help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, or a "
-                        "number beta (default: lederer,conformal)")
+                   help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, torque, "
+                        "or a number beta (default: lederer,conformal)")
 
 
 def _gp_betas(text: str) -> list:
     out = []
     for s in (t.strip() for t in text.split(",") if t.strip()):
-        if s in ("lederer", "conformal"):
+        if s in ("lederer", "conformal", "torque"):
             out.append(s)
             continue
         try:
@@ -114,10 +123,10 @@ def _gp_betas(text: str) -> list:
         except ValueError:
             v = float("nan")
         if not (np.isfinite(v) and v > 0):
-            raise InputError(f"--gp-beta {s}: must be lederer, conformal or a number > 0")
+            raise InputError(f"--gp-beta {s}: must be lederer, conformal, torque or a number > 0")
         out.append(v)
     if not out:
-        raise InputError("--gp-beta: give at least one of lederer, conformal, a number > 0")
+        raise InputError("--gp-beta: give at least one of lederer, conformal, torque, a number > 0")
     return out
 
 
@@ -203,7 +212,7 @@ def run(args) -> int:
         log = sim_of(est_path).estimation
         train = sim_of(train_path).training
         cal = None
-        if "conformal" in gp_betas:
+        if "conformal" in gp_betas or "torque" in gp_betas:
             # held-out calibration: the training session again, independent noise (seed + 1000)
             cal = sim_of(train_path, sc_train.seed + 1000).training
         name = Path(est_path).stem
@@ -252,10 +261,14 @@ def run(args) -> int:
                     row["gp_beta"] = float(c.sqrt_beta)
                     row["gp_gamma"] = float(c.gamma)
                     row["gp_beta_method"] = c.method
-                    tail += f"; beta {c.sqrt_beta:.2f} ({c.method}), box violations {tb.gp_box_violations_}"
+                    tail += f"; beta {c.sqrt_beta:.3g} ({c.method}), box violations {tb.gp_box_violations_}"
             info = getattr(est, "conformal_info_", None)
             if info is not None:
                 row["conformal_calibration_pairs"] = int(info[1])
+            tinfo = getattr(est, "torque_info_", None)
+            if tinfo is not None:
+                row["torque_calibration"] = {k: tinfo[k] for k in ("beta", "coverage", "steps", "target")}
+                tail += f"; calibration log covered {tinfo['coverage']:.3f} ({tinfo['steps']} steps)"
             if fault is not None:
                 tail += (f"; FAULT latched at step {fault[0]} (t = {log.t[fault[0]] - log.t[0]:.2f} s, "
                          f"{fault[1].split(':')[0]}): figures over the {len(hat)} valid samples")
@@ -279,7 +292,8 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange"}
+    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange",
+              "gp-akf/torque": "tab:purple"}
     fig, ax = plt.subplots(figsize=(9, 4.2))
     t0 = t - t[0]
     for label, (h, r) in curves.items():
