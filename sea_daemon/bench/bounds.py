@@ -32,8 +32,10 @@ Estimator settings (``--settings``, as in ``bench accuracy``): default
 GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19), ``conformal``
 (split-conformal β of the GP error from a held-out calibration log: the training phase of the
 training scenario simulated again with seed + 1000, which the GP never learned), ``torque``
-(the smallest β whose ρ_k covers the GP-AKF's own torque error on that log, §2c) or a number;
-one ``gp-akf`` column per choice.
+(the smallest β whose ρ_k covers the GP-AKF's own torque error on that log, §2c), ``exact``
+(a diagnostic, not a bound anyone could run: η_k = |f(z_k) − μ(z_k)| at the simulator's true
+state, i.e. the GP error known exactly — the least any GP error bound can put into Theorem 1)
+or a number; one ``gp-akf`` column per choice.
 
 Human-torque rate (docs/bounds.md §6): a scenario that declares ``tau_h_act_rate`` (active:
 1.26 N m/s) sets ``estimator.tau_h_act_rate`` for every estimator's bound.
@@ -72,7 +74,8 @@ def _builders(gp_betas):
     if importlib.util.find_spec("sea_daemon.estimators.gpakf") is not None:
         import importlib
         mod = importlib.import_module("sea_daemon.estimators.gpakf")
-        from ..bounds.akf_bound import attach_theorem_bound, conformal_gp_constants, torque_calibrated_beta
+        from ..bounds.akf_bound import (attach_theorem_bound, conformal_gp_constants, gp_constants, residual_gps,
+                                        torque_calibrated_beta)
 
         def make(beta):
             def gp(nominal, true, train, cal, dt):
@@ -82,6 +85,10 @@ def _builders(gp_betas):
                     consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
                     e.conformal_info_ = (consts, len(scores))
                     attach_theorem_bound(e, gp_constants=consts, gp_box=box)
+                elif beta == "exact":
+                    # η_k set per step from the simulator's truth (_ExactGPError.feed in run)
+                    _, box = gp_constants(residual_gps(e), 0.5 * e.delta, beta=1.0)
+                    attach_theorem_bound(e, gp_constants=[_ExactGPError() for _ in range(e.n)], gp_box=box)
                 elif beta == "torque":
                     # the smallest β whose ρ covers the torque error of the held-out passive log
                     cal_beta = torque_calibrated_beta(e, cal, e.delta)
@@ -109,13 +116,14 @@ def add_arguments(p) -> None:
                         "(and P0 = R) for every estimator instead of the configured R")
     p.add_argument("--gp-beta", default="lederer,conformal",
                    help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, torque, "
-                        "or a number beta (default: lederer,conformal)")
+                        "exact (diagnostic: the true GP error from the simulator), or a number beta "
+                        "(default: lederer,conformal)")
 
 
 def _gp_betas(text: str) -> list:
     out = []
     for s in (t.strip() for t in text.split(",") if t.strip()):
-        if s in ("lederer", "conformal", "torque"):
+        if s in ("lederer", "conformal", "torque", "exact"):
             out.append(s)
             continue
         try:
@@ -123,16 +131,57 @@ def _gp_betas(text: str) -> list:
         except ValueError:
             v = float("nan")
         if not (np.isfinite(v) and v > 0):
-            raise InputError(f"--gp-beta {s}: must be lederer, conformal, torque or a number > 0")
+            raise InputError(f"--gp-beta {s}: must be lederer, conformal, torque, exact or a number > 0")
         out.append(v)
     if not out:
-        raise InputError("--gp-beta: give at least one of lederer, conformal, torque, a number > 0")
+        raise InputError("--gp-beta: give at least one of lederer, conformal, torque, exact, a number > 0")
     return out
 
 
-def _run_one(est, log):
+class _ExactGPError:
+    """Stands in for the GP error constants of one joint: η = |f(z) − μ(z)| at the simulator's
+    true (q, q̇, q̈) of the step being predicted (``--gp-beta exact``).  f is the sum of the true
+    plant's load-side effects (the GP's target under ass:passive_human, eq:loadsidewmotor) with
+    the plant's own friction smoothing."""
+
+    sqrt_beta, gamma, method, scale = float("nan"), 0.0, "exact", "sigma"
+
+    def __init__(self):
+        self.value = 0.0
+
+    def eta(self, s):
+        return np.full(np.shape(s), self.value)
+
+    @staticmethod
+    def feeder(est, log, sc):
+        """``feed(k)``: set η for the step k−1 → k from the log's true-state columns."""
+        import dataclasses
+
+        from ..bounds.akf_bound import residual_gps
+        gps = residual_gps(est)
+        effects = [dataclasses.replace(e, eps=sc.plant.sign_eps) if hasattr(e, "eps") else e
+                   for e in sc.plant.effects if e.side == "load" and e.additive]
+        x = log.extra
+        q, dq = x["q_true"], x["dq_true"]
+        ddq = np.gradient(dq, log.dt)
+        consts = est.theorem_bound.gp_constants
+        n = len(gps)
+
+        def feed(k):
+            z = np.empty(3 * n)
+            z[:n], z[n:2 * n] = q[k - 1], dq[k - 1]
+            z[2 * n:] = est.z[2 * n:]                  # q̈ as the filter measures it
+            f = sum(e.torque(q[k - 1], dq[k - 1], ddq[k - 1]) for e in effects)
+            for j, g in enumerate(gps):
+                mu, _ = g.predict(z)
+                consts[j].value = abs(f - mu)
+        return feed
+
+
+def _run_one(est, log, feed=None):
     """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
-    into the filter step and the bound's own share."""
+    into the filter step and the bound's own share; ``feed(k)`` (if given) runs before step k,
+    outside the timing."""
     from ..bounds.setmember import chi2_quantile
     N, n = len(log), log.n
     hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
@@ -156,6 +205,8 @@ def _run_one(est, log):
     fault = None
     for k in range(1, N):
         spent[0] = 0.0
+        if feed is not None:
+            feed(k)
         t0 = time.perf_counter()
         try:
             e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
@@ -237,7 +288,8 @@ def run(args) -> int:
                 rows[label] = {"fault": f"training: {exc}"}
                 print(f"  {label:<14s} fault while learning the training log: {exc}")
                 continue
-            hat, rho, kf, times, btimes, fault = _run_one(est, log)
+            feed = _ExactGPError.feeder(est, log, sc) if label == "gp-akf/exact" else None
+            hat, rho, kf, times, btimes, fault = _run_one(est, log, feed)
             err = np.abs(hat - log.tau_h_act[:len(hat)])
             row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
                    "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
@@ -293,7 +345,7 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange",
-              "gp-akf/torque": "tab:purple"}
+              "gp-akf/torque": "tab:purple", "gp-akf/exact": "tab:red"}
     fig, ax = plt.subplots(figsize=(9, 4.2))
     t0 = t - t[0]
     for label, (h, r) in curves.items():
