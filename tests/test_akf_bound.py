@@ -273,3 +273,82 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
                              delta=0.025, n_leaves=1)]
     tb2 = attach_theorem_bound(AKF(cfg, residual=SplitResidual()), gp_constants=consts)
     assert tb2._s_z == pytest.approx(chi2_quantile(1 - (d - tb2.sm.delta_gp), 2))
+
+
+def test_held_input_matches_expm():
+    # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled fourth-order series against Van Loan's expm
+    from sea_daemon.bounds.setmember import input_matrix
+    from sea_daemon.estimators.akf_core import held_input
+    cfg = load_config(default_config_path())
+    akf = AKF(cfg)
+    akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
+    akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
+    E = np.zeros((5, 1))
+    E[4, 0] = 1.0
+    G = np.zeros((5, 1))
+    held_input(akf.A_k, E, akf.dt, G)
+    np.testing.assert_allclose(G, input_matrix(akf.A_k, E, akf.dt), rtol=1e-6, atol=1e-12)
+    assert G[4, 0] == pytest.approx(akf.dt, rel=1e-15)          # τ rows: exactly dt
+
+
+def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
+    # a linear plant and a human torque ramping at 2 N m/s: the KF's random walk lags behind and
+    # its own χ² bound misses most steps; with the declared rate r = 2 N m/s the set of means
+    # holds the lag (the ramp is one of the inputs |τ̇| ≤ r) and ρ covers every step
+    import dataclasses
+    cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
+        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0},
+        "estimator": {"R": [1e-7, 1e-7, 1e-3, 1e-3], "Sigma_nom": [1e-10, 1e-10, 1e-6, 1e-6, 1e-5], "P0_tau": 1e-4}})
+    log = simulate(SEAModel.from_config(cfg), T=2.0, tau_h=lambda t: np.array([2.0 * t]), seed=2)
+    out0 = run(AKF(cfg), log)
+    err = np.abs(out0[:, 0] - log.tau_h_act[:, 0])
+    akf = AKF(cfg)
+    attach_theorem_bound(akf, tau_h_act_rate=0.0)
+    plain = run(akf, log)
+    assert np.mean(err[1:] <= plain[1:, 1]) < 0.1                 # the random walk alone misses
+    rated = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_h_act_rate=2.0))
+    akf = AKF(rated)
+    tb = attach_theorem_bound(akf)                                # from estimator.tau_h_act_rate
+    assert tb.tau_h_act_rate == 2.0
+    out = run(akf, log)
+    np.testing.assert_allclose(out[:, 0], out0[:, 0])             # the estimate is untouched
+    assert np.all(err[1:] <= out[1:, 1])
+    # the τ half-width of the set of means is the worst lag of a ramp at r: r·Σ|c_j|, which
+    # the steady lag of this ramp reaches from below
+    h = tb.sm.means_half_widths()[4]
+    assert err[-1] <= h <= 3 * err[-1]
+    with pytest.raises(ValueError, match="tau_h_act_rate"):
+        attach_theorem_bound(AKF(cfg), tau_h_act_rate=-1.0)
+
+
+def _passive_gp_akf(gpakf, seed):
+    from sea_daemon.config import repo_root
+    cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
+    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+    return gpakf.build(cfg, train, train.dt), simulate(SEAModel.from_config(cfg), T=0.6, seed=seed)
+
+
+def test_torque_calibrated_beta_is_the_smallest_covering_beta_and_detaches():
+    gpakf = pytest.importorskip("sea_daemon.estimators.gpakf")
+    from sea_daemon.bounds.akf_bound import torque_calibrated_beta, torque_coverage
+    est, cal = _passive_gp_akf(gpakf, seed=8)
+    # a truth the estimate misses by a ramp: only a GP term of some size covers it
+    truth = np.linspace(0.0, 0.3, len(cal))[:, None]
+    seen = []
+    r = torque_calibrated_beta(est, cal, 0.05, truth=truth, progress=lambda b, c: seen.append((b, c)))
+    assert seen == r["runs"] and len(r["runs"]) <= 10
+    m = len(cal) - 1
+    assert r["steps"] == m and r["target"] == pytest.approx(np.ceil((m + 1) * 0.95) / m)
+    assert r["coverage"] >= r["target"]
+    # a third of an octave less no longer covers (the search's resolution is 3 %)
+    below = [c for b, c in r["runs"] if b < r["beta"]]
+    assert below and max(below) < r["target"]
+    c_less, _ = torque_coverage(est, cal, r["beta"] / 1.26, truth)
+    assert c_less < r["target"]
+    # the estimator is left as it was: no bound attached, learning flag restored
+    assert "step" not in est.__dict__ and getattr(est, "theorem_bound", None) is None
+    assert est.learning is False
+    # with the true τ_h,act = 0 less β is needed
+    assert torque_calibrated_beta(est, cal, 0.05)["beta"] < r["beta"]
+    with pytest.raises(ValueError, match="delta"):
+        torque_calibrated_beta(est, cal, 1.5)

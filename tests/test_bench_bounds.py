@@ -76,3 +76,22 @@ def test_a_latched_fault_ends_the_run_and_is_reported():
     assert fault[0] == 7 and "NISDivergence" in fault[1]
     assert len(hat) == len(rho) == 7 and len(times) == 6 and btimes is None
     assert hat[6, 0] == pytest.approx(0.6)
+
+
+def test_bench_bounds_torque_and_exact_columns(tmp_path, capsys):
+    # torque: beta calibrated on the held-out session's torque error, which it then covers;
+    # exact: η from the simulator's truth, which must cover the estimation log (Theorem 1
+    # with the GP error known) and is at most the torque/conformal bounds' job to approach
+    passive = _short(tmp_path, "passive", 700, 300)
+    code = cli.main(["bench", "bounds", "--estimators", "gp-akf/torque,gp-akf/exact",
+                     "--gp-beta", "torque,exact", "--scenarios", str(passive), "--out", str(tmp_path / "b")])
+    out = capsys.readouterr().out
+    assert code == 0 and "calibration log covered" in out
+    r = json.loads((tmp_path / "b" / "results.json").read_text())["passive"]
+    t, x = r["gp-akf/torque"], r["gp-akf/exact"]
+    cal = t["torque_calibration"]
+    assert cal["coverage"] >= cal["target"] >= 0.95 and t["gp_beta"] == cal["beta"]
+    assert x["gp_beta_method"] == "exact" and x["coverage_rho"] >= 0.95
+    assert t["mean_abs_error"] == pytest.approx(x["mean_abs_error"], rel=1e-4)
+    assert cli.main(["bench", "bounds", "--gp-beta", "exactly"]) == 2
+    assert "exact" in capsys.readouterr().err

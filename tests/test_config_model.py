@@ -47,6 +47,8 @@ def test_default_config_loads_and_roundtrips(tmp_path):
     (lambda d: d.update(estimator={"gp_beta": True}), "estimator.gp_beta"),
     (lambda d: d.update(estimator={"Sigma_nom_dt": -0.01}), "estimator.Sigma_nom_dt"),
     (lambda d: d.update(estimator={"tau_m_noise": -1.0}), "estimator.tau_m_noise"),
+    (lambda d: d.update(estimator={"tau_h_act_rate": -0.5}), "estimator.tau_h_act_rate"),
+    (lambda d: d.update(estimator={"tau_h_act_rate": "fast"}), "estimator.tau_h_act_rate"),
     (lambda d: d.update(estimator={"gp_noise_in_Q": "yes"}), "estimator.gp_noise_in_Q"),
     (lambda d: d.update(estimator={"init_after_kinematics": 1}), "estimator.init_after_kinematics"),
     (lambda d: d.update(learning={"extrapolation_scale": -1.0}), "learning.extrapolation_scale"),
@@ -141,9 +143,12 @@ def test_process_noise_options_roundtrip(tmp_path):
     cfg = load_config(default_config_path())
     e = cfg.estimator
     assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.0, 0.0, False, False)
+    assert e.tau_h_act_rate == 0.0
     d = cfg.to_dict()
-    d["estimator"].update(Sigma_nom_dt=0.01, tau_m_noise=0.02, gp_noise_in_Q=True, init_after_kinematics=True)
+    d["estimator"].update(Sigma_nom_dt=0.01, tau_m_noise=0.02, gp_noise_in_Q=True, init_after_kinematics=True,
+                          tau_h_act_rate=1.5)
     p = tmp_path / "c.yaml"
     save_config(ModelConfig.from_dict(d, source="x.yaml"), p)
     e = load_config(p).estimator
     assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.01, 0.02, True, True)
+    assert e.tau_h_act_rate == 1.5

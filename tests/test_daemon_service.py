@@ -228,3 +228,23 @@ def test_calibrate_bound_from_a_held_out_log_writes_gp_beta(calibrated, tmp_path
     assert load_config(out_cfg).estimator.gp_beta == pytest.approx(out["beta"])
     rc, _, err = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(tmp_path / "no.npz"))
     assert rc == 2 and "no.npz" in err and "Traceback" not in err
+
+
+def test_calibrate_bound_target_torque_writes_the_covering_beta(calibrated, tmp_path, capsys):
+    """docs/bounds.md §2c: the smallest beta whose rho covers the torque error of the held-out log."""
+    from sea_daemon.logio import write_log
+    from sea_daemon.sim.runner import simulate
+    from sea_daemon.sim.scenario import load_scenario
+    model, _ = calibrated
+    sc = load_scenario(PASSIVE)
+    held = tmp_path / "held.csv"
+    write_log(held, simulate(sc, seed=sc.seed + 1000).training.slice(0, 400))   # 4 s: short replays
+    out_cfg = tmp_path / "bound.yaml"
+    rc, out, _ = _cli(capsys, "calibrate-bound", str(held), "--config", CFG, "--model", str(model),
+                      "--target", "torque", "--write", str(out_cfg))
+    assert rc == 0 and out["target"] == "torque" and out["steps"] == 399
+    assert out["coverage"] >= out["target_coverage"] >= 0.95
+    assert [b for b, _ in out["runs"]][0] == 1.0 and out["beta"] in [b for b, _ in out["runs"]]
+    # every trial beta below the answer covers less than the target
+    assert all(c < out["target_coverage"] for b, c in out["runs"] if b < out["beta"])
+    assert load_config(out_cfg).estimator.gp_beta == pytest.approx(out["beta"])

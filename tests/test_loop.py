@@ -118,6 +118,7 @@ def test_overrun_streak_trips():
     st = loop.run(10)
     assert st.overruns == 10
     assert loop.supervisor.latched == Fault.OVERRUN_STREAK
+    assert loop.supervisor.latched_cycle == 4            # the fifth overrun cycle: 0..4
     assert hw.safe_stops == [4]
 
 

@@ -430,6 +430,7 @@ def _bad_cases():
         ("missing key", mod(lambda d: d.pop("phases")), "phases"),
         ("bad value", mod(lambda d: d["phases"]["training"].update(samples=-5)), "phases.training.samples"),
         ("bad human", mod(lambda d: d.update(human="sleepy")), "human"),
+        ("negative rate", mod(lambda d: d.update(tau_h_act_rate=-1.0)), "tau_h_act_rate"),
         ("unknown effect", mod(lambda d: d["plant"]["effects"].append({"type": "magic", "side": "load"})),
          "plant.effects[7].type"),
         ("bad controller", mod(lambda d: d["controller"].update(type="mpc")), "controller.type"),
@@ -485,3 +486,14 @@ def test_scenario_errors_name_allowed_values(tmp_path):
     f.write_text(yaml.safe_dump(d))
     with pytest.raises(ConfigError, match="allowed"):
         load_scenario(f)
+
+
+def test_scenario_declares_the_human_torque_rate_to_the_bound():
+    # active.yaml declares |dτ_h,act/dt| <= 2 pi f A of its cosine; passive.yaml declares nothing
+    from sea_daemon.config import load_config
+    act, pas = load_scenario(SCEN / "active.yaml"), load_scenario(SCEN / "passive.yaml")
+    c = act.controller
+    assert act.tau_h_act_rate == pytest.approx(2 * np.pi * c.frequency_hz * c.amplitude, rel=0.01)
+    settings = load_config(ROOT / "configs" / "exo_1dof_sim.yaml")
+    assert act.declared(settings).estimator.tau_h_act_rate == act.tau_h_act_rate
+    assert pas.tau_h_act_rate is None and pas.declared(settings) is settings

@@ -29,10 +29,16 @@ Estimator settings (``--settings``, as in ``bench accuracy``): default
 ``sea-daemon demo``); ``scenario`` keeps each scenario's own config (the paper's R, Σ_nom).
 ``--als`` then replaces R (and P0's measurement block) by the ALS estimate of the training log.
 
-GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19) and/or ``conformal``
-(split-conformal β from a held-out calibration log: the training phase of the training
-scenario simulated again with seed + 1000, which the GP never learned) or a number; one
-``gp-akf`` column per choice.
+GP error bound (``--gp-beta``, docs/bounds.md §2): ``lederer`` (LUH19), ``conformal``
+(split-conformal β of the GP error from a held-out calibration log: the training phase of the
+training scenario simulated again with seed + 1000, which the GP never learned), ``torque``
+(the smallest β whose ρ_k covers the GP-AKF's own torque error on that log, §2c), ``exact``
+(a diagnostic, not a bound anyone could run: η_k = |f(z_k) − μ(z_k)| at the simulator's true
+state, i.e. the GP error known exactly — the least any GP error bound can put into Theorem 1)
+or a number; one ``gp-akf`` column per choice.
+
+Human-torque rate (docs/bounds.md §6): a scenario that declares ``tau_h_act_rate`` (active:
+1.26 N m/s) sets ``estimator.tau_h_act_rate`` for every estimator's bound.
 
 Step time: ``step`` is the whole update with the bound; ``bound`` its own share (the update
 minus the filter step inside it, timed around the AKF's step).
@@ -68,7 +74,8 @@ def _builders(gp_betas):
     if importlib.util.find_spec("sea_daemon.estimators.gpakf") is not None:
         import importlib
         mod = importlib.import_module("sea_daemon.estimators.gpakf")
-        from ..bounds.akf_bound import attach_theorem_bound, conformal_gp_constants
+        from ..bounds.akf_bound import (attach_theorem_bound, conformal_gp_constants, gp_constants, residual_gps,
+                                        torque_calibrated_beta)
 
         def make(beta):
             def gp(nominal, true, train, cal, dt):
@@ -78,6 +85,15 @@ def _builders(gp_betas):
                     consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
                     e.conformal_info_ = (consts, len(scores))
                     attach_theorem_bound(e, gp_constants=consts, gp_box=box)
+                elif beta == "exact":
+                    # η_k set per step from the simulator's truth (_ExactGPError.feed in run)
+                    _, box = gp_constants(residual_gps(e), 0.5 * e.delta, beta=1.0)
+                    attach_theorem_bound(e, gp_constants=[_ExactGPError() for _ in range(e.n)], gp_box=box)
+                elif beta == "torque":
+                    # the smallest β whose ρ covers the torque error of the held-out passive log
+                    cal_beta = torque_calibrated_beta(e, cal, e.delta)
+                    e.torque_info_ = cal_beta
+                    attach_theorem_bound(e, gp_constants="auto", gp_beta=cal_beta["beta"])
                 else:
                     attach_theorem_bound(e, gp_constants="auto", gp_beta=beta)
                 return e
@@ -99,14 +115,15 @@ def add_arguments(p) -> None:
                    help="identify R from each scenario's training log by ALS (identify-noise) and use it "
                         "(and P0 = R) for every estimator instead of the configured R")
     p.add_argument("--gp-beta", default="lederer,conformal",
-                   help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, or a "
-                        "number beta (default: lederer,conformal)")
+                   help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, torque, "
+                        "exact (diagnostic: the true GP error from the simulator), or a number beta "
+                        "(default: lederer,conformal)")
 
 
 def _gp_betas(text: str) -> list:
     out = []
     for s in (t.strip() for t in text.split(",") if t.strip()):
-        if s in ("lederer", "conformal"):
+        if s in ("lederer", "conformal", "torque", "exact"):
             out.append(s)
             continue
         try:
@@ -114,16 +131,57 @@ def _gp_betas(text: str) -> list:
         except ValueError:
             v = float("nan")
         if not (np.isfinite(v) and v > 0):
-            raise InputError(f"--gp-beta {s}: must be lederer, conformal or a number > 0")
+            raise InputError(f"--gp-beta {s}: must be lederer, conformal, torque, exact or a number > 0")
         out.append(v)
     if not out:
-        raise InputError("--gp-beta: give at least one of lederer, conformal, a number > 0")
+        raise InputError("--gp-beta: give at least one of lederer, conformal, torque, exact, a number > 0")
     return out
 
 
-def _run_one(est, log):
+class _ExactGPError:
+    """Stands in for the GP error constants of one joint: η = |f(z) − μ(z)| at the simulator's
+    true (q, q̇, q̈) of the step being predicted (``--gp-beta exact``).  f is the sum of the true
+    plant's load-side effects (the GP's target under ass:passive_human, eq:loadsidewmotor) with
+    the plant's own friction smoothing."""
+
+    sqrt_beta, gamma, method, scale = float("nan"), 0.0, "exact", "sigma"
+
+    def __init__(self):
+        self.value = 0.0
+
+    def eta(self, s):
+        return np.full(np.shape(s), self.value)
+
+    @staticmethod
+    def feeder(est, log, sc):
+        """``feed(k)``: set η for the step k−1 → k from the log's true-state columns."""
+        import dataclasses
+
+        from ..bounds.akf_bound import residual_gps
+        gps = residual_gps(est)
+        effects = [dataclasses.replace(e, eps=sc.plant.sign_eps) if hasattr(e, "eps") else e
+                   for e in sc.plant.effects if e.side == "load" and e.additive]
+        x = log.extra
+        q, dq = x["q_true"], x["dq_true"]
+        ddq = np.gradient(dq, log.dt)
+        consts = est.theorem_bound.gp_constants
+        n = len(gps)
+
+        def feed(k):
+            z = np.empty(3 * n)
+            z[:n], z[n:2 * n] = q[k - 1], dq[k - 1]
+            z[2 * n:] = est.z[2 * n:]                  # q̈ as the filter measures it
+            f = sum(e.torque(q[k - 1], dq[k - 1], ddq[k - 1]) for e in effects)
+            for j, g in enumerate(gps):
+                mu, _ = g.predict(z)
+                consts[j].value = abs(f - mu)
+        return feed
+
+
+def _run_one(est, log, feed=None):
     """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
-    into the filter step and the bound's own share."""
+    into the filter step and the bound's own share; ``feed(k)`` (if given) runs before step k,
+    outside the timing."""
     from ..bounds.setmember import chi2_quantile
     N, n = len(log), log.n
     hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
@@ -147,6 +205,8 @@ def _run_one(est, log):
     fault = None
     for k in range(1, N):
         spent[0] = 0.0
+        if feed is not None:
+            feed(k)
         t0 = time.perf_counter()
         try:
             e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
@@ -203,7 +263,7 @@ def run(args) -> int:
         log = sim_of(est_path).estimation
         train = sim_of(train_path).training
         cal = None
-        if "conformal" in gp_betas:
+        if "conformal" in gp_betas or "torque" in gp_betas:
             # held-out calibration: the training session again, independent noise (seed + 1000)
             cal = sim_of(train_path, sc_train.seed + 1000).training
         name = Path(est_path).stem
@@ -228,7 +288,8 @@ def run(args) -> int:
                 rows[label] = {"fault": f"training: {exc}"}
                 print(f"  {label:<14s} fault while learning the training log: {exc}")
                 continue
-            hat, rho, kf, times, btimes, fault = _run_one(est, log)
+            feed = _ExactGPError.feeder(est, log, sc) if label == "gp-akf/exact" else None
+            hat, rho, kf, times, btimes, fault = _run_one(est, log, feed)
             err = np.abs(hat - log.tau_h_act[:len(hat)])
             row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
                    "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
@@ -252,10 +313,14 @@ def run(args) -> int:
                     row["gp_beta"] = float(c.sqrt_beta)
                     row["gp_gamma"] = float(c.gamma)
                     row["gp_beta_method"] = c.method
-                    tail += f"; beta {c.sqrt_beta:.2f} ({c.method}), box violations {tb.gp_box_violations_}"
+                    tail += f"; beta {c.sqrt_beta:.3g} ({c.method}), box violations {tb.gp_box_violations_}"
             info = getattr(est, "conformal_info_", None)
             if info is not None:
                 row["conformal_calibration_pairs"] = int(info[1])
+            tinfo = getattr(est, "torque_info_", None)
+            if tinfo is not None:
+                row["torque_calibration"] = {k: tinfo[k] for k in ("beta", "coverage", "steps", "target")}
+                tail += f"; calibration log covered {tinfo['coverage']:.3f} ({tinfo['steps']} steps)"
             if fault is not None:
                 tail += (f"; FAULT latched at step {fault[0]} (t = {log.t[fault[0]] - log.t[0]:.2f} s, "
                          f"{fault[1].split(':')[0]}): figures over the {len(hat)} valid samples")
@@ -279,7 +344,8 @@ def _plot(path: Path, title: str, t, truth, curves) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange"}
+    colors = {"akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green", "gp-akf/conformal": "tab:orange",
+              "gp-akf/torque": "tab:purple", "gp-akf/exact": "tab:red"}
     fig, ax = plt.subplots(figsize=(9, 4.2))
     t0 = t - t[0]
     for label, (h, r) in curves.items():

@@ -70,6 +70,7 @@ def _gravity_remainder(qh, r, g, grid, grid_step, v):
 def _warm() -> None:
     """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
     _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    held_input(np.zeros((5, 5)), np.zeros((5, 1)), 0.01, np.zeros((5, 1)))
 
 
 class AKFTheoremBound:
@@ -497,17 +498,19 @@ def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> t
 
 
 def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.ndarray | None = None,
-                           iters: int = 6, progress=None) -> dict:
+                           iters: int = 8, progress=None) -> dict:
     """The smallest β (η = β s(z), the configured-β form of ``estimator.gp_beta``) whose
     Theorem-1 ρ_k covers the τ̂_h,act error of the frozen GP-AKF ``est`` on a held-out log in at
     least ⌈(m + 1)(1 − δ)⌉ of its m steps (split conformal on the torque error itself, the
     statement of eq:bounds; docs/bounds.md §2c).  ``log`` is a session the GP never learned,
     with a passive subject (τ_h,act = 0) unless ``truth`` is given.
 
-    Coverage grows with β; the search doubles or halves β from 1 until the target is
-    bracketed (within [2⁻¹², 2¹²]), then bisects ``iters`` times in log β and returns the upper
-    end.  ``progress(beta, coverage)`` is called after each run.  Returns a dict with
-    ``beta``, ``coverage`` (at beta), ``steps``, ``target`` and ``runs`` [(β, coverage)].
+    Coverage grows with β.  The search runs β = 1, then the end of the range [2⁻¹², 2¹²] on
+    the side the target lies (returning it if β = 2⁻¹² already covers: the filter's own part
+    does; failing if 2¹² does not), then bisects ``iters`` times in log β (12 octaves / 2⁸:
+    3 % resolution) and returns the upper end.  ``progress(beta, coverage)`` is called after
+    each replay.  Returns a dict with ``beta``, ``coverage`` (at beta), ``steps``, ``target``
+    and ``runs`` [(β, coverage)].
     """
     delta = est.delta if delta is None else float(delta)
     if not 0 < delta < 1:
@@ -521,35 +524,20 @@ def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.nd
             progress(b, c)
         return c, m
 
+    b_min, b_max = 2.0 ** -12, 2.0 ** 12
     c1, m = cov(1.0)
     target = min(1.0, math.ceil((m + 1) * (1.0 - delta)) / m)
-    lo, hi = None, None
     if c1 >= target:
-        hi, c_hi = 1.0, c1
-        b = 0.5
-        while b >= 2.0 ** -12:
-            c, _ = cov(b)
-            if c < target:
-                lo = b
-                break
-            hi, c_hi = b, c
-            b *= 0.5
-        if lo is None:
-            # even the smallest β covers: the filter's own part does (β → 0)
-            return {"beta": hi, "coverage": c_hi, "steps": m, "target": target, "runs": runs}
+        lo, (hi, c_hi) = b_min, (1.0, c1)
+        c, _ = cov(b_min)
+        if c >= target:
+            return {"beta": b_min, "coverage": c, "steps": m, "target": target, "runs": runs}
     else:
-        lo = 1.0
-        b = 2.0
-        while b <= 2.0 ** 12:
-            c, _ = cov(b)
-            if c >= target:
-                hi, c_hi = b, c
-                break
-            lo = b
-            b *= 2.0
-        if hi is None:
+        lo, hi = 1.0, b_max
+        c_hi, _ = cov(b_max)
+        if c_hi < target:
             raise ValueError(f"the bound covers only {max(c for _, c in runs):.3f} of {m} steps even with "
-                             f"beta = {2.0 ** 12:g}; the target is {target:.3f} (1 - delta = {1 - delta:g})")
+                             f"beta = {b_max:g}; the target is {target:.3f} (1 - delta = {1 - delta:g})")
     for _ in range(int(iters)):
         b = math.sqrt(lo * hi)
         c, _ = cov(b)

@@ -10,7 +10,8 @@ and the daemon talks to it through its own code paths:
    moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
 2. ``sea-daemon calibrate-bound`` — a second, held-out calibration session (the same moves,
    independent noise: the scenario's seed + 1000) gives the split-conformal β of the GP error
-   bound (docs/bounds.md §2b), written into the configuration the run uses (``estimator.gp_beta``);
+   bound (docs/bounds.md §2b), written into the configuration the run uses (``estimator.gp_beta``,
+   with the scenario's declared human-torque rate ``estimator.tau_h_act_rate``, §6, if it has one);
 3. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
    online in the loop (the scenario's controller drives, the subject acts as the scenario says)
    and publishes the Theorem-1 bound ρ_k with every estimate.
@@ -167,7 +168,12 @@ def run(args) -> int:
         hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
                         "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, HELD_OUT_MIN))])
         run_cfg = out / f"{name}_config.yaml"
-        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(cfg_path), "--model", str(model),
+        base_cfg = cfg_path
+        if sc.tau_h_act_rate is not None:
+            # what the experimenter declares about the subject: the bound's human-torque rate
+            base_cfg = out / f"{name}_declared.yaml"
+            save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
+        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
                          "--write", str(run_cfg)])
         t1 = time.perf_counter()
         est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])

@@ -261,9 +261,10 @@ class FixedRateLoop:
                         skip = int(late // self.period)
                         st.skipped += skip
                         t0 += skip * self.period
-                    if sup.overrun(True, k, now):
+                    # the cycle that just ended (k − 1) overran its deadline
+                    if sup.overrun(True, k - 1, now):
                         self._latched()
                 else:
-                    sup.overrun(False, k, now)
+                    sup.overrun(False, k - 1, now)
                     self.sleep(-late)
         return st

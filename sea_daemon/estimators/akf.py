@@ -326,17 +326,16 @@ class AKF:
           constant); it enters like the input, ẋ = f_nom + B (u + w) (eq:nonlindyn), so it adds
           Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
           rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
-          Γ_u ≈ (I dt + A dt²/2 + A² dt³/6 + A³ dt⁴/24) B with A the last step's Jacobian
-          ``A_k`` (three matrix-vector products; truncation ≈ (‖A‖dt)⁴/120 relative, < 0.5 % at
-          100 Hz for the exoskeleton, ‖A‖dt ≈ 0.5).
+          Γ_u from Van Loan's block exponential with A the last step's Jacobian ``A_k``
+          (:func:`akf_core.held_input`, one (5n+n)² expm).
         """
         S = self.Sigma_nom
         if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
             self._S_base_dt = dt
             self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
         if self._tau_m_var > 0:
-            # Γ_u = ∫₀^dt e^{As} ds B = dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) to fourth order
-            # (Horner), S = Σ_nom·dt/T + Γ_u σ_u² Γ_uᵀ (compiled: akf_core.input_noise)
+            # Γ_u = ∫₀^dt e^{As} ds B (Van Loan), S = Σ_nom·dt/T + Γ_u σ_u² Γ_uᵀ
+            # (compiled: akf_core.input_noise)
             akf_core.input_noise(self.A_k, self.B_u, float(dt), self._tau_m_var, self._S_base,
                                  self.Gamma_u, S)
         else:

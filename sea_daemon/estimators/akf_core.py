@@ -213,23 +213,21 @@ def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
 
 @njit
 def held_input(A, B, dt, Gam):
-    """Γ = ∫₀^dt e^{As} ds B ≈ dt (B + dt/2 A (B + dt/3 A (B + dt/4 A B))) into ``Gam``: the
-    effect on x_{k+1} of an input B·u held over the step (fourth order, Horner; Franklin,
-    Powell & Workman §4.3.3)."""
+    """Γ = ∫₀^dt e^{As} ds B into ``Gam``: the effect on x_{k+1} of an input B·u held over the
+    step, the upper-right block of e^{[[A, B], [0, 0]] dt} (Van Loan 1978; Franklin, Powell &
+    Workman §4.3.3), exact up to the expm's rounding."""
     d, r = B.shape
-    G = np.empty((d, r))
-    T = np.empty((d, r))
+    aug = np.zeros((d + r, d + r))
+    for i in range(d):
+        for j in range(d):
+            aug[i, j] = A[i, j] * dt
+        for j in range(r):
+            aug[i, d + j] = B[i, j] * dt
+    E = np.empty_like(aug)
+    expm(aug, E)
     for i in range(d):
         for j in range(r):
-            G[i, j] = B[i, j]
-    for c in (0.25, 1.0 / 3.0, 0.5):
-        matmul(A, G, T)
-        for i in range(d):
-            for j in range(r):
-                G[i, j] = B[i, j] + c * dt * T[i, j]
-    for i in range(d):
-        for j in range(r):
-            Gam[i, j] = dt * G[i, j]
+            Gam[i, j] = E[i, d + j]
 
 
 @njit
