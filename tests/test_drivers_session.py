@@ -72,9 +72,12 @@ def test_demo_command_quick(tmp_path, capsys):
     s = json.loads((tmp_path / "summary.json").read_text())["scenarios"]["active"]
     assert s["cycles"] == 80 and s["estimators"]["akf"]["samples"] == 40
     assert s["estimators"]["akf"]["rmse"] > 0
-    # the run used the split-conformal beta of the held-out session (calibrate-bound --write)
+    # the run used the beta calibrated on the held-out session's torque error (calibrate-bound
+    # --target torque --write), which covers that session
     from sea_daemon.config import load_config
-    assert s["gp_beta"]["pairs"] >= 79 and "heldout" in s["gp_beta"]["log"]
+    b = s["gp_beta"]
+    assert b["source"] == "torque" and b["held_out_steps"] >= 79 and "heldout" in b["log"]
+    assert b["held_out_coverage"] >= 0.95
     assert load_config(tmp_path / "active_config.yaml").estimator.gp_beta == pytest.approx(s["gp_beta"]["beta"])
     for f in ("active_train.csv", "active_est.csv", "active_akf.csv", "active_spring.csv", "active.png"):
         assert (tmp_path / f).stat().st_size > 0

@@ -1,5 +1,5 @@
 """The extrapolation term of the GP error bound's local scale (docs/learning.md, "Novelty"):
-e(z) = Σ_j |∂μ/∂z_j| |z_j − x*_j|, x* the nearest training input; s² = σ² + s_loc² + (c e)²."""
+e(z) = Σ_j |∂μ/∂z_j| |z_j − x*_j|, x* the nearest training input; η = β s + c e."""
 import numpy as np
 import pytest
 
@@ -49,12 +49,13 @@ def test_sigma_misses_an_off_manifold_error_that_the_extrapolation_term_covers()
     # off the data line, well inside one length scale of it: σ stays small, the mean is wrong
     Z = np.array([[0.5, 0.8], [-0.3, -0.7], [0.2, 0.6]])
     f = 2.0 * Z[:, 0]
-    mu, var, s = sc.predict_many(Z)
+    mu, var, s, x = sc.predict_many_ext(Z)
     err = np.abs(f - mu)
     assert np.all(err > 0.2) and np.all(err > 3.0 * np.sqrt(var))   # σ is dishonest here
     e = gp.extrapolation_many(Z)
     assert np.all(err <= 2.0 * e) and np.all(err >= 0.5 * e)        # c = 2: (L_μ + L_f) τ, L_f ≈ L_μ
-    assert np.all(s >= err)
+    np.testing.assert_allclose(x, 2.0 * e)
+    assert np.all(s + x >= err) and np.all(s < err)                 # the added term covers it
     # on the data line (between samples) the term is slope × half a sample spacing: small
     on = np.array([[0.1, 0.1], [-0.4, -0.4]])
     _, v_on, s_on = sc.predict_many(on)
@@ -62,14 +63,17 @@ def test_sigma_misses_an_off_manifold_error_that_the_extrapolation_term_covers()
     assert np.allclose(s_on, [sc(z, v) for z, v in zip(on, v_on)])
 
 
-def test_scale_zero_keeps_the_local_scale_and_scales_add_in_quadrature():
+def test_the_extrapolation_term_is_added_and_leaves_the_local_scale_alone():
     on, off = _manifold_gp(2.0), _manifold_gp(0.0)
     Z = np.array([[0.5, 0.8], [0.0, 0.0], [1.5, -1.0]])
-    m_on, v_on, s_on = LocalScale(on).predict_many(Z)
-    m_off, v_off, s_off = LocalScale(off).predict_many(Z)
+    m_on, v_on, s_on, x_on = LocalScale(on).predict_many_ext(Z)
+    m_off, v_off, s_off, x_off = LocalScale(off).predict_many_ext(Z)
     np.testing.assert_allclose(m_on, m_off)                          # predictions unchanged
     np.testing.assert_allclose(v_on, v_off)
-    np.testing.assert_allclose(s_on ** 2, s_off ** 2 + (2.0 * on.extrapolation_many(Z)) ** 2, rtol=1e-9)
+    np.testing.assert_allclose(s_on, s_off)                          # β's scale unchanged
+    np.testing.assert_allclose(x_on, 2.0 * on.extrapolation_many(Z), rtol=1e-9)
+    assert np.all(x_off == 0.0)
+    np.testing.assert_allclose(LocalScale(on).predict_many(Z)[2], s_on)
     for z, v, s in zip(Z, v_on, s_on):
         assert LocalScale(on)(z, v) == pytest.approx(s, rel=1e-9)
 

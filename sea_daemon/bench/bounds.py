@@ -114,10 +114,10 @@ def add_arguments(p) -> None:
     p.add_argument("--als", action="store_true",
                    help="identify R from each scenario's training log by ALS (identify-noise) and use it "
                         "(and P0 = R) for every estimator instead of the configured R")
-    p.add_argument("--gp-beta", default="lederer,conformal",
+    p.add_argument("--gp-beta", default="lederer,conformal,torque",
                    help="comma-separated GP error bounds, one gp-akf column each: lederer, conformal, torque, "
                         "exact (diagnostic: the true GP error from the simulator), or a number beta "
-                        "(default: lederer,conformal)")
+                        "(default: lederer,conformal,torque)")
 
 
 def _gp_betas(text: str) -> list:

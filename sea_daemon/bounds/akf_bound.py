@@ -228,8 +228,8 @@ class AKFTheoremBound:
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
         depends on x only through them (q̈ is measured): the GP mean's linearisation error
-        |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)| and σ(z) (or s(z)).  Returns (E, S, out-of-box flag),
-        E and S of shape (points, n), in N m."""
+        |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)|, σ(z) (or s(z)) and the extrapolation term x(z).  Returns
+        (E, S, X, out-of-box flag), E, S and X of shape (points, n), in N m."""
         akf = self.akf
         n = akf.n
         res = akf.residual
@@ -249,11 +249,12 @@ class AKFTheoremBound:
         Z[:, 2 * n:] = zhat[2 * n:]
         MU = np.empty((len(pts), n))
         S = np.empty((len(pts), n))
+        X = np.zeros((len(pts), n))              # extrapolation term c e(z), added to η (gp_bound.LocalScale)
         if local:
-            # mean, variance and local scale of all points: one routing per point, one compiled
-            # call per leaf reached
+            # mean, variance, local scale and extrapolation term of all points: one routing per
+            # point, one compiled call per leaf reached
             for j, sc in enumerate(self._scales):
-                MU[:, j], _, S[:, j] = sc.predict_many(Z)
+                MU[:, j], _, S[:, j], X[:, j] = sc.predict_many_ext(Z)
         elif gps is not None:
             # mean and variance only (no Jacobian needed here): cheaper than the hook
             for j, g in enumerate(gps):
@@ -274,7 +275,7 @@ class AKFTheoremBound:
             zl[:2 * n] -= hw
             zh[:2 * n] += hw
             out = bool(np.any(zl < lo) or np.any(zh > hi))
-        return E, S, out
+        return E, S, X, out
 
     def _phi(self, A, b, dt):
         """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
@@ -315,10 +316,12 @@ class AKFTheoremBound:
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
-            E, S, out = self._gp_box(zhat, x0, P0)
+            E, S, X, out = self._gp_box(zhat, x0, P0)
             self.gp_box_violations_ += int(out)
-            # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point
-            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)])
+            # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point,
+            # plus the extrapolation term x_j(z) off the data (docs/bounds.md §2d; 0 unless
+            # learning.extrapolation_scale)
+            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)]) + X
             # The GP error f_j(z) − μ_j(z) and the GP mean's linearisation error
             # μ_j(z) − μ_j(ẑ) − ∂μ_j/∂z (z − ẑ) are parts of ONE torque error at the same (true) z,
             # f_j(z) − [μ_j(ẑ) + ∂μ_j/∂z (z − ẑ)], which enters the state through Γ_μ (= Φ I_μ M⁻¹,

@@ -177,15 +177,17 @@ class LocalScale:
     conformal, Lei et al. 2018 §5.2).
 
     Extrapolation term (``LoGGP(extrapolation_scale=c)``, ``learning.extrapolation_scale``; off
-    at c = 0): s(z) = √(σ² + s_loc² + (c e(z))²) with e(z) = Σ_i w_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij|,
-    x*_i the training input of leaf i nearest z (length-scale metric).  By the mean value theorem
+    at c = 0): x(z) = c e(z) with e(z) = Σ_i w_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij|, x*_i the training
+    input of leaf i nearest z (length-scale metric).  By the mean value theorem
     |f(z) − μ_i(z)| ≤ |f(x*) − μ_i(x*)| + Σ_j (|∂f/∂z_j| + |∂μ_i/∂z_j|) |z_j − x*_j| (slopes
     along the segment): the first term is what s_loc and σ measure near the data, the second is
-    the LUH19 remainder (L_μ + L_f) τ at the distance τ from the data.  Neither slope of f is
-    known; the mean's local slope stands for both, so c = 2.  It is large exactly where a leaf
-    mean extrapolates steeply off its data — where σ, bounded by σ_f and shrunk by long length
-    scales, stays small (docs/learning.md, "Novelty").  Fixed by the training data too, so the
-    conformal argument is unchanged."""
+    the LUH19 remainder (L_μ + L_f) τ at the distance τ from the data, with the mean's local
+    slope standing in for the unknown ones.  It is large exactly where a leaf mean extrapolates
+    steeply off its data — where σ, bounded by σ_f and shrunk by long length scales, stays small
+    (docs/learning.md, "Novelty").  It is *added* to the error bound, η = β s + x
+    (:meth:`predict_many_ext`), not scaled with β: β is calibrated where the GP has data (e ≈ 0
+    there), and says nothing about how fast the error grows away from it (docs/bounds.md §2d).
+    Fixed by the training data too, so the conformal argument is unchanged."""
 
     def __init__(self, gp):
         self.gp = gp
@@ -206,8 +208,17 @@ class LocalScale:
         """(μ̃, σ̃², s) at every row of ``Z`` (m, input_dim), one routing per row: the LoG-GP's
         merged mean and mixture variance (as :meth:`sea_daemon.loggp.LoGGP.predict`) and the
         local scale; each leaf reached predicts its rows in one compiled call."""
+        return self._predict(Z, False)[:3]
+
+    def predict_many_ext(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(μ̃, σ̃², s, x) at every row of ``Z``: :meth:`predict_many` and the extrapolation term
+        x(z) = c e(z) (zeros when c = 0), from the same routing."""
+        return self._predict(Z, True)
+
+    def _predict(self, Z, ext: bool):
+        Z = np.ascontiguousarray(Z, dtype=float)
         idx, nodes, w, m, v = self.gp.leaf_predictions(Z)
-        rows = int(np.asarray(Z).shape[0])
+        rows = int(Z.shape[0])
         r = np.array([self.r_.get(node, 0.0) for node in nodes.tolist()])
         # μ̃ = Σ ω_i μ_i, σ̃² = Σ ω_i (σ_i² + μ_i²) − μ̃², s_loc = Σ ω_i r_i (routing order)
         # (bincount adds each row's terms in order, from 0)
@@ -215,11 +226,11 @@ class LocalScale:
         m2 = np.bincount(idx, w * (v + m * m), rows)
         sl = np.bincount(idx, w * r, rows)
         var = np.maximum(m2 - mu * mu, 0.0)
-        if self.c_ext > 0.0:
+        x = np.zeros(rows)
+        if ext and self.c_ext > 0.0:
             # c e(z), e = Σ ω_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij| (the extrapolation term above)
-            se = self.c_ext * self.gp._extrapolation_rows(np.ascontiguousarray(Z, dtype=float), idx, nodes, w)
-            return mu, var, np.sqrt(var + sl * sl + se * se)
-        return mu, var, np.sqrt(var + sl * sl)
+            x = self.c_ext * self.gp._extrapolation_rows(Z, idx, nodes, w)
+        return mu, var, np.sqrt(var + sl * sl), x
 
     def predict(self, z) -> tuple[float, float, float]:
         """(μ̃(z), σ̃²(z), s(z)) at one input (:meth:`predict_many` of one row)."""
@@ -227,12 +238,9 @@ class LocalScale:
         return float(mu[0]), float(var[0]), float(s[0])
 
     def __call__(self, z, var: float) -> float:
-        """s(z) given the merged σ²(z) (the extrapolation term included when on)."""
+        """s(z) given the merged σ²(z) (without the extrapolation term, which is added, not scaled)."""
         s = self.local(z)
-        se = 0.0
-        if self.c_ext > 0.0:
-            se = self.c_ext * float(self.gp.extrapolation_many(np.asarray(z, dtype=float)[None])[0])
-        return float(np.sqrt(max(var, 0.0) + s * s + se * se))
+        return float(np.sqrt(max(var, 0.0) + s * s))
 
 
 def conformal_quantile(scores: np.ndarray, alpha: float) -> float:

@@ -6,10 +6,13 @@ that the model never learned: prints it as JSON and can write a copy of the conf
 (η = β √(σ² + s_loc²)).  ``--target gp`` (default): split conformal on the GP error of each
 training pair (docs/bounds.md §2b).  ``--target torque``: the smallest β whose ρ_k covers the
 estimate's own error τ̂_h,act − 0 on the log in ⌈(m+1)(1 − δ)⌉ of its m steps (§2c).
+When the configuration already has a number ``estimator.gp_beta``, the JSON also reports the
+fraction of the log's steps its ρ_k covers (``configured``): a held-out check of that β.
 """
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
@@ -30,7 +33,8 @@ DESCRIPTION = (
     "motion, subject and plant) and per step, not uniformly (docs/bounds.md 2b). --target torque "
     "instead searches the smallest beta whose Theorem-1 bound rho_k covers the GP-AKF's torque "
     "error (truth 0, passive subject) in 1 - delta of the log's steps (docs/bounds.md 2c; one "
-    "replay of the log per trial beta, about 10). Prints JSON; "
+    "replay of the log per trial beta, about 10). With a number estimator.gp_beta in --config the "
+    "JSON also has the coverage of that beta on the log (configured). Prints JSON; "
     "--write OUT.yaml saves the config with estimator.gp_beta = beta.")
 
 
@@ -64,6 +68,12 @@ def run(args) -> int:
         out.update(beta=beta["beta"], steps=beta["steps"], coverage=beta["coverage"],
                    target_coverage=beta["target"], runs=[[b, c] for b, c in beta["runs"]])
         beta, n_used = beta["beta"], f"{beta['steps']} steps"
+        if cfg.learning.extrapolation_scale == 0:
+            # calibrated where the GP has data, a small β says nothing about inputs off it
+            out["warning"] = ("learning.extrapolation_scale is 0: the bound has no term for inputs off the GP's "
+                              "data, and a beta calibrated on the torque error does not cover them "
+                              "(docs/bounds.md 2d)")
+            print(f"calibrate-bound: warning: {out['warning']}", file=sys.stderr)
     else:
         try:
             consts, _, scores = conformal_gp_constants(est, log, delta_gp)
@@ -74,6 +84,11 @@ def run(args) -> int:
                    beta_per_joint=[c.sqrt_beta for c in consts],
                    score_quantiles={q: np.quantile(scores, float(q) / 100, axis=0).tolist()
                                     for q in ("50", "90", "99")})
+    if isinstance(cfg.estimator.gp_beta, float):
+        # a held-out check of the configured β: the fraction of steps its ρ_k covers
+        from ..bounds.akf_bound import torque_coverage
+        cov, steps = torque_coverage(est, log, cfg.estimator.gp_beta, log.tau_h_act)
+        out["configured"] = {"beta": cfg.estimator.gp_beta, "coverage": cov, "steps": steps}
     if args.write:
         new = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=float(beta)))
         try:
@@ -88,8 +103,6 @@ def run(args) -> int:
 
 def _torque_beta(est, log, delta: float, path) -> dict:
     """:func:`~sea_daemon.bounds.akf_bound.torque_calibrated_beta` with a progress bar on stderr."""
-    import sys
-
     from tqdm import tqdm
 
     from ..bounds.akf_bound import torque_calibrated_beta

@@ -9,9 +9,11 @@ and the daemon talks to it through its own code paths:
 1. ``sea-daemon calibrate`` — the training phase (subject passive; the scenario's controller
    moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
 2. ``sea-daemon calibrate-bound`` — a second, held-out calibration session (the same moves,
-   independent noise: the scenario's seed + 1000) gives the split-conformal β of the GP error
-   bound (docs/bounds.md §2b), written into the configuration the run uses (``estimator.gp_beta``,
-   with the scenario's declared human-torque rate ``estimator.tau_h_act_rate``, §6, if it has one);
+   independent noise: the scenario's seed + 1000) checks the configured β of the GP error bound
+   (``estimator.gp_beta``: the fraction of that session's steps its ρ_k covers); a configuration
+   without a number there gets the β calibrated on that session's torque error written in
+   (``--target torque``, docs/bounds.md §2c).  The run's configuration also has the scenario's
+   declared human-torque rate (``estimator.tau_h_act_rate``, §6) if it declares one;
 3. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
    online in the loop (the scenario's controller drives, the subject acts as the scenario says)
    and publishes the Theorem-1 bound ρ_k with every estimate.
@@ -106,6 +108,23 @@ def _daemon(argv: list[str]) -> dict:
     return summary
 
 
+def _beta_summary(bound: dict) -> dict:
+    """What the run's β is and what the held-out session said about it (calibrate-bound's JSON)."""
+    c = bound.get("configured")
+    if c is not None:
+        return {"beta": c["beta"], "source": "configured", "held_out_coverage": c["coverage"],
+                "held_out_steps": c["steps"], "log": bound["log"],
+                "text": f"beta {c['beta']:.3g} (configured) covers {c['coverage']:.3f} of a held-out session's "
+                        f"{c['steps']} steps"}
+    if bound.get("target") == "torque":
+        return {"beta": bound["beta"], "source": "torque", "held_out_coverage": bound["coverage"],
+                "held_out_steps": bound["steps"], "log": bound["log"],
+                "text": f"beta {bound['beta']:.3g} calibrated on a held-out session's torque error (covers "
+                        f"{bound['coverage']:.3f} of {bound['steps']} steps)"}
+    return {"beta": bound["beta"], "source": "split conformal", "pairs": bound["pairs"], "log": bound["log"],
+            "text": f"split-conformal beta {bound['beta']:.2f} from a held-out session ({bound['pairs']} pairs)"}
+
+
 def _held_out_scenario(sc_path: str, dest: Path) -> Path:
     """A copy of the scenario with another noise seed (seed + 1000) and its model path made
     absolute: a calibration session the GP never learned, for calibrate-bound."""
@@ -173,8 +192,13 @@ def run(args) -> int:
             # what the experimenter declares about the subject: the bound's human-torque rate
             base_cfg = out / f"{name}_declared.yaml"
             save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
-        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
-                         "--write", str(run_cfg)])
+        if isinstance(cfg.estimator.gp_beta, float):
+            # the configured β: the held-out session checks it, the run uses it
+            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
+            run_cfg = base_cfg
+        else:
+            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
+                             "--target", "torque", "--write", str(run_cfg)])
         t1 = time.perf_counter()
         est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
         t2 = time.perf_counter()
@@ -194,7 +218,7 @@ def run(args) -> int:
                        "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
                        "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
                        "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
-                       "gp_beta": {k: bound[k] for k in ("beta", "pairs", "alpha", "log")},
+                       "gp_beta": _beta_summary(bound),
                        "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
                        "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
                        "estimators": {}}
@@ -222,7 +246,6 @@ def run(args) -> int:
         print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
               f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
               f"{e['cycle_compute_us_median']} us, p99 {e['cycle_compute_us_p99']} us; overruns "
-              f"{e['calibrate']['overruns'] + e['run']['overruns']}); bound: split-conformal beta "
-              f"{e['gp_beta']['beta']:.2f} from a held-out session ({e['gp_beta']['pairs']} pairs)")
+              f"{e['calibrate']['overruns'] + e['run']['overruns']}); bound: {e['gp_beta']['text']}")
     print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
     return 0
