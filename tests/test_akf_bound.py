@@ -352,3 +352,32 @@ def test_torque_calibrated_beta_is_the_smallest_covering_beta_and_detaches():
     assert torque_calibrated_beta(est, cal, 0.05)["beta"] < r["beta"]
     with pytest.raises(ValueError, match="delta"):
         torque_calibrated_beta(est, cal, 1.5)
+
+
+def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
+    # η = max over the GP-input set of β s + c e (+ the GP mean's linearisation error) ≥ its
+    # value at ẑ; with β tiny what is left is c e, which does not shrink with β
+    import dataclasses
+    learning = pytest.importorskip("sea_daemon.learning")
+    from sea_daemon.bounds.gp_bound import LocalScale
+    from sea_daemon.estimators import make_estimator
+    base = load_config(default_config_path())
+    base = dataclasses.replace(base, learning=dataclasses.replace(base.learning, extrapolation_scale=1.0))
+    res = _residual(learning, base, noise=0.02)
+    assert res.gps[0].extrapolation_scale == 1.0
+    log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
+    etas = {}
+    for beta in (1e-4, 1.0):
+        cfg = dataclasses.replace(base, estimator=dataclasses.replace(base.estimator, gp_beta=beta))
+        est = make_estimator("akf", cfg, residual=res)
+        tb = est.theorem_bound
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log) - 1):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.dt)
+        zhat = est.z.copy()
+        est.update(log.q[-1], log.theta_m[-1], log.tau_m[-1], log.dt)
+        _, _, s0, x0 = LocalScale(res.gps[0]).predict_many_ext(zhat[None])
+        assert x0[0] > 0
+        assert tb.eta_[0] >= beta * s0[0] + x0[0] - 1e-12
+        etas[beta] = tb.eta_[0]
+    assert etas[1e-4] >= x0[0] - 1e-12 and etas[1.0] > etas[1e-4]
