@@ -248,3 +248,20 @@ def test_calibrate_bound_target_torque_writes_the_covering_beta(calibrated, tmp_
     # every trial beta below the answer covers less than the target
     assert all(c < out["target_coverage"] for b, c in out["runs"] if b < out["beta"])
     assert load_config(out_cfg).estimator.gp_beta == pytest.approx(out["beta"])
+
+
+def test_scenario_controller_and_simulated_subject_share_the_plant_clock():
+    # Sec. V-C: the subject resists τ_des, τ_h,act = −τ_des, at the same time as the motor's
+    # open-loop τ_des: the controller's t is the hardware's (the device model's plant time)
+    from drivers.device_model.human import human_torque
+    from sea_daemon.daemon.service import ScenarioController
+    from sea_daemon.sim.scenario import load_scenario
+    sc = load_scenario(ROOT / "configs" / "scenarios" / "active.yaml")
+    cfg = load_config(CFG)
+    ctl = ScenarioController(sc, cfg, "estimation", hold=np.zeros(1))
+    h = human_torque(sc)
+    t_est = sc.training_samples * cfg.dt
+    for k in (1, 2, 250, 400):                   # the loop's first sample is cycle 1 (t = dt)
+        t = k * cfg.dt
+        u = ctl.update(t, np.zeros(1), np.zeros(1), None).copy()
+        assert u[0] == pytest.approx(-h(t + t_est)[0], abs=1e-12)    # τ_comp = 0 here

@@ -165,6 +165,10 @@ class FrameCounter:
 class ScenarioController:
     """The scenario's controller for :class:`FixedRateLoop` (``update(t, q, θ_m, estimate)``).
 
+    Time is the hardware's ``t``, counted from the run's first SYNC (cycle 0, the device model's
+    plant time 0 — the CANopen driver's priming read is that cycle), so the controller and the
+    device model's subject share one clock (before, the controller started at the first loop
+    sample, one period late, and the simulated subject's torque led the motor's by one sample).
     PID (``controller.type: pid``): tracks the minimum-jerk trajectory from t = 0 of the run with
     the configuration's torque limit, bumpless from ``hold`` (the torque already holding the arm;
     on real hardware the nominal model's static load torque at the first sample).  Open loop
@@ -197,7 +201,6 @@ class ScenarioController:
             self._ol_cls = OpenLoopTorque
         self.active = phase == "estimation"
         self.limit = cfg.hardware.torque_limit
-        self.t0 = None
 
     def _hold(self, q) -> np.ndarray:
         if self.hold is not None:
@@ -209,7 +212,6 @@ class ScenarioController:
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
         if not self._started:
             self._started = True
-            self.t0 = t
             u0 = self._hold(q)
             if self.pid is not None:
                 self.pid.reset(q if self.derivative == "load" else theta_m, u0)     # bumpless
@@ -217,7 +219,7 @@ class ScenarioController:
                 c = self._ol_spec
                 self.ol = self._ol_cls(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
                                        offset=c.offset)
-        tp = t - self.t0
+        tp = t                                        # phase time: the plant's clock (class docstring)
         if self.pid is not None:
             q_ref, dq_ref, _ = self.traj.reference(tp)
             self._out[:] = self.pid.step(q_ref, q, dq_ref, theta_m)
