@@ -122,9 +122,11 @@ class _Run:
         self.gap, self.max_wait = gap, max_wait
         cfg = bench_config(**BUS)
         self.cfg = cfg
-        self.rig = Rig(cfg)
         from ..estimators.akf import AKF
+        # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
+        # process), and the drive watches the daemon's heartbeat from the rig's start on
         self.est = _Estimator(AKF(cfg))
+        self.rig = Rig(cfg)
         self.probe = DriveProbe(self.rig, cycles)
         self.clock = VirtualClock()
         self.sup = SafetySupervisor(overrun_streak=OVERRUN_STREAK)
