@@ -49,7 +49,7 @@ DESCRIPTION = __doc__
 
 SCENARIOS = ("passive", "active")
 ESTIMATORS = ("spring", "akf", "gp-akf")
-#: fewest cycles of the held-out session (split conformal at alpha = delta/4 needs >= 79 pairs)
+#: fewest cycles of the held-out session (the torque calibration's ceil((m+1)(1-delta)) rule needs m >= 19)
 HELD_OUT_MIN = 120
 
 
@@ -116,13 +116,11 @@ def _beta_summary(bound: dict) -> dict:
                 "held_out_steps": c["steps"], "log": bound["log"],
                 "text": f"beta {c['beta']:.3g} (configured) covers {c['coverage']:.3f} of a held-out session's "
                         f"{c['steps']} steps"}
-    if bound.get("target") == "torque":
-        return {"beta": bound["beta"], "source": "torque", "held_out_coverage": bound["coverage"],
-                "held_out_steps": bound["steps"], "log": bound["log"],
-                "text": f"beta {bound['beta']:.3g} calibrated on a held-out session's torque error (covers "
-                        f"{bound['coverage']:.3f} of {bound['steps']} steps)"}
-    return {"beta": bound["beta"], "source": "split conformal", "pairs": bound["pairs"], "log": bound["log"],
-            "text": f"split-conformal beta {bound['beta']:.2f} from a held-out session ({bound['pairs']} pairs)"}
+    # calibrate-bound --target torque
+    return {"beta": bound["beta"], "source": "torque", "held_out_coverage": bound["coverage"],
+            "held_out_steps": bound["steps"], "log": bound["log"],
+            "text": f"beta {bound['beta']:.3g} calibrated on a held-out session's torque error (covers "
+                    f"{bound['coverage']:.3f} of {bound['steps']} steps)"}
 
 
 def _held_out_scenario(sc_path: str, dest: Path) -> Path:
