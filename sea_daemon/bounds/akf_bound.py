@@ -103,6 +103,7 @@ class AKFTheoremBound:
         self._Gam_tau = np.zeros((d, n))                 # Γ_τ of the step
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
+        self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
         delta = akf.delta if delta is None else float(delta)
         has_gp = akf.residual is not None
         if delta_gp is None:
@@ -340,7 +341,7 @@ class AKFTheoremBound:
             held_input(akf.A_k, self._E_tau, float(dt), self._Gam_tau)
             n = akf.n
             if eta is None:
-                Gam, eta = self._Gam_tau, np.full(n, self.tau_h_act_rate)
+                Gam, eta = self._Gam_tau, self._rate
             else:
                 self._Gam_all[:, :n] = akf.Gamma_mu
                 self._Gam_all[:, n:] = self._Gam_tau
