@@ -9,14 +9,14 @@
 * :mod:`drivers.device_model` — CANopen slaves (drive, encoder) on canopen's LocalNode with the
   pieces LocalNode lacks, their physics from the simulator, and fault injection.
 * :mod:`drivers.errors` — the HardwareError subclasses, each naming node, object and range.
-* :mod:`drivers.hil_session` — a simulator scenario run through device model, bus and driver
-  (the HIL twin of ``sea_daemon.sim.runner.simulate``; used by ``sea-daemon demo``).
 
-See ``docs/can.md``.
+The hardware layer: may import :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and
+:mod:`sea_daemon.errors`, never the runtime or the applications.  See ``docs/can.md``.
 """
-from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
-                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
-from .interface import FaultFlag, HardwareInterface, Measurement
+from drivers.errors import (
+    BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
+    PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
+from drivers.interface import FaultFlag, HardwareInterface, Measurement
 
 __all__ = ["HardwareInterface", "Measurement", "FaultFlag", "PdoTimeout", "HeartbeatLost", "EmcyReceived",
            "EncoderJump", "EncoderStuck", "BusOff", "SendFailed", "DeviceMismatch", "WrongDevice",

@@ -11,10 +11,10 @@ import os
 
 import can
 
-from sea_daemon.config import BusConfig
+from sea_daemon.core.config import BusConfig
 from sea_daemon.errors import ConfigError
 
-from .errors import DeviceMismatch
+from drivers.errors import DeviceMismatch
 
 INTERFACES = BusConfig.INTERFACES
 
@@ -48,3 +48,19 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
         raise
     except (can.CanError, OSError, ValueError) as e:
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None
+
+
+def frame_bits(dlc: int, stuffing: str = "none") -> int:
+    """Bits of a CAN 2.0A data frame (11-bit id) with ``dlc`` data bytes, including the 3-bit IFS.
+
+    SOF 1 + id 11 + RTR 1 + IDE 1 + r0 1 + DLC 4 + data 8·dlc + CRC 15 + CRC delimiter 1 +
+    ACK 2 + EOF 7 + IFS 3 = 47 + 8·dlc.  ``stuffing="worst"`` adds ⌊(34 + 8·dlc − 1)/4⌋ stuff
+    bits (the 34 + 8·dlc bits from SOF to the end of the CRC are stuffed; worst case one stuff
+    bit per 4 bits after the first 5).
+    """
+    base = 47 + 8 * dlc
+    if stuffing == "worst":
+        return base + (34 + 8 * dlc - 1) // 4
+    if stuffing != "none":
+        raise ValueError(f"stuffing must be 'none' or 'worst', got {stuffing!r}")
+    return base

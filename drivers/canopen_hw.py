@@ -47,13 +47,15 @@ import numpy as np
 from canopen.emcy import EmcyError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from sea_daemon.config import ModelConfig, repo_root
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.io.configfile import repo_root
 
-from . import cia402
-from .bus import make_bus
-from .errors import (BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck,
-                     HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
-from .interface import FaultFlag, HardwareInterface, Measurement
+from drivers import cia402
+from drivers.bus import make_bus
+from drivers.errors import (
+    BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
+    PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
+from drivers.interface import FaultFlag, HardwareInterface, Measurement
 
 EDS_DIR = repo_root() / "configs" / "eds"
 DRIVE_EDS = EDS_DIR / "sea_drive.eds"

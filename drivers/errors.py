@@ -2,15 +2,15 @@
 
 Every class derives from :class:`sea_daemon.errors.HardwareError`, names the CANopen node and
 object involved, the value seen and the allowed range, and carries ``fault`` — the code of the
-daemon's single fault policy (:class:`sea_daemon.daemon.safety.Fault`) — and ``flag``, the bit it
+daemon's single fault policy (:class:`sea_daemon.errors.Fault`) — and ``flag``, the bit it
 sets in :attr:`drivers.interface.Measurement.faults`.
 """
 from __future__ import annotations
 
-from sea_daemon.daemon.safety import Fault
+from sea_daemon.errors import Fault
 from sea_daemon.errors import HardwareError, InputError
 
-from .interface import FaultFlag
+from drivers.interface import FaultFlag
 
 
 def _node(node: int | None) -> str:
@@ -122,7 +122,7 @@ class WrongDevice(DeviceMismatch, InputError):
     """A device answers, but is not the one the configuration and our EDS describe (device type,
     identity, resolution, gear, modes, rated torque, an object it refuses, a PDO mapping it
     rejects or reads back differently).  Also an :class:`InputError`: the bus does not match
-    the configuration, so the CLI exits 2 with this one line (contracts §3).  A device that does
+    the configuration, so the CLI exits 2 with this one line (docs/interfaces.md §3).  A device that does
     not answer, or a bus that cannot be opened, stays a :class:`DeviceMismatch` (exit 1)."""
 
 

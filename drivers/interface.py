@@ -3,7 +3,7 @@
 Everything the daemon sees of the exoskeleton goes through :class:`HardwareInterface`; the
 CANopen implementation (:mod:`drivers.canopen_hw`) and the in-process simulator
 (:mod:`drivers.sim_hw`) sit behind it.  All quantities are on the **joint side** of the gear,
-in SI units (contracts §1).
+in SI units (docs/interfaces.md §1).
 
 Timing: ``read()`` in cycle k returns the state sampled at t_k (the SYNC of cycle k).  The
 torque given to ``write()`` in cycle k acts over [t_k+d, t_k+d+1], d = :attr:`actuation_delay`:
@@ -11,7 +11,7 @@ torque given to ``write()`` in cycle k acts over [t_k+d, t_k+d+1], d = :attr:`ac
 * d = 0 when the drive actuates the RPDO on reception (``hardware.bus.sync_rpdo: false``, the
   default; :class:`drivers.sim_hw.SimHardware` by default): the torque written in cycle k acts
   over [t_k, t_k+1], like the offline simulator's zero-order hold — it is the ``tau_m`` of row
-  k of a contracts-§1 log, and an estimator updated in cycle k after the write gets it;
+  k of a measured log (docs/interfaces.md §1), and an estimator updated in cycle k after the write gets it;
 * d = 1 for a synchronous RPDO (actuated at the next SYNC, ``sync_rpdo: true``): the torque
   acting over [t_k, t_k+1] is the one written in cycle k-1, known when cycle k starts (one
   cycle more of delay in every control loop closed through the bus).

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from .interface import HardwareInterface, Measurement
+from drivers.interface import HardwareInterface, Measurement
 
 
 class SimHardware(HardwareInterface):

@@ -1,15 +1,19 @@
-"""sea-daemon: GP-enhanced augmented-state Kalman filter for series elastic actuators.
+"""sea-daemon: real-time estimation of the torque a human actively applies to a series-elastic
+actuator exoskeleton, with a guaranteed error bound (the GP-AKF of Tesfazgi, Keßler et al.).
 
-The estimator core (``model``, ``estimators``, ``gp``, ``loggp``, ``bounds``) is pure:
-no I/O, no clock, no threads.  The daemon, the replay tool and the benchmarks all call it.
+The package is layered; each layer imports only the layers below it (checked in CI by the
+import contract in ``.importlinter``):
+
+* :mod:`sea_daemon.core` — model and effects, kinematics, GP and LoG-GP, estimators, bounds,
+  the simulated plant: numpy/scipy/numba only, no I/O, no clock, no threads;
+* :mod:`sea_daemon.io` — configuration files, measured logs, model files, scenarios;
+* ``drivers`` (a package of its own) — the hardware behind one narrow interface: simulated and CANopen;
+* :mod:`sea_daemon.runtime` — the fixed-rate loop, the fault policy, the log writer, the service;
+* :mod:`sea_daemon.apps` — the ``sea-daemon`` command line: calibration, run, replay, diagnose,
+  the benchmarks a user runs on the target machine.
+
+:mod:`sea_daemon.errors` (the one exception hierarchy and the fault codes) sits below all of them.
+``docs/architecture.md`` has the picture.
 """
-import os as _os
-
-# The estimator works on tiny matrices (5n x 5n): a multi-threaded BLAS only adds
-# synchronisation cost (measured: scipy expm of a 7x7 matrix 46 us single-threaded vs
-# ~1 ms with OpenBLAS threads on a loaded 2-core machine).  Must be set before numpy is
-# imported; an explicit user setting wins.
-for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_v, "1")
 
 __version__ = "0.1.0"

@@ -1,5 +1,5 @@
 import sys
 
-from .cli import main
+from sea_daemon.apps.cli import main
 
 sys.exit(main())

@@ -6,6 +6,8 @@ that the CLI can print it as the single line a user sees (exit status 2 for
 """
 from __future__ import annotations
 
+import enum
+
 
 class SeaDaemonError(Exception):
     """Base class of every error raised on purpose by sea-daemon."""
@@ -42,3 +44,22 @@ class EstimatorFault(SeaDaemonError):
 
 class HardwareError(SeaDaemonError):
     """Base of faults raised by the hardware layer (``drivers``)."""
+
+
+#: The fault codes of the daemon's single fault policy (:mod:`sea_daemon.runtime.safety`): every
+#: estimator and hardware exception carries one as ``.fault``; the log's ``fault`` column holds it.
+class Fault(enum.IntEnum):
+    NONE = 0
+    TPDO_MISSING = 1
+    HEARTBEAT_LOST = 2
+    EMCY = 3
+    ENCODER_JUMP = 4
+    ENCODER_STUCK = 5
+    BUS_OFF = 6
+    SEND_FAILED = 7
+    ESTIMATOR_NONFINITE = 8
+    COVARIANCE_NOT_PD = 9
+    NIS_DIVERGENCE = 10
+    OVERRUN_STREAK = 11
+    DEVICE_FAULT = 12          # drive reports CiA 402 fault state
+    INTERNAL = 13              # an unexpected exception in the loop

@@ -3,7 +3,7 @@
 Bus kinds: ``virtual`` (python-can, in-process), ``remote`` (python-can-remote: a
 ``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
 (``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
-the simulator's true plant (:class:`sea_daemon.sim.plant.Plant`), recording its steps.
+the simulator's true plant (:class:`sea_daemon.core.sim.plant.Plant`), recording its steps.
 """
 from __future__ import annotations
 
@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 from drivers.bus import socketcan_available
-from sea_daemon.bench import _rig as bench_rig
-from sea_daemon.config import ModelConfig, default_config_path, load_config, load_yaml
-from sea_daemon.sim.plant import Plant
+from sea_daemon.apps.bench import _rig as bench_rig
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
+from sea_daemon.core.sim.plant import Plant
 
 BUS_KINDS = ["virtual", "remote", "socketcan"]
 

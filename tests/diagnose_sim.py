@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from sea_daemon.config import repo_root
-from sea_daemon.effects import Gravity
-from sea_daemon.sim import runner
-from sea_daemon.sim.plant import Plant
-from sea_daemon.sim.scenario import load_scenario
+from sea_daemon.io.configfile import repo_root
+from sea_daemon.core.effects import Gravity
+from sea_daemon.runtime import sim_runner as runner
+from sea_daemon.core.sim.plant import Plant
+from sea_daemon.io.scenario import load_scenario
 
 
 def passive_log(extra=(), moves: int = 2, seed: int = 1, gravity_compensated: bool = False,

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea_daemon.logio import MeasuredLog
-from sea_daemon.model import SEAModel
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.model import SEAModel
 
 
 def simulate(model: SEAModel, T: float = 3.0, rate: float = 100.0, tau_m=None, tau_h=None,

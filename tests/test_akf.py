@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sea_daemon.config import ModelConfig, load_config, default_config_path
-from sea_daemon.effects import make_effect
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.io.configfile import load_config, default_config_path
+from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.estimators import AKF, SpringTorqueEstimator, make_estimator
-from sea_daemon.estimators.akf import discretize_affine
-from sea_daemon.model import SEAModel, discretize
+from sea_daemon.core.estimators import AKF, SpringTorqueEstimator, make_estimator
+from sea_daemon.core.estimators.akf import discretize_affine
+from sea_daemon.core.model import SEAModel, discretize
 
 from synth import simulate
 
@@ -299,10 +300,10 @@ def test_passive_scenario_akf_error_is_large_like_table_1():
     """Paper Table I on the simulator's passive scenario (shortened to 7 s): the unmodelled
     arm and friction make the plain AKF's error large; the AKF given the true plant is not."""
     import dataclasses
-    from sea_daemon.config import repo_root
-    from sea_daemon.replay import replay, summarize
-    from sea_daemon.sim.runner import simulate as sim_run
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.core.replay import replay, summarize
+    from sea_daemon.runtime.sim_runner import simulate as sim_run
+    from sea_daemon.io.scenario import load_scenario
     sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
     sc = dataclasses.replace(sc, training_samples=2, estimation_samples=700)
     log = sim_run(sc).estimation

@@ -1,13 +1,14 @@
-"""Theorem-1 bound attached to the AKF / GP-AKF (sea_daemon.bounds.akf_bound)."""
+"""Theorem-1 bound attached to the AKF / GP-AKF (sea_daemon.core.bounds.akf_bound)."""
 import numpy as np
 import pytest
 
-from sea_daemon.bounds.akf_bound import attach_theorem_bound
-from sea_daemon.bounds.gp_bound import BoundConstants
-from sea_daemon.bounds.setmember import chi2_quantile
-from sea_daemon.config import ModelConfig, default_config_path, load_config
-from sea_daemon.estimators import AKF
-from sea_daemon.model import SEAModel
+from sea_daemon.core.bounds.akf_bound import attach_theorem_bound
+from sea_daemon.core.bounds.gp_bound import BoundConstants
+from sea_daemon.core.bounds.setmember import chi2_quantile
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.core.estimators import AKF
+from sea_daemon.core.model import SEAModel
 
 from synth import simulate
 
@@ -101,7 +102,7 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
 
 
 def test_phi_shortcut_matches_expm():
-    from sea_daemon.bounds.setmember import input_matrix
+    from sea_daemon.core.bounds.setmember import input_matrix
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
     tb = attach_theorem_bound(akf)
@@ -125,8 +126,8 @@ def _residual(learning, cfg, noise: float = 0.0):
 
 
 def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
-    learning = pytest.importorskip("sea_daemon.learning")
-    from sea_daemon.estimators import make_estimator
+    learning = pytest.importorskip("sea_daemon.core.learning")
+    from sea_daemon.core.estimators import make_estimator
     cfg = load_config(default_config_path())
     res = _residual(learning, cfg)
     est = make_estimator("akf", cfg, residual=res)
@@ -142,8 +143,8 @@ def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
 
 
 def test_gp_akf_estimator_gets_the_theorem_bound():
-    gpakf = pytest.importorskip("sea_daemon.estimators.gpakf")
-    from sea_daemon.bounds.akf_bound import attach_default_bound, residual_gps
+    gpakf = pytest.importorskip("sea_daemon.core.estimators.gpakf")
+    from sea_daemon.core.bounds.akf_bound import attach_default_bound, residual_gps
     cfg = load_config(default_config_path())
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
     est = gpakf.build(cfg, train, train.dt)
@@ -157,9 +158,9 @@ def test_gp_akf_estimator_gets_the_theorem_bound():
 
 def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     import dataclasses
-    learning = pytest.importorskip("sea_daemon.learning")
-    from sea_daemon.bounds.gp_bound import LocalScale
-    from sea_daemon.estimators import make_estimator
+    learning = pytest.importorskip("sea_daemon.core.learning")
+    from sea_daemon.core.bounds.gp_bound import LocalScale
+    from sea_daemon.core.estimators import make_estimator
     base = load_config(default_config_path())
     res = _residual(learning, base, noise=0.02)
     log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
@@ -208,7 +209,7 @@ class SplitResidual:
 def test_gp_error_and_gp_linearisation_error_are_bounded_as_one_torque_error():
     """f − μ̄ = (f − μ)(z) + (μ − μ̄)(z) at the same z, both entering through Γ_μ: η is the max over
     the points of the sum, not the sum of the two maxima (which sit at opposite ends here)."""
-    from sea_daemon.bounds.setmember import ellipsoid_points
+    from sea_daemon.core.bounds.setmember import ellipsoid_points
     cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
         "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
     log = simulate(SEAModel.from_config(cfg), T=0.1, seed=5)
@@ -277,8 +278,8 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
 
 def test_held_input_matches_expm():
     # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled fourth-order series against Van Loan's expm
-    from sea_daemon.bounds.setmember import input_matrix
-    from sea_daemon.estimators.akf_core import held_input
+    from sea_daemon.core.bounds.setmember import input_matrix
+    from sea_daemon.core.estimators.akf_core import held_input
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
@@ -322,15 +323,15 @@ def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
 
 
 def _passive_gp_akf(gpakf, seed):
-    from sea_daemon.config import repo_root
+    from sea_daemon.io.configfile import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
     return gpakf.build(cfg, train, train.dt), simulate(SEAModel.from_config(cfg), T=0.6, seed=seed)
 
 
 def test_torque_calibrated_beta_is_the_smallest_covering_beta_and_detaches():
-    gpakf = pytest.importorskip("sea_daemon.estimators.gpakf")
-    from sea_daemon.bounds.akf_bound import torque_calibrated_beta, torque_coverage
+    gpakf = pytest.importorskip("sea_daemon.core.estimators.gpakf")
+    from sea_daemon.core.bounds.akf_bound import torque_calibrated_beta, torque_coverage
     est, cal = _passive_gp_akf(gpakf, seed=8)
     # a truth the estimate misses by a ramp: only a GP term of some size covers it
     truth = np.linspace(0.0, 0.3, len(cal))[:, None]
@@ -358,9 +359,9 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     # η = max over the GP-input set of β s + c e (+ the GP mean's linearisation error) ≥ its
     # value at ẑ; with β tiny what is left is c e, which does not shrink with β
     import dataclasses
-    learning = pytest.importorskip("sea_daemon.learning")
-    from sea_daemon.bounds.gp_bound import LocalScale
-    from sea_daemon.estimators import make_estimator
+    learning = pytest.importorskip("sea_daemon.core.learning")
+    from sea_daemon.core.bounds.gp_bound import LocalScale
+    from sea_daemon.core.estimators import make_estimator
     base = load_config(default_config_path())
     base = dataclasses.replace(base, learning=dataclasses.replace(base.learning, extrapolation_scale=1.0))
     res = _residual(learning, base, noise=0.02)

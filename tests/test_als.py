@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from sea_daemon.als import identify, innovations, model_autocov, sample_autocov, stable_gain
-from sea_daemon.config import default_config_path, load_config
+from sea_daemon.core.als import identify, innovations, model_autocov, sample_autocov, stable_gain
+from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.errors import InputError
-from sea_daemon.model import SEAModel, discretize
+from sea_daemon.core.model import SEAModel, discretize
 
 
 @pytest.fixture(scope="module")

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 import yaml
 
-from sea_daemon.cli import main
-from sea_daemon.config import default_config_path, load_config, repo_root
+from sea_daemon.apps.cli import main
+from sea_daemon.io.configfile import default_config_path, load_config, repo_root
 from sea_daemon.errors import InputError, LogFormatError
-from sea_daemon.logio import read_log
+from sea_daemon.io.logcsv import read_log
 
 CFG = str(default_config_path())
 SCEN = str(repo_root() / "configs" / "scenarios" / "passive.yaml")
@@ -188,14 +188,27 @@ def test_simulate_bad_scenario_and_its_model(tmp_path, capsys):
     (["bench", "faults", "--kinds", "tpdo_missing,meteor"], r"--kinds meteor"),
     (["bench", "faults", "--cycles", "10"], r"--cycles 10"),
     (["bench", "soak", "--cycles", "1000", "--warmup", "5000"], r"--warmup 5000"),
-    (["bench", "bounds", "--gp-beta", "lederer,huge"], r"--gp-beta huge"),
-    (["bench", "bounds", "--gp-beta", "-1"], r"--gp-beta -1"),
-    (["bench", "accuracy", "--bound", "tight"], r"invalid choice: 'tight'"),
     (["replay", "x.csv", "--config", CFG, "--estimator", "kalman", "--out", "e.csv"], r"invalid choice: 'kalman'"),
 ])
 def test_other_commands_bad_arguments(capsys, argv, expect):
     code, _, err = cli(argv, capsys)
     assert_one_line(code, err, expect)
+
+
+@pytest.mark.parametrize("name,argv,expect", [
+    ("bounds", ["--gp-beta", "lederer,huge"], r"--gp-beta huge"),
+    ("bounds", ["--gp-beta", "-1"], r"--gp-beta -1"),
+    ("accuracy", ["--bound", "tight"], r"invalid choice: 'tight'"),
+])
+def test_research_benchmarks_bad_arguments(capsys, name, argv, expect):
+    import importlib
+
+    from benchmarks._cli import main
+    try:
+        code = main(importlib.import_module(f"benchmarks.{name}"), argv)
+    except SystemExit as e:
+        code = e.code
+    assert_one_line(code, capsys.readouterr().err, expect)
 
 
 def test_device_model_bad_config(tmp_path, capsys):
@@ -216,7 +229,7 @@ def test_bad_input_through_a_real_process_has_no_traceback(tmp_path):
 
 # ------------------------------------------------------------------ saved model files
 def test_model_files_corrupt_foreign_or_pickled_are_refused(tmp_path):
-    from sea_daemon.modelfile import load_model, save_model
+    from sea_daemon.io.modelfile import load_model, save_model
     p = tmp_path / "m.npz"
     save_model(p, {"a": np.arange(5.0)}, {"what": "test"})
     data = p.read_bytes()
@@ -237,7 +250,7 @@ def eds_rig(tmp_path, monkeypatch):
     from drivers.canopen_hw import CanopenHardware, DRIVE_EDS
     from drivers.device_model import DeviceModel
     from drivers.device_model.drive import DriveNode
-    from sea_daemon.sim.plant import Plant
+    from sea_daemon.core.sim.plant import Plant
 
     eds = tmp_path / "wrong_drive.eds"
     shutil.copy(DRIVE_EDS, eds)
@@ -274,8 +287,8 @@ def test_eds_with_a_wrong_device_type_is_named(eds_rig):
 def test_tpdo_of_the_wrong_length_is_named_at_run_time():
     from drivers.device_model import FaultSpec  # noqa: F401
     from drivers.errors import PdoLengthError
-    from sea_daemon.bench._rig import Rig, bench_config
-    from sea_daemon.daemon.safety import Fault
+    from sea_daemon.apps.bench._rig import Rig, bench_config
+    from sea_daemon.errors import Fault
     rig = Rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
     try:
         rig.hw.read()
@@ -334,7 +347,7 @@ def _corrupt_models(tmp_path, good: Path) -> dict:
     flipped[len(flipped) // 2] ^= 0xFF
     (tmp_path / "flipped.npz").write_bytes(bytes(flipped))
     np.savez(tmp_path / "pickled.npz", a=np.array([{"x": 1}], dtype=object))
-    from sea_daemon.modelfile import load_model, save_model
+    from sea_daemon.io.modelfile import load_model, save_model
     arrays, meta = load_model(good)
     save_model(tmp_path / "future.npz", arrays, {k: v for k, v in meta.items() if k not in ("format", "version", "sha256")})
     z = dict(np.load(tmp_path / "future.npz"))

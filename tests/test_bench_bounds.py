@@ -1,13 +1,14 @@
-"""``sea-daemon bench bounds`` end to end on shortened scenarios (the figures are in docs/bounds.md)."""
+"""``python -m benchmarks.bounds`` end to end on shortened scenarios (the figures are in docs/bounds.md)."""
 import json
 
 import pytest
 import yaml
 
-from sea_daemon import cli
-from sea_daemon.config import repo_root
+from benchmarks import bounds as bench_bounds
+from benchmarks._cli import main as bench_main
+from sea_daemon.io.configfile import repo_root
 
-pytest.importorskip("sea_daemon.estimators.gpakf")
+pytest.importorskip("sea_daemon.core.estimators.gpakf")
 
 
 def _short(tmp_path, name, train, est):
@@ -23,7 +24,7 @@ def _short(tmp_path, name, train, est):
 def test_bench_bounds_runs_both_betas_and_an_unseen_pair(tmp_path, capsys):
     passive = _short(tmp_path, "passive", 700, 150)
     unseen = _short(tmp_path, "unseen_load", 2, 150)
-    code = cli.main(["bench", "bounds", "--als", "--estimators", "akf,gp-akf,gp-akf/conformal",
+    code = bench_main(bench_bounds, ["--als", "--estimators", "akf,gp-akf,gp-akf/conformal",
                      "--scenarios", str(passive), f"{unseen}@{passive}", "--out", str(tmp_path / "b")])
     out = capsys.readouterr().out
     assert code == 0
@@ -46,15 +47,15 @@ def test_a_latched_fault_ends_the_run_and_is_reported():
     """An estimator fault (e.g. NIS divergence on an unseen load) latches as in the daemon: the
     samples after it are not estimates; _run_one cuts them off and returns the step and cause."""
     import numpy as np
-    from sea_daemon.bench.bounds import _run_one
-    from sea_daemon.estimators.health import NISDivergence
-    from sea_daemon.logio import MeasuredLog
+    from benchmarks.bounds import _run_one
+    from sea_daemon.core.estimators.health import NISDivergence
+    from sea_daemon.core.log import MeasuredLog
 
     class Est:
         delta = 0.05
 
         def __init__(self):
-            from sea_daemon.estimators.base import Estimate
+            from sea_daemon.core.estimators.base import Estimate
             self.e = Estimate.zeros(1)
             self.k = 0
 
@@ -83,7 +84,7 @@ def test_bench_bounds_torque_and_exact_columns(tmp_path, capsys):
     # exact: η from the simulator's truth, which must cover the estimation log (Theorem 1
     # with the GP error known) and is at most the torque/conformal bounds' job to approach
     passive = _short(tmp_path, "passive", 700, 300)
-    code = cli.main(["bench", "bounds", "--estimators", "gp-akf/torque,gp-akf/exact",
+    code = bench_main(bench_bounds, ["--estimators", "gp-akf/torque,gp-akf/exact",
                      "--gp-beta", "torque,exact", "--scenarios", str(passive), "--out", str(tmp_path / "b")])
     out = capsys.readouterr().out
     assert code == 0 and "calibration log covered" in out
@@ -93,5 +94,5 @@ def test_bench_bounds_torque_and_exact_columns(tmp_path, capsys):
     assert cal["coverage"] >= cal["target"] >= 0.95 and t["gp_beta"] == cal["beta"]
     assert x["gp_beta_method"] == "exact" and x["coverage_rho"] >= 0.95
     assert t["mean_abs_error"] == pytest.approx(x["mean_abs_error"], rel=1e-4)
-    assert cli.main(["bench", "bounds", "--gp-beta", "exactly"]) == 2
+    assert bench_main(bench_bounds, ["--gp-beta", "exactly"]) == 2
     assert "exact" in capsys.readouterr().err

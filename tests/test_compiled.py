@@ -7,9 +7,9 @@ import pytest
 from scipy.linalg import expm as scipy_expm
 from scipy.linalg.lapack import dpotrf
 
-from sea_daemon import _jit
-from sea_daemon.config import default_config_path, load_config
-from sea_daemon.linalg_small import cho_solve, cholesky, expm, is_pd, lu_solve
+from sea_daemon.core import jit as _jit
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.core.linalg import cho_solve, cholesky, expm, is_pd, lu_solve
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +41,7 @@ def test_expm_matches_scipy(norm1):
 
 def test_expm_on_the_filters_local_linearisation_matrix(cfg):
     # the matrix the AKF exponentiates every step (‖·‖₁ ≈ 37 at 100 Hz): [[A, f, G], 0]·dt
-    from sea_daemon.estimators import AKF
+    from sea_daemon.core.estimators import AKF
     a = AKF(cfg)
     a.reset(np.zeros(1), np.zeros(1), np.zeros(1))
     for k in range(1, 30):
@@ -103,11 +103,11 @@ def test_no_writable_cache_falls_back_to_in_memory_compilation(monkeypatch):
 
 
 def _dispatchers():
-    import sea_daemon.estimators.akf_core as a
-    import sea_daemon.estimators.health as h
-    import sea_daemon.gp_core as g
-    import sea_daemon.kinematics as k
-    import sea_daemon.linalg_small as s
+    import sea_daemon.core.estimators.akf_core as a
+    import sea_daemon.core.estimators.health as h
+    import sea_daemon.core.gp.gp_core as g
+    import sea_daemon.core.kinematics as k
+    import sea_daemon.core.linalg as s
     from numba.core.registry import CPUDispatcher
     return {f"{m.__name__}.{n}": v for m in (a, h, g, k, s) for n, v in vars(m).items()
             if isinstance(v, CPUDispatcher)}
@@ -117,14 +117,14 @@ def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
     """A learning GP-AKF (predictions, updates, hyperparameter slices, a split) compiles
     nothing after construction: the daemon is warm before its first loop cycle."""
     from dataclasses import replace
-    from sea_daemon.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators.gpakf import GPAKF
     c = replace(cfg, learning=replace(cfg.learning, max_points=12))
     est = GPAKF(c)
     before = {k: len(d.signatures) for k, d in _dispatchers().items()}
-    for k in ("estimators.akf_core.filter_step", "gp_core.predict_with_grad", "gp_core.add_point",
-              "gp_core.lml_grad", "gp_core.cholesky_packed", "estimators.health._box_clip",
+    for k in ("estimators.akf_core.filter_step", "gp.gp_core.predict_with_grad", "gp.gp_core.add_point",
+              "gp.gp_core.lml_grad", "gp.gp_core.cholesky_packed", "estimators.health._box_clip",
               "kinematics._fir_push"):
-        assert before["sea_daemon." + k] > 0, k
+        assert before["sea_daemon.core." + k] > 0, k
     est.reset([0.0], [0.0], [0.0])
     t = np.arange(1, 200) * 0.01
     for k, tk in enumerate(t):

@@ -2,10 +2,11 @@
 import numpy as np
 import pytest
 
-from sea_daemon.config import ModelConfig, load_config, default_config_path
-from sea_daemon.effects import EFFECT_TYPES, make_effect
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.io.configfile import load_config, default_config_path
+from sea_daemon.core.effects import EFFECT_TYPES, make_effect
 from sea_daemon.errors import ConfigError
-from sea_daemon.model import SEAModel, discretize
+from sea_daemon.core.model import SEAModel, discretize
 
 
 def base_dict():
@@ -23,7 +24,7 @@ def test_contract_example_loads():
 
 
 def test_default_config_loads_and_roundtrips(tmp_path):
-    from sea_daemon.config import save_config
+    from sea_daemon.io.configfile import save_config
     cfg = load_config(default_config_path())
     p = tmp_path / "c.yaml"
     save_config(cfg.with_effects([make_effect("viscous", "motor", b=0.1)]), p)
@@ -119,7 +120,7 @@ def test_discretize_is_exact_for_linear_system():
 
 
 def test_two_joint_config_roundtrips_with_default_learning(tmp_path):
-    from sea_daemon.config import save_config
+    from sea_daemon.io.configfile import save_config
     d = {"joints": 2, "rate_hz": 100, "model": {"M": 0.1, "J": 0.1, "D_m": 0.1, "K_s": 100, "D_s": 0.1}}
     cfg = ModelConfig.from_dict(d)
     assert len(cfg.learning.lengthscales) == 6
@@ -139,7 +140,7 @@ def test_gp_beta_default_number_and_round_trip():
 
 
 def test_process_noise_options_roundtrip(tmp_path):
-    from sea_daemon.config import save_config
+    from sea_daemon.io.configfile import save_config
     cfg = load_config(default_config_path())
     e = cfg.estimator
     assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.0, 0.0, False, False)

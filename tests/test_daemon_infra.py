@@ -9,12 +9,12 @@ import zipfile
 import numpy as np
 import pytest
 
-from sea_daemon.daemon.logwriter import LogWriter
-from sea_daemon.daemon.notify import Notifier
+from sea_daemon.runtime.logwriter import LogWriter
+from sea_daemon.runtime.notify import Notifier
 from sea_daemon.errors import ModelFileError
-from sea_daemon.logio import read_log
-from sea_daemon.modelfile import load_model, save_model
-from sea_daemon.config import repo_root
+from sea_daemon.io.logcsv import read_log
+from sea_daemon.io.modelfile import load_model, save_model
+from sea_daemon.io.configfile import repo_root
 
 
 def test_model_roundtrip_and_refusals(tmp_path):
@@ -39,7 +39,7 @@ def test_model_roundtrip_and_refusals(tmp_path):
     with zipfile.ZipFile(p) as z:
         meta_raw = json.loads(np.load(z.open("__meta__.npy"), allow_pickle=False).tobytes())
     meta_raw["version"] = 99
-    from sea_daemon import modelfile
+    from sea_daemon.io import modelfile
     meta_raw["sha256"] = modelfile._digest(meta_raw, arrays)
     v = tmp_path / "v99.npz"
     np.savez(v, **arrays, __meta__=np.frombuffer(json.dumps(meta_raw).encode(), dtype=np.uint8))

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sea_daemon.cli import main
-from sea_daemon.config import load_config, repo_root
-from sea_daemon.daemon.gpmodel import load_gp_model
-from sea_daemon.daemon.loop import log_columns
-from sea_daemon.logio import read_log
+from sea_daemon.apps.cli import main
+from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.runtime.loop import log_columns
+from sea_daemon.io.logcsv import read_log
 
 ROOT = repo_root()
 CFG = str(ROOT / "configs" / "exo_1dof_sim.yaml")
@@ -70,8 +70,8 @@ def test_estimation_against_device_model_gp_akf_beats_akf(calibrated, tmp_path, 
     skip = 50
     gp_rmse = float(np.sqrt(np.mean(log.extra["tau_h_act_hat"][skip:] ** 2)))
     assert log.extra["valid"].all()
-    from sea_daemon.estimators import make_estimator
-    from sea_daemon.replay import replay
+    from sea_daemon.core.estimators import make_estimator
+    from sea_daemon.core.replay import replay
     cfg = load_config(CFG)
     akf = replay(log, make_estimator("akf", cfg, dt=cfg.dt))
     akf_rmse = float(np.sqrt(np.mean(akf.tau_h_act_hat[skip:, 0] ** 2)))
@@ -79,7 +79,7 @@ def test_estimation_against_device_model_gp_akf_beats_akf(calibrated, tmp_path, 
     assert gp_rmse < 0.3 * akf_rmse, (gp_rmse, akf_rmse)
     # the published bound is the Theorem-1 rho_k (docs/bounds.md): the KF part
     # sqrt(chi2_1(1 - delta_N) P_tautau), delta_N = delta/2, plus the set of means of the GP error
-    from sea_daemon.bounds.setmember import chi2_quantile
+    from sea_daemon.core.bounds.setmember import chi2_quantile
     rho, sig = log.extra["tau_h_act_bound"][skip:], log.extra["tau_h_act_sigma"][skip:]
     kf = np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 1)) * sig
     assert np.all(rho >= kf - 1e-9) and np.mean(rho > 1.01 * kf) > 0.5
@@ -183,7 +183,7 @@ def test_run_as_notify_service_ready_watchdog_status_reset_sigterm(calibrated, t
 def test_calibrate_diagnose_calibrate_augmented(calibrated, tmp_path, capsys):
     """Issue 6 item 5: calibrate keeps the measured log; diagnose runs on it; its augmented
     configuration calibrates again."""
-    pytest.importorskip("sea_daemon.commands.diagnose")
+    pytest.importorskip("sea_daemon.apps.commands.diagnose")
     _, log_path = calibrated
     rc = main(["diagnose", str(log_path), "--config", CFG, "--out", str(tmp_path / "diag")])
     capsys.readouterr()
@@ -212,9 +212,9 @@ def test_hardware_that_does_not_come_up_exit_1_without_leftovers(calibrated, tmp
 
 def test_calibrate_bound_from_a_held_out_log_writes_gp_beta(calibrated, tmp_path, capsys):
     """docs/bounds.md §2b: split-conformal beta for the model, from a passive log it never learned."""
-    from sea_daemon.logio import write_log
-    from sea_daemon.sim.runner import simulate
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.logcsv import write_log
+    from sea_daemon.runtime.sim_runner import simulate
+    from sea_daemon.io.scenario import load_scenario
     model, _ = calibrated
     sc = load_scenario(PASSIVE)
     held = tmp_path / "held.csv"
@@ -232,9 +232,9 @@ def test_calibrate_bound_from_a_held_out_log_writes_gp_beta(calibrated, tmp_path
 
 def test_calibrate_bound_target_torque_writes_the_covering_beta(calibrated, tmp_path, capsys):
     """docs/bounds.md §2c: the smallest beta whose rho covers the torque error of the held-out log."""
-    from sea_daemon.logio import write_log
-    from sea_daemon.sim.runner import simulate
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.logcsv import write_log
+    from sea_daemon.runtime.sim_runner import simulate
+    from sea_daemon.io.scenario import load_scenario
     model, _ = calibrated
     sc = load_scenario(PASSIVE)
     held = tmp_path / "held.csv"
@@ -253,9 +253,9 @@ def test_calibrate_bound_target_torque_writes_the_covering_beta(calibrated, tmp_
 def test_scenario_controller_and_simulated_subject_share_the_plant_clock():
     # Sec. V-C: the subject resists τ_des, τ_h,act = −τ_des, at the same time as the motor's
     # open-loop τ_des: the controller's t is the hardware's (the device model's plant time)
-    from drivers.device_model.human import human_torque
-    from sea_daemon.daemon.service import ScenarioController
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.scenario import human_torque
+    from sea_daemon.runtime.service import ScenarioController
+    from sea_daemon.io.scenario import load_scenario
     sc = load_scenario(ROOT / "configs" / "scenarios" / "active.yaml")
     cfg = load_config(CFG)
     ctl = ScenarioController(sc, cfg, "estimation", hold=np.zeros(1))

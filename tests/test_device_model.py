@@ -155,7 +155,7 @@ def test_scheduled_fault_fires_at_device_time(bench):
 
 
 def test_device_model_command_rejects_bad_input(capsys):
-    from sea_daemon.cli import main
+    from sea_daemon.apps.cli import main
     assert main(["device-model", "--bus", "remote", "--channel", "127.0.0.1:5000"]) == 2
     assert "the remote bus needs ws://HOST:PORT/" in capsys.readouterr().err
     assert main(["device-model", "--fault", "melt"]) == 2
@@ -164,10 +164,10 @@ def test_device_model_command_rejects_bad_input(capsys):
 
 
 def test_human_torque_follows_the_scenario():
-    from drivers.device_model.human import human_torque
-    from sea_daemon.config import repo_root
-    from sea_daemon.control import cosine_torque
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.scenario import human_torque
+    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.core.control import cosine_torque
+    from sea_daemon.io.scenario import load_scenario
     active = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
     passive = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
     assert active.human == "resist" and passive.human == "passive"

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import pytest
 
-from sea_daemon.diagnose import diagnose
-from sea_daemon.effects import make_effect
+from sea_daemon.apps.diagnose import diagnose
+from sea_daemon.core.effects import make_effect
 
 from diagnose_sim import PositionFrictionPlant, passive_log
 
@@ -92,9 +92,9 @@ def test_static_log_claims_nothing_it_cannot_determine(tmp_path):
     parameters the log cannot determine — nothing is added, and the report says why."""
     import dataclasses
 
-    from sea_daemon.config import repo_root
-    from sea_daemon.sim.runner import simulate
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.runtime.sim_runner import simulate
+    from sea_daemon.io.scenario import load_scenario
 
     sc = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
     sc = dataclasses.replace(sc, training_samples=2, estimation_samples=600)

@@ -1,4 +1,4 @@
-"""``sea-daemon diagnose`` end to end (contracts §3, §4): files, JSON keys, the augmented model
+"""``sea-daemon diagnose`` end to end (docs/interfaces.md §3, §4): files, JSON keys, the augmented model
 loadable by the other commands, and bad input → exit 2 with one line."""
 from __future__ import annotations
 
@@ -7,10 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from sea_daemon.cli import main
-from sea_daemon.config import load_config, save_config
-from sea_daemon.effects import make_effect
-from sea_daemon.logio import MeasuredLog, read_log, write_log
+from sea_daemon.apps.cli import main
+from sea_daemon.io.configfile import load_config, save_config
+from sea_daemon.core.effects import make_effect
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.io.logcsv import read_log, write_log
 
 from diagnose_sim import passive_log
 

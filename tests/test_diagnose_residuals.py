@@ -5,13 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sea_daemon.config import default_config_path, load_config
-from sea_daemon.diagnose.candidates import Context, build_candidates
-from sea_daemon.diagnose.residuals import (applied_torque, kinematics_from_log, residual_channels,
-                                           vtorque)
-from sea_daemon.effects import EFFECT_TYPES, make_effect
-from sea_daemon.logio import MeasuredLog
-from sea_daemon.model import SEAModel
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.apps.diagnose.candidates import Context, build_candidates
+from sea_daemon.apps.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels, vtorque
+from sea_daemon.core.effects import EFFECT_TYPES, make_effect
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.model import SEAModel
 
 ADDITIVE = [
     make_effect("coulomb", "load", F_c=0.3), make_effect("coulomb", "motor", F_c=0.2),
@@ -122,8 +121,9 @@ def test_passive_flag_ignores_tau_h_act(ctx):
 
 def test_two_joints_run_end_to_end(tmp_path):
     """n = 2: candidates per joint, the JSON names the joint, the augmented model loads."""
-    from sea_daemon.config import ModelConfig, load_config
-    from sea_daemon.diagnose import diagnose
+    from sea_daemon.core.config import ModelConfig
+    from sea_daemon.io.configfile import load_config
+    from sea_daemon.apps.diagnose import diagnose
 
     base = load_config(default_config_path()).to_dict()
     base["joints"] = 2

@@ -10,11 +10,11 @@ import pytest
 from _hil import bus_kind, make_rig, remote_url  # noqa: F401  (fixtures)
 from drivers import cia402
 from drivers.device_model import FaultSpec
-from drivers.errors import (BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
-                            PdoTimeout, SendFailed)
+from drivers.errors import (
+    BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost, PdoTimeout, SendFailed)
 from drivers.interface import FaultFlag
-from sea_daemon.daemon.loop import FixedRateLoop
-from sea_daemon.daemon.safety import Fault
+from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.errors import Fault
 
 
 def started(make_rig, **kw):

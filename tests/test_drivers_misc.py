@@ -13,7 +13,8 @@ from drivers.canopen_hw import CanopenHardware
 from drivers.device_model import DeviceModel
 from drivers.errors import DeviceMismatch
 from drivers.sim_hw import SimHardware
-from sea_daemon.config import BusConfig, ModelConfig, default_config_path, load_yaml
+from sea_daemon.core.config import BusConfig, ModelConfig
+from sea_daemon.io.configfile import default_config_path, load_yaml
 
 
 def test_two_joints_on_one_bus():
@@ -79,7 +80,7 @@ def test_make_bus_reports_what_it_cannot_open():
 
 
 def test_read_before_start_is_a_clear_error():
-    from sea_daemon.config import load_config
+    from sea_daemon.io.configfile import load_config
     hw = CanopenHardware(load_config(default_config_path()), can.Bus(interface="virtual", channel="unused"))
     with pytest.raises(RuntimeError, match=r"call start\(\) before read\(\) / write\(\)"):
         hw.write(np.zeros(1))

@@ -19,19 +19,19 @@ import pytest
 from _hil import RemoteServer, hil_config
 from drivers.canopen_hw import CanopenHardware
 from drivers.errors import EncoderJump
-from sea_daemon.config import repo_root
+from sea_daemon.io.configfile import repo_root
 
 
 
 def _have_simulator() -> bool:
     try:
-        return importlib.util.find_spec("sea_daemon.sim.plant") is not None
+        return importlib.util.find_spec("sea_daemon.core.sim.plant") is not None
     except ModuleNotFoundError:
         return False
 
 
 pytestmark = pytest.mark.skipif(not _have_simulator(),
-                                reason="the device-model process needs the simulator's Plant (sea_daemon.sim)")
+                                reason="the device-model process needs the simulator's Plant (sea_daemon.core.sim)")
 
 
 class DeviceProcess:

@@ -11,13 +11,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drivers.hil_session import run_scenario
-from sea_daemon.config import repo_root
-from sea_daemon.estimators import make_estimator
-from sea_daemon.logio import read_log, write_log
-from sea_daemon.replay import replay
-from sea_daemon.sim.runner import simulate
-from sea_daemon.sim.scenario import load_scenario
+from sea_daemon.runtime.hil_session import run_scenario
+from sea_daemon.io.configfile import repo_root
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.logcsv import read_log, write_log
+from sea_daemon.core.replay import replay
+from sea_daemon.runtime.sim_runner import simulate
+from sea_daemon.io.scenario import load_scenario
 
 
 def scenario(name, train, est):
@@ -39,7 +39,7 @@ def test_calibration_run_over_can_matches_the_simulator(tmp_path):
     assert rms(tr.q - ref.q) < 2e-4 and rms(tr.tau_m - ref.tau_m) < 0.05
     assert np.ptp(tr.q) > 0.3                                            # the arm moved (min-jerk)
     assert not np.any(tr.tau_h_act)                                      # passive subject
-    # the calibration log is a contracts-§1 log
+    # the calibration log is a measured log (docs/interfaces.md §1)
     write_log(tmp_path / "train.csv", tr)
     back = read_log(tmp_path / "train.csv", n=1)
     assert np.allclose(back.q, tr.q) and np.allclose(back.tau_m, tr.tau_m)
@@ -64,7 +64,7 @@ def test_estimation_run_over_can_as_good_as_offline():
 
 
 def test_demo_command_quick(tmp_path, capsys):
-    from sea_daemon.cli import main
+    from sea_daemon.apps.cli import main
     assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40"]) == 0
     printed = capsys.readouterr().out
     assert "active    akf" in printed and "CAN cycles" in printed
@@ -74,7 +74,7 @@ def test_demo_command_quick(tmp_path, capsys):
     assert s["estimators"]["akf"]["rmse"] > 0
     # the run used the beta calibrated on the held-out session's torque error (calibrate-bound
     # --target torque --write), which covers that session
-    from sea_daemon.config import load_config
+    from sea_daemon.io.configfile import load_config
     b = s["gp_beta"]
     assert b["source"] == "torque" and b["held_out_steps"] >= 79 and "heldout" in b["log"]
     assert b["held_out_coverage"] >= 0.95

@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from sea_daemon.bounds.ellipsoid import (Ellipsoid, box_shape, interval_ellipsoid, minkowski_half_width,
-                                         minkowski_shape, minkowski_sum, segments_shapes)
+from sea_daemon.core.bounds.ellipsoid import (
+    Ellipsoid, box_shape, interval_ellipsoid, minkowski_half_width, minkowski_shape, minkowski_sum,
+    segments_shapes)
 
 
 def rand_psd(rng, d, rank=None):

@@ -6,14 +6,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sea_daemon.config import default_config_path, load_config
-from sea_daemon.daemon.loop import fault_of
-from sea_daemon.daemon.safety import Fault
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.runtime.loop import fault_of
+from sea_daemon.errors import Fault
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.estimators.akf import AKF
-from sea_daemon.estimators.gpakf import GPAKF
-from sea_daemon.estimators.health import InputBox, NISMonitor, check_pd
-from sea_daemon.model import SEAModel
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.gpakf import GPAKF
+from sea_daemon.core.estimators.health import InputBox, NISMonitor, check_pd
+from sea_daemon.core.model import SEAModel
 from synth import simulate
 
 

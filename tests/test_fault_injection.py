@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from sea_daemon.bench.faults import FAULTS, run_suite, table
+from sea_daemon.apps.bench.faults import FAULTS, run_suite, table
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from sea_daemon.bounds.gp_bound import (C_STAR, LeafGP, covering_grid, error_bound, log_covering_number,
-                                        merged_sigma, sample_lipschitz_se, se_kernel, se_lipschitz)
+from sea_daemon.core.bounds.gp_bound import (
+    C_STAR, LeafGP, covering_grid, error_bound, log_covering_number, merged_sigma, sample_lipschitz_se,
+    se_kernel, se_lipschitz)
 
 
 def test_se_kernel_lipschitz_constant_is_tight():
@@ -152,7 +153,7 @@ def test_leaves_with_different_hyperparameters_use_the_maxima():
 
 
 def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
-    loggp = pytest.importorskip("sea_daemon.loggp")
+    loggp = pytest.importorskip("sea_daemon.core.gp.loggp")
     rng = np.random.default_rng(8)
     gp = loggp.LoGGP(input_dim=1, max_points=15, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.05, seed=0)
     Xg = np.linspace(0.0, 3.0, 150)[:, None]
@@ -160,7 +161,7 @@ def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
     f = Lc @ rng.standard_normal(len(Xg))
     for i in rng.choice(len(Xg), 60, replace=True):
         gp.update(Xg[i], float(f[i] + 0.05 * rng.standard_normal()))
-    from sea_daemon.bounds.gp_bound import loggp_leaves
+    from sea_daemon.core.bounds.gp_bound import loggp_leaves
     leaves = loggp_leaves(gp)
     assert len(leaves) == len(gp.leaves()) > 1 and sum(lf.N for lf in leaves) == 60
     c = error_bound(leaves, [0.0], [3.0], 0.05, delta_lipschitz=0.005, n_leaves=50)
@@ -170,7 +171,7 @@ def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
 
 
 def test_conformal_quantile_finite_sample_coverage():
-    from sea_daemon.bounds.gp_bound import conformal_quantile
+    from sea_daemon.core.bounds.gp_bound import conformal_quantile
     rng = np.random.default_rng(11)
     m, alpha, trials = 19, 0.1, 4000
     cover = np.mean([rng.exponential() <= conformal_quantile(rng.exponential(size=m), alpha) for _ in range(trials)])
@@ -185,7 +186,7 @@ def test_conformal_quantile_finite_sample_coverage():
 
 
 def test_conformal_constants_bound_the_noise_free_error_from_noisy_targets():
-    from sea_daemon.bounds.gp_bound import conformal_constants
+    from sea_daemon.core.bounds.gp_bound import conformal_constants
     rng = np.random.default_rng(12)
     delta, misses, trials = 0.1, 0, 300
     for _ in range(trials):
@@ -200,8 +201,8 @@ def test_conformal_constants_bound_the_noise_free_error_from_noisy_targets():
 
 
 def test_local_scale_is_the_leaf_residual_rms():
-    loggp = pytest.importorskip("sea_daemon.loggp")
-    from sea_daemon.bounds.gp_bound import LocalScale
+    loggp = pytest.importorskip("sea_daemon.core.gp.loggp")
+    from sea_daemon.core.bounds.gp_bound import LocalScale
     rng = np.random.default_rng(13)
     gp = loggp.LoGGP(input_dim=1, max_points=20, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.1, seed=0)
     X = rng.uniform(0, 3, 80)

@@ -3,12 +3,12 @@ e(z) = Σ_j |∂μ/∂z_j| |z_j − x*_j|, x* the nearest training input; η = �
 import numpy as np
 import pytest
 
-from sea_daemon.bounds.gp_bound import LocalScale
-from sea_daemon.config import LearningConfig
+from sea_daemon.core.bounds.gp_bound import LocalScale
+from sea_daemon.core.config import LearningConfig
 from sea_daemon.errors import InputError
-from sea_daemon.gp import IncrementalGP
-from sea_daemon.learning import ResidualGP
-from sea_daemon.loggp import LoGGP
+from sea_daemon.core.gp.exact import IncrementalGP
+from sea_daemon.core.learning import ResidualGP
+from sea_daemon.core.gp.loggp import LoGGP
 
 
 def _manifold_gp(c=2.0):

@@ -6,14 +6,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sea_daemon import cli
-from sea_daemon.bench import apply_settings
-from sea_daemon.config import load_config, repo_root
-from sea_daemon.estimators import AKF
-from sea_daemon.estimators.gpakf import GPAKF, build, learn_from_log
-from sea_daemon.logio import MeasuredLog, write_log
-from sea_daemon.model import SEAModel
-from sea_daemon.replay import replay, summarize
+from sea_daemon.apps import cli
+from sea_daemon.apps.bench import apply_settings
+from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.core.estimators import AKF
+from sea_daemon.core.estimators.gpakf import GPAKF, build, learn_from_log
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.io.logcsv import write_log
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.replay import replay, summarize
 
 SETTINGS = str(repo_root() / "configs" / "exo_1dof_sim.yaml")
 
@@ -21,8 +22,8 @@ SETTINGS = str(repo_root() / "configs" / "exo_1dof_sim.yaml")
 @pytest.fixture(scope="module")
 def passive():
     """Shortened passive scenario (Sec. V-B): two moves to learn, the same two moves to estimate."""
-    from sea_daemon.sim.runner import simulate
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    from sea_daemon.io.scenario import load_scenario
 
     sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
     ctrl = sc.controller
@@ -55,8 +56,8 @@ def test_gp_akf_follows_an_active_subject_like_the_oracle():
     """Shortened active scenario (Sec. V-C, 3 s training, 10 s estimation) with the benchmark's
     settings: the GP-AKF meets the accuracy targets of issue 3 (measured: AKF 2.07, oracle 0.040,
     GP-AKF 0.046 N m)."""
-    from sea_daemon.sim.runner import simulate
-    from sea_daemon.sim.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    from sea_daemon.io.scenario import load_scenario
 
     sc = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")
     sc = dataclasses.replace(sc, training_samples=300, estimation_samples=1000)
@@ -222,7 +223,7 @@ def test_replay_cli_gp_akf_with_train(tmp_path, passive, capsys):
 
 def test_learning_pairs_use_the_filter_kinematics(passive):
     """Training targets come from the same causal kinematics as the filter (eq:loadsidewmotor)."""
-    from sea_daemon.learning import training_pairs_from_log
+    from sea_daemon.core.learning import training_pairs_from_log
 
     cfg, train, _ = passive
     est = GPAKF(cfg)
@@ -257,7 +258,7 @@ def test_bench_latency_gp_akf_case_runs(capsys):
 
 
 def test_step_kind_reads_the_loggp_counters():
-    from sea_daemon.bench.latency import step_kind
+    from sea_daemon.apps.bench.latency import step_kind
     # (n_leaves, n_evicted, n_hyper_steps, pending)
     assert step_kind((5, 0, 3, False), (6, 0, 3, False)) == "split"
     assert step_kind((5, 0, 3, False), (5, 10, 3, False)) == "eviction"
@@ -270,7 +271,7 @@ def test_step_kind_reads_the_loggp_counters():
 
 def _two_joint_log(cfg, seconds, tau_h_amp, seed):
     """Encoder-quantised log of ``cfg``'s model (declared effects = the true plant)."""
-    from sea_daemon.bench.latency import model_log
+    from sea_daemon.apps.bench.latency import model_log
     n, dt = cfg.joints, cfg.dt
     t = np.arange(int(seconds / dt) + 1) * dt
     ph = np.random.default_rng(seed).uniform(0, 2 * np.pi, size=(2, n))
@@ -282,8 +283,8 @@ def _two_joint_log(cfg, seconds, tau_h_amp, seed):
 def test_two_joints_learn_a_hidden_load_torque_per_joint():
     """n = 2: one GP per joint on z = [q₁, q₂, q̇₁, q̇₂, q̈₁, q̈₂]; a hidden viscoelastic load per
     joint is learned from a passive log and no longer biases the estimate."""
-    from sea_daemon.config import ModelConfig
-    from sea_daemon.effects import make_effect
+    from sea_daemon.core.config import ModelConfig
+    from sea_daemon.core.effects import make_effect
 
     d = {"joints": 2, "rate_hz": 100, "model": {
         "M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": [0.6, 0.4], "K_s": [110.0, 80.0],
@@ -310,8 +311,8 @@ def test_two_joints_learn_a_hidden_load_torque_per_joint():
 def test_residual_hook_with_noise_in_q_adds_the_merged_leaf_noise():
     """gp_noise_in_Q: the hook's σ² is the latent variance plus Σ ω_i σ_on,i² of the leaves z
     reaches (LoGGP.noise_variance), inside and outside split overlaps."""
-    from sea_daemon.estimators.gpakf import _ResidualHook
-    from sea_daemon.learning import ResidualGP
+    from sea_daemon.core.estimators.gpakf import _ResidualHook
+    from sea_daemon.core.learning import ResidualGP
     rng = np.random.default_rng(5)
     res = ResidualGP(1, overlap=0.3, max_points=20)
     Z = rng.uniform(-1, 1, (200, 3))

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from sea_daemon.cli import main
-from sea_daemon.config import default_config_path, load_config
-from sea_daemon.logio import write_log
-from sea_daemon.model import SEAModel
+from sea_daemon.apps.cli import main
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.io.logcsv import write_log
+from sea_daemon.core.model import SEAModel
 
 from synth import simulate
 
@@ -64,8 +64,8 @@ def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
 def test_floor_is_each_encoders_own_quantisation():
     """The motor encoder sits before the 1:gear_ratio gear: its joint-side quantum is 2π/(2^bits·gear),
     so its floor is gear² below the load encoder's (2π/2^bits)²/12."""
-    from sea_daemon.als import floored_R
-    from sea_daemon.kinematics import CausalDifferentiator
+    from sea_daemon.core.als import floored_R
+    from sea_daemon.core.kinematics import CausalDifferentiator
     cfg = load_config(default_config_path())
     hw = cfg.hardware
     fir = CausalDifferentiator(cfg.dt, cfg.kinematics.window, 2, cfg.kinematics.method, cfg.kinematics.degree).C

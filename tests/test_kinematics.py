@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from sea_daemon.kinematics import CausalDifferentiator, smooth_derivatives
+from sea_daemon.core.kinematics import CausalDifferentiator, smooth_derivatives
 
 DT = 0.01
 

@@ -4,11 +4,11 @@ import json
 import numpy as np
 import pytest
 
-from sea_daemon.config import load_config, default_config_path
-from sea_daemon.effects import make_effect
+from sea_daemon.io.configfile import load_config, default_config_path
+from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import InputError
-from sea_daemon.learning import ResidualGP, training_pairs, training_pairs_from_log
-from sea_daemon.model import SEAModel
+from sea_daemon.core.learning import ResidualGP, training_pairs, training_pairs_from_log
+from sea_daemon.core.model import SEAModel
 
 EXTRA = [make_effect("human_viscoelastic", "load", k_h=1.2, q_h0=0.6, b_h=0.25),
          make_effect("viscous", "load", b=0.3)]
@@ -83,7 +83,7 @@ def test_two_joints_shapes_and_roundtrip():
 
 
 def test_training_pairs_from_a_log():
-    from sea_daemon.logio import MeasuredLog
+    from sea_daemon.core.log import MeasuredLog
     cfg, nominal, kin, extra = _passive_run(N=600)
     q, dq, ddq, th, dth, ddth, tau = kin
     t = np.arange(600) * 0.01
@@ -99,7 +99,7 @@ def test_training_pairs_from_a_log():
 
 
 def test_residual_gp_saves_through_the_model_file(tmp_path):
-    from sea_daemon.modelfile import load_model, save_model
+    from sea_daemon.io.modelfile import load_model, save_model
     rng = np.random.default_rng(2)
     res = ResidualGP(1, hyperopt=True, hyper_every=3, max_points=30)
     Z = rng.uniform(-1, 1, (200, 3))

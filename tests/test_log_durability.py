@@ -10,13 +10,13 @@ import time
 
 import numpy as np
 
-from sea_daemon.config import repo_root
-from sea_daemon.logio import read_log
+from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.logcsv import read_log
 
 CHILD = textwrap.dedent("""
     import os, signal, sys, time
     import numpy as np
-    from sea_daemon.daemon.logwriter import LogWriter
+    from sea_daemon.runtime.logwriter import LogWriter
     path, n, how = sys.argv[1], int(sys.argv[2]), sys.argv[3]
     w = LogWriter(path, ["t", "q", "theta_m", "tau_m"], capacity=1 << 14, flush_interval=0.5)
     stop = []

@@ -1,4 +1,4 @@
-"""LoG-GP (contracts §5): one leaf = exact GP, splits, merged prediction, Jacobians,
+"""LoG-GP (docs/interfaces.md §5): one leaf = exact GP, splits, merged prediction, Jacobians,
 continuity across overlaps, memory bound, online hyperparameters, determinism, persistence."""
 import json
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.errors import InputError, ModelFileError
-from sea_daemon.gp import IncrementalGP, log_marginal_likelihood, se_kernel
-from sea_daemon.loggp import LoGGP
+from sea_daemon.core.gp.exact import IncrementalGP, log_marginal_likelihood, se_kernel
+from sea_daemon.core.gp.loggp import LoGGP
 
 
 def _f(X):
@@ -230,7 +230,7 @@ def test_hyper_slice_runs_in_two_phases_on_consecutive_updates():
 
 
 def test_off_loop_adaptation_equals_in_loop_slice():
-    from sea_daemon.gp_hyper import adam_steps
+    from sea_daemon.core.gp.hyper import adam_steps
     X, y = _stream(300, seed=12)
     a = LoGGP(3, max_points=60, seed=2)
     b = LoGGP(3, max_points=60, seed=2)
@@ -298,7 +298,7 @@ def test_batched_prediction_equals_per_point(overlap):
     # predict_many (compiled routing of every row, one compiled call per leaf) = predict per row,
     # also for rows in overlap regions (several leaves) and rows outside the data; the local
     # scale's batch (gp_bound.LocalScale.predict_many) = the mixture of _route + leaf.predict
-    from sea_daemon.bounds.gp_bound import LocalScale
+    from sea_daemon.core.bounds.gp_bound import LocalScale
     rng = np.random.default_rng(3)
     gp = LoGGP(3, max_points=12, overlap=overlap, lengthscales=[0.5, 0.5, 1.0], sigma_n=0.05, seed=2)
     for x in rng.uniform(-1, 1, (150, 3)):

@@ -4,8 +4,9 @@ import types
 import numpy as np
 import pytest
 
-from sea_daemon.daemon.loop import FixedRateLoop, fault_of, log_columns
-from sea_daemon.daemon.safety import Fault, SafetySupervisor
+from sea_daemon.runtime.loop import FixedRateLoop, fault_of, log_columns
+from sea_daemon.errors import Fault
+from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.errors import EstimatorFault, HardwareError
 
 

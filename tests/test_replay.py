@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from sea_daemon import cli
-from sea_daemon.config import default_config_path, load_config
-from sea_daemon.estimators import AKF
-from sea_daemon.logio import read_log, write_log
-from sea_daemon.model import SEAModel
-from sea_daemon.replay import est_columns, replay, summarize
+from sea_daemon.apps import cli
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.core.estimators import AKF
+from sea_daemon.io.logcsv import read_log, write_log
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.replay import est_columns, replay, summarize
 
 from synth import simulate
 
@@ -111,7 +111,7 @@ def test_bad_train_csv_and_config_exit_2(log_path, tmp_path, capsys):
 
 def test_gp_akf_placeholder_and_bad_choice(log_path, tmp_path, capsys):
     import importlib.util
-    if importlib.util.find_spec("sea_daemon.estimators.gpakf") is not None:
+    if importlib.util.find_spec("sea_daemon.core.estimators.gpakf") is not None:
         pytest.skip("gp-akf has landed")
     code, _, err = run_cli(["replay", str(log_path), "--config", CFG, "--estimator", "gp-akf",
                             "--out", str(tmp_path / "e.csv")], capsys)
@@ -146,7 +146,7 @@ def test_bench_latency_runs(capsys):
 
 def test_replay_two_joints_suffixed_columns(tmp_path, capsys):
     import yaml
-    from sea_daemon.config import ModelConfig
+    from sea_daemon.core.config import ModelConfig
     d = {"joints": 2, "rate_hz": 100, "model": {
         "M": [[0.2, 0.03], [0.03, 0.1]], "J": [0.08, 0.05], "D_m": [0.6, 0.4], "K_s": [110.0, 80.0],
         "D_s": [0.25, 0.2], "gravity": [2.0, 0.5]}}

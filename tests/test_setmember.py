@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from sea_daemon.bounds.setmember import SetMembershipBound, discrete_residual, input_matrix
-from sea_daemon.config import load_config, default_config_path
-from sea_daemon.model import SEAModel, discretize
+from sea_daemon.core.bounds.setmember import SetMembershipBound, discrete_residual, input_matrix
+from sea_daemon.io.configfile import load_config, default_config_path
+from sea_daemon.core.model import SEAModel, discretize
 
 
 def kf_step(x, P, F, dx, Q, H, R, y):
@@ -129,7 +129,7 @@ def test_nonlinear_coverage_at_promised_rate(sets, projection):
 
 def test_linearization_error_box_exact_for_quadratic_along_axis():
     sm = SetMembershipBound(2, [1], delta=0.1, margin=0.0)
-    from sea_daemon.bounds.ellipsoid import Ellipsoid
+    from sea_daemon.core.bounds.ellipsoid import Ellipsoid
     C = Ellipsoid(np.array([1.0, -2.0]), np.diag([0.25, 4.0]))
     resid = lambda x: np.array([(x[0] - 1.0) ** 2, 0.5 * (x[1] + 2.0) ** 2])
     b = sm.linearization_error_box(resid, C)
@@ -162,8 +162,8 @@ def test_bad_arguments():
 
 
 def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
-    from sea_daemon.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-    from sea_daemon.bounds.setmember import reduce_generators, zonotope_shape
+    from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
+    from sea_daemon.core.bounds.setmember import reduce_generators, zonotope_shape
     rng = np.random.default_rng(21)
     d, m = 4, 30
     G = rng.standard_normal((d, m)) * rng.uniform(0.01, 1.0, m)
@@ -184,7 +184,7 @@ def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
 def test_compiled_zonotope_prediction_equals_the_direct_formulas():
     # SetMembershipBound.predict (one compiled call) = F·G ⊕ Γ·|η| ⊕ Φ·|b| without the zero
     # generators and Girard's reduction written out with numpy; zonotope_shape = its formula
-    from sea_daemon.bounds.setmember import zonotope_shape
+    from sea_daemon.core.bounds.setmember import zonotope_shape
     rng = np.random.default_rng(5)
     d, n = 5, 1
     sm = SetMembershipBound(d, [4], 0.05, delta_gp=0.025, max_generators=12)
@@ -245,7 +245,7 @@ def test_zonotope_propagation_is_exact_and_bounds_the_ellipsoid_one():
 
 def test_shifted_gaussian_halfwidth_is_the_exact_worst_case_quantile():
     from scipy.stats import norm
-    from sea_daemon.bounds.setmember import shifted_gaussian_halfwidth
+    from sea_daemon.core.bounds.setmember import shifted_gaussian_halfwidth
     h = np.array([0.0, 0.3, 1.0, 4.0, 0.2])
     s = np.array([1.0, 0.5, 1.0, 1.0, 0.0])
     rho = shifted_gaussian_halfwidth(h, s, 0.05)

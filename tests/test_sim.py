@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import yaml
 
-from sea_daemon.config import default_config_path, load_config, repo_root
-from sea_daemon.control import PID, MinJerkTrajectory, OpenLoopTorque, min_jerk
-from sea_daemon.effects import make_effect
+from sea_daemon.io.configfile import default_config_path, load_config, repo_root
+from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, min_jerk
+from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import ConfigError
-from sea_daemon.logio import read_log
-from sea_daemon.sim.plant import Plant
-from sea_daemon.sim.runner import simulate
-from sea_daemon.sim.scenario import load_scenario
-from sea_daemon.sim.sensors import Encoders, load_quantum, motor_quantum
+from sea_daemon.io.logcsv import read_log
+from sea_daemon.core.sim.plant import Plant
+from sea_daemon.runtime.sim_runner import simulate
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.core.sim.sensors import Encoders, load_quantum, motor_quantum
 
 SCEN = repo_root() / "configs" / "scenarios"
 ROOT = repo_root()
@@ -122,7 +122,7 @@ def test_two_joints_conserve_energy():
          "model": {"M": [0.12, 0.2], "J": [0.08, 0.1], "D_m": 0.0, "K_s": [110.0, 200.0], "D_s": 0.0,
                    "gravity": [2.9, 1.0]},
          "hardware": {"torque_noise": 0.0}}
-    from sea_daemon.config import ModelConfig
+    from sea_daemon.core.config import ModelConfig
     p = Plant(ModelConfig.from_dict(d), q0=[0.2, -0.3])
     assert p.n == 2 and not p._scalar
     p._y = np.array([0.6, 0.1, 0.5, 0.12, 0.4, -0.2, -0.3, 0.1])
@@ -367,7 +367,7 @@ def test_active_scenario(active_run):
 
 def test_every_effect_type_simulates():
     """A scenario whose plant has one of every effect type runs and stays finite (diagnose uses this)."""
-    from sea_daemon.effects import EFFECT_TYPES
+    from sea_daemon.core.effects import EFFECT_TYPES
     vals = {"F_c": 0.3, "b": 0.2, "F_s": 0.2, "v_s": 0.07, "dI": 0.02, "a": 0.5, "phi": 0.2, "k_h": 1.2,
             "q_h0": 0.4, "b_h": 0.3, "k3": 300.0, "width": 0.004, "kappa": 0.9, "delta": 0.01,
             "seconds": 0.02, "A": 0.05, "periods": 6.0, "theta_max": 0.06, "k_stop": 300.0}
@@ -441,7 +441,7 @@ def _bad_cases():
 
 @pytest.mark.parametrize("name, content, key", _bad_cases(), ids=[c[0] for c in _bad_cases()])
 def test_cli_bad_scenario_exit_2_one_line(tmp_path, capsys, name, content, key):
-    from sea_daemon.cli import main
+    from sea_daemon.apps.cli import main
     f = tmp_path / "bad.yaml"
     f.write_text(content if isinstance(content, str) else yaml.safe_dump(content))
     if name in ("unknown key", "unknown effect"):     # a real process for two of them
@@ -458,7 +458,7 @@ def test_cli_bad_scenario_exit_2_one_line(tmp_path, capsys, name, content, key):
 
 
 def test_cli_bad_out_dir_and_seed(tmp_path, capsys):
-    from sea_daemon.cli import main
+    from sea_daemon.apps.cli import main
     assert main(["simulate", str(SCEN / "active.yaml"), "--out", str(tmp_path / "no" / "o.csv")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0]
@@ -490,7 +490,7 @@ def test_scenario_errors_name_allowed_values(tmp_path):
 
 def test_scenario_declares_the_human_torque_rate_to_the_bound():
     # active.yaml declares |dτ_h,act/dt| <= 2 pi f A of its cosine; passive.yaml declares nothing
-    from sea_daemon.config import load_config
+    from sea_daemon.io.configfile import load_config
     act, pas = load_scenario(SCEN / "active.yaml"), load_scenario(SCEN / "passive.yaml")
     c = act.controller
     assert act.tau_h_act_rate == pytest.approx(2 * np.pi * c.frequency_hz * c.amplitude, rel=0.01)

@@ -2,7 +2,7 @@
 written, none dropped, the GP-AKF learns online, the figures are reported."""
 from __future__ import annotations
 
-from sea_daemon.bench.soak import soak
+from sea_daemon.apps.bench.soak import soak
 
 
 def test_short_soak_writes_every_row(tmp_path):

@@ -7,8 +7,8 @@ import time
 
 from canopen.sdo import SdoAbortedError
 
-from .. import cia402
-from .slave import SlaveNode
+from drivers import cia402
+from drivers.device_model.slave import SlaveNode
 
 INT32 = 1 << 32
 
@@ -21,7 +21,7 @@ class DriveNode(SlaveNode):
     """Drive: CiA 402 state machine, torque in ‰ of 0x6076, 19-bit motor encoder on 0x6064.
 
     ``0x6064`` is the motor encoder's multi-turn count (single-turn count + 2^19 · shaft turns,
-    as :meth:`sea_daemon.sim.sensors.Encoders.raw` reports them) plus an optional preset,
+    as :meth:`sea_daemon.core.sim.sensors.Encoders.raw` reports them) plus an optional preset,
     wrapping as int32 (every 8192 motor turns, about 82 joint turns).
     """
 

@@ -2,7 +2,7 @@
 
 One :class:`DeviceModel` holds, per joint, a CiA 402 drive (:class:`DriveNode`) and a CiA 406
 load encoder (:class:`EncoderNode`) on one canopen Network, and a plant with the API of
-:class:`sea_daemon.sim.plant.Plant` (``step(tau_m, dt, tau_h_act)``, ``t, q, theta_m, dq,
+:class:`sea_daemon.core.sim.plant.Plant` (``step(tau_m, dt, tau_h_act)``, ``t, q, theta_m, dq,
 dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
 
 1. in **lock-step** mode steps the plant over the interval since the previous SYNC (the drive's
@@ -26,10 +26,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .drive import DriveNode
-from .encoder import EncoderNode
-from .faults import FaultSpec
-from .slave import DeviceNetwork
+from drivers.device_model.drive import DriveNode
+from drivers.device_model.encoder import EncoderNode
+from drivers.device_model.faults import FaultSpec
+from drivers.device_model.slave import DeviceNetwork
 
 TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
 

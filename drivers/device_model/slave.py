@@ -23,7 +23,7 @@ import canopen
 from canopen.nmt import NmtSlave
 from canopen.sdo import SdoAbortedError
 
-from sea_daemon.config import repo_root
+from sea_daemon.io.configfile import repo_root
 
 EDS_DIR = repo_root() / "configs" / "eds"
 PDO_INVALID = 0x80000000

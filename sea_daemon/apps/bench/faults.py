@@ -1,0 +1,458 @@
+"""``sea-daemon bench faults``: fault injection over the device model, in lock-step.
+
+For each fault of the single fault policy (docs/safety.md) one run of ``--cycles`` loop
+cycles: the daemon's :class:`FixedRateLoop` with :class:`CanopenHardware`, the AKF (with its
+health checks) and a PID tracking a sine, against the device model on a virtual CAN bus,
+lock-step (the plant steps once per SYNC).  The fault is injected at seeded random cycles
+(gaps of ``--gap`` cycles after the previous recovery); after it latched, its cause is
+removed and an operator reset is requested (``FixedRateLoop.request_reset``), and the run
+goes on to the next injection.
+
+Measured per injection, at the device (``_rig.DriveProbe``: frame barrier, then the drive's
+state machine and 0x6071):
+
+* **detected**: the fault latched is the injected type, not before the injection;
+* **latency**: cycles from the injection to the latch (includes what the fault's
+  definition takes: k missed cycles, the heartbeat timeout, the stuck-encoder run);
+* **reaction**: cycles from the cycle in which the fault's condition is met (per its
+  definition, from an independent observer: the injection cycle for EMCY / jump / bus-off /
+  send failure / estimator state; the k-th missed TPDO; the first cycle past the last
+  heartbeat seen on the bus + timeout; the stuck run recomputed from the recorded counts;
+  the 5th consecutive overrun) to the first cycle after which the drive applies zero torque
+  and keeps doing so until the reset.  0 = in the same cycle;
+* **held**: cycles in which the drive applied non-zero torque while the fault was latched.
+
+Then ``--fault-free-cycles`` cycles without injection: every latch there is a false alarm.
+
+The loop's clock is virtual (advanced by its sleeps and by the injected stall only), so the
+lock-step run is deterministic in loop time; heartbeats, SDO and PDO timeouts run on the
+real clock.  Bus-off is the driver's controller reporting bus-off (error frame); the
+virtual bus still carries the quick stop, a real bus-off controller would not — then the
+drive's own watch of the daemon's heartbeat (0x1016, quick stop) stops it within
+``heartbeat_timeout_ms``.  A send failure is one refused frame (transient).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+
+import can
+import numpy as np
+
+from drivers.device_model import FaultSpec
+
+from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.errors import Fault
+from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.apps.bench import choose, machine
+from sea_daemon.apps.bench._rig import DriveProbe, Rig, SineTracker, VirtualClock, bench_config
+
+NAME = "faults"
+HELP = "fault injection over the device model: detection, cycles to zero torque, false alarms"
+DESCRIPTION = __doc__
+
+FAULTS = {
+    "tpdo_missing": Fault.TPDO_MISSING,
+    "heartbeat_lost": Fault.HEARTBEAT_LOST,
+    "emcy": Fault.EMCY,
+    "encoder_jump": Fault.ENCODER_JUMP,
+    "encoder_stuck": Fault.ENCODER_STUCK,
+    "bus_off": Fault.BUS_OFF,
+    "send_failed": Fault.SEND_FAILED,
+    "estimator_nonfinite": Fault.ESTIMATOR_NONFINITE,
+    "covariance_not_pd": Fault.COVARIANCE_NOT_PD,
+    "overrun_streak": Fault.OVERRUN_STREAK,
+}
+
+# bus settings of the runs: a lock-step run on a shared machine needs a generous PDO wait
+BUS = dict(pdo_timeout_ms=100.0, max_missed_cycles=2, heartbeat_ms=50, heartbeat_timeout_ms=200,
+           stuck_cycles=20, stuck_motion=0.05, sdo_timeout_ms=1000)
+OVERRUN_STREAK = 5
+HOLD = 5                 # cycles a latched fault is held before the cause is removed and reset asked
+
+
+class _Estimator:
+    """The AKF behind a hook that can replace one measurement by NaN."""
+
+    def __init__(self, akf):
+        self.akf = akf
+        self.nan_next = False
+
+    def update(self, q, theta_m, tau_m):
+        if self.nan_next:
+            self.nan_next = False
+            q = q * np.nan
+        return self.akf.update(q, theta_m, tau_m)
+
+    def reset(self):
+        self.akf.reset()
+
+
+@dataclasses.dataclass
+class Injection:
+    kind: str
+    cycle: int                 # first cycle the fault is present in
+    cond: int = -1             # cycle in which the fault's condition is met
+    latched: str = ""
+    latched_cycle: int = -1
+    zero_cycle: int = -1
+    held: int = 0
+    note: str = ""
+
+    @property
+    def detected(self) -> bool:
+        return self.latched == FAULTS[self.kind].name and self.latched_cycle >= self.cycle
+
+    @property
+    def latency(self) -> int:
+        return self.latched_cycle - self.cycle if self.latched_cycle >= 0 else -1
+
+    @property
+    def reaction(self) -> int:
+        return self.zero_cycle - self.cond if self.zero_cycle >= 0 and self.cond >= 0 else -1
+
+
+class _Run:
+    """One loop run with injections of one kind (or none)."""
+
+    def __init__(self, kind: str | None, cycles: int, seed: int, gap: tuple[int, int], max_wait: int = 400,
+                 warmup: int = 200):
+        self.kind, self.cycles = kind, cycles
+        self.rng = np.random.default_rng(seed)
+        self.gap, self.max_wait = gap, max_wait
+        cfg = bench_config(**BUS)
+        self.cfg = cfg
+        from sea_daemon.core.estimators.akf import AKF
+        # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
+        # process), and the drive watches the daemon's heartbeat from the rig's start on
+        self.est = _Estimator(AKF(cfg))
+        self.rig = Rig(cfg)
+        self.probe = DriveProbe(self.rig, cycles)
+        self.clock = VirtualClock()
+        self.sup = SafetySupervisor(overrun_streak=OVERRUN_STREAK)
+        self.loop = FixedRateLoop(self.probe, self.est, SineTracker(cfg), n=cfg.joints, period=cfg.dt,
+                                  supervisor=self.sup, clock=self.clock.now, sleep=self.clock.sleep,
+                                  realtime=True, on_cycle=self._on_cycle)
+        n = cycles + 1
+        self.qc = np.zeros(n, dtype=np.int64)
+        self.mc = np.zeros(n, dtype=np.int64)
+        self.qa = np.zeros(n)
+        self.ma = np.zeros(n)
+        self.latched_at = np.zeros(n, dtype=bool)
+        self.injections: list[Injection] = []
+        self.false_alarms: list[tuple[int, str]] = []
+        self.reset_failed: list[tuple[int, str]] = []     # an operator reset that did not take
+        self.cur: Injection | None = None
+        self.next_at = warmup + int(self.rng.integers(*gap))
+        self.reset_at = -1
+        self._restore = None
+        self._pending_cond = None
+        self._slow: list[float] = []          # injected slowness still to come, one entry per cycle
+
+    # ------------------------------------------------------------------ injection
+    def _inject(self, k: int) -> None:
+        """Called in on_cycle(k): the fault is present from cycle k + 1 on (the stall: in k)."""
+        kind, rng, rig = self.kind, self.rng, self.rig
+        inj = Injection(kind, k + 1)
+        target = "drive" if rng.random() < 0.5 else "encoder"
+        node = rig.drive if target == "drive" else rig.encoder
+        if kind == "tpdo_missing":
+            kk = self.cfg.hardware.bus.max_missed_cycles + 1
+            rig.model.inject(FaultSpec("drop", target=target, params={"count": kk}))
+            inj.cond = k + kk
+            inj.note = f"{kk} cycles"
+        elif kind == "heartbeat_lost":
+            node.suppress_heartbeat()
+            inj.cond = -2                     # from the sniffer, once the latch is seen
+
+            def restore(node=node):
+                node.heartbeat_suppressed = False
+                node.nmt.start_heartbeat(self.cfg.hardware.bus.heartbeat_ms)
+                t0 = time.monotonic()
+                seen = rig.hb_seen.get(node.id, 0.0)
+                while rig.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
+                    time.sleep(0.002)
+                while rig.hw._hb_last.get(node.id, 0.0) is None or \
+                        time.monotonic() - rig.hw._hb_last[node.id] > 0.05:
+                    time.sleep(0.002)
+            self._restore = restore
+            inj.note = target
+        elif kind == "emcy":
+            code = int(rng.choice([0x2310, 0x4210, 0x7305, 0x5530]))
+            rig.model.inject(FaultSpec("emcy", target=target, params={"code": code}))
+            inj.cond = k + 1
+            inj.note = f"{target} 0x{code:04X}"
+        elif kind == "encoder_jump":
+            rad = float(rng.uniform(0.3, 1.0) * rng.choice([-1, 1]))
+            before = node.jump_counts
+            rig.model.inject(FaultSpec("jump", target=target, params={"rad": rad}))
+            delta = node.jump_counts - before
+
+            def restore(node=node, delta=delta):
+                node.jump_counts -= delta
+            self._restore = restore
+            inj.cond = k + 1
+            inj.note = f"{target} {rad:+.2f} rad"
+        elif kind == "encoder_stuck":
+            rig.model.inject(FaultSpec("stuck", target=target))
+
+            def restore(node=node):
+                node.frozen = None
+            self._restore = restore
+            inj.cond = -3                     # recomputed from the recorded counts
+            inj.note = target
+        elif kind == "bus_off":
+            rig.dev_bus.send(can.Message(arbitration_id=0x40, is_error_frame=True, is_extended_id=False,
+                                         data=bytes(8)))
+            t0 = time.monotonic()
+            while not rig.hw._errors.bus_off and time.monotonic() - t0 < 2.0:   # controller state known
+                time.sleep(0.0005)
+            inj.cond = k + 1
+        elif kind == "send_failed":
+            self.probe.fail_sends = 1
+            inj.cond = k + 1
+        elif kind == "estimator_nonfinite":
+            if rng.random() < 0.5:
+                self.est.akf.x[int(rng.integers(0, self.est.akf.d))] = np.nan
+                inj.note = "state x"
+            else:
+                self.est.nan_next = True
+                inj.note = "measurement q"
+            inj.cond = k + 1
+        elif kind == "covariance_not_pd":
+            i = int(rng.integers(0, self.est.akf.d))
+            self.est.akf.P[i, i] = -float(rng.uniform(1.0, 100.0)) * max(1.0, abs(self.est.akf.P[i, i]))
+            inj.cond = k + 1
+            inj.note = f"P[{i},{i}] < 0"
+        elif kind == "overrun_streak":
+            # the loop turns slow: each of m >= streak consecutive cycles (from this one on) takes
+            # 1.1..3 periods (the loop re-phases after a single long stall, so one stall alone is
+            # one overrun; a streak needs consecutive slow cycles)
+            m = OVERRUN_STREAK + int(rng.integers(0, 4))
+            self._slow = [float(x) * self.cfg.dt for x in rng.uniform(1.1, 3.0, size=m)]
+            slow = list(self._slow)
+            self._slow_cycle()                # this cycle is the first slow one
+            inj.cycle = k
+            inj.cond = k + OVERRUN_STREAK - 1
+            inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
+        self.injections.append(inj)
+        self.cur = inj
+
+    def _slow_cycle(self) -> None:
+        """Injected slowness of this cycle (advances the loop's virtual clock)."""
+        if self._slow:
+            self.clock.t += self._slow.pop(0)
+
+    def _on_cycle(self, k, meas, est, tau) -> None:
+        self._slow_cycle()                    # an injected slowdown in progress
+        m = self.rig.hw.meas
+        self.qc[k], self.mc[k] = m.q_counts[0], m.theta_m_counts[0]
+        self.qa[k], self.ma[k] = m.q[0], m.theta_m[0]
+        sup = self.sup
+        latched = not sup.ok
+        self.latched_at[k] = latched
+        inj = self.cur
+        if inj is not None:
+            if latched and inj.latched_cycle < 0:
+                inj.latched = sup.latched.name
+                inj.latched_cycle = sup.latched_cycle
+                self.reset_at = k + HOLD
+            elif not latched and k - inj.cycle > self.max_wait:
+                inj.note += " (not detected)"
+                self.reset_at = k
+            if k >= self.reset_at >= 0:
+                if self._restore is not None:
+                    self._restore()
+                    self._restore = None
+                self.loop.request_reset()
+                self.reset_at = -1
+                self.cur = None
+                self.next_at = k + 1 + int(self.rng.integers(*self.gap))
+            return
+        if latched:                           # no injection pending: a false alarm (or a failed reset)
+            if self.reset_at < 0:
+                rec = (k, f"{sup.latched.name}: {sup.latched_detail}")
+                if self.probe.reset_failures and self.probe.reset_failures[-1] in sup.latched_detail:
+                    self.reset_failed.append(rec)
+                else:
+                    self.false_alarms.append(rec)
+            if self.reset_at < 0:
+                self.reset_at = k + HOLD
+            if k >= self.reset_at:
+                self.loop.request_reset()
+                self.reset_at = -1
+            return
+        if self.kind is not None and k >= self.next_at and k + self.max_wait + HOLD + 2 < self.cycles:
+            self._inject(k)
+
+    # ------------------------------------------------------------------ evaluation
+    def run(self) -> "_Run":
+        try:
+            self.loop.run(self.cycles)
+            self.probe.observe(self.cycles - 1)
+        finally:
+            self.rig.close()
+        self._evaluate()
+        return self
+
+    def _stuck_cond(self, inj: Injection) -> int:
+        b = self.cfg.hardware.bus
+        end = inj.latched_cycle if inj.latched_cycle >= 0 else self.cycles
+        for counts, other in ((self.qc, self.ma), (self.mc, self.qa)):
+            run, ref = 0, other[inj.cycle - 1]
+            for k in range(inj.cycle, end + 1):
+                if counts[k] != counts[k - 1]:
+                    run, ref = 0, other[k]
+                    continue
+                run += 1
+                if run >= b.stuck_cycles and abs(other[k] - ref) > b.stuck_motion:
+                    if counts[inj.cycle:k + 1].min() == counts[inj.cycle:k + 1].max():
+                        return k
+                    break
+        return -1
+
+    def _evaluate(self) -> None:
+        timeout = self.cfg.hardware.bus.heartbeat_timeout_ms / 1e3
+        applied = self.probe.applied
+        for inj in self.injections:
+            if inj.cond == -3:
+                inj.cond = self._stuck_cond(inj)
+            if inj.cond == -2:
+                # first cycle whose read() started later than the last heartbeat seen + timeout:
+                # the sniffer's last heartbeat before the latch is the one before the outage
+                inj.cond = -1
+            if inj.latched_cycle < 0:
+                continue
+            # the latch record ends HOLD cycles later (then reset): zero torque from then on?
+            end = inj.latched_cycle + HOLD
+            start = max(inj.cond, inj.cycle) if inj.cond >= 0 else inj.cycle
+            for k in range(start, end + 1):
+                if np.all(applied[k:end + 1] == 0):
+                    inj.zero_cycle = k
+                    break
+            inj.held = int(np.count_nonzero(applied[inj.latched_cycle:end + 1]))
+        # heartbeat: condition cycle from the read() start times and the sniffer's record
+        for inj in self.injections:
+            if inj.kind == "heartbeat_lost" and inj.latched_cycle >= 0:
+                last = inj.hb_last if hasattr(inj, "hb_last") else None
+                if last is not None:
+                    later = np.nonzero(self.probe.read_t[inj.cycle:inj.latched_cycle + 2] > last + timeout)[0]
+                    if len(later):
+                        inj.cond = inj.cycle + int(later[0])
+                        inj.zero_cycle = -1
+                        end = inj.latched_cycle + HOLD
+                        for k in range(inj.cond, end + 1):
+                            if np.all(applied[k:end + 1] == 0):
+                                inj.zero_cycle = k
+                                break
+
+
+def _hb_hook(run: _Run) -> None:
+    """Record, for heartbeat injections, the sniffer's last heartbeat of the silenced node
+    before the latch (read in on_cycle of the latch cycle: nothing has been restored yet)."""
+    orig = run._on_cycle
+
+    def on_cycle(k, meas, est, tau):
+        inj = run.cur
+        if inj is not None and inj.kind == "heartbeat_lost" and not run.sup.ok and inj.latched_cycle < 0:
+            node = run.rig.drive if inj.note == "drive" else run.rig.encoder
+            inj.hb_last = run.rig.hb_seen.get(node.id)
+        orig(k, meas, est, tau)
+    run.loop.on_cycle = on_cycle
+
+
+def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 100000, kinds=None,
+              gap: tuple[int, int] = (100, 400), max_wait: int = 400, warmup: int = 200, progress=None) -> dict:
+    """Run every fault kind (and the fault-free run); returns the figures as a dict."""
+    kinds = list(kinds or FAULTS)
+    out = {"cycles_per_kind": cycles, "seed": seed, "kinds": {}, "fault_free": None}
+    for i, kind in enumerate(kinds):
+        t0 = time.monotonic()
+        r = _Run(kind, cycles, seed + 1000 * i, gap, max_wait, warmup)
+        _hb_hook(r)
+        r.run()
+        inj = r.injections
+        out["kinds"][kind] = {
+            "injected": len(inj),
+            "detected": sum(x.detected for x in inj),
+            "latched_as": sorted({x.latched or "none" for x in inj}),
+            "latency": [x.latency for x in inj],
+            "reaction": [x.reaction for x in inj],
+            "held": sum(x.held for x in inj),
+            "false_alarms": r.false_alarms,
+            "reset_failed": r.reset_failed,
+            "barrier_misses": r.probe.barrier_misses,
+            "wall_s": time.monotonic() - t0,
+            "injections": [dataclasses.asdict(x) | {"detected": x.detected} for x in inj],
+        }
+        if progress:
+            progress(kind, out["kinds"][kind])
+    if fault_free_cycles:
+        t0 = time.monotonic()
+        r = _Run(None, fault_free_cycles, seed + 99991, gap, max_wait, warmup).run()
+        out["fault_free"] = {"cycles": fault_free_cycles, "false_alarms": r.false_alarms,
+                             "reset_failed": r.reset_failed,
+                             "barrier_misses": r.probe.barrier_misses, "wall_s": time.monotonic() - t0}
+    return out
+
+
+def _stat(xs) -> str:
+    xs = [x for x in xs if x >= 0]
+    if not xs:
+        return "-"
+    return f"{int(np.median(xs))} / {max(xs)}"
+
+
+def table(res: dict) -> str:
+    lines = [f"{'fault':<22}{'injected':>9}{'detected':>9}  {'latched as':<28}{'latency med/max':>16}"
+             f"{'reaction med/max':>18}{'held':>6}{'false':>7}{'reset failed':>14}"]
+    for kind, r in res["kinds"].items():
+        lines.append(f"{kind:<22}{r['injected']:>9}{r['detected']:>9}  {','.join(r['latched_as']):<28}"
+                     f"{_stat(r['latency']):>16}{_stat(r['reaction']):>18}{r['held']:>6}{len(r['false_alarms']):>7}"
+                     f"{len(r.get('reset_failed', [])):>14}")
+    tot_i = sum(r["injected"] for r in res["kinds"].values())
+    tot_d = sum(r["detected"] for r in res["kinds"].values())
+    lines.append(f"detected / injected: {tot_d} / {tot_i}"
+                 + (f" = {100.0 * tot_d / tot_i:.1f} %" if tot_i else ""))
+    ff = res.get("fault_free")
+    if ff:
+        lines.append(f"false alarms in {ff['cycles']} fault-free cycles: {len(ff['false_alarms'])}"
+                     f" (failed resets after them: {len(ff.get('reset_failed', []))})"
+                     + (f"  ({'; '.join(f'cycle {k}: {d}' for k, d in ff['false_alarms'][:5])})"
+                        if ff["false_alarms"] else ""))
+    fails = [x for r in res["kinds"].values() for x in r.get("reset_failed", [])]
+    if fails:
+        lines.append("failed operator resets (the fault stayed latched, reset again): "
+                     + "; ".join(f"cycle {k}: {d}" for k, d in fails[:5]))
+    return "\n".join(lines)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--cycles", type=int, default=10000, help="loop cycles per fault kind (default 10000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the injection times and choices")
+    p.add_argument("--fault-free-cycles", type=int, default=100000,
+                   help="cycles of the fault-free run for false alarms (default 100000; 0: skip)")
+    p.add_argument("--kinds", default=",".join(FAULTS), help=f"comma-separated subset of {', '.join(FAULTS)}")
+    p.add_argument("--json", default=None, help="also write every injection's record as JSON here")
+
+
+def run(args) -> int:
+    from sea_daemon.errors import InputError
+    kinds = choose(args.kinds, FAULTS, "--kinds")
+    if args.cycles < 1000 or args.fault_free_cycles < 0:
+        raise InputError(f"--cycles {args.cycles}: must be >= 1000; --fault-free-cycles >= 0")
+    print(f"# sea-daemon bench faults on {machine()}")
+    print(f"# FixedRateLoop + CanopenHardware + AKF + PID vs device model, virtual CAN bus, lock-step, "
+          f"{args.cycles} cycles per kind, seed {args.seed}; bus {BUS}, overrun streak {OVERRUN_STREAK}")
+    print("# latency: injection -> latch; reaction: fault condition met -> zero torque at the drive "
+          "(cycles, 0 = same cycle); held: cycles with torque while latched", flush=True)
+
+    def progress(kind, r):
+        print(f"#   {kind}: {r['detected']}/{r['injected']} detected, {r['wall_s']:.0f} s", flush=True)
+    res = run_suite(args.cycles, args.seed, args.fault_free_cycles, kinds, progress=progress)
+    print(table(res))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(res, fh, indent=1, default=str)
+    return 0

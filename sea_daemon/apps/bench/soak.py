@@ -1,0 +1,191 @@
+"""``sea-daemon bench soak``: a long run of the whole stack, memory, overruns and log rows.
+
+The daemon's :class:`FixedRateLoop` on the real monotonic clock at ``--rate``, with
+:class:`CanopenHardware` against the device model on a virtual CAN bus in **lock-step** (the
+plant steps once per SYNC, so a slow cycle slows the simulated arm rather than the physics
+running away), a PID tracking a slow sine, the **GP-AKF learning online** from every sample
+(LoG-GP with bounded leaves: ``learning.max_points`` per leaf, ``--max-leaves`` leaves, so the
+per-cycle work and the memory are bounded), and the measured log written every cycle through
+the off-loop :class:`LogWriter` (shared-memory ring, writer process, flush <= 1 s, rotation).
+
+Reported: resident memory (VmRSS of /proc, the loop's process and the writer process) at
+start, after the warm-up and at the end, with the LoG-GP's size; cycles, overruns and the
+cycle time (from the log's own ``period`` / ``compute`` columns); log rows appended, written
+and dropped, and the rows counted back in the rotated files.
+
+A latched fault would stop the estimator (the loop's policy) and is reported; the overrun
+streak that would trip it when this machine cannot hold the rate is configurable
+(``--overrun-streak``; 0 disables it for the soak, overruns are still counted).
+"""
+from __future__ import annotations
+
+import dataclasses
+import gc
+import json
+import signal
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sea_daemon.runtime.logwriter import LogWriter
+from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.apps.bench import machine, summarize
+from sea_daemon.apps.bench._rig import Rig, SineTracker, bench_config, vm_rss_kb
+
+NAME = "soak"
+HELP = "long run: loop + CAN + device model + GP-AKF learning online + log writer; memory, overruns, rows"
+DESCRIPTION = __doc__
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--cycles", type=int, default=1000000, help="loop cycles (default 1e6)")
+    p.add_argument("--rate", type=float, default=1000.0, help="loop rate [Hz] (default 1000)")
+    p.add_argument("--warmup", type=int, default=None,
+                   help="cycles of warm-up before the reference memory sample (default: 10%% of --cycles)")
+    p.add_argument("--max-leaves", type=int, default=None,
+                   help="LoG-GP leaf bound (default: learning.max_leaves of the config)")
+    p.add_argument("--overrun-streak", type=int, default=0,
+                   help="consecutive overruns that latch the fault (0: not for the soak; counted anyway)")
+    p.add_argument("--rotate-mb", type=float, default=64.0, help="log rotation size [MB] (default 64)")
+    p.add_argument("--out", default=None, help="directory of the log files (default: a temporary one, removed)")
+    p.add_argument("--samples", type=int, default=20, help="memory samples over the run (default 20)")
+    p.add_argument("--json", default=None, help="write the figures as JSON here too")
+
+
+def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
+    """Rows in the rotated CSV files (header excluded) and their period / compute columns."""
+    rows = 0
+    per, comp = [], []
+    for f in files:
+        with open(f) as fh:
+            cols = fh.readline().strip().split(",")
+            ip, ic = cols.index("period"), cols.index("compute")
+            for line in fh:
+                rows += 1
+                parts = line.split(",")
+                per.append(float(parts[ip]))
+                comp.append(float(parts[ic]))
+    return rows, np.asarray(per), np.asarray(comp)
+
+
+def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
+         out_dir: Path, samples: int = 20, progress=None) -> dict:
+    from sea_daemon.core.estimators.gpakf import GPAKF
+    cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
+    cfg = dataclasses.replace(cfg, rate_hz=float(rate))
+    if max_leaves:
+        cfg = dataclasses.replace(cfg, learning=dataclasses.replace(cfg.learning, max_leaves=int(max_leaves)))
+    rss = {"start": vm_rss_kb()}
+    rig = Rig(cfg)
+    est = GPAKF(cfg)
+    log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
+    sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
+    stride = max(1, cycles // max(1, samples))
+    trace = []                                    # (cycle, loop RSS kB, writer RSS kB, GP leaves, GP points)
+    gp = est.gp.gps[0]
+    marks = {}
+
+    def on_cycle(k, meas, e, tau):
+        if k % stride == 0 or k == warmup:
+            rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
+            trace.append(rec)
+            if k == warmup:
+                marks["warmup"] = rec
+            if progress and k % stride == 0:
+                progress(rec, loop.stats)
+
+    loop = FixedRateLoop(rig.hw, est, SineTracker(cfg), n=cfg.joints, period=cfg.dt, log=log,
+                         supervisor=sup, realtime=True, on_cycle=on_cycle)
+    rss["after_start"] = vm_rss_kb()
+    gc.collect()
+    # SIGTERM / SIGINT end the soak early and cleanly: the figures are of the cycles run
+    old_handlers = {sig: signal.signal(sig, lambda *_: loop.request_stop()) for sig in (signal.SIGTERM, signal.SIGINT)}
+    t0 = time.monotonic()
+    try:
+        st = loop.run(cycles)
+    finally:
+        for sig, h in old_handlers.items():
+            signal.signal(sig, h)
+        wall = time.monotonic() - t0
+        end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
+        trace.append(end)
+        closed = log.close()
+        rig.close()
+    rows, per, comp = _count_rows(closed["files"])
+    w = marks.get("warmup", trace[0])
+    growth = (end[1] - w[1]) / w[1] * 100.0 if w[1] > 0 else float("nan")
+    wgrowth = (end[2] - w[2]) / w[2] * 100.0 if w[2] > 0 else float("nan")
+    return {
+        "cycles": st.cycles, "rate_hz": rate, "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
+        "overruns": st.overruns, "max_late_s": st.max_late_s,
+        "fault": sup.latched.name, "fault_detail": sup.latched_detail, "fault_cycle": sup.latched_cycle,
+        "rss_kb": {"process_start": rss["start"], "after_start": rss["after_start"], "warmup": w[1], "end": end[1],
+                   "writer_warmup": w[2], "writer_end": end[2]},
+        "rss_growth_after_warmup_pct": growth, "writer_rss_growth_after_warmup_pct": wgrowth,
+        "warmup_cycles": w[0], "gp_warmup": {"leaves": w[3], "points": w[4]},
+        "gp_end": {"leaves": end[3], "points": end[4]}, "max_leaves": cfg.learning.max_leaves,
+        "learned": est.n_learned,
+        "log": {"appended": closed["rows_appended"], "written": closed["rows_written"],
+                "dropped": closed["rows_dropped"], "counted_in_files": rows, "files": len(closed["files"])},
+        "period": summarize(per[1:], 1e3, "ms") if len(per) > 1 else "-",
+        "compute": summarize(comp, 1e3, "ms") if len(comp) else "-",
+        "trace": trace,
+    }
+
+
+def run(args) -> int:
+    from sea_daemon.errors import InputError
+    if args.cycles < 100 or args.rate <= 0:
+        raise InputError(f"--cycles {args.cycles} (>= 100), --rate {args.rate} (> 0)")
+    warmup = args.warmup if args.warmup is not None else args.cycles // 10
+    if not 0 <= warmup < args.cycles:
+        raise InputError(f"--warmup {warmup}: must be in 0..{args.cycles - 1}")
+    print(f"# sea-daemon bench soak on {machine()}")
+    print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model (virtual bus, lock-step) "
+          f"+ GP-AKF learning online + LogWriter; {args.cycles} cycles, warm-up {warmup}", flush=True)
+
+    def progress(rec, st):
+        print(f"#   cycle {rec[0]:>8}: RSS {rec[1] / 1024:.1f} MB (writer {rec[2] / 1024:.1f} MB), "
+              f"GP {rec[3]} leaves / {rec[4]} points, overruns {st.overruns}", flush=True)
+    tmp = None
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+    else:
+        tmp = tempfile.TemporaryDirectory(prefix="sea-soak-")
+        out = Path(tmp.name)
+    try:
+        r = soak(args.cycles, args.rate, warmup, args.max_leaves, args.overrun_streak,
+                 int(args.rotate_mb * 1e6), out, args.samples, progress)
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+    m = r["rss_kb"]
+    lg = r["log"]
+    if r["cycles"] < args.cycles:
+        print(f"# stopped by a signal after {r['cycles']} of {args.cycles} cycles")
+    print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
+          f"{r['rate_hz']:g} Hz asked)")
+    print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms)")
+    print(f"cycle period        {r['period']}")
+    print(f"cycle compute       {r['compute']}")
+    print(f"fault latched       {r['fault']}" + (f" at cycle {r['fault_cycle']}: {r['fault_detail']}"
+                                                 if r['fault'] != 'NONE' else ""))
+    print(f"RSS loop process    start {m['process_start'] / 1024:.1f} MB, rig up {m['after_start'] / 1024:.1f} MB, "
+          f"after warm-up ({r['warmup_cycles']} cycles) {m['warmup'] / 1024:.1f} MB, end {m['end'] / 1024:.1f} MB "
+          f"-> growth after warm-up {r['rss_growth_after_warmup_pct']:+.2f} %")
+    print(f"RSS writer process  after warm-up {m['writer_warmup'] / 1024:.1f} MB, end {m['writer_end'] / 1024:.1f} MB "
+          f"-> {r['writer_rss_growth_after_warmup_pct']:+.2f} %")
+    print(f"LoG-GP              warm-up {r['gp_warmup']['leaves']} leaves / {r['gp_warmup']['points']} points, "
+          f"end {r['gp_end']['leaves']} / {r['gp_end']['points']} (max_leaves {r['max_leaves']}), "
+          f"{r['learned']} samples learned")
+    print(f"log rows            appended {lg['appended']}, written {lg['written']}, dropped {lg['dropped']}, "
+          f"counted in {lg['files']} file(s) {lg['counted_in_files']}; cycles - rows = "
+          f"{r['cycles'] - lg['counted_in_files']}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(r, fh, indent=1)
+    return 0

@@ -1,0 +1,95 @@
+"""The calibration phase on the hardware: the daemon's controller moves the joint (passive
+subject), the GP-AKF learns the residual online in the fixed-rate loop, the model file is saved.
+
+:func:`calibrate` is what ``sea-daemon calibrate`` runs and what other applications (the loop
+benchmark, the demo) call for a calibrated model.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.estimators.gpakf import GPAKF
+from sea_daemon.errors import InputError
+from sea_daemon.io.gpmodel import save_gp_model
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.notify import Notifier
+from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
+
+
+class _Progress:
+    """tqdm bar updated at most 4 times a second, from the loop's end-of-cycle hook."""
+
+    def __init__(self, total: int, enabled: bool, estimator):
+        self.est = estimator
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+            import shutil
+            # a terminal that reports a size of 0 x 0 would hide the bar (tqdm): fall back to 100 x 20
+            size = shutil.get_terminal_size((100, 20))
+            self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25,
+                            ncols=size.columns or 100, nrows=size.lines or 20)
+        self._next = 0.0
+        self._done = 0
+
+    def __call__(self, k: int, est) -> None:
+        if self.bar is None:
+            return
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + 0.25
+            self.bar.update(k + 1 - self._done)
+            self._done = k + 1
+            self.bar.set_postfix_str(f"GP points {self.est.gp.n_points}", refresh=False)
+
+    def close(self, k: int) -> None:
+        if self.bar is not None:
+            self.bar.update(max(0, k - self._done))
+            self.bar.close()
+
+
+def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path: Path, *,
+              state_dir: Path | None = None, cycles: int | None = None, sim: str | None = None,
+              device_model: str | None = None, realtime: bool = True, rt_priority: int | None = 80,
+              supervisor: SafetySupervisor | None = None, progress: bool = False,
+              config_name: str = "<memory>") -> tuple[int, dict, str]:
+    """Run the training phase and save the model to ``out``.
+
+    Returns ``(exit status, JSON summary, message)``: 0 with the model saved; 1 when a fault
+    latched or the run was interrupted (model not saved, the log kept).
+    """
+    sc = load_scenario(scenario)
+    if sc.nominal.joints != cfg.joints:
+        raise InputError(f"--scenario {scenario}: {sc.nominal.joints} joint(s), the configuration has {cfg.joints}")
+    cycles = cycles or sc.training_samples
+    # the training phase (ass:passive_human): learning on in every cycle
+    estimator = GPAKF(cfg, dt=cfg.dt, learning=True)
+    rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
+    controller = ScenarioController(sc, cfg, "training", rig.hold_torque, delay=getattr(rig.hw, "actuation_delay", 0))
+    bar = _Progress(cycles, progress, estimator)
+    try:
+        res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
+                    notifier=Notifier(), state=StateFile(state_dir) if state_dir is not None else None,
+                    progress=bar, rt_priority=rt_priority, supervisor=supervisor, label="calibrate")
+    finally:
+        bar.close(cycles)
+    st, sup = res.stats, res.supervisor
+    summary = {"model": None, "log": str(log_path), "scenario": str(scenario), "config": config_name,
+               "hardware": rig.description, "cycles": st.cycles, "gp_points": estimator.gp.n_points,
+               "pairs_learned": estimator.n_learned, "overruns": st.overruns,
+               "rows_written": res.log["rows_written"], "rows_dropped": res.log["rows_dropped"],
+               "fault": sup.latched.name, "realtime": res.realtime, "pace": "realtime" if realtime else "lockstep",
+               "wall_s": round(res.wall_s, 3)}
+    if not sup.ok:
+        return 1, summary, f"{sup.status_line()}; model not saved, log kept: {log_path}"
+    if st.cycles < cycles:
+        return 1, summary, f"interrupted after {st.cycles} of {cycles} cycles; model not saved, log kept: {log_path}"
+    save_gp_model(out, cfg, estimator.gp, {
+        "command": "calibrate", "scenario": str(scenario), "config": config_name, "log": str(log_path),
+        "hardware": rig.description, "cycles": st.cycles, "pairs_learned": estimator.n_learned})
+    summary["model"] = str(out)
+    return 0, summary, ""

@@ -1,0 +1,79 @@
+"""The ``sea-daemon`` sub-commands, one module each, and the machinery that runs them.
+
+A command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``
+(optional ``ORDER``, ``DESCRIPTION``); :func:`main` finds them by discovery.  Exit status (the
+:func:`guarded` policy): 0 success, 2 bad input or configuration (one line on stderr, no
+traceback), 1 internal fault.  ``SEA_DAEMON_DEBUG=1`` shows tracebacks.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import pkgutil
+import sys
+
+from sea_daemon import __version__
+from sea_daemon.errors import InputError
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the CLI's error policy: one clear line on stderr, exit status 2."""
+
+    def error(self, message):  # one clear line, exit 2
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _discover():
+    mods = []
+    for info in pkgutil.iter_modules(__path__):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+            mods.append(mod)
+    return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="sea-daemon", description="Active human torque estimation for SEA exoskeletons "
+                     "(GP-enhanced augmented-state Kalman filter with guaranteed bounds).")
+    parser.add_argument("--version", action="version", version=f"sea-daemon {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    for mod in _discover():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help(sys.stderr)
+        return 2
+    return guarded(f"sea-daemon {args.command}", args._run, args)
+
+
+def guarded(prog: str, run, args) -> int:
+    """``run(args)`` under the exit-status policy: 0 success, 2 bad input (one line on stderr,
+    no traceback), 130 interrupted, 1 internal fault (one line; SEA_DAEMON_DEBUG=1 re-raises)."""
+    debug = os.environ.get("SEA_DAEMON_DEBUG") == "1"
+    try:
+        return int(run(args) or 0)
+    except InputError as e:
+        if debug:
+            raise
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # internal fault: one line, details with SEA_DAEMON_DEBUG=1
+        if debug:
+            raise
+        print(f"{prog}: internal error: {type(e).__name__}: {e} "
+              "(set SEA_DAEMON_DEBUG=1 for a traceback)", file=sys.stderr)
+        return 1

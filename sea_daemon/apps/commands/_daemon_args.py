@@ -1,0 +1,74 @@
+"""Arguments shared by ``sea-daemon run`` and ``sea-daemon calibrate``."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from sea_daemon.core.config import BusConfig
+from sea_daemon.io.configfile import load_config
+from sea_daemon.errors import InputError
+
+
+def add_common(p, *, cycles_help: str) -> None:
+    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+    p.add_argument("--log-dir", metavar="DIR", required=True, help="directory of the measured logs")
+    p.add_argument("--state-dir", metavar="DIR", default=None,
+                   help="where the pid file for `sea-daemon reset` goes (default: --log-dir)")
+    p.add_argument("--bus", choices=BusConfig.INTERFACES, default=None, help="override hardware.bus.interface")
+    p.add_argument("--channel", default=None, help="override hardware.bus.channel (can0, vcan0, ws://HOST:PORT/ ...)")
+    p.add_argument("--cycles", type=int, default=None, help=cycles_help)
+    hw = p.add_mutually_exclusive_group()
+    hw.add_argument("--device-model", metavar="SCENARIO.yaml", default=None,
+                    help="start the device model (the scenario's true plant and subject as CANopen drive + "
+                         "encoder) in this process on a fresh virtual CAN channel (tests, demo, bench)")
+    hw.add_argument("--sim", metavar="SCENARIO.yaml", default=None,
+                    help="the scenario's simulated plant without CAN (SimHardware; tests, bench)")
+    p.add_argument("--pace", choices=("realtime", "lockstep"), default=None,
+                   help="realtime: sleep to each absolute deadline (default on a real bus); lockstep: no sleep, "
+                        "the simulated plant steps once per cycle as fast as the loop goes (default with "
+                        "--device-model / --sim)")
+    p.add_argument("--overrun-streak", type=int, default=5,
+                   help="consecutive overruns that latch the OVERRUN_STREAK fault (default 5; 0: never)")
+    p.add_argument("--rt-priority", type=int, default=80,
+                   help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
+
+
+def load(args):
+    """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input."""
+    from sea_daemon.runtime.service import bus_overrides
+    cfg = bus_overrides(load_config(args.config), args.bus, args.channel)
+    if args.cycles is not None and args.cycles < 1:
+        raise InputError(f"--cycles {args.cycles}: allowed >= 1")
+    if args.overrun_streak < 0:
+        raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
+    if not 0 <= args.rt_priority <= 99:
+        raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
+    log_dir = Path(args.log_dir)
+    state_dir = Path(args.state_dir) if args.state_dir else log_dir
+    for d, what in ((log_dir, "--log-dir"), (state_dir, "--state-dir")):
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise InputError(f"{what} {d}: cannot create: {e.strerror or e}") from None
+    simulated = bool(args.device_model or args.sim)
+    pace = args.pace or ("lockstep" if simulated else "realtime")
+    if pace == "lockstep" and not simulated:
+        raise InputError("--pace lockstep needs --device-model or --sim (real drives run in real time)")
+    return cfg, log_dir, state_dir, pace == "realtime"
+
+
+def log_name(log_dir: Path, prefix: str) -> Path:
+    """``DIR/<prefix>-YYYYmmddTHHMMSSZ.csv``, with a counter when that exists already."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    p = log_dir / f"{prefix}-{stamp}.csv"
+    i = 1
+    while p.exists():
+        p = log_dir / f"{prefix}-{stamp}-{i}.csv"
+        i += 1
+    return p
+
+
+def supervisor(args):
+    """The fault supervisor with the ``--overrun-streak`` limit."""
+    from sea_daemon.runtime.safety import SafetySupervisor
+    return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62)

@@ -1,0 +1,55 @@
+"""``sea-daemon calibrate --config MODEL.yaml --scenario SCENARIO.yaml --out MODEL.npz --log-dir DIR``
+
+The training phase of the paper (Sec. IV-A, V-B) on the bus: the subject is passive, the
+daemon's controller — the scenario's PID position controller tracking its minimum-jerk
+trajectory (or its open-loop holding torque), output limited to ``hardware.torque_limit`` —
+moves the joint, and the GP-AKF learns the load-side residual online in the fixed-rate loop
+(bounded work per cycle: one LoG-GP update and its hyperparameter slice).  Then the model is
+saved atomically (versioned, checksummed, no pickle; :mod:`sea_daemon.io.gpmodel`) and the
+measured log (docs/interfaces.md §1 through the off-loop log writer) is kept as
+``DIR/calibration-<UTC time>.csv`` — the input of ``sea-daemon diagnose``; a configuration it
+writes (``model_augmented.yaml``) calibrates the same way.  A JSON summary goes to stdout, the
+progress bar to stderr.
+
+On the real bus the drives and encoder answer on ``hardware.bus``; ``--device-model`` starts the
+simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus remote``
+separately and point ``--bus remote --channel ws://…`` at it.
+Exit status: 0 model saved; 2 bad input; 1 fault, interruption (model not saved, log kept)
+or internal error.
+"""
+from __future__ import annotations
+
+import json
+import sys
+
+from sea_daemon.io.configfile import repo_root
+from sea_daemon.apps.commands import _daemon_args
+
+NAME = "calibrate"
+HELP = "training phase on the bus: PID moves, GP learned online, model file + measured log"
+ORDER = 55
+DESCRIPTION = __doc__
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--scenario", metavar="SCENARIO.yaml",
+                   default=str(repo_root() / "configs" / "scenarios" / "passive.yaml"),
+                   help="trajectory and controller gains (default: configs/scenarios/passive.yaml)")
+    p.add_argument("--out", metavar="MODEL.npz", required=True, help="model file to write (atomically)")
+    _daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    from sea_daemon.apps.calibration import calibrate
+
+    cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
+    code, summary, message = calibrate(
+        cfg, args.scenario, args.out, _daemon_args.log_name(log_dir, "calibration"), state_dir=state_dir,
+        cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
+        rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
+        progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config))
+    print(json.dumps(summary))
+    if code:
+        print(f"sea-daemon calibrate: {message}", file=sys.stderr)
+    return code

@@ -1,0 +1,117 @@
+"""``sea-daemon calibrate-bound LOG.csv --config MODEL.yaml --model MODEL.npz [--target gp|torque] [--write OUT.yaml]``
+
+β of the GP error bound for a trained GP model, from a held-out log with a passive subject
+that the model never learned: prints it as JSON and can write a copy of the configuration with
+``estimator.gp_beta`` set to it, which ``sea-daemon run`` then uses for the Theorem-1 bound ρ_k
+(η = β √(σ² + s_loc²)).  ``--target gp`` (default): split conformal on the GP error of each
+training pair (docs/bounds.md §2b).  ``--target torque``: the smallest β whose ρ_k covers the
+estimate's own error τ̂_h,act − 0 on the log in ⌈(m+1)(1 − δ)⌉ of its m steps (§2c).
+When the configuration already has a number ``estimator.gp_beta``, the JSON also reports the
+fraction of the log's steps its ρ_k covers (``configured``): a held-out check of that β.
+"""
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from sea_daemon.io.configfile import load_config, save_config
+from sea_daemon.errors import InputError
+from sea_daemon.io.logcsv import read_log
+
+NAME = "calibrate-bound"
+HELP = "split-conformal beta of the GP error bound from a held-out passive log (estimator.gp_beta)"
+ORDER = 61
+DESCRIPTION = (
+    "Run the GP-AKF of --config with the GP of --model (frozen) over LOG.csv, a log with a passive "
+    "subject (ass:passive_human) that the model was NOT trained on (e.g. a second calibration "
+    "session), form each sample's training pair (z, f) with the filter's causal kinematics and "
+    "take the split-conformal quantile of |f - mu(z)| / s(z) at alpha = delta_GP / (2 n) "
+    "(delta_GP = estimator.delta / 2; the factor 2 turns the bound on the noisy targets into one on "
+    "the noise-free GP error). Valid for inputs exchangeable with the log's (the same kind of "
+    "motion, subject and plant) and per step, not uniformly (docs/bounds.md 2b). --target torque "
+    "instead searches the smallest beta whose Theorem-1 bound rho_k covers the GP-AKF's torque "
+    "error (truth 0, passive subject) in 1 - delta of the log's steps (docs/bounds.md 2c; one "
+    "replay of the log per trial beta, about 10). With a number estimator.gp_beta in --config the "
+    "JSON also has the coverage of that beta on the log (configured). Prints JSON; "
+    "--write OUT.yaml saves the config with estimator.gp_beta = beta.")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("log", metavar="LOG.csv", help="held-out measured log, passive subject (docs/interfaces.md §1)")
+    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+    p.add_argument("--model", metavar="MODEL.npz", required=True, help="model file written by sea-daemon calibrate")
+    p.add_argument("--target", choices=("gp", "torque"), default="gp",
+                   help="calibrate the GP error of each pair (gp, default) or the bound on the torque "
+                        "estimate itself (torque)")
+    p.add_argument("--write", metavar="OUT.yaml", default=None,
+                   help="write the config with estimator.gp_beta = the calibrated beta")
+
+
+def run(args) -> int:
+    import dataclasses
+
+    from sea_daemon.core.bounds.akf_bound import conformal_gp_constants
+    from sea_daemon.io.gpmodel import load_gp_model
+    from sea_daemon.core.estimators.gpakf import GPAKF
+
+    cfg = load_config(args.config)
+    log = read_log(args.log, n=cfg.joints, min_rows=2)
+    residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
+    est = GPAKF(cfg, dt=log.dt, residual=residual, learning=False)
+    delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split
+    out = {"log": str(args.log), "model": str(args.model), "config": str(args.config), "target": args.target,
+           "delta": cfg.estimator.delta}
+    if args.target == "torque":
+        beta, how = _torque_beta(est, log, cfg.estimator.delta, args.log), "the torque error"
+        out.update(beta=beta["beta"], steps=beta["steps"], coverage=beta["coverage"],
+                   target_coverage=beta["target"], runs=[[b, c] for b, c in beta["runs"]])
+        beta, n_used = beta["beta"], f"{beta['steps']} steps"
+        if cfg.learning.extrapolation_scale == 0:
+            # calibrated where the GP has data, a small β says nothing about inputs off it
+            out["warning"] = ("learning.extrapolation_scale is 0: the bound has no term for inputs off the GP's "
+                              "data, and a beta calibrated on the torque error does not cover them "
+                              "(docs/bounds.md 2d)")
+            print(f"calibrate-bound: warning: {out['warning']}", file=sys.stderr)
+    else:
+        try:
+            consts, _, scores = conformal_gp_constants(est, log, delta_gp)
+        except ValueError as e:
+            raise InputError(f"{args.log}: {e}") from None
+        beta, how, n_used = max(c.sqrt_beta for c in consts), "split conformal", f"{len(scores)} pairs"
+        out.update(pairs=int(len(scores)), delta_gp=delta_gp, alpha=delta_gp / (2 * cfg.joints), beta=beta,
+                   beta_per_joint=[c.sqrt_beta for c in consts],
+                   score_quantiles={q: np.quantile(scores, float(q) / 100, axis=0).tolist()
+                                    for q in ("50", "90", "99")})
+    if isinstance(cfg.estimator.gp_beta, float):
+        # a held-out check of the configured β: the fraction of steps its ρ_k covers
+        from sea_daemon.core.bounds.akf_bound import torque_coverage
+        cov, steps = torque_coverage(est, log, cfg.estimator.gp_beta, log.tau_h_act)
+        out["configured"] = {"beta": cfg.estimator.gp_beta, "coverage": cov, "steps": steps}
+    if args.write:
+        new = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=float(beta)))
+        try:
+            save_config(new, args.write, header=f"calibrate-bound: estimator.gp_beta by {how} on "
+                                                f"{args.log} ({n_used}) for {args.model}")
+        except OSError as e:
+            raise InputError(f"--write {args.write}: cannot write: {e.strerror or e}") from None
+        out["written"] = str(args.write)
+    print(json.dumps(out))
+    return 0
+
+
+def _torque_beta(est, log, delta: float, path) -> dict:
+    """:func:`~sea_daemon.core.bounds.akf_bound.torque_calibrated_beta` with a progress bar on stderr."""
+    from tqdm import tqdm
+
+    from sea_daemon.core.bounds.akf_bound import torque_calibrated_beta
+
+    with tqdm(desc="calibrate-bound (torque): replays", unit="beta", file=sys.stderr, leave=False) as bar:
+        def progress(b, c):
+            bar.set_postfix_str(f"beta {b:.3g}: coverage {c:.3f}")
+            bar.update()
+        try:
+            return torque_calibrated_beta(est, log, delta, truth=log.tau_h_act, progress=progress)
+        except ValueError as e:
+            raise InputError(f"{path}: {e}") from None

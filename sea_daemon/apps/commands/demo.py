@@ -1,0 +1,250 @@
+"""``sea-daemon demo``: the main job on the embedded default — device model + daemon on a virtual CAN bus.
+
+For each embedded scenario (``configs/scenarios/passive.yaml``: Sec. V-B, PID moves with a
+passive subject; ``active.yaml``: Sec. V-C, a subject resisting a cosine torque) the simulated
+exoskeleton runs as CANopen devices (drive + load encoder, :mod:`drivers.device_model`, the
+scenario's true plant with its hidden effects, lock-step with SYNC) on a fresh virtual CAN bus,
+and the daemon talks to it through its own code paths:
+
+1. ``sea-daemon calibrate`` — the training phase (subject passive; the scenario's controller
+   moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
+2. ``sea-daemon calibrate-bound`` — a second, held-out calibration session (the same moves,
+   independent noise: the scenario's seed + 1000) checks the configured β of the GP error bound
+   (``estimator.gp_beta``: the fraction of that session's steps its ρ_k covers); a configuration
+   without a number there gets the β calibrated on that session's torque error written in
+   (``--target torque``, docs/bounds.md §2c).  The run's configuration also has the scenario's
+   declared human-torque rate (``estimator.tau_h_act_rate``, §6) if it declares one;
+3. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
+   online in the loop (the scenario's controller drives, the subject acts as the scenario says)
+   and publishes the Theorem-1 bound ρ_k with every estimate.
+
+Then the daemon's measured log of the estimation phase, with the subject's true torque added
+(known from the device model), is replayed with the AKF and the spring-torque estimate, and the
+GP-AKF's own online estimate from the log is scored with them: RMSE table, plots.
+
+Writes, in ``--out``: ``config.yaml`` (the configuration used), per scenario
+``<name>/`` (the daemon's logs: calibration-*.csv, run-*.csv), ``<name>_model.npz``,
+``<name>_train.csv`` / ``<name>_est.csv`` (docs/interfaces.md §1, with the truth), ``<name>_<estimator>.csv``
+(EST.csv columns), ``<name>.png``; ``summary.json``.  The loops run lock-step (as fast as the
+device model answers); ``--pace realtime`` runs them at the configured rate.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sea_daemon.io.configfile import repo_root
+from sea_daemon.errors import InputError
+
+NAME = "demo"
+HELP = "device model + daemon on a virtual CAN bus: calibration, estimation, RMSE table and plots"
+ORDER = 10
+DESCRIPTION = __doc__
+
+SCENARIOS = ("passive", "active")
+ESTIMATORS = ("spring", "akf", "gp-akf")
+#: fewest cycles of the held-out session (the torque calibration's ceil((m+1)(1-delta)) rule needs m >= 19)
+HELD_OUT_MIN = 120
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
+    p.add_argument("--scenario", action="append", choices=SCENARIOS, default=None,
+                   help="run only this embedded scenario (repeatable; default: both)")
+    p.add_argument("--config", default=str(repo_root() / "configs" / "exo_1dof_sim.yaml"),
+                   help="daemon configuration (default: configs/exo_1dof_sim.yaml, the estimator settings "
+                        "for the simulated sensors)")
+    p.add_argument("--samples", type=int, default=None,
+                   help="shorten both phases to this many samples each (quick look)")
+    p.add_argument("--sync-rpdo", action="store_true",
+                   help="torque RPDO actuated at the next SYNC (one cycle more delay) instead of on reception")
+    p.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep (default): as fast as the device model answers; realtime: at the configured rate")
+
+
+def _plot(path: Path, name: str, est_log, results: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = est_log.t - est_log.t[0]
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    truth = est_log.tau_h_act[:, 0]
+    ax[0].plot(t, truth, "k", lw=2, label="true τ_h,act")
+    for key, res in results.items():
+        line, = ax[0].plot(t, res.tau_h_act_hat[:, 0], lw=1, label=key)
+        if key != "spring":
+            ax[0].fill_between(t, res.tau_h_act_hat[:, 0] - res.tau_h_act_bound[:, 0],
+                               res.tau_h_act_hat[:, 0] + res.tau_h_act_bound[:, 0], color=line.get_color(), alpha=0.12)
+    ax[0].set_ylabel("τ_h,act [N m]")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[0].set_title(f"{name}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the Theorem-1 bound ρ_k)")
+    ax[1].plot(t, np.degrees(est_log.q[:, 0]), label="q (load encoder)")
+    ax[1].plot(t, np.degrees(est_log.theta_m[:, 0]), "--", label="θ_m (motor encoder / gear)")
+    ax[1].set_ylabel("angle [deg]")
+    ax[1].set_xlabel("t [s]")
+    ax[1].legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _daemon(argv: list[str]) -> dict:
+    """Run a daemon command in this process; its JSON summary (stdout) is returned."""
+    from sea_daemon.apps.commands import main
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(argv)
+    lines = [ln for ln in buf.getvalue().splitlines() if ln.startswith("{")]
+    summary = json.loads(lines[-1]) if lines else {}
+    if rc != 0:
+        raise RuntimeError(f"sea-daemon {argv[0]} exited with {rc}: {summary}")
+    return summary
+
+
+def _beta_summary(bound: dict) -> dict:
+    """What the run's β is and what the held-out session said about it (calibrate-bound's JSON)."""
+    c = bound.get("configured")
+    if c is not None:
+        return {"beta": c["beta"], "source": "configured", "held_out_coverage": c["coverage"],
+                "held_out_steps": c["steps"], "log": bound["log"],
+                "text": f"beta {c['beta']:.3g} (configured) covers {c['coverage']:.3f} of a held-out session's "
+                        f"{c['steps']} steps"}
+    # calibrate-bound --target torque
+    return {"beta": bound["beta"], "source": "torque", "held_out_coverage": bound["coverage"],
+            "held_out_steps": bound["steps"], "log": bound["log"],
+            "text": f"beta {bound['beta']:.3g} calibrated on a held-out session's torque error (covers "
+                    f"{bound['coverage']:.3f} of {bound['steps']} steps)"}
+
+
+def _held_out_scenario(sc_path: str, dest: Path) -> Path:
+    """A copy of the scenario with another noise seed (seed + 1000) and its model path made
+    absolute: a calibration session the GP never learned, for calibrate-bound."""
+    import yaml
+    src = Path(sc_path)
+    d = yaml.safe_load(src.read_text())
+    d["seed"] = int(d.get("seed", 0)) + 1000
+    d["model"] = str((src.parent / d["model"]).resolve())
+    dest.write_text(yaml.safe_dump(d, sort_keys=False))
+    return dest
+
+
+def _with_truth(log_path: str, tau_h, n: int):
+    """The daemon's log as a MeasuredLog with the subject's true torque over each row's interval."""
+    from sea_daemon.core.log import MeasuredLog
+    from sea_daemon.io.logcsv import read_log
+    log = read_log(log_path, n=n)
+    truth = np.array([np.array(tau_h(t), dtype=float).reshape(n) for t in log.t])
+    return MeasuredLog(t=log.t, q=log.q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=truth, extra=log.extra)
+
+
+def run(args) -> int:
+    from sea_daemon.io.configfile import load_config, save_config
+    from sea_daemon.runtime.service import _human
+    from sea_daemon.core.estimators import make_estimator
+    from sea_daemon.io.logcsv import write_columns, write_log
+    from sea_daemon.core.replay import ReplayResult, est_columns, replay, summarize
+    from sea_daemon.io.scenario import load_scenario
+
+    if args.samples is not None and args.samples < 10:
+        raise InputError(f"--samples {args.samples}: allowed >= 10")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {out}: cannot create: {e.strerror or e}") from None
+    cfg = load_config(args.config)
+    if args.sync_rpdo:
+        cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(
+            cfg.hardware, bus=dataclasses.replace(cfg.hardware.bus, sync_rpdo=True)))
+    cfg_path = out / "config.yaml"
+    save_config(cfg, cfg_path, header="configuration used by sea-daemon demo")
+    n, dt = cfg.joints, cfg.dt
+    summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
+                     "pace": args.pace, "scenarios": {}}
+    rows = []
+    t_all = time.perf_counter()
+    for name in args.scenario or SCENARIOS:
+        sc_path = str(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
+        sc = load_scenario(sc_path)
+        n_tr = args.samples or sc.training_samples
+        n_est = args.samples or sc.estimation_samples
+        logs = out / name
+        model = out / f"{name}_model.npz"
+        def common(config, scenario, log_dir):
+            return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
+                    "--pace", args.pace, "--scenario", str(scenario)]
+        t0 = time.perf_counter()
+        cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
+        held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
+        hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
+                        "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, HELD_OUT_MIN))])
+        run_cfg = out / f"{name}_config.yaml"
+        base_cfg = cfg_path
+        if sc.tau_h_act_rate is not None:
+            # what the experimenter declares about the subject: the bound's human-torque rate
+            base_cfg = out / f"{name}_declared.yaml"
+            save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
+        if isinstance(cfg.estimator.gp_beta, float):
+            # the configured β: the held-out session checks it, the run uses it
+            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
+            run_cfg = base_cfg
+        else:
+            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
+                             "--target", "torque", "--write", str(run_cfg)])
+        t1 = time.perf_counter()
+        est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
+        t2 = time.perf_counter()
+        # the device model's subject: passive in calibration, the scenario's in estimation
+        train_log = _with_truth(cal["log"], _human(sc, "training"), n)
+        est_log = _with_truth(est["log"], _human(sc, "estimation"), n)
+        write_log(out / f"{name}_train.csv", train_log)
+        write_log(out / f"{name}_est.csv", est_log)
+        x = est_log.extra
+        gp = ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
+                          tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
+                          tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
+                          x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
+                          step_time_s=x["compute"], estimator="gp-akf")
+        results = {}
+        entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
+                       "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
+                       "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
+                       "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
+                       "gp_beta": _beta_summary(bound),
+                       "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
+                       "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
+                       "estimators": {}}
+        for est_name in ESTIMATORS:
+            if est_name == "gp-akf":
+                res = gp                                  # the daemon's own online estimate
+            else:
+                res = replay(est_log, make_estimator(est_name, cfg, dt=dt), clock=time.perf_counter)
+                res.estimator = est_name
+            results[est_name] = res
+            write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
+            s = summarize(res)
+            if est_name == "gp-akf":
+                s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
+            entry["estimators"][est_name] = s
+            rows.append((name, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
+        _plot(out / f"{name}.png", name, est_log, results)
+        summary["scenarios"][name] = entry
+    summary["wall_s"] = round(time.perf_counter() - t_all, 2)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
+    for name, est_name, rmse, cov, bound in rows:
+        print(f"{name:<9} {est_name:<8} {rmse:>10.4f} {cov if cov is not None else float('nan'):>9.3f} {bound:>11.3f}")
+    for name, e in summary["scenarios"].items():
+        print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
+              f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
+              f"{e['cycle_compute_us_median']} us, p99 {e['cycle_compute_us_p99']} us; overruns "
+              f"{e['calibrate']['overruns'] + e['run']['overruns']}); bound: {e['gp_beta']['text']}")
+    print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
+    return 0

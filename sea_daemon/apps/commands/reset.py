@@ -1,0 +1,39 @@
+"""``sea-daemon reset [--log-dir DIR | --state-dir DIR]``: clear a latched fault (operator action).
+
+Sends SIGUSR1 to the ``sea-daemon run`` / ``calibrate`` whose pid file
+(``sea-daemon.pid``) is in the directory; the loop clears the fault at the start of its next
+cycle, re-arms the drives (``reset_fault``) and restarts the estimator (docs/safety.md).
+Exit 2 with one line when no daemon runs there.
+"""
+from __future__ import annotations
+
+import os
+import signal
+
+from sea_daemon.errors import InputError
+
+NAME = "reset"
+HELP = "clear a latched fault of the running daemon (SIGUSR1)"
+ORDER = 65
+DESCRIPTION = __doc__
+
+
+def add_arguments(p) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--state-dir", metavar="DIR", default=None, help="the daemon's --state-dir")
+    g.add_argument("--log-dir", metavar="DIR", default=None,
+                   help="the daemon's --log-dir (where its pid file is without --state-dir)")
+
+
+def run(args) -> int:
+    from sea_daemon.runtime.service import StateFile
+    d = args.state_dir or args.log_dir or "/var/log/sea-daemon"
+    pid = StateFile(d).running_pid()
+    try:
+        os.kill(pid, signal.SIGUSR1)
+    except ProcessLookupError:
+        raise InputError(f"no running sea-daemon: pid {pid} has exited") from None
+    except PermissionError:
+        raise InputError(f"not permitted to signal sea-daemon pid {pid} (run as its user or root)") from None
+    print(f"sent reset (SIGUSR1) to sea-daemon pid {pid}")
+    return 0

@@ -1,0 +1,487 @@
+"""Candidate effects for tracing the residuals (issue 6, item 2).
+
+Every type of the effect vocabulary (docs/interfaces.md §2, plus the ``spring_saturation`` extension)
+on every side it may sit on, for every joint.  A candidate explains a part of the stacked
+residual r = [r_load, r_motor] (N × 2n, flattened) of the form
+
+    Δr(θ, β) = o(θ) + X(θ) β,
+
+θ its nonlinear parameter (one at most: Stribeck's v_s, cogging's periods, the backlash
+width, the saturation's theta_max, the delay), β its linear coefficients.  Δr is *what the
+effect removes from the residual*: Δr = r(model) − r(model + effect).  It is computed from
+the model itself (:func:`.residuals.residual_channels` with the effect added), so the signs
+and the coupling through the spring are those of eq:unknwn_load / eq:motorside:
+
+* a load-side torque e appears as +e in r_load, a motor-side one as +e in r_motor,
+* a spring-torque change Δτ_s as +Δτ_s in r_load and −Δτ_s in r_motor,
+* torque_scale κ as (1 − κ)·κ₀τ_m in r_motor, a delay as κ₀(τ_m(t) − τ_m(t − d)),
+* an encoder offset through every term that uses that angle (C(q), τ_s, declared effects).
+
+Linear coefficients map to the effect's parameters by :meth:`Candidate.natural`; the
+structural effects (backlash, delay) have no free coefficient (their Δr is o(θ)); the
+encoder offset is linearised at δ = 0 for the search (X = ∂Δr/∂δ) and refined exactly
+afterwards (:mod:`.select`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
+from sea_daemon.core.model import SEAModel
+from sea_daemon.apps.diagnose.residuals import Kinematics, residuals_for, vtorque
+
+
+@dataclass
+class Context:
+    """What the candidates need: the log's kinematics, the configured model, its residual."""
+
+    cfg: ModelConfig
+    kin: Kinematics
+    r0: np.ndarray                      # (N, 2n) residual of cfg
+    passive: bool = False
+    zoh: bool = True
+    _model: SEAModel | None = field(default=None, repr=False)
+
+    @property
+    def model(self) -> SEAModel:
+        if self._model is None:
+            self._model = SEAModel.from_config(self.cfg)
+        return self._model
+
+    @property
+    def n(self) -> int:
+        return self.kin.n
+
+    def residual(self, effects=()) -> np.ndarray:
+        return residuals_for(self.cfg, self.kin, effects, zoh=self.zoh, passive=self.passive)
+
+    def delta_r(self, effects) -> np.ndarray:
+        """Δr = r(cfg) − r(cfg + effects), flattened (N·2n,)."""
+        if len(effects) == 1:
+            d = self._additive_delta(effects[0])
+            if d is not None:
+                return d.reshape(-1)
+        return (self.r0 - self.residual(effects)).reshape(-1)
+
+    def _additive_delta(self, e: Effect) -> np.ndarray | None:
+        """Δr of one additive effect without recomputing the model (None for structural ones).
+
+        The balances of :func:`.residuals.residual_channels` are linear in an added torque:
+        a load-side e adds S(e) to r_load's explained part, a motor-side one S(e) to r_motor's,
+        a spring one S(e) and −S(e); an inertia dI·(second difference) likewise.
+        ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.  (The
+        one difference: while a side sticks inside its declared static-friction band the full
+        residual takes up the added torque there; the fit leaves those samples out.)
+        """
+        if not e.additive or isinstance(e, (Coulomb, Stribeck)):
+            return None      # structural, or friction (set-valued while sticking): recompute
+        kin = self.kin
+        n = self.n
+        j = e.joint
+        q, th = self.angles()
+        if isinstance(e, Inertia):
+            col = e.dI * (kin.d2q if e.side == "load" else kin.d2theta_m)[:, j]
+        else:
+            if hasattr(e, "eps"):  # declared friction uses the estimator's sign smoothing (SEAModel)
+                e = dataclasses.replace(e, eps=self.cfg.estimator.sign_eps)
+            if e.side == "load":
+                a, v = q[:, j], kin.dq[:, j]
+            elif e.side == "motor":
+                a, v = th[:, j], kin.dtheta_m[:, j]
+            else:
+                a, v = q[:, j] - th[:, j], np.zeros(kin.N)
+            col = vtorque(e, a, v, np.zeros(kin.N))
+        out = np.zeros((kin.N, 2 * n))
+        if e.side in ("load", "spring"):
+            out[:, j] = col
+        if e.side == "motor":
+            out[:, n + j] = col
+        if e.side == "spring":
+            out[:, n + j] = -col
+        return kin.smooth(out)
+
+    # signals with the declared offsets removed
+    def angles(self):
+        return self.model.correct_measurement(self.kin.q, self.kin.theta_m)
+
+
+class Candidate:
+    """One effect type on one side of one joint (see module docstring)."""
+
+    type: str = ""
+    side: str = ""
+    linear: tuple[str, ...] = ()        # names of the coefficients β
+    nonlinear: str | None = None        # name of θ, if any
+    #: natural parameters that the final refinement fits, with bounds (see bounds())
+    params: tuple[str, ...] = ()
+    #: linear coefficients that the vocabulary requires to be >= 0 (docs/interfaces.md §2 validation)
+    nonneg: tuple[int, ...] = ()
+
+    def __init__(self, side: str, joint: int = 0):
+        self.side = side
+        self.joint = joint
+
+    @property
+    def name(self) -> str:
+        j = f"[{self.joint + 1}]" if getattr(self, "_n", 1) > 1 else ""
+        return f"{self.type}/{self.side}{j}"
+
+    # --- search
+    def grid(self, ctx: Context) -> list[float | None]:
+        return [None]
+
+    def design(self, ctx: Context, theta) -> tuple[np.ndarray | None, np.ndarray]:
+        """(o(θ) or None, X(θ) of shape (N·2n, len(linear)))."""
+        raise NotImplementedError
+
+    def natural(self, beta: np.ndarray, theta) -> dict[str, float]:
+        """Effect parameters from (β, θ)."""
+        raise NotImplementedError
+
+    def bounds(self, ctx: Context) -> dict[str, tuple[float, float]]:
+        return {p: (-np.inf, np.inf) for p in self.params}
+
+    def effect(self, params: dict[str, float]) -> Effect:
+        return make_effect(self.type, self.side, self.joint, **params)
+
+    # --- helpers
+    def _unit(self, ctx: Context, **params) -> np.ndarray:
+        return ctx.delta_r([self.effect(params)])
+
+    def _side_signals(self, ctx: Context):
+        """(angle, vel, acc) of this side and joint (offsets removed)."""
+        q, th = ctx.angles()
+        k = ctx.kin
+        j = self.joint
+        if self.side == "load":
+            return q[:, j], k.dq[:, j], k.ddq[:, j]
+        if self.side == "motor":
+            return th[:, j], k.dtheta_m[:, j], k.ddtheta_m[:, j]
+        return q[:, j] - th[:, j], k.dq[:, j] - k.dtheta_m[:, j], k.ddq[:, j] - k.ddtheta_m[:, j]
+
+    def _on_side(self, ctx: Context, col: np.ndarray) -> np.ndarray:
+        """Place a torque e (N,) on this side: +e load / +e motor / (+e, −e) spring; flattened."""
+        n = ctx.n
+        out = np.zeros((ctx.kin.N, 2 * n))
+        if self.side in ("load", "spring"):
+            out[:, self.joint] = col
+        if self.side == "motor":
+            out[:, n + self.joint] = col
+        if self.side == "spring":
+            out[:, n + self.joint] = -col
+        return out.reshape(-1)
+
+    def regressor(self, ctx: Context, theta=None) -> tuple[np.ndarray, str]:
+        """The signal to plot the residual against, and its label."""
+        a, v, _ = self._side_signals(ctx)
+        return v, {"load": "q̇", "motor": "θ̇_m", "spring": "θ̇_s"}[self.side] + " [rad/s]"
+
+
+# ------------------------------------------------------------------------- additive, linear
+
+class CoulombC(Candidate):
+    type, linear, params = "coulomb", ("F_c",), ("F_c",)
+    nonneg = (0,)
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, F_c=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"F_c": float(beta[0])}
+
+    def bounds(self, ctx):
+        return {"F_c": (0.0, np.inf)}
+
+
+class ViscousC(Candidate):
+    type, linear, params = "viscous", ("b",), ("b",)
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, b=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"b": float(beta[0])}
+
+
+class InertiaC(Candidate):
+    type, linear, params = "inertia", ("dI",), ("dI",)
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, dI=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"dI": float(beta[0])}
+
+    def regressor(self, ctx, theta=None):
+        _, _, acc = self._side_signals(ctx)
+        return acc, ("q̈" if self.side == "load" else "θ̈_m") + " [rad/s²]"
+
+
+class GravityC(Candidate):
+    """a sin(q + φ) = a cos φ · sin q + a sin φ · cos q."""
+
+    type, linear, params = "gravity", ("a_cos_phi", "a_sin_phi"), ("a", "phi")
+
+    def design(self, ctx, theta):
+        s = self._unit(ctx, a=1.0, phi=0.0)
+        c = self._unit(ctx, a=1.0, phi=math.pi / 2)
+        return None, np.column_stack([s, c])
+
+    def natural(self, beta, theta):
+        a = float(math.hypot(beta[0], beta[1]))
+        return {"a": a, "phi": float(math.atan2(beta[1], beta[0]))}
+
+    def bounds(self, ctx):
+        return {"a": (0.0, np.inf), "phi": (-2 * math.pi, 2 * math.pi)}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        return a, "q [rad]"
+
+
+class HumanViscoelasticC(Candidate):
+    """k_h (q − q_h0) + b_h q̇ = k_h q + c + b_h q̇ with c = −k_h q_h0."""
+
+    type, linear, params = "human_viscoelastic", ("k_h", "c", "b_h"), ("k_h", "q_h0", "b_h")
+
+    def design(self, ctx, theta):
+        kq = self._unit(ctx, k_h=1.0, q_h0=0.0, b_h=0.0)
+        one = self._unit(ctx, k_h=1.0, q_h0=-1.0, b_h=0.0) - kq
+        bv = self._unit(ctx, k_h=0.0, q_h0=0.0, b_h=1.0)
+        return None, np.column_stack([kq, one, bv])
+
+    def natural(self, beta, theta):
+        k = float(beta[0])
+        q0 = -float(beta[1]) / k if abs(k) > 1e-9 else 0.0
+        return {"k_h": k, "q_h0": q0, "b_h": float(beta[2])}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        return a, "q [rad]"
+
+
+class SpringCubicC(Candidate):
+    type, linear, params = "spring_cubic", ("k3",), ("k3",)
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, k3=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"k3": float(beta[0])}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        return a, "θ_s [rad]"
+
+
+class TorqueScaleC(Candidate):
+    """Δr(κ) = (1 − κ)·κ₀τ_m on r_motor: X = Δr(κ = 2) = −κ₀τ_m, β = κ − 1."""
+
+    type, linear, params = "torque_scale", ("kappa_minus_1",), ("kappa",)
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, kappa=2.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"kappa": 1.0 + float(beta[0])}
+
+    def bounds(self, ctx):
+        return {"kappa": (1e-3, np.inf)}
+
+    def regressor(self, ctx, theta=None):
+        return ctx.kin.tau_m[:, self.joint], "τ_m [N m]"
+
+
+class EncoderOffsetC(Candidate):
+    """The encoder reads angle + δ: enters every term that uses that angle (C(q), τ_s, the
+    declared effects), so Δr(δ) is computed exactly from the model and δ found by
+    Gauss–Newton from δ = 0 (:meth:`.select.Selector.fit_candidate`): linearised
+    ∂Δr/∂δ as the regressor, re-linearised at each iterate."""
+
+    type, linear, nonlinear, params = "encoder_offset", (), "delta", ("delta",)
+    gauss_newton = True
+    H = 1e-4
+
+    def design(self, ctx, theta):
+        return self._unit(ctx, delta=float(theta)), np.zeros((ctx.r0.size, 0))
+
+    def natural(self, beta, theta):
+        return {"delta": float(theta)}
+
+    def bounds(self, ctx):
+        return {"delta": (-0.5, 0.5)}
+
+    def regressor(self, ctx, theta=None):
+        q, th = ctx.angles()
+        return q[:, self.joint] - th[:, self.joint], "θ_s [rad]"
+
+
+# ------------------------------------------------------------------------- nonlinear in θ
+
+class StribeckC(Candidate):
+    type, linear, nonlinear, params = "stribeck", ("F_s",), "v_s", ("F_s", "v_s")
+    nonneg = (0,)
+
+    def grid(self, ctx):
+        _, v, _ = self._side_signals(ctx)
+        vmax = max(float(np.percentile(np.abs(v), 99)), 1e-3)
+        return list(np.geomspace(0.005, 2.0 * vmax, 28))
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, F_s=1.0, v_s=float(theta))[:, None]
+
+    def natural(self, beta, theta):
+        return {"F_s": float(beta[0]), "v_s": float(theta)}
+
+    def bounds(self, ctx):
+        return {"F_s": (0.0, np.inf), "v_s": (1e-4, np.inf)}
+
+
+class CoggingC(Candidate):
+    """A sin(P θ_m + φ) = A cos φ · sin Pθ_m + A sin φ · cos Pθ_m, P on a grid."""
+
+    type, linear, nonlinear, params = "cogging", ("A_cos_phi", "A_sin_phi"), "periods", ("A", "periods", "phi")
+
+    def grid(self, ctx):
+        a, v, _ = self._side_signals(ctx)
+        # resolvable at the sample rate: P |θ̇_m| dt < π/2 for most samples
+        vmax = max(float(np.percentile(np.abs(v), 90)), 1e-6)
+        pmax = min(0.5 * math.pi / (vmax * ctx.kin.dt), 2000.0)
+        span = max(float(np.ptp(a)), 1e-6)
+        # one period change across the travelled range is the resolution in P
+        step = 0.25 * 2 * math.pi / span
+        return list(np.arange(max(step, 0.5), pmax, step))
+
+    def design(self, ctx, theta):
+        s = self._unit(ctx, A=1.0, periods=float(theta), phi=0.0)
+        c = self._unit(ctx, A=1.0, periods=float(theta), phi=math.pi / 2)
+        return None, np.column_stack([s, c])
+
+    def fast_design(self, ctx, theta):
+        """The same columns without going through the model (cogging is additive)."""
+        a, _, _ = self._side_signals(ctx)
+        return (self._on_side(ctx, np.sin(theta * a)), self._on_side(ctx, np.cos(theta * a)))
+
+    def natural(self, beta, theta):
+        return {"A": float(math.hypot(beta[0], beta[1])), "periods": float(theta),
+                "phi": float(math.atan2(beta[1], beta[0]))}
+
+    def bounds(self, ctx):
+        return {"A": (0.0, np.inf), "periods": (1e-3, np.inf), "phi": (-2 * math.pi, 2 * math.pi)}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        if theta:
+            return np.mod(theta * a, 2 * math.pi), "P·θ_m mod 2π [rad]"
+        return a, "θ_m [rad]"
+
+
+class SpringSaturationC(Candidate):
+    type, linear, nonlinear, params = "spring_saturation", ("k_stop",), "theta_max", ("theta_max", "k_stop")
+    nonneg = (0,)
+
+    def grid(self, ctx):
+        a, _, _ = self._side_signals(ctx)
+        qs = np.percentile(np.abs(a), [40, 97])
+        return list(np.linspace(max(qs[0], 1e-4), max(qs[1], 2e-4), 20))
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, theta_max=float(theta), k_stop=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"theta_max": float(theta), "k_stop": float(beta[0])}
+
+    def bounds(self, ctx):
+        a, _, _ = self._side_signals(ctx)
+        return {"theta_max": (1e-5, float(np.max(np.abs(a)))), "k_stop": (1e-6, np.inf)}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        return a, "θ_s [rad]"
+
+
+class BacklashC(Candidate):
+    """Structural: Δr(w) from the model with a dead band of width w; no free coefficient."""
+
+    type, linear, nonlinear, params = "spring_backlash", (), "width", ("width",)
+
+    #: share of the samples that must lie on each side of the dead band
+    MIN_SIDE = 0.02
+
+    def grid(self, ctx):
+        """Widths whose dead band the deflection passes: samples on both sides of ±w/2.
+
+        With a deflection of one sign only, a dead band is an exactly constant spring-torque
+        offset, indistinguishable from an encoder offset: no evidence of backlash, no width.
+        """
+        a, _, _ = self._side_signals(ctx)
+        wmax = 2.0 * float(np.percentile(np.abs(a), 90))
+        ws = np.linspace(wmax / 30, wmax, 30)
+        return [float(w) for w in ws
+                if np.mean(a > w / 2) >= self.MIN_SIDE and np.mean(a < -w / 2) >= self.MIN_SIDE]
+
+    def design(self, ctx, theta):
+        return self._unit(ctx, width=float(theta)), np.zeros((ctx.r0.size, 0))
+
+    def natural(self, beta, theta):
+        return {"width": float(theta)}
+
+    def bounds(self, ctx):
+        a, _, _ = self._side_signals(ctx)
+        return {"width": (0.0, 2.0 * float(np.max(np.abs(a))))}
+
+    def regressor(self, ctx, theta=None):
+        a, _, _ = self._side_signals(ctx)
+        return a, "θ_s [rad]"
+
+
+class DelayC(Candidate):
+    """Structural: Δr(d) = κ₀(τ_m(t) − τ_m(t − d)) on r_motor; no free coefficient."""
+
+    type, linear, nonlinear, params = "delay", (), "seconds", ("seconds",)
+
+    def grid(self, ctx):
+        dt = ctx.kin.dt
+        return list(np.linspace(dt / 8, 8 * dt, 40))
+
+    def design(self, ctx, theta):
+        return self._unit(ctx, seconds=float(theta)), np.zeros((ctx.r0.size, 0))
+
+    def natural(self, beta, theta):
+        return {"seconds": float(theta)}
+
+    def bounds(self, ctx):
+        return {"seconds": (0.0, 20 * ctx.kin.dt)}
+
+    def regressor(self, ctx, theta=None):
+        k = ctx.kin
+        return np.gradient(k.smooth(k.tau_m[:, self.joint]), k.t), "τ̇_m [N m/s]"
+
+
+_CLASSES = {
+    "coulomb": CoulombC, "viscous": ViscousC, "stribeck": StribeckC, "inertia": InertiaC,
+    "gravity": GravityC, "human_viscoelastic": HumanViscoelasticC, "spring_cubic": SpringCubicC,
+    "spring_backlash": BacklashC, "torque_scale": TorqueScaleC, "encoder_offset": EncoderOffsetC,
+    "delay": DelayC, "cogging": CoggingC, "spring_saturation": SpringSaturationC,
+}
+
+
+def build_candidates(ctx: Context, types=None) -> list[Candidate]:
+    """Every vocabulary type × every side it may sit on × every joint (``types`` to restrict)."""
+    from sea_daemon.core.effects import EFFECT_TYPES
+    out = []
+    for typ, eff_cls in EFFECT_TYPES.items():
+        if types is not None and typ not in types:
+            continue
+        cls = _CLASSES[typ]
+        for side in eff_cls.sides:
+            for j in range(ctx.n):
+                c = cls(side, j)
+                c._n = ctx.n
+                out.append(c)
+    return out

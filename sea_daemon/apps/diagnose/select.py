@@ -1,0 +1,591 @@
+"""Choosing the effects the evidence supports (issue 6, item 2).
+
+Forward selection on the stacked two-channel residual y = [r_load, r_motor] (flattened):
+
+1. At each step every remaining candidate is fitted jointly with the effects already
+   chosen: its nonlinear parameter θ on a grid (plus a bounded 1-D refinement between the
+   best grid neighbours), all linear coefficients by least squares.
+2. Candidates are ranked by BIC; the best one that passes every test is accepted:
+   * BIC falls, with the *effective* sample size N_eff = M / τ_int (τ_int the integrated
+     autocorrelation time of the current residual: smoothed derivatives make neighbouring
+     samples dependent, so M samples carry fewer independent observations);
+   * blocked cross-validation (K contiguous time segments held out in turn, the linear
+     coefficients refitted on the rest) lowers the held-out mean square by at least
+     ``min_cv_gain`` (relative);
+   * the step explains at least ``min_fraction`` of the *initial* mean square or
+     ``min_fraction_current`` of what is still unexplained (on the fitted samples or on the
+     whole log, sticking phases included), and its share of the residual is
+     at least ``min_effect_rms`` N m RMS over the whole log (a practical size floor:
+     statistically real but negligible structure is not worth a model term).
+   When none passes, selection stops.
+3. The chosen effects' natural parameters (F_c, v_s, δ, width, ...) are refined jointly by
+   nonlinear least squares on the exact residual of the augmented model
+   (scipy.optimize.least_squares); confidence intervals from the Gauss–Newton covariance
+   s²(JᵀJ)⁻¹ inflated by τ_int of the final residual (Wald, 95 %).
+4. Explained fractions: sequential decrease of the mean square, in the order chosen, at the
+   final parameters, divided by the initial mean square; the rest is unexplained.
+5. What remains is checked for structure that no candidate took: bin means of the final
+   residual against q, q̇, θ_s, θ_m and (q, sign q̇); the largest share of the remaining
+   mean square such a lookup explains (less its chance level) is reported as
+   ``structured_unexplained_fraction`` of the initial mean square, with the signals it
+   follows.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares, minimize_scalar
+
+from sea_daemon.apps.diagnose.candidates import Candidate, Context
+
+Z95 = 1.959963984540054
+
+
+@dataclass
+class SelectOptions:
+    """Thresholds of the selection (see the module docstring)."""
+
+    min_fraction: float = 0.05      # of the initial mean square, per accepted effect ...
+    min_fraction_current: float = 0.3   # ... or of the mean square still unexplained
+    min_cv_gain: float = 0.05       # relative decrease of the held-out mean square
+    folds: int = 5                  # blocked CV segments
+    max_effects: int = 6
+    min_effect_rms: float = 0.01    # [N m] smallest effect worth a model term (RMS of its share)
+    ambiguity: float = 0.9          # alternatives explaining ≥ this share of the best's ΔRSS
+    ambiguity_bic: float = 10.0     # ... and with a BIC within this of the best's
+    structure_threshold: float = 0.10   # structured unexplained share that triggers the warning
+    edge: int | None = None         # samples dropped at each end (default: the smoothing window)
+    #: samples with |q̇| or |θ̇_m| below this [rad/s] are left out of the fit (stiction: the
+    #: smoothed sign of the model cannot follow sticking); default 3 × the model's sign_eps
+    v_min: float | None = None
+    max_masked: float = 0.5         # never leave out more than this share of the samples
+
+
+@dataclass
+class CandidateFit:
+    """One candidate fitted at one step: θ, coefficients, RSS, its design, BIC and CV score."""
+
+    cand: Candidate
+    theta: float | None
+    beta: np.ndarray               # coefficients of [selected X ..., this X]
+    rss: float
+    o: np.ndarray | None
+    X: np.ndarray
+    bic: float = math.inf
+    cv: float = math.inf
+    params: dict = field(default_factory=dict)
+    frac_all: float = 0.0          # share of the initial mean square (whole log) it removes
+
+
+@dataclass
+class StepRecord:
+    """The candidate table of one selection step and the decision taken."""
+
+    step: int
+    rows: list[dict]               # one per candidate tried at this step
+    chosen: str | None
+    reason: str
+
+
+@dataclass
+class Selection:
+    """What the selection found: effects with parameters, CIs and shares, and the record."""
+
+    chosen: list[tuple[Candidate, dict]]          # (candidate, natural params)
+    ci: list[dict]                                # per chosen: {param: (lo, hi)}
+    explained: list[float]
+    unexplained: float
+    steps: list[StepRecord]
+    alternatives: list[list[str]]
+    tau_int: float
+    structure: dict
+    rss0: float
+    rss_final: float
+    r_final: np.ndarray
+    dropped: list = field(default_factory=list)   # (candidate name, params, CI) not determined
+
+
+def integrated_autocorr_time(y: np.ndarray, max_lag: int = 200) -> float:
+    """τ_int = 1 + 2 Σ ρ_k (summed until ρ_k first drops below 0.05), per column, max over columns.
+
+    Sokal's estimator (Monte Carlo textbook); y (N, c)."""
+    y = np.atleast_2d(y.T).T
+    taus = []
+    for col in y.T:
+        x = col - col.mean()
+        v = float(np.dot(x, x))
+        if v <= 0:
+            continue
+        L = min(max_lag, len(x) // 4)
+        f = np.fft.rfft(x, 2 * len(x))
+        ac = np.fft.irfft(f * np.conj(f))[:L + 1] / v
+        s = 1.0
+        for k in range(1, L + 1):
+            if ac[k] < 0.05:
+                break
+            s += 2.0 * ac[k]
+        taus.append(s)
+    return float(max(taus)) if taus else 1.0
+
+
+def _lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    if A.shape[1] == 0:
+        return np.zeros(0)
+    return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+class Selector:
+    def __init__(self, ctx: Context, cands: list[Candidate], opts: SelectOptions | None = None):
+        self.ctx = ctx
+        self.cands = cands
+        self.opts = opts or SelectOptions()
+        kin = ctx.kin
+        N, c = ctx.r0.shape
+        edge = self.opts.edge if self.opts.edge is not None else kin.window
+        edge = min(edge, max(0, (N - 10) // 4))
+        self.edge = edge
+        keep_t = np.zeros(N, dtype=bool)
+        keep_t[edge:N - edge] = True
+        v_min = self.opts.v_min if self.opts.v_min is not None else 3.0 * ctx.cfg.estimator.sign_eps
+        slow = np.any((np.abs(kin.dq) < v_min) | (np.abs(kin.dtheta_m) < v_min), axis=1)
+        # the smoother S spreads what happens while sticking over half a window either side
+        half = kin.window // 2
+        if half and slow.any():
+            slow = np.convolve(slow.astype(float), np.ones(2 * half + 1), mode="same") > 0
+        if np.mean(slow & keep_t) <= self.opts.max_masked * np.mean(keep_t):
+            keep_t &= ~slow
+        self.masked_share = 1.0 - float(np.mean(keep_t))
+        self.keep_t = keep_t
+        mask = np.repeat(keep_t[:, None], c, axis=1)
+        self.valid = mask.reshape(-1)
+        self.time_index = np.repeat(np.arange(N), c)[self.valid]
+        self.y0 = ctx.r0.reshape(-1)[self.valid]
+        self.M = self.y0.size
+        self._cache: dict = {}
+        self._full: dict = {}
+        # blocked CV folds over time
+        K = max(2, self.opts.folds)
+        edges = np.linspace(self.time_index.min(), self.time_index.max() + 1, K + 1)
+        self.fold = np.clip(np.searchsorted(edges, self.time_index, side="right") - 1, 0, K - 1)
+
+    # ---------------------------------------------------------------- designs
+    def design(self, cand: Candidate, theta):
+        key = (id(cand), None if theta is None else round(float(theta), 12))
+        if key not in self._cache:
+            o, X = cand.design(self.ctx, theta)
+            self._cache[key] = (None if o is None else o[self.valid], X[self.valid])
+            self._full[key] = (o, X)
+        return self._cache[key]
+
+    def contribution_rms(self, fit: CandidateFit) -> float:
+        """RMS [N m] over all samples (not only the fitted ones) of what the candidate explains."""
+        key = (id(fit.cand), None if fit.theta is None else round(float(fit.theta), 12))
+        if key not in self._full:
+            self.design(fit.cand, fit.theta)
+        o, X = self._full.get(key, (None, np.zeros((0, 0))))
+        if o is None and X.shape[0] == 0:
+            return 0.0
+        k = X.shape[1]
+        d = (o if o is not None else 0.0) + (X @ fit.beta[len(fit.beta) - k:] if k else 0.0)
+        d = np.asarray(d, dtype=float)
+        return float(np.sqrt(np.sum(d**2) / self.ctx.kin.N))
+
+    def _fit_with(self, y, base_X, o, X, nonneg=()):
+        """Least squares of y − o on [base_X, X]; coefficients of X listed in ``nonneg`` are
+        held at 0 when they come out negative (the vocabulary's sign constraints)."""
+        yy = y if o is None else y - o
+        A = np.hstack([base_X, X]) if base_X.shape[1] else X
+        beta = _lstsq(A, yy)
+        k0 = base_X.shape[1]
+        bad = [k0 + i for i in nonneg if beta[k0 + i] < 0]
+        if bad:
+            keep = [i for i in range(A.shape[1]) if i not in bad]
+            beta = np.zeros(A.shape[1])
+            beta[keep] = _lstsq(A[:, keep], yy)
+        res = yy - (A @ beta if A.shape[1] else 0.0)
+        return beta, float(res @ res)
+
+    def _gauss_newton(self, cand: Candidate, y, base_X, iters: int = 6) -> CandidateFit:
+        """Δr(θ) exact, θ by Gauss–Newton from 0 with the chosen columns refitted each step."""
+        lo, hi = cand.bounds(self.ctx)[cand.nonlinear]
+        th = 0.0
+        h = getattr(cand, "H", 1e-4)
+        for _ in range(iters):
+            o_p, _ = self.design(cand, th + h)
+            o_m, _ = self.design(cand, th - h)
+            o, _ = self.design(cand, th) if th != 0.0 else (None, None)
+            J = ((o_p - o_m) / (2 * h))[:, None]
+            beta, _ = self._fit_with(y, base_X, o, J)
+            step = float(beta[-1])
+            th_new = float(np.clip(th + step, lo, hi))
+            done = abs(th_new - th) < 1e-7 + 1e-4 * abs(th_new)
+            th = th_new
+            if done:
+                break
+        o, X = self.design(cand, th)
+        beta, rss = self._fit_with(y, base_X, o, X)
+        fit = CandidateFit(cand, th, beta, rss, o, X)
+        fit.params = cand.natural(beta[base_X.shape[1]:], th)
+        return fit
+
+    def fit_candidate(self, cand: Candidate, y, base_X) -> CandidateFit:
+        if getattr(cand, "gauss_newton", False):
+            return self._gauss_newton(cand, y, base_X)
+        grid = cand.grid(self.ctx)
+        fast = getattr(cand, "fast_design", None)
+        if fast is not None and len(grid) > 40:
+            # cheap scan (additive effect: columns straight from the signal), exact design after
+            scores = []
+            for th in grid:
+                cols = np.column_stack([c[self.valid] for c in fast(self.ctx, th)])
+                _, rss = self._fit_with(y, base_X, None, cols, cand.nonneg)
+                scores.append(rss)
+            order = np.argsort(scores)[:3]
+            grid_eval = [grid[i] for i in order]
+        else:
+            grid_eval = grid
+        results = []
+        if not grid_eval:
+            return CandidateFit(cand, None, np.zeros(0), math.inf, None, np.zeros((self.M, 0)))
+        for th in grid_eval:
+            o, X = self.design(cand, th)
+            beta, rss = self._fit_with(y, base_X, o, X, cand.nonneg)
+            results.append((rss, th, beta))
+        results.sort(key=lambda r: r[0])
+        rss, th, beta = results[0]
+        if th is not None and len(grid) > 1:
+            # bounded 1-D refinement between the best grid point's neighbours
+            g = np.asarray(grid, float)
+            i = int(np.argmin(np.abs(g - th)))
+            lo, hi = g[max(i - 1, 0)], g[min(i + 1, len(g) - 1)]
+            if hi > lo:
+                def f(t):
+                    o, X = cand.design(self.ctx, t)
+                    o = None if o is None else o[self.valid]
+                    return self._fit_with(y, base_X, o, X[self.valid], cand.nonneg)[1]
+                r = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": (hi - lo) * 1e-3, "maxiter": 20})
+                if r.fun < rss:
+                    th = float(r.x)
+                    o, X = self.design(cand, th)
+                    beta, rss = self._fit_with(y, base_X, o, X, cand.nonneg)
+        o, X = self.design(cand, th)
+        fit = CandidateFit(cand, th, beta, rss, o, X)
+        fit.params = cand.natural(beta[base_X.shape[1]:], th)
+        return fit
+
+    def cv_mse(self, y, base_X, o=None, X=None) -> float:
+        yy = y if o is None else y - o
+        A = base_X if X is None else (np.hstack([base_X, X]) if base_X.shape[1] else X)
+        err = 0.0
+        for f in range(self.fold.max() + 1):
+            te = self.fold == f
+            tr = ~te
+            beta = _lstsq(A[tr], yy[tr])
+            pred = A[te] @ beta if A.shape[1] else 0.0
+            e = yy[te] - pred
+            err += float(e @ e)
+        return err / yy.size
+
+    # ---------------------------------------------------------------- forward selection
+    def run(self) -> Selection:
+        o_cfg = self.opts
+        y = self.y0.copy()                 # target minus chosen structural offsets
+        base_X = np.zeros((self.M, 0))
+        chosen: list[CandidateFit] = []
+        n_par = 0
+        rss0 = float(self.y0 @ self.y0)
+        rss_cur = rss0
+        all0 = self.rss_all([])
+        steps: list[StepRecord] = []
+        alternatives: list[list[str]] = []
+        remaining = list(self.cands)
+        for step in range(1, o_cfg.max_effects + 1):
+            beta_cur = _lstsq(base_X, y)
+            res_cur = y - (base_X @ beta_cur if base_X.shape[1] else 0.0)
+            rss_cur = float(res_cur @ res_cur)
+            tau = integrated_autocorr_time(self._as_channels(res_cur))
+            n_eff = max(self.M / tau, 2.0)
+            bic_cur = n_eff * math.log(rss_cur / self.M) + n_par * math.log(n_eff)
+            cv_cur = self.cv_mse(y, base_X)
+            all_cur = self.rss_all(self._effects_from(chosen, beta_cur)) if chosen else all0
+            fits = []
+            for cand in remaining:
+                fit = self.fit_candidate(cand, y, base_X)
+                k = n_par + len(cand.linear) + (1 if cand.nonlinear else 0)
+                # a parameter chosen from G grid values costs ≈ 2 ln G more (the best of G
+                # tries fits noise better: Bonferroni-style look-elsewhere penalty)
+                look = (2.0 * math.log(max(len(cand.grid(self.ctx)), 1))
+                        if cand.nonlinear and not getattr(cand, "gauss_newton", False) else 0.0)
+                fit.bic = n_eff * math.log(max(fit.rss, 1e-300) / self.M) + k * math.log(n_eff) + look
+                fits.append(fit)
+            fits = [f for f in fits if np.isfinite(f.rss)]
+            if not fits:
+                steps.append(StepRecord(step, [], None, "no candidate applicable"))
+                break
+            # rank by BIC: of two that fit equally well, the one with fewer parameters
+            fits.sort(key=lambda f: f.bic)
+            rows = []
+            for f in fits:
+                rows.append({"candidate": f.cand.name, "type": f.cand.type, "side": f.cand.side,
+                             "params": {k: round(v, 6) for k, v in f.params.items()},
+                             "explains": (rss_cur - f.rss) / rss0, "delta_bic": f.bic - bic_cur})
+
+            def reasons_against(f: CandidateFit) -> list[str]:
+                out = []
+                if not f.bic < bic_cur:
+                    out.append(f"BIC does not fall ({f.bic - bic_cur:+.1f})")
+                    return out
+                f.cv = self.cv_mse(y, base_X, f.o, f.X)
+                if not f.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
+                    out.append(f"held-out mean square falls only {100 * (1 - f.cv / cv_cur):.1f} % "
+                               f"(< {100 * o_cfg.min_cv_gain:.0f} %)")
+                eff_rms = self.contribution_rms(f)
+                if eff_rms < o_cfg.min_effect_rms:
+                    out.append(f"its share of the residual is {eff_rms:.4f} N m RMS (< {o_cfg.min_effect_rms} N m)")
+                # its size, on the fitted samples and on the whole log (sticking phases included,
+                # which the fit leaves out): worth a term if it takes a good part of either
+                gain_all = all_cur - self.rss_all(self._effects_from(chosen + [f], f.beta))
+                fr, fr_cur = gain_all / all0, gain_all / all_cur
+                fit_fr, fit_cur = (rss_cur - f.rss) / rss0, (rss_cur - f.rss) / rss_cur
+                f.frac_all = fr
+                if max(fr, fit_fr) < o_cfg.min_fraction and max(fr_cur, fit_cur) < o_cfg.min_fraction_current:
+                    out.append(f"explains {100 * max(fr, fit_fr):.1f} % of the initial mean square "
+                               f"(< {100 * o_cfg.min_fraction:.0f} %) and {100 * max(fr_cur, fit_cur):.1f} % of "
+                               f"what is left (< {100 * o_cfg.min_fraction_current:.0f} %)")
+                return out
+
+            # the best by BIC that passes every test; candidates whose BIC does not fall end the search
+            best, rejected = None, []
+            for f in fits:
+                why = reasons_against(f)
+                if not why:
+                    best = f
+                    break
+                rejected.append(f"{f.cand.name}: " + "; ".join(why))
+                if not f.bic < bic_cur:
+                    break
+            if best is None:
+                steps.append(StepRecord(step, rows, None, "no candidate accepted — " + " | ".join(rejected[:3])))
+                break
+            frac = best.frac_all
+            gain = rss_cur - best.rss
+            # nearly as good: explains ≥ 90 % as much and BIC not worse by 10 or more (Kass &
+            # Raftery: ΔBIC > 10 is very strong evidence for the better one)
+            alts = [f.cand.name for f in fits if f is not best and gain > 0 and (rss_cur - f.rss) >= o_cfg.ambiguity * gain
+                    and f.bic - best.bic < o_cfg.ambiguity_bic]
+            alternatives.append(alts)
+            steps.append(StepRecord(step, rows, best.cand.name,
+                                    f"{best.cand.name} explains {100 * frac:.1f} % of the initial mean square; "
+                                    f"ΔBIC {best.bic - bic_cur:+.1f}; held-out mean square −{100 * (1 - best.cv / cv_cur):.1f} %"
+                                    + (f"; nearly as good: {', '.join(alts)}" if alts else "")))
+            chosen.append(best)
+            n_par += len(best.cand.linear) + (1 if best.cand.nonlinear else 0)
+            if best.o is not None:
+                y = y - best.o
+            base_X = np.hstack([base_X, best.X]) if best.X.shape[1] else base_X
+            # no second copy of the same type on the same side and joint
+            remaining = [c for c in remaining if not (c.type == best.cand.type and c.side == best.cand.side
+                                                      and c.joint == best.cand.joint)]
+            if not remaining:
+                break
+        # initial natural parameters from the joint linear solution
+        beta_all = _lstsq(base_X, y)
+        init = []
+        col = 0
+        for f in chosen:
+            k = f.X.shape[1]
+            init.append(f.cand.natural(beta_all[col:col + k], f.theta))
+            col += k
+        sel = self._finish(chosen, init, steps, alternatives, rss0)
+        # an effect whose parameters this log does not determine (95 % CI wider than the
+        # value on both sides) is not added: refit without it
+        dropped = []
+        while True:
+            # (angles and rest positions — phi, q_h0 — may rightly be near 0: not judged this way)
+            bad = [i for i, ((cand, p), ci) in enumerate(zip(sel.chosen, sel.ci))
+                   if any(abs(hi - lo) / 2 > abs(p[k]) for k, (lo, hi) in ci.items()
+                          if np.isfinite(lo) and k not in ("phi", "q_h0"))]
+            if not bad:
+                break
+            i = bad[0]
+            dropped.append((sel.chosen[i][0].name, sel.chosen[i][1], sel.ci[i]))
+            keep = [k for k in range(len(chosen)) if k != i]
+            chosen = [chosen[k] for k in keep]
+            init = [sel.chosen[k][1] for k in keep]
+            alternatives = [alternatives[k] for k in keep]
+            sel = self._finish(chosen, init, steps, alternatives, rss0)
+        sel.dropped = dropped
+        return sel
+
+    def _effects_from(self, fits: list[CandidateFit], beta: np.ndarray):
+        """Effects with natural parameters from the joint coefficients of ``fits``' columns."""
+        out, col = [], 0
+        for f in fits:
+            k = f.X.shape[1]
+            out.append(f.cand.effect(f.cand.natural(beta[col:col + k], f.theta)))
+            col += k
+        return out
+
+    def rss_all(self, effects) -> float:
+        """Sum of squares of the exact residual over every sample (the smoother's ends aside)."""
+        r = self.ctx.residual(list(effects))
+        e = self.edge
+        r = r[e:r.shape[0] - e] if e else r
+        return float(np.sum(r * r))
+
+    def _as_channels(self, v: np.ndarray) -> np.ndarray:
+        c = self.ctx.r0.shape[1]
+        return v.reshape(-1, c)
+
+    # ---------------------------------------------------------------- refinement, CIs
+    def _pack(self, chosen, params_list):
+        x0, lo, hi, idx = [], [], [], []
+        for i, (f, p) in enumerate(zip(chosen, params_list)):
+            b = f.cand.bounds(self.ctx)
+            for name in f.cand.params:
+                v = float(p[name])
+                l, h = b.get(name, (-np.inf, np.inf))
+                v = min(max(v, l + 1e-12 if np.isfinite(l) else v), h - 1e-12 if np.isfinite(h) else v)
+                x0.append(v)
+                lo.append(l)
+                hi.append(h)
+                idx.append((i, name))
+        return np.array(x0), np.array(lo), np.array(hi), idx
+
+    def _effects(self, chosen, x, idx):
+        ps = [dict() for _ in chosen]
+        for v, (i, name) in zip(x, idx):
+            ps[i][name] = float(v)
+        return [f.cand.effect(p) for f, p in zip(chosen, ps)], ps
+
+    def _resid(self, effects) -> np.ndarray:
+        return self.ctx.residual(effects).reshape(-1)[self.valid]
+
+    def _finish(self, chosen, init, steps, alternatives, rss0) -> Selection:
+        if not chosen:
+            r = self.y0
+            return Selection([], [], [], 1.0, steps, [], integrated_autocorr_time(self._as_channels(r)),
+                             self.structure(r, rss0), rss0, self.rss_all([]), self.ctx.r0)
+        x0, lo, hi, idx = self._pack(chosen, init)
+
+        def fun(x):
+            eff, _ = self._effects(chosen, x, idx)
+            return self._resid(eff)
+
+        scale = np.maximum(np.abs(x0), 1e-3)
+        try:
+            sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-4, max_nfev=60 * len(x0))
+            x, J, res = sol.x, sol.jac, sol.fun
+            if float(res @ res) > float(fun(x0) @ fun(x0)):
+                x, res = x0, fun(x0)
+        except (ValueError, np.linalg.LinAlgError):
+            x, res, J = x0, fun(x0), None
+        effects, params = self._effects(chosen, x, idx)
+        rss = float(res @ res)
+        tau = integrated_autocorr_time(self._as_channels(res))
+        ci = [dict() for _ in chosen]
+        if J is not None and J.shape[1]:
+            p = J.shape[1]
+            s2 = rss / max(self.M - p, 1)
+            try:
+                cov = np.linalg.pinv(J.T @ J) * s2 * tau
+                se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            except np.linalg.LinAlgError:
+                se = np.full(p, np.nan)
+            for k, (i, name) in enumerate(idx):
+                ci[i][name] = (float(x[k] - Z95 * se[k]), float(x[k] + Z95 * se[k]))
+        explained, unexplained, rss_all_final = self.shares(effects)
+        r_final = self.ctx.residual(effects)
+        return Selection(list(zip([f.cand for f in chosen], params)), ci, explained, unexplained, steps,
+                         alternatives, tau, self.structure(res, rss0), rss0, rss_all_final, r_final)
+
+    def shares(self, effects) -> tuple[list[float], float, float]:
+        """Shares of the initial mean square (whole log) per effect, and the unexplained share.
+
+        Shapley values (Shapley 1953; the usual attribution of R² among correlated
+        regressors, Lipovetsky & Conklin 2001): each effect's decrease of the sum of squares
+        averaged over every order of adding the effects, so the shares do not depend on the
+        order chosen and add up to 1 − unexplained = 1 − RMS_after² / RMS_before².
+        """
+        K = len(effects)
+        v = {}
+        for mask in range(1 << K):
+            v[mask] = self.rss_all([effects[i] for i in range(K) if mask >> i & 1])
+        full = (1 << K) - 1
+        v0 = v[0] if v[0] > 0 else 1.0
+        out = []
+        for i in range(K):
+            phi = 0.0
+            for mask in range(1 << K):
+                if mask >> i & 1:
+                    continue
+                m = bin(mask).count("1")
+                w = math.factorial(m) * math.factorial(K - m - 1) / math.factorial(K)
+                phi += w * (v[mask] - v[mask | 1 << i])
+            out.append(phi / v0)
+        # a negative Shapley share (an effect that only helps together with others) is shown
+        # as 0; the others are scaled so the shares still add up to 1 − unexplained
+        total = sum(out)
+        pos = [max(x, 0.0) for x in out]
+        if sum(pos) > 0 and total > 0:
+            pos = [x * total / sum(pos) for x in pos]
+        return pos, v[full] / v0, v[full]
+
+    # ---------------------------------------------------------------- leftover structure
+    def structure(self, res: np.ndarray, rss0: float) -> dict:
+        """Share of the leftover explained by bin means against state signals (chance-corrected),
+        as a fraction of the initial sum of squares over the whole log."""
+        all0 = max(self.rss_all([]), 1e-300)
+        ctx = self.ctx
+        kin = ctx.kin
+        q, th = ctx.angles()
+        c = ctx.r0.shape[1]
+        n = ctx.n
+        valid_t = np.unique(self.time_index)
+        R = np.full((kin.N, c), np.nan)
+        R.reshape(-1)[np.flatnonzero(self.valid)] = res
+        R = R[valid_t]
+        best = {"fraction": 0.0, "signals": [], "channel": None}
+        for j in range(n):
+            sig = {
+                "q": q[valid_t, j], "q̇": kin.dq[valid_t, j], "θ_s": (q - th)[valid_t, j],
+                "θ_m": th[valid_t, j],
+            }
+            sgn = np.sign(kin.dq[valid_t, j])
+            for ch in range(c):
+                r = R[:, ch]
+                ss = float(r @ r)
+                if ss <= 0:
+                    continue
+                for name, s in list(sig.items()) + [("q, sign q̇", None)]:
+                    if s is None:
+                        bins = self._bins(sig["q"], 10) * 2 + (sgn > 0)
+                        nb = 20
+                    else:
+                        bins = self._bins(s, 16)
+                        nb = 16
+                    sums = np.bincount(bins, weights=r, minlength=nb)
+                    cnt = np.bincount(bins, minlength=nb)
+                    means = np.divide(sums, cnt, out=np.zeros(nb), where=cnt > 0)
+                    expl = float(np.sum(cnt * means**2))
+                    # chance level: with N/τ independent samples, nb bin means of structureless
+                    # noise explain ≈ nb·τ/N of its sum of squares (τ of what the bins leave)
+                    tau = integrated_autocorr_time((r - means[bins])[:, None])
+                    chance = min(1.0, nb * tau / len(r))
+                    share_ss = max(expl / ss - chance, 0.0) * ss
+                    if share_ss / all0 > best["fraction"]:
+                        chname = ("load" if ch < n else "motor") + (f"[{ch % n + 1}]" if n > 1 else "")
+                        best = {"fraction": share_ss / all0, "signals": [name], "channel": chname,
+                                "rms": math.sqrt(share_ss / max(len(valid_t), 1))}
+        # RMS [N m] of the structured part (over the fitted samples): a share of pure noise is no news
+        best.setdefault("rms", 0.0)
+        best["warn"] = bool(best["fraction"] >= self.opts.structure_threshold
+                            and best["rms"] >= self.opts.min_effect_rms)
+        return best
+
+    @staticmethod
+    def _bins(s: np.ndarray, k: int) -> np.ndarray:
+        qs = np.quantile(s, np.linspace(0, 1, k + 1)[1:-1])
+        return np.searchsorted(qs, s)

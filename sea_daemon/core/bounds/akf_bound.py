@@ -1,0 +1,552 @@
+"""Theorem-1 bound attached to a running (GP-)AKF: ``tau_h_act_bound`` becomes ρ_k.
+
+:func:`attach_theorem_bound` wraps an :class:`~sea_daemon.core.estimators.akf.AKF` instance (plain
+AKF or GP-AKF: an AKF with a residual) without changing its class: after every filter step
+it propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps
+per step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
+``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.
+
+Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
+* C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
+* continuous-time linearisation error ε_c = f(x) − f(x̂) − A_k (x − x̂) of the GP-enhanced
+  drift f(x) = f_nom(x, u) − I_μ M⁻¹ μ(z(x)) (eq:fwdynwtorqueresidual1), per dimension, as the
+  sum of two parts, mapped by Φ = ∫₀^dt e^{A s} ds:
+  - nominal model: without declared effects its only non-linearity is gravity, bounded
+    analytically and rigorously (Lagrange remainder, :meth:`AKFTheoremBound._gravity_box`);
+    with declared effects, sampled over the point set of C_{k−1} (+ ``margin``);
+  - GP mean: |μ(z) − μ̄(z)| (μ̄ the filter's linear model at ẑ) sampled over the points of the
+    projection of C_{k−1} on (q, q̇) (+ ``margin``)
+* GP error (eq:Dmuhat): √β_j s_j(z) + γ_j at the same points — s = σ (LUH19) or the local scale
+  √(σ² + s_loc²) (conformal / configured β, gp_bound.LocalScale) at unclipped z (not just at
+  ẑ), because the true z is only known to lie in the set.  The GP error and the GP mean's
+  linearisation error are one torque error f − μ̄ at the true z, entering through Γ_μ:
+  η_j = max over the points of their sum (docs/bounds.md §4).  ``gp_beta`` (default
+  ``estimator.gp_beta``): 'lederer' or a number
+* without declared effects ε and η depend on x only through q and (q, q̇): the set they are
+  bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
+* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6): τ_h,act
+  may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
+  bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
+* X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
+
+Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
+With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
+constants (:func:`gp_constants`); ρ then holds with probability ≥ 1 − δ.
+States whose z leaves the GP constants' input box have no GP guarantee: such steps are
+counted in ``bound.gp_box_violations_`` (and ρ is still published).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sea_daemon.core.jit import njit, warm_up, warmer
+from sea_daemon.errors import EstimatorFault
+from sea_daemon.core.estimators.akf_core import held_input
+from sea_daemon.core.bounds.ellipsoid import Ellipsoid
+from sea_daemon.core.bounds.gp_bound import (
+    BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants, input_box, loggp_leaves)
+from sea_daemon.core.bounds.setmember import (
+    SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points, input_matrix)
+
+
+@njit
+def _gravity_remainder(qh, r, g, grid, grid_step, v):
+    """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (:meth:`AKFTheoremBound._gravity_box`)."""
+    for j in range(qh.shape[0]):
+        s0, c0 = math.sin(qh[j]), math.cos(qh[j])
+        hmax = 0.0
+        # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
+        # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
+        for D0 in grid:
+            D = D0 * r[j]
+            hmax = max(hmax, abs(math.sin(qh[j] + D) - s0 - c0 * D))
+        # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
+        v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
+
+
+@warmer
+def _warm() -> None:
+    """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
+    _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    held_input(np.zeros((5, 5)), np.zeros((5, 1)), 0.01, np.zeros((5, 1)))
+
+
+class AKFTheoremBound:
+    """The Theorem-1 companion of one AKF instance (see module docstring)."""
+
+    def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
+                 gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
+                 delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
+                 projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
+                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None):
+        self.akf = akf
+        est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
+        # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
+        # the configuration's estimator.gp_beta
+        if gp_beta is None:
+            gp_beta = getattr(est_cfg, "gp_beta", "lederer")
+        if not (gp_beta == "lederer" or (isinstance(gp_beta, (int, float)) and gp_beta > 0)):
+            raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
+        self.gp_beta = gp_beta
+        n, d = akf.n, akf.d
+        # declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk (default estimator.tau_h_act_rate)
+        if tau_h_act_rate is None:
+            tau_h_act_rate = getattr(est_cfg, "tau_h_act_rate", 0.0)
+        if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate)
+                and tau_h_act_rate >= 0):
+            raise ValueError(f"tau_h_act_rate must be a finite number >= 0 [N m/s], got {tau_h_act_rate!r}")
+        self.tau_h_act_rate = float(tau_h_act_rate)
+        self._E_tau = np.zeros((d, n))
+        self._E_tau[4 * n:, :] = np.eye(n)
+        self._Gam_tau = np.zeros((d, n))                 # Γ_τ of the step
+        self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
+        self._eta_all = np.zeros(2 * n)                  # [η | r]
+        self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
+        delta = akf.delta if delta is None else float(delta)
+        has_gp = akf.residual is not None
+        if delta_gp is None:
+            delta_gp = 0.5 * delta if has_gp else 0.0
+        if has_gp and gp_constants is None:
+            raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
+                             "see sea_daemon.core.bounds.akf_bound.gp_constants)")
+        self._auto = has_gp and isinstance(gp_constants, str)
+        self.refresh_every = 200          # 'auto': recompute after this many new training points
+        self._learned_at = 0
+        if self._auto and gp_constants != "auto":
+            raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
+        self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
+        self._scales = None
+        self._update_scales()
+        self.gp_box = gp_box
+        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
+                                     sets=sets)
+        self._I = np.eye(d)
+        m = akf.model
+        # only gravity is non-linear in a nominal model without declared effects
+        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
+        # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
+        # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
+        # for g ~ N(0, P), m = n or 2n, so the Gaussian part of that set is s_z = χ²_m, not χ²_d
+        # (d = 5n).  With declared effects f_nom depends on all of x: s_d.
+        self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
+                     else self.sm.s_state)
+        # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
+        self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
+        self._grid = np.linspace(-1.0, 1.0, 65)
+        self._grid_step = 2.0 / 64
+        self._Uz = _directions(2 * n, n_dirs, seed)
+        self._step = akf.step
+        self._reset = akf.reset
+        self.gp_box_violations_ = 0
+        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
+        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
+        warm_up()                                # compiled kernels ready before the first step
+
+    # ------------------------------------------------------------------ hooks
+
+    def refresh_gp_constants(self) -> None:
+        """Recompute the GP constants and input box from the residual's current leaves
+        (``gp_constants='auto'``; call after the GP learned more data)."""
+        gps = residual_gps(self.akf)
+        self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
+        self._learned_at = self._n_learned()
+        self._update_scales()
+
+    def _update_scales(self) -> None:
+        """The local scales s(z) (:class:`LocalScale`) when the constants use them."""
+        self._scales = None
+        if self.gp_constants and any(c.scale == "local" for c in self.gp_constants):
+            gps = residual_gps(self.akf)
+            if gps is None:
+                raise ValueError("GP constants with a local scale need a residual backed by LoG-GPs")
+            self._scales = [LocalScale(g) for g in gps]
+
+    def _n_learned(self) -> int:
+        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
+        else the points held by the LoG-GPs."""
+        n = getattr(self.akf, "n_learned", None)
+        if n is not None:
+            return int(n)
+        return int(sum(g.n_points for g in residual_gps(self.akf) or []))
+
+    def reset(self, *args, **kwargs):
+        est = self._reset(*args, **kwargs)
+        if self._auto:
+            # 'auto': the constants of the GP as trained when estimation starts
+            self.refresh_gp_constants()
+        self.sm.reset()
+        self.gp_box_violations_ = 0
+        if getattr(self.akf, "_ready", True):
+            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+        return est
+
+    # ------------------------------------------------------------------ linearisation error
+
+    def _gravity_box(self, x0: np.ndarray, P0: np.ndarray) -> np.ndarray:
+        """Rigorous bound of the gravity term's linearisation error (no sampling).
+
+        C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
+        ±r_j of q̂_j (r_j = half-width along e_θm,j + e_θs,j of X̂ ⊕ E(0, s_z P), s_z = χ²_m of the
+        coordinates the error depends on, see __init__), the scalar error
+        h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
+        the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
+        the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
+        """
+        akf = self.akf
+        n = akf.n
+        model = akf.model
+        b = np.zeros(akf.d)
+        g = np.abs(np.asarray(model.gravity, dtype=float)) * np.ones(n)
+        if not np.any(g):
+            return b
+        qh = x0[:n] + x0[n:2 * n]
+        r = self.sm.half_widths(self._E_q, P0, s=self._s_z)   # along e_θm,j + e_θs,j
+        v = np.empty(n)
+        _gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
+        b[3 * n:4 * n] = np.abs(model.Minv) @ v
+        return b
+
+    def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
+        """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
+        f_nom = self.akf.model.f_nom
+        f0 = f_nom(x0, u)
+        b = np.zeros(self.akf.d)
+        for x in self.sm.sample_points(C):
+            fx = f_nom(x, u)
+            lin = A_nom @ (x - x0)
+            r = np.abs(fx - f0 - lin)
+            # rounding floor, so an exactly linear drift gives exactly 0
+            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
+            np.maximum(b, r, out=b)
+        return b
+
+    def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
+        """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
+        depends on x only through them (q̈ is measured): the GP mean's linearisation error
+        |μ(z) − μ(ẑ) − ∂μ/∂z (z − ẑ)|, σ(z) (or s(z)) and the extrapolation term x(z).  Returns
+        (E, S, X, out-of-box flag), E, S and X of shape (points, n), in N m."""
+        akf = self.akf
+        n = akf.n
+        res = akf.residual
+        mu0, J0, var0 = res.predict(zhat)
+        # copies: a residual hook may return preallocated arrays overwritten by the next call
+        mu0 = np.array(mu0, dtype=float)
+        J0 = np.array(np.asarray(J0, dtype=float)[:, :2 * n])
+        Cz = self.sm.confidence_set(x0, P0, T=self._T, s=self._s_z)  # outer ellipsoid of T·C_{k−1}
+        local = self._scales is not None
+        # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
+        # filter's hook clips z to the training box, where σ can be far smaller than at z
+        out = False
+        gps = residual_gps(akf)
+        pts = ellipsoid_points(Cz, self._Uz)     # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
+        Z = np.empty((len(pts), zhat.size))      # z = [p, q̈̂] per point
+        Z[:, :2 * n] = pts
+        Z[:, 2 * n:] = zhat[2 * n:]
+        MU = np.empty((len(pts), n))
+        S = np.empty((len(pts), n))
+        X = np.zeros((len(pts), n))              # extrapolation term c e(z), added to η (gp_bound.LocalScale)
+        if local:
+            # mean, variance, local scale and extrapolation term of all points: one routing per
+            # point, one compiled call per leaf reached
+            for j, sc in enumerate(self._scales):
+                MU[:, j], _, S[:, j], X[:, j] = sc.predict_many_ext(Z)
+        elif gps is not None:
+            # mean and variance only (no Jacobian needed here): cheaper than the hook
+            for j, g in enumerate(gps):
+                MU[:, j], S[:, j] = g.predict_many(Z)
+        else:
+            for i, z in enumerate(Z):
+                m_, _, v_ = res.predict(z)
+                MU[i], S[i] = m_, v_
+        if not local:
+            S = np.sqrt(np.maximum(S, 0.0))
+        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s)
+        E = np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T)
+        if self.gp_box is not None:
+            # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
+            hw = Cz.axis_half_widths()
+            lo, hi = self.gp_box
+            zl, zh = Z[0].copy(), Z[0].copy()      # [box of the projected set, measured q̈]
+            zl[:2 * n] -= hw
+            zh[:2 * n] += hw
+            out = bool(np.any(zl < lo) or np.any(zh > hi))
+        return E, S, X, out
+
+    def _phi(self, A, b, dt):
+        """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
+        already has Γ_μ = Φ I_μ M⁻¹); any other column costs one expm."""
+        if not np.any(b):
+            return None
+        akf = self.akf
+        n = akf.n
+        nz = np.flatnonzero(b)
+        if np.all((nz >= 3 * n) & (nz < 4 * n)):
+            Phi = np.zeros((akf.d, akf.d))
+            Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
+            return Phi
+        return input_matrix(A, self._I, dt)
+
+    def step(self, y, u, dt):
+        akf = self.akf
+        x0 = akf.x.copy()
+        P0 = akf.P.copy()
+        zhat = akf.z.copy()                       # ẑ_{k−1}, where the AKF evaluates the GP
+        u = np.array(u, dtype=float)
+        est = self._step(y, u, dt)
+        sm = self.sm
+        if not np.all(np.isfinite(sm.means_half_widths())):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
+        if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
+            # the GP keeps learning (GP-AKF with learning on): constants of the current data
+            self.refresh_gp_constants()
+        # eq:linerrsetdx / eq:linearerrellipsoid, split by source
+        if self._fast:
+            b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
+        else:
+            C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
+            A_nom = akf.A_k.copy()
+            if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
+                _, J, _ = akf.residual.predict(zhat)
+                A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
+            b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+        eta = None
+        if akf.residual is not None:
+            E, S, X, out = self._gp_box(zhat, x0, P0)
+            self.gp_box_violations_ += int(out)
+            # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point,
+            # plus the extrapolation term x_j(z) off the data (docs/bounds.md §2d; 0 unless
+            # learning.extrapolation_scale)
+            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)]) + X
+            # The GP error f_j(z) − μ_j(z) and the GP mean's linearisation error
+            # μ_j(z) − μ_j(ẑ) − ∂μ_j/∂z (z − ẑ) are parts of ONE torque error at the same (true) z,
+            # f_j(z) − [μ_j(ẑ) + ∂μ_j/∂z (z − ẑ)], which enters the state through Γ_μ (= Φ I_μ M⁻¹,
+            # eq:Dmuhat): bound it per joint by the max over the points of the SUM (not the sum
+            # of the two maxima, which may sit at different points), the sampled part + margin
+            Lm = (1.0 + sm.margin) * E
+            eta = np.max(H + Lm, axis=0)
+            self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
+            self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
+        self.lin_err_ = b
+        Phi = self._phi(akf.A_k, b, dt)
+        Gam = akf.Gamma_mu
+        if self.tau_h_act_rate > 0:
+            # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
+            # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
+            held_input(akf.A_k, self._E_tau, float(dt), self._Gam_tau)
+            n = akf.n
+            if eta is None:
+                Gam, eta = self._Gam_tau, self._rate
+            else:
+                self._Gam_all[:, :n] = akf.Gamma_mu
+                self._Gam_all[:, n:] = self._Gam_tau
+                self._eta_all[:n] = eta
+                self._eta_all[n:] = self.tau_h_act_rate
+                Gam, eta = self._Gam_all, self._eta_all
+        # eq:predwLinErrsetandGPerrset, then the filter step on the set
+        sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        sm.update(akf.K_k, akf.H)
+        if not np.all(np.isfinite(sm.means_half_widths())):
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
+                                 f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
+                                 f"the confidence set")
+        est.tau_h_act_bound[:] = sm.rho(akf.P)
+        return est
+
+
+def attach_theorem_bound(akf, **kwargs) -> AKFTheoremBound:
+    """Make ``akf.update``/``akf.step``/``akf.reset`` publish the Theorem-1 ρ_k as
+    ``tau_h_act_bound`` (instance attributes shadow the class methods; the AKF code is
+    unchanged).  Returns the :class:`AKFTheoremBound` (also at ``akf.theorem_bound``)."""
+    tb = AKFTheoremBound(akf, **kwargs)
+    akf.step = tb.step
+    akf.reset = tb.reset
+    akf.theorem_bound = tb
+    return akf.theorem_bound
+
+
+def residual_gps(akf) -> list | None:
+    """The per-joint LoG-GPs behind an AKF's residual: a ResidualGP (``.gps``), a hook over
+    one (``.gp.gps``, the GP-AKF's), or the estimator's own ``.gp``; None if unknown."""
+    for obj in (akf.residual, getattr(akf.residual, "gp", None), getattr(akf, "gp", None)):
+        if obj is not None and hasattr(obj, "gps"):
+            return list(obj.gps)
+    return None
+
+
+def attach_default_bound(akf) -> AKFTheoremBound | None:
+    """What :func:`sea_daemon.core.estimators.make_estimator` (and ``replay --estimator gp-akf``)
+    attach: the Theorem-1 bound for a plain AKF, and for a GP-AKF whose residual is backed by
+    LoG-GPs (constants computed at every reset, and refreshed while it keeps learning).  An
+    unknown residual type has no GP error constants, so the AKF keeps its own bound and
+    None is returned."""
+    if getattr(akf, "theorem_bound", None) is not None:
+        return akf.theorem_bound
+    if akf.residual is None:
+        return attach_theorem_bound(akf)
+    if residual_gps(akf) is not None:
+        return attach_theorem_bound(akf, gp_constants="auto")
+    return None
+
+
+def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
+                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
+                 beta: str | float = "lederer"):
+    """GP error constants per joint for a :class:`sea_daemon.core.learning.ResidualGP` (one LoG-GP per
+    joint) or a list of LoG-GPs.
+
+    δ_GP is split over the n joints' GPs (union bound); within each, a share
+    ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
+    union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
+    constants stay valid while the tree grows).  The input box is the box of all training
+    points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
+    number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
+    Returns (constants list, (lo, hi)).
+    """
+    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+    n = len(gps)
+    per_joint = delta_gp / n
+    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
+                   if gp.leaf(node).n_ > 0])
+    lo, hi = input_box(Z, box_margin)
+    if beta != "lederer":
+        return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
+    consts = []
+    for gp in gps:
+        leaves = loggp_leaves(gp)
+        L = n_leaves if n_leaves is not None else max(len(leaves), int(getattr(gp, "max_leaves", 0) or 0))
+        kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
+        consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
+    return consts, (lo, hi)
+
+
+def conformal_scores(est, log) -> np.ndarray:
+    """Calibration scores |y − μ(z)| / s(z) of a frozen GP-AKF on a held-out log (s =
+    :class:`~sea_daemon.core.bounds.gp_bound.LocalScale`, fixed by the training data).
+
+    ``est`` is a :class:`~sea_daemon.core.estimators.gpakf.GPAKF` whose GP will not learn the
+    pairs (learning is switched off here and restored); ``log`` a passive-subject log it
+    never learned from (ass:passive_human: the training pair of each sample is (z, f(z) + noise),
+    eq:loadsidewmotor, built by the GP-AKF's own causal kinematics).  μ and σ are evaluated
+    at the unclipped z, as in the bound.  Returns (pairs, n).
+    """
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("conformal_scores needs a GP-AKF backed by LoG-GPs")
+    scales = [LocalScale(g) for g in gps]
+    learning, est.learning = est.learning, False
+    out = []
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            if est._since_reset < est.kin.L:
+                continue
+            z, y = est._training_pair(log.tau_m[k])
+            row = np.empty(len(gps))
+            for j, g in enumerate(gps):
+                mu, var = g.predict(z)
+                row[j] = abs(y[j] - mu) / scales[j](z, var)
+            out.append(row)
+    finally:
+        est.learning = learning
+    return np.array(out)
+
+
+def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
+    """Split-conformal GP constants per joint from a held-out log (:func:`conformal_scores`);
+    δ_GP is split over the joints.  Returns (constants, (lo, hi) the training box, scores)."""
+    gps = residual_gps(est)
+    scores = conformal_scores(est, log)
+    per_joint = delta_gp / len(gps)
+    consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
+    _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
+    return consts, box, scores
+
+
+def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> tuple[float, int]:
+    """Fraction of the steps of ``log`` where the Theorem-1 ρ_k with η = β s(z) (local scale,
+    :func:`~sea_daemon.core.bounds.gp_bound.fixed_constants`) covers the τ̂_h,act error of the frozen
+    GP-AKF ``est``; ``truth`` τ_h,act per sample (default 0: a passive subject,
+    ass:passive_human).  No human-torque rate: the subject is passive.  ``est`` must not have a
+    bound attached; it is left as it was (learning restored, no bound).  Returns (coverage, steps)."""
+    if getattr(est, "theorem_bound", None) is not None:
+        raise ValueError("torque_coverage needs a GP-AKF without an attached bound")
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("torque_coverage needs a GP-AKF backed by LoG-GPs")
+    n = len(gps)
+    truth = np.zeros((len(log), n)) if truth is None else np.asarray(truth, dtype=float).reshape(len(log), n)
+    _, box = gp_constants(gps, 0.5 * est.delta, beta=1.0)
+    consts = [fixed_constants(float(beta), 0.5 * est.delta / n) for _ in range(n)]
+    learning, est.learning = est.learning, False
+    attach_theorem_bound(est, gp_constants=consts, gp_box=box, tau_h_act_rate=0.0)
+    covered = steps = 0
+    try:
+        e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            # eq:bounds, per step and joint: |τ̂_h,act − τ_h,act| ≤ ρ_k
+            covered += int(np.all(np.abs(e.tau_h_act_hat - truth[k]) <= e.tau_h_act_bound))
+            steps += 1
+    finally:
+        est.learning = learning
+        for name in ("step", "reset", "theorem_bound"):      # detach: the class methods again
+            est.__dict__.pop(name, None)
+    return covered / max(steps, 1), steps
+
+
+def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.ndarray | None = None,
+                           iters: int = 8, progress=None) -> dict:
+    """The smallest β (η = β s(z), the configured-β form of ``estimator.gp_beta``) whose
+    Theorem-1 ρ_k covers the τ̂_h,act error of the frozen GP-AKF ``est`` on a held-out log in at
+    least ⌈(m + 1)(1 − δ)⌉ of its m steps (split conformal on the torque error itself, the
+    statement of eq:bounds; docs/bounds.md §2c).  ``log`` is a session the GP never learned,
+    with a passive subject (τ_h,act = 0) unless ``truth`` is given.
+
+    Coverage grows with β.  The search runs β = 1, then the end of the range [2⁻¹², 2¹²] on
+    the side the target lies (returning it if β = 2⁻¹² already covers: the filter's own part
+    does; failing if 2¹² does not), then bisects ``iters`` times in log β (12 octaves / 2⁸:
+    3 % resolution) and returns the upper end.  ``progress(beta, coverage)`` is called after
+    each replay.  Returns a dict with ``beta``, ``coverage`` (at beta), ``steps``, ``target``
+    and ``runs`` [(β, coverage)].
+    """
+    delta = est.delta if delta is None else float(delta)
+    if not 0 < delta < 1:
+        raise ValueError(f"delta must be in (0, 1), got {delta}")
+    runs: list[tuple[float, float]] = []
+
+    def cov(b):
+        c, m = torque_coverage(est, log, b, truth)
+        runs.append((b, c))
+        if progress is not None:
+            progress(b, c)
+        return c, m
+
+    b_min, b_max = 2.0 ** -12, 2.0 ** 12
+    c1, m = cov(1.0)
+    target = min(1.0, math.ceil((m + 1) * (1.0 - delta)) / m)
+    if c1 >= target:
+        lo, (hi, c_hi) = b_min, (1.0, c1)
+        c, _ = cov(b_min)
+        if c >= target:
+            return {"beta": b_min, "coverage": c, "steps": m, "target": target, "runs": runs}
+    else:
+        lo, hi = 1.0, b_max
+        c_hi, _ = cov(b_max)
+        if c_hi < target:
+            raise ValueError(f"the bound covers only {max(c for _, c in runs):.3f} of {m} steps even with "
+                             f"beta = {b_max:g}; the target is {target:.3f} (1 - delta = {1 - delta:g})")
+    for _ in range(int(iters)):
+        b = math.sqrt(lo * hi)
+        c, _ = cov(b)
+        if c >= target:
+            hi, c_hi = b, c
+        else:
+            lo = b
+    return {"beta": hi, "coverage": c_hi, "steps": m, "target": target, "runs": runs}

@@ -1,0 +1,159 @@
+"""Controllers of the experiments (paper Sec. V-B, V-C), pure and reusable.
+
+Used by the simulator (:mod:`sea_daemon.core.sim`) and by the daemon's ``calibrate`` command on
+the real bus, so nothing here knows about plants, files or clocks: the caller passes the
+measured (quantised) angles and the time, and gets the motor torque command back.
+
+* :class:`MinJerkTrajectory` — sequences of minimum-jerk (sigmoid) moves between two
+  angles, forwards and backwards (Sec. V-B: 10° → 75° in 3.5 s, 6 moves, N = 2100 at 100 Hz).
+* :class:`PID` — PID position controller on the load angle q producing the motor torque,
+  with a torque limit and anti-windup.
+* :class:`OpenLoopTorque` — Sec. V-C: τ_m = τ_des(t) + τ_comp with the desired-torque
+  profile τ_des = −A cos(2π f t) + offset and a compensation torque τ_comp calibrated once.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def min_jerk(s: float) -> tuple[float, float, float]:
+    """Minimum-jerk blend σ(s) = 10s³ − 15s⁴ + 6s⁵ on s ∈ [0, 1], with σ' and σ'' (Flash & Hogan 1985)."""
+    s = min(max(s, 0.0), 1.0)
+    return (s**3 * (10.0 - 15.0 * s + 6.0 * s * s),
+            30.0 * s * s * (1.0 - s) ** 2,
+            60.0 * s * (1.0 - s) * (1.0 - 2.0 * s))
+
+
+@dataclass(frozen=True)
+class MinJerkTrajectory:
+    """``moves`` minimum-jerk moves alternating q_start → q_end → q_start …, each ``move_s`` long.
+
+    Angles in rad.  Before t = 0 the reference is q_start; after the last move it holds the
+    last target, unless ``cyclic``: then the moves go on back and forth forever (so a run of
+    any length continues seamlessly).
+    """
+
+    q_start: float
+    q_end: float
+    move_s: float
+    moves: int
+    cyclic: bool = False
+
+    @property
+    def duration(self) -> float:
+        return self.move_s * self.moves
+
+    def reference(self, t: float) -> tuple[float, float, float]:
+        """(q_ref, q̇_ref, q̈_ref) at time t [s]."""
+        if t <= 0.0:
+            return self.q_start, 0.0, 0.0
+        i = int(t // self.move_s)
+        if not self.cyclic:
+            i = min(i, self.moves - 1)
+        tau = min((t - i * self.move_s) / self.move_s, 1.0)
+        a, b = (self.q_start, self.q_end) if i % 2 == 0 else (self.q_end, self.q_start)
+        s, ds, dds = min_jerk(tau)
+        d = b - a
+        return a + d * s, d * ds / self.move_s, d * dds / self.move_s**2
+
+
+class PID:
+    """PID position controller: τ_m = K_p e + K_i ∫e + K_d (q̇_ref − v), e = q_ref − q.
+
+    * Runs on measured angles.  v is the velocity of the load (``derivative="load"``: v = q̇)
+      or of the motor (``derivative="motor"``: v = θ̇_m, collocated damping — PD on the link
+      with motor-velocity damping is the classical stable choice for elastic joints, Tomei
+      1991; a D term on q̇ through the spring excites the spring mode at usable gains).
+      v is the backward difference of the measured angle through a first-order low-pass of
+      cut-off ``velocity_filter_hz`` (quantisation noise).
+    * Output clipped to ±``torque_limit``; anti-windup by conditional integration (the
+      integral freezes while the output saturates in the error's direction) and a clamp
+      |K_i ∫e| ≤ torque_limit.
+    * ``reset(q, u0)`` starts bumplessly: the integrator is preset so that the first output
+      equals u0 (e.g. the torque already holding the arm).
+
+    Vectorised over joints: gains may be scalars or arrays of n.
+    """
+
+    def __init__(self, kp, ki, kd, dt: float, torque_limit: float, velocity_filter_hz: float = 20.0,
+                 derivative: str = "motor"):
+        self.kp = np.asarray(kp, dtype=float)
+        self.ki = np.asarray(ki, dtype=float)
+        self.kd = np.asarray(kd, dtype=float)
+        self.dt = float(dt)
+        self.limit = float(torque_limit)
+        if derivative not in ("load", "motor"):
+            raise ValueError(f"derivative must be 'load' or 'motor', got {derivative!r}")
+        self.derivative = derivative
+        # first-order low-pass, discretised exactly: α = 1 − exp(−2π f_c dt)
+        self.alpha = 1.0 - math.exp(-2.0 * math.pi * velocity_filter_hz * self.dt)
+        self.integral = np.zeros(1)
+        self._q_prev = None
+        self._dq = np.zeros(1)
+
+    def reset(self, q: np.ndarray, u0=0.0) -> None:
+        """Start at rest with output u0 (bumpless); q is the measured angle the D term differentiates."""
+        q = np.atleast_1d(np.asarray(q, dtype=float))
+        self._q_prev = q.copy()
+        self._dq = np.zeros_like(q)
+        ki = np.broadcast_to(self.ki, q.shape)
+        u0 = np.broadcast_to(np.asarray(u0, dtype=float), q.shape)
+        self.integral = np.where(ki > 0, u0 / np.where(ki > 0, ki, 1.0), 0.0)
+
+    def step(self, q_ref, q_meas, dq_ref=0.0, theta_m_meas=None) -> np.ndarray:
+        """One control period: the motor-torque command [N m] for the measured q (and θ_m)."""
+        q = np.atleast_1d(np.asarray(q_meas, dtype=float))
+        if self.derivative == "motor" and theta_m_meas is None:
+            raise ValueError("PID(derivative='motor') needs theta_m_meas")
+        v = q if self.derivative == "load" else np.atleast_1d(np.asarray(theta_m_meas, dtype=float))
+        if self._q_prev is None:
+            self.reset(v)
+        # backward difference of the measured angle, low-passed
+        self._dq = self._dq + self.alpha * ((v - self._q_prev) / self.dt - self._dq)
+        self._q_prev = v.copy()
+        e = np.asarray(q_ref, dtype=float) - q
+        de = np.asarray(dq_ref, dtype=float) - self._dq
+        u_p = self.kp * e + self.kd * de
+        # anti-windup by conditional integration (clamping): the integral only moves while the
+        # output is not saturated or the error drives it out of saturation; it never holds
+        # more than the torque limit on its own.
+        i_new = self.integral + e * self.dt
+        u = u_p + self.ki * i_new
+        sat = (np.abs(u) > self.limit) & (np.sign(e) == np.sign(u))
+        self.integral = np.where(sat, self.integral, i_new)
+        ki_ok = self.ki > 0
+        i_max = np.where(ki_ok, self.limit / np.where(ki_ok, self.ki, 1.0), 0.0)
+        self.integral = np.clip(self.integral, -i_max, i_max)
+        u_sat = np.clip(u_p + self.ki * self.integral, -self.limit, self.limit)
+        return u_sat
+
+
+def cosine_torque(t: float, amplitude: float = 2.0, frequency_hz: float = 0.1, offset: float = 2.0) -> float:
+    """Sec. V-C desired torque τ_des(t) = −A cos(2π f t) + offset (0 at t = 0 for A = offset)."""
+    return -amplitude * math.cos(2.0 * math.pi * frequency_hz * t) + offset
+
+
+@dataclass(frozen=True)
+class OpenLoopTorque:
+    """Sec. V-C open-loop torque control: τ_m = τ_des(t) + τ_comp.
+
+    ``tau_comp`` is the experimenter's calibration: the static torque that holds the
+    human-exoskeleton system at q0 against gravity and passive stiffness (static friction
+    needs none at rest).  ``tau_des`` follows :func:`cosine_torque`; ``active=False`` gives
+    the training phase, τ_des = 0.
+    """
+
+    tau_comp: np.ndarray
+    amplitude: float = 2.0
+    frequency_hz: float = 0.1
+    offset: float = 2.0
+
+    def tau_des(self, t: float, active: bool = True) -> float:
+        return cosine_torque(t, self.amplitude, self.frequency_hz, self.offset) if active else 0.0
+
+    def command(self, t: float, active: bool = True) -> np.ndarray:
+        """Motor torque command [N m] at phase time t."""
+        return self.tau_des(t, active) + np.asarray(self.tau_comp, dtype=float)

@@ -1,0 +1,407 @@
+"""Augmented-state extended Kalman filter (AKF) of Park et al., with the GP-AKF hook.
+
+State (Sec. IV-B)  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] ∈ R^{5n},  input u = τ_m,
+measurement        y = [θ_m, θ_s, θ̇_m, θ̇_s] = H x + v,  H = [I_4n 0]   (eq:nonlinkOsys)
+
+from the two encoders: θ_s = q − θ_m, velocities from the causal differentiator of
+:mod:`sea_daemon.core.kinematics`, declared encoder offsets removed first
+(:meth:`SEAModel.correct_measurement`).
+
+Prediction (Alg. 1 lines 3-5; with a residual, Alg. 2 lines 4-10)
+    ẋ = f_nom(x, u) − I_μ M⁻¹ μ(ẑ)                          eq:fwdynwtorqueresidual1
+    A = F_nom(x̂, u) − I_μ M⁻¹ F_GP                           eq:linearization
+    discretised by local linearisation over the step (one matrix exponential, see
+    :func:`discretize_affine`): exact zero-order hold for a linear plant, so on a linear
+    plant this filter equals the textbook discrete KF step for step.
+    Q_k = Σ_nom + Γ_μ diag(σ²) Γ_μᵀ                          eq:gpakf_covariance, eq:GPvarfwd
+Update (Alg. 1 lines 6-8), with the covariance in Joseph form (symmetrised).
+
+Declared model effects all act through :class:`SEAModel` (friction, gravity, human
+viscoelasticity, spring non-linearities, torque scale, inertia); encoder offsets through
+``correct_measurement``; a declared ``delay`` by applying τ_m(t − delay) from a short
+input history.  An "oracle" AKF is this class built from the true plant's configuration.
+
+The numerics of a step are compiled (:mod:`~sea_daemon.core.estimators.akf_core`, numba; compiled
+or loaded from numba's cache at construction).  Pure numerics: no I/O, no clock, no
+threads.  Per-step quantities the Theorem-1 bounds need are kept as attributes: ``A_k``
+(continuous Jacobian), ``F_k`` (discrete transition), ``Gamma_mu`` (discrete map of a torque
+error held over the step to the state), ``Q_k``, ``xdot_k``, ``x_prior``, ``P_prior``,
+``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior); and the causal
+kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
+[q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
+step's own dt.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sea_daemon.core.jit import warm_up
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.kinematics import CausalDifferentiator
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.estimators import akf_core
+from sea_daemon.core.estimators.base import Estimate, Residual, chi2_scale
+from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
+
+
+def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
+    """Local-linearisation step of ẋ = f(x,u) + G w over dt, with u and w held.
+
+    One matrix exponential of [[A, f, G], [0, 0, 0]]·dt gives
+        F_d = e^{A dt},  Δx = ∫₀^dt e^{As} ds · f,  Γ = ∫₀^dt e^{As} ds · G,
+    i.e. :func:`sea_daemon.core.model.discretize` plus the held-input block Γ (textbook ZOH,
+    e.g. Franklin, Powell & Workman, Digital Control, §4.3.3).  Returns (Δx, F_d, Γ);
+    ``out`` (work matrix of size (d+1+r)²) is reused when given.  The compiled
+    :func:`~sea_daemon.core.estimators.akf_core.discretize` the filter step uses.
+    """
+    A = np.ascontiguousarray(A, dtype=float)
+    G = np.ascontiguousarray(G, dtype=float)
+    d = A.shape[0]
+    r = G.shape[1]
+    aug = out if out is not None else np.zeros((d + 1 + r, d + 1 + r))
+    E = np.empty_like(aug)
+    akf_core.discretize(A, np.ascontiguousarray(xdot, dtype=float), G, float(dt), aug, E)
+    return E[:d, d], E[:d, :d], E[:d, d + 1:]
+
+
+class AKF:
+    """Augmented-state EKF (Alg. 1); with ``residual`` the GP-AKF (Alg. 2).
+
+    ``cfg``: model configuration (nominal model + declared effects, R, Σ_nom, P0, δ,
+    kinematics).  ``dt``: nominal sample period (default ``1/cfg.rate_hz``).
+    ``residual``: optional :class:`~sea_daemon.core.estimators.base.Residual` (learned f(z)).
+
+    ``tau_h_act_bound`` is, until the Theorem-1 bounds are wired in, the KF's own
+    ellipsoidal bound sqrt(s·P_ττ) with s the χ² quantile for 5n degrees of freedom at
+    1 − δ (eq:gaussianellipsoid): the confidence set C_k of Theorem 1 with a point set of
+    means (X̂_k = 0), projected on each τ_h,act component.
+    """
+
+    name = "akf"
+
+    def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: Residual | None = None,
+                 model: SEAModel | None = None):
+        self.cfg = cfg
+        self.model = model if model is not None else SEAModel.from_config(cfg)
+        n = self.n = self.model.n
+        d = self.d = 5 * n
+        m = self.m = 4 * n
+        self.dt = float(dt) if dt else cfg.dt
+        est = cfg.estimator
+        self.R = np.array(est.R, dtype=float)
+        # Σ_nom as configured; ``Sigma_nom`` below is the per-step value the next step uses
+        # (:meth:`fill_sigma_nom`, equal to the configured one unless Sigma_nom_dt / tau_m_noise)
+        self.Sigma_nom_cfg = np.array(est.Sigma_nom, dtype=float)
+        self.Sigma_nom = self.Sigma_nom_cfg.copy()
+        self._S_dt = float(est.Sigma_nom_dt)
+        self._tau_m_var = float(est.tau_m_noise) ** 2
+        self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
+        self._S_base_dt = -1.0                        # step length of the cached Σ_nom·dt/T
+        self._S_base = self.Sigma_nom_cfg
+        # estimator.init_after_kinematics: samples left until the differentiator is full
+        self._init_kin = bool(est.init_after_kinematics)
+        self._filling = 0
+        self.P0 = np.array(est.P0, dtype=float)
+        self._P_init = self.P0
+        self.delta = est.delta
+        # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
+        self.s = chi2_scale(self.delta, d)
+        self._sqrt_s = math.sqrt(self.s)
+        self.H = np.hstack([np.eye(m), np.zeros((m, n))])
+        self.residual = residual
+        # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
+        self.G_mu = self.model.I_mu @ self.model.Minv
+        kin = cfg.kinematics
+        self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
+        # ∂z/∂x for z = [q, q̇, q̈]: q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s; q̈ comes from the
+        # differentiator (a measurement, not a state function), so ∂q̈/∂x = 0.
+        I = np.eye(n)
+        self.dz_dx = np.zeros((3 * n, d))
+        self.dz_dx[:n, :n] = I
+        self.dz_dx[:n, n:2 * n] = I
+        self.dz_dx[n:2 * n, 2 * n:3 * n] = I
+        self.dz_dx[n:2 * n, 3 * n:4 * n] = I
+        # --- preallocated state and per-step quantities
+        self.x = np.zeros(d)
+        self.P = np.zeros((d, d))
+        self.x_prior = np.zeros(d)
+        self.P_prior = np.zeros((d, d))
+        self.A_k = np.zeros((d, d))
+        self.F_k = np.eye(d)
+        self.Gamma_mu = np.zeros((d, n))
+        self.Q_k = self.Sigma_nom.copy()
+        self.B_u = self.model.B_nom()                 # ∂f_nom/∂u (5n × n)
+        self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
+        self.K_k = np.zeros((d, m))
+        self.S_k = np.zeros((m, m))
+        self.innovation = np.zeros(m)
+        self.nis = 0.0
+        self.y = np.zeros(m)
+        self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
+        self.mu = np.zeros(n)
+        self.sigma2 = np.zeros(n)
+        self.u_applied = np.zeros(n)
+        self.xdot_k = np.zeros(d)
+        self._dmu = np.zeros((n, 3 * n))
+        self._aug = np.zeros((d + 1 + n, d + 1 + n))
+        self._IKH = np.eye(d)
+        self._rhs = np.zeros((m, d + 1))
+        self._L = np.zeros((m, m))
+        self._work = np.zeros((d, d))
+        self._ang = np.zeros(2 * n)
+        self._ddq = np.zeros(n)
+        self.est = Estimate.zeros(n)
+        # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
+        self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale, est.pd_check_every)
+        # --- input history for the declared delay (τ_m(t − delay), linear interpolation
+        # of the sample sequence = the exact interval average of a zero-order-hold input)
+        self.delay = np.array(self.model.delay, dtype=float)
+        self._has_delay = bool(np.any(self.delay > 0))
+        cap = int(math.ceil(float(self.delay.max(initial=0.0)) / self.dt)) + 4
+        self._hcap = cap
+        self._ht = np.zeros(2 * cap)
+        self._hu = np.zeros((2 * cap, n))
+        self._hhead = cap - 1
+        self._t = 0.0
+        self._ready = False
+        # --- specialised path for the plain nominal model (no declared effects): f_nom is
+        # affine in x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of
+        # F_nom and f_nom are built once here (same values as SEAModel.F_nom / f_nom).
+        self._affine = not self.model.effects
+        if self._affine:
+            m_ = self.model
+            # F_nom at q = 0 contains −M⁻¹ diag(g cos 0) in the θ̈_s rows; add it back
+            A_lin = m_.F_nom(np.zeros(d), np.zeros(n))
+            self._MinvG = m_.Minv * m_.gravity[None, :]           # M⁻¹ diag(g)
+            A_lin[3 * n:4 * n, :n] += self._MinvG
+            A_lin[3 * n:4 * n, n:2 * n] += self._MinvG
+            self._A_lin = A_lin
+            self._B_lin = m_.B_nom()
+        # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
+        # the first loop cycle
+        warm_up()
+
+    # ------------------------------------------------------------------ measurement
+
+    def measure(self, q, theta_m) -> np.ndarray:
+        """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
+        n = self.n
+        if self._affine:                    # no declared effects, so no encoder offsets
+            self._ang[:n] = q
+            self._ang[n:] = theta_m
+        else:
+            qc, thc = self.model.correct_measurement(np.asarray(q, dtype=float), np.asarray(theta_m, dtype=float))
+            self._ang[:n] = qc
+            self._ang[n:] = thc
+        ang, vel, acc = self.kin.update(self._ang)
+        y = self.y
+        y[:n] = ang[n:]
+        # θ_s = q − θ_m (eq:spring_torque)
+        np.subtract(ang[:n], ang[n:], out=y[n:2 * n])
+        y[2 * n:3 * n] = vel[n:]
+        np.subtract(vel[:n], vel[n:], out=y[3 * n:])
+        self._ddq[:] = acc[:n]
+        # the causal kinematics of this sample, [q, θ_m] each (views, overwritten next sample):
+        # what a learner needs for training pairs (eq:loadsidewmotor) with the same filter
+        self.kin_angle, self.kin_vel, self.kin_acc = ang, vel, acc
+        return y
+
+    def _push_input(self, tau_m) -> None:
+        h = self._hhead + 1
+        if h >= self._hcap:
+            h = 0
+        self._hhead = h
+        self._ht[h] = self._ht[h + self._hcap] = self._t
+        self._hu[h] = self._hu[h + self._hcap] = tau_m
+
+    def _delayed_input(self, t_query: float) -> np.ndarray:
+        """τ_m(t_query − delay) per joint from the history (clamped at its ends)."""
+        h = self._hhead + 1
+        ts = self._ht[h:h + self._hcap]
+        us = self._hu[h:h + self._hcap]
+        for j in range(self.n):
+            self.u_applied[j] = np.interp(t_query - self.delay[j], ts, us[:, j])
+        return self.u_applied
+
+    # ------------------------------------------------------------------ API
+
+    def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
+        """Initialise from the first sample: x̂₀ measured (velocities 0, τ_h,act = 0),
+        P₀ from the configuration (Sec. V-B: the measurement noise R, plus P0_tau).  With
+        ``estimator.init_after_kinematics`` the filter starts once the differentiator is full,
+        with the measured velocities (:meth:`_fill_kinematics`).
+
+        Without a sample (``reset()``) the next :meth:`update` initialises instead.
+        """
+        n = self.n
+        self.health.reset()
+        if q is None or theta_m is None:
+            self._ready = False
+            self.est.k = 0
+            return self.est
+        self.kin._primed = False
+        tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
+        y = self.measure(q, theta_m)
+        if x0 is None:
+            self.x[:] = 0.0
+            self.x[:2 * n] = y[:2 * n]
+        else:
+            self.x[:] = x0
+        self.P[:] = self.P0 if P0 is None else P0
+        # init_after_kinematics: the velocities of y are valid once the differentiator holds a
+        # full window; until then hold x̂ at the measured angles and P at P₀ (see _fill_kinematics)
+        self._P_init = self.P0 if P0 is None else np.array(P0, dtype=float)
+        self._filling = self.kin.L - 1 if (self._init_kin and x0 is None) else 0
+        self._t = 0.0
+        # history primed with τ_m held before the first sample (times strictly increasing)
+        self._hhead = self._hcap - 1
+        past = -self.dt * np.arange(self._hcap - 1, -1, -1, dtype=float)
+        self._ht[:self._hcap] = past
+        self._ht[self._hcap:] = past
+        self._hu[:] = tau_m
+        self.u_applied[:] = tau_m
+        self._ready = True
+        self.est.k = 0
+        return self._fill_estimate()
+
+    def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
+        """One sample: predict over dt with τ_m of the previous sample, update with y_k."""
+        if not self._ready:
+            return self.reset(q, theta_m, tau_m)
+        dt = self.dt if dt is None else float(dt)
+        if self._filling:
+            return self._fill_kinematics(q, theta_m, tau_m, dt)
+        n = self.n
+        # ẑ_{k−1} = [q̂, q̂̇, q̈] at the previous posterior (Alg. 2 line 5)
+        x = self.x
+        np.add(x[:n], x[n:2 * n], out=self.z[:n])
+        np.add(x[2 * n:3 * n], x[3 * n:4 * n], out=self.z[n:2 * n])
+        self.z[2 * n:] = self._ddq
+        if self._has_delay:
+            u = self._delayed_input(self._t)
+        else:
+            u = self._hu[self._hhead]
+        y = self.measure(q, theta_m)
+        if self._S_varies:
+            self.fill_sigma_nom(dt)
+        self.step(y, u, dt)
+        self._t += dt
+        self._push_input(np.asarray(tau_m, dtype=float))
+        return self.est
+
+    def _fill_kinematics(self, q, theta_m, tau_m, dt: float) -> Estimate:
+        """A sample while the differentiator fills after :meth:`reset` (``init_after_kinematics``).
+
+        Sec. V-B: "the initial state x̂₀ is measured and P₀ is set to R" — but the velocities of y
+        come from the causal differentiator, which needs a full window (``kin.L`` samples) before
+        they are valid; started at once, a joint that is already moving (velocity 0 in x̂₀ with
+        P₀ = R) puts a spurious torque into τ̂_h,act.  So x̂ holds the measured angles, τ̂_h,act = 0
+        and P = P₀ until the window is full; at that sample x̂₀ = [y, 0] (angles and velocities
+        measured) and the filter runs from the next one.
+        """
+        n = self.n
+        y = self.measure(q, theta_m)
+        self._filling -= 1
+        x = self.x
+        x[:] = 0.0
+        x[:2 * n] = y[:2 * n]
+        if not self._filling:
+            x[:4 * n] = y
+        self.P[:] = self._P_init
+        self._t += dt
+        self._push_input(np.asarray(tau_m, dtype=float))
+        self.est.k += 1
+        return self._fill_estimate()
+
+    def fill_sigma_nom(self, dt: float) -> np.ndarray:
+        """Σ_nom,k for the next step of length ``dt`` into :attr:`Sigma_nom` (which :meth:`step` uses).
+
+        * ``estimator.Sigma_nom_dt`` = T > 0: the configured Σ_nom holds per step of T seconds,
+          i.e. white-noise intensities Σ_nom/T, so a step of dt gets Σ_nom·dt/T (the same
+          filter at 100 Hz and 1 kHz; Van Loan, IEEE TAC 1978, to first order in dt).
+        * ``estimator.tau_m_noise`` = σ_u > 0: the motor torque applied differs from the
+          commanded one by an error of std σ_u held over the step (current ripple, torque
+          constant); it enters like the input, ẋ = f_nom + B (u + w) (eq:nonlindyn), so it adds
+          Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
+          rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
+          Γ_u from Van Loan's block exponential with A the last step's Jacobian ``A_k``
+          (:func:`akf_core.held_input`, one (5n+n)² expm).
+        """
+        S = self.Sigma_nom
+        if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
+            self._S_base_dt = dt
+            self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
+        if self._tau_m_var > 0:
+            # Γ_u = ∫₀^dt e^{As} ds B (Van Loan), S = Σ_nom·dt/T + Γ_u σ_u² Γ_uᵀ
+            # (compiled: akf_core.input_noise)
+            akf_core.input_noise(self.A_k, self.B_u, float(dt), self._tau_m_var, self._S_base,
+                                 self.Gamma_u, S)
+        else:
+            S[:] = self._S_base
+        return S
+
+    def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks,
+        written into ``A_k`` and ``xdot_k`` (:func:`akf_core.nominal_affine`; equal to
+        SEAModel.F_nom / f_nom)."""
+        akf_core.nominal_affine(x, u, self._A_lin, self._B_lin, self._MinvG, self.A_k, self.xdot_k)
+        return self.A_k, self.xdot_k
+
+    def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> Estimate:
+        """The filter proper: predict with input u over dt, then update with y (4n,).
+
+        With a residual, μ, ∂μ/∂z, σ² are evaluated at ``self.z`` (set by :meth:`update`).
+        Raises :class:`EstimatorFault` if the state or covariance is not finite, or the
+        innovation covariance is not positive definite.
+
+        The numerics are :func:`akf_core.filter_step` (compiled); ``self.Sigma_nom`` is read
+        every step (the nominal process noise of this step).
+        """
+        x = self.x
+        if self._affine:
+            self._nominal_affine(x, np.asarray(u, dtype=float))
+        else:
+            # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
+            self.A_k[:] = self.model.F_nom(x, u)
+            # eq:nonlindyn
+            self.xdot_k[:] = self.model.f_nom(x, u)
+        use_gp = self.residual is not None
+        dmu = self._dmu
+        if use_gp:
+            # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
+            mu, dmu_dz, var = self.residual.predict(self.z)
+            self.mu[:] = mu
+            self.sigma2[:] = var
+            dmu[:] = dmu_dz
+        # Alg. 2 lines 7-11 / Alg. 1 lines 3-8 (akf_core.filter_step: A_k and xdot_k get the
+        # GP terms of eq:fwdynwtorqueresidual1 / eq:linearization; x̂⁻, P⁻, S, K, ν, x̂, P)
+        status, nis = akf_core.filter_step(
+            self.A_k, self.xdot_k, use_gp, self.mu, dmu, self.dz_dx, self.sigma2, self.G_mu,
+            self.Sigma_nom, self.R, float(dt), y, x, self.P, self.F_k, self.Gamma_mu, self.Q_k,
+            self.x_prior, self.P_prior, self.S_k, self.K_k, self.innovation, self._aug, self._L,
+            self._rhs, self._IKH, self._work)
+        if status != akf_core.OK:
+            k = self.est.k + 1
+            if status == akf_core.PRIOR_NONFINITE:
+                raise EstimatorNonFinite(f"AKF step {k}: prediction became non-finite "
+                                         f"(non-finite state, measurement or covariance)")
+            if status == akf_core.S_NOT_PD:
+                raise CovarianceNotPD(f"AKF step {k}: innovation covariance S is not positive definite "
+                                      f"(min diag {np.min(np.diag(self.S_k)):.3g}); check R, Sigma_nom, P0")
+            self.nis = nis
+            raise EstimatorNonFinite(f"AKF step {k}: state or covariance became non-finite "
+                                     f"(non-finite measurement or diverging model/noise settings)")
+        self.nis = nis
+        # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
+        self.health.check(nis, self.P, self.est.k + 1)
+        self.est.k += 1
+        return self._fill_estimate()
+
+    def _fill_estimate(self) -> Estimate:
+        e = self.est
+        # x̂, P, τ̂_h,act, its σ and eq:gaussianellipsoid projected on τ_h,act: ρ = sqrt(s P_ττ)
+        akf_core.fill_estimate(self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat,
+                               e.tau_h_act_sigma, e.tau_h_act_bound)
+        return e

@@ -1,0 +1,265 @@
+"""The compiled numerics of one AKF / GP-AKF step (Alg. 1, Alg. 2), called by :class:`AKF`.
+
+:func:`nominal_affine` — F_nom and f_nom of the plain nominal model (no declared effects)
+from its constant blocks; :func:`filter_step` — everything after the nominal Jacobian: the
+GP terms, the local-linearisation discretisation (one matrix exponential), the covariance
+prediction, the Cholesky-based gain, NIS, the Joseph update, the symmetrisation and the
+finiteness check.  Models with declared effects compute F_nom / f_nom with
+:class:`~sea_daemon.core.model.SEAModel` (numpy) and share :func:`filter_step`.
+
+All arrays are the AKF's own preallocated per-step attributes, written in place.  Errors are
+returned as a status code (the caller raises the project's exceptions with their messages):
+:data:`OK`, :data:`PRIOR_NONFINITE`, :data:`S_NOT_PD`, :data:`POSTERIOR_NONFINITE`.
+Pure numerics: no I/O, no clock, no threads.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.linalg import cho_solve, cholesky, expm, matmul, matmul_t
+
+OK, PRIOR_NONFINITE, S_NOT_PD, POSTERIOR_NONFINITE = 0, 1, 2, 3
+
+
+@njit
+def nominal_affine(x, u, A_lin, B_lin, MinvG, A, xdot):
+    """A = F_nom(x, u), xdot = f_nom(x, u) of the nominal model without declared effects.
+
+    f_nom(x, u) = A_lin x + B u − I_μ M⁻¹ g ⊙ sin q,  F_nom = A_lin − I_μ M⁻¹ diag(g cos q) ∂q/∂x,
+    q = θ_m + θ_s (eq:nonlindyn with C(q) = g ⊙ sin q; equal to SEAModel.f_nom / F_nom).
+    """
+    n = u.shape[0]
+    d = x.shape[0]
+    A[:, :] = A_lin
+    # eq:nonlindyn, affine part
+    for i in range(d):
+        s = 0.0
+        for j in range(d):
+            s += A_lin[i, j] * x[j]
+        for j in range(n):
+            s += B_lin[i, j] * u[j]
+        xdot[i] = s
+    for j in range(n):
+        q = x[j] + x[n + j]
+        c = math.cos(q)
+        sn = math.sin(q)
+        for i in range(n):
+            # ∂(−M⁻¹ C(q))/∂θ_m = ∂/∂θ_s = −M⁻¹ diag(g cos q)   (θ̈_s rows, eq:xsdd)
+            A[3 * n + i, j] -= MinvG[i, j] * c
+            A[3 * n + i, n + j] -= MinvG[i, j] * c
+            # −M⁻¹ C(q) in the θ̈_s rows (eq:xsdd)
+            xdot[3 * n + i] -= MinvG[i, j] * sn
+
+
+@njit
+def discretize(A, xdot, G, dt, aug, E):
+    """E = e^{[[A, f, G], [0, 0, 0]] dt}, the local-linearisation step of ẋ = f(x,u) + G w
+    over dt with u and w held: F_d = E[:d, :d] = e^{A dt}, Δx = E[:d, d] = ∫₀^dt e^{As}ds f,
+    Γ = E[:d, d+1:] = ∫₀^dt e^{As}ds G (textbook ZOH, Franklin, Powell & Workman, Digital
+    Control, §4.3.3).  ``aug``: work matrix of size (d+1+r)²."""
+    d = A.shape[0]
+    r = G.shape[1]
+    aug[:, :] = 0.0
+    for i in range(d):
+        for j in range(d):
+            aug[i, j] = A[i, j] * dt
+        aug[i, d] = xdot[i] * dt
+        for j in range(r):
+            aug[i, d + 1 + j] = G[i, j] * dt
+    expm(aug, E)
+
+
+@njit
+def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, dt, y,
+                x, P, F, Gam, Q, x_prior, P_prior, S, K, innovation, aug, L, rhs, IKH, work):
+    """One predict + update of the AKF in place; returns ``(status, nis)``.
+
+    In: A = F_nom, xdot = f_nom at (x̂_{k−1}, u_{k−1}) (overwritten with the GP-corrected
+    values when ``use_gp``); μ, ∂μ/∂z, σ² of the GP at ẑ_{k−1}; ∂z/∂x; G_μ = I_μ M⁻¹;
+    Σ_nom (this step's, 5n × 5n); R; dt; y (4n).  Out: x, P (posterior), F, Γ_μ, Q,
+    x̂⁻, P⁻, S, K, ν.  Work: aug ((d+1+n)²), L (m × m), rhs (m × (d+1)), IKH (d × d),
+    work (d × d).
+    """
+    d = x.shape[0]
+    m = y.shape[0]
+    n = G_mu.shape[1]
+    if use_gp:
+        r = dz_dx.shape[0]
+        for i in range(d):
+            for j in range(n):
+                g = G_mu[i, j]
+                if g != 0.0:
+                    # eq:fwdynwtorqueresidual1: f = f_nom − I_μ M⁻¹ μ
+                    xdot[i] -= g * mu[j]
+                    # eq:linearization: F = F_nom − I_μ M⁻¹ F_GP, F_GP = ∂μ/∂z · ∂z/∂x
+                    for k in range(d):
+                        s = 0.0
+                        for l in range(r):
+                            s += dmu_dz[j, l] * dz_dx[l, k]
+                        A[i, k] -= g * s
+    # time discretisation (Sec. IV-B): local linearisation over dt
+    E = np.empty_like(aug)
+    discretize(A, xdot, G_mu, dt, aug, E)
+    for i in range(d):
+        # Alg. 2 line 7: x̂⁻ = x̂ + Δx
+        x_prior[i] = x[i] + E[i, d]
+        for j in range(d):
+            F[i, j] = E[i, j]
+        for j in range(n):
+            Gam[i, j] = E[i, d + 1 + j]
+    # Alg. 2 line 9 (eq:gpakf_covariance, eq:GPvarfwd): Q = Σ_nom + Γ_μ diag(σ²) Γ_μᵀ
+    Q[:, :] = Sigma_nom
+    if use_gp:
+        for i in range(d):
+            for j in range(d):
+                s = 0.0
+                for k in range(n):
+                    s += Gam[i, k] * sigma2[k] * Gam[j, k]
+                Q[i, j] += s
+    # Alg. 2 line 10: P⁻ = F P Fᵀ + Q
+    matmul(F, P, work)
+    matmul_t(work, F, P_prior)
+    P_prior += Q
+    # Alg. 1 line 6: S = H P⁻ Hᵀ + R (H = [I 0]); Alg. 1 line 7: ν = y − H x̂⁻
+    fin = 0.0
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = P_prior[i, j] + R[i, j]
+            fin += S[i, j]
+        innovation[i] = y[i] - x_prior[i]
+        fin += innovation[i]
+    if not math.isfinite(fin):          # one reduction: any NaN/inf makes it non-finite
+        return PRIOR_NONFINITE, 0.0
+    if cholesky(S, L) != 0:
+        return S_NOT_PD, 0.0
+    # one solve for both K = P⁻Hᵀ S⁻¹ = (S⁻¹ H P⁻)ᵀ and S⁻¹ν
+    for i in range(m):
+        for j in range(d):
+            rhs[i, j] = P_prior[i, j]
+        rhs[i, d] = innovation[i]
+    cho_solve(L, rhs)
+    # NIS νᵀ S⁻¹ ν (χ²_{4n} when the filter is consistent)
+    nis = 0.0
+    for i in range(m):
+        nis += innovation[i] * rhs[i, d]
+    for i in range(d):
+        s = 0.0
+        for j in range(m):
+            K[i, j] = rhs[j, i]
+            s += K[i, j] * innovation[j]
+        x[i] = x_prior[i] + s
+    # Alg. 1 line 8 in Joseph form: P = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ (Bucy & Joseph 1968)
+    for i in range(d):
+        for j in range(d):
+            IKH[i, j] = 1.0 if i == j else 0.0
+        for j in range(m):
+            IKH[i, j] -= K[i, j]
+    matmul(IKH, P_prior, work)
+    matmul_t(work, IKH, P)
+    KR = np.empty((d, m))
+    matmul(K, R, KR)
+    fin = 0.0
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for k in range(m):
+                s += KR[i, k] * K[j, k]
+            P[i, j] += s
+    # symmetrise; one reduction: a NaN or ±inf anywhere makes the sum non-finite
+    for i in range(d):
+        fin += x[i] + P[i, i]
+        for j in range(i):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+            fin += v
+    if not math.isfinite(fin):
+        return POSTERIOR_NONFINITE, nis
+    return OK, nis
+
+
+@njit
+def residual_affine(q, dq, ddq, dth, ddth, tau, M, gravity, J, D_m, f):
+    """f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m): eq:loadsidewmotor with ass:passive_human
+    (τ_h,act = 0) for the nominal model without declared effects (training target)."""
+    n = f.shape[0]
+    for i in range(n):
+        s = tau[i] - gravity[i] * math.sin(q[i])
+        for j in range(n):
+            s -= M[i, j] * ddq[j] + J[i, j] * ddth[j] + D_m[i, j] * dth[j]
+        f[i] = s
+
+
+@njit
+def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
+    """The published estimate: x̂, P, τ̂_h,act = x̂[4n:], σ = sqrt(P_ττ) and the bound
+    ρ = sqrt(s P_ττ) (eq:gaussianellipsoid projected on each τ_h,act component)."""
+    d = x.shape[0]
+    n = tau_hat.shape[0]
+    for i in range(d):
+        x_hat[i] = x[i]
+        for j in range(d):
+            P_hat[i, j] = P[i, j]
+    for i in range(n):
+        k = 4 * n + i
+        tau_hat[i] = x[k]
+        sd = math.sqrt(max(P[k, k], 0.0))
+        tau_sigma[i] = sd
+        tau_bound[i] = sd * sqrt_s
+
+
+@njit
+def held_input(A, B, dt, Gam):
+    """Γ = ∫₀^dt e^{As} ds B into ``Gam``: the effect on x_{k+1} of an input B·u held over the
+    step, the upper-right block of e^{[[A, B], [0, 0]] dt} (Van Loan 1978; Franklin, Powell &
+    Workman §4.3.3), exact up to the expm's rounding."""
+    d, r = B.shape
+    aug = np.zeros((d + r, d + r))
+    for i in range(d):
+        for j in range(d):
+            aug[i, j] = A[i, j] * dt
+        for j in range(r):
+            aug[i, d + j] = B[i, j] * dt
+    E = np.empty_like(aug)
+    expm(aug, E)
+    for i in range(d):
+        for j in range(r):
+            Gam[i, j] = E[i, d + j]
+
+
+@njit
+def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
+    """Γ_u = ∫₀^dt e^{As} ds B (:func:`held_input`) into ``Gam_u`` and
+    S = S_base + Γ_u σ_u² Γ_uᵀ: a motor-torque error of variance σ_u² held over the step
+    (AKF.fill_sigma_nom)."""
+    d = A.shape[0]
+    r = B.shape[1]
+    held_input(A, B, dt, Gam_u)
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for k in range(r):
+                s += Gam_u[i, k] * Gam_u[j, k]
+            S[i, j] = S_base[i, j] + var_u * s
+
+
+@warmer
+def _warm() -> None:
+    """Compile with the types the AKF passes (1 joint; shapes do not change the types)."""
+    n, d, m = 1, 5, 4
+    x = np.zeros(d)
+    A = np.zeros((d, d))
+    xdot = np.zeros(d)
+    nominal_affine(x, np.zeros(n), np.zeros((d, d)), np.zeros((d, n)), np.zeros((n, n)), A, xdot)
+    filter_step(A, xdot, True, np.zeros(n), np.zeros((n, 3 * n)), np.zeros((3 * n, d)), np.zeros(n),
+                np.zeros((d, n)), np.eye(d), np.eye(m), 0.01, np.zeros(m), x, np.eye(d), np.zeros((d, d)),
+                np.zeros((d, n)), np.zeros((d, d)), np.zeros(d), np.zeros((d, d)), np.zeros((m, m)),
+                np.zeros((d, m)), np.zeros(m), np.zeros((d + 1 + n, d + 1 + n)), np.zeros((m, m)),
+                np.zeros((m, d + 1)), np.zeros((d, d)), np.zeros((d, d)))
+    v = np.zeros(n)
+    residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
+    fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())
+    input_noise(np.eye(d), np.ones((d, n)), 0.01, 1e-4, np.eye(d), np.zeros((d, n)), np.zeros((d, d)))

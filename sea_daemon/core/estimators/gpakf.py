@@ -1,0 +1,181 @@
+"""GP-enhanced augmented-state Kalman filter (GP-AKF, paper Alg. 2) with online learning.
+
+The GP-AKF is the :class:`~sea_daemon.core.estimators.akf.AKF` with a learned load-side residual
+``f(z)`` (eq:unknwn_load), one LoG-GP per joint (:class:`~sea_daemon.core.learning.ResidualGP`):
+
+* prediction with the GP mean (eq:fwdynwtorqueresidual1), linearisation
+  ``F = F_nom − I_μ M⁻¹ F_GP`` (eq:linearization), process noise
+  ``Q = Σ_nom + I_μ M⁻¹ diag(σ²) M⁻ᵀ I_μᵀ`` (eq:gpakf_covariance, eq:GPvarfwd) — all in
+  :meth:`AKF.step`, through its residual hook;
+* online learning (Sec. IV-A, ass:passive_human): while :attr:`GPAKF.learning` is on, every
+  sample also gives one training pair ``z = [q, q̇, q̈]`` → ``f(z) = τ_m − (τ_l(z) + J θ̈_m +
+  D_m θ̇_m)`` (eq:loadsidewmotor with τ_h,act = 0) from the *same causal kinematics* the filter
+  uses (the differentiator of :class:`AKF`), added to the GP with ``update`` (the LoG-GP runs
+  its bounded hyperparameter slices inside ``update``, ``learning.hyperopt``).
+
+The paper learns during the training phase (subject passive) and estimates with the model
+frozen: :func:`build` streams a training log through the filter with learning on, then turns
+learning off.  ``reset`` (a new log) keeps the learned model.
+
+Pure numerics: no I/O, no clock, no threads.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.core.learning import ResidualGP
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.estimators import akf_core
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.base import Estimate
+from sea_daemon.core.estimators.health import InputBox
+
+
+class _ResidualHook:
+    """The AKF's residual hook over a :class:`ResidualGP` with preallocated outputs.
+
+    ``predict(z) -> (μ (n,), ∂μ/∂z (n, 3n), σ² (n,))`` (alg:torqueresidualAKF line 5,
+    eq:moejac), calling each joint's LoG-GP directly (z is the filter's own array, already
+    validated); the returned arrays are overwritten by the next call.
+    """
+
+    def __init__(self, gp: ResidualGP, margin: float = 0.1, noise_in_Q: bool = False):
+        self.gp = gp
+        # estimator.gp_noise_in_Q: σ² of the process noise = predictive variance σ² + σ_on²
+        self.noise_in_Q = bool(noise_in_Q)
+        n = gp.n
+        self.mu = np.zeros(n)
+        self.jac = np.zeros((n, 3 * n))
+        self.var = np.zeros(n)
+        # bounded GP inputs (health.InputBox): the box of the training inputs, from the data a
+        # loaded model already holds, widened by ``margin`` of its width on each side
+        self.box = InputBox(3 * n, margin)
+        for g in gp.gps:
+            for leaf in g.leaves():
+                lg = g.leaf(leaf)
+                if lg.n_:
+                    self.box.add_many(lg.X_[:lg.n_])
+
+    def predict(self, z):
+        # z clipped to the training box ± margin; the clipped coordinates get a zero Jacobian
+        zc = self.box.clip(z)
+        for i, g in enumerate(self.gp.gps):
+            # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
+            # with gp_noise_in_Q the predictive variance of the residual torque at z: σ² + σ_on²
+            # (docs/gpakf.md)
+            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i], self.noise_in_Q)
+        if self.box.any_clipped:
+            self.jac[:, self.box.clipped] = 0.0
+        return self.mu, self.jac, self.var
+
+
+class GPAKF(AKF):
+    """AKF + per-joint LoG-GP residual, learning online while :attr:`learning` is True.
+
+    ``cfg``: model configuration (nominal model, estimator noise, kinematics, learning
+    options).  ``residual``: a :class:`ResidualGP` (default: a fresh one from ``cfg.learning``).
+    ``learning``: learn from every sample (passive subject, ass:passive_human).
+    ``tau_lag``: which motor torque a training target pairs with the sample's kinematics, in
+    samples back (0: the torque commanded at the sample, as
+    :func:`~sea_daemon.core.learning.training_pairs_from_log`).
+    """
+
+    name = "gp-akf"
+
+    def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: ResidualGP | None = None,
+                 learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0):
+        self.gp = residual if residual is not None else ResidualGP.from_config(cfg)
+        super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp, cfg.estimator.gp_input_margin,
+                                                                  cfg.estimator.gp_noise_in_Q), model=model)
+        self.learning = bool(learning)
+        self.tau_lag = int(tau_lag)
+        n = self.n
+        self.z_train = np.zeros(3 * n)       # last training input z = [q, q̇, q̈]
+        self.f_train = np.zeros(n)           # last training target f (eq:loadsidewmotor)
+        self.n_learned = 0
+        self._since_reset = 0
+        self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
+
+    def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
+        """As :meth:`AKF.reset`; the learned model is kept."""
+        self._since_reset = 0
+        if tau_m is not None:
+            self._tau_hist[:] = np.asarray(tau_m, dtype=float)
+        return super().reset(q, theta_m, tau_m, x0, P0)
+
+    def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
+        """One sample: the GP-AKF step (Alg. 2), then, while learning, one training pair."""
+        was_ready = self._ready
+        e = super().update(q, theta_m, tau_m, dt)
+        if not was_ready:
+            self._tau_hist[:] = np.asarray(tau_m, dtype=float)
+            return e
+        self._since_reset += 1
+        if self.tau_lag:
+            self._tau_hist[1:] = self._tau_hist[:-1]
+            self._tau_hist[0] = tau_m
+        if self.learning and self._since_reset >= self.kin.L:
+            self._learn(tau_m)
+        return e
+
+    def _training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
+        """(z, f) of the current sample from the causal kinematics (eq:loadsidewmotor)."""
+        n = self.n
+        ang, vel, acc = self.kin_angle, self.kin_vel, self.kin_acc     # [q, θ_m] each
+        z = self.z_train
+        z[:n] = ang[:n]
+        z[n:2 * n] = vel[:n]
+        z[2 * n:] = acc[:n]
+        tau = self._tau_hist[self.tau_lag] if self.tau_lag else np.ascontiguousarray(tau_m, dtype=float)
+        if self._has_delay:
+            # a declared delay: the motor side felt τ_m(t − lag·dt − delay)
+            tau = self._delayed_input(self._t - self.tau_lag * self.dt).copy()
+        m = self.model
+        if self._affine:
+            # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), nominal model without
+            # declared effects: f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m)
+            akf_core.residual_affine(ang[:n], vel[:n], acc[:n], vel[n:], acc[n:], tau, m.M, m.gravity,
+                                     m.J, m.D_m, self.f_train)
+        else:
+            # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects included
+            self.f_train[:] = m.residual_from_kinematics(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:], tau)
+        return z, self.f_train
+
+    def _learn(self, tau_m) -> None:
+        z, f = self._training_pair(tau_m)
+        self.residual.box.add(z)
+        # one independent GP per joint (Sec. IV-A); the LoG-GP runs its bounded
+        # hyperparameter slices inside update (learning.hyperopt)
+        for i, g in enumerate(self.gp.gps):
+            g.update(z, f[i])
+        self.n_learned += 1
+
+
+def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
+    """Stream a passive-subject log through ``est`` with learning on (the training phase)."""
+    est.learning = True
+    k = 0
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    except EstimatorFault as exc:
+        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+    return est
+
+
+def build(cfg: ModelConfig, train: MeasuredLog | None, dt: float | None = None) -> GPAKF:
+    """The GP-AKF for ``replay --estimator gp-akf --train TRAIN.csv``: learned over ``train``
+    (online, sample by sample, as in the paper's training phase), then frozen."""
+    if train is None:
+        raise InputError("--estimator gp-akf needs --train TRAIN.csv (a log with a passive subject "
+                         "to learn the residual from)")
+    if train.n != cfg.joints:
+        raise InputError(f"--train {train.path}: {train.n} joint(s), the configuration has {cfg.joints}")
+    est = GPAKF(cfg, dt=dt if dt else train.dt)
+    learn_from_log(est, train)
+    est.learning = False
+    return est

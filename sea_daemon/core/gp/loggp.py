@@ -1,0 +1,796 @@
+"""Locally growing random tree of Gaussian processes (LoG-GP; Lederer et al., ICML 2021).
+
+The face of docs/interfaces.md §5 (imported from :mod:`sea_daemon.loggp`)::
+
+    from sea_daemon.loggp import LoGGP
+    gp = LoGGP(input_dim=3, max_points=100)
+    gp.update(x, y)          # x: (input_dim,) array, y: float
+    mu, var = gp.predict(x)  # floats
+
+Method (as in the LoG-GP paper and its reference implementation ``lgrt4gps``):
+
+* Every leaf is an exact GP (:class:`sea_daemon.core.gp.exact.IncrementalGP`) holding at most
+  ``N̄ = max_points`` points; adding a point costs O(N̄²) (one new Cholesky row).
+* A full leaf that receives a point splits: dimension ``j`` of the widest spread of its
+  ``N̄ + 1`` points, split value ``s`` the centre of that spread, overlap width
+  ``o = overlap · width``.  The probability of the *left* child (smaller values) is the linear
+  ramp ``p(x) = clip(½ − (x_j − s)/o, 0, 1)``: 1 below ``s − o/2``, 0 above ``s + o/2``.  Each
+  point goes to exactly one child, drawn with ``p`` (seeded, deterministic).  Children inherit
+  the parent's hyperparameters.
+* Prediction merges every leaf the input reaches with non-zero probability, weighted by the
+  product ``ω`` of the branch probabilities on its path (mixture of experts):
+  ``μ = Σ ω_i μ_i``, ``σ² = Σ ω_i (σ_i² + μ_i²) − μ²``.  Because the ramp is continuous, so
+  are the merged mean and variance.  The Jacobian is the exact derivative of that mixture,
+  ``∂μ/∂x = Σ (ω_i ∂μ_i/∂x + μ_i ∂ω_i/∂x)`` with ``∂μ_i/∂x`` from ``eq:moejac`` /
+  ``eq:kernelderivative``; outside overlaps (the common case) it is exactly ``eq:moejac``.
+
+Memory bound (``max_leaves``): once the tree has ``max_leaves`` leaves, full leaves stop
+splitting.  A full leaf that receives a point forgets its oldest ``evict`` points (FIFO,
+default ``max(1, N̄ // 10)``) and refactorises once (O(N̄³)/evict amortised per update =
+O(N̄²)); the new point is then appended in O(N̄²).  So memory is O(max_leaves · N̄²) and the
+model keeps tracking slowly changing dynamics.  A leaf whose points are all identical cannot
+split and uses the same rule.
+
+Online hyperparameters: see :mod:`sea_daemon.core.gp.hyper` (``hyperopt=True``): every
+``hyper_every`` updates one bounded slice runs — one Adam step of the log marginal likelihood
+of the leaf that just received data (phase 1, in that update), then the rebuild of that leaf's
+factor with the new values, swapped in at once (phase 2, in the next update).  Each phase costs
+O(N̄³) for one leaf, independent of the tree size, and a call that splits or evicts runs no
+phase (at most one O(N̄³) piece of work per call).  Deterministic under ``seed``.  For
+adaptation in another process see :meth:`LoGGP.hyper_request` / :meth:`LoGGP.hyper_apply`.
+
+Cost: an update is O(depth + N̄²); a prediction O(depth + m N̄²) for the m leaves it reaches.
+The depth grows logarithmically with the data, and m grows like (1 + overlap)^depth: with a
+small overlap (0.01, the default, as ``lgrt4gps``) m stays ≈ 1.1–1.3 up to 10⁶ points (flat
+cost), with 0.02 1.1 → 1.5; with 0.1, m went from 1.5 to 3.7 between 10³ and 10⁶ points
+on the bench trajectory (better averaging, gentler weight ramps, costlier predictions).  No I/O, no clock, no threads.
+"""
+from __future__ import annotations
+
+import math
+import random
+from typing import Any
+
+import numpy as np
+
+from sea_daemon.core.jit import njit, warmer
+from sea_daemon.errors import InputError, ModelFileError
+from sea_daemon.core.gp.exact import IncrementalGP
+from sea_daemon.core.gp.hyper import AdamHyper
+
+_FORMAT = "sea-daemon-loggp"
+_VERSION = 1
+
+
+@njit
+def _route_many(Z, dim, lo, hi, left, right):
+    """:meth:`LoGGP._route` (without ∂ω/∂x) of every row of Z: (row index, node, ω) of each
+    leaf reached, rows in order, each row's leaves in ``_route``'s order (same arithmetic)."""
+    cap = 2 * Z.shape[0] + 8
+    idx = np.empty(cap, dtype=np.int64)
+    nodes = np.empty(cap, dtype=np.int64)
+    ws = np.empty(cap)
+    st_node = np.empty(64, dtype=np.int64)
+    st_w = np.empty(64)
+    k = 0
+    for i in range(Z.shape[0]):
+        node = 0
+        w = 1.0
+        top = 0
+        while True:                                  # fast path: no overlap on the way
+            j = dim[node]
+            if j < 0:
+                break
+            xj = Z[i, j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                break
+        st_node[0] = node
+        st_w[0] = w
+        top = 1
+        while top > 0:
+            top -= 1
+            node = st_node[top]
+            w = st_w[top]
+            j = dim[node]
+            if j < 0:
+                if k == cap:
+                    cap *= 2
+                    idx2 = np.empty(cap, dtype=np.int64)
+                    nodes2 = np.empty(cap, dtype=np.int64)
+                    ws2 = np.empty(cap)
+                    idx2[:k] = idx[:k]
+                    nodes2[:k] = nodes[:k]
+                    ws2[:k] = ws[:k]
+                    idx, nodes, ws = idx2, nodes2, ws2
+                idx[k] = i
+                nodes[k] = node
+                ws[k] = w
+                k += 1
+                continue
+            if top + 2 > st_node.shape[0]:
+                st_node2 = np.empty(2 * st_node.shape[0], dtype=np.int64)
+                st_w2 = np.empty(2 * st_node.shape[0])
+                st_node2[:top] = st_node[:top]
+                st_w2[:top] = st_w[:top]
+                st_node, st_w = st_node2, st_w2
+            xj = Z[i, j]
+            if xj <= lo[node]:
+                st_node[top] = left[node]
+                st_w[top] = w
+                top += 1
+            elif xj >= hi[node]:
+                st_node[top] = right[node]
+                st_w[top] = w
+                top += 1
+            else:
+                io = 1.0 / (hi[node] - lo[node])
+                p = (hi[node] - xj) * io
+                # right pushed first, left popped first (as _route)
+                st_node[top] = right[node]
+                st_w[top] = w * (1.0 - p)
+                st_node[top + 1] = left[node]
+                st_w[top + 1] = w * p
+                top += 2
+    return idx[:k].copy(), nodes[:k].copy(), ws[:k].copy()
+
+
+class LoGGP:
+    """Locally growing random tree of GPs (docs/interfaces.md §5).
+
+    Parameters
+    ----------
+    input_dim: ρ, the input dimension (3 per joint for ``z = [q, q̇, q̈]``).
+    max_points: N̄, the maximum number of points per leaf (paper: 100).
+    max_leaves: memory bound on the number of leaves (``None``: unbounded).
+    overlap: relative width of a split's overlapping region, in [0, 0.9] (default 0.01, as
+        ``lgrt4gps``: the cost of a prediction stays flat as the tree deepens).
+    lengthscales, sigma_f, sigma_n: initial hyperparameters of every leaf (eq:SE, σ_on).
+    hyperopt: adapt the hyperparameters online (bounded slices, see :mod:`sea_daemon.core.gp.hyper`).
+    hyper_every: updates between two hyperparameter slices.
+    hyper_lr: Adam step size in log space.
+    hyper_min_points: a leaf needs this many points before it is adapted.
+    hyper_points: in-loop slices use the LML gradient of a leaf's oldest ``hyper_points``
+        points only (``None``: all); 50 of 100 cuts the cost of phase 1 several-fold.
+    evict: points a full leaf forgets at once when it may not split (default ``N̄ // 10``).
+    extrapolation_scale: c of the extrapolation term ``c · e(z)`` that the local error scale of
+        the GP error bound adds (:meth:`extrapolation_many`,
+        :class:`sea_daemon.core.bounds.gp_bound.LocalScale`); 0 (default): off.  The predictions
+        themselves do not change.
+    clip_leaf_mean: every leaf evaluates its mean (and ∂μ/∂x) at the input clipped into the box
+        of its own training inputs and its variance at the input itself
+        (:class:`~sea_daemon.core.gp.exact.IncrementalGP` ``clip_mean``): a leaf never extrapolates its
+        mean beyond its data, while its σ still grows there (docs/learning.md, "Novelty").
+    seed: seed of the random split assignment.
+    """
+
+    def __init__(self, input_dim: int, max_points: int = 100, *, max_leaves: int | None = 2000,
+                 overlap: float = 0.01, lengthscales=1.0, sigma_f: float = 1.0,
+                 sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
+                 hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
+                 evict: int | None = None, extrapolation_scale: float = 0.0, clip_leaf_mean: bool = False,
+                 seed: int = 0, jitter: float = 1e-10):
+        def _int(name, v, lo):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
+            return int(v)
+
+        self.input_dim = _int("input_dim", input_dim, 1)
+        self.max_points = _int("max_points", max_points, 2)
+        self.max_leaves = None if max_leaves is None else _int("max_leaves", max_leaves, 1)
+        if isinstance(overlap, bool) or not isinstance(overlap, (int, float)) \
+                or not 0.0 <= float(overlap) <= 0.9:
+            raise InputError(f"overlap must be in [0, 0.9], got {overlap!r}")
+        self.overlap = float(overlap)
+        self.hyperopt = bool(hyperopt)
+        self.hyper_every = _int("hyper_every", hyper_every, 1)
+        self.hyper_min_points = _int("hyper_min_points", hyper_min_points, 2)
+        self.hyper_points = None if hyper_points is None else _int("hyper_points", hyper_points, 2)
+        self.evict = max(1, self.max_points // 10) if evict is None else _int("evict", evict, 1)
+        self.evict = min(self.evict, self.max_points)
+        self.seed = _int("seed", seed, 0)
+        self.jitter = float(jitter)
+        if isinstance(extrapolation_scale, bool) or not isinstance(extrapolation_scale, (int, float)) \
+                or not 0.0 <= float(extrapolation_scale) <= 10.0:
+            raise InputError(f"extrapolation_scale must be in [0, 10], got {extrapolation_scale!r}")
+        self.extrapolation_scale = float(extrapolation_scale)
+        self.clip_leaf_mean = bool(clip_leaf_mean)
+        # validates the hyperparameters (raises InputError naming the value)
+        proto = IncrementalGP(self.input_dim, sigma_f, lengthscales, sigma_n, capacity=1)
+        self._theta0 = proto.log_theta
+        self.hyper = AdamHyper(self.input_dim, lr=hyper_lr)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget all data (hyperparameters back to their initial values)."""
+        self._rng = random.Random(self.seed)
+        # tree as parallel lists; node 0 is the root; dim −1 marks a leaf
+        self._dim: list[int] = [-1]
+        self._lo: list[float] = [0.0]
+        self._hi: list[float] = [0.0]
+        self._left: list[int] = [-1]
+        self._right: list[int] = [-1]
+        self._gp: list[IncrementalGP | None] = [self._new_leaf(self._theta0)]
+        self._adam: dict[int, Any] = {}
+        self.n_leaves = 1
+        self.n_points = 0
+        self.n_updates = 0
+        self.n_evicted = 0
+        self.n_hyper_steps = 0
+        self.last_leaf = 0
+        self._pending: tuple[int, np.ndarray] | None = None
+        self._hyper_due = False
+
+    def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
+        d = self.input_dim
+        return IncrementalGP(d, math.exp(log_theta[0]), np.exp(log_theta[1:d + 1]),
+                             math.exp(log_theta[d + 1]), capacity=min(capacity, self.max_points),
+                             max_capacity=self.max_points, jitter=self.jitter,
+                             clip_mean=self.clip_leaf_mean)
+
+    def _check_x(self, x) -> tuple[np.ndarray, list[float]]:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.input_dim,):
+            raise InputError(f"x must have shape ({self.input_dim},), got {x.shape}")
+        xl = x.tolist()
+        for v in xl:
+            if not math.isfinite(v):
+                raise InputError(f"x must be finite, got {xl}")
+        return x, xl
+
+    # ------------------------------------------------------------------ learning
+    def update(self, x, y: float) -> None:
+        """Add one training pair ``(x, y)``; O(depth + N̄²) (a split or eviction: O(N̄³) once)."""
+        x, xl = self._check_x(x)
+        y = float(y)
+        if not math.isfinite(y):
+            raise InputError(f"y must be finite, got {y}")
+        dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
+        node = 0
+        j = dim[0]
+        while j >= 0:
+            xj = xl[j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                # overlap: left with probability p = (hi − x_j)/o (linear ramp)
+                p = (hi[node] - xj) / (hi[node] - lo[node])
+                node = left[node] if self._rng.random() < p else right[node]
+            j = dim[node]
+        gp = self._gp[node]
+        heavy = True                             # a split or an eviction: O(N̄³) in this call
+        if gp.n_ < self.max_points:
+            gp.add(x, y)
+            heavy = False
+        elif (self.max_leaves is None or self.n_leaves < self.max_leaves) \
+                and (child := self._split(node, x, y)) >= 0:
+            node = child                         # the leaf the new point went to
+        else:
+            # memory bound: forget the oldest points, then append (FIFO)
+            gp.remove_oldest(self.evict)
+            self.n_evicted += self.evict
+            self.n_points -= self.evict
+            gp.add(x, y)
+        self.n_points += 1
+        self.n_updates += 1
+        self.last_leaf = node
+        if self.hyperopt:
+            if self.n_updates % self.hyper_every == 0:
+                self._hyper_due = True
+            # at most one O(N̄³) piece of work per call: a hyperparameter phase waits for a
+            # call without a split or an eviction
+            if heavy:
+                return
+            if self._pending is not None:
+                # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
+                pnode, theta = self._pending
+                self._pending = None
+                g = self._gp[pnode]
+                if g is not None:              # (a leaf that split meanwhile keeps its values)
+                    self.hyper.apply(g, theta)
+            elif self._hyper_due:
+                # phase 1: gradient + Adam step on the leaf that just received data
+                self._hyper_due = False
+                self._propose(node)
+
+    def _split(self, node: int, x: np.ndarray, y: float) -> int:
+        """Split the full leaf ``node`` with the new point (LoG-GP).
+
+        Returns the child leaf that received the new point, or −1 if the leaf cannot split
+        (all its points coincide).
+        """
+        gp = self._gp[node]
+        n = gp.n_
+        X = np.empty((n + 1, self.input_dim))
+        X[:n] = gp.X_[:n]
+        X[n] = x
+        Y = np.empty(n + 1)
+        Y[:n] = gp.y_[:n]
+        Y[n] = y
+        mi, ma = X.min(axis=0), X.max(axis=0)
+        width = ma - mi
+        j = int(np.argmax(width))
+        if not width[j] > 0.0:
+            return -1
+        s = 0.5 * (ma[j] + mi[j])
+        o = self.overlap * width[j]
+        lo, hi = s - 0.5 * o, s + 0.5 * o
+        xj = X[:, j]
+        go_left = xj <= lo
+        # points inside the overlap go left with probability p = (hi − x_j)/o (in index order)
+        rnd = self._rng.random
+        for i in np.flatnonzero((xj > lo) & (xj < hi)).tolist():
+            go_left[i] = rnd() < (hi - xj[i]) / (hi - lo)
+        # one kernel matrix of all N̄ + 1 points; the children's are its sub-matrices
+        Kall = gp.kernel_matrix(X)
+        cap = min(self.max_points, n // 2 + 16)
+        children = []
+        for mask in (go_left, ~go_left):
+            idx = np.flatnonzero(mask)
+            leaf = gp.spawn(X[idx], Y[idx], Kall[idx][:, idx], capacity=cap)
+            children.append(len(self._gp))
+            self._gp.append(leaf)
+            self._dim.append(-1)
+            self._lo.append(0.0)
+            self._hi.append(0.0)
+            self._left.append(-1)
+            self._right.append(-1)
+        self._dim[node], self._lo[node], self._hi[node] = j, lo, hi
+        self._left[node], self._right[node] = children
+        self._gp[node] = None
+        st = self._adam.pop(node, None)
+        if st is not None:
+            for c in children:
+                self._adam[c] = self.hyper.copy_state(st)
+        self.n_leaves += 1
+        return children[0] if go_left[n] else children[1]
+
+    def _propose(self, node: int) -> float | None:
+        gp = self._gp[node]
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        if st is None:
+            st = self._adam[node] = self.hyper.new_state()
+        lml, theta = self.hyper.propose(gp, st, self.hyper_points)
+        if theta is not None:
+            self._pending = (node, theta)
+        self.n_hyper_steps += 1
+        return lml
+
+    def hyper_slice(self, leaf: int | None = None) -> float | None:
+        """One bounded hyperparameter slice on ``leaf`` (default: the last updated one).
+
+        One Adam ascent step on that leaf's log marginal likelihood, then its factor is
+        rebuilt with the new values and swapped in (both phases in this call; ``update`` runs
+        the two phases on consecutive calls instead).  Cost O(N̄³) with N̄ = ``max_points``,
+        independent of the tree size.  Returns the leaf's LML before the step (None if skipped).
+        """
+        if self._pending is not None:
+            pnode, theta = self._pending
+            self._pending = None
+            if self._gp[pnode] is not None:
+                self.hyper.apply(self._gp[pnode], theta)
+        node = self.last_leaf if leaf is None else leaf
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        if st is None:
+            st = self._adam[node] = self.hyper.new_state()
+        lml = self.hyper.step(gp, st, self.hyper_points)
+        self.n_hyper_steps += 1
+        return lml
+
+    def hyper_request(self, leaf: int | None = None) -> dict | None:
+        """JSON-able snapshot of one leaf (default: the last updated) for off-loop adaptation
+        with :func:`sea_daemon.core.gp.hyper.adam_steps`; None if the leaf has too few points."""
+        node = self.last_leaf if leaf is None else int(leaf)
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None or gp.n_ < self.hyper_min_points:
+            return None
+        st = self._adam.get(node)
+        n = gp.n_
+        return {"node": node, "input_dim": self.input_dim, "X": gp.X_[:n].ravel().tolist(),
+                "y": gp.y_[:n].tolist(), "center": gp.center_.tolist(),
+                "log_theta": gp.log_theta.tolist(), "jitter": gp.jitter,
+                "adam": None if st is None else st.tolist()}
+
+    def hyper_apply(self, result: dict) -> bool:
+        """Swap in a result of :func:`~sea_daemon.core.gp.hyper.adam_steps` (one O(N̄³) rebuild).
+
+        Applied only if that node is still a leaf (a leaf that split meanwhile keeps the values
+        it passed on to its children).  Returns whether it was applied.
+        """
+        node = int(result["node"])
+        gp = self._gp[node] if 0 <= node < len(self._gp) else None
+        if gp is None:
+            return False
+        theta = np.clip(np.asarray(result["log_theta"], dtype=float), self.hyper.lo, self.hyper.hi)
+        if not self.hyper.apply(gp, theta):
+            return False
+        self._adam[node] = np.asarray(result["adam"], dtype=float)
+        self.n_hyper_steps += len(result.get("lml", [1]))
+        return True
+
+    def optimize_hyperparameters(self, steps: int = 20) -> None:
+        """Off-line: ``steps`` Adam slices on every leaf (e.g. at the end of calibration)."""
+        for _ in range(int(steps)):
+            for node in self.leaves():
+                self.hyper_slice(node)
+
+    # ------------------------------------------------------------------ prediction
+    def _route(self, xl: list[float], grad: bool):
+        """Leaves reached by ``x`` as ``[(node, ω, ∂ω/∂x as a list, or None)]``."""
+        dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
+        node = 0
+        while True:                                  # fast path: no overlap on the way
+            j = dim[node]
+            if j < 0:
+                return [(node, 1.0, None)]
+            xj = xl[j]
+            if xj <= lo[node]:
+                node = left[node]
+            elif xj >= hi[node]:
+                node = right[node]
+            else:
+                break
+        out = []
+        stack = [(node, 1.0, None)]
+        while stack:
+            node, w, dw = stack.pop()
+            j = dim[node]
+            if j < 0:
+                out.append((node, w, dw))
+                continue
+            xj = xl[j]
+            if xj <= lo[node]:
+                stack.append((left[node], w, dw))
+            elif xj >= hi[node]:
+                stack.append((right[node], w, dw))
+            else:
+                io = 1.0 / (hi[node] - lo[node])
+                p = (hi[node] - xj) * io
+                dwl = dwr = None
+                if grad:
+                    # ∂(ω p)/∂x = p ∂ω/∂x + ω ∂p/∂x, with ∂p/∂x_j = −1/o  (lists: ρ is small)
+                    if dw is None:
+                        dwl = [0.0] * self.input_dim
+                        dwr = [0.0] * self.input_dim
+                    else:
+                        q = 1.0 - p
+                        dwl = [v * p for v in dw]
+                        dwr = [v * q for v in dw]
+                    dwl[j] -= w * io
+                    dwr[j] += w * io
+                stack.append((right[node], w * (1.0 - p), dwr))
+                stack.append((left[node], w * p, dwl))
+        return out
+
+    def predict(self, x) -> tuple[float, float]:
+        """Merged posterior mean and variance at ``x`` (floats)."""
+        x, xl = self._check_x(x)
+        route = self._route(xl, False)
+        gps = self._gp
+        if len(route) == 1:
+            return gps[route[0][0]].predict(x)
+        mu = m2 = 0.0
+        for node, w, _ in route:
+            m, v = gps[node].predict(x)
+            mu += w * m
+            m2 += w * (v + m * m)
+        var = m2 - mu * mu
+        return mu, (var if var > 0.0 else 0.0)
+
+    def leaf_predictions(self, Z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every (row of ``Z``, leaf it reaches) pair of a batch of inputs ``Z`` (m, input_dim),
+        in each row's routing order: (row index, node, ω, leaf μ, leaf σ²), arrays of equal
+        length.  Each row is routed once; each leaf reached predicts all its rows in one
+        compiled call (:meth:`sea_daemon.core.gp.exact.IncrementalGP.predict_many`)."""
+        Z = np.ascontiguousarray(Z, dtype=float)
+        if Z.ndim != 2 or Z.shape[1] != self.input_dim:
+            raise InputError(f"Z must have shape (m, {self.input_dim}), got {Z.shape}")
+        if not np.all(np.isfinite(Z)):
+            raise InputError(f"Z must be finite, got {Z.tolist()}")
+        idx, nodes, ws = _route_many(Z, *self._tree_arrays())
+        if len(idx) == len(Z) and nodes.min() == nodes.max():
+            # every row reaches the same one leaf (the common case)
+            m, v = self._gp[int(nodes[0])].predict_many(Z)
+            return idx, nodes, ws, m, v
+        m, v = np.empty(len(idx)), np.empty(len(idx))
+        for node in np.unique(nodes):
+            sel = nodes == node
+            m[sel], v[sel] = self._gp[node].predict_many(Z[idx[sel]])
+        return idx, nodes, ws, m, v
+
+    def _tree_arrays(self) -> tuple[np.ndarray, ...]:
+        """The tree's parallel lists as arrays (dim, lo, hi, left, right) for the compiled
+        routing; rebuilt when the tree changed (a split appends two nodes, a reset or a load
+        replaces the lists)."""
+        cache = self.__dict__.get("_tree_cache")
+        if cache is None or cache[0] is not self._dim or cache[1] != len(self._dim):
+            arrays = (np.array(self._dim, dtype=np.int64), np.array(self._lo, dtype=float),
+                      np.array(self._hi, dtype=float), np.array(self._left, dtype=np.int64),
+                      np.array(self._right, dtype=np.int64))
+            cache = (self._dim, len(self._dim), arrays)
+            self._tree_cache = cache
+        return cache[2]
+
+    def predict_many(self, Z) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` at every row of ``Z`` (m, input_dim): (μ (m,), σ² (m,)), the same
+        numbers (one routing per row, one compiled call per leaf reached)."""
+        idx, _, w, m, v = self.leaf_predictions(Z)
+        rows = int(np.asarray(Z).shape[0])
+        # μ = Σ ω_i μ_i, σ² = Σ ω_i (σ_i² + μ_i²) − μ², accumulated in routing order
+        # (bincount adds each row's terms in order, from 0)
+        mu = np.bincount(idx, w * m, rows)
+        m2 = np.bincount(idx, w * (v + m * m), rows)
+        var = np.maximum(m2 - mu * mu, 0.0)
+        # a row that reaches one leaf: that leaf's prediction as is (as predict)
+        one = np.bincount(idx, minlength=rows) == 1
+        first = np.searchsorted(idx, np.flatnonzero(one))
+        mu[one], var[one] = m[first], v[first]
+        return mu, var
+
+    def extrapolation_many(self, Z) -> np.ndarray:
+        """Merged first-order extrapolation ``e(z) = Σ_i ω_i e_i(z)`` at every row of ``Z``
+        (m, input_dim), e_i of the leaves reached (:meth:`IncrementalGP.extrapolation_many`:
+        the leaf mean's local slope times the distance to the leaf's nearest training input),
+        merged with the prediction weights as the local scale merges its terms."""
+        Z = np.ascontiguousarray(Z, dtype=float)
+        idx, nodes, w, _, _ = self.leaf_predictions(Z)
+        return self._extrapolation_rows(Z, idx, nodes, w)
+
+    def _extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Σ_i ω_i e_i(z) per row of ``Z`` from a routing (row index, node, ω) of
+        :meth:`leaf_predictions`."""
+        ex = np.empty(len(idx))
+        for node in np.unique(nodes).tolist():
+            sel = nodes == node
+            ex[sel] = self._gp[node].extrapolation_many(Z[idx[sel]])
+        return np.bincount(idx, w * ex, Z.shape[0])
+
+    def predict_with_grad(self, x, var_grad: bool = False):
+        """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
+        x, xl = self._check_x(x)
+        return self._predict_with_grad(x, xl, var_grad, None)
+
+    def predict_grad_into(self, x: np.ndarray, out: np.ndarray, noise: bool = False) -> tuple[float, float]:
+        """``(μ, σ²)``, with ``∂μ/∂x`` written into ``out``: the GP-AKF's per-step call.
+
+        ``noise``: σ² + :meth:`noise_variance` (the predictive variance of a new target), from
+        the same routing.  ``x`` must be a finite, C-contiguous float array of shape
+        (input_dim,) (the caller has validated it, e.g. clipped it into the input box); it is
+        not checked here.
+        """
+        r = self._predict_with_grad(x, x.tolist(), False, out, noise)
+        return r[0], r[1]
+
+    def _predict_with_grad(self, x: np.ndarray, xl: list[float], var_grad: bool, out, noise: bool = False):
+        route = self._route(xl, True)
+        gps = self._gp
+        if noise:
+            # σ² + Σ ω_i σ_on,i² (noise_variance)
+            r = list(self._predict_with_grad_route(x, route, var_grad, out))
+            r[1] += sum(w * gps[node].sigma_n ** 2 for node, w, _ in route)
+            return tuple(r)
+        return self._predict_with_grad_route(x, route, var_grad, out)
+
+    def _predict_with_grad_route(self, x: np.ndarray, route: list, var_grad: bool, out):
+        gps = self._gp
+        if len(route) == 1:
+            return gps[route[0][0]].predict_with_grad(x, var_grad, out=out)
+        d = self.input_dim
+        mu = m2 = 0.0
+        acc = [0.0] * d
+        acc2 = [0.0] * d
+        for node, w, dw in route:
+            r = gps[node].predict_with_grad(x, var_grad)
+            m, v, dm = r[0], r[1], r[2].tolist()
+            mu += w * m
+            m2 += w * (v + m * m)
+            if dw is None:
+                dw = [0.0] * d
+            # ∂(ω μ_i) = ω ∂μ_i + μ_i ∂ω
+            for j in range(d):
+                acc[j] += w * dm[j] + m * dw[j]
+            if var_grad:
+                # ∂(ω (σ_i² + μ_i²)) = ∂ω (σ_i² + μ_i²) + ω (∂σ_i² + 2 μ_i ∂μ_i)
+                dv = r[3].tolist()
+                for j in range(d):
+                    acc2[j] += dw[j] * (v + m * m) + w * (dv[j] + 2.0 * m * dm[j])
+        var = m2 - mu * mu
+        if var < 0.0:
+            var = 0.0
+        dmu = np.empty(d) if out is None else out
+        dmu[:] = acc
+        if not var_grad:
+            return mu, var, dmu
+        return mu, var, dmu, np.asarray(acc2) - 2.0 * mu * dmu
+
+    def noise_variance(self, x) -> float:
+        """σ_on² of the leaves ``x`` reaches, merged with the prediction weights: Σ ω_i σ_on,i².
+
+        ``predict``'s σ² is the latent variance of f (eq:GPvariance); σ² + noise_variance(x) is
+        the predictive variance of a new target y = f(x) + ε at x.
+        """
+        x, xl = self._check_x(x)
+        gps = self._gp
+        return float(sum(w * gps[node].sigma_n ** 2 for node, w, _ in self._route(xl, False)))
+
+    # ------------------------------------------------------------------ introspection
+    def leaves(self) -> list[int]:
+        """Node ids of the leaves, in creation order."""
+        return [i for i, g in enumerate(self._gp) if g is not None]
+
+    def leaf(self, node: int) -> IncrementalGP:
+        g = self._gp[node]
+        if g is None:
+            raise InputError(f"node {node} is not a leaf")
+        return g
+
+    @property
+    def depth(self) -> int:
+        """Depth of the deepest leaf (root = 0)."""
+        best, stack = 0, [(0, 0)]
+        while stack:
+            node, dep = stack.pop()
+            if self._dim[node] < 0:
+                best = max(best, dep)
+            else:
+                stack.append((self._left[node], dep + 1))
+                stack.append((self._right[node], dep + 1))
+        return best
+
+    def memory_bytes(self) -> int:
+        """Bytes in the leaves' arrays plus an estimate of the tree's Python lists."""
+        return sum(g.nbytes() for g in self._gp if g is not None) + 8 * 6 * len(self._dim)
+
+    # ------------------------------------------------------------------ persistence
+    def to_dict(self) -> dict:
+        """JSON-serialisable state (no numpy, no pickle); factors are rebuilt on load."""
+        leaves = []
+        for node in self.leaves():
+            g = self._gp[node]
+            st = self._adam.get(node)
+            leaves.append({"node": node, "gp": g.to_dict(),
+                           "adam": None if st is None else self.hyper.state_to_dict(st)})
+        state = self._rng.getstate()
+        return {"format": _FORMAT, "version": _VERSION,
+                "options": {"input_dim": self.input_dim, "max_points": self.max_points,
+                            "max_leaves": self.max_leaves, "overlap": self.overlap,
+                            "lengthscales": np.exp(self._theta0[1:self.input_dim + 1]).tolist(),
+                            "sigma_f": math.exp(self._theta0[0]),
+                            "sigma_n": math.exp(self._theta0[-1]),
+                            "hyperopt": self.hyperopt, "hyper_every": self.hyper_every,
+                            "hyper_lr": self.hyper.lr, "hyper_min_points": self.hyper_min_points,
+                            "hyper_points": self.hyper_points,
+                            "evict": self.evict, "seed": self.seed, "jitter": self.jitter,
+                            "extrapolation_scale": self.extrapolation_scale,
+                            "clip_leaf_mean": self.clip_leaf_mean},
+                "tree": {"dim": list(self._dim), "lo": list(self._lo), "hi": list(self._hi),
+                         "left": list(self._left), "right": list(self._right)},
+                "leaves": leaves,
+                "counters": {"n_points": self.n_points, "n_updates": self.n_updates,
+                             "n_evicted": self.n_evicted, "n_hyper_steps": self.n_hyper_steps,
+                             "last_leaf": self.last_leaf, "hyper_due": self._hyper_due},
+                "pending": None if self._pending is None else
+                [self._pending[0], self._pending[1].tolist()],
+                "rng_state": [state[0], list(state[1]), state[2]]}
+
+    def to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict]:
+        """``(arrays, meta)`` for :func:`sea_daemon.io.modelfile.save_model`: numeric arrays
+        (tree, leaf data, hyperparameters) named with ``prefix``, and a JSON-able ``meta``
+        (options, counters, random state).  Inverse: :meth:`from_arrays`."""
+        d = self.to_dict()
+        leaves = d.pop("leaves")
+        tree = d.pop("tree")
+        p = self.input_dim + 2
+        L = len(leaves)
+        ns = [len(lf["gp"]["y"]) for lf in leaves]
+        X = np.empty((sum(ns), self.input_dim))
+        y = np.empty(sum(ns))
+        theta = np.empty((L, p))
+        center = np.full((L, self.input_dim), np.nan)
+        adam = np.full((L, 1 + 2 * p), np.nan)
+        off = 0
+        for i, lf in enumerate(leaves):
+            g = self._gp[lf["node"]]
+            n = g.n_
+            X[off:off + n], y[off:off + n] = g.X_[:n], g.y_[:n]
+            off += n
+            theta[i, 0], theta[i, 1:p - 1], theta[i, p - 1] = g.sigma_f, g.lengthscales, g.sigma_n
+            if g.center_ is not None:
+                center[i] = g.center_
+            if lf["adam"] is not None:
+                adam[i] = lf["adam"]
+        arrays = {"tree_dim": np.asarray(tree["dim"], dtype=np.int64),
+                  "tree_lo": np.asarray(tree["lo"], dtype=float),
+                  "tree_hi": np.asarray(tree["hi"], dtype=float),
+                  "tree_left": np.asarray(tree["left"], dtype=np.int64),
+                  "tree_right": np.asarray(tree["right"], dtype=np.int64),
+                  "leaf_node": np.asarray([lf["node"] for lf in leaves], dtype=np.int64),
+                  "leaf_n": np.asarray(ns, dtype=np.int64), "leaf_hyp": theta,
+                  "leaf_center": center, "leaf_adam": adam, "X": X, "y": y}
+        return {prefix + k: v for k, v in arrays.items()}, d
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, meta: dict, prefix: str = "") -> "LoGGP":
+        """Inverse of :meth:`to_arrays` (raises ModelFileError on malformed input)."""
+        try:
+            a = {k[len(prefix):]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
+            d = dict(meta)
+            d["tree"] = {k: a["tree_" + k].tolist() for k in ("dim", "lo", "hi", "left", "right")}
+            dim_in = int(d["options"]["input_dim"])
+            leaves, off = [], 0
+            opts = d["options"]
+            for i, node in enumerate(a["leaf_node"].tolist()):
+                n = int(a["leaf_n"][i])
+                t = a["leaf_hyp"][i]                 # [σ_f, l_1 … l_ρ, σ_on]
+                c = a["leaf_center"][i]
+                ad = a["leaf_adam"][i]
+                leaves.append({"node": node, "adam": None if np.isnan(ad).all() else ad.tolist(),
+                               "gp": {"input_dim": dim_in, "sigma_f": float(t[0]),
+                                      "lengthscales": t[1:dim_in + 1].tolist(),
+                                      "sigma_n": float(t[dim_in + 1]),
+                                      "jitter": opts.get("jitter", 1e-10),
+                                      "max_capacity": opts["max_points"],
+                                      "center": None if np.isnan(c).any() else c.tolist(),
+                                      "X": a["X"][off:off + n].tolist(), "y": a["y"][off:off + n].tolist()}})
+                off += n
+            d["leaves"] = leaves
+        except (KeyError, IndexError, TypeError, ValueError) as e:
+            raise ModelFileError(f"LoG-GP model arrays are malformed: {e}") from None
+        return cls.from_dict(d)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LoGGP":
+        """Inverse of :meth:`to_dict` (raises ModelFileError on a malformed dict)."""
+        try:
+            if d.get("format") != _FORMAT or d.get("version") != _VERSION:
+                raise ModelFileError(f"not a LoG-GP model of version {_VERSION}: "
+                                     f"format {d.get('format')!r}, version {d.get('version')!r}")
+            self = cls(**d["options"])
+            t = d["tree"]
+            self._dim, self._lo, self._hi = list(t["dim"]), list(t["lo"]), list(t["hi"])
+            self._left, self._right = list(t["left"]), list(t["right"])
+            self._gp = [None] * len(self._dim)
+            self._adam = {}
+            for leaf in d["leaves"]:
+                node = int(leaf["node"])
+                g = IncrementalGP.from_dict(leaf["gp"])
+                g.max_capacity = self.max_points
+                g.clip_mean = self.clip_leaf_mean
+                self._gp[node] = g
+                if leaf.get("adam") is not None:
+                    self._adam[node] = self.hyper.state_from_dict(leaf["adam"])
+            if any((self._dim[i] < 0) != (self._gp[i] is not None) for i in range(len(self._dim))):
+                raise ModelFileError("LoG-GP model: leaves and tree do not match")
+            self.n_leaves = len(d["leaves"])
+            c = d["counters"]
+            self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
+            self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
+            self.last_leaf = int(c["last_leaf"])
+            self._hyper_due = bool(c.get("hyper_due", False))
+            pend = d.get("pending")
+            self._pending = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
+            rs = d["rng_state"]
+            self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))
+            return self
+        except ModelFileError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError, InputError) as e:
+            raise ModelFileError(f"LoG-GP model is malformed: {e}") from None
+
+
+@warmer
+def _warm() -> None:
+    """The compiled routing with the argument types :meth:`LoGGP.leaf_predictions` uses."""
+    _route_many(np.zeros((2, 1)), np.array([0, -1, -1]), np.array([-0.5, 0.0, 0.0]), np.array([0.5, 0.0, 0.0]),
+                np.array([1, -1, -1]), np.array([2, -1, -1]))

@@ -1,1 +1,0 @@
-"""The estimation service on the exoskeleton controller: loop, logging, systemd glue."""

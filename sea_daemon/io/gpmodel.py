@@ -1,0 +1,90 @@
+"""The calibrated model file of ``sea-daemon calibrate`` / ``run --model``.
+
+On top of :mod:`sea_daemon.io.modelfile` (versioned, checksummed ``.npz``, atomic write, no
+pickle): the learned residual (one LoG-GP per joint, :class:`~sea_daemon.core.learning.ResidualGP`)
+with its training points as numeric arrays and the tree / hyperparameters as JSON metadata,
+plus the model configuration it was learned with.
+
+Compatibility: a residual f(z) is what the *nominal* model leaves unexplained
+(eq:unknwn_load), computed with the configured kinematics; a model file is therefore refused
+(:class:`~sea_daemon.errors.ModelFileError`, exit 2) when the configuration's ``joints``,
+``rate_hz``, ``model`` or ``kinematics`` section differs from the one it was learned with.
+The estimator noise (``estimator``) and ``hardware`` may differ.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.errors import ModelFileError
+from sea_daemon.core.learning import ResidualGP
+from sea_daemon.io.modelfile import load_model, save_model
+
+KIND = "gp-akf-residual"
+#: configuration sections a model file must agree on (see module docstring)
+COMPAT_KEYS = ("joints", "rate_hz", "model", "kinematics")
+
+
+def _split(residual: ResidualGP) -> tuple[dict, dict[str, np.ndarray]]:
+    """The residual's dict with every leaf's X / y moved to numeric arrays."""
+    d = copy.deepcopy(residual.to_dict())
+    arrays: dict[str, np.ndarray] = {}
+    for j, g in enumerate(d["gps"]):
+        for leaf in g["leaves"]:
+            key = f"gp{j}_leaf{int(leaf['node'])}"
+            gp = leaf["gp"]
+            y = np.asarray(gp.pop("y"), dtype=float)
+            arrays[key + "_X"] = np.asarray(gp.pop("X"), dtype=float).reshape(y.size, int(gp["input_dim"]))
+            arrays[key + "_y"] = y
+            gp["arrays"] = key
+    return d, arrays
+
+
+def _join(d: dict, arrays: dict[str, np.ndarray]) -> dict:
+    d = copy.deepcopy(d)
+    for g in d["gps"]:
+        for leaf in g["leaves"]:
+            gp = leaf["gp"]
+            key = gp.pop("arrays")
+            gp["X"] = arrays[key + "_X"].tolist()
+            gp["y"] = arrays[key + "_y"].tolist()
+    return d
+
+
+def save_gp_model(path: str | Path, cfg: ModelConfig, residual: ResidualGP, provenance: dict[str, Any]) -> None:
+    """Write the learned residual atomically (temp file + fsync + rename)."""
+    d, arrays = _split(residual)
+    meta = {"kind": KIND, "config": json.loads(json.dumps(cfg.to_dict())), "residual": d,
+            "created_unix": time.time(), "provenance": provenance}
+    save_model(path, arrays, meta)
+
+
+def _compat(path: str, saved: dict, cfg: ModelConfig) -> None:
+    now = json.loads(json.dumps(cfg.to_dict()))
+    for key in COMPAT_KEYS:
+        if saved.get(key) != now.get(key):
+            raise ModelFileError(f"{path}: learned with a different '{key}' section than the configuration "
+                                 f"(saved {json.dumps(saved.get(key))[:120]}, configured "
+                                 f"{json.dumps(now.get(key))[:120]}); re-run calibrate with this configuration")
+
+
+def load_gp_model(path: str | Path, cfg: ModelConfig) -> tuple[ResidualGP, dict]:
+    """(residual, meta) of a model file; corrupt or incompatible files raise ModelFileError."""
+    arrays, meta = load_model(path)
+    p = str(path)
+    if meta.get("kind") != KIND:
+        raise ModelFileError(f"{p}: kind {meta.get('kind')!r} is not {KIND!r}")
+    try:
+        _compat(p, meta["config"], cfg)
+        residual = ResidualGP.from_dict(_join(meta["residual"], arrays))
+    except KeyError as e:
+        raise ModelFileError(f"{p}: model file lacks {e}") from None
+    if residual.n != cfg.joints:
+        raise ModelFileError(f"{p}: {residual.n} joint(s), the configuration has {cfg.joints}")
+    return residual, meta

@@ -1,0 +1,143 @@
+"""Measured log CSV (docs/interfaces.md §1): read with validation, write.
+
+The in-memory log is :class:`sea_daemon.core.log.MeasuredLog`.
+
+Columns (joint side, SI): ``t, q, theta_m, tau_m`` required, ``tau_h_act`` optional; with
+n > 1 joints every per-joint column carries a 1-based suffix (``q_1 … q_n``).  Other columns
+are kept in :attr:`MeasuredLog.extra` and otherwise ignored.
+
+A bad file raises :class:`~sea_daemon.errors.LogFormatError` naming the file, the line and
+the problem (the CLI turns it into exit status 2 and one line).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from sea_daemon.core.log import MeasuredLog, column_names
+from sea_daemon.errors import LogFormatError
+
+REQUIRED = ("q", "theta_m", "tau_m")
+OPTIONAL = ("tau_h_act",)
+
+
+def _parse_float(text: str) -> float:
+    return float(text)
+
+
+#: angle columns checked for units by range (joint side, rad)
+ANGLE_COLUMNS = ("q", "theta_m")
+ANGLE_LIMIT = 2 * math.pi
+
+
+def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> MeasuredLog:
+    """Read and validate a measured log.
+
+    ``n``: number of joints expected (None: inferred from the header).  ``min_rows``: the
+    fewest data rows the caller's operation needs.
+    """
+    p = str(path)
+    try:
+        with open(p, newline="") as fh:
+            text = fh.read()
+    except OSError as e:
+        raise LogFormatError(p, None, f"cannot read: {e.strerror or e}") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise LogFormatError(p, 1, "empty file: expected a header row with t, q, theta_m, tau_m") from None
+    header = [h.strip() for h in header]
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise LogFormatError(p, 1, f"duplicate column(s) {', '.join(dup)}")
+    if n is None:
+        n = 1 if "q" in header else sum(1 for h in header if h.startswith("q_") and h[2:].isdigit())
+        n = max(n, 1)
+    need = ["t"] + [c for base in REQUIRED for c in column_names(base, n)]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
+                                   f"(need {', '.join(need)} for {n} joint(s))")
+    rows = []
+    for lineno, row in enumerate(reader, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise LogFormatError(p, lineno, f"has {len(row)} fields, the header has {len(header)} "
+                                            "(truncated or malformed row)")
+        vals = []
+        for name, cell in zip(header, row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()!r} is not a number") from None
+            if not math.isfinite(v):
+                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()} is not finite")
+            vals.append(v)
+        rows.append(vals)
+    if len(rows) < min_rows:
+        raise LogFormatError(p, None, f"has {len(rows)} data rows; this operation needs at least {min_rows}")
+    data = np.asarray(rows, dtype=float)
+    col = {h: i for i, h in enumerate(header)}
+    t = data[:, col["t"]]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LogFormatError(p, i + 2, f"time does not increase: t = {t[i]} after {t[i - 1]}")
+
+    # angles in degrees instead of radians, detected by range: an exoskeleton joint moves less
+    # than one turn, so every angle of a valid log (joint side, rad) lies within ±2π and spans
+    # less than 2π; a log in degrees breaks that for any motion of more than 6.3°, or any
+    # angle beyond ±6.3°
+    for base in ANGLE_COLUMNS:
+        for c in column_names(base, n):
+            a = data[:, col[c]]
+            over = np.nonzero(np.abs(a) > ANGLE_LIMIT)[0]
+            span = float(a.max() - a.min())
+            if over.size or span > ANGLE_LIMIT:
+                i = int(over[0]) if over.size else int(np.argmax(np.abs(a - a[0]) > ANGLE_LIMIT))
+                raise LogFormatError(p, i + 2, f"column {c}: {a[i]:g} rad"
+                                     + (f" (|{c}| > 2π)" if over.size else f" spans {span:g} rad (> 2π)")
+                                     + ": degrees instead of radians? (a joint moves less than one turn; "
+                                       "angles must be in rad, within ±2π)")
+
+    def block(base):
+        return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)
+
+    tau_h = None
+    if all(c in col for c in column_names("tau_h_act", n)):
+        tau_h = block("tau_h_act")
+    known = set(need) | set(column_names("tau_h_act", n))
+    extra = {h: data[:, i] for h, i in col.items() if h not in known}
+    return MeasuredLog(t=t, q=block("q"), theta_m=block("theta_m"), tau_m=block("tau_m"),
+                       tau_h_act=tau_h, extra=extra, path=p)
+
+
+def write_log(path: str | Path, log: MeasuredLog, extra: Mapping[str, np.ndarray] | None = None,
+              fmt: str = "%.9g") -> None:
+    """Write a measured log (docs/interfaces.md §1) plus optional extra columns."""
+    n = log.n
+    cols = {"t": log.t}
+    for base, arr in (("q", log.q), ("theta_m", log.theta_m), ("tau_m", log.tau_m), ("tau_h_act", log.tau_h_act)):
+        if arr is None:
+            continue
+        for j, name in enumerate(column_names(base, n)):
+            cols[name] = arr[:, j]
+    for k, v in {**log.extra, **(extra or {})}.items():
+        cols[k] = np.asarray(v)
+    write_columns(path, cols, fmt)
+
+
+def write_columns(path: str | Path, cols: Mapping[str, np.ndarray], fmt: str = "%.9g") -> None:
+    """Write equal-length columns as a CSV with one header row."""
+    names = list(cols)
+    data = np.column_stack([np.asarray(cols[k], dtype=float).reshape(-1) for k in names])
+    tmp = Path(str(path) + ".tmp")
+    np.savetxt(tmp, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    tmp.replace(path)

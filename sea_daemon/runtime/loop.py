@@ -1,0 +1,271 @@
+"""The fixed-rate loop: read → control → write → estimate → log → sleep to an absolute deadline.
+
+One cycle k (ros2_control order, with the estimator after the write so that it gets the
+torque that acts over [t_k, t_k+1] — see :mod:`drivers.interface`):
+
+1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault)
+2. ``controller.update()``   the torque command from the measurement and the last estimate
+3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
+4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: the one written now with
+   ``hw.actuation_delay`` 0 (asynchronous RPDO), the previous cycle's with delay 1 (as the
+   drive applies it: ``hw.actuated()`` when the hardware has it); raises EstimatorFault
+   instead of emitting NaN
+5. one row into the off-loop log writer (row k's ``tau_m`` is that same torque, docs/interfaces.md §1),
+   WATCHDOG=1 to systemd from every cycle the loop runs (latched or not)
+6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
+   deadlines missed by a whole period or more are skipped (counted), not caught up in a burst
+
+No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
+row vector is preallocated and the log writer only copies it.  Faults follow the single
+policy of :mod:`sea_daemon.runtime.safety`.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from sea_daemon.errors import EstimatorFault, HardwareError
+from sea_daemon.errors import Fault
+from sea_daemon.runtime.safety import SafetySupervisor
+
+
+class Hardware(Protocol):
+    def read(self) -> Any: ...             # .t, .q (n,), .theta_m (n,)
+    def write(self, tau_m: np.ndarray) -> None: ...
+    def safe_stop(self) -> None: ...
+
+
+class Estimator(Protocol):
+    def update(self, q: np.ndarray, theta_m: np.ndarray, tau_m: np.ndarray) -> Any: ...
+
+
+class Controller(Protocol):
+    def update(self, t: float, q: np.ndarray, theta_m: np.ndarray, estimate: Any) -> np.ndarray: ...
+
+
+class ZeroTorque:
+    """Estimation only: the loop commands no torque of its own."""
+
+    def __init__(self, n: int):
+        self._zero = np.zeros(n)
+
+    def update(self, t, q, theta_m, estimate):
+        return self._zero
+
+
+def fault_of(exc: BaseException) -> Fault:
+    """Map an exception raised in the cycle to the fault it stands for."""
+    code = getattr(exc, "fault", None)
+    if isinstance(code, Fault):
+        return code
+    name = type(exc).__name__.lower()
+    table = (("heartbeat", Fault.HEARTBEAT_LOST), ("emcy", Fault.EMCY), ("jump", Fault.ENCODER_JUMP),
+             ("stuck", Fault.ENCODER_STUCK), ("busoff", Fault.BUS_OFF), ("bus_off", Fault.BUS_OFF),
+             ("send", Fault.SEND_FAILED), ("pdo", Fault.TPDO_MISSING), ("timeout", Fault.TPDO_MISSING),
+             ("devicefault", Fault.DEVICE_FAULT))
+    for key, f in table:
+        if key in name:
+            return f
+    if isinstance(exc, EstimatorFault):
+        return Fault.COVARIANCE_NOT_PD if "definite" in str(exc) else Fault.ESTIMATOR_NONFINITE
+    if isinstance(exc, HardwareError):
+        return Fault.DEVICE_FAULT
+    return Fault.INTERNAL
+
+
+@dataclass
+class LoopStats:
+    cycles: int = 0
+    overruns: int = 0
+    max_late_s: float = 0.0
+    periods: list = field(default_factory=list)   # filled only when record_periods=True
+    faults: int = 0
+    skipped: int = 0                               # deadlines skipped after overruns >= 1 period
+
+
+LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
+             "period", "compute", "read"]
+
+
+def log_columns(n: int) -> list[str]:
+    """Daemon log: docs/interfaces.md §1 columns plus estimate, bound, validity and loop timing."""
+    from sea_daemon.core.log import column_names
+    cols = ["t"]
+    for base in ("q", "theta_m", "tau_m"):
+        cols += column_names(base, n)
+    for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
+        cols += column_names(base, n)
+    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s]
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read"]
+
+
+class FixedRateLoop:
+    """read → control → write → estimate → log → sleep to an absolute deadline, with the fault policy.
+
+    ``initial_torque``: the torque in force when the loop starts (what ``hw.start()`` primed
+    with); with ``hw.actuation_delay`` 1 it is the torque acting over the first interval.
+    """
+
+    def __init__(self, hw: Hardware, estimator: Estimator, controller: Controller, n: int, period: float,
+                 log=None, notifier=None, supervisor: SafetySupervisor | None = None,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 realtime: bool = True, record_periods: bool = False,
+                 on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
+                 initial_torque: np.ndarray | None = None):
+        self.hw, self.estimator, self.controller = hw, estimator, controller
+        self.n, self.period = n, float(period)
+        self.log, self.notifier = log, notifier
+        self.supervisor = supervisor or SafetySupervisor()
+        self.clock, self.sleep = clock, sleep
+        self.realtime = realtime
+        self.record_periods = record_periods
+        self.on_cycle = on_cycle
+        self.stats = LoopStats()
+        self._row = np.zeros(len(log_columns(n)))
+        self._zero = np.zeros(n)
+        self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
+        self._act_prev = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
+        self._delay = int(getattr(hw, "actuation_delay", 0) or 0)
+        self._actuated = getattr(hw, "actuated", None)
+        self._stop = False
+        self._reset_requested = False
+        self.last_estimate = None
+
+    def request_stop(self) -> None:          # signal-handler safe: sets a flag only
+        self._stop = True
+
+    def request_reset(self) -> None:         # operator action (sea-daemon reset → SIGUSR1)
+        self._reset_requested = True
+
+    def _trip(self, code: Fault, cycle: int, t: float, detail: str) -> None:
+        if self.supervisor.trip(code, cycle, t, detail):
+            self._latched()
+
+    def _latched(self) -> None:
+        """A fault has just latched: zero torque / quick stop now, tell systemd."""
+        self.stats.faults += 1
+        try:
+            self.hw.safe_stop()
+        except Exception:  # noqa: BLE001 - the bus may be gone; zero torque is written below too
+            pass
+        if self.notifier is not None:
+            self.notifier.status(self.supervisor.status_line())
+
+    def run(self, cycles: int | None = None) -> LoopStats:
+        n = self.n
+        sup = self.supervisor
+        row = self._row
+        st = self.stats
+        t0 = self.clock()
+        deadline = t0
+        last_start = t0
+        k = 0
+        while not self._stop and (cycles is None or k < cycles):
+            start = self.clock()
+            if self._reset_requested:
+                self._reset_requested = False
+                was = sup.reset()
+                try:
+                    if hasattr(self.hw, "reset_fault"):
+                        self.hw.reset_fault()
+                    if hasattr(self.estimator, "reset"):
+                        self.estimator.reset()
+                except Exception as e:  # noqa: BLE001 - a failed reset leaves the fault latched
+                    self._trip(fault_of(e) if was == Fault.NONE else was, k, start,
+                               f"operator reset failed: {type(e).__name__}: {e}")
+                else:
+                    if self.notifier is not None:
+                        self.notifier.status("fault reset by operator")
+            meas = None
+            est = None
+            valid = 0.0
+            try:
+                meas = self.hw.read()
+            except Exception as e:  # noqa: BLE001 - every hardware fault latches
+                self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            t_read = self.clock()
+            if meas is not None and sup.ok:
+                try:
+                    cmd = self.controller.update(meas.t, meas.q, meas.theta_m, self.last_estimate)
+                    self.hw.write(cmd)
+                    act = self._actuated(cmd) if self._actuated is not None else cmd
+                    if self._delay:
+                        # synchronous RPDO: the previous command acts over [t_k, t_k+1]
+                        self._tau[:] = self._act_prev
+                        self._act_prev[:] = act
+                    else:
+                        # actuated on reception: this command acts over [t_k, t_k+1]
+                        self._tau[:] = act
+                except Exception as e:  # noqa: BLE001
+                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            if meas is not None and sup.ok:
+                try:
+                    est = self.estimator.update(meas.q, meas.theta_m, self._tau)
+                    valid = 1.0
+                except Exception as e:  # noqa: BLE001
+                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            if not sup.ok:
+                self._tau[:] = 0.0
+                self._act_prev[:] = 0.0
+                valid = 0.0
+                est = None
+                try:
+                    self.hw.write(self._zero)
+                except Exception:  # noqa: BLE001 - the bus may be gone; safe_stop was already asked
+                    pass
+            self.last_estimate = est if valid else None
+            if self.on_cycle is not None:
+                self.on_cycle(k, meas, est, self._tau)
+            done = self.clock()
+            if self.log is not None and meas is not None:
+                i = 0
+                row[0] = meas.t
+                row[1:1 + n] = meas.q
+                row[1 + n:1 + 2 * n] = meas.theta_m
+                row[1 + 2 * n:1 + 3 * n] = self._tau
+                i = 1 + 3 * n
+                if est is not None and valid:
+                    row[i:i + n] = est.tau_h_act_hat
+                    row[i + n:i + 2 * n] = est.tau_h_act_bound
+                    row[i + 2 * n:i + 3 * n] = est.tau_h_act_sigma
+                else:
+                    row[i:i + 3 * n] = 0.0
+                i += 3 * n
+                row[i] = valid
+                row[i + 1] = float(sup.latched)
+                row[i + 2] = k
+                row[i + 3] = start - last_start
+                row[i + 4] = done - start
+                row[i + 5] = t_read - start
+                self.log.append(row)
+            # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
+            # only a stuck loop and never clears a latched fault behind the operator's back
+            if self.notifier is not None:
+                self.notifier.watchdog()
+            if self.record_periods and k > 0:
+                st.periods.append(start - last_start)
+            last_start = start
+            k += 1
+            st.cycles = k
+            deadline = t0 + k * self.period
+            if self.realtime:
+                now = self.clock()
+                late = now - deadline
+                if late > 0:
+                    st.overruns += 1
+                    st.max_late_s = max(st.max_late_s, late)
+                    if late >= self.period:
+                        # skip the deadlines already missed: re-phase instead of a catch-up burst
+                        skip = int(late // self.period)
+                        st.skipped += skip
+                        t0 += skip * self.period
+                    # the cycle that just ended (k − 1) overran its deadline
+                    if sup.overrun(True, k - 1, now):
+                        self._latched()
+                else:
+                    sup.overrun(False, k - 1, now)
+                    self.sleep(-late)
+        return st
