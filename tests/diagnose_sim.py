@@ -65,12 +65,8 @@ class PositionFrictionPlant(Plant):
 
     F0, q_c, w = 0.6, math.radians(42.0), math.radians(8.0)
 
-    def _compile_scalar(self) -> None:
-        super()._compile_scalar()
-        base = self._s_load
-        eps = self.sign_eps
-        F0, qc, w = self.F0, self.q_c, self.w
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, extra_load_torque=self._band, **kwargs)
 
-        def load(q, dq):
-            return base(q, dq) + F0 * math.exp(-((q - qc) / w) ** 2) * math.tanh(dq / eps)
-        self._s_load = load
+    def _band(self, q, dq):
+        return self.F0 * np.exp(-((q - self.q_c) / self.w) ** 2) * np.tanh(dq / self.sign_eps)

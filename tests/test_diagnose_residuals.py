@@ -7,7 +7,7 @@ import pytest
 
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.apps.diagnose.candidates import Context, build_candidates
-from sea_daemon.apps.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels, vtorque
+from sea_daemon.apps.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels
 from sea_daemon.core.effects import EFFECT_TYPES, make_effect
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
@@ -50,12 +50,28 @@ def ctx():
     return c
 
 
+#: the torque column of the vocabulary table (docs/interfaces.md §2), written out with numpy
+TABLE = {
+    "coulomb": lambda e, a, v, c: e.F_c * np.tanh(v / e.eps),
+    "viscous": lambda e, a, v, c: e.b * v,
+    "stribeck": lambda e, a, v, c: e.F_s * np.exp(-(v / e.v_s) ** 2) * np.tanh(v / e.eps),
+    "inertia": lambda e, a, v, c: e.dI * c,
+    "gravity": lambda e, a, v, c: e.a * np.sin(a + e.phi),
+    "human_viscoelastic": lambda e, a, v, c: e.k_h * (a - e.q_h0) + e.b_h * v,
+    "cogging": lambda e, a, v, c: e.A * np.sin(e.periods * a + e.phi),
+    "spring_cubic": lambda e, a, v, c: e.k3 * a ** 3,
+    "spring_saturation": lambda e, a, v, c: e.k_stop * (e.smooth * np.logaddexp(0, (a - e.theta_max) / e.smooth)
+                                                       - e.smooth * np.logaddexp(0, (-a - e.theta_max) / e.smooth)),
+}
+
+
 @pytest.mark.parametrize("e", ADDITIVE, ids=lambda e: f"{e.type}-{e.side}")
-def test_array_torque_equals_scalar_torque(e):
+def test_effect_torque_is_the_vocabulary_formula_at_one_sample_and_over_arrays(e):
     rng = np.random.default_rng(1)
     a, v, c = rng.normal(0, 0.2, (3, 300))
-    ref = np.array([e.torque(x, y, z) for x, y, z in zip(a, v, c)])
-    np.testing.assert_allclose(vtorque(e, a, v, c), ref, rtol=1e-12, atol=1e-14)
+    ref = TABLE[e.type](e, a, v, c)
+    np.testing.assert_allclose(e.torque_array(a, v, c), ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose([e.torque(x, y, z) for x, y, z in zip(a, v, c)], ref, rtol=1e-12, atol=1e-12)
 
 
 def test_every_vocabulary_type_has_a_candidate_on_every_side(ctx):

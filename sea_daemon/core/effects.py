@@ -10,30 +10,108 @@ Signals by side (joint side of the gear, SI):
     motor  -- angle θ_m,     velocity θ̇_m,    acceleration θ̈_m
     spring -- deflection θ_s = q − θ_m, rate θ̇_s
 
-Additive effects implement ``torque(angle, vel, acc)`` and ``partials(angle, vel, acc)`` ->
-(∂τ/∂angle, ∂τ/∂vel, ∂τ/∂acc); these are used for the analytic Jacobians of the model.
+Every additive effect's formula — its torque and its partial derivatives — is written once, in
+the compiled kernel :func:`evaluate` (one branch per type, parameters as a vector).  The Python
+classes validate and name the parameters and call it: ``torque``/``partials``/``evaluate`` at
+one sample (the model's sums and analytic Jacobians, :class:`~sea_daemon.core.model.SEAModel`),
+``torque_array`` over a log (diagnose's regressors), and :func:`side_torque` from compiled code
+(the simulated plant's RK4, :mod:`sea_daemon.core.sim.plant`).  Structural effects
+(``spring_backlash``, ``torque_scale``, ``encoder_offset``, ``delay``) change how torque,
+deflection or angle are formed; the model applies them (the dead band: :func:`deadband`).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import ClassVar, Mapping
 
+import numpy as np
+
+from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import ConfigError
 
 #: velocity scale [rad/s] of the smoothed sign used for Coulomb/Stribeck friction
 DEFAULT_SIGN_EPS = 0.01
 
+#: codes of the additive effects in the compiled kernel :func:`evaluate` (0: structural, no torque)
+STRUCTURAL, COULOMB, VISCOUS, STRIBECK, INERTIA, GRAVITY, HUMAN_VISCOELASTIC, COGGING, SPRING_CUBIC, \
+    SPRING_SATURATION = range(10)
+#: the longest parameter vector of an additive effect (:attr:`Effect.vector`)
+MAX_PARAMS = 3
 
-def smooth_sign(v: float, eps: float) -> float:
-    """sign(v) smoothed near zero: tanh(v/eps)."""
-    return math.tanh(v / eps)
+
+@njit
+def softplus(x: float, w: float) -> tuple[float, float]:
+    """w·log(1 + exp(x/w)) and its derivative, the logistic (linear above 30 w, 0 below −30 w)."""
+    z = x / w
+    if z > 30.0:
+        return x, 1.0
+    if z < -30.0:
+        return 0.0, 0.0
+    return w * math.log1p(math.exp(z)), 1.0 / (1.0 + math.exp(-z))
 
 
-def smooth_sign_deriv(v: float, eps: float) -> float:
-    """d/dv tanh(v/eps)."""
-    t = math.tanh(v / eps)
-    return (1.0 - t * t) / eps
+@njit
+def evaluate(code: int, p, angle: float, vel: float, acc: float) -> tuple[float, float, float, float]:
+    """(τ, ∂τ/∂angle, ∂τ/∂vel, ∂τ/∂acc) of one additive effect with parameter vector ``p``.
+
+    The one definition of every effect's torque (the table of docs/interfaces.md §2): the
+    model's sums and Jacobians, the simulated plant and diagnose's regressors all evaluate it.
+    The friction sign is smoothed, sign(v) ≈ tanh(v/ε), ε the last entry of ``p``.
+    """
+    if code == COULOMB:                    # p = (F_c, ε): F_c sign(v)
+        s = math.tanh(vel / p[1])
+        return p[0] * s, 0.0, p[0] * ((1.0 - s * s) / p[1]), 0.0
+    if code == VISCOUS:                    # p = (b,): b v
+        return p[0] * vel, 0.0, p[0], 0.0
+    if code == STRIBECK:                   # p = (F_s, v_s, ε): F_s exp(−(v/v_s)²) sign(v)
+        e = math.exp(-((vel / p[1]) ** 2))
+        s = math.tanh(vel / p[2])
+        d = p[0] * e * ((1.0 - s * s) / p[2] - 2.0 * vel / p[1] ** 2 * s)
+        return p[0] * e * s, 0.0, d, 0.0
+    if code == INERTIA:                    # p = (dI,): dI v̇
+        return p[0] * acc, 0.0, 0.0, p[0]
+    if code == GRAVITY:                    # p = (a, φ): a sin(q + φ)
+        return p[0] * math.sin(angle + p[1]), p[0] * math.cos(angle + p[1]), 0.0, 0.0
+    if code == HUMAN_VISCOELASTIC:         # p = (k_h, q_h0, b_h): k_h (q − q_h0) + b_h q̇
+        return p[0] * (angle - p[1]) + p[2] * vel, p[0], p[2], 0.0
+    if code == COGGING:                    # p = (A, P, φ): A sin(P θ_m + φ)
+        a = p[1] * angle + p[2]
+        return p[0] * math.sin(a), p[0] * p[1] * math.cos(a), 0.0, 0.0
+    if code == SPRING_CUBIC:               # p = (k3,): k3 θ_s³
+        return p[0] * angle ** 3, 3.0 * p[0] * angle ** 2, 0.0, 0.0
+    if code == SPRING_SATURATION:          # p = (θ_max, k_stop, w): k_stop (sp(θ_s − θ_max) − sp(−θ_s − θ_max))
+        up, dup = softplus(angle - p[0], p[2])
+        dn, ddn = softplus(-angle - p[0], p[2])
+        return p[1] * (up - dn), p[1] * (dup + ddn), 0.0, 0.0
+    return 0.0, 0.0, 0.0, 0.0
+
+
+@njit
+def evaluate_many(code: int, p, angle, vel, acc, out) -> None:
+    """``out[i]`` = τ of :func:`evaluate` at sample i (arrays of one joint's signals)."""
+    for i in range(angle.shape[0]):
+        out[i] = evaluate(code, p, angle[i], vel[i], acc[i])[0]
+
+
+@njit
+def side_torque(codes, P, angle: float, vel: float) -> float:
+    """Σ τ of the effects (codes[i], P[i]) of one side at (angle, vel), zero acceleration."""
+    tau = 0.0
+    for i in range(codes.shape[0]):
+        tau += evaluate(codes[i], P[i], angle, vel, 0.0)[0]
+    return tau
+
+
+@njit
+def deadband(theta_s: float, half_width: float) -> tuple[float, float]:
+    """The deflection a dead band of ±half_width passes on, θ_s − clip(θ_s, −h, h), and its slope."""
+    if theta_s > half_width:
+        return theta_s - half_width, 1.0
+    if theta_s < -half_width:
+        return theta_s + half_width, 1.0
+    return 0.0, 0.0
 
 
 @dataclass(frozen=True)
@@ -48,10 +126,22 @@ class Effect:
     param_names: ClassVar[tuple[str, ...]] = ()
     #: additive torque effects take part in the dynamics sums; structural ones do not
     additive: ClassVar[bool] = True
+    #: code of the formula in :func:`evaluate`
+    code: ClassVar[int] = STRUCTURAL
+    #: fields forming the parameter vector of :func:`evaluate`, in its order
+    vector_fields: ClassVar[tuple[str, ...]] = ()
 
     @property
     def params(self) -> dict[str, float]:
         return {k: float(getattr(self, k)) for k in self.param_names}
+
+    @cached_property
+    def vector(self) -> np.ndarray:
+        """The parameter vector ``p`` of :func:`evaluate` (length :data:`MAX_PARAMS`)."""
+        v = np.zeros(MAX_PARAMS)
+        for i, k in enumerate(self.vector_fields):
+            v[i] = float(getattr(self, k))
+        return v
 
     def to_dict(self, n_joints: int = 1) -> dict:
         d: dict = {"type": self.type, "side": self.side}
@@ -60,12 +150,23 @@ class Effect:
         d.update(self.params)
         return d
 
-    # additive effects override these two
+    def evaluate(self, angle: float, vel: float, acc: float) -> tuple[float, float, float, float]:
+        """(τ, ∂τ/∂angle, ∂τ/∂vel, ∂τ/∂acc) at one sample (:func:`evaluate`)."""
+        return evaluate(self.code, self.vector, float(angle), float(vel), float(acc))
+
     def torque(self, angle: float, vel: float, acc: float) -> float:
-        return 0.0
+        return self.evaluate(angle, vel, acc)[0]
 
     def partials(self, angle: float, vel: float, acc: float) -> tuple[float, float, float]:
-        return (0.0, 0.0, 0.0)
+        return self.evaluate(angle, vel, acc)[1:]
+
+    def torque_array(self, angle, vel, acc) -> np.ndarray:
+        """τ over arrays of samples (this effect's side and joint signals)."""
+        a = np.ascontiguousarray(angle, dtype=float)
+        out = np.empty(a.shape[0])
+        evaluate_many(self.code, self.vector, a, np.ascontiguousarray(vel, dtype=float),
+                      np.ascontiguousarray(acc, dtype=float), out)
+        return out
 
 
 @dataclass(frozen=True)
@@ -75,12 +176,8 @@ class Coulomb(Effect):
     type: ClassVar[str] = "coulomb"
     sides: ClassVar[tuple[str, ...]] = ("load", "motor")
     param_names: ClassVar[tuple[str, ...]] = ("F_c",)
-
-    def torque(self, angle, vel, acc):
-        return self.F_c * smooth_sign(vel, self.eps)
-
-    def partials(self, angle, vel, acc):
-        return (0.0, self.F_c * smooth_sign_deriv(vel, self.eps), 0.0)
+    code: ClassVar[int] = COULOMB
+    vector_fields: ClassVar[tuple[str, ...]] = ("F_c", "eps")
 
 
 @dataclass(frozen=True)
@@ -89,12 +186,8 @@ class Viscous(Effect):
     type: ClassVar[str] = "viscous"
     sides: ClassVar[tuple[str, ...]] = ("load", "motor")
     param_names: ClassVar[tuple[str, ...]] = ("b",)
-
-    def torque(self, angle, vel, acc):
-        return self.b * vel
-
-    def partials(self, angle, vel, acc):
-        return (0.0, self.b, 0.0)
+    code: ClassVar[int] = VISCOUS
+    vector_fields: ClassVar[tuple[str, ...]] = ("b",)
 
 
 @dataclass(frozen=True)
@@ -105,15 +198,8 @@ class Stribeck(Effect):
     type: ClassVar[str] = "stribeck"
     sides: ClassVar[tuple[str, ...]] = ("load", "motor")
     param_names: ClassVar[tuple[str, ...]] = ("F_s", "v_s")
-
-    def torque(self, angle, vel, acc):
-        return self.F_s * math.exp(-((vel / self.v_s) ** 2)) * smooth_sign(vel, self.eps)
-
-    def partials(self, angle, vel, acc):
-        e = math.exp(-((vel / self.v_s) ** 2))
-        s = smooth_sign(vel, self.eps)
-        d = self.F_s * e * (smooth_sign_deriv(vel, self.eps) - 2.0 * vel / self.v_s**2 * s)
-        return (0.0, d, 0.0)
+    code: ClassVar[int] = STRIBECK
+    vector_fields: ClassVar[tuple[str, ...]] = ("F_s", "v_s", "eps")
 
 
 @dataclass(frozen=True)
@@ -122,12 +208,8 @@ class Inertia(Effect):
     type: ClassVar[str] = "inertia"
     sides: ClassVar[tuple[str, ...]] = ("load", "motor")
     param_names: ClassVar[tuple[str, ...]] = ("dI",)
-
-    def torque(self, angle, vel, acc):
-        return self.dI * acc
-
-    def partials(self, angle, vel, acc):
-        return (0.0, 0.0, self.dI)
+    code: ClassVar[int] = INERTIA
+    vector_fields: ClassVar[tuple[str, ...]] = ("dI",)
 
 
 @dataclass(frozen=True)
@@ -137,12 +219,8 @@ class Gravity(Effect):
     type: ClassVar[str] = "gravity"
     sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("a", "phi")
-
-    def torque(self, angle, vel, acc):
-        return self.a * math.sin(angle + self.phi)
-
-    def partials(self, angle, vel, acc):
-        return (self.a * math.cos(angle + self.phi), 0.0, 0.0)
+    code: ClassVar[int] = GRAVITY
+    vector_fields: ClassVar[tuple[str, ...]] = ("a", "phi")
 
 
 @dataclass(frozen=True)
@@ -153,12 +231,8 @@ class HumanViscoelastic(Effect):
     type: ClassVar[str] = "human_viscoelastic"
     sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("k_h", "q_h0", "b_h")
-
-    def torque(self, angle, vel, acc):
-        return self.k_h * (angle - self.q_h0) + self.b_h * vel
-
-    def partials(self, angle, vel, acc):
-        return (self.k_h, self.b_h, 0.0)
+    code: ClassVar[int] = HUMAN_VISCOELASTIC
+    vector_fields: ClassVar[tuple[str, ...]] = ("k_h", "q_h0", "b_h")
 
 
 @dataclass(frozen=True)
@@ -169,12 +243,8 @@ class Cogging(Effect):
     type: ClassVar[str] = "cogging"
     sides: ClassVar[tuple[str, ...]] = ("motor",)
     param_names: ClassVar[tuple[str, ...]] = ("A", "periods", "phi")
-
-    def torque(self, angle, vel, acc):
-        return self.A * math.sin(self.periods * angle + self.phi)
-
-    def partials(self, angle, vel, acc):
-        return (self.A * self.periods * math.cos(self.periods * angle + self.phi), 0.0, 0.0)
+    code: ClassVar[int] = COGGING
+    vector_fields: ClassVar[tuple[str, ...]] = ("A", "periods", "phi")
 
 
 @dataclass(frozen=True)
@@ -185,12 +255,8 @@ class SpringCubic(Effect):
     type: ClassVar[str] = "spring_cubic"
     sides: ClassVar[tuple[str, ...]] = ("spring",)
     param_names: ClassVar[tuple[str, ...]] = ("k3",)
-
-    def torque(self, angle, vel, acc):
-        return self.k3 * angle**3
-
-    def partials(self, angle, vel, acc):
-        return (3.0 * self.k3 * angle**2, 0.0, 0.0)
+    code: ClassVar[int] = SPRING_CUBIC
+    vector_fields: ClassVar[tuple[str, ...]] = ("k3",)
 
 
 @dataclass(frozen=True)
@@ -208,25 +274,8 @@ class SpringSaturation(Effect):
     type: ClassVar[str] = "spring_saturation"
     sides: ClassVar[tuple[str, ...]] = ("spring",)
     param_names: ClassVar[tuple[str, ...]] = ("theta_max", "k_stop")
-
-    def _sp(self, x: float) -> tuple[float, float]:
-        # softplus(x) = smooth*log(1+exp(x/smooth)) and its derivative (logistic)
-        z = x / self.smooth
-        if z > 30:
-            return x, 1.0
-        if z < -30:
-            return 0.0, 0.0
-        return self.smooth * math.log1p(math.exp(z)), 1.0 / (1.0 + math.exp(-z))
-
-    def torque(self, angle, vel, acc):
-        up, _ = self._sp(angle - self.theta_max)
-        dn, _ = self._sp(-angle - self.theta_max)
-        return self.k_stop * (up - dn)
-
-    def partials(self, angle, vel, acc):
-        _, dup = self._sp(angle - self.theta_max)
-        _, ddn = self._sp(-angle - self.theta_max)
-        return (self.k_stop * (dup + ddn), 0.0, 0.0)
+    code: ClassVar[int] = SPRING_SATURATION
+    vector_fields: ClassVar[tuple[str, ...]] = ("theta_max", "k_stop", "smooth")
 
 
 # ---- structural effects: they change how torque/deflection/angle are formed ----------
@@ -244,12 +293,12 @@ class SpringBacklash(Effect):
 
     def deadband(self, theta_s: float) -> tuple[float, float]:
         """Effective deflection and its derivative w.r.t. θ_s (0 inside the band)."""
+        return deadband(float(theta_s), 0.5 * self.width)
+
+    def deadband_array(self, theta_s) -> np.ndarray:
+        """The effective deflection over an array of samples: θ_s − clip(θ_s, −w/2, w/2)."""
         h = 0.5 * self.width
-        if theta_s > h:
-            return theta_s - h, 1.0
-        if theta_s < -h:
-            return theta_s + h, 1.0
-        return 0.0, 0.0
+        return theta_s - np.clip(theta_s, -h, h)
 
 
 @dataclass(frozen=True)
@@ -332,3 +381,14 @@ def make_effect(type: str, side: str | None = None, joint: int = 0, **params: fl
     """Programmatic constructor (0-based joint): ``make_effect('coulomb', 'load', F_c=0.3)``."""
     cls = EFFECT_TYPES[type]
     return cls(side=side or cls.sides[0], joint=joint, **params)
+
+
+@warmer
+def _warm() -> None:
+    p = np.zeros(MAX_PARAMS)
+    for code in range(SPRING_SATURATION + 1):
+        evaluate(code, p + 1.0, 0.1, 0.2, 0.3)
+    z = np.zeros(2)
+    evaluate_many(COULOMB, p + 1.0, z, z, z, np.zeros(2))
+    side_torque(np.zeros(1, dtype=np.int64), np.ones((1, MAX_PARAMS)), 0.1, 0.2)
+    deadband(0.1, 0.05)

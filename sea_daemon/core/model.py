@@ -14,6 +14,8 @@ Inertia effects are folded into M and J (they are linear in the acceleration).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.linalg import expm
 
@@ -29,7 +31,7 @@ class SEAModel:
         n = self.n = params.n
         eff = params.effects
         if sign_eps is not None:  # declared friction uses the estimator's smoothing
-            eff = tuple(e.__class__(**{**e.__dict__, "eps": sign_eps}) if hasattr(e, "eps") else e for e in eff)
+            eff = tuple(dataclasses.replace(e, eps=sign_eps) if hasattr(e, "eps") else e for e in eff)
         self.effects = eff
         M = np.array(params.M, dtype=float)
         J = np.array(params.J, dtype=float)
@@ -83,8 +85,8 @@ class SEAModel:
         d_vel = np.zeros(n)
         for e in effects:
             j = e.joint
-            tau[j] += e.torque(angle[j], vel[j], acc[j])
-            pa, pv, _ = e.partials(angle[j], vel[j], acc[j])
+            t, pa, pv, _ = e.evaluate(angle[j], vel[j], acc[j])
+            tau[j] += t
             d_ang[j] += pa
             d_vel[j] += pv
         return tau, d_ang, d_vel

@@ -33,7 +33,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
 from sea_daemon.core.model import SEAModel
-from sea_daemon.apps.diagnose.residuals import Kinematics, residuals_for, vtorque
+from sea_daemon.apps.diagnose.residuals import Kinematics, residuals_for
 
 
 @dataclass
@@ -95,7 +95,7 @@ class Context:
                 a, v = th[:, j], kin.dtheta_m[:, j]
             else:
                 a, v = q[:, j] - th[:, j], np.zeros(kin.N)
-            col = vtorque(e, a, v, np.zeros(kin.N))
+            col = e.torque_array(a, v, np.zeros(kin.N))
         out = np.zeros((kin.N, 2 * n))
         if e.side in ("load", "spring"):
             out[:, j] = col
@@ -363,9 +363,10 @@ class CoggingC(Candidate):
         return None, np.column_stack([s, c])
 
     def fast_design(self, ctx, theta):
-        """The same columns without going through the model (cogging is additive)."""
-        a, _, _ = self._side_signals(ctx)
-        return (self._on_side(ctx, np.sin(theta * a)), self._on_side(ctx, np.cos(theta * a)))
+        """The same columns, unsmoothed, from the effect's torque alone (cogging is additive)."""
+        a, v, c = self._side_signals(ctx)
+        return tuple(self._on_side(ctx, self.effect({"A": 1.0, "periods": float(theta), "phi": phi}).torque_array(a, v, c))
+                     for phi in (0.0, math.pi / 2))
 
     def natural(self, beta, theta):
         return {"A": float(math.hypot(beta[0], beta[1])), "periods": float(theta),

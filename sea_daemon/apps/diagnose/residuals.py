@@ -29,7 +29,7 @@ interpolated at t − dt/2; a declared delay d shifts it further.
 
 Arrays are (N, n) per channel; :func:`residual_channels` returns (N, 2n) with the load
 channels first.  Everything here is vectorised over time; the per-sample maths is the
-:class:`~sea_daemon.core.model.SEAModel` (its attributes and the effects' own ``torque``), and
+:class:`~sea_daemon.core.model.SEAModel` (its attributes) and the effects' own ``torque_array``, and
 ``tests/test_diagnose_residuals.py`` checks r_load + r_motor against
 ``SEAModel.residual_from_kinematics``.
 """
@@ -42,7 +42,7 @@ from scipy.ndimage import correlate1d
 from scipy.signal import savgol_coeffs
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.effects import Coulomb, Effect, Stribeck
+from sea_daemon.core.effects import Coulomb, Stribeck
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
@@ -147,41 +147,11 @@ def kinematics_from_log(log: MeasuredLog, window: int | None = None, degree: int
     return kin
 
 
-def _softplus(x: np.ndarray, s: float) -> np.ndarray:
-    # s·log(1 + exp(x/s)), as SpringSaturation._sp (linear above 30 s, 0 below −30 s)
-    z = x / s
-    return np.where(z > 30, x, np.where(z < -30, 0.0, s * np.log1p(np.exp(np.clip(z, -30, 30)))))
-
-
-#: array versions of the vocabulary's ``torque`` (same formulas as :mod:`sea_daemon.core.effects`;
-#: ``tests/test_diagnose_residuals.py`` checks each against the effect's own scalar torque)
-_VECTOR = {
-    "coulomb": lambda e, a, v, c: e.F_c * np.tanh(v / e.eps),
-    "viscous": lambda e, a, v, c: e.b * v,
-    "stribeck": lambda e, a, v, c: e.F_s * np.exp(-((v / e.v_s) ** 2)) * np.tanh(v / e.eps),
-    "inertia": lambda e, a, v, c: e.dI * c,
-    "gravity": lambda e, a, v, c: e.a * np.sin(a + e.phi),
-    "human_viscoelastic": lambda e, a, v, c: e.k_h * (a - e.q_h0) + e.b_h * v,
-    "cogging": lambda e, a, v, c: e.A * np.sin(e.periods * a + e.phi),
-    "spring_cubic": lambda e, a, v, c: e.k3 * a**3,
-    "spring_saturation": lambda e, a, v, c: e.k_stop * (_softplus(a - e.theta_max, e.smooth)
-                                                        - _softplus(-a - e.theta_max, e.smooth)),
-}
-
-
-def vtorque(e: Effect, angle: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    """An effect's ``torque`` evaluated elementwise over arrays."""
-    f = _VECTOR.get(e.type)
-    if f is not None and type(e).torque is not Effect.torque:
-        return np.asarray(f(e, np.asarray(angle, float), np.asarray(vel, float), np.asarray(acc, float)), dtype=float)
-    return np.vectorize(e.torque, otypes=[float])(angle, vel, acc)
-
-
 def _effect_sum(effects, n, angle, vel, acc) -> np.ndarray:
     out = np.zeros_like(angle)
     for e in effects:
         j = e.joint
-        out[:, j] += vtorque(e, angle[:, j], vel[:, j], acc[:, j])
+        out[:, j] += e.torque_array(angle[:, j], vel[:, j], acc[:, j])
     return out
 
 
@@ -205,9 +175,8 @@ def spring_torque(model: SEAModel, theta_s: np.ndarray, dtheta_s: np.ndarray) ->
     """τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s)  (eq:spring_torque), vectorised over time."""
     g = np.array(theta_s, dtype=float)
     for j, e in model.backlash.items():
-        # dead band of total width w: g = θ_s − clip(θ_s, −w/2, w/2)  (SpringBacklash.deadband)
-        h = 0.5 * e.width
-        g[:, j] = theta_s[:, j] - np.clip(theta_s[:, j], -h, h)
+        # the dead band of the spring deflection (SpringBacklash)
+        g[:, j] = e.deadband_array(theta_s[:, j])
     z = np.zeros_like(theta_s)
     return g @ model.K_s.T + dtheta_s @ model.D_s.T + _effect_sum(model.spring_effects, model.n, theta_s, z, z)
 

@@ -21,8 +21,9 @@ Integration: classical RK4 on (q, θ_m, q̇, θ̇_m) at a fixed substep (default
 |torque| < F_c + F_s), large enough that RK4 stays stable at the substep; the
 constructor checks the substep against the stiffest friction/spring slope.
 
-For one joint a scalar (pure ``math``) evaluation of the same equations is used: numpy's
-per-call overhead dominates for n = 1.  ``tests/test_sim.py`` checks that it agrees with
+For one joint the RK4 substeps are compiled (:func:`_rk4_1`, numba), with the effects'
+torques from their one definition (:func:`sea_daemon.core.effects.side_torque`); numpy's
+per-call overhead would dominate for n = 1.  ``tests/test_sim.py`` checks that it agrees with
 ``SEAModel.accelerations``.
 """
 from __future__ import annotations
@@ -34,6 +35,8 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.effects import MAX_PARAMS, Gravity, deadband, side_torque
+from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
 
@@ -56,6 +59,10 @@ class Plant:
     sign_eps : friction-sign smoothing of the true plant [rad/s].
     torque_noise : override of ``cfg.hardware.torque_noise`` [N m].
     tau_h_act0 : active human torque present at rest before t = 0 (for the equilibrium).
+    extra_load_torque : ``f(q, q̇) -> (n,)`` [N m], a load-side torque outside the effect
+        vocabulary that the load must overcome (for tests and benchmarks: an effect no model
+        can name).  Not part of the static equilibrium at q0; the plant then integrates on the
+        generic path.
 
     ``step(tau_m, dt, tau_h_act)`` advances by dt with the commanded torque held; the
     applied torque is clip(tau_m, ±torque_limit) + noise (then κ and the delay act).
@@ -63,7 +70,7 @@ class Plant:
 
     def __init__(self, cfg: ModelConfig, q0=0.0, seed: int | None = None, *,
                  substep_hz: float = SUBSTEP_HZ, sign_eps: float = PLANT_SIGN_EPS,
-                 torque_noise: float | None = None, tau_h_act0=0.0):
+                 torque_noise: float | None = None, tau_h_act0=0.0, extra_load_torque=None):
         self.cfg = cfg
         self.model = SEAModel(cfg.model, sign_eps=sign_eps)
         m = self.model
@@ -89,7 +96,8 @@ class Plant:
         # input history for the delay effect: start times and applied torques
         self._hist_t: list[float] = [-math.inf]
         self._hist_u: list[np.ndarray] = [tau_hold.copy()]
-        self._scalar = n == 1
+        self.extra_load_torque = extra_load_torque
+        self._scalar = n == 1 and extra_load_torque is None
         if self._scalar:
             self._compile_scalar()
 
@@ -241,8 +249,9 @@ class Plant:
         n = self.n
         q, th, dq, dth = y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:]
         x = np.concatenate([th, q - th, dth, dq - dth, self._tau_h])
-        # eq:thetadd and eq:unknwn_load with f_res = None
-        ddth, ddq = self.model.accelerations(x, u)
+        # eq:thetadd and eq:unknwn_load, f_res the torque outside the vocabulary (if any)
+        f_x = None if self.extra_load_torque is None else self.extra_load_torque(q, dq)
+        ddth, ddq = self.model.accelerations(x, u, f_x)
         return np.concatenate([dq, dth, ddq, ddth])
 
     def _rk4(self, y: np.ndarray, h: float, u: np.ndarray) -> np.ndarray:
@@ -252,55 +261,39 @@ class Plant:
         k4 = self._deriv(y + h * k3, u)
         return y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
-    # scalar (n = 1) path: the same equations with math on floats
+    # scalar (n = 1) path: the same equations compiled (:func:`_rk4_1`)
     def _compile_scalar(self) -> None:
         m = self.model
-        self._s_M = float(m.M[0, 0])
-        self._s_J = float(m.J[0, 0])
-        self._s_Dm = float(m.D_m[0, 0])
-        self._s_Ks = float(m.K_s[0, 0])
-        self._s_Ds = float(m.D_s[0, 0])
-        self._s_kappa = float(m.kappa[0])
-        self._s_load = _compile_side(m.load_effects, gravity=float(m.gravity[0]))
-        self._s_motor = _compile_side(m.motor_effects)
-        self._s_spring = _compile_side(m.spring_effects)
         bl = m.backlash.get(0)
-        self._s_backlash = bl.deadband if bl is not None else None
+        # [M, J, D_m, K_s, D_s, κ, backlash half-width] of the one joint
+        self._s_c = np.array([m.M[0, 0], m.J[0, 0], m.D_m[0, 0], m.K_s[0, 0], m.D_s[0, 0], m.kappa[0],
+                              0.5 * bl.width if bl is not None else 0.0])
+        # C(q) = gravity·sin(q) (eq:unknwn_load) is a gravity effect of the load side here
+        link = [Gravity("load", a=float(m.gravity[0]))] if m.gravity[0] else []
+        self._s_load = _side_arrays(link + list(m.load_effects))
+        self._s_motor = _side_arrays(m.motor_effects)
+        self._s_spring = _side_arrays(m.spring_effects)
+        self._s_y = np.zeros(4)
+        # compiled (or loaded from numba's cache) now, at construction, not in the first step
+        _rk4_1(self._s_y.copy(), 0.0, 0.0, self.h_max, 0, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
 
-    def _deriv_scalar(self, q, th, dq, dth, u, tau_h):
-        ths = q - th
-        dths = dq - dth
-        g = ths if self._s_backlash is None else self._s_backlash(ths)[0]
-        # eq:spring_torque
-        tau_s = self._s_Ks * g + self._s_Ds * dths + self._s_spring(ths, 0.0)
-        # eq:thetadd
-        ddth = (self._s_kappa * u + tau_s - self._s_Dm * dth - self._s_motor(th, dth)) / self._s_J
-        # eq:unknwn_load solved for q̈ (f_res = None); C(q) is inside the compiled load sum
-        ddq = (tau_h - self._s_load(q, dq) - tau_s) / self._s_M
-        return ddq, ddth
+    def _deriv_scalar(self, q, th, dq, dth, u, tau_h) -> tuple[float, float]:
+        """(q̈, θ̈_m) of the one joint (:func:`_accel_1`)."""
+        return _accel_1(q, th, dq, dth, u, tau_h, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
 
     def _integrate_scalar(self, t0: float, h: float, k: int) -> None:
-        q, th, dq, dth = (float(v) for v in self._y)
+        y = self._s_y
+        y[:] = self._y
         tau_h = float(self._tau_h[0])
-        f = self._deriv_scalar
-        delayed = bool(self.model.delay[0])
-        u = float(self._hist_u[-1][0])
-        h2 = 0.5 * h
-        for i in range(k):
-            if delayed:
-                u = float(self._delayed_input(t0 + i * h + h2)[0])
-            a1q, a1t = f(q, th, dq, dth, u, tau_h)
-            a2q, a2t = f(q + h2 * dq, th + h2 * dth, dq + h2 * a1q, dth + h2 * a1t, u, tau_h)
-            v2q, v2t = dq + h2 * a1q, dth + h2 * a1t
-            a3q, a3t = f(q + h2 * v2q, th + h2 * v2t, dq + h2 * a2q, dth + h2 * a2t, u, tau_h)
-            v3q, v3t = dq + h2 * a2q, dth + h2 * a2t
-            a4q, a4t = f(q + h * v3q, th + h * v3t, dq + h * a3q, dth + h * a3t, u, tau_h)
-            v4q, v4t = dq + h * a3q, dth + h * a3t
-            q += h / 6.0 * (dq + 2.0 * v2q + 2.0 * v3q + v4q)
-            th += h / 6.0 * (dth + 2.0 * v2t + 2.0 * v3t + v4t)
-            dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
-            dth += h / 6.0 * (a1t + 2.0 * a2t + 2.0 * a3t + a4t)
-        self._y = np.array([q, th, dq, dth])
+        sides = (*self._s_load, *self._s_motor, *self._s_spring)
+        if bool(self.model.delay[0]):
+            for i in range(k):
+                # input held over the substep, evaluated at its midpoint for the delay lookup
+                u = float(self._delayed_input(t0 + i * h + 0.5 * h)[0])
+                _rk4_1(y, u, tau_h, h, 1, self._s_c, *sides)
+        else:
+            _rk4_1(y, float(self._hist_u[-1][0]), tau_h, h, k, self._s_c, *sides)
+        self._y = y.copy()
 
     # ------------------------------------------------------------------ checks
 
@@ -322,74 +315,49 @@ class Plant:
                              f"(|λ| ≈ {lam:.0f} 1/s); use substep_hz >= {lam / 2.5:.0f}")
 
 
-def _compile_side(effects, gravity: float = 0.0):
-    """Σ e.torque(angle, vel, 0) (+ gravity·sin(angle)) as one fast scalar function.
-
-    The common types are folded into coefficients (same formulas as :mod:`sea_daemon.core.effects`):
-    linear a0 + a1·angle + b·vel (viscous, human_viscoelastic), A sin + B cos (gravity:
-    Σ a sin(angle + φ) = (Σ a cos φ) sin angle + (Σ a sin φ) cos angle), Coulomb and
-    Stribeck friction, the spring stop; any other type is called as is.
-    """
-    from sea_daemon.core.effects import (
-        Coulomb, Gravity, HumanViscoelastic, SpringSaturation, Stribeck, Viscous)
-    c0 = c1 = b = 0.0
-    A, B = gravity, 0.0
-    coul: list[tuple[float, float]] = []
-    strib: list[tuple[float, float, float]] = []
-    stops: list[tuple[float, float, float]] = []
-    other = []
-    for e in effects:
-        if isinstance(e, Viscous):
-            b += e.b
-        elif isinstance(e, HumanViscoelastic):
-            c1 += e.k_h
-            c0 -= e.k_h * e.q_h0
-            b += e.b_h
-        elif isinstance(e, Gravity):
-            A += e.a * math.cos(e.phi)
-            B += e.a * math.sin(e.phi)
-        elif isinstance(e, Coulomb):
-            coul.append((e.F_c, e.eps))
-        elif isinstance(e, Stribeck):
-            strib.append((e.F_s, 1.0 / e.v_s, e.eps))
-        elif isinstance(e, SpringSaturation):
-            stops.append((e.theta_max, e.k_stop, e.smooth))
-        else:
-            other.append(e.torque)
-    tanh, exp, sin, cos, log1p = math.tanh, math.exp, math.sin, math.cos, math.log1p
-
-    def softplus(x: float, w: float) -> float:
-        z = x / w
-        if z > 30.0:
-            return x
-        if z < -30.0:
-            return 0.0
-        return w * log1p(exp(z))
-
-    def f(angle: float, vel: float) -> float:
-        tau = c0 + c1 * angle + b * vel
-        if A:
-            tau += A * sin(angle)
-        if B:
-            tau += B * cos(angle)
-        for F, eps in coul:
-            tau += F * tanh(vel / eps)
-        for F, ivs, eps in strib:
-            r = vel * ivs
-            tau += F * exp(-r * r) * tanh(vel / eps)
-        for tm, k, w in stops:
-            if angle > tm - 30.0 * w:
-                tau += k * softplus(angle - tm, w)
-            elif angle < 30.0 * w - tm:
-                tau -= k * softplus(-angle - tm, w)
-        for g in other:
-            tau += g(angle, vel, 0.0)
-        return tau
-
-    if not (effects or gravity):
-        return _zero
-    return f
+def _side_arrays(effects) -> tuple[np.ndarray, np.ndarray]:
+    """(codes, parameter vectors) of one side's additive effects for :func:`side_torque`."""
+    codes = np.array([e.code for e in effects], dtype=np.int64)
+    P = np.array([e.vector for e in effects], dtype=float).reshape(len(effects), MAX_PARAMS)
+    return codes, P
 
 
-def _zero(angle: float, vel: float) -> float:
-    return 0.0
+@njit
+def _accel_1(q, th, dq, dth, u, tau_h, c, lc, lP, mc, mP, sc, sP):
+    """(q̈, θ̈_m) of one joint; c = [M, J, D_m, K_s, D_s, κ, backlash half-width]."""
+    ths = q - th
+    dths = dq - dth
+    g = ths if c[6] <= 0.0 else deadband(ths, c[6])[0]
+    # eq:spring_torque
+    tau_s = c[3] * g + c[4] * dths + side_torque(sc, sP, ths, 0.0)
+    # eq:thetadd
+    ddth = (c[5] * u + tau_s - c[2] * dth - side_torque(mc, mP, th, dth)) / c[1]
+    # eq:unknwn_load solved for q̈ (f_res = None)
+    ddq = (tau_h - side_torque(lc, lP, q, dq) - tau_s) / c[0]
+    return ddq, ddth
+
+
+@njit
+def _rk4_1(y, u, tau_h, h, k, c, lc, lP, mc, mP, sc, sP) -> None:
+    """k classical RK4 substeps of length h of y = [q, θ_m, q̇, θ̇_m] (one joint), u and τ_h,act held."""
+    q, th, dq, dth = y[0], y[1], y[2], y[3]
+    h2 = 0.5 * h
+    for _ in range(k):
+        a1q, a1t = _accel_1(q, th, dq, dth, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        v2q, v2t = dq + h2 * a1q, dth + h2 * a1t
+        a2q, a2t = _accel_1(q + h2 * dq, th + h2 * dth, v2q, v2t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        v3q, v3t = dq + h2 * a2q, dth + h2 * a2t
+        a3q, a3t = _accel_1(q + h2 * v2q, th + h2 * v2t, v3q, v3t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        v4q, v4t = dq + h * a3q, dth + h * a3t
+        a4q, a4t = _accel_1(q + h * v3q, th + h * v3t, v4q, v4t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        q += h / 6.0 * (dq + 2.0 * v2q + 2.0 * v3q + v4q)
+        th += h / 6.0 * (dth + 2.0 * v2t + 2.0 * v3t + v4t)
+        dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
+        dth += h / 6.0 * (a1t + 2.0 * a2t + 2.0 * a3t + a4t)
+    y[0], y[1], y[2], y[3] = q, th, dq, dth
+
+
+@warmer
+def _warm() -> None:
+    codes, P = np.zeros(1, dtype=np.int64), np.zeros((1, MAX_PARAMS))
+    _rk4_1(np.zeros(4), 0.0, 0.0, 1e-3, 1, np.ones(7), codes, P, codes, P, codes, P)
