@@ -9,6 +9,18 @@ from __future__ import annotations
 import enum
 
 
+def shown(value, limit: int = 120) -> str:
+    """``value`` as one printable line of at most ``limit`` characters: bytes that are not UTF-8
+    (e.g. in a path) escaped, line breaks escaped, long text cut with "…"."""
+    text = value if isinstance(value, str) else str(value)
+    try:        # a path's bytes that are not UTF-8 come as surrogate escapes: show the bytes
+        text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:
+        text = text.encode("utf-8", "backslashreplace").decode("utf-8", "replace")
+    text = text.replace("\n", "\\n").replace("\r", "\\r")
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
 class SeaDaemonError(Exception):
     """Base class of every error raised on purpose by sea-daemon."""
 
@@ -21,17 +33,17 @@ class ConfigError(InputError):
     """A YAML configuration is malformed; the message names the key and allowed values."""
 
     def __init__(self, source: str, key: str, problem: str):
-        self.source, self.key, self.problem = source, key, problem
-        super().__init__(f"{source}: {key}: {problem}")
+        self.source, self.key, self.problem = shown(source), shown(key, 80), shown(problem, 300)
+        super().__init__(f"{self.source}: {self.key}: {self.problem}")
 
 
 class LogFormatError(InputError):
     """A measured-log CSV is malformed; the message names the file and the line."""
 
     def __init__(self, path: str, line: int | None, problem: str):
-        self.path, self.line, self.problem = path, line, problem
-        where = f"{path}:{line}" if line is not None else str(path)
-        super().__init__(f"{where}: {problem}")
+        self.path, self.line, self.problem = shown(path), line, shown(problem, 300)
+        where = f"{self.path}:{line}" if line is not None else self.path
+        super().__init__(f"{where}: {self.problem}")
 
 
 class ModelFileError(InputError):

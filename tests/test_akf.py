@@ -273,7 +273,11 @@ def test_nonfinite_input_raises_fault_not_nan():
 
 
 def test_bad_covariance_raises_fault():
-    cfg = linear_cfg(1, R=[0, 0, 0, 0], Sigma_nom=[0, 0, 0, 0, 0], P0=[0, 0, 0, 0, 0])
+    """A configuration refuses R = 0; the filter's own guard still turns a singular innovation
+    covariance (here built around the validation) into the typed fault."""
+    import dataclasses
+    cfg = linear_cfg(1, Sigma_nom=[0, 0, 0, 0, 0], P0=[0, 0, 0, 0, 0])
+    cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, R=np.zeros((4, 4))))
     akf = AKF(cfg)
     akf.reset(np.array([0.0]), np.array([0.0]))
     with pytest.raises(EstimatorFault, match="positive definite"):

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from sea_daemon.core.effects import Effect, effect_from_dict
+from sea_daemon.core.effects import MAX_ABS, Effect, effect_from_dict, finite_number as _finite
 from sea_daemon.errors import ConfigError
 
 
@@ -25,8 +25,8 @@ from sea_daemon.errors import ConfigError
 
 def _num(source: str, key: str, v: Any, *, positive=False, non_negative=False,
          lo: float | None = None, hi: float | None = None) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-        raise ConfigError(source, key, f"must be a finite number, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+        raise ConfigError(source, key, f"must be a finite number within ±{MAX_ABS:g}, got {v!r}")
     v = float(v)
     if positive and v <= 0:
         raise ConfigError(source, key, f"must be > 0, got {v}")
@@ -37,12 +37,21 @@ def _num(source: str, key: str, v: Any, *, positive=False, non_negative=False,
     return v
 
 
+def _numbers(v: Any) -> np.ndarray:
+    """``v`` (a number or nested lists of numbers) as a float array; ValueError for anything else
+    (strings, which numpy would parse with Python's lenient float(), booleans, ragged lists)."""
+    a = np.asarray(v)
+    if a.dtype.kind not in "iuf":
+        raise ValueError(f"not numbers: {a.dtype}")
+    return a.astype(float)
+
+
 def _matrix(source: str, key: str, v: Any, n: int, *, positive_definite=False,
             non_negative=False) -> np.ndarray:
     """scalar -> s·I (n=1 or diagonal), list of n -> diag, n×n nested list -> matrix."""
     try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
+        a = _numbers(v)
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(source, key, f"must be a number, a list of {n} or an {n}x{n} matrix, got {v!r}") from None
     if a.ndim == 0:
         a = np.eye(n) * float(a)
@@ -50,8 +59,8 @@ def _matrix(source: str, key: str, v: Any, n: int, *, positive_definite=False,
         a = np.diag(a)
     elif not (a.ndim == 2 and a.shape == (n, n)):
         raise ConfigError(source, key, f"must be a number, a list of {n} or an {n}x{n} matrix, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ConfigError(source, key, f"must be finite, got {v!r}")
+    if not np.all(np.isfinite(a)) or np.any(np.abs(a) > MAX_ABS):
+        raise ConfigError(source, key, f"must be finite, within ±{MAX_ABS:g}, got {v!r}")
     if positive_definite:
         if not np.allclose(a, a.T) or np.any(np.linalg.eigvalsh(0.5 * (a + a.T)) <= 0):
             raise ConfigError(source, key, f"must be positive (symmetric positive definite), got {v!r}")
@@ -65,15 +74,15 @@ def _matrix(source: str, key: str, v: Any, n: int, *, positive_definite=False,
 def _vector(source: str, key: str, v: Any, n: int, *, non_negative=False, positive=False) -> np.ndarray:
     """scalar -> repeated, list of n -> vector."""
     try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
+        a = _numbers(v)
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(source, key, f"must be a number or a list of {n} numbers, got {v!r}") from None
     if a.ndim == 0:
         a = np.full(n, float(a))
     if a.ndim != 1 or a.shape[0] != n:
         raise ConfigError(source, key, f"must be a number or a list of {n} numbers, got {v!r}")
-    if not np.all(np.isfinite(a)):
-        raise ConfigError(source, key, f"must be finite, got {v!r}")
+    if not np.all(np.isfinite(a)) or np.any(np.abs(a) > MAX_ABS):
+        raise ConfigError(source, key, f"must be finite, within ±{MAX_ABS:g}, got {v!r}")
     if positive and np.any(a <= 0):
         raise ConfigError(source, key, f"every entry must be > 0, got {v!r}")
     if non_negative and np.any(a < 0):
@@ -82,14 +91,19 @@ def _vector(source: str, key: str, v: Any, n: int, *, non_negative=False, positi
     return a
 
 
-def _diag_or_matrix(source: str, key: str, v: Any, n: int) -> np.ndarray:
-    """Covariances: list of n -> diag, n×n -> matrix; must be symmetric PSD."""
-    a = np.asarray(v, dtype=float) if not isinstance(v, (str, bytes, Mapping)) else None
+def _diag_or_matrix(source: str, key: str, v: Any, n: int, positive_definite: bool = False) -> np.ndarray:
+    """Covariances: list of n -> diag, n×n -> matrix; must be symmetric PSD (``positive_definite``:
+    PD, every variance > 0)."""
+    try:
+        a = _numbers(v) if not isinstance(v, (str, bytes, Mapping)) else None
+    except (TypeError, ValueError, OverflowError):      # ragged lists, strings inside
+        a = None
     if a is None or a.ndim not in (1, 2):
         raise ConfigError(source, key, f"must be a list of {n} variances or an {n}x{n} matrix, got {v!r}")
+    kind = {"positive_definite": True} if positive_definite else {"non_negative": True}
     if a.ndim == 1:
-        return _matrix(source, key, a if a.shape[0] == n else v, n, non_negative=True)
-    return _matrix(source, key, a, n, non_negative=True)
+        return _matrix(source, key, a if a.shape[0] == n else v, n, **kind)
+    return _matrix(source, key, a, n, **kind)
 
 
 def _check_keys(source: str, prefix: str, d: Mapping, allowed: list[str], required: list[str]) -> None:
@@ -195,7 +209,9 @@ class EstimatorConfig:
     def from_dict(cls, d: Mapping, n: int, source: str) -> "EstimatorConfig":
         _check_keys(source, "estimator.", d, cls.KEYS, [])
         # Sec. V-B: R identified by ALS, Sigma_nom hand-set, P0 = R (plus τ_h,act)
-        R = _diag_or_matrix(source, "estimator.R", d.get("R", np.repeat([0.0461, 3.6e-6, 0.1288, 1.01e-5], n)), 4 * n)
+        # every measurement has noise: R positive definite (eq:nonlinkOsys)
+        R = _diag_or_matrix(source, "estimator.R", d.get("R", np.repeat([0.0461, 3.6e-6, 0.1288, 1.01e-5], n)),
+                            4 * n, positive_definite=True)
         S = _diag_or_matrix(source, "estimator.Sigma_nom",
                             d.get("Sigma_nom", np.repeat([1e-1, 1e3, 1e2, 1e-9, 1e-2], n)), 5 * n)
         P0_tau = _num(source, "estimator.P0_tau", d.get("P0_tau", 1.0), positive=True)

@@ -31,6 +31,19 @@ import numpy as np
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import ConfigError
 
+#: every configured number lies within ±MAX_ABS: a larger one is a unit or typing error that would
+#: only overflow later (no setting of the model needs more)
+MAX_ABS = 1e9
+
+
+def finite_number(v) -> bool:
+    """Whether ``v`` converts to a finite float within ±:data:`MAX_ABS`."""
+    try:
+        return math.isfinite(float(v)) and abs(float(v)) <= MAX_ABS
+    except (OverflowError, TypeError, ValueError):
+        return False
+
+
 #: velocity scale [rad/s] of the smoothed sign used for Coulomb/Stribeck friction
 DEFAULT_SIGN_EPS = 0.01
 
@@ -366,8 +379,8 @@ def effect_from_dict(d: Mapping, n_joints: int, source: str, where: str) -> Effe
         if p not in d:
             raise ConfigError(source, f"{where}.{p}", f"missing parameter of {typ} (needs {', '.join(cls.param_names)})")
         v = d[p]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise ConfigError(source, f"{where}.{p}", f"must be a finite number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_number(v):
+            raise ConfigError(source, f"{where}.{p}", f"must be a finite number within ±{MAX_ABS:g}, got {v!r}")
         v = float(v)
         if p in _POSITIVE and v <= 0:
             raise ConfigError(source, f"{where}.{p}", f"must be > 0, got {v}")

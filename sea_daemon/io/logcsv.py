@@ -11,7 +11,6 @@ the problem (the CLI turns it into exit status 2 and one line).
 """
 from __future__ import annotations
 
-import csv
 import io
 import math
 from pathlib import Path
@@ -21,38 +20,79 @@ import numpy as np
 
 from sea_daemon.core.log import MeasuredLog, column_names
 from sea_daemon.errors import LogFormatError
+from sea_daemon.io.files import atomic_write_bytes
 
 REQUIRED = ("q", "theta_m", "tau_m")
 OPTIONAL = ("tau_h_act",)
 
 
-def _parse_float(text: str) -> float:
-    return float(text)
-
-
 #: angle columns checked for units by range (joint side, rad)
 ANGLE_COLUMNS = ("q", "theta_m")
 ANGLE_LIMIT = 2 * math.pi
+#: torque columns bounded by what any actuator gives [N m]: larger values are a unit error
+TORQUE_COLUMNS = ("tau_m", "tau_h_act")
+TORQUE_LIMIT = 1e6
+#: the longest line [bytes] and the longest number [characters] of a log
+MAX_LINE_BYTES = 1 << 16
+MAX_FIELD_CHARS = 40
+
+
+def _number(cell: str) -> float | None:
+    """A decimal number (``-1.5``, ``2e-3``, ``.5``), or None: no underscores (``1_0``), no
+    non-ASCII digits, no hex; NaN and inf are refused by the caller."""
+    c = cell.strip()
+    if not c or len(c) > MAX_FIELD_CHARS or not c.isascii() or "_" in c:
+        return None
+    try:
+        return float(c)
+    except ValueError:
+        return None
+
+
+def _lines(p: str):
+    """(line number, text) of the file, each line at most :data:`MAX_LINE_BYTES`, UTF-8 (a
+    byte-order mark at the start is dropped)."""
+    try:
+        fh = open(p, "rb")
+    except OSError as e:
+        raise LogFormatError(p, None, f"cannot read: {e.strerror or e}") from None
+    with fh:
+        lineno = 0
+        while True:
+            try:
+                raw = fh.readline(MAX_LINE_BYTES + 1)
+            except OSError as e:
+                raise LogFormatError(p, lineno + 1, f"cannot read: {e.strerror or e}") from None
+            if not raw:
+                return
+            lineno += 1
+            if len(raw) > MAX_LINE_BYTES:
+                raise LogFormatError(p, lineno, f"line longer than {MAX_LINE_BYTES} bytes, allowed <= {MAX_LINE_BYTES} "
+                                                "(not a measured log?)")
+            try:
+                text = raw.decode("utf-8-sig" if lineno == 1 else "utf-8")
+            except UnicodeDecodeError as e:
+                raise LogFormatError(p, lineno, f"byte 0x{raw[e.start]:02X} at column {e.start + 1} is not UTF-8 "
+                                                "(save the file as UTF-8)") from None
+            yield lineno, text.rstrip("\r\n")
 
 
 def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> MeasuredLog:
     """Read and validate a measured log.
 
     ``n``: number of joints expected (None: inferred from the header).  ``min_rows``: the
-    fewest data rows the caller's operation needs.
+    fewest data rows the caller's operation needs.  Every problem is a
+    :class:`~sea_daemon.errors.LogFormatError` naming the file, the line and what was expected.
     """
     p = str(path)
+    lines = _lines(p)
     try:
-        with open(p, newline="") as fh:
-            text = fh.read()
-    except OSError as e:
-        raise LogFormatError(p, None, f"cannot read: {e.strerror or e}") from None
-    reader = csv.reader(io.StringIO(text))
-    try:
-        header = next(reader)
+        _, head = next(lines)
     except StopIteration:
         raise LogFormatError(p, 1, "empty file: expected a header row with t, q, theta_m, tau_m") from None
-    header = [h.strip() for h in header]
+    header = [h.strip() for h in head.split(",")]
+    if any(len(h) > 200 for h in header):
+        raise LogFormatError(p, 1, "a column name is longer than 200 characters (not a measured log?)")
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise LogFormatError(p, 1, f"duplicate column(s) {', '.join(dup)}")
@@ -65,18 +105,20 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
         raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
                                    f"(need {', '.join(need)} for {n} joint(s))")
     rows = []
-    for lineno, row in enumerate(reader, start=2):
-        if not row or all(not c.strip() for c in row):
+    width = len(header)
+    for lineno, line in lines:
+        if not line.strip():
             continue
-        if len(row) != len(header):
-            raise LogFormatError(p, lineno, f"has {len(row)} fields, the header has {len(header)} "
+        row = line.split(",")
+        if len(row) != width:
+            raise LogFormatError(p, lineno, f"has {len(row)} fields, the header has {width} "
                                             "(truncated or malformed row)")
         vals = []
         for name, cell in zip(header, row):
-            try:
-                v = float(cell)
-            except ValueError:
-                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()!r} is not a number") from None
+            v = _number(cell)
+            if v is None:
+                raise LogFormatError(p, lineno, f"column {name}: {cell.strip()[:MAX_FIELD_CHARS]!r} is not a number "
+                                                "(expected a decimal like -1.25e-3)")
             if not math.isfinite(v):
                 raise LogFormatError(p, lineno, f"column {name}: {cell.strip()} is not finite")
             vals.append(v)
@@ -107,6 +149,15 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
                                      + ": degrees instead of radians? (a joint moves less than one turn; "
                                        "angles must be in rad, within ±2π)")
 
+    for base in TORQUE_COLUMNS:
+        for c in column_names(base, n):
+            if c in col:
+                a = np.abs(data[:, col[c]])
+                if a.max() > TORQUE_LIMIT:
+                    i = int(np.argmax(a))
+                    raise LogFormatError(p, i + 2, f"column {c}: {data[i, col[c]]:g} N m, allowed |{c}| <= "
+                                                   f"{TORQUE_LIMIT:g} (joint side, N m: check the units)")
+
     def block(base):
         return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)
 
@@ -135,9 +186,10 @@ def write_log(path: str | Path, log: MeasuredLog, extra: Mapping[str, np.ndarray
 
 
 def write_columns(path: str | Path, cols: Mapping[str, np.ndarray], fmt: str = "%.9g") -> None:
-    """Write equal-length columns as a CSV with one header row."""
+    """Write equal-length columns as a CSV with one header row, atomically (the target is the
+    old file or the whole new one, never a torn one)."""
     names = list(cols)
     data = np.column_stack([np.asarray(cols[k], dtype=float).reshape(-1) for k in names])
-    tmp = Path(str(path) + ".tmp")
-    np.savetxt(tmp, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
-    tmp.replace(path)
+    buf = io.BytesIO()
+    np.savetxt(buf, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    atomic_write_bytes(path, buf.getvalue())

@@ -12,17 +12,22 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
+import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from sea_daemon.errors import ModelFileError
+from sea_daemon.errors import ModelFileError, shown
+from sea_daemon.io.files import atomic_write_bytes
 
 FORMAT = "sea-daemon-model"
 VERSION = 1
 _META = "__meta__"
+#: the most a model file may hold once decompressed [bytes] (a LoG-GP of 10⁶ points per joint
+#: is about 60 MB) and the most its metadata may hold
+MAX_UNPACKED_BYTES = 1 << 30
+MAX_META_BYTES = 64 << 20
 
 
 def _digest(meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
@@ -33,25 +38,6 @@ def _digest(meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
         h.update(f"{name}|{a.dtype.str}|{a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """temp file in the same directory + fsync + rename + fsync of the directory."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    try:
-        fd = os.open(path.parent if str(path.parent) else ".", os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError:
-        pass
 
 
 def save_model(path: str | Path, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> None:
@@ -72,6 +58,7 @@ def save_model(path: str | Path, arrays: Mapping[str, np.ndarray], meta: Mapping
 def load_model(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Read a model file; corrupt, foreign or incompatible files raise ModelFileError."""
     p = str(path)
+    _check_sizes(p)
     try:
         with np.load(p, allow_pickle=False) as z:
             if _META not in z.files:
@@ -81,7 +68,7 @@ def load_model(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
     except ModelFileError:
         raise
     except FileNotFoundError:
-        raise ModelFileError(f"{p}: no such model file") from None
+        raise ModelFileError(f"{shown(p)}: no such model file") from None
     except Exception as e:  # zlib, zipfile, numpy header, JSON, OS errors: all mean 'unreadable'
         raise ModelFileError(f"{p}: corrupt or not a model file ({type(e).__name__}: {e})") from None
     if meta.get("format") != FORMAT:
@@ -92,3 +79,21 @@ def load_model(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
     if meta.get("sha256") != _digest(meta, arrays):
         raise ModelFileError(f"{p}: checksum mismatch: the file is corrupt")
     return arrays, meta
+
+
+def _check_sizes(p: str) -> None:
+    """Refuse an archive whose members would decompress to more than the limits, before reading
+    any of them (the zip directory states each member's size; reading stops at it)."""
+    try:
+        with zipfile.ZipFile(p) as zf:
+            infos = zf.infolist()
+    except FileNotFoundError:
+        raise ModelFileError(f"{shown(p)}: no such model file") from None
+    except (OSError, zipfile.BadZipFile, ValueError) as e:
+        raise ModelFileError(f"{shown(p)}: corrupt or not a model file ({type(e).__name__}: {shown(e)})") from None
+    total = sum(i.file_size for i in infos)
+    if total > MAX_UNPACKED_BYTES:
+        raise ModelFileError(f"{shown(p)}: unpacks to {total} bytes, allowed <= {MAX_UNPACKED_BYTES}")
+    for i in infos:
+        if i.filename.startswith(_META) and i.file_size > MAX_META_BYTES:
+            raise ModelFileError(f"{shown(p)}: metadata of {i.file_size} bytes, allowed <= {MAX_META_BYTES}")

@@ -14,14 +14,14 @@ import pkgutil
 import sys
 
 from sea_daemon import __version__
-from sea_daemon.errors import InputError
+from sea_daemon.errors import InputError, shown
 
 
 class Parser(argparse.ArgumentParser):
     """argparse with the CLI's error policy: one clear line on stderr, exit status 2."""
 
     def error(self, message):  # one clear line, exit 2
-        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        _say(f"{self.prog}: error: {message}")
         raise SystemExit(2)
 
 
@@ -66,14 +66,21 @@ def guarded(prog: str, run, args) -> int:
     except InputError as e:
         if debug:
             raise
-        print(f"{prog}: error: {e}", file=sys.stderr)
+        _say(f"{prog}: error: {e}")
         return 2
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
+        _say(f"{prog}: interrupted")
         return 130
     except Exception as e:  # internal fault: one line, details with SEA_DAEMON_DEBUG=1
         if debug:
             raise
-        print(f"{prog}: internal error: {type(e).__name__}: {e} "
-              "(set SEA_DAEMON_DEBUG=1 for a traceback)", file=sys.stderr)
+        _say(f"{prog}: internal error: {type(e).__name__}: {shown(e, 500)} (set SEA_DAEMON_DEBUG=1 for a traceback)")
         return 1
+
+
+def _say(line: str) -> None:
+    """One line on stderr, printable whatever bytes a path held; a closed stderr is no error."""
+    try:
+        print(shown(line, 2000), file=sys.stderr, flush=True)
+    except (OSError, ValueError, AttributeError):
+        pass

@@ -1,0 +1,144 @@
+"""Reading and writing files safely: bounded, strictly decoded input; atomic output that never
+replaces one of the command's own inputs.
+
+* :func:`read_text` — a file as text: at most ``max_bytes``, UTF-8 (a leading byte-order mark is
+  dropped), a byte that is not UTF-8 is an :class:`~sea_daemon.errors.InputError` naming the
+  line and column.
+* :func:`atomic_write_bytes` / :func:`atomic_write_text` — a temporary file in the target's
+  directory, fsync, rename over the target, fsync of the directory: a crash or a full disk
+  leaves the old file or the new one, never a torn or empty one.
+* :func:`check_outputs` — before any long work: every output path is writable (its directory
+  exists, it is not a directory) and is none of the inputs.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterable
+
+from sea_daemon.errors import InputError, shown
+
+#: the largest configuration or scenario file read [bytes]
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def decode_utf8(data: bytes, source: str) -> str:
+    """``data`` as UTF-8 text without a leading byte-order mark; InputError at the first byte
+    that is not UTF-8, naming its line and column."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
+        raise InputError(f"{shown(source)}:{line}: byte 0x{data[e.start]:02X} at column {col} is not UTF-8 "
+                         "(save the file as UTF-8)") from None
+
+
+def read_text(path: str | Path, max_bytes: int = MAX_CONFIG_BYTES, what: str = "file") -> str:
+    """The whole file as UTF-8 text; InputError when it is missing, larger than ``max_bytes`` or
+    not UTF-8."""
+    p = str(path)
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as e:
+        raise InputError(f"{shown(p)}: cannot read the {what}: {e.strerror or e}") from None
+    if len(data) > max_bytes:
+        raise InputError(f"{shown(p)}: the {what} is larger than {max_bytes} bytes, allowed <= {max_bytes}")
+    return decode_utf8(data, p)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (module docstring); InputError when the target cannot
+    be written (missing or read-only directory, full disk), with the target left as it was."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    except OSError as e:
+        raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+    _fsync_dir(directory)
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
+                  inputs: Iterable[str | Path | None] = ()) -> None:
+    """Refuse, before any work, an output that cannot be written or that is one of the inputs.
+
+    ``outputs``: (flag, path) pairs, e.g. ``("--out", "est.csv")`` (None paths are skipped);
+    ``inputs``: the paths the command reads.  An output directory is checked likewise with
+    :func:`check_output_dir`.
+    """
+    ins = [Path(p) for p in inputs if p is not None]
+    for flag, out in outputs:
+        if out is None:
+            continue
+        o = Path(out)
+        for i in ins:
+            if _same(o, i) or o.resolve() == i.resolve():
+                raise InputError(f"{flag} {shown(o)}: is also an input of this command ({shown(i)}); "
+                                 "choose another output path")
+        if o.is_dir():
+            raise InputError(f"{flag} {shown(o)}: is a directory, expected a file path")
+        d = o.parent if str(o.parent) else Path(".")
+        if not d.is_dir():
+            raise InputError(f"{flag} {shown(o)}: directory {shown(d)} does not exist")
+        if not os.access(d, os.W_OK):
+            raise InputError(f"{flag} {shown(o)}: directory {shown(d)} is not writable")
+        if o.exists() and not os.access(o, os.W_OK):
+            raise InputError(f"{flag} {shown(o)}: exists and is not writable")
+
+
+def check_output_dir(flag: str, directory: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
+    """Create ``directory`` if needed and check it is a writable directory holding none of the
+    inputs' paths as itself; returns it."""
+    d = Path(directory)
+    for i in (Path(p) for p in inputs if p is not None):
+        if _same(d, i):
+            raise InputError(f"{flag} {shown(d)}: is also an input of this command")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"{flag} {shown(d)}: cannot create: {e.strerror or e}") from None
+    if not d.is_dir():
+        raise InputError(f"{flag} {shown(d)}: is not a directory")
+    if not os.access(d, os.W_OK):
+        raise InputError(f"{flag} {shown(d)}: is not writable")
+    return d
