@@ -102,14 +102,14 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
 
 
 def test_phi_shortcut_matches_expm():
-    from sea_daemon.core.bounds.setmember import input_matrix
+    from sea_daemon.core.linalg import discretize
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
     tb = attach_theorem_bound(akf)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     b = np.array([0, 0, 0, 1.0, 0])
-    full = input_matrix(akf.A_k, np.eye(5), akf.dt)
+    full = discretize(akf.A_k, np.eye(5), akf.dt)[1]
     np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
 
@@ -276,19 +276,21 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
     assert tb2._s_z == pytest.approx(chi2_quantile(1 - (d - tb2.sm.delta_gp), 2))
 
 
-def test_held_input_matches_expm():
-    # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled fourth-order series against Van Loan's expm
-    from sea_daemon.core.bounds.setmember import input_matrix
-    from sea_daemon.core.estimators.akf_core import held_input
+def test_held_input_matches_scipy_expm():
+    # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled zoh against scipy's expm of Van Loan's block matrix
+    from scipy.linalg import expm
+    from sea_daemon.core.linalg import zoh
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     E = np.zeros((5, 1))
     E[4, 0] = 1.0
-    G = np.zeros((5, 1))
-    held_input(akf.A_k, E, akf.dt, G)
-    np.testing.assert_allclose(G, input_matrix(akf.A_k, E, akf.dt), rtol=1e-6, atol=1e-12)
+    aug, Ez = np.empty((6, 6)), np.empty((6, 6))
+    zoh(akf.A_k, E, akf.dt, aug, Ez)
+    G = Ez[:5, 5:]
+    ref = expm(np.block([[akf.A_k, E], [np.zeros((1, 6))]]) * akf.dt)[:5, 5:]
+    np.testing.assert_allclose(G, ref, rtol=1e-12, atol=1e-15)
     assert G[4, 0] == pytest.approx(akf.dt, rel=1e-15)          # τ rows: exactly dt
 
 

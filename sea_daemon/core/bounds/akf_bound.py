@@ -43,12 +43,12 @@ import numpy as np
 
 from sea_daemon.core.jit import njit, warm_up, warmer
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.core.estimators.akf_core import held_input
+from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid
 from sea_daemon.core.bounds.gp_bound import (
     BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants, input_box, loggp_leaves)
 from sea_daemon.core.bounds.setmember import (
-    SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points, input_matrix)
+    SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points)
 
 
 @njit
@@ -70,7 +70,6 @@ def _gravity_remainder(qh, r, g, grid, grid_step, v):
 def _warm() -> None:
     """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
     _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
-    held_input(np.zeros((5, 5)), np.zeros((5, 1)), 0.01, np.zeros((5, 1)))
 
 
 class AKFTheoremBound:
@@ -100,7 +99,9 @@ class AKFTheoremBound:
         self.tau_h_act_rate = float(tau_h_act_rate)
         self._E_tau = np.zeros((d, n))
         self._E_tau[4 * n:, :] = np.eye(n)
-        self._Gam_tau = np.zeros((d, n))                 # Γ_τ of the step
+        self._aug_tau = np.zeros((d + n, d + n))         # zoh work matrix
+        self._Ezoh_tau = np.zeros((d + n, d + n))        # e^{[[A, E_τ], [0, 0]] dt}
+        self._Gam_tau = self._Ezoh_tau[:d, d:]           # Γ_τ of the step (a view)
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
@@ -290,7 +291,7 @@ class AKFTheoremBound:
             Phi = np.zeros((akf.d, akf.d))
             Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
             return Phi
-        return input_matrix(A, self._I, dt)
+        return discretize(A, self._I, dt)[1]
 
     def step(self, y, u, dt):
         akf = self.akf
@@ -338,7 +339,7 @@ class AKFTheoremBound:
         if self.tau_h_act_rate > 0:
             # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
             # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
-            held_input(akf.A_k, self._E_tau, float(dt), self._Gam_tau)
+            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
             n = akf.n
             if eta is None:
                 Gam, eta = self._Gam_tau, self._rate

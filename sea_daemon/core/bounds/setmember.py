@@ -51,25 +51,10 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.special import gammaincinv, ndtri
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-
-
-def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
-    """Γ = ∫₀^dt e^{As} ds · B: a constant input over one step → its effect on x_{k+1}.
-
-    With B = I_μ M⁻¹ this is the discretised I_μ M⁻¹ that maps the GP error (N m) of
-    eq:unknown into the state (eq:Dmuhat); with B = I it is Φ for the continuous-time
-    linearisation error.  One expm of [[A, B], [0, 0]]·dt (Van Loan).
-    """
-    d, m = A.shape[0], B.shape[1]
-    aug = np.zeros((d + m, d + m))
-    aug[:d, :d] = A * dt
-    aug[:d, d:] = B * dt
-    return expm(aug)[:d, d:]
 
 
 def chi2_quantile(p: float, dof: int) -> float:
@@ -367,7 +352,7 @@ class SetMembershipBound:
         """X⁻_{k+1} = F X̂_k Fᵀ ⊕ Γ·box(η) ⊕ Φ·box(b)    (eq:predwLinErrsetandGPerrset).
 
         F      discrete linearisation F_d (A_k of the theorem)
-        Gamma  d×n map of the GP error (N m) into the state (input_matrix(A, I_μ M⁻¹, dt))
+        Gamma  d×n map of the GP error (N m) into the state (Γ of linalg.discretize(A, I_μ M⁻¹, dt))
         eta    (n,) GP error half-widths √β σ_i + γ (lem:interval_bound)
         lin_err_box (m,) linearisation-error half-widths b, mapped by Phi (default I)
         """

@@ -10,9 +10,10 @@ from the two encoders: θ_s = q − θ_m, velocities from the causal differentia
 Prediction (Alg. 1 lines 3-5; with a residual, Alg. 2 lines 4-10)
     ẋ = f_nom(x, u) − I_μ M⁻¹ μ(ẑ)                          eq:fwdynwtorqueresidual1
     A = F_nom(x̂, u) − I_μ M⁻¹ F_GP                           eq:linearization
-    discretised by local linearisation over the step (one matrix exponential, see
-    :func:`discretize_affine`): exact zero-order hold for a linear plant, so on a linear
-    plant this filter equals the textbook discrete KF step for step.
+    discretised by local linearisation over the step (one matrix exponential,
+    :func:`sea_daemon.core.linalg.zoh` of [[A, f, I_μ M⁻¹], [0, 0, 0]]·dt): exact zero-order
+    hold for a linear plant, so on a linear plant this filter equals the textbook discrete KF
+    step for step.
     Q_k = Σ_nom + Γ_μ diag(σ²) Γ_μᵀ                          eq:gpakf_covariance, eq:GPvarfwd
 Update (Alg. 1 lines 6-8), with the covariance in Joseph form (symmetrised).
 
@@ -44,26 +45,6 @@ from sea_daemon.core.model import SEAModel
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.estimators.base import Estimate, Residual, chi2_scale
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
-
-
-def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
-    """Local-linearisation step of ẋ = f(x,u) + G w over dt, with u and w held.
-
-    One matrix exponential of [[A, f, G], [0, 0, 0]]·dt gives
-        F_d = e^{A dt},  Δx = ∫₀^dt e^{As} ds · f,  Γ = ∫₀^dt e^{As} ds · G,
-    i.e. :func:`sea_daemon.core.model.discretize` plus the held-input block Γ (textbook ZOH,
-    e.g. Franklin, Powell & Workman, Digital Control, §4.3.3).  Returns (Δx, F_d, Γ);
-    ``out`` (work matrix of size (d+1+r)²) is reused when given.  The compiled
-    :func:`~sea_daemon.core.estimators.akf_core.discretize` the filter step uses.
-    """
-    A = np.ascontiguousarray(A, dtype=float)
-    G = np.ascontiguousarray(G, dtype=float)
-    d = A.shape[0]
-    r = G.shape[1]
-    aug = out if out is not None else np.zeros((d + 1 + r, d + 1 + r))
-    E = np.empty_like(aug)
-    akf_core.discretize(A, np.ascontiguousarray(xdot, dtype=float), G, float(dt), aug, E)
-    return E[:d, d], E[:d, :d], E[:d, d + 1:]
 
 
 class AKF:
@@ -327,7 +308,7 @@ class AKF:
           Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
           rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
           Γ_u from Van Loan's block exponential with A the last step's Jacobian ``A_k``
-          (:func:`akf_core.held_input`, one (5n+n)² expm).
+          (:func:`sea_daemon.core.linalg.zoh`, one (5n+n)² expm).
         """
         S = self.Sigma_nom
         if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
