@@ -183,7 +183,7 @@ def _run_one(est, log, feed=None):
     """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
     into the filter step and the bound's own share; ``feed(k)`` (if given) runs before step k,
     outside the timing."""
-    from sea_daemon.core.bounds.setmember import chi2_quantile
+    from sea_daemon.core.bounds.ellipsoid import chi2_quantile
     N, n = len(log), log.n
     hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
     times, inner = np.zeros(N - 1), np.zeros(N - 1)

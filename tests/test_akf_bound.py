@@ -4,7 +4,7 @@ import pytest
 
 from sea_daemon.core.bounds.akf_bound import attach_theorem_bound
 from sea_daemon.core.bounds.gp_bound import BoundConstants
-from sea_daemon.core.bounds.setmember import chi2_quantile
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.core.estimators import AKF

@@ -44,11 +44,11 @@ import numpy as np
 from sea_daemon.core.jit import njit, warm_up, warmer
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
-from sea_daemon.core.bounds.ellipsoid import Ellipsoid
+from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.gp_bound import (
     BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants, input_box, loggp_leaves)
 from sea_daemon.core.bounds.setmember import (
-    SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points)
+    SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 
 
 @njit

@@ -51,15 +51,10 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.special import gammaincinv, ndtri
+from scipy.special import ndtri
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """χ²_dof quantile at probability p (scipy.special, no scipy.stats import at start-up)."""
-    return float(2.0 * gammaincinv(0.5 * dof, p))
+from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile, minkowski_shape, segments_shapes
 
 
 def shifted_gaussian_halfwidth(h: np.ndarray, sigma: np.ndarray, delta: float, iters: int = 8) -> np.ndarray:

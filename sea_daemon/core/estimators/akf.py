@@ -43,7 +43,8 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.estimators import akf_core
-from sea_daemon.core.estimators.base import Estimate, Residual, chi2_scale
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.estimators.base import Estimate, Residual
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 
 
@@ -88,7 +89,7 @@ class AKF:
         self._P_init = self.P0
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
-        self.s = chi2_scale(self.delta, d)
+        self.s = chi2_quantile(1.0 - self.delta, d)
         self._sqrt_s = math.sqrt(self.s)
         self.H = np.hstack([np.eye(m), np.zeros((m, n))])
         self.residual = residual

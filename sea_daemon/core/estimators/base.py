@@ -5,7 +5,6 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from scipy.special import gammaincinv
 
 
 @dataclass
@@ -63,8 +62,3 @@ class Residual(Protocol):
 
     def predict(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
-
-def chi2_scale(delta: float, dof: int) -> float:
-    """s with Pr(ξ ∈ E(ξ̄, sC)) = 1 − δ for a Gaussian ξ of dimension dof (eq:gaussianellipsoid)."""
-    # χ²_dof quantile: 2·P⁻¹(dof/2, 1 − δ) (regularised lower incomplete gamma inverse)
-    return float(2.0 * gammaincinv(0.5 * dof, 1.0 - delta))
