@@ -52,7 +52,7 @@ def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = 
     est = GPAKF(cfg, dt=dt, residual=gp, learning=True)
     g0 = gp.gps[0]
     # leaves a prediction merges (LoG-GP overlaps), over the log's inputs
-    route = float(np.mean([len(g0._route(z.tolist(), False)) for z in Z[::10]]))
+    route = float(np.mean([len(g0.route(z)) for z in Z[::10]]))
     if verbose:
         print(f"{label(n_points):>12s}: pre-filled {g0.n_points} points per joint in {fill_s:.1f} s "
               f"({fill_s / max(n_points, 1) * 1e6:.0f} us/point): {g0.n_leaves} leaves, depth {g0.depth}, "

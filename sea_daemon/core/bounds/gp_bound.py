@@ -195,8 +195,7 @@ class LocalScale:
 
     def local(self, z) -> float:
         """s_loc(z) (leaf routing of the LoG-GP's merged prediction)."""
-        _, xl = self.gp._check_x(z)
-        return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp._route(xl, False)))
+        return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp.route(z)))
 
     def predict_many(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(μ̃, σ̃², s) at every row of ``Z`` (m, input_dim), one routing per row: the LoG-GP's
