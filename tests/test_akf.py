@@ -287,13 +287,15 @@ def test_make_estimator_and_bound_definition():
     e = make_estimator("akf", cfg)
     est = e.reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
     from scipy.stats import chi2
-    # make_estimator attaches the Theorem-1 bound: at reset the set of means is a point and ρ
+    # make_estimator gives the Theorem-1 bound component: at reset the set of means is a point and ρ
     # is the τ marginal's χ²_1 bound (docs/bounds.md §3); the bare AKF publishes χ²_5
     s = chi2.ppf(1 - cfg.estimator.delta, 1)
     assert est.tau_h_act_bound[0] == pytest.approx(np.sqrt(s * est.P[4, 4]))
-    bare = AKF(cfg).reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
+    bare = make_estimator("akf", cfg, bound=False).reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
     assert bare.tau_h_act_bound[0] == pytest.approx(np.sqrt(chi2.ppf(1 - cfg.estimator.delta, 5) * bare.P[4, 4]))
     assert make_estimator("spring", cfg).name == "spring"
+    g = make_estimator("gp-akf", cfg)
+    assert g.name == "gp-akf" and g.learning and g.bound is not None
     with pytest.raises(ValueError):
         make_estimator("magic", cfg)
 

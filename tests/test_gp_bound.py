@@ -8,6 +8,7 @@ from sea_daemon.core.bounds.gp_bound import (
     C_STAR, LeafGP, covering_grid, error_bound, log_covering_number, merged_sigma, sample_lipschitz_se,
     se_lipschitz)
 from sea_daemon.core.gp.exact import se_kernel
+from sea_daemon.core.gp.loggp import LoGGP
 
 
 def test_se_kernel_lipschitz_constant_is_tight():
@@ -154,9 +155,8 @@ def test_leaves_with_different_hyperparameters_use_the_maxima():
 
 
 def test_loggp_leaves_and_merged_bound_on_a_real_loggp():
-    loggp = pytest.importorskip("sea_daemon.core.gp.loggp")
     rng = np.random.default_rng(8)
-    gp = loggp.LoGGP(input_dim=1, max_points=15, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.05, seed=0)
+    gp = LoGGP(input_dim=1, max_points=15, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.05, seed=0)
     Xg = np.linspace(0.0, 3.0, 150)[:, None]
     Lc = np.linalg.cholesky(se_kernel(Xg, Xg, np.array([0.3]), 1.0) + 1e-10 * np.eye(len(Xg)))
     f = Lc @ rng.standard_normal(len(Xg))
@@ -202,10 +202,9 @@ def test_conformal_constants_bound_the_noise_free_error_from_noisy_targets():
 
 
 def test_local_scale_is_the_leaf_residual_rms():
-    loggp = pytest.importorskip("sea_daemon.core.gp.loggp")
     from sea_daemon.core.bounds.gp_bound import LocalScale
     rng = np.random.default_rng(13)
-    gp = loggp.LoGGP(input_dim=1, max_points=20, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.1, seed=0)
+    gp = LoGGP(input_dim=1, max_points=20, lengthscales=[0.3], sigma_f=1.0, sigma_n=0.1, seed=0)
     X = rng.uniform(0, 3, 80)
     for x in X:
         # noise grows with x: leaves on the right fit worse

@@ -21,7 +21,7 @@ import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
 from sea_daemon.io.configfile import default_config_path, load_config
-from sea_daemon.core.estimators import AKF, SpringTorqueEstimator
+from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.core.linalg import discretize
@@ -32,8 +32,8 @@ HELP = "time per estimator step (median, p99, p99.9) on a simulated or given log
 
 #: label -> builder(cfg, dt, log) -> Estimator
 CASES: dict[str, Callable] = {
-    "akf": lambda cfg, dt, log: AKF(cfg, dt=dt),
-    "spring": lambda cfg, dt, log: SpringTorqueEstimator(cfg, dt=dt),
+    "akf": lambda cfg, dt, log: make_estimator("akf", cfg, dt=dt, bound=False),
+    "spring": lambda cfg, dt, log: make_estimator("spring", cfg, dt=dt),
 }
 
 

@@ -35,6 +35,7 @@ step's own dt.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -44,7 +45,7 @@ from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
-from sea_daemon.core.estimators.base import Estimate, Residual
+from sea_daemon.core.estimators.base import Bound, Estimate, Residual
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 
 
@@ -54,17 +55,21 @@ class AKF:
     ``cfg``: model configuration (nominal model + declared effects, R, Σ_nom, P0, δ,
     kinematics).  ``dt``: nominal sample period (default ``1/cfg.rate_hz``).
     ``residual``: optional :class:`~sea_daemon.core.estimators.base.Residual` (learned f(z)).
+    ``bound``: optional ``bound(akf) -> Bound | None``, called once at the end of construction;
+    the :class:`~sea_daemon.core.estimators.base.Bound` it returns (:attr:`bound`) fills
+    ``tau_h_act_bound`` at the end of every reset and filter step (e.g.
+    :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k).
 
-    ``tau_h_act_bound`` is, until the Theorem-1 bounds are wired in, the KF's own
-    ellipsoidal bound sqrt(s·P_ττ) with s the χ² quantile for 5n degrees of freedom at
-    1 − δ (eq:gaussianellipsoid): the confidence set C_k of Theorem 1 with a point set of
-    means (X̂_k = 0), projected on each τ_h,act component.
+    Without a bound ``tau_h_act_bound`` is the KF's own ellipsoidal bound sqrt(s·P_ττ) with s
+    the χ² quantile for 5n degrees of freedom at 1 − δ (eq:gaussianellipsoid): the confidence
+    set C_k of Theorem 1 with a point set of means (X̂_k = 0), projected on each τ_h,act
+    component.
     """
 
     name = "akf"
 
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: Residual | None = None,
-                 model: SEAModel | None = None):
+                 model: SEAModel | None = None, bound: Callable[["AKF"], Bound | None] | None = None):
         self.cfg = cfg
         self.model = model if model is not None else SEAModel.from_config(cfg)
         n = self.n = self.model.n
@@ -164,6 +169,12 @@ class AKF:
         # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
         # the first loop cycle
         warm_up()
+        # the bound component and x̂_{k−1}, P_{k−1} kept for it before each step
+        self._x_prev = np.zeros(d)
+        self._P_prev = np.zeros((d, d))
+        self.bound: Bound | None = None
+        if bound is not None:
+            self.bound = bound(self)
 
     # ------------------------------------------------------------------ measurement
 
@@ -222,6 +233,8 @@ class AKF:
         if q is None or theta_m is None:
             self._ready = False
             self.est.k = 0
+            if self.bound is not None:
+                self.bound.reset(self.est)
             return self.est
         self.kin._primed = False
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
@@ -246,7 +259,10 @@ class AKF:
         self.u_applied[:] = tau_m
         self._ready = True
         self.est.k = 0
-        return self._fill_estimate()
+        e = self._fill_estimate()
+        if self.bound is not None:
+            self.bound.reset(e)
+        return e
 
     def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
         """One sample: predict over dt with τ_m of the previous sample, update with y_k."""
@@ -349,6 +365,9 @@ class AKF:
             self.A_k[:] = self.model.F_nom(x, u)
             # eq:nonlindyn
             self.xdot_k[:] = self.model.f_nom(x, u)
+        if self.bound is not None:
+            self._x_prev[:] = x
+            self._P_prev[:] = self.P
         use_gp = self.residual is not None
         dmu = self._dmu
         if use_gp:
@@ -379,7 +398,10 @@ class AKF:
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
-        return self._fill_estimate()
+        e = self._fill_estimate()
+        if self.bound is not None:
+            self.bound.step(e, self._x_prev, self._P_prev, u, dt)
+        return e
 
     def _fill_estimate(self) -> Estimate:
         e = self.est
