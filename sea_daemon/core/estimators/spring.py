@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.jit import warm_up
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
@@ -43,6 +44,7 @@ class SpringTorqueEstimator:
         self._Jy[:, 3 * n:] = self.model.D_s
         self.est = Estimate.zeros(n)
         self._ready = False
+        warm_up()            # the compiled differentiator ready before the first sample
 
     def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate:
         """Restart the differentiator at this sample (``reset()``: at the next update)."""

@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.jit import warm_up, warmer
+from sea_daemon.core.jit import warmer
 from sea_daemon.errors import EstimatorFault, InputError
 
 _TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -162,7 +162,6 @@ class IncrementalGP:
             cap = min(cap, self.max_capacity)
         self._alloc(cap)
         self._set_hyp(sigma_f, lengthscales, sigma_n)
-        warm_up()            # compiled kernels ready (or loaded from the cache) before first use
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, cap: int) -> None:
