@@ -164,7 +164,7 @@ def test_bad_arguments():
 
 def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
     from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-    from sea_daemon.core.bounds.setmember import reduce_generators, zonotope_shape
+    from sea_daemon.core.bounds.zonotope import reduce_generators, zonotope_shape
     rng = np.random.default_rng(21)
     d, m = 4, 30
     G = rng.standard_normal((d, m)) * rng.uniform(0.01, 1.0, m)
@@ -185,7 +185,7 @@ def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
 def test_compiled_zonotope_prediction_equals_the_direct_formulas():
     # SetMembershipBound.predict (one compiled call) = F·G ⊕ Γ·|η| ⊕ Φ·|b| without the zero
     # generators and Girard's reduction written out with numpy; zonotope_shape = its formula
-    from sea_daemon.core.bounds.setmember import zonotope_shape
+    from sea_daemon.core.bounds.zonotope import zonotope_shape
     rng = np.random.default_rng(5)
     d, n = 5, 1
     sm = SetMembershipBound(d, [4], 0.05, delta_gp=0.025, max_generators=12)
