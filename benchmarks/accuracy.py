@@ -13,11 +13,11 @@ over the estimation log, print a table (RMSE, mean |error|, mean bound, coverage
 bound, median step time) and write a plot per scenario like the paper's Fig. 3 / Fig. 4:
 estimate vs. truth with the 2σ band of P_k.
 
-Estimators (:data:`CASES`, label -> ``builder(nominal_cfg, true_cfg, train_log, dt)``):
+Estimators (:data:`CASES`, label -> ``builder(nominal_cfg, true_cfg, train_log, dt, bound)``):
 ``spring`` (τ_s), ``akf`` (Park et al., nominal model), ``oracle-akf`` (the same AKF given
 the true plant's configuration, every hidden effect declared: what the AKF can do with a
-perfect model).  Extension point: ``register('gp-akf', builder)`` adds a column (the
-GP-AKF learns from ``train_log``); ``sea_daemon.core.estimators.gpakf`` is registered automatically.
+perfect model), ``gp-akf`` (learns from ``train_log``, then frozen).  Extension point:
+``register(label, builder)`` adds a column.
 
 Estimator settings: ``--settings MODEL.yaml`` (default ``configs/exo_1dof_sim.yaml``: R identified
 for the simulated sensors, process noise from the hardware's motor-torque noise plus a τ_h,act
@@ -37,7 +37,7 @@ import numpy as np
 
 from sea_daemon.io.configfile import repo_root
 from sea_daemon.errors import InputError
-from sea_daemon.core.estimators import AKF, SpringTorqueEstimator
+from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.replay import replay, summarize
 from sea_daemon.apps.bench import add_settings_argument, apply_settings, start_simulated
 
@@ -45,26 +45,19 @@ NAME = "accuracy"
 HELP = "RMSE of spring / AKF / oracle AKF (and GP-AKF when registered) on the paper's scenarios; plots"
 
 CASES: dict[str, Callable] = {
-    "spring": lambda nominal, true, train, dt: SpringTorqueEstimator(nominal, dt=dt),
-    "akf": lambda nominal, true, train, dt: AKF(nominal, dt=dt),
-    "oracle-akf": lambda nominal, true, train, dt: AKF(true, dt=dt),
+    "spring": lambda nominal, true, train, dt, bound: make_estimator("spring", nominal, dt=dt),
+    "akf": lambda nominal, true, train, dt, bound: make_estimator("akf", nominal, dt=dt, bound=bound),
+    "oracle-akf": lambda nominal, true, train, dt, bound: make_estimator("akf", true, dt=dt, bound=bound),
+    "gp-akf": lambda nominal, true, train, dt, bound: make_estimator("gp-akf", nominal, dt=dt, train=train,
+                                                                      bound=bound),
 }
 COLORS = {"spring": "tab:red", "akf": "navy", "oracle-akf": "tab:gray", "gp-akf": "tab:green"}
 
 
 def register(label: str, builder: Callable) -> None:
-    """Add an estimator column: ``builder(nominal_cfg, true_cfg, train_log, dt) -> Estimator``."""
+    """Add an estimator column: ``builder(nominal_cfg, true_cfg, train_log, dt, bound) -> Estimator``
+    (``bound``: the Theorem-1 bound on or off, as :func:`make_estimator`'s)."""
     CASES[label] = builder
-
-
-def _try_register_gp_akf() -> None:
-    """The learning issue provides ``sea_daemon.core.estimators.gpakf.build(cfg, train, dt)``."""
-    import importlib.util
-    if "gp-akf" in CASES or importlib.util.find_spec("sea_daemon.core.estimators.gpakf") is None:
-        return
-    import importlib
-    mod = importlib.import_module("sea_daemon.core.estimators.gpakf")
-    register("gp-akf", lambda nominal, true, train, dt: mod.build(nominal, train, dt))
 
 
 def default_scenarios() -> list[str]:
@@ -80,7 +73,7 @@ def add_arguments(p) -> None:
     p.add_argument("--estimators", default=None, help="comma-separated labels (default: all registered)")
     p.add_argument("--bound", choices=["theorem", "kf"], default="theorem",
                    help="the bound column: 'theorem' = the Theorem-1 rho_k the daemon publishes "
-                        "(attach_default_bound; its cost is in the step time), 'kf' = the filter's own "
+                        "(make_estimator's default; its cost is in the step time), 'kf' = the filter's own "
                         "chi-square bound sqrt(s P_tautau) (default: theorem)")
 
 
@@ -114,7 +107,6 @@ def run(args) -> int:
     except ImportError:
         raise InputError("bench accuracy needs the simulator (sea_daemon.core.sim), which is not installed") from None
     from sea_daemon.apps.bench import choose
-    _try_register_gp_akf()
     labels = choose(args.estimators, CASES, "--estimators")
     out, settings = start_simulated(args)
     table = {}
@@ -130,10 +122,8 @@ def run(args) -> int:
         results = {}
         rows = {}
         for label in labels:
-            est = CASES[label](nominal, true, train, log.dt)
-            if args.bound == "theorem" and isinstance(est, AKF):
-                from sea_daemon.core.bounds.akf_bound import attach_default_bound
-                attach_default_bound(est)          # tau_h_act_bound = Theorem-1 rho_k (docs/bounds.md)
+            # bound "theorem": tau_h_act_bound = Theorem-1 rho_k (docs/bounds.md)
+            est = CASES[label](nominal, true, train, log.dt, args.bound == "theorem")
             res = replay(log, est, clock=time.perf_counter)
             res.estimator = label
             results[label] = res

@@ -1,8 +1,8 @@
 """``python -m benchmarks.bounds``: does the Theorem-1 bound ρ_k hold on the paper's scenarios?
 
 For each scenario (default ``configs/scenarios/passive.yaml`` and ``active.yaml``):
-simulate, run every estimator over the estimation log with the Theorem-1 bound attached
-(:func:`sea_daemon.core.bounds.akf_bound.attach_default_bound`), and report per estimator the
+simulate, run every estimator over the estimation log with the Theorem-1 bound
+(:class:`sea_daemon.core.bounds.akf_bound.AKFTheoremBound`), and report per estimator the
 coverage of ρ_k (fraction of samples with |τ̂ − τ| ≤ ρ_k; eq:bounds promises ≥ 1 − δ where
 the theorem's assumptions hold), the coverage of the KF's own χ² bound √(s P_ττ) in the same
 run, mean ρ, mean |error|, median step time; plus a plot of the estimate with the ρ band
@@ -15,8 +15,7 @@ linearisation error over the confidence set is huge — ρ_k is valid but far to
 Estimators: ``akf`` (nominal model: the unmodelled human/friction dynamics are an
 *unbounded* model error for Theorem 1, so no coverage is promised), ``oracle-akf`` (the true
 plant's configuration: no model error — Theorem 1's assumptions hold up to the noise model),
-and ``gp-akf`` when ``sea_daemon.core.estimators.gpakf`` exists (the GP error bounded by
-eq:gpmeanbounds).
+and ``gp-akf`` (the GP error bounded by eq:gpmeanbounds).
 
 Scenarios: ``NAME.yaml`` (training and estimation phases of the same scenario) or
 ``NAME.yaml@TRAIN.yaml`` (estimation phase of NAME, training phase — and R by ALS, and the
@@ -40,8 +39,8 @@ or a number; one ``gp-akf`` column per choice.
 Human-torque rate (docs/bounds.md §6): a scenario that declares ``tau_h_act_rate`` (active:
 1.26 N m/s) sets ``estimator.tau_h_act_rate`` for every estimator's bound.
 
-Step time: ``step`` is the whole update with the bound; ``bound`` its own share (the update
-minus the filter step inside it, timed around the AKF's step).
+Step time: ``step`` is the whole update with the bound; ``bound`` its own share (timed around
+the bound component's step).
 """
 from __future__ import annotations
 
@@ -60,47 +59,39 @@ HELP = "coverage of the Theorem-1 bound rho_k (and of the KF's own bound) on the
 
 
 def _builders(gp_betas):
-    from sea_daemon.core.bounds.akf_bound import attach_default_bound
-    from sea_daemon.core.estimators import AKF
+    from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
+    from sea_daemon.core.bounds.calibration import conformal_gp_constants, gp_constants, residual_gps
+    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
+    from sea_daemon.core.estimators import make_estimator
 
-    def akf(cfg, dt):
-        e = AKF(cfg, dt=dt)
-        attach_default_bound(e)
-        return e
+    out = {"akf": lambda nominal, true, train, cal, dt: make_estimator("akf", nominal, dt=dt),
+           "oracle-akf": lambda nominal, true, train, cal, dt: make_estimator("akf", true, dt=dt)}
 
-    out = {"akf": lambda nominal, true, train, cal, dt: akf(nominal, dt),
-           "oracle-akf": lambda nominal, true, train, cal, dt: akf(true, dt)}
-    import importlib.util
-    if importlib.util.find_spec("sea_daemon.core.estimators.gpakf") is not None:
-        import importlib
-        mod = importlib.import_module("sea_daemon.core.estimators.gpakf")
-        from sea_daemon.core.bounds.akf_bound import (
-            attach_theorem_bound, conformal_gp_constants, gp_constants, residual_gps,
-            torque_calibrated_beta)
-
-        def make(beta):
-            def gp(nominal, true, train, cal, dt):
-                e = mod.build(nominal, train, dt)
-                if beta == "conformal":
-                    # δ_GP = δ/2 as in the default adapter; calibrated on the held-out log
-                    consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
-                    e.conformal_info_ = (consts, len(scores))
-                    attach_theorem_bound(e, gp_constants=consts, gp_box=box)
-                elif beta == "exact":
-                    # η_k set per step from the simulator's truth (_ExactGPError.feed in run)
-                    _, box = gp_constants(residual_gps(e), 0.5 * e.delta, beta=1.0)
-                    attach_theorem_bound(e, gp_constants=[_ExactGPError() for _ in range(e.n)], gp_box=box)
-                elif beta == "torque":
-                    # the smallest β whose ρ covers the torque error of the held-out passive log
-                    cal_beta = torque_calibrated_beta(e, cal, e.delta)
-                    e.torque_info_ = cal_beta
-                    attach_theorem_bound(e, gp_constants="auto", gp_beta=cal_beta["beta"])
-                else:
-                    attach_theorem_bound(e, gp_constants="auto", gp_beta=beta)
-                return e
-            return gp
-        for beta in gp_betas:
-            out["gp-akf" if beta == "lederer" else f"gp-akf/{beta}"] = make(beta)
+    def make(beta):
+        def gp(nominal, true, train, cal, dt):
+            # the GP constants of a conformal, exact or torque β need the trained GP: the bound
+            # component is given after training
+            e = make_estimator("gp-akf", nominal, dt=dt, train=train, bound=False)
+            if beta == "conformal":
+                # δ_GP = δ/2 as in the default bound; calibrated on the held-out log
+                consts, box, scores = conformal_gp_constants(e, cal, 0.5 * e.delta)
+                e.conformal_info_ = (consts, len(scores))
+                e.bound = AKFTheoremBound(e, gp_constants=consts, gp_box=box)
+            elif beta == "exact":
+                # η_k set per step from the simulator's truth (_ExactGPError.feed in run)
+                _, box = gp_constants(residual_gps(e), 0.5 * e.delta, beta=1.0)
+                e.bound = AKFTheoremBound(e, gp_constants=[_ExactGPError() for _ in range(e.n)], gp_box=box)
+            elif beta == "torque":
+                # the smallest β whose ρ covers the torque error of the held-out passive log
+                cal_beta = torque_calibrated_beta(e, cal, e.delta)
+                e.torque_info_ = cal_beta
+                e.bound = AKFTheoremBound(e, gp_constants="auto", gp_beta=cal_beta["beta"])
+            else:
+                e.bound = AKFTheoremBound(e, gp_constants="auto", gp_beta=beta)
+            return e
+        return gp
+    for beta in gp_betas:
+        out["gp-akf" if beta == "lederer" else f"gp-akf/{beta}"] = make(beta)
     return out
 
 
@@ -158,14 +149,14 @@ class _ExactGPError:
         """``feed(k)``: set η for the step k−1 → k from the log's true-state columns."""
         import dataclasses
 
-        from sea_daemon.core.bounds.akf_bound import residual_gps
+        from sea_daemon.core.bounds.calibration import residual_gps
         gps = residual_gps(est)
         effects = [dataclasses.replace(e, eps=sc.plant.sign_eps) if hasattr(e, "eps") else e
                    for e in sc.plant.effects if e.side == "load" and e.additive]
         x = log.extra
         q, dq = x["q_true"], x["dq_true"]
         ddq = np.gradient(dq, log.dt)
-        consts = est.theorem_bound.gp_constants
+        consts = est.bound.gp_constants
         n = len(gps)
 
         def feed(k):
@@ -183,23 +174,15 @@ def _run_one(est, log, feed=None):
     """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
     into the filter step and the bound's own share; ``feed(k)`` (if given) runs before step k,
     outside the timing."""
-    from sea_daemon.core.bounds.setmember import chi2_quantile
+    from sea_daemon.core.bounds.ellipsoid import chi2_quantile
     N, n = len(log), log.n
     hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
     times, inner = np.zeros(N - 1), np.zeros(N - 1)
-    tb = getattr(est, "theorem_bound", None)
+    tb = getattr(est, "bound", None)
     s = tb.sm.s_tau if tb is not None else chi2_quantile(1 - est.delta, 5 * n)
     spent = [0.0]
     if tb is not None:
-        filt = tb._step
-
-        def timed(*a, **kw):
-            t0 = time.perf_counter()
-            try:
-                return filt(*a, **kw)
-            finally:
-                spent[0] = time.perf_counter() - t0
-        tb._step = timed
+        est.bound = _TimedBound(tb, spent)
     e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     hat[0], rho[0] = e.tau_h_act_hat, e.tau_h_act_bound
     kf[0] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
@@ -223,8 +206,25 @@ def _run_one(est, log, feed=None):
         hat[k], rho[k] = e.tau_h_act_hat, e.tau_h_act_bound
         kf[k] = np.sqrt(s * np.diagonal(e.P)[4 * n:])
     if tb is not None:
-        tb._step = filt
-    return hat, rho, kf, times, (times - inner if tb is not None else None), fault
+        est.bound = tb
+    return hat, rho, kf, times, (inner if tb is not None else None), fault
+
+
+class _TimedBound:
+    """The bound component ``bound`` with the time of its last step in ``spent[0]``."""
+
+    def __init__(self, bound, spent):
+        self.bound, self.spent = bound, spent
+
+    def reset(self, est):
+        self.bound.reset(est)
+
+    def step(self, *args):
+        t0 = time.perf_counter()
+        try:
+            self.bound.step(*args)
+        finally:
+            self.spent[0] = time.perf_counter() - t0
 
 
 def _cases(paths):
@@ -306,7 +306,7 @@ def run(args) -> int:
                 row["bound_time_median_us"] = float(1e6 * np.median(btimes))
                 row["bound_time_p99_us"] = float(1e6 * np.percentile(btimes, 99))
                 tail += f"; bound median {row['bound_time_median_us']:.0f}, p99 {row['bound_time_p99_us']:.0f}"
-            tb = getattr(est, "theorem_bound", None)
+            tb = getattr(est, "bound", None)
             if tb is not None:
                 row["gp_box_violations"] = int(tb.gp_box_violations_)
                 if tb.gp_constants:

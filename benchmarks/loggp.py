@@ -209,7 +209,7 @@ def run(args) -> int:
                 row["predict_grad"] = _time(model.predict_grad, Z, None, range(c, c + window))[0]
                 m = model.m
                 row["leaves"], row["depth"], row["bytes"] = m.n_leaves, m.depth, m.memory_bytes()
-                row["route"] = float(np.mean([len(m._route(Z[i].tolist(), False))
+                row["route"] = float(np.mean([len(m.route(Z[i]))
                                               for i in range(c, c + window)]))
             res[c] = row
             el = time.perf_counter() - start

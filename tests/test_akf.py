@@ -9,8 +9,8 @@ from sea_daemon.io.configfile import load_config, default_config_path
 from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.estimators import AKF, SpringTorqueEstimator, make_estimator
-from sea_daemon.core.estimators.akf import discretize_affine
-from sea_daemon.core.model import SEAModel, discretize
+from sea_daemon.core.linalg import discretize
+from sea_daemon.core.model import SEAModel
 
 from synth import simulate
 
@@ -92,14 +92,16 @@ def test_akf_equals_textbook_kf_on_linear_plant(n, est, tol):
     np.testing.assert_allclose(akf.F_k, kf.Ad, rtol=1e-10, atol=1e-12)
 
 
-def test_discretize_affine_matches_model_discretize():
+def test_discretize_with_drift_and_input_columns_matches_drift_alone():
     cfg = load_config(default_config_path())
     m = SEAModel.from_config(cfg)
     x = np.array([0.3, 0.01, 0.5, -0.2, 0.4])
     u = np.array([1.2])
     A, f = m.F_nom(x, u), m.f_nom(x, u)
-    dx, F, Gam = discretize_affine(A, f, m.I_mu @ m.Minv, 0.01)
-    dx2, F2 = discretize(A, f, 0.01)
+    # the AKF's step: one expm of [[A, f, I_μ M⁻¹], 0]·dt
+    F, FG = discretize(A, np.column_stack([f, m.I_mu @ m.Minv]), 0.01)
+    dx, Gam = FG[:, 0], FG[:, 1:]
+    F2, dx2 = discretize(A, f, 0.01)
     np.testing.assert_allclose(dx, dx2, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(F, F2, rtol=1e-12, atol=1e-15)
     # Γ = ∫ e^{As} ds G ≈ dt G to first order
@@ -289,13 +291,15 @@ def test_make_estimator_and_bound_definition():
     e = make_estimator("akf", cfg)
     est = e.reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
     from scipy.stats import chi2
-    # make_estimator attaches the Theorem-1 bound: at reset the set of means is a point and ρ
+    # make_estimator gives the Theorem-1 bound component: at reset the set of means is a point and ρ
     # is the τ marginal's χ²_1 bound (docs/bounds.md §3); the bare AKF publishes χ²_5
     s = chi2.ppf(1 - cfg.estimator.delta, 1)
     assert est.tau_h_act_bound[0] == pytest.approx(np.sqrt(s * est.P[4, 4]))
-    bare = AKF(cfg).reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
+    bare = make_estimator("akf", cfg, bound=False).reset(np.array([0.1]), np.array([0.1]), np.array([0.0]))
     assert bare.tau_h_act_bound[0] == pytest.approx(np.sqrt(chi2.ppf(1 - cfg.estimator.delta, 5) * bare.P[4, 4]))
     assert make_estimator("spring", cfg).name == "spring"
+    g = make_estimator("gp-akf", cfg)
+    assert g.name == "gp-akf" and g.learning and g.bound is not None
     with pytest.raises(ValueError):
         make_estimator("magic", cfg)
 

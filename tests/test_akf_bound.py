@@ -1,16 +1,23 @@
-"""Theorem-1 bound attached to the AKF / GP-AKF (sea_daemon.core.bounds.akf_bound)."""
+"""Theorem-1 bound component of the AKF / GP-AKF (sea_daemon.core.bounds.akf_bound)."""
 import numpy as np
 import pytest
 
-from sea_daemon.core.bounds.akf_bound import attach_theorem_bound
+from sea_daemon.core import learning
+from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
 from sea_daemon.core.bounds.gp_bound import BoundConstants
-from sea_daemon.core.bounds.setmember import chi2_quantile
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.core.estimators import AKF
 from sea_daemon.core.model import SEAModel
 
 from synth import simulate
+
+
+def with_bound(akf, **kwargs) -> AKFTheoremBound:
+    """Give ``akf`` the bound component AKFTheoremBound(akf, **kwargs); returns it."""
+    akf.bound = AKFTheoremBound(akf, **kwargs)
+    return akf.bound
 
 
 def run(est, log):
@@ -28,7 +35,7 @@ def test_linear_plant_bound_equals_kf_chi2_projection(sets):
         "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
     log = simulate(SEAModel.from_config(cfg), T=0.6, tau_h=lambda t: np.array([np.sin(3 * t)]), seed=1)
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf, projection="state", sets=sets)
+    tb = with_bound(akf, projection="state", sets=sets)
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     assert np.max(np.abs(tb.sm.X_)) == 0.0                     # set of means stays a point
@@ -37,7 +44,7 @@ def test_linear_plant_bound_equals_kf_chi2_projection(sets):
     np.testing.assert_allclose(out[:, :2], plain[:, :2], rtol=1e-10)   # estimate and bound unchanged
     # default: the τ marginal's χ²_1 quantile (scalar claim eq:bounds)
     akf = AKF(cfg)
-    attach_theorem_bound(akf, sets=sets)
+    with_bound(akf, sets=sets)
     out = run(akf, log)
     np.testing.assert_allclose(out[1:, 1], np.sqrt(chi2_quantile(1 - cfg.estimator.delta, 1) * out[1:, 2]),
                                rtol=1e-10)
@@ -48,7 +55,7 @@ def test_gravity_nonlinearity_widens_bound_and_it_covers():
     log = simulate(SEAModel.from_config(cfg), T=1.5, tau_h=lambda t: np.array([2.0 * np.sin(2 * np.pi * 0.3 * t)]),
                    seed=3)
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf)
+    tb = with_bound(akf)
     out = run(akf, log)
     plain = run(AKF(cfg), log)
     np.testing.assert_allclose(out[:, 0], plain[:, 0])           # the estimate is untouched
@@ -88,7 +95,7 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
     outs = {}
     for bias in (0.3, -0.3):
         akf = AKF(cfg, residual=BiasedResidual(f, bias))
-        tb = attach_theorem_bound(akf, gp_constants=consts)
+        tb = with_bound(akf, gp_constants=consts)
         out = run(akf, log)
         assert tb.eta_[0] == pytest.approx(0.3)
         err = np.abs(out[20:, 0] - log.tau_h_act[20:, 0])
@@ -98,18 +105,18 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
     assert np.mean(outs[0.3][20:, 1]) > np.mean(np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 5)
                                                         * outs[0.3][20:, 2]))
     with pytest.raises(ValueError, match="gp_constants"):
-        attach_theorem_bound(AKF(cfg, residual=BiasedResidual(f, 0.0)))
+        with_bound(AKF(cfg, residual=BiasedResidual(f, 0.0)))
 
 
 def test_phi_shortcut_matches_expm():
-    from sea_daemon.core.bounds.setmember import input_matrix
+    from sea_daemon.core.linalg import discretize
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf)
+    tb = with_bound(akf)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     b = np.array([0, 0, 0, 1.0, 0])
-    full = input_matrix(akf.A_k, np.eye(5), akf.dt)
+    full = discretize(akf.A_k, np.eye(5), akf.dt)[1]
     np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
 
@@ -126,12 +133,11 @@ def _residual(learning, cfg, noise: float = 0.0):
 
 
 def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
-    learning = pytest.importorskip("sea_daemon.core.learning")
     from sea_daemon.core.estimators import make_estimator
     cfg = load_config(default_config_path())
     res = _residual(learning, cfg)
     est = make_estimator("akf", cfg, residual=res)
-    tb = est.theorem_bound
+    tb = est.bound
     log = simulate(SEAModel.from_config(cfg), T=0.3, seed=4)
     out = run(est, log)
     assert tb.gp_constants is not None and len(tb.gp_constants) == 1
@@ -143,22 +149,21 @@ def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
 
 
 def test_gp_akf_estimator_gets_the_theorem_bound():
-    gpakf = pytest.importorskip("sea_daemon.core.estimators.gpakf")
-    from sea_daemon.core.bounds.akf_bound import attach_default_bound, residual_gps
+    from sea_daemon.core.bounds.calibration import residual_gps
+    from sea_daemon.core.estimators import make_estimator
     cfg = load_config(default_config_path())
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
-    est = gpakf.build(cfg, train, train.dt)
-    tb = attach_default_bound(est)
-    assert tb is not None and residual_gps(est) is not None
+    est = make_estimator("gp-akf", cfg, train=train)
+    tb = est.bound
+    assert isinstance(tb, AKFTheoremBound) and residual_gps(est) is not None
     log = simulate(SEAModel.from_config(cfg), T=0.3, seed=7)
     out = run(est, log)
     assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
-    assert attach_default_bound(est) is tb                     # idempotent
+    assert est.bound is tb and not est.learning
 
 
 def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     import dataclasses
-    learning = pytest.importorskip("sea_daemon.core.learning")
     from sea_daemon.core.bounds.gp_bound import LocalScale
     from sea_daemon.core.estimators import make_estimator
     base = load_config(default_config_path())
@@ -168,7 +173,7 @@ def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     for beta in (2.0, 4.0):
         cfg = dataclasses.replace(base, estimator=dataclasses.replace(base.estimator, gp_beta=beta))
         est = make_estimator("akf", cfg, residual=res)
-        tb = est.theorem_bound
+        tb = est.bound
         h = []
         est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
         for k in range(1, len(log) - 1):
@@ -189,7 +194,7 @@ def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     ratio = np.mean(means[4.0]) / np.mean(means[2.0])
     assert 1.7 < ratio < 2.3
     with pytest.raises(ValueError, match="gp_beta"):
-        attach_theorem_bound(AKF(base, residual=res), gp_constants="auto", gp_beta=-1.0)
+        with_bound(AKF(base, residual=res), gp_constants="auto", gp_beta=-1.0)
 
 
 class SplitResidual:
@@ -218,7 +223,7 @@ def test_gp_error_and_gp_linearisation_error_are_bounded_as_one_torque_error():
     beta = 2.0
     consts = [BoundConstants(sqrt_beta=beta, gamma=0.0, tau=0.0, L_f=0.0, L_mu=0.0, omega_sigma=0.0,
                              delta=0.025, n_leaves=1)]
-    tb = attach_theorem_bound(akf, gp_constants=consts)
+    tb = with_bound(akf, gp_constants=consts)
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     x0, P0, zhat = akf.x.copy(), akf.P.copy(), akf.z.copy()
     # the points of the projected confidence set C_0 (X̂_0 = 0) on which the bound samples
@@ -252,7 +257,7 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
     cfg = load_config(default_config_path())
     log = simulate(SEAModel.from_config(cfg), T=0.1, seed=3)
     akf = AKF(cfg)
-    tb = attach_theorem_bound(akf)
+    tb = with_bound(akf)
     d = cfg.estimator.delta
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     x0, P0 = akf.x.copy(), akf.P.copy()
@@ -272,23 +277,25 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
     # with a GP the set is that of (q, q̇): χ²_2
     consts = [BoundConstants(sqrt_beta=2.0, gamma=0.0, tau=0.0, L_f=0.0, L_mu=0.0, omega_sigma=0.0,
                              delta=0.025, n_leaves=1)]
-    tb2 = attach_theorem_bound(AKF(cfg, residual=SplitResidual()), gp_constants=consts)
+    tb2 = with_bound(AKF(cfg, residual=SplitResidual()), gp_constants=consts)
     assert tb2._s_z == pytest.approx(chi2_quantile(1 - (d - tb2.sm.delta_gp), 2))
 
 
-def test_held_input_matches_expm():
-    # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled fourth-order series against Van Loan's expm
-    from sea_daemon.core.bounds.setmember import input_matrix
-    from sea_daemon.core.estimators.akf_core import held_input
+def test_held_input_matches_scipy_expm():
+    # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled zoh against scipy's expm of Van Loan's block matrix
+    from scipy.linalg import expm
+    from sea_daemon.core.linalg import zoh
     cfg = load_config(default_config_path())
     akf = AKF(cfg)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     E = np.zeros((5, 1))
     E[4, 0] = 1.0
-    G = np.zeros((5, 1))
-    held_input(akf.A_k, E, akf.dt, G)
-    np.testing.assert_allclose(G, input_matrix(akf.A_k, E, akf.dt), rtol=1e-6, atol=1e-12)
+    aug, Ez = np.empty((6, 6)), np.empty((6, 6))
+    zoh(akf.A_k, E, akf.dt, aug, Ez)
+    G = Ez[:5, 5:]
+    ref = expm(np.block([[akf.A_k, E], [np.zeros((1, 6))]]) * akf.dt)[:5, 5:]
+    np.testing.assert_allclose(G, ref, rtol=1e-12, atol=1e-15)
     assert G[4, 0] == pytest.approx(akf.dt, rel=1e-15)          # τ rows: exactly dt
 
 
@@ -304,12 +311,12 @@ def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
     out0 = run(AKF(cfg), log)
     err = np.abs(out0[:, 0] - log.tau_h_act[:, 0])
     akf = AKF(cfg)
-    attach_theorem_bound(akf, tau_h_act_rate=0.0)
+    with_bound(akf, tau_h_act_rate=0.0)
     plain = run(akf, log)
     assert np.mean(err[1:] <= plain[1:, 1]) < 0.1                 # the random walk alone misses
     rated = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_h_act_rate=2.0))
     akf = AKF(rated)
-    tb = attach_theorem_bound(akf)                                # from estimator.tau_h_act_rate
+    tb = with_bound(akf)                                # from estimator.tau_h_act_rate
     assert tb.tau_h_act_rate == 2.0
     out = run(akf, log)
     np.testing.assert_allclose(out[:, 0], out0[:, 0])             # the estimate is untouched
@@ -319,20 +326,21 @@ def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
     h = tb.sm.means_half_widths()[4]
     assert err[-1] <= h <= 3 * err[-1]
     with pytest.raises(ValueError, match="tau_h_act_rate"):
-        attach_theorem_bound(AKF(cfg), tau_h_act_rate=-1.0)
+        with_bound(AKF(cfg), tau_h_act_rate=-1.0)
 
 
-def _passive_gp_akf(gpakf, seed):
+def _passive_gp_akf(seed):
+    from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.configfile import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
-    return gpakf.build(cfg, train, train.dt), simulate(SEAModel.from_config(cfg), T=0.6, seed=seed)
+    return (make_estimator("gp-akf", cfg, train=train, bound=False),
+            simulate(SEAModel.from_config(cfg), T=0.6, seed=seed))
 
 
 def test_torque_calibrated_beta_is_the_smallest_covering_beta_and_detaches():
-    gpakf = pytest.importorskip("sea_daemon.core.estimators.gpakf")
-    from sea_daemon.core.bounds.akf_bound import torque_calibrated_beta, torque_coverage
-    est, cal = _passive_gp_akf(gpakf, seed=8)
+    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta, torque_coverage
+    est, cal = _passive_gp_akf(seed=8)
     # a truth the estimate misses by a ramp: only a GP term of some size covers it
     truth = np.linspace(0.0, 0.3, len(cal))[:, None]
     seen = []
@@ -346,8 +354,8 @@ def test_torque_calibrated_beta_is_the_smallest_covering_beta_and_detaches():
     assert below and max(below) < r["target"]
     c_less, _ = torque_coverage(est, cal, r["beta"] / 1.26, truth)
     assert c_less < r["target"]
-    # the estimator is left as it was: no bound attached, learning flag restored
-    assert "step" not in est.__dict__ and getattr(est, "theorem_bound", None) is None
+    # the estimator is left as it was: no bound component, learning flag restored
+    assert est.bound is None
     assert est.learning is False
     # with the true τ_h,act = 0 less β is needed
     assert torque_calibrated_beta(est, cal, 0.05)["beta"] < r["beta"]
@@ -359,7 +367,6 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     # η = max over the GP-input set of β s + c e (+ the GP mean's linearisation error) ≥ its
     # value at ẑ; with β tiny what is left is c e, which does not shrink with β
     import dataclasses
-    learning = pytest.importorskip("sea_daemon.core.learning")
     from sea_daemon.core.bounds.gp_bound import LocalScale
     from sea_daemon.core.estimators import make_estimator
     base = load_config(default_config_path())
@@ -371,7 +378,7 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     for beta in (1e-4, 1.0):
         cfg = dataclasses.replace(base, estimator=dataclasses.replace(base.estimator, gp_beta=beta))
         est = make_estimator("akf", cfg, residual=res)
-        tb = est.theorem_bound
+        tb = est.bound
         est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
         for k in range(1, len(log) - 1):
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.dt)

@@ -5,7 +5,8 @@ import pytest
 from sea_daemon.core.als import identify, innovations, model_autocov, sample_autocov, stable_gain
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.errors import InputError
-from sea_daemon.core.model import SEAModel, discretize
+from sea_daemon.core.linalg import discretize
+from sea_daemon.core.model import SEAModel
 
 
 @pytest.fixture(scope="module")
@@ -14,7 +15,7 @@ def sea_data():
     cfg = load_config(default_config_path())
     m = SEAModel.from_config(cfg)
     x0, u0 = np.zeros(5), np.zeros(1)
-    F = discretize(m.F_nom(x0, u0), m.f_nom(x0, u0), cfg.dt)[1]
+    F = discretize(m.F_nom(x0, u0), m.f_nom(x0, u0), cfg.dt)[0]
     H = np.hstack([np.eye(4), np.zeros((4, 1))])
     R = np.array(cfg.estimator.R)
     Q = np.diag([1e-8, 1e-8, 1e-5, 1e-6, 1e-3])

@@ -8,8 +8,6 @@ from benchmarks import bounds as bench_bounds
 from benchmarks._cli import main as bench_main
 from sea_daemon.io.configfile import repo_root
 
-pytest.importorskip("sea_daemon.core.estimators.gpakf")
-
 
 def _short(tmp_path, name, train, est):
     src = repo_root() / "configs" / "scenarios" / f"{name}.yaml"

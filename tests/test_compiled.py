@@ -133,3 +133,16 @@ def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
     assert g.n_leaves > 1 and g.n_hyper_steps > 0
     after = {k: len(d.signatures) for k, d in _dispatchers().items()}
     assert after == before
+
+
+def test_warm_up_knows_every_module_with_compiled_kernels():
+    """jit.warm_up imports KERNEL_MODULES: every module of the core that compiles or warms a kernel."""
+    import pathlib
+    root = pathlib.Path(_jit.__file__).parent
+    found = {"sea_daemon.core." + ".".join(p.relative_to(root).with_suffix("").parts)
+             for p in root.rglob("*.py")
+             if any(ln.startswith(("@njit", "@warmer")) for ln in p.read_text(encoding="utf-8").splitlines())}
+    assert found == set(_jit.KERNEL_MODULES)
+    _jit.warm_up()
+    _jit.warm_up()                         # idempotent
+    assert _jit._n_warm == len(_jit._WARMERS)

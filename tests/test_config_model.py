@@ -6,7 +6,8 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.io.configfile import load_config, default_config_path
 from sea_daemon.core.effects import EFFECT_TYPES, make_effect
 from sea_daemon.errors import ConfigError
-from sea_daemon.core.model import SEAModel, discretize
+from sea_daemon.core.linalg import discretize
+from sea_daemon.core.model import SEAModel
 
 
 def base_dict():
@@ -113,7 +114,7 @@ def test_discretize_is_exact_for_linear_system():
     A = rng.normal(size=(4, 4))
     B = rng.normal(size=(4, 1))
     x, u, dt = rng.normal(size=4), rng.normal(size=1), 0.05
-    dx, Fd = discretize(A, A @ x + B @ u, dt)
+    Fd, dx = discretize(A, A @ x + B @ u, dt)
     big = expm(np.block([[A, B], [np.zeros((1, 5))]]) * dt)
     np.testing.assert_allclose(Fd, big[:4, :4], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(x + dx, big[:4, :4] @ x + big[:4, 4:] @ u, rtol=1e-10, atol=1e-12)

@@ -79,7 +79,7 @@ def test_estimation_against_device_model_gp_akf_beats_akf(calibrated, tmp_path, 
     assert gp_rmse < 0.3 * akf_rmse, (gp_rmse, akf_rmse)
     # the published bound is the Theorem-1 rho_k (docs/bounds.md): the KF part
     # sqrt(chi2_1(1 - delta_N) P_tautau), delta_N = delta/2, plus the set of means of the GP error
-    from sea_daemon.core.bounds.setmember import chi2_quantile
+    from sea_daemon.core.bounds.ellipsoid import chi2_quantile
     rho, sig = log.extra["tau_h_act_bound"][skip:], log.extra["tau_h_act_sigma"][skip:]
     kf = np.sqrt(chi2_quantile(1 - cfg.estimator.delta / 2, 1)) * sig
     assert np.all(rho >= kf - 1e-9) and np.mean(rho > 1.01 * kf) > 0.5

@@ -10,7 +10,8 @@ from sea_daemon.apps import cli
 from sea_daemon.apps.bench import apply_settings
 from sea_daemon.io.configfile import load_config, repo_root
 from sea_daemon.core.estimators import AKF
-from sea_daemon.core.estimators.gpakf import GPAKF, build, learn_from_log
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.estimators.gpakf import GPAKF, learn_from_log
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.io.logcsv import write_log
 from sea_daemon.core.model import SEAModel
@@ -37,7 +38,7 @@ def passive():
 @pytest.fixture(scope="module")
 def trained(passive):
     cfg, train, _ = passive
-    return build(cfg, train, train.dt)
+    return make_estimator("gp-akf", cfg, dt=train.dt, train=train, bound=False)
 
 
 def test_gp_akf_is_much_better_than_the_akf_on_a_passive_subject(passive, trained):
@@ -66,7 +67,7 @@ def test_gp_akf_follows_an_active_subject_like_the_oracle():
     nominal, true = apply_settings(sc.nominal, settings), apply_settings(sc.true_config(), settings)
     log = sim.estimation
     rmse = {k: summarize(replay(log, est))["rmse"] for k, est in (
-        ("akf", AKF(nominal)), ("oracle", AKF(true)), ("gp", build(nominal, sim.training, log.dt)))}
+        ("akf", AKF(nominal)), ("oracle", AKF(true)), ("gp", make_estimator("gp-akf", nominal, dt=log.dt, train=sim.training, bound=False)))}
     assert rmse["gp"] < 0.1
     assert rmse["gp"] < rmse["akf"] / 20.0
     assert rmse["gp"] < 1.5 * rmse["oracle"]
@@ -187,8 +188,8 @@ def test_deterministic_under_a_seed(passive):
     cfg, train, log = passive
     short = MeasuredLog(t=train.t[:300], q=train.q[:300], theta_m=train.theta_m[:300],
                         tau_m=train.tau_m[:300], tau_h_act=None, path="<short>")
-    r1 = replay(log, build(cfg, short, short.dt))
-    r2 = replay(log, build(cfg, short, short.dt))
+    r1 = replay(log, make_estimator("gp-akf", cfg, dt=short.dt, train=short, bound=False))
+    r2 = replay(log, make_estimator("gp-akf", cfg, dt=short.dt, train=short, bound=False))
     assert np.array_equal(r1.tau_h_act_hat, r2.tau_h_act_hat)
     assert np.array_equal(r1.tau_h_act_sigma, r2.tau_h_act_sigma)
 
@@ -298,7 +299,7 @@ def test_two_joints_learn_a_hidden_load_torque_per_joint():
     true = cfg.with_effects(hidden)
     train = _two_joint_log(true, 10.0, 0.0, seed=1)          # passive subject
     log = _two_joint_log(true, 8.0, 0.5, seed=1)             # same motion, active torque
-    est = build(cfg, train, cfg.dt)
+    est = make_estimator("gp-akf", cfg, dt=cfg.dt, train=train, bound=False)
     assert est.gp.n == 2 and len(est.gp.gps) == 2 and est.gp.gps[0].input_dim == 6
     r_gp = replay(log, est)
     r_akf = replay(log, AKF(cfg))
@@ -326,5 +327,5 @@ def test_residual_hook_with_noise_in_q_adds_the_merged_leaf_noise():
         mu1, jac1, var1 = noisy.predict(z)
         assert mu1[0] == mu0[0] and np.array_equal(jac1, jac0)
         assert var1[0] == pytest.approx(var0[0] + g.noise_variance(z), rel=1e-12, abs=1e-15)
-        seen.add(len(g._route(z.tolist(), False)) > 1)
+        seen.add(len(g.route(z)) > 1)
     assert seen == {False, True}

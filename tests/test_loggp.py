@@ -83,7 +83,7 @@ def _inside_overlaps(gp, rng, count):
     out = []
     while len(out) < count:
         x = rng.uniform(-1, 1, 3)
-        if len(gp._route(x.tolist(), False)) >= 2:
+        if len(gp.route(x)) >= 2:
             out.append(x)
     return out
 
@@ -285,19 +285,19 @@ def test_noise_variance_is_the_weighted_leaf_noise():
         lg = gp.leaf(node)
         lg.set_hyperparameters(lg.sigma_f, lg.lengthscales, 0.01 * (k + 1))
     for x in _inside_overlaps(gp, rng, 4) + [rng.uniform(-1, 1, 3) for _ in range(4)]:
-        route = gp._route(list(map(float, x)), False)
+        route = gp.route(x)
         expect = sum(w * gp.leaf(node).sigma_n ** 2 for node, w, _ in route)
         assert gp.noise_variance(x) == pytest.approx(expect, rel=1e-12)
         assert min(gp.leaf(n).sigma_n for n in leaves) ** 2 <= gp.noise_variance(x) + 1e-15
         assert gp.noise_variance(x) <= max(gp.leaf(n).sigma_n for n in leaves) ** 2 + 1e-15
-    assert any(len(gp._route(list(map(float, x)), False)) > 1 for x in _inside_overlaps(gp, rng, 4))
+    assert any(len(gp.route(x)) > 1 for x in _inside_overlaps(gp, rng, 4))
 
 
 @pytest.mark.parametrize("overlap", [0.0, 0.3, 0.9])
 def test_batched_prediction_equals_per_point(overlap):
     # predict_many (compiled routing of every row, one compiled call per leaf) = predict per row,
     # also for rows in overlap regions (several leaves) and rows outside the data; the local
-    # scale's batch (gp_bound.LocalScale.predict_many) = the mixture of _route + leaf.predict
+    # scale's batch (gp_bound.LocalScale.predict_many) = the mixture of route + leaf.predict
     from sea_daemon.core.bounds.gp_bound import LocalScale
     rng = np.random.default_rng(3)
     gp = LoGGP(3, max_points=12, overlap=overlap, lengthscales=[0.5, 0.5, 1.0], sigma_n=0.05, seed=2)
@@ -314,15 +314,15 @@ def test_batched_prediction_equals_per_point(overlap):
     assert multi.any() == (overlap > 0)
     if overlap == 0.9:                            # many leaves per row: the compiled routing's buffers grow
         assert len(idx) > 2 * len(Z) + 8 and np.bincount(idx).max() > 10
-    for i, z in enumerate(Z):                     # the same leaves, weights and order as _route
-        r = gp._route(z.tolist(), False)
+    for i, z in enumerate(Z):                     # the same leaves, weights and order as route
+        r = gp.route(z)
         assert nodes[idx == i].tolist() == [node for node, _, _ in r]
         np.testing.assert_array_equal(w[idx == i], [om for _, om, _ in r])
     sc = LocalScale(gp)
     m2, v2, s2 = sc.predict_many(Z)
     for i, z in enumerate(Z):
         a = b = sl = 0.0
-        for node, om, _ in gp._route(z.tolist(), False):
+        for node, om, _ in gp.route(z):
             m, v = gp.leaf(node).predict(z)
             a, b, sl = a + om * m, b + om * (v + m * m), sl + om * sc.r_.get(node, 0.0)
         vr = max(b - a * a, 0.0)

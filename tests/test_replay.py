@@ -109,13 +109,10 @@ def test_bad_train_csv_and_config_exit_2(log_path, tmp_path, capsys):
     assert code == 2 and "model.J" in err and len(err.strip().splitlines()) == 1
 
 
-def test_gp_akf_placeholder_and_bad_choice(log_path, tmp_path, capsys):
-    import importlib.util
-    if importlib.util.find_spec("sea_daemon.core.estimators.gpakf") is not None:
-        pytest.skip("gp-akf has landed")
+def test_gp_akf_without_train_and_bad_choice(log_path, tmp_path, capsys):
     code, _, err = run_cli(["replay", str(log_path), "--config", CFG, "--estimator", "gp-akf",
                             "--out", str(tmp_path / "e.csv")], capsys)
-    assert code == 2 and "not available yet" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "--train" in err and len(err.strip().splitlines()) == 1
     with pytest.raises(SystemExit) as ei:
         cli.main(["replay", str(log_path), "--config", CFG, "--estimator", "magic", "--out", "x.csv"])
     assert ei.value.code == 2

@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from sea_daemon.core.bounds.setmember import SetMembershipBound, discrete_residual, input_matrix
+from sea_daemon.core.bounds.setmember import SetMembershipBound, discrete_residual
+from sea_daemon.core.linalg import discretize
 from sea_daemon.io.configfile import load_config, default_config_path
-from sea_daemon.core.model import SEAModel, discretize
+from sea_daemon.core.model import SEAModel
 
 
 def kf_step(x, P, F, dx, Q, H, R, y):
@@ -33,19 +34,19 @@ def test_linear_plant_zero_gp_error_reduces_to_kf_chi2_ellipsoid(sets):
     sm = SetMembershipBound(d, [4], delta=0.05, projection="state", sets=sets)
     sm_marg = SetMembershipBound(d, [4], delta=0.05, projection="marginal", sets=sets)
     A = model.F_nom(x, np.zeros(n))                # constant: the plant is linear
-    Gamma = input_matrix(A, model.I_mu @ model.Minv, dt)
-    G_u = input_matrix(A, model.B_nom(), dt)
+    Gamma = discretize(A, model.I_mu @ model.Minv, dt)[1]
+    G_u = discretize(A, model.B_nom(), dt)[1]
     s_d, s_1 = chi2.ppf(0.95, d), chi2.ppf(0.95, 1)
     for k in range(100):
         u = np.array([np.sin(0.05 * k)])
-        dx, F = discretize(A, model.f_nom(x, u), dt)
+        F, dx = discretize(A, model.f_nom(x, u), dt)
         # exact ZOH transition of the linear plant (what discretize computes, without an expm per point)
         fd = lambda z: F @ z + G_u @ u
         assert np.allclose(x + dx, fd(x), atol=1e-12)
         C = sm.confidence_set(x, P)
         # C_k is the KF's χ² ellipsoid while the set of means is a point
         assert np.allclose(C.c, x) and np.allclose(C.X, s_d * P, rtol=1e-12, atol=0)
-        dxt, Ft = discretize(model.F_nom(x_true, u), model.f_nom(x_true, u), dt)
+        Ft, dxt = discretize(model.F_nom(x_true, u), model.f_nom(x_true, u), dt)
         x_true = x_true + dxt + np.sqrt(np.diag(Q)) * rng.standard_normal(d)
         y = H @ x_true + np.sqrt(np.diag(R)) * rng.standard_normal(4)
         x_new, P_new, K = kf_step(x, P, F, dx, Q, H, R, y)
@@ -139,11 +140,11 @@ def test_linearization_error_box_exact_for_quadratic_along_axis():
     assert np.all(np.abs(np.array([resid(p) for p in pts])) <= b + 1e-12)
 
 
-def test_input_matrix_matches_integral():
+def test_discretize_input_matrix_matches_integral():
     rng = np.random.default_rng(3)
     A = rng.standard_normal((4, 4))
     B = rng.standard_normal((4, 2))
-    G = input_matrix(A, B, 0.05)
+    G = discretize(A, B, 0.05)[1]
     s = np.linspace(0, 0.05, 201)
     from scipy.linalg import expm
     E = expm(A * (s[1] - s[0]))
@@ -163,7 +164,7 @@ def test_bad_arguments():
 
 def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
     from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-    from sea_daemon.core.bounds.setmember import reduce_generators, zonotope_shape
+    from sea_daemon.core.bounds.zonotope import reduce_generators, zonotope_shape
     rng = np.random.default_rng(21)
     d, m = 4, 30
     G = rng.standard_normal((d, m)) * rng.uniform(0.01, 1.0, m)
@@ -184,7 +185,7 @@ def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
 def test_compiled_zonotope_prediction_equals_the_direct_formulas():
     # SetMembershipBound.predict (one compiled call) = F·G ⊕ Γ·|η| ⊕ Φ·|b| without the zero
     # generators and Girard's reduction written out with numpy; zonotope_shape = its formula
-    from sea_daemon.core.bounds.setmember import zonotope_shape
+    from sea_daemon.core.bounds.zonotope import zonotope_shape
     rng = np.random.default_rng(5)
     d, n = 5, 1
     sm = SetMembershipBound(d, [4], 0.05, delta_gp=0.025, max_generators=12)

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.estimators.gpakf import GPAKF
+from sea_daemon.core.estimators import make_estimator
 from sea_daemon.errors import InputError
 from sea_daemon.io.gpmodel import save_gp_model
 from sea_daemon.io.scenario import load_scenario
@@ -67,7 +67,7 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
         raise InputError(f"--scenario {scenario}: {sc.nominal.joints} joint(s), the configuration has {cfg.joints}")
     cycles = cycles or sc.training_samples
     # the training phase (ass:passive_human): learning on in every cycle
-    estimator = GPAKF(cfg, dt=cfg.dt, learning=True)
+    estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, learning=True, bound=False)
     rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
     controller = ScenarioController(sc, cfg, "training", rig.hold_torque, delay=getattr(rig.hw, "actuation_delay", 0))
     bar = _Progress(cycles, progress, estimator)

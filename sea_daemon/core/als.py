@@ -232,8 +232,7 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     the number of innovations used and the spectral radius of A − A L C.
     """
     from sea_daemon.core.estimators.akf import AKF
-    from sea_daemon.core.model import discretize
-    from sea_daemon.core.bounds.setmember import input_matrix
+    from sea_daemon.core.linalg import discretize
 
     n = cfg.joints
     N = len(log)
@@ -255,8 +254,9 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     dt = float(np.median(np.diff(log.t)))
     x_op, u_op = X.mean(axis=0), U.mean(axis=0)
     A = model.F_nom(x_op, u_op)
-    dx_op, F = discretize(A, model.f_nom(x_op, u_op), dt)
-    G_u = input_matrix(A, model.B_nom(), dt)
+    # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
+    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
+    dx_op, G_u = Gam[:, 0], Gam[:, 1:]
     # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
     c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
     if channels not in ("angles", "all"):

@@ -6,18 +6,38 @@
 function is compiled in memory instead (numba raises ``RuntimeError`` at decoration then);
 the code runs the same, only each new process compiles again.
 
-Compilation is lazy (first call).  The estimators call :func:`warm_up` at construction, so
-a daemon is compiled (or has loaded its cache) before it reports READY, never in its first
-loop cycle.  Numba uses no threads here (no ``parallel=True``).
+Compilation is lazy (first call); :func:`warm_up` is the one place that triggers it ahead of
+use: it imports every module of :data:`KERNEL_MODULES` and runs each module's example calls
+(registered with :func:`warmer`: the kernels with the argument types the estimators pass)
+once.  The estimators call it at construction and the runtime before it starts the hardware,
+so a daemon is compiled (or has loaded its cache) before it reports READY, never in a loop
+cycle.  Numba uses no threads here (no ``parallel=True``).
 """
 from __future__ import annotations
 
+import importlib
 from typing import Callable
 
 import numba
 
+#: every module with compiled kernels, imported by :func:`warm_up` by name (they import this
+#: module for :func:`njit`)
+KERNEL_MODULES = (
+    "sea_daemon.core.linalg",
+    "sea_daemon.core.kinematics",
+    "sea_daemon.core.estimators.akf_core",
+    "sea_daemon.core.estimators.health",
+    "sea_daemon.core.gp.gp_core",
+    "sea_daemon.core.gp.exact",
+    "sea_daemon.core.gp.hyper",
+    "sea_daemon.core.gp.routing",
+    "sea_daemon.core.bounds.setmember",
+    "sea_daemon.core.bounds.zonotope",
+    "sea_daemon.core.bounds.akf_bound",
+)
+
 _WARMERS: list[Callable[[], None]] = []
-_n_warm = 0          # warmers already run (modules imported later register more)
+_n_warm = 0          # warmers already run
 
 
 #: LLVM may reassociate sums and contract a·b + c into one FMA: lets the O(N²)/O(N³) reductions
@@ -46,8 +66,13 @@ def warmer(fn: Callable[[], None]) -> Callable[[], None]:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every registered kernel not yet warmed, once each."""
+    """Compile (or load from the cache) every kernel of :data:`KERNEL_MODULES`, once;
+    later calls return at once."""
     global _n_warm
+    if _n_warm and _n_warm == len(_WARMERS):
+        return
+    for name in KERNEL_MODULES:
+        importlib.import_module(name)
     while _n_warm < len(_WARMERS):
         fn = _WARMERS[_n_warm]
         _n_warm += 1

@@ -12,6 +12,10 @@ At these sizes a call into numpy/scipy costs more than the arithmetic (scipy's `
   LAPACK ``dpotrf`` (0, or the 1-based order of the first non-positive pivot) and the
   two triangular solves (Golub & Van Loan, Matrix Computations, 4th ed., Alg. 4.2.1).
 * :func:`lu_solve` — Gaussian elimination with partial pivoting, in place (G&VL Alg. 3.4.1).
+* :func:`zoh` — the zero-order-hold discretisation of ẋ = A x + B u, one :func:`expm` of
+  [[A, B], [0, 0]]·dt (Van Loan 1978), for every discretisation of the estimator core (the
+  AKF's local linearisation, the held-input maps of the process noise and of the Theorem-1
+  bound); :func:`discretize` is its numpy form for offline callers.
 
 Plain loops, no allocation except :func:`expm`'s few work matrices; IEEE arithmetic (no
 fastmath), so results are deterministic.
@@ -217,6 +221,39 @@ def expm(A, out):
 
 
 @njit
+def zoh(A, B, dt, aug, E):
+    """E = e^{[[A, B], [0, 0]] dt}: F_d = E[:d, :d] = e^{A dt} and Γ = E[:d, d:] = ∫₀^dt e^{As} ds B,
+    the exact zero-order-hold discretisation x⁺ = F_d x + Γ u of ẋ = A x + B u with u held over
+    dt (Van Loan 1978; Franklin, Powell & Workman, Digital Control, §4.3.3).  A column f(x, u)
+    in B gives the local-linearisation step Δx = ∫₀^dt e^{As} ds f of ẋ = f(x, u).
+
+    ``aug``, ``E``: work matrices of size (d + r)², r = B.shape[1]; E is the result."""
+    d = A.shape[0]
+    r = B.shape[1]
+    aug[:, :] = 0.0
+    for i in range(d):
+        for j in range(d):
+            aug[i, j] = A[i, j] * dt
+        for j in range(r):
+            aug[i, d + j] = B[i, j] * dt
+    expm(aug, E)
+
+
+def discretize(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(F_d, Γ) of :func:`zoh` as new arrays, for offline callers: F_d = e^{A dt},
+    Γ = ∫₀^dt e^{As} ds B.  A 1-D ``B`` (a drift f) gives a 1-D Γ (the step Δx)."""
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    Bm = np.ascontiguousarray(B.reshape(B.shape[0], -1))
+    d, r = Bm.shape
+    aug = np.empty((d + r, d + r))
+    E = np.empty((d + r, d + r))
+    zoh(A, Bm, float(dt), aug, E)
+    Gam = E[:d, d:].copy()
+    return E[:d, :d].copy(), (Gam[:, 0] if B.ndim == 1 else Gam)
+
+
+@njit
 def cholesky(S, L) -> int:
     """Lower Cholesky factor L of S (only S's lower triangle is read; L's upper triangle is
     zeroed).  Returns 0, or (like LAPACK dpotrf) the 1-based order of the leading minor that
@@ -272,6 +309,7 @@ def _warm() -> None:
     out = np.empty((3, 3))
     for scale in (1e-3, 0.1, 0.5, 1.5, 4.0, 20.0):
         expm(A * scale, out)
+    discretize(A, np.ones((3, 1)), 0.01)
     L = np.zeros((3, 3))
     cholesky(A, L)
     cho_solve(L, np.ones((3, 2)))

@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.linalg import expm
 
 from sea_daemon.core.config import ModelConfig, SEAParams
 from sea_daemon.core.effects import Delay, EncoderOffset, Inertia, SpringBacklash, TorqueScale
@@ -218,19 +217,3 @@ class SEAModel:
     def correct_measurement(self, q_meas: np.ndarray, th_m_meas: np.ndarray):
         """Remove declared encoder offsets: the encoders read angle + δ (docs/interfaces.md §2)."""
         return q_meas - self.offset_load, th_m_meas - self.offset_motor
-
-
-def discretize(A: np.ndarray, xdot: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Local-linearisation (exponential-Euler) step of ẋ = f(x, u) over dt with u held.
-
-    Returns (Δx, F_d) with Δx = dt·φ₁(A dt)·f(x,u) and F_d = e^{A dt}, from one matrix
-    exponential of [[A, f], [0, 0]]·dt.  For a linear plant ẋ = A x + B u this is the exact
-    zero-order-hold discretisation x⁺ = e^{A dt} x + ∫e^{As}ds B u, so the AKF reduces to
-    the textbook discrete KF step for step.
-    """
-    d = A.shape[0]
-    aug = np.zeros((d + 1, d + 1))
-    aug[:d, :d] = A * dt
-    aug[:d, d] = xdot * dt
-    E = expm(aug)
-    return E[:d, d], E[:d, :d]

@@ -29,7 +29,7 @@ def label(n_points: int) -> str:
 def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = True,
                     hyper_every: int | None = None):
     """A learning GP-AKF whose LoG-GP already holds ``n_points`` points near ``log``'s inputs."""
-    from sea_daemon.core.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators import make_estimator
     from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
     from sea_daemon.core.model import SEAModel
 
@@ -49,10 +49,10 @@ def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = 
     fill_s = time.perf_counter() - t0
     for g in gp.gps:
         g.hyperopt = cfg.learning.hyperopt
-    est = GPAKF(cfg, dt=dt, residual=gp, learning=True)
+    est = make_estimator("gp-akf", cfg, dt=dt, residual=gp, learning=True, bound=False)
     g0 = gp.gps[0]
     # leaves a prediction merges (LoG-GP overlaps), over the log's inputs
-    route = float(np.mean([len(g0._route(z.tolist(), False)) for z in Z[::10]]))
+    route = float(np.mean([len(g0.route(z)) for z in Z[::10]]))
     if verbose:
         print(f"{label(n_points):>12s}: pre-filled {g0.n_points} points per joint in {fill_s:.1f} s "
               f"({fill_s / max(n_points, 1) * 1e6:.0f} us/point): {g0.n_leaves} leaves, depth {g0.depth}, "

@@ -123,10 +123,10 @@ class _Run:
         self.gap, self.max_wait = gap, max_wait
         cfg = bench_config(**BUS)
         self.cfg = cfg
-        from sea_daemon.core.estimators.akf import AKF
+        from sea_daemon.core.estimators import make_estimator
         # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
         # process), and the drive watches the daemon's heartbeat from the rig's start on
-        self.est = _Estimator(AKF(cfg))
+        self.est = _Estimator(make_estimator("akf", cfg, bound=False))
         self.rig = Rig(cfg)
         self.probe = DriveProbe(self.rig, cycles)
         self.clock = VirtualClock()

@@ -21,18 +21,19 @@ import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
 from sea_daemon.io.configfile import default_config_path, load_config
-from sea_daemon.core.estimators import AKF, SpringTorqueEstimator
+from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.io.logcsv import read_log
-from sea_daemon.core.model import SEAModel, discretize
+from sea_daemon.core.linalg import discretize
+from sea_daemon.core.model import SEAModel
 
 NAME = "latency"
 HELP = "time per estimator step (median, p99, p99.9) on a simulated or given log"
 
 #: label -> builder(cfg, dt, log) -> Estimator
 CASES: dict[str, Callable] = {
-    "akf": lambda cfg, dt, log: AKF(cfg, dt=dt),
-    "spring": lambda cfg, dt, log: SpringTorqueEstimator(cfg, dt=dt),
+    "akf": lambda cfg, dt, log: make_estimator("akf", cfg, dt=dt, bound=False),
+    "spring": lambda cfg, dt, log: make_estimator("spring", cfg, dt=dt),
 }
 
 
@@ -67,7 +68,7 @@ def model_log(cfg, t, tau_m, tau_h, path: str = "<synthetic>") -> MeasuredLog:
         q[k] = np.floor((x[:n] + x[n:2 * n]) / res) * res
         th[k] = np.floor(x[:n] / res_m) * res_m
         x[4 * n:] = tau_h[k]
-        dx, _ = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), cfg.dt)
+        _, dx = discretize(m.F_nom(x, tau_m[k]), m.f_nom(x, tau_m[k]), cfg.dt)
         x = x + dx
     return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path=path)
 

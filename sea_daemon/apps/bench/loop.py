@@ -83,7 +83,7 @@ def run(args) -> int:
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.runtime.safety import SafetySupervisor
     from sea_daemon.runtime.service import FrameCounter, Rig, ScenarioController, make_rig, serve
-    from sea_daemon.core.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.apps.bench.can_cycle import _server
 
@@ -110,9 +110,8 @@ def run(args) -> int:
             return 1
         residual, _ = load_gp_model(tmp / "model.npz", cfg)
         if args.estimator == "gp-akf":
-            estimator = GPAKF(cfg, dt=dt, residual=residual, learning=False)
+            estimator = make_estimator("gp-akf", cfg, dt=dt, residual=residual, learning=False, bound=False)
         else:
-            from sea_daemon.core.estimators import make_estimator
             estimator = make_estimator("akf", cfg, dt=dt)
         if args.bus == "virtual":
             rig = make_rig(cfg, device_model=scen, phase="estimation", count_frames=True)

@@ -73,14 +73,14 @@ def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
 
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
          out_dir: Path, samples: int = 20, progress=None) -> dict:
-    from sea_daemon.core.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators import make_estimator
     cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
     cfg = dataclasses.replace(cfg, rate_hz=float(rate))
     if max_leaves:
         cfg = dataclasses.replace(cfg, learning=dataclasses.replace(cfg.learning, max_leaves=int(max_leaves)))
     rss = {"start": vm_rss_kb()}
     rig = Rig(cfg)
-    est = GPAKF(cfg)
+    est = make_estimator("gp-akf", cfg, bound=False)
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
     sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
     stride = max(1, cycles // max(1, samples))

@@ -52,14 +52,14 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     import dataclasses
 
-    from sea_daemon.core.bounds.akf_bound import conformal_gp_constants
+    from sea_daemon.core.bounds.calibration import conformal_gp_constants
     from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.core.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators import make_estimator
 
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
-    est = GPAKF(cfg, dt=log.dt, residual=residual, learning=False)
+    est = make_estimator("gp-akf", cfg, dt=log.dt, residual=residual, learning=False, bound=False)
     delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split
     out = {"log": str(args.log), "model": str(args.model), "config": str(args.config), "target": args.target,
            "delta": cfg.estimator.delta}
@@ -86,7 +86,7 @@ def run(args) -> int:
                                     for q in ("50", "90", "99")})
     if isinstance(cfg.estimator.gp_beta, float):
         # a held-out check of the configured β: the fraction of steps its ρ_k covers
-        from sea_daemon.core.bounds.akf_bound import torque_coverage
+        from sea_daemon.core.bounds.torque_beta import torque_coverage
         cov, steps = torque_coverage(est, log, cfg.estimator.gp_beta, log.tau_h_act)
         out["configured"] = {"beta": cfg.estimator.gp_beta, "coverage": cov, "steps": steps}
     if args.write:
@@ -102,10 +102,10 @@ def run(args) -> int:
 
 
 def _torque_beta(est, log, delta: float, path) -> dict:
-    """:func:`~sea_daemon.core.bounds.akf_bound.torque_calibrated_beta` with a progress bar on stderr."""
+    """:func:`~sea_daemon.core.bounds.torque_beta.torque_calibrated_beta` with a progress bar on stderr."""
     from tqdm import tqdm
 
-    from sea_daemon.core.bounds.akf_bound import torque_calibrated_beta
+    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
 
     with tqdm(desc="calibrate-bound (torque): replays", unit="beta", file=sys.stderr, leave=False) as bar:
         def progress(b, c):

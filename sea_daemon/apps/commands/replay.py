@@ -5,8 +5,6 @@ summary on stdout (``rmse`` when the log has ``tau_h_act``).
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import sys
 import time
@@ -27,8 +25,6 @@ DESCRIPTION = (
     "--config; spring: the spring torque tau_s; gp-akf: the AKF with the residual learned online "
     "from --train (paper Alg. 2). An 'oracle' AKF is akf with the true plant's config as --config.")
 
-#: module that provides the GP-AKF: ``build(cfg, train_log, dt) -> Estimator`` (learning issue)
-GP_AKF_MODULE = "sea_daemon.core.estimators.gpakf"
 CHOICES = ("gp-akf", "akf", "spring")
 
 
@@ -41,20 +37,6 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="EST.csv", required=True, help="where to write the estimates")
 
 
-def build_estimator(name: str, cfg, dt: float, train_log=None):
-    """The estimator ``name`` for ``cfg``; gp-akf comes from :data:`GP_AKF_MODULE`."""
-    if name == "gp-akf":
-        if importlib.util.find_spec(GP_AKF_MODULE) is None:
-            raise InputError("--estimator gp-akf: not available yet (the online-learning part has not "
-                             "landed); use --estimator akf or spring")
-        est = importlib.import_module(GP_AKF_MODULE).build(cfg, train_log, dt)
-        # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (GP error constants from the trained LoG-GPs)
-        from sea_daemon.core.bounds.akf_bound import attach_default_bound
-        attach_default_bound(est)
-        return est
-    return make_estimator(name, cfg, dt=dt)
-
-
 def run(args) -> int:
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
@@ -62,7 +44,11 @@ def run(args) -> int:
     if train is not None and args.estimator != "gp-akf":
         print(f"sea-daemon replay: note: --train is used only by gp-akf; ignored for {args.estimator}",
               file=sys.stderr)
-    est = build_estimator(args.estimator, cfg, log.dt, train)
+    if args.estimator == "gp-akf" and train is None:
+        raise InputError("--estimator gp-akf needs --train TRAIN.csv (a log with a passive subject "
+                         "to learn the residual from)")
+    # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (gp-akf: GP error constants from the trained LoG-GPs)
+    est = make_estimator(args.estimator, cfg, dt=log.dt, train=train if args.estimator == "gp-akf" else None)
     res = replay(log, est, clock=time.perf_counter)
     res.estimator = args.estimator
     try:

@@ -38,16 +38,14 @@ def run(args) -> int:
     from sea_daemon.runtime.loop import ZeroTorque
     from sea_daemon.runtime.notify import Notifier
     from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
-    from sea_daemon.core.estimators.gpakf import GPAKF
+    from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
 
     cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
     residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
-    estimator = GPAKF(cfg, dt=cfg.dt, residual=residual, learning=False)
     # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
     # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
-    from sea_daemon.core.bounds.akf_bound import attach_default_bound
-    attach_default_bound(estimator)
+    estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
     if scen:

@@ -13,7 +13,7 @@ from sea_daemon.core.replay import replay
 def akf_estimates(log: MeasuredLog, cfg: ModelConfig) -> np.ndarray:
     """τ̂_h,act (N, n) of the AKF (Alg. 1) run over the log with model ``cfg``."""
     # only the estimate is used: no Theorem-1 bound (it costs time with declared effects)
-    return replay(log, make_estimator("akf", cfg, dt=log.dt, theorem_bound=False)).tau_h_act_hat
+    return replay(log, make_estimator("akf", cfg, dt=log.dt, bound=False)).tau_h_act_hat
 
 
 def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after: ModelConfig | None) -> dict:

@@ -10,8 +10,8 @@
 Derivations: docs/bounds.md.
 """
 from sea_daemon.core.bounds.ellipsoid import (
-    Ellipsoid, box_shape, interval_ellipsoid, minkowski_half_width, minkowski_shape, minkowski_sum,
+    Ellipsoid, box_shape, chi2_quantile, interval_ellipsoid, minkowski_half_width, minkowski_shape, minkowski_sum,
     segments_shapes, sqrtm_psd)
 
-__all__ = ["Ellipsoid", "box_shape", "interval_ellipsoid", "minkowski_half_width", "minkowski_shape",
+__all__ = ["Ellipsoid", "box_shape", "chi2_quantile", "interval_ellipsoid", "minkowski_half_width", "minkowski_shape",
            "minkowski_sum", "segments_shapes", "sqrtm_psd"]

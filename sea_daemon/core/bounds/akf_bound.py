@@ -1,10 +1,13 @@
-"""Theorem-1 bound attached to a running (GP-)AKF: ``tau_h_act_bound`` becomes ρ_k.
+"""Theorem-1 bound of a (GP-)AKF: its ``tau_h_act_bound`` becomes ρ_k.
 
-:func:`attach_theorem_bound` wraps an :class:`~sea_daemon.core.estimators.akf.AKF` instance (plain
-AKF or GP-AKF: an AKF with a residual) without changing its class: after every filter step
-it propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps
-per step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
-``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.
+:class:`AKFTheoremBound` is the bound component (:class:`~sea_daemon.core.estimators.base.Bound`)
+of one :class:`~sea_daemon.core.estimators.akf.AKF` (plain AKF or GP-AKF: an AKF with a
+residual), given at its construction (``AKF(cfg, bound=theorem_bound)``; :func:`theorem_bound`
+is the default the estimator factory uses).  The AKF calls it after every filter step: it
+propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps per
+step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
+``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.  The calibration of
+its GP constants is :mod:`sea_daemon.core.bounds.calibration`.
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 * C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
@@ -31,7 +34,8 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
 With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
-constants (:func:`gp_constants`); ρ then holds with probability ≥ 1 − δ.
+constants (:func:`~sea_daemon.core.bounds.calibration.gp_constants`); ρ then holds with
+probability ≥ 1 − δ.
 States whose z leaves the GP constants' input box have no GP guarantee: such steps are
 counted in ``bound.gp_box_violations_`` (and ρ is still published).
 """
@@ -41,14 +45,14 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warm_up, warmer
+from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.core.estimators.akf_core import held_input
-from sea_daemon.core.bounds.ellipsoid import Ellipsoid
-from sea_daemon.core.bounds.gp_bound import (
-    BoundConstants, LocalScale, conformal_constants, error_bound, fixed_constants, input_box, loggp_leaves)
+from sea_daemon.core.linalg import discretize, zoh
+from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
+from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
+from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    SetMembershipBound, _unit_directions as _directions, chi2_quantile, ellipsoid_points, input_matrix)
+    SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 
 
 @njit
@@ -70,11 +74,10 @@ def _gravity_remainder(qh, r, g, grid, grid_step, v):
 def _warm() -> None:
     """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
     _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
-    held_input(np.zeros((5, 5)), np.zeros((5, 1)), 0.01, np.zeros((5, 1)))
 
 
 class AKFTheoremBound:
-    """The Theorem-1 companion of one AKF instance (see module docstring)."""
+    """The Theorem-1 bound component of one AKF instance (see module docstring)."""
 
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
@@ -100,7 +103,9 @@ class AKFTheoremBound:
         self.tau_h_act_rate = float(tau_h_act_rate)
         self._E_tau = np.zeros((d, n))
         self._E_tau[4 * n:, :] = np.eye(n)
-        self._Gam_tau = np.zeros((d, n))                 # Γ_τ of the step
+        self._aug_tau = np.zeros((d + n, d + n))         # zoh work matrix
+        self._Ezoh_tau = np.zeros((d + n, d + n))        # e^{[[A, E_τ], [0, 0]] dt}
+        self._Gam_tau = self._Ezoh_tau[:d, d:]           # Γ_τ of the step (a view)
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
@@ -110,7 +115,7 @@ class AKFTheoremBound:
             delta_gp = 0.5 * delta if has_gp else 0.0
         if has_gp and gp_constants is None:
             raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
-                             "see sea_daemon.core.bounds.akf_bound.gp_constants)")
+                             "see sea_daemon.core.bounds.calibration.gp_constants)")
         self._auto = has_gp and isinstance(gp_constants, str)
         self.refresh_every = 200          # 'auto': recompute after this many new training points
         self._learned_at = 0
@@ -140,13 +145,10 @@ class AKFTheoremBound:
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
         self._Uz = _directions(2 * n, n_dirs, seed)
-        self._step = akf.step
-        self._reset = akf.reset
         self.gp_box_violations_ = 0
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
-        warm_up()                                # compiled kernels ready before the first step
 
     # ------------------------------------------------------------------ hooks
 
@@ -175,16 +177,16 @@ class AKFTheoremBound:
             return int(n)
         return int(sum(g.n_points for g in residual_gps(self.akf) or []))
 
-    def reset(self, *args, **kwargs):
-        est = self._reset(*args, **kwargs)
+    def reset(self, est) -> None:
+        """After the AKF's reset: the set of means back to a point, ρ_0 (GP constants of the GP
+        as trained when estimation starts, with 'auto')."""
         if self._auto:
             # 'auto': the constants of the GP as trained when estimation starts
             self.refresh_gp_constants()
         self.sm.reset()
         self.gp_box_violations_ = 0
-        if getattr(self.akf, "_ready", True):
+        if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
-        return est
 
     # ------------------------------------------------------------------ linearisation error
 
@@ -290,15 +292,13 @@ class AKFTheoremBound:
             Phi = np.zeros((akf.d, akf.d))
             Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
             return Phi
-        return input_matrix(A, self._I, dt)
+        return discretize(A, self._I, dt)[1]
 
-    def step(self, y, u, dt):
+    def step(self, est, x0, P0, u, dt) -> None:
+        """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
+        propagate the set of means and publish ρ_k."""
         akf = self.akf
-        x0 = akf.x.copy()
-        P0 = akf.P.copy()
-        zhat = akf.z.copy()                       # ẑ_{k−1}, where the AKF evaluates the GP
-        u = np.array(u, dtype=float)
-        est = self._step(y, u, dt)
+        zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
@@ -338,7 +338,7 @@ class AKFTheoremBound:
         if self.tau_h_act_rate > 0:
             # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
             # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
-            held_input(akf.A_k, self._E_tau, float(dt), self._Gam_tau)
+            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
             n = akf.n
             if eta is None:
                 Gam, eta = self._Gam_tau, self._rate
@@ -356,197 +356,16 @@ class AKFTheoremBound:
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
-        return est
 
 
-def attach_theorem_bound(akf, **kwargs) -> AKFTheoremBound:
-    """Make ``akf.update``/``akf.step``/``akf.reset`` publish the Theorem-1 ρ_k as
-    ``tau_h_act_bound`` (instance attributes shadow the class methods; the AKF code is
-    unchanged).  Returns the :class:`AKFTheoremBound` (also at ``akf.theorem_bound``)."""
-    tb = AKFTheoremBound(akf, **kwargs)
-    akf.step = tb.step
-    akf.reset = tb.reset
-    akf.theorem_bound = tb
-    return akf.theorem_bound
-
-
-def residual_gps(akf) -> list | None:
-    """The per-joint LoG-GPs behind an AKF's residual: a ResidualGP (``.gps``), a hook over
-    one (``.gp.gps``, the GP-AKF's), or the estimator's own ``.gp``; None if unknown."""
-    for obj in (akf.residual, getattr(akf.residual, "gp", None), getattr(akf, "gp", None)):
-        if obj is not None and hasattr(obj, "gps"):
-            return list(obj.gps)
-    return None
-
-
-def attach_default_bound(akf) -> AKFTheoremBound | None:
-    """What :func:`sea_daemon.core.estimators.make_estimator` (and ``replay --estimator gp-akf``)
-    attach: the Theorem-1 bound for a plain AKF, and for a GP-AKF whose residual is backed by
-    LoG-GPs (constants computed at every reset, and refreshed while it keeps learning).  An
-    unknown residual type has no GP error constants, so the AKF keeps its own bound and
-    None is returned."""
-    if getattr(akf, "theorem_bound", None) is not None:
-        return akf.theorem_bound
+def theorem_bound(akf) -> AKFTheoremBound | None:
+    """The default bound component (``AKF(cfg, bound=theorem_bound)``, what
+    :func:`~sea_daemon.core.estimators.factory.make_estimator` gives): the Theorem-1 bound for a
+    plain AKF, and for a GP-AKF whose residual is backed by LoG-GPs (constants computed at
+    every reset, and refreshed while it keeps learning).  An unknown residual type has no GP
+    error constants: None, and the AKF keeps its own bound."""
     if akf.residual is None:
-        return attach_theorem_bound(akf)
+        return AKFTheoremBound(akf)
     if residual_gps(akf) is not None:
-        return attach_theorem_bound(akf, gp_constants="auto")
+        return AKFTheoremBound(akf, gp_constants="auto")
     return None
-
-
-def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
-                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
-                 beta: str | float = "lederer"):
-    """GP error constants per joint for a :class:`sea_daemon.core.learning.ResidualGP` (one LoG-GP per
-    joint) or a list of LoG-GPs.
-
-    δ_GP is split over the n joints' GPs (union bound); within each, a share
-    ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
-    union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
-    constants stay valid while the tree grows).  The input box is the box of all training
-    points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
-    number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
-    Returns (constants list, (lo, hi)).
-    """
-    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
-    n = len(gps)
-    per_joint = delta_gp / n
-    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
-                   if gp.leaf(node).n_ > 0])
-    lo, hi = input_box(Z, box_margin)
-    if beta != "lederer":
-        return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
-    consts = []
-    for gp in gps:
-        leaves = loggp_leaves(gp)
-        L = n_leaves if n_leaves is not None else max(len(leaves), int(getattr(gp, "max_leaves", 0) or 0))
-        kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
-        consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
-    return consts, (lo, hi)
-
-
-def conformal_scores(est, log) -> np.ndarray:
-    """Calibration scores |y − μ(z)| / s(z) of a frozen GP-AKF on a held-out log (s =
-    :class:`~sea_daemon.core.bounds.gp_bound.LocalScale`, fixed by the training data).
-
-    ``est`` is a :class:`~sea_daemon.core.estimators.gpakf.GPAKF` whose GP will not learn the
-    pairs (learning is switched off here and restored); ``log`` a passive-subject log it
-    never learned from (ass:passive_human: the training pair of each sample is (z, f(z) + noise),
-    eq:loadsidewmotor, built by the GP-AKF's own causal kinematics).  μ and σ are evaluated
-    at the unclipped z, as in the bound.  Returns (pairs, n).
-    """
-    gps = residual_gps(est)
-    if gps is None:
-        raise ValueError("conformal_scores needs a GP-AKF backed by LoG-GPs")
-    scales = [LocalScale(g) for g in gps]
-    learning, est.learning = est.learning, False
-    out = []
-    try:
-        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-        for k in range(1, len(log)):
-            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-            if est._since_reset < est.kin.L:
-                continue
-            z, y = est._training_pair(log.tau_m[k])
-            row = np.empty(len(gps))
-            for j, g in enumerate(gps):
-                mu, var = g.predict(z)
-                row[j] = abs(y[j] - mu) / scales[j](z, var)
-            out.append(row)
-    finally:
-        est.learning = learning
-    return np.array(out)
-
-
-def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
-    """Split-conformal GP constants per joint from a held-out log (:func:`conformal_scores`);
-    δ_GP is split over the joints.  Returns (constants, (lo, hi) the training box, scores)."""
-    gps = residual_gps(est)
-    scores = conformal_scores(est, log)
-    per_joint = delta_gp / len(gps)
-    consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
-    _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
-    return consts, box, scores
-
-
-def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> tuple[float, int]:
-    """Fraction of the steps of ``log`` where the Theorem-1 ρ_k with η = β s(z) (local scale,
-    :func:`~sea_daemon.core.bounds.gp_bound.fixed_constants`) covers the τ̂_h,act error of the frozen
-    GP-AKF ``est``; ``truth`` τ_h,act per sample (default 0: a passive subject,
-    ass:passive_human).  No human-torque rate: the subject is passive.  ``est`` must not have a
-    bound attached; it is left as it was (learning restored, no bound).  Returns (coverage, steps)."""
-    if getattr(est, "theorem_bound", None) is not None:
-        raise ValueError("torque_coverage needs a GP-AKF without an attached bound")
-    gps = residual_gps(est)
-    if gps is None:
-        raise ValueError("torque_coverage needs a GP-AKF backed by LoG-GPs")
-    n = len(gps)
-    truth = np.zeros((len(log), n)) if truth is None else np.asarray(truth, dtype=float).reshape(len(log), n)
-    _, box = gp_constants(gps, 0.5 * est.delta, beta=1.0)
-    consts = [fixed_constants(float(beta), 0.5 * est.delta / n) for _ in range(n)]
-    learning, est.learning = est.learning, False
-    attach_theorem_bound(est, gp_constants=consts, gp_box=box, tau_h_act_rate=0.0)
-    covered = steps = 0
-    try:
-        e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-        for k in range(1, len(log)):
-            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-            # eq:bounds, per step and joint: |τ̂_h,act − τ_h,act| ≤ ρ_k
-            covered += int(np.all(np.abs(e.tau_h_act_hat - truth[k]) <= e.tau_h_act_bound))
-            steps += 1
-    finally:
-        est.learning = learning
-        for name in ("step", "reset", "theorem_bound"):      # detach: the class methods again
-            est.__dict__.pop(name, None)
-    return covered / max(steps, 1), steps
-
-
-def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.ndarray | None = None,
-                           iters: int = 8, progress=None) -> dict:
-    """The smallest β (η = β s(z), the configured-β form of ``estimator.gp_beta``) whose
-    Theorem-1 ρ_k covers the τ̂_h,act error of the frozen GP-AKF ``est`` on a held-out log in at
-    least ⌈(m + 1)(1 − δ)⌉ of its m steps (split conformal on the torque error itself, the
-    statement of eq:bounds; docs/bounds.md §2c).  ``log`` is a session the GP never learned,
-    with a passive subject (τ_h,act = 0) unless ``truth`` is given.
-
-    Coverage grows with β.  The search runs β = 1, then the end of the range [2⁻¹², 2¹²] on
-    the side the target lies (returning it if β = 2⁻¹² already covers: the filter's own part
-    does; failing if 2¹² does not), then bisects ``iters`` times in log β (12 octaves / 2⁸:
-    3 % resolution) and returns the upper end.  ``progress(beta, coverage)`` is called after
-    each replay.  Returns a dict with ``beta``, ``coverage`` (at beta), ``steps``, ``target``
-    and ``runs`` [(β, coverage)].
-    """
-    delta = est.delta if delta is None else float(delta)
-    if not 0 < delta < 1:
-        raise ValueError(f"delta must be in (0, 1), got {delta}")
-    runs: list[tuple[float, float]] = []
-
-    def cov(b):
-        c, m = torque_coverage(est, log, b, truth)
-        runs.append((b, c))
-        if progress is not None:
-            progress(b, c)
-        return c, m
-
-    b_min, b_max = 2.0 ** -12, 2.0 ** 12
-    c1, m = cov(1.0)
-    target = min(1.0, math.ceil((m + 1) * (1.0 - delta)) / m)
-    if c1 >= target:
-        lo, (hi, c_hi) = b_min, (1.0, c1)
-        c, _ = cov(b_min)
-        if c >= target:
-            return {"beta": b_min, "coverage": c, "steps": m, "target": target, "runs": runs}
-    else:
-        lo, hi = 1.0, b_max
-        c_hi, _ = cov(b_max)
-        if c_hi < target:
-            raise ValueError(f"the bound covers only {max(c for _, c in runs):.3f} of {m} steps even with "
-                             f"beta = {b_max:g}; the target is {target:.3f} (1 - delta = {1 - delta:g})")
-    for _ in range(int(iters)):
-        b = math.sqrt(lo * hi)
-        c, _ = cov(b)
-        if c >= target:
-            hi, c_hi = b, c
-        else:
-            lo = b
-    return {"beta": hi, "coverage": c_hi, "steps": m, "target": target, "runs": runs}

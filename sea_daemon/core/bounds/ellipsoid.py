@@ -18,6 +18,9 @@ Operations
 * interval → ellipsoid  lem:interval_bound, eq:GPboundsellipse: the box Π[−η_i, η_i] is the
   Minkowski sum of the n segments E(0, η_i² e_i e_iᵀ); its trace-minimal outer ellipsoid is
   E(0, (Σ_j η_j) diag(η_i)), which passes through every corner of the box.
+* Gaussian confidence ellipsoid  Pr(ξ ∈ E(ξ̄, s C)) = p for ξ ~ N(ξ̄, C) of dimension m with
+  s = χ²_m(p) (eq:gaussianellipsoid): :func:`chi2_quantile`, the χ² quantile of the
+  estimators' and the bounds' confidence sets and of the NIS band.
 
 Why the family contains the sum: for every direction e, Cauchy–Schwarz gives
 Σ_i sqrt(eᵀX_i e) = Σ_i sqrt(p_i)·sqrt(eᵀX_i e / p_i) ≤ sqrt(Σ p_i)·sqrt(Σ_i eᵀX_i e / p_i),
@@ -29,8 +32,16 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
+from scipy.special import gammaincinv
 
 _EIG_TOL = 1e-12
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """χ²_dof quantile at probability p: s with Pr(ξ ∈ E(ξ̄, s C)) = p for a Gaussian ξ of
+    dimension dof (eq:gaussianellipsoid)."""
+    # 2·P⁻¹(dof/2, p), P⁻¹ the inverse regularised lower incomplete gamma function
+    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 def _sym(X: np.ndarray) -> np.ndarray:

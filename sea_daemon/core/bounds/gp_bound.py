@@ -52,17 +52,11 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from sea_daemon.core.gp.exact import se_kernel
+
 # sup over r of ‖∇_x k^∂i(x, x')‖ / σ_f² for the unit-length-scale SE kernel (docs/bounds.md)
 C_STAR = math.sqrt(6.0) * math.sqrt(3.0 - math.sqrt(6.0)) * math.exp(-(3.0 - math.sqrt(6.0)) / 2.0)
 TAU_GRID = np.geomspace(1e-12, 1e-1, 23)
-
-
-def se_kernel(X1: np.ndarray, X2: np.ndarray, sigma_f: float, lengthscales: np.ndarray) -> np.ndarray:
-    """SE kernel matrix k(x, x') = σ_f² exp(−Σ (x_i − x'_i)²/(2 l_i²))   (eq:SE)."""
-    A = np.atleast_2d(X1) / lengthscales
-    B = np.atleast_2d(X2) / lengthscales
-    d2 = np.sum(A ** 2, 1)[:, None] + np.sum(B ** 2, 1)[None, :] - 2 * A @ B.T
-    return sigma_f ** 2 * np.exp(-0.5 * np.clip(d2, 0.0, None))
 
 
 def se_lipschitz(sigma_f: float, lengthscales: np.ndarray | None = None) -> float:
@@ -136,7 +130,7 @@ class LeafGP:
     def from_data(cls, X: np.ndarray, y: np.ndarray, sigma_f: float, lengthscales, sigma_n: float) -> "LeafGP":
         """Exact GP posterior pieces (eq:GPmean) for a data set — for tests and small leaves."""
         ls = np.asarray(lengthscales, dtype=float)
-        K = se_kernel(X, X, sigma_f, ls) + sigma_n ** 2 * np.eye(len(X))
+        K = se_kernel(X, X, ls, sigma_f) + sigma_n ** 2 * np.eye(len(X))
         w = np.linalg.eigvalsh(K)
         return cls(np.linalg.solve(K, np.asarray(y, float)), sigma_f, ls, sigma_n, float(1.0 / w.min()))
 
@@ -201,8 +195,7 @@ class LocalScale:
 
     def local(self, z) -> float:
         """s_loc(z) (leaf routing of the LoG-GP's merged prediction)."""
-        _, xl = self.gp._check_x(z)
-        return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp._route(xl, False)))
+        return float(sum(w * self.r_.get(node, 0.0) for node, w, _ in self.gp.route(z)))
 
     def predict_many(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(μ̃, σ̃², s) at every row of ``Z`` (m, input_dim), one routing per row: the LoG-GP's

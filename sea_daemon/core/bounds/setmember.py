@@ -51,30 +51,11 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.linalg import expm
-from scipy.special import gammaincinv, ndtri
+from scipy.special import ndtri
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.bounds.ellipsoid import Ellipsoid, minkowski_shape, segments_shapes
-
-
-def input_matrix(A: np.ndarray, B: np.ndarray, dt: float) -> np.ndarray:
-    """Γ = ∫₀^dt e^{As} ds · B: a constant input over one step → its effect on x_{k+1}.
-
-    With B = I_μ M⁻¹ this is the discretised I_μ M⁻¹ that maps the GP error (N m) of
-    eq:unknown into the state (eq:Dmuhat); with B = I it is Φ for the continuous-time
-    linearisation error.  One expm of [[A, B], [0, 0]]·dt (Van Loan).
-    """
-    d, m = A.shape[0], B.shape[1]
-    aug = np.zeros((d + m, d + m))
-    aug[:d, :d] = A * dt
-    aug[:d, d:] = B * dt
-    return expm(aug)[:d, d:]
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """χ²_dof quantile at probability p (scipy.special, no scipy.stats import at start-up)."""
-    return float(2.0 * gammaincinv(0.5 * dof, p))
+from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile, minkowski_shape, segments_shapes
+from sea_daemon.core.bounds.zonotope import predict_generators, zonotope_shape
 
 
 def shifted_gaussian_halfwidth(h: np.ndarray, sigma: np.ndarray, delta: float, iters: int = 8) -> np.ndarray:
@@ -135,8 +116,6 @@ def _warm() -> None:
     sm.predict(np.eye(2), Gamma=np.ones((2, 1)), eta=np.ones(1), lin_err_box=np.ones(2))
     ellipsoid_points(Ellipsoid(np.zeros(2), np.eye(2)), np.ones((1, 2)) / np.sqrt(2.0))
     sm.rho(np.eye(2))
-    zonotope_shape(np.ones((2, 3)), np.eye(2))
-    zonotope_shape(np.ones((2, 3)))
 
 
 def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
@@ -367,7 +346,7 @@ class SetMembershipBound:
         """X⁻_{k+1} = F X̂_k Fᵀ ⊕ Γ·box(η) ⊕ Φ·box(b)    (eq:predwLinErrsetandGPerrset).
 
         F      discrete linearisation F_d (A_k of the theorem)
-        Gamma  d×n map of the GP error (N m) into the state (input_matrix(A, I_μ M⁻¹, dt))
+        Gamma  d×n map of the GP error (N m) into the state (Γ of linalg.discretize(A, I_μ M⁻¹, dt))
         eta    (n,) GP error half-widths √β σ_i + γ (lem:interval_bound)
         lin_err_box (m,) linearisation-error half-widths b, mapped by Phi (default I)
         """
@@ -387,7 +366,7 @@ class SetMembershipBound:
                 bb = np.asarray(lin_err_box, dtype=float)
             else:
                 Ph, bb = np.zeros((d, 0)), np.zeros(0)
-            self.Gprior_ = _predict_generators(np.ascontiguousarray(F), np.ascontiguousarray(self.G_, dtype=float),
+            self.Gprior_ = predict_generators(np.ascontiguousarray(F), np.ascontiguousarray(self.G_, dtype=float),
                                                Gam, et, Ph, bb, self.max_generators)
             return self.Gprior_
         shapes = [F @ self._X @ F.T]
@@ -433,148 +412,6 @@ class SetMembershipBound:
         self.predict(F, Gamma=Gamma, eta=eta, lin_err_box=lin_err_box, Phi=Phi)
         self.update(K, H)
         return self.rho(P_post)
-
-
-def zonotope_shape(G: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
-    """Trace-minimal outer ellipsoid shape of the zonotope ⊕_i G[:, i]·[−1, 1] (⊕ E(0, extra)).
-
-    The segments' shapes are g gᵀ with t_i = ‖g_i‖ (ellipsoid.minkowski_shape), so
-    X* = (Σ_j t_j) Σ_i g_i g_iᵀ / t_i (+ (Σ t_j) extra / t_extra) — without building the list.
-    """
-    G = np.ascontiguousarray(G, dtype=float)
-    if extra is None:
-        return _zonotope_shape(G, np.zeros((G.shape[0], G.shape[0])), False)
-    return _zonotope_shape(G, np.ascontiguousarray(extra, dtype=float), True)
-
-
-@njit
-def _zonotope_shape(G, extra, has_extra):
-    """:func:`zonotope_shape` (compiled; ``extra`` ignored unless ``has_extra``)."""
-    d, k = G.shape
-    t = np.empty(k)
-    T = 0.0
-    for j in range(k):
-        s = 0.0
-        for i in range(d):
-            s += G[i, j] * G[i, j]
-        t[j] = math.sqrt(s)
-        if t[j] > 1e-300:
-            T += t[j]
-    te = 0.0
-    if has_extra:
-        tr = 0.0
-        for i in range(d):
-            tr += extra[i, i]
-        te = math.sqrt(max(tr, 0.0))
-    T += te
-    X = np.zeros((d, d))
-    if T <= 1e-300:
-        return X
-    for j in range(k):
-        if t[j] > 1e-300:
-            f = T / t[j]
-            for a in range(d):
-                ga = f * G[a, j]
-                for b in range(d):
-                    X[a, b] += ga * G[b, j]
-    if te > 1e-300:
-        f = T / te
-        for a in range(d):
-            for b in range(d):
-                X[a, b] += f * extra[a, b]
-    # symmetric part (rounding)
-    for a in range(d):
-        for b in range(a + 1, d):
-            m = 0.5 * (X[a, b] + X[b, a])
-            X[a, b] = m
-            X[b, a] = m
-    return X
-
-
-def reduce_generators(G: np.ndarray, m: int) -> np.ndarray:
-    """Zonotope order reduction (Girard 2005): keep the m − d generators with the largest
-    ‖g‖₁ − ‖g‖∞ and replace the others by their interval hull diag(Σ|g_i|) (d axis-aligned
-    generators; an outer approximation, exact when the removed ones are axis-aligned).
-
-    The hull is re-boxed at later reductions; under a strongly contracting filter map
-    (I − K H) F this costs little (on the simulated paper scenarios ρ with 40 generators
-    equals the unreduced propagation to 4 digits), under slowly contracting rotations it can
-    grow (tests/test_setmember.py)."""
-    G = np.asarray(G, dtype=float)
-    if G.shape[1] <= m:
-        return G
-    return _reduce_generators(np.ascontiguousarray(G), int(m))
-
-
-@njit
-def _reduce_generators(G, m):
-    """:func:`reduce_generators` (compiled; G C-contiguous with more than m columns)."""
-    d, k = G.shape
-    score = np.empty(k)
-    for j in range(k):
-        s1 = 0.0
-        mx = 0.0
-        for i in range(d):
-            a = abs(G[i, j])
-            s1 += a
-            mx = max(mx, a)
-        score[j] = s1 - mx
-    order = np.argsort(score, kind="mergesort")
-    n_small = k - (m - d)
-    box = np.zeros(d)
-    for q in range(n_small):
-        j = order[q]
-        for i in range(d):
-            box[i] += abs(G[i, j])
-    n_box = 0
-    for i in range(d):
-        if box[i] > 0.0:
-            n_box += 1
-    out = np.zeros((d, (m - d) + n_box))
-    for q in range(m - d):
-        j = order[n_small + q]
-        for i in range(d):
-            out[i, q] = G[i, j]
-    c = m - d
-    for i in range(d):
-        if box[i] > 0.0:
-            out[i, c] = box[i]
-            c += 1
-    return out
-
-
-@njit
-def _predict_generators(F, G, Gamma, eta, Phi, b, m):
-    """Generators of F·Z ⊕ Γ·box(η) ⊕ Φ·box(b) without the zero ones, reduced to at most m
-    (:meth:`SetMembershipBound.predict`, zonotope mode)."""
-    d = F.shape[0]
-    out = np.empty((d, G.shape[1] + Gamma.shape[1] + Phi.shape[1]))
-    col = np.empty(d)
-    c = 0
-    for j in range(G.shape[1]):
-        nz = False
-        for i in range(d):
-            s = 0.0
-            for q in range(d):
-                s += F[i, q] * G[q, j]
-            col[i] = s
-            nz = nz or s != 0.0
-        if nz:
-            out[:, c] = col
-            c += 1
-    for j in range(Gamma.shape[1] + Phi.shape[1]):
-        nz = False
-        for i in range(d):
-            v = Gamma[i, j] * abs(eta[j]) if j < Gamma.shape[1] else \
-                Phi[i, j - Gamma.shape[1]] * abs(b[j - Gamma.shape[1]])
-            col[i] = v
-            nz = nz or v != 0.0
-        if nz:
-            out[:, c] = col
-            c += 1
-    if c <= m:
-        return out[:, :c].copy()
-    return _reduce_generators(out[:, :c].copy(), m)
 
 
 def discrete_residual(fd: Callable[[np.ndarray], np.ndarray], x_hat: np.ndarray, F_d: np.ndarray):

@@ -10,9 +10,10 @@ from the two encoders: θ_s = q − θ_m, velocities from the causal differentia
 Prediction (Alg. 1 lines 3-5; with a residual, Alg. 2 lines 4-10)
     ẋ = f_nom(x, u) − I_μ M⁻¹ μ(ẑ)                          eq:fwdynwtorqueresidual1
     A = F_nom(x̂, u) − I_μ M⁻¹ F_GP                           eq:linearization
-    discretised by local linearisation over the step (one matrix exponential, see
-    :func:`discretize_affine`): exact zero-order hold for a linear plant, so on a linear
-    plant this filter equals the textbook discrete KF step for step.
+    discretised by local linearisation over the step (one matrix exponential,
+    :func:`sea_daemon.core.linalg.zoh` of [[A, f, I_μ M⁻¹], [0, 0, 0]]·dt): exact zero-order
+    hold for a linear plant, so on a linear plant this filter equals the textbook discrete KF
+    step for step.
     Q_k = Σ_nom + Γ_μ diag(σ²) Γ_μᵀ                          eq:gpakf_covariance, eq:GPvarfwd
 Update (Alg. 1 lines 6-8), with the covariance in Joseph form (symmetrised).
 
@@ -34,6 +35,7 @@ step's own dt.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -42,28 +44,9 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.estimators import akf_core
-from sea_daemon.core.estimators.base import Estimate, Residual, chi2_scale
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.estimators.base import Bound, Estimate, Residual
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
-
-
-def discretize_affine(A: np.ndarray, xdot: np.ndarray, G: np.ndarray, dt: float, out=None):
-    """Local-linearisation step of ẋ = f(x,u) + G w over dt, with u and w held.
-
-    One matrix exponential of [[A, f, G], [0, 0, 0]]·dt gives
-        F_d = e^{A dt},  Δx = ∫₀^dt e^{As} ds · f,  Γ = ∫₀^dt e^{As} ds · G,
-    i.e. :func:`sea_daemon.core.model.discretize` plus the held-input block Γ (textbook ZOH,
-    e.g. Franklin, Powell & Workman, Digital Control, §4.3.3).  Returns (Δx, F_d, Γ);
-    ``out`` (work matrix of size (d+1+r)²) is reused when given.  The compiled
-    :func:`~sea_daemon.core.estimators.akf_core.discretize` the filter step uses.
-    """
-    A = np.ascontiguousarray(A, dtype=float)
-    G = np.ascontiguousarray(G, dtype=float)
-    d = A.shape[0]
-    r = G.shape[1]
-    aug = out if out is not None else np.zeros((d + 1 + r, d + 1 + r))
-    E = np.empty_like(aug)
-    akf_core.discretize(A, np.ascontiguousarray(xdot, dtype=float), G, float(dt), aug, E)
-    return E[:d, d], E[:d, :d], E[:d, d + 1:]
 
 
 class AKF:
@@ -72,17 +55,21 @@ class AKF:
     ``cfg``: model configuration (nominal model + declared effects, R, Σ_nom, P0, δ,
     kinematics).  ``dt``: nominal sample period (default ``1/cfg.rate_hz``).
     ``residual``: optional :class:`~sea_daemon.core.estimators.base.Residual` (learned f(z)).
+    ``bound``: optional ``bound(akf) -> Bound | None``, called once at the end of construction;
+    the :class:`~sea_daemon.core.estimators.base.Bound` it returns (:attr:`bound`) fills
+    ``tau_h_act_bound`` at the end of every reset and filter step (e.g.
+    :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k).
 
-    ``tau_h_act_bound`` is, until the Theorem-1 bounds are wired in, the KF's own
-    ellipsoidal bound sqrt(s·P_ττ) with s the χ² quantile for 5n degrees of freedom at
-    1 − δ (eq:gaussianellipsoid): the confidence set C_k of Theorem 1 with a point set of
-    means (X̂_k = 0), projected on each τ_h,act component.
+    Without a bound ``tau_h_act_bound`` is the KF's own ellipsoidal bound sqrt(s·P_ττ) with s
+    the χ² quantile for 5n degrees of freedom at 1 − δ (eq:gaussianellipsoid): the confidence
+    set C_k of Theorem 1 with a point set of means (X̂_k = 0), projected on each τ_h,act
+    component.
     """
 
     name = "akf"
 
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: Residual | None = None,
-                 model: SEAModel | None = None):
+                 model: SEAModel | None = None, bound: Callable[["AKF"], Bound | None] | None = None):
         self.cfg = cfg
         self.model = model if model is not None else SEAModel.from_config(cfg)
         n = self.n = self.model.n
@@ -107,7 +94,7 @@ class AKF:
         self._P_init = self.P0
         self.delta = est.delta
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
-        self.s = chi2_scale(self.delta, d)
+        self.s = chi2_quantile(1.0 - self.delta, d)
         self._sqrt_s = math.sqrt(self.s)
         self.H = np.hstack([np.eye(m), np.zeros((m, n))])
         self.residual = residual
@@ -182,6 +169,12 @@ class AKF:
         # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
         # the first loop cycle
         warm_up()
+        # the bound component and x̂_{k−1}, P_{k−1} kept for it before each step
+        self._x_prev = np.zeros(d)
+        self._P_prev = np.zeros((d, d))
+        self.bound: Bound | None = None
+        if bound is not None:
+            self.bound = bound(self)
 
     # ------------------------------------------------------------------ measurement
 
@@ -240,6 +233,8 @@ class AKF:
         if q is None or theta_m is None:
             self._ready = False
             self.est.k = 0
+            if self.bound is not None:
+                self.bound.reset(self.est)
             return self.est
         self.kin._primed = False
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
@@ -264,7 +259,10 @@ class AKF:
         self.u_applied[:] = tau_m
         self._ready = True
         self.est.k = 0
-        return self._fill_estimate()
+        e = self._fill_estimate()
+        if self.bound is not None:
+            self.bound.reset(e)
+        return e
 
     def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
         """One sample: predict over dt with τ_m of the previous sample, update with y_k."""
@@ -327,7 +325,7 @@ class AKF:
           Γ_u σ_u² Γ_uᵀ with Γ_u = ∫₀^dt e^{As} ds B (Franklin, Powell & Workman §4.3.3): one
           rank-n term that moves θ̇_m and θ̇_s in opposite directions (q̈ does not see τ_m).
           Γ_u from Van Loan's block exponential with A the last step's Jacobian ``A_k``
-          (:func:`akf_core.held_input`, one (5n+n)² expm).
+          (:func:`sea_daemon.core.linalg.zoh`, one (5n+n)² expm).
         """
         S = self.Sigma_nom
         if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
@@ -367,6 +365,9 @@ class AKF:
             self.A_k[:] = self.model.F_nom(x, u)
             # eq:nonlindyn
             self.xdot_k[:] = self.model.f_nom(x, u)
+        if self.bound is not None:
+            self._x_prev[:] = x
+            self._P_prev[:] = self.P
         use_gp = self.residual is not None
         dmu = self._dmu
         if use_gp:
@@ -397,7 +398,10 @@ class AKF:
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
-        return self._fill_estimate()
+        e = self._fill_estimate()
+        if self.bound is not None:
+            self.bound.step(e, self._x_prev, self._P_prev, u, dt)
+        return e
 
     def _fill_estimate(self) -> Estimate:
         e = self.est

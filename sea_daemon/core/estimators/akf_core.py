@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.linalg import cho_solve, cholesky, expm, matmul, matmul_t
+from sea_daemon.core.linalg import cho_solve, cholesky, matmul, matmul_t, zoh
 
 OK, PRIOR_NONFINITE, S_NOT_PD, POSTERIOR_NONFINITE = 0, 1, 2, 3
 
@@ -55,24 +55,6 @@ def nominal_affine(x, u, A_lin, B_lin, MinvG, A, xdot):
 
 
 @njit
-def discretize(A, xdot, G, dt, aug, E):
-    """E = e^{[[A, f, G], [0, 0, 0]] dt}, the local-linearisation step of ẋ = f(x,u) + G w
-    over dt with u and w held: F_d = E[:d, :d] = e^{A dt}, Δx = E[:d, d] = ∫₀^dt e^{As}ds f,
-    Γ = E[:d, d+1:] = ∫₀^dt e^{As}ds G (textbook ZOH, Franklin, Powell & Workman, Digital
-    Control, §4.3.3).  ``aug``: work matrix of size (d+1+r)²."""
-    d = A.shape[0]
-    r = G.shape[1]
-    aug[:, :] = 0.0
-    for i in range(d):
-        for j in range(d):
-            aug[i, j] = A[i, j] * dt
-        aug[i, d] = xdot[i] * dt
-        for j in range(r):
-            aug[i, d + 1 + j] = G[i, j] * dt
-    expm(aug, E)
-
-
-@njit
 def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, dt, y,
                 x, P, F, Gam, Q, x_prior, P_prior, S, K, innovation, aug, L, rhs, IKH, work):
     """One predict + update of the AKF in place; returns ``(status, nis)``.
@@ -80,7 +62,7 @@ def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, 
     In: A = F_nom, xdot = f_nom at (x̂_{k−1}, u_{k−1}) (overwritten with the GP-corrected
     values when ``use_gp``); μ, ∂μ/∂z, σ² of the GP at ẑ_{k−1}; ∂z/∂x; G_μ = I_μ M⁻¹;
     Σ_nom (this step's, 5n × 5n); R; dt; y (4n).  Out: x, P (posterior), F, Γ_μ, Q,
-    x̂⁻, P⁻, S, K, ν.  Work: aug ((d+1+n)²), L (m × m), rhs (m × (d+1)), IKH (d × d),
+    x̂⁻, P⁻, S, K, ν.  Work: aug ((d+1+n)², :func:`~sea_daemon.core.linalg.zoh`), L (m × m), rhs (m × (d+1)), IKH (d × d),
     work (d × d).
     """
     d = x.shape[0]
@@ -100,9 +82,15 @@ def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, 
                         for l in range(r):
                             s += dmu_dz[j, l] * dz_dx[l, k]
                         A[i, k] -= g * s
-    # time discretisation (Sec. IV-B): local linearisation over dt
+    # time discretisation (Sec. IV-B): local linearisation over dt with u and w held,
+    # E = e^{[[A, f, G_μ], [0, 0, 0]] dt}: F_d = E[:d, :d], Δx = E[:d, d], Γ_μ = E[:d, d+1:]
+    Bx = np.empty((d, 1 + n))
+    for i in range(d):
+        Bx[i, 0] = xdot[i]
+        for j in range(n):
+            Bx[i, 1 + j] = G_mu[i, j]
     E = np.empty_like(aug)
-    discretize(A, xdot, G_mu, dt, aug, E)
+    zoh(A, Bx, dt, aug, E)
     for i in range(d):
         # Alg. 2 line 7: x̂⁻ = x̂ + Δx
         x_prior[i] = x[i] + E[i, d]
@@ -212,32 +200,18 @@ def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
 
 
 @njit
-def held_input(A, B, dt, Gam):
-    """Γ = ∫₀^dt e^{As} ds B into ``Gam``: the effect on x_{k+1} of an input B·u held over the
-    step, the upper-right block of e^{[[A, B], [0, 0]] dt} (Van Loan 1978; Franklin, Powell &
-    Workman §4.3.3), exact up to the expm's rounding."""
-    d, r = B.shape
-    aug = np.zeros((d + r, d + r))
-    for i in range(d):
-        for j in range(d):
-            aug[i, j] = A[i, j] * dt
-        for j in range(r):
-            aug[i, d + j] = B[i, j] * dt
-    E = np.empty_like(aug)
-    expm(aug, E)
-    for i in range(d):
-        for j in range(r):
-            Gam[i, j] = E[i, d + j]
-
-
-@njit
 def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
-    """Γ_u = ∫₀^dt e^{As} ds B (:func:`held_input`) into ``Gam_u`` and
+    """Γ_u = ∫₀^dt e^{As} ds B (:func:`~sea_daemon.core.linalg.zoh`) into ``Gam_u`` and
     S = S_base + Γ_u σ_u² Γ_uᵀ: a motor-torque error of variance σ_u² held over the step
     (AKF.fill_sigma_nom)."""
     d = A.shape[0]
     r = B.shape[1]
-    held_input(A, B, dt, Gam_u)
+    aug = np.empty((d + r, d + r))
+    E = np.empty((d + r, d + r))
+    zoh(A, B, dt, aug, E)
+    for i in range(d):
+        for j in range(r):
+            Gam_u[i, j] = E[i, d + j]
     for i in range(d):
         for j in range(d):
             s = 0.0

@@ -5,7 +5,6 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from scipy.special import gammaincinv
 
 
 @dataclass
@@ -64,7 +63,17 @@ class Residual(Protocol):
     def predict(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
-def chi2_scale(delta: float, dof: int) -> float:
-    """s with Pr(ξ ∈ E(ξ̄, sC)) = 1 − δ for a Gaussian ξ of dimension dof (eq:gaussianellipsoid)."""
-    # χ²_dof quantile: 2·P⁻¹(dof/2, 1 − δ) (regularised lower incomplete gamma inverse)
-    return float(2.0 * gammaincinv(0.5 * dof, 1.0 - delta))
+@runtime_checkable
+class Bound(Protocol):
+    """The error bound an AKF publishes as ``tau_h_act_bound`` (eq:bounds), a component the
+    AKF calls at the end of its :meth:`reset` and of every filter step.
+
+    ``reset(est)``: the filter was (re)initialised (``est`` its estimate; the AKF's
+    ``_ready`` tells whether from a sample).  ``step(est, x_prev, P_prev, u, dt)``: the filter
+    stepped from (x̂_{k−1}, P_{k−1}) = (x_prev, P_prev) with the input u held over dt; the AKF's
+    per-step attributes hold step k.  Both overwrite ``est.tau_h_act_bound``.
+    """
+
+    def reset(self, est: Estimate) -> None: ...
+
+    def step(self, est: Estimate, x_prev: np.ndarray, P_prev: np.ndarray, u: np.ndarray, dt: float) -> None: ...

@@ -14,8 +14,9 @@ The GP-AKF is the :class:`~sea_daemon.core.estimators.akf.AKF` with a learned lo
   its bounded hyperparameter slices inside ``update``, ``learning.hyperopt``).
 
 The paper learns during the training phase (subject passive) and estimates with the model
-frozen: :func:`build` streams a training log through the filter with learning on, then turns
-learning off.  ``reset`` (a new log) keeps the learned model.
+frozen: :func:`learn_from_log` streams a training log through the filter with learning on
+(:func:`~sea_daemon.core.estimators.factory.make_estimator` then turns learning off).
+``reset`` (a new log) keeps the learned model.
 
 Pure numerics: no I/O, no clock, no threads.
 """
@@ -24,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
@@ -80,16 +81,17 @@ class GPAKF(AKF):
     ``learning``: learn from every sample (passive subject, ass:passive_human).
     ``tau_lag``: which motor torque a training target pairs with the sample's kinematics, in
     samples back (0: the torque commanded at the sample, as
-    :func:`~sea_daemon.core.learning.training_pairs_from_log`).
+    :func:`~sea_daemon.core.learning.training_pairs_from_log`).  ``bound``: as :class:`AKF`.
     """
 
     name = "gp-akf"
 
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: ResidualGP | None = None,
-                 learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0):
+                 learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0, bound=None):
         self.gp = residual if residual is not None else ResidualGP.from_config(cfg)
         super().__init__(cfg, dt=dt, residual=_ResidualHook(self.gp, cfg.estimator.gp_input_margin,
-                                                                  cfg.estimator.gp_noise_in_Q), model=model)
+                                                                  cfg.estimator.gp_noise_in_Q), model=model,
+                         bound=bound)
         self.learning = bool(learning)
         self.tau_lag = int(tau_lag)
         n = self.n
@@ -155,8 +157,11 @@ class GPAKF(AKF):
 
 
 def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
-    """Stream a passive-subject log through ``est`` with learning on (the training phase)."""
+    """Stream a passive-subject log through ``est`` with learning on (the training phase).
+    The bound component, if any, is not run meanwhile (its GP constants describe the trained
+    model; it starts at the next reset)."""
     est.learning = True
+    bound, est.bound = est.bound, None
     k = 0
     try:
         est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
@@ -164,18 +169,6 @@ def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
     except EstimatorFault as exc:
         raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
-    return est
-
-
-def build(cfg: ModelConfig, train: MeasuredLog | None, dt: float | None = None) -> GPAKF:
-    """The GP-AKF for ``replay --estimator gp-akf --train TRAIN.csv``: learned over ``train``
-    (online, sample by sample, as in the paper's training phase), then frozen."""
-    if train is None:
-        raise InputError("--estimator gp-akf needs --train TRAIN.csv (a log with a passive subject "
-                         "to learn the residual from)")
-    if train.n != cfg.joints:
-        raise InputError(f"--train {train.path}: {train.n} joint(s), the configuration has {cfg.joints}")
-    est = GPAKF(cfg, dt=dt if dt else train.dt)
-    learn_from_log(est, train)
-    est.learning = False
+    finally:
+        est.bound = bound
     return est

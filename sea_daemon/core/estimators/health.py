@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf as _dpotrf
-from scipy.special import gammaincinv
 
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import Fault
 from sea_daemon.errors import EstimatorFault
@@ -53,11 +53,6 @@ class CovarianceNotPD(EstimatorFault):
     """The state covariance P lost symmetry, finiteness or positive definiteness."""
 
     fault = Fault.COVARIANCE_NOT_PD
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """χ²_dof quantile at probability p (regularised incomplete gamma inverse)."""
-    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 def check_pd(P: np.ndarray, what: str = "P", step: int | None = None, full: bool = True) -> None:

@@ -17,9 +17,11 @@ import math
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.jit import warm_up
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
-from sea_daemon.core.estimators.base import Estimate, chi2_scale
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.estimators.base import Estimate
 
 
 class SpringTorqueEstimator:
@@ -33,7 +35,8 @@ class SpringTorqueEstimator:
         n = self.n = self.model.n
         self.dt = float(dt) if dt else cfg.dt
         self.R = np.array(cfg.estimator.R, dtype=float)
-        self.s = chi2_scale(cfg.estimator.delta, 1)
+        # eq:gaussianellipsoid with one degree of freedom: s = χ²_1(1 − δ)
+        self.s = chi2_quantile(1.0 - cfg.estimator.delta, 1)
         kin = cfg.kinematics
         self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
         self._ang = np.zeros(2 * n)
@@ -41,6 +44,7 @@ class SpringTorqueEstimator:
         self._Jy[:, 3 * n:] = self.model.D_s
         self.est = Estimate.zeros(n)
         self._ready = False
+        warm_up()            # the compiled differentiator ready before the first sample
 
     def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate:
         """Restart the differentiator at this sample (``reset()``: at the next update)."""

@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.jit import warm_up, warmer
+from sea_daemon.core.jit import warmer
 from sea_daemon.errors import EstimatorFault, InputError
 
 _TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -62,22 +62,18 @@ def _pos(name: str, v) -> float:
     return float(v)
 
 
-def _sq_dists(A: np.ndarray, B: np.ndarray) -> list[np.ndarray]:
-    """Per-dimension squared differences ``(a_j − b_j)²`` as a list of (len A, len B) arrays."""
-    return [np.subtract.outer(A[:, j], B[:, j]) ** 2 for j in range(A.shape[1])]
-
-
 def se_kernel(A, B, lengthscales, sigma_f: float) -> np.ndarray:
     """Squared-exponential ARD kernel matrix ``k(a_i, b_j)`` (``eq:SE``).
 
     ``A``: (m, ρ), ``B``: (p, ρ) (1-D arrays are one point), ``lengthscales``: scalar or (ρ,).
     """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    B = np.atleast_2d(np.asarray(B, dtype=float))
-    il = 1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (A.shape[1],))
-    # eq:SE: σ_f² exp(−Σ_i (x_i − x'_i)² / (2 l_i²))
-    r2 = sum(_sq_dists(A * il, B * il))
-    return sigma_f ** 2 * np.exp(-0.5 * r2)
+    A = np.ascontiguousarray(np.atleast_2d(np.asarray(A, dtype=float)))
+    B = np.ascontiguousarray(np.atleast_2d(np.asarray(B, dtype=float)))
+    l = np.broadcast_to(np.asarray(lengthscales, dtype=float), (A.shape[1],))
+    K = np.empty((A.shape[0], B.shape[0]))
+    # eq:SE: σ_f² exp(−Σ_i (x_i − x'_i)² / (2 l_i²))  (gp_core.se_matrix)
+    gp_core.se_matrix(A, B, np.ascontiguousarray(1.0 / (l * l)), float(sigma_f) ** 2, K)
+    return K
 
 
 def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, *,
@@ -166,7 +162,6 @@ class IncrementalGP:
             cap = min(cap, self.max_capacity)
         self._alloc(cap)
         self._set_hyp(sigma_f, lengthscales, sigma_n)
-        warm_up()            # compiled kernels ready (or loaded from the cache) before first use
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, cap: int) -> None:
@@ -545,4 +540,5 @@ def _warm() -> None:
     gp.set_hyperparameters(1.1, [1.0, 0.9, 1.2], 0.1)
     gp.spawn(X[:3], X[:3, 0].copy(), gp.kernel_matrix(X[:3]))
     log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1)
+    se_kernel(X, X[:2], 1.0, 1.0)
     log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1, L=np.linalg.cholesky(gp.kernel_matrix(X) + 0.01 * np.eye(6)))

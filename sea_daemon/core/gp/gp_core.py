@@ -6,6 +6,9 @@ Layout (see :mod:`sea_daemon.core.gp.exact`): inputs centred, ``x̄ = x − c``;
 The lower Cholesky factor L of ``K + σ_on² I`` is packed row by row (row i starts at
 ``i(i+1)/2``), so appending a point appends one row.
 
+* :func:`se_r2`, :func:`se_matrix` — eq:SE in its direct form, k(a, b) = σ_f² exp(−½ r²),
+  r² = Σ_j (a_j − b_j)² / l_j² (the public :func:`sea_daemon.core.gp.exact.se_kernel`, the
+  extrapolation term); :func:`query` / :func:`kernel_vector` are its expanded form above.
 * :func:`add_point` — one new factor row, O(N²) (one forward substitution).
 * :func:`predict`, :func:`predict_with_grad` — eq:GPmean, eq:GPvariance, eq:moejac with
   eq:kernelderivative, and optionally ∂σ²/∂x.
@@ -26,6 +29,25 @@ import numpy as np
 from sea_daemon.core.jit import njit
 
 _LOG2PI = math.log(2.0 * math.pi)
+
+
+@njit(fast=True)
+def se_r2(a, B, i, il2):
+    """r² = Σ_j (a_j − B_ij)² / l_j², the scaled squared distance of eq:SE between a and row i of B."""
+    r2 = 0.0
+    for j in range(a.shape[0]):
+        t = a[j] - B[i, j]
+        r2 += il2[j] * t * t
+    return r2
+
+
+@njit(fast=True)
+def se_matrix(A, B, il2, sf2, K):
+    """K_ij = k(a_i, b_j) = σ_f² exp(−½ r²(a_i, b_j)) (eq:SE) for the rows of A and B."""
+    for i in range(A.shape[0]):
+        a = A[i]
+        for j in range(B.shape[0]):
+            K[i, j] = sf2 * math.exp(-0.5 * se_r2(a, B, j, il2))
 
 
 @njit(fast=True)
@@ -145,10 +167,7 @@ def extrapolation_many(X, n, alpha, il2, sf2, Xq, out):
         best = np.inf
         near = 0
         for i in range(n):
-            r2 = 0.0
-            for j in range(d):
-                t = x[j] - X[i, j]
-                r2 += il2[j] * t * t
+            r2 = se_r2(x, X, i, il2)
             if r2 < best:
                 best = r2
                 near = i

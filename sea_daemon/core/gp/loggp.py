@@ -53,89 +53,13 @@ from typing import Any
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import InputError, ModelFileError
 from sea_daemon.core.gp.exact import IncrementalGP
 from sea_daemon.core.gp.hyper import AdamHyper
+from sea_daemon.core.gp.routing import Tree, route
 
 _FORMAT = "sea-daemon-loggp"
 _VERSION = 1
-
-
-@njit
-def _route_many(Z, dim, lo, hi, left, right):
-    """:meth:`LoGGP._route` (without ∂ω/∂x) of every row of Z: (row index, node, ω) of each
-    leaf reached, rows in order, each row's leaves in ``_route``'s order (same arithmetic)."""
-    cap = 2 * Z.shape[0] + 8
-    idx = np.empty(cap, dtype=np.int64)
-    nodes = np.empty(cap, dtype=np.int64)
-    ws = np.empty(cap)
-    st_node = np.empty(64, dtype=np.int64)
-    st_w = np.empty(64)
-    k = 0
-    for i in range(Z.shape[0]):
-        node = 0
-        w = 1.0
-        top = 0
-        while True:                                  # fast path: no overlap on the way
-            j = dim[node]
-            if j < 0:
-                break
-            xj = Z[i, j]
-            if xj <= lo[node]:
-                node = left[node]
-            elif xj >= hi[node]:
-                node = right[node]
-            else:
-                break
-        st_node[0] = node
-        st_w[0] = w
-        top = 1
-        while top > 0:
-            top -= 1
-            node = st_node[top]
-            w = st_w[top]
-            j = dim[node]
-            if j < 0:
-                if k == cap:
-                    cap *= 2
-                    idx2 = np.empty(cap, dtype=np.int64)
-                    nodes2 = np.empty(cap, dtype=np.int64)
-                    ws2 = np.empty(cap)
-                    idx2[:k] = idx[:k]
-                    nodes2[:k] = nodes[:k]
-                    ws2[:k] = ws[:k]
-                    idx, nodes, ws = idx2, nodes2, ws2
-                idx[k] = i
-                nodes[k] = node
-                ws[k] = w
-                k += 1
-                continue
-            if top + 2 > st_node.shape[0]:
-                st_node2 = np.empty(2 * st_node.shape[0], dtype=np.int64)
-                st_w2 = np.empty(2 * st_node.shape[0])
-                st_node2[:top] = st_node[:top]
-                st_w2[:top] = st_w[:top]
-                st_node, st_w = st_node2, st_w2
-            xj = Z[i, j]
-            if xj <= lo[node]:
-                st_node[top] = left[node]
-                st_w[top] = w
-                top += 1
-            elif xj >= hi[node]:
-                st_node[top] = right[node]
-                st_w[top] = w
-                top += 1
-            else:
-                io = 1.0 / (hi[node] - lo[node])
-                p = (hi[node] - xj) * io
-                # right pushed first, left popped first (as _route)
-                st_node[top] = right[node]
-                st_w[top] = w * (1.0 - p)
-                st_node[top + 1] = left[node]
-                st_w[top + 1] = w * p
-                top += 2
-    return idx[:k].copy(), nodes[:k].copy(), ws[:k].copy()
 
 
 class LoGGP:
@@ -426,62 +350,28 @@ class LoGGP:
                 self.hyper_slice(node)
 
     # ------------------------------------------------------------------ prediction
-    def _route(self, xl: list[float], grad: bool):
-        """Leaves reached by ``x`` as ``[(node, ω, ∂ω/∂x as a list, or None)]``."""
-        dim, lo, hi, left, right = self._dim, self._lo, self._hi, self._left, self._right
-        node = 0
-        while True:                                  # fast path: no overlap on the way
-            j = dim[node]
-            if j < 0:
-                return [(node, 1.0, None)]
-            xj = xl[j]
-            if xj <= lo[node]:
-                node = left[node]
-            elif xj >= hi[node]:
-                node = right[node]
-            else:
-                break
-        out = []
-        stack = [(node, 1.0, None)]
-        while stack:
-            node, w, dw = stack.pop()
-            j = dim[node]
-            if j < 0:
-                out.append((node, w, dw))
-                continue
-            xj = xl[j]
-            if xj <= lo[node]:
-                stack.append((left[node], w, dw))
-            elif xj >= hi[node]:
-                stack.append((right[node], w, dw))
-            else:
-                io = 1.0 / (hi[node] - lo[node])
-                p = (hi[node] - xj) * io
-                dwl = dwr = None
-                if grad:
-                    # ∂(ω p)/∂x = p ∂ω/∂x + ω ∂p/∂x, with ∂p/∂x_j = −1/o  (lists: ρ is small)
-                    if dw is None:
-                        dwl = [0.0] * self.input_dim
-                        dwr = [0.0] * self.input_dim
-                    else:
-                        q = 1.0 - p
-                        dwl = [v * p for v in dw]
-                        dwr = [v * q for v in dw]
-                    dwl[j] -= w * io
-                    dwr[j] += w * io
-                stack.append((right[node], w * (1.0 - p), dwr))
-                stack.append((left[node], w * p, dwl))
-        return out
+    def route(self, x, grad: bool = False) -> list[tuple[int, float, np.ndarray]]:
+        """Leaves reached by ``x``: ``[(node, ω, ∂ω/∂x)]`` in routing order (∂ω/∂x zeros
+        without ``grad``)."""
+        x, _ = self._check_x(x)
+        nodes, ws, dws = self._route_one(x, grad)
+        return list(zip(nodes, ws.tolist(), dws))
+
+    def _route_one(self, x: np.ndarray, grad: bool):
+        """Leaves reached by one input ``x`` (:func:`~sea_daemon.core.gp.routing.route`):
+        (nodes as a list, ω, ∂ω/∂x)."""
+        _, nodes, ws, dws = route(x.reshape(1, -1), self._tree_arrays(), grad)
+        return nodes.tolist(), ws, dws
 
     def predict(self, x) -> tuple[float, float]:
         """Merged posterior mean and variance at ``x`` (floats)."""
-        x, xl = self._check_x(x)
-        route = self._route(xl, False)
+        x, _ = self._check_x(x)
+        nodes, ws, _ = self._route_one(x, False)
         gps = self._gp
-        if len(route) == 1:
-            return gps[route[0][0]].predict(x)
+        if len(nodes) == 1:
+            return gps[nodes[0]].predict(x)
         mu = m2 = 0.0
-        for node, w, _ in route:
+        for node, w in zip(nodes, ws.tolist()):
             m, v = gps[node].predict(x)
             mu += w * m
             m2 += w * (v + m * m)
@@ -498,7 +388,7 @@ class LoGGP:
             raise InputError(f"Z must have shape (m, {self.input_dim}), got {Z.shape}")
         if not np.all(np.isfinite(Z)):
             raise InputError(f"Z must be finite, got {Z.tolist()}")
-        idx, nodes, ws = _route_many(Z, *self._tree_arrays())
+        idx, nodes, ws, _ = route(Z, self._tree_arrays())
         if len(idx) == len(Z) and nodes.min() == nodes.max():
             # every row reaches the same one leaf (the common case)
             m, v = self._gp[int(nodes[0])].predict_many(Z)
@@ -509,15 +399,12 @@ class LoGGP:
             m[sel], v[sel] = self._gp[node].predict_many(Z[idx[sel]])
         return idx, nodes, ws, m, v
 
-    def _tree_arrays(self) -> tuple[np.ndarray, ...]:
-        """The tree's parallel lists as arrays (dim, lo, hi, left, right) for the compiled
-        routing; rebuilt when the tree changed (a split appends two nodes, a reset or a load
-        replaces the lists)."""
+    def _tree_arrays(self) -> Tree:
+        """The tree's parallel lists as arrays for the compiled routing; rebuilt when the tree
+        changed (a split appends two nodes, a reset or a load replaces the lists)."""
         cache = self.__dict__.get("_tree_cache")
         if cache is None or cache[0] is not self._dim or cache[1] != len(self._dim):
-            arrays = (np.array(self._dim, dtype=np.int64), np.array(self._lo, dtype=float),
-                      np.array(self._hi, dtype=float), np.array(self._left, dtype=np.int64),
-                      np.array(self._right, dtype=np.int64))
+            arrays = Tree.of(self._dim, self._lo, self._hi, self._left, self._right)
             cache = (self._dim, len(self._dim), arrays)
             self._tree_cache = cache
         return cache[2]
@@ -558,8 +445,8 @@ class LoGGP:
 
     def predict_with_grad(self, x, var_grad: bool = False):
         """``(μ, σ², ∂μ/∂x)`` (and ``∂σ²/∂x`` with ``var_grad``) of the merged prediction."""
-        x, xl = self._check_x(x)
-        return self._predict_with_grad(x, xl, var_grad, None)
+        x, _ = self._check_x(x)
+        return self._predict_with_grad(x, var_grad, None)
 
     def predict_grad_into(self, x: np.ndarray, out: np.ndarray, noise: bool = False) -> tuple[float, float]:
         """``(μ, σ²)``, with ``∂μ/∂x`` written into ``out``: the GP-AKF's per-step call.
@@ -569,34 +456,32 @@ class LoGGP:
         (input_dim,) (the caller has validated it, e.g. clipped it into the input box); it is
         not checked here.
         """
-        r = self._predict_with_grad(x, x.tolist(), False, out, noise)
+        r = self._predict_with_grad(x, False, out, noise)
         return r[0], r[1]
 
-    def _predict_with_grad(self, x: np.ndarray, xl: list[float], var_grad: bool, out, noise: bool = False):
-        route = self._route(xl, True)
+    def _predict_with_grad(self, x: np.ndarray, var_grad: bool, out, noise: bool = False):
+        nodes, ws, dws = self._route_one(x, True)
         gps = self._gp
         if noise:
             # σ² + Σ ω_i σ_on,i² (noise_variance)
-            r = list(self._predict_with_grad_route(x, route, var_grad, out))
-            r[1] += sum(w * gps[node].sigma_n ** 2 for node, w, _ in route)
+            r = list(self._predict_with_grad_route(x, nodes, ws, dws, var_grad, out))
+            r[1] += sum(w * gps[node].sigma_n ** 2 for node, w in zip(nodes, ws.tolist()))
             return tuple(r)
-        return self._predict_with_grad_route(x, route, var_grad, out)
+        return self._predict_with_grad_route(x, nodes, ws, dws, var_grad, out)
 
-    def _predict_with_grad_route(self, x: np.ndarray, route: list, var_grad: bool, out):
+    def _predict_with_grad_route(self, x: np.ndarray, nodes: list, ws, dws, var_grad: bool, out):
         gps = self._gp
-        if len(route) == 1:
-            return gps[route[0][0]].predict_with_grad(x, var_grad, out=out)
+        if len(nodes) == 1:
+            return gps[nodes[0]].predict_with_grad(x, var_grad, out=out)
         d = self.input_dim
         mu = m2 = 0.0
         acc = [0.0] * d
         acc2 = [0.0] * d
-        for node, w, dw in route:
+        for node, w, dw in zip(nodes, ws.tolist(), dws.tolist()):
             r = gps[node].predict_with_grad(x, var_grad)
             m, v, dm = r[0], r[1], r[2].tolist()
             mu += w * m
             m2 += w * (v + m * m)
-            if dw is None:
-                dw = [0.0] * d
             # ∂(ω μ_i) = ω ∂μ_i + μ_i ∂ω
             for j in range(d):
                 acc[j] += w * dm[j] + m * dw[j]
@@ -620,9 +505,10 @@ class LoGGP:
         ``predict``'s σ² is the latent variance of f (eq:GPvariance); σ² + noise_variance(x) is
         the predictive variance of a new target y = f(x) + ε at x.
         """
-        x, xl = self._check_x(x)
+        x, _ = self._check_x(x)
         gps = self._gp
-        return float(sum(w * gps[node].sigma_n ** 2 for node, w, _ in self._route(xl, False)))
+        nodes, ws, _ = self._route_one(x, False)
+        return float(sum(w * gps[node].sigma_n ** 2 for node, w in zip(nodes, ws.tolist())))
 
     # ------------------------------------------------------------------ introspection
     def leaves(self) -> list[int]:
@@ -788,9 +674,3 @@ class LoGGP:
         except (KeyError, TypeError, ValueError, IndexError, InputError) as e:
             raise ModelFileError(f"LoG-GP model is malformed: {e}") from None
 
-
-@warmer
-def _warm() -> None:
-    """The compiled routing with the argument types :meth:`LoGGP.leaf_predictions` uses."""
-    _route_many(np.zeros((2, 1)), np.array([0, -1, -1]), np.array([-0.5, 0.0, 0.0]), np.array([0.5, 0.0, 0.0]),
-                np.array([1, -1, -1]), np.array([2, -1, -1]))

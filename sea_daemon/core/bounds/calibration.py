@@ -1,0 +1,100 @@
+"""GP error constants of a trained GP-AKF for its Theorem-1 bound (docs/bounds.md §2).
+
+* :func:`gp_constants` — LUH19 constants (eq:gpmeanbounds) per joint from the LoG-GPs' leaves,
+  or a configured β;
+* :func:`conformal_scores`, :func:`conformal_gp_constants` — split-conformal β of the GP error
+  from a held-out passive-subject log.
+
+The β calibrated on the torque error itself is :mod:`sea_daemon.core.bounds.torque_beta`.
+Pure numerics: no I/O, no clock, no threads.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sea_daemon.core.bounds.gp_bound import (
+    LocalScale, conformal_constants, error_bound, fixed_constants, input_box, loggp_leaves)
+
+
+def residual_gps(akf) -> list | None:
+    """The per-joint LoG-GPs behind an AKF's residual: a ResidualGP (``.gps``), a hook over
+    one (``.gp.gps``, the GP-AKF's), or the estimator's own ``.gp``; None if unknown."""
+    for obj in (akf.residual, getattr(akf.residual, "gp", None), getattr(akf, "gp", None)):
+        if obj is not None and hasattr(obj, "gps"):
+            return list(obj.gps)
+    return None
+
+
+def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
+                 n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
+                 beta: str | float = "lederer"):
+    """GP error constants per joint for a :class:`sea_daemon.core.learning.ResidualGP` (one LoG-GP per
+    joint) or a list of LoG-GPs.
+
+    δ_GP is split over the n joints' GPs (union bound); within each, a share
+    ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
+    union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
+    constants stay valid while the tree grows).  The input box is the box of all training
+    points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
+    number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
+    Returns (constants list, (lo, hi)).
+    """
+    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+    n = len(gps)
+    per_joint = delta_gp / n
+    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
+                   if gp.leaf(node).n_ > 0])
+    lo, hi = input_box(Z, box_margin)
+    if beta != "lederer":
+        return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
+    consts = []
+    for gp in gps:
+        leaves = loggp_leaves(gp)
+        L = n_leaves if n_leaves is not None else max(len(leaves), int(getattr(gp, "max_leaves", 0) or 0))
+        kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
+        consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
+    return consts, (lo, hi)
+
+
+def conformal_scores(est, log) -> np.ndarray:
+    """Calibration scores |y − μ(z)| / s(z) of a frozen GP-AKF on a held-out log (s =
+    :class:`~sea_daemon.core.bounds.gp_bound.LocalScale`, fixed by the training data).
+
+    ``est`` is a :class:`~sea_daemon.core.estimators.gpakf.GPAKF` whose GP will not learn the
+    pairs (learning is switched off here and restored); ``log`` a passive-subject log it
+    never learned from (ass:passive_human: the training pair of each sample is (z, f(z) + noise),
+    eq:loadsidewmotor, built by the GP-AKF's own causal kinematics).  μ and σ are evaluated
+    at the unclipped z, as in the bound.  Returns (pairs, n).
+    """
+    gps = residual_gps(est)
+    if gps is None:
+        raise ValueError("conformal_scores needs a GP-AKF backed by LoG-GPs")
+    scales = [LocalScale(g) for g in gps]
+    learning, est.learning = est.learning, False
+    out = []
+    try:
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            if est._since_reset < est.kin.L:
+                continue
+            z, y = est._training_pair(log.tau_m[k])
+            row = np.empty(len(gps))
+            for j, g in enumerate(gps):
+                mu, var = g.predict(z)
+                row[j] = abs(y[j] - mu) / scales[j](z, var)
+            out.append(row)
+    finally:
+        est.learning = learning
+    return np.array(out)
+
+
+def conformal_gp_constants(est, log, delta_gp: float, box_margin: float = 0.1):
+    """Split-conformal GP constants per joint from a held-out log (:func:`conformal_scores`);
+    δ_GP is split over the joints.  Returns (constants, (lo, hi) the training box, scores)."""
+    gps = residual_gps(est)
+    scores = conformal_scores(est, log)
+    per_joint = delta_gp / len(gps)
+    consts = [conformal_constants(scores[:, j], per_joint) for j in range(len(gps))]
+    _, box = gp_constants(gps, delta_gp, beta=1.0, box_margin=box_margin)
+    return consts, box, scores
