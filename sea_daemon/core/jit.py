@@ -24,6 +24,7 @@ import numba
 #: module for :func:`njit`)
 KERNEL_MODULES = (
     "sea_daemon.core.linalg",
+    "sea_daemon.core.effects",
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",
     "sea_daemon.core.estimators.health",
@@ -34,6 +35,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.bounds.setmember",
     "sea_daemon.core.bounds.zonotope",
     "sea_daemon.core.bounds.akf_bound",
+    "sea_daemon.core.sim.plant",
 )
 
 _WARMERS: list[Callable[[], None]] = []
