@@ -42,7 +42,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from sea_daemon.core.config import ModelConfig, _check_keys, _num
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.validate import check_keys as _check_keys, num as _num
 from sea_daemon.core.control import cosine_torque
 from sea_daemon.io.configfile import load_config, load_yaml
 from sea_daemon.core.effects import Effect, effect_from_dict

@@ -1,0 +1,147 @@
+"""The hardware sections of the model configuration (``hardware``, ``hardware.bus``) as validated,
+frozen dataclasses: sensors, actuator and the CAN bus the drivers talk to.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from sea_daemon.core import validate
+from sea_daemon.errors import ConfigError
+
+
+def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
+    """CANopen node id(s): an integer (one joint) or a list of n integers, each 1..127."""
+    vals = [v] if not isinstance(v, (list, tuple)) else list(v)
+    if len(vals) != n or any(isinstance(x, bool) or not isinstance(x, int) or not 1 <= x <= 127 for x in vals):
+        raise ConfigError(source, key, f"must be {'an integer' if n == 1 else f'a list of {n} integers'} "
+                                       f"in 1..127 (CANopen node id), got {v!r}")
+    return tuple(vals)
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """The CAN bus and the CANopen devices on it (``drivers``; issue 5).
+
+    Angles and speeds are joint side [rad, rad/s]; ``rated_torque`` is the drive's 0x6076 on the
+    MOTOR side in mN m, so one per mille of 0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m
+    on the joint side.
+    """
+
+    interface: str = "virtual"            # virtual | socketcan | remote
+    channel: str = "sea-daemon"           # virtual: any name; socketcan: can0/vcan0; remote: ws://host:port/
+    bitrate: int = 1000000                # [bit/s]
+    drive_node: tuple[int, ...] = (1,)    # CiA 402 drive node id per joint
+    encoder_node: tuple[int, ...] = (2,)  # CiA 406 load encoder node id per joint
+    heartbeat_ms: int = 50                # producer heartbeat time written to 0x1017 of every node
+    heartbeat_timeout_ms: int = 200       # consumer: a node is lost after this long without heartbeat
+    pdo_timeout_ms: float = 8.0           # wait for a cycle's TPDOs after SYNC [ms]
+    max_missed_cycles: int = 0            # consecutive cycles with missing TPDOs tolerated (0: first raises)
+    rated_torque: float = 100.0           # expected 0x6076, motor side [mN m]
+    q_offset: tuple[float, ...] = (0.0,)        # load encoder zero: q = angle(counts) - q_offset [rad]
+    theta_m_offset: tuple[float, ...] = (0.0,)  # motor encoder zero, joint side [rad]
+    max_joint_speed: float = 20.0         # encoder jump: |dq| > max_joint_speed*dt + 2 quanta [rad/s]
+    stuck_cycles: int = 20                # encoder stuck: same count this many cycles ...
+    stuck_motion: float = 0.05            # ... while the other encoder of the joint moved this far [rad]
+    sync_rpdo: bool = False               # false: the drive actuates the torque RPDO on reception (type 255);
+    #                                       true: at the next SYNC (type 1, one cycle more delay)
+    sdo_timeout_ms: int = 300             # start-up: wait this long for each SDO answer (one retry)
+    master_node: int = 127                # the daemon's own node id: its heartbeat, watched by the drives
+    #                                       (0x1016, heartbeat_timeout_ms; reaction 0x6007 = quick stop)
+
+    KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
+            "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
+            "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms",
+            "master_node"]
+    INTERFACES = ("virtual", "socketcan", "remote")
+
+    @classmethod
+    def default(cls, n: int) -> "BusConfig":
+        return cls.from_dict({}, n, "<default>")
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "BusConfig":
+        validate.check_keys(source, "hardware.bus.", d, cls.KEYS, [])
+        k = "hardware.bus."
+        iface = d.get("interface", "virtual")
+        if iface not in cls.INTERFACES:
+            raise ConfigError(source, k + "interface", f"must be one of {', '.join(cls.INTERFACES)}, got {iface!r}")
+        channel = d.get("channel", "sea-daemon")
+        if not isinstance(channel, str) or not channel:
+            raise ConfigError(source, k + "channel", f"must be a non-empty string, got {channel!r}")
+        if iface == "remote" and not channel.startswith(("ws://", "wss://")):
+            raise ConfigError(source, k + "channel", f"remote bus needs ws://HOST:PORT/, got {channel!r}")
+        ints = {}
+        for key, lo, hi, default in (("bitrate", 10000, 1000000, 1000000), ("heartbeat_ms", 1, 65535, 50),
+                                     ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, 0),
+                                     ("stuck_cycles", 2, 100000, 20), ("sdo_timeout_ms", 10, 60000, 300),
+                                     ("master_node", 1, 127, 127)):
+            v = d.get(key, default)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(source, k + key, f"must be an integer in {lo}..{hi}, got {v!r}")
+            ints[key] = v
+        if ints["heartbeat_timeout_ms"] <= ints["heartbeat_ms"]:
+            raise ConfigError(source, k + "heartbeat_timeout_ms",
+                              f"must be > heartbeat_ms ({ints['heartbeat_ms']}), got {ints['heartbeat_timeout_ms']}")
+        # default: joint i has drive 2i+1 and load encoder 2i+2
+        drive = _node_ids(source, k + "drive_node", d.get("drive_node", [2 * i + 1 for i in range(n)]), n)
+        enc = _node_ids(source, k + "encoder_node", d.get("encoder_node", [2 * i + 2 for i in range(n)]), n)
+        if len(set(drive) | set(enc) | {ints["master_node"]}) != 2 * n + 1:
+            raise ConfigError(source, k + "encoder_node", f"node ids must all differ, got drives {list(drive)}, "
+                                                          f"encoders {list(enc)}, master {ints['master_node']}")
+        sync_rpdo = d.get("sync_rpdo", False)
+        if not isinstance(sync_rpdo, bool):
+            raise ConfigError(source, k + "sync_rpdo", f"must be true or false, got {sync_rpdo!r}")
+        return cls(
+            interface=iface, channel=channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
+            pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
+            rated_torque=validate.num(source, k + "rated_torque", d.get("rated_torque", 100.0), positive=True),
+            q_offset=tuple(float(x) for x in validate.vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),
+            theta_m_offset=tuple(float(x) for x in validate.vector(source, k + "theta_m_offset", d.get("theta_m_offset", 0.0), n)),
+            max_joint_speed=validate.num(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), positive=True),
+            stuck_motion=validate.num(source, k + "stuck_motion", d.get("stuck_motion", 0.05), positive=True),
+        )
+
+    def to_dict(self) -> dict:
+        out = dataclasses.asdict(self)
+        for key in ("drive_node", "encoder_node", "q_offset", "theta_m_offset"):
+            v = list(out[key])
+            out[key] = v[0] if len(v) == 1 else v
+        return out
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus."""
+
+    gear_ratio: float = 100.0        # motor turns per joint turn
+    encoder_bits: int = 19           # both absolute encoders
+    torque_limit: float = 10.0       # |τ_m| limit, joint side [N m]
+    torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
+    bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (drivers)
+
+    KEYS = ["gear_ratio", "encoder_bits", "torque_limit", "torque_noise", "bus"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "HardwareConfig":
+        validate.check_keys(source, "hardware.", d, cls.KEYS, [])
+        out = {}
+        if "gear_ratio" in d:
+            out["gear_ratio"] = validate.num(source, "hardware.gear_ratio", d["gear_ratio"], positive=True)
+        if "encoder_bits" in d:
+            b = d["encoder_bits"]
+            if isinstance(b, bool) or not isinstance(b, int) or not 8 <= b <= 32:
+                raise ConfigError(source, "hardware.encoder_bits", f"must be an integer in 8..32, got {b!r}")
+            out["encoder_bits"] = b
+        if "torque_limit" in d:
+            out["torque_limit"] = validate.num(source, "hardware.torque_limit", d["torque_limit"], positive=True)
+        if "torque_noise" in d:
+            out["torque_noise"] = validate.num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
+        out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k != "bus"}
+        out["bus"] = self.bus.to_dict()
+        return out
