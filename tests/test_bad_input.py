@@ -287,25 +287,25 @@ def test_eds_with_a_wrong_device_type_is_named(eds_rig):
 def test_tpdo_of_the_wrong_length_is_named_at_run_time():
     from drivers.device_model import FaultSpec  # noqa: F401
     from drivers.errors import PdoLengthError
-    from sea_daemon.apps.bench._rig import Rig, bench_config
+    from sea_daemon.apps.bench._rig import bench_config, bench_rig
     from sea_daemon.errors import Fault
-    rig = Rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
+    rig = bench_rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
     try:
         rig.hw.read()
         rig.hw.write(np.zeros(1))
-        gate = rig.model.network.gate
+        gate = rig.device_model.network.gate
 
         def short(can_id, data):                 # the encoder sends 2 of its 4 bytes
             if can_id == 0x182:
-                rig.model.network.send_now(can_id, data[:2])
+                rig.device_model.network.send_now(can_id, data[:2])
                 return False
             return gate(can_id, data)
-        rig.model.network.gate = short
+        rig.device_model.network.gate = short
         with pytest.raises(PdoLengthError, match=r"node 2: TPDO 0x182 has 2 bytes, expected 4") as e:
             rig.hw.read()
         assert e.value.fault is Fault.TPDO_MISSING
     finally:
-        rig.close()
+        rig.stop()
 
 
 # ------------------------------------------------------------------ diagnose

@@ -17,7 +17,8 @@ from sea_daemon.io.gpmodel import save_gp_model
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.safety import SafetySupervisor
-from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
+from sea_daemon.runtime.rig import make_rig
+from sea_daemon.runtime.service import ScenarioController, StateFile, serve
 
 
 class _Progress:

@@ -1,10 +1,7 @@
 """What ``sea-daemon run`` and ``sea-daemon calibrate`` share around the fixed-rate loop.
 
-* :func:`make_rig` — the hardware behind :class:`drivers.interface.HardwareInterface`: the CAN
-  bus of the configuration (``--bus/--channel`` overrides), or for tests, the demo and the
-  benchmark the device model started in this process on a fresh virtual channel
-  (``--device-model SCENARIO``: the scenario's true plant and subject behind CANopen, lock-step
-  with SYNC), or the simulator's plant without CAN (``--sim SCENARIO``).
+The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon.runtime.rig.make_rig`).
+
 * :class:`ScenarioController` — the scenario's controller as the loop's controller (PID
   tracking a minimum-jerk trajectory, or the open-loop cosine torque of Sec. V-C).
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
@@ -17,15 +14,13 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import dataclasses
 import json
 import os
 import signal
 import time
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -36,129 +31,10 @@ from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.safety import SafetySupervisor
 
+if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
+    from sea_daemon.runtime.rig import Rig
+
 PID_FILE = "sea-daemon.pid"
-
-
-# ---------------------------------------------------------------------------- hardware
-@dataclass
-class Rig:
-    """The hardware and what was started with it."""
-
-    hw: Any
-    kind: str                                     # "can", "device-model", "sim"
-    description: str
-    initial_torque: np.ndarray
-    hold_torque: np.ndarray | None = None         # known for a simulated plant (experimenter's calibration)
-    tau_h_act: Callable[[float], np.ndarray] | None = None   # the simulated subject (truth), plant time
-    device_model: Any = None
-    bus: Any = None                               # the bus config in use (None for --sim)
-    frames: Any = None                            # CAN frame counter (bench), when asked for
-
-    def start(self) -> None:
-        if self.device_model is not None:
-            self.device_model.start()
-        if self.kind == "sim":
-            self.hw.start()
-        else:
-            self.hw.start(initial_torque=self.initial_torque)
-
-    def stop(self) -> None:
-        try:
-            self.hw.stop()
-        finally:
-            try:
-                if self.device_model is not None:
-                    self.device_model.stop()
-            finally:
-                if self.frames is not None:
-                    self.frames.close()
-
-
-def _human(sc, phase: str):
-    """τ_h,act(t) of the scenario's subject for a run that starts at plant time 0 in ``phase``."""
-    from sea_daemon.io.scenario import human_torque
-    f = human_torque(sc)
-    if phase == "training":
-        n = sc.nominal.joints
-        return lambda t, _z=np.zeros(n): _z                 # ass:passive_human: the subject is passive
-    t_est = sc.training_samples * sc.nominal.dt
-    return lambda t: f(t + t_est)                          # the estimation phase starts at t = 0
-
-
-def bus_overrides(cfg: ModelConfig, bus: str | None, channel: str | None) -> ModelConfig:
-    b = cfg.hardware.bus
-    b = dataclasses.replace(b, interface=bus or b.interface, channel=channel or b.channel)
-    if b.interface == "remote" and not str(b.channel).startswith(("ws://", "wss://")):
-        raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
-    return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-
-
-def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | None = None,
-             phase: str = "estimation", count_frames: bool = False) -> Rig:
-    """The hardware for ``cfg`` (see the module docstring); ``phase`` picks the subject's torque."""
-    from sea_daemon.io.scenario import make_plant
-    from sea_daemon.io.scenario import load_scenario
-    n = cfg.joints
-    if sim and device_model:
-        raise InputError("--sim and --device-model exclude each other")
-    scen = sim or device_model
-    if not scen:
-        from drivers.canopen_hw import CanopenHardware
-        b = cfg.hardware.bus
-        return Rig(CanopenHardware(cfg), "can", f"CAN {b.interface} {b.channel}", np.zeros(n), bus=b)
-    sc = load_scenario(scen)
-    if sc.nominal.joints != n:
-        raise InputError(f"scenario {scen}: {sc.nominal.joints} joint(s), the configuration has {n}")
-    plant = make_plant(sc)
-    tau_h = _human(sc, phase)
-    hold = np.array(plant.hold_torque, dtype=float).reshape(n)
-    if sim:
-        from drivers.sim_hw import SimHardware
-        hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=tau_h)
-        return Rig(hw, "sim", f"simulator ({scen}), no CAN", hold, hold, tau_h)
-    from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware
-    from drivers.device_model import DeviceModel
-    # a fresh virtual channel per run; timeouts fit for a loaded machine (the device model shares it)
-    b = dataclasses.replace(cfg.hardware.bus, interface="virtual", channel=f"sea-daemon-{uuid.uuid4().hex[:8]}",
-                            pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
-    cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-    model = DeviceModel(make_bus(b), plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                        tau_h_act=tau_h, owns_bus=True)
-    frames = None
-    bus = None
-    if count_frames:
-        bus = make_bus(b)
-        frames = FrameCounter(bus)
-    hw = CanopenHardware(cfg)
-    rig = Rig(hw, "device-model", f"device model ({scen}) on virtual CAN {b.channel}", hold, hold, tau_h,
-              device_model=model, bus=b, frames=frames)
-    return rig
-
-
-class FrameCounter:
-    """Counts the frames on a bus (a listener of its own, in its own thread) and their bits."""
-
-    def __init__(self, bus):
-        import can
-        self.bus = bus
-        self.frames = 0
-        self.bits_typ = 0
-        self.bits_worst = 0
-        self._notifier = can.Notifier(bus, [self._on], timeout=0.05)
-
-    def _on(self, msg) -> None:
-        from drivers.bus import frame_bits
-        self.frames += 1
-        self.bits_typ += frame_bits(msg.dlc, stuffing="none")
-        self.bits_worst += frame_bits(msg.dlc, stuffing="worst")
-
-    def snapshot(self) -> tuple[int, int, int]:
-        return self.frames, self.bits_typ, self.bits_worst
-
-    def close(self) -> None:
-        self._notifier.stop(0.5)
-        self.bus.shutdown()
 
 
 # ---------------------------------------------------------------------------- controller
@@ -365,8 +241,7 @@ def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path
     finally:
         notifier.stopping()
         try:
-            if started or rig.device_model is not None:
-                rig.stop()
+            rig.stop()
         finally:
             final = log.close()
             if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log

@@ -40,13 +40,14 @@ import time
 import can
 import numpy as np
 
+from drivers.bus import make_bus
 from drivers.device_model import FaultSpec
 
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench import choose, machine
-from sea_daemon.apps.bench._rig import DriveProbe, Rig, SineTracker, VirtualClock, bench_config
+from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
 
 NAME = "faults"
 HELP = "fault injection over the device model: detection, cycles to zero torque, false alarms"
@@ -79,14 +80,14 @@ class _Estimator:
         self.akf = akf
         self.nan_next = False
 
-    def update(self, q, theta_m, tau_m):
+    def update(self, q, theta_m, tau_m, dt=None):
         if self.nan_next:
             self.nan_next = False
             q = q * np.nan
-        return self.akf.update(q, theta_m, tau_m)
+        return self.akf.update(q, theta_m, tau_m, dt)
 
-    def reset(self):
-        self.akf.reset()
+    def reset(self, q=None, theta_m=None, tau_m=None):
+        return self.akf.reset(q, theta_m, tau_m)
 
 
 @dataclasses.dataclass
@@ -127,7 +128,8 @@ class _Run:
         # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
         # process), and the drive watches the daemon's heartbeat from the rig's start on
         self.est = _Estimator(AKF(cfg))
-        self.rig = Rig(cfg)
+        self.rig = bench_rig(cfg)
+        self.sniffer = HeartbeatSniffer(make_bus(cfg.hardware.bus))
         self.probe = DriveProbe(self.rig, cycles)
         self.clock = VirtualClock()
         self.sup = SafetySupervisor(overrun_streak=OVERRUN_STREAK)
@@ -159,7 +161,7 @@ class _Run:
         node = rig.drive if target == "drive" else rig.encoder
         if kind == "tpdo_missing":
             kk = self.cfg.hardware.bus.max_missed_cycles + 1
-            rig.model.inject(FaultSpec("drop", target=target, params={"count": kk}))
+            rig.device_model.inject(FaultSpec("drop", target=target, params={"count": kk}))
             inj.cond = k + kk
             inj.note = f"{kk} cycles"
         elif kind == "heartbeat_lost":
@@ -170,8 +172,8 @@ class _Run:
                 node.heartbeat_suppressed = False
                 node.nmt.start_heartbeat(self.cfg.hardware.bus.heartbeat_ms)
                 t0 = time.monotonic()
-                seen = rig.hb_seen.get(node.id, 0.0)
-                while rig.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
+                seen = self.sniffer.hb_seen.get(node.id, 0.0)
+                while self.sniffer.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
                     time.sleep(0.002)
                 while rig.hw._hb_last.get(node.id, 0.0) is None or \
                         time.monotonic() - rig.hw._hb_last[node.id] > 0.05:
@@ -180,13 +182,13 @@ class _Run:
             inj.note = target
         elif kind == "emcy":
             code = int(rng.choice([0x2310, 0x4210, 0x7305, 0x5530]))
-            rig.model.inject(FaultSpec("emcy", target=target, params={"code": code}))
+            rig.device_model.inject(FaultSpec("emcy", target=target, params={"code": code}))
             inj.cond = k + 1
             inj.note = f"{target} 0x{code:04X}"
         elif kind == "encoder_jump":
             rad = float(rng.uniform(0.3, 1.0) * rng.choice([-1, 1]))
             before = node.jump_counts
-            rig.model.inject(FaultSpec("jump", target=target, params={"rad": rad}))
+            rig.device_model.inject(FaultSpec("jump", target=target, params={"rad": rad}))
             delta = node.jump_counts - before
 
             def restore(node=node, delta=delta):
@@ -195,7 +197,7 @@ class _Run:
             inj.cond = k + 1
             inj.note = f"{target} {rad:+.2f} rad"
         elif kind == "encoder_stuck":
-            rig.model.inject(FaultSpec("stuck", target=target))
+            rig.device_model.inject(FaultSpec("stuck", target=target))
 
             def restore(node=node):
                 node.frozen = None
@@ -292,7 +294,10 @@ class _Run:
             self.loop.run(self.cycles)
             self.probe.observe(self.cycles - 1)
         finally:
-            self.rig.close()
+            try:
+                self.rig.stop()
+            finally:
+                self.sniffer.close()
         self._evaluate()
         return self
 
@@ -357,7 +362,7 @@ def _hb_hook(run: _Run) -> None:
         inj = run.cur
         if inj is not None and inj.kind == "heartbeat_lost" and not run.sup.ok and inj.latched_cycle < 0:
             node = run.rig.drive if inj.note == "drive" else run.rig.encoder
-            inj.hb_last = run.rig.hb_seen.get(node.id)
+            inj.hb_last = run.sniffer.hb_seen.get(node.id)
         orig(k, meas, est, tau)
     run.loop.on_cycle = on_cycle
 

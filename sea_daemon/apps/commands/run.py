@@ -37,7 +37,8 @@ def run(args) -> int:
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.runtime.loop import ZeroTorque
     from sea_daemon.runtime.notify import Notifier
-    from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
+    from sea_daemon.runtime.rig import make_rig
+    from sea_daemon.runtime.service import ScenarioController, StateFile, serve
     from sea_daemon.core.estimators.gpakf import GPAKF
     from sea_daemon.io.scenario import load_scenario
 
