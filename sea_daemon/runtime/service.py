@@ -1,9 +1,8 @@
-"""What ``sea-daemon run`` and ``sea-daemon calibrate`` share around the fixed-rate loop.
+"""The estimation service: what ``sea-daemon run`` and ``sea-daemon calibrate`` run around the fixed-rate loop.
 
-The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon.runtime.rig.make_rig`).
+The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon.runtime.rig.make_rig`),
+the controller from :mod:`sea_daemon.runtime.controller`.
 
-* :class:`ScenarioController` — the scenario's controller as the loop's controller (PID
-  tracking a minimum-jerk trajectory, or the open-loop cosine torque of Sec. V-C).
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``.
 * :func:`serve` — log writer, real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset),
@@ -22,88 +21,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-import numpy as np
-
-from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.safety import SafetySupervisor
 
 if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
+    from sea_daemon.core.estimators.base import Estimator
     from sea_daemon.runtime.rig import Rig
 
 PID_FILE = "sea-daemon.pid"
-
-
-# ---------------------------------------------------------------------------- controller
-class ScenarioController:
-    """The scenario's controller for :class:`FixedRateLoop` (``update(t, q, θ_m, estimate)``).
-
-    Time is the hardware's ``t``, counted from the run's first SYNC (cycle 0, the device model's
-    plant time 0 — the CANopen driver's priming read is that cycle), so the controller and the
-    device model's subject share one clock (before, the controller started at the first loop
-    sample, one period late, and the simulated subject's torque led the motor's by one sample).
-    PID (``controller.type: pid``): tracks the minimum-jerk trajectory from t = 0 of the run with
-    the configuration's torque limit, bumpless from ``hold`` (the torque already holding the arm;
-    on real hardware the nominal model's static load torque at the first sample).  Open loop
-    (``open_loop``): τ_comp + τ_des(t) in the estimation phase, τ_comp alone in training.
-    ``delay``: the hardware's actuation delay (the open-loop torque is for the interval it acts over).
-    """
-
-    def __init__(self, sc, cfg: ModelConfig, phase: str, hold: np.ndarray | None, delay: int = 0):
-        from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque
-        from sea_daemon.core.model import SEAModel
-        from sea_daemon.io.scenario import PIDSpec
-        self.n = cfg.joints
-        self.dt = cfg.dt
-        self.delay = int(delay)
-        self.hold = None if hold is None else np.asarray(hold, dtype=float).reshape(self.n)
-        self._model = SEAModel.from_config(cfg)
-        self._out = np.zeros(self.n)
-        self._started = False
-        ctrl = sc.controller
-        self.pid = self.ol = None
-        if isinstance(ctrl, PIDSpec):
-            tr = ctrl.trajectory
-            self.traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
-                                          cyclic=True)
-            self.pid = PID(ctrl.kp, ctrl.ki, ctrl.kd, cfg.dt, cfg.hardware.torque_limit, ctrl.velocity_filter_hz,
-                           derivative=ctrl.derivative)
-            self.derivative = ctrl.derivative
-        else:
-            self._ol_spec = ctrl                      # OpenLoopTorque built at the first sample (τ_comp)
-            self._ol_cls = OpenLoopTorque
-        self.active = phase == "estimation"
-        self.limit = cfg.hardware.torque_limit
-
-    def _hold(self, q) -> np.ndarray:
-        if self.hold is not None:
-            return self.hold
-        z = np.zeros(self.n)
-        # static load torque of the nominal model at rest (eq:loadsidewmotor with q̇ = q̈ = 0)
-        return np.clip(self._model.load_torque(np.asarray(q, dtype=float), z, z), -self.limit, self.limit)
-
-    def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
-        if not self._started:
-            self._started = True
-            u0 = self._hold(q)
-            if self.pid is not None:
-                self.pid.reset(q if self.derivative == "load" else theta_m, u0)     # bumpless
-            else:
-                c = self._ol_spec
-                self.ol = self._ol_cls(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
-                                       offset=c.offset)
-        tp = t                                        # phase time: the plant's clock (class docstring)
-        if self.pid is not None:
-            q_ref, dq_ref, _ = self.traj.reference(tp)
-            self._out[:] = self.pid.step(q_ref, q, dq_ref, theta_m)
-        else:
-            # τ_des of the interval the command acts over
-            self._out[:] = self.ol.command(tp + self.delay * self.dt, active=self.active)
-        np.clip(self._out, -self.limit, self.limit, out=self._out)
-        return self._out
 
 
 # ---------------------------------------------------------------------------- real time
@@ -186,7 +114,7 @@ class ServeResult:
     extra: dict = field(default_factory=dict)
 
 
-def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path, *,
+def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period: float, log_path: Path, *,
           cycles: int | None = None, realtime: bool = True, notifier: Notifier | None = None,
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",

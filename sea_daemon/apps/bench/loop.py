@@ -82,9 +82,10 @@ def run(args) -> int:
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
     from drivers.bus import make_bus
+    from sea_daemon.runtime.controller import ScenarioController
     from sea_daemon.runtime.rig import Rig, make_rig
     from sea_daemon.runtime.safety import SafetySupervisor
-    from sea_daemon.runtime.service import ScenarioController, serve
+    from sea_daemon.runtime.service import serve
     from sea_daemon.apps.bench._rig import FrameCounter
     from sea_daemon.core.estimators.gpakf import GPAKF
     from sea_daemon.io.scenario import load_scenario
@@ -136,7 +137,7 @@ def run(args) -> int:
                       cfg=cfg_r)
         frames = FrameCounter(make_bus(rig.cfg.hardware.bus))          # every frame on the rig's bus
         sc = load_scenario(scen)
-        controller = ScenarioController(sc, cfg, "estimation", rig.hold_torque, delay=rig.hw.actuation_delay)
+        controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
         snaps = {}
         n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
 
