@@ -5,9 +5,10 @@ the controller from :mod:`sea_daemon.runtime.controller`.
 
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``.
-* :func:`serve` — log writer, real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset),
-  hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second),
-  STOPPING=1, clean stop and log close.
+* :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
+  real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the
+  loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
+  and log close.
 """
 from __future__ import annotations
 
@@ -120,6 +121,9 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
           supervisor: SafetySupervisor | None = None) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal."""
+    # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
+    from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
+    warm_up()
     notifier = notifier or Notifier()
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
     rt = try_realtime(rt_priority) if (realtime and rt_priority) else {"sched": "other (not asked)",
