@@ -247,7 +247,8 @@ def test_model_files_corrupt_foreign_or_pickled_are_refused(tmp_path):
 def eds_rig(tmp_path, monkeypatch):
     """Device model whose drive is built from a copied EDS with 0x1000 changed (a CiA 406 device)."""
     from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware, DRIVE_EDS
+    from drivers.canopen_hw import CanopenHardware
+    from drivers.canopen_setup import DRIVE_EDS
     from drivers.device_model import DeviceModel
     from drivers.device_model.drive import DriveNode
     from sea_daemon.core.sim.plant import Plant
@@ -395,7 +396,7 @@ def test_daemon_commands_bad_arguments(tmp_path, capsys, model_file, argv, expec
 
 
 def test_run_on_a_device_with_the_wrong_eds_names_node_and_object(tmp_path, capsys, model_file, monkeypatch):
-    from drivers.canopen_hw import DRIVE_EDS
+    from drivers.canopen_setup import DRIVE_EDS
     from drivers.device_model.drive import DriveNode
     eds = tmp_path / "wrong_drive.eds"
     text = DRIVE_EDS.read_text()
