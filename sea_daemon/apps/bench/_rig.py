@@ -8,12 +8,14 @@ CiA 402 drive and a CiA 406 load encoder) on one python-can ``virtual`` channel:
 simulator's, motor-velocity damping) tracking a slow sine (:class:`SineTracker`), so the arm
 moves and every encoder has something to show.
 
-Bus listeners of their own: :class:`HeartbeatSniffer` (when each node's heartbeat was last seen),
-:class:`FrameCounter` (frames and bits on the bus).  :class:`DriveProbe` observes, at the device, the torque that reaches the arm: it waits
-until the device has processed every frame the driver sent (a frame-count barrier), then
-reads the drive's state machine and target torque 0x6071 — the torque the drive applies
-from now on is 0x6071 when OPERATION_ENABLED in CST, else zero (quick stop, fault,
-disabled).  Not for production: it slows each cycle by the barrier.
+Bus listeners of their own: :class:`HeartbeatSniffer` (when each node's heartbeat was last
+seen), :class:`FrameCounter` (frames and bits on the bus).
+
+:class:`DriveProbe` observes, at the device, the torque that reaches the arm: it waits until
+the device has processed every frame the driver sent (a frame-count barrier), then reads the
+drive's state machine and target torque 0x6071 — the torque the drive applies from now on is
+0x6071 when OPERATION_ENABLED in CST, else zero (quick stop, fault, disabled).  Not for
+production: it slows each cycle by the barrier.
 """
 from __future__ import annotations
 
@@ -75,45 +77,50 @@ def bench_rig(cfg: ModelConfig, q0: float = 0.6) -> Rig:
     return rig
 
 
-class HeartbeatSniffer:
-    """The monotonic time each node's heartbeat was last seen on a bus (``hb_seen[node]``), from a
-    listener of its own; ``close()`` stops it and shuts the bus."""
+class _BusListener:
+    """A listener of its own on a bus handle (a python-can Notifier thread calling ``_on_frame``);
+    ``close()`` stops it and shuts the bus."""
 
     def __init__(self, bus: can.BusABC):
         self.bus = bus
-        self.hb_seen: dict[int, float] = {}
         self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
 
     def _on_frame(self, msg: can.Message) -> None:
-        if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
-            self.hb_seen[msg.arbitration_id - 0x700] = time.monotonic()
+        raise NotImplementedError
 
     def close(self) -> None:
         self._notifier.stop(1.0)
         self.bus.shutdown()
 
 
-class FrameCounter:
-    """Counts the frames on a bus (a listener of its own, in its own thread) and their bits."""
+class HeartbeatSniffer(_BusListener):
+    """The monotonic time each node's heartbeat was last seen on the bus: ``hb_seen[node]``."""
 
     def __init__(self, bus: can.BusABC):
-        self.bus = bus
+        self.hb_seen: dict[int, float] = {}
+        super().__init__(bus)
+
+    def _on_frame(self, msg: can.Message) -> None:
+        if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
+            self.hb_seen[msg.arbitration_id - 0x700] = time.monotonic()
+
+
+class FrameCounter(_BusListener):
+    """Counts the frames on the bus and their bits (:func:`drivers.bus.frame_bits`)."""
+
+    def __init__(self, bus: can.BusABC):
         self.frames = 0
         self.bits_typ = 0
         self.bits_worst = 0
-        self._notifier = can.Notifier(bus, [self._on], timeout=0.05)
+        super().__init__(bus)
 
-    def _on(self, msg) -> None:
+    def _on_frame(self, msg: can.Message) -> None:
         self.frames += 1
         self.bits_typ += frame_bits(msg.dlc, stuffing="none")
         self.bits_worst += frame_bits(msg.dlc, stuffing="worst")
 
     def snapshot(self) -> tuple[int, int, int]:
         return self.frames, self.bits_typ, self.bits_worst
-
-    def close(self) -> None:
-        self._notifier.stop(0.5)
-        self.bus.shutdown()
 
 
 class DriveProbe(HardwareInterface):
