@@ -3,7 +3,10 @@
 * :mod:`drivers.interface` — :class:`HardwareInterface` (``start/read/write/safe_stop/stop``) and
   the :class:`Measurement` a ``read()`` returns.
 * :mod:`drivers.canopen_hw` — the CANopen implementation (CiA 402 drive + CiA 406 load encoder):
-  start-up over SDO, then a PDO-only cycle (RPDO, SYNC, the cycle's TPDOs).
+  start-up over SDO, then a PDO-only cycle (RPDO, SYNC, the cycle's TPDOs); with
+  :mod:`drivers.canopen_setup` (what start-up asks of each node over SDO, the PDO layout),
+  :mod:`drivers.canopen_rx` (the cycle's TPDO buffers) and :mod:`drivers.canopen_positions`
+  (counts to joint-side angles, encoder jump and stuck checks).
 * :mod:`drivers.sim_hw` — the same interface directly on the simulator, no CAN.
 * :mod:`drivers.bus` — ``make_bus(config)`` for virtual / socketcan / remote buses.
 * :mod:`drivers.device_model` — CANopen slaves (drive, encoder) on canopen's LocalNode with the

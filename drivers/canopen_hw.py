@@ -1,6 +1,7 @@
 """The exoskeleton on CANopen: CiA 402 drive (CST, mode 10) + CiA 406 load encoder per joint.
 
-Start-up (:meth:`CanopenHardware.start`), over SDO, after CiA 301 / 402 / 406:
+Start-up (:meth:`CanopenHardware.start`), after CiA 301 / 402 / 406; what it asks of each node
+over SDO is :class:`drivers.canopen_setup.NodeSetup`:
 
 1. NMT pre-operational; per node: device type 0x1000 (profile 402 / 406), identity 0x1018
    (vendor, product as in our EDS), encoder resolution (drive 0x608F = 2^bits per motor turn,
@@ -19,16 +20,17 @@ Start-up (:meth:`CanopenHardware.start`), over SDO, after CiA 301 / 402 / 406:
    quick-stopped — call ``read()`` within ``heartbeat_timeout_ms`` after ``start()``;
    mode 10 (0x6060, checked on 0x6061), CiA 402 state machine walked to OPERATION_ENABLED
    (fault reset first if needed);
-6. one priming cycle (zero torque, or ``start(initial_torque)``) that sets the unwrapping reference (the load encoder's single-turn
-   count is centred on (-π, π]).
+6. one priming cycle (zero torque, or ``start(initial_torque)``) that sets the unwrapping
+   reference (the load encoder's single-turn count is centred on (-π, π]); its sample is
+   :attr:`CanopenHardware.meas` until the first ``read()``.
 
 Cycle — PDOs only: ``write(tau)`` sends the RPDO; ``read()`` sends SYNC and takes that cycle's
-TPDOs.  The rx callbacks copy the frame bytes into preallocated buffers under a lock (a
-snapshot, no torn reads); ``read()`` copies the snapshot and decodes it with precompiled
-structs.  Counts become joint-side radians (gear ratio, multi-turn unwrapping, offsets) and per
-mille of rated torque becomes N m.  Detected: missing TPDOs, late frames, heartbeat timeout,
-EMCY, drive leaving OPERATION_ENABLED, encoder jumps beyond ``max_joint_speed``, stuck
-encoders, failed sends and bus-off.
+TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: the rx callbacks copy the frame bytes into
+preallocated buffers under a lock, ``read()`` decodes their snapshot with precompiled structs).
+Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
+multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
+TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
+beyond ``max_joint_speed``, stuck encoders, failed sends and bus-off.
 
 The synchronous RPDO written in cycle k is actuated by the drive at SYNC k+1 and acts over
 [t_k+1, t_k+2]; :attr:`Measurement.tau_m_applied` (0x6077) is the torque that acted over the
@@ -37,86 +39,26 @@ cycle ending at the sample time (see :mod:`drivers.interface` for the whole timi
 from __future__ import annotations
 
 import math
-import struct
-import threading
 import time
 
 import can
 import canopen
 import numpy as np
 from canopen.emcy import EmcyError
-from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.io.configfile import repo_root
 
 from drivers import cia402
 from drivers.bus import make_bus
+from drivers.canopen_positions import Positions
+from drivers.canopen_rx import ErrorFrames, TpdoWindow
+from drivers.canopen_setup import (
+    ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
 from drivers.errors import (
-    BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
-    PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
+    BusOff, DriveFault, EmcyReceived, HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
 from drivers.interface import FaultFlag, HardwareInterface, Measurement
 
-EDS_DIR = repo_root() / "configs" / "eds"
-DRIVE_EDS = EDS_DIR / "sea_drive.eds"
-ENCODER_EDS = EDS_DIR / "sea_load_encoder.eds"
-
-PROFILE_DRIVE, PROFILE_ENCODER = 402, 406
 NMT_OPERATIONAL = 0x05
-ABORT_QUICK_STOP = 3                    # 0x6007: reaction of the drive to a lost connection
-
-DRIVE_TPDO = struct.Struct("<Hhi")      # 0x6041 statusword, 0x6077 torque actual [‰], 0x6064 position
-ENCODER_TPDO = struct.Struct("<I")      # 0x6004 position value
-DRIVE_RPDO = struct.Struct("<Hh")       # 0x6040 controlword, 0x6071 target torque [‰]
-
-DRIVE_TPDO_MAP = ((0x6041, 0), (0x6077, 0), (0x6064, 0))
-ENCODER_TPDO_MAP = ((0x6004, 0),)
-DRIVE_RPDO_MAP = ((0x6040, 0), (0x6071, 0))
-
-
-def _wrap(delta: int, span: int) -> int:
-    """Shortest signed difference of two counters that wrap at ``span``."""
-    return (delta + span // 2) % span - span // 2
-
-
-def interpolation_period(period: float) -> tuple[int, int]:
-    """0x60C2 (value, index) with value·10^index = period, value in 1..255, index -6..0."""
-    for index in range(-3, -7, -1):
-        value = period * 10.0 ** (-index)
-        if 1 <= round(value) <= 255 and abs(round(value) - value) < 1e-6 * max(1.0, value):
-            return int(round(value)), index
-    for index in range(0, -7, -1):
-        value = period * 10.0 ** (-index)
-        if 1 <= round(value) <= 255:
-            return int(round(value)), index
-    raise ValueError(f"period {period} s cannot be written to 0x60C2 (1..255 · 10^-6..10^0 s)")
-
-
-class _Slot:
-    """One TPDO of the cycle: the rx callback's buffer and its copy for ``read()``."""
-
-    __slots__ = ("node", "cob_id", "buf", "snap", "count", "snap_count", "missed", "length", "bad_len")
-
-    def __init__(self, node: int, cob_id: int, length: int = 0):
-        self.node, self.cob_id = node, cob_id
-        self.length = length          # bytes the mapping defines (0: not checked)
-        self.bad_len = 0              # length of a frame that did not match, this cycle
-        self.buf = bytearray(8)
-        self.snap = bytearray(8)
-        self.count = 0
-        self.snap_count = 0
-        self.missed = 0
-
-
-class _ErrorFrames(can.Listener):
-    """Watches error frames for the bus-off flag (SocketCAN: CAN_ERR_BUSOFF = 0x40)."""
-
-    def __init__(self):
-        self.bus_off = False
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_error_frame and msg.arbitration_id & 0x40:
-            self.bus_off = True
 
 
 class CanopenHardware(HardwareInterface):
@@ -142,26 +84,18 @@ class CanopenHardware(HardwareInterface):
         self.drives: list = []
         self.encoders: list = []
         n = self.n
-        # conversions (joint side)                     counts → rad
-        self.k_q = 2 * math.pi / self.res                                  # load encoder
-        self.k_m = 2 * math.pi / (self.res * self.gear)                    # motor encoder through the gear
         self.nm_per_permille = b.rated_torque / 1e6 * self.gear            # 1 ‰ of 0x6076 on the joint side
         self.max_permille = min(32767, int(math.ceil(self.torque_limit / self.nm_per_permille)))
-        self.q_offset = np.array(b.q_offset, dtype=float)
-        self.theta_m_offset = np.array(b.theta_m_offset, dtype=float)
-        self.enc_range = [self.res] * n
+        self.setup = NodeSetup(b, res=self.res, gear=self.gear, period=self.period, max_permille=self.max_permille,
+                               keepalive=self._keepalive)
+        self.positions = Positions(n, self.res, self.gear, b, self.period)
         # cycle state
         self.meas = Measurement(n)
-        self._slots: list[_Slot] = []
-        self._rx_lock = threading.Lock()
-        self._all_rx = threading.Event()
-        self._arrived = 0
-        self._window_open = False
-        self._late_frames = 0
+        self._rx = TpdoWindow()
         self._hb_last = {}
         self._hb_state = {}
         self._emcy: dict[int, tuple[int, int, bytes] | None] = {}
-        self._errors = _ErrorFrames()
+        self._errors = ErrorFrames()
         self._rpdo_msgs: list[can.Message] = []
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
         self._hb_msg = can.Message(arbitration_id=0x700 + b.master_node, data=bytes([NMT_OPERATIONAL]),
@@ -171,15 +105,8 @@ class CanopenHardware(HardwareInterface):
         self._hb_on = False
         self._cw = cia402.CW_ENABLE_OPERATION
         self._quick_stopped = False
-        self._u_q = [0] * n            # unwrapped load counts
-        self._u_m = [0] * n            # unwrapped motor counts (int32 wraps undone)
-        self._raw_q = [0] * n
-        self._raw_m = [0] * n
+        self._initial_torque = np.zeros(n)   # commanded by the priming cycle (start())
         self._primed = False
-        self._stuck_q = [[0, 0.0] for _ in range(n)]   # [unchanged cycles, other angle at run start]
-        self._stuck_m = [[0, 0.0] for _ in range(n)]
-        self._prev_q = [0] * n         # raw counts of the last cycle (stuck detection)
-        self._prev_m = [0] * n
         self._cycle = -1
         self._started = False
 
@@ -217,154 +144,50 @@ class CanopenHardware(HardwareInterface):
             net.subscribe(0x700 + node.id, self._on_heartbeat)
             net.subscribe(0x80 + node.id, self._on_emcy)
         net.nmt.state = "PRE-OPERATIONAL"                                 # broadcast
+        setup = self.setup
         for j in range(self.n):
-            self._check_drive(self.drives[j])
-            self.enc_range[j] = self._check_encoder(self.encoders[j])
+            setup.check_drive(self.drives[j])
+            self.positions.enc_range[j] = setup.check_encoder(self.encoders[j])
         for j in range(self.n):
             self._configure_drive(self.drives[j])
             self._configure_encoder(self.encoders[j])
         for node in self.drives + self.encoders:
-            self._sdo_write(node, 0x1017, 0, self.bus_cfg.heartbeat_ms, "producer heartbeat time")
+            setup.write(node, 0x1017, 0, self.bus_cfg.heartbeat_ms, "producer heartbeat time")
         self._await_heartbeats()
         for node in self.drives + self.encoders:
             node.nmt.state = "OPERATIONAL"
         self._await_heartbeats(NMT_OPERATIONAL)
         for drive in self.drives:
             # the drive watches our heartbeat; losing it means quick stop (the daemon died or hangs)
-            self._sdo_write(drive, 0x6007, 0, ABORT_QUICK_STOP, "abort connection option code")
-            self._sdo_write(drive, 0x1016, 1, (self.bus_cfg.master_node << 16) | self.bus_cfg.heartbeat_timeout_ms,
-                            "consumer heartbeat time")
+            setup.write(drive, 0x6007, 0, ABORT_QUICK_STOP, "abort connection option code")
+            setup.write(drive, 0x1016, 1, (self.bus_cfg.master_node << 16) | self.bus_cfg.heartbeat_timeout_ms,
+                        "consumer heartbeat time")
         self._send_master_heartbeat(force=True)        # the drives' watch starts with this one
         self._hb_on = True
         for drive in self.drives:
-            self._sdo_write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
-            mode = self._sdo_read(drive, 0x6060 + 1, 0, "modes of operation display")
+            setup.write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
+            mode = setup.read(drive, 0x6060 + 1, 0, "modes of operation display")
             if mode != cia402.MODE_CST:
                 raise WrongDevice(drive.id, "0x6061 modes of operation display",
-                                     f"is {mode}, expected {cia402.MODE_CST} (cyclic synchronous torque)")
-            self._enable(drive)
+                                  f"is {mode}, expected {cia402.MODE_CST} (cyclic synchronous torque)")
+            setup.enable(drive)
         self._prime()
 
-    # ---------------------------------------------------------------- SDO helpers
-    def _sdo_read(self, node, index: int, sub: int, what: str) -> int:
-        if self._hb_on:
-            self._send_master_heartbeat()            # keep the drives' watch happy during SDO sequences
-        try:
-            var = node.sdo[index] if sub == 0 and not isinstance(node.sdo[index], canopen.sdo.SdoRecord) \
-                else node.sdo[index][sub]
-            return var.raw
-        except SdoAbortedError as e:
-            raise WrongDevice(node.id, f"0x{index:04X}:{sub:02X} {what}", f"SDO read aborted: {e}") from None
-        except SdoCommunicationError as e:
-            raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"no SDO answer: {e}") from None
-
-    def _sdo_write(self, node, index: int, sub: int, value: int, what: str) -> None:
+    def _keepalive(self) -> None:
+        """During SDO sequences: keep the drives' watch of our heartbeat happy (once it runs)."""
         if self._hb_on:
             self._send_master_heartbeat()
-        try:
-            obj = node.sdo[index]
-            (obj[sub] if isinstance(obj, (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) else obj).raw = value
-        except SdoAbortedError as e:
-            raise WrongDevice(node.id, f"0x{index:04X}:{sub:02X} {what}",
-                                 f"SDO write of {value} aborted: {e}") from None
-        except SdoCommunicationError as e:
-            raise DeviceMismatch(node.id, f"0x{index:04X}:{sub:02X} {what}", f"no SDO answer: {e}") from None
 
-    def _check_identity(self, node, profile: int, kind: str) -> None:
-        dtype = self._sdo_read(node, 0x1000, 0, "device type")
-        if dtype & 0xFFFF != profile:
-            raise WrongDevice(node.id, "0x1000 device type",
-                                 f"is 0x{dtype:08X} (profile {dtype & 0xFFFF}), expected profile {profile} ({kind})")
-        info = node.object_dictionary.device_information
-        for sub, what, expected in ((1, "vendor-ID", info.vendor_number), (2, "product code", info.product_number)):
-            got = self._sdo_read(node, 0x1018, sub, what)
-            if expected is not None and got != expected:
-                raise WrongDevice(node.id, f"0x1018:{sub:02X} {what}",
-                                     f"is 0x{got:08X}, expected 0x{expected:08X} ({kind} of our EDS)")
-
-    def _check_drive(self, d) -> None:
-        self._check_identity(d, PROFILE_DRIVE, "CiA 402 drive")
-        inc = self._sdo_read(d, 0x608F, 1, "position encoder resolution, encoder increments")
-        rev = self._sdo_read(d, 0x608F, 2, "position encoder resolution, motor revolutions")
-        if rev == 0 or inc != self.res * rev:
-            raise WrongDevice(d.id, "0x608F position encoder resolution",
-                                 f"is {inc} increments per {rev} motor revolution(s), expected {self.res} per 1 "
-                                 f"(hardware.encoder_bits = {self.res.bit_length() - 1})")
-        motor = self._sdo_read(d, 0x6091, 1, "gear ratio, motor revolutions")
-        shaft = self._sdo_read(d, 0x6091, 2, "gear ratio, shaft revolutions")
-        if shaft == 0 or abs(motor / shaft - self.gear) > 1e-9 * self.gear:
-            raise WrongDevice(d.id, "0x6091 gear ratio",
-                                 f"is {motor}:{shaft}, expected {self.gear:g}:1 (hardware.gear_ratio)")
-        modes = self._sdo_read(d, 0x6502, 0, "supported drive modes")
-        if not modes & cia402.SUPPORTED_MODE_BIT[cia402.MODE_CST]:
-            raise WrongDevice(d.id, "0x6502 supported drive modes",
-                                 f"is 0x{modes:08X}, needs bit 9 (cyclic synchronous torque, mode 10)")
-        rated = self._sdo_read(d, 0x6076, 0, "motor rated torque")
-        if abs(rated - self.bus_cfg.rated_torque) > 1e-9 * self.bus_cfg.rated_torque:
-            raise WrongDevice(d.id, "0x6076 motor rated torque",
-                                 f"is {rated} mN m, expected {self.bus_cfg.rated_torque:g} mN m "
-                                 f"(hardware.bus.rated_torque)")
-
-    def _check_encoder(self, e) -> int:
-        self._check_identity(e, PROFILE_ENCODER, "CiA 406 encoder")
-        res = self._sdo_read(e, 0x6501, 0, "singleturn resolution")
-        if res != self.res:
-            raise WrongDevice(e.id, "0x6501 singleturn resolution",
-                                 f"is {res}, expected {self.res} (hardware.encoder_bits = {self.res.bit_length() - 1})")
-        turns = self._sdo_read(e, 0x6502, 0, "number of distinguishable revolutions")
-        if not 1 <= turns <= (1 << 32) // res:
-            raise WrongDevice(e.id, "0x6502 number of distinguishable revolutions",
-                                 f"is {turns}, allowed 1..{(1 << 32) // res}")
-        return res * turns
-
-    # ---------------------------------------------------------------- PDO configuration
-    def _map(self, node, pdo, number: int, entries, cob_id: int, expected_bytes: int | None,
-             trans_type: int = 1) -> None:
-        """Write one PDO's communication and mapping parameters; read the mapping back."""
-        m = pdo[number]
-        what = f"0x{m.map_array.od.index:04X} {'TPDO' if m.map_array.od.index >= 0x1A00 else 'RPDO'}{number} mapping"
-        m.clear()
-        for index, sub in entries:
-            m.add_variable(index, sub)
-        m.cob_id = cob_id
-        m.trans_type = trans_type             # 1: synchronous, every SYNC; 255: on event / reception
-        m.enabled = bool(entries)
-        try:
-            m.save()
-        except SdoAbortedError as e:
-            raise WrongDevice(node.id, what, f"rejected by the device: {e}") from None
-        except SdoCommunicationError as e:
-            raise DeviceMismatch(node.id, what, f"no SDO answer: {e}") from None
-        if m.enabled:
-            self.network.unsubscribe(cob_id, m.on_message)       # we snapshot frames ourselves
-        if expected_bytes is None:
-            return
-        count = self._sdo_read(node, m.map_array.od.index, 0, "number of mapped objects")
-        bits = sum(self._sdo_read(node, m.map_array.od.index, s, "mapping entry") & 0xFF for s in range(1, count + 1))
-        if count != len(entries) or bits != 8 * expected_bytes:
-            raise WrongDevice(node.id, what, f"reads back {count} objects, {bits // 8} bytes; "
-                                                f"expected {len(entries)} objects, {expected_bytes} bytes")
-
+    # ---------------------------------------------------------------- PDOs of the cycle
     def _configure_drive(self, d) -> None:
-        value, index = interpolation_period(self.period)
-        self._sdo_write(d, 0x60C2, 1, value, "interpolation time period value")
-        self._sdo_write(d, 0x60C2, 2, index, "interpolation time index")
-        self._sdo_write(d, 0x6072, 0, self.max_permille, "max torque")
-        self._map(d, d.tpdo, 1, DRIVE_TPDO_MAP, 0x180 + d.id, DRIVE_TPDO.size)
-        self._map(d, d.tpdo, 2, (), 0x280 + d.id, None)
-        self._map(d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size,
-                  1 if self.bus_cfg.sync_rpdo else 255)
-        self._map(d, d.rpdo, 2, (), 0x300 + d.id, None)
-        self._slots.append(_Slot(d.id, 0x180 + d.id, DRIVE_TPDO.size))
-        self.network.subscribe(0x180 + d.id, self._rx_callback(self._slots[-1]))
+        self.setup.configure_drive(self.network, d)
+        self.network.subscribe(0x180 + d.id, self._rx.add(d.id, 0x180 + d.id, DRIVE_TPDO.size))
         self._rpdo_msgs.append(can.Message(arbitration_id=0x200 + d.id, data=bytearray(DRIVE_RPDO.size),
                                            is_extended_id=False))
 
     def _configure_encoder(self, e) -> None:
-        self._map(e, e.tpdo, 1, ENCODER_TPDO_MAP, 0x180 + e.id, ENCODER_TPDO.size)
-        self._map(e, e.tpdo, 2, (), 0x280 + e.id, None)
-        self._slots.append(_Slot(e.id, 0x180 + e.id, ENCODER_TPDO.size))
-        self.network.subscribe(0x180 + e.id, self._rx_callback(self._slots[-1]))
+        self.setup.configure_encoder(self.network, e)
+        self.network.subscribe(0x180 + e.id, self._rx.add(e.id, 0x180 + e.id, ENCODER_TPDO.size))
 
     def _await_heartbeats(self, state: int | None = None) -> None:
         """Wait for a heartbeat of every node (reporting ``state`` when given)."""
@@ -377,26 +200,10 @@ class CanopenHardware(HardwareInterface):
                     raise HeartbeatLost(node.id, self.hb_timeout, self.hb_timeout, self._hb_state[node.id])
                 time.sleep(0.001)
 
-    def _enable(self, d) -> None:
-        """Walk the CiA 402 state machine to OPERATION_ENABLED over SDO."""
-        state = None
-        for _ in range(8):
-            sw = self._sdo_read(d, 0x6041, 0, "statusword")
-            state = cia402.state_of(sw)
-            if state is cia402.State.OPERATION_ENABLED:
-                return
-            cw = cia402.command_towards(state)
-            if cw is None:
-                time.sleep(self.period)
-                continue
-            self._sdo_write(d, 0x6040, 0, cw, "controlword")
-        raise DeviceMismatch(d.id, "0x6041 statusword",
-                             f"drive did not reach OPERATION_ENABLED, stays in {state.name if state else 'invalid state'}")
-
     def _prime(self) -> None:
         """First cycle (at the initial torque): sets the unwrapping reference."""
         self._primed = False
-        self.write(getattr(self, "_initial_torque", np.zeros(self.n)))
+        self.write(self._initial_torque)
         self.read()
 
     def actuated(self, tau_m: np.ndarray) -> np.ndarray:
@@ -405,27 +212,7 @@ class CanopenHardware(HardwareInterface):
         pm = np.clip(np.round(tau / self.nm_per_permille), -self.max_permille, self.max_permille)
         return pm * self.nm_per_permille
 
-    # ================================================================== rx callbacks
-    def _rx_callback(self, slot: _Slot):
-        lock, event, slots = self._rx_lock, self._all_rx, self._slots
-
-        def on_tpdo(can_id, data, timestamp):
-            with lock:
-                if not self._window_open:      # no SYNC waiting: a frame of an earlier cycle
-                    self._late_frames += 1
-                    return
-                k = min(len(data), 8)
-                if slot.length and len(data) != slot.length:
-                    slot.bad_len = len(data) or -1        # reported by read(), never decoded
-                else:
-                    slot.buf[:k] = data[:k]
-                slot.count += 1
-                if slot.count == 1:
-                    self._arrived += 1
-                    if self._arrived >= len(slots):
-                        event.set()
-        return on_tpdo
-
+    # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
         node = can_id - 0x700
         self._hb_last[node] = self.clock()
@@ -478,28 +265,16 @@ class CanopenHardware(HardwareInterface):
         m.faults = 0
         self._check_async()
         self._send_master_heartbeat()
-        with self._rx_lock:
-            for s in self._slots:
-                s.count = 0
-                s.bad_len = 0
-            self._arrived = 0
-            self._all_rx.clear()
-            if self._late_frames:
-                m.faults |= FaultFlag.FRAME_LATE
-                self._late_frames = 0
-            self._window_open = True
+        if self._rx.open():
+            m.faults |= FaultFlag.FRAME_LATE
         t_sync = self.clock()
         try:
             self._send(self._sync_msg, "SYNC")
         except BaseException:
-            self._window_open = False
+            self._rx.abort()
             raise
-        self._all_rx.wait(self.pdo_timeout)
-        with self._rx_lock:
-            self._window_open = False
-            for s in self._slots:
-                s.snap[:] = s.buf
-                s.snap_count = s.count
+        self._rx.wait(self.pdo_timeout)
+        self._rx.close()
         self._cycle += 1
         self._check_emcy()                 # an EMCY sent before the TPDOs has arrived before them
         m.cycle = self._cycle
@@ -507,7 +282,7 @@ class CanopenHardware(HardwareInterface):
         m.t_mono = t_sync
         m.valid = True
         missing = None
-        for s in self._slots:
+        for s in self._rx.slots:
             if s.bad_len:
                 m.faults |= FaultFlag.PDO_MISSING
                 m.valid = False
@@ -554,7 +329,7 @@ class CanopenHardware(HardwareInterface):
     def _decode(self, m: Measurement) -> None:
         n = self.n
         for j in range(n):
-            ds, es = self._slots[2 * j], self._slots[2 * j + 1]
+            ds, es = self._rx.slots[2 * j], self._rx.slots[2 * j + 1]
             sw, torque, pos = DRIVE_TPDO.unpack_from(ds.snap, 0)
             (qc,) = ENCODER_TPDO.unpack_from(es.snap, 0)
             m.statusword[j] = sw
@@ -567,53 +342,11 @@ class CanopenHardware(HardwareInterface):
                 if not (self._quick_stopped and st is not cia402.State.FAULT):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")
                 # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
-            rng = self.enc_range[j]
-            if not self._primed:
-                # load: single-turn absolute, centred on (-range/2, range/2]
-                self._u_q[j] = qc - rng if qc >= rng // 2 else qc
-                # motor: multi-turn count (single-turn count + 2^bits per shaft turn), int32
-                self._u_m[j] = pos
-            else:
-                dq = _wrap(qc - self._raw_q[j], rng)
-                dm = _wrap(pos - self._raw_m[j], 1 << 32)
-                allowed_q = self.bus_cfg.max_joint_speed * self.period + 2 * self.k_q
-                allowed_m = self.bus_cfg.max_joint_speed * self.period + 2 * self.k_m
-                if abs(dq * self.k_q) > allowed_q:
-                    m.faults |= FaultFlag.ENCODER_JUMP
-                    raise EncoderJump(es.node, "0x6004 load position value", dq * self.k_q, allowed_q, self._cycle)
-                if abs(dm * self.k_m) > allowed_m:
-                    m.faults |= FaultFlag.ENCODER_JUMP
-                    raise EncoderJump(ds.node, "0x6064 motor position actual value", dm * self.k_m, allowed_m,
-                                      self._cycle)
-                self._u_q[j] += dq
-                self._u_m[j] += dm
-            self._raw_q[j], self._raw_m[j] = qc, pos
-            m.q[j] = self._u_q[j] * self.k_q - self.q_offset[j]
-            m.theta_m[j] = self._u_m[j] * self.k_m - self.theta_m_offset[j]
             if self._primed:
-                self._check_stuck(m, j, es.node, ds.node)
+                self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle)
             else:
-                self._stuck_q[j][:] = [0, m.theta_m[j]]
-                self._stuck_m[j][:] = [0, m.q[j]]
-                self._prev_q[j], self._prev_m[j] = int(qc), int(pos)
+                self.positions.reference(m, j, qc, pos)
         self._primed = True
-
-    def _check_stuck(self, m: Measurement, j: int, enc_node: int, drive_node: int) -> None:
-        b = self.bus_cfg
-        for run, changed, other, node, obj, count in (
-                (self._stuck_q[j], m.q_counts[j] != self._prev_q[j], m.theta_m[j], enc_node,
-                 "0x6004 load position value", int(m.q_counts[j])),
-                (self._stuck_m[j], m.theta_m_counts[j] != self._prev_m[j], m.q[j], drive_node,
-                 "0x6064 motor position actual value", int(m.theta_m_counts[j]))):
-            if changed:
-                run[0], run[1] = 0, other
-                continue
-            run[0] += 1
-            moved = abs(other - run[1])
-            if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
-                m.faults |= FaultFlag.ENCODER_STUCK
-                raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)
-        self._prev_q[j], self._prev_m[j] = int(m.q_counts[j]), int(m.theta_m_counts[j])
 
     # ================================================================== stopping
     def safe_stop(self) -> None:
@@ -640,7 +373,7 @@ class CanopenHardware(HardwareInterface):
         self._cw = cia402.CW_ENABLE_OPERATION
         self._quick_stopped = False
         for drive in self.drives:
-            self._enable(drive)
+            self.setup.enable(drive)
         self._prime()
 
     def stop(self) -> None:

@@ -82,19 +82,25 @@ class Measurement:
 class HardwareInterface(abc.ABC):
     """The exoskeleton's actuators and sensors, one joint per drive + load encoder pair.
 
-    Life cycle: ``start()`` (configure, enable; raises on a device mismatch) → ``read()`` /
-    ``write()`` once per cycle → ``safe_stop()`` on a fault → ``stop()``.  Faults raise
-    subclasses of :class:`sea_daemon.errors.HardwareError` (see :mod:`drivers.errors`); each
-    carries ``.fault`` for the daemon's fault policy.
+    Life cycle: ``start(initial_torque)`` (configure, enable; raises on a device mismatch) →
+    ``read()`` / ``write()`` once per cycle → ``safe_stop()`` on a fault → ``stop()``.  Faults
+    raise subclasses of :class:`sea_daemon.errors.HardwareError` (see :mod:`drivers.errors`);
+    each carries ``.fault`` for the daemon's fault policy.  Every implementation has the same
+    methods and attributes: what an implementation does not need keeps the default here.
     """
 
     n: int
     period: float
-    actuation_delay: int = 0     # cycles from write() to the interval the torque acts over
+    #: cycles from ``write()`` to the interval the torque acts over (0 or 1, see the module docstring)
+    actuation_delay: int = 0
 
     @abc.abstractmethod
-    def start(self) -> None:
-        """Bring the hardware up (start-up sequence) so that ``read``/``write`` can run."""
+    def start(self, initial_torque: np.ndarray | None = None) -> None:
+        """Bring the hardware up so that ``read``/``write`` can run.
+
+        ``initial_torque`` (n,) [N m]: the torque in force from the start on (e.g. the one
+        already holding the arm), zero when not given.
+        """
 
     @abc.abstractmethod
     def read(self) -> Measurement:
@@ -112,8 +118,12 @@ class HardwareInterface(abc.ABC):
     def stop(self) -> None:
         """Leave the hardware disabled and release the bus; idempotent."""
 
+    def actuated(self, tau_m: np.ndarray) -> np.ndarray:
+        """The torque [N m] the hardware applies for ``write(tau_m)``; here: as commanded."""
+        return tau_m
+
     def reset_fault(self) -> None:
-        """Operator reset after a latched fault (optional): re-arm detection, re-enable."""
+        """Operator reset after a latched fault: re-arm detection, re-enable; here: nothing to do."""
 
     def __enter__(self):
         self.start()

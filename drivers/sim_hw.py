@@ -19,6 +19,12 @@ from drivers.interface import HardwareInterface, Measurement
 
 
 class SimHardware(HardwareInterface):
+    """The plant behind :class:`HardwareInterface`: ``read()`` steps it, ``write()`` sets the torque.
+
+    ``tau_h_act(t)``: the subject's torque [N m] over the interval that starts at plant time t
+    (default zero); ``torque_limit`` clips the written torque like the drive's max torque.
+    """
+
     def __init__(self, plant, period: float, *, torque_limit: float = math.inf, actuation_delay: int = 0,
                  tau_h_act: Callable[[float], np.ndarray] | None = None):
         if actuation_delay not in (0, 1):
@@ -37,9 +43,12 @@ class SimHardware(HardwareInterface):
         self._stopped = False
         self.running = False
 
-    def start(self) -> None:
+    def start(self, initial_torque: np.ndarray | None = None) -> None:
+        """Ready to cycle; ``initial_torque`` is in force until the first ``write()`` takes over."""
         self.running = True
         self._stopped = False
+        if initial_torque is not None:
+            self._written[:] = np.asarray(initial_torque, dtype=float).reshape(self.n)
 
     def read(self) -> Measurement:
         m = self.meas

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from drivers.bus import socketcan_available
-from sea_daemon.apps.bench import _rig as bench_rig
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
 from sea_daemon.core.sim.plant import Plant
+from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
+from sea_daemon.runtime.rig import Rig, device_model_rig
 
 BUS_KINDS = ["virtual", "remote", "socketcan"]
 
@@ -98,13 +98,13 @@ def hil_config(kind: str = "virtual", channel: str = "", **bus):
     return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
 
 
-class Rig(bench_rig.Rig):
-    """Device model (stand-in plant) + CanopenHardware on two bus handles of one channel; the
-    driver is not started (the tests start it), no sniffer."""
-
-    def __init__(self, cfg, plant=None, position_preset: int = 0, lock_step: bool = True, tau_h_act=None):
-        super().__init__(cfg, plant=plant or recording_plant(0.3), position_preset=position_preset,
-                         lock_step=lock_step, tau_h_act=tau_h_act, start=False, sniff=False)
+def hil_rig(cfg, plant=None, position_preset: int = 0, lock_step: bool = True, tau_h_act=None) -> Rig:
+    """Device model (stand-in plant, running) + CanopenHardware on two bus handles of one channel;
+    the driver is not started (the tests start it)."""
+    rig = device_model_rig(cfg, plant or recording_plant(0.3), position_preset=position_preset, lock_step=lock_step,
+                           tau_h_act=tau_h_act)
+    rig.start_device_model()
+    return rig
 
 
 @pytest.fixture(scope="module")
@@ -136,10 +136,10 @@ def make_rig(bus_kind, request):
             bus.setdefault("channel", request.getfixturevalue("remote_url"))
         elif bus_kind == "socketcan":
             bus.setdefault("channel", "vcan0")
-        rig = Rig(hil_config(bus_kind, **bus), plant, position_preset, lock_step, tau_h_act)
+        rig = hil_rig(hil_config(bus_kind, **bus), plant, position_preset, lock_step, tau_h_act)
         rigs.append(rig)
         return rig
 
     yield factory
     for r in rigs:
-        r.close()
+        r.stop()

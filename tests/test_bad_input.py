@@ -247,7 +247,8 @@ def test_model_files_corrupt_foreign_or_pickled_are_refused(tmp_path):
 def eds_rig(tmp_path, monkeypatch):
     """Device model whose drive is built from a copied EDS with 0x1000 changed (a CiA 406 device)."""
     from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware, DRIVE_EDS
+    from drivers.canopen_hw import CanopenHardware
+    from drivers.canopen_setup import DRIVE_EDS
     from drivers.device_model import DeviceModel
     from drivers.device_model.drive import DriveNode
     from sea_daemon.core.sim.plant import Plant
@@ -287,25 +288,25 @@ def test_eds_with_a_wrong_device_type_is_named(eds_rig):
 def test_tpdo_of_the_wrong_length_is_named_at_run_time():
     from drivers.device_model import FaultSpec  # noqa: F401
     from drivers.errors import PdoLengthError
-    from sea_daemon.apps.bench._rig import Rig, bench_config
+    from sea_daemon.apps.bench._rig import bench_config, bench_rig
     from sea_daemon.errors import Fault
-    rig = Rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
+    rig = bench_rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
     try:
         rig.hw.read()
         rig.hw.write(np.zeros(1))
-        gate = rig.model.network.gate
+        gate = rig.device_model.network.gate
 
         def short(can_id, data):                 # the encoder sends 2 of its 4 bytes
             if can_id == 0x182:
-                rig.model.network.send_now(can_id, data[:2])
+                rig.device_model.network.send_now(can_id, data[:2])
                 return False
             return gate(can_id, data)
-        rig.model.network.gate = short
+        rig.device_model.network.gate = short
         with pytest.raises(PdoLengthError, match=r"node 2: TPDO 0x182 has 2 bytes, expected 4") as e:
             rig.hw.read()
         assert e.value.fault is Fault.TPDO_MISSING
     finally:
-        rig.close()
+        rig.stop()
 
 
 # ------------------------------------------------------------------ diagnose
@@ -395,7 +396,7 @@ def test_daemon_commands_bad_arguments(tmp_path, capsys, model_file, argv, expec
 
 
 def test_run_on_a_device_with_the_wrong_eds_names_node_and_object(tmp_path, capsys, model_file, monkeypatch):
-    from drivers.canopen_hw import DRIVE_EDS
+    from drivers.canopen_setup import DRIVE_EDS
     from drivers.device_model.drive import DriveNode
     eds = tmp_path / "wrong_drive.eds"
     text = DRIVE_EDS.read_text()

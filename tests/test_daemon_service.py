@@ -254,11 +254,11 @@ def test_scenario_controller_and_simulated_subject_share_the_plant_clock():
     # Sec. V-C: the subject resists τ_des, τ_h,act = −τ_des, at the same time as the motor's
     # open-loop τ_des: the controller's t is the hardware's (the device model's plant time)
     from sea_daemon.io.scenario import human_torque
-    from sea_daemon.runtime.service import ScenarioController
+    from sea_daemon.runtime.controller import ScenarioController
     from sea_daemon.io.scenario import load_scenario
     sc = load_scenario(ROOT / "configs" / "scenarios" / "active.yaml")
     cfg = load_config(CFG)
-    ctl = ScenarioController(sc, cfg, "estimation", hold=np.zeros(1))
+    ctl = ScenarioController(sc, cfg, hold=np.zeros(1), estimation_from=0)
     h = human_torque(sc)
     t_est = sc.training_samples * cfg.dt
     for k in (1, 2, 250, 400):                   # the loop's first sample is cycle 1 (t = dt)

@@ -12,7 +12,7 @@ from canopen.sdo import SdoAbortedError
 
 from _hil import recording_plant
 from drivers import cia402
-from drivers.canopen_hw import DRIVE_EDS
+from drivers.canopen_setup import DRIVE_EDS
 from drivers.device_model import DeviceModel, parse_fault
 from sea_daemon.errors import InputError
 

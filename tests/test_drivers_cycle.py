@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from _hil import bus_kind, make_rig, recording_plant, remote_url  # noqa: F401  (fixtures)
-from drivers.canopen_hw import interpolation_period
+from drivers.canopen_setup import interpolation_period
 
 Q = 2 * math.pi / 2**19               # load encoder quantum [rad]
 QM = 2 * math.pi / (2**19 * 100)      # motor encoder quantum, joint side [rad]

@@ -29,7 +29,7 @@ def started(make_rig, **kw):
 def test_dropped_tpdo_raises_in_its_cycle(make_rig):
     rig = started(make_rig)
     cycle = rig.hw.meas.cycle
-    rig.model.inject(FaultSpec("drop", target="encoder"))
+    rig.device_model.inject(FaultSpec("drop", target="encoder"))
     with pytest.raises(PdoTimeout, match=r"node 2: TPDO 0x182 missing in cycle") as e:
         rig.hw.read()
     assert e.value.cycle == cycle + 1 and e.value.fault is Fault.TPDO_MISSING
@@ -38,7 +38,7 @@ def test_dropped_tpdo_raises_in_its_cycle(make_rig):
 def test_missed_cycles_tolerated_up_to_the_limit(make_rig):
     rig = started(make_rig, max_missed_cycles=2)
     q_before = rig.hw.meas.q.copy()
-    rig.model.inject(FaultSpec("drop", target="drive", params={"count": 3}))
+    rig.device_model.inject(FaultSpec("drop", target="drive", params={"count": 3}))
     for _ in range(2):
         m = rig.hw.read()
         assert not m.valid and m.faults & FaultFlag.PDO_MISSING
@@ -51,7 +51,7 @@ def test_missed_cycles_tolerated_up_to_the_limit(make_rig):
 
 def test_delayed_frame_is_missing_then_flagged_late(make_rig):
     rig = started(make_rig, max_missed_cycles=1)
-    rig.model.inject(FaultSpec("delay", target="drive", params={"count": 1, "seconds": 0.5}))
+    rig.device_model.inject(FaultSpec("delay", target="drive", params={"count": 1, "seconds": 0.5}))
     m = rig.hw.read()                                              # waits 0.3 s
     assert not m.valid and m.faults & FaultFlag.PDO_MISSING
     time.sleep(0.5)                                                # the late frame lands between cycles
@@ -61,7 +61,7 @@ def test_delayed_frame_is_missing_then_flagged_late(make_rig):
 
 def test_stuck_encoder(make_rig):
     rig = started(make_rig, stuck_cycles=10, stuck_motion=0.01)
-    rig.model.inject(FaultSpec("stuck", target="encoder"))
+    rig.device_model.inject(FaultSpec("stuck", target="encoder"))
     with pytest.raises(EncoderStuck, match=r"node 2: 0x6004 load position value stuck at count \d+ for \d+ cycles"
                                            r" while the other encoder moved 0\.\d+ rad, allowed <= 0\.0100 rad") as e:
         for k in range(60):
@@ -72,7 +72,7 @@ def test_stuck_encoder(make_rig):
 
 def test_stuck_motor_encoder(make_rig):
     rig = started(make_rig, stuck_cycles=10, stuck_motion=0.01)
-    rig.model.inject(FaultSpec("stuck", target="drive"))
+    rig.device_model.inject(FaultSpec("stuck", target="drive"))
     with pytest.raises(EncoderStuck, match=r"node 1: 0x6064 motor position actual value stuck"):
         for k in range(60):
             rig.hw.read()
@@ -82,20 +82,20 @@ def test_stuck_motor_encoder(make_rig):
 @pytest.mark.parametrize("target,node,obj", [("encoder", 2, "0x6004"), ("drive", 1, "0x6064")])
 def test_jumping_encoder_raises_in_its_cycle(make_rig, target, node, obj):
     rig = started(make_rig)
-    rig.model.inject(FaultSpec("jump", target=target, params={"rad": 0.5}))
+    rig.device_model.inject(FaultSpec("jump", target=target, params={"rad": 0.5}))
     with pytest.raises(EncoderJump, match=rf"node {node}: {obj} .* jumped \+0\.(49|50)\d\d rad .* allowed \|step\| <= 0\.2000"):
         rig.hw.read()
 
 
 def test_small_steps_are_not_jumps(make_rig):
     rig = started(make_rig)
-    rig.model.inject(FaultSpec("jump", target="encoder", params={"rad": 0.1}))   # < 20 rad/s · 10 ms
+    rig.device_model.inject(FaultSpec("jump", target="encoder", params={"rad": 0.1}))   # < 20 rad/s · 10 ms
     rig.hw.read()
 
 
 def test_drive_emcy(make_rig):
     rig = started(make_rig)
-    rig.model.inject(FaultSpec("emcy", target="drive", params={"code": 0x2310}))
+    rig.device_model.inject(FaultSpec("emcy", target="drive", params={"code": 0x2310}))
     with pytest.raises(EmcyReceived, match=r"node 1: EMCY 0x2310 \(.*[Cc]urrent.*\), error register 0x03") as e:
         rig.hw.read()
     assert e.value.fault is Fault.EMCY
@@ -108,14 +108,14 @@ def test_drive_emcy(make_rig):
 
 def test_encoder_emcy(make_rig):
     rig = started(make_rig)
-    rig.model.inject(FaultSpec("emcy", target="encoder", params={"code": 0x7305}))
+    rig.device_model.inject(FaultSpec("emcy", target="encoder", params={"code": 0x7305}))
     with pytest.raises(EmcyReceived, match=r"node 2: EMCY 0x7305"):
         rig.hw.read()
 
 
 def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
     rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=250)
-    rig.model.inject(FaultSpec("heartbeat", target="encoder"))
+    rig.device_model.inject(FaultSpec("heartbeat", target="encoder"))
     starts = []
     with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms, allowed <= 250 ms"):
         for _ in range(200):
@@ -129,7 +129,7 @@ def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
 
 def test_device_bus_off_is_seen_as_missing_frames(make_rig):
     rig = started(make_rig)
-    rig.model.inject(FaultSpec("busoff", target="drive"))
+    rig.device_model.inject(FaultSpec("busoff", target="drive"))
     with pytest.raises(PdoTimeout, match=r"node 1: TPDO 0x181 missing"):
         rig.hw.read()
 
@@ -178,7 +178,7 @@ def test_loop_latches_and_quick_stops_the_drive(make_rig):
 
     def on_cycle(k, meas, est, tau):
         if k == 5:
-            rig.model.inject(FaultSpec("jump", target="encoder", params={"rad": 1.0}))
+            rig.device_model.inject(FaultSpec("jump", target="encoder", params={"rad": 1.0}))
 
     loop = FixedRateLoop(rig.hw, Est(), Push(), n=1, period=0.01, realtime=False, on_cycle=on_cycle)
     loop.run(cycles=10)

@@ -91,8 +91,8 @@ def test_free_running_device_model_with_the_driver_in_real_time():
     """Free-running physics (its own thread, real time); the driver samples it at SYNC."""
     import time
 
-    from _hil import Rig, hil_config
-    rig = Rig(hil_config("virtual"), recording_plant(0.3), lock_step=False)
+    from _hil import hil_config, hil_rig
+    rig = hil_rig(hil_config("virtual"), recording_plant(0.3), lock_step=False)
     try:
         rig.hw.start(initial_torque=rig.plant.hold_torque)
         t0, ts, qs = time.monotonic(), [], []
@@ -103,8 +103,8 @@ def test_free_running_device_model_with_the_driver_in_real_time():
             rig.hw.write(np.array([4.0]))
             time.sleep(0.01)
         wall = time.monotonic() - t0
-        assert rig.model.syncs == 31
+        assert rig.device_model.syncs == 31
         assert rig.plant.t == pytest.approx(wall, abs=0.2 + 0.5 * wall)     # physics kept to the clock
         assert qs[-1] > qs[0] + 0.01                                       # and felt the torque
     finally:
-        rig.close()
+        rig.stop()

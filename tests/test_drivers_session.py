@@ -39,6 +39,9 @@ def test_calibration_run_over_can_matches_the_simulator(tmp_path):
     assert rms(tr.q - ref.q) < 2e-4 and rms(tr.tau_m - ref.tau_m) < 0.05
     assert np.ptp(tr.q) > 0.3                                            # the arm moved (min-jerk)
     assert not np.any(tr.tau_h_act)                                      # passive subject
+    # the estimation phase continues the moves from where the training phase left them, as offline
+    est, ref_est = can.estimation, off.estimation
+    assert np.array_equal(est.t, ref_est.t) and rms(est.q - ref_est.q) < 2e-4
     # the calibration log is a measured log (docs/interfaces.md §1)
     write_log(tmp_path / "train.csv", tr)
     back = read_log(tmp_path / "train.csv", n=1)

@@ -4,6 +4,7 @@ import types
 import numpy as np
 import pytest
 
+from drivers.interface import HardwareInterface
 from sea_daemon.runtime.loop import FixedRateLoop, fault_of, log_columns
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.safety import SafetySupervisor
@@ -14,8 +15,9 @@ class HeartbeatLost(HardwareError):
     pass
 
 
-class FakeHW:
+class FakeHW(HardwareInterface):
     def __init__(self, fail_at=None, exc=HeartbeatLost("drive heartbeat missing for 120 ms")):
+        self.n, self.period = 1, 0.01
         self.k = 0
         self.fail_at, self.exc = fail_at, exc
         self.writes = []
@@ -34,13 +36,22 @@ class FakeHW:
     def safe_stop(self):
         self.safe_stops.append(self.k - 1)
 
+    def start(self, initial_torque=None):
+        pass
+
+    def stop(self):
+        pass
+
 
 class ConstEstimator:
     def __init__(self, nan_at=None):
         self.k = 0
         self.nan_at = nan_at
 
-    def update(self, q, theta_m, tau_m):
+    def reset(self, q=None, theta_m=None, tau_m=None):
+        pass
+
+    def update(self, q, theta_m, tau_m, dt=None):
         self.k += 1
         if self.nan_at is not None and self.k > self.nan_at:
             raise EstimatorFault("state became non-finite")
@@ -134,7 +145,7 @@ class TorqueRecorder(ConstEstimator):
         super().__init__()
         self.taus = []
 
-    def update(self, q, theta_m, tau_m):
+    def update(self, q, theta_m, tau_m, dt=None):
         self.taus.append(float(tau_m[0]))
         return super().update(q, theta_m, tau_m)
 

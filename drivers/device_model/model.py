@@ -83,6 +83,11 @@ class DeviceModel:
             self._thread.start()
         return self
 
+    @property
+    def running(self) -> bool:
+        """Started and not stopped since."""
+        return self._running
+
     def stop(self) -> None:
         self._running = False
         if self._thread is not None:

@@ -17,7 +17,9 @@ from sea_daemon.io.gpmodel import save_gp_model
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.safety import SafetySupervisor
-from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
+from sea_daemon.runtime.controller import ScenarioController
+from sea_daemon.runtime.rig import make_rig
+from sea_daemon.runtime.service import StateFile, serve
 
 
 class _Progress:
@@ -69,7 +71,7 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     # the training phase (ass:passive_human): learning on in every cycle
     estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, learning=True, bound=False)
     rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
-    controller = ScenarioController(sc, cfg, "training", rig.hold_torque, delay=getattr(rig.hw, "actuation_delay", 0))
+    controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=None)
     bar = _Progress(cycles, progress, estimator)
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,

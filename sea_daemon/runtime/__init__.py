@@ -1,8 +1,10 @@
-"""The estimation service on the exoskeleton controller.
+"""The runtime: everything that runs in cycles against the hardware, one home per concept.
 
-Owns the one fixed-rate loop (:mod:`.loop`: read → control → write → estimate → log → sleep to an
-absolute deadline), the single fault policy (:mod:`.safety`), the off-loop log writer
-(:mod:`.logwriter`), systemd notification (:mod:`.notify`) and the service around them
-(:mod:`.service`).  May import ``drivers``, :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and
-:mod:`sea_daemon.errors`.
+Owns the one fixed-rate loop (:mod:`.loop`: read → update → write → estimate → record → sleep
+to an absolute deadline) that the estimation service (:mod:`.service`), the offline simulator
+(:mod:`.sim_runner`) and the hardware-in-the-loop session (:mod:`.hil_session`) all run; the
+hardware a run is against (:mod:`.rig`), the scenario's controller (:mod:`.controller`), the
+rows of a lock-step run (:mod:`.recorder`), the single fault policy (:mod:`.safety`), the
+off-loop log writer (:mod:`.logwriter`) and systemd notification (:mod:`.notify`).  May import
+``drivers``, :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and :mod:`sea_daemon.errors`.
 """

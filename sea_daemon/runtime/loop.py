@@ -1,19 +1,25 @@
-"""The fixed-rate loop: read → control → write → estimate → log → sleep to an absolute deadline.
+"""The fixed-rate loop: read → update → write → sleep to an absolute deadline (ros2_control style).
 
-One cycle k (ros2_control order, with the estimator after the write so that it gets the
-torque that acts over [t_k, t_k+1] — see :mod:`drivers.interface`):
+The one cycle loop of the project: the daemon (:mod:`.service`), the offline simulator
+(:mod:`.sim_runner`, lock-step over :class:`drivers.sim_hw.SimHardware`) and the
+hardware-in-the-loop session (:mod:`.hil_session`, over :class:`drivers.canopen_hw.CanopenHardware`
+and the device model) run it against a :class:`drivers.interface.HardwareInterface`.
+
+One cycle k (the estimator after the write, so that it gets the torque that acts over
+[t_k, t_k+1] — see :mod:`drivers.interface`):
 
 1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault)
 2. ``controller.update()``   the torque command from the measurement and the last estimate
 3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
-4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: the one written now with
-   ``hw.actuation_delay`` 0 (asynchronous RPDO), the previous cycle's with delay 1 (as the
-   drive applies it: ``hw.actuated()`` when the hardware has it); raises EstimatorFault
-   instead of emitting NaN
-5. one row into the off-loop log writer (row k's ``tau_m`` is that same torque, docs/interfaces.md §1),
-   WATCHDOG=1 to systemd from every cycle the loop runs (latched or not)
+4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
+   one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
+   with delay 1; raises EstimatorFault instead of emitting NaN
+5. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
+   ``tau_m`` is that same torque, docs/interfaces.md §1); WATCHDOG=1 to systemd from every
+   cycle the loop runs (latched or not)
 6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
-   deadlines missed by a whole period or more are skipped (counted), not caught up in a burst
+   deadlines missed by a whole period or more are skipped (counted), not caught up in a burst;
+   lock-step runs (``realtime=False``) do not sleep
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
 row vector is preallocated and the log writer only copies it.  Faults follow the single
@@ -23,37 +29,22 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from sea_daemon.errors import EstimatorFault, HardwareError
-from sea_daemon.errors import Fault
+from drivers.interface import HardwareInterface, Measurement
+from sea_daemon.errors import EstimatorFault, Fault, HardwareError
 from sea_daemon.runtime.safety import SafetySupervisor
 
-
-class Hardware(Protocol):
-    def read(self) -> Any: ...             # .t, .q (n,), .theta_m (n,)
-    def write(self, tau_m: np.ndarray) -> None: ...
-    def safe_stop(self) -> None: ...
-
-
-class Estimator(Protocol):
-    def update(self, q: np.ndarray, theta_m: np.ndarray, tau_m: np.ndarray) -> Any: ...
+if TYPE_CHECKING:                     # the estimators load compiled kernels: not for a type
+    from sea_daemon.core.estimators.base import Estimator
 
 
 class Controller(Protocol):
+    """What the loop asks for the torque command (e.g. :class:`sea_daemon.runtime.controller.ScenarioController`)."""
+
     def update(self, t: float, q: np.ndarray, theta_m: np.ndarray, estimate: Any) -> np.ndarray: ...
-
-
-class ZeroTorque:
-    """Estimation only: the loop commands no torque of its own."""
-
-    def __init__(self, n: int):
-        self._zero = np.zeros(n)
-
-    def update(self, t, q, theta_m, estimate):
-        return self._zero
 
 
 def fault_of(exc: BaseException) -> Fault:
@@ -103,18 +94,25 @@ def log_columns(n: int) -> list[str]:
 
 
 class FixedRateLoop:
-    """read → control → write → estimate → log → sleep to an absolute deadline, with the fault policy.
+    """read → update → write → estimate → record → sleep to an absolute deadline, with the fault policy.
 
-    ``initial_torque``: the torque in force when the loop starts (what ``hw.start()`` primed
-    with); with ``hw.actuation_delay`` 1 it is the torque acting over the first interval.
+    ``estimator``: None runs no estimation (the offline simulator).  ``initial_torque``: the
+    torque in force when the loop starts (what ``hw.start()`` primed with); with
+    ``hw.actuation_delay`` 1 it is the torque acting over the first interval.
+    ``on_cycle(k, measurement, estimate, tau)``: called at the end of every cycle with the
+    torque acting over [t_k, t_k+1] (``measurement`` None when the read failed, ``estimate``
+    None when invalid); it may read :attr:`cycle_start` (``clock()`` when cycle k began).
+    ``fail_fast``: a lock-step run (the simulator, the HIL session) raises the exception of the
+    first fault out of :meth:`run`, after the fault policy's zero torque, instead of going on
+    latched.
     """
 
-    def __init__(self, hw: Hardware, estimator: Estimator, controller: Controller, n: int, period: float,
-                 log=None, notifier=None, supervisor: SafetySupervisor | None = None,
+    def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
+                 period: float, log=None, notifier=None, supervisor: SafetySupervisor | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
-                 initial_torque: np.ndarray | None = None):
+                 initial_torque: np.ndarray | None = None, fail_fast: bool = False):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -123,16 +121,17 @@ class FixedRateLoop:
         self.realtime = realtime
         self.record_periods = record_periods
         self.on_cycle = on_cycle
+        self.fail_fast = fail_fast
         self.stats = LoopStats()
         self._row = np.zeros(len(log_columns(n)))
         self._zero = np.zeros(n)
         self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
         self._act_prev = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
-        self._delay = int(getattr(hw, "actuation_delay", 0) or 0)
-        self._actuated = getattr(hw, "actuated", None)
+        self._delay = int(hw.actuation_delay)
         self._stop = False
         self._reset_requested = False
         self.last_estimate = None
+        self.cycle_start = 0.0
 
     def request_stop(self) -> None:          # signal-handler safe: sets a flag only
         self._stop = True
@@ -154,7 +153,19 @@ class FixedRateLoop:
         if self.notifier is not None:
             self.notifier.status(self.supervisor.status_line())
 
-    def run(self, cycles: int | None = None) -> LoopStats:
+    def _failed(self, e: BaseException, cycle: int, t: float) -> None:
+        """An exception in the cycle: latch its fault (zero torque now); re-raise it when ``fail_fast``."""
+        self._trip(fault_of(e), cycle, t, f"{type(e).__name__}: {e}")
+        if self.fail_fast:
+            raise e
+
+    def run(self, cycles: int | None = None, start_sample: Measurement | None = None) -> LoopStats:
+        """Run ``cycles`` cycles (None: until :meth:`request_stop`).
+
+        ``start_sample``: the sample ``hw.start()`` took at t_0 (the CANopen driver's priming
+        cycle); cycle 0 is then that sample, estimated and recorded with the initial torque
+        (in force over [t_0, t_1]) and no command, and the reads start at t_1.
+        """
         n = self.n
         sup = self.supervisor
         row = self._row
@@ -165,13 +176,13 @@ class FixedRateLoop:
         k = 0
         while not self._stop and (cycles is None or k < cycles):
             start = self.clock()
+            self.cycle_start = start
             if self._reset_requested:
                 self._reset_requested = False
                 was = sup.reset()
                 try:
-                    if hasattr(self.hw, "reset_fault"):
-                        self.hw.reset_fault()
-                    if hasattr(self.estimator, "reset"):
+                    self.hw.reset_fault()
+                    if self.estimator is not None:
                         self.estimator.reset()
                 except Exception as e:  # noqa: BLE001 - a failed reset leaves the fault latched
                     self._trip(fault_of(e) if was == Fault.NONE else was, k, start,
@@ -182,16 +193,22 @@ class FixedRateLoop:
             meas = None
             est = None
             valid = 0.0
-            try:
-                meas = self.hw.read()
-            except Exception as e:  # noqa: BLE001 - every hardware fault latches
-                self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+            if start_sample is not None:
+                meas, start_sample = start_sample, None
+                self._tau[:] = self._act_prev          # the initial torque acts over [t_0, t_1]
+                from_start = True
+            else:
+                try:
+                    meas = self.hw.read()
+                except Exception as e:  # noqa: BLE001 - every hardware fault latches
+                    self._failed(e, k, start)
+                from_start = False
             t_read = self.clock()
-            if meas is not None and sup.ok:
+            if meas is not None and sup.ok and not from_start:
                 try:
                     cmd = self.controller.update(meas.t, meas.q, meas.theta_m, self.last_estimate)
                     self.hw.write(cmd)
-                    act = self._actuated(cmd) if self._actuated is not None else cmd
+                    act = self.hw.actuated(cmd)
                     if self._delay:
                         # synchronous RPDO: the previous command acts over [t_k, t_k+1]
                         self._tau[:] = self._act_prev
@@ -200,13 +217,13 @@ class FixedRateLoop:
                         # actuated on reception: this command acts over [t_k, t_k+1]
                         self._tau[:] = act
                 except Exception as e:  # noqa: BLE001
-                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
-            if meas is not None and sup.ok:
+                    self._failed(e, k, start)
+            if meas is not None and sup.ok and self.estimator is not None:
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
                     valid = 1.0
                 except Exception as e:  # noqa: BLE001
-                    self._trip(fault_of(e), k, start, f"{type(e).__name__}: {e}")
+                    self._failed(e, k, start)
             if not sup.ok:
                 self._tau[:] = 0.0
                 self._act_prev[:] = 0.0

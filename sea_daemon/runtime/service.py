@@ -1,233 +1,38 @@
-"""What ``sea-daemon run`` and ``sea-daemon calibrate`` share around the fixed-rate loop.
+"""The estimation service: what ``sea-daemon run`` and ``sea-daemon calibrate`` run around the fixed-rate loop.
 
-* :func:`make_rig` — the hardware behind :class:`drivers.interface.HardwareInterface`: the CAN
-  bus of the configuration (``--bus/--channel`` overrides), or for tests, the demo and the
-  benchmark the device model started in this process on a fresh virtual channel
-  (``--device-model SCENARIO``: the scenario's true plant and subject behind CANopen, lock-step
-  with SYNC), or the simulator's plant without CAN (``--sim SCENARIO``).
-* :class:`ScenarioController` — the scenario's controller as the loop's controller (PID
-  tracking a minimum-jerk trajectory, or the open-loop cosine torque of Sec. V-C).
+The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon.runtime.rig.make_rig`),
+the controller from :mod:`sea_daemon.runtime.controller`.
+
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``.
-* :func:`serve` — log writer, real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset),
-  hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second),
-  STOPPING=1, clean stop and log close.
+* :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
+  real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the
+  loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
+  and log close.
 """
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import dataclasses
 import json
 import os
 import signal
 import time
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-import numpy as np
-
-from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.safety import SafetySupervisor
 
+if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
+    from sea_daemon.core.estimators.base import Estimator
+    from sea_daemon.runtime.rig import Rig
+
 PID_FILE = "sea-daemon.pid"
-
-
-# ---------------------------------------------------------------------------- hardware
-@dataclass
-class Rig:
-    """The hardware and what was started with it."""
-
-    hw: Any
-    kind: str                                     # "can", "device-model", "sim"
-    description: str
-    initial_torque: np.ndarray
-    hold_torque: np.ndarray | None = None         # known for a simulated plant (experimenter's calibration)
-    tau_h_act: Callable[[float], np.ndarray] | None = None   # the simulated subject (truth), plant time
-    device_model: Any = None
-    bus: Any = None                               # the bus config in use (None for --sim)
-    frames: Any = None                            # CAN frame counter (bench), when asked for
-
-    def start(self) -> None:
-        if self.device_model is not None:
-            self.device_model.start()
-        if self.kind == "sim":
-            self.hw.start()
-        else:
-            self.hw.start(initial_torque=self.initial_torque)
-
-    def stop(self) -> None:
-        try:
-            self.hw.stop()
-        finally:
-            try:
-                if self.device_model is not None:
-                    self.device_model.stop()
-            finally:
-                if self.frames is not None:
-                    self.frames.close()
-
-
-def _human(sc, phase: str):
-    """τ_h,act(t) of the scenario's subject for a run that starts at plant time 0 in ``phase``."""
-    from sea_daemon.io.scenario import human_torque
-    f = human_torque(sc)
-    if phase == "training":
-        n = sc.nominal.joints
-        return lambda t, _z=np.zeros(n): _z                 # ass:passive_human: the subject is passive
-    t_est = sc.training_samples * sc.nominal.dt
-    return lambda t: f(t + t_est)                          # the estimation phase starts at t = 0
-
-
-def bus_overrides(cfg: ModelConfig, bus: str | None, channel: str | None) -> ModelConfig:
-    b = cfg.hardware.bus
-    b = dataclasses.replace(b, interface=bus or b.interface, channel=channel or b.channel)
-    if b.interface == "remote" and not str(b.channel).startswith(("ws://", "wss://")):
-        raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
-    return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-
-
-def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | None = None,
-             phase: str = "estimation", count_frames: bool = False) -> Rig:
-    """The hardware for ``cfg`` (see the module docstring); ``phase`` picks the subject's torque."""
-    from sea_daemon.io.scenario import make_plant
-    from sea_daemon.io.scenario import load_scenario
-    n = cfg.joints
-    if sim and device_model:
-        raise InputError("--sim and --device-model exclude each other")
-    scen = sim or device_model
-    if not scen:
-        from drivers.canopen_hw import CanopenHardware
-        b = cfg.hardware.bus
-        return Rig(CanopenHardware(cfg), "can", f"CAN {b.interface} {b.channel}", np.zeros(n), bus=b)
-    sc = load_scenario(scen)
-    if sc.nominal.joints != n:
-        raise InputError(f"scenario {scen}: {sc.nominal.joints} joint(s), the configuration has {n}")
-    plant = make_plant(sc)
-    tau_h = _human(sc, phase)
-    hold = np.array(plant.hold_torque, dtype=float).reshape(n)
-    if sim:
-        from drivers.sim_hw import SimHardware
-        hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=tau_h)
-        return Rig(hw, "sim", f"simulator ({scen}), no CAN", hold, hold, tau_h)
-    from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware
-    from drivers.device_model import DeviceModel
-    # a fresh virtual channel per run; timeouts fit for a loaded machine (the device model shares it)
-    b = dataclasses.replace(cfg.hardware.bus, interface="virtual", channel=f"sea-daemon-{uuid.uuid4().hex[:8]}",
-                            pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
-    cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-    model = DeviceModel(make_bus(b), plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                        tau_h_act=tau_h, owns_bus=True)
-    frames = None
-    bus = None
-    if count_frames:
-        bus = make_bus(b)
-        frames = FrameCounter(bus)
-    hw = CanopenHardware(cfg)
-    rig = Rig(hw, "device-model", f"device model ({scen}) on virtual CAN {b.channel}", hold, hold, tau_h,
-              device_model=model, bus=b, frames=frames)
-    return rig
-
-
-class FrameCounter:
-    """Counts the frames on a bus (a listener of its own, in its own thread) and their bits."""
-
-    def __init__(self, bus):
-        import can
-        self.bus = bus
-        self.frames = 0
-        self.bits_typ = 0
-        self.bits_worst = 0
-        self._notifier = can.Notifier(bus, [self._on], timeout=0.05)
-
-    def _on(self, msg) -> None:
-        from drivers.bus import frame_bits
-        self.frames += 1
-        self.bits_typ += frame_bits(msg.dlc, stuffing="none")
-        self.bits_worst += frame_bits(msg.dlc, stuffing="worst")
-
-    def snapshot(self) -> tuple[int, int, int]:
-        return self.frames, self.bits_typ, self.bits_worst
-
-    def close(self) -> None:
-        self._notifier.stop(0.5)
-        self.bus.shutdown()
-
-
-# ---------------------------------------------------------------------------- controller
-class ScenarioController:
-    """The scenario's controller for :class:`FixedRateLoop` (``update(t, q, θ_m, estimate)``).
-
-    Time is the hardware's ``t``, counted from the run's first SYNC (cycle 0, the device model's
-    plant time 0 — the CANopen driver's priming read is that cycle), so the controller and the
-    device model's subject share one clock (before, the controller started at the first loop
-    sample, one period late, and the simulated subject's torque led the motor's by one sample).
-    PID (``controller.type: pid``): tracks the minimum-jerk trajectory from t = 0 of the run with
-    the configuration's torque limit, bumpless from ``hold`` (the torque already holding the arm;
-    on real hardware the nominal model's static load torque at the first sample).  Open loop
-    (``open_loop``): τ_comp + τ_des(t) in the estimation phase, τ_comp alone in training.
-    ``delay``: the hardware's actuation delay (the open-loop torque is for the interval it acts over).
-    """
-
-    def __init__(self, sc, cfg: ModelConfig, phase: str, hold: np.ndarray | None, delay: int = 0):
-        from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque
-        from sea_daemon.core.model import SEAModel
-        from sea_daemon.io.scenario import PIDSpec
-        self.n = cfg.joints
-        self.dt = cfg.dt
-        self.delay = int(delay)
-        self.hold = None if hold is None else np.asarray(hold, dtype=float).reshape(self.n)
-        self._model = SEAModel.from_config(cfg)
-        self._out = np.zeros(self.n)
-        self._started = False
-        ctrl = sc.controller
-        self.pid = self.ol = None
-        if isinstance(ctrl, PIDSpec):
-            tr = ctrl.trajectory
-            self.traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
-                                          cyclic=True)
-            self.pid = PID(ctrl.kp, ctrl.ki, ctrl.kd, cfg.dt, cfg.hardware.torque_limit, ctrl.velocity_filter_hz,
-                           derivative=ctrl.derivative)
-            self.derivative = ctrl.derivative
-        else:
-            self._ol_spec = ctrl                      # OpenLoopTorque built at the first sample (τ_comp)
-            self._ol_cls = OpenLoopTorque
-        self.active = phase == "estimation"
-        self.limit = cfg.hardware.torque_limit
-
-    def _hold(self, q) -> np.ndarray:
-        if self.hold is not None:
-            return self.hold
-        z = np.zeros(self.n)
-        # static load torque of the nominal model at rest (eq:loadsidewmotor with q̇ = q̈ = 0)
-        return np.clip(self._model.load_torque(np.asarray(q, dtype=float), z, z), -self.limit, self.limit)
-
-    def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
-        if not self._started:
-            self._started = True
-            u0 = self._hold(q)
-            if self.pid is not None:
-                self.pid.reset(q if self.derivative == "load" else theta_m, u0)     # bumpless
-            else:
-                c = self._ol_spec
-                self.ol = self._ol_cls(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
-                                       offset=c.offset)
-        tp = t                                        # phase time: the plant's clock (class docstring)
-        if self.pid is not None:
-            q_ref, dq_ref, _ = self.traj.reference(tp)
-            self._out[:] = self.pid.step(q_ref, q, dq_ref, theta_m)
-        else:
-            # τ_des of the interval the command acts over
-            self._out[:] = self.ol.command(tp + self.delay * self.dt, active=self.active)
-        np.clip(self._out, -self.limit, self.limit, out=self._out)
-        return self._out
 
 
 # ---------------------------------------------------------------------------- real time
@@ -268,7 +73,7 @@ class StateFile:
         self.path = Path(directory) / PID_FILE
 
     def write(self, **info) -> None:
-        from sea_daemon.io.modelfile import atomic_write_bytes
+        from sea_daemon.io.files import atomic_write_bytes
         atomic_write_bytes(self.path, json.dumps({"pid": os.getpid(), "started": time.time(), **info}).encode())
 
     def remove(self) -> None:
@@ -310,12 +115,15 @@ class ServeResult:
     extra: dict = field(default_factory=dict)
 
 
-def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path, *,
+def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period: float, log_path: Path, *,
           cycles: int | None = None, realtime: bool = True, notifier: Notifier | None = None,
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
           supervisor: SafetySupervisor | None = None) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal."""
+    # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
+    from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
+    warm_up()
     notifier = notifier or Notifier()
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
     rt = try_realtime(rt_priority) if (realtime and rt_priority) else {"sched": "other (not asked)",
@@ -365,8 +173,7 @@ def serve(rig: Rig, estimator, controller, n: int, period: float, log_path: Path
     finally:
         notifier.stopping()
         try:
-            if started or rig.device_model is not None:
-                rig.stop()
+            rig.stop()
         finally:
             final = log.close()
             if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log

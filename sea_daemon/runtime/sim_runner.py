@@ -1,18 +1,23 @@
-"""Run a scenario: the true plant in closed loop with the controller, sampled like the hardware.
+"""Run a scenario offline: the true plant in closed loop with the scenario's controller, sampled like the hardware.
 
-Per sample k (period dt = 1/rate_hz of the nominal model config), at t_k:
- 1. the encoders are read (19-bit quantisation, offsets; :mod:`.sensors`);
- 2. the controller computes τ_m from the *measured* angles (PID) or from time (open loop);
- 3. the row (t_k, q, θ_m, τ_m commanded, τ_h,act) is logged;
- 4. the plant advances to t_{k+1} with τ_m (+ noise) and τ_h,act held.
+The fixed-rate loop (:class:`~sea_daemon.runtime.loop.FixedRateLoop`, lock-step, no sleeping)
+runs the :class:`~sea_daemon.runtime.controller.ScenarioController` over
+:class:`drivers.sim_hw.SimHardware` on the scenario's plant, no estimator.  Per cycle k
+(period dt = 1/rate_hz of the nominal model config), at t_k = k·dt:
+
+1. ``read()`` steps the plant over [t_k-1, t_k] with the torque written in cycle k-1 (+ noise)
+   and the subject's torque, then reads the encoders (19-bit quantisation, offsets);
+2. the controller computes τ_m from the *measured* angles (PID) or from time (open loop);
+3. ``write()``: τ_m is held over [t_k, t_k+1];
+4. the row (t_k, q, θ_m, τ_m commanded, τ_h,act over [t_k, t_k+1], debug extras) is recorded;
+   the applied torque of the interval (``tau_m_applied``) comes with the next cycle's step.
 
 The training phase is followed seamlessly by the estimation phase (same plant, same
 controller state; time keeps running, so the estimation log starts at t = N_train·dt).
 Passive scenario (Sec. V-B): the moves continue back and forth, so with the training phase a
 whole number of move pairs (2100 samples = 6 moves) the estimation phase runs the same
-trajectory again.  Active scenario (Sec. V-C):
-τ_des = 0 in training, the cosine profile (phase time) in estimation, and the subject
-holds the arm: τ_h,act = −τ_des exactly.
+trajectory again.  Active scenario (Sec. V-C): τ_des = 0 in training, the cosine profile
+(phase time) in estimation, and the subject holds the arm: τ_h,act = −τ_des exactly.
 """
 from __future__ import annotations
 
@@ -20,9 +25,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque
+from drivers.sim_hw import SimHardware
 from sea_daemon.core.log import MeasuredLog
-from sea_daemon.io.scenario import OpenLoopSpec, PIDSpec, Scenario, make_plant
+from sea_daemon.io.scenario import Scenario, make_plant
+from sea_daemon.runtime.controller import ScenarioController
+from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.runtime.recorder import PhaseRecorder
+
+#: debug extras of the simulator's logs (the readers of docs/interfaces.md §1 ignore them)
+EXTRA = ("q_ref", "tau_des", "q_true", "theta_m_true", "dq_true", "dtheta_m_true", "tau_s_true", "tau_m_applied")
 
 
 @dataclass
@@ -37,61 +48,43 @@ class SimResult:
 def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
     """Simulate the training then the estimation phase of a scenario."""
     plant = make_plant(sc, seed)
-    dt = sc.nominal.dt
-    ctrl = sc.controller
-    pid = traj = ol = None
-    if isinstance(ctrl, PIDSpec):
-        tr = ctrl.trajectory
-        # cyclic: the estimation phase continues the back-and-forth moves seamlessly (with the
-        # shipped 2100 = 6 moves of training it starts again at q_start: the same trajectory)
-        traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
-                                 cyclic=True)
-        pid = PID(ctrl.kp, ctrl.ki, ctrl.kd, dt, sc.nominal.hardware.torque_limit, ctrl.velocity_filter_hz,
-                  derivative=ctrl.derivative)
-        q_meas, th_meas = plant.measure()
-        pid.reset(q_meas if ctrl.derivative == "load" else th_meas, plant.hold_torque)           # bumpless: the controller already holds the arm
-    else:
-        assert isinstance(ctrl, OpenLoopSpec)
-        # the experimenter's calibration: the static torque holding the system at q0
-        ol = OpenLoopTorque(tau_comp=plant.hold_torque.copy(), amplitude=ctrl.amplitude,
-                            frequency_hz=ctrl.frequency_hz, offset=ctrl.offset)
+    cfg = sc.nominal
+    n_train = sc.training_samples
+    rows = n_train + sc.estimation_samples
+    ctl = ScenarioController(sc, cfg, plant.hold_torque, estimation_from=n_train)
+    resist = sc.human == "resist"
 
-    def run_phase(n_samples: int, estimation: bool, k0: int) -> MeasuredLog:
-        cols = {k: np.empty(n_samples) for k in (
-            "t", "q", "theta_m", "tau_m", "tau_h_act", "q_ref", "tau_des", "q_true", "theta_m_true",
-            "dq_true", "dtheta_m_true", "tau_s_true", "tau_m_applied")}
-        for k in range(n_samples):
-            tp = k * dt                                 # phase time
-            q_meas, th_meas = plant.measure()
-            tau_des = 0.0
-            if pid is not None:
-                q_ref, dq_ref, _ = traj.reference((k0 + k) * dt)
-                u = pid.step(q_ref, q_meas, dq_ref, th_meas)
-            else:
-                q_ref = ctrl.q0
-                tau_des = ol.tau_des(tp, active=estimation)
-                u = ol.command(tp, active=estimation)
-            # Sec. V-C: the subject resists and holds the arm, τ_h,act = −τ_des
-            tau_h = -tau_des if sc.human == "resist" else 0.0
-            cols["t"][k] = (k0 + k) * dt
-            cols["q"][k] = q_meas[0]
-            cols["theta_m"][k] = th_meas[0]
-            cols["tau_m"][k] = u[0]
-            cols["tau_h_act"][k] = tau_h
-            cols["q_ref"][k] = q_ref
-            cols["tau_des"][k] = tau_des
-            cols["q_true"][k] = plant.q[0]
-            cols["theta_m_true"][k] = plant.theta_m[0]
-            cols["dq_true"][k] = plant.dq[0]
-            cols["dtheta_m_true"][k] = plant.dtheta_m[0]
-            cols["tau_s_true"][k] = plant.tau_s[0]
-            plant.step(u, dt, tau_h)
-            cols["tau_m_applied"][k] = plant.applied_torque[0]
-        base = ("t", "q", "theta_m", "tau_m", "tau_h_act")
-        return MeasuredLog(t=cols["t"], q=cols["q"][:, None], theta_m=cols["theta_m"][:, None],
-                           tau_m=cols["tau_m"][:, None], tau_h_act=cols["tau_h_act"][:, None],
-                           extra={k: v for k, v in cols.items() if k not in base})
+    def subject(t: float) -> float:
+        # Sec. V-C: the subject resists and holds the arm, τ_h,act = −τ_des of the same interval
+        return -ctl.tau_des if resist else 0.0
 
-    train = run_phase(sc.training_samples, False, 0)
-    est = run_phase(sc.estimation_samples, True, sc.training_samples)
-    return SimResult(training=train, estimation=est, tau_comp=None if ol is None else ol.tau_comp)
+    hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=subject)
+    rec = PhaseRecorder(rows, cfg.joints, EXTRA)
+    c = rec.cols
+
+    def record(k, m, est, tau) -> None:
+        if k:
+            c["tau_m_applied"][k - 1] = plant.applied_torque   # this cycle's read stepped [t_k-1, t_k]
+        if k == rows:
+            return                                            # the read that only steps the last row's interval
+        c["t"][k] = m.t
+        c["q"][k] = m.q
+        c["theta_m"][k] = m.theta_m
+        c["tau_m"][k] = tau
+        c["tau_h_act"][k] = subject(m.t)
+        c["q_ref"][k] = ctl.q_ref
+        c["tau_des"][k] = ctl.tau_des
+        c["q_true"][k] = plant.q
+        c["theta_m_true"][k] = plant.theta_m
+        c["dq_true"][k] = plant.dq
+        c["dtheta_m_true"][k] = plant.dtheta_m
+        c["tau_s_true"][k] = plant.tau_s
+
+    loop = FixedRateLoop(hw, None, ctl, cfg.joints, cfg.dt, realtime=False, on_cycle=record, fail_fast=True)
+    hw.start(initial_torque=plant.hold_torque)
+    try:
+        loop.run(rows + 1)
+    finally:
+        hw.stop()
+    train, est = rec.phases(n_train)
+    return SimResult(training=train, estimation=est, tau_comp=None if ctl.ol is None else ctl.ol.tau_comp)

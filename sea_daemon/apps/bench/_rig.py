@@ -1,17 +1,21 @@
-"""Shared rig of the reliability benchmarks: device model + CanopenHardware on a virtual bus.
+"""What the reliability benchmarks add to the runtime's rig: a configuration, a controller, probes.
 
 The daemon's own pieces — :class:`~drivers.canopen_hw.CanopenHardware`, the
 :class:`~sea_daemon.runtime.loop.FixedRateLoop` and its :class:`SafetySupervisor` — run
 against the device model (:mod:`drivers.device_model`, the simulator's true plant behind a
-CiA 402 drive and a CiA 406 load encoder) on one python-can ``virtual`` channel.  The
-controller is a PID (the simulator's, motor-velocity damping) tracking a slow sine, so the
-arm moves and every encoder has something to show.
+CiA 402 drive and a CiA 406 load encoder) on one python-can ``virtual`` channel: the runtime's
+:class:`~sea_daemon.runtime.rig.Rig` (:func:`bench_rig`).  The controller is a PID (the
+simulator's, motor-velocity damping) tracking a slow sine (:class:`SineTracker`), so the arm
+moves and every encoder has something to show.
 
-:class:`DriveProbe` observes, at the device, the torque that reaches the arm: it waits
-until the device has processed every frame the driver sent (a frame-count barrier), then
-reads the drive's state machine and target torque 0x6071 — the torque the drive applies
-from now on is 0x6071 when OPERATION_ENABLED in CST, else zero (quick stop, fault,
-disabled).  Not for production: it slows each cycle by the barrier.
+Bus listeners of their own: :class:`HeartbeatSniffer` (when each node's heartbeat was last
+seen), :class:`FrameCounter` (frames and bits on the bus).
+
+:class:`DriveProbe` observes, at the device, the torque that reaches the arm: it waits until
+the device has processed every frame the driver sent (a frame-count barrier), then reads the
+drive's state machine and target torque 0x6071 — the torque the drive applies from now on is
+0x6071 when OPERATION_ENABLED in CST, else zero (quick stop, fault, disabled).  Not for
+production: it slows each cycle by the barrier.
 """
 from __future__ import annotations
 
@@ -25,13 +29,13 @@ import can
 import numpy as np
 
 from drivers import cia402
-from drivers.bus import make_bus
-from drivers.canopen_hw import CanopenHardware
-from drivers.device_model import DeviceModel
+from drivers.bus import frame_bits
+from drivers.interface import HardwareInterface
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.core.control import PID
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.runtime.rig import Rig, device_model_rig
 
 
 def bench_config(**bus) -> ModelConfig:
@@ -59,68 +63,76 @@ class SineTracker:
         return self._out
 
 
-class Rig:
-    """Plant + device model + driver on bus handles of one channel.
+def bench_rig(cfg: ModelConfig, q0: float = 0.6) -> Rig:
+    """The benchmarks' rig, started: the simulator's plant at rest at ``q0`` (no torque noise)
+    behind the device model (lock-step) and the driver (:func:`~sea_daemon.runtime.rig.device_model_rig`),
+    primed with zero torque."""
+    from sea_daemon.core.sim.plant import Plant
+    rig = device_model_rig(cfg, Plant(cfg, q0=q0, seed=0, torque_noise=0.0))
+    try:
+        rig.start()
+    except BaseException:
+        rig.stop()
+        raise
+    return rig
 
-    By default the driver is started and a sniffer records heartbeats (``hb_seen``); the HIL
-    tests build it with ``start=False, sniff=False`` and start the driver themselves.
-    ``position_preset``, ``lock_step``, ``tau_h_act``: passed to the :class:`DeviceModel`.
-    """
 
-    def __init__(self, cfg: ModelConfig, q0: float = 0.6, plant=None, *, position_preset: int = 0,
-                 lock_step: bool = True, tau_h_act=None, start: bool = True, sniff: bool = True):
-        from sea_daemon.core.sim.plant import Plant
-        self.cfg = cfg
-        self.plant = plant or Plant(cfg, q0=q0, seed=0, torque_noise=0.0)
-        b = cfg.hardware.bus
-        self.dev_bus = make_bus(b)
-        self.drv_bus = make_bus(b)
-        self.model = DeviceModel(self.dev_bus, self.plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                                 position_preset=position_preset, lock_step=lock_step, tau_h_act=tau_h_act)
-        self.model.start()
+class _BusListener:
+    """A listener of its own on a bus handle (a python-can Notifier thread calling ``_on_frame``);
+    ``close()`` stops it and shuts the bus."""
+
+    def __init__(self, bus: can.BusABC):
+        self.bus = bus
+        self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
+
+    def _on_frame(self, msg: can.Message) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self._notifier.stop(1.0)
+        self.bus.shutdown()
+
+
+class HeartbeatSniffer(_BusListener):
+    """The monotonic time each node's heartbeat was last seen on the bus: ``hb_seen[node]``."""
+
+    def __init__(self, bus: can.BusABC):
         self.hb_seen: dict[int, float] = {}
-        self.sniff_bus = self._sniffer = None
-        if sniff:
-            self.sniff_bus = make_bus(b)
-            self._sniffer = can.Notifier(self.sniff_bus, [self._on_frame], timeout=0.05)
-        self.hw = CanopenHardware(cfg, self.drv_bus)
-        if start:
-            self.hw.start()
+        super().__init__(bus)
 
     def _on_frame(self, msg: can.Message) -> None:
         if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
             self.hb_seen[msg.arbitration_id - 0x700] = time.monotonic()
 
-    @property
-    def drive(self):
-        return self.model.drives[0]
 
-    @property
-    def encoder(self):
-        return self.model.encoders[0]
+class FrameCounter(_BusListener):
+    """Counts the frames on the bus and their bits (:func:`drivers.bus.frame_bits`)."""
 
-    def close(self) -> None:
-        try:
-            self.hw.stop()
-        finally:
-            self.model.stop()
-            if self._sniffer is not None:
-                self._sniffer.stop(1.0)
-            for bus in (self.drv_bus, self.dev_bus, self.sniff_bus):
-                if bus is None:
-                    continue
-                try:
-                    bus.shutdown()
-                except Exception:  # noqa: BLE001
-                    pass
+    def __init__(self, bus: can.BusABC):
+        self.frames = 0
+        self.bits_typ = 0
+        self.bits_worst = 0
+        super().__init__(bus)
+
+    def _on_frame(self, msg: can.Message) -> None:
+        self.frames += 1
+        self.bits_typ += frame_bits(msg.dlc, stuffing="none")
+        self.bits_worst += frame_bits(msg.dlc, stuffing="worst")
+
+    def snapshot(self) -> tuple[int, int, int]:
+        return self.frames, self.bits_typ, self.bits_worst
 
 
-class DriveProbe:
+class DriveProbe(HardwareInterface):
     """Hardware wrapper for the loop: before each ``read()`` it records the torque the drive
-    applies after the previous cycle (``applied[k]`` for the interval after cycle k)."""
+    applies after the previous cycle (``applied[k]`` for the interval after cycle k).
+
+    ``start``/``write``/``safe_stop``/``stop`` go to the rig's driver; ``actuated`` keeps the
+    interface's default (the commanded torque)."""
 
     def __init__(self, rig: Rig, cycles: int, barrier_timeout: float = 1.0):
         self.rig, self.hw = rig, rig.hw
+        self.n, self.period, self.actuation_delay = rig.hw.n, rig.hw.period, rig.hw.actuation_delay
         self.applied = np.full(cycles + 1, np.nan)      # per mille reaching the arm after cycle k
         self.enabled = np.zeros(cycles + 1, dtype=bool)  # drive in OPERATION_ENABLED after cycle k
         self.read_t = np.zeros(cycles + 1)               # time.monotonic() at the entry of read() of cycle k
@@ -138,7 +150,7 @@ class DriveProbe:
             with self._lock:
                 self._sent += 1
         bus.send = send
-        net = rig.model.network
+        net = rig.device_model.network
         orig_notify = net.notify
 
         def notify(can_id, data, timestamp):
@@ -180,6 +192,12 @@ class DriveProbe:
         self.applied[k] = d.target_permille if on else 0
 
     # --------------------------------------------------------------- HardwareInterface
+    def start(self, initial_torque=None):
+        self.hw.start(initial_torque)
+
+    def stop(self):
+        self.hw.stop()
+
     def read(self):
         if self.reset_error is not None:
             # the operator reset failed: the fault it was meant to clear is still there;

@@ -47,12 +47,9 @@ def _server():
 
 
 def run(args) -> int:
-    from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware
-    from drivers.device_model import DeviceModel
-
-    from sea_daemon.io.configfile import default_config_path, load_config
     from sea_daemon.core.sim.plant import Plant
+    from sea_daemon.io.configfile import default_config_path, load_config
+    from sea_daemon.runtime.rig import device_model_rig
 
     cfg = load_config(default_config_path())
     proc = None
@@ -61,24 +58,22 @@ def run(args) -> int:
         proc, channel = _server()
     b = dataclasses.replace(cfg.hardware.bus, interface=args.bus, channel=channel, pdo_timeout_ms=1000.0)
     cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-    dev_bus = make_bus(b)
-    model = DeviceModel(dev_bus, Plant(cfg, q0=0.3, seed=0), owns_bus=True).start()
-    hw = CanopenHardware(cfg)
+    rig = device_model_rig(cfg, Plant(cfg, q0=0.3, seed=0))
     times = np.empty(args.cycles)
     try:
+        rig.start_device_model()
         t0 = time.perf_counter()
-        hw.start()
+        rig.hw.start()
         t_start = time.perf_counter() - t0
         tau = np.zeros(1)
         for k in range(args.cycles):
             tau[0] = 1.0 * np.sin(0.01 * k)
             t = time.perf_counter()
-            hw.write(tau)
-            hw.read()
+            rig.hw.write(tau)
+            rig.hw.read()
             times[k] = time.perf_counter() - t
     finally:
-        hw.stop()
-        model.stop()
+        rig.stop()
         if proc is not None:
             proc.terminate()
             proc.wait(5)

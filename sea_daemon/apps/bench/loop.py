@@ -81,8 +81,12 @@ def run(args) -> int:
 
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
+    from drivers.bus import make_bus
+    from sea_daemon.runtime.controller import ScenarioController
+    from sea_daemon.runtime.rig import Rig, make_rig
     from sea_daemon.runtime.safety import SafetySupervisor
-    from sea_daemon.runtime.service import FrameCounter, Rig, ScenarioController, make_rig, serve
+    from sea_daemon.runtime.service import serve
+    from sea_daemon.apps.bench._rig import FrameCounter
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.apps.bench.can_cycle import _server
@@ -114,9 +118,8 @@ def run(args) -> int:
         else:
             estimator = make_estimator("akf", cfg, dt=dt)
         if args.bus == "virtual":
-            rig = make_rig(cfg, device_model=scen, phase="estimation", count_frames=True)
+            rig = make_rig(cfg, device_model=scen, phase="estimation")
         else:
-            from drivers.bus import make_bus
             server, url = _server()
             procs.append(server)
             cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
@@ -129,26 +132,25 @@ def run(args) -> int:
                                    env=dict(os.environ, PYTHONPATH=str(root)))
             procs.append(dev)
             _wait_line(dev, "device-model ready", 60)
-            plant_hold = None
-            frames = FrameCounter(make_bus(cfg_r.hardware.bus))
-            rig = Rig(CanopenHardware(cfg_r), "can", f"device model process behind can_remote {url}",
-                      np.zeros(cfg.joints), plant_hold, frames=frames)
+            rig = Rig(CanopenHardware(cfg_r), f"device model process behind can_remote {url}", np.zeros(cfg.joints),
+                      cfg=cfg_r)
+        frames = FrameCounter(make_bus(rig.cfg.hardware.bus))          # every frame on the rig's bus
         sc = load_scenario(scen)
-        controller = ScenarioController(sc, cfg, "estimation", rig.hold_torque,
-                                        delay=getattr(rig.hw, "actuation_delay", 0))
+        controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
         snaps = {}
         n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
 
         def progress(k, est):
             if k == 0:
-                snaps["start"] = (rig.frames.snapshot(), time.monotonic())
+                snaps["start"] = (frames.snapshot(), time.monotonic())
             elif k == n_cycles - 1:
-                snaps["end"] = (rig.frames.snapshot(), time.monotonic())
+                snaps["end"] = (frames.snapshot(), time.monotonic())
         try:
             res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                         progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
                         supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62))
         finally:
+            frames.close()
             for p in reversed(procs):
                 p.terminate()
                 try:

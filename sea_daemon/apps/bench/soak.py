@@ -33,7 +33,7 @@ from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench import machine, summarize
-from sea_daemon.apps.bench._rig import Rig, SineTracker, bench_config, vm_rss_kb
+from sea_daemon.apps.bench._rig import SineTracker, bench_config, bench_rig, vm_rss_kb
 
 NAME = "soak"
 HELP = "long run: loop + CAN + device model + GP-AKF learning online + log writer; memory, overruns, rows"
@@ -79,7 +79,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     if max_leaves:
         cfg = dataclasses.replace(cfg, learning=dataclasses.replace(cfg.learning, max_leaves=int(max_leaves)))
     rss = {"start": vm_rss_kb()}
-    rig = Rig(cfg)
+    rig = bench_rig(cfg)
     est = make_estimator("gp-akf", cfg, bound=False)
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
     sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
@@ -113,7 +113,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
         trace.append(end)
         closed = log.close()
-        rig.close()
+        rig.stop()
     rows, per, comp = _count_rows(closed["files"])
     w = marks.get("warmup", trace[0])
     growth = (end[1] - w[1]) / w[1] * 100.0 if w[1] > 0 else float("nan")

@@ -35,7 +35,7 @@ def add_common(p, *, cycles_help: str) -> None:
 
 def load(args):
     """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input."""
-    from sea_daemon.runtime.service import bus_overrides
+    from sea_daemon.runtime.rig import bus_overrides
     cfg = bus_overrides(load_config(args.config), args.bus, args.channel)
     if args.cycles is not None and args.cycles < 1:
         raise InputError(f"--cycles {args.cycles}: allowed >= 1")

@@ -146,7 +146,7 @@ def _with_truth(log_path: str, tau_h, n: int):
 
 def run(args) -> int:
     from sea_daemon.io.configfile import load_config, save_config
-    from sea_daemon.runtime.service import _human
+    from sea_daemon.runtime.rig import subject_torque
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.logcsv import write_columns, write_log
     from sea_daemon.core.replay import ReplayResult, est_columns, replay, summarize
@@ -202,8 +202,8 @@ def run(args) -> int:
         est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
         t2 = time.perf_counter()
         # the device model's subject: passive in calibration, the scenario's in estimation
-        train_log = _with_truth(cal["log"], _human(sc, "training"), n)
-        est_log = _with_truth(est["log"], _human(sc, "estimation"), n)
+        train_log = _with_truth(cal["log"], subject_torque(sc, "training"), n)
+        est_log = _with_truth(est["log"], subject_torque(sc, "estimation"), n)
         write_log(out / f"{name}_train.csv", train_log)
         write_log(out / f"{name}_est.csv", est_log)
         x = est_log.extra

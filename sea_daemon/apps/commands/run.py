@@ -35,9 +35,10 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.runtime.loop import ZeroTorque
+    from sea_daemon.runtime.controller import ScenarioController, ZeroTorque
     from sea_daemon.runtime.notify import Notifier
-    from sea_daemon.runtime.service import ScenarioController, StateFile, make_rig, serve
+    from sea_daemon.runtime.rig import make_rig
+    from sea_daemon.runtime.service import StateFile, serve
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
 
@@ -49,8 +50,8 @@ def run(args) -> int:
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
     if scen:
-        controller = ScenarioController(load_scenario(scen), cfg, "estimation", rig.hold_torque,
-                                        delay=getattr(rig.hw, "actuation_delay", 0))
+        controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
+                                        estimation_from=0)
     else:
         controller = ZeroTorque(cfg.joints)
     log_path = _daemon_args.log_name(log_dir, "run")

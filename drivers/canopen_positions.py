@@ -1,0 +1,98 @@
+"""Position counts from the TPDOs → joint-side angles, with the encoder fault checks.
+
+:class:`Positions` keeps, per joint, what turns the raw counts of a cycle into q and θ_m: the
+load encoder's position value 0x6004 (single-turn on the first sample, centred on (-π, π],
+then unwrapped across its range) and the drive's position actual value 0x6064 (a multi-turn
+int32 count of the motor shaft, its wraps undone), through the gear ratio, minus the
+configured offsets.  From the second sample on it raises :class:`~drivers.errors.EncoderJump`
+when a count moves by more than ``max_joint_speed`` allows in a period (plus two counts), and
+:class:`~drivers.errors.EncoderStuck` when a count stays unchanged for ``stuck_cycles`` while
+the other encoder of the joint moves by more than ``stuck_motion``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sea_daemon.core.config import BusConfig
+
+from drivers.errors import EncoderJump, EncoderStuck
+from drivers.interface import FaultFlag, Measurement
+
+
+def _wrap(delta: int, span: int) -> int:
+    """Shortest signed difference of two counters that wrap at ``span``."""
+    return (delta + span // 2) % span - span // 2
+
+
+class Positions:
+    """Counts → angles of ``n`` joints (``res`` counts per turn, ``gear`` motor turns per joint turn)."""
+
+    def __init__(self, n: int, res: int, gear: float, bus_cfg: BusConfig, period: float):
+        self.bus_cfg = bus_cfg
+        # conversions (joint side)                     counts → rad
+        self.k_q = 2 * math.pi / res                                       # load encoder
+        self.k_m = 2 * math.pi / (res * gear)                              # motor encoder through the gear
+        self.allowed_q = bus_cfg.max_joint_speed * period + 2 * self.k_q   # largest step in a period [rad]
+        self.allowed_m = bus_cfg.max_joint_speed * period + 2 * self.k_m
+        self.q_offset = np.array(bus_cfg.q_offset, dtype=float)
+        self.theta_m_offset = np.array(bus_cfg.theta_m_offset, dtype=float)
+        self.enc_range = [res] * n     # counts the load encoder's position value spans (from start-up)
+        self._u_q = [0] * n            # unwrapped load counts
+        self._u_m = [0] * n            # unwrapped motor counts (int32 wraps undone)
+        self._raw_q = [0] * n
+        self._raw_m = [0] * n
+        self._stuck_q = [[0, 0.0] for _ in range(n)]   # [unchanged cycles, other angle at run start]
+        self._stuck_m = [[0, 0.0] for _ in range(n)]
+        self._prev_q = [0] * n         # raw counts of the last cycle (stuck detection)
+        self._prev_m = [0] * n
+
+    def reference(self, m: Measurement, j: int, qc: int, pos: int) -> None:
+        """The first sample (after start-up or a reset): sets the unwrapping reference, no checks."""
+        rng = self.enc_range[j]
+        # load: single-turn absolute, centred on (-range/2, range/2]
+        self._u_q[j] = qc - rng if qc >= rng // 2 else qc
+        # motor: multi-turn count (single-turn count + 2^bits per shaft turn), int32
+        self._u_m[j] = pos
+        self._angles(m, j, qc, pos)
+        self._stuck_q[j][:] = [0, m.theta_m[j]]
+        self._stuck_m[j][:] = [0, m.q[j]]
+        self._prev_q[j], self._prev_m[j] = int(qc), int(pos)
+
+    def update(self, m: Measurement, j: int, qc: int, pos: int, enc_node: int, drive_node: int, cycle: int) -> None:
+        """A later sample: unwrap, check for jumps, set ``m.q[j]`` / ``m.theta_m[j]``, check for a stuck encoder."""
+        dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
+        dm = _wrap(pos - self._raw_m[j], 1 << 32)
+        if abs(dq * self.k_q) > self.allowed_q:
+            m.faults |= FaultFlag.ENCODER_JUMP
+            raise EncoderJump(enc_node, "0x6004 load position value", dq * self.k_q, self.allowed_q, cycle)
+        if abs(dm * self.k_m) > self.allowed_m:
+            m.faults |= FaultFlag.ENCODER_JUMP
+            raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m, cycle)
+        self._u_q[j] += dq
+        self._u_m[j] += dm
+        self._angles(m, j, qc, pos)
+        self._check_stuck(m, j, enc_node, drive_node)
+
+    def _angles(self, m: Measurement, j: int, qc: int, pos: int) -> None:
+        self._raw_q[j], self._raw_m[j] = qc, pos
+        m.q[j] = self._u_q[j] * self.k_q - self.q_offset[j]
+        m.theta_m[j] = self._u_m[j] * self.k_m - self.theta_m_offset[j]
+
+    def _check_stuck(self, m: Measurement, j: int, enc_node: int, drive_node: int) -> None:
+        b = self.bus_cfg
+        for run, changed, other, node, obj, count in (
+                (self._stuck_q[j], m.q_counts[j] != self._prev_q[j], m.theta_m[j], enc_node,
+                 "0x6004 load position value", int(m.q_counts[j])),
+                (self._stuck_m[j], m.theta_m_counts[j] != self._prev_m[j], m.q[j], drive_node,
+                 "0x6064 motor position actual value", int(m.theta_m_counts[j]))):
+            if changed:
+                run[0], run[1] = 0, other
+                continue
+            run[0] += 1
+            moved = abs(other - run[1])
+            if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
+                m.faults |= FaultFlag.ENCODER_STUCK
+                raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)
+        self._prev_q[j], self._prev_m[j] = int(m.q_counts[j]), int(m.theta_m_counts[j])
