@@ -146,3 +146,24 @@ def test_warm_up_knows_every_module_with_compiled_kernels():
     _jit.warm_up()
     _jit.warm_up()                         # idempotent
     assert _jit._n_warm == len(_jit._WARMERS)
+
+
+def test_the_filter_step_arrays_are_named_views_of_one_buffer(cfg):
+    """akf_core.views lays every array of the step out in the buffer, without gaps or overlap,
+    and the AKF's named attributes are those views."""
+    from sea_daemon.core.estimators import akf_core
+    from sea_daemon.core.estimators.akf import AKF
+    for n in (1, 2):
+        d, m = 5 * n, 4 * n
+        size = akf_core.buffer_size(d, m, n)
+        buf = np.zeros(size)
+        vs = akf_core.views(buf, d, m, n)
+        assert len(vs) == len(akf_core.STEP_FIELDS)
+        assert sum(v.size for v in vs) == size
+        for k, v in enumerate(vs):
+            v[...] = k + 1
+        counts = np.bincount(buf.astype(int), minlength=len(vs) + 1)
+        assert counts[0] == 0 and all(counts[k + 1] == vs[k].size for k in range(len(vs)))
+    akf = AKF(cfg)
+    akf.P[2, 3] = 7.0
+    assert np.shares_memory(akf.P, akf._buf) and 7.0 in akf._buf

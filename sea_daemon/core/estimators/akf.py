@@ -77,11 +77,18 @@ class AKF:
         m = self.m = 4 * n
         self.dt = float(dt) if dt else cfg.dt
         est = cfg.estimator
-        self.R = np.array(est.R, dtype=float)
-        # Σ_nom as configured; ``Sigma_nom`` below is the per-step value the next step uses
+        # the arrays of the compiled step (akf_core.STEP_FIELDS) are views of one flat buffer:
+        # the step takes the buffer, the AKF reads and writes them by name
+        self._buf = np.zeros(akf_core.buffer_size(d, m, n))
+        (self.A_k, self.xdot_k, self.mu, self._dmu, self.dz_dx, self.sigma2, self.G_mu, self.Sigma_nom, self.R,
+         self.y, self.x, self.P, self.F_k, self.Gamma_mu, self.Q_k, self.x_prior, self.P_prior, self.S_k, self.K_k,
+         self.innovation, self._aug, self._E, self._Bx, self._L, self._rhs, self._IKH, self._work,
+         self._KR) = akf_core.views(self._buf, d, m, n)
+        self.R[:] = est.R
+        # Σ_nom as configured; ``Sigma_nom`` is the per-step value the next step uses
         # (:meth:`fill_sigma_nom`, equal to the configured one unless Sigma_nom_dt / tau_m_noise)
         self.Sigma_nom_cfg = np.array(est.Sigma_nom, dtype=float)
-        self.Sigma_nom = self.Sigma_nom_cfg.copy()
+        self.Sigma_nom[:] = self.Sigma_nom_cfg
         self._S_dt = float(est.Sigma_nom_dt)
         self._tau_m_var = float(est.tau_m_noise) ** 2
         self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
@@ -99,44 +106,24 @@ class AKF:
         self.H = np.hstack([np.eye(m), np.zeros((m, n))])
         self.residual = residual
         # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
-        self.G_mu = self.model.I_mu @ self.model.Minv
+        self.G_mu[:] = self.model.I_mu @ self.model.Minv
         kin = cfg.kinematics
         self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
         # ∂z/∂x for z = [q, q̇, q̈]: q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s; q̈ comes from the
         # differentiator (a measurement, not a state function), so ∂q̈/∂x = 0.
         I = np.eye(n)
-        self.dz_dx = np.zeros((3 * n, d))
         self.dz_dx[:n, :n] = I
         self.dz_dx[:n, n:2 * n] = I
         self.dz_dx[n:2 * n, 2 * n:3 * n] = I
         self.dz_dx[n:2 * n, 3 * n:4 * n] = I
-        # --- preallocated state and per-step quantities
-        self.x = np.zeros(d)
-        self.P = np.zeros((d, d))
-        self.x_prior = np.zeros(d)
-        self.P_prior = np.zeros((d, d))
-        self.A_k = np.zeros((d, d))
-        self.F_k = np.eye(d)
-        self.Gamma_mu = np.zeros((d, n))
-        self.Q_k = self.Sigma_nom.copy()
+        # --- other per-step quantities
+        self.F_k[:] = np.eye(d)
+        self.Q_k[:] = self.Sigma_nom
         self.B_u = self.model.B_nom()                 # ∂f_nom/∂u (5n × n)
         self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
-        self.K_k = np.zeros((d, m))
-        self.S_k = np.zeros((m, m))
-        self.innovation = np.zeros(m)
         self.nis = 0.0
-        self.y = np.zeros(m)
         self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
-        self.mu = np.zeros(n)
-        self.sigma2 = np.zeros(n)
         self.u_applied = np.zeros(n)
-        self.xdot_k = np.zeros(d)
-        self._dmu = np.zeros((n, 3 * n))
-        self._aug = np.zeros((d + 1 + n, d + 1 + n))
-        self._IKH = np.eye(d)
-        self._rhs = np.zeros((m, d + 1))
-        self._L = np.zeros((m, m))
-        self._work = np.zeros((d, d))
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
@@ -357,6 +344,8 @@ class AKF:
         The numerics are :func:`akf_core.filter_step` (compiled); ``self.Sigma_nom`` is read
         every step (the nominal process noise of this step).
         """
+        if y is not self.y:              # the step reads y from its buffer (update measures into it)
+            self.y[:] = y
         x = self.x
         if self._affine:
             self._nominal_affine(x, np.asarray(u, dtype=float))
@@ -378,11 +367,7 @@ class AKF:
             dmu[:] = dmu_dz
         # Alg. 2 lines 7-11 / Alg. 1 lines 3-8 (akf_core.filter_step: A_k and xdot_k get the
         # GP terms of eq:fwdynwtorqueresidual1 / eq:linearization; x̂⁻, P⁻, S, K, ν, x̂, P)
-        status, nis = akf_core.filter_step(
-            self.A_k, self.xdot_k, use_gp, self.mu, dmu, self.dz_dx, self.sigma2, self.G_mu,
-            self.Sigma_nom, self.R, float(dt), y, x, self.P, self.F_k, self.Gamma_mu, self.Q_k,
-            self.x_prior, self.P_prior, self.S_k, self.K_k, self.innovation, self._aug, self._L,
-            self._rhs, self._IKH, self._work)
+        status, nis = akf_core.filter_step(self._buf, self.d, self.m, self.n, use_gp, float(dt))
         if status != akf_core.OK:
             k = self.est.k + 1
             if status == akf_core.PRIOR_NONFINITE:

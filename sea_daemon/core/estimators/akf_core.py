@@ -54,20 +54,74 @@ def nominal_affine(x, u, A_lin, B_lin, MinvG, A, xdot):
             xdot[3 * n + i] -= MinvG[i, j] * sn
 
 
+#: the arrays of one filter step, in the order :func:`views` lays them out in one flat float64
+#: buffer (shapes with d = 5n, m = 4n, r = 3n, a = d + 1 + n): inputs A (d, d), xdot (d), μ (n),
+#: ∂μ/∂z (n, r), ∂z/∂x (r, d), σ² (n), G_μ = I_μ M⁻¹ (d, n), Σ_nom (d, d), R (m, m), y (m); state
+#: and outputs x (d), P (d, d), F (d, d), Γ_μ (d, n), Q (d, d), x̂⁻ (d), P⁻ (d, d), S (m, m),
+#: K (d, m), ν (m); work aug and E (a, a), Bx (d, 1 + n), L (m, m), rhs (m, d + 1), IKH (d, d),
+#: work (d, d), KR (d, m)
+STEP_FIELDS = ("A", "xdot", "mu", "dmu_dz", "dz_dx", "sigma2", "G_mu", "Sigma_nom", "R", "y",
+               "x", "P", "F", "Gamma_mu", "Q", "x_prior", "P_prior", "S", "K", "innovation",
+               "aug", "E", "Bx", "L", "rhs", "IKH", "work", "KR")
+
+
 @njit
-def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, dt, y,
-                x, P, F, Gam, Q, x_prior, P_prior, S, K, innovation, aug, L, rhs, IKH, work):
-    """One predict + update of the AKF in place; returns ``(status, nis)``.
+def buffer_size(d: int, m: int, n: int) -> int:
+    """Length of the flat buffer :func:`views` lays out."""
+    r, a = 3 * n, d + 1 + n
+    # 8 d×d, 3 d, 2 n, n×r, r×d, 2 d×n, 3 m×m, 2 m, 2 d×m, 2 a×a, d×(1+n), m×(d+1)
+    return (8 * d * d + 3 * d + 2 * n + n * r + r * d + 2 * d * n + 3 * m * m + 2 * m + 2 * d * m
+            + 2 * a * a + d * (1 + n) + m * (d + 1))
+
+
+@njit
+def views(buf, d: int, m: int, n: int):
+    """The arrays of :data:`STEP_FIELDS` as views of ``buf`` (the AKF keeps them as its attributes)."""
+    r, a = 3 * n, d + 1 + n
+    o = 0
+    A = buf[o:o + d * d].reshape((d, d)); o += d * d                 # noqa: E702
+    xdot = buf[o:o + d]; o += d                                      # noqa: E702
+    mu = buf[o:o + n]; o += n                                        # noqa: E702
+    dmu_dz = buf[o:o + n * r].reshape((n, r)); o += n * r            # noqa: E702
+    dz_dx = buf[o:o + r * d].reshape((r, d)); o += r * d             # noqa: E702
+    sigma2 = buf[o:o + n]; o += n                                    # noqa: E702
+    G_mu = buf[o:o + d * n].reshape((d, n)); o += d * n              # noqa: E702
+    Sigma_nom = buf[o:o + d * d].reshape((d, d)); o += d * d         # noqa: E702
+    R = buf[o:o + m * m].reshape((m, m)); o += m * m                 # noqa: E702
+    y = buf[o:o + m]; o += m                                         # noqa: E702
+    x = buf[o:o + d]; o += d                                         # noqa: E702
+    P = buf[o:o + d * d].reshape((d, d)); o += d * d                 # noqa: E702
+    F = buf[o:o + d * d].reshape((d, d)); o += d * d                 # noqa: E702
+    Gam = buf[o:o + d * n].reshape((d, n)); o += d * n               # noqa: E702
+    Q = buf[o:o + d * d].reshape((d, d)); o += d * d                 # noqa: E702
+    x_prior = buf[o:o + d]; o += d                                   # noqa: E702
+    P_prior = buf[o:o + d * d].reshape((d, d)); o += d * d           # noqa: E702
+    S = buf[o:o + m * m].reshape((m, m)); o += m * m                 # noqa: E702
+    K = buf[o:o + d * m].reshape((d, m)); o += d * m                 # noqa: E702
+    innovation = buf[o:o + m]; o += m                                # noqa: E702
+    aug = buf[o:o + a * a].reshape((a, a)); o += a * a               # noqa: E702
+    E = buf[o:o + a * a].reshape((a, a)); o += a * a                 # noqa: E702
+    Bx = buf[o:o + d * (1 + n)].reshape((d, 1 + n)); o += d * (1 + n)  # noqa: E702
+    L = buf[o:o + m * m].reshape((m, m)); o += m * m                 # noqa: E702
+    rhs = buf[o:o + m * (d + 1)].reshape((m, d + 1)); o += m * (d + 1)  # noqa: E702
+    IKH = buf[o:o + d * d].reshape((d, d)); o += d * d               # noqa: E702
+    work = buf[o:o + d * d].reshape((d, d)); o += d * d              # noqa: E702
+    KR = buf[o:o + d * m].reshape((d, m))
+    return (A, xdot, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, y, x, P, F, Gam, Q, x_prior, P_prior, S, K,
+            innovation, aug, E, Bx, L, rhs, IKH, work, KR)
+
+
+@njit
+def filter_step(buf, d: int, m: int, n: int, use_gp: bool, dt: float):
+    """One predict + update of the AKF in place on the arrays of ``buf`` (:data:`STEP_FIELDS`);
+    returns ``(status, nis)``.
 
     In: A = F_nom, xdot = f_nom at (x̂_{k−1}, u_{k−1}) (overwritten with the GP-corrected
     values when ``use_gp``); μ, ∂μ/∂z, σ² of the GP at ẑ_{k−1}; ∂z/∂x; G_μ = I_μ M⁻¹;
-    Σ_nom (this step's, 5n × 5n); R; dt; y (4n).  Out: x, P (posterior), F, Γ_μ, Q,
-    x̂⁻, P⁻, S, K, ν.  Work: aug ((d+1+n)², :func:`~sea_daemon.core.linalg.zoh`), L (m × m), rhs (m × (d+1)), IKH (d × d),
-    work (d × d).
+    Σ_nom (this step's); R; dt; y.  Out: x, P (posterior), F, Γ_μ, Q, x̂⁻, P⁻, S, K, ν.
     """
-    d = x.shape[0]
-    m = y.shape[0]
-    n = G_mu.shape[1]
+    (A, xdot, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, y, x, P, F, Gam, Q, x_prior, P_prior, S, K,
+     innovation, aug, E, Bx, L, rhs, IKH, work, KR) = views(buf, d, m, n)
     if use_gp:
         r = dz_dx.shape[0]
         for i in range(d):
@@ -84,12 +138,10 @@ def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, 
                         A[i, k] -= g * s
     # time discretisation (Sec. IV-B): local linearisation over dt with u and w held,
     # E = e^{[[A, f, G_μ], [0, 0, 0]] dt}: F_d = E[:d, :d], Δx = E[:d, d], Γ_μ = E[:d, d+1:]
-    Bx = np.empty((d, 1 + n))
     for i in range(d):
         Bx[i, 0] = xdot[i]
         for j in range(n):
             Bx[i, 1 + j] = G_mu[i, j]
-    E = np.empty_like(aug)
     zoh(A, Bx, dt, aug, E)
     for i in range(d):
         # Alg. 2 line 7: x̂⁻ = x̂ + Δx
@@ -147,7 +199,6 @@ def filter_step(A, xdot, use_gp, mu, dmu_dz, dz_dx, sigma2, G_mu, Sigma_nom, R, 
             IKH[i, j] -= K[i, j]
     matmul(IKH, P_prior, work)
     matmul_t(work, IKH, P)
-    KR = np.empty((d, m))
     matmul(K, R, KR)
     fin = 0.0
     for i in range(d):
@@ -228,11 +279,9 @@ def _warm() -> None:
     A = np.zeros((d, d))
     xdot = np.zeros(d)
     nominal_affine(x, np.zeros(n), np.zeros((d, d)), np.zeros((d, n)), np.zeros((n, n)), A, xdot)
-    filter_step(A, xdot, True, np.zeros(n), np.zeros((n, 3 * n)), np.zeros((3 * n, d)), np.zeros(n),
-                np.zeros((d, n)), np.eye(d), np.eye(m), 0.01, np.zeros(m), x, np.eye(d), np.zeros((d, d)),
-                np.zeros((d, n)), np.zeros((d, d)), np.zeros(d), np.zeros((d, d)), np.zeros((m, m)),
-                np.zeros((d, m)), np.zeros(m), np.zeros((d + 1 + n, d + 1 + n)), np.zeros((m, m)),
-                np.zeros((m, d + 1)), np.zeros((d, d)), np.zeros((d, d)))
+    buf = np.zeros(buffer_size(d, m, n))
+    views(buf, d, m, n)
+    filter_step(buf, d, m, n, True, 0.01)
     v = np.zeros(n)
     residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
     fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())
