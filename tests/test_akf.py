@@ -16,7 +16,11 @@ from synth import simulate
 
 
 def linear_cfg(n=1, **est):
-    est = {k: (np.full((4 if k == "R" else 5) * n, v).tolist() if np.isscalar(v) else v) for k, v in est.items()}
+    """A linear plant (no gravity, no effects) with the filter of Alg. 1 as written: it starts at
+    the first sample and Σ_nom holds per step (unless ``est`` says otherwise)."""
+    est = {k: (np.full((4 if k == "R" else 5) * n, v).tolist() if np.isscalar(v) and k in ("R", "Sigma_nom", "P0")
+               else v) for k, v in est.items()}
+    est = {"init_after_kinematics": False, "Sigma_nom_dt": 0.0, **est}
     if n == 1:
         model = {"M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}
     else:
@@ -258,7 +262,8 @@ def test_gp_akf_hook_removes_a_known_residual():
     plain = rmse(run_est(AKF(cfg), log), log)
     hooked_est = AKF(cfg, residual=r)
     hooked = rmse(run_est(hooked_est, log), log)
-    assert r.calls == len(log) - 1
+    # one prediction per filter step: every sample after the differentiator's window fills
+    assert r.calls == len(log) - hooked_est.kin.L
     assert plain > 0.5 and hooked < 0.3 * plain
 
 
@@ -375,8 +380,9 @@ def test_sigma_nom_dt_scales_the_process_noise_with_the_step():
     akf = AKF(cfg)
     np.testing.assert_allclose(akf.fill_sigma_nom(0.001), 0.1 * akf.Sigma_nom_cfg, rtol=1e-15)
     np.testing.assert_allclose(akf.fill_sigma_nom(0.01), akf.Sigma_nom_cfg, rtol=1e-15)
-    # default (Sigma_nom_dt = 0, no tau_m_noise): Σ_nom is the configured per-step value
-    plain = AKF(load_config(default_config_path()))
+    # Sigma_nom_dt = 0 (no tau_m_noise): Σ_nom is the configured per-step value, whatever the step
+    per_step = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, Sigma_nom_dt=0.0))
+    plain = AKF(per_step)
     assert not plain._S_varies
     np.testing.assert_array_equal(plain.Sigma_nom, plain.Sigma_nom_cfg)
 

@@ -8,6 +8,13 @@ from sea_daemon.core.bounds.gp_bound import BoundConstants
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.io.configfile import default_config_path, load_config
+
+
+def _from_first_sample(cfg):
+    """``cfg`` with the filter started at the first sample (Alg. 1 as written): the bound is
+    propagated from there, not after the differentiator's window."""
+    import dataclasses
+    return dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, init_after_kinematics=False))
 from sea_daemon.core.estimators import AKF
 from sea_daemon.core.model import SEAModel
 
@@ -51,7 +58,7 @@ def test_linear_plant_bound_equals_kf_chi2_projection(sets):
 
 
 def test_gravity_nonlinearity_widens_bound_and_it_covers():
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     log = simulate(SEAModel.from_config(cfg), T=1.5, tau_h=lambda t: np.array([2.0 * np.sin(2 * np.pi * 0.3 * t)]),
                    seed=3)
     akf = AKF(cfg)
@@ -82,7 +89,7 @@ class BiasedResidual:
 
 
 def test_gp_akf_bound_absorbs_a_bounded_gp_error():
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     f = lambda z: 0.8 * np.tanh(3.0 * z[1]) + 0.5 * z[0]
 
     class Plant(SEAModel):
@@ -110,7 +117,7 @@ def test_gp_akf_bound_absorbs_a_bounded_gp_error():
 
 def test_phi_shortcut_matches_expm():
     from sea_daemon.core.linalg import discretize
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     akf = AKF(cfg)
     tb = with_bound(akf)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
@@ -134,7 +141,7 @@ def _residual(learning, cfg, noise: float = 0.0):
 
 def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
     from sea_daemon.core.estimators import make_estimator
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     res = _residual(learning, cfg)
     est = make_estimator("akf", cfg, residual=res)
     tb = est.bound
@@ -151,7 +158,7 @@ def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
 def test_gp_akf_estimator_gets_the_theorem_bound():
     from sea_daemon.core.bounds.calibration import residual_gps
     from sea_daemon.core.estimators import make_estimator
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
     est = make_estimator("gp-akf", cfg, train=train)
     tb = est.bound
@@ -166,7 +173,7 @@ def test_configured_gp_beta_uses_the_local_scale_and_scales_the_gp_term():
     import dataclasses
     from sea_daemon.core.bounds.gp_bound import LocalScale
     from sea_daemon.core.estimators import make_estimator
-    base = load_config(default_config_path())
+    base = _from_first_sample(load_config(default_config_path()))
     res = _residual(learning, base, noise=0.02)
     log = simulate(SEAModel.from_config(base), T=0.3, seed=4)
     means = {}
@@ -215,8 +222,8 @@ def test_gp_error_and_gp_linearisation_error_are_bounded_as_one_torque_error():
     """f − μ̄ = (f − μ)(z) + (μ − μ̄)(z) at the same z, both entering through Γ_μ: η is the max over
     the points of the sum, not the sum of the two maxima (which sit at opposite ends here)."""
     from sea_daemon.core.bounds.setmember import ellipsoid_points
-    cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
-        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}})
+    cfg = _from_first_sample(ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
+        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0}}))
     log = simulate(SEAModel.from_config(cfg), T=0.1, seed=5)
     res = SplitResidual()
     akf = AKF(cfg, residual=res)
@@ -254,7 +261,7 @@ def test_gravity_linearisation_error_is_bounded_over_the_chi2_n_set_of_q():
     """Without declared effects the linearisation error depends on x only through q (plain AKF) or
     (q, q̇) (GP-AKF), so the set it is bounded over is the χ²_n (χ²_2n) confidence set of those
     coordinates — not the χ²_5n set of the whole state (Theorem 1 only needs x ∈ that set)."""
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     log = simulate(SEAModel.from_config(cfg), T=0.1, seed=3)
     akf = AKF(cfg)
     tb = with_bound(akf)
@@ -285,7 +292,7 @@ def test_held_input_matches_scipy_expm():
     # Γ_τ = ∫₀^dt e^{As} ds E_τ by the compiled zoh against scipy's expm of Van Loan's block matrix
     from scipy.linalg import expm
     from sea_daemon.core.linalg import zoh
-    cfg = load_config(default_config_path())
+    cfg = _from_first_sample(load_config(default_config_path()))
     akf = AKF(cfg)
     akf.reset(np.array([0.3]), np.array([0.29]), np.array([0.1]))
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
@@ -306,7 +313,8 @@ def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
     import dataclasses
     cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
         "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0},
-        "estimator": {"R": [1e-7, 1e-7, 1e-3, 1e-3], "Sigma_nom": [1e-10, 1e-10, 1e-6, 1e-6, 1e-5], "P0_tau": 1e-4}})
+        "estimator": {"R": [1e-7, 1e-7, 1e-3, 1e-3], "Sigma_nom": [1e-10, 1e-10, 1e-6, 1e-6, 1e-5], "P0_tau": 1e-4,
+                      "init_after_kinematics": False}})
     log = simulate(SEAModel.from_config(cfg), T=2.0, tau_h=lambda t: np.array([2.0 * t]), seed=2)
     out0 = run(AKF(cfg), log)
     err = np.abs(out0[:, 0] - log.tau_h_act[:, 0])
@@ -369,7 +377,7 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     import dataclasses
     from sea_daemon.core.bounds.gp_bound import LocalScale
     from sea_daemon.core.estimators import make_estimator
-    base = load_config(default_config_path())
+    base = _from_first_sample(load_config(default_config_path()))
     base = dataclasses.replace(base, learning=dataclasses.replace(base.learning, extrapolation_scale=1.0))
     res = _residual(learning, base, noise=0.02)
     assert res.gps[0].extrapolation_scale == 1.0

@@ -144,13 +144,15 @@ def test_process_noise_options_roundtrip(tmp_path):
     from sea_daemon.io.configfile import save_config
     cfg = load_config(default_config_path())
     e = cfg.estimator
-    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.0, 0.0, False, False)
+    # the defaults (docs/configuration.md): Σ_nom per 10 ms, the GP's predictive variance in Q,
+    # the filter started once the kinematics are measured
+    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.01, 0.0, True, True)
     assert e.tau_h_act_rate == 0.0
     d = cfg.to_dict()
-    d["estimator"].update(Sigma_nom_dt=0.01, tau_m_noise=0.02, gp_noise_in_Q=True, init_after_kinematics=True,
+    d["estimator"].update(Sigma_nom_dt=0.0, tau_m_noise=0.02, gp_noise_in_Q=False, init_after_kinematics=False,
                           tau_h_act_rate=1.5)
     p = tmp_path / "c.yaml"
     save_config(ModelConfig.from_dict(d, source="x.yaml"), p)
     e = load_config(p).estimator
-    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.01, 0.02, True, True)
+    assert (e.Sigma_nom_dt, e.tau_m_noise, e.gp_noise_in_Q, e.init_after_kinematics) == (0.0, 0.02, False, False)
     assert e.tau_h_act_rate == 1.5

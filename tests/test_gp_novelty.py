@@ -101,7 +101,7 @@ def test_merged_extrapolation_weights_the_leaves_and_the_option_persists():
 
 def test_learning_config_passes_the_scale_to_every_joint():
     lc = LearningConfig.from_dict({"extrapolation_scale": 2.0}, 2, "x.yaml")
-    assert lc.extrapolation_scale == 2.0 and LearningConfig().extrapolation_scale == 0.0
+    assert lc.extrapolation_scale == 2.0 and LearningConfig().extrapolation_scale == 0.5
     assert lc.to_dict()["extrapolation_scale"] == 2.0
     res = ResidualGP(2, lc)
     assert [g.extrapolation_scale for g in res.gps] == [2.0, 2.0]
@@ -165,5 +165,5 @@ def test_clipped_leaf_mean_survives_splits_eviction_and_persistence():
     for g in (back, again):
         assert g.clip_leaf_mean
         np.testing.assert_allclose(g.predict_many(Z)[0], gp.predict_many(Z)[0], rtol=1e-9)
-    lc = LearningConfig.from_dict({"clip_leaf_mean": True}, 1, "x.yaml")
-    assert ResidualGP(1, lc).gps[0].clip_leaf_mean and not LearningConfig().clip_leaf_mean
+    lc = LearningConfig.from_dict({"clip_leaf_mean": False}, 1, "x.yaml")
+    assert not ResidualGP(1, lc).gps[0].clip_leaf_mean and ResidualGP(1, LearningConfig()).gps[0].clip_leaf_mean

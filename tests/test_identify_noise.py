@@ -29,8 +29,13 @@ def noisy_log(tmp_path_factory):
 
 
 def test_identify_noise_recovers_encoder_noise_and_writes_config(noisy_log, tmp_path, capsys):
+    # the differentiator of the paper ('ma'), whose noise relations are asserted below
+    from sea_daemon.io.configfile import save_config
+    cfg = load_config(default_config_path())
+    ma = tmp_path / "ma.yaml"
+    save_config(dataclasses.replace(cfg, kinematics=dataclasses.replace(cfg.kinematics, method="ma")), ma)
     out = tmp_path / "identified.yaml"
-    rc = main(["identify-noise", str(noisy_log), "--config", str(default_config_path()), "--write", str(out)])
+    rc = main(["identify-noise", str(noisy_log), "--config", str(ma), "--write", str(out)])
     assert rc == 0
     res = json.loads(capsys.readouterr().out)
     R = np.array(res["R"])

@@ -88,23 +88,22 @@ class EstimatorConfig:
     nis_window: int = 100          # steps of the windowed mean NIS
     nis_alpha: float = 1e-3        # two-sided level of its chi2 band
     nis_scale: float = 10.0        # divergence: windowed mean > nis_scale x the band's upper edge
-    pd_check_every: int = 1        # Cholesky of P every k steps (0: never)
     gp_input_margin: float = 0.1   # GP inputs clipped to the training box +- this fraction of its width
     # GP error bound of the Theorem-1 bound (docs/bounds.md §2): "lederer" (LUH19, eq:gpmeanbounds)
     # or a number beta > 0 (|f - mu| <= beta sqrt(sigma^2 + sigma_n^2), e.g. a split-conformal beta)
     gp_beta: str | float = "lederer"
     # per-step process noise (docs/estimators.md, "Process noise"); the defaults keep Σ_nom as given
-    Sigma_nom_dt: float = 0.0      # [s] step Σ_nom is given for; > 0: Σ_nom,k = Σ_nom·dt/Sigma_nom_dt
+    Sigma_nom_dt: float = 0.01     # [s] step Σ_nom is given for: Σ_nom,k = Σ_nom·dt/Sigma_nom_dt (0: per step)
     tau_m_noise: float = 0.0       # [N m] std of the motor-torque error held over a step: + Γ_u σ² Γ_uᵀ
-    gp_noise_in_Q: bool = False    # GP-AKF: Q with the residual's predictive variance σ² + σ_on²
-    init_after_kinematics: bool = False   # start when the differentiator is full: x̂₀ = y (velocities measured)
+    gp_noise_in_Q: bool = True     # GP-AKF: Q with the residual's predictive variance σ² + σ_on² (false: σ², the paper's)
+    init_after_kinematics: bool = True    # start when the differentiator is full: x̂₀ = y (false: at once, velocities 0)
     # Theorem-1 bound (docs/bounds.md §6): declared bound on how fast the active human torque
     # changes beyond the random walk of Σ_nom, |dτ_h,act/dt| <= tau_h_act_rate [N m/s]; it enters
     # the set of means as a bounded input (0: the paper's pure random walk)
     tau_h_act_rate: float = 0.0
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
-            "pd_check_every", "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
+            "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
             "tau_h_act_rate"]
 
     @classmethod
@@ -154,11 +153,11 @@ class EstimatorConfig:
                     np.isfinite(gp_beta) and gp_beta > 0):
                 raise ConfigError(source, "estimator.gp_beta", f"must be 'lederer' or a number > 0, got {gp_beta!r}")
             gp_beta = float(gp_beta)
-        S_dt = _nonneg("Sigma_nom_dt", 0.0, " [s] (0: Sigma_nom per step)")
+        S_dt = _nonneg("Sigma_nom_dt", 0.01, " [s] (0: Sigma_nom per step)")
         tau_m_noise = _nonneg("tau_m_noise", 0.0, " [N m]")
         rate = _nonneg("tau_h_act_rate", 0.0, " [N m/s]")
         def _bool(key):
-            v = d.get(key, False)
+            v = d.get(key, True)
             if not isinstance(v, bool):
                 raise ConfigError(source, f"estimator.{key}", f"must be true or false, got {v!r}")
             return v
@@ -166,7 +165,7 @@ class EstimatorConfig:
         return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
                    sign_eps=validate.num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True),
                    nis_window=_int("nis_window", 100, 1, 100000), nis_alpha=nis_alpha, nis_scale=nis_scale,
-                   pd_check_every=_int("pd_check_every", 1, 0, 1000000), gp_input_margin=margin,
+                   gp_input_margin=margin,
                    gp_beta=gp_beta,
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
                    init_after_kinematics=init_kin, tau_h_act_rate=rate)
@@ -176,7 +175,7 @@ class EstimatorConfig:
             return np.diag(a).tolist() if np.allclose(a, np.diag(np.diag(a))) else a.tolist()
         return {"R": dg(self.R), "Sigma_nom": dg(self.Sigma_nom), "P0": dg(self.P0),
                 "delta": self.delta, "sign_eps": self.sign_eps, "nis_window": self.nis_window,
-                "nis_alpha": self.nis_alpha, "nis_scale": self.nis_scale, "pd_check_every": self.pd_check_every,
+                "nis_alpha": self.nis_alpha, "nis_scale": self.nis_scale,
                 "gp_input_margin": self.gp_input_margin, "gp_beta": self.gp_beta,
                 "Sigma_nom_dt": self.Sigma_nom_dt,
                 "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
@@ -188,7 +187,7 @@ class KinematicsConfig:
     """Numerical differentiation of the encoder angles (Sec. V-A; sea_daemon.core.kinematics)."""
 
     window: int = 5          # moving-average length [samples] of the causal differentiator
-    method: str = "ma"       # "ma": differences + moving average (paper); "savgol": causal LS polynomial
+    method: str = "savgol"   # "savgol": causal least-squares polynomial; "ma": differences + moving average (paper)
     degree: int = 2          # polynomial degree of "savgol" (2 <= degree < window)
 
     KEYS = ["window", "method", "degree"]
@@ -200,7 +199,7 @@ class KinematicsConfig:
         w = d.get("window", 5)
         if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= 100:
             raise ConfigError(source, "kinematics.window", f"must be an integer in 1..100, got {w!r}")
-        m = d.get("method", "ma")
+        m = d.get("method", "savgol")
         if m not in cls.METHODS:
             raise ConfigError(source, "kinematics.method", f"must be one of {', '.join(cls.METHODS)}, got {m!r}")
         g = d.get("degree", 2)
@@ -229,10 +228,10 @@ class LearningConfig:
     seed: int = 0
     # c of the GP error bound's extrapolation term c·e(z) (LocalScale; docs/learning.md
     # "Novelty"); 0: off.  The GP's predictions do not change.
-    extrapolation_scale: float = 0.0
+    extrapolation_scale: float = 0.5
     # every leaf's mean is evaluated at the input clipped into the box of its own data (its σ
     # at the input): no leaf extrapolates its mean (docs/learning.md "Novelty")
-    clip_leaf_mean: bool = False
+    clip_leaf_mean: bool = True
 
     KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
             "extrapolation_scale", "clip_leaf_mean"]

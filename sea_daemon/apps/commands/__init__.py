@@ -14,7 +14,7 @@ import pkgutil
 import sys
 
 from sea_daemon import __version__
-from sea_daemon.errors import InputError, shown
+from sea_daemon.errors import EstimatorFault, InputError, shown
 
 
 class Parser(argparse.ArgumentParser):
@@ -59,7 +59,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def guarded(prog: str, run, args) -> int:
     """``run(args)`` under the exit-status policy: 0 success, 2 bad input (one line on stderr,
-    no traceback), 130 interrupted, 1 internal fault (one line; SEA_DAEMON_DEBUG=1 re-raises)."""
+    no traceback), 130 interrupted, 1 internal fault (one line; SEA_DAEMON_DEBUG=1 re-raises).
+
+    An estimator fault that reaches here (a filter diverging on a log in replay, identify-noise,
+    diagnose, ...) is bad input too: the log does not fit the model or its settings.  The service
+    commands latch estimator faults in their loop instead (docs/safety.md)."""
     debug = os.environ.get("SEA_DAEMON_DEBUG") == "1"
     try:
         return int(run(args) or 0)
@@ -67,6 +71,11 @@ def guarded(prog: str, run, args) -> int:
         if debug:
             raise
         _say(f"{prog}: error: {e}")
+        return 2
+    except EstimatorFault as e:
+        if debug:
+            raise
+        _say(f"{prog}: error: estimator fault ({type(e).__name__}): {e}")
         return 2
     except KeyboardInterrupt:
         _say(f"{prog}: interrupted")

@@ -123,12 +123,13 @@ class AKF:
         self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
         self.nis = 0.0
         self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
+        self._bound0 = np.zeros(n)        # the bound published at reset (and while the kinematics fill)
         self.u_applied = np.zeros(n)
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
         # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
-        self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale, est.pd_check_every)
+        self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale)
         # --- input history for the declared delay (τ_m(t − delay), linear interpolation
         # of the sample sequence = the exact interval average of a zero-order-hold input)
         self.delay = np.array(self.model.delay, dtype=float)
@@ -226,6 +227,7 @@ class AKF:
         self.kin._primed = False
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
         y = self.measure(q, theta_m)
+        self._check_finite(y, tau_m)
         if x0 is None:
             self.x[:] = 0.0
             self.x[:2 * n] = y[:2 * n]
@@ -249,6 +251,8 @@ class AKF:
         e = self._fill_estimate()
         if self.bound is not None:
             self.bound.reset(e)
+        # while the differentiator fills, x̂ holds the angles and P = P₀: the bound of the reset holds
+        self._bound0[:] = e.tau_h_act_bound
         return e
 
     def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
@@ -288,6 +292,7 @@ class AKF:
         """
         n = self.n
         y = self.measure(q, theta_m)
+        self._check_finite(y, tau_m)
         self._filling -= 1
         x = self.x
         x[:] = 0.0
@@ -298,7 +303,15 @@ class AKF:
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         self.est.k += 1
-        return self._fill_estimate()
+        e = self._fill_estimate()
+        e.tau_h_act_bound[:] = self._bound0
+        return e
+
+    def _check_finite(self, y, tau_m) -> None:
+        """The typed fault for a non-finite sample outside the compiled step (which checks its own)."""
+        if not (np.isfinite(y).all() and np.isfinite(tau_m).all()):
+            raise EstimatorNonFinite(f"AKF step {self.est.k + 1}: non-finite measurement or motor torque "
+                                     f"(y = {np.asarray(y).tolist()}, tau_m = {np.asarray(tau_m).tolist()})")
 
     def fill_sigma_nom(self, dt: float) -> np.ndarray:
         """Σ_nom,k for the next step of length ``dt`` into :attr:`Sigma_nom` (which :meth:`step` uses).

@@ -146,22 +146,17 @@ class NISMonitor:
 
 
 class EstimatorHealth:
-    """The per-step checks of an AKF: NIS monitor every step, Cholesky of P every ``pd_every``."""
+    """The per-step checks of an AKF: NIS monitor and Cholesky of P, every step."""
 
     def __init__(self, dof: int, window: int = 100, alpha: float = 1e-3, scale: float = 10.0,
-                 pd_every: int = 1, sustain: int | None = None):
+                 sustain: int | None = None):
         self.nis = NISMonitor(dof, window, alpha, scale, sustain)
-        self.pd_every = max(0, int(pd_every))
-        self._k = 0
 
     def reset(self) -> None:
         self.nis.reset()
-        self._k = 0
 
     def check(self, nis: float, P: np.ndarray, step: int | None = None) -> None:
-        self._k += 1
-        if self.pd_every and self._k % self.pd_every == 0:
-            check_pd(P, "P", step, full=False)     # the AKF checked finiteness and symmetrised
+        check_pd(P, "P", step, full=False)     # the AKF checked finiteness and symmetrised
         self.nis.update(nis, step)
 
 
