@@ -1,7 +1,7 @@
 """Test-session setup.
 
-Single-threaded BLAS before numpy is first imported (the same default as
-``sea_daemon/__init__.py``): the estimator's matrices are tiny and a threaded OpenBLAS on a
+Single-threaded BLAS before numpy is first imported (the same default as the console script,
+``sea_daemon/apps/cli.py``): the estimator's matrices are tiny and a threaded OpenBLAS on a
 shared 2-core machine makes each expm ~20x slower.
 """
 import os
