@@ -415,3 +415,17 @@ def test_init_after_kinematics_starts_with_the_measured_velocity():
     assert out[False][:20].max() > 1.0
     assert out[True].max() < 0.2 * out[False][:20].max()
     assert out[True][40:].max() < 0.05 and out[False][40:].max() < 0.05   # both settle
+
+
+def test_an_estimate_is_valid_only_once_the_filter_runs():
+    """Estimate.valid: False at the reset sample and while the differentiator's window fills
+    (init_after_kinematics), True from the first filter step on; the spring estimate likewise
+    once its velocity is a velocity."""
+    from sea_daemon.core.estimators.spring import SpringTorqueEstimator
+    cfg = load_config(default_config_path())
+    for est in (AKF(cfg), SpringTorqueEstimator(cfg)):
+        flags = [est.reset(np.array([0.1]), np.array([0.1]), np.array([0.0])).valid]
+        for k in range(1, 12):
+            flags.append(est.update(np.array([0.1 + 0.001 * k]), np.array([0.1]), np.array([0.0])).valid)
+        first = est.kin.L - 1 if isinstance(est, SpringTorqueEstimator) else est.kin.L
+        assert flags == [False] * first + [True] * (len(flags) - first), (type(est).__name__, flags)

@@ -249,6 +249,7 @@ class AKF:
         self._ready = True
         self.est.k = 0
         e = self._fill_estimate()
+        e.valid = False                     # the first sample: no estimate of τ_h,act yet
         if self.bound is not None:
             self.bound.reset(e)
         # while the differentiator fills, x̂ holds the angles and P = P₀: the bound of the reset holds
@@ -305,6 +306,7 @@ class AKF:
         self.est.k += 1
         e = self._fill_estimate()
         e.tau_h_act_bound[:] = self._bound0
+        e.valid = False                     # the differentiator is still filling
         return e
 
     def _check_finite(self, y, tau_m) -> None:
@@ -397,6 +399,7 @@ class AKF:
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
         e = self._fill_estimate()
+        e.valid = True
         if self.bound is not None:
             self.bound.step(e, self._x_prev, self._P_prev, u, dt)
         return e

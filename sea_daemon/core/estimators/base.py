@@ -14,7 +14,9 @@ class Estimate:
     ``tau_h_act_hat`` (n,) [N m] estimate of the active human torque; ``tau_h_act_sigma``
     (n,) its standard deviation from P; ``tau_h_act_bound`` (n,) the error bound ρ at the
     configured δ (eq:bounds); ``x_hat`` (5n,) the state estimate; ``P`` (5n, 5n) its
-    covariance; ``k`` the step counter (0 after reset).
+    covariance; ``k`` the step counter (0 after reset); ``valid`` whether this is an estimate of
+    τ_h,act that users may act on: False while the estimator starts (the reset sample, the
+    differentiator's window), True once the filter runs.
     """
 
     tau_h_act_hat: np.ndarray
@@ -23,6 +25,7 @@ class Estimate:
     x_hat: np.ndarray
     P: np.ndarray
     k: int = 0
+    valid: bool = False
 
     @classmethod
     def zeros(cls, n: int) -> "Estimate":
@@ -30,7 +33,7 @@ class Estimate:
 
     def copy(self) -> "Estimate":
         return Estimate(self.tau_h_act_hat.copy(), self.tau_h_act_sigma.copy(), self.tau_h_act_bound.copy(),
-                        self.x_hat.copy(), self.P.copy(), self.k)
+                        self.x_hat.copy(), self.P.copy(), self.k, self.valid)
 
 
 @runtime_checkable

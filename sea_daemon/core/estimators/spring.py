@@ -87,4 +87,6 @@ class SpringTorqueEstimator:
         e.P[:4 * n, :4 * n] = self.R
         e.P[4 * n:, 4 * n:] = cov
         e.k += 1
+        # valid once the differentiator's window is full (its θ̇_s before that is not a velocity)
+        e.valid = e.k >= self.kin.L - 1
         return e
