@@ -56,7 +56,7 @@ class ConstEstimator:
         if self.nan_at is not None and self.k > self.nan_at:
             raise EstimatorFault("state became non-finite")
         return types.SimpleNamespace(tau_h_act_hat=np.array([0.5]), tau_h_act_bound=np.array([0.2]),
-                                     tau_h_act_sigma=np.array([0.1]))
+                                     tau_h_act_sigma=np.array([0.1]), valid=True)
 
 
 class Push:
@@ -71,6 +71,9 @@ class ListLog:
     def append(self, row):
         self.rows.append(row.copy())
         return True
+
+    def fault(self):
+        return None
 
 
 def make(hw, est, **kw):
