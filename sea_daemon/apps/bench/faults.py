@@ -124,6 +124,8 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
+    from sea_daemon.io.files import atomic_write_text, check_outputs
+    check_outputs([("--json", args.json)])
     kinds = choose(args.kinds, FAULTS, "--kinds")
     if args.cycles < 1000 or args.fault_free_cycles < 0:
         raise InputError(f"--cycles {args.cycles}: must be >= 1000; --fault-free-cycles >= 0")
@@ -138,6 +140,5 @@ def run(args) -> int:
     res = run_suite(args.cycles, args.seed, args.fault_free_cycles, kinds, progress=progress)
     print(table(res))
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(res, fh, indent=1, default=str)
+        atomic_write_text(args.json, json.dumps(res, indent=1, default=str))
     return 0

@@ -79,6 +79,8 @@ def _wait_line(proc, text: str, timeout: float) -> None:
 def run(args) -> int:
     from drivers.canopen_hw import CanopenHardware
 
+    from sea_daemon.io.files import atomic_write_text, check_outputs
+    check_outputs([("--json", args.json)])
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
     from drivers.bus import make_bus
@@ -209,5 +211,5 @@ def run(args) -> int:
           f"bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with worst-case stuffing")
     print(f"log rows dropped: {out['log_rows_dropped']}")
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2))
+        atomic_write_text(args.json, json.dumps(out, indent=2))
     return 0

@@ -138,6 +138,8 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
+    from sea_daemon.io.files import atomic_write_text, check_output_dir, check_outputs
+    check_outputs([("--json", args.json)])
     if args.cycles < 100 or args.rate <= 0:
         raise InputError(f"--cycles {args.cycles} (>= 100), --rate {args.rate} (> 0)")
     warmup = args.warmup if args.warmup is not None else args.cycles // 10
@@ -152,8 +154,7 @@ def run(args) -> int:
               f"GP {rec[3]} leaves / {rec[4]} points, overruns {st.overruns}", flush=True)
     tmp = None
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
+        out = check_output_dir("--out", args.out)
     else:
         tmp = tempfile.TemporaryDirectory(prefix="sea-soak-")
         out = Path(tmp.name)
@@ -186,6 +187,5 @@ def run(args) -> int:
           f"counted in {lg['files']} file(s) {lg['counted_in_files']}; cycles - rows = "
           f"{r['cycles'] - lg['counted_in_files']}")
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(r, fh, indent=1)
+        atomic_write_text(args.json, json.dumps(r, indent=1))
     return 0

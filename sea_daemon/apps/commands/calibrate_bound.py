@@ -18,6 +18,7 @@ import numpy as np
 
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
+from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log
 
 NAME = "calibrate-bound"
@@ -56,6 +57,7 @@ def run(args) -> int:
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.core.estimators import make_estimator
 
+    check_outputs([("--write", args.write)], inputs=[args.log, args.config, args.model])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line

@@ -4,6 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 
 NAME = "diagnose"
+#: the files diagnose writes into --out besides its PNG plots
+OUTPUTS = ("diagnosis.json", "model_augmented.yaml", "report.md")
 HELP = "find effects the model lacks in a measured log; write diagnosis.json, model_augmented.yaml, report.md"
 ORDER = 40
 DESCRIPTION = ("Closes the loop on measured data: computes the load- and motor-side model residuals of the "
@@ -29,8 +31,19 @@ def run(args) -> int:
     from sea_daemon.io.configfile import load_config
     from sea_daemon.apps.diagnose import SelectOptions, diagnose
     from sea_daemon.errors import InputError
+    from sea_daemon.io.files import check_output_dir, check_outputs
     from sea_daemon.io.logcsv import read_log
 
+    # before any work: DIR can be written and none of its files is an input
+    inputs = [args.log, args.config]
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a directory")
+    out = check_output_dir("--out", out, inputs)
+    check_outputs([("--out", out / name) for name in OUTPUTS], inputs)
+    for i in map(Path, inputs):
+        if i.suffix.lower() == ".png" and i.resolve().parent == out.resolve():
+            raise InputError(f"--out {out}: holds the input {i}, and diagnose writes its plots there")
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints)
     opts = SelectOptions()
@@ -40,9 +53,6 @@ def run(args) -> int:
             if not (v >= 0 and v == v and v != float("inf")):
                 raise InputError(f"--{name.replace('_', '-')}: must be a finite number >= 0, got {v}")
             setattr(opts, attr, v)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a directory")
     res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots)
     print(f"diagnose {args.log}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
           f"{res['residual_rms_after']:.4g} N m")
