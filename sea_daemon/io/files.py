@@ -12,10 +12,11 @@ replaces one of the command's own inputs.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterable
+from typing import BinaryIO, Iterable, Iterator
 
 from sea_daemon.errors import InputError, shown
 
@@ -62,9 +63,13 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (module docstring); InputError when the target cannot
-    be written (missing or read-only directory, full disk), with the target left as it was."""
+@contextlib.contextmanager
+def atomic_file(path: str | Path) -> Iterator[BinaryIO]:
+    """``with atomic_file(path) as fh: fh.write(...)`` — written to a temporary file in the
+    target's directory, fsynced and renamed over ``path`` when the block ends (module docstring);
+    InputError when the target cannot be written (missing or read-only directory, full disk),
+    with the target left as it was and no temporary file left behind; an exception in the block
+    likewise leaves the target untouched."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     try:
@@ -73,17 +78,25 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except OSError as e:
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except OSError:
             pass
-        raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+        if isinstance(e, OSError):
+            raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+        raise
     _fsync_dir(directory)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_file`)."""
+    with atomic_file(path) as fh:
+        fh.write(data)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
