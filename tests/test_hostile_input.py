@@ -205,3 +205,64 @@ def test_diagnose_analyses_a_contiguous_excerpt_of_a_long_log(tmp_path, capsys, 
     assert code == 0, err
     assert re.search(rf"has {len(sim)} samples; analysing the 1500 with the most motion", err)
     assert json.loads((tmp_path / "d" / "diagnosis.json").read_text())["samples"] == 1500
+
+
+# ------------------------------------------------------------------ the rest of issue 15, item 7
+@pytest.mark.parametrize("text,expect", [
+    (ROBOT + "estimator: {P0: [1.0e+300, 1, 1, 1, 1]}\n", r"estimator\.P0: must be finite, within"),
+    (ROBOT + "estimator: {P0_tau: 1.0e+300}\n", r"estimator\.P0_tau: must be a finite number"),
+    (ROBOT + "x: " + "[" * 1000 + "]" * 1000 + "\n", r"nested deeper than 32 levels"),
+    (ROBOT + "estimator: {tau_h_act_max: -1}\n", r"estimator\.tau_h_act_max: must be > 0"),
+])
+def test_more_bad_yaml_is_refused(tmp_path, log, capsys, text, expect):
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(text)
+    refused(*replay(log, cfg, tmp_path, capsys)[::2], expect)
+
+
+def test_zero_process_noise_is_an_estimator_fault_not_an_internal_error(tmp_path, capsys):
+    from sea_daemon.io.logcsv import write_log
+    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    p = tmp_path / "p.csv"
+    write_log(p, simulate(load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")).estimation)
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(ROBOT + "estimator: {Sigma_nom: [0, 0, 0, 0, 0]}\n")
+    code, _, err = replay(p, cfg, tmp_path, capsys)
+    refused(code, err, r"p\.csv: sample \d+ .*NIS divergence")
+
+
+def test_a_gap_in_a_log_is_refused_at_its_sample(tmp_path, log, capsys):
+    rows = log.read_text().splitlines()
+    head, body = rows[0], rows[1:]
+    shifted = [",".join([f"{float(r.split(',')[0]) + (1000 if i >= 150 else 0):.4f}"] + r.split(",")[1:])
+               for i, r in enumerate(body)]
+    p = tmp_path / "gap.csv"
+    p.write_text("\n".join([head] + shifted) + "\n")
+    refused(*replay(p, CFG, tmp_path, capsys)[::2], r"gap\.csv: sample 150 .*step of 1000.01 s, allowed 0 < dt <= 10")
+    code, _, err = run(["replay", log, "--config", CFG, "--train", p, "--out", tmp_path / "e.csv"], capsys)
+    refused(code, err, r"gap\.csv \(training\): sample 150 .*a gap in the log")
+
+
+def test_a_training_log_at_another_rate_is_refused(tmp_path, log, capsys):
+    rows = log.read_text().splitlines()
+    half = tmp_path / "t50.csv"
+    half.write_text("\n".join([rows[0]] + rows[1::2]) + "\n")          # 50 Hz
+    code, _, err = run(["replay", log, "--config", CFG, "--train", half, "--out", tmp_path / "e.csv"], capsys)
+    refused(code, err, r"training log .*t50\.csv: sample period 0\.02 s \(50 Hz\), the estimation runs at 0\.01 s")
+
+
+def test_a_200_kb_field_is_refused_by_the_line_limit(tmp_path, capsys):
+    p = tmp_path / "big.csv"
+    p.write_text("t,q,theta_m,tau_m\n0.0,0.0,0.0,1.0\n0.01,0.0,0.0," + "1" * 200_000 + "\n")
+    refused(*replay(p, CFG, tmp_path, capsys)[::2], r"big\.csv:3: line longer than 65536 bytes")
+
+
+def test_a_closed_stderr_still_gives_exit_2(tmp_path):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "sea_daemon", "replay", str(tmp_path / "none.csv"), "--config", CFG,
+                        "--out", str(tmp_path / "e.csv")], stderr=subprocess.DEVNULL, close_fds=True,
+                       env=dict(os.environ, PYTHONPATH=str(repo_root())), cwd=tmp_path,
+                       preexec_fn=lambda: os.close(2))
+    assert r.returncode == 2

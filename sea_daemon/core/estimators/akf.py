@@ -47,6 +47,15 @@ from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
+from sea_daemon.errors import EstimatorFault
+
+
+#: the longest step :meth:`AKF.update` bridges, in periods
+MAX_GAP = 10.0
+
+
+class SampleGap(EstimatorFault):
+    """A step much longer than the period (a gap in a log); raised before the filter moves."""
 
 
 #: the start-up gate (:meth:`AKF._gate`): the estimate is valid once what is left of the initial
@@ -282,6 +291,11 @@ class AKF:
         if not self._ready:
             return self.reset(q, theta_m, tau_m)
         dt = self.dt if dt is None else float(dt)
+        if not 0.0 < dt <= MAX_GAP * self.dt:
+            # the differentiator and the prediction's linearisation hold over a few periods, not a
+            # gap: a log with one is two logs
+            raise SampleGap(f"AKF step {self.est.k + 1}: step of {dt:.6g} s, allowed 0 < dt <= {MAX_GAP:g} x "
+                            f"the period {self.dt:.6g} s (a gap in the log: split it there)")
         if self._filling:
             return self._fill_kinematics(q, theta_m, tau_m, dt)
         n = self.n
