@@ -249,7 +249,9 @@ class FixedRateLoop:
                 # one row in every cycle; without a sample, the last measured angles are held
                 # (zero before the first) and the time moves one period on
                 if meas is not None:
-                    row[0] = meas.t if meas.t > self._t_row else self._t_row + self.period
+                    # the hardware's time is whole periods; one that did not move on past a
+                    # placeholder row (a read that failed before its SYNC) continues from it
+                    row[0] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
                     row[1:1 + n] = meas.q
                     row[1 + n:1 + 2 * n] = meas.theta_m
                 else:
