@@ -12,7 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from sea_daemon.apps.cli import main
+from _cli import passive_log, refused, run
 from sea_daemon.io import modelfile
 from sea_daemon.io.configfile import repo_root
 
@@ -20,32 +20,10 @@ CFG = str(repo_root() / "configs" / "exo_1dof.yaml")
 ROBOT = "joints: 1\nrate_hz: 100\nmodel: {M: 0.12, J: 0.08, D_m: 0.6, K_s: 110.0, D_s: 0.25}\n"
 
 
-def run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def refused(code, err, *patterns):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1 and "Traceback" not in err and "internal error" not in err, err
-    for p in patterns:
-        assert re.search(p, lines[0]), (p, lines[0])
-
-
 @pytest.fixture
 def log(tmp_path):
     """A valid passive log of 300 samples."""
-    p = tmp_path / "log.csv"
-    t = np.arange(300) * 0.01
-    q = 0.3 * np.sin(t)
-    rows = "\n".join(f"{a:.4f},{b:.6f},{b - 0.001:.6f},{0.5 * np.cos(a):.5f}" for a, b in zip(t, q))
-    p.write_text("t,q,theta_m,tau_m\n" + rows + "\n")
-    return p
+    return passive_log(tmp_path / "log.csv")
 
 
 def replay(log, cfg, tmp_path, capsys):

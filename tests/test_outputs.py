@@ -3,13 +3,11 @@ cannot be written is refused before any long work (issue 15, items 2, 5 and 8)."
 from __future__ import annotations
 
 import os
-import re
 import shutil
 
-import numpy as np
 import pytest
 
-from sea_daemon.apps.cli import main
+from _cli import passive_log, refused, run
 from sea_daemon.io.configfile import repo_root
 
 ROOT = repo_root()
@@ -17,31 +15,9 @@ CFG = ROOT / "configs" / "exo_1dof.yaml"
 PASSIVE = ROOT / "configs" / "scenarios" / "passive.yaml"
 
 
-def run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def refused(code, err, *patterns):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1 and "Traceback" not in err and "internal error" not in err, err
-    for p in patterns:
-        assert re.search(p, lines[0]), (p, lines[0])
-
-
 @pytest.fixture
 def log(tmp_path):
-    p = tmp_path / "p.csv"
-    t = np.arange(300) * 0.01
-    q = 0.3 * np.sin(t)
-    p.write_text("t,q,theta_m,tau_m\n" + "\n".join(
-        f"{a:.4f},{b:.6f},{b - 0.001:.6f},{0.5 * np.cos(a):.5f}" for a, b in zip(t, q)) + "\n")
-    return p
+    return passive_log(tmp_path / "p.csv")
 
 
 @pytest.fixture

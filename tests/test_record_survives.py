@@ -9,47 +9,10 @@ import numpy as np
 import pytest
 
 from drivers.device_model import parse_fault
-from sea_daemon.core.estimators import make_estimator
+from sea_daemon.apps.bench.record import serve_with_action as _serve
 from sea_daemon.errors import Fault, InputError
-from sea_daemon.io.configfile import load_config, repo_root
 from sea_daemon.io.logcsv import read_log
-from sea_daemon.runtime.controller import ZeroTorque
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.notify import Notifier
-from sea_daemon.runtime.rig import make_rig
-from sea_daemon.runtime.service import serve
-
-ROOT = repo_root()
-CFG = str(ROOT / "configs" / "exo_1dof_sim.yaml")
-PASSIVE = str(ROOT / "configs" / "scenarios" / "passive.yaml")
-
-
-class Recorder(Notifier):
-    """systemd's notify socket, in memory."""
-
-    def __init__(self):
-        super().__init__()
-        self.lines: list[str] = []
-
-    def status(self, text: str) -> None:
-        self.lines.append(text)
-
-
-def _serve(tmp_path, cycles, at_cycle=None, action=None):
-    cfg = load_config(CFG)
-    rig = make_rig(cfg, device_model=PASSIVE, phase="estimation")
-    done = []
-
-    def progress(k, est):
-        if k == at_cycle and not done:
-            done.append(k)
-            action(rig)
-
-    note = Recorder()
-    log_path = tmp_path / "run.csv"
-    res = serve(rig, make_estimator("akf", cfg), ZeroTorque(1), 1, cfg.dt, log_path, cycles=cycles,
-                realtime=False, notifier=note, progress=progress, rt_priority=None)
-    return res, log_path, note
 
 
 def _check_every_cycle(res, log_path, cycles):
@@ -63,7 +26,7 @@ def _check_every_cycle(res, log_path, cycles):
 
 
 def test_device_model_killed_mid_run_every_cycle_has_a_row(tmp_path):
-    res, path, note = _serve(tmp_path, 300, at_cycle=100, action=lambda rig: rig.device_model.stop())
+    res, path, note = _serve(tmp_path, 300, 100, lambda rig: rig.device_model.stop())
     log, ex = _check_every_cycle(res, path, 300)
     f = ex["fault"]
     first = int(np.argmax(f != 0))
@@ -76,7 +39,7 @@ def test_device_model_killed_mid_run_every_cycle_has_a_row(tmp_path):
 
 
 def test_encoder_jump_latches_and_the_log_goes_on(tmp_path):
-    res, path, _ = _serve(tmp_path, 300, at_cycle=100,
+    res, path, _ = _serve(tmp_path, 300, 100,
                           action=lambda rig: rig.device_model.schedule(parse_fault("jump:target=encoder,rad=0.5")))
     log, ex = _check_every_cycle(res, path, 300)
     assert res.supervisor.latched == Fault.ENCODER_JUMP
@@ -90,18 +53,10 @@ def test_full_disk_during_a_run_latches_log_failed_and_counts_the_rows_lost(tmp_
         w = fill_disk.writer
         resource.prlimit(w._proc.pid, resource.RLIMIT_FSIZE, (w.path.stat().st_size + 4000, resource.RLIM_INFINITY))
 
-    import sea_daemon.runtime.service as service
-    real = service.LogWriter
+    def keep(w):
+        fill_disk.writer = w
 
-    def writer(*a, **kw):
-        fill_disk.writer = real(*a, **kw)
-        return fill_disk.writer
-
-    service.LogWriter = writer
-    try:
-        res, path, note = _serve(tmp_path, 400, at_cycle=50, action=fill_disk)
-    finally:
-        service.LogWriter = real
+    res, path, note = _serve(tmp_path, 400, 50, fill_disk, writer_hook=keep)
     assert res.supervisor.latched == Fault.LOG_FAILED
     assert "File too large" in res.supervisor.latched_detail
     fin = res.log

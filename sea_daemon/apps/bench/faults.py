@@ -39,14 +39,13 @@ drive's own watch of the daemon's heartbeat (0x1016, quick stop) stops it within
 from __future__ import annotations
 
 import dataclasses
-import json
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.apps.bench import choose, machine
+from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 from sea_daemon.apps.bench._fault_run import BUS, FAULTS, OVERRUN_STREAK, FaultRun, record_heartbeats
 
 NAME = "faults"
@@ -143,14 +142,13 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the injection times and choices")
     p.add_argument("--fault-free-cycles", type=int, default=100000,
                    help="cycles of the fault-free run for false alarms (default 100000; 0: skip)")
-    p.add_argument("--kinds", default=",".join(FAULTS), help=f"comma-separated subset of {', '.join(FAULTS)}")
-    p.add_argument("--json", default=None, help="also write every injection's record as JSON here")
+    add_choice_argument(p, "--kinds", FAULTS)
+    add_json_argument(p, "every injection's record")
 
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
-    from sea_daemon.io.files import atomic_write_text, check_outputs
-    check_outputs([("--json", args.json)])
+    save = json_output(args)
     kinds = choose(args.kinds, FAULTS, "--kinds")
     if args.cycles < 1000 or args.fault_free_cycles < 0:
         raise InputError(f"--cycles {args.cycles}: must be >= 1000; --fault-free-cycles >= 0")
@@ -164,6 +162,5 @@ def run(args) -> int:
         print(f"#   {kind}: {r['detected']}/{r['injected']} detected, {r['wall_s']:.0f} s", flush=True)
     res = run_suite(args.cycles, args.seed, args.fault_free_cycles, kinds, progress=progress)
     print(table(res))
-    if args.json:
-        atomic_write_text(args.json, json.dumps(res, indent=1, default=str))
+    save(res)
     return 0

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.apps.bench import choose, machine
+from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 
 NAME = "record"
 HELP = "the measured log through faults: device model stopped, disk full, service killed and restarted"
@@ -65,7 +65,7 @@ class _Status:
         pass
 
 
-def _serve(log_dir: Path, cycles: int, at: int, action, writer_hook=None):
+def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=None):
     """The service against the device model for ``cycles`` cycles; ``action(rig)`` in cycle ``at``."""
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.configfile import load_config, repo_root
@@ -116,7 +116,7 @@ def _lines_whole(path: Path) -> bool:
 def attack_device_model_stopped(tmp: Path, cycles: int, rng) -> dict:
     from sea_daemon.io.logcsv import read_log
     at = int(rng.integers(cycles // 4, 3 * cycles // 4))
-    res, path, note = _serve(tmp, cycles, at, lambda rig: rig.device_model.stop())
+    res, path, note = serve_with_action(tmp, cycles, at, lambda rig: rig.device_model.stop())
     log = read_log(path, n=1)
     ex = log.extra
     f = ex["fault"] != 0
@@ -163,7 +163,7 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
     with _small_disk(tmp, size) as (d, mounted):
         def limit(w):                    # no tmpfs: the writer's files may grow to the same size
             resource.prlimit(w._proc.pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
-        res, path, note = _serve(d, cycles, -1, None, writer_hook=None if mounted else limit)
+        res, path, note = serve_with_action(d, cycles, -1, None, writer_hook=None if mounted else limit)
         fin = res.log
         log = read_log(path, n=1) if fin["rows_written"] >= 2 else None
         rows_in_file = path.read_bytes().count(b"\n") - 1
@@ -259,17 +259,15 @@ def add_arguments(p) -> None:
     p.add_argument("--rounds", type=int, default=5, help="rounds of every attack (default 5)")
     p.add_argument("--cycles", type=int, default=600, help="loop cycles of each service run (default 600)")
     p.add_argument("--seed", type=int, default=0, help="seed of the attack cycles and sizes")
-    p.add_argument("--attacks", default=",".join(ATTACKS), help=f"comma-separated subset of {', '.join(ATTACKS)}")
-    p.add_argument("--json", default=None, help="also write every round's record as JSON here")
+    add_choice_argument(p, "--attacks", ATTACKS)
+    add_json_argument(p, "every round's record")
 
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
-    from sea_daemon.io.files import atomic_write_text, check_outputs
-    check_outputs([("--json", args.json)])
-    attacks = choose(args.attacks, ATTACKS, "--attacks")
     if args.rounds < 1 or args.cycles < 200:
         raise InputError(f"--rounds {args.rounds} (>= 1), --cycles {args.cycles} (>= 200)")
+    attacks, save = choose(args.attacks, ATTACKS, "--attacks"), json_output(args)
     print(f"# sea-daemon bench record on {machine()}")
     print(f"# {args.rounds} rounds of {', '.join(attacks)}; {args.cycles} cycles a service run, lock-step, "
           f"device model on a virtual CAN bus, seed {args.seed}", flush=True)
@@ -280,6 +278,5 @@ def run(args) -> int:
               f"{'ok' if r['ok'] else 'FAILED ' + ', '.join(bad)} ({r['wall_s']} s)", flush=True)
     res = run_rounds(args.rounds, args.cycles, args.seed, attacks, progress)
     print(table(res))
-    if args.json:
-        atomic_write_text(args.json, json.dumps(res, indent=1, default=str))
+    save(res)
     return 0 if all(r["ok"] for rs in res["attacks"].values() for r in rs) else 1
