@@ -75,3 +75,4 @@ class Fault(enum.IntEnum):
     OVERRUN_STREAK = 11
     DEVICE_FAULT = 12          # drive reports CiA 402 fault state
     INTERNAL = 13              # an unexpected exception in the loop
+    LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)

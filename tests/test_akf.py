@@ -418,14 +418,18 @@ def test_init_after_kinematics_starts_with_the_measured_velocity():
 
 
 def test_an_estimate_is_valid_only_once_the_filter_runs():
-    """Estimate.valid: False at the reset sample and while the differentiator's window fills
-    (init_after_kinematics), True from the first filter step on; the spring estimate likewise
+    """Estimate.valid: False at the reset sample, while the differentiator's window fills
+    (init_after_kinematics) and until the start-up gate opens, then True; the spring estimate
     once its velocity is a velocity."""
     from sea_daemon.core.estimators.spring import SpringTorqueEstimator
     cfg = load_config(default_config_path())
     for est in (AKF(cfg), SpringTorqueEstimator(cfg)):
         flags = [est.reset(np.array([0.1]), np.array([0.1]), np.array([0.0])).valid]
-        for k in range(1, 12):
+        for k in range(1, 200):
             flags.append(est.update(np.array([0.1 + 0.001 * k]), np.array([0.1]), np.array([0.0])).valid)
-        first = est.kin.L - 1 if isinstance(est, SpringTorqueEstimator) else est.kin.L
+        if isinstance(est, SpringTorqueEstimator):
+            first = est.kin.L - 1
+        else:   # the filter runs from sample L on, valid once its start-up transient decayed (the gate)
+            first = est.converged_at
+            assert first >= est.kin.L
         assert flags == [False] * first + [True] * (len(flags) - first), (type(est).__name__, flags)

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
+from _cli import run
 from sea_daemon.apps.cli import main
 from sea_daemon.io.configfile import default_config_path, load_config, repo_root
 from sea_daemon.errors import InputError, LogFormatError
@@ -28,13 +29,7 @@ CFG = str(default_config_path())
 SCEN = str(repo_root() / "configs" / "scenarios" / "passive.yaml")
 
 
-def cli(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as e:             # argparse errors
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
+cli = run                               # (exit status, stdout, stderr) of sea-daemon ARGV
 
 
 def assert_one_line(code, err, *expect):

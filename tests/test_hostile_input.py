@@ -12,7 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from sea_daemon.apps.cli import main
+from _cli import passive_log, refused, run
 from sea_daemon.io import modelfile
 from sea_daemon.io.configfile import repo_root
 
@@ -20,32 +20,10 @@ CFG = str(repo_root() / "configs" / "exo_1dof.yaml")
 ROBOT = "joints: 1\nrate_hz: 100\nmodel: {M: 0.12, J: 0.08, D_m: 0.6, K_s: 110.0, D_s: 0.25}\n"
 
 
-def run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def refused(code, err, *patterns):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1 and "Traceback" not in err and "internal error" not in err, err
-    for p in patterns:
-        assert re.search(p, lines[0]), (p, lines[0])
-
-
 @pytest.fixture
 def log(tmp_path):
     """A valid passive log of 300 samples."""
-    p = tmp_path / "log.csv"
-    t = np.arange(300) * 0.01
-    q = 0.3 * np.sin(t)
-    rows = "\n".join(f"{a:.4f},{b:.6f},{b - 0.001:.6f},{0.5 * np.cos(a):.5f}" for a, b in zip(t, q))
-    p.write_text("t,q,theta_m,tau_m\n" + rows + "\n")
-    return p
+    return passive_log(tmp_path / "log.csv")
 
 
 def replay(log, cfg, tmp_path, capsys):
@@ -161,3 +139,108 @@ def test_a_model_file_is_written_atomically_and_a_failed_write_leaves_the_old_on
         modelfile.save_model(p, {"a": np.arange(5.0)}, {"x": 2})
     assert p.read_bytes() == before
     assert [f.name for f in tmp_path.iterdir()] == ["m.npz"]        # no stray temporary file
+
+
+# ------------------------------------------------------------------ long logs (issue 15, item 6)
+def test_a_long_log_is_read_into_float_blocks(tmp_path):
+    """read_log keeps 8 bytes a value: 200 000 rows x 4 columns peak far below a list of floats."""
+    import tracemalloc
+    from sea_daemon.io.logcsv import read_log
+    p = tmp_path / "long.csv"
+    N = 200_000
+    t = np.arange(N) * 0.01
+    np.savetxt(p, np.column_stack([t, 0.3 * np.sin(t), 0.3 * np.sin(t), np.cos(t)]), delimiter=",",
+               header="t,q,theta_m,tau_m", comments="", fmt="%.6g")
+    tracemalloc.start()
+    log = read_log(p)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert len(log) == N
+    assert peak < 4 * (N * 4 * 8)          # data 6.4 MB; the rows as Python lists took ~6x that
+
+
+def test_diagnose_analyses_a_contiguous_excerpt_of_a_long_log(tmp_path, capsys, monkeypatch):
+    from sea_daemon.apps.diagnose import long_log
+    from sea_daemon.io.logcsv import write_log
+    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    sim = simulate(load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")).estimation
+    # the excerpt is the stretch with the most motion, at the log's own rate
+    still = sim.slice(0, 2000)
+    still.q[:] = still.q[0]
+    part, info = long_log.excerpt(still.slice(0, 1000), 500)
+    assert info["first"] == 0 and len(part) == 500           # no motion anywhere: the first
+    part, info = long_log.excerpt(sim, 700)
+    assert len(part) == 700 and np.array_equal(part.t, sim.t[info["first"]:info["last"] + 1])
+    path = np.abs(np.diff(sim.q[:, 0]))
+    best = max(path[s:s + 699].sum() for s in range(len(sim) - 699))
+    assert path[info["first"]:info["first"] + 699].sum() == pytest.approx(best)
+    # the command says what it analysed
+    log = tmp_path / "long.csv"
+    write_log(log, sim)
+    monkeypatch.setattr(long_log, "MAX_SAMPLES", 1500)
+    code, out, err = run(["diagnose", log, "--config", CFG, "--out", tmp_path / "d", "--no-plots"], capsys)
+    assert code == 0, err
+    assert re.search(rf"has {len(sim)} samples; analysing the 1500 with the most motion", err)
+    assert json.loads((tmp_path / "d" / "diagnosis.json").read_text())["samples"] == 1500
+
+
+# ------------------------------------------------------------------ the rest of issue 15, item 7
+@pytest.mark.parametrize("text,expect", [
+    (ROBOT + "estimator: {P0: [1.0e+300, 1, 1, 1, 1]}\n", r"estimator\.P0: must be finite, within"),
+    (ROBOT + "estimator: {P0_tau: 1.0e+300}\n", r"estimator\.P0_tau: must be a finite number"),
+    (ROBOT + "x: " + "[" * 1000 + "]" * 1000 + "\n", r"nested deeper than 32 levels"),
+    (ROBOT + "estimator: {tau_h_act_max: -1}\n", r"estimator\.tau_h_act_max: must be > 0"),
+])
+def test_more_bad_yaml_is_refused(tmp_path, log, capsys, text, expect):
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(text)
+    refused(*replay(log, cfg, tmp_path, capsys)[::2], expect)
+
+
+def test_zero_process_noise_is_an_estimator_fault_not_an_internal_error(tmp_path, capsys):
+    from sea_daemon.io.logcsv import write_log
+    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    p = tmp_path / "p.csv"
+    write_log(p, simulate(load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")).estimation)
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(ROBOT + "estimator: {Sigma_nom: [0, 0, 0, 0, 0]}\n")
+    code, _, err = replay(p, cfg, tmp_path, capsys)
+    refused(code, err, r"p\.csv: sample \d+ .*NIS divergence")
+
+
+def test_a_gap_in_a_log_is_refused_at_its_sample(tmp_path, log, capsys):
+    rows = log.read_text().splitlines()
+    head, body = rows[0], rows[1:]
+    shifted = [",".join([f"{float(r.split(',')[0]) + (1000 if i >= 150 else 0):.4f}"] + r.split(",")[1:])
+               for i, r in enumerate(body)]
+    p = tmp_path / "gap.csv"
+    p.write_text("\n".join([head] + shifted) + "\n")
+    refused(*replay(p, CFG, tmp_path, capsys)[::2], r"gap\.csv: sample 150 .*step of 1000.01 s, allowed 0 < dt <= 10")
+    code, _, err = run(["replay", log, "--config", CFG, "--train", p, "--out", tmp_path / "e.csv"], capsys)
+    refused(code, err, r"gap\.csv \(training\): sample 150 .*a gap in the log")
+
+
+def test_a_training_log_at_another_rate_is_refused(tmp_path, log, capsys):
+    rows = log.read_text().splitlines()
+    half = tmp_path / "t50.csv"
+    half.write_text("\n".join([rows[0]] + rows[1::2]) + "\n")          # 50 Hz
+    code, _, err = run(["replay", log, "--config", CFG, "--train", half, "--out", tmp_path / "e.csv"], capsys)
+    refused(code, err, r"training log .*t50\.csv: sample period 0\.02 s \(50 Hz\), the estimation runs at 0\.01 s")
+
+
+def test_a_200_kb_field_is_refused_by_the_line_limit(tmp_path, capsys):
+    p = tmp_path / "big.csv"
+    p.write_text("t,q,theta_m,tau_m\n0.0,0.0,0.0,1.0\n0.01,0.0,0.0," + "1" * 200_000 + "\n")
+    refused(*replay(p, CFG, tmp_path, capsys)[::2], r"big\.csv:3: line longer than 65536 bytes")
+
+
+def test_a_closed_stderr_still_gives_exit_2(tmp_path):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "sea_daemon", "replay", str(tmp_path / "none.csv"), "--config", CFG,
+                        "--out", str(tmp_path / "e.csv")], stderr=subprocess.DEVNULL, close_fds=True,
+                       env=dict(os.environ, PYTHONPATH=str(repo_root())), cwd=tmp_path,
+                       preexec_fn=lambda: os.close(2))
+    assert r.returncode == 2

@@ -56,7 +56,7 @@ class ConstEstimator:
         if self.nan_at is not None and self.k > self.nan_at:
             raise EstimatorFault("state became non-finite")
         return types.SimpleNamespace(tau_h_act_hat=np.array([0.5]), tau_h_act_bound=np.array([0.2]),
-                                     tau_h_act_sigma=np.array([0.1]))
+                                     tau_h_act_sigma=np.array([0.1]), valid=True)
 
 
 class Push:
@@ -71,6 +71,9 @@ class ListLog:
     def append(self, row):
         self.rows.append(row.copy())
         return True
+
+    def fault(self):
+        return None
 
 
 def make(hw, est, **kw):
@@ -233,3 +236,49 @@ def test_failed_operator_reset_stays_latched_and_loop_keeps_running():
     assert loop.supervisor.latched == Fault.HEARTBEAT_LOST
     assert "operator reset failed" in loop.supervisor.latched_detail
     assert all(tau == 0.0 for k, tau in hw.writes if k >= 3)
+
+
+def test_a_row_in_every_cycle_through_failed_reads_and_time_keeps_increasing():
+    """Reads that fail before the hardware's clock moves (an EMCY before the SYNC) get placeholder
+    rows one period apart; the next sample continues after them (docs/interfaces.md §1)."""
+    class StallingHW(FakeHW):
+        def __init__(self):
+            super().__init__()
+            self.samples = 0
+
+        def read(self):
+            self.k += 1
+            if 20 <= self.k - 1 < 25:
+                raise HeartbeatLost("no heartbeat")
+            self.samples += 1
+            return types.SimpleNamespace(t=self.samples * 0.01, q=np.array([0.1 + 0.001 * self.k]),
+                                         theta_m=np.array([0.09]))
+
+    hw = StallingHW()
+    loop = make(hw, ConstEstimator())
+    loop.run(40)
+    cols = log_columns(1)
+    rows = np.array(loop.log.rows)
+    col = {c: rows[:, cols.index(c)] for c in cols}
+    assert len(rows) == 40 and np.array_equal(col["cycle"], np.arange(40)) and np.all(np.isfinite(rows))
+    assert np.all(np.diff(col["t"]) > 0.005)                       # strictly increasing, by whole periods
+    assert list(col["measured"][18:27]) == [1, 1, 0, 0, 0, 0, 0, 1, 1]
+    assert np.all(col["q"][20:25] == col["q"][19])                 # the last measured angles held
+    assert np.all(col["fault"][20:] == int(Fault.HEARTBEAT_LOST)) and not col["valid"][20:].any()
+    assert np.all(col["tau_m"][20:] == 0.0)
+
+
+def test_a_log_that_fails_latches_LOG_FAILED_once_and_again_after_a_reset():
+    class FailingLog(ListLog):
+        def fault(self):
+            return "log x.csv: No space left on device" if len(self.rows) > 10 else None
+
+    hw = FakeHW()
+    loop = FixedRateLoop(hw, ConstEstimator(), Push(), n=1, period=0.01, log=FailingLog(), realtime=False)
+    loop.run(20)
+    sup = loop.supervisor
+    assert sup.latched == Fault.LOG_FAILED and sup.latched_cycle == 10 and sup.trips == 1
+    assert hw.safe_stops == [10] and all(tau == 0.0 for k, tau in hw.writes if k > 10)
+    loop.request_reset()
+    loop.run(3)
+    assert sup.latched == Fault.LOG_FAILED and sup.trips == 2       # a dead log is not cleared by a reset

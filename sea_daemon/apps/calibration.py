@@ -55,14 +55,16 @@ class _Progress:
 
 
 def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path: Path, *,
-              state_dir: Path | None = None, cycles: int | None = None, sim: str | None = None,
+              state: StateFile | None = None, cycles: int | None = None, sim: str | None = None,
               device_model: str | None = None, realtime: bool = True, rt_priority: int | None = 80,
               supervisor: SafetySupervisor | None = None, progress: bool = False,
               config_name: str = "<memory>") -> tuple[int, dict, str]:
     """Run the training phase and save the model to ``out``.
 
-    Returns ``(exit status, JSON summary, message)``: 0 with the model saved; 1 when a fault
-    latched or the run was interrupted (model not saved, the log kept).
+    ``state``: the claimed :class:`~sea_daemon.runtime.service.StateFile` the pid file goes to
+    (None: none).  Returns ``(exit status, JSON summary, message)``: 0 with the model saved; 1
+    when a fault latched, the run was interrupted or the log lost rows (model not saved, the log
+    kept).
     """
     sc = load_scenario(scenario)
     if sc.nominal.joints != cfg.joints:
@@ -75,7 +77,7 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     bar = _Progress(cycles, progress, estimator)
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
-                    notifier=Notifier(), state=StateFile(state_dir) if state_dir is not None else None,
+                    notifier=Notifier(), state=state,
                     progress=bar, rt_priority=rt_priority, supervisor=supervisor, label="calibrate")
     finally:
         bar.close(cycles)
@@ -84,12 +86,16 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
                "hardware": rig.description, "cycles": st.cycles, "gp_points": estimator.gp.n_points,
                "pairs_learned": estimator.n_learned, "overruns": st.overruns,
                "rows_written": res.log["rows_written"], "rows_dropped": res.log["rows_dropped"],
+               "rows_lost": res.log["rows_lost"], "log_error": res.log["error"],
                "fault": sup.latched.name, "realtime": res.realtime, "pace": "realtime" if realtime else "lockstep",
                "wall_s": round(res.wall_s, 3)}
     if not sup.ok:
         return 1, summary, f"{sup.status_line()}; model not saved, log kept: {log_path}"
     if st.cycles < cycles:
         return 1, summary, f"interrupted after {st.cycles} of {cycles} cycles; model not saved, log kept: {log_path}"
+    if res.log["error"]:
+        return 1, summary, (f"log incomplete, {res.log['rows_lost']} rows lost ({res.log['error']}); "
+                            f"model not saved")
     save_gp_model(out, cfg, estimator.gp, {
         "command": "calibrate", "scenario": str(scenario), "config": config_name, "log": str(log_path),
         "hardware": rig.description, "cycles": st.cycles, "pairs_learned": estimator.n_learned})

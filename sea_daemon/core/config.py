@@ -101,10 +101,13 @@ class EstimatorConfig:
     # changes beyond the random walk of Σ_nom, |dτ_h,act/dt| <= tau_h_act_rate [N m/s]; it enters
     # the set of means as a bounded input (0: the paper's pure random walk)
     tau_h_act_rate: float = 0.0
+    # the start-up gate (Estimate.valid): the largest |τ_h,act| [N m] when the filter starts or is
+    # reset, i.e. the initial torque error the gate lets decay; None: hardware.torque_limit
+    tau_h_act_max: float | None = None
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
             "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
-            "tau_h_act_rate"]
+            "tau_h_act_rate", "tau_h_act_max"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -156,6 +159,9 @@ class EstimatorConfig:
         S_dt = _nonneg("Sigma_nom_dt", 0.01, " [s] (0: Sigma_nom per step)")
         tau_m_noise = _nonneg("tau_m_noise", 0.0, " [N m]")
         rate = _nonneg("tau_h_act_rate", 0.0, " [N m/s]")
+        t_max = d.get("tau_h_act_max")
+        if t_max is not None:
+            t_max = validate.num(source, "estimator.tau_h_act_max", t_max, positive=True)
         def _bool(key):
             v = d.get(key, True)
             if not isinstance(v, bool):
@@ -168,7 +174,7 @@ class EstimatorConfig:
                    gp_input_margin=margin,
                    gp_beta=gp_beta,
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
-                   init_after_kinematics=init_kin, tau_h_act_rate=rate)
+                   init_after_kinematics=init_kin, tau_h_act_rate=rate, tau_h_act_max=t_max)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -179,7 +185,8 @@ class EstimatorConfig:
                 "gp_input_margin": self.gp_input_margin, "gp_beta": self.gp_beta,
                 "Sigma_nom_dt": self.Sigma_nom_dt,
                 "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
-                "init_after_kinematics": self.init_after_kinematics, "tau_h_act_rate": self.tau_h_act_rate}
+                "init_after_kinematics": self.init_after_kinematics, "tau_h_act_rate": self.tau_h_act_rate,
+                **({} if self.tau_h_act_max is None else {"tau_h_act_max": self.tau_h_act_max})}
 
 
 @dataclass(frozen=True)

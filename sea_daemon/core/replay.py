@@ -31,6 +31,7 @@ class ReplayResult:
     tau_h_act: np.ndarray | None
     step_time_s: np.ndarray | None
     estimator: str
+    valid: np.ndarray | None = None          # (N,) Estimate.valid per sample
 
     @property
     def n(self) -> int:
@@ -47,11 +48,13 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
     sig = np.zeros((N, n))
     bnd = np.zeros((N, n))
     xs = np.zeros((N, 5 * n))
+    ok = np.zeros(N, dtype=bool)
     times = np.zeros(max(N - 1, 0)) if clock is not None else None
     k = 0
     try:
         e = estimator.reset(log.q[0], log.theta_m[0], log.tau_m[0])
         hat[0], sig[0], bnd[0], xs[0] = e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound, e.x_hat
+        ok[0] = e.valid
         for k in range(1, N):
             dt = log.t[k] - log.t[k - 1]
             if clock is not None:
@@ -61,11 +64,13 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
             else:
                 e = estimator.update(log.q[k], log.theta_m[k], log.tau_m[k], dt)
             hat[k], sig[k], bnd[k], xs[k] = e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound, e.x_hat
+            ok[k] = e.valid
     except EstimatorFault as exc:
         raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
     return ReplayResult(t=log.t.copy(), tau_h_act_hat=hat, tau_h_act_sigma=sig, tau_h_act_bound=bnd,
                         x_hat=xs, tau_h_act=None if log.tau_h_act is None else log.tau_h_act.copy(),
-                        step_time_s=times, estimator=getattr(estimator, "name", type(estimator).__name__))
+                        step_time_s=times, estimator=getattr(estimator, "name", type(estimator).__name__),
+                        valid=ok)
 
 
 def summarize(res: ReplayResult, **extra) -> dict:
@@ -80,8 +85,15 @@ def summarize(res: ReplayResult, **extra) -> dict:
         out["mean_abs_error"] = float(np.mean(np.abs(err)))
         out["max_abs_error"] = float(np.max(np.abs(err)))
         out["coverage"] = float(np.mean(np.abs(err) <= res.tau_h_act_bound))
+        if res.valid is not None and res.valid.any():
+            # the promise of valid = 1: the estimate inside its bound (docs/estimators.md, "Validity")
+            v = res.valid
+            out["coverage_valid"] = float(np.mean(np.abs(err[v]) <= res.tau_h_act_bound[v]))
     else:
         out["rmse"] = None
+    if res.valid is not None:
+        out["valid_samples"] = int(res.valid.sum())
+        out["first_valid"] = int(np.argmax(res.valid)) if res.valid.any() else None
     out["mean_bound"] = float(np.mean(res.tau_h_act_bound))
     out["mean_sigma"] = float(np.mean(res.tau_h_act_sigma))
     if res.step_time_s is not None and res.step_time_s.size:
@@ -95,7 +107,7 @@ def summarize(res: ReplayResult, **extra) -> dict:
 
 def est_columns(res: ReplayResult) -> dict[str, np.ndarray]:
     """Columns of EST.csv: t, tau_h_act_hat, tau_h_act_bound, tau_h_act_sigma, the truth
-    tau_h_act when known, and the state estimates (per-joint suffixes for n > 1)."""
+    tau_h_act when known, the state estimates (per-joint suffixes for n > 1) and ``valid``."""
     n = res.n
     cols: dict[str, np.ndarray] = {"t": res.t}
 
@@ -110,4 +122,6 @@ def est_columns(res: ReplayResult) -> dict[str, np.ndarray]:
         put("tau_h_act", res.tau_h_act)
     for b, base in enumerate(STATE_NAMES):
         put(base, res.x_hat[:, b * n:(b + 1) * n])
+    if res.valid is not None:
+        cols["valid"] = res.valid.astype(float)
     return cols

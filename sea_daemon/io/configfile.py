@@ -118,11 +118,26 @@ def load_config(path: str | Path) -> ModelConfig:
     return ModelConfig.from_dict(load_yaml(path), source=str(path))
 
 
-def save_config(cfg: ModelConfig, path: str | Path, header: str | None = None) -> None:
-    """Write, atomically, a configuration that :func:`load_config` reads back to an equal object."""
+def config_text(cfg: ModelConfig, source: str | Path) -> str:
+    """``cfg`` as the YAML text :func:`save_config` writes, after reading that text back the way
+    :func:`load_config` does: a configuration the loader would refuse (an effect parameter out
+    of its range, a value beyond ±1e9, ...) is the loader's :class:`ConfigError`, naming
+    ``source`` and the key, and nothing is written."""
     text = yaml.safe_dump(cfg.to_dict(), sort_keys=False, default_flow_style=None)
-    if header:
-        text = "".join(f"# {line}\n" for line in header.splitlines()) + text
+    loader = _BoundedLoader(text, str(source))
+    try:
+        ModelConfig.from_dict(loader.get_single_data(), source=str(source))
+    finally:
+        loader.dispose()
+    return text
+
+
+def save_config(cfg: ModelConfig, path: str | Path, header: str | None = None) -> None:
+    """Write, atomically, a configuration that :func:`load_config` reads back to an equal object
+    (:func:`config_text`: one the loader refuses is refused here, the target left as it was)."""
+    text = config_text(cfg, path)
+    if header:       # paths in the header shown printably (bytes that are not UTF-8 escaped)
+        text = "".join(f"# {shown(line, 1000)}\n" for line in header.splitlines()) + text
     atomic_write_text(path, text)
 
 

@@ -12,10 +12,11 @@ replaces one of the command's own inputs.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterable
+from typing import BinaryIO, Iterable, Iterator
 
 from sea_daemon.errors import InputError, shown
 
@@ -62,9 +63,13 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (module docstring); InputError when the target cannot
-    be written (missing or read-only directory, full disk), with the target left as it was."""
+@contextlib.contextmanager
+def atomic_file(path: str | Path) -> Iterator[BinaryIO]:
+    """``with atomic_file(path) as fh: fh.write(...)`` — written to a temporary file in the
+    target's directory, fsynced and renamed over ``path`` when the block ends (module docstring);
+    InputError when the target cannot be written (missing or read-only directory, full disk),
+    with the target left as it was and no temporary file left behind; an exception in the block
+    likewise leaves the target untouched."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     try:
@@ -73,22 +78,31 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except OSError as e:
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except OSError:
             pass
-        raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+        if isinstance(e, OSError):
+            raise InputError(f"{shown(path)}: cannot write: {e.strerror or e}") from None
+        raise
     _fsync_dir(directory)
 
 
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_file`)."""
+    with atomic_file(path) as fh:
+        fh.write(data)
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
-    """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8."""
-    atomic_write_bytes(path, text.encode("utf-8"))
+    """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8; a lone surrogate (the bytes of a
+    path that are not UTF-8) is written as its escape ``\\udcXX`` (valid in JSON), never an error."""
+    atomic_write_bytes(path, text.encode("utf-8", "backslashreplace"))
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -96,6 +110,13 @@ def _same(a: Path, b: Path) -> bool:
         return a.exists() and b.exists() and os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def _resolved(p: Path) -> Path:
+    try:
+        return p.resolve()
+    except (OSError, RuntimeError):          # a symlink loop: compare as given
+        return p.absolute()
 
 
 def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
@@ -107,23 +128,25 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
     :func:`check_output_dir`.
     """
     ins = [Path(p) for p in inputs if p is not None]
+    seen: list[tuple[str, Path]] = []
     for flag, out in outputs:
         if out is None:
             continue
         o = Path(out)
         for i in ins:
-            if _same(o, i) or o.resolve() == i.resolve():
+            if _same(o, i) or _resolved(o) == _resolved(i):
                 raise InputError(f"{flag} {shown(o)}: is also an input of this command ({shown(i)}); "
                                  "choose another output path")
+        for other_flag, other in seen:
+            if _same(o, other) or _resolved(o) == _resolved(other):
+                raise InputError(f"{flag} {shown(o)}: is also the output of {other_flag}; choose another path")
+        seen.append((flag, o))
         if o.is_dir():
             raise InputError(f"{flag} {shown(o)}: is a directory, expected a file path")
         d = o.parent if str(o.parent) else Path(".")
         if not d.is_dir():
             raise InputError(f"{flag} {shown(o)}: directory {shown(d)} does not exist")
-        if not os.access(d, os.W_OK):
-            raise InputError(f"{flag} {shown(o)}: directory {shown(d)} is not writable")
-        if o.exists() and not os.access(o, os.W_OK):
-            raise InputError(f"{flag} {shown(o)}: exists and is not writable")
+        _probe(flag, o, d)
 
 
 def check_output_dir(flag: str, directory: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
@@ -139,6 +162,21 @@ def check_output_dir(flag: str, directory: str | Path, inputs: Iterable[str | Pa
         raise InputError(f"{flag} {shown(d)}: cannot create: {e.strerror or e}") from None
     if not d.is_dir():
         raise InputError(f"{flag} {shown(d)}: is not a directory")
-    if not os.access(d, os.W_OK):
-        raise InputError(f"{flag} {shown(d)}: is not writable")
+    _probe(flag, d, d)
     return d
+
+
+def _probe(flag: str, target: Path, directory: Path) -> None:
+    """Create and remove a temporary file in ``directory``, as the atomic writer will: the
+    honest test of "writable" (permissions, a read-only file system, a full inode table; the
+    permission bits alone say nothing to root)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".probe.", suffix=".tmp", dir=directory)
+    except OSError as e:
+        raise InputError(f"{flag} {shown(target)}: directory {shown(directory)} is not writable: "
+                         f"{e.strerror or e}") from None
+    os.close(fd)
+    try:
+        os.unlink(tmp)
+    except OSError:
+        pass

@@ -15,8 +15,12 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
    one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
    with delay 1; raises EstimatorFault instead of emitting NaN
 5. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
-   ``tau_m`` is that same torque, docs/interfaces.md §1); WATCHDOG=1 to systemd from every
-   cycle the loop runs (latched or not)
+   ``tau_m`` is that same torque, docs/interfaces.md §1) — in **every** cycle, through and
+   after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0; the last
+   measured angles held, the time one period on, no NaN), ``valid`` is the estimator's own
+   flag (0 while it starts or converges, and whenever a fault is latched), ``fault`` the
+   latched code; a log writer that cannot write latches LOG_FAILED; WATCHDOG=1 to systemd
+   from every cycle the loop runs (latched or not)
 6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
    deadlines missed by a whole period or more are skipped (counted), not caught up in a burst;
    lock-step runs (``realtime=False``) do not sleep
@@ -78,7 +82,7 @@ class LoopStats:
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute", "read"]
+             "period", "compute", "read", "measured"]
 
 
 def log_columns(n: int) -> list[str]:
@@ -89,8 +93,9 @@ def log_columns(n: int) -> list[str]:
         cols += column_names(base, n)
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
-    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s]
-    return cols + ["valid", "fault", "cycle", "period", "compute", "read"]
+    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s];
+    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured"]
 
 
 class FixedRateLoop:
@@ -130,6 +135,8 @@ class FixedRateLoop:
         self._delay = int(hw.actuation_delay)
         self._stop = False
         self._reset_requested = False
+        self._t_row = -float("inf")              # the last row's time (rows strictly increasing)
+        self._log_fault_seen = False
         self.last_estimate = None
         self.cycle_start = 0.0
 
@@ -221,7 +228,8 @@ class FixedRateLoop:
             if meas is not None and sup.ok and self.estimator is not None:
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
-                    valid = 1.0
+                    # the estimator's own flag: 0 at a (re)start and until the filter converged
+                    valid = 1.0 if est.valid else 0.0
                 except Exception as e:  # noqa: BLE001
                     self._failed(e, k, start)
             if not sup.ok:
@@ -237,11 +245,18 @@ class FixedRateLoop:
             if self.on_cycle is not None:
                 self.on_cycle(k, meas, est, self._tau)
             done = self.clock()
-            if self.log is not None and meas is not None:
-                i = 0
-                row[0] = meas.t
-                row[1:1 + n] = meas.q
-                row[1 + n:1 + 2 * n] = meas.theta_m
+            if self.log is not None:
+                # one row in every cycle; without a sample, the last measured angles are held
+                # (zero before the first) and the time moves one period on
+                if meas is not None:
+                    # the hardware's time is whole periods; one that did not move on past a
+                    # placeholder row (a read that failed before its SYNC) continues from it
+                    row[0] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
+                    row[1:1 + n] = meas.q
+                    row[1 + n:1 + 2 * n] = meas.theta_m
+                else:
+                    row[0] = self._t_row + self.period if k else 0.0
+                self._t_row = row[0]
                 row[1 + 2 * n:1 + 3 * n] = self._tau
                 i = 1 + 3 * n
                 if est is not None and valid:
@@ -257,7 +272,13 @@ class FixedRateLoop:
                 row[i + 3] = start - last_start
                 row[i + 4] = done - start
                 row[i + 5] = t_read - start
+                row[i + 6] = 1.0 if meas is not None else 0.0
                 self.log.append(row)
+                # a log that cannot be written is a fault (latched once, again after a reset)
+                lost = self.log.fault()
+                if lost is not None and (sup.ok or not self._log_fault_seen):
+                    self._log_fault_seen = True
+                    self._trip(Fault.LOG_FAILED, k, start, lost)
             # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
             # only a stuck loop and never clears a latched fault behind the operator's back
             if self.notifier is not None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from sea_daemon.errors import InputError
+from sea_daemon.errors import InputError, shown
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
@@ -33,6 +33,7 @@ if TYPE_CHECKING:                     # a Rig's module loads the scenario and si
     from sea_daemon.runtime.rig import Rig
 
 PID_FILE = "sea-daemon.pid"
+LOCK_FILE = "sea-daemon.lock"
 
 
 # ---------------------------------------------------------------------------- real time
@@ -66,15 +67,124 @@ def try_realtime(priority: int = 80) -> dict[str, str]:
 
 
 # ---------------------------------------------------------------------------- state file
+def process_start_time(pid: int) -> int:
+    """The start time of process ``pid`` (clock ticks since boot, /proc/PID/stat field 22): with
+    the pid it names one process for the life of the system (a pid is reused, the pair is not).
+    OSError when there is no such process."""
+    stat = Path(f"/proc/{pid}/stat").read_bytes()
+    return int(stat[stat.rindex(b")") + 2:].split()[19])      # fields after "pid (comm)": 3..
+
+
+def lock_dir() -> Path:
+    """Where the per-bus locks live: ``$SEA_DAEMON_LOCK_DIR``, else ``/run/sea-daemon`` (systemd's
+    RuntimeDirectory) when it exists, else ``/run/lock`` when writable, else the temp directory."""
+    env = os.environ.get("SEA_DAEMON_LOCK_DIR")
+    if env:
+        return Path(env)
+    for d in ("/run/sea-daemon", "/run/lock"):
+        if os.path.isdir(d) and (d == "/run/sea-daemon" or os.access(d, os.W_OK)):
+            return Path(d)
+    import tempfile
+    return Path(tempfile.gettempdir())
+
+
+def bus_lock_path(interface: str, channel: str) -> Path:
+    """The lock file of one CAN bus (interface + channel) in :func:`lock_dir`."""
+    import hashlib
+    import re
+    key = f"{interface}:{channel}"
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", key)[:60]
+    return lock_dir() / f"sea-daemon-bus-{safe}-{hashlib.sha1(key.encode()).hexdigest()[:8]}.lock"
+
+
+class _Flock:
+    """An exclusive ``flock`` on a file, held until :meth:`release` or the process ends."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.fd: int | None = None
+
+    def acquire(self, what: str) -> None:
+        import fcntl
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except PermissionError:
+            fd = os.open(self.path, os.O_RDONLY)     # another user's lock file: flock still works
+        except OSError as e:
+            raise InputError(f"{what} lock {shown(self.path)}: cannot open: {e.strerror or e}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            except OSError:
+                holder = "?"
+            os.close(fd)
+            raise InputError(f"another sea-daemon (pid {shown(holder, 20)}) runs on this {what}: it holds "
+                             f"{shown(self.path)}; one instance per bus and state directory "
+                             "(stop it first, or use `sea-daemon reset` to clear its fault)") from None
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError:
+            pass                                     # read-only: the holder's pid is not recorded
+        self.fd = fd
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)                        # closing the last descriptor drops the flock
+            self.fd = None
+
+
 class StateFile:
-    """``<dir>/sea-daemon.pid``: JSON {pid, started, command, log}; removed on a clean exit."""
+    """The daemon's claim on its state directory and its bus, and what ``sea-daemon reset`` reads.
+
+    * ``<dir>/sea-daemon.lock`` — an exclusive ``flock`` held for the process's life
+      (:meth:`claim`); a second instance with the same state directory is refused, and so is
+      one on the same bus (the lock of :func:`bus_lock_path`), before it touches the drives.
+    * ``<dir>/sea-daemon.pid`` — JSON {pid, start_time, started, command, log, ...}; removed on a
+      clean exit.  ``start_time`` is the process's start time from /proc (a reused pid has another).
+
+    :meth:`running_pid` proves the identity of the process it returns: the lock is held, the
+    pid's start time is the recorded one, and that process has the lock file open.
+    """
 
     def __init__(self, directory: str | Path):
         self.path = Path(directory) / PID_FILE
+        self.lock_path = Path(directory) / LOCK_FILE
+        self._locks: list[_Flock] = []
+
+    def claim(self, bus: tuple[str, str] | None = None) -> "StateFile":
+        """Take the state directory's lock and, with ``bus`` = (interface, channel), the bus's;
+        InputError naming the holder when another instance has either.  Returns self (a context
+        manager that releases them)."""
+        try:
+            for path, what in [(self.lock_path, "state directory")] + (
+                    [(bus_lock_path(*bus), f"bus {bus[0]} {bus[1]}")] if bus else []):
+                lk = _Flock(path)
+                lk.acquire(what)
+                self._locks.append(lk)
+        except BaseException:
+            self.release()
+            raise
+        return self
+
+    def release(self) -> None:
+        for lk in reversed(self._locks):
+            lk.release()
+        self._locks.clear()
+
+    def __enter__(self) -> "StateFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
     def write(self, **info) -> None:
         from sea_daemon.io.files import atomic_write_bytes
-        atomic_write_bytes(self.path, json.dumps({"pid": os.getpid(), "started": time.time(), **info}).encode())
+        atomic_write_bytes(self.path, json.dumps({"pid": os.getpid(), "start_time": process_start_time(os.getpid()),
+                                                  "started": time.time(), "lock": str(self.lock_path),
+                                                  **info}).encode())
 
     def remove(self) -> None:
         try:
@@ -85,22 +195,97 @@ class StateFile:
             pass
 
     def running_pid(self) -> int:
-        """The pid of the daemon that wrote the file, if it still runs; InputError otherwise."""
+        """The pid of the daemon that holds this state directory, proven (class docstring);
+        InputError otherwise."""
+        return self._proven()[0]
+
+    def _proven(self) -> tuple[int, int | None]:
+        """(pid, pidfd or None): the daemon's pid and, where the system has them, a pidfd opened
+        before the checks, so that the signal goes to the process that was checked."""
+        import fcntl
         try:
             info = json.loads(self.path.read_text())
-            pid = int(info["pid"])
+            pid, start = int(info["pid"]), int(info["start_time"])
         except FileNotFoundError:
-            raise InputError(f"no running sea-daemon: {self.path} does not exist "
+            raise InputError(f"no running sea-daemon: {shown(self.path)} does not exist "
                              "(give the --log-dir / --state-dir the daemon was started with)") from None
         except (OSError, ValueError, KeyError, TypeError) as e:
-            raise InputError(f"{self.path}: unreadable state file ({e})") from None
+            raise InputError(f"{shown(self.path)}: unreadable state file ({shown(e)})") from None
+        stale = f"no running sea-daemon: pid {pid} of {shown(self.path)}"
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            lock_fd = os.open(self.lock_path, os.O_RDONLY)
         except OSError:
-            raise InputError(f"no running sea-daemon: pid {pid} of {self.path} has exited (stale state file)") from None
-        if "sea-daemon" not in cmd and "sea_daemon" not in cmd:
-            raise InputError(f"no running sea-daemon: pid {pid} of {self.path} is another program (stale state file)")
+            raise InputError(f"{stale} holds no lock ({shown(self.lock_path)} is missing; stale state file)") from None
+        try:
+            try:
+                fcntl.flock(lock_fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                pass                                  # held: a daemon runs here
+            else:
+                raise InputError(f"{stale}: nobody holds {shown(self.lock_path)} (stale state file)")
+            lock_id = os.fstat(lock_fd)
+        finally:
+            os.close(lock_fd)
+        pidfd = None
+        if hasattr(os, "pidfd_open"):
+            try:
+                pidfd = os.pidfd_open(pid)
+            except ProcessLookupError:
+                raise InputError(f"{stale} has exited (stale state file)") from None
+            except OSError:
+                pidfd = None
+        try:
+            try:
+                if process_start_time(pid) != start:
+                    raise InputError(f"{stale}: that pid now belongs to another process (stale state file)")
+            except OSError:
+                raise InputError(f"{stale} has exited (stale state file)") from None
+            if not _holds_file(pid, lock_id):
+                raise InputError(f"{stale} does not hold {shown(self.lock_path)}: it is not the daemon "
+                                 "(a planted or stale state file); nothing signalled")
+        except BaseException:
+            if pidfd is not None:
+                os.close(pidfd)
+            raise
+        return pid, pidfd
+
+    def signal(self, signum: int) -> int:
+        """Send ``signum`` to the proven daemon (:meth:`running_pid`); returns its pid."""
+        pid, pidfd = self._proven()
+        try:
+            if pidfd is not None and hasattr(signal, "pidfd_send_signal"):
+                signal.pidfd_send_signal(pidfd, signum)
+            else:
+                os.kill(pid, signum)
+        except ProcessLookupError:
+            raise InputError(f"no running sea-daemon: pid {pid} has exited") from None
+        except PermissionError:
+            raise InputError(f"not permitted to signal sea-daemon pid {pid} (run as its user or root)") from None
+        finally:
+            if pidfd is not None:
+                os.close(pidfd)
         return pid
+
+
+def _holds_file(pid: int, st: os.stat_result) -> bool:
+    """Whether process ``pid`` has the file ``st`` (device, inode) open; InputError when its
+    descriptors cannot be inspected (another user's process)."""
+    d = f"/proc/{pid}/fd"
+    try:
+        names = os.listdir(d)
+    except PermissionError:
+        raise InputError(f"cannot prove that pid {pid} is the daemon: not permitted to inspect {d} "
+                         "(run as its user or root)") from None
+    except OSError:
+        return False
+    for name in names:
+        try:
+            s = os.stat(os.path.join(d, name))
+        except OSError:
+            continue
+        if s.st_dev == st.st_dev and s.st_ino == st.st_ino:
+            return True
+    return False
 
 
 # ---------------------------------------------------------------------------- the service
@@ -139,7 +324,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
             next_status[0] = now + 1.0
             st = loop.stats
             notifier.status(f"{label}: {k} cycles, {st.overruns} overruns, {st.skipped} skipped, "
-                            f"log drops {log.dropped}, {loop.supervisor.status_line()}")
+                            f"log rows written {log.rows_written}, {loop.supervisor.status_line()}")
         if progress is not None:
             progress(k, est)
 
@@ -184,6 +369,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
             for s, h in old.items():
                 signal.signal(s, h)
     sup = loop.supervisor
+    lost = f"; log incomplete, {final['rows_lost']} rows lost: {final['error']}" if final["error"] else ""
     notifier.status(f"{label}: stopped after {stats.cycles} cycles, {stats.overruns} overruns, "
-                    f"{sup.status_line()}")
+                    f"{sup.status_line()}{lost}")
     return ServeResult(stats, sup, final, rt, time.monotonic() - t_wall, stopped["signal"])

@@ -50,6 +50,30 @@ def summarize(samples_s, scale: float = 1e6, unit: str = "us") -> str:
             f"max {a.max():.1f} {unit} ({a.size} runs)")
 
 
+def add_choice_argument(p, flag: str, allowed) -> None:
+    """``FLAG a,b,...``: a comma-separated subset of ``allowed`` (default all; :func:`choose`)."""
+    allowed = list(allowed)
+    p.add_argument(flag, default=",".join(allowed), help=f"comma-separated subset of {', '.join(allowed)}")
+
+
+def add_json_argument(p, what: str = "the figures") -> None:
+    """``--json PATH``: also write ``what`` as JSON there (checked before the run, atomic)."""
+    p.add_argument("--json", default=None, help=f"also write {what} as JSON here")
+
+
+def json_output(args):
+    """A writer of ``args.json`` (a no-op without it), the path checked now, before the run."""
+    import json
+
+    from sea_daemon.io.files import atomic_write_text, check_outputs
+    check_outputs([("--json", args.json)])
+
+    def write(data) -> None:
+        if args.json:
+            atomic_write_text(args.json, json.dumps(data, indent=1, default=str))
+    return write
+
+
 def add_settings_argument(p) -> None:
     """``--settings MODEL.yaml|scenario``: the estimator settings every estimator of a simulated
     benchmark uses (accuracy, bounds)."""

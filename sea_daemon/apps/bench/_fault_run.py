@@ -19,7 +19,8 @@ from drivers.bus import make_bus
 from drivers.device_model import FaultSpec
 
 from sea_daemon.errors import Fault
-from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.runtime.logwriter import LogWriter
+from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
 
@@ -88,7 +89,7 @@ class FaultRun:
     """One loop run with injections of one kind (or none)."""
 
     def __init__(self, kind: str | None, cycles: int, seed: int, gap: tuple[int, int], max_wait: int = 400,
-                 warmup: int = 200):
+                 warmup: int = 200, log_path=None):
         self.kind, self.cycles = kind, cycles
         self.rng = np.random.default_rng(seed)
         self.gap, self.max_wait = gap, max_wait
@@ -103,9 +104,13 @@ class FaultRun:
         self.probe = DriveProbe(self.rig, cycles)
         self.clock = VirtualClock()
         self.sup = SafetySupervisor(overrun_streak=OVERRUN_STREAK)
+        # the daemon's measured log through the off-loop writer: checked after the run (_check_log)
+        self.log_path = log_path
+        self.log = None if log_path is None else LogWriter(log_path, log_columns(cfg.joints))
+        self.log_check: dict | None = None
         self.loop = FixedRateLoop(self.probe, self.est, SineTracker(cfg), n=cfg.joints, period=cfg.dt,
                                   supervisor=self.sup, clock=self.clock.now, sleep=self.clock.sleep,
-                                  realtime=True, on_cycle=self._on_cycle)
+                                  realtime=True, on_cycle=self._on_cycle, log=self.log)
         n = cycles + 1
         self.qc = np.zeros(n, dtype=np.int64)
         self.mc = np.zeros(n, dtype=np.int64)
@@ -268,8 +273,33 @@ class FaultRun:
                 self.rig.stop()
             finally:
                 self.sniffer.close()
+                closed = self.log.close() if self.log is not None else None
         self._evaluate()
+        if closed is not None:
+            self._check_log(closed)
         return self
+
+    def _check_log(self, closed: dict) -> None:
+        """The log has a row for every cycle (cycle column 0..N−1, time increasing), its fault
+        column is non-zero exactly in the cycles the loop was latched, valid is 0 there, and the
+        commanded torque of those rows is zero."""
+        from sea_daemon.io.logcsv import read_log
+        log = read_log(self.log_path, n=1)
+        ex = log.extra
+        fault = ex["fault"] != 0
+        n = self.loop.stats.cycles
+        self.log_check = {
+            "cycles": n, "rows": len(log), "rows_lost": closed["rows_lost"],
+            "every_cycle": bool(len(log) == n and np.array_equal(ex["cycle"], np.arange(n))
+                                and np.all(np.diff(log.t) > 0)),
+            "fault_rows": int(fault.sum()),
+            "fault_rows_match": bool(np.array_equal(fault, self.latched_at[:n])),
+            "no_valid_while_latched": bool(not np.any(ex["valid"][fault])),
+            "zero_torque_while_latched": bool(np.all(log.tau_m[fault] == 0)),
+            "placeholder_rows": int(np.count_nonzero(ex["measured"] == 0)),
+        }
+        self.log_check["ok"] = all(v for k, v in self.log_check.items() if isinstance(v, bool)) \
+            and closed["rows_lost"] == 0
 
     def _stuck_cond(self, inj: Injection) -> int:
         b = self.cfg.hardware.bus

@@ -24,6 +24,11 @@ state machine and 0x6071):
 
 Then ``--fault-free-cycles`` cycles without injection: every latch there is a false alarm.
 
+Every run logs through the daemon's off-loop log writer (a temporary file), and the log is
+checked afterwards (``log rows / cycles``, ``ok`` when all hold): a row for every cycle the
+loop ran (cycle column 0..N−1, time increasing, no row lost), ``fault`` non-zero exactly in
+the latched cycles, ``valid`` 0 and the torque 0 in them.
+
 The loop's clock is virtual (advanced by its sleeps and by the injected stall only), so the
 lock-step run is deterministic in loop time; heartbeats, SDO and PDO timeouts run on the
 real clock.  Bus-off is the driver's controller reporting bus-off (error frame); the
@@ -34,12 +39,13 @@ drive's own watch of the daemon's heartbeat (0x1016, quick stop) stops it within
 from __future__ import annotations
 
 import dataclasses
-import json
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.apps.bench import choose, machine
+from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 from sea_daemon.apps.bench._fault_run import BUS, FAULTS, OVERRUN_STREAK, FaultRun, record_heartbeats
 
 NAME = "faults"
@@ -52,9 +58,25 @@ def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 10000
     """Run every fault kind (and the fault-free run); returns the figures as a dict."""
     kinds = list(kinds or FAULTS)
     out = {"cycles_per_kind": cycles, "seed": seed, "kinds": {}, "fault_free": None}
+    logs = tempfile.TemporaryDirectory(prefix="sea-bench-faults-")
+    try:
+        _run_kinds(out, kinds, cycles, seed, gap, max_wait, warmup, progress, Path(logs.name))
+        if fault_free_cycles:
+            t0 = time.monotonic()
+            r = FaultRun(None, fault_free_cycles, seed + 99991, gap, max_wait, warmup,
+                         log_path=Path(logs.name) / "fault_free.csv").run()
+            out["fault_free"] = {"cycles": fault_free_cycles, "false_alarms": r.false_alarms,
+                                 "reset_failed": r.reset_failed, "log": r.log_check,
+                                 "barrier_misses": r.probe.barrier_misses, "wall_s": time.monotonic() - t0}
+    finally:
+        logs.cleanup()
+    return out
+
+
+def _run_kinds(out, kinds, cycles, seed, gap, max_wait, warmup, progress, log_dir: Path) -> None:
     for i, kind in enumerate(kinds):
         t0 = time.monotonic()
-        r = FaultRun(kind, cycles, seed + 1000 * i, gap, max_wait, warmup)
+        r = FaultRun(kind, cycles, seed + 1000 * i, gap, max_wait, warmup, log_path=log_dir / f"{kind}.csv")
         record_heartbeats(r)
         r.run()
         inj = r.injections
@@ -68,18 +90,12 @@ def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 10000
             "false_alarms": r.false_alarms,
             "reset_failed": r.reset_failed,
             "barrier_misses": r.probe.barrier_misses,
+            "log": r.log_check,
             "wall_s": time.monotonic() - t0,
             "injections": [dataclasses.asdict(x) | {"detected": x.detected} for x in inj],
         }
         if progress:
             progress(kind, out["kinds"][kind])
-    if fault_free_cycles:
-        t0 = time.monotonic()
-        r = FaultRun(None, fault_free_cycles, seed + 99991, gap, max_wait, warmup).run()
-        out["fault_free"] = {"cycles": fault_free_cycles, "false_alarms": r.false_alarms,
-                             "reset_failed": r.reset_failed,
-                             "barrier_misses": r.probe.barrier_misses, "wall_s": time.monotonic() - t0}
-    return out
 
 
 def _stat(xs) -> str:
@@ -89,19 +105,27 @@ def _stat(xs) -> str:
     return f"{int(np.median(xs))} / {max(xs)}"
 
 
+def _log(c: dict | None) -> str:
+    """'rows / cycles' of a run's log, with 'ok' when every check of FaultRun._check_log held."""
+    if not c:
+        return "-"
+    return f"{c['rows']}/{c['cycles']} {'ok' if c['ok'] else 'FAIL'}"
+
+
 def table(res: dict) -> str:
     lines = [f"{'fault':<22}{'injected':>9}{'detected':>9}  {'latched as':<28}{'latency med/max':>16}"
-             f"{'reaction med/max':>18}{'held':>6}{'false':>7}{'reset failed':>14}"]
+             f"{'reaction med/max':>18}{'held':>6}{'false':>7}{'reset failed':>14}{'log rows / cycles':>19}"]
     for kind, r in res["kinds"].items():
         lines.append(f"{kind:<22}{r['injected']:>9}{r['detected']:>9}  {','.join(r['latched_as']):<28}"
                      f"{_stat(r['latency']):>16}{_stat(r['reaction']):>18}{r['held']:>6}{len(r['false_alarms']):>7}"
-                     f"{len(r.get('reset_failed', [])):>14}")
+                     f"{len(r.get('reset_failed', [])):>14}{_log(r.get('log')):>19}")
     tot_i = sum(r["injected"] for r in res["kinds"].values())
     tot_d = sum(r["detected"] for r in res["kinds"].values())
     lines.append(f"detected / injected: {tot_d} / {tot_i}"
                  + (f" = {100.0 * tot_d / tot_i:.1f} %" if tot_i else ""))
     ff = res.get("fault_free")
     if ff:
+        lines.append(f"log of the fault-free run: {_log(ff.get('log'))}")
         lines.append(f"false alarms in {ff['cycles']} fault-free cycles: {len(ff['false_alarms'])}"
                      f" (failed resets after them: {len(ff.get('reset_failed', []))})"
                      + (f"  ({'; '.join(f'cycle {k}: {d}' for k, d in ff['false_alarms'][:5])})"
@@ -118,12 +142,13 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the injection times and choices")
     p.add_argument("--fault-free-cycles", type=int, default=100000,
                    help="cycles of the fault-free run for false alarms (default 100000; 0: skip)")
-    p.add_argument("--kinds", default=",".join(FAULTS), help=f"comma-separated subset of {', '.join(FAULTS)}")
-    p.add_argument("--json", default=None, help="also write every injection's record as JSON here")
+    add_choice_argument(p, "--kinds", FAULTS)
+    add_json_argument(p, "every injection's record")
 
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
+    save = json_output(args)
     kinds = choose(args.kinds, FAULTS, "--kinds")
     if args.cycles < 1000 or args.fault_free_cycles < 0:
         raise InputError(f"--cycles {args.cycles}: must be >= 1000; --fault-free-cycles >= 0")
@@ -137,7 +162,5 @@ def run(args) -> int:
         print(f"#   {kind}: {r['detected']}/{r['injected']} detected, {r['wall_s']:.0f} s", flush=True)
     res = run_suite(args.cycles, args.seed, args.fault_free_cycles, kinds, progress=progress)
     print(table(res))
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(res, fh, indent=1, default=str)
+    save(res)
     return 0

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.apps.bench import machine
+from sea_daemon.apps.bench import add_json_argument, json_output, machine
 
 NAME = "loop"
 HELP = "fixed-rate loop jitter, overruns and CAN bus load against the device model (100 Hz / 1 kHz)"
@@ -51,7 +51,7 @@ def add_arguments(p) -> None:
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
-    p.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    add_json_argument(p)
 
 
 def _loadavg() -> str:
@@ -79,6 +79,7 @@ def _wait_line(proc, text: str, timeout: float) -> None:
 def run(args) -> int:
     from drivers.canopen_hw import CanopenHardware
 
+    save = json_output(args)
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
     from drivers.bus import make_bus
@@ -208,6 +209,5 @@ def run(args) -> int:
     print(f"CAN frames per cycle {fpc:.2f} (all frames on the bus over the measured cycles); at 1 Mbit/s: "
           f"bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with worst-case stuffing")
     print(f"log rows dropped: {out['log_rows_dropped']}")
-    if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2))
+    save(out)
     return 0

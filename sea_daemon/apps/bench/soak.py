@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import gc
-import json
 import signal
 import tempfile
 import time
@@ -32,7 +31,7 @@ import numpy as np
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.safety import SafetySupervisor
-from sea_daemon.apps.bench import machine, summarize
+from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
 from sea_daemon.apps.bench._rig import SineTracker, bench_config, bench_rig, vm_rss_kb
 
 NAME = "soak"
@@ -52,7 +51,7 @@ def add_arguments(p) -> None:
     p.add_argument("--rotate-mb", type=float, default=64.0, help="log rotation size [MB] (default 64)")
     p.add_argument("--out", default=None, help="directory of the log files (default: a temporary one, removed)")
     p.add_argument("--samples", type=int, default=20, help="memory samples over the run (default 20)")
-    p.add_argument("--json", default=None, help="write the figures as JSON here too")
+    add_json_argument(p)
 
 
 def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
@@ -138,6 +137,8 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
 
 def run(args) -> int:
     from sea_daemon.errors import InputError
+    from sea_daemon.io.files import check_output_dir
+    save = json_output(args)
     if args.cycles < 100 or args.rate <= 0:
         raise InputError(f"--cycles {args.cycles} (>= 100), --rate {args.rate} (> 0)")
     warmup = args.warmup if args.warmup is not None else args.cycles // 10
@@ -152,8 +153,7 @@ def run(args) -> int:
               f"GP {rec[3]} leaves / {rec[4]} points, overruns {st.overruns}", flush=True)
     tmp = None
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
+        out = check_output_dir("--out", args.out)
     else:
         tmp = tempfile.TemporaryDirectory(prefix="sea-soak-")
         out = Path(tmp.name)
@@ -185,7 +185,5 @@ def run(args) -> int:
     print(f"log rows            appended {lg['appended']}, written {lg['written']}, dropped {lg['dropped']}, "
           f"counted in {lg['files']} file(s) {lg['counted_in_files']}; cycles - rows = "
           f"{r['cycles'] - lg['counted_in_files']}")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(r, fh, indent=1)
+    save(r)
     return 0

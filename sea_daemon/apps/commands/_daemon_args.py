@@ -6,6 +6,7 @@ from pathlib import Path
 
 from sea_daemon.core.config import BusConfig
 from sea_daemon.io.configfile import load_config
+from sea_daemon.io.files import check_output_dir, check_outputs
 from sea_daemon.errors import InputError
 
 
@@ -33,9 +34,18 @@ def add_common(p, *, cycles_help: str) -> None:
                    help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
 
 
-def load(args):
-    """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input."""
+def inputs(args) -> list:
+    """The files the command reads (none of them may be an output)."""
+    return [args.config, args.device_model, args.sim, getattr(args, "scenario", None), getattr(args, "model", None)]
+
+
+def load(args, outputs: list | tuple = ()):
+    """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input.
+
+    Before anything starts: ``outputs`` ((flag, path) pairs) can be written and are none of the
+    inputs; the log and state directories exist (created) and can be written."""
     from sea_daemon.runtime.rig import bus_overrides
+    check_outputs(outputs, inputs=inputs(args))
     cfg = bus_overrides(load_config(args.config), args.bus, args.channel)
     if args.cycles is not None and args.cycles < 1:
         raise InputError(f"--cycles {args.cycles}: allowed >= 1")
@@ -43,18 +53,22 @@ def load(args):
         raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
     if not 0 <= args.rt_priority <= 99:
         raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
-    log_dir = Path(args.log_dir)
-    state_dir = Path(args.state_dir) if args.state_dir else log_dir
-    for d, what in ((log_dir, "--log-dir"), (state_dir, "--state-dir")):
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise InputError(f"{what} {d}: cannot create: {e.strerror or e}") from None
+    log_dir = check_output_dir("--log-dir", args.log_dir, inputs(args))
+    state_dir = check_output_dir("--state-dir", args.state_dir, inputs(args)) if args.state_dir else log_dir
     simulated = bool(args.device_model or args.sim)
     pace = args.pace or ("lockstep" if simulated else "realtime")
     if pace == "lockstep" and not simulated:
         raise InputError("--pace lockstep needs --device-model or --sim (real drives run in real time)")
     return cfg, log_dir, state_dir, pace == "realtime"
+
+
+def bus_key(args, cfg) -> tuple[str, str] | None:
+    """(interface, channel) of the bus the daemon will own, None for a private simulated one
+    (``--device-model`` runs on a fresh virtual channel of its own, ``--sim`` has no bus)."""
+    if args.device_model or args.sim:
+        return None
+    b = cfg.hardware.bus
+    return b.interface, b.channel
 
 
 def log_name(log_dir: Path, prefix: str) -> Path:

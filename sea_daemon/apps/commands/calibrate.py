@@ -43,12 +43,16 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from sea_daemon.apps.calibration import calibrate
 
-    cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
-    code, summary, message = calibrate(
-        cfg, args.scenario, args.out, _daemon_args.log_name(log_dir, "calibration"), state_dir=state_dir,
-        cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
-        rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
-        progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config))
+    from sea_daemon.runtime.service import StateFile
+
+    cfg, log_dir, state_dir, realtime = _daemon_args.load(args, outputs=[("--out", args.out)])
+    # one instance per state directory and bus, before the drives are touched
+    with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
+        code, summary, message = calibrate(
+            cfg, args.scenario, args.out, _daemon_args.log_name(log_dir, "calibration"), state=state,
+            cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
+            rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
+            progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config))
     print(json.dumps(summary))
     if code:
         print(f"sea-daemon calibrate: {message}", file=sys.stderr)

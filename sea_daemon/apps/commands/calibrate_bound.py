@@ -18,6 +18,7 @@ import numpy as np
 
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
+from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.apps.commands import add_log_and_config
 
@@ -56,8 +57,15 @@ def run(args) -> int:
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.core.estimators import make_estimator
 
+    check_outputs([("--write", args.write)], inputs=[args.log, args.config, args.model])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
+    from sea_daemon.core.estimators.factory import RATE_TOLERANCE
+    if abs(log.dt - cfg.dt) > RATE_TOLERANCE * cfg.dt:
+        # the model learned its pairs at the configuration's rate (sea-daemon calibrate)
+        raise InputError(f"{args.log}: sample period {log.dt:.6g} s ({1 / log.dt:.4g} Hz), the configuration's "
+                         f"rate_hz is {cfg.rate_hz:g}; allowed within {100 * RATE_TOLERANCE:g} % "
+                         "(the model was learned at that rate)")
     residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
     est = make_estimator("gp-akf", cfg, dt=log.dt, residual=residual, learning=False, bound=False)
     delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.files import atomic_write_text, check_output_dir
 from sea_daemon.errors import InputError
 
 NAME = "demo"
@@ -127,11 +128,13 @@ def _held_out_scenario(sc_path: str, dest: Path) -> Path:
     """A copy of the scenario with another noise seed (seed + 1000) and its model path made
     absolute: a calibration session the GP never learned, for calibrate-bound."""
     import yaml
+
+    from sea_daemon.io.configfile import load_yaml
     src = Path(sc_path)
-    d = yaml.safe_load(src.read_text())
+    d = load_yaml(src)
     d["seed"] = int(d.get("seed", 0)) + 1000
     d["model"] = str((src.parent / d["model"]).resolve())
-    dest.write_text(yaml.safe_dump(d, sort_keys=False))
+    atomic_write_text(dest, yaml.safe_dump(d, sort_keys=False))
     return dest
 
 
@@ -154,11 +157,7 @@ def run(args) -> int:
 
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"--out {out}: cannot create: {e.strerror or e}") from None
+    out = check_output_dir("--out", args.out, [args.config])
     cfg = load_config(args.config)
     if args.sync_rpdo:
         cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(
@@ -237,7 +236,7 @@ def run(args) -> int:
         _plot(out / f"{name}.png", name, est_log, results)
         summary["scenarios"][name] = entry
     summary["wall_s"] = round(time.perf_counter() - t_all, 2)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
     for name, est_name, rmse, cov, bound in rows:
         print(f"{name:<9} {est_name:<8} {rmse:>10.4f} {cov if cov is not None else float('nan'):>9.3f} {bound:>11.3f}")

@@ -1,10 +1,13 @@
 """``sea-daemon diagnose LOG.csv --config MODEL.yaml --out DIR`` (docs/interfaces.md §3, §4)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from sea_daemon.apps.commands import add_log_and_config
 
 NAME = "diagnose"
+#: the files diagnose writes into --out besides its PNG plots
+OUTPUTS = ("diagnosis.json", "model_augmented.yaml", "report.md")
 HELP = "find effects the model lacks in a measured log; write diagnosis.json, model_augmented.yaml, report.md"
 ORDER = 40
 DESCRIPTION = ("Closes the loop on measured data: computes the load- and motor-side model residuals of the "
@@ -28,11 +31,27 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from sea_daemon.io.configfile import load_config
     from sea_daemon.apps.diagnose import SelectOptions, diagnose
+    from sea_daemon.apps.diagnose.long_log import excerpt
     from sea_daemon.errors import InputError
+    from sea_daemon.io.files import check_output_dir, check_outputs
     from sea_daemon.io.logcsv import read_log
 
+    # before any work: DIR can be written and none of its files is an input
+    inputs = [args.log, args.config]
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a directory")
+    out = check_output_dir("--out", out, inputs)
+    check_outputs([("--out", out / name) for name in OUTPUTS], inputs)
+    for i in map(Path, inputs):
+        if i.suffix.lower() == ".png" and i.resolve().parent == out.resolve():
+            raise InputError(f"--out {out}: holds the input {i}, and diagnose writes its plots there")
     cfg = load_config(args.config)
-    log = read_log(args.log, n=cfg.joints)
+    log, part = excerpt(read_log(args.log, n=cfg.joints))
+    if part is not None:          # a long log: one contiguous excerpt at the log's rate (long_log)
+        print(f"diagnose: note: {args.log} has {part['samples']} samples; analysing the {len(log)} with the most "
+              f"motion, samples {part['first']}..{part['last']} (t = {part['t_first']:.6g} .. "
+              f"{part['t_last']:.6g} s): at most {part['analysed']} per diagnosis", file=sys.stderr)
     opts = SelectOptions()
     for name, attr in (("min_fraction", "min_fraction"), ("min_effect_rms", "min_effect_rms")):
         v = getattr(args, name)
@@ -40,11 +59,8 @@ def run(args) -> int:
             if not (v >= 0 and v == v and v != float("inf")):
                 raise InputError(f"--{name.replace('_', '-')}: must be a finite number >= 0, got {v}")
             setattr(opts, attr, v)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a directory")
     res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots)
-    print(f"diagnose {args.log}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
+    print(f"diagnose {log.path}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
           f"{res['residual_rms_after']:.4g} N m")
     if res["effects_added"]:
         for d in res["effects_added"]:

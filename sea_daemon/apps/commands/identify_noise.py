@@ -13,6 +13,7 @@ import numpy as np
 
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
+from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.apps.commands import add_log_and_config
 
@@ -48,6 +49,7 @@ def run(args) -> int:
         raise InputError(f"--lags must be >= 2, got {args.lags}")
     if args.burn_in < 0:
         raise InputError(f"--burn-in must be >= 0, got {args.burn_in}")
+    check_outputs([("--write", args.write)], inputs=[args.log, args.config])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     from sea_daemon.core.als import R_FLOOR, config_with_R, floored_R, identify_noise

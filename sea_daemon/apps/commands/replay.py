@@ -12,6 +12,7 @@ import time
 from sea_daemon.io.configfile import load_config
 from sea_daemon.errors import InputError
 from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log, write_columns
 from sea_daemon.core.replay import est_columns, replay, summarize
 from sea_daemon.apps.commands import add_log_and_config
@@ -38,6 +39,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    check_outputs([("--out", args.out)], inputs=[args.log, args.config, args.train])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     train = read_log(args.train, n=cfg.joints, min_rows=2) if args.train else None

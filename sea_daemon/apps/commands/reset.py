@@ -1,16 +1,15 @@
 """``sea-daemon reset [--log-dir DIR | --state-dir DIR]``: clear a latched fault (operator action).
 
-Sends SIGUSR1 to the ``sea-daemon run`` / ``calibrate`` whose pid file
-(``sea-daemon.pid``) is in the directory; the loop clears the fault at the start of its next
-cycle, re-arms the drives (``reset_fault``) and restarts the estimator (docs/safety.md).
-Exit 2 with one line when no daemon runs there.
+Sends SIGUSR1 to the ``sea-daemon run`` / ``calibrate`` that holds the directory: only to a
+process proven to be that daemon — the directory's lock (``sea-daemon.lock``) is held, the pid
+of ``sea-daemon.pid`` has the start time recorded there, and that process has the lock file
+open; the signal goes through a pidfd opened before the checks.  The loop clears the fault at
+the start of its next cycle, re-arms the drives (``reset_fault``) and restarts the estimator
+(docs/safety.md).  Exit 2 with one line when no daemon runs there or it cannot be proven.
 """
 from __future__ import annotations
 
-import os
 import signal
-
-from sea_daemon.errors import InputError
 
 NAME = "reset"
 HELP = "clear a latched fault of the running daemon (SIGUSR1)"
@@ -28,12 +27,6 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from sea_daemon.runtime.service import StateFile
     d = args.state_dir or args.log_dir or "/var/log/sea-daemon"
-    pid = StateFile(d).running_pid()
-    try:
-        os.kill(pid, signal.SIGUSR1)
-    except ProcessLookupError:
-        raise InputError(f"no running sea-daemon: pid {pid} has exited") from None
-    except PermissionError:
-        raise InputError(f"not permitted to signal sea-daemon pid {pid} (run as its user or root)") from None
+    pid = StateFile(d).signal(signal.SIGUSR1)
     print(f"sent reset (SIGUSR1) to sea-daemon pid {pid}")
     return 0

@@ -9,8 +9,10 @@ drained and closed, STOPPING=1), SIGUSR1 (``sea-daemon reset``) clears a latched
 The measured log (docs/interfaces.md §1 plus estimate, bound, validity and loop timing columns) goes to
 ``DIR/run-<UTC time>.csv`` through the off-loop log writer; a JSON summary is printed on exit.
 
-Exit status: 0 stopped cleanly; 2 bad configuration, model file or arguments; 1 hardware
-start-up failure, internal error, or a fault still latched when the service stopped.
+Exit status: 0 stopped cleanly; 2 bad configuration, model file or arguments (a log
+directory that cannot be written, another instance on the bus or state directory); 1 hardware
+start-up failure, internal error, a fault still latched when the service stopped, or rows of
+the measured log lost (``rows_lost`` in the summary; the LOG_FAILED fault while it runs).
 """
 from __future__ import annotations
 
@@ -34,15 +36,23 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from sea_daemon.runtime.service import StateFile
+
+    cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
+    # one instance per state directory and bus, before the drives are touched
+    with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
+        return _run(args, cfg, log_dir, state, realtime)
+
+
+def _run(args, cfg, log_dir, state, realtime) -> int:
+    from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.gpmodel import load_gp_model
+    from sea_daemon.io.scenario import load_scenario
     from sea_daemon.runtime.controller import ScenarioController, ZeroTorque
     from sea_daemon.runtime.notify import Notifier
     from sea_daemon.runtime.rig import make_rig
-    from sea_daemon.runtime.service import StateFile, serve
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.service import serve
 
-    cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
     residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
     # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
     # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
@@ -56,18 +66,23 @@ def run(args) -> int:
         controller = ZeroTorque(cfg.joints)
     log_path = _daemon_args.log_name(log_dir, "run")
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
-                notifier=Notifier(), state=StateFile(state_dir), rt_priority=args.rt_priority,
+                notifier=Notifier(), state=state, rt_priority=args.rt_priority,
                 supervisor=_daemon_args.supervisor(args), label="run")
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,
                "cycles": st.cycles, "overruns": st.overruns, "skipped": st.skipped,
                "max_late_ms": round(st.max_late_s * 1e3, 3), "rows_written": res.log["rows_written"],
-               "rows_dropped": res.log["rows_dropped"], "log_files": res.log["files"],
+               "rows_dropped": res.log["rows_dropped"], "rows_lost": res.log["rows_lost"],
+               "log_error": res.log["error"], "log_files": res.log["files"],
                "fault": sup.latched.name, "faults_latched": st.faults, "realtime": res.realtime,
                "pace": "realtime" if realtime else "lockstep", "wall_s": round(res.wall_s, 3),
                "stopped_by_signal": res.stopped_by_signal}
     print(json.dumps(summary))
     if not sup.ok:
         print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)
+        return 1
+    if res.log["error"]:
+        print(f"sea-daemon run: log incomplete, {res.log['rows_lost']} rows lost: {res.log['error']}",
+              file=sys.stderr)
         return 1
     return 0

@@ -32,6 +32,7 @@ def train_path_for(out: Path) -> Path:
 
 
 def run(args) -> int:
+    from sea_daemon.io.files import check_outputs
     from sea_daemon.io.logcsv import write_log
     from sea_daemon.runtime.sim_runner import simulate
     from sea_daemon.io.scenario import load_scenario
@@ -41,11 +42,7 @@ def run(args) -> int:
         raise InputError(f"--seed: must be an integer >= 0, got {args.seed}")
     out = Path(args.out)
     train_out = Path(args.train_out) if args.train_out else train_path_for(out)
-    for p, flag in ((out, "--out"), (train_out, "--train-out")):
-        if not p.parent.is_dir():
-            raise InputError(f"{flag}: directory {str(p.parent)!r} does not exist")
-    if out.resolve() == train_out.resolve():
-        raise InputError(f"--train-out: must differ from --out ({out})")
+    check_outputs([("--out", out), ("--train-out", train_out)], inputs=[args.scenario, sc.model_path])
     res = simulate(sc, seed=args.seed)
     write_log(out, res.estimation)
     write_log(train_out, res.training)

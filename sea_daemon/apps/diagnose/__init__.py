@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.io.configfile import save_config
-from sea_daemon.errors import InputError, LogFormatError
+from sea_daemon.io.configfile import config_text, save_config
+from sea_daemon.io.files import atomic_write_text
+from sea_daemon.errors import ConfigError, InputError, LogFormatError, shown
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.apps.diagnose.candidates import Context, build_candidates
 from sea_daemon.apps.diagnose.evaluate import estimate_rmse
@@ -189,8 +190,16 @@ def diagnose(log: MeasuredLog, cfg: ModelConfig, out_dir: str | Path | None = No
     dg = run_diagnosis(log, cfg, options, passive)
     if out_dir is not None:
         out = Path(out_dir)
+        # never a model its own loader refuses (an effect fitted out of its range: the log does
+        # not fit the nominal model, e.g. K_s off by a factor): refused before anything is written
+        try:
+            config_text(dg.cfg_after, out / "model_augmented.yaml")
+        except ConfigError as e:
+            raise InputError(f"{shown(log.path)}: the effects found make a configuration the loader refuses "
+                             f"({e.key}: {e.problem}); the log does not fit the nominal model of "
+                             f"{shown(cfg.source)} (check its model section); nothing written") from None
         out.mkdir(parents=True, exist_ok=True)
-        (out / "diagnosis.json").write_text(json.dumps(dg.result, indent=2, ensure_ascii=False) + "\n")
+        atomic_write_text(out / "diagnosis.json", json.dumps(dg.result, indent=2, ensure_ascii=False) + "\n")
         save_config(dg.cfg_after, out / "model_augmented.yaml",
                     header=f"sea-daemon diagnose: {cfg.source} with the effects found in {log.path}")
         from sea_daemon.apps.diagnose.report import write_report

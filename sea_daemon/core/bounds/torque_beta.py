@@ -76,7 +76,13 @@ def torque_calibrated_beta(est, log, delta: float | None = None, *, truth: np.nd
 
     b_min, b_max = 2.0 ** -12, 2.0 ** 12
     c1, m = cov(1.0)
-    target = min(1.0, math.ceil((m + 1) * (1.0 - delta)) / m)
+    # the ⌈(m + 1)(1 − δ)⌉-th of m steps exists only for m ≥ (1 − δ)/δ: a shorter log has no
+    # finite split-conformal quantile (a β "covering" its few steps would guarantee nothing)
+    need = math.ceil((1.0 - delta) / delta - 1e-9)
+    if m < need or math.ceil((m + 1) * (1.0 - delta)) > m:
+        raise ValueError(f"the log has {m} steps, split conformal at delta = {delta:g} needs at least "
+                         f"{need} (a longer held-out log)")
+    target = math.ceil((m + 1) * (1.0 - delta)) / m
     if c1 >= target:
         lo, (hi, c_hi) = b_min, (1.0, c1)
         c, _ = cov(b_min)

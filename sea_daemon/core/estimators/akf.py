@@ -47,6 +47,20 @@ from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
 from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
+from sea_daemon.errors import EstimatorFault
+
+
+#: the longest step :meth:`AKF.update` bridges, in periods
+MAX_GAP = 10.0
+
+
+class SampleGap(EstimatorFault):
+    """A step much longer than the period (a gap in a log); raised before the filter moves."""
+
+
+#: the start-up gate (:meth:`AKF._gate`): the estimate is valid once what is left of the initial
+#: error is at most this share of the published bound
+TRANSIENT_SHARE = 0.1
 
 
 class AKF:
@@ -157,6 +171,19 @@ class AKF:
         # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
         # the first loop cycle
         warm_up()
+        # the start-up gate (Estimate.valid, :meth:`_gate`): the closed-loop map Φ of the error the
+        # filter started with, the box of that error, and the torque share it still has
+        self._Phi = np.eye(d)
+        self._I_d = np.eye(d)
+        self._Phi_w = np.zeros((d, d))
+        self._M = np.zeros((d, d))
+        self._absrow = np.zeros((n, d))
+        self._transient = np.zeros(n)
+        self._b0 = np.zeros(d)
+        t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit
+        self.tau_h_act_max = float(t_max)
+        self.converged = False
+        self.converged_at = -1               # step count k at which the gate opened (−1: not yet)
         # the bound component and x̂_{k−1}, P_{k−1} kept for it before each step
         self._x_prev = np.zeros(d)
         self._P_prev = np.zeros((d, d))
@@ -248,6 +275,9 @@ class AKF:
         self.u_applied[:] = tau_m
         self._ready = True
         self.est.k = 0
+        self.converged, self.converged_at = False, -1
+        if not self._filling:
+            self._start_gate()
         e = self._fill_estimate()
         e.valid = False                     # the first sample: no estimate of τ_h,act yet
         if self.bound is not None:
@@ -261,6 +291,11 @@ class AKF:
         if not self._ready:
             return self.reset(q, theta_m, tau_m)
         dt = self.dt if dt is None else float(dt)
+        if not 0.0 < dt <= MAX_GAP * self.dt:
+            # the differentiator and the prediction's linearisation hold over a few periods, not a
+            # gap: a log with one is two logs
+            raise SampleGap(f"AKF step {self.est.k + 1}: step of {dt:.6g} s, allowed 0 < dt <= {MAX_GAP:g} x "
+                            f"the period {self.dt:.6g} s (a gap in the log: split it there)")
         if self._filling:
             return self._fill_kinematics(q, theta_m, tau_m, dt)
         n = self.n
@@ -298,9 +333,10 @@ class AKF:
         x = self.x
         x[:] = 0.0
         x[:2 * n] = y[:2 * n]
+        self.P[:] = self._P_init
         if not self._filling:
             x[:4 * n] = y
-        self.P[:] = self._P_init
+            self._start_gate()
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         self.est.k += 1
@@ -399,10 +435,46 @@ class AKF:
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
         e = self._fill_estimate()
-        e.valid = True
         if self.bound is not None:
             self.bound.step(e, self._x_prev, self._P_prev, u, dt)
+        e.valid = self.converged or self._gate(e)
         return e
+
+    # ------------------------------------------------------------------ start-up gate
+
+    def _start_gate(self) -> None:
+        """The filter starts from x̂₀ (a reset, or the end of the differentiator's window): its
+        initial error e₀ lies in the box b₀ — sqrt(s P₀,ii) for the measured components, and for
+        τ_h,act the larger of that and ``tau_h_act_max`` (the subject may push with up to that
+        torque when the filter starts; τ̂_h,act,0 = 0) — and the map of e₀ to the error is Φ = I."""
+        n = self.n
+        np.sqrt(self.s * np.maximum(np.diag(self.P), 0.0), out=self._b0)
+        np.maximum(self._b0[4 * n:], self.tau_h_act_max, out=self._b0[4 * n:])
+        self._Phi[:] = 0.0
+        np.fill_diagonal(self._Phi, 1.0)
+        self.converged, self.converged_at = False, -1
+
+    def _gate(self, e: Estimate) -> bool:
+        """Whether the start-up transient has decayed (called after each filter step until it has).
+
+        The error of step k is Φ_k e₀ plus what the noise and the model error put in since the
+        start, with Φ_k = Π (I − K_i H) F_i the filter's closed-loop map.  The published bound
+        ρ_k (Theorem 1 with P_k; or sqrt(s P_ττ)) covers the second part; the first is at most
+        t_k = |Φ_k|_τ b₀ per joint (:meth:`_start_gate`).  The filter has converged once
+        t_k ≤ :data:`TRANSIENT_SHARE` ρ_k for every joint; from then on until the next reset the
+        estimate is valid (Φ_k only shrinks further, it is no longer tracked).  Allocation-free."""
+        n = self.n
+        M, W = self._M, self._Phi_w
+        np.dot(self.K_k, self.H, out=M)              # (I − K H) F Φ
+        np.subtract(self._I_d, M, out=M)
+        np.dot(M, self.F_k, out=W)
+        np.dot(W, self._Phi, out=M)
+        self._Phi[:] = M
+        np.abs(self._Phi[4 * n:], out=self._absrow)
+        np.dot(self._absrow, self._b0, out=self._transient)
+        if np.all(self._transient <= TRANSIENT_SHARE * e.tau_h_act_bound):
+            self.converged, self.converged_at = True, self.est.k
+        return self.converged
 
     def _fill_estimate(self) -> Estimate:
         e = self.est

@@ -15,8 +15,10 @@ class Estimate:
     (n,) its standard deviation from P; ``tau_h_act_bound`` (n,) the error bound ρ at the
     configured δ (eq:bounds); ``x_hat`` (5n,) the state estimate; ``P`` (5n, 5n) its
     covariance; ``k`` the step counter (0 after reset); ``valid`` whether this is an estimate of
-    τ_h,act that users may act on: False while the estimator starts (the reset sample, the
-    differentiator's window), True once the filter runs.
+    τ_h,act that users may act on, inside its published bound: False while the estimator starts
+    (the reset sample, the differentiator's window) and until the filter's start-up transient
+    has decayed (the AKF's gate, :meth:`~sea_daemon.core.estimators.akf.AKF._gate`), and while
+    a GP-AKF learns (training phase, subject assumed passive); then True until the next reset.
     """
 
     tau_h_act_hat: np.ndarray

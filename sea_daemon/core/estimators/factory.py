@@ -10,10 +10,12 @@ from sea_daemon.core.estimators.base import Estimator
 from sea_daemon.core.estimators.gpakf import GPAKF, learn_from_log
 from sea_daemon.core.estimators.spring import SpringTorqueEstimator
 from sea_daemon.core.log import MeasuredLog
-from sea_daemon.errors import InputError
+from sea_daemon.errors import InputError, shown
 
 #: names accepted by :func:`make_estimator`
 NAMES = ("akf", "spring", "gp-akf")
+#: the largest relative difference of two sample periods that count as one rate
+RATE_TOLERANCE = 0.01
 
 
 def make_estimator(name: str, cfg: ModelConfig, dt: float | None = None, *, residual=None,
@@ -46,6 +48,12 @@ def make_estimator(name: str, cfg: ModelConfig, dt: float | None = None, *, resi
             if train.n != cfg.joints:
                 raise InputError(f"training log {train.path}: {train.n} joint(s), the configuration has "
                                  f"{cfg.joints}")
+            if dt and abs(train.dt - dt) > RATE_TOLERANCE * dt:
+                # the pairs the GP learns come from the differentiator at the filter's rate: a
+                # training log at another rate teaches it other velocities and accelerations
+                raise InputError(f"training log {shown(train.path)}: sample period {train.dt:.6g} s "
+                                 f"({1 / train.dt:.4g} Hz), the estimation runs at {dt:.6g} s ({1 / dt:.4g} Hz); "
+                                 f"allowed within {100 * RATE_TOLERANCE:g} % (record both at one rate)")
             dt = dt if dt else train.dt
         est = GPAKF(cfg, dt=dt, residual=residual, learning=train is None, bound=factory)
         if train is not None:

@@ -112,6 +112,10 @@ class GPAKF(AKF):
         """One sample: the GP-AKF step (Alg. 2), then, while learning, one training pair."""
         was_ready = self._ready
         e = super().update(q, theta_m, tau_m, dt)
+        if self.learning:
+            # learning assumes a passive subject (τ_h,act = 0): τ̂_h,act holds the residual not
+            # learned yet, no estimate of the subject's torque (the training phase publishes none)
+            e.valid = False
         if not was_ready:
             self._tau_hist[:] = np.asarray(tau_m, dtype=float)
             return e
