@@ -22,6 +22,7 @@ ADDITIVE = [
     make_effect("spring_cubic", "spring", k3=5000.0),
     make_effect("cogging", "motor", A=0.2, periods=30.0, phi=0.3),
     make_effect("spring_saturation", "spring", theta_max=0.01, k_stop=400.0),
+    make_effect("torque_offset", "motor", tau_0=-0.07),
 ]
 STRUCTURAL = [
     make_effect("spring_backlash", "spring", width=0.004), make_effect("torque_scale", "motor", kappa=0.9),
@@ -62,6 +63,8 @@ TABLE = {
     "spring_cubic": lambda e, a, v, c: e.k3 * a ** 3,
     "spring_saturation": lambda e, a, v, c: e.k_stop * (e.smooth * np.logaddexp(0, (a - e.theta_max) / e.smooth)
                                                        - e.smooth * np.logaddexp(0, (-a - e.theta_max) / e.smooth)),
+    # the drive delivers tau_0 more: a torque of −tau_0 the motor side need not overcome
+    "torque_offset": lambda e, a, v, c: np.full_like(a, -e.tau_0),
 }
 
 
