@@ -21,7 +21,16 @@ def add_arguments(p) -> None:
     p.add_argument("--min-fraction", type=float, default=None, metavar="F",
                    help="smallest share of the residual's mean square an effect must explain (default 0.05)")
     p.add_argument("--min-effect-rms", type=float, default=None, metavar="NM",
-                   help="smallest RMS [N m] of an effect's share worth a model term (default 0.01)")
+                   help="smallest RMS [N m] of an effect's share worth a model term (default: a tenth of the "
+                        "log's RMS commanded torque, at most 0.01)")
+    p.add_argument("--holdout", type=float, default=None, metavar="F",
+                   help="share of the log at its end kept back and scored separately (time-blocked "
+                        "validation; default 0.25, 0: none)")
+    p.add_argument("--gp-akf", action="store_true",
+                   help="the validation also scores the GP-AKF, learned on the fit block (slower)")
+    p.add_argument("--apply", action="append", default=[], metavar="OTHER.csv",
+                   help="also run the AKF with the model before and after on OTHER.csv (repeatable): "
+                        "τ̂_h,act with its bound next to the spring torque, in the report")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
 
@@ -40,10 +49,16 @@ def run(args) -> int:
             if not (v >= 0 and v == v and v != float("inf")):
                 raise InputError(f"--{name.replace('_', '-')}: must be a finite number >= 0, got {v}")
             setattr(opts, attr, v)
+    if args.holdout is not None:
+        if not (0.0 <= args.holdout <= 0.5):
+            raise InputError(f"--holdout: must be in [0, 0.5] (a share of the log), got {args.holdout}")
+        opts.holdout = args.holdout
+    opts.validate_gp_akf = bool(args.gp_akf)
+    others = [read_log(p, n=cfg.joints) for p in args.apply]
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a directory")
-    res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots)
+    res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others)
     print(f"diagnose {args.log}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
           f"{res['residual_rms_after']:.4g} N m")
     if res["effects_added"]:

@@ -9,7 +9,10 @@
    refinement and confidence intervals, a check for structure no candidate explains
    (:mod:`.select`),
 4. the augmented model and the AKF's estimation error with the model before and after
-   (:mod:`.evaluate`), and ``report.md`` with plots (:mod:`.report`).
+   (:mod:`.evaluate`), a time-blocked validation on the log's last part, the model on other
+   logs without truth (:mod:`.apply`), and ``report.md`` with plots (:mod:`.report`).
+
+The log is first put on a uniform time grid and its encoder steps read (:mod:`.prepare`).
 """
 from __future__ import annotations
 
@@ -24,7 +27,8 @@ from sea_daemon.io.configfile import save_config
 from sea_daemon.errors import InputError, LogFormatError
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.apps.diagnose.candidates import Context, build_candidates
-from sea_daemon.apps.diagnose.evaluate import estimate_rmse
+from sea_daemon.apps.diagnose.evaluate import estimate_rmse, gpakf_rmse
+from sea_daemon.apps.diagnose.prepare import encoder_quanta, prepare_log
 from sea_daemon.apps.diagnose.residuals import kinematics_from_log, rms, window_samples
 from sea_daemon.apps.diagnose.select import SelectOptions, Selection, Selector
 
@@ -52,31 +56,95 @@ def _check(log: MeasuredLog, cfg: ModelConfig) -> None:
     if len(log) < need:
         raise LogFormatError(log.path, None, f"has {len(log)} data rows; diagnose needs at least {need} "
                                              f"(four smoothing windows of {window_samples(log.t)} samples)")
-    dt = np.diff(log.t)
-    if np.max(dt) > 1.5 * np.median(dt) or np.min(dt) < 0.5 * np.median(dt):
-        i = int(np.argmax(np.abs(dt - np.median(dt))))
-        raise LogFormatError(log.path, i + 3, f"sample period {dt[i]:.6g} s differs from the median "
-                                              f"{np.median(dt):.6g} s by more than 50 %; diagnose needs a uniform rate")
+
+
+def stick_speeds(kin, quanta: dict, cfg: ModelConfig) -> tuple[float, float]:
+    """Speeds [rad/s] below which the load and the motor side count as sticking.
+
+    3 × the sign smoothing ε, or 3 × the velocity estimate's noise from the encoder's
+    quantisation (Δ²/12 through the velocity filter), whichever is larger: a coarse encoder
+    cannot tell a slow joint from a stuck one below that."""
+    from scipy.signal import savgol_coeffs
+    w = kinematics_velocity_window(kin)
+    g = float(np.linalg.norm(savgol_coeffs(w, min(kin.degree, w - 1), deriv=1, delta=kin.dt)))
+    eps3 = 3.0 * float(cfg.estimator.sign_eps)
+    out = []
+    for side in ("load", "motor"):
+        d = max(e["used"] for e in quanta[side])
+        out.append(max(eps3, 3.0 * g * d / math.sqrt(12.0)))
+    return out[0], out[1]
+
+
+def kinematics_velocity_window(kin) -> int:
+    return int(getattr(kin, "velocity_window", 0) or window_samples(kin.t, 0.05))
+
+
+def _blocks(N: int, window: int, holdout: float, need: int) -> tuple[np.ndarray | None, dict, str | None]:
+    """Fit-block mask and the evaluation blocks of a held-out validation (last ``holdout`` of
+    the log kept back; half a smoothing window at the boundary belongs to neither)."""
+    if not holdout or holdout <= 0:
+        return None, {}, None
+    n_test = int(round(holdout * N))
+    guard = window // 2
+    n_fit = N - n_test - guard
+    if n_fit < need or n_test < need // 2:
+        return None, {}, (f"The log is too short to keep {100 * holdout:.0f} % back for validation "
+                          f"(the fit needs {need} samples): fitted and scored on the whole log.")
+    fit = np.zeros(N, dtype=bool)
+    fit[:n_fit] = True
+    test = np.zeros(N, dtype=bool)
+    test[N - n_test:] = True
+    return fit, {"fit_block": fit, "held_out_block": test}, None
 
 
 def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | None = None,
                   passive: bool | None = None, estimate: bool = True) -> Diagnosis:
     """Run the whole diagnosis (no files).  ``passive``: ignore a tau_h_act column."""
     _check(log, cfg)
+    prep = prepare_log(log)
+    quanta = encoder_quanta(log, cfg)
+    log = prep.log
+    _check(log, cfg)
     opts = options or SelectOptions()
     kin = kinematics_from_log(log)
     passive = bool(passive)
-    ctx = Context(cfg, kin, None, passive=passive)
+    v_stick = stick_speeds(kin, quanta, cfg)
+    ctx = Context(cfg, kin, None, passive=passive, v_stick=v_stick)
     ctx.r0 = ctx.residual()
     cands = build_candidates(ctx)
-    selector = Selector(ctx, cands, opts)
+    # the diagnosis: every sample of the log
+    selector = Selector(ctx, cands, opts, v_min=v_stick)
     sel = selector.run()
     n = cfg.joints
     effects = [c.effect(p) for c, p in sel.chosen]
     cfg_after = cfg.with_effects(list(cfg.model.effects) + effects)
     r_after = ctx.residual(effects)
-    est = (estimate_rmse(log, cfg, cfg_after if effects else None) if estimate
+    # time-blocked validation: the first part of the log is fitted, the last part scored
+    fit_t, blocks, block_note = _blocks(kin.N, kin.window, opts.holdout, max(4 * kin.window, 50))
+    val_models = {}
+    if blocks:
+        v_sel = Selector(ctx, cands, opts, fit_t=fit_t, v_min=v_stick)
+        # (a) the effects found, their parameters refitted on the fit block alone
+        refit = v_sel.refit(list(sel.chosen))
+        # (b) the whole selection repeated on the fit block alone
+        again = v_sel.run() if opts.validate_selection else None
+        val_models["refit"] = refit
+        if again is not None:
+            val_models["selection"] = list(again.chosen)
+    cfgs = {"after": cfg_after if effects else None}
+    for k, pairs in val_models.items():
+        cfgs[k] = cfg.with_effects(list(cfg.model.effects) + [c.effect(p) for c, p in pairs]) if pairs else None
+    est = (estimate_rmse(log, cfg, cfgs, blocks) if estimate
            else {"before": None, "after": None})
+    gp = None
+    if estimate and blocks and opts.validate_gp_akf:
+        gp = gpakf_rmse(log, {"before": cfg, **{k: v for k, v in cfgs.items() if k != "after"}},
+                        blocks["fit_block"], blocks)
+    prep.notes += [block_note] if block_note else []
+    for side, j, conf, obs in quanta["mismatch"]:
+        prep.notes.append(f"The {side} encoder steps by {obs:.3g} rad in the log (joint side), the configuration "
+                          f"says {conf:.3g} rad: set hardware.encoder_counts ({side}) to the encoder's counts per "
+                          "revolution; diagnose used the log's step.")
 
     warn = bool(sel.structure.get("warn"))
     added = []
@@ -84,7 +152,8 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
                                                              sel.alternatives + [[]] * len(sel.chosen))):
         # relative CI half-widths (angles and rest positions, which may rightly be ≈ 0, aside)
         rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()
-               if p not in ("phi", "q_h0")]
+               if p not in ("phi", "q_h0") and math.isfinite(hi)]
+        lower_only = [p for p, (lo, hi) in ci.items() if hi == math.inf]
         confident = (not warn) and (not alts) and sel.unexplained < 0.5 and all(r < 0.2 for r in rel)
         d = {"type": cand.type, "side": cand.side}
         if n > 1:
@@ -95,11 +164,19 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         d["confidence"] = "high" if confident else "low"
         if alts:
             d["alternatives"] = alts
+        if lower_only:
+            # static friction: the sticking phases bound it from below only (ci95 [lo, null])
+            d["lower_bound_only"] = lower_only
         added.append(d)
-    statements = _statements(sel, added, warn, selector)
+    statements = _statements(sel, added, warn, selector) + prep.notes
     nch = n
+    validation = None
+    if blocks:
+        val_r = {k: ctx.residual([c.effect(p) for c, p in pairs]) for k, pairs in val_models.items()}
+        validation = _validation(ctx.r0, val_r, val_models, est, blocks, selector.edge, log.t, gp)
+        statements.append(validation["statement"])
     result = {
-        "samples": int(len(log)),
+        "samples": int(prep.original_samples),
         "residual_rms_before": _num(rms(ctx.r0)),
         "residual_rms_after": _num(rms(r_after)),
         "effects_added": added,
@@ -130,9 +207,88 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
             "autocorrelation_time_samples": _num(sel.tau_int),
             "candidates": len(cands),
             "truth": "tau_h_act column" if (log.tau_h_act is not None and not passive) else "zero (passive subject)",
+            "stick_speed_rad_s": {"load": _num(v_stick[0]), "motor": _num(v_stick[1])},
+            "encoder_step_rad": {side: [{k: _num(v) for k, v in e.items()} for e in quanta[side]]
+                                 for side in ("load", "motor")},
+            "time_grid": prep.summary(),
+            "holdout": _num(opts.holdout if blocks else 0.0),
+            "min_effect_rms": _num(selector.opts.min_effect_rms),
         },
+        "estimate_nis_before": _num(est.get("nis_before")),
+        "estimate_nis_after": _num(est.get("nis_after")),
+        "correlated_pairs": [{k: (_num(v) if isinstance(v, float) else v) for k, v in c.items()}
+                             for c in sel.correlated],
     }
-    return Diagnosis(result, ctx, sel, selector, cfg_after, r_after, est)
+    if validation:
+        result["validation"] = {k: v for k, v in validation.items() if k != "statement"}
+    dg = Diagnosis(result, ctx, sel, selector, cfg_after, r_after, est)
+    dg.prep, dg.blocks = prep, blocks
+    return dg
+
+
+def _validation(r0, val_r: dict, val_models: dict, est: dict, blocks: dict, edge: int, t,
+                gp: dict | None = None) -> dict:
+    """Errors before/after on the fit block and on the held-out block (time-blocked) of each
+    validation model, and how much of the fit block's improvement holds on the block the fit
+    never saw.  ``refit``: the effects found, parameters refitted on the fit block;
+    ``selection``: the whole diagnosis repeated on the fit block."""
+    N = r0.shape[0]
+    inner = np.zeros(N, dtype=bool)
+    inner[edge:N - edge] = True
+    out: dict = {}
+    for name, m in blocks.items():
+        idx = np.flatnonzero(m)
+        out[name] = {"t_s": [_num(t[idx[0]]), _num(t[idx[-1]])], "samples": int(m.sum())}
+
+    def ratio(b, a):
+        return _num(b / a) if (b is not None and a) else None
+
+    def x(v):
+        return "—" if v is None else f"{v:.2f}×"
+
+    def pc(v):
+        return "—" if v is None else f"{100 * v:.0f} %"
+    for key, pairs in val_models.items():
+        r = val_r[key]
+        d: dict = {"effects": [{"type": c.type, "side": c.side, "params": {k: _num(v) for k, v in p.items()}}
+                               for c, p in pairs]}
+        for name, m in blocks.items():
+            mm = m & inner
+            d[name] = {"residual_rms_before": _num(rms(r0[mm])), "residual_rms_after": _num(rms(r[mm])),
+                       "estimate_rmse_before": _num(est.get(f"{name}_before")),
+                       "estimate_rmse_after": _num(est.get(f"{name}_{key}"))}
+        for kind in ("residual_rms", "estimate_rmse"):
+            f, h = d["fit_block"], d["held_out_block"]
+            rf = ratio(f[f"{kind}_before"], f[f"{kind}_after"])
+            rh = ratio(h[f"{kind}_before"], h[f"{kind}_after"])
+            share = _num((1 - 1 / rh) / (1 - 1 / rf)) if (rf and rh and rf != 1.0) else None
+            d["residual" if kind == "residual_rms" else "estimate"] = {
+                "improvement_fit_block": rf, "improvement_held_out": rh, "held_out_share": share}
+        if gp is not None and gp.get("before") and gp.get(key):
+            d["gp_akf"] = {name: {"estimate_rmse_before": _num(gp["before"][name]),
+                                  "estimate_rmse_after": _num(gp[key][name])} for name in blocks}
+            g = d["gp_akf"]["held_out_block"]
+            d["gp_akf"]["improvement_held_out"] = ratio(g["estimate_rmse_before"], g["estimate_rmse_after"])
+        out[key] = d
+    h = out["held_out_block"]
+    msg = f"Validation on a held-out time block ({h['t_s'][0]:.3g}–{h['t_s'][1]:.3g} s)"
+    if "refit" in out:
+        r, e = out["refit"]["residual"], out["refit"]["estimate"]
+        msg += (f": the effects found, refitted on the rest of the log alone, lower the residual RMS there "
+                f"{x(r['improvement_held_out'])} ({x(r['improvement_fit_block'])} where they were fitted; "
+                f"{pc(r['held_out_share'])} of the reduction holds out of sample) and the AKF's τ̂_h,act error "
+                f"{x(e['improvement_held_out'])} ({x(e['improvement_fit_block'])}; {pc(e['held_out_share'])} holds)")
+    if "refit" in out and "gp_akf" in out["refit"]:
+        msg += (f"; the GP-AKF, trained on the rest of the log, "
+                f"{x(out['refit']['gp_akf']['improvement_held_out'])} there")
+    if "selection" in out:
+        sv = out["selection"]
+        names = ", ".join(f"{d['type']} ({d['side']})" for d in sv["effects"]) or "nothing"
+        msg += (f". The whole diagnosis repeated without that block finds {names}: residual "
+                f"{x(sv['residual']['improvement_held_out'])}, τ̂_h,act error {x(sv['estimate']['improvement_held_out'])} "
+                "on the held-out block")
+    out["statement"] = msg + "."
+    return out
 
 
 def _num(v):
@@ -163,6 +319,10 @@ def _statements(sel: Selection, added: list[dict], warn: bool, selector: Selecto
         ps = ", ".join(f"{k}={v:.4g} [{ci[k][0]:.3g}, {ci[k][1]:.3g}]" for k, v in params.items() if k in ci)
         out.append(f"{name} would explain part of the residual, but this log does not determine its parameters "
                    f"(95 % intervals wider than the values: {ps}); not added.")
+    for c in sel.correlated:
+        out.append(f"{c['kept']} and {c['dropped']} trade against each other on this log (parameter correlation "
+                   f"{c['correlation']:+.2f}; {c['reason']}): kept {c['kept']}, the physically sensible one, "
+                   f"dropped {c['dropped']}.")
     kin = selector.ctx.kin
     span = float(np.max(np.ptp(kin.q, axis=0)))
     if span < 0.05:
@@ -181,12 +341,27 @@ def _statements(sel: Selection, added: list[dict], warn: bool, selector: Selecto
 
 def diagnose(log: MeasuredLog, cfg: ModelConfig, out_dir: str | Path | None = None,
              options: SelectOptions | None = None, passive: bool | None = None,
-             plots: bool = True) -> dict:
+             plots: bool = True, apply: list[MeasuredLog] | tuple = ()) -> dict:
     """Diagnose ``log`` against ``cfg``; return the docs/interfaces.md §4 dict.
 
     With ``out_dir``: write diagnosis.json, model_augmented.yaml, report.md and PNGs there.
+    ``apply``: other logs (a person acting, no torque truth) to run the AKF on with the model
+    before and after (:mod:`.apply`); their summaries go to the dict's ``applied``.
     """
     dg = run_diagnosis(log, cfg, options, passive)
+    dg.applied = []
+    if apply:
+        from sea_daemon.apps.diagnose.apply import apply_model, claims
+        v = dg.result.get("validation", {}).get("refit", {}).get("held_out_block", {})
+        ref = {"all": dg.result["estimate_rmse_after"], "held_out": v.get("estimate_rmse_after")}
+        for other in apply:
+            if other.n != cfg.joints:
+                raise InputError(f"{other.path}: the log has {other.n} joint(s), the model {cfg.source} has {cfg.joints}")
+            res = apply_model(other, cfg, dg.cfg_after)
+            res["claims"] = claims(res["summary"], ref)
+            dg.applied.append(res)
+        dg.result["applied"] = [{"log": r["log"], "samples": r["samples"], "resampled": r["resampled"],
+                                 "summary": _clean(r["summary"]), "claims": r["claims"]} for r in dg.applied]
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -196,3 +371,14 @@ def diagnose(log: MeasuredLog, cfg: ModelConfig, out_dir: str | Path | None = No
         from sea_daemon.apps.diagnose.report import write_report
         write_report(dg, out, log, cfg, plots=plots)
     return dg.result
+
+
+def _clean(d):
+    """JSON-safe copy: non-finite numbers as None."""
+    if isinstance(d, dict):
+        return {k: _clean(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_clean(v) for v in d]
+    if isinstance(d, float):
+        return _num(d)
+    return d

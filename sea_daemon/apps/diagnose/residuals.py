@@ -196,7 +196,7 @@ def _deadzone(x: np.ndarray, F: float) -> np.ndarray:
 
 
 def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
-                      passive: bool = False, v_stick: float = 0.0) -> np.ndarray:
+                      passive: bool = False, v_stick: float | tuple[float, float] = 0.0) -> np.ndarray:
     """(N, 2n) array [r_load, r_motor] of the model on the log (see module docstring).
 
     ``passive``: ignore the log's tau_h_act column (ass:passive_human).
@@ -205,7 +205,8 @@ def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
     Σ F_c + F_s, Coulomb's law at rest): the residual there is only what exceeds the limit.
     The smoothed sign of the model (tanh(v/ε), for the estimator's Jacobians) cannot hold a
     stuck joint, so without this every turning point would leave a residual of up to the
-    static friction that no candidate could ever explain.  0 disables it.
+    static friction that no candidate could ever explain.  0 disables it.  A pair
+    (load, motor) gives each side its own speed (encoders of different resolution).
     """
     n = kin.n
     # declared encoder offsets: the encoders read angle + δ (docs/interfaces.md §2)
@@ -225,15 +226,16 @@ def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
     mo = (applied_torque(model, kin, zoh) - kin.d2theta_m @ model.J.T - dth @ model.D_m.T - fr_m
           - _effect_sum([e for e in model.motor_effects if e not in fric_m], n, th, dth, kin.ddtheta_m) + tau_s)
     r_l, r_m = -lo, mo
-    if v_stick > 0:
+    vs_l, vs_m = (v_stick, v_stick) if np.isscalar(v_stick) else v_stick
+    if vs_l > 0 or vs_m > 0:
         F_l, F_m = _static_limit(fric, n), _static_limit(fric_m, n)
         for j in range(n):
-            if F_l[j] > 0:
-                st = np.abs(dq[:, j]) < v_stick
+            if F_l[j] > 0 and vs_l > 0:
+                st = np.abs(dq[:, j]) < vs_l
                 # the friction that balances the load side, bounded by the static limit
                 r_l[st, j] = _deadzone(r_l[st, j] + fr_l[st, j], F_l[j])
-            if F_m[j] > 0:
-                st = np.abs(dth[:, j]) < v_stick
+            if F_m[j] > 0 and vs_m > 0:
+                st = np.abs(dth[:, j]) < vs_m
                 r_m[st, j] = _deadzone(r_m[st, j] + fr_m[st, j], F_m[j])
     # r_load = S(τ_h,act − (M q̈ + C + Σ e + τ_s)),  r_motor = S(κτ_m − (J θ̈_m + D_m θ̇_m + Σ e − τ_s))
     return kin.smooth(np.hstack([r_l, r_m]))
