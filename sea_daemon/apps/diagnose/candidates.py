@@ -33,7 +33,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
 from sea_daemon.core.model import SEAModel
-from sea_daemon.apps.diagnose.residuals import Kinematics, residuals_for
+from sea_daemon.apps.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
 
 
 @dataclass
@@ -48,6 +48,16 @@ class Context:
     #: speed [rad/s] below which a side counts as sticking, per side (load, motor); None: 3 ε
     v_stick: tuple[float, float] | None = None
     _model: SEAModel | None = field(default=None, repr=False)
+    _fast: FastGain | None = field(default=None, repr=False)
+
+    @property
+    def fast_gain(self) -> FastGain:
+        """The drive's gain from the fast part of the command (:func:`.residuals.fast_command_gain`),
+        over the samples where the motor moves faster than its stick speed."""
+        if self._fast is None:
+            v = self.v_stick[1] if self.v_stick is not None else stick_velocity(self.cfg)
+            self._fast = fast_command_gain(self.model, self.kin, v, self.zoh)
+        return self._fast
 
     @property
     def model(self) -> SEAModel:
@@ -355,9 +365,23 @@ class TorqueScaleC(Candidate):
 
     #: delivered / commanded torque a working drive can have (gear efficiency, amplifier gain)
     PLAUSIBLE = (0.2, 2.0)
+    #: relative tolerance of the fast-part gain (the amplifier's bandwidth, the filters' phase)
+    FAST_TOL = 0.25
+    #: the fast part decides only when its 95 % half-width is below this share of its value
+    FAST_INFORMATIVE = 0.2
 
     def magnitude(self, params):
         return abs(float(params["kappa"]) - 1.0)
+
+    def fast_range(self, ctx) -> tuple[float, float] | None:
+        """The gains the fast part of the command allows, or None when it does not decide
+        (:func:`.residuals.fast_command_gain`)."""
+        g = ctx.fast_gain
+        k, hw = float(g.kappa[self.joint]), float(g.half_width[self.joint])
+        if not (np.isfinite(k) and np.isfinite(hw) and k > 0 and hw < self.FAST_INFORMATIVE * k):
+            return None
+        tol = max(hw, self.FAST_TOL * k)
+        return k - tol, k + tol
 
     def implausible(self, ctx, params):
         lo, hi = self.PLAUSIBLE
@@ -365,6 +389,13 @@ class TorqueScaleC(Candidate):
         if not lo <= k <= hi:
             return (f"κ = {k:.3g}: the drive would deliver {'under a fifth' if k < lo else 'over twice'} "
                     "the torque commanded")
+        fr = self.fast_range(ctx)
+        if fr is not None and not fr[0] <= k <= fr[1]:
+            g = ctx.fast_gain
+            return (f"κ = {k:.3g} from the slow part of the command, but its fast part reaches the motor with "
+                    f"κ = {g.kappa[self.joint]:.3g} ± {g.half_width[self.joint]:.2g}: a gain scales every "
+                    "frequency alike, so the slow shortfall is something the controller works against "
+                    "(friction, an offset), not a gain")
         return None
 
     def design(self, ctx, theta):

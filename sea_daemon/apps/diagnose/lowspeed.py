@@ -32,6 +32,7 @@ from scipy.optimize import minimize_scalar
 
 from sea_daemon.core.effects import Effect
 from sea_daemon.apps.diagnose.candidates import Candidate
+from sea_daemon.apps.diagnose.residuals import integrated_autocorr_time
 
 #: friction types this stage tries
 FRICTION = ("coulomb", "stribeck")
@@ -132,7 +133,7 @@ class LowSpeedStage:
         Returns (new (candidate, params) pairs, step records, alternatives per new pair).
         ``rss0``: sum of squares of the configured model over the fit block (the shares'
         denominator)."""
-        from sea_daemon.apps.diagnose.select import StepRecord, integrated_autocorr_time
+        from sea_daemon.apps.diagnose.select import StepRecord
         o = self.opts
         base = [c.effect(p) for c, p in chosen]
         taken = {(c.type, c.side, c.joint) for c, _ in chosen}

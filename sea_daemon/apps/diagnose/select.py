@@ -48,8 +48,8 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from sea_daemon.apps.diagnose.candidates import Candidate, Context
+from sea_daemon.apps.diagnose.residuals import Z95, integrated_autocorr_time
 
-Z95 = 1.959963984540054
 
 
 #: [N m] the size floor's cap (an effect of 0.01 N m RMS is worth a term on any hardware)
@@ -146,29 +146,6 @@ class Selection:
     param_index: list = field(default_factory=list)   # (effect index, name) per row of corr
     correlated: list = field(default_factory=list)    # pairs resolved (see Selector._conflict)
     profiled: set = field(default_factory=set)    # (effect index, param) with a profile interval
-
-
-def integrated_autocorr_time(y: np.ndarray, max_lag: int = 200) -> float:
-    """τ_int = 1 + 2 Σ ρ_k (summed until ρ_k first drops below 0.05), per column, max over columns.
-
-    Sokal's estimator (Monte Carlo textbook); y (N, c)."""
-    y = np.atleast_2d(y.T).T
-    taus = []
-    for col in y.T:
-        x = col - col.mean()
-        v = float(np.dot(x, x))
-        if v <= 0:
-            continue
-        L = min(max_lag, len(x) // 4)
-        f = np.fft.rfft(x, 2 * len(x))
-        ac = np.fft.irfft(f * np.conj(f))[:L + 1] / v
-        s = 1.0
-        for k in range(1, L + 1):
-            if ac[k] < 0.05:
-                break
-            s += 2.0 * ac[k]
-        taus.append(s)
-    return float(max(taus)) if taus else 1.0
 
 
 def _lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -448,7 +425,8 @@ class Selector:
             steps.append(StepRecord(step, rows, best.cand.name,
                                     f"{best.cand.name} explains {100 * frac:.1f} % of the initial mean square; "
                                     f"ΔBIC {best.bic - bic_cur:+.1f}; held-out mean square −{100 * (1 - best.cv / cv_cur):.1f} %"
-                                    + (f"; nearly as good: {', '.join(alts)}" if alts else "")))
+                                    + (f"; nearly as good: {', '.join(alts)}" if alts else "")
+                                    + (f"; ranked above it but rejected — {' | '.join(rejected)}" if rejected else "")))
             chosen.append(best)
             n_par += len(best.cand.linear) + (1 if best.cand.nonlinear else 0)
             if best.o is not None:
