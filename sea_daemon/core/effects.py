@@ -271,11 +271,7 @@ class TorqueOffset(Effect):
     """
 
     tau_0: float = 0.0
-    type: ClassVar[str] = "torque_offset"
-    sides: ClassVar[tuple[str, ...]] = ("motor",)
-    param_names: ClassVar[tuple[str, ...]] = ("tau_0",)
-    code: ClassVar[int] = TORQUE_OFFSET
-    vector_fields: ClassVar[tuple[str, ...]] = ("tau_0",)
+    type, sides, param_names, code = "torque_offset", ("motor",), ("tau_0",), TORQUE_OFFSET
 
 
 # ---- structural effects: they change how torque/deflection/angle are formed ----------
