@@ -31,6 +31,9 @@ def add_arguments(p) -> None:
     p.add_argument("--apply", action="append", default=[], metavar="OTHER.csv",
                    help="also run the AKF with the model before and after on OTHER.csv (repeatable): "
                         "τ̂_h,act with its bound next to the spring torque, in the report")
+    p.add_argument("--max-rows", type=int, default=None, metavar="N",
+                   help="a longer log is diagnosed on ten segments of N/10 rows spread over it (memory and "
+                        "time bounded; default 100000, 0: the whole log)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
 
@@ -54,6 +57,10 @@ def run(args) -> int:
             raise InputError(f"--holdout: must be in [0, 0.5] (a share of the log), got {args.holdout}")
         opts.holdout = args.holdout
     opts.validate_gp_akf = bool(args.gp_akf)
+    if args.max_rows is not None:
+        if args.max_rows < 0:
+            raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
+        opts.max_rows = args.max_rows or None
     others = [read_log(p, n=cfg.joints) for p in args.apply]
     out = Path(args.out)
     if out.exists() and not out.is_dir():

@@ -28,7 +28,7 @@ from sea_daemon.errors import InputError, LogFormatError
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.apps.diagnose.candidates import Context, build_candidates
 from sea_daemon.apps.diagnose.evaluate import estimate_rmse, gpakf_rmse
-from sea_daemon.apps.diagnose.prepare import encoder_quanta, prepare_log
+from sea_daemon.apps.diagnose.prepare import encoder_quanta, prepare_log, segment_log
 from sea_daemon.apps.diagnose.residuals import kinematics_from_log, rms, window_samples
 from sea_daemon.apps.diagnose.select import SelectOptions, Selection, Selector
 
@@ -79,9 +79,11 @@ def kinematics_velocity_window(kin) -> int:
     return int(getattr(kin, "velocity_window", 0) or window_samples(kin.t, 0.05))
 
 
-def _blocks(N: int, window: int, holdout: float, need: int) -> tuple[np.ndarray | None, dict, str | None]:
+def _blocks(score: np.ndarray, window: int, holdout: float, need: int) -> tuple[np.ndarray | None, dict, str | None]:
     """Fit-block mask and the evaluation blocks of a held-out validation (last ``holdout`` of
-    the log kept back; half a smoothing window at the boundary belongs to neither)."""
+    the log kept back; half a smoothing window at the boundary belongs to neither; only the
+    samples of ``score``)."""
+    N = score.size
     if not holdout or holdout <= 0:
         return None, {}, None
     n_test = int(round(holdout * N))
@@ -94,62 +96,60 @@ def _blocks(N: int, window: int, holdout: float, need: int) -> tuple[np.ndarray 
     fit[:n_fit] = True
     test = np.zeros(N, dtype=bool)
     test[N - n_test:] = True
-    return fit, {"fit_block": fit, "held_out_block": test}, None
+    return fit & score, {"fit_block": fit & score, "held_out_block": test & score}, None
 
 
-def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | None = None,
-                  passive: bool | None = None, estimate: bool = True) -> Diagnosis:
-    """Run the whole diagnosis (no files).  ``passive``: ignore a tau_h_act column."""
-    _check(log, cfg)
-    prep = prepare_log(log)
-    quanta = encoder_quanta(log, cfg)
-    log = prep.log
-    _check(log, cfg)
-    opts = options or SelectOptions()
-    kin = kinematics_from_log(log)
-    passive = bool(passive)
-    v_stick = stick_speeds(kin, quanta, cfg)
-    ctx = Context(cfg, kin, None, passive=passive, v_stick=v_stick)
-    ctx.r0 = ctx.residual()
-    cands = build_candidates(ctx)
-    # the diagnosis: every sample of the log
-    selector = Selector(ctx, cands, opts, v_min=v_stick)
-    sel = selector.run()
-    n = cfg.joints
-    effects = [c.effect(p) for c, p in sel.chosen]
-    cfg_after = cfg.with_effects(list(cfg.model.effects) + effects)
-    r_after = ctx.residual(effects)
-    # time-blocked validation: the first part of the log is fitted, the last part scored
-    fit_t, blocks, block_note = _blocks(kin.N, kin.window, opts.holdout, max(4 * kin.window, 50))
-    val_models = {}
-    if blocks:
-        v_sel = Selector(ctx, cands, opts, fit_t=fit_t, v_min=v_stick)
-        # (a) the effects found, their parameters refitted on the fit block alone
-        refit = v_sel.refit(list(sel.chosen))
-        # (b) the whole selection repeated on the fit block alone
-        again = v_sel.run() if opts.validate_selection else None
-        val_models["refit"] = refit
-        if again is not None:
-            val_models["selection"] = list(again.chosen)
-    cfgs = {"after": cfg_after if effects else None}
-    for k, pairs in val_models.items():
-        cfgs[k] = cfg.with_effects(list(cfg.model.effects) + [c.effect(p) for c, p in pairs]) if pairs else None
-    est = (estimate_rmse(log, cfg, cfgs, blocks) if estimate
-           else {"before": None, "after": None})
-    gp = None
-    if estimate and blocks and opts.validate_gp_akf:
-        gp = gpakf_rmse(log, {"before": cfg, **{k: v for k, v in cfgs.items() if k != "after"}},
-                        blocks["fit_block"], blocks)
-    prep.notes += [block_note] if block_note else []
-    for side, j, conf, obs in quanta["mismatch"]:
-        prep.notes.append(f"The {side} encoder steps by {obs:.3g} rad in the log (joint side), the configuration "
-                          f"says {conf:.3g} rad: set hardware.encoder_counts ({side}) to the encoder's counts per "
-                          "revolution; diagnose used the log's step.")
+class _Work:
+    """The log as diagnose works on it: uniform grid, segments of a long log, kinematics."""
 
-    warn = bool(sel.structure.get("warn"))
+    def __init__(self, log: MeasuredLog, cfg: ModelConfig, opts: SelectOptions):
+        self.prep = prepare_log(log)
+        self.quanta = encoder_quanta(log, cfg)
+        self.seg = segment_log(self.prep.log, opts.max_rows)
+        self.log = self.seg.log if self.seg is not None else self.prep.log
+        _check(self.log, cfg)
+        self.kin = kinematics_from_log(self.log)
+        self.v_stick = stick_speeds(self.kin, self.quanta, cfg)
+        # the samples scored and fitted: all, or those away from the seams of a segmented log
+        self.score = (self.seg.away_from_seams(self.kin.window) if self.seg is not None
+                      else np.ones(len(self.log), dtype=bool))
+        self.spans = self.seg.spans if self.seg is not None else None
+        self.notes = list(self.prep.notes)
+        if self.seg is not None:
+            a = [round(float(self.prep.log.t[i]), 3) for i, _ in self.seg.source_spans]
+            self.notes.append(f"The log has {self.seg.original_rows} rows: diagnose works on {len(self.log)} of them, "
+                              f"{len(self.seg.spans)} segments of {self.seg.spans[0][1]} rows spread over it "
+                              f"(starting at t = {', '.join(f'{x:g}' for x in a)} s); the fit leaves "
+                              f"{self.kin.window} samples either side of a seam out and the AKF runs over each "
+                              "segment from its first sample (--max-rows to change).")
+        for side, j, conf, obs in self.quanta["mismatch"]:
+            self.notes.append(f"The {side} encoder steps by {obs:.3g} rad in the log (joint side), the configuration "
+                              f"says {conf:.3g} rad: set hardware.encoder_counts ({side}) to the encoder's counts "
+                              "per revolution; diagnose used the log's step.")
+
+    def summary(self) -> dict:
+        d = self.prep.summary()
+        if self.seg is not None:
+            d["segments"] = [[int(a), int(b)] for a, b in self.seg.source_spans]
+        return d
+
+
+def _validation_models(ctx: Context, cands, opts: SelectOptions, sel: Selection, fit_t, v_stick) -> dict:
+    """The models of the time-blocked validation, fitted on the fit block alone: (a) ``refit``,
+    the effects found with their parameters refitted; (b) ``selection``, the whole selection
+    repeated."""
+    v_sel = Selector(ctx, cands, opts, fit_t=fit_t, v_min=v_stick)
+    out = {"refit": v_sel.refit(list(sel.chosen))}
+    if opts.validate_selection:
+        out["selection"] = list(v_sel.run().chosen)
+    return out
+
+
+def _effects_json(sel: Selection, n: int, warn: bool) -> list[dict]:
+    """``effects_added`` of docs/interfaces.md §4 with the extensions of docs/diagnose.md."""
     added = []
-    for k, ((cand, params), ci, frac, alts) in enumerate(zip(sel.chosen, sel.ci, sel.explained,
-                                                             sel.alternatives + [[]] * len(sel.chosen))):
+    for (cand, params), ci, frac, alts in zip(sel.chosen, sel.ci, sel.explained,
+                                              sel.alternatives + [[]] * len(sel.chosen)):
         # relative CI half-widths (angles and rest positions, which may rightly be ≈ 0, aside)
         rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()
                if p not in ("phi", "q_h0") and math.isfinite(hi)]
@@ -168,17 +168,76 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
             # static friction: the sticking phases bound it from below only (ci95 [lo, null])
             d["lower_bound_only"] = lower_only
         added.append(d)
-    statements = _statements(sel, added, warn, selector) + prep.notes
+    return added
+
+
+def _ablation(w: "_Work", cfg: ModelConfig, effects: list, est: dict) -> list[dict]:
+    """When the AKF estimates worse with the effects than without: its error with each effect
+    left out in turn (which one the filter cannot use on this log)."""
+    b, a = est.get("before"), est.get("after")
+    if b is None or a is None or a <= b or len(effects) < 1:
+        return []
+    out = []
+    for i, e in enumerate(effects):
+        rest = effects[:i] + effects[i + 1:]
+        c = cfg.with_effects(list(cfg.model.effects) + rest) if rest else None
+        r = estimate_rmse(w.log, cfg, c, spans=w.spans, score=w.score)["after"]
+        out.append({"type": e.type, "side": e.side, "estimate_rmse_without": _num(r)})
+    return out
+
+
+def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | None = None,
+                  passive: bool | None = None, estimate: bool = True) -> Diagnosis:
+    """Run the whole diagnosis (no files).  ``passive``: ignore a tau_h_act column.
+
+    The log is put on a uniform grid (:func:`.prepare.prepare_log`), a long one cut to segments
+    (:func:`.prepare.segment_log`); the selection runs on it (:class:`.select.Selector`), then the
+    time-blocked validation, the AKF before and after and, when the AKF is worse after, which
+    effect it cannot use."""
+    _check(log, cfg)
+    opts = options or SelectOptions()
+    w = _Work(log, cfg, opts)
+    log, kin, v_stick, score = w.log, w.kin, w.v_stick, w.score
+    passive = bool(passive)
+    ctx = Context(cfg, kin, None, passive=passive, v_stick=v_stick)
+    ctx.r0 = ctx.residual()
+    cands = build_candidates(ctx)
+    # the diagnosis: every sample of the log (away from the seams of a segmented one)
+    selector = Selector(ctx, cands, opts, fit_t=score, v_min=v_stick)
+    sel = selector.run()
+    n = cfg.joints
+    effects = [c.effect(p) for c, p in sel.chosen]
+    cfg_after = cfg.with_effects(list(cfg.model.effects) + effects)
+    r_after = ctx.residual(effects)
+    # time-blocked validation: the first part of the log is fitted, the last part scored
+    fit_t, blocks, block_note = _blocks(score, kin.window, opts.holdout, max(4 * kin.window, 50))
+    val_models = _validation_models(ctx, cands, opts, sel, fit_t, v_stick) if blocks else {}
+    cfgs = {"after": cfg_after if effects else None}
+    for k, pairs in val_models.items():
+        cfgs[k] = cfg.with_effects(list(cfg.model.effects) + [c.effect(p) for c, p in pairs]) if pairs else None
+    est = (estimate_rmse(log, cfg, cfgs, blocks, spans=w.spans, score=score) if estimate
+           else {"before": None, "after": None})
+    gp = None
+    if estimate and blocks and opts.validate_gp_akf:
+        gp = gpakf_rmse(log, {"before": cfg, **{k: v for k, v in cfgs.items() if k != "after"}},
+                        blocks["fit_block"], blocks, spans=w.spans)
+    ablation = _ablation(w, cfg, effects, est) if estimate else []
+    w.notes += [block_note] if block_note else []
+
+    warn = bool(sel.structure.get("warn"))
+    added = _effects_json(sel, n, warn)
+    statements = _statements(sel, added, warn, selector) + w.notes + _ablation_statements(ablation, est)
     nch = n
     validation = None
     if blocks:
         val_r = {k: ctx.residual([c.effect(p) for c, p in pairs]) for k, pairs in val_models.items()}
         validation = _validation(ctx.r0, val_r, val_models, est, blocks, selector.edge, log.t, gp)
         statements.append(validation["statement"])
+    r0s, ras = ctx.r0[score], r_after[score]
     result = {
-        "samples": int(prep.original_samples),
-        "residual_rms_before": _num(rms(ctx.r0)),
-        "residual_rms_after": _num(rms(r_after)),
+        "samples": int(w.prep.original_samples),
+        "residual_rms_before": _num(rms(r0s)),
+        "residual_rms_after": _num(rms(ras)),
         "effects_added": added,
         "unexplained_fraction": _num(sel.unexplained),
         "estimate_rmse_before": _num(est["before"]),
@@ -189,8 +248,8 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         "residual_rms_fit_before": _num(rms(ctx.r0[selector.keep_t])),
         "residual_rms_fit_after": _num(rms(r_after[selector.keep_t])),
         "residual_rms_channels": {
-            "before": {"load": _num(rms(ctx.r0[:, :nch])), "motor": _num(rms(ctx.r0[:, nch:]))},
-            "after": {"load": _num(rms(r_after[:, :nch])), "motor": _num(rms(r_after[:, nch:]))},
+            "before": {"load": _num(rms(r0s[:, :nch])), "motor": _num(rms(r0s[:, nch:]))},
+            "after": {"load": _num(rms(ras[:, :nch])), "motor": _num(rms(ras[:, nch:]))},
         },
         "unexplained_structure": {
             "fraction": _num(sel.structure.get("fraction", 0.0)),
@@ -202,15 +261,18 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         "statements": statements,
         "fit": {
             "samples_used": int(np.sum(selector.keep_t)),
+            "fit_stride": int(selector.stride),
             "low_velocity_share_left_out": _num(selector.masked_share),
             "smoothing_window_samples": int(kin.window),
             "autocorrelation_time_samples": _num(sel.tau_int),
             "candidates": len(cands),
             "truth": "tau_h_act column" if (log.tau_h_act is not None and not passive) else "zero (passive subject)",
             "stick_speed_rad_s": {"load": _num(v_stick[0]), "motor": _num(v_stick[1])},
-            "encoder_step_rad": {side: [{k: _num(v) for k, v in e.items()} for e in quanta[side]]
+            "encoder_step_rad": {side: [{k: _num(v) for k, v in e.items()} for e in w.quanta[side]]
                                  for side in ("load", "motor")},
-            "time_grid": prep.summary(),
+            "fast_command_gain": [{"kappa": _num(k), "ci95_half_width": _num(h)}
+                                  for k, h in zip(ctx.fast_gain.kappa, ctx.fast_gain.half_width)],
+            "time_grid": w.summary(),
             "holdout": _num(opts.holdout if blocks else 0.0),
             "min_effect_rms": _num(selector.opts.min_effect_rms),
         },
@@ -219,11 +281,30 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
         "correlated_pairs": [{k: (_num(v) if isinstance(v, float) else v) for k, v in c.items()}
                              for c in sel.correlated],
     }
+    if ablation:
+        result["estimate_ablation"] = ablation
     if validation:
         result["validation"] = {k: v for k, v in validation.items() if k != "statement"}
     dg = Diagnosis(result, ctx, sel, selector, cfg_after, r_after, est)
-    dg.prep, dg.blocks = prep, blocks
+    dg.prep, dg.blocks, dg.work = w.prep, blocks, w
     return dg
+
+
+def _ablation_statements(ablation: list[dict], est: dict) -> list[str]:
+    if not ablation:
+        return []
+    worst = min((d for d in ablation if d["estimate_rmse_without"] is not None),
+                key=lambda d: d["estimate_rmse_without"], default=None)
+    msg = (f"The AKF estimates worse with the effects found than without them ({est['before']:.3g} → "
+           f"{est['after']:.3g} N m RMS). ")
+    if worst is not None:
+        msg += (f"Left out in turn, {worst['type']} ({worst['side']}) costs the most: without it "
+                f"{worst['estimate_rmse_without']:.3g} N m. ")
+    msg += ("An effect can be real (it lowers the residual) and still not help the filter: friction that "
+            "changes within the filter's velocity uncertainty of zero speed is evaluated on the wrong side "
+            "of its steep part (docs/diagnose.md, Limits).  model_augmented.yaml holds every effect found; "
+            "for estimation, leave out the one named here.")
+    return [msg]
 
 
 def _validation(r0, val_r: dict, val_models: dict, est: dict, blocks: dict, edge: int, t,

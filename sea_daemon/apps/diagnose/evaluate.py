@@ -17,6 +17,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.estimators.gpakf import learn_from_log
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 
@@ -47,13 +48,22 @@ class _NISRecorder:
         return e
 
 
-def akf_run(log: MeasuredLog, cfg: ModelConfig, bound: bool = False) -> dict:
+def _spans(log: MeasuredLog, spans) -> list[tuple[int, int]]:
+    return list(spans) if spans else [(0, len(log))]
+
+
+def akf_run(log: MeasuredLog, cfg: ModelConfig, bound: bool = False, spans=None) -> dict:
     """The AKF (Alg. 1) over the log: τ̂_h,act (N, n), its bound (with ``bound``: Theorem 1),
-    and the NIS per step (N − 1,)."""
+    and the NIS per step.  ``spans``: (start, stop) segments of a joined long log
+    (:func:`.prepare.segment_log`), each run from its own first sample."""
     est = make_estimator("akf", _eval_cfg(cfg), dt=log.dt, bound=bound)
     rec = _NISRecorder(est)
-    res = replay(log, rec)
-    return {"hat": res.tau_h_act_hat, "bound": res.tau_h_act_bound, "nis": np.asarray(rec.nis)}
+    hat, bnd = [], []
+    for a, b in _spans(log, spans):
+        res = replay(log.slice(a, b), rec)
+        hat.append(res.tau_h_act_hat)
+        bnd.append(res.tau_h_act_bound)
+    return {"hat": np.concatenate(hat), "bound": np.concatenate(bnd), "nis": np.asarray(rec.nis)}
 
 
 def akf_estimates(log: MeasuredLog, cfg: ModelConfig) -> np.ndarray:
@@ -67,13 +77,16 @@ def _rmse(err: np.ndarray, mask: np.ndarray | None) -> float:
 
 
 def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after,
-                  blocks: dict[str, np.ndarray] | None = None) -> dict:
+                  blocks: dict[str, np.ndarray] | None = None, spans=None,
+                  score: np.ndarray | None = None) -> dict:
     """RMS error [N m] of the AKF's τ̂_h,act against the log's tau_h_act (zero when absent).
 
     ``cfg_after`` None: the model is unchanged, after = before; a dict name → config (or None)
     scores several models (keys ``after`` and others).  ``None`` values for a model whose
     filter faults on this log (no estimate can be formed).  ``blocks``: name → (N,) mask;
-    adds ``{block}_{model}`` over each block, and the mean NIS (``nis_{model}``)."""
+    adds ``{block}_{model}`` over each block, and the mean NIS (``nis_{model}``).  ``spans``:
+    the segments of a joined long log (each run separately); ``score``: (N,) mask of the
+    samples scored (default all)."""
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
     blocks = blocks or {}
     after = cfg_after if isinstance(cfg_after, dict) else {"after": cfg_after}
@@ -84,7 +97,7 @@ def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after,
                 out[k] = out[k.replace(key, "before")]
             continue
         try:
-            run = akf_run(log, c)
+            run = akf_run(log, c, spans=spans)
             est = run["hat"]
         except (EstimatorFault, np.linalg.LinAlgError, FloatingPointError):
             est, run = None, None
@@ -93,7 +106,7 @@ def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after,
             for b in blocks:
                 out[f"{b}_{key}"] = None
         else:
-            out[key] = _rmse(est - truth, None)
+            out[key] = _rmse(est - truth, score)
             out[f"{key}_series"] = est
             out[f"nis_{key}"] = float(np.mean(run["nis"])) if run["nis"].size else None
             for b, m in blocks.items():
@@ -101,19 +114,28 @@ def estimate_rmse(log: MeasuredLog, cfg_before: ModelConfig, cfg_after,
     return out
 
 
-def gpakf_rmse(log: MeasuredLog, cfgs: dict, train_mask: np.ndarray, blocks: dict[str, np.ndarray]) -> dict:
+def gpakf_rmse(log: MeasuredLog, cfgs: dict, train_mask: np.ndarray, blocks: dict[str, np.ndarray],
+               spans=None) -> dict:
     """GP-AKF (Alg. 2) per model: the residual learned on the samples of ``train_mask`` (a
-    leading block, passive subject), then frozen and run over the whole log; RMS error of
-    τ̂_h,act against the log's truth (0 when absent) per block.  {model: {block: rmse}}."""
+    leading block, passive subject; of each segment of a joined long log, ``spans``), then
+    frozen and run over the whole log; RMS error of τ̂_h,act against the log's truth (0 when
+    absent) per block.  {model: {block: rmse}}."""
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
-    n_train = int(np.flatnonzero(train_mask)[-1]) + 1
+    train = []
+    for a, b in _spans(log, spans):
+        idx = np.flatnonzero(train_mask[a:b])
+        if idx.size > 1:
+            train.append(log.slice(a, a + int(idx[-1]) + 1))
     out: dict = {}
     for key, c in cfgs.items():
         if c is None:
             continue
         try:
-            est = make_estimator("gp-akf", _eval_cfg(c), dt=log.dt, train=log.slice(0, n_train), bound=False)
-            hat = replay(log, est).tau_h_act_hat
+            est = make_estimator("gp-akf", _eval_cfg(c), dt=log.dt, bound=False)
+            for tr in train:
+                learn_from_log(est, tr)
+            est.learning = False
+            hat = np.concatenate([replay(log.slice(a, b), est).tau_h_act_hat for a, b in _spans(log, spans)])
         except (EstimatorFault, np.linalg.LinAlgError, FloatingPointError):
             out[key] = None
             continue

@@ -146,3 +146,64 @@ def encoder_quanta(log: MeasuredLog, cfg: ModelConfig) -> dict:
             if obs > 1.5 * conf[j]:
                 out["mismatch"].append((side, j, float(conf[j]), obs))
     return out
+
+
+#: a log longer than this many rows is diagnosed on segments of it (:func:`segments`)
+MAX_ROWS = 100_000
+#: number of segments a long log is diagnosed on
+SEGMENTS = 10
+
+
+@dataclass
+class Segmented:
+    """A long log cut down to evenly spread contiguous segments (:func:`segment_log`)."""
+
+    log: MeasuredLog                 # the segments one after another, time continued across the seams
+    spans: list[tuple[int, int]]     # (start, stop) of each segment in the joined log
+    source_spans: list[tuple[int, int]]   # (start, stop) of each segment in the original log
+    original_rows: int
+
+    def away_from_seams(self, guard: int) -> np.ndarray:
+        """(N,) bool: samples at least ``guard`` samples from a seam (the filters reach across one)."""
+        N = len(self.log)
+        ok = np.ones(N, dtype=bool)
+        for a, _ in self.spans[1:]:
+            ok[max(a - guard, 0):min(a + guard, N)] = False
+        return ok
+
+
+def segment_log(log: MeasuredLog, max_rows: int | None = MAX_ROWS, n_segments: int = SEGMENTS) -> Segmented | None:
+    """None for a log of at most ``max_rows`` rows; else ``n_segments`` contiguous segments of
+    max_rows / n_segments rows each, spread evenly over the log (the first at its start, the last
+    at its end), joined into one log whose time runs on across the seams.
+
+    The whole diagnosis then runs on at most ``max_rows`` rows (memory and time bounded however
+    long the log): the fit leaves the samples near a seam out (the smoothers reach across it), and
+    the estimators run over each segment separately.  Every part of the log's range of motion
+    that lasts longer than the gaps between segments is seen.
+    """
+    N = len(log)
+    if not max_rows or N <= max_rows:
+        return None
+    L = max_rows // n_segments
+    starts = np.linspace(0, N - L, n_segments).round().astype(int)
+    src = [(int(a), int(a) + L) for a in starts]
+    t = np.asarray(log.t, dtype=float)
+    T = float(np.median(np.diff(t[:min(N, 10000)])))
+    parts = {k: [] for k in ("t", "q", "theta_m", "tau_m", "tau_h_act")}
+    spans, off = [], 0
+    t_next = float(t[0])
+    for a, b in src:
+        parts["t"].append(t[a:b] - t[a] + t_next)
+        t_next = float(parts["t"][-1][-1]) + T
+        for k in ("q", "theta_m", "tau_m"):
+            parts[k].append(np.asarray(getattr(log, k))[a:b])
+        if log.tau_h_act is not None:
+            parts["tau_h_act"].append(np.asarray(log.tau_h_act)[a:b])
+        spans.append((off, off + (b - a)))
+        off += b - a
+    joined = MeasuredLog(t=np.concatenate(parts["t"]), q=np.concatenate(parts["q"]),
+                         theta_m=np.concatenate(parts["theta_m"]), tau_m=np.concatenate(parts["tau_m"]),
+                         tau_h_act=np.concatenate(parts["tau_h_act"]) if log.tau_h_act is not None else None,
+                         path=log.path)
+    return Segmented(log=joined, spans=spans, source_spans=src, original_rows=N)

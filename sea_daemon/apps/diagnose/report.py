@@ -65,7 +65,7 @@ def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    log = getattr(dg, "prep", None).log if getattr(dg, "prep", None) is not None else log
+    log = dg.work.log if getattr(dg, "work", None) is not None else log
     n = log.n
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
     fig, axes = plt.subplots(n, 1, figsize=(10, 3.4 * n), sharex=True, squeeze=False)

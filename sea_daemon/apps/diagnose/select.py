@@ -48,6 +48,7 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from sea_daemon.apps.diagnose.candidates import Candidate, Context
+from sea_daemon.apps.diagnose.prepare import MAX_ROWS
 from sea_daemon.apps.diagnose.residuals import Z95, integrated_autocorr_time
 
 
@@ -86,6 +87,10 @@ class SelectOptions:
     #: smoothed sign of the model cannot follow sticking); default 3 × the model's sign_eps
     v_min: float | None = None
     max_masked: float = 0.5         # never leave out more than this share of the samples
+    #: a longer log is diagnosed on segments of it (prepare.segment_log); None: never
+    max_rows: int | None = MAX_ROWS
+    #: the linear stage fits at most this many samples: a longer log every k-th (Selector.fit_stride)
+    max_fit_rows: int | None = 20000
     #: try friction on every sample, set-valued while a side sticks (:mod:`.lowspeed`)
     low_speed: bool = True
     #: an undetermined effect whose parameters correlate beyond this with another chosen one:
@@ -149,9 +154,19 @@ class Selection:
 
 
 def _lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
-    if A.shape[1] == 0:
+    """Least squares of y on the columns of A.  A tall design (rows ≫ columns, a long log) is
+    solved through its small Gram matrix with the columns scaled to unit norm (the same
+    minimum-norm solution, at a cost linear in the rows and without a copy of A)."""
+    k = A.shape[1]
+    if k == 0:
         return np.zeros(0)
-    return np.linalg.lstsq(A, y, rcond=None)[0]
+    if A.shape[0] < 50 * k:
+        return np.linalg.lstsq(A, y, rcond=None)[0]
+    s = np.sqrt(np.einsum("ij,ij->j", A, A))
+    s[s == 0] = 1.0
+    G = (A.T @ A) / np.outer(s, s)
+    b = (A.T @ y) / s
+    return np.linalg.lstsq(G, b, rcond=1e-13)[0] / s
 
 
 class Selector:
@@ -197,6 +212,13 @@ class Selector:
         if np.mean(slow & keep_t) <= self.opts.max_masked * np.mean(keep_t):
             keep_t &= ~slow
         self.masked_share = 1.0 - float(np.sum(keep_t)) / max(float(np.sum(self.all_t)), 1.0)
+        # a long log: the linear stage fits every k-th sample (the smoothed residual is correlated
+        # over a smoothing window, so a stride below it loses little; BIC's effective sample size
+        # follows, its autocorrelation time shrinks by the same k)
+        stride = self.fit_stride(int(np.sum(keep_t)), self.opts.max_fit_rows, kin.window)
+        grid = (np.arange(N) % stride) == 0
+        keep_t = keep_t & grid
+        self.stride, self._grid = stride, np.flatnonzero(grid)
         self.keep_t = keep_t
         mask = np.repeat(keep_t[:, None], c, axis=1)
         self.valid = mask.reshape(-1)
@@ -205,22 +227,39 @@ class Selector:
         self.M = self.y0.size
         self._cache: dict = {}
         self._full: dict = {}
+        # rows of the cached designs that the fit uses: the fit's samples among the grid's
+        self._valid_in_grid = np.repeat(keep_t[self._grid][:, None], c, axis=1).reshape(-1)
         # blocked CV folds over time
         K = max(2, self.opts.folds)
         edges = np.linspace(self.time_index.min(), self.time_index.max() + 1, K + 1)
         self.fold = np.clip(np.searchsorted(edges, self.time_index, side="right") - 1, 0, K - 1)
+
+    @staticmethod
+    def fit_stride(rows: int, max_rows: int | None, window: int) -> int:
+        """Every how many samples the linear stage fits: 1 up to ``max_rows`` samples, else the
+        stride that brings them down to it (at most half a smoothing window)."""
+        if not max_rows or rows <= max_rows:
+            return 1
+        return int(min(max(math.ceil(rows / max_rows), 1), max(window // 2, 1)))
 
     # ---------------------------------------------------------------- designs
     def design(self, cand: Candidate, theta):
         key = (id(cand), None if theta is None else round(float(theta), 12))
         if key not in self._cache:
             o, X = cand.design(self.ctx, theta)
-            self._cache[key] = (None if o is None else o[self.valid], X[self.valid])
+            c = self.ctx.r0.shape[1]
+            # kept on the grid's samples only (every sample of a log up to max_fit_rows)
+            if self.stride > 1:
+                o = None if o is None else o.reshape(-1, c)[self._grid].reshape(-1)
+                X = X.reshape(self.ctx.kin.N, c, X.shape[1])[self._grid].reshape(self._grid.size * c, X.shape[1])
+            v = self._valid_in_grid
+            self._cache[key] = (None if o is None else o[v], X[v])
             self._full[key] = (o, X)
         return self._cache[key]
 
     def contribution_rms(self, fit: CandidateFit) -> float:
-        """RMS [N m] over all samples (not only the fitted ones) of what the candidate explains."""
+        """RMS [N m] over all samples (not only the fitted ones; every ``stride``-th of a long
+        log) of what the candidate explains."""
         key = (id(fit.cand), None if fit.theta is None else round(float(fit.theta), 12))
         if key not in self._full:
             self.design(fit.cand, fit.theta)
@@ -230,7 +269,7 @@ class Selector:
         k = X.shape[1]
         d = (o if o is not None else 0.0) + (X @ fit.beta[len(fit.beta) - k:] if k else 0.0)
         d = np.asarray(d, dtype=float)
-        return float(np.sqrt(np.sum(d**2) / self.ctx.kin.N))
+        return float(np.sqrt(np.sum(d**2) / self._grid.size))
 
     def _fit_with(self, y, base_X, o, X, nonneg=()):
         """Least squares of y − o on [base_X, X]; coefficients of X listed in ``nonneg`` are
