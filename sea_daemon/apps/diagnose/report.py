@@ -228,6 +228,8 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
                   f"| mean NIS | {_fmt(sm['before']['nis_mean'])} | {_fmt(sm['after']['nis_mean'])} |",
                   f"| share of the log where the interval excludes 0 | {_fmt(sm['before']['share_nonzero'])} | "
                   f"{_fmt(sm['after']['share_nonzero'])} |"]
+        lines.append(f"| Theorem-1 ρ, median [N m] (share wider than the peak spring torque) | "
+                     f"{_theorem1_cell(sm['before'])} | {_theorem1_cell(sm['after'])} |")
         if "rmse" in sm["after"]:
             lines.append(f"| τ̂_h,act RMSE [N m] | {_fmt(sm['before']['rmse'])} | {_fmt(sm['after']['rmse'])} |")
         lines += [""] + ap["claims"] + [""]
@@ -248,6 +250,13 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
             plot_structure(dg, out / "leftover.png")
             lines += ["![leftover residual against the state](leftover.png)", ""]
     (out / "report.md").write_text("\n".join(lines))
+
+
+def _theorem1_cell(s: dict) -> str:
+    t = s.get("theorem1") or {}
+    if not t or t.get("diverged"):
+        return "diverges"
+    return f"{_fmt(t['median'], 3)} ({100 * t['share_vacuous']:.0f} %)"
 
 
 def _validation_lines(v: dict) -> list[str]:

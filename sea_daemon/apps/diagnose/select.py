@@ -119,6 +119,8 @@ class CandidateFit:
     cv: float = math.inf
     params: dict = field(default_factory=dict)
     frac_all: float = 0.0          # share of the initial mean square (whole log) it removes
+    #: chosen by the low-speed stage: its parameters are held (``params``) until the refinement
+    fixed: bool = False
 
 
 @dataclass
@@ -377,12 +379,53 @@ class Selector:
         chosen: list[CandidateFit] = []
         n_par = 0
         rss0 = float(self.y0 @ self.y0)
-        rss_cur = rss0
         all0 = self.rss_all([])
         steps: list[StepRecord] = []
         alternatives: list[list[str]] = []
         remaining = [c for c in self.cands if c.name not in excluded]
-        for step in range(1, o_cfg.max_effects + 1):
+        step = 0
+        y_lin = y              # the target without the effects the low-speed stage holds
+        while True:
+            y, base_X, chosen, n_par, remaining, step = self._linear_stage(
+                y_lin, base_X, chosen, n_par, remaining, step, steps, alternatives, rss0, all0)
+            # initial natural parameters from the joint linear solution (held ones as held)
+            init = self._initial(chosen, base_X, y)
+            # friction where it acts: every sample of the fit block, set-valued while sticking;
+            # what it adds is held while the linear stage runs again (a pair such as friction and
+            # an offset is weak one at a time in the linear stage)
+            if not (o_cfg.low_speed and len(chosen) < o_cfg.max_effects):
+                break
+            from sea_daemon.apps.diagnose.lowspeed import LowSpeedStage
+            stage = LowSpeedStage(self)
+            new, lsteps, lalts = stage.run([(f.cand, p) for f, p in zip(chosen, init)],
+                                           [c for c in self.cands if c.name not in excluded],
+                                           all0, o_cfg.max_effects - len(chosen))
+            for st in lsteps:
+                step += 1
+                st.step = step
+                steps.append(st)
+            for (cand, p), alts in zip(new, lalts):
+                chosen.append(CandidateFit(cand, p.get(cand.nonlinear) if cand.nonlinear else None,
+                                           np.zeros(0), math.nan, None, np.zeros((self.M, 0)), params=p, fixed=True))
+                init.append(p)
+                alternatives.append(alts)
+                remaining = [c for c in remaining if not (c.type == cand.type and c.side == cand.side
+                                                          and c.joint == cand.joint)]
+                n_par += len(cand.params)
+            if not new or not remaining or len(chosen) >= o_cfg.max_effects:
+                break
+            held = [f.cand.effect(f.params) for f in chosen if f.fixed]
+            o_held = (self.ctx.r0 - self.ctx.residual(held)).reshape(-1)[self.valid]
+            y_lin = self.y0 - o_held - sum((f.o for f in chosen if f.o is not None), np.zeros_like(self.y0))
+            y = y_lin
+        return chosen, init, steps, alternatives, rss0
+
+    def _linear_stage(self, y, base_X, chosen, n_par, remaining, step, steps, alternatives, rss0, all0):
+        """Forward selection over the moving samples (see the module docstring) from the chosen
+        effects on; returns the updated (y, base_X, chosen, n_par, remaining, step)."""
+        o_cfg = self.opts
+        for _ in range(o_cfg.max_effects - len(chosen)):
+            step += 1
             beta_cur = _lstsq(base_X, y)
             res_cur = y - (base_X @ beta_cur if base_X.shape[1] else 0.0)
             rss_cur = float(res_cur @ res_cur)
@@ -476,30 +519,18 @@ class Selector:
                                                       and c.joint == best.cand.joint)]
             if not remaining:
                 break
-        # initial natural parameters from the joint linear solution
+        return y, base_X, chosen, n_par, remaining, step
+
+    def _initial(self, chosen, base_X, y) -> list[dict]:
+        """Natural parameters of the chosen effects from the joint linear solution of their
+        columns (the low-speed stage's held ones as held)."""
         beta_all = _lstsq(base_X, y)
-        init = []
-        col = 0
+        init, col = [], 0
         for f in chosen:
             k = f.X.shape[1]
-            init.append(f.cand.natural(beta_all[col:col + k], f.theta))
+            init.append(dict(f.params) if f.fixed else f.cand.natural(beta_all[col:col + k], f.theta))
             col += k
-        # friction where it acts: every sample of the fit block, set-valued while sticking
-        if o_cfg.low_speed and len(chosen) < o_cfg.max_effects:
-            from sea_daemon.apps.diagnose.lowspeed import LowSpeedStage
-            stage = LowSpeedStage(self)
-            new, lsteps, lalts = stage.run([(f.cand, p) for f, p in zip(chosen, init)],
-                                           [c for c in self.cands if c.name not in excluded],
-                                           all0, o_cfg.max_effects - len(chosen))
-            for st in lsteps:
-                st.step = len(steps) + 1
-                steps.append(st)
-            for (cand, p), alts in zip(new, lalts):
-                chosen.append(CandidateFit(cand, p.get(cand.nonlinear) if cand.nonlinear else None,
-                                           np.zeros(0), math.nan, None, np.zeros((self.M, 0)), params=p))
-                init.append(p)
-                alternatives.append(alts)
-        return chosen, init, steps, alternatives, rss0
+        return init
 
     def run(self) -> Selection:
         """Forward selection, joint refinement, conflicts between correlated effects, and the
@@ -675,7 +706,7 @@ class Selector:
         col = 0
         for g in chosen:
             k = g.X.shape[1]
-            pg = g.cand.natural(f.beta[col:col + k], g.theta)
+            pg = g.params if g.fixed else g.cand.natural(f.beta[col:col + k], g.theta)
             col += k
             why = g.cand.implausible(self.ctx, pg)
             if why:
@@ -687,7 +718,7 @@ class Selector:
         out, col = [], 0
         for f in fits:
             k = f.X.shape[1]
-            out.append(f.cand.effect(f.cand.natural(beta[col:col + k], f.theta)))
+            out.append(f.cand.effect(f.params if f.fixed else f.cand.natural(beta[col:col + k], f.theta)))
             col += k
         return out
 
