@@ -1,4 +1,4 @@
-"""Friction that lives at low speed is found where it acts (issue 13).
+"""Friction that lives at low speed is found where it acts.
 
 A Stribeck hump whose speed v_s is small against the log's speeds (the passive scenario moves
 at up to 0.6 rad/s; v_s 0.03-0.05 rad/s) acts only around the turning points, the samples the
@@ -54,3 +54,8 @@ def test_low_speed_stribeck_is_found(case, tmp_path):
     assert all(d["confidence"] == "low" for d in res["effects_added"][1:]), res["effects_added"]
     # the linear stage left the low-speed samples out; the low-speed stage used them
     assert res["fit"]["low_velocity_share_left_out"] > 0.15
+    # when the filter cannot use the hump (docs/diagnose.md, Limits), the result says which effect
+    if res["estimate_rmse_after"] > res["estimate_rmse_before"]:
+        names = {(d["type"], d["side"]) for d in res["estimate_ablation"]}
+        assert ("stribeck", side) in names, res["estimate_ablation"]
+        assert any("costs the most" in s for s in res["statements"]), res["statements"]

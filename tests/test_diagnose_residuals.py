@@ -163,3 +163,18 @@ def test_two_joints_run_end_to_end(tmp_path):
         assert d["joint"] in (1, 2)
     aug = load_config(tmp_path / "model_augmented.yaml")
     assert aug.joints == 2 and len(aug.model.effects) == len(res["effects_added"])
+
+
+def test_fast_command_gain_finds_the_drives_gain():
+    """fast_command_gain on simulated logs: a drive delivering κ = 0.85 of the command, and one
+    delivering all of it, are told apart from the fast part of the command alone."""
+    from diagnose_sim import passive_log
+    from sea_daemon.apps.diagnose.residuals import fast_command_gain
+
+    for kappa in (0.85, 1.0):
+        extra = [make_effect("torque_scale", "motor", kappa=kappa)] if kappa != 1.0 else []
+        log, cfg = passive_log(extra)
+        g = fast_command_gain(SEAModel.from_config(cfg), kinematics_from_log(log), 3 * cfg.estimator.sign_eps)
+        k, hw = g.kappa[0], g.half_width[0]
+        assert np.isfinite(k) and hw < 0.2 * k, (kappa, k, hw)
+        assert abs(k - kappa) <= max(hw, 0.1 * kappa), (kappa, k, hw)
