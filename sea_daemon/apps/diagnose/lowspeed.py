@@ -130,10 +130,10 @@ class LowSpeedStage:
             max_new: int) -> tuple[list[tuple[Candidate, dict]], list, list]:
         """Add friction candidates to ``chosen`` while the evidence supports it.
 
-        Returns (new (candidate, params) pairs, step records, alternatives per new pair).
+        Returns (new (candidate, params) pairs, one (rows, chosen name or None, reason) per step,
+        alternatives per new pair).
         ``rss0``: sum of squares of the configured model over the fit block (the shares'
         denominator)."""
-        from sea_daemon.apps.diagnose.select import StepRecord
         o = self.opts
         base = [c.effect(p) for c, p in chosen]
         taken = {(c.type, c.side, c.joint) for c, _ in chosen}
@@ -188,21 +188,19 @@ class LowSpeedStage:
                 rejected.append(f"{c.name}: " + "; ".join(why))
                 if not bic < bic_cur:
                     break
-            step_no = None  # numbered by the caller
             if best is None:
-                steps.append(StepRecord(step_no, rows, None, "low speed, every sample (friction set-valued while "
-                                                             "sticking): no candidate accepted — "
-                                        + " | ".join(rejected[:3])))
+                steps.append((rows, None, "low speed, every sample (friction set-valued while sticking): "
+                                          "no candidate accepted — " + " | ".join(rejected[:3])))
                 break
             bic, c, p, ss, cvv = best
             gain = ss_cur - ss
             near = [f[1].name for f in fits if f[1] is not c and gain > 0 and (ss_cur - f[3]) >= o.ambiguity * gain
                     and f[0] - bic < o.ambiguity_bic]
-            steps.append(StepRecord(step_no, rows, c.name,
-                                    f"low speed, every sample (friction set-valued while sticking): {c.name} explains "
-                                    f"{100 * gain / rss0:.1f} % of the initial mean square; ΔBIC {bic - bic_cur:+.1f}; "
-                                    f"held-out mean square −{100 * (1 - cvv / cv_cur):.1f} %"
-                                    + (f"; nearly as good: {', '.join(near)}" if near else "")))
+            steps.append((rows, c.name,
+                          f"low speed, every sample (friction set-valued while sticking): {c.name} explains "
+                          f"{100 * gain / rss0:.1f} % of the initial mean square; ΔBIC {bic - bic_cur:+.1f}; "
+                          f"held-out mean square −{100 * (1 - cvv / cv_cur):.1f} %"
+                          + (f"; nearly as good: {', '.join(near)}" if near else "")))
             new.append((c, p))
             alts.append(near)
             base = base + [c.effect(p)]

@@ -48,6 +48,7 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from sea_daemon.apps.diagnose.candidates import Candidate, Context
+from sea_daemon.apps.diagnose.lowspeed import LowSpeedStage
 from sea_daemon.apps.diagnose.prepare import MAX_ROWS
 from sea_daemon.apps.diagnose.residuals import Z95, integrated_autocorr_time
 
@@ -395,15 +396,13 @@ class Selector:
             # an offset is weak one at a time in the linear stage)
             if not (o_cfg.low_speed and len(chosen) < o_cfg.max_effects):
                 break
-            from sea_daemon.apps.diagnose.lowspeed import LowSpeedStage
             stage = LowSpeedStage(self)
             new, lsteps, lalts = stage.run([(f.cand, p) for f, p in zip(chosen, init)],
                                            [c for c in self.cands if c.name not in excluded],
                                            all0, o_cfg.max_effects - len(chosen))
-            for st in lsteps:
+            for rows, name, reason in lsteps:
                 step += 1
-                st.step = step
-                steps.append(st)
+                steps.append(StepRecord(step, rows, name, reason))
             for (cand, p), alts in zip(new, lalts):
                 chosen.append(CandidateFit(cand, p.get(cand.nonlinear) if cand.nonlinear else None,
                                            np.zeros(0), math.nan, None, np.zeros((self.M, 0)), params=p, fixed=True))
@@ -639,49 +638,39 @@ class Selector:
                                 f"({cand.describe(p0)} → {cand.describe(p)})")
             return None
 
-        for i in range(K):
-            why = trouble(i)
-            if not why:
-                continue
-            others = [j for j in range(K) if j != i]
-            j = max(others, key=lambda j: abs(rho(i, j)))
+        def partner(i, min_rho):
+            """The effect most correlated with i, if beyond ``min_rho``, and the pair's
+            (drop, keep): the physically sensible one — plausible at its stepwise fit, then the
+            earlier chosen — is kept."""
+            j = max((j for j in range(K) if j != i), key=lambda j: abs(rho(i, j)))
             r = float(rho(i, j))
-            if abs(r) < 0.5:
-                continue      # not a trade between two effects: left to the interval test
-            # the physically sensible one of the pair: plausible at its stepwise fit, then earlier
-            ci, cj = sel.chosen[i][0], sel.chosen[j][0]
-            bad_i = ci.implausible(self.ctx, self.stepwise[i])
-            bad_j = cj.implausible(self.ctx, self.stepwise[j])
+            if abs(r) < min_rho:
+                return None
+            bad_i = sel.chosen[i][0].implausible(self.ctx, self.stepwise[i])
+            bad_j = sel.chosen[j][0].implausible(self.ctx, self.stepwise[j])
             if bad_i and not bad_j:
                 keep, drop = j, i
             elif bad_j and not bad_i:
                 keep, drop = i, j
             else:
                 keep, drop = (i, j) if i < j else (j, i)
-            return drop, keep, r, f"{sel.chosen[i][0].name}: {why}"
+            return drop, keep, r, j
+
+        for i in range(K):
+            why = trouble(i)
+            # below 0.5 it is not a trade between two effects: left to the interval test
+            pair = partner(i, 0.5) if why else None
+            if pair is not None:
+                return pair[0], pair[1], pair[2], f"{sel.chosen[i][0].name}: {why}"
         # an effect the log does not determine (interval wider than its value) because it
         # trades against another one: the pair is reported and the sensible one kept (the
         # interval test alone would drop it, and a clear effect with it)
-        mc = self.opts.max_correlation
         for i in range(K):
-            if not self._undetermined(sel, i):
-                continue
-            others = [j for j in range(K) if j != i]
-            j = max(others, key=lambda j: abs(rho(i, j)))
-            r = float(rho(i, j))
-            if abs(r) < mc:
-                continue
-            ci_, cj_ = sel.chosen[i][0], sel.chosen[j][0]
-            bad_i = ci_.implausible(self.ctx, self.stepwise[i])
-            bad_j = cj_.implausible(self.ctx, self.stepwise[j])
-            if bad_i and not bad_j:
-                keep, drop = j, i
-            elif bad_j and not bad_i:
-                keep, drop = i, j
-            else:
-                keep, drop = (i, j) if i < j else (j, i)
-            return drop, keep, r, (f"{sel.chosen[i][0].name}'s interval is wider than its value, its parameters "
-                                   f"correlated {r:+.2f} with {sel.chosen[j][0].name}'s")
+            pair = partner(i, self.opts.max_correlation) if self._undetermined(sel, i) else None
+            if pair is not None:
+                drop, keep, r, j = pair
+                return drop, keep, r, (f"{sel.chosen[i][0].name}'s interval is wider than its value, its "
+                                       f"parameters correlated {r:+.2f} with {sel.chosen[j][0].name}'s")
         return None
 
     @staticmethod
