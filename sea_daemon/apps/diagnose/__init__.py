@@ -12,7 +12,11 @@
    (:mod:`.evaluate`), a time-blocked validation on the log's last part, the model on other
    logs without truth (:mod:`.apply`), and ``report.md`` with plots (:mod:`.report`).
 
-The log is first put on a uniform time grid and its encoder steps read (:mod:`.prepare`).
+The log is first put on a uniform time grid, its encoder steps read and, when it is longer than
+``SelectOptions.max_rows``, cut to segments (:mod:`.prepare`).  As a library call (the
+calibration uses it on its logs): ``run_diagnosis(log, cfg, options, passive, estimate)`` returns a
+:class:`Diagnosis` (``result`` the JSON dict, ``cfg_after`` the augmented configuration) and
+writes nothing.
 """
 from __future__ import annotations
 
