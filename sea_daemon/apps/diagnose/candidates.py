@@ -59,6 +59,28 @@ class Context:
             self._fast = fast_command_gain(self.model, self.kin, v, self.zoh)
         return self._fast
 
+    def largest_torque(self, side: str, j: int) -> float:
+        """The largest torque [N m] the log's balance puts on ``side`` of joint ``j``: the sum of
+        the largest spring torque, inertial torque (smoothed acceleration), gravity, commanded
+        torque (motor) and human torque (load, when the log has it).  A friction that held more
+        than this at rest would never have let that side move as the log shows."""
+        kin, m = self.kin, self.model
+        q, th = self.angles()
+        tau_s = float(np.max(np.abs((q - th) @ m.K_s.T)[:, j]))
+        if side == "load":
+            out = tau_s + float(np.max(np.abs(kin.ddq @ m.M.T)[:, j])) + float(np.max(np.abs(m.C(q))[:, j]))
+            if kin.tau_h_act is not None and not self.passive:
+                out += float(np.max(np.abs(kin.tau_h_act[:, j])))
+            return out
+        return (tau_s + float(np.max(np.abs(kin.ddtheta_m @ m.J.T)[:, j]))
+                + float(m.kappa[j]) * float(np.max(np.abs(kin.tau_m[:, j]))))
+
+    def stick_speed(self, side: str) -> float:
+        """The speed [rad/s] below which ``side`` counts as sticking (3 ε without encoder data)."""
+        if self.v_stick is None:
+            return stick_velocity(self.cfg)
+        return float(self.v_stick[0 if side == "load" else 1])
+
     @property
     def model(self) -> SEAModel:
         if self._model is None:
@@ -226,7 +248,10 @@ class CoulombC(Candidate):
         return {"F_c": float(beta[0])}
 
     def bounds(self, ctx):
-        return {"F_c": (0.0, np.inf)}
+        return {"F_c": (0.0, ctx.largest_torque(self.side, self.joint))}
+
+    def implausible(self, ctx, params):
+        return _static_friction_implausible(ctx, self, params["F_c"])
 
 
 class ViscousC(Candidate):
@@ -458,7 +483,15 @@ class StribeckC(Candidate):
         return {"F_s": float(beta[0]), "v_s": float(theta)}
 
     def bounds(self, ctx):
-        return {"F_s": (0.0, np.inf), "v_s": (1e-4, np.inf)}
+        return {"F_s": (0.0, ctx.largest_torque(self.side, self.joint)),
+                "v_s": (ctx.stick_speed(self.side) / 3.0, np.inf)}
+
+    def implausible(self, ctx, params):
+        v0 = ctx.stick_speed(self.side) / 3.0
+        if params["v_s"] < v0:
+            return (f"v_s = {params['v_s']:.3g} rad/s: a hump below a third of the {self.side} side's stick speed "
+                    f"({3 * v0:.3g} rad/s) acts only where the encoders cannot tell motion from standing still")
+        return _static_friction_implausible(ctx, self, params["F_s"])
 
 
 class CoggingC(Candidate):
@@ -615,6 +648,16 @@ class DelayC(Candidate):
     def regressor(self, ctx, theta=None):
         k = ctx.kin
         return np.gradient(k.smooth(k.tau_m[:, self.joint]), k.t), "τ̇_m [N m/s]"
+
+
+def _static_friction_implausible(ctx: Context, cand: Candidate, amplitude: float) -> str | None:
+    """Why a friction amplitude is not physical: above the largest torque the log puts on that
+    side (:meth:`Context.largest_torque`), it would have held the side still for good."""
+    top = ctx.largest_torque(cand.side, cand.joint)
+    if amplitude > top:
+        return (f"{cand.size_param} = {amplitude:.4g} N m exceeds every torque on the {cand.side} side in this log "
+                f"(at most {top:.3g} N m): it would never have let that side move")
+    return None
 
 
 def _declared_damping(ctx: Context, side: str, j: int) -> float:
