@@ -69,7 +69,7 @@ def test_bad_config_names_key(mutate, key):
 def _all_effects():
     vals = {"F_c": 0.3, "b": 0.2, "F_s": 0.4, "v_s": 0.3, "dI": 0.02, "a": 0.5, "phi": 0.2, "k_h": 1.2,
             "q_h0": 0.4, "b_h": 0.3, "k3": 300.0, "width": 0.004, "kappa": 0.9, "delta": 0.01,
-            "seconds": 0.02, "A": 0.1, "periods": 6.0, "theta_max": 0.02, "k_stop": 500.0}
+            "seconds": 0.02, "A": 0.1, "periods": 6.0, "theta_max": 0.02, "k_stop": 500.0, "tau_0": -0.05}
     out = []
     for t, cls in EFFECT_TYPES.items():
         for side in cls.sides:

@@ -22,6 +22,7 @@ ADDITIVE = [
     make_effect("spring_cubic", "spring", k3=5000.0),
     make_effect("cogging", "motor", A=0.2, periods=30.0, phi=0.3),
     make_effect("spring_saturation", "spring", theta_max=0.01, k_stop=400.0),
+    make_effect("torque_offset", "motor", tau_0=-0.07),
 ]
 STRUCTURAL = [
     make_effect("spring_backlash", "spring", width=0.004), make_effect("torque_scale", "motor", kappa=0.9),
@@ -62,6 +63,8 @@ TABLE = {
     "spring_cubic": lambda e, a, v, c: e.k3 * a ** 3,
     "spring_saturation": lambda e, a, v, c: e.k_stop * (e.smooth * np.logaddexp(0, (a - e.theta_max) / e.smooth)
                                                        - e.smooth * np.logaddexp(0, (-a - e.theta_max) / e.smooth)),
+    # the drive delivers tau_0 more: a torque of −tau_0 the motor side need not overcome
+    "torque_offset": lambda e, a, v, c: np.full_like(a, -e.tau_0),
 }
 
 
@@ -160,3 +163,18 @@ def test_two_joints_run_end_to_end(tmp_path):
         assert d["joint"] in (1, 2)
     aug = load_config(tmp_path / "model_augmented.yaml")
     assert aug.joints == 2 and len(aug.model.effects) == len(res["effects_added"])
+
+
+def test_fast_command_gain_finds_the_drives_gain():
+    """fast_command_gain on simulated logs: a drive delivering κ = 0.85 of the command, and one
+    delivering all of it, are told apart from the fast part of the command alone."""
+    from diagnose_sim import passive_log
+    from sea_daemon.apps.diagnose.residuals import fast_command_gain
+
+    for kappa in (0.85, 1.0):
+        extra = [make_effect("torque_scale", "motor", kappa=kappa)] if kappa != 1.0 else []
+        log, cfg = passive_log(extra)
+        g = fast_command_gain(SEAModel.from_config(cfg), kinematics_from_log(log), 3 * cfg.estimator.sign_eps)
+        k, hw = g.kappa[0], g.half_width[0]
+        assert np.isfinite(k) and hw < 0.2 * k, (kappa, k, hw)
+        assert abs(k - kappa) <= max(hw, 0.1 * kappa), (kappa, k, hw)

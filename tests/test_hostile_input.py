@@ -159,32 +159,6 @@ def test_a_long_log_is_read_into_float_blocks(tmp_path):
     assert peak < 4 * (N * 4 * 8)          # data 6.4 MB; the rows as Python lists took ~6x that
 
 
-def test_diagnose_analyses_a_contiguous_excerpt_of_a_long_log(tmp_path, capsys, monkeypatch):
-    from sea_daemon.apps.diagnose import long_log
-    from sea_daemon.io.logcsv import write_log
-    from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.runtime.sim_runner import simulate
-    sim = simulate(load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")).estimation
-    # the excerpt is the stretch with the most motion, at the log's own rate
-    still = sim.slice(0, 2000)
-    still.q[:] = still.q[0]
-    part, info = long_log.excerpt(still.slice(0, 1000), 500)
-    assert info["first"] == 0 and len(part) == 500           # no motion anywhere: the first
-    part, info = long_log.excerpt(sim, 700)
-    assert len(part) == 700 and np.array_equal(part.t, sim.t[info["first"]:info["last"] + 1])
-    path = np.abs(np.diff(sim.q[:, 0]))
-    best = max(path[s:s + 699].sum() for s in range(len(sim) - 699))
-    assert path[info["first"]:info["first"] + 699].sum() == pytest.approx(best)
-    # the command says what it analysed
-    log = tmp_path / "long.csv"
-    write_log(log, sim)
-    monkeypatch.setattr(long_log, "MAX_SAMPLES", 1500)
-    code, out, err = run(["diagnose", log, "--config", CFG, "--out", tmp_path / "d", "--no-plots"], capsys)
-    assert code == 0, err
-    assert re.search(rf"has {len(sim)} samples; analysing the 1500 with the most motion", err)
-    assert json.loads((tmp_path / "d" / "diagnosis.json").read_text())["samples"] == 1500
-
-
 # ------------------------------------------------------------------ the rest of issue 15, item 7
 @pytest.mark.parametrize("text,expect", [
     (ROBOT + "estimator: {P0: [1.0e+300, 1, 1, 1, 1]}\n", r"estimator\.P0: must be finite, within"),

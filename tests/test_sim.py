@@ -370,7 +370,7 @@ def test_every_effect_type_simulates():
     from sea_daemon.core.effects import EFFECT_TYPES
     vals = {"F_c": 0.3, "b": 0.2, "F_s": 0.2, "v_s": 0.07, "dI": 0.02, "a": 0.5, "phi": 0.2, "k_h": 1.2,
             "q_h0": 0.4, "b_h": 0.3, "k3": 300.0, "width": 0.004, "kappa": 0.9, "delta": 0.01,
-            "seconds": 0.02, "A": 0.05, "periods": 6.0, "theta_max": 0.06, "k_stop": 300.0}
+            "seconds": 0.02, "A": 0.05, "periods": 6.0, "theta_max": 0.06, "k_stop": 300.0, "tau_0": -0.05}
     effs = [make_effect(t, cls.sides[0], **{k: vals[k] for k in cls.param_names}) for t, cls in EFFECT_TYPES.items()]
     for name in ("passive", "active"):
         sc = load_scenario(SCEN / f"{name}.yaml")

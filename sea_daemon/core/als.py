@@ -309,16 +309,17 @@ R_FLOOR = 1e-12
 
 def floored_R(cfg, res: dict) -> tuple[np.ndarray, dict | None, list]:
     """R of :func:`identify_noise`'s result with variances floored: encoder variances at the
-    quantisation noise Δ²/12 of a ``hardware.encoder_bits`` encoder — Δ = 2π/2^bits for the load
-    encoder, 2π/(2^bits · gear_ratio) joint side for the motor encoder, which sits before the
-    gear (R rebuilt, stays PSD) — or diagonal entries at :data:`R_FLOOR`.  Returns (R, encoder
-    variances, floored names)."""
+    quantisation noise Δ²/12 of the encoders (``hardware.encoder_counts``, else 2^encoder_bits
+    counts) — Δ = 2π/counts for the load encoder, 2π/(counts · gear_ratio) joint side for the
+    motor encoder, which sits before the gear (R rebuilt, stays PSD) — or diagonal entries at
+    :data:`R_FLOOR`.  Returns (R, encoder variances, floored names)."""
     n = cfg.joints
     R = np.array(res["R"], dtype=float)
     enc = res.get("encoder_variances")
     if enc is not None:
-        q_var = (2 * np.pi / 2 ** cfg.hardware.encoder_bits) ** 2 / 12.0
-        m_var = q_var / float(cfg.hardware.gear_ratio) ** 2
+        # joint-side quanta of the two encoders (HardwareConfig.encoder_resolution)
+        dq_, dm_ = cfg.hardware.encoder_resolution(n)
+        q_var, m_var = dq_**2 / 12.0, dm_**2 / 12.0
         vm, vq = np.array(enc["theta_m"]), np.array(enc["q"])
         floored = [f"theta_m_{j + 1}" for j in np.flatnonzero(vm < m_var)]
         floored += [f"q_{j + 1}" for j in np.flatnonzero(vq < q_var)]

@@ -49,7 +49,7 @@ DEFAULT_SIGN_EPS = 0.01
 
 #: codes of the additive effects in the compiled kernel :func:`evaluate` (0: structural, no torque)
 STRUCTURAL, COULOMB, VISCOUS, STRIBECK, INERTIA, GRAVITY, HUMAN_VISCOELASTIC, COGGING, SPRING_CUBIC, \
-    SPRING_SATURATION = range(10)
+    SPRING_SATURATION, TORQUE_OFFSET = range(11)
 #: the longest parameter vector of an additive effect (:attr:`Effect.vector`)
 MAX_PARAMS = 3
 
@@ -98,6 +98,8 @@ def evaluate(code: int, p, angle: float, vel: float, acc: float) -> tuple[float,
         up, dup = softplus(angle - p[0], p[2])
         dn, ddn = softplus(-angle - p[0], p[2])
         return p[1] * (up - dn), p[1] * (dup + ddn), 0.0, 0.0
+    if code == TORQUE_OFFSET:              # p = (τ₀,): the drive delivers τ₀ more, a torque of −τ₀ to overcome
+        return -p[0], 0.0, 0.0, 0.0
     return 0.0, 0.0, 0.0, 0.0
 
 
@@ -260,6 +262,18 @@ class SpringSaturation(Effect):
                                                      SPRING_SATURATION, ("theta_max", "k_stop", "smooth"))
 
 
+@dataclass(frozen=True)
+class TorqueOffset(Effect):
+    """(extension) The drive delivers κ τ_m + ``tau_0`` [N m, joint side]: the offset of an
+    analog command chain (a DAC or amplifier offset voltage, a current-sensor offset), the
+    commanded-versus-delivered error that does not scale with the command.  As every additive
+    effect it is a torque its side must overcome: −tau_0 (eq:motorside).
+    """
+
+    tau_0: float = 0.0
+    type, sides, param_names, code = "torque_offset", ("motor",), ("tau_0",), TORQUE_OFFSET
+
+
 # ---- structural effects: they change how torque/deflection/angle are formed ----------
 
 
@@ -302,7 +316,7 @@ EFFECT_TYPES: Mapping[str, type[Effect]] = {
     cls.type: cls
     for cls in (
         Coulomb, Viscous, Stribeck, Inertia, Gravity, HumanViscoelastic, SpringCubic,
-        SpringBacklash, TorqueScale, EncoderOffset, Delay, Cogging, SpringSaturation,
+        SpringBacklash, TorqueScale, EncoderOffset, Delay, Cogging, SpringSaturation, TorqueOffset,
     )
 }
 
@@ -356,7 +370,7 @@ def make_effect(type: str, side: str | None = None, joint: int = 0, **params: fl
 @warmer
 def _warm() -> None:
     p = np.zeros(MAX_PARAMS)
-    for code in range(SPRING_SATURATION + 1):
+    for code in range(TORQUE_OFFSET + 1):
         evaluate(code, p + 1.0, 0.1, 0.2, 0.3)
     z = np.zeros(2)
     evaluate_many(COULOMB, p + 1.0, z, z, z, np.zeros(2))

@@ -7,6 +7,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+import numpy as np
+
 from sea_daemon.core import validate
 from sea_daemon.errors import ConfigError
 
@@ -120,8 +122,22 @@ class HardwareConfig:
     torque_limit: float = 10.0       # |τ_m| limit, joint side [N m]
     torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
     bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (drivers)
+    # counts per revolution of the shaft each encoder reads, per joint: the load encoder on the
+    # joint, the motor encoder on the motor shaft (before the gear).  () = 2^encoder_bits.
+    encoder_counts_load: tuple[int, ...] = ()
+    encoder_counts_motor: tuple[int, ...] = ()
 
-    KEYS = ["gear_ratio", "encoder_bits", "torque_limit", "torque_noise", "bus"]
+    KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus"]
+    COUNT_SIDES = ("load", "motor")
+
+    def encoder_resolution(self, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Joint-side angle quanta (Δq, Δθ_m) [rad] per joint: 2π/counts for the load encoder,
+        2π/(counts · gear_ratio) for the motor encoder (it turns gear_ratio times per joint turn).
+        A side without ``encoder_counts`` has 2^``encoder_bits`` counts."""
+        def counts(c):
+            return np.asarray(c if c else (2 ** self.encoder_bits,), dtype=float) * np.ones(n)
+        return (2 * np.pi / counts(self.encoder_counts_load),
+                2 * np.pi / (counts(self.encoder_counts_motor) * float(self.gear_ratio)))
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "HardwareConfig":
@@ -134,6 +150,8 @@ class HardwareConfig:
             if isinstance(b, bool) or not isinstance(b, int) or not 8 <= b <= 32:
                 raise ConfigError(source, "hardware.encoder_bits", f"must be an integer in 8..32, got {b!r}")
             out["encoder_bits"] = b
+        if "encoder_counts" in d:
+            out.update(cls._counts(source, d["encoder_counts"], n))
         if "torque_limit" in d:
             out["torque_limit"] = validate.num(source, "hardware.torque_limit", d["torque_limit"], positive=True)
         if "torque_noise" in d:
@@ -141,7 +159,34 @@ class HardwareConfig:
         out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
         return cls(**out)
 
+    @classmethod
+    def _counts(cls, source: str, ec: Any, n: int) -> dict:
+        """``hardware.encoder_counts``: {load: C, motor: C}, C an integer (every joint) or a list of n."""
+        key = "hardware.encoder_counts"
+        if not isinstance(ec, Mapping):
+            raise ConfigError(source, key, "must be a mapping like {load: 8000, motor: 2000} (counts per "
+                                           f"revolution of the shaft each encoder reads), got {ec!r}")
+        out = {}
+        for side, v in ec.items():
+            if side not in cls.COUNT_SIDES:
+                raise ConfigError(source, f"{key}.{side}", f"unknown side; allowed: {', '.join(cls.COUNT_SIDES)}")
+            vals = list(v) if isinstance(v, (list, tuple)) else [v]
+            if len(vals) not in (1, n) or any(isinstance(x, bool) or not isinstance(x, int) or not 4 <= x <= 2 ** 32
+                                              for x in vals):
+                raise ConfigError(source, f"{key}.{side}", "must be an integer in 4..2^32 (counts per revolution)"
+                                                           f"{'' if n == 1 else f' or a list of {n}'}, got {v!r}")
+            out[f"encoder_counts_{side}"] = tuple(vals) * (n if len(vals) == 1 else 1)
+        return out
+
     def to_dict(self) -> dict:
-        out = {k: v for k, v in dataclasses.asdict(self).items() if k != "bus"}
+        out = {k: v for k, v in dataclasses.asdict(self).items()
+               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor")}
+        counts = {}
+        for side in self.COUNT_SIDES:
+            c = getattr(self, f"encoder_counts_{side}")
+            if c:
+                counts[side] = c[0] if len(set(c)) == 1 else list(c)
+        if counts:
+            out["encoder_counts"] = counts
         out["bus"] = self.bus.to_dict()
         return out

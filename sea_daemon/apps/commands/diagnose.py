@@ -1,7 +1,6 @@
 """``sea-daemon diagnose LOG.csv --config MODEL.yaml --out DIR`` (docs/interfaces.md §3, §4)."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from sea_daemon.apps.commands import add_log_and_config
 
@@ -24,20 +23,31 @@ def add_arguments(p) -> None:
     p.add_argument("--min-fraction", type=float, default=None, metavar="F",
                    help="smallest share of the residual's mean square an effect must explain (default 0.05)")
     p.add_argument("--min-effect-rms", type=float, default=None, metavar="NM",
-                   help="smallest RMS [N m] of an effect's share worth a model term (default 0.01)")
+                   help="smallest RMS [N m] of an effect's share worth a model term (default: a tenth of the "
+                        "log's RMS commanded torque, at most 0.01)")
+    p.add_argument("--holdout", type=float, default=None, metavar="F",
+                   help="share of the log at its end kept back and scored separately (time-blocked "
+                        "validation; default 0.25, 0: none)")
+    p.add_argument("--gp-akf", action="store_true",
+                   help="the validation also scores the GP-AKF, learned on the fit block (slower)")
+    p.add_argument("--apply", action="append", default=[], metavar="OTHER.csv",
+                   help="also run the AKF with the model before and after on OTHER.csv (repeatable): "
+                        "τ̂_h,act with its bound next to the spring torque, in the report")
+    p.add_argument("--max-rows", type=int, default=None, metavar="N",
+                   help="a longer log is diagnosed on ten segments of N/10 rows spread over it (memory and "
+                        "time bounded; default 100000, 0: the whole log)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
 
 def run(args) -> int:
     from sea_daemon.io.configfile import load_config
     from sea_daemon.apps.diagnose import SelectOptions, diagnose
-    from sea_daemon.apps.diagnose.long_log import excerpt
     from sea_daemon.errors import InputError
     from sea_daemon.io.files import check_output_dir, check_outputs
     from sea_daemon.io.logcsv import read_log
 
     # before any work: DIR can be written and none of its files is an input
-    inputs = [args.log, args.config]
+    inputs = [args.log, args.config, *args.apply]
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a directory")
@@ -47,11 +57,7 @@ def run(args) -> int:
         if i.suffix.lower() == ".png" and i.resolve().parent == out.resolve():
             raise InputError(f"--out {out}: holds the input {i}, and diagnose writes its plots there")
     cfg = load_config(args.config)
-    log, part = excerpt(read_log(args.log, n=cfg.joints))
-    if part is not None:          # a long log: one contiguous excerpt at the log's rate (long_log)
-        print(f"diagnose: note: {args.log} has {part['samples']} samples; analysing the {len(log)} with the most "
-              f"motion, samples {part['first']}..{part['last']} (t = {part['t_first']:.6g} .. "
-              f"{part['t_last']:.6g} s): at most {part['analysed']} per diagnosis", file=sys.stderr)
+    log = read_log(args.log, n=cfg.joints)
     opts = SelectOptions()
     for name, attr in (("min_fraction", "min_fraction"), ("min_effect_rms", "min_effect_rms")):
         v = getattr(args, name)
@@ -59,7 +65,17 @@ def run(args) -> int:
             if not (v >= 0 and v == v and v != float("inf")):
                 raise InputError(f"--{name.replace('_', '-')}: must be a finite number >= 0, got {v}")
             setattr(opts, attr, v)
-    res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots)
+    if args.holdout is not None:
+        if not (0.0 <= args.holdout <= 0.5):
+            raise InputError(f"--holdout: must be in [0, 0.5] (a share of the log), got {args.holdout}")
+        opts.holdout = args.holdout
+    opts.validate_gp_akf = bool(args.gp_akf)
+    if args.max_rows is not None:
+        if args.max_rows < 0:
+            raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
+        opts.max_rows = args.max_rows or None
+    others = [read_log(p, n=cfg.joints) for p in args.apply]
+    res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others)
     print(f"diagnose {log.path}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
           f"{res['residual_rms_after']:.4g} N m")
     if res["effects_added"]:

@@ -33,7 +33,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
 from sea_daemon.core.model import SEAModel
-from sea_daemon.apps.diagnose.residuals import Kinematics, residuals_for
+from sea_daemon.apps.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
 
 
 @dataclass
@@ -45,7 +45,41 @@ class Context:
     r0: np.ndarray                      # (N, 2n) residual of cfg
     passive: bool = False
     zoh: bool = True
+    #: speed [rad/s] below which a side counts as sticking, per side (load, motor); None: 3 ε
+    v_stick: tuple[float, float] | None = None
     _model: SEAModel | None = field(default=None, repr=False)
+    _fast: FastGain | None = field(default=None, repr=False)
+
+    @property
+    def fast_gain(self) -> FastGain:
+        """The drive's gain from the fast part of the command (:func:`.residuals.fast_command_gain`),
+        over the samples where the motor moves faster than its stick speed."""
+        if self._fast is None:
+            v = self.v_stick[1] if self.v_stick is not None else stick_velocity(self.cfg)
+            self._fast = fast_command_gain(self.model, self.kin, v, self.zoh)
+        return self._fast
+
+    def largest_torque(self, side: str, j: int) -> float:
+        """The largest torque [N m] the log's balance puts on ``side`` of joint ``j``: the sum of
+        the largest spring torque, inertial torque (smoothed acceleration), gravity, commanded
+        torque (motor) and human torque (load, when the log has it).  A friction that held more
+        than this at rest would never have let that side move as the log shows."""
+        kin, m = self.kin, self.model
+        q, th = self.angles()
+        tau_s = float(np.max(np.abs((q - th) @ m.K_s.T)[:, j]))
+        if side == "load":
+            out = tau_s + float(np.max(np.abs(kin.ddq @ m.M.T)[:, j])) + float(np.max(np.abs(m.C(q))[:, j]))
+            if kin.tau_h_act is not None and not self.passive:
+                out += float(np.max(np.abs(kin.tau_h_act[:, j])))
+            return out
+        return (tau_s + float(np.max(np.abs(kin.ddtheta_m @ m.J.T)[:, j]))
+                + float(m.kappa[j]) * float(np.max(np.abs(kin.tau_m[:, j]))))
+
+    def stick_speed(self, side: str) -> float:
+        """The speed [rad/s] below which ``side`` counts as sticking (3 ε without encoder data)."""
+        if self.v_stick is None:
+            return stick_velocity(self.cfg)
+        return float(self.v_stick[0 if side == "load" else 1])
 
     @property
     def model(self) -> SEAModel:
@@ -58,7 +92,8 @@ class Context:
         return self.kin.n
 
     def residual(self, effects=()) -> np.ndarray:
-        return residuals_for(self.cfg, self.kin, effects, zoh=self.zoh, passive=self.passive)
+        kw = {} if self.v_stick is None else {"v_stick": self.v_stick}
+        return residuals_for(self.cfg, self.kin, effects, zoh=self.zoh, passive=self.passive, **kw)
 
     def delta_r(self, effects) -> np.ndarray:
         """Δr = r(cfg) − r(cfg + effects), flattened (N·2n,)."""
@@ -149,6 +184,22 @@ class Candidate:
     def effect(self, params: dict[str, float]) -> Effect:
         return make_effect(self.type, self.side, self.joint, **params)
 
+    # --- physical sense (the joint refinement's arbiter between correlated effects)
+    #: the parameter whose size says how much of the effect there is (None: not one number)
+    size_param: str | None = None
+
+    def magnitude(self, params: dict) -> float | None:
+        """How much of the effect there is (0: none), for telling a refinement that takes an
+        effect away."""
+        return abs(float(params[self.size_param])) if self.size_param in params else None
+
+    def implausible(self, ctx: Context, params: dict) -> str | None:
+        """Why these parameters are not physical for this hardware, or None."""
+        return None
+
+    def describe(self, params: dict) -> str:
+        return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+
     # --- helpers
     def _unit(self, ctx: Context, **params) -> np.ndarray:
         return ctx.delta_r([self.effect(params)])
@@ -188,6 +239,8 @@ class CoulombC(Candidate):
     type, linear, params = "coulomb", ("F_c",), ("F_c",)
     nonneg = (0,)
 
+    size_param = "F_c"
+
     def design(self, ctx, theta):
         return None, self._unit(ctx, F_c=1.0)[:, None]
 
@@ -195,11 +248,24 @@ class CoulombC(Candidate):
         return {"F_c": float(beta[0])}
 
     def bounds(self, ctx):
-        return {"F_c": (0.0, np.inf)}
+        return {"F_c": (0.0, ctx.largest_torque(self.side, self.joint))}
+
+    def implausible(self, ctx, params):
+        return _static_friction_implausible(ctx, self, params["F_c"])
 
 
 class ViscousC(Candidate):
     type, linear, params = "viscous", ("b",), ("b",)
+
+    size_param = "b"
+
+    def implausible(self, ctx, params):
+        # the side's total damping (declared + this) cannot be negative
+        d = _declared_damping(ctx, self.side, self.joint)
+        if params["b"] < -d - 1e-12:
+            return (f"b = {params['b']:.4g} N m s/rad makes the {self.side} side's damping negative "
+                    f"(declared {d:.4g})")
+        return None
 
     def design(self, ctx, theta):
         return None, self._unit(ctx, b=1.0)[:, None]
@@ -210,6 +276,15 @@ class ViscousC(Candidate):
 
 class InertiaC(Candidate):
     type, linear, params = "inertia", ("dI",), ("dI",)
+
+    size_param = "dI"
+
+    def implausible(self, ctx, params):
+        m = ctx.model
+        I0 = float((m.params.M if self.side == "load" else m.params.J)[self.joint, self.joint])
+        if params["dI"] < -0.9 * I0:
+            return f"dI = {params['dI']:.4g} kg m² leaves the {self.side} side under a tenth of its inertia ({I0:.4g})"
+        return None
 
     def design(self, ctx, theta):
         return None, self._unit(ctx, dI=1.0)[:, None]
@@ -226,6 +301,8 @@ class GravityC(Candidate):
     """a sin(q + φ) = a cos φ · sin q + a sin φ · cos q."""
 
     type, linear, params = "gravity", ("a_cos_phi", "a_sin_phi"), ("a", "phi")
+
+    size_param = "a"
 
     def design(self, ctx, theta):
         s = self._unit(ctx, a=1.0, phi=0.0)
@@ -268,6 +345,17 @@ class HumanViscoelasticC(Candidate):
 class SpringCubicC(Candidate):
     type, linear, params = "spring_cubic", ("k3",), ("k3",)
 
+    size_param = "k3"
+
+    def implausible(self, ctx, params):
+        # the spring must stay a spring: K_s + 3 k3 θ_s² > 0 over the deflections of the log
+        a, _, _ = self._side_signals(ctx)
+        K = float(ctx.model.K_s[self.joint, self.joint])
+        th = float(np.max(np.abs(a)))
+        if K + 3.0 * params["k3"] * th**2 <= 0.1 * K:
+            return f"k3 = {params['k3']:.4g} N m/rad³ softens the spring to under a tenth of K_s at |θ_s| = {th:.3g} rad"
+        return None
+
     def design(self, ctx, theta):
         return None, self._unit(ctx, k3=1.0)[:, None]
 
@@ -279,10 +367,61 @@ class SpringCubicC(Candidate):
         return a, "θ_s [rad]"
 
 
+class TorqueOffsetC(Candidate):
+    """Δr = −tau_0 on r_motor (the drive delivers tau_0 more): X = Δr(tau_0 = 1)."""
+
+    type, linear, params = "torque_offset", ("tau_0",), ("tau_0",)
+    size_param = "tau_0"
+
+    def design(self, ctx, theta):
+        return None, self._unit(ctx, tau_0=1.0)[:, None]
+
+    def natural(self, beta, theta):
+        return {"tau_0": float(beta[0])}
+
+    def regressor(self, ctx, theta=None):
+        return ctx.kin.t, "t [s]"
+
+
 class TorqueScaleC(Candidate):
     """Δr(κ) = (1 − κ)·κ₀τ_m on r_motor: X = Δr(κ = 2) = −κ₀τ_m, β = κ − 1."""
 
     type, linear, params = "torque_scale", ("kappa_minus_1",), ("kappa",)
+
+    #: delivered / commanded torque a working drive can have (gear efficiency, amplifier gain)
+    PLAUSIBLE = (0.2, 2.0)
+    #: relative tolerance of the fast-part gain (the amplifier's bandwidth, the filters' phase)
+    FAST_TOL = 0.25
+    #: the fast part decides only when its 95 % half-width is below this share of its value
+    FAST_INFORMATIVE = 0.2
+
+    def magnitude(self, params):
+        return abs(float(params["kappa"]) - 1.0)
+
+    def fast_range(self, ctx) -> tuple[float, float] | None:
+        """The gains the fast part of the command allows, or None when it does not decide
+        (:func:`.residuals.fast_command_gain`)."""
+        g = ctx.fast_gain
+        k, hw = float(g.kappa[self.joint]), float(g.half_width[self.joint])
+        if not (np.isfinite(k) and np.isfinite(hw) and k > 0 and hw < self.FAST_INFORMATIVE * k):
+            return None
+        tol = max(hw, self.FAST_TOL * k)
+        return k - tol, k + tol
+
+    def implausible(self, ctx, params):
+        lo, hi = self.PLAUSIBLE
+        k = params["kappa"]
+        if not lo <= k <= hi:
+            return (f"κ = {k:.3g}: the drive would deliver {'under a fifth' if k < lo else 'over twice'} "
+                    "the torque commanded")
+        fr = self.fast_range(ctx)
+        if fr is not None and not fr[0] <= k <= fr[1]:
+            g = ctx.fast_gain
+            return (f"κ = {k:.3g} from the slow part of the command, but its fast part reaches the motor with "
+                    f"κ = {g.kappa[self.joint]:.3g} ± {g.half_width[self.joint]:.2g}: a gain scales every "
+                    "frequency alike, so the slow shortfall is something the controller works against "
+                    "(friction, an offset), not a gain")
+        return None
 
     def design(self, ctx, theta):
         return None, self._unit(ctx, kappa=2.0)[:, None]
@@ -291,7 +430,8 @@ class TorqueScaleC(Candidate):
         return {"kappa": 1.0 + float(beta[0])}
 
     def bounds(self, ctx):
-        return {"kappa": (1e-3, np.inf)}
+        # the refinement stays within what a working drive can deliver
+        return {"kappa": self.PLAUSIBLE}
 
     def regressor(self, ctx, theta=None):
         return ctx.kin.tau_m[:, self.joint], "τ_m [N m]"
@@ -306,6 +446,8 @@ class EncoderOffsetC(Candidate):
     type, linear, nonlinear, params = "encoder_offset", (), "delta", ("delta",)
     gauss_newton = True
     H = 1e-4
+
+    size_param = "delta"
 
     def design(self, ctx, theta):
         return self._unit(ctx, delta=float(theta)), np.zeros((ctx.r0.size, 0))
@@ -327,6 +469,8 @@ class StribeckC(Candidate):
     type, linear, nonlinear, params = "stribeck", ("F_s",), "v_s", ("F_s", "v_s")
     nonneg = (0,)
 
+    size_param = "F_s"
+
     def grid(self, ctx):
         _, v, _ = self._side_signals(ctx)
         vmax = max(float(np.percentile(np.abs(v), 99)), 1e-3)
@@ -339,13 +483,33 @@ class StribeckC(Candidate):
         return {"F_s": float(beta[0]), "v_s": float(theta)}
 
     def bounds(self, ctx):
-        return {"F_s": (0.0, np.inf), "v_s": (1e-4, np.inf)}
+        return {"F_s": (0.0, ctx.largest_torque(self.side, self.joint)),
+                "v_s": (ctx.stick_speed(self.side) / 3.0, np.inf)}
+
+    def implausible(self, ctx, params):
+        v0 = ctx.stick_speed(self.side) / 3.0
+        if params["v_s"] < v0:
+            return (f"v_s = {params['v_s']:.3g} rad/s: a hump below a third of the {self.side} side's stick speed "
+                    f"({3 * v0:.3g} rad/s) acts only where the encoders cannot tell motion from standing still")
+        return _static_friction_implausible(ctx, self, params["F_s"])
 
 
 class CoggingC(Candidate):
     """A sin(P θ_m + φ) = A cos φ · sin Pθ_m + A sin φ · cos Pθ_m, P on a grid."""
 
     type, linear, nonlinear, params = "cogging", ("A_cos_phi", "A_sin_phi"), "periods", ("A", "periods", "phi")
+    #: fewest ripple periods over the log's travel
+    MIN_PERIODS = 2.0
+
+    def implausible(self, ctx, params):
+        a, _, _ = self._side_signals(ctx)
+        n_per = params["periods"] * float(np.ptp(a)) / (2 * math.pi)
+        if n_per < self.MIN_PERIODS:
+            return (f"{params['periods']:.3g} periods per radian repeat only {n_per:.2g} times over the log's travel "
+                    "(a ripple must repeat to be told from any other smooth function of the angle)")
+        return None
+
+    size_param = "A"
 
     def grid(self, ctx):
         a, v, _ = self._side_signals(ctx)
@@ -355,7 +519,10 @@ class CoggingC(Candidate):
         span = max(float(np.ptp(a)), 1e-6)
         # one period change across the travelled range is the resolution in P
         step = 0.25 * 2 * math.pi / span
-        return list(np.arange(max(step, 0.5), pmax, step))
+        # a ripple repeats: at least MIN_PERIODS of it over the travelled range (fewer is a
+        # smooth function of the angle that the log cannot tell from any other)
+        pmin = max(self.MIN_PERIODS * 2 * math.pi / span, 0.5)
+        return list(np.arange(pmin, pmax, step))
 
     def design(self, ctx, theta):
         s = self._unit(ctx, A=1.0, periods=float(theta), phi=0.0)
@@ -386,6 +553,8 @@ class SpringSaturationC(Candidate):
     type, linear, nonlinear, params = "spring_saturation", ("k_stop",), "theta_max", ("theta_max", "k_stop")
     nonneg = (0,)
 
+    size_param = "k_stop"
+
     def grid(self, ctx):
         a, _, _ = self._side_signals(ctx)
         qs = np.percentile(np.abs(a), [40, 97])
@@ -414,14 +583,28 @@ class BacklashC(Candidate):
     #: share of the samples that must lie on each side of the dead band
     MIN_SIDE = 0.02
 
+    size_param = "width"
+
+    def implausible(self, ctx, params):
+        # a dead band that holds most deflections of the log leaves the spring carrying no
+        # torque most of the time: that is not play, it is the model switching the spring off
+        a, _, _ = self._side_signals(ctx)
+        inside = float(np.mean(np.abs(a) < 0.5 * params["width"]))
+        if inside > 0.5:
+            return (f"a dead band of {params['width']:.4g} rad holds {100 * inside:.0f} % of the log's spring "
+                    "deflections (the spring would carry no torque most of the time)")
+        return None
+
     def grid(self, ctx):
-        """Widths whose dead band the deflection passes: samples on both sides of ±w/2.
+        """Widths whose dead band the deflection passes: samples on both sides of ±w/2, the
+        band holding at most half of them.
 
         With a deflection of one sign only, a dead band is an exactly constant spring-torque
         offset, indistinguishable from an encoder offset: no evidence of backlash, no width.
         """
         a, _, _ = self._side_signals(ctx)
-        wmax = 2.0 * float(np.percentile(np.abs(a), 90))
+        # up to a dead band that holds half the deflections (wider is not play: see implausible)
+        wmax = 2.0 * float(np.median(np.abs(a)))
         ws = np.linspace(wmax / 30, wmax, 30)
         return [float(w) for w in ws
                 if np.mean(a > w / 2) >= self.MIN_SIDE and np.mean(a < -w / 2) >= self.MIN_SIDE]
@@ -433,8 +616,9 @@ class BacklashC(Candidate):
         return {"width": float(theta)}
 
     def bounds(self, ctx):
+        # up to a dead band that holds half the log's deflections (see implausible)
         a, _, _ = self._side_signals(ctx)
-        return {"width": (0.0, 2.0 * float(np.max(np.abs(a))))}
+        return {"width": (0.0, 2.0 * float(np.median(np.abs(a))))}
 
     def regressor(self, ctx, theta=None):
         a, _, _ = self._side_signals(ctx)
@@ -445,6 +629,8 @@ class DelayC(Candidate):
     """Structural: Δr(d) = κ₀(τ_m(t) − τ_m(t − d)) on r_motor; no free coefficient."""
 
     type, linear, nonlinear, params = "delay", (), "seconds", ("seconds",)
+
+    size_param = "seconds"
 
     def grid(self, ctx):
         dt = ctx.kin.dt
@@ -464,11 +650,33 @@ class DelayC(Candidate):
         return np.gradient(k.smooth(k.tau_m[:, self.joint]), k.t), "τ̇_m [N m/s]"
 
 
+def _static_friction_implausible(ctx: Context, cand: Candidate, amplitude: float) -> str | None:
+    """Why a friction amplitude is not physical: above the largest torque the log puts on that
+    side (:meth:`Context.largest_torque`), it would have held the side still for good."""
+    top = ctx.largest_torque(cand.side, cand.joint)
+    if amplitude > top:
+        return (f"{cand.size_param} = {amplitude:.4g} N m exceeds every torque on the {cand.side} side in this log "
+                f"(at most {top:.3g} N m): it would never have let that side move")
+    return None
+
+
+def _declared_damping(ctx: Context, side: str, j: int) -> float:
+    """Viscous damping [N m s/rad] the configuration already gives a side: D_m on the motor,
+    declared viscous effects and a human's b_h."""
+    m = ctx.model
+    d = float(m.D_m[j, j]) if side == "motor" else 0.0
+    for e in m.effects:
+        if e.joint == j and e.side == side:
+            d += float(getattr(e, "b", 0.0)) + float(getattr(e, "b_h", 0.0))
+    return d
+
+
 _CLASSES = {
     "coulomb": CoulombC, "viscous": ViscousC, "stribeck": StribeckC, "inertia": InertiaC,
     "gravity": GravityC, "human_viscoelastic": HumanViscoelasticC, "spring_cubic": SpringCubicC,
     "spring_backlash": BacklashC, "torque_scale": TorqueScaleC, "encoder_offset": EncoderOffsetC,
     "delay": DelayC, "cogging": CoggingC, "spring_saturation": SpringSaturationC,
+    "torque_offset": TorqueOffsetC,
 }
 
 

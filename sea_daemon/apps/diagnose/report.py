@@ -19,6 +19,15 @@ def _fmt(v, nd=4):
     return str(v)
 
 
+def _shade_holdout(ax, dg, t) -> None:
+    """Grey band over the held-out validation block, if any."""
+    blocks = getattr(dg, "blocks", None) or {}
+    m = blocks.get("held_out_block")
+    if m is not None and m.any():
+        idx = np.flatnonzero(m)
+        ax.axvspan(t[idx[0]], t[idx[-1]], color="0.85", zorder=0, label="held-out block")
+
+
 def plot_residuals(dg, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -37,6 +46,7 @@ def plot_residuals(dg, path: Path) -> None:
         ax.plot(t, dg.r_after[:, ch], lw=0.8, color="tab:blue",
                 label=f"after (RMS {np.sqrt(np.mean(dg.r_after[:, ch]**2)):.3g} N m)")
         ax.axhline(0, color="k", lw=0.5)
+        _shade_holdout(ax, dg, t)
         ax.set_ylabel(f"r_{side}{'' if n == 1 else f'[{j + 1}]'} [N m]")
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("t [s]")
@@ -55,6 +65,7 @@ def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    log = dg.work.log if getattr(dg, "work", None) is not None else log
     n = log.n
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(log.q)
     fig, axes = plt.subplots(n, 1, figsize=(10, 3.4 * n), sharex=True, squeeze=False)
@@ -65,6 +76,7 @@ def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
             ax.plot(log.t, b[:, j], color="tab:red", lw=0.9, label=f"AKF, model before (RMSE {dg.est['before']:.3g} N m)")
         if a is not None:
             ax.plot(log.t, a[:, j], color="tab:blue", lw=0.9, label=f"AKF, model after (RMSE {dg.est['after']:.3g} N m)")
+        _shade_holdout(ax, dg, log.t)
         ax.set_ylabel(f"τ̂_h,act{'' if n == 1 else f'[{j + 1}]'} [N m]")
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("t [s]")
@@ -155,11 +167,17 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
                   "| # | type | side | parameters (95 % CI) | share of mean square | confidence |",
                   "|---|---|---|---|---|---|"]
         for i, d in enumerate(res["effects_added"], 1):
-            ps = "; ".join(f"{p} = {_fmt(v)} [{_fmt(d['ci95'].get(p, [None, None])[0])}, {_fmt(d['ci95'].get(p, [None, None])[1])}]"
+            ps = "; ".join((f"{p} ≥ {_fmt(v)} (the sticking phases bound it from below only)"
+                            if p in d.get("lower_bound_only", ()) else
+                            f"{p} = {_fmt(v)} [{_fmt(d['ci95'].get(p, [None, None])[0])}, "
+                            f"{_fmt(d['ci95'].get(p, [None, None])[1])}]")
                            for p, v in d["params"].items())
             side = d["side"] + (f"[{d['joint']}]" if "joint" in d else "")
             lines.append(f"| {i} | {d['type']} | {side} | {ps} | {100 * d['explained_fraction']:.1f} % | {d['confidence']} |")
         lines.append("")
+    v = res.get("validation")
+    if v:
+        lines += _validation_lines(v)
     lines += ["## Candidates tried", "",
               "Every type of the effect vocabulary on every side it may sit on.  At each step all "
               "remaining candidates are fitted jointly with the effects already chosen (nonlinear "
@@ -169,7 +187,7 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
               "time segments falls by at least "
               f"{100 * dg.selector.opts.min_cv_gain:.0f} %, it explains at least {100 * dg.selector.opts.min_fraction:.0f} % "
               f"of the initial mean square or {100 * dg.selector.opts.min_fraction_current:.0f} % of what is left, and its "
-              f"share is at least {dg.selector.opts.min_effect_rms} N m RMS over the log.  Of two that fit about equally "
+              f"share is at least {dg.selector.opts.min_effect_rms:.3g} N m RMS over the log.  Of two that fit about equally "
               "well, BIC prefers the one with fewer parameters; near-ties are reported as alternatives.  Shares of "
               "the mean square are counted over the whole log, as Shapley values (each effect's decrease of the "
               "sum of squares averaged over every order of adding them), at the final parameters (refined "
@@ -197,6 +215,28 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
               f"- residual autocorrelation time: {_fmt(f['autocorrelation_time_samples'])} samples (widens the CIs and "
               "shrinks the effective sample size of BIC)",
               f"- candidates: {f['candidates']}", ""]
+    for k, ap in enumerate(getattr(dg, "applied", []) or [], 1):
+        name = f"apply_{k}_{Path(ap['log']).stem}.png"
+        sm = ap["summary"]
+        lines += [f"## The model on `{Path(ap['log']).name}`", "",
+                  "The AKF run over this log with the model before and after the diagnosis; the band is each "
+                  "estimate's bound (the filter's own interval, √(χ²(1−δ) P_ττ)), the black line the spring torque "
+                  "K_s θ_s.", "",
+                  "| | before | after |", "|---|---|---|",
+                  f"| peak \\|τ̂_h,act\\| [N m] | {_fmt(sm['before']['peak_abs'])} | {_fmt(sm['after']['peak_abs'])} |",
+                  f"| mean bound [N m] | {_fmt(sm['before']['mean_bound'])} | {_fmt(sm['after']['mean_bound'])} |",
+                  f"| mean NIS | {_fmt(sm['before']['nis_mean'])} | {_fmt(sm['after']['nis_mean'])} |",
+                  f"| share of the log where the interval excludes 0 | {_fmt(sm['before']['share_nonzero'])} | "
+                  f"{_fmt(sm['after']['share_nonzero'])} |"]
+        lines.append(f"| Theorem-1 ρ, median [N m] (share wider than the peak spring torque) | "
+                     f"{_theorem1_cell(sm['before'])} | {_theorem1_cell(sm['after'])} |")
+        if "rmse" in sm["after"]:
+            lines.append(f"| τ̂_h,act RMSE [N m] | {_fmt(sm['before']['rmse'])} | {_fmt(sm['after']['rmse'])} |")
+        lines += [""] + ap["claims"] + [""]
+        if plots:
+            from sea_daemon.apps.diagnose.apply import plot_applied
+            plot_applied(ap, out / name, f"{Path(ap['log']).name}: estimated human torque before and after the diagnosis")
+            lines += ["", f"![{name}]({name})", ""]
     if plots:
         plot_residuals(dg, out / "residuals.png")
         lines += ["## Plots", "", "![residuals before and after](residuals.png)", ""]
@@ -210,3 +250,47 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
             plot_structure(dg, out / "leftover.png")
             lines += ["![leftover residual against the state](leftover.png)", ""]
     (out / "report.md").write_text("\n".join(lines))
+
+
+def _theorem1_cell(s: dict) -> str:
+    t = s.get("theorem1") or {}
+    if not t or t.get("diverged"):
+        return "diverges"
+    return f"{_fmt(t['median'], 3)} ({100 * t['share_vacuous']:.0f} %)"
+
+
+def _validation_lines(v: dict) -> list[str]:
+    fb, hb = v["fit_block"], v["held_out_block"]
+    lines = ["## Validation on a held-out time block", "",
+             f"The log's last part ({_fmt(hb['t_s'][0])}–{_fmt(hb['t_s'][1])} s, {hb['samples']} samples) is kept "
+             f"back; the first part ({_fmt(fb['t_s'][0])}–{_fmt(fb['t_s'][1])} s) is fitted.  Two checks: *refit* — the "
+             "effects found on the whole log, their parameters fitted again on the first part alone; *selection* — "
+             "the whole diagnosis repeated on the first part alone (it may find other effects).  Errors over each "
+             "block (the smoother's ends aside); the AKF runs over the whole log and is scored per block.", "",
+             "| check | block | residual RMS before → after [N m] | × | AKF τ̂_h,act RMSE before → after [N m] | × |",
+             "|---|---|---|---|---|---|"]
+    for key in ("refit", "selection"):
+        d = v.get(key)
+        if not d:
+            continue
+        for blk, label in (("fit_block", "fitted"), ("held_out_block", "held out")):
+            b = d[blk]
+            rr = d["residual"]["improvement_fit_block" if blk == "fit_block" else "improvement_held_out"]
+            ee = d["estimate"]["improvement_fit_block" if blk == "fit_block" else "improvement_held_out"]
+            lines.append(f"| {key} | {label} | {_fmt(b['residual_rms_before'])} → {_fmt(b['residual_rms_after'])} | "
+                         f"{_fmt(rr, 3)} | {_fmt(b['estimate_rmse_before'])} → {_fmt(b['estimate_rmse_after'])} | {_fmt(ee, 3)} |")
+    lines.append("")
+    for key in ("refit", "selection"):
+        d = v.get(key)
+        if not d:
+            continue
+        eff = ", ".join(f"{e['type']} ({e['side']}): " + ", ".join(f"{k}={_fmt(x)}" for k, x in e["params"].items())
+                        for e in d["effects"]) or "nothing"
+        lines.append(f"- {key}: {eff}.  Share of the fitted block's reduction that holds out of sample: residual "
+                     f"{_fmt(d['residual']['held_out_share'], 3)}, AKF {_fmt(d['estimate']['held_out_share'], 3)}.")
+        if "gp_akf" in d:
+            g = d["gp_akf"]
+            lines.append(f"  GP-AKF learned on the fitted block: held-out RMSE {_fmt(g['held_out_block']['estimate_rmse_before'])} "
+                         f"→ {_fmt(g['held_out_block']['estimate_rmse_after'])} N m ({_fmt(g['improvement_held_out'], 3)}×).")
+    lines.append("")
+    return lines

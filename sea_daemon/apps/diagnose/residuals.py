@@ -35,6 +35,7 @@ channels first.  Everything here is vectorised over time; the per-sample maths i
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,6 +92,8 @@ class Kinematics:
             self._sg = savgol_coeffs(w, min(self.degree, w - 1))
         return correlate1d(np.asarray(x, dtype=float), self._sg, axis=0, mode="nearest")
 
+
+Z95 = 1.959963984540054
 
 #: default length [s] of the zero-phase Savitzky–Golay window (degree 3).  Long enough that
 #: the acceleration noise from the motor-torque noise does not bias inertia-like terms
@@ -196,7 +199,7 @@ def _deadzone(x: np.ndarray, F: float) -> np.ndarray:
 
 
 def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
-                      passive: bool = False, v_stick: float = 0.0) -> np.ndarray:
+                      passive: bool = False, v_stick: float | tuple[float, float] = 0.0) -> np.ndarray:
     """(N, 2n) array [r_load, r_motor] of the model on the log (see module docstring).
 
     ``passive``: ignore the log's tau_h_act column (ass:passive_human).
@@ -205,7 +208,8 @@ def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
     Σ F_c + F_s, Coulomb's law at rest): the residual there is only what exceeds the limit.
     The smoothed sign of the model (tanh(v/ε), for the estimator's Jacobians) cannot hold a
     stuck joint, so without this every turning point would leave a residual of up to the
-    static friction that no candidate could ever explain.  0 disables it.
+    static friction that no candidate could ever explain.  0 disables it.  A pair
+    (load, motor) gives each side its own speed (encoders of different resolution).
     """
     n = kin.n
     # declared encoder offsets: the encoders read angle + δ (docs/interfaces.md §2)
@@ -225,18 +229,116 @@ def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
     mo = (applied_torque(model, kin, zoh) - kin.d2theta_m @ model.J.T - dth @ model.D_m.T - fr_m
           - _effect_sum([e for e in model.motor_effects if e not in fric_m], n, th, dth, kin.ddtheta_m) + tau_s)
     r_l, r_m = -lo, mo
-    if v_stick > 0:
+    vs_l, vs_m = (v_stick, v_stick) if np.isscalar(v_stick) else v_stick
+    if vs_l > 0 or vs_m > 0:
         F_l, F_m = _static_limit(fric, n), _static_limit(fric_m, n)
         for j in range(n):
-            if F_l[j] > 0:
-                st = np.abs(dq[:, j]) < v_stick
+            if F_l[j] > 0 and vs_l > 0:
+                st = np.abs(dq[:, j]) < vs_l
                 # the friction that balances the load side, bounded by the static limit
                 r_l[st, j] = _deadzone(r_l[st, j] + fr_l[st, j], F_l[j])
-            if F_m[j] > 0:
-                st = np.abs(dth[:, j]) < v_stick
+            if F_m[j] > 0 and vs_m > 0:
+                st = np.abs(dth[:, j]) < vs_m
                 r_m[st, j] = _deadzone(r_m[st, j] + fr_m[st, j], F_m[j])
     # r_load = S(τ_h,act − (M q̈ + C + Σ e + τ_s)),  r_motor = S(κτ_m − (J θ̈_m + D_m θ̇_m + Σ e − τ_s))
     return kin.smooth(np.hstack([r_l, r_m]))
+
+
+def integrated_autocorr_time(y: np.ndarray, max_lag: int = 200) -> float:
+    """τ_int = 1 + 2 Σ ρ_k (summed until ρ_k first drops below 0.05), per column, max over columns.
+
+    Sokal's estimator (Monte Carlo textbook); y (N, c)."""
+    y = np.atleast_2d(y.T).T
+    taus = []
+    for col in y.T:
+        x = col - col.mean()
+        v = float(np.dot(x, x))
+        if v <= 0:
+            continue
+        L = min(max_lag, len(x) // 4)
+        f = np.fft.rfft(x, 2 * len(x))
+        ac = np.fft.irfft(f * np.conj(f))[:L + 1] / v
+        s = 1.0
+        for k in range(1, L + 1):
+            if ac[k] < 0.05:
+                break
+            s += 2.0 * ac[k]
+        taus.append(s)
+    return float(max(taus)) if taus else 1.0
+
+
+#: samples of the short Savitzky–Golay low-pass (degree 2) that keeps the encoder's
+#: second-difference noise out of the fast part of the motor balance (:func:`fast_command_gain`)
+FAST_LOWPASS = 5
+
+
+@dataclass
+class FastGain:
+    """The gain with which the fast part of the command reaches the motor side, per joint."""
+
+    kappa: np.ndarray        # (n,) delivered / commanded, relative to the declared κ₀ times κ₀
+    half_width: np.ndarray   # (n,) 95 % half-width (NaN: too few moving samples)
+    samples: np.ndarray      # (n,) moving samples used
+
+
+def fast_command_gain(model: SEAModel, kin: Kinematics, v_moving: float, zoh: bool = True) -> FastGain:
+    """κ of the drive from the fast part of the motor balance (eq:motorside), per joint.
+
+    A gain error of the drive scales every frequency of the command alike.  In a closed loop the
+    slow part of the command is what the controller needs against friction and offsets, so a
+    gain fitted to the smoothed residual can stand in for them (the command follows the
+    friction); the fast part — what the smoother S removes, x − S(x), low-passed over
+    :data:`FAST_LOWPASS` samples against the encoders' second-difference noise — is the
+    controller's reaction to noise and quantisation, which friction does not follow.  So with
+    b = J θ̈_m + D_m θ̇_m + Σ_motor e − τ_s (the declared motor side) and u = κ₀ τ_m(t − d − T/2),
+    b_fast = κ_rel u_fast − κ_rel d' u̇_fast + noise is fitted by least squares over the samples
+    where the motor moves (|θ̇_m| > ``v_moving``: a sticking motor takes up the command in its
+    static friction), d' a small undeclared delay.  The command is known exactly (no
+    errors-in-variables bias); the 95 % half-width is inflated by the autocorrelation time.
+    """
+    from scipy.ndimage import correlate1d
+
+    n = kin.n
+    q, th = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
+    dq, dth = kin.dq, kin.dtheta_m
+    tau_s = spring_torque(model, q - th, dq - dth)
+    # eq:motorside, the declared motor side without the applied torque
+    b = kin.d2theta_m @ model.J.T + dth @ model.D_m.T + _effect_sum(model.motor_effects, n, th, dth,
+                                                                     kin.ddtheta_m) - tau_s
+    u = applied_torque(model, kin, zoh)
+    du = np.gradient(u, kin.t, axis=0)
+    lp = savgol_coeffs(FAST_LOWPASS, 2)
+
+    def fast(x):
+        return correlate1d(x - kin.smooth(x), lp, axis=0, mode="nearest")
+    bf, uf, duf = fast(b), fast(u), fast(du)
+    N = kin.N
+    edge = min(kin.window, N // 4)
+    half = max(kin.window // 4, 1)
+    out = FastGain(np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, dtype=int))
+    for j in range(n):
+        still = np.abs(dth[:, j]) <= v_moving
+        # a sample near a stick phase sees it through the filters
+        near = np.convolve(still.astype(float), np.ones(2 * half + 1), mode="same") > 0
+        use = ~near
+        use[:edge] = use[N - edge:] = False
+        out.samples[j] = int(use.sum())
+        if use.sum() < 50:
+            continue
+        A = np.column_stack([uf[use, j], duf[use, j]])
+        y = bf[use, j]
+        beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        e = y - A @ beta
+        tau = integrated_autocorr_time(e[:, None])
+        try:
+            cov = np.linalg.inv(A.T @ A) * float(np.mean(e ** 2)) * tau
+        except np.linalg.LinAlgError:
+            continue
+        k0 = float(model.kappa[j])
+        # b = κ_rel u: the drive's κ = κ_rel κ₀
+        out.kappa[j] = float(beta[0]) * k0
+        out.half_width[j] = Z95 * math.sqrt(max(cov[0, 0], 0.0)) * k0
+    return out
 
 
 def residuals_for(cfg: ModelConfig, kin: Kinematics, effects=(), **kw) -> np.ndarray:
