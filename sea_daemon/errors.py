@@ -75,3 +75,4 @@ class Fault(enum.IntEnum):
     OVERRUN_STREAK = 11
     DEVICE_FAULT = 12          # drive reports CiA 402 fault state
     INTERNAL = 13              # an unexpected exception in the loop
+    INNOVATION_OUTLIER = 14    # assist mode: one step's normalised innovation beyond assist.innovation_max
