@@ -237,7 +237,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     import csv
     import socket
 
-    from sea_daemon.client import decode_tpdo, tpdo_cob_ids
+    from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
     from sea_daemon.io.configfile import save_config
 
     env = dict(os.environ, PYTHONPATH=str(repo_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -304,14 +304,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     with open(summary["log"]) as f:
         log = {int(float(row["cycle"])): row for row in csv.DictReader(f)}
-    by_cycle, pending = {}, None
-    for cob, data in frames:
-        d = decode_tpdo(cob, data, cfg.hardware.bus.master_node)
-        if "joint" in d:
-            pending = d
-        elif pending is not None:
-            by_cycle[d["cycle"]] = (pending, d)
-            pending = None
+    by_cycle = tpdo_cycles(frames, cfg.hardware.bus.master_node)
     got = [k for k in log if k in by_cycle]
     equal = inf_invalid = mismatch = 0
     for k in got:

@@ -33,7 +33,7 @@ from typing import Iterator
 
 from sea_daemon.errors import Fault, InputError
 
-__all__ = ["Sample", "Subscriber", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids",
+__all__ = ["Sample", "Subscriber", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids", "tpdo_cycles",
            "SOCKET_NAME", "FLAG_FAULT", "FLAG_ASSIST_ON", "FLAG_ASSIST_ENGAGED", "FLAG_ESTIMATOR",
            "TPDO_JOINT", "TPDO_STATUS"]
 
@@ -99,6 +99,21 @@ def decode_tpdo(cob_id: int, data: bytes, node: int = 127) -> dict:
                 "valid": [bool(valid >> j & 1) for j in range(8)], "flags": flags}
     raise InputError(f"COB-ID 0x{cob_id:03X} is no TPDO of node {node} (allowed: "
                      + ", ".join(f"0x{c + node:03X}" for c in JOINT_FUNCTIONS + (STATUS_FUNCTION,)) + ")")
+
+
+def tpdo_cycles(frames, node: int = 127) -> dict[int, tuple[dict, dict]]:
+    """``(cob_id, data)`` frames of the daemon's node, in the order received, grouped per cycle:
+    ``{cycle: (joint-1 TPDO1 dict, TPDO2 status dict)}`` — TPDO2 closes the frames of its cycle."""
+    out: dict[int, tuple[dict, dict]] = {}
+    pending = None
+    for cob, data in frames:
+        d = decode_tpdo(cob, data, node)
+        if d.get("joint") == 1:
+            pending = d
+        elif "cycle" in d and pending is not None:
+            out[d["cycle"]] = (pending, d)
+            pending = None
+    return out
 
 
 # ---------------------------------------------------------------------------- local datagrams

@@ -220,3 +220,30 @@ def test_publish_flag_of_the_bus_config():
     raw["hardware"]["bus"] = {"publish": "yes"}
     with pytest.raises(ConfigError, match="hardware.bus.publish: must be true or false"):
         ModelConfig.from_dict(raw, "x")
+
+
+def test_tpdo_cycles_pairs_each_tpdo1_with_its_status():
+    frames = [(0x1FF, struct.pack("<ff", 1.0, 0.5)), (0x2FF, struct.pack("<IHBB", 7, 0, 1, 8)),
+              (0x2FF, struct.pack("<IHBB", 8, 0, 1, 8)),                       # its TPDO1 was lost
+              (0x1FF, struct.pack("<ff", 2.0, math.inf)), (0x2FF, struct.pack("<IHBB", 9, 3, 0, 9))]
+    got = client.tpdo_cycles(frames)
+    assert sorted(got) == [7, 9] and got[7][0]["tau_h_act_hat"] == 1.0 and got[9][1]["fault_name"] == "EMCY"
+
+
+def test_watch_draws_band_estimate_assistance_and_invalid_cycles():
+    from sea_daemon.apps.commands.watch import ASSIST, BAND, EST, INVALID, View
+
+    def sample(k, valid=True, fault=0):
+        return client.Sample(cycle=k, t=0.01 * k, t_mono=0.0, fault=fault, flags=client.FLAG_ASSIST_ON, valid=(valid,),
+                             q=(0.5,), tau_m=(1.0,), tau_h_act_hat=(1.0,), tau_h_act_bound=(0.5 if valid else math.inf,),
+                             tau_h_act_sigma=(0.1,), tau_assist=(-0.5 if valid else 0.0,))
+    v = View(window=1.0, height=9, y_range=2.0)
+    for k in range(100):
+        v.add(sample(k, valid=k >= 20))
+    lines = v.joint_lines(0, 60)
+    plot = "\n".join(lines[1:-1])
+    assert "valid" in lines[0] and "+1.000 N m" in lines[0]
+    assert EST in plot and BAND in plot and ASSIST in plot and INVALID in plot
+    v.add(sample(100, valid=False, fault=int(Fault.EMCY)))
+    assert "NOT VALID" in v.joint_lines(0, 60)[0]
+    assert "fault EMCY" in v.plain() and "inf" in v.plain()

@@ -138,7 +138,7 @@ def test_tpdo1_every_cycle_on_the_remote_bus(model, tmp_path):
     from _hil import RemoteServer
     from test_drivers_remote import DeviceProcess
 
-    from sea_daemon.client import decode_tpdo, tpdo_cob_ids
+    from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
 
     ids = tpdo_cob_ids(127, 1)
     server = RemoteServer()
@@ -168,16 +168,7 @@ def test_tpdo1_every_cycle_on_the_remote_bus(model, tmp_path):
         server.close()
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     log = read_log(summary["log"])
-    # pair each TPDO1 with the TPDO2 (status: cycle counter) that closes its cycle
-    by_cycle = {}
-    pending = None
-    for cob, data in listener.frames:
-        f = decode_tpdo(cob, data)
-        if "joint" in f:
-            pending = f
-        elif pending is not None:
-            by_cycle[f["cycle"]] = (pending, f)
-            pending = None
+    by_cycle = tpdo_cycles(listener.frames)              # TPDO1 with the TPDO2 that closes its cycle
     received = [k for k in log if k in by_cycle]
     assert len(received) >= 0.999 * len(log), f"TPDO1 of {len(received)} of {len(log)} cycles"
     equal = inf_startup = 0
