@@ -210,14 +210,15 @@ def corrupted(scenario: Path, cfg, residual, gain: float, seconds: float, base_m
                 rig.device_model.schedule(parse_fault(f"jump:target=encoder,rad={rad},at={at}"))
         r = task_run(scenario, cfg, residual, gain, min(seconds, at + 5.0), inject=inject)
         kf = r["fault_cycle"]
-        after = slice(kf, None) if kf >= 0 else slice(len(r["t"]), None)
+        after = slice(kf, None) if kf >= 0 else slice(k_at, None)     # undetected: the rest of the run
         zero_from = bool(kf >= 0 and np.all(r["tau_m"][after] == 0.0) and np.all(r["tau_assist"][after] == 0.0))
         before = r["tau_h_act"][int(2 * cfg.rate_hz):k_at]
         rows.append({"corruption": label, "at_cycle": k_at, "fault": r["fault"], "fault_cycle": kf,
                      "reaction_cycles": (kf - k_at) if kf >= 0 else None, "zero_torque_from_fault": zero_from,
                      "assist_before_max": float(np.nanmax(np.abs(r["tau_assist"][:k_at]))),
                      "tau_h_before_max": float(np.max(np.abs(before))),
-                     "tau_h_after_max": float(np.nanmax(np.abs(r["tau_h_act"][after]))) if kf >= 0 else None,
+                     "tau_h_after_max": float(np.nanmax(np.abs(r["tau_h_act"][after]))),
+                     "assist_after_max": float(np.nanmax(np.abs(r["tau_assist"][after]))),
                      "unassisted_task_max": base_max})
     return rows
 
@@ -227,7 +228,7 @@ def _real32_equal(frame: float, logged: str) -> bool:
     """The frame's REAL32 is the log's value to REAL32 precision: within one REAL32 step (the log
     keeps 10 significant digits, so its value can sit on the other side of a REAL32 rounding edge)."""
     x = np.float32(float(logged))
-    return abs(frame - float(x)) <= float(np.spacing(x))
+    return abs(frame - float(x)) <= abs(float(np.spacing(x)))
 
 
 def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: int = 3000) -> dict:
@@ -307,6 +308,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     by_cycle = tpdo_cycles(frames, cfg.hardware.bus.master_node)
     got = [k for k in log if k in by_cycle]
     equal = inf_invalid = mismatch = 0
+    examples: list = []                        # the first mismatches, to say what differed
     for k in got:
         j1, st = by_cycle[k]
         row = log[k]
@@ -314,12 +316,14 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
         if j1["valid"]:
             ok = hat_ok and _real32_equal(j1["tau_h_act_bound"], row["tau_h_act_bound"])
             equal += ok
-            mismatch += not ok
-        elif float(row["fault"]) != 0 or k < 10:
-            inf_invalid += 1
-        else:
-            mismatch += 1
-    return {"log_rows": len(log), "cycles_with_tpdo1": len(got), "equal_to_log": equal,
+        else:                                  # +inf exactly where the log says not valid or faulted
+            ok = j1["tau_h_act_bound"] == math.inf and (float(row["valid"]) == 0 or float(row["fault"]) != 0)
+            inf_invalid += ok
+        mismatch += not ok
+        if not ok and len(examples) < 5:
+            examples.append({"cycle": k, "frame": j1, "status": st, "log": {c: row[c] for c in
+                             ("t", "tau_h_act_hat", "tau_h_act_bound", "valid", "fault")}})
+    return {"examples": examples, "log_rows": len(log), "cycles_with_tpdo1": len(got), "equal_to_log": equal,
             "inf_while_invalid": inf_invalid, "mismatch": mismatch, "run_fault": summary["fault"],
             "overruns": summary["overruns"], "run_wall_s": summary["wall_s"], "publish": summary["publish"]}
 
@@ -385,8 +389,8 @@ def run(args) -> int:
                 print(f"    {f['corruption']:<48} fault {f['fault']:<20} reaction {f['reaction_cycles']} cycle(s); "
                       f"zero torque from the fault on: {f['zero_torque_from_fault']}; assistance before <= "
                       f"{f['assist_before_max']:.2f} N m; subject |tau_h| before <= {f['tau_h_before_max']:.2f}, "
-                      f"after <= {f['tau_h_after_max'] if f['tau_h_after_max'] is None else round(f['tau_h_after_max'], 2)} "
-                      f"N m (unassisted task <= {f['unassisted_task_max']:.2f} N m)")
+                      f"after <= {f['tau_h_after_max']:.2f} N m (unassisted task <= {f['unassisted_task_max']:.2f} N m); "
+                      f"assistance after <= {f['assist_after_max']:.2f} N m")
             entry["corruptions"] = fr
         if i == 0 and args.can:
             c = can_check(src, cfg, out / f"model_{rate:g}.npz", beta, out)
