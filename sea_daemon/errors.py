@@ -76,3 +76,4 @@ class Fault(enum.IntEnum):
     DEVICE_FAULT = 12          # drive reports CiA 402 fault state
     INTERNAL = 13              # an unexpected exception in the loop
     LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)
+    INNOVATION_OUTLIER = 15    # assist mode: one step's normalised innovation beyond assist.innovation_max

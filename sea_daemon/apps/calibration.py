@@ -58,13 +58,15 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
               state: StateFile | None = None, cycles: int | None = None, sim: str | None = None,
               device_model: str | None = None, realtime: bool = True, rt_priority: int | None = 80,
               supervisor: SafetySupervisor | None = None, progress: bool = False,
-              config_name: str = "<memory>") -> tuple[int, dict, str]:
+              config_name: str = "<memory>", socket_path: Path | None = None) -> tuple[int, dict, str]:
     """Run the training phase and save the model to ``out``.
 
     ``state``: the claimed :class:`~sea_daemon.runtime.service.StateFile` the pid file goes to
     (None: none).  Returns ``(exit status, JSON summary, message)``: 0 with the model saved; 1
     when a fault latched, the run was interrupted or the log lost rows (model not saved, the log
-    kept).
+    kept).  The estimate is published
+    every cycle like in ``run`` (the daemon's TPDOs; the local socket ``socket_path`` when given):
+    ``sea-daemon watch`` shows whether the subject stays passive.
     """
     sc = load_scenario(scenario)
     if sc.nominal.joints != cfg.joints:
@@ -75,10 +77,13 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
     controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=None)
     bar = _Progress(cycles, progress, estimator)
+    from sea_daemon.runtime.publish import make_publisher
+    publisher = make_publisher(rig, cfg, controller, socket_path=socket_path)
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
                     notifier=Notifier(), state=state,
-                    progress=bar, rt_priority=rt_priority, supervisor=supervisor, label="calibrate")
+                    progress=bar, rt_priority=rt_priority, supervisor=supervisor, label="calibrate",
+                    publisher=publisher)
     finally:
         bar.close(cycles)
     st, sup = res.stats, res.supervisor

@@ -21,8 +21,8 @@ from sea_daemon.core.effects import Effect, effect_from_dict
 from sea_daemon.core.hardware_config import BusConfig, HardwareConfig
 from sea_daemon.errors import ConfigError
 
-__all__ = ["SEAParams", "EstimatorConfig", "KinematicsConfig", "LearningConfig", "BusConfig", "HardwareConfig",
-           "ModelConfig"]
+__all__ = ["SEAParams", "EstimatorConfig", "KinematicsConfig", "LearningConfig", "AssistConfig", "BusConfig",
+           "HardwareConfig", "ModelConfig"]
 
 
 @dataclass(frozen=True)
@@ -281,6 +281,66 @@ class LearningConfig:
 
 
 @dataclass(frozen=True)
+class AssistConfig:
+    """Assist-as-needed (``assist``; docs/assist.md): motor torque from the estimate, gated by its bound.
+
+    Per joint, with τ̄̂ and ρ̄ the estimate τ̂_h,act and its bound ρ_k averaged over ``smoothing_s``:
+
+        τ_cert   = sign(τ̄̂) · max(|τ̄̂| − ρ̄ − deadband, 0)    the part of the effort the bound certifies
+        τ_target = clip(gain · τ_cert, ±max_torque)          (0 while ρ̄ > rho_max)
+        τ_assist → τ_target at most max_rate; 0 at once while the estimate is not valid
+
+    and the motor torque is the compensation (the nominal model's static load torque at the
+    measured angle, ``compensation: nominal``) plus τ_assist.  Off unless ``enabled: true``.
+    """
+
+    enabled: bool = False          # off unless asked
+    gain: float = 2.0              # α: assistance per N m of certified active torque [-]
+    deadband: float = 0.05         # [N m] taken off |τ̂| together with ρ_k
+    rho_max: float = 1.5           # [N m] no assistance while the averaged ρ_k is above this
+    max_torque: float = 3.0        # [N m] |τ_assist| limit
+    max_rate: float = 10.0         # [N m/s] |dτ_assist/dt| limit (an invalid estimate or a fault: 0 at once)
+    smoothing_s: float = 0.6       # [s] time constant over which τ̂ and ρ are averaged before the gate (0: none)
+    innovation_max: float = 1.0e4  # a step whose normalised innovation νᵀS⁻¹ν exceeds this is a fault
+    compensation: str = "nominal"  # nominal: + the nominal model's static load torque; none: τ_assist alone
+
+    KEYS = ["enabled", "gain", "deadband", "rho_max", "max_torque", "max_rate", "smoothing_s", "innovation_max",
+            "compensation"]
+    COMPENSATIONS = ("nominal", "none")
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str, torque_limit: float) -> "AssistConfig":
+        validate.check_keys(source, "assist.", d, cls.KEYS, [])
+        k = "assist."
+        enabled = d.get("enabled", False)
+        if not isinstance(enabled, bool):
+            raise ConfigError(source, k + "enabled", f"must be true or false, got {enabled!r}")
+        comp = d.get("compensation", "nominal")
+        if comp not in cls.COMPENSATIONS:
+            raise ConfigError(source, k + "compensation",
+                              f"must be one of {', '.join(cls.COMPENSATIONS)}, got {comp!r}")
+        max_torque = validate.num(source, k + "max_torque", d.get("max_torque", min(cls.max_torque, torque_limit)),
+                                  positive=True)
+        if max_torque > torque_limit:
+            raise ConfigError(source, k + "max_torque",
+                              f"must be in (0, hardware.torque_limit = {torque_limit:g}] N m, got {max_torque:g}")
+        return cls(
+            enabled=enabled,
+            gain=validate.num(source, k + "gain", d.get("gain", cls.gain), lo=0.0, hi=10.0),
+            deadband=validate.num(source, k + "deadband", d.get("deadband", cls.deadband), lo=0.0, hi=100.0),
+            rho_max=validate.num(source, k + "rho_max", d.get("rho_max", cls.rho_max), positive=True),
+            max_torque=max_torque,
+            max_rate=validate.num(source, k + "max_rate", d.get("max_rate", cls.max_rate), positive=True),
+            smoothing_s=validate.num(source, k + "smoothing_s", d.get("smoothing_s", cls.smoothing_s), lo=0.0, hi=10.0),
+            innovation_max=validate.num(source, k + "innovation_max", d.get("innovation_max", cls.innovation_max),
+                                        positive=True),
+            compensation=comp)
+
+    def to_dict(self) -> dict:
+        return {key: getattr(self, key) for key in self.KEYS}
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """The whole YAML of docs/interfaces.md §2 (plus the optional sections)."""
 
@@ -292,8 +352,9 @@ class ModelConfig:
     learning: LearningConfig = field(default_factory=LearningConfig)
     hardware: HardwareConfig = field(default_factory=HardwareConfig)
     source: str = "<memory>"
+    assist: AssistConfig = field(default_factory=AssistConfig)
 
-    TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware"]
+    TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware", "assist"]
 
     @property
     def dt(self) -> float:
@@ -306,14 +367,16 @@ class ModelConfig:
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 16:
             raise ConfigError(source, "joints", f"must be an integer in 1..16, got {n!r}")
         rate = validate.num(source, "rate_hz", d["rate_hz"], lo=1.0, hi=100000.0)
+        hardware = HardwareConfig.from_dict(d.get("hardware") or {}, n, source)
         return cls(
             joints=n, rate_hz=rate,
             model=SEAParams.from_dict(d["model"], n, source),
             estimator=EstimatorConfig.from_dict(d.get("estimator") or {}, n, source),
             kinematics=KinematicsConfig.from_dict(d.get("kinematics") or {}, n, source),
             learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),
-            hardware=HardwareConfig.from_dict(d.get("hardware") or {}, n, source),
+            hardware=hardware,
             source=source,
+            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
         )
 
     def to_dict(self) -> dict:
@@ -321,6 +384,7 @@ class ModelConfig:
             "joints": self.joints, "rate_hz": self.rate_hz, "model": self.model.to_dict(),
             "estimator": self.estimator.to_dict(), "kinematics": self.kinematics.to_dict(),
             "learning": self.learning.to_dict(), "hardware": self.hardware.to_dict(),
+            "assist": self.assist.to_dict(),
         }
 
     def with_effects(self, effects) -> "ModelConfig":

@@ -31,9 +31,10 @@ def min_jerk(s: float) -> tuple[float, float, float]:
 class MinJerkTrajectory:
     """``moves`` minimum-jerk moves alternating q_start → q_end → q_start …, each ``move_s`` long.
 
-    Angles in rad.  Before t = 0 the reference is q_start; after the last move it holds the
-    last target, unless ``cyclic``: then the moves go on back and forth forever (so a run of
-    any length continues seamlessly).
+    Angles in rad.  Each move is preceded by a hold of ``hold_s`` at its start (default 0: the
+    moves follow each other directly).  Before t = 0 the reference is q_start; after the last
+    move it holds the last target, unless ``cyclic``: then the moves go on back and forth
+    forever (so a run of any length continues seamlessly).
     """
 
     q_start: float
@@ -41,19 +42,21 @@ class MinJerkTrajectory:
     move_s: float
     moves: int
     cyclic: bool = False
+    hold_s: float = 0.0
 
     @property
     def duration(self) -> float:
-        return self.move_s * self.moves
+        return (self.hold_s + self.move_s) * self.moves
 
     def reference(self, t: float) -> tuple[float, float, float]:
         """(q_ref, q̇_ref, q̈_ref) at time t [s]."""
         if t <= 0.0:
             return self.q_start, 0.0, 0.0
-        i = int(t // self.move_s)
+        step = self.hold_s + self.move_s
+        i = int(t // step)
         if not self.cyclic:
             i = min(i, self.moves - 1)
-        tau = min((t - i * self.move_s) / self.move_s, 1.0)
+        tau = min(max(t - i * step - self.hold_s, 0.0) / self.move_s, 1.0)
         a, b = (self.q_start, self.q_end) if i % 2 == 0 else (self.q_end, self.q_start)
         s, ds, dds = min_jerk(tau)
         d = b - a

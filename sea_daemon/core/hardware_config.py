@@ -51,11 +51,15 @@ class BusConfig:
     sdo_timeout_ms: int = 300             # start-up: wait this long for each SDO answer (one retry)
     master_node: int = 127                # the daemon's own node id: its heartbeat, watched by the drives
     #                                       (0x1016, heartbeat_timeout_ms; reaction 0x6007 = quick stop)
+    publish: bool = True                  # the daemon's node sends its TPDOs every cycle (estimate, bound,
+    #                                       status; configs/eds/sea_daemon.eds, docs/can.md); joints <= 3
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
             "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms",
-            "master_node"]
+            "master_node", "publish"]
+    #: joints the daemon's node publishes: joint 1 on TPDO1, joint 2 on TPDO3, joint 3 on TPDO4 (TPDO2: status)
+    PUBLISH_JOINTS = 3
     INTERFACES = ("virtual", "socketcan", "remote")
 
     @classmethod
@@ -95,8 +99,16 @@ class BusConfig:
         sync_rpdo = d.get("sync_rpdo", False)
         if not isinstance(sync_rpdo, bool):
             raise ConfigError(source, k + "sync_rpdo", f"must be true or false, got {sync_rpdo!r}")
+        publish = d.get("publish", n <= cls.PUBLISH_JOINTS)
+        if not isinstance(publish, bool):
+            raise ConfigError(source, k + "publish", f"must be true or false, got {publish!r}")
+        if publish and n > cls.PUBLISH_JOINTS:
+            raise ConfigError(source, k + "publish",
+                              f"the daemon's node publishes joints 1..{cls.PUBLISH_JOINTS} (TPDO1, TPDO3, TPDO4), "
+                              f"the model has {n}; allowed: false (the local interface carries every joint)")
         return cls(
             interface=iface, channel=channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
+            publish=publish,
             pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
             rated_torque=validate.num(source, k + "rated_torque", d.get("rated_torque", 100.0), positive=True),
             q_offset=tuple(float(x) for x in validate.vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),

@@ -6,7 +6,12 @@ drives the exoskeleton, and how long the training and estimation phases are::
 
     model: ../exo_1dof.yaml        # nominal model config, path relative to this file
     seed: 1                        # motor-torque noise (overridable by --seed)
-    human: passive                 # passive (τ_h,act = 0) | resist (τ_h,act = −τ_des)
+    human: passive                 # passive (τ_h,act = 0) | resist (τ_h,act = −τ_des) | track
+    # task: {q_deg: [20, 70], move_s: 2.0, hold_s: 2.0, kp: 15.0, kd: 1.0, ki: 20.0,
+    #        activation_s: 0.04, delay_s: 0.03, max_torque: 15.0}
+    #                              # human: track — the subject tracks a target angle with muscle
+    #                              # torque (sea_daemon.core.sim.subject); its estimation phase
+    #                              # runs the assist controller (docs/assist.md)
     tau_h_act_rate: 1.26           # optional [N m/s]: what the experimenter declares about the
                                    # subject, |dτ_h,act/dt| <= this (estimator.tau_h_act_rate)
     plant:
@@ -22,7 +27,7 @@ drives the exoskeleton, and how long the training and estimation phases are::
       kd: 2.0                      #   [N m s/rad]
       velocity_filter_hz: 30.0     #   low-pass of the differentiated angle [Hz]
       derivative: motor            #   D term on the motor (collocated) or load velocity
-      trajectory: {q_start_deg: 10, q_end_deg: 75, move_s: 3.5, moves: 6}
+      trajectory: {q_start_deg: 10, q_end_deg: 75, move_s: 3.5, moves: 6}   # optional hold_s [s] before each move
     # controller: {type: open_loop, q0_deg: 10,
     #              tau_des: {amplitude: 2.0, frequency_hz: 0.1, offset: 2.0}}
     phases:
@@ -47,10 +52,12 @@ from sea_daemon.core.validate import check_keys as _check_keys, num as _num
 from sea_daemon.core.control import cosine_torque
 from sea_daemon.io.configfile import load_config, load_yaml
 from sea_daemon.core.effects import Effect, effect_from_dict
+from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.plant import Plant
-from sea_daemon.errors import ConfigError
+from sea_daemon.core.sim.subject import TrackingSubject, TrackingTask
+from sea_daemon.errors import ConfigError, InputError
 
-HUMAN_MODES = ("passive", "resist")
+HUMAN_MODES = ("passive", "resist", "track")
 CONTROLLER_TYPES = ("pid", "open_loop")
 DERIVATIVES = ("motor", "load")
 
@@ -103,17 +110,20 @@ class TrajectorySpec:
     q_end_deg: float = 75.0
     move_s: float = 3.5
     moves: int = 6
+    hold_s: float = 0.0             # [s] hold before each move (optional)
 
-    KEYS = ["q_start_deg", "q_end_deg", "move_s", "moves"]
+    KEYS = ["q_start_deg", "q_end_deg", "move_s", "moves", "hold_s"]
+    REQUIRED = ["q_start_deg", "q_end_deg", "move_s", "moves"]
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str) -> "TrajectorySpec":
         p = "controller.trajectory."
-        _check_keys(source, p, d, cls.KEYS, cls.KEYS)
+        _check_keys(source, p, d, cls.KEYS, cls.REQUIRED)
         return cls(q_start_deg=_num(source, p + "q_start_deg", d["q_start_deg"], lo=-360.0, hi=360.0),
                    q_end_deg=_num(source, p + "q_end_deg", d["q_end_deg"], lo=-360.0, hi=360.0),
                    move_s=_num(source, p + "move_s", d["move_s"], positive=True),
-                   moves=_int(source, p + "moves", d["moves"], 1, 100000))
+                   moves=_int(source, p + "moves", d["moves"], 1, 100000),
+                   hold_s=_num(source, p + "hold_s", d.get("hold_s", 0.0), lo=0.0, hi=3600.0))
 
 
 @dataclass(frozen=True)
@@ -175,6 +185,33 @@ class OpenLoopSpec:
                    offset=_num(source, "controller.tau_des.offset", td["offset"]))
 
 
+TASK_KEYS = ["q_deg", "move_s", "hold_s", "kp", "kd", "ki", "activation_s", "delay_s", "max_torque"]
+
+
+def task_from_dict(d: Any, source: str) -> TrackingTask:
+    """The ``task`` section of a ``human: track`` scenario (defaults: :class:`TrackingTask`)."""
+    if not isinstance(d, Mapping):
+        raise ConfigError(source, "task", f"must be a mapping with keys {', '.join(TASK_KEYS)}, got {d!r}")
+    _check_keys(source, "task.", d, TASK_KEYS, [])
+    base = TrackingTask()
+    qd = d.get("q_deg", list(base.q_deg))
+    if not isinstance(qd, (list, tuple)) or len(qd) != 2:
+        raise ConfigError(source, "task.q_deg", f"must be a list of 2 angles [deg], got {qd!r}")
+    q = tuple(_num(source, "task.q_deg", v, lo=-180.0, hi=180.0) for v in qd)
+
+    def pos(key, lo=0.0, hi=1e4, strict=True):
+        v = d.get(key, getattr(base, key))
+        v = _num(source, f"task.{key}", v, lo=lo, hi=hi)
+        if strict and v <= 0:
+            raise ConfigError(source, f"task.{key}", f"must be > 0, got {v}")
+        return v
+    return TrackingTask(q_deg=q, move_s=pos("move_s", hi=3600.0), hold_s=pos("hold_s", hi=3600.0, strict=False),
+                        kp=pos("kp", strict=False), kd=pos("kd", strict=False), ki=pos("ki", strict=False),
+                        activation_s=pos("activation_s", hi=1.0, strict=False), delay_s=pos("delay_s", hi=0.5,
+                                                                                           strict=False),
+                        max_torque=pos("max_torque", hi=1000.0))
+
+
 @dataclass(frozen=True)
 class Scenario:
     """One simulated experiment: training phase then estimation phase."""
@@ -190,8 +227,9 @@ class Scenario:
     seed: int = 0
     description: str = ""
     tau_h_act_rate: float | None = None     # declared |dτ_h,act/dt| bound [N m/s] (None: not declared)
+    task: TrackingTask | None = None        # human: track — the subject's task
 
-    TOP_KEYS = ["description", "model", "seed", "human", "tau_h_act_rate", "plant", "controller", "phases"]
+    TOP_KEYS = ["description", "model", "seed", "human", "tau_h_act_rate", "task", "plant", "controller", "phases"]
     REQUIRED = ["model", "human", "plant", "controller", "phases"]
 
     def true_config(self) -> ModelConfig:
@@ -232,7 +270,15 @@ class Scenario:
                                                          f"allowed: {', '.join(CONTROLLER_TYPES)}")
         if human == "resist" and typ != "open_loop":
             raise ConfigError(source, "human", "'resist' (τ_h,act = −τ_des) needs controller.type open_loop; "
-                                               "allowed with pid: passive")
+                                               "allowed with pid: passive, track")
+        if human == "track" and typ != "pid":
+            raise ConfigError(source, "human", "'track' needs controller.type pid (it moves the passive arm in "
+                                               "the training phase); allowed with open_loop: passive, resist")
+        task = None
+        if human == "track":
+            task = task_from_dict(d.get("task", {}), source)
+        elif "task" in d:
+            raise ConfigError(source, "task", f"is only allowed with human: track, got human: {human}")
         if nominal.joints != 1:
             raise ConfigError(source, "model", f"scenarios support 1 joint for now, the model has {nominal.joints}")
         ph = d["phases"]
@@ -252,7 +298,7 @@ class Scenario:
                    plant=PlantSpec.from_dict(d["plant"], nominal.joints, source),
                    human=human, controller=controller, training_samples=samples["training"],
                    estimation_samples=samples["estimation"], seed=seed, description=desc,
-                   tau_h_act_rate=rate)
+                   tau_h_act_rate=rate, task=task)
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -273,9 +319,40 @@ def make_plant(sc: Scenario, seed: int | None = None) -> Plant:
         raise ConfigError(sc.source, "plant.substep_hz", str(e)) from None
 
 
+def task_plant(sc: Scenario, dt: float | None = None, seed: int | None = None) -> tuple[Plant, TrackingSubject]:
+    """``human: track``: the plant at rest at the task's first target angle and the subject bound to it.
+
+    At rest the exoskeleton holds what its nominal model knows — the static load torque of
+    ``sc.nominal`` at that angle, the torque the assist controller's compensation commands
+    there — and the subject's muscles hold the rest of the arm (its feed-forward starts with
+    that torque), so the task starts without a jolt.  ``dt``: the subject's step (default the
+    scenario's period).  The plant's :attr:`~Plant.hold_torque` is the compensation.
+    """
+    if sc.task is None:
+        raise InputError(f"scenario {sc.source}: human {sc.human!r} has no task (allowed: human: track)")
+    n = sc.nominal.joints
+    q0 = np.full(n, math.radians(sc.task.q_deg[0]))
+    z = np.zeros(n)
+    comp = SEAModel.from_config(sc.nominal).load_torque(q0, z, z)
+    seed = sc.seed if seed is None else seed
+    kw = dict(seed=seed, substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps,
+              torque_noise=sc.plant.torque_noise)
+    try:
+        at_rest = Plant(sc.true_config(), q0=q0, **kw)
+        tau0 = at_rest.hold_torque - comp           # the subject holds what the compensation does not
+        plant = Plant(sc.true_config(), q0=q0, tau_h_act0=tau0, **kw)
+    except ValueError as e:
+        raise ConfigError(sc.source, "plant.substep_hz", str(e)) from None
+    return plant, TrackingSubject(sc.task, plant, dt or sc.nominal.dt, tau0=tau0)
+
+
 def human_torque(scenario) -> Callable[[float], np.ndarray]:
-    """τ_h,act(t) [N m] per joint for the device model's plant time t."""
+    """τ_h,act(t) [N m] per joint for the device model's plant time t (open-loop subjects;
+    ``human: track`` reacts to the plant: :func:`task_plant`)."""
     n = scenario.nominal.joints
+    if scenario.human == "track":
+        raise InputError(f"scenario {scenario.source}: human 'track' reacts to the plant; it runs with the "
+                         "assist controller (sea-daemon run --device-model/--sim, docs/assist.md)")
     zero = np.zeros(n)
     if scenario.human != "resist":
         return lambda t: zero

@@ -6,11 +6,16 @@ What :class:`~sea_daemon.runtime.loop.FixedRateLoop` calls (its ``Controller`` p
 * :class:`ScenarioController` — a scenario's controller (PID on a minimum-jerk trajectory, or the
   open-loop cosine torque of Sec. V-C), the one the daemon, the offline simulator and the
   hardware-in-the-loop session all run.
+* :class:`AssistController` — assist-as-needed (``assist`` in the model YAML, docs/assist.md):
+  the compensation of the exoskeleton plus assistance from the last estimate, gated by its bound.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from sea_daemon.core.assist import AssistLaw
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque
 from sea_daemon.core.model import SEAModel
@@ -67,7 +72,7 @@ class ScenarioController:
         if isinstance(self.spec, PIDSpec):
             tr = self.spec.trajectory
             self.traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
-                                          cyclic=True)
+                                          cyclic=True, hold_s=tr.hold_s)
             self.pid = PID(self.spec.kp, self.spec.ki, self.spec.kd, cfg.dt, self.limit, self.spec.velocity_filter_hz,
                            derivative=self.spec.derivative)
         self.q_ref = self.spec.q0
@@ -104,5 +109,48 @@ class ScenarioController:
             tp = (k - k0) * self.dt + self.delay * self.dt if active else t
             self.tau_des = self.ol.tau_des(tp, active=active)
             self._out[:] = self.ol.command(tp, active=active)
+        np.clip(self._out, -self.limit, self.limit, out=self._out)
+        return self._out
+
+
+class AssistController:
+    """Assist-as-needed: ``update(t, q, θ_m, estimate)`` → compensation + τ_assist [N m], clipped.
+
+    The compensation is the nominal model's static load torque at the measured angle (what the
+    configuration knows of the exoskeleton: its link's gravity and declared effects;
+    ``assist.compensation: none`` leaves it out).  τ_assist is :class:`~sea_daemon.core.assist.AssistLaw`
+    of the last estimate the loop passes — τ̂_h,act and its bound ρ_k — and zero while there is
+    none (start-up, a latched fault) or it is not valid.  ``gain`` overrides ``assist.gain``
+    (0: the exoskeleton only compensates itself, the "transparent" baseline of a task).
+
+    After each update :attr:`tau_assist` (n,) [N m], :attr:`trust` (n,) and :attr:`tau_comp`
+    (n,) [N m] hold what the command was made of.
+    """
+
+    def __init__(self, cfg: ModelConfig, *, gain: float | None = None):
+        self.n = cfg.joints
+        self.limit = cfg.hardware.torque_limit
+        a = cfg.assist if gain is None else dataclasses.replace(cfg.assist, gain=float(gain))
+        self.cfg = a
+        self.law = AssistLaw(a, self.n, cfg.dt)
+        self._model = SEAModel.from_config(cfg) if a.compensation == "nominal" else None
+        self._z = np.zeros(self.n)
+        self._out = np.zeros(self.n)
+        self.tau_comp = np.zeros(self.n)
+        self.tau_assist = self.law.tau
+        self.trust = self.law.trust
+
+    @property
+    def gain(self) -> float:
+        return self.law.gain
+
+    def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
+        if self._model is not None:
+            self.tau_comp[:] = self._model.load_torque(np.asarray(q, dtype=float), self._z, self._z)
+        if estimate is None:
+            self.law.step(self._z, self._z, False)
+        else:
+            self.law.step(estimate.tau_h_act_hat, estimate.tau_h_act_bound, bool(estimate.valid))
+        np.add(self.tau_comp, self.law.tau, out=self._out)
         np.clip(self._out, -self.limit, self.limit, out=self._out)
         return self._out

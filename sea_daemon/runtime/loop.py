@@ -14,14 +14,16 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
 4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
    one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
    with delay 1; raises EstimatorFault instead of emitting NaN
-5. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
+5. ``publisher.publish()``    the estimate, its bound, validity and the latched fault to the bus and
+   to local readers (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
+6. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
    ``tau_m`` is that same torque, docs/interfaces.md §1) — in **every** cycle, through and
    after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0; the last
    measured angles held, the time one period on, no NaN), ``valid`` is the estimator's own
    flag (0 while it starts or converges, and whenever a fault is latched), ``fault`` the
    latched code; a log writer that cannot write latches LOG_FAILED; WATCHDOG=1 to systemd
    from every cycle the loop runs (latched or not)
-6. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
+7. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
    deadlines missed by a whole period or more are skipped (counted), not caught up in a burst;
    lock-step runs (``realtime=False``) do not sleep
 
@@ -109,7 +111,8 @@ class FixedRateLoop:
     None when invalid); it may read :attr:`cycle_start` (``clock()`` when cycle k began).
     ``fail_fast``: a lock-step run (the simulator, the HIL session) raises the exception of the
     first fault out of :meth:`run`, after the fault policy's zero torque, instead of going on
-    latched.
+    latched.  ``publisher``: the publication step (a :class:`sea_daemon.runtime.publish.Publisher`),
+    called every cycle after the estimate with the estimate (None when invalid or faulted).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
@@ -117,7 +120,7 @@ class FixedRateLoop:
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
-                 initial_torque: np.ndarray | None = None, fail_fast: bool = False):
+                 initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -127,6 +130,7 @@ class FixedRateLoop:
         self.record_periods = record_periods
         self.on_cycle = on_cycle
         self.fail_fast = fail_fast
+        self.publisher = publisher
         self.stats = LoopStats()
         self._row = np.zeros(len(log_columns(n)))
         self._zero = np.zeros(n)
@@ -242,6 +246,8 @@ class FixedRateLoop:
                 except Exception:  # noqa: BLE001 - the bus may be gone; safe_stop was already asked
                     pass
             self.last_estimate = est if valid else None
+            if self.publisher is not None:
+                self.publisher.publish(k, meas, self.last_estimate, self._tau, sup.latched)
             if self.on_cycle is not None:
                 self.on_cycle(k, meas, est, self._tau)
             done = self.clock()

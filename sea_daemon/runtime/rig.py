@@ -22,7 +22,7 @@ import numpy as np
 from drivers.interface import HardwareInterface
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
-from sea_daemon.io.scenario import Scenario, human_torque, load_scenario, make_plant
+from sea_daemon.io.scenario import Scenario, human_torque, load_scenario, make_plant, task_plant
 
 
 @dataclass
@@ -96,11 +96,12 @@ def on_fresh_virtual_channel(cfg: ModelConfig, prefix: str) -> ModelConfig:
 
 
 def subject_torque(sc: Scenario, phase: str) -> Callable[[float], np.ndarray]:
-    """τ_h,act(t) of the scenario's subject for a run that starts at plant time 0 in ``phase``."""
-    f = human_torque(sc)
+    """τ_h,act(t) of the scenario's subject for a run that starts at plant time 0 in ``phase``
+    (an open-loop subject; ``human: track`` in the estimation phase reacts to the plant: :func:`make_rig`)."""
     if phase == "training":
         n = sc.nominal.joints
         return lambda t, _z=np.zeros(n): _z                 # ass:passive_human: the subject is passive
+    f = human_torque(sc)
     t_est = sc.training_samples * sc.nominal.dt
     return lambda t: f(t + t_est)                          # the estimation phase starts at t = 0
 
@@ -143,8 +144,12 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
     sc = load_scenario(scen)
     if sc.nominal.joints != n:
         raise InputError(f"scenario {scen}: {sc.nominal.joints} joint(s), the configuration has {n}")
-    plant = make_plant(sc)
-    tau_h = subject_torque(sc, phase)
+    if sc.human == "track" and phase == "estimation":
+        # the subject does its task from t = 0, the exoskeleton compensating itself (docs/assist.md)
+        plant, tau_h = task_plant(sc, cfg.dt)
+    else:
+        plant = make_plant(sc)
+        tau_h = subject_torque(sc, phase)
     hold = np.array(plant.hold_torque, dtype=float).reshape(n)
     if sim:
         from drivers.sim_hw import SimHardware

@@ -4,7 +4,8 @@ The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon
 the controller from :mod:`sea_daemon.runtime.controller`.
 
 * :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
-* :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``.
+* :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``
+  and ``sea-daemon watch`` (it names the publication socket).
 * :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
   real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the
   loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
@@ -304,8 +305,11 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
           cycles: int | None = None, realtime: bool = True, notifier: Notifier | None = None,
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
-          supervisor: SafetySupervisor | None = None) -> ServeResult:
-    """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal."""
+          supervisor: SafetySupervisor | None = None, publisher=None) -> ServeResult:
+    """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal.
+
+    ``publisher``: the loop's publication step (:func:`sea_daemon.runtime.publish.make_publisher`),
+    closed (its socket removed) when the service stops; its counts go into ``extra["publish"]``."""
     # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
     from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
     warm_up()
@@ -343,12 +347,14 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     try:
         loop = FixedRateLoop(rig.hw, estimator, controller, n=n, period=period, log=log, notifier=notifier,
                              realtime=realtime, record_periods=record_periods, on_cycle=on_cycle,
-                             initial_torque=rig.initial_torque, supervisor=supervisor)
+                             initial_torque=rig.initial_torque, supervisor=supervisor, publisher=publisher)
         signal.signal(signal.SIGTERM, on_stop)
         signal.signal(signal.SIGINT, on_stop)
         signal.signal(signal.SIGUSR1, on_reset)
         if state is not None:
-            state.write(command=label, log=str(log_path), hardware=rig.description)
+            sock = getattr(getattr(publisher, "local", None), "path", None)
+            state.write(command=label, log=str(log_path), hardware=rig.description,
+                        socket=None if sock is None else str(sock))
         rig.start()
         started = True
         # the drives watch our heartbeat from read(): the loop starts right away
@@ -366,10 +372,13 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
                     Path(f).unlink(missing_ok=True)
             if state is not None:
                 state.remove()
+            if publisher is not None:
+                publisher.close()
             for s, h in old.items():
                 signal.signal(s, h)
     sup = loop.supervisor
     lost = f"; log incomplete, {final['rows_lost']} rows lost: {final['error']}" if final["error"] else ""
     notifier.status(f"{label}: stopped after {stats.cycles} cycles, {stats.overruns} overruns, "
                     f"{sup.status_line()}{lost}")
-    return ServeResult(stats, sup, final, rt, time.monotonic() - t_wall, stopped["signal"])
+    extra = {"publish": publisher.stats()} if publisher is not None else {}
+    return ServeResult(stats, sup, final, rt, time.monotonic() - t_wall, stopped["signal"], extra)

@@ -27,6 +27,7 @@ import numpy as np
 
 from drivers.sim_hw import SimHardware
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, make_plant
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.loop import FixedRateLoop
@@ -47,6 +48,9 @@ class SimResult:
 
 def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
     """Simulate the training then the estimation phase of a scenario."""
+    if sc.human == "track":
+        raise InputError(f"scenario {sc.source}: human 'track' (a subject that reacts to the exoskeleton) runs "
+                         "with the assist controller: sea-daemon run --device-model / --sim (docs/assist.md)")
     plant = make_plant(sc, seed)
     cfg = sc.nominal
     n_train = sc.training_samples

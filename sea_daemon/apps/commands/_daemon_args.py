@@ -32,6 +32,9 @@ def add_common(p, *, cycles_help: str) -> None:
                    help="consecutive overruns that latch the OVERRUN_STREAK fault (default 5; 0: never)")
     p.add_argument("--rt-priority", type=int, default=80,
                    help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
+    p.add_argument("--socket", metavar="PATH", default=None,
+                   help="UNIX socket the estimate is published on every cycle for local readers "
+                        "(sea-daemon watch, sea_daemon.client; default: STATE_DIR/sea-daemon.sock; none: off)")
 
 
 def inputs(args) -> list:
@@ -86,3 +89,21 @@ def supervisor(args):
     """The fault supervisor with the ``--overrun-streak`` limit."""
     from sea_daemon.runtime.safety import SafetySupervisor
     return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62)
+
+
+def socket_path(args, state_dir: Path) -> Path | None:
+    """The publication socket of ``--socket`` (None for ``none``; default STATE_DIR/sea-daemon.sock)."""
+    import os
+    import sys
+
+    from sea_daemon.client import default_socket
+    if args.socket is None:
+        path = default_socket(state_dir)
+        if len(os.fsencode(str(path))) >= 108:         # a UNIX socket path holds at most 107 bytes
+            print(f"sea-daemon: warning: {path} is too long for a UNIX socket: no local publication "
+                  "(give --socket PATH)", file=sys.stderr)
+            return None
+        return path
+    if args.socket.lower() == "none":
+        return None
+    return Path(args.socket)

@@ -52,7 +52,8 @@ def run(args) -> int:
             cfg, args.scenario, args.out, _daemon_args.log_name(log_dir, "calibration"), state=state,
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
             rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
-            progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config))
+            progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config),
+            socket_path=_daemon_args.socket_path(args, state_dir))
     print(json.dumps(summary))
     if code:
         print(f"sea-daemon calibrate: {message}", file=sys.stderr)

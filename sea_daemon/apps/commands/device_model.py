@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bus", choices=BusConfig.INTERFACES, help="bus interface (default: hardware.bus.interface)")
     p.add_argument("--channel", help="virtual: a name; socketcan: can0 / vcan0; remote: ws://127.0.0.1:PORT/")
     p.add_argument("--config", default=None, help="true model configuration YAML (default: configs/exo_1dof.yaml)")
-    p.add_argument("--scenario", default=None, help="simulator scenario YAML (true plant with hidden effects)")
+    p.add_argument("--scenario", default=None, help="simulator scenario YAML (true plant with hidden effects; "
+                   "human: track starts the task's subject at rest at its first target)")
     p.add_argument("--q0", type=float, default=0.3, help="initial link angle [rad] without --scenario (default 0.3)")
     p.add_argument("--seed", type=int, default=None, help="seed of the plant's torque noise")
     p.add_argument("--fault", action="append", default=[], metavar="KIND[:k=v,...]",
@@ -50,6 +51,11 @@ def _plant(args, cfg):
         from sea_daemon.io.scenario import load_scenario
         from sea_daemon.io.scenario import human_torque
         sc = load_scenario(args.scenario)
+        if sc.human == "track":
+            # the task's estimation phase: the subject tracks from t = 0, the arm at rest at its start
+            from sea_daemon.io.scenario import task_plant
+            plant, subject = task_plant(sc, seed=args.seed)
+            return plant, sc.nominal, subject
         return make_plant(sc, args.seed), sc.nominal, human_torque(sc)
     return Plant(cfg, q0=args.q0, seed=args.seed), cfg, None
 

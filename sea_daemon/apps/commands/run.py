@@ -9,6 +9,16 @@ drained and closed, STOPPING=1), SIGUSR1 (``sea-daemon reset``) clears a latched
 The measured log (docs/interfaces.md §1 plus estimate, bound, validity and loop timing columns) goes to
 ``DIR/run-<UTC time>.csv`` through the off-loop log writer; a JSON summary is printed on exit.
 
+Every cycle, right after the estimate, the daemon publishes it: the TPDOs of its own CAN node
+(``hardware.bus.master_node``; docs/can.md) and datagrams on ``STATE_DIR/sea-daemon.sock``
+(``--socket``) for ``sea-daemon watch`` and :mod:`sea_daemon.client`.
+
+The controller: with ``assist.enabled`` in the model YAML the assist-as-needed controller
+(docs/assist.md) — the exoskeleton's compensation plus assistance from the estimate, gated by
+its bound, with the innovation check of every filter step; for a ``human: track`` scenario
+without it the same controller with no assistance (the exoskeleton only compensates itself);
+otherwise the scenario's controller, or zero torque (estimation only).
+
 Exit status: 0 stopped cleanly; 2 bad configuration, model file or arguments (a log
 directory that cannot be written, another instance on the bus or state directory); 1 hardware
 start-up failure, internal error, a fault still latched when the service stopped, or rows of
@@ -41,14 +51,16 @@ def run(args) -> int:
     cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
     # one instance per state directory and bus, before the drives are touched
     with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
-        return _run(args, cfg, log_dir, state, realtime)
+        return _run(args, cfg, log_dir, state_dir, state, realtime)
 
 
-def _run(args, cfg, log_dir, state, realtime) -> int:
+def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
+    from sea_daemon.core.assist import InnovationGuard
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.runtime.controller import ScenarioController, ZeroTorque
+    from sea_daemon.runtime.controller import AssistController, ScenarioController, ZeroTorque
+    from sea_daemon.runtime.publish import make_publisher
     from sea_daemon.runtime.notify import Notifier
     from sea_daemon.runtime.rig import make_rig
     from sea_daemon.runtime.service import serve
@@ -59,15 +71,23 @@ def _run(args, cfg, log_dir, state, realtime) -> int:
     estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
-    if scen:
-        controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
-                                        estimation_from=0)
+    sc = load_scenario(scen) if scen else None
+    if cfg.assist.enabled:
+        controller, kind = AssistController(cfg), "assist"
+        # a filter step whose innovation is an outlier is a fault: zero torque in that cycle
+        estimator = InnovationGuard(estimator, cfg.assist.innovation_max)
+    elif sc is not None and sc.human == "track":
+        controller, kind = AssistController(cfg, gain=0.0), "transparent"
+    elif sc is not None:
+        controller, kind = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
+                                              estimation_from=0), "scenario"
     else:
-        controller = ZeroTorque(cfg.joints)
+        controller, kind = ZeroTorque(cfg.joints), "zero"
     log_path = _daemon_args.log_name(log_dir, "run")
+    publisher = make_publisher(rig, cfg, controller, socket_path=_daemon_args.socket_path(args, state_dir))
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
                 notifier=Notifier(), state=state, rt_priority=args.rt_priority,
-                supervisor=_daemon_args.supervisor(args), label="run")
+                supervisor=_daemon_args.supervisor(args), label="run", publisher=publisher)
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,
                "cycles": st.cycles, "overruns": st.overruns, "skipped": st.skipped,
@@ -76,7 +96,8 @@ def _run(args, cfg, log_dir, state, realtime) -> int:
                "log_error": res.log["error"], "log_files": res.log["files"],
                "fault": sup.latched.name, "faults_latched": st.faults, "realtime": res.realtime,
                "pace": "realtime" if realtime else "lockstep", "wall_s": round(res.wall_s, 3),
-               "stopped_by_signal": res.stopped_by_signal}
+               "stopped_by_signal": res.stopped_by_signal, "controller": kind,
+               "publish": res.extra.get("publish")}
     print(json.dumps(summary))
     if not sup.ok:
         print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)

@@ -1,0 +1,219 @@
+"""Assist-as-needed: the configuration, the bound gate (AssistLaw), the innovation check, the
+controller, and the loop's fault policy with assistance (docs/assist.md)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from sea_daemon.core.assist import AssistLaw, InnovationGuard, InnovationOutlier
+from sea_daemon.core.config import AssistConfig, ModelConfig
+from sea_daemon.core.estimators.base import Estimate
+from sea_daemon.errors import ConfigError, Fault
+from sea_daemon.io.configfile import default_config_path, load_yaml
+from sea_daemon.runtime.loop import fault_of
+
+
+def cfg_with(assist: dict | None = None, torque_limit: float = 10.0) -> ModelConfig:
+    raw = load_yaml(default_config_path())
+    raw.setdefault("hardware", {})["torque_limit"] = torque_limit
+    if assist is not None:
+        raw["assist"] = assist
+    return ModelConfig.from_dict(raw, "test.yaml")
+
+
+# ---------------------------------------------------------------------------- configuration
+def test_assist_is_off_unless_asked():
+    c = cfg_with()
+    assert c.assist.enabled is False
+    assert c.to_dict()["assist"]["enabled"] is False
+    assert ModelConfig.from_dict(c.to_dict(), "round").assist == c.assist
+
+
+def test_default_max_torque_within_a_small_torque_limit():
+    assert cfg_with(torque_limit=1.5).assist.max_torque == 1.5
+
+
+@pytest.mark.parametrize("assist, key, words", [
+    ({"gain": 11}, "assist.gain", "[0.0, 10.0]"),
+    ({"gain": -1}, "assist.gain", "[0.0, 10.0]"),
+    ({"max_torque": 20}, "assist.max_torque", "hardware.torque_limit = 10"),
+    ({"max_rate": 0}, "assist.max_rate", "> 0"),
+    ({"enabled": "yes"}, "assist.enabled", "true or false"),
+    ({"compensation": "full"}, "assist.compensation", "nominal, none"),
+    ({"smoothing_s": 20}, "assist.smoothing_s", "[0.0, 10.0]"),
+    ({"innovation_max": -3}, "assist.innovation_max", "> 0"),
+    ({"gian": 2}, "assist.gian", "unknown"),
+])
+def test_bad_assist_settings_name_key_and_range(assist, key, words):
+    with pytest.raises(ConfigError) as e:
+        cfg_with(assist)
+    assert key in str(e.value) and words in str(e.value)
+
+
+# ---------------------------------------------------------------------------- the gate
+def law(dt=0.01, **kw) -> AssistLaw:
+    base = dict(enabled=True, gain=2.0, deadband=0.05, rho_max=1.5, max_torque=3.0, max_rate=1e9, smoothing_s=0.0)
+    base.update(kw)
+    return AssistLaw(AssistConfig(**base), 1, dt)
+
+
+def test_certified_part_times_gain_without_smoothing():
+    a = law()
+    out = a.step([1.0], [0.3], True)
+    assert out[0] == pytest.approx(2.0 * (1.0 - 0.3 - 0.05))
+    assert a.trust[0] == pytest.approx(0.65)
+    assert a.step([-1.0], [0.3], True)[0] == pytest.approx(-1.3)      # the sign of the estimate
+    assert a.step([0.3], [0.3], True)[0] == 0.0                       # inside the bound: nothing
+    assert a.step([5.0], [0.1], True)[0] == 3.0                       # max_torque
+
+
+def test_invalid_or_nonfinite_estimate_gives_zero_at_once():
+    a = law(max_rate=1.0)                                              # slow, except for this
+    for _ in range(200):
+        a.step([2.0], [0.1], True)
+    assert a.tau[0] > 1.0
+    assert a.step([2.0], [0.1], False)[0] == 0.0
+    for _ in range(200):
+        a.step([2.0], [0.1], True)
+    assert a.step([float("nan")], [0.1], True)[0] == 0.0
+    for _ in range(200):
+        a.step([2.0], [0.1], True)
+    assert a.step([2.0], [math.inf], True)[0] == 0.0
+
+
+def test_loose_bound_gives_no_assistance():
+    a = law(rho_max=0.5)
+    assert a.step([3.0], [0.6], True)[0] == 0.0
+    assert a.step([3.0], [0.4], True)[0] > 0.0
+
+
+def test_rate_limit_both_ways():
+    a = law(max_rate=10.0, dt=0.01)
+    steps = [a.step([2.0], [0.0], True)[0] for _ in range(50)]
+    assert np.all(np.diff([0.0] + steps) <= 0.1 + 1e-12)
+    assert steps[-1] == pytest.approx(min(3.0, 2 * 1.95))
+    down = [a.step([0.0], [0.0], True)[0] for _ in range(5)]
+    assert np.all(np.diff([steps[-1]] + down) >= -0.1 - 1e-12)
+
+
+def test_smoothing_delays_and_keeps_the_bound():
+    """The averaged estimate and bound are the same low-pass of each: wherever |τ − τ̂| ≤ ρ held,
+    the target never exceeds gain × the subject's averaged torque and has its sign."""
+    rng = np.random.default_rng(4)
+    dt, T = 0.01, 0.5
+    a = law(smoothing_s=T, dt=dt, max_torque=100.0, rho_max=100.0)
+    beta = 1 - math.exp(-dt / T)
+    tau = 1.5 * np.sin(np.arange(3000) * dt * 1.3) + 0.3 * rng.standard_normal(3000).cumsum() * 0.05
+    tau_avg = tau[0]
+    for k in range(3000):
+        rho = 0.2 + 0.5 * rng.random()
+        hat = tau[k] + rho * (2 * rng.random() - 1)                  # the bound holds
+        a.step([hat], [rho], True)
+        if k:
+            tau_avg += beta * (tau[k] - tau_avg)
+        t = a.target[0]
+        assert abs(t) <= 2.0 * abs(tau_avg) + 1e-9
+        assert t == 0.0 or np.sign(t) == np.sign(tau_avg)
+
+
+# ---------------------------------------------------------------------------- innovation check
+class FakeFilter:
+    n, name = 1, "fake"
+
+    def __init__(self):
+        self.nis = 1.0
+        self.est = Estimate.zeros(1)
+        self.est.valid = True
+        self.extra = "passed through"
+
+    def reset(self, *a, **k):
+        return self.est
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        self.est.k += 1
+        return self.est
+
+
+def test_innovation_guard_faults_on_an_outlier():
+    f = FakeFilter()
+    g = InnovationGuard(f, 100.0)
+    assert g.update([0], [0], [0]) is f.est and g.extra == "passed through"
+    f.nis = 1e6
+    with pytest.raises(InnovationOutlier) as e:
+        g.update([0], [0], [0])
+    assert "100" in str(e.value) and fault_of(e.value) is Fault.INNOVATION_OUTLIER
+    f.est.valid = False                                                # the filter is not running yet
+    assert g.update([0], [0], [0]) is f.est
+    f.nis, f.est.valid = float("nan"), True
+    with pytest.raises(InnovationOutlier):
+        g.update([0], [0], [0])
+
+
+# ---------------------------------------------------------------------------- controller + loop
+def test_controller_is_compensation_plus_assistance():
+    from sea_daemon.core.model import SEAModel
+    from sea_daemon.runtime.controller import AssistController
+
+    cfg = cfg_with({"enabled": True, "gain": 2.0, "smoothing_s": 0.0, "max_rate": 1e6})
+    c = AssistController(cfg)
+    q = np.array([0.5])
+    comp = SEAModel.from_config(cfg).load_torque(q, np.zeros(1), np.zeros(1))
+    assert c.update(0.0, q, q, None) == pytest.approx(comp)            # no estimate: compensation only
+    e = Estimate.zeros(1)
+    e.tau_h_act_hat[:] = 1.0
+    e.tau_h_act_bound[:] = 0.2
+    assert c.update(0.01, q, q, e) == pytest.approx(comp)              # not valid
+    e.valid = True
+    assert c.update(0.02, q, q, e) == pytest.approx(comp + 2 * 0.75)
+    assert AssistController(cfg, gain=0.0).update(0.0, q, q, e) == pytest.approx(comp)
+
+
+class ScriptedEstimator(FakeFilter):
+    """τ̂ = 1 N m, ρ = 0.1 N m; NaN from step ``nan_at``, an innovation outlier at ``outlier_at``."""
+
+    def __init__(self, nan_at=None, outlier_at=None):
+        super().__init__()
+        self.nan_at, self.outlier_at = nan_at, outlier_at
+        self.est.tau_h_act_hat[:] = 1.0
+        self.est.tau_h_act_bound[:] = 0.1
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        from sea_daemon.core.estimators.health import EstimatorNonFinite
+        k = self.est.k
+        self.est.k += 1
+        if self.nan_at is not None and k >= self.nan_at:
+            raise EstimatorNonFinite(f"state not finite at step {k}")
+        self.nis = 1e9 if k == self.outlier_at else 1.0
+        return self.est
+
+
+@pytest.mark.parametrize("kind", ["nan", "outlier"])
+def test_corrupted_estimate_zero_torque_in_that_cycle(kind):
+    from drivers.sim_hw import SimHardware
+    from sea_daemon.core.sim.plant import Plant
+    from sea_daemon.runtime.controller import AssistController
+    from sea_daemon.runtime.loop import FixedRateLoop
+
+    cfg = cfg_with({"enabled": True, "gain": 2.0, "smoothing_s": 0.0, "max_rate": 1e6, "innovation_max": 1e3})
+    plant = Plant(cfg, q0=0.4, seed=0, torque_noise=0.0)
+    hw = SimHardware(plant, cfg.dt, torque_limit=10.0)
+    est = ScriptedEstimator(nan_at=30 if kind == "nan" else None, outlier_at=30 if kind == "outlier" else None)
+    ctl = AssistController(cfg)
+    written = []
+    hw_write = hw.write
+    hw.write = lambda tau: (written.append(float(np.asarray(tau)[0])), hw_write(tau))[1]
+    assisted = []
+    loop = FixedRateLoop(hw, InnovationGuard(est, 1e3), ctl, 1, cfg.dt, realtime=False,
+                         on_cycle=lambda k, m, e, tau: assisted.append((k, float(tau[0]), float(ctl.tau_assist[0]))))
+    hw.start(plant.hold_torque)
+    loop.run(40)
+    code = Fault.ESTIMATOR_NONFINITE if kind == "nan" else Fault.INNOVATION_OUTLIER
+    assert loop.supervisor.latched is code and loop.supervisor.latched_cycle == 30
+    # the cycle of the fault and every later one: zero torque acting, zero written last
+    for k, tau, _ in assisted[30:]:
+        assert tau == 0.0
+    assert assisted[29][2] > 1.0                      # it was assisting until then
+    assert written[-1] == 0.0

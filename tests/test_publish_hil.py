@@ -1,0 +1,189 @@
+"""The publication against real runs of the daemon (docs/can.md, docs/interfaces.md §6):
+
+* a CAN client in another process than the daemon (this test process, python-can over the
+  remote bus) receives TPDO1 every cycle of ``sea-daemon run`` and its values are the run log's
+  τ̂_h,act and bound to REAL32 precision, +inf while the estimate is not valid;
+* :class:`sea_daemon.client.Subscriber` receives every cycle of a run, equal to the log;
+* ``sea-daemon watch`` shows the run.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sea_daemon.io.configfile import repo_root
+
+pytestmark = pytest.mark.slow
+
+ROOT = repo_root()
+CONFIG = str(ROOT / "configs" / "exo_1dof_sim.yaml")
+PASSIVE = str(ROOT / "configs" / "scenarios" / "passive.yaml")
+ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def daemon(*args, timeout=600, **kw):
+    return subprocess.run([sys.executable, "-m", "sea_daemon", *args], capture_output=True, text=True, env=ENV,
+                          timeout=timeout, **kw)
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    """A GP model from a short calibration on the device model (passive subject)."""
+    d = tmp_path_factory.mktemp("cal")
+    r = daemon("calibrate", "--config", CONFIG, "--device-model", PASSIVE, "--scenario", PASSIVE,
+               "--out", str(d / "m.npz"), "--log-dir", str(d), "--cycles", "300", "--socket", "none")
+    assert r.returncode == 0, r.stderr[-2000:]
+    return d / "m.npz"
+
+
+def read_log(path):
+    import csv
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    return {int(float(r["cycle"])): r for r in rows}
+
+
+def short_dir(tmp_path) -> Path:
+    """A state directory whose socket path fits a UNIX socket (107 bytes)."""
+    if len(os.fsencode(str(tmp_path / "sea-daemon.sock"))) < 100:
+        return tmp_path
+    import tempfile
+    return Path(tempfile.mkdtemp(prefix="sea-"))
+
+
+def test_client_and_watch_against_a_run(model, tmp_path):
+    from sea_daemon.client import Subscriber, default_socket
+
+    d = short_dir(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "run", "--config", CONFIG, "--model", str(model),
+                             "--device-model", PASSIVE, "--log-dir", str(d), "--cycles", "2000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    sock = default_socket(d)
+    deadline = time.monotonic() + 120
+    while not sock.exists():
+        assert proc.poll() is None, proc.stderr.read()[-2000:]
+        assert time.monotonic() < deadline, "the daemon never opened its socket"
+        time.sleep(0.05)
+    watch = subprocess.Popen([sys.executable, "-m", "sea_daemon", "watch", "--state-dir", str(d), "--plain",
+                              "--frames", "200", "--refresh", "0.1"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    samples = []
+    with Subscriber(sock) as sub:
+        while True:
+            s = sub.receive(timeout=2.0)
+            if s is None:
+                if proc.poll() is not None:
+                    break
+                continue
+            samples.append(s)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+    summary = json.loads(out.strip().splitlines()[-1])
+    watch.terminate()                                                    # Ctrl-C of the person watching
+    wout, werr = watch.communicate(timeout=60)
+    assert watch.returncode in (0, -15), werr[-2000:]
+    assert summary["publish"]["local"]["dropped_full"] == 0
+    log = read_log(summary["log"])
+    assert [s.cycle for s in samples] == sorted(log)                     # every cycle, in order
+    first_valid = None
+    for s in samples:
+        r = log[s.cycle]
+        assert s.t == pytest.approx(float(r["t"]), abs=1e-9)
+        assert s.tau_h_act_hat[0] == pytest.approx(float(r["tau_h_act_hat"]), rel=1e-8, abs=1e-12)
+        if s.valid[0]:
+            first_valid = s.cycle if first_valid is None else first_valid
+            assert s.tau_h_act_bound[0] == pytest.approx(float(r["tau_h_act_bound"]), rel=1e-8)
+        else:
+            assert s.tau_h_act_bound[0] == math.inf
+            assert first_valid is None                                   # only the start-up is not valid
+    assert first_valid is not None and first_valid < 10
+    lines = [ln for ln in wout.splitlines() if ln.startswith("cycle ")]
+    assert lines and "fault NONE" in lines[-1] and "tau_h_act_bound" in lines[-1]
+
+
+class CanListener:
+    """Frames of the daemon's node on the remote bus, received in this process."""
+
+    def __init__(self, url: str, ids):
+        import can
+        self.bus = can.Bus(interface="remote", channel=url)
+        self.ids = set(ids)
+        self.frames: list = []
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self._stop.is_set():
+            m = self.bus.recv(0.1)
+            if m is not None and m.arbitration_id in self.ids:
+                self.frames.append((m.arbitration_id, bytes(m.data)))
+
+    def close(self):
+        self._stop.set()
+        self.thread.join(5)
+        self.bus.shutdown()
+
+
+def test_tpdo1_every_cycle_on_the_remote_bus(model, tmp_path):
+    from _hil import RemoteServer
+    from test_drivers_remote import DeviceProcess
+
+    from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
+
+    ids = tpdo_cob_ids(127, 1)
+    server = RemoteServer()
+    dev = listener = None
+    try:
+        dev = DeviceProcess(server.url, "--config", CONFIG, "--scenario", PASSIVE)
+        listener = CanListener(server.url, ids.values())
+        d = short_dir(tmp_path)
+        # timeouts for a loaded 2-core machine (a fault would show as +inf, checked below)
+        import dataclasses
+
+        from sea_daemon.io.configfile import load_config, save_config
+        cfg = load_config(CONFIG)
+        bus = dataclasses.replace(cfg.hardware.bus, pdo_timeout_ms=100.0, max_missed_cycles=2,
+                                  heartbeat_timeout_ms=1000, sdo_timeout_ms=2000)
+        save_config(dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=bus)), d / "c.yaml")
+        r = daemon("run", "--config", str(d / "c.yaml"), "--model", str(model), "--bus", "remote", "--channel", server.url,
+                   "--scenario", PASSIVE, "--log-dir", str(d), "--cycles", "1200", "--overrun-streak", "0",
+                   "--rt-priority", "0")
+        assert r.returncode in (0, 1) and r.stdout.strip(), r.stderr[-2000:]   # 1: a fault latched
+        time.sleep(0.5)
+    finally:
+        if listener is not None:
+            listener.close()
+        if dev is not None:
+            dev.close()
+        server.close()
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    log = read_log(summary["log"])
+    by_cycle = tpdo_cycles(listener.frames)              # TPDO1 with the TPDO2 that closes its cycle
+    received = [k for k in log if k in by_cycle]
+    assert len(received) >= 0.999 * len(log), f"TPDO1 of {len(received)} of {len(log)} cycles"
+    equal = inf_startup = 0
+    for k in received:
+        j1, st = by_cycle[k]
+        row = log[k]
+        assert abs(j1["tau_h_act_hat"] - float(np.float32(float(row["tau_h_act_hat"])))) <= \
+            abs(float(np.spacing(np.float32(float(row["tau_h_act_hat"])))))                  # REAL32 precision
+        if j1["valid"]:
+            b32 = np.float32(float(row["tau_h_act_bound"]))
+            assert abs(j1["tau_h_act_bound"] - float(b32)) <= abs(float(np.spacing(b32)))
+            equal += 1
+        else:
+            assert j1["tau_h_act_bound"] == math.inf and not st["valid"][0]
+            assert k < 10 or float(row["fault"]) != 0.0                  # the start-up, or a fault
+            inf_startup += 1
+    assert equal + inf_startup == len(received) and equal >= 0.99 * len(received)
+    assert summary["publish"]["can"]["frames_dropped"] == 0
