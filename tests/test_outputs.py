@@ -125,8 +125,12 @@ def test_a_write_that_fails_leaves_the_target_as_it_was(tmp_path, log, cfg, caps
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
 
 
-def test_diagnose_never_writes_a_model_its_loader_refuses(tmp_path, capsys):
-    """K_s off by 10x: the fitted effects leave the vocabulary's ranges (kappa < 0); refused, nothing written."""
+def test_diagnose_never_writes_a_model_its_loader_refuses(tmp_path, capsys, monkeypatch):
+    """K_s off by 10x: what diagnose writes loads; an effect fitted out of its range is refused
+    before anything is written."""
+    import sea_daemon.apps.diagnose as dg
+    from sea_daemon.errors import ConfigError
+    from sea_daemon.io.configfile import load_config
     from sea_daemon.io.logcsv import write_log
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.runtime.sim_runner import simulate
@@ -135,8 +139,15 @@ def test_diagnose_never_writes_a_model_its_loader_refuses(tmp_path, capsys):
     cfg = tmp_path / "k.yaml"
     cfg.write_text(CFG.read_text().replace("K_s: 110.0", "K_s: 1100.0"))
     code, _, err = run(["diagnose", log, "--config", cfg, "--out", tmp_path / "d", "--no-plots"], capsys)
-    refused(code, err, r"the effects found make a configuration the loader refuses", r"nothing written")
-    assert not list((tmp_path / "d").iterdir())
+    assert code == 0, err
+    load_config(tmp_path / "d" / "model_augmented.yaml")            # the loader takes what was written
+
+    def refuse(c, path):
+        raise ConfigError(str(path), "effects[0].params.kappa", "must be > 0, got -0.219")
+    monkeypatch.setattr(dg, "config_text", refuse)
+    code, _, err = run(["diagnose", log, "--config", cfg, "--out", tmp_path / "e", "--no-plots"], capsys)
+    refused(code, err, r"the effects found make a configuration the loader refuses", r"kappa", r"nothing written")
+    assert not (tmp_path / "e").exists() or not list((tmp_path / "e").iterdir())
 
 
 def test_calibrate_bound_torque_refuses_a_log_too_short_for_its_quantile(tmp_path, capsys):

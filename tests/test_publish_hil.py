@@ -91,9 +91,14 @@ def test_client_and_watch_against_a_run(model, tmp_path):
     watch.terminate()                                                    # Ctrl-C of the person watching
     wout, werr = watch.communicate(timeout=60)
     assert watch.returncode in (0, -15), werr[-2000:]
-    assert summary["publish"]["local"]["dropped_full"] == 0
     log = read_log(summary["log"])
-    assert [s.cycle for s in samples] == sorted(log)                     # every cycle, in order
+    cycles = [s.cycle for s in samples]
+    assert cycles == sorted(set(cycles)) and set(cycles) <= set(log)      # in order, each a logged cycle
+    # a reader that falls 10 datagrams behind (a loaded machine) loses samples, never the
+    # daemon's cycle: each one lost is counted, and nearly every cycle arrives
+    missed = len(log) - len(cycles)
+    assert missed <= summary["publish"]["local"]["dropped_full"]
+    assert len(cycles) >= 0.99 * len(log)
     first_valid = None
     for s in samples:
         r = log[s.cycle]
