@@ -53,6 +53,7 @@ from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
+from sea_daemon.core.bounds import bound_core
 
 
 @njit
@@ -83,8 +84,13 @@ class AKFTheoremBound:
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
-                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None):
+                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None,
+                 compiled: bool = True):
         self.akf = akf
+        # the compiled step (bound_core.bound_step) where it applies, else the Python step below
+        self.compiled = bool(compiled)
+        self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
+        self._pack_at = -1                # n_learned when the pack was made
         est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
         # the configuration's estimator.gp_beta
@@ -146,6 +152,15 @@ class AKFTheoremBound:
         self._grid_step = 2.0 / 64
         self._Uz = _directions(2 * n, n_dirs, seed)
         self.gp_box_violations_ = 0
+        self._rho = np.zeros(n)
+        self._b = np.zeros(d)
+        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
+        self._empty = bound_core.empty_args()
+        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+                       and (not has_gp or residual_gps(akf) is not None))
+        self._minv = np.ascontiguousarray(m.Minv, dtype=float)
+        self._M = np.ascontiguousarray(m.M, dtype=float)
+        self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
@@ -159,6 +174,7 @@ class AKFTheoremBound:
         self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
         self._update_scales()
+        self._pack = None
 
     def _update_scales(self) -> None:
         """The local scales s(z) (:class:`LocalScale`) when the constants use them."""
@@ -294,9 +310,63 @@ class AKFTheoremBound:
             return Phi
         return discretize(A, self._I, dt)[1]
 
+    def _compiled_pack(self):
+        """The GP pack for the compiled step, or None when the Python step must run (not the
+        compiled case, or a GP that is learning).  A plain AKF: an empty tuple."""
+        if not (self.compiled and self._cfast):
+            return None
+        akf = self.akf
+        if akf.residual is None:
+            return ()
+        if getattr(akf, "learning", False):
+            return None
+        n_l = self._n_learned()
+        if self._pack is None or self._pack_at != n_l:
+            gps = residual_gps(akf)
+            local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
+            self._pack = bound_core.GPPack(gps, local_r)
+            self._pack_at = n_l
+            c = self.gp_constants
+            self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
+            self._gamma = np.array([k.gamma for k in c], dtype=float)
+            self._pack_args = self._pack.args()
+        return self._pack_args
+
+    def _step_compiled(self, est, x0, P0, u, dt, gp) -> None:
+        """The same step in one compiled call (:mod:`.bound_core`)."""
+        akf = self.akf
+        sm = self.sm
+        n = akf.n
+        has_gp = akf.residual is not None
+        if self.tau_h_act_rate > 0:
+            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            self._Gam_tau_c[:] = self._Gam_tau
+        box = self.gp_box
+        lo, hi = (box if box is not None else (self._g, self._g))
+        G, out = bound_core.bound_step(
+            sm.G_, x0, P0, akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
+            self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
+            self._grid_step, self._Uz, has_gp, self._scales is not None,
+            self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
+            self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
+            self.tau_h_act_rate > 0, sm.max_generators, sm.delta_noise / n, sm._z_tau, gp if has_gp else
+            self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
+        if not np.isfinite(G).all():
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
+                                 f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
+                                 f"the confidence set")
+        sm.G_ = G
+        self.gp_box_violations_ += int(out)
+        self.lin_err_ = self._b
+        est.tau_h_act_bound[:] = self._rho
+
     def step(self, est, x0, P0, u, dt) -> None:
         """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
         propagate the set of means and publish ρ_k."""
+        gp = self._compiled_pack()
+        if gp is not None:
+            self._step_compiled(est, x0, P0, u, dt, gp)
+            return
         akf = self.akf
         zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
