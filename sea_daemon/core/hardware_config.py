@@ -54,7 +54,7 @@ class BusConfig:
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
             "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms",
             "master_node"]
-    INTERFACES = ("virtual", "socketcan", "remote")
+    INTERFACES = ("virtual", "socketcan", "remote", "ipc")
 
     @classmethod
     def default(cls, n: int) -> "BusConfig":
