@@ -24,7 +24,13 @@ over SDO is :class:`drivers.canopen_setup.NodeSetup`:
    reference (the load encoder's single-turn count is centred on (-π, π]); its sample is
    :attr:`CanopenHardware.meas` until the first ``read()``.
 
-Cycle — PDOs only: ``write(tau)`` sends the RPDO; ``read()`` sends SYNC and takes that cycle's
+Cycle — PDOs only, pipelined as a CANopen master does: the loop calls ``read()`` at its deadline;
+``read()`` sends SYNC first, checks heartbeats / EMCY / bus-off and sends the master heartbeat
+while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
+SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
+this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
+RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
+``read()`` takes the cycle's
 TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: the rx callbacks copy the frame bytes into
 preallocated buffers under a lock, ``read()`` decodes their snapshot with precompiled structs).
 Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
@@ -109,6 +115,8 @@ class CanopenHardware(HardwareInterface):
         self._primed = False
         self._cycle = -1
         self._started = False
+        self.missed_cycles = 0          # cycles with a TPDO missing at the deadline (held or faulted)
+        self.late_cycles = 0            # cycles that found frames of an earlier cycle (FRAME_LATE)
 
     # ================================================================== start-up (SDO)
     def start(self, initial_torque: np.ndarray | None = None) -> None:
@@ -263,17 +271,22 @@ class CanopenHardware(HardwareInterface):
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
         m.faults = 0
-        self._check_async()
-        self._send_master_heartbeat()
+        if self._errors.bus_off:
+            raise BusOff("error frame with the bus-off flag received")
         if self._rx.open():
             m.faults |= FaultFlag.FRAME_LATE
+            self.late_cycles += 1
+        # SYNC first (the loop calls read() at its deadline): the devices sample now and answer
+        # while this thread checks what arrived between cycles and sends its heartbeat
         t_sync = self.clock()
         try:
             self._send(self._sync_msg, "SYNC")
+            self._check_async()
+            self._send_master_heartbeat()
         except BaseException:
             self._rx.abort()
             raise
-        self._rx.wait(self.pdo_timeout)
+        self._rx.wait(t_sync + self.pdo_timeout - self.clock())
         self._rx.close()
         self._cycle += 1
         self._check_emcy()                 # an EMCY sent before the TPDOs has arrived before them
@@ -298,6 +311,7 @@ class CanopenHardware(HardwareInterface):
                 if s.snap_count > 1:
                     m.faults |= FaultFlag.FRAME_LATE
         if missing is not None:
+            self.missed_cycles += 1
             if missing.missed > self.bus_cfg.max_missed_cycles or not self._primed:
                 raise PdoTimeout(missing.node, missing.cob_id, self._cycle, self.pdo_timeout, missing.missed)
             return m                                   # values held from the last cycle
