@@ -155,7 +155,8 @@ class DeviceModel:
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
         handler's CPU time, median / p99 / max in µs."""
         k = min(self.syncs, self.STATS_CAP)
-        out = {"syncs": int(self.syncs)}
+        out = {"syncs": int(self.syncs), "frames": int(self.network.frames),
+               "data_bytes": int(self.network.data_bytes)}
         for key, a in (("answer_us", self.answer_s[:k]), ("handler_cpu_us", self.handler_cpu_s[:k])):
             a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
             out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),

@@ -53,11 +53,17 @@ class DeviceNetwork(canopen.Network):
         super().__init__(bus)
         self.gate = None           # callable(can_id, data) -> bool: True = send now (gate may send later)
         self.deaf: set[int] = set()   # node ids that ignore what they receive (bus-off)
+        # every frame this network sent or received, and their data bytes (bus load: with the
+        # master as the only other member, everything on the bus)
+        self.frames = 0
+        self.data_bytes = 0
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if self.gate is not None and not self.gate(can_id, bytes(data)):
             return
         super().send_message(can_id, data, remote)
+        self.frames += 1
+        self.data_bytes += len(data)
 
     def send_now(self, can_id: int, data: bytes) -> None:
         """Bypass the gate (used by the gate itself for delayed frames)."""
@@ -67,6 +73,8 @@ class DeviceNetwork(canopen.Network):
             pass
 
     def notify(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.frames += 1
+        self.data_bytes += len(data)
         if self.deaf:
             node = can_id & 0x7F
             if node in self.deaf and can_id & 0x780 in (0x200, 0x300, 0x400, 0x500, 0x600):

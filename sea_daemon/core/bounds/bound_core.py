@@ -126,14 +126,28 @@ def empty_args() -> tuple:
 
 
 @njit
-def _leaf_predict(l, x, nn, row, apo, A, X, beta, ap, center, il2, sf2, lo, hi, clip, xc):
-    """(μ, σ²) of leaf l at x (IncrementalGP.predict_many's row, with clip_mean)."""
+def _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc, a, kv):
+    """(μ, σ²) of leaf l at x (IncrementalGP.predict_many's row, with clip_mean): σ² = k(x,x) −
+    ‖L⁻¹k‖² (eq:GPvariance, one O(N²) solve), μ = kᵀα (eq:GPmean with α = L⁻ᵀβ, O(N); at the
+    clipped input with clip_mean outside the leaf's box)."""
     m = nn[l]
     if m == 0:
         return 0.0, sf2[l]
     r0, p0 = row[l], apo[l]
-    Al, apl, bl = A[r0:r0 + m], ap[p0:p0 + m * (m + 1) // 2], beta[r0:r0 + m]
-    mu, var = gp_core.predict(Al, apl, bl, center[l], il2[l], m, sf2[l], x)
+    Al = A[r0:r0 + m]
+    al = alpha[r0:r0 + m]
+    gp_core.query(x, center[l], il2[l], a)
+    gp_core.kernel_vector(Al, m, a, kv)
+    mu = 0.0
+    for i in range(m):
+        mu += kv[i] * al[i]
+    gp_core.solve_lower(ap[p0:p0 + m * (m + 1) // 2], m, kv)
+    vv = 0.0
+    for i in range(m):
+        vv += kv[i] * kv[i]
+    var = sf2[l] - vv
+    if var < 0.0:
+        var = 0.0
     if clip[l]:
         out = False
         for i in range(x.shape[0]):
@@ -142,7 +156,11 @@ def _leaf_predict(l, x, nn, row, apo, A, X, beta, ap, center, il2, sf2, lo, hi, 
             if v != x[i]:
                 out = True
         if out:
-            mu = gp_core.predict(Al, apl, bl, center[l], il2[l], m, sf2[l], xc)[0]
+            gp_core.query(xc, center[l], il2[l], a)
+            gp_core.kernel_vector(Al, m, a, kv)
+            mu = 0.0
+            for i in range(m):
+                mu += kv[i] * al[i]
     return mu, var
 
 
@@ -172,6 +190,8 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
     xc = np.empty(dz)
     xq = np.empty((1, dz))
     e1 = np.empty(1)
+    a = np.empty(dz + 2)
+    kv = np.empty(max(1, np.max(nn)) if nn.shape[0] else 1)
     for j in range(nj):
         dim, left, right = links[j, 0], links[j, 1], links[j, 2]
         slo, shi = span[j, 0], span[j, 1]
@@ -207,7 +227,8 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
                 jd = dim[node]
                 if jd < 0:
                     l = leaf_of[j, node]
-                    m, v = _leaf_predict(l, x, nn, row, apo, A, X, beta, ap, center, il2, sf2, lo, hi, clip, xc)
+                    m, v = _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc,
+                                         a, kv)
                     mu += w * m
                     m2 += w * (v + m * m)
                     if local:
