@@ -14,9 +14,13 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
   frame but its own (``receive_own_messages`` adds one's own).
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
   bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
-* Sends never block: a member whose receive queue is full (not reading) loses the frame,
-  counted in :attr:`IpcBus.overruns` — a CAN controller overrun at that node; a member that
-  has gone (socket refused or removed) is dropped from the list.
+* Sends never block: a member whose receive queue is full (not reading; a UNIX datagram socket
+  queues ``net.unix.max_dgram_qlen`` datagrams, 10 by default) loses the frame, counted in
+  :attr:`IpcBus.overruns` — a CAN controller overrun at that node; a member that has gone
+  (socket refused or removed) is dropped from the list.
+* ``set_filters`` is published next to the member's socket (``<socket>.filter``): senders skip
+  a member for the ids it does not accept (the hardware acceptance filter of a CAN controller),
+  so a handle read once a cycle — the driver's TPDO handle — only queues its TPDOs.
 
 Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`` in
 ``pyproject.toml``); :func:`drivers.bus.make_bus` opens it for ``hardware.bus.interface: ipc``.
@@ -25,7 +29,6 @@ from __future__ import annotations
 
 import errno
 import itertools
-import math
 import os
 import select
 import socket
@@ -37,6 +40,7 @@ import can
 BASE_DIR = "/dev/shm/sea-can" if os.path.isdir("/dev/shm") else "/tmp/sea-can"
 _FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 24 bytes
 _EXT, _RTR, _ERR = 1, 2, 4
+FILTER_SUFFIX = ".filter"
 _counter = itertools.count()
 
 
@@ -73,18 +77,19 @@ class IpcBus(can.BusABC):
         except FileNotFoundError:
             pass
         self._sock.bind(self.path)
-        self._poll = select.poll()
-        self._poll.register(self._sock.fileno(), select.POLLIN)
+        self._rd = (self._sock,)
         self._peers: list[str] = []
         self._mtime = -1
         self._buf = bytearray(_FRAME.size)
         self._closed = False
+        self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         super().__init__(channel=self.channel, **kwargs)
         self._refresh()
 
     # ------------------------------------------------------------------ members
     def _refresh(self) -> None:
-        """Re-read the members when the directory changed (one stat per send otherwise)."""
+        """Re-read the members and their filters when the directory changed (one stat per send
+        otherwise)."""
         try:
             m = os.stat(self._dir).st_mtime_ns
         except FileNotFoundError:
@@ -94,18 +99,29 @@ class IpcBus(can.BusABC):
             return
         self._mtime = m
         me = os.path.basename(self.path)
-        self._peers = [os.path.join(self._dir, f) for f in sorted(os.listdir(self._dir)) if f != me]
+        names = set(os.listdir(self._dir))
+        peers = []
+        for f in sorted(names):
+            if f == me or f.endswith((FILTER_SUFFIX, ".tmp")):
+                continue
+            acc = None
+            if f + FILTER_SUFFIX in names:
+                try:
+                    with open(os.path.join(self._dir, f + FILTER_SUFFIX)) as fh:
+                        acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
+                except (OSError, ValueError):
+                    acc = None
+            peers.append((os.path.join(self._dir, f), acc))
+        self._peers = peers
 
     def _gone(self, peer: str, stale: bool) -> None:
-        try:
-            self._peers.remove(peer)
-        except ValueError:
-            pass
-        if stale:                                  # nobody bound to it any more: remove the file
-            try:
-                os.unlink(peer)
-            except OSError:
-                pass
+        self._peers = [p for p in self._peers if p[0] != peer]
+        if stale:                                  # nobody bound to it any more: remove the files
+            for f in (peer, peer + FILTER_SUFFIX):
+                try:
+                    os.unlink(f)
+                except OSError:
+                    pass
 
     # ------------------------------------------------------------------ BusABC
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -120,7 +136,10 @@ class IpcBus(can.BusABC):
         self._refresh()
         sendto = self._sock.sendto
         buf = self._buf
-        for peer in tuple(self._peers):
+        can_id = msg.arbitration_id
+        for peer, acc in self._peers:
+            if acc is not None and not flags & _ERR and not any(can_id & m == i & m for i, m in acc):
+                continue                           # that member does not take this id
             try:
                 sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
@@ -142,26 +161,54 @@ class IpcBus(can.BusABC):
                            is_remote_frame=bool(flags & _RTR), is_error_frame=bool(flags & _ERR), dlc=dlc,
                            data=data[:dlc], channel=None, check=False)
 
+    def _apply_filters(self, filters) -> None:
+        """python-can's accept filters, checked on the raw id before a frame is decoded (error
+        frames always pass, as on SocketCAN)."""
+        if not filters:
+            self._accept = None
+        else:
+            self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters)
+        # published next to the socket: the senders skip this member for other ids (a member's
+        # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
+        # must not fill with frames it drops anyway)
+        path = self.path + FILTER_SUFFIX
+        try:
+            if self._accept is None:
+                os.unlink(path)
+            else:
+                with open(path + ".tmp", "w") as fh:
+                    fh.write(" ".join(f"{i:x}:{m:x}" for i, m in self._accept))
+                os.replace(path + ".tmp", path)
+        except OSError:
+            pass
+
     def _recv_internal(self, timeout: float | None):
         if self._pending:
             return self._pending.pop(0), False
         if self._closed:
             return None, False
-        try:
-            raw = self._sock.recv(64, socket.MSG_DONTWAIT)
-        except BlockingIOError:
-            ms = -1 if timeout is None else max(0, math.ceil(timeout * 1000))
-            if not self._poll.poll(ms):
-                return None, False
+        end = None if timeout is None else time.monotonic() + timeout
+        acc = self._accept
+        while True:
             try:
                 raw = self._sock.recv(64, socket.MSG_DONTWAIT)
-            except (BlockingIOError, OSError):
+            except BlockingIOError:
+                left = None if end is None else end - time.monotonic()
+                if left is not None and left <= 0.0:
+                    return None, True
+                # select: a timeout in µs (poll's is in ms, too coarse inside a 1 ms period)
+                if not select.select(self._rd, (), (), left)[0]:
+                    return None, True
+                continue
+            except OSError:
                 return None, False
-        except OSError:
-            return None, False
-        if len(raw) != _FRAME.size:
-            return None, False
-        return self._decode(raw), False
+            if len(raw) != _FRAME.size:
+                continue
+            if acc is not None and not raw[4] & _ERR:
+                can_id = raw[0] | raw[1] << 8 | raw[2] << 16 | raw[3] << 24
+                if not any(can_id & m == i & m for i, m in acc):
+                    continue                     # another frame: the queue is read on (no time check)
+            return self._decode(raw), True
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -173,10 +220,11 @@ class IpcBus(can.BusABC):
         try:
             self._sock.close()
         finally:
-            try:
-                os.unlink(self.path)
-            except OSError:
-                pass
+            for f in (self.path, self.path + FILTER_SUFFIX):
+                try:
+                    os.unlink(f)
+                except OSError:
+                    pass
             super().shutdown()
 
     @staticmethod
