@@ -98,6 +98,28 @@ def _wait_line(proc, text: str, timeout: float) -> str:
     raise RuntimeError(f"no {text!r} within {timeout} s")
 
 
+def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
+    """``sea-daemon device-model`` in its own process on ``cfg``'s bus (``--stats``, SCHED_FIFO
+    ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
+    from drivers.canopen_hw import CanopenHardware
+    from sea_daemon.io.configfile import repo_root, save_config
+    from sea_daemon.runtime.rig import Rig
+    path = Path(tmp) / "device-model.yaml"
+    save_config(cfg, path)
+    b = cfg.hardware.bus
+    proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
+                             b.channel, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(repo_root())))
+    try:
+        ready = _wait_line(proc, "device-model ready", 120)
+    except BaseException:
+        proc.kill()
+        raise
+    return proc, Rig(CanopenHardware(cfg), f"device model process on {b.interface} {b.channel} "
+                     f"({ready.split(';')[-1].strip()})", np.zeros(cfg.joints), cfg=cfg)
+
+
 def _pcts(a) -> dict:
     a = np.asarray(a, dtype=float)
     return {"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
@@ -128,7 +150,7 @@ def run(args) -> int:
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.runtime.controller import ScenarioController
-    from sea_daemon.runtime.rig import Rig, make_rig
+    from sea_daemon.runtime.rig import make_rig
     from sea_daemon.runtime.safety import SafetySupervisor
     from sea_daemon.runtime.service import serve
     from sea_daemon.core.estimators import make_estimator
@@ -185,16 +207,8 @@ def run(args) -> int:
             cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
                 cfg.hardware.bus, interface=args.bus, channel=url, pdo_timeout_ms=deadline_ms,
                 max_missed_cycles=args.max_missed, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)))
-            save_config(cfg_r, cfg_path)
-            dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", args.bus,
-                                    "--channel", url, "--config", str(cfg_path), "--scenario", scen, "--stats",
-                                    "--rt-priority", str(args.device_rt_priority)],
-                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                   env=dict(os.environ, PYTHONPATH=str(root)))
+            dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
             procs.append(dev)
-            ready = _wait_line(dev, "device-model ready", 120)
-            rig = Rig(CanopenHardware(cfg_r), f"device model process on {args.bus} {url} "
-                      f"({ready.split(';')[-1].strip()})", np.zeros(cfg.joints), cfg=cfg_r)
         sc = load_scenario(scen)
         controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
         n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0

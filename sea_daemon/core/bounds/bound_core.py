@@ -430,7 +430,7 @@ def _warm() -> None:
     for _ in range(4):
         gpm.update(rng.standard_normal(3), 0.1)
     pack = GPPack([gpm], [{k: 0.01 for k in gpm.leaves()}])
-    d, n = 5, 1
+    d = 5
     E_q = np.zeros((1, d))
     E_q[0, 0] = E_q[0, 1] = 1.0
     T = np.zeros((2, d))
