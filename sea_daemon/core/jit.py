@@ -24,6 +24,7 @@ import numba
 #: module for :func:`njit`)
 KERNEL_MODULES = (
     "sea_daemon.core.linalg",
+    "sea_daemon.core.control",
     "sea_daemon.core.effects",
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",
