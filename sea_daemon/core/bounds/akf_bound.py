@@ -52,7 +52,7 @@ from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
+    REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 from sea_daemon.core.bounds import bound_core
 
 
@@ -134,6 +134,8 @@ class AKFTheoremBound:
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 1 at 100 Hz, 10 at 1 kHz
+        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._I = np.eye(d)
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
@@ -349,7 +351,7 @@ class AKFTheoremBound:
             self._grid_step, self._Uz, has_gp, self._scales is not None,
             self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
             self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
-            self.tau_h_act_rate > 0, sm.max_generators, sm.delta_noise / n, sm._z_tau, gp if has_gp else
+            self.tau_h_act_rate > 0, sm.generator_limit(), sm.delta_noise / n, sm._z_tau, gp if has_gp else
             self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
         if not np.isfinite(G).all():
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
