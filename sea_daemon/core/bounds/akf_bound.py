@@ -345,14 +345,12 @@ class AKFTheoremBound:
             self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
-        G, out = bound_core.bound_step(
-            sm.G_, x0, P0, akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
-            self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
-            self._grid_step, self._Uz, has_gp, self._scales is not None,
-            self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
-            self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
-            self.tau_h_act_rate > 0, sm.generator_limit(), sm.delta_noise / n, sm._z_tau, gp if has_gp else
-            self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
+        try:
+            G, out = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+        except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
+            # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
+            # projection): the typed estimator fault, as the Python step raises it
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged ({e})") from None
         if not np.isfinite(G).all():
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
@@ -361,6 +359,17 @@ class AKFTheoremBound:
         self.gp_box_violations_ += int(out)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
+
+    def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
+        """:func:`bound_core.bound_step` with this bound's arrays."""
+        return bound_core.bound_step(
+            sm.G_, x0, P0, akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
+            self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
+            self._grid_step, self._Uz, has_gp, self._scales is not None,
+            self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
+            self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
+            self.tau_h_act_rate > 0, sm.generator_limit(), sm.delta_noise / n, sm._z_tau, gp if has_gp else
+            self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
 
     def step(self, est, x0, P0, u, dt) -> None:
         """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
