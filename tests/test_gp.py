@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.errors import InputError
-from sea_daemon.core.gp.exact import IncrementalGP, fit_hyperparameters, log_marginal_likelihood, se_kernel
+from sea_daemon.core.gp.exact import IncrementalGP, se_kernel
+from sea_daemon.core.gp.hyper import fit_hyperparameters, log_marginal_likelihood
 
 L_TRUE = np.array([0.4, 0.9, 2.5])
 SF, SN = 1.3, 0.08

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.errors import InputError, ModelFileError
-from sea_daemon.core.gp.exact import IncrementalGP, log_marginal_likelihood, se_kernel
+from sea_daemon.core.gp.exact import IncrementalGP, se_kernel
+from sea_daemon.core.gp.hyper import log_marginal_likelihood
 from sea_daemon.core.gp.loggp import LoGGP
 
 

@@ -141,8 +141,9 @@ class Effect:
     additive: ClassVar[bool] = True
     #: code of the formula in :func:`evaluate`
     code: ClassVar[int] = STRUCTURAL
-    #: fields forming the parameter vector of :func:`evaluate`, in its order
+    #: fields forming the parameter vector of :func:`evaluate`, in its order (default: param_names)
     vector_fields: ClassVar[tuple[str, ...]] = ()
+    #: fields forming the parameter vector of :func:`evaluate`, in its order (default: param_names)
 
     @property
     def params(self) -> dict[str, float]:
@@ -152,7 +153,7 @@ class Effect:
     def vector(self) -> np.ndarray:
         """The parameter vector ``p`` of :func:`evaluate` (length :data:`MAX_PARAMS`)."""
         v = np.zeros(MAX_PARAMS)
-        for i, k in enumerate(self.vector_fields):
+        for i, k in enumerate(self.vector_fields or self.param_names):
             v[i] = float(getattr(self, k))
         return v
 
@@ -186,21 +187,14 @@ class Effect:
 class Coulomb(Effect):
     F_c: float = 0.0
     eps: float = DEFAULT_SIGN_EPS
-    type: ClassVar[str] = "coulomb"
-    sides: ClassVar[tuple[str, ...]] = ("load", "motor")
-    param_names: ClassVar[tuple[str, ...]] = ("F_c",)
-    code: ClassVar[int] = COULOMB
-    vector_fields: ClassVar[tuple[str, ...]] = ("F_c", "eps")
+    type, sides, param_names, code, vector_fields = (
+        "coulomb", ("load", "motor"), ("F_c",), COULOMB, ("F_c", "eps"))
 
 
 @dataclass(frozen=True)
 class Viscous(Effect):
     b: float = 0.0
-    type: ClassVar[str] = "viscous"
-    sides: ClassVar[tuple[str, ...]] = ("load", "motor")
-    param_names: ClassVar[tuple[str, ...]] = ("b",)
-    code: ClassVar[int] = VISCOUS
-    vector_fields: ClassVar[tuple[str, ...]] = ("b",)
+    type, sides, param_names, code = "viscous", ("load", "motor"), ("b",), VISCOUS
 
 
 @dataclass(frozen=True)
@@ -208,32 +202,21 @@ class Stribeck(Effect):
     F_s: float = 0.0
     v_s: float = 0.1
     eps: float = DEFAULT_SIGN_EPS
-    type: ClassVar[str] = "stribeck"
-    sides: ClassVar[tuple[str, ...]] = ("load", "motor")
-    param_names: ClassVar[tuple[str, ...]] = ("F_s", "v_s")
-    code: ClassVar[int] = STRIBECK
-    vector_fields: ClassVar[tuple[str, ...]] = ("F_s", "v_s", "eps")
+    type, sides, param_names, code, vector_fields = (
+        "stribeck", ("load", "motor"), ("F_s", "v_s"), STRIBECK, ("F_s", "v_s", "eps"))
 
 
 @dataclass(frozen=True)
 class Inertia(Effect):
     dI: float = 0.0
-    type: ClassVar[str] = "inertia"
-    sides: ClassVar[tuple[str, ...]] = ("load", "motor")
-    param_names: ClassVar[tuple[str, ...]] = ("dI",)
-    code: ClassVar[int] = INERTIA
-    vector_fields: ClassVar[tuple[str, ...]] = ("dI",)
+    type, sides, param_names, code = "inertia", ("load", "motor"), ("dI",), INERTIA
 
 
 @dataclass(frozen=True)
 class Gravity(Effect):
     a: float = 0.0
     phi: float = 0.0
-    type: ClassVar[str] = "gravity"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
-    param_names: ClassVar[tuple[str, ...]] = ("a", "phi")
-    code: ClassVar[int] = GRAVITY
-    vector_fields: ClassVar[tuple[str, ...]] = ("a", "phi")
+    type, sides, param_names, code = "gravity", ("load",), ("a", "phi"), GRAVITY
 
 
 @dataclass(frozen=True)
@@ -241,11 +224,8 @@ class HumanViscoelastic(Effect):
     k_h: float = 0.0
     q_h0: float = 0.0
     b_h: float = 0.0
-    type: ClassVar[str] = "human_viscoelastic"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
-    param_names: ClassVar[tuple[str, ...]] = ("k_h", "q_h0", "b_h")
-    code: ClassVar[int] = HUMAN_VISCOELASTIC
-    vector_fields: ClassVar[tuple[str, ...]] = ("k_h", "q_h0", "b_h")
+    type, sides, param_names, code = (
+        "human_viscoelastic", ("load",), ("k_h", "q_h0", "b_h"), HUMAN_VISCOELASTIC)
 
 
 @dataclass(frozen=True)
@@ -253,11 +233,7 @@ class Cogging(Effect):
     A: float = 0.0
     periods: float = 1.0
     phi: float = 0.0
-    type: ClassVar[str] = "cogging"
-    sides: ClassVar[tuple[str, ...]] = ("motor",)
-    param_names: ClassVar[tuple[str, ...]] = ("A", "periods", "phi")
-    code: ClassVar[int] = COGGING
-    vector_fields: ClassVar[tuple[str, ...]] = ("A", "periods", "phi")
+    type, sides, param_names, code = "cogging", ("motor",), ("A", "periods", "phi"), COGGING
 
 
 @dataclass(frozen=True)
@@ -265,11 +241,7 @@ class SpringCubic(Effect):
     """Spring torque gains k3·θ_s³ (additive on the spring, signal = deflection)."""
 
     k3: float = 0.0
-    type: ClassVar[str] = "spring_cubic"
-    sides: ClassVar[tuple[str, ...]] = ("spring",)
-    param_names: ClassVar[tuple[str, ...]] = ("k3",)
-    code: ClassVar[int] = SPRING_CUBIC
-    vector_fields: ClassVar[tuple[str, ...]] = ("k3",)
+    type, sides, param_names, code = "spring_cubic", ("spring",), ("k3",), SPRING_CUBIC
 
 
 @dataclass(frozen=True)
@@ -284,11 +256,8 @@ class SpringSaturation(Effect):
     theta_max: float = 0.05
     k_stop: float = 2000.0
     smooth: float = 0.002
-    type: ClassVar[str] = "spring_saturation"
-    sides: ClassVar[tuple[str, ...]] = ("spring",)
-    param_names: ClassVar[tuple[str, ...]] = ("theta_max", "k_stop")
-    code: ClassVar[int] = SPRING_SATURATION
-    vector_fields: ClassVar[tuple[str, ...]] = ("theta_max", "k_stop", "smooth")
+    type, sides, param_names, code, vector_fields = ("spring_saturation", ("spring",), ("theta_max", "k_stop"),
+                                                     SPRING_SATURATION, ("theta_max", "k_stop", "smooth"))
 
 
 # ---- structural effects: they change how torque/deflection/angle are formed ----------
@@ -299,10 +268,7 @@ class SpringBacklash(Effect):
     """Spring deflection has a dead band of total ``width`` [rad] (±width/2)."""
 
     width: float = 0.0
-    type: ClassVar[str] = "spring_backlash"
-    sides: ClassVar[tuple[str, ...]] = ("spring",)
-    param_names: ClassVar[tuple[str, ...]] = ("width",)
-    additive: ClassVar[bool] = False
+    type, sides, param_names, additive = "spring_backlash", ("spring",), ("width",), False
 
     def deadband(self, theta_s: float) -> tuple[float, float]:
         """Effective deflection and its derivative w.r.t. θ_s (0 inside the band)."""
@@ -317,28 +283,19 @@ class SpringBacklash(Effect):
 @dataclass(frozen=True)
 class TorqueScale(Effect):
     kappa: float = 1.0
-    type: ClassVar[str] = "torque_scale"
-    sides: ClassVar[tuple[str, ...]] = ("motor",)
-    param_names: ClassVar[tuple[str, ...]] = ("kappa",)
-    additive: ClassVar[bool] = False
+    type, sides, param_names, additive = "torque_scale", ("motor",), ("kappa",), False
 
 
 @dataclass(frozen=True)
 class EncoderOffset(Effect):
     delta: float = 0.0
-    type: ClassVar[str] = "encoder_offset"
-    sides: ClassVar[tuple[str, ...]] = ("load", "motor")
-    param_names: ClassVar[tuple[str, ...]] = ("delta",)
-    additive: ClassVar[bool] = False
+    type, sides, param_names, additive = "encoder_offset", ("load", "motor"), ("delta",), False
 
 
 @dataclass(frozen=True)
 class Delay(Effect):
     seconds: float = 0.0
-    type: ClassVar[str] = "delay"
-    sides: ClassVar[tuple[str, ...]] = ("motor",)
-    param_names: ClassVar[tuple[str, ...]] = ("seconds",)
-    additive: ClassVar[bool] = False
+    type, sides, param_names, additive = "delay", ("motor",), ("seconds",), False
 
 
 EFFECT_TYPES: Mapping[str, type[Effect]] = {

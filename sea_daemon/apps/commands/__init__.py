@@ -36,6 +36,12 @@ def _discover():
     return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
 
 
+def add_log_and_config(p, log_help: str = "measured log") -> None:
+    """The LOG.csv positional and --config MODEL.yaml of the commands that work on a log."""
+    p.add_argument("log", metavar="LOG.csv", help=f"{log_help} (docs/interfaces.md §1)")
+    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="sea-daemon", description="Active human torque estimation for SEA exoskeletons "
                      "(GP-enhanced augmented-state Kalman filter with guaranteed bounds).")

@@ -19,6 +19,7 @@ import numpy as np
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
 from sea_daemon.io.logcsv import read_log
+from sea_daemon.apps.commands import add_log_and_config
 
 NAME = "calibrate-bound"
 HELP = "split-conformal beta of the GP error bound from a held-out passive log (estimator.gp_beta)"
@@ -39,8 +40,7 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
-    p.add_argument("log", metavar="LOG.csv", help="held-out measured log, passive subject (docs/interfaces.md §1)")
-    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+    add_log_and_config(p, "held-out measured log, passive subject")
     p.add_argument("--model", metavar="MODEL.npz", required=True, help="model file written by sea-daemon calibrate")
     p.add_argument("--target", choices=("gp", "torque"), default="gp",
                    help="calibrate the GP error of each pair (gp, default) or the bound on the torque "

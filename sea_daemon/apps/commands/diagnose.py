@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from sea_daemon.apps.commands import add_log_and_config
 
 NAME = "diagnose"
 HELP = "find effects the model lacks in a measured log; write diagnosis.json, model_augmented.yaml, report.md"
@@ -13,8 +14,7 @@ DESCRIPTION = ("Closes the loop on measured data: computes the load- and motor-s
 
 
 def add_arguments(p) -> None:
-    p.add_argument("log", metavar="LOG.csv", help="measured log (docs/interfaces.md §1)")
-    p.add_argument("--config", required=True, metavar="MODEL.yaml", help="model configuration (docs/interfaces.md §2)")
+    add_log_and_config(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created)")
     p.add_argument("--passive", action="store_true",
                    help="ignore a tau_h_act column in the residuals (passive subject assumed)")

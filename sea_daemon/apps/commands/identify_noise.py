@@ -14,6 +14,7 @@ import numpy as np
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
 from sea_daemon.io.logcsv import read_log
+from sea_daemon.apps.commands import add_log_and_config
 
 NAME = "identify-noise"
 HELP = "identify the measurement noise R (and Q) from a log by autocovariance least squares"
@@ -28,8 +29,7 @@ DESCRIPTION = (
     "with the new R (and P0's measurement block = R, as in the paper).")
 
 def add_arguments(p) -> None:
-    p.add_argument("log", metavar="LOG.csv", help="measured log (docs/interfaces.md §1)")
-    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+    add_log_and_config(p)
     p.add_argument("--write", metavar="OUT.yaml", default=None, help="write the config with the identified R")
     p.add_argument("--with-Q", dest="with_q", action="store_true",
                    help="also print the identified process noise Q (and write it as Sigma_nom)")

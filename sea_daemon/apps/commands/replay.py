@@ -14,6 +14,7 @@ from sea_daemon.errors import InputError
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.logcsv import read_log, write_columns
 from sea_daemon.core.replay import est_columns, replay, summarize
+from sea_daemon.apps.commands import add_log_and_config
 
 NAME = "replay"
 HELP = "run an estimator (gp-akf, akf, spring) over a measured log; EST.csv + JSON summary"
@@ -29,8 +30,7 @@ CHOICES = ("gp-akf", "akf", "spring")
 
 
 def add_arguments(p) -> None:
-    p.add_argument("log", metavar="LOG.csv", help="measured log (docs/interfaces.md §1)")
-    p.add_argument("--config", metavar="MODEL.yaml", required=True, help="model configuration (docs/interfaces.md §2)")
+    add_log_and_config(p)
     p.add_argument("--train", metavar="TRAIN.csv", default=None,
                    help="training log with a passive human, learned before estimation (gp-akf)")
     p.add_argument("--estimator", choices=CHOICES, default="gp-akf", help="estimator (default: gp-akf)")

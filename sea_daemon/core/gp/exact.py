@@ -1,14 +1,10 @@
 """Exact Gaussian-process regression (Sec. III-B) with an incremental Cholesky factor.
 
 * :func:`se_kernel` — the squared-exponential ARD kernel (``eq:SE``).
-* :func:`log_marginal_likelihood` — log marginal likelihood and its analytic gradient with
-  respect to the log hyperparameters ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``
-  (Rasmussen & Williams 2006, eq. 2.30 and 5.9).
 * :class:`IncrementalGP` — posterior mean and variance (``eq:GPmean``, ``eq:GPvariance``), the
   mean's Jacobian (``eq:moejac`` with ``eq:kernelderivative``) and, optionally, the variance's,
   with the Cholesky factor of ``K + σ_on² I`` grown one row per point in O(N²).  It is the local
   model of every LoG-GP leaf (:mod:`sea_daemon.core.gp.loggp`).
-* :func:`fit_hyperparameters` — batch maximisation of the log marginal likelihood (L-BFGS-B).
 
 Storage.  The lower Cholesky factor ``L`` is kept *packed*, row by row (the first ``n(n+1)/2``
 entries hold rows ``0 … n-1``): appending a point appends one row at the end, and every
@@ -25,7 +21,6 @@ Learned state ends in ``_`` (``X_``, ``y_``, ``n_``, ``alpha_``, ``L_``).  No I/
 from __future__ import annotations
 
 import math
-from typing import Sequence
 
 import numpy as np
 
@@ -74,42 +69,6 @@ def se_kernel(A, B, lengthscales, sigma_f: float) -> np.ndarray:
     # eq:SE: σ_f² exp(−Σ_i (x_i − x'_i)² / (2 l_i²))  (gp_core.se_matrix)
     gp_core.se_matrix(A, B, np.ascontiguousarray(1.0 / (l * l)), float(sigma_f) ** 2, K)
     return K
-
-
-def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, *,
-                            grad: bool = True, jitter: float = 1e-10,
-                            L: np.ndarray | None = None):
-    """Log marginal likelihood ``log p(y | X, θ)`` and its gradient w.r.t. ``log θ``.
-
-    ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``.  Returns ``lml`` or ``(lml, grad)``.
-    ``L`` (lower Cholesky factor of ``K + (σ_on² + jitter) I``, zeros above the diagonal) may
-    be passed when already known.  Cost: one kernel matrix and the inverse factor (O(N³/3),
-    compiled: :func:`sea_daemon.core.gp.gp_core.lml_grad`) — no per-dimension N×N arrays.
-    """
-    X = np.atleast_2d(np.asarray(X, dtype=float))
-    y = np.ascontiguousarray(np.asarray(y, dtype=float).ravel())
-    n, d = X.shape
-    il2 = np.ascontiguousarray(1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,)) ** 2)
-    Xb = np.ascontiguousarray(X - X[0])
-    ap = np.empty(n * (n + 1) // 2)
-    # eq:SE: K_f
-    A = np.empty((n, d + 2))
-    log_sf2 = 2.0 * math.log(sigma_f)
-    c = np.zeros(d)
-    gp_core.fill_rows(Xb, n, c, il2, log_sf2, A)
-    K = _kernel(Xb, A, n, c, log_sf2)
-    if L is None:
-        # the packed factor of K_f + (σ_on² + jitter) I
-        info = gp_core.cholesky_packed(K, n, sigma_n ** 2 + jitter, ap)
-        if info != 0:
-            raise EstimatorFault(f"K + σ_on² I is not positive definite (Cholesky pivot {info}); "
-                                 f"σ_on = {sigma_n} must be > 0")
-    else:
-        ap[:] = np.asarray(L, dtype=float)[_tril(n)]
-    g = np.empty(d + 2)
-    # R&W eq. 2.30 and 5.9 (gp_core.lml_grad)
-    lml = gp_core.lml_grad(Xb, y, n, il2, float(sigma_n) ** 2, ap, K, bool(grad), g)
-    return (lml, g) if grad else lml
 
 
 def _kernel(X: np.ndarray, A: np.ndarray, n: int, c: np.ndarray, log_sf2: float) -> np.ndarray:
@@ -496,34 +455,6 @@ class IncrementalGP:
         return gp
 
 
-def fit_hyperparameters(X, y, sigma_f: float = 1.0, lengthscales=1.0, sigma_n: float = 0.1, *,
-                        bounds: Sequence[tuple[float, float]] | None = None,
-                        maxiter: int = 200) -> tuple[float, np.ndarray, float]:
-    """Maximise the log marginal likelihood over ``log θ`` (L-BFGS-B, analytic gradient).
-
-    Returns ``(sigma_f, lengthscales, sigma_n)``.
-    """
-    from scipy.optimize import minimize
-
-    X = np.atleast_2d(np.asarray(X, dtype=float))
-    d = X.shape[1]
-    t0 = np.concatenate(([math.log(sigma_f)], np.log(np.broadcast_to(lengthscales, (d,))),
-                         [math.log(sigma_n)]))
-
-    def nll(t):
-        try:
-            lml, g = log_marginal_likelihood(X, y, math.exp(t[0]), np.exp(t[1:d + 1]),
-                                             math.exp(t[d + 1]))
-        except EstimatorFault:
-            return 1e25, np.zeros_like(t)
-        return -lml, -g
-
-    res = minimize(nll, t0, jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": maxiter})
-    t = res.x
-    return math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1])
-
-
 @warmer
 def _warm() -> None:
     """Every compiled call of this module, with the argument types it uses (see _jit)."""
@@ -539,6 +470,4 @@ def _warm() -> None:
     gp.log_marginal_likelihood(grad=True)
     gp.set_hyperparameters(1.1, [1.0, 0.9, 1.2], 0.1)
     gp.spawn(X[:3], X[:3, 0].copy(), gp.kernel_matrix(X[:3]))
-    log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1)
     se_kernel(X, X[:2], 1.0, 1.0)
-    log_marginal_likelihood(X, X[:, 0], 1.0, 1.0, 0.1, L=np.linalg.cholesky(gp.kernel_matrix(X) + 0.01 * np.eye(6)))

@@ -2,7 +2,7 @@
 
 Each slice is one Adam ascent step (Kingma & Ba 2015) on the log marginal likelihood of one
 local GP, in log space ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``, with the analytic
-gradient of :func:`sea_daemon.core.gp.exact.log_marginal_likelihood`; then the GP's Cholesky factor is
+gradient of :func:`log_marginal_likelihood`; then the GP's Cholesky factor is
 rebuilt with the new values and swapped in (:meth:`IncrementalGP.set_log_theta`).  The work of
 one slice is O(N̄³) for a local model of at most N̄ points — bounded, independent of how much
 data the tree holds — and the whole slice happens inside one call, so a caller never sees a
@@ -19,18 +19,89 @@ on it wherever the caller likes, and :meth:`LoGGP.hyper_apply` swaps the result 
 boundary in one call (one O(N̄³) rebuild), if that leaf still exists.  With ``steps=1`` the
 result equals one synchronous slice on the same data.
 
+Batch: :func:`log_marginal_likelihood` (and its analytic gradient w.r.t. ``log θ``, Rasmussen &
+Williams 2006, eq. 2.30 and 5.9) and :func:`fit_hyperparameters` (L-BFGS-B) for a whole data set.
+
 Log-space bounds keep a slice from driving a leaf to a degenerate model (σ_on → 0 makes the
 factor ill-conditioned; l → 0 or ∞ make the GP useless).
 """
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import EstimatorFault, InputError
-from sea_daemon.core.gp.exact import IncrementalGP
+from sea_daemon.core.gp import gp_core
+from sea_daemon.core.gp.exact import IncrementalGP, _kernel, _tril
+
+
+def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, *,
+                            grad: bool = True, jitter: float = 1e-10,
+                            L: np.ndarray | None = None):
+    """Log marginal likelihood ``log p(y | X, θ)`` and its gradient w.r.t. ``log θ``.
+
+    ``log θ = [log σ_f, log l_1 … log l_ρ, log σ_on]``.  Returns ``lml`` or ``(lml, grad)``.
+    ``L`` (lower Cholesky factor of ``K + (σ_on² + jitter) I``, zeros above the diagonal) may
+    be passed when already known.  Cost: one kernel matrix and the inverse factor (O(N³/3),
+    compiled: :func:`sea_daemon.core.gp.gp_core.lml_grad`) — no per-dimension N×N arrays.
+    """
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    y = np.ascontiguousarray(np.asarray(y, dtype=float).ravel())
+    n, d = X.shape
+    il2 = np.ascontiguousarray(1.0 / np.broadcast_to(np.asarray(lengthscales, dtype=float), (d,)) ** 2)
+    Xb = np.ascontiguousarray(X - X[0])
+    ap = np.empty(n * (n + 1) // 2)
+    # eq:SE: K_f
+    A = np.empty((n, d + 2))
+    log_sf2 = 2.0 * math.log(sigma_f)
+    c = np.zeros(d)
+    gp_core.fill_rows(Xb, n, c, il2, log_sf2, A)
+    K = _kernel(Xb, A, n, c, log_sf2)
+    if L is None:
+        # the packed factor of K_f + (σ_on² + jitter) I
+        info = gp_core.cholesky_packed(K, n, sigma_n ** 2 + jitter, ap)
+        if info != 0:
+            raise EstimatorFault(f"K + σ_on² I is not positive definite (Cholesky pivot {info}); "
+                                 f"σ_on = {sigma_n} must be > 0")
+    else:
+        ap[:] = np.asarray(L, dtype=float)[_tril(n)]
+    g = np.empty(d + 2)
+    # R&W eq. 2.30 and 5.9 (gp_core.lml_grad)
+    lml = gp_core.lml_grad(Xb, y, n, il2, float(sigma_n) ** 2, ap, K, bool(grad), g)
+    return (lml, g) if grad else lml
+
+
+
+def fit_hyperparameters(X, y, sigma_f: float = 1.0, lengthscales=1.0, sigma_n: float = 0.1, *,
+                        bounds: Sequence[tuple[float, float]] | None = None,
+                        maxiter: int = 200) -> tuple[float, np.ndarray, float]:
+    """Maximise the log marginal likelihood over ``log θ`` (L-BFGS-B, analytic gradient).
+
+    Returns ``(sigma_f, lengthscales, sigma_n)``.
+    """
+    from scipy.optimize import minimize
+
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    d = X.shape[1]
+    t0 = np.concatenate(([math.log(sigma_f)], np.log(np.broadcast_to(lengthscales, (d,))),
+                         [math.log(sigma_n)]))
+
+    def nll(t):
+        try:
+            lml, g = log_marginal_likelihood(X, y, math.exp(t[0]), np.exp(t[1:d + 1]),
+                                             math.exp(t[d + 1]))
+        except EstimatorFault:
+            return 1e25, np.zeros_like(t)
+        return -lml, -g
+
+    res = minimize(nll, t0, jac=True, method="L-BFGS-B", bounds=bounds,
+                   options={"maxiter": maxiter})
+    t = res.x
+    return math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1])
+
 
 
 class AdamHyper:
@@ -162,5 +233,7 @@ def _adam_step(lml, g, st, theta, lr, beta1, beta2, eps, lo, hi) -> bool:
 
 @warmer
 def _warm() -> None:
+    _Xw = np.random.default_rng(0).normal(size=(6, 3))
+    log_marginal_likelihood(_Xw, _Xw[:, 0], 1.0, 1.0, 0.1)
     h = AdamHyper(3)
     _adam_step(0.0, np.zeros(5), h.new_state(), np.zeros(5), h.lr, h.beta1, h.beta2, h.eps, h.lo, h.hi)
