@@ -45,7 +45,7 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.jit import warmer
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -54,21 +54,7 @@ from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 from sea_daemon.core.bounds import bound_core
-
-
-@njit
-def _gravity_remainder(qh, r, g, grid, grid_step, v):
-    """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (:meth:`AKFTheoremBound._gravity_box`)."""
-    for j in range(qh.shape[0]):
-        s0, c0 = math.sin(qh[j]), math.cos(qh[j])
-        hmax = 0.0
-        # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
-        # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
-        for D0 in grid:
-            D = D0 * r[j]
-            hmax = max(hmax, abs(math.sin(qh[j] + D) - s0 - c0 * D))
-        # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
-        v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
+from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
 
 
 @warmer

@@ -32,6 +32,7 @@ import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.gp import gp_core
+from sea_daemon.core.gp.routing import _route
 from sea_daemon.core.bounds.setmember import _ellipsoid_points, _shifted_halfwidth
 from sea_daemon.core.bounds.zonotope import _zonotope_shape, predict_generators
 
@@ -182,80 +183,36 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
               lo, hi, clip, r, MU, S, XT):
     """Merged LoG-GP prediction per row of ``Z`` and joint j into MU[:, j], S[:, j], XT[:, j]:
     with ``local`` the mean, the scale √(σ̃² + s_loc²) and the extrapolation term c e(z)
-    (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero)."""
+    (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero).  The
+    leaves and weights of each row are the LoG-GP's own routing (:func:`routing._route`)."""
     P, dz = Z.shape
-    nj = links.shape[0]
-    st_node = np.empty(64, dtype=np.int64)
-    st_w = np.empty(64)
     xc = np.empty(dz)
     xq = np.empty((1, dz))
     e1 = np.empty(1)
     a = np.empty(dz + 2)
     kv = np.empty(max(1, np.max(nn)) if nn.shape[0] else 1)
-    for j in range(nj):
-        dim, left, right = links[j, 0], links[j, 1], links[j, 2]
-        slo, shi = span[j, 0], span[j, 1]
+    for j in range(links.shape[0]):
+        idx, nodes, ws, _ = _route(Z, links[j], span[j], False)
+        i = 0
         for p in range(P):
             x = Z[p]
-            mu = 0.0
-            m2 = 0.0
-            sl = 0.0
-            ex = 0.0
+            mu = m2 = sl = ex = 0.0
             count = 0
-            m_one = 0.0
-            v_one = 0.0
-            # routing as routing._route: fast descent, then depth first, left first
-            node = 0
-            while True:
-                jd = dim[node]
-                if jd < 0:
-                    break
-                xj = x[jd]
-                if xj <= slo[node]:
-                    node = left[node]
-                elif xj >= shi[node]:
-                    node = right[node]
-                else:
-                    break
-            st_node[0] = node
-            st_w[0] = 1.0
-            top = 1
-            while top > 0:
-                top -= 1
-                node = st_node[top]
-                w = st_w[top]
-                jd = dim[node]
-                if jd < 0:
-                    l = leaf_of[j, node]
-                    m, v = _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc,
-                                         a, kv)
-                    mu += w * m
-                    m2 += w * (v + m * m)
-                    if local:
-                        sl += w * r[l]
-                        if c_ext > 0.0:
-                            ex += w * _leaf_extrapolation(l, x, nn, row, X, alpha, il2, sf2, e1, xq)
-                    count += 1
-                    m_one, v_one = m, v
-                    continue
-                xj = x[jd]
-                if xj <= slo[node]:
-                    st_node[top] = left[node]
-                    st_w[top] = w
-                    top += 1
-                elif xj >= shi[node]:
-                    st_node[top] = right[node]
-                    st_w[top] = w
-                    top += 1
-                else:
-                    io = 1.0 / (shi[node] - slo[node])
-                    pl = (shi[node] - xj) * io
-                    q = 1.0 - pl
-                    st_node[top] = right[node]
-                    st_w[top] = w * q
-                    st_node[top + 1] = left[node]
-                    st_w[top + 1] = w * pl
-                    top += 2
+            m_one = v_one = 0.0
+            while i < idx.shape[0] and idx[i] == p:           # row p's leaves, in routing order
+                l = leaf_of[j, nodes[i]]
+                w = ws[i]
+                m, v = _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc,
+                                     a, kv)
+                mu += w * m
+                m2 += w * (v + m * m)
+                if local:
+                    sl += w * r[l]
+                    if c_ext > 0.0:
+                        ex += w * _leaf_extrapolation(l, x, nn, row, X, alpha, il2, sf2, e1, xq)
+                count += 1
+                m_one, v_one = m, v
+                i += 1
             var = m2 - mu * mu
             if var < 0.0:
                 var = 0.0
@@ -269,6 +226,16 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
                 MU[p, j] = mu
                 S[p, j] = math.sqrt(var if var > 0.0 else 0.0)
                 XT[p, j] = 0.0
+
+
+@njit
+def _abs_row_sum(M, i):
+    """Σ_c |M[i, c]|: the half-width of a zonotope with generators M along coordinate i (or
+    along the row i of a map applied to them)."""
+    s = 0.0
+    for c in range(M.shape[1]):
+        s += abs(M[i, c])
+    return s
 
 
 @njit
@@ -296,16 +263,14 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         r = np.empty(n)
         qh = np.empty(n)
         for j in range(n):
-            hx = 0.0
-            for c in range(G.shape[1]):
-                hx += abs(EG[j, c])
+            hx = _abs_row_sum(EG, j)
             q = 0.0
             for c in range(d):
                 q += EP[j, c] * E_q[j, c]
             r[j] = hx + math.sqrt(max(s_z * q, 0.0))
             qh[j] = x0[j] + x0[n + j]
         v = np.empty(n)
-        _gravity(qh, r, g, grid, grid_step, v)
+        gravity_remainder(qh, r, g, grid, grid_step, v)
         bb = np.abs(Minv) @ v
         for j in range(n):
             b[3 * n + j] = bb[j]
@@ -400,24 +365,24 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
     h = np.empty(n)
     sd = np.empty(n)
     for j in range(n):
-        s = 0.0
-        for c in range(Gn.shape[1]):
-            s += abs(Gn[4 * n + j, c])
-        h[j] = s
+        h[j] = _abs_row_sum(Gn, 4 * n + j)
         sd[j] = math.sqrt(max(P[4 * n + j, 4 * n + j], 0.0))
     _shifted_halfwidth(h, sd, delta_tau, z_tau, 8, rho)
     return Gn, out
 
 
 @njit
-def _gravity(qh, r, g, grid, grid_step, v):
-    """akf_bound._gravity_remainder (the same loop; here to keep the module's imports one way)."""
+def gravity_remainder(qh, r, g, grid, grid_step, v):
+    """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (AKFTheoremBound._gravity_box)."""
     for j in range(qh.shape[0]):
         s0, c0 = math.sin(qh[j]), math.cos(qh[j])
         hmax = 0.0
+        # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
+        # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
         for D0 in grid:
             D = D0 * r[j]
             hmax = max(hmax, abs(math.sin(qh[j] + D) - s0 - c0 * D))
+        # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
         v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
 
 
