@@ -308,6 +308,8 @@ class AKFTheoremBound:
             return ()
         if getattr(akf, "learning", False):
             return None
+        if not all(type(c) is BoundConstants for c in self.gp_constants or ()):
+            return None                   # constants of one's own (an eta() of its own): the Python step
         n_l = self._n_learned()
         if self._pack is None or self._pack_at != n_l:
             gps = residual_gps(akf)
