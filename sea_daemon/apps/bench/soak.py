@@ -60,6 +60,9 @@ def add_arguments(p) -> None:
                         "the ipc bus, the loop SCHED_FIFO 80")
     p.add_argument("--learn-cycles", type=int, default=None,
                    help="the GP learns online in the first N cycles, then is frozen (default: all cycles)")
+    p.add_argument("--max-missed", type=int, default=3,
+                   help="ipc: cycles in a row a late TPDO is held before TPDO_MISSING latches (default 3; the "
+                        "missed and late cycles are counted)")
     p.add_argument("--bound", action="store_true",
                    help="publish the Theorem-1 bound rho_k once learning stops (with --learn-cycles; default: the "
                         "filter's own bound)")
@@ -83,7 +86,7 @@ def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
 
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
          out_dir: Path, samples: int = 20, progress=None, bus: str = "virtual", learn_cycles: int | None = None,
-         bound: bool = False) -> dict:
+         bound: bool = False, max_missed: int = 3) -> dict:
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.core.rates import at_rate
     cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
@@ -98,7 +101,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         from sea_daemon.apps.bench.loop import device_model_process
         # the TPDO deadline inside the period; a late answer is held for 3 cycles (counted)
         b = dataclasses.replace(cfg.hardware.bus, interface="ipc", channel=f"soak-{os.getpid()}",
-                                pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=3)
+                                pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
         cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
         dev, rig = device_model_process(cfg, out_dir, ["--q0", "0.6", "--seed", "0"])
         rig.start()
@@ -154,7 +157,8 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     wgrowth = (end[2] - w[2]) / w[2] * 100.0 if w[2] > 0 else float("nan")
     return {
         "cycles": st.cycles, "rate_hz": rate, "bus": bus, "realtime": rt, "bound": bound,
-        "learn_cycles": learn_cycles, "hardware": getattr(rig, "description", ""), "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
+        "learn_cycles": learn_cycles, "hardware": getattr(rig, "description", ""),
+        "missed_tpdo_cycles": int(getattr(rig.hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(rig.hw, "late_cycles", 0)), "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
         "overruns": st.overruns, "max_late_s": st.max_late_s,
         "fault": sup.latched.name, "fault_detail": sup.latched_detail, "fault_cycle": sup.latched_cycle,
         "rss_kb": {"process_start": rss["start"], "after_start": rss["after_start"], "warmup": w[1], "end": end[1],
@@ -181,7 +185,7 @@ def run(args) -> int:
     if not 0 <= warmup < args.cycles:
         raise InputError(f"--warmup {warmup}: must be in 0..{args.cycles - 1}")
     print(f"# sea-daemon bench soak on {machine()}")
-    print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model (virtual bus, lock-step) "
+    print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model ({args.bus} bus, lock-step) "
           f"+ GP-AKF learning online + LogWriter; {args.cycles} cycles, warm-up {warmup}", flush=True)
 
     def progress(rec, st):
@@ -197,7 +201,7 @@ def run(args) -> int:
     try:
         r = soak(args.cycles, args.rate, warmup, args.max_leaves, args.overrun_streak,
                  int(args.rotate_mb * 1e6), out, args.samples, progress, bus=args.bus, learn_cycles=args.learn_cycles,
-                 bound=args.bound)
+                 bound=args.bound, max_missed=args.max_missed)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -210,7 +214,8 @@ def run(args) -> int:
           f"bound {'Theorem-1 rho_k' if r['bound'] else 'the filter own'}")
     print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
           f"{r['rate_hz']:g} Hz asked)")
-    print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms)")
+    print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms); TPDO cycles missed at "
+          f"the deadline {r['missed_tpdo_cycles']}, late {r['late_tpdo_cycles']}")
     print(f"cycle period        {r['period']}")
     print(f"cycle compute       {r['compute']}")
     print(f"fault latched       {r['fault']}" + (f" at cycle {r['fault_cycle']}: {r['fault_detail']}"
