@@ -20,6 +20,7 @@ Faults (:mod:`.faults`) can be injected now or scheduled at a device time.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Callable, Sequence
@@ -135,6 +136,18 @@ class DeviceModel:
                 np.floor(th * d.gear / (2 * np.pi) * d.increments).astype(np.int64))
 
     def _sample(self) -> None:
+        p = self.plant
+        enc = getattr(p, "encoders", None)
+        y = getattr(p, "_y", None)
+        if enc is not None and y is not None and enc.offset_load.ndim == 0 and enc.offset_motor.ndim == 0:
+            # the simulator's encoders (Encoders.counts: floor((angle + offset) / quantum)) on
+            # its state vector [q, θ_m, q̇, θ̇_m], in float arithmetic: the same counts
+            n, ql, qm = self.n, enc.q_load, enc.q_motor
+            ol, om = float(enc.offset_load), float(enc.offset_motor)
+            for j in range(n):
+                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om) / qm), float(y[3 * n + j]))
+                self.encoders[j].set_counts(math.floor((float(y[j]) + ol) / ql))
+            return
         cq, cm = self._counts()
         dth = np.atleast_1d(self.plant.dtheta_m)
         for j in range(self.n):
