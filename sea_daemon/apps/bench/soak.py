@@ -60,9 +60,7 @@ def add_arguments(p) -> None:
                         "the ipc bus, the loop SCHED_FIFO 80")
     p.add_argument("--learn-cycles", type=int, default=None,
                    help="the GP learns online in the first N cycles, then is frozen (default: all cycles)")
-    p.add_argument("--max-missed", type=int, default=3,
-                   help="ipc: cycles in a row a late TPDO is held before TPDO_MISSING latches (default 3; the "
-                        "missed and late cycles are counted)")
+    p.add_argument("--max-missed", type=int, default=3, help="ipc: late TPDOs held in a row (default 3; counted)")
     p.add_argument("--bound", action="store_true",
                    help="publish the Theorem-1 bound rho_k once learning stops (with --learn-cycles; default: the "
                         "filter's own bound)")
