@@ -3,7 +3,9 @@
 * ``virtual`` — python-can's in-process virtual bus (tests, the in-process demo);
 * ``socketcan`` — a real Linux CAN interface (``can0``) or a virtual one (``vcan0``);
 * ``remote`` — python-can-remote's websocket client (``ws://127.0.0.1:PORT/``), joining
-  separate processes through ``python -m can_remote`` where the kernel has no SocketCAN.
+  separate processes through ``python -m can_remote`` where the kernel has no SocketCAN;
+* ``ipc`` — :class:`drivers.ipc_bus.IpcBus`, separate processes of this machine over UNIX
+  datagram sockets, one hop per frame (the 1 kHz benchmarks where the kernel has no SocketCAN).
 """
 from __future__ import annotations
 
@@ -42,6 +44,9 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
             if not ok:
                 raise DeviceMismatch(None, f"socketcan {channel}", why)
             return can.Bus(interface="socketcan", channel=channel, receive_own_messages=receive_own_messages)
+        if iface == "ipc":
+            from drivers.ipc_bus import IpcBus
+            return IpcBus(channel, receive_own_messages=receive_own_messages)
         return can.Bus(interface="remote", channel=channel, bitrate=cfg.bitrate,
                        receive_own_messages=receive_own_messages)
     except DeviceMismatch:

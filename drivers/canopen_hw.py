@@ -24,9 +24,16 @@ over SDO is :class:`drivers.canopen_setup.NodeSetup`:
    reference (the load encoder's single-turn count is centred on (-π, π]); its sample is
    :attr:`CanopenHardware.meas` until the first ``read()``.
 
-Cycle — PDOs only: ``write(tau)`` sends the RPDO; ``read()`` sends SYNC and takes that cycle's
-TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: the rx callbacks copy the frame bytes into
-preallocated buffers under a lock, ``read()`` decodes their snapshot with precompiled structs).
+Cycle — PDOs only, pipelined as a CANopen master does: the loop calls ``read()`` at its deadline;
+``read()`` sends SYNC first, checks heartbeats / EMCY / bus-off and sends the master heartbeat
+while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
+SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
+this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
+RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
+``read()`` takes the cycle's
+TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
+its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
+structs).
 Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
 multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
 TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
@@ -51,7 +58,7 @@ from sea_daemon.core.config import ModelConfig
 from drivers import cia402
 from drivers.bus import make_bus
 from drivers.canopen_positions import Positions
-from drivers.canopen_rx import ErrorFrames, TpdoWindow
+from drivers.canopen_rx import NETWORK_FILTERS, ErrorFrames, TpdoWindow
 from drivers.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
 from drivers.errors import (
@@ -79,6 +86,7 @@ class CanopenHardware(HardwareInterface):
         self.hb_timeout = b.heartbeat_timeout_ms / 1e3
         self.clock = clock
         self._bus, self._owns_bus = bus, bus is None
+        self._tpdo_bus = None
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
         self.drives: list = []
@@ -91,6 +99,7 @@ class CanopenHardware(HardwareInterface):
         self.positions = Positions(n, self.res, self.gear, b, self.period)
         # cycle state
         self.meas = Measurement(n)
+        self._act = np.zeros(n)             # actuated()'s result
         self._rx = TpdoWindow()
         self._hb_last = {}
         self._hb_state = {}
@@ -109,6 +118,8 @@ class CanopenHardware(HardwareInterface):
         self._primed = False
         self._cycle = -1
         self._started = False
+        self.missed_cycles = 0          # cycles with a TPDO missing at the deadline (held or faulted)
+        self.late_cycles = 0            # cycles that found frames of an earlier cycle (FRAME_LATE)
 
     # ================================================================== start-up (SDO)
     def start(self, initial_torque: np.ndarray | None = None) -> None:
@@ -119,6 +130,10 @@ class CanopenHardware(HardwareInterface):
             np.asarray(initial_torque, dtype=float).reshape(self.n)
         bus = self._bus if self._bus is not None else make_bus(self.bus_cfg)
         self._bus = bus
+        # the loop thread's own handle for the cycle's TPDOs (canopen_rx), the network's handle
+        # for the rest of the traffic
+        self._tpdo_bus = make_bus(self.bus_cfg)
+        bus.set_filters(NETWORK_FILTERS)
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.05          # bounded shutdown: the rx thread wakes every 50 ms
         net.listeners.append(self._errors)
@@ -151,6 +166,7 @@ class CanopenHardware(HardwareInterface):
         for j in range(self.n):
             self._configure_drive(self.drives[j])
             self._configure_encoder(self.encoders[j])
+        self._rx.bind(self._tpdo_bus)
         for node in self.drives + self.encoders:
             setup.write(node, 0x1017, 0, self.bus_cfg.heartbeat_ms, "producer heartbeat time")
         self._await_heartbeats()
@@ -181,13 +197,13 @@ class CanopenHardware(HardwareInterface):
     # ---------------------------------------------------------------- PDOs of the cycle
     def _configure_drive(self, d) -> None:
         self.setup.configure_drive(self.network, d)
-        self.network.subscribe(0x180 + d.id, self._rx.add(d.id, 0x180 + d.id, DRIVE_TPDO.size))
+        self._rx.add(d.id, 0x180 + d.id, DRIVE_TPDO.size)
         self._rpdo_msgs.append(can.Message(arbitration_id=0x200 + d.id, data=bytearray(DRIVE_RPDO.size),
                                            is_extended_id=False))
 
     def _configure_encoder(self, e) -> None:
         self.setup.configure_encoder(self.network, e)
-        self.network.subscribe(0x180 + e.id, self._rx.add(e.id, 0x180 + e.id, ENCODER_TPDO.size))
+        self._rx.add(e.id, 0x180 + e.id, ENCODER_TPDO.size)
 
     def _await_heartbeats(self, state: int | None = None) -> None:
         """Wait for a heartbeat of every node (reporting ``state`` when given)."""
@@ -207,10 +223,19 @@ class CanopenHardware(HardwareInterface):
         self.read()
 
     def actuated(self, tau_m: np.ndarray) -> np.ndarray:
-        """The joint-side torque the drive applies for a ``write(tau_m)``: per-mille steps, max torque."""
-        tau = np.nan_to_num(np.asarray(tau_m, dtype=float).reshape(self.n), nan=0.0, posinf=0.0, neginf=0.0)
-        pm = np.clip(np.round(tau / self.nm_per_permille), -self.max_permille, self.max_permille)
-        return pm * self.nm_per_permille
+        """The joint-side torque the drive applies for a ``write(tau_m)``: per-mille steps, max torque
+        (the array is reused by the next call)."""
+        out = self._act
+        for j in range(self.n):
+            out[j] = self._permille(float(tau_m[j])) * self.nm_per_permille
+        return out
+
+    def _permille(self, t: float) -> int:
+        """Joint-side torque [N m] → ‰ of 0x6076 as the drive gets it (non-finite → 0, clipped)."""
+        if not math.isfinite(t):
+            return 0
+        pm = round(t / self.nm_per_permille)
+        return -self.max_permille if pm < -self.max_permille else (self.max_permille if pm > self.max_permille else pm)
 
     # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
@@ -231,12 +256,8 @@ class CanopenHardware(HardwareInterface):
         """Target torque [N m, joint side] → ‰ of 0x6076 in the drives' RPDOs."""
         if self.network is None:
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
-        tau = np.asarray(tau_m, dtype=float)
         for j, msg in enumerate(self._rpdo_msgs):
-            t = float(tau[j])
-            permille = int(round(t / self.nm_per_permille)) if math.isfinite(t) else 0
-            permille = max(-self.max_permille, min(self.max_permille, permille))
-            DRIVE_RPDO.pack_into(msg.data, 0, self._cw, permille)
+            DRIVE_RPDO.pack_into(msg.data, 0, self._cw, self._permille(float(tau_m[j])))
             self._send(msg, "RPDO1 (controlword, target torque)")
 
     def _send_master_heartbeat(self, force: bool = False) -> None:
@@ -263,18 +284,18 @@ class CanopenHardware(HardwareInterface):
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
         m.faults = 0
+        if self._errors.bus_off:
+            raise BusOff("error frame with the bus-off flag received")
+        if self._rx.drain():
+            m.faults |= FaultFlag.FRAME_LATE
+            self.late_cycles += 1
+        # SYNC first (the loop calls read() at its deadline): the devices sample now and answer
+        # while this thread checks what arrived between cycles and sends its heartbeat
+        t_sync = self.clock()
+        self._send(self._sync_msg, "SYNC")
         self._check_async()
         self._send_master_heartbeat()
-        if self._rx.open():
-            m.faults |= FaultFlag.FRAME_LATE
-        t_sync = self.clock()
-        try:
-            self._send(self._sync_msg, "SYNC")
-        except BaseException:
-            self._rx.abort()
-            raise
-        self._rx.wait(self.pdo_timeout)
-        self._rx.close()
+        self._rx.collect(t_sync + self.pdo_timeout, self.clock)
         self._cycle += 1
         self._check_emcy()                 # an EMCY sent before the TPDOs has arrived before them
         m.cycle = self._cycle
@@ -298,6 +319,7 @@ class CanopenHardware(HardwareInterface):
                 if s.snap_count > 1:
                     m.faults |= FaultFlag.FRAME_LATE
         if missing is not None:
+            self.missed_cycles += 1
             if missing.missed > self.bus_cfg.max_missed_cycles or not self._primed:
                 raise PdoTimeout(missing.node, missing.cob_id, self._cycle, self.pdo_timeout, missing.missed)
             return m                                   # values held from the last cycle
@@ -401,6 +423,9 @@ class CanopenHardware(HardwareInterface):
         self._hb_on = False
         if net is not None and net.notifier is not None:
             net.notifier.stop(2.0)
+        if self._tpdo_bus is not None:
+            self._tpdo_bus.shutdown()
+            self._tpdo_bus = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
             self._bus = None

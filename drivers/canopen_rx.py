@@ -1,31 +1,36 @@
-"""The receive side of the CANopen cycle: the cycle's TPDOs as the network's rx thread delivers them.
+"""The receive side of the CANopen cycle: the cycle's TPDOs, received by the loop thread itself.
 
-:class:`TpdoWindow` holds one :class:`TpdoSlot` per TPDO of the cycle.  The rx callbacks (run
-by canopen's notifier thread) copy each frame's bytes into the slot's preallocated buffer under
-a lock; ``read()`` of :class:`drivers.canopen_hw.CanopenHardware` opens the window before its
-SYNC, waits until every TPDO arrived (or the PDO timeout), and closes it, which copies the
-buffers into the slots' snapshots — no torn reads, nothing allocated.  Frames that arrive while
-the window is closed belong to an earlier cycle: counted as late, never decoded.
-:class:`ErrorFrames` watches the bus for the bus-off flag.
+:class:`TpdoWindow` holds one :class:`TpdoSlot` per TPDO of the cycle and a bus handle of its
+own (:meth:`TpdoWindow.bind`), filtered to the TPDOs' COB-IDs (a kernel filter on SocketCAN,
+an id check before decoding on the ``ipc`` bus; on ``virtual`` and ``remote`` every frame comes
+and the others are skipped here).  The
+loop thread receives them directly in ``read()`` of :class:`drivers.canopen_hw.CanopenHardware`:
+:meth:`TpdoWindow.drain` before the SYNC (frames that arrived since the last window belong to an
+earlier cycle: counted as late, never decoded), :meth:`TpdoWindow.collect` after it until every
+TPDO arrived or the deadline — no receive thread, no lock, no hand-over between threads on the
+cycle's path, nothing allocated beyond python-can's message object per frame.  canopen's own
+receive thread keeps the rest of the traffic (SDO, heartbeats, EMCY; its handle is filtered to
+those).  :class:`ErrorFrames` watches the bus for the bus-off flag.
 """
 from __future__ import annotations
 
-import threading
-from typing import Callable
-
 import can
+
+#: accept filters of the canopen network's handle: everything but the TPDO range 0x180..0x4FF
+#: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)
+NETWORK_FILTERS = [{"can_id": cid, "can_mask": 0x780, "extended": False}
+                   for cid in (0x000, 0x080, 0x500, 0x580, 0x600, 0x680, 0x700)]
 
 
 class TpdoSlot:
-    """One TPDO of the cycle: the rx callback's buffer and its copy for ``read()``."""
+    """One TPDO of the cycle: the last frame's bytes (``snap``) and this cycle's frame count."""
 
-    __slots__ = ("node", "cob_id", "buf", "snap", "count", "snap_count", "missed", "length", "bad_len")
+    __slots__ = ("node", "cob_id", "snap", "count", "snap_count", "missed", "length", "bad_len")
 
     def __init__(self, node: int, cob_id: int, length: int = 0):
         self.node, self.cob_id = node, cob_id
         self.length = length          # bytes the mapping defines (0: not checked)
         self.bad_len = 0              # length of a frame that did not match, this cycle
-        self.buf = bytearray(8)
         self.snap = bytearray(8)
         self.count = 0
         self.snap_count = 0
@@ -35,68 +40,77 @@ class TpdoSlot:
 class TpdoWindow:
     """The TPDOs of one cycle (see the module docstring).
 
-    ``add(node, cob_id, length)`` returns the rx callback to subscribe for that TPDO.  Per cycle:
-    :meth:`open` before the SYNC, :meth:`wait`, :meth:`close`; :meth:`abort` when the SYNC
-    could not be sent.
+    ``add(node, cob_id, length)`` declares a TPDO; :meth:`bind` gives the window its bus handle
+    (and sets the handle's filters).  Per cycle: :meth:`drain` before the SYNC, :meth:`collect`
+    after it.
     """
 
     def __init__(self):
         self.slots: list[TpdoSlot] = []
-        self._lock = threading.Lock()
-        self._all_rx = threading.Event()
-        self._arrived = 0
-        self._open = False
-        self._late_frames = 0
+        self._by_cob: dict[int, TpdoSlot] = {}
+        self.bus: can.BusABC | None = None
 
-    def add(self, node: int, cob_id: int, length: int) -> Callable[[int, bytes, float], None]:
+    def add(self, node: int, cob_id: int, length: int) -> TpdoSlot:
         slot = TpdoSlot(node, cob_id, length)
         self.slots.append(slot)
-        lock, event, slots = self._lock, self._all_rx, self.slots
+        self._by_cob[cob_id] = slot
+        return slot
 
-        def on_tpdo(can_id, data, timestamp):
-            with lock:
-                if not self._open:             # no SYNC waiting: a frame of an earlier cycle
-                    self._late_frames += 1
-                    return
-                k = min(len(data), 8)
-                if slot.length and len(data) != slot.length:
-                    slot.bad_len = len(data) or -1        # reported by read(), never decoded
-                else:
-                    slot.buf[:k] = data[:k]
-                slot.count += 1
-                if slot.count == 1:
-                    self._arrived += 1
-                    if self._arrived >= len(slots):
-                        event.set()
-        return on_tpdo
+    def bind(self, bus: can.BusABC) -> None:
+        """Receive the TPDOs on ``bus``; its filters are set where the bus applies them below
+        python-can (SocketCAN's kernel filter, the ipc bus): python-can's software filter would
+        end ``recv(0)`` at the first other frame and leave TPDOs queued behind it."""
+        self.bus = bus
+        from drivers.ipc_bus import IpcBus
+        if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
+            bus.set_filters([{"can_id": s.cob_id, "can_mask": 0x7FF, "extended": False} for s in self.slots])
 
-    def open(self) -> bool:
-        """Start a cycle's window; True when frames arrived late since the last one."""
-        with self._lock:
-            for s in self.slots:
-                s.count = 0
-                s.bad_len = 0
-            self._arrived = 0
-            self._all_rx.clear()
-            late = self._late_frames > 0
-            self._late_frames = 0
-            self._open = True
+    def drain(self) -> bool:
+        """Before the SYNC: take what arrived since the last window (late frames) and reset the
+        slots; True when there were any."""
+        late = False
+        recv = self.bus.recv
+        by_cob = self._by_cob
+        while True:
+            msg = recv(0.0)
+            if msg is None:
+                break
+            if msg.arbitration_id in by_cob:       # a bus that ignores filters (python-can-remote)
+                late = True
+        for s in self.slots:
+            s.count = 0
+            s.bad_len = 0
         return late
 
-    def abort(self) -> None:
-        self._open = False
-
-    def wait(self, timeout: float) -> None:
-        """Until every TPDO of the window arrived, or ``timeout`` [s]."""
-        self._all_rx.wait(timeout)
-
-    def close(self) -> None:
-        """End the window: each slot's buffer and count to its snapshot."""
-        with self._lock:
-            self._open = False
-            for s in self.slots:
-                s.snap[:] = s.buf
-                s.snap_count = s.count
+    def collect(self, deadline: float, clock) -> None:
+        """After the SYNC: receive until every TPDO arrived or ``clock() >= deadline``; each
+        slot's ``snap`` gets its frame's bytes (a slot without a frame keeps the last ones),
+        ``snap_count`` the number of frames."""
+        recv = self.bus.recv
+        need = len(self.slots)
+        arrived = 0
+        by_cob = self._by_cob
+        while arrived < need:
+            left = deadline - clock()
+            if left <= 0.0:
+                break
+            msg = recv(left)
+            if msg is None:
+                break
+            s = by_cob.get(msg.arbitration_id)
+            if s is None:
+                continue
+            data = msg.data
+            k = len(data)
+            if s.length and k != s.length:
+                s.bad_len = k or -1                      # reported by read(), never decoded
+            else:
+                s.snap[:k] = data
+            s.count += 1
+            if s.count == 1:
+                arrived += 1
+        for s in self.slots:
+            s.snap_count = s.count
 
 
 class ErrorFrames(can.Listener):

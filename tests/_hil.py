@@ -1,6 +1,7 @@
 """HIL test rig: the CANopen driver against the device model on a real python-can bus.
 
-Bus kinds: ``virtual`` (python-can, in-process), ``remote`` (python-can-remote: a
+Bus kinds: ``virtual`` (python-can, in-process), ``ipc`` (:mod:`drivers.ipc_bus`, UNIX datagram
+sockets), ``remote`` (python-can-remote: a
 ``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
 (``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
 the simulator's true plant (:class:`sea_daemon.core.sim.plant.Plant`), recording its steps.
@@ -23,7 +24,7 @@ from sea_daemon.core.sim.plant import Plant
 from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
 from sea_daemon.runtime.rig import Rig, device_model_rig
 
-BUS_KINDS = ["virtual", "remote", "socketcan"]
+BUS_KINDS = ["virtual", "ipc", "remote", "socketcan"]
 
 
 class RecordingPlant(Plant):

@@ -397,3 +397,40 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
         assert tb.eta_[0] >= beta * s0[0] + x0[0] - 1e-12
         etas[beta] = tb.eta_[0]
     assert etas[1e-4] >= x0[0] - 1e-12 and etas[1.0] > etas[1e-4]
+
+
+@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate"])
+def test_compiled_step_gives_the_python_steps_rho(case):
+    """bound_core.bound_step (the daemon's compiled step) against the Python step it replaces:
+    the same ρ_k, GP error, linearisation error and box violations, to rounding."""
+    import dataclasses
+    from sea_daemon.core.estimators import make_estimator
+    from sea_daemon.io.configfile import repo_root
+    cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
+    if case.startswith("local"):
+        cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(
+            cfg.estimator, gp_beta=1.5, tau_h_act_rate=4.0 if case == "local+rate" else 0.0))
+    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+    log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
+    outs, bounds = [], []
+    for compiled in (False, True):
+        if case == "akf":
+            est = make_estimator("akf", cfg)
+        else:
+            est = make_estimator("gp-akf", cfg, train=train)
+        est.bound.compiled = compiled
+        outs.append(run(est, log))
+        bounds.append(est.bound)
+    assert bounds[1]._compiled_pack() is not None and bounds[0]._compiled_pack() is None
+    np.testing.assert_allclose(outs[1], outs[0], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(bounds[1].eta_, bounds[0].eta_, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(bounds[1].lin_err_, bounds[0].lin_err_, rtol=1e-12, atol=1e-14)
+    assert bounds[1].gp_box_violations_ == bounds[0].gp_box_violations_
+    np.testing.assert_allclose(bounds[1].sm.G_, bounds[0].sm.G_, rtol=1e-10, atol=1e-14)
+
+
+def test_compiled_step_is_skipped_while_the_gp_learns():
+    from sea_daemon.core.estimators import make_estimator
+    cfg = _from_first_sample(load_config(default_config_path()))
+    est = make_estimator("gp-akf", cfg)
+    assert est.learning and est.bound._compiled_pack() is None

@@ -12,5 +12,6 @@ def test_short_soak_writes_every_row(tmp_path):
     assert r["cycles"] == 600 and r["fault"] == "NONE"
     assert lg["appended"] == lg["written"] == lg["counted_in_files"] == 600 and lg["dropped"] == 0
     assert lg["files"] > 1                                   # rotated at 20 kB
-    assert r["learned"] > 500 and r["gp_end"]["leaves"] <= 5
+    # one training pair per configuration step (10 ms) at 1 kHz: every 10th cycle
+    assert r["learned"] > 50 and r["gp_end"]["leaves"] <= 5
     assert r["rss_kb"]["end"] > 0 and r["rss_kb"]["writer_end"] > 0

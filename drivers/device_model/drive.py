@@ -35,6 +35,8 @@ class DriveNode(SlaveNode):
         self.applied_permille = 0            # torque over the cycle that just ended (0x6077)
         self.error_code = 0
         self.position_preset = int(position_preset)
+        self._last_cw = None                 # the last controlword of the RPDO fast path
+        self._period = None                  # 0x60C2 [s], cached
         self.increments = self._raw(0x608F, 1) // max(1, self._raw(0x608F, 2))
         self.gear = self._raw(0x6091, 1) / self._raw(0x6091, 2)
         self.rated_mNm = self._raw(0x6076, 0)
@@ -45,8 +47,31 @@ class DriveNode(SlaveNode):
         self.master_node = 0                 # 0x1016:1 consumer heartbeat: whose, and how long
         self.master_timeout = 0.0
         self.master_last: float | None = None  # time.monotonic() of its last heartbeat (None: not yet)
+        self.max_permille = self._raw(0x6072, 0)   # 0x6072, kept by _on_write
         self.add_read_callback(self._on_read)
         self.add_write_callback(self._on_write)
+
+    def fast_getters(self) -> dict:
+        return {0x6041: lambda: self.sm.statusword, 0x6077: lambda: self.applied_permille,
+                0x6064: lambda: self.position, 0x606C: lambda: self.velocity, 0x6061: lambda: self.mode,
+                0x6071: lambda: self.target_permille, 0x603F: lambda: self.error_code}
+
+    def fast_setters(self) -> dict:
+        return {0x6040: self._set_controlword, 0x6071: self._set_target}
+
+    def _set_controlword(self, cw: int) -> None:
+        if cw == self._last_cw and self.sm.state is cia402.State.OPERATION_ENABLED:
+            return                            # the same command again: nothing changes
+        self._last_cw = cw
+        was_fault = self.sm.state is cia402.State.FAULT
+        self.sm.controlword(cw)
+        if was_fault and self.sm.state is not cia402.State.FAULT:
+            self.error_code = 0
+            self.error_register = 0
+            self.emcy.reset(0)
+
+    def _set_target(self, permille: int) -> None:
+        self.target_permille = permille
 
     # ------------------------------------------------------------ connection to the master
     def _on_master_heartbeat(self, can_id, data, timestamp) -> None:
@@ -80,7 +105,7 @@ class DriveNode(SlaveNode):
     def torque_command(self) -> float:
         """Joint-side torque [N m] the drive applies until the next SYNC; latches 0x6077."""
         if self.sm.torque_enabled and self.mode == cia402.MODE_CST:
-            limit = self._raw(0x6072, 0)
+            limit = self.max_permille
             self.applied_permille = max(-limit, min(limit, self.target_permille))
         else:
             self.applied_permille = 0
@@ -88,8 +113,10 @@ class DriveNode(SlaveNode):
 
     @property
     def period(self) -> float:
-        """Interpolation time period 0x60C2 [s]."""
-        return self._raw(0x60C2, 1) * 10.0 ** self._raw(0x60C2, 2)
+        """Interpolation time period 0x60C2 [s] (cached; a write of 0x60C2 clears it)."""
+        if self._period is None:
+            self._period = self._raw(0x60C2, 1) * 10.0 ** self._raw(0x60C2, 2)
+        return self._period
 
     def drive_fault(self, code: int, data: bytes = b"") -> None:
         """Fault inside the drive: EMCY, fault reaction, torque off."""
@@ -117,13 +144,10 @@ class DriveNode(SlaveNode):
 
     def _on_write(self, index: int, subindex: int, od, data: bytes):
         if index == 0x6040:
-            cw = struct.unpack_from("<H", data)[0]
-            was_fault = self.sm.state is cia402.State.FAULT
-            self.sm.controlword(cw)
-            if was_fault and self.sm.state is not cia402.State.FAULT:
-                self.error_code = 0
-                self.error_register = 0
-                self.emcy.reset(0)
+            self._last_cw = None
+            self._set_controlword(struct.unpack_from("<H", data)[0])
+        elif index == 0x6072:
+            self.max_permille = struct.unpack_from("<H", data)[0]
         elif index == 0x6060:
             mode = struct.unpack_from("<b", data)[0]
             if mode not in (0, cia402.MODE_CST):
@@ -145,3 +169,5 @@ class DriveNode(SlaveNode):
         elif index == 0x60C2 and subindex == 2:
             if not -6 <= struct.unpack_from("<b", data)[0] <= 0:
                 raise SdoAbortedError(0x06090030)
+        if index == 0x60C2:
+            self._period = None

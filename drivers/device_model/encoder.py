@@ -18,6 +18,9 @@ class EncoderNode(SlaveNode):
         self.jump_counts = 0
         self.add_read_callback(self._on_read)
 
+    def fast_getters(self) -> dict:
+        return {0x6004: lambda: self.position}
+
     def set_counts(self, counts: int) -> None:
         """Sample the encoder: total counts of the joint angle (single-turn part is reported)."""
         if self.frozen is not None:

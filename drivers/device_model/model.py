@@ -20,6 +20,7 @@ Faults (:mod:`.faults`) can be injected now or scheduled at a device time.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Callable, Sequence
@@ -36,6 +37,8 @@ TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
 
 class DeviceModel:
     """Drives + load encoders + plant on a bus.  ``start()`` boots the nodes, ``stop()`` leaves."""
+
+    STATS_CAP = 1 << 21
 
     def __init__(self, bus, plant, *, drive_nodes: Sequence[int] = (1,), encoder_nodes: Sequence[int] = (2,),
                  tau_h_act: Callable[[float], np.ndarray] | None = None, lock_step: bool = True,
@@ -68,6 +71,10 @@ class DeviceModel:
         self._synced = False
         self.last_tau_h_act = np.zeros(self.n)
         self.error: BaseException | None = None
+        # answer latency per SYNC (ring of the last STATS_CAP): SYNC frame's timestamp (the
+        # sender's time.time()) to the last TPDO handed to the bus, and the handler's CPU time
+        self.answer_s = np.zeros(self.STATS_CAP)
+        self.handler_cpu_s = np.zeros(self.STATS_CAP)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "DeviceModel":
@@ -129,6 +136,18 @@ class DeviceModel:
                 np.floor(th * d.gear / (2 * np.pi) * d.increments).astype(np.int64))
 
     def _sample(self) -> None:
+        p = self.plant
+        enc = getattr(p, "encoders", None)
+        y = getattr(p, "_y", None)
+        if enc is not None and y is not None and enc.offset_load.ndim == 0 and enc.offset_motor.ndim == 0:
+            # the simulator's encoders (Encoders.counts: floor((angle + offset) / quantum)) on
+            # its state vector [q, θ_m, q̇, θ̇_m], in float arithmetic: the same counts
+            n, ql, qm = self.n, enc.q_load, enc.q_motor
+            ol, om = float(enc.offset_load), float(enc.offset_motor)
+            for j in range(n):
+                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om) / qm), float(y[3 * n + j]))
+                self.encoders[j].set_counts(math.floor((float(y[j]) + ol) / ql))
+            return
         cq, cm = self._counts()
         dth = np.atleast_1d(self.plant.dtheta_m)
         for j in range(self.n):
@@ -144,7 +163,29 @@ class DeviceModel:
         self.last_tau_h_act = tau_h
         self.plant.step(self._tau.copy(), dt, tau_h)
 
+    def answer_stats(self) -> dict:
+        """The device's answer to SYNC over the SYNCs seen (at most the last STATS_CAP): latency
+        from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
+        handler's CPU time, median / p99 / max in µs."""
+        k = min(self.syncs, self.STATS_CAP)
+        out = {"syncs": int(self.syncs), "frames": int(self.network.frames),
+               "data_bytes": int(self.network.data_bytes)}
+        for key, a in (("answer_us", self.answer_s[:k]), ("handler_cpu_us", self.handler_cpu_s[:k])):
+            a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
+            out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
+                         "max": float(a.max() * 1e6)} if a.size else None)
+        return out
+
     def _on_sync(self, can_id, data, timestamp) -> None:
+        c0 = time.thread_time()
+        try:
+            self._sync(timestamp)
+        finally:
+            i = (self.syncs - 1) % self.STATS_CAP
+            self.answer_s[i] = time.time() - timestamp if timestamp else 0.0
+            self.handler_cpu_s[i] = time.thread_time() - c0
+
+    def _sync(self, timestamp) -> None:
         try:
             with self._lock:
                 self.syncs += 1

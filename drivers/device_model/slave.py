@@ -19,6 +19,7 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import can
 import canopen
 from canopen.nmt import NmtSlave
 from canopen.sdo import SdoAbortedError
@@ -36,6 +37,15 @@ class PdoConfig:
     entries: list = field(default_factory=list)     # [(index, subindex, n_bytes)]
     counter: int = 0
     length: int = 0
+    # fast path (every mapped object has a getter / setter of the node): the frame's struct and
+    # the getters (TPDO) or setters (RPDO), in mapping order; None: through the dictionary
+    codec: struct.Struct | None = None
+    access: tuple = ()
+    msg: can.Message | None = None                   # the TPDO's frame, reused (fast path)
+
+
+#: struct codes of the mappable integer types, by (signed, bytes)
+_INT_CODES = {(False, 1): "B", (False, 2): "H", (False, 4): "I", (True, 1): "b", (True, 2): "h", (True, 4): "i"}
 
 
 class DeviceNetwork(canopen.Network):
@@ -45,11 +55,28 @@ class DeviceNetwork(canopen.Network):
         super().__init__(bus)
         self.gate = None           # callable(can_id, data) -> bool: True = send now (gate may send later)
         self.deaf: set[int] = set()   # node ids that ignore what they receive (bus-off)
+        # every frame this network sent or received, and their data bytes (bus load: with the
+        # master as the only other member, everything on the bus)
+        self.frames = 0
+        self.data_bytes = 0
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if self.gate is not None and not self.gate(can_id, bytes(data)):
             return
         super().send_message(can_id, data, remote)
+        self.frames += 1
+        self.data_bytes += len(data)
+
+    def send_pdo(self, msg: can.Message, data: bytes) -> None:
+        """A PDO through the gate in a message object of its own, reused (the cycle's frames:
+        no canopen Message per frame; the bus copies the data when it sends)."""
+        if self.gate is not None and not self.gate(msg.arbitration_id, data):
+            return
+        msg.data[:] = data                          # the mapping's length: the frame's length
+        with self.send_lock:
+            self.bus.send(msg)
+        self.frames += 1
+        self.data_bytes += len(data)
 
     def send_now(self, can_id: int, data: bytes) -> None:
         """Bypass the gate (used by the gate itself for delayed frames)."""
@@ -59,6 +86,8 @@ class DeviceNetwork(canopen.Network):
             pass
 
     def notify(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.frames += 1
+        self.data_bytes += len(data)
         if self.deaf:
             node = can_id & 0x7F
             if node in self.deaf and can_id & 0x780 in (0x200, 0x300, 0x400, 0x500, 0x600):
@@ -172,7 +201,7 @@ class SlaveNode(canopen.LocalNode):
         if bits != len(obj) or bits % 8:
             raise SdoAbortedError(0x06040042)                   # PDO length exceeded / mismatch
 
-    def _read_pdo(self, com: int, mapping: int) -> PdoConfig | None:
+    def _read_pdo(self, com: int, mapping: int, fast: dict) -> PdoConfig | None:
         cob = self._raw(com, 1)
         if cob & PDO_INVALID:
             return None
@@ -183,7 +212,27 @@ class SlaveNode(canopen.LocalNode):
             if idx:
                 cfg.entries.append((idx, s, bits // 8))
                 cfg.length += bits // 8
+        codes, access = [], []
+        for idx, s, nbytes in cfg.entries:
+            obj = self._find_object(idx, s)
+            code = _INT_CODES.get((obj.data_type in (2, 3, 4), nbytes))
+            if code is None or idx not in fast:
+                return cfg
+            codes.append(code)
+            access.append(fast[idx])
+        cfg.codec = struct.Struct("<" + "".join(codes))
+        cfg.access = tuple(access)
+        cfg.msg = can.Message(arbitration_id=cfg.cob_id, data=bytearray(cfg.length), is_extended_id=False)
         return cfg
+
+    def fast_getters(self) -> dict:
+        """index → () -> int for the objects a TPDO may map without the dictionary (subclasses)."""
+        return {}
+
+    def fast_setters(self) -> dict:
+        """index → (int) -> None for the objects an RPDO may map without the dictionary (subclasses):
+        the same effect as the dictionary's write callbacks for that object."""
+        return {}
 
     def load_pdo_config(self) -> None:
         with self._lock:
@@ -191,11 +240,11 @@ class SlaveNode(canopen.LocalNode):
             od = self.object_dictionary
             for i in range(512):
                 if 0x1800 + i in od:
-                    cfg = self._read_pdo(0x1800 + i, 0x1A00 + i)
+                    cfg = self._read_pdo(0x1800 + i, 0x1A00 + i, self.fast_getters())
                     if cfg is not None:
                         self.tpdos.append(cfg)
                 if 0x1400 + i in od:
-                    cfg = self._read_pdo(0x1400 + i, 0x1600 + i)
+                    cfg = self._read_pdo(0x1400 + i, 0x1600 + i, self.fast_setters())
                     if cfg is not None:
                         self.rpdos[cfg.cob_id] = cfg
                         self.network.subscribe(cfg.cob_id, self._on_rpdo)
@@ -223,6 +272,15 @@ class SlaveNode(canopen.LocalNode):
             self._apply_rpdo(cfg, bytes(data))
 
     def _apply_rpdo(self, cfg: PdoConfig, data: bytes) -> None:
+        if cfg.codec is not None:
+            # fast path: the setters do what the write callbacks would; the raw bytes are kept
+            # in the dictionary for SDO reads
+            off = 0
+            for (idx, sub, nbytes), setter, value in zip(cfg.entries, cfg.access, cfg.codec.unpack_from(data)):
+                setter(value)
+                self.data_store.setdefault(idx, {})[sub] = data[off:off + nbytes]
+                off += nbytes
+            return
         off = 0
         for idx, sub, nbytes in cfg.entries:
             self.set_data(idx, sub, data[off:off + nbytes])
@@ -249,6 +307,9 @@ class SlaveNode(canopen.LocalNode):
                 if cfg.trans_type and cfg.counter < cfg.trans_type:
                     continue
                 cfg.counter = 0
+                if cfg.codec is not None:
+                    self.network.send_pdo(cfg.msg, cfg.codec.pack(*[get() for get in cfg.access]))
+                    continue
                 payload = b"".join(self.get_data(i, s)[:n] for i, s, n in cfg.entries)
                 self.network.send_message(cfg.cob_id, payload)
 

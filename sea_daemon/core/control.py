@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sea_daemon.core.jit import njit, warmer
+
 
 def min_jerk(s: float) -> tuple[float, float, float]:
     """Minimum-jerk blend σ(s) = 10s³ − 15s⁴ + 6s⁵ on s ∈ [0, 1], with σ' and σ'' (Flash & Hogan 1985)."""
@@ -96,6 +98,7 @@ class PID:
         self.integral = np.zeros(1)
         self._q_prev = None
         self._dq = np.zeros(1)
+        self._gains = None               # (3, n) kp, ki, kd of the compiled step
 
     def reset(self, q: np.ndarray, u0=0.0) -> None:
         """Start at rest with output u0 (bumpless); q is the measured angle the D term differentiates."""
@@ -105,6 +108,7 @@ class PID:
         ki = np.broadcast_to(self.ki, q.shape)
         u0 = np.broadcast_to(np.asarray(u0, dtype=float), q.shape)
         self.integral = np.where(ki > 0, u0 / np.where(ki > 0, ki, 1.0), 0.0)
+        self._gains = None
 
     def step(self, q_ref, q_meas, dq_ref=0.0, theta_m_meas=None) -> np.ndarray:
         """One control period: the motor-torque command [N m] for the measured q (and θ_m)."""
@@ -114,24 +118,52 @@ class PID:
         v = q if self.derivative == "load" else np.atleast_1d(np.asarray(theta_m_meas, dtype=float))
         if self._q_prev is None:
             self.reset(v)
-        # backward difference of the measured angle, low-passed
-        self._dq = self._dq + self.alpha * ((v - self._q_prev) / self.dt - self._dq)
-        self._q_prev = v.copy()
-        e = np.asarray(q_ref, dtype=float) - q
-        de = np.asarray(dq_ref, dtype=float) - self._dq
-        u_p = self.kp * e + self.kd * de
-        # anti-windup by conditional integration (clamping): the integral only moves while the
-        # output is not saturated or the error drives it out of saturation; it never holds
-        # more than the torque limit on its own.
-        i_new = self.integral + e * self.dt
-        u = u_p + self.ki * i_new
-        sat = (np.abs(u) > self.limit) & (np.sign(e) == np.sign(u))
-        self.integral = np.where(sat, self.integral, i_new)
-        ki_ok = self.ki > 0
-        i_max = np.where(ki_ok, self.limit / np.where(ki_ok, self.ki, 1.0), 0.0)
-        self.integral = np.clip(self.integral, -i_max, i_max)
-        u_sat = np.clip(u_p + self.ki * self.integral, -self.limit, self.limit)
-        return u_sat
+        n = q.shape[0]
+        if self._gains is None or self._gains.shape[1] != n:
+            # gains per joint, the state arrays of n (the compiled step updates them in place)
+            self._gains = np.ascontiguousarray(np.vstack([np.broadcast_to(g, (n,)) for g in (self.kp, self.ki,
+                                                                                              self.kd)]))
+            self._dq = np.array(np.broadcast_to(self._dq, (n,)), dtype=float)
+            self._q_prev = np.array(np.broadcast_to(self._q_prev, (n,)), dtype=float)
+            self.integral = np.array(np.broadcast_to(self.integral, (n,)), dtype=float)
+            self._ref = np.zeros((2, n))
+            self._u = np.zeros(n)
+        ref = self._ref
+        ref[0] = q_ref
+        ref[1] = dq_ref
+        _pid_step(ref, q, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev, self.integral,
+                  self._u)
+        return self._u.copy()
+
+@njit
+def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
+    """:meth:`PID.step` per joint, the same operations in the same order as its numpy form
+    (no fast-math: the same numbers): low-passed backward difference, P + D, conditional
+    integration, integral clamp, output clip.  ``ref`` rows q_ref, q̇_ref; ``gains`` rows
+    kp, ki, kd; ``dq``, ``q_prev``, ``integral`` updated in place; the command into ``out``."""
+    for j in range(q.shape[0]):
+        kp, ki, kd = gains[0, j], gains[1, j], gains[2, j]
+        dq[j] = dq[j] + alpha * ((v[j] - q_prev[j]) / dt - dq[j])
+        q_prev[j] = v[j]
+        e = ref[0, j] - q[j]
+        de = ref[1, j] - dq[j]
+        u_p = kp * e + kd * de
+        i_new = integral[j] + e * dt
+        u = u_p + ki * i_new
+        se = 1 if e > 0.0 else (-1 if e < 0.0 else 0)           # np.sign
+        su = 1 if u > 0.0 else (-1 if u < 0.0 else 0)
+        if not (abs(u) > limit and se == su):
+            integral[j] = i_new
+        i_max = limit / ki if ki > 0 else 0.0
+        integral[j] = min(max(integral[j], -i_max), i_max)
+        out[j] = min(max(u_p + ki * integral[j], -limit), limit)
+
+
+@warmer
+def _warm() -> None:
+    """The PID's compiled step with the argument types :class:`PID` passes."""
+    _pid_step(np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, 10.0, np.zeros(1),
+              np.zeros(1), np.zeros(1), np.zeros(1))
 
 
 def cosine_torque(t: float, amplitude: float = 2.0, frequency_hz: float = 0.1, offset: float = 2.0) -> float:

@@ -60,7 +60,7 @@ class BusConfig:
             "master_node", "publish"]
     #: joints the daemon's node publishes: joint 1 on TPDO1, joint 2 on TPDO3, joint 3 on TPDO4 (TPDO2: status)
     PUBLISH_JOINTS = 3
-    INTERFACES = ("virtual", "socketcan", "remote")
+    INTERFACES = ("virtual", "socketcan", "remote", "ipc")
 
     @classmethod
     def default(cls, n: int) -> "BusConfig":

@@ -24,6 +24,7 @@ import numba
 #: module for :func:`njit`)
 KERNEL_MODULES = (
     "sea_daemon.core.linalg",
+    "sea_daemon.core.control",
     "sea_daemon.core.effects",
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",
@@ -35,6 +36,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.bounds.setmember",
     "sea_daemon.core.bounds.zonotope",
     "sea_daemon.core.bounds.akf_bound",
+    "sea_daemon.core.bounds.bound_core",
     "sea_daemon.core.sim.plant",
 )
 

@@ -7,9 +7,11 @@ plus the model configuration it was learned with.
 
 Compatibility: a residual f(z) is what the *nominal* model leaves unexplained
 (eq:unknwn_load), computed with the configured kinematics; a model file is therefore refused
-(:class:`~sea_daemon.errors.ModelFileError`, exit 2) when the configuration's ``joints``,
-``rate_hz``, ``model`` or ``kinematics`` section differs from the one it was learned with.
-The estimator noise (``estimator``) and ``hardware`` may differ.
+(:class:`~sea_daemon.errors.ModelFileError`, exit 2) when the configuration's ``joints`` or
+``model`` section differs from the one it was learned with, or its ``rate_hz`` / ``kinematics``
+unless they are the saved ones at another rate with the differentiator's span in time kept
+(:func:`sea_daemon.core.rates.at_rate`: a model calibrated at 100 Hz runs at 1 kHz).  The
+estimator noise (``estimator``) and ``hardware`` may differ.
 """
 from __future__ import annotations
 
@@ -68,10 +70,29 @@ def save_gp_model(path: str | Path, cfg: ModelConfig, residual: ResidualGP, prov
 def _compat(path: str, saved: dict, cfg: ModelConfig) -> None:
     now = json.loads(json.dumps(cfg.to_dict()))
     for key in COMPAT_KEYS:
-        if saved.get(key) != now.get(key):
-            raise ModelFileError(f"{path}: learned with a different '{key}' section than the configuration "
-                                 f"(saved {json.dumps(saved.get(key))[:120]}, configured "
-                                 f"{json.dumps(now.get(key))[:120]}); re-run calibrate with this configuration")
+        if saved.get(key) == now.get(key):
+            continue
+        if key in ("rate_hz", "kinematics") and _same_in_time(saved, cfg):
+            continue                      # another loop rate, the same differentiator in time
+        raise ModelFileError(f"{path}: learned with a different '{key}' section than the configuration "
+                             f"(saved {json.dumps(saved.get(key))[:120]}, configured "
+                             f"{json.dumps(now.get(key))[:120]}); re-run calibrate with this configuration"
+                             + (" (at another rate the kinematics window must keep its span in time: "
+                                "sea-daemon run/calibrate --rate)" if key in ("rate_hz", "kinematics") else ""))
+
+
+def _same_in_time(saved: dict, cfg: ModelConfig) -> bool:
+    """The saved kinematics brought to the configuration's rate are the configuration's
+    (:func:`sea_daemon.core.rates.same_in_time`)."""
+    from sea_daemon.core.config import KinematicsConfig
+    from sea_daemon.core.rates import window_at
+    try:
+        rate = float(saved["rate_hz"])
+        kin = KinematicsConfig.from_dict(saved["kinematics"], cfg.joints, "model file")
+    except (KeyError, TypeError, ValueError, Exception):  # noqa: BLE001 - an old or odd file: not the same
+        return False
+    return (kin.method, kin.degree) == (cfg.kinematics.method, cfg.kinematics.degree) and \
+        window_at(kin, rate, cfg.rate_hz) == cfg.kinematics.window
 
 
 def load_gp_model(path: str | Path, cfg: ModelConfig) -> tuple[ResidualGP, dict]:

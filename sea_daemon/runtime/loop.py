@@ -79,6 +79,7 @@ class LoopStats:
     overruns: int = 0
     max_late_s: float = 0.0
     periods: list = field(default_factory=list)   # filled only when record_periods=True
+    cpu: list = field(default_factory=list)       # the loop thread's CPU time per cycle [s] (record_periods)
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
 
@@ -118,6 +119,7 @@ class FixedRateLoop:
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
                  period: float, log=None, notifier=None, supervisor: SafetySupervisor | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 cpu_clock: Callable[[], float] = time.thread_time,
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
                  initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None):
@@ -126,6 +128,7 @@ class FixedRateLoop:
         self.log, self.notifier = log, notifier
         self.supervisor = supervisor or SafetySupervisor()
         self.clock, self.sleep = clock, sleep
+        self.cpu_clock = cpu_clock
         self.realtime = realtime
         self.record_periods = record_periods
         self.on_cycle = on_cycle
@@ -185,8 +188,10 @@ class FixedRateLoop:
         deadline = t0
         last_start = t0
         k = 0
+        cpu_clock = self.cpu_clock
         while not self._stop and (cycles is None or k < cycles):
             start = self.clock()
+            cpu0 = cpu_clock()
             self.cycle_start = start
             if self._reset_requested:
                 self._reset_requested = False
@@ -289,8 +294,10 @@ class FixedRateLoop:
             # only a stuck loop and never clears a latched fault behind the operator's back
             if self.notifier is not None:
                 self.notifier.watchdog()
-            if self.record_periods and k > 0:
-                st.periods.append(start - last_start)
+            if self.record_periods:
+                st.cpu.append(cpu_clock() - cpu0)
+                if k > 0:
+                    st.periods.append(start - last_start)
             last_start = start
             k += 1
             st.cycles = k

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 import json
 import os
 import signal
@@ -360,6 +361,10 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         # the drives watch our heartbeat from read(): the loop starts right away
         notifier.ready(f"{label}: {rig.description}; {rt_text}")
         t_wall = time.monotonic()
+        # what exists now is never garbage: out of the collector's reach, so that a collection in
+        # the loop only walks what the loop's cycles create (short pauses, no full-heap sweeps)
+        gc.collect()
+        gc.freeze()
         stats = loop.run(cycles)
     finally:
         notifier.stopping()

@@ -2,7 +2,8 @@
 
 Measures, per cycle, ``hw.write(tau)`` + ``hw.read()`` of :class:`drivers.canopen_hw.CanopenHardware`
 talking to the device model (lock-step, the simulator's plant) over a python-can virtual bus (both
-in this process) or python-can-remote (server subprocess, device model in this process).  The
+in this process), the ipc bus (UNIX datagram sockets between the two handles, one hop) or
+python-can-remote (server subprocess, device model in this process: each frame crosses the relay).  The
 figure includes the device model's side (SYNC handling, TPDO build, one plant step) because the
 read waits for its TPDOs; it is the round trip the fixed-rate loop pays each cycle.
 """
@@ -24,7 +25,9 @@ HELP = "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--bus", choices=("virtual", "remote"), default="virtual")
+    p.add_argument("--bus", choices=("virtual", "ipc", "remote"), default="virtual",
+                   help="virtual: python-can in-process; ipc: UNIX datagram sockets (drivers.ipc_bus); remote: "
+                        "python-can-remote's relay process (the difference to ipc is what the relay costs)")
     p.add_argument("--cycles", type=int, default=2000)
 
 

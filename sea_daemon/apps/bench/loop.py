@@ -1,23 +1,34 @@
-"""``sea-daemon bench loop --rate 100|1000 --cycles N``: the daemon's fixed-rate loop against the device model.
+"""``sea-daemon bench loop --rate 100|1000 --cycles N --bus virtual|ipc|remote``: the daemon's loop against the device model.
 
 What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.serve`): the GP-AKF
-with a residual learned by ``sea-daemon calibrate`` at the same rate (lock-step on the device
-model, not timed), the passive scenario's PID controller, the off-loop log writer, the loop in
-real-time pace (sleep to the absolute deadline), SCHED_FIFO / mlockall tried (what applied is
-printed).  The device model (the passive scenario's true plant behind a CANopen drive and load
-encoder, lock-step with SYNC) runs either in this process on a python-can virtual bus
-(``--bus virtual``: its SYNC handling and plant step compete with the loop for the GIL) or in a
-separate process behind a ``python -m can_remote`` server (``--bus remote``: websockets).
+with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
+at ``--model-rate`` (default 100 Hz: the model file of the 100 Hz daemon, run at ``--rate``
+through :func:`sea_daemon.core.rates.at_rate`), learning frozen, the Theorem-1 bound ρ_k
+published every cycle (``--no-bound``: the filter's own bound), the passive scenario's PID
+controller, the off-loop log writer, the loop in real-time pace, SCHED_FIFO / mlockall tried
+(what applied is printed).  The device model (the passive scenario's true plant behind a
+CANopen drive and load encoder, lock-step with SYNC) runs in this process on a python-can
+virtual bus (``--bus virtual``: its SYNC handling and plant step compete with the loop for the
+GIL), or in its own process (SCHED_FIFO ``--device-rt-priority``) on the ``ipc`` bus (UNIX
+datagram sockets, one hop per frame) or behind ``python -m can_remote`` (``remote``:
+websockets through the relay process).  The TPDOs are collected until ``--tpdo-deadline`` of
+the period after the SYNC (a deadline inside the period); a cycle whose TPDOs are later holds
+the last values (up to ``--max-missed`` cycles in a row, then the TPDO_MISSING fault) and is
+counted.
 
-Figures: the loop period (start to start of consecutive cycles) minus nominal — median, p99 and
-max of |period − nominal|; overruns (cycles that ended after their deadline) per 10⁵ cycles over
-the N measured cycles; the cycle's compute (read → log row, the log's ``compute`` column); CAN
-frames per cycle counted by a listener on the bus over the measured cycles (SYNC, RPDO, TPDOs,
-heartbeats: everything on the bus), and the load they would be on a 1 Mbit/s bus.  Bits per
-frame: CAN 2.0A data frame with 11-bit identifier, 47 + 8·DLC bits (SOF … IFS, no stuffing) —
-the "typical" figure — and with the worst-case stuff bits, ⌊(34 + 8·DLC − 1)/4⌋ over SOF … CRC.
-The load average is printed before and after: the machine is shared.  The OVERRUN_STREAK fault is
-off by default here (``--overrun-fault`` keeps it), so that every measured cycle does the full work.
+Figures, over the N measured cycles: the loop period (start to start) minus nominal — median,
+p99, max of |period − nominal|; overruns (cycles that ended after their deadline) per 10⁵
+cycles; the daemon's own CPU time per cycle — the loop thread's (``time.thread_time`` from the
+start of the cycle to its log row) plus the CAN receive thread's over the same cycle (its
+thread CPU clock), median / p99 — and the cycle's wall time (read → log row, the log's
+``compute``) with the part spent in ``hw.read()`` (SYNC → TPDOs, waiting for the devices);
+the device model's answer latency (its SYNC frame's send time to its last TPDO handed to the
+bus, measured in the device model's process) and its SYNC handler's CPU time; CAN frames per
+cycle and the load they are on a 1 Mbit/s bus (every frame the device model sent or received,
+start-up included; bits per frame 47 + 8·DLC without stuffing, 55 + 10·DLC with worst-case
+stuffing); missed and late TPDO cycles; log rows dropped.  The machine's load average is printed
+before and after: the machine is shared.  The OVERRUN_STREAK fault is off by default here
+(``--overrun-fault`` keeps it), so that every measured cycle does the full work.
 """
 from __future__ import annotations
 
@@ -28,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -35,19 +47,29 @@ import numpy as np
 from sea_daemon.apps.bench import add_json_argument, json_output, machine
 
 NAME = "loop"
-HELP = "fixed-rate loop jitter, overruns and CAN bus load against the device model (100 Hz / 1 kHz)"
+HELP = "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--rate", type=int, choices=(100, 1000), default=100, help="loop rate [Hz] (default 100)")
+    p.add_argument("--rate", type=int, default=100, help="loop rate [Hz] (default 100)")
     p.add_argument("--cycles", type=int, default=6000, help="measured cycles (default 6000)")
-    p.add_argument("--bus", choices=("virtual", "remote"), default="virtual",
-                   help="virtual: device model in this process; remote: device model in its own process "
-                        "behind python -m can_remote")
+    p.add_argument("--bus", choices=("virtual", "ipc", "remote"), default="virtual",
+                   help="virtual: device model in this process; ipc: device model in its own process over UNIX "
+                        "datagram sockets; remote: in its own process behind python -m can_remote")
     p.add_argument("--train", type=int, default=700, help="lock-step calibration cycles before (default 700)")
+    p.add_argument("--model-rate", type=int, default=100,
+                   help="rate [Hz] the model file is calibrated at (default 100; run at --rate)")
     p.add_argument("--estimator", choices=("gp-akf", "akf"), default="gp-akf",
                    help="estimator in the loop (default gp-akf; akf: without the GP, for comparison)")
+    p.add_argument("--no-bound", action="store_true",
+                   help="publish the filter's own bound instead of the Theorem-1 rho_k (for comparison)")
     p.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority tried (0: do not)")
+    p.add_argument("--device-rt-priority", type=int, default=70,
+                   help="SCHED_FIFO priority of the device model's process (ipc, remote; 0: do not)")
+    p.add_argument("--tpdo-deadline", type=float, default=0.6,
+                   help="TPDOs collected until this fraction of the period after the SYNC (default 0.6)")
+    p.add_argument("--max-missed", type=int, default=3,
+                   help="cycles in a row a late TPDO may be held before TPDO_MISSING latches (default 3)")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
@@ -61,7 +83,7 @@ def _loadavg() -> str:
         return "n/a"
 
 
-def _wait_line(proc, text: str, timeout: float) -> None:
+def _wait_line(proc, text: str, timeout: float) -> str:
     import selectors
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
@@ -72,8 +94,54 @@ def _wait_line(proc, text: str, timeout: float) -> None:
         if sel.select(0.2):
             line = proc.stdout.readline()
             if text in line:
-                return
+                return line
     raise RuntimeError(f"no {text!r} within {timeout} s")
+
+
+def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
+    """``sea-daemon device-model`` in its own process on ``cfg``'s bus (``--stats``, SCHED_FIFO
+    ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
+    from drivers.canopen_hw import CanopenHardware
+    from sea_daemon.io.configfile import repo_root, save_config
+    from sea_daemon.runtime.rig import Rig
+    path = Path(tmp) / "device-model.yaml"
+    save_config(cfg, path)
+    b = cfg.hardware.bus
+    proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
+                             b.channel, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(repo_root())))
+    try:
+        ready = _wait_line(proc, "device-model ready", 120)
+    except BaseException:
+        proc.kill()
+        raise
+    return proc, Rig(CanopenHardware(cfg), f"device model process on {b.interface} {b.channel} "
+                     f"({ready.split(';')[-1].strip()})", np.zeros(cfg.joints), cfg=cfg)
+
+
+def _pcts(a) -> dict:
+    a = np.asarray(a, dtype=float)
+    return {"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
+            "max": float(a.max() * 1e6)}
+
+
+class _ThreadCpu:
+    """CPU clocks of the driver's CAN receive threads (python-can Notifier threads)."""
+
+    def __init__(self, hw):
+        self.clocks = []
+        notifier = getattr(getattr(hw, "network", None), "notifier", None)
+        for t in getattr(notifier, "_readers", []) or []:
+            ident = getattr(t, "ident", None)
+            if ident:
+                try:
+                    self.clocks.append(time.pthread_getcpuclockid(ident))
+                except (OSError, AttributeError):
+                    pass
+
+    def now(self) -> float:
+        return sum(time.clock_gettime(c) for c in self.clocks)
 
 
 def run(args) -> int:
@@ -82,12 +150,10 @@ def run(args) -> int:
     save = json_output(args)
     from sea_daemon.io.configfile import load_config, repo_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
-    from drivers.bus import make_bus
     from sea_daemon.runtime.controller import ScenarioController
-    from sea_daemon.runtime.rig import Rig, make_rig
+    from sea_daemon.runtime.rig import make_rig
     from sea_daemon.runtime.safety import SafetySupervisor
     from sea_daemon.runtime.service import serve
-    from sea_daemon.apps.bench._rig import FrameCounter
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.apps.bench.can_cycle import _server
@@ -97,65 +163,80 @@ def run(args) -> int:
         return 2
     root = repo_root()
     scen = str(root / "configs" / "scenarios" / "passive.yaml")
-    cfg = load_config(root / "configs" / "exo_1dof_sim.yaml")
-    cfg = dataclasses.replace(cfg, rate_hz=args.rate)
+    from sea_daemon.core.rates import at_rate
+    base = load_config(root / "configs" / "exo_1dof_sim.yaml")
+    cfg_model = at_rate(base, args.model_rate)
+    cfg = at_rate(base, args.rate)
     dt = cfg.dt
+    if not 0.05 <= args.tpdo_deadline <= 50:
+        print("sea-daemon bench loop: --tpdo-deadline must be in 0.05..50 (fraction of the period)", file=sys.stderr)
+        return 2
     load_before = _loadavg()
     procs = []
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
         tmp = Path(tmp)
         cfg_path = tmp / "config.yaml"
-        save_config(cfg, cfg_path)
-        # the residual, learned by the calibration at this rate (lock-step, not timed)
+        save_config(cfg_model, cfg_path)
+        # the residual, learned by the calibration at --model-rate (lock-step, not timed)
         from sea_daemon.apps.calibration import calibrate
-        rc, summary, message = calibrate(cfg, scen, tmp / "model.npz", tmp / "calibration.csv", cycles=args.train,
-                                         device_model=scen, realtime=False, config_name=str(cfg_path))
+        rc, summary, message = calibrate(cfg_model, scen, tmp / "model.npz", tmp / "calibration.csv",
+                                         cycles=args.train, device_model=scen, realtime=False,
+                                         config_name=str(cfg_path))
         if rc != 0:
             print(f"sea-daemon bench loop: calibration failed: {message} {json.dumps(summary)}", file=sys.stderr)
             return 1
         residual, _ = load_gp_model(tmp / "model.npz", cfg)
+        bound = not args.no_bound
         if args.estimator == "gp-akf":
-            estimator = make_estimator("gp-akf", cfg, dt=dt, residual=residual, learning=False, bound=False)
+            estimator = make_estimator("gp-akf", cfg, dt=dt, residual=residual, learning=False, bound=bound)
         else:
-            estimator = make_estimator("akf", cfg, dt=dt)
+            estimator = make_estimator("akf", cfg, dt=dt, bound=bound)
+        deadline_ms = args.tpdo_deadline * dt * 1e3
+        dev = None
         if args.bus == "virtual":
             rig = make_rig(cfg, device_model=scen, phase="estimation")
+            b = dataclasses.replace(rig.cfg.hardware.bus, pdo_timeout_ms=deadline_ms,
+                                    max_missed_cycles=args.max_missed)
+            rig.hw = CanopenHardware(dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware,
+                                                                                                 bus=b)), rig.drv_bus)
         else:
-            server, url = _server()
-            procs.append(server)
+            if args.bus == "remote":
+                server, url = _server()
+                procs.append(server)
+            else:
+                url = f"bench-{uuid.uuid4().hex[:8]}"
             cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
-                cfg.hardware.bus, interface="remote", channel=url, pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000,
-                sdo_timeout_ms=3000)))
-            save_config(cfg_r, cfg_path)
-            dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote",
-                                    "--channel", url, "--config", str(cfg_path), "--scenario", scen],
-                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                   env=dict(os.environ, PYTHONPATH=str(root)))
+                cfg.hardware.bus, interface=args.bus, channel=url, pdo_timeout_ms=deadline_ms,
+                max_missed_cycles=args.max_missed, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)))
+            dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
             procs.append(dev)
-            _wait_line(dev, "device-model ready", 60)
-            rig = Rig(CanopenHardware(cfg_r), f"device model process behind can_remote {url}", np.zeros(cfg.joints),
-                      cfg=cfg_r)
-        frames = FrameCounter(make_bus(rig.cfg.hardware.bus))          # every frame on the rig's bus
         sc = load_scenario(scen)
         controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
-        snaps = {}
         n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
+        rx_cpu = np.zeros(n_cycles)                        # the receive threads' CPU clock at each cycle's end
+        probe = {}
 
         def progress(k, est):
             if k == 0:
-                snaps["start"] = (frames.snapshot(), time.monotonic())
-            elif k == n_cycles - 1:
-                snaps["end"] = (frames.snapshot(), time.monotonic())
+                probe["rx"] = _ThreadCpu(rig.hw)
+            if k < n_cycles:
+                rx_cpu[k] = probe["rx"].now()
+        dev_stats = None
         try:
             res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                         progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
                         supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62))
+            if rig.device_model is not None:
+                dev_stats = rig.device_model.answer_stats()
         finally:
-            frames.close()
             for p in reversed(procs):
                 p.terminate()
                 try:
-                    p.wait(10)
+                    out_text, _ = p.communicate(timeout=20)
+                    if p is dev:
+                        for line in (out_text or "").splitlines():
+                            if line.startswith("device-model stats "):
+                                dev_stats = json.loads(line[len("device-model stats "):])
                 except subprocess.TimeoutExpired:
                     p.kill()
         from sea_daemon.io.logcsv import read_log
@@ -165,49 +246,68 @@ def run(args) -> int:
     load_after = _loadavg()
     st = res.stats
     periods = np.asarray(st.periods, dtype=float)
-    dev = np.abs(periods - dt)
+    jit = np.abs(periods - dt)
     measured = periods.size
-    (f0, b0, w0), _ = snaps["start"]
-    (f1, b1, w1), _ = snaps["end"]
-    cyc = n_cycles - 1
-    fpc = (f1 - f0) / cyc
-    load_typ = (b1 - b0) / cyc * args.rate / 1e6
-    load_worst = (w1 - w0) / cyc * args.rate / 1e6
+    loop_cpu = np.asarray(st.cpu, dtype=float)[:n_cycles]
+    rx = np.diff(rx_cpu, prepend=rx_cpu[0])[1:]            # receive threads' CPU between cycle ends
+    own_cpu = loop_cpu[1:] + rx
+    fpc = load_typ = load_worst = float("nan")
+    if dev_stats and dev_stats.get("syncs"):
+        F, B = dev_stats["frames"], dev_stats["data_bytes"]
+        fpc = F / dev_stats["syncs"]
+        load_typ = (47 * F + 8 * B) / dev_stats["syncs"] * args.rate / 1e6
+        load_worst = (55 * F + 10 * B) / dev_stats["syncs"] * args.rate / 1e6
+    hw = rig.hw
     out = {
         "machine": machine(), "rate_hz": args.rate, "estimator": args.estimator, "bus": args.bus, "hardware": rig.description,
         "cycles_measured": measured, "realtime": res.realtime, "fault": res.supervisor.latched.name,
+        "bound": "theorem-1 rho_k" if not args.no_bound else "filter's own", "model_rate_hz": args.model_rate,
+        "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": deadline_ms * 1e3,
         "loadavg_before": load_before, "loadavg_after": load_after,
-        "jitter_us": {"median": float(np.median(dev) * 1e6), "p99": float(np.percentile(dev, 99) * 1e6),
-                      "max": float(dev.max() * 1e6)},
+        "jitter_us": _pcts(jit),
+        "daemon_cpu_us": _pcts(own_cpu), "loop_thread_cpu_us": _pcts(loop_cpu), "rx_thread_cpu_us": _pcts(rx),
+        "device_model": dev_stats,
+        "missed_tpdo_cycles": int(getattr(hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(hw, "late_cycles", 0)),
         "period_us": {"median": float(np.median(periods) * 1e6), "p99": float(np.percentile(periods, 99) * 1e6),
                       "max": float(periods.max() * 1e6)},
         "overruns": st.overruns, "overruns_per_1e5": st.overruns / n_cycles * 1e5, "skipped_deadlines": st.skipped,
         "max_late_us": st.max_late_s * 1e6,
-        "compute_us": {"median": float(np.median(compute) * 1e6), "p99": float(np.percentile(compute, 99) * 1e6),
-                       "max": float(compute.max() * 1e6)},
-        "read_us": {"median": float(np.median(read_s) * 1e6), "p99": float(np.percentile(read_s, 99) * 1e6),
-                    "max": float(read_s.max() * 1e6)},
+        "compute_us": _pcts(compute), "read_us": _pcts(read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
         "log_rows_dropped": res.log["rows_dropped"],
     }
     print(f"bench loop on {out['machine']}")
-    print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine)")
-    what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate, {args.train} lock-step cycles)"
-            if args.estimator == "gp-akf" else "AKF (no GP)")
-    print(f"{args.rate} Hz, {out['hardware']}; {what} + passive-scenario PID; real-time pace; {res.realtime}")
-    print(f"measured {n_cycles} cycles ({measured} periods), OVERRUN_STREAK fault "
-          f"{'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}")
+    print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine, "
+          f"{os.cpu_count()} cores)")
+    what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
+            f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
+    print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
+          f"{out['bound']} every cycle; passive-scenario PID; real-time pace; {res.realtime}")
+    print(f"measured {n_cycles} cycles ({measured} periods), TPDO deadline {deadline_ms * 1e3:.0f} us after SYNC, "
+          f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}")
     j, pr, c = out["jitter_us"], out["period_us"], out["compute_us"]
-    print(f"|period - {dt * 1e6:.0f} us|: median {j['median']:.1f} us, p99 {j['p99']:.1f} us, max {j['max']:.1f} us"
-          f"  (period median {pr['median']:.1f}, p99 {pr['p99']:.1f}, max {pr['max']:.1f} us)")
     print(f"overruns: {st.overruns} in {n_cycles} cycles = {out['overruns_per_1e5']:.0f} per 1e5 cycles "
           f"(max late {out['max_late_us']:.0f} us, deadlines skipped {st.skipped})")
-    print(f"cycle compute (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
+    print(f"|period - {dt * 1e6:.0f} us|: median {j['median']:.1f} us, p99 {j['p99']:.1f} us, max {j['max']:.1f} us"
+          f"  (period median {pr['median']:.1f}, p99 {pr['p99']:.1f}, max {pr['max']:.1f} us)")
+    dc, lc, xc = out["daemon_cpu_us"], out["loop_thread_cpu_us"], out["rx_thread_cpu_us"]
+    print(f"daemon CPU per cycle (loop thread + CAN receive thread): median {dc['median']:.0f} us, p99 "
+          f"{dc['p99']:.0f} us, max {dc['max']:.0f} us  (loop thread median {lc['median']:.0f} / p99 {lc['p99']:.0f}; "
+          f"receive thread median {xc['median']:.0f} / p99 {xc['p99']:.0f})")
+    print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
     r = out["read_us"]
-    print(f"  of which hw.read() (SYNC -> TPDOs, incl. the device model's answer): median {r['median']:.0f} us, "
+    print(f"  of which hw.read() (SYNC -> TPDOs, waiting for the devices): median {r['median']:.0f} us, "
           f"p99 {r['p99']:.0f} us, max {r['max']:.0f} us")
-    print(f"CAN frames per cycle {fpc:.2f} (all frames on the bus over the measured cycles); at 1 Mbit/s: "
-          f"bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with worst-case stuffing")
+    ds = out["device_model"]
+    if ds and ds.get("answer_us"):
+        a, h = ds["answer_us"], ds["handler_cpu_us"]
+        print(f"device model answer latency (SYNC sent -> its last TPDO sent, in its process): median "
+              f"{a['median']:.0f} us, p99 {a['p99']:.0f} us, max {a['max']:.0f} us; its SYNC handler CPU median "
+              f"{h['median']:.0f} us, p99 {h['p99']:.0f} us ({ds['syncs']} SYNCs)")
+    print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}")
+    print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included); "
+          f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
+          f"worst-case stuffing")
     print(f"log rows dropped: {out['log_rows_dropped']}")
     save(out)
     return 0

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+import os
 import signal
 import tempfile
 import time
@@ -31,6 +32,7 @@ import numpy as np
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.runtime.service import try_realtime
 from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
 from sea_daemon.apps.bench._rig import SineTracker, bench_config, bench_rig, vm_rss_kb
 
@@ -52,6 +54,15 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default=None, help="directory of the log files (default: a temporary one, removed)")
     p.add_argument("--samples", type=int, default=20, help="memory samples over the run (default 20)")
     add_json_argument(p)
+    p.add_argument("--bus", choices=("virtual", "ipc"), default="virtual",
+                   help="virtual: the device model in this process; ipc: in its own process (SCHED_FIFO 70) over "
+                        "the ipc bus, the loop SCHED_FIFO 80")
+    p.add_argument("--learn-cycles", type=int, default=None,
+                   help="the GP learns online in the first N cycles, then is frozen (default: all cycles)")
+    p.add_argument("--max-missed", type=int, default=3, help="ipc: late TPDOs held in a row (default 3; counted)")
+    p.add_argument("--bound", action="store_true",
+                   help="publish the Theorem-1 bound rho_k once learning stops (with --learn-cycles; default: the "
+                        "filter's own bound)")
 
 
 def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
@@ -71,15 +82,30 @@ def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
 
 
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
-         out_dir: Path, samples: int = 20, progress=None) -> dict:
+         out_dir: Path, samples: int = 20, progress=None, bus: str = "virtual", learn_cycles: int | None = None,
+         bound: bool = False, max_missed: int = 3) -> dict:
     from sea_daemon.core.estimators import make_estimator
+    from sea_daemon.core.rates import at_rate
     cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
-    cfg = dataclasses.replace(cfg, rate_hz=float(rate))
+    cfg = at_rate(cfg, float(rate))
     if max_leaves:
         cfg = dataclasses.replace(cfg, learning=dataclasses.replace(cfg.learning, max_leaves=int(max_leaves)))
     rss = {"start": vm_rss_kb()}
-    rig = bench_rig(cfg)
+    # the Theorem-1 bound needs a GP with data (its constants): it starts when learning stops
     est = make_estimator("gp-akf", cfg, bound=False)
+    dev = None
+    if bus == "ipc":
+        from sea_daemon.apps.bench.loop import device_model_process
+        # the TPDO deadline inside the period; a late answer is held for 3 cycles (counted)
+        b = dataclasses.replace(cfg.hardware.bus, interface="ipc", channel=f"soak-{os.getpid()}",
+                                pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
+        cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
+        dev, rig = device_model_process(cfg, out_dir, ["--q0", "0.6", "--seed", "0"])
+        rig.start()
+        rt = try_realtime(80)
+    else:
+        rig = bench_rig(cfg)
+        rt = {"sched": "other (not asked)"}
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
     sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
     stride = max(1, cycles // max(1, samples))
@@ -88,6 +114,12 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     marks = {}
 
     def on_cycle(k, meas, e, tau):
+        if learn_cycles is not None and k == learn_cycles:
+            est.learning = False                  # the model frozen from here on (the daemon's run)
+            if bound:
+                from sea_daemon.core.bounds.akf_bound import theorem_bound
+                est.bound = theorem_bound(est)
+                est.bound.reset(est.est)          # the set of means starts at a point here
         if k % stride == 0 or k == warmup:
             rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
             trace.append(rec)
@@ -113,12 +145,17 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         trace.append(end)
         closed = log.close()
         rig.stop()
+        if dev is not None:
+            dev.terminate()
+            dev.communicate(timeout=20)
     rows, per, comp = _count_rows(closed["files"])
     w = marks.get("warmup", trace[0])
     growth = (end[1] - w[1]) / w[1] * 100.0 if w[1] > 0 else float("nan")
     wgrowth = (end[2] - w[2]) / w[2] * 100.0 if w[2] > 0 else float("nan")
     return {
-        "cycles": st.cycles, "rate_hz": rate, "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
+        "cycles": st.cycles, "rate_hz": rate, "bus": bus, "realtime": rt, "bound": bound,
+        "learn_cycles": learn_cycles, "hardware": getattr(rig, "description", ""),
+        "missed_tpdo_cycles": int(getattr(rig.hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(rig.hw, "late_cycles", 0)), "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
         "overruns": st.overruns, "max_late_s": st.max_late_s,
         "fault": sup.latched.name, "fault_detail": sup.latched_detail, "fault_cycle": sup.latched_cycle,
         "rss_kb": {"process_start": rss["start"], "after_start": rss["after_start"], "warmup": w[1], "end": end[1],
@@ -142,10 +179,12 @@ def run(args) -> int:
     if args.cycles < 100 or args.rate <= 0:
         raise InputError(f"--cycles {args.cycles} (>= 100), --rate {args.rate} (> 0)")
     warmup = args.warmup if args.warmup is not None else args.cycles // 10
+    if args.bound and args.learn_cycles is None:
+        raise InputError("--bound needs --learn-cycles (the bound's GP constants need the learned data)")
     if not 0 <= warmup < args.cycles:
         raise InputError(f"--warmup {warmup}: must be in 0..{args.cycles - 1}")
     print(f"# sea-daemon bench soak on {machine()}")
-    print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model (virtual bus, lock-step) "
+    print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model ({args.bus} bus, lock-step) "
           f"+ GP-AKF learning online + LogWriter; {args.cycles} cycles, warm-up {warmup}", flush=True)
 
     def progress(rec, st):
@@ -159,7 +198,8 @@ def run(args) -> int:
         out = Path(tmp.name)
     try:
         r = soak(args.cycles, args.rate, warmup, args.max_leaves, args.overrun_streak,
-                 int(args.rotate_mb * 1e6), out, args.samples, progress)
+                 int(args.rotate_mb * 1e6), out, args.samples, progress, bus=args.bus, learn_cycles=args.learn_cycles,
+                 bound=args.bound, max_missed=args.max_missed)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -167,9 +207,13 @@ def run(args) -> int:
     lg = r["log"]
     if r["cycles"] < args.cycles:
         print(f"# stopped by a signal after {r['cycles']} of {args.cycles} cycles")
+    print(f"hardware            {r['hardware']}; loop {r['realtime']['sched']}; GP learning "
+          f"{'all cycles' if r['learn_cycles'] is None else 'first %d cycles, then frozen' % r['learn_cycles']}; "
+          f"bound {'Theorem-1 rho_k' if r['bound'] else 'the filter own'}")
     print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
           f"{r['rate_hz']:g} Hz asked)")
-    print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms)")
+    print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms); TPDO cycles missed at "
+          f"the deadline {r['missed_tpdo_cycles']}, late {r['late_tpdo_cycles']}")
     print(f"cycle period        {r['period']}")
     print(f"cycle compute       {r['compute']}")
     print(f"fault latched       {r['fault']}" + (f" at cycle {r['fault_cycle']}: {r['fault_detail']}"

@@ -18,6 +18,10 @@ def add_common(p, *, cycles_help: str) -> None:
     p.add_argument("--bus", choices=BusConfig.INTERFACES, default=None, help="override hardware.bus.interface")
     p.add_argument("--channel", default=None, help="override hardware.bus.channel (can0, vcan0, ws://HOST:PORT/ ...)")
     p.add_argument("--cycles", type=int, default=None, help=cycles_help)
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="loop rate [Hz] instead of the configuration's rate_hz: the same configuration and model "
+                        "file at another rate (the differentiator window keeps its span in time; "
+                        "sea_daemon.core.rates)")
     hw = p.add_mutually_exclusive_group()
     hw.add_argument("--device-model", metavar="SCENARIO.yaml", default=None,
                     help="start the device model (the scenario's true plant and subject as CANopen drive + "
@@ -48,8 +52,9 @@ def load(args, outputs: list | tuple = ()):
     Before anything starts: ``outputs`` ((flag, path) pairs) can be written and are none of the
     inputs; the log and state directories exist (created) and can be written."""
     from sea_daemon.runtime.rig import bus_overrides
+    from sea_daemon.core.rates import at_rate
     check_outputs(outputs, inputs=inputs(args))
-    cfg = bus_overrides(load_config(args.config), args.bus, args.channel)
+    cfg = at_rate(bus_overrides(load_config(args.config), args.bus, args.channel), getattr(args, "rate", None))
     if args.cycles is not None and args.cycles < 1:
         raise InputError(f"--cycles {args.cycles}: allowed >= 1")
     if args.overrun_streak < 0:

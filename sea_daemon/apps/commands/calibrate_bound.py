@@ -58,14 +58,12 @@ def run(args) -> int:
     from sea_daemon.core.estimators import make_estimator
 
     check_outputs([("--write", args.write)], inputs=[args.log, args.config, args.model])
-    cfg = load_config(args.config)
-    log = read_log(args.log, n=cfg.joints, min_rows=2)
-    from sea_daemon.core.estimators.factory import RATE_TOLERANCE
-    if abs(log.dt - cfg.dt) > RATE_TOLERANCE * cfg.dt:
-        # the model learned its pairs at the configuration's rate (sea-daemon calibrate)
-        raise InputError(f"{args.log}: sample period {log.dt:.6g} s ({1 / log.dt:.4g} Hz), the configuration's "
-                         f"rate_hz is {cfg.rate_hz:g}; allowed within {100 * RATE_TOLERANCE:g} % "
-                         "(the model was learned at that rate)")
+    from sea_daemon.core.rates import at_rate
+    cfg_file = load_config(args.config)
+    log = read_log(args.log, n=cfg_file.joints, min_rows=2)
+    # the configuration at the log's rate (sea_daemon.core.rates): a 1 kHz log with the 100 Hz file
+    rate = round(1.0 / log.dt, 6)
+    cfg = at_rate(cfg_file, rate if abs(rate - cfg_file.rate_hz) > 1e-6 * cfg_file.rate_hz else None)
     residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
     est = make_estimator("gp-akf", cfg, dt=log.dt, residual=residual, learning=False, bound=False)
     delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split
@@ -98,7 +96,7 @@ def run(args) -> int:
         cov, steps = torque_coverage(est, log, cfg.estimator.gp_beta, log.tau_h_act)
         out["configured"] = {"beta": cfg.estimator.gp_beta, "coverage": cov, "steps": steps}
     if args.write:
-        new = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=float(beta)))
+        new = dataclasses.replace(cfg_file, estimator=dataclasses.replace(cfg_file.estimator, gp_beta=float(beta)))
         try:
             save_config(new, args.write, header=f"calibrate-bound: estimator.gp_beta by {how} on "
                                                 f"{args.log} ({n_used}) for {args.model}")

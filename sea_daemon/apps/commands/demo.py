@@ -65,6 +65,10 @@ def add_arguments(p) -> None:
                    help="shorten both phases to this many samples each (quick look)")
     p.add_argument("--sync-rpdo", action="store_true",
                    help="torque RPDO actuated at the next SYNC (one cycle more delay) instead of on reception")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="loop rate of calibration and estimation (default: the configuration's, 100 Hz); the same "
+                        "configuration at another rate (sea_daemon.core.rates: kinematics window, R per second), "
+                        "the scenarios' phases keep their duration")
     p.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep (default): as fast as the device model answers; realtime: at the configured rate")
 
@@ -164,26 +168,33 @@ def run(args) -> int:
             cfg.hardware, bus=dataclasses.replace(cfg.hardware.bus, sync_rpdo=True)))
     cfg_path = out / "config.yaml"
     save_config(cfg, cfg_path, header="configuration used by sea-daemon demo")
-    n, dt = cfg.joints, cfg.dt
+    from sea_daemon.core.rates import at_rate
+    if args.rate is not None and not 1.0 <= args.rate <= 100000.0:
+        raise InputError(f"--rate {args.rate:g}: allowed 1..100000 Hz")
+    cfg_rate = at_rate(cfg, args.rate)
+    n, dt = cfg.joints, cfg_rate.dt
+    per = cfg_rate.rate_hz / cfg.rate_hz                # samples per scenario sample
+    rate_args = ["--rate", f"{cfg_rate.rate_hz:g}"] if args.rate is not None else []
     summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
-                     "pace": args.pace, "scenarios": {}}
+                     "pace": args.pace, "rate_hz": cfg_rate.rate_hz,
+                     "kinematics_window": cfg_rate.kinematics.window, "scenarios": {}}
     rows = []
     t_all = time.perf_counter()
     for name in args.scenario or SCENARIOS:
         sc_path = str(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
         sc = load_scenario(sc_path)
-        n_tr = args.samples or sc.training_samples
-        n_est = args.samples or sc.estimation_samples
+        n_tr = args.samples or int(round(sc.training_samples * per))
+        n_est = args.samples or int(round(sc.estimation_samples * per))
         logs = out / name
         model = out / f"{name}_model.npz"
         def common(config, scenario, log_dir):
             return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
-                    "--pace", args.pace, "--scenario", str(scenario)]
+                    "--pace", args.pace, "--scenario", str(scenario), *rate_args]
         t0 = time.perf_counter()
         cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
         held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
         hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
-                        "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, HELD_OUT_MIN))])
+                        "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, int(HELD_OUT_MIN * per)))])
         run_cfg = out / f"{name}_config.yaml"
         base_cfg = cfg_path
         if sc.tau_h_act_rate is not None:
@@ -224,7 +235,7 @@ def run(args) -> int:
             if est_name == "gp-akf":
                 res = gp                                  # the daemon's own online estimate
             else:
-                res = replay(est_log, make_estimator(est_name, cfg, dt=dt), clock=time.perf_counter)
+                res = replay(est_log, make_estimator(est_name, cfg_rate, dt=dt), clock=time.perf_counter)
                 res.estimator = est_name
             results[est_name] = res
             write_columns(out / f"{name}_{est_name}.csv", est_columns(res))

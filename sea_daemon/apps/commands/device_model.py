@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import signal
 import sys
 import threading
@@ -39,6 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="step the physics in real time instead of once per SYNC (lock-step)")
     p.add_argument("--position-preset", type=int, default=0, help="added to the drive's 0x6064 (int32 wrap tests)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (wall clock)")
+    p.add_argument("--rt-priority", type=int, default=0,
+                   help="SCHED_FIFO priority for the device model's threads (0: not asked; stands in for hardware "
+                        "that answers in its own time)")
+    p.add_argument("--stats", action="store_true",
+                   help="print one JSON line 'device-model stats {...}' at exit: answer latency to SYNC and the "
+                        "SYNC handler's CPU time")
 
 
 def _plant(args, cfg):
@@ -84,12 +91,16 @@ def run(args) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    rt = "not asked"
+    if args.rt_priority:
+        from sea_daemon.runtime.service import try_realtime     # before the threads start: they inherit it
+        rt = try_realtime(args.rt_priority)["sched"]
     model.start()
     try:
         for f in faults:
             model.schedule(f)
         print(f"device-model ready on {b.interface} {b.channel}: drives {list(b.drive_node)}, "
-              f"encoders {list(b.encoder_node)}, {'free-running' if args.free_running else 'lock-step'}",
+              f"encoders {list(b.encoder_node)}, {'free-running' if args.free_running else 'lock-step'}; sched {rt}",
               flush=True)
         stop.wait(args.duration)
         if model.error is not None:
@@ -97,4 +108,6 @@ def run(args) -> int:
             return 1
     finally:
         model.stop()
+        if args.stats:
+            print("device-model stats " + json.dumps(model.answer_stats()), flush=True)
     return 0

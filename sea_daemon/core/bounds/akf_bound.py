@@ -45,29 +45,16 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.jit import warmer
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
-
-
-@njit
-def _gravity_remainder(qh, r, g, grid, grid_step, v):
-    """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (:meth:`AKFTheoremBound._gravity_box`)."""
-    for j in range(qh.shape[0]):
-        s0, c0 = math.sin(qh[j]), math.cos(qh[j])
-        hmax = 0.0
-        # h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂·Δ on a grid of |Δ| ≤ r, plus the grid's worst gap:
-        # |h'(Δ)| = |cos(q̂+Δ) − cos q̂| ≤ min(2, |Δ|) ≤ min(2, r), spacing δ → + min(2, r)·δ/2
-        for D0 in grid:
-            D = D0 * r[j]
-            hmax = max(hmax, abs(math.sin(qh[j] + D) - s0 - c0 * D))
-        # never above the Lagrange bound max|sin|·r²/2 ≤ r²/2
-        v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
+    REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
+from sea_daemon.core.bounds import bound_core
+from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
 
 
 @warmer
@@ -83,8 +70,13 @@ class AKFTheoremBound:
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
-                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None):
+                 gp_beta: str | float | None = None, tau_h_act_rate: float | None = None,
+                 compiled: bool = True):
         self.akf = akf
+        # the compiled step (bound_core.bound_step) where it applies, else the Python step below
+        self.compiled = bool(compiled)
+        self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
+        self._pack_at = -1                # n_learned when the pack was made
         est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
         # the configuration's estimator.gp_beta
@@ -128,6 +120,8 @@ class AKFTheoremBound:
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 1 at 100 Hz, 10 at 1 kHz
+        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._I = np.eye(d)
         m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
@@ -146,6 +140,15 @@ class AKFTheoremBound:
         self._grid_step = 2.0 / 64
         self._Uz = _directions(2 * n, n_dirs, seed)
         self.gp_box_violations_ = 0
+        self._rho = np.zeros(n)
+        self._b = np.zeros(d)
+        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
+        self._empty = bound_core.empty_args()
+        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+                       and (not has_gp or residual_gps(akf) is not None))
+        self._minv = np.ascontiguousarray(m.Minv, dtype=float)
+        self._M = np.ascontiguousarray(m.M, dtype=float)
+        self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
@@ -159,6 +162,7 @@ class AKFTheoremBound:
         self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
         self._update_scales()
+        self._pack = None
 
     def _update_scales(self) -> None:
         """The local scales s(z) (:class:`LocalScale`) when the constants use them."""
@@ -294,9 +298,74 @@ class AKFTheoremBound:
             return Phi
         return discretize(A, self._I, dt)[1]
 
+    def _compiled_pack(self):
+        """The GP pack for the compiled step, or None when the Python step must run (not the
+        compiled case, or a GP that is learning).  A plain AKF: an empty tuple."""
+        if not (self.compiled and self._cfast):
+            return None
+        akf = self.akf
+        if akf.residual is None:
+            return ()
+        if getattr(akf, "learning", False):
+            return None
+        if not all(type(c) is BoundConstants for c in self.gp_constants or ()):
+            return None                   # constants of one's own (an eta() of its own): the Python step
+        n_l = self._n_learned()
+        if self._pack is None or self._pack_at != n_l:
+            gps = residual_gps(akf)
+            local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
+            self._pack = bound_core.GPPack(gps, local_r)
+            self._pack_at = n_l
+            c = self.gp_constants
+            self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
+            self._gamma = np.array([k.gamma for k in c], dtype=float)
+            self._pack_args = self._pack.args()
+        return self._pack_args
+
+    def _step_compiled(self, est, x0, P0, u, dt, gp) -> None:
+        """The same step in one compiled call (:mod:`.bound_core`)."""
+        akf = self.akf
+        sm = self.sm
+        n = akf.n
+        has_gp = akf.residual is not None
+        if self.tau_h_act_rate > 0:
+            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            self._Gam_tau_c[:] = self._Gam_tau
+        box = self.gp_box
+        lo, hi = (box if box is not None else (self._g, self._g))
+        try:
+            G, out = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+        except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
+            # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
+            # projection): the typed estimator fault, as the Python step raises it
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged ({e})") from None
+        if not np.isfinite(G).all():
+            raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
+                                 f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
+                                 f"the confidence set")
+        sm.G_ = G
+        self.gp_box_violations_ += int(out)
+        self.lin_err_ = self._b
+        est.tau_h_act_bound[:] = self._rho
+
+    def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
+        """:func:`bound_core.bound_step` with this bound's arrays."""
+        return bound_core.bound_step(
+            sm.G_, x0, P0, akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
+            self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
+            self._grid_step, self._Uz, has_gp, self._scales is not None,
+            self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
+            self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
+            self.tau_h_act_rate > 0, sm.generator_limit(), sm.delta_noise / n, sm._z_tau, gp if has_gp else
+            self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
+
     def step(self, est, x0, P0, u, dt) -> None:
         """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
         propagate the set of means and publish ρ_k."""
+        gp = self._compiled_pack()
+        if gp is not None:
+            self._step_compiled(est, x0, P0, u, dt, gp)
+            return
         akf = self.akf
         zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm

@@ -58,6 +58,16 @@ from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile, minkowski
 from sea_daemon.core.bounds.zonotope import predict_generators, zonotope_shape
 
 
+#: the zonotope's order reduction at most this often [s] (AKFTheoremBound sets
+#: SetMembershipBound.reduce_every from its step): each reduction replaces the smallest generators
+#: by their interval hull, and the hull of the last reduction, mapped by (I − K H) F, is boxed
+#: again at the next.  At 100 Hz one step of the filter map contracts enough for that (the
+#: published figures); at 1 kHz a step contracts ten times less while the box of a rotated box
+#: grows by |(I − K H) F| — reduced every step, the passive 1 kHz demo's ρ_k grew without bound
+#: (1e4 N m after 1 s).  Reduced every 10 ms, the box sees the 10-step map, as at 100 Hz.
+REDUCE_PERIOD_S = 0.01
+
+
 def shifted_gaussian_halfwidth(h: np.ndarray, sigma: np.ndarray, delta: float, iters: int = 8) -> np.ndarray:
     """Smallest ρ with max_{|a| ≤ h} Pr(|a + g| > ρ) ≤ δ for g ~ N(0, σ²), elementwise.
 
@@ -195,6 +205,9 @@ class SetMembershipBound:
     sets     representation of the set of means: "zonotope" (default; exact Minkowski sums and
              affine maps, outer approximation only when the generator count is reduced) or
              "ellipsoid" (the paper's: trace-minimal outer ellipsoid at every sum)
+    reduce_every  zonotope order reduction at most every this many steps (default 1; the AKF's bound
+             sets the steps of 10 ms, :data:`REDUCE_PERIOD_S`): in between the generators
+             accumulate (exact)
     max_generators  zonotope order reduction: above this many generators the smallest are
              replaced by their interval hull (Girard 2005; an outer approximation)
     """
@@ -227,6 +240,8 @@ class SetMembershipBound:
         if int(max_generators) < self.d + 1:
             raise ValueError(f"max_generators must be >= d + 1 = {self.d + 1}, got {max_generators}")
         self.max_generators = int(max_generators)
+        self.reduce_every = 1
+        self._steps = 0                              # predictions since the reset (reduction phase)
         self.weight = weight
         self.margin = float(margin)
         self._U = _unit_directions(self.d, n_dirs, seed)
@@ -246,6 +261,7 @@ class SetMembershipBound:
         (principal axes; contains the ellipsoid)."""
         self._X = np.zeros((self.d, self.d)) if X0 is None else np.array(X0, dtype=float)
         self.Xprior_ = self._X.copy()
+        self._steps = 0
         if X0 is None:
             self.G_ = np.zeros((self.d, 0))
         else:
@@ -367,7 +383,7 @@ class SetMembershipBound:
             else:
                 Ph, bb = np.zeros((d, 0)), np.zeros(0)
             self.Gprior_ = predict_generators(np.ascontiguousarray(F), np.ascontiguousarray(self.G_, dtype=float),
-                                               Gam, et, Ph, bb, self.max_generators)
+                                               Gam, et, Ph, bb, self.generator_limit())
             return self.Gprior_
         shapes = [F @ self._X @ F.T]
         if eta is not None and Gamma is not None:
@@ -378,6 +394,13 @@ class SetMembershipBound:
             shapes += segments_shapes(np.eye(self.d) if Phi is None else Phi, lin_err_box)
         self.Xprior_ = minkowski_shape(shapes, self.weight)
         return self.Xprior_
+
+    def generator_limit(self) -> int:
+        """The generator limit of this prediction (counts it): ``max_generators`` on a reduction
+        step, else no limit (see ``reduce_every``)."""
+        k = self._steps
+        self._steps = k + 1
+        return self.max_generators if k % self.reduce_every == 0 else 1 << 30
 
     def update(self, K: np.ndarray, H: np.ndarray) -> np.ndarray:
         """X̂_{k+1} = (I − K H) X⁻ (I − K H)ᵀ: the filter step on the set of means (affine, exact)."""

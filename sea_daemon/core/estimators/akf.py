@@ -106,6 +106,14 @@ class AKF:
         self._S_dt = float(est.Sigma_nom_dt)
         self._tau_m_var = float(est.tau_m_noise) ** 2
         self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
+        # GP-AKF: the residual's predictive variance enters Q as a torque error held over the
+        # step (eq:GPvarfwd).  Its error is a smooth function of z, correlated over far more than
+        # one cycle: taken as held over Sigma_nom_dt (the configuration's step) it keeps its effect
+        # per second at a faster loop — σ²·T/dt per step of dt < T (×10 at 1 kHz, 1 at 100 Hz).
+        # Per cycle, the 1 kHz filter would believe the GP ten times better per second and
+        # contract the Theorem-1 set of means ten times less, while the set's inputs stay the
+        # same per second: on the passive scenario's standstill ρ_k ran away (docs/daemon.md, rates).
+        self._gp_var_scale = self._S_dt / self.dt if 0.0 < self.dt < 0.999 * self._S_dt else 1.0
         self._S_base_dt = -1.0                        # step length of the cached Σ_nom·dt/T
         self._S_base = self.Sigma_nom_cfg
         # estimator.init_after_kinematics: samples left until the differentiator is full
@@ -414,7 +422,10 @@ class AKF:
             # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
             mu, dmu_dz, var = self.residual.predict(self.z)
             self.mu[:] = mu
-            self.sigma2[:] = var
+            if self._gp_var_scale != 1.0:
+                np.multiply(var, self._gp_var_scale, out=self.sigma2)
+            else:
+                self.sigma2[:] = var
             dmu[:] = dmu_dz
         # Alg. 2 lines 7-11 / Alg. 1 lines 3-8 (akf_core.filter_step: A_k and xdot_k get the
         # GP terms of eq:fwdynwtorqueresidual1 / eq:linearization; x̂⁻, P⁻, S, K, ν, x̂, P)

@@ -99,6 +99,12 @@ class GPAKF(AKF):
         self.f_train = np.zeros(n)           # last training target f (eq:loadsidewmotor)
         self.n_learned = 0
         self._since_reset = 0
+        # one training pair per configuration step (estimator.Sigma_nom_dt, 10 ms): the LoG-GP
+        # sees the data density it is configured for at any loop rate (every 10th sample at
+        # 1 kHz; consecutive 1 ms pairs are nearly the same point, and ten times the pairs split
+        # the leaves into small ones whose hyperparameters fit the noise: steep means)
+        S_dt = float(cfg.estimator.Sigma_nom_dt)
+        self.learn_every = max(1, int(round(S_dt / self.dt))) if S_dt > 0 else 1
         self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
@@ -123,7 +129,8 @@ class GPAKF(AKF):
         if self.tau_lag:
             self._tau_hist[1:] = self._tau_hist[:-1]
             self._tau_hist[0] = tau_m
-        if self.learning and self._since_reset >= self.kin.L:
+        if self.learning and self._since_reset >= self.kin.L and \
+                (self._since_reset - self.kin.L) % self.learn_every == 0:
             self._learn(tau_m)
         return e
 

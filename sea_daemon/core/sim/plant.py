@@ -198,6 +198,9 @@ class Plant:
 
     def step(self, tau_m, dt: float, tau_h_act=0.0) -> None:
         """Advance by dt [s] with the commanded motor torque and τ_h,act held (ZOH)."""
+        if self._scalar and not self.model.delay[0]:
+            self._step_scalar(tau_m, dt, tau_h_act)
+            return
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         n = self.n
@@ -225,6 +228,33 @@ class Plant:
             self._y = y
         self.t = t0 + dt
         self._prune_history()
+
+    def _step_scalar(self, tau_m, dt: float, tau_h_act) -> None:
+        """:meth:`step` of one joint without an input delay (the device model's plant, once per
+        SYNC): the same numbers with float arithmetic around the one compiled call."""
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        u = float(tau_m[0]) if np.ndim(tau_m) else float(tau_m)
+        th = float(tau_h_act[0]) if np.ndim(tau_h_act) else float(tau_h_act)
+        if not (math.isfinite(u) and math.isfinite(th)):
+            raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
+        lim = self.torque_limit
+        u = -lim if u < -lim else (lim if u > lim else u)          # np.clip
+        if self.noise_std > 0:
+            u = u + float(self.rng.normal(0.0, self.noise_std, 1)[0])   # torque_noise
+        ua = self._s_u
+        ua[0] = u
+        self._u_applied = ua.copy()
+        self._tau_h = np.array([th])
+        # no delay: the history is read only at its end (_delayed_input, _integrate_scalar)
+        self._hist_t[-1] = self.t
+        self._hist_u[-1] = self._u_applied
+        k = max(1, int(math.ceil(dt / self.h_max - 1e-9)))
+        y = self._s_y
+        y[:] = self._y
+        _rk4_1(y, u, th, dt / k, k, self._s_c, *self._s_sides)
+        self._y = y.copy()
+        self.t = self.t + dt
 
     def _delayed_input(self, t: float) -> np.ndarray:
         """Applied torque reaching the motor at time t: u(t − delay) from the ZOH history."""
@@ -274,6 +304,8 @@ class Plant:
         self._s_motor = _side_arrays(m.motor_effects)
         self._s_spring = _side_arrays(m.spring_effects)
         self._s_y = np.zeros(4)
+        self._s_u = np.zeros(1)
+        self._s_sides = (*self._s_load, *self._s_motor, *self._s_spring)
         # compiled (or loaded from numba's cache) now, at construction, not in the first step
         _rk4_1(self._s_y.copy(), 0.0, 0.0, self.h_max, 0, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
 

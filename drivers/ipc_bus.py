@@ -1,0 +1,232 @@
+"""``ipc``: a python-can bus between processes of one machine over UNIX datagram sockets.
+
+For a kernel without SocketCAN (no ``vcan``): the daemon and the device model in separate
+processes on one broadcast bus, each frame one ``sendto`` per other member and one ``recv``
+— a single hop, no relay process (python-can-remote's websocket server is a relay: every frame
+crosses two websocket hops and the server's event loop, ~0.5–1 ms per round trip on the 2-core
+test machine).  It keeps python-can's :class:`can.BusABC` interface, so canopen, the driver
+and the device model run on it unchanged, as they do on ``socketcan`` (the production path).
+
+* The channel is a directory (``/dev/shm/sea-can/<channel>``, or the channel itself when it is
+  an absolute path); every open bus binds one socket file in it.  A member learns the others
+  from the directory (re-read when its modification time changes, i.e. when one joins or
+  leaves) and sends each frame to each of them — what a CAN bus does: every node sees every
+  frame but its own (``receive_own_messages`` adds one's own).
+* A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
+  bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
+* Sends never block: a member whose receive queue is full (not reading; a UNIX datagram socket
+  queues ``net.unix.max_dgram_qlen`` datagrams, 10 by default) loses the frame, counted in
+  :attr:`IpcBus.overruns` — a CAN controller overrun at that node; a member that has gone
+  (socket refused or removed) is dropped from the list.
+* ``set_filters`` is published next to the member's socket (``<socket>.filter``): senders skip
+  a member for the ids it does not accept (the hardware acceptance filter of a CAN controller),
+  so a handle read once a cycle — the driver's TPDO handle — only queues its TPDOs.
+
+Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`` in
+``pyproject.toml``); :func:`drivers.bus.make_bus` opens it for ``hardware.bus.interface: ipc``.
+"""
+from __future__ import annotations
+
+import errno
+import itertools
+import os
+import select
+import socket
+import struct
+import time
+
+import can
+
+BASE_DIR = "/dev/shm/sea-can" if os.path.isdir("/dev/shm") else "/tmp/sea-can"
+_FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 24 bytes
+_EXT, _RTR, _ERR = 1, 2, 4
+FILTER_SUFFIX = ".filter"
+_counter = itertools.count()
+
+
+def channel_dir(channel: str) -> str:
+    """The directory of a channel (a name under :data:`BASE_DIR`, or an absolute path)."""
+    channel = str(channel)
+    if os.path.isabs(channel):
+        return channel
+    if not channel or "/" in channel or channel in (".", ".."):
+        raise ValueError(f"ipc channel must be a name without '/' or an absolute path, got {channel!r}")
+    return os.path.join(BASE_DIR, channel)
+
+
+class IpcBus(can.BusABC):
+    """One member of an ``ipc`` bus (see the module docstring)."""
+
+    def __init__(self, channel: str = "sea", receive_own_messages: bool = False, rcvbuf: int = 1 << 20,
+                 **kwargs):
+        self.channel = str(channel)
+        self.channel_info = f"ipc bus {self.channel}"
+        self._dir = channel_dir(self.channel)
+        os.makedirs(self._dir, mode=0o770, exist_ok=True)
+        self._own = receive_own_messages
+        self._pending: list[can.Message] = []
+        self.overruns = 0                       # frames a full member queue lost (all members)
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        except OSError:
+            pass
+        self.path = os.path.join(self._dir, f"{os.getpid()}-{next(_counter)}")
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+        self._sock.bind(self.path)
+        self._rd = (self._sock,)
+        self._peers: list[str] = []
+        self._mtime = -1
+        self._buf = bytearray(_FRAME.size)
+        self._closed = False
+        self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
+        super().__init__(channel=self.channel, **kwargs)
+        self._refresh()
+
+    # ------------------------------------------------------------------ members
+    def _refresh(self) -> None:
+        """Re-read the members and their filters when the directory changed (one stat per send
+        otherwise)."""
+        try:
+            m = os.stat(self._dir).st_mtime_ns
+        except FileNotFoundError:
+            os.makedirs(self._dir, mode=0o770, exist_ok=True)
+            m = os.stat(self._dir).st_mtime_ns
+        if m == self._mtime:
+            return
+        self._mtime = m
+        me = os.path.basename(self.path)
+        names = set(os.listdir(self._dir))
+        peers = []
+        for f in sorted(names):
+            if f == me or f.endswith((FILTER_SUFFIX, ".tmp")):
+                continue
+            acc = None
+            if f + FILTER_SUFFIX in names:
+                try:
+                    with open(os.path.join(self._dir, f + FILTER_SUFFIX)) as fh:
+                        acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
+                except (OSError, ValueError):
+                    acc = None
+            peers.append((os.path.join(self._dir, f), acc))
+        self._peers = peers
+
+    def _gone(self, peer: str, stale: bool) -> None:
+        self._peers = [p for p in self._peers if p[0] != peer]
+        if stale:                                  # nobody bound to it any more: remove the files
+            for f in (peer, peer + FILTER_SUFFIX):
+                try:
+                    os.unlink(f)
+                except OSError:
+                    pass
+
+    # ------------------------------------------------------------------ BusABC
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._closed:
+            raise can.CanOperationError("ipc bus is shut down")
+        flags = (_EXT if msg.is_extended_id else 0) | (_RTR if msg.is_remote_frame else 0) | \
+            (_ERR if msg.is_error_frame else 0)
+        dlc = msg.dlc
+        if dlc > 8:
+            raise can.CanOperationError(f"ipc bus: classic CAN only, DLC {dlc} > 8")
+        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, bytes(msg.data[:dlc]), time.time())
+        self._refresh()
+        sendto = self._sock.sendto
+        buf = self._buf
+        can_id = msg.arbitration_id
+        for peer, acc in self._peers:
+            if acc is not None and not flags & _ERR and not any(can_id & m == i & m for i, m in acc):
+                continue                           # that member does not take this id
+            try:
+                sendto(buf, socket.MSG_DONTWAIT, peer)
+            except BlockingIOError:
+                self.overruns += 1                 # that member is not reading: its frame is lost
+            except (ConnectionRefusedError, FileNotFoundError) as e:
+                self._gone(peer, isinstance(e, ConnectionRefusedError))
+            except OSError as e:
+                if e.errno in (errno.ENOTSOCK, errno.ECONNREFUSED, errno.ENOENT):
+                    self._gone(peer, True)
+                else:
+                    raise can.CanOperationError(f"ipc bus {self.channel}: send failed: {e}") from None
+        if self._own:
+            self._pending.append(self._decode(bytes(buf)))
+
+    @staticmethod
+    def _decode(raw: bytes) -> can.Message:
+        can_id, flags, dlc, data, ts = _FRAME.unpack(raw)
+        return can.Message(timestamp=ts, arbitration_id=can_id, is_extended_id=bool(flags & _EXT),
+                           is_remote_frame=bool(flags & _RTR), is_error_frame=bool(flags & _ERR), dlc=dlc,
+                           data=data[:dlc], channel=None, check=False)
+
+    def _apply_filters(self, filters) -> None:
+        """python-can's accept filters, checked on the raw id before a frame is decoded (error
+        frames always pass, as on SocketCAN)."""
+        if not filters:
+            self._accept = None
+        else:
+            self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters)
+        # published next to the socket: the senders skip this member for other ids (a member's
+        # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
+        # must not fill with frames it drops anyway)
+        path = self.path + FILTER_SUFFIX
+        try:
+            if self._accept is None:
+                os.unlink(path)
+            else:
+                with open(path + ".tmp", "w") as fh:
+                    fh.write(" ".join(f"{i:x}:{m:x}" for i, m in self._accept))
+                os.replace(path + ".tmp", path)
+        except OSError:
+            pass
+
+    def _recv_internal(self, timeout: float | None):
+        if self._pending:
+            return self._pending.pop(0), False
+        if self._closed:
+            return None, False
+        end = None if timeout is None else time.monotonic() + timeout
+        acc = self._accept
+        while True:
+            try:
+                raw = self._sock.recv(64, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                left = None if end is None else end - time.monotonic()
+                if left is not None and left <= 0.0:
+                    return None, True
+                # select: a timeout in µs (poll's is in ms, too coarse inside a 1 ms period)
+                if not select.select(self._rd, (), (), left)[0]:
+                    return None, True
+                continue
+            except OSError:
+                return None, False
+            if len(raw) != _FRAME.size:
+                continue
+            if acc is not None and not raw[4] & _ERR:
+                can_id = raw[0] | raw[1] << 8 | raw[2] << 16 | raw[3] << 24
+                if not any(can_id & m == i & m for i, m in acc):
+                    continue                     # another frame: the queue is read on (no time check)
+            return self._decode(raw), True
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def shutdown(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._sock.close()
+        finally:
+            for f in (self.path, self.path + FILTER_SUFFIX):
+                try:
+                    os.unlink(f)
+                except OSError:
+                    pass
+            super().shutdown()
+
+    @staticmethod
+    def _detect_available_configs():
+        return []

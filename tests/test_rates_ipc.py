@@ -1,0 +1,127 @@
+"""One configuration at 100 Hz and 1 kHz (sea_daemon.core.rates), the model file's rate rule,
+the ipc bus (drivers.ipc_bus) and the device model's answer statistics."""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from sea_daemon.core.rates import at_rate, same_in_time, window_at
+from sea_daemon.errors import InputError, ModelFileError
+from sea_daemon.io.configfile import load_config, repo_root
+
+CFG = repo_root() / "configs" / "exo_1dof_sim.yaml"
+
+
+def test_at_rate_keeps_the_differentiators_span_and_the_information_per_second():
+    cfg = load_config(CFG)                      # 100 Hz, savgol W = 5, degree 2
+    c1k = at_rate(cfg, 1000)
+    assert c1k.rate_hz == 1000 and c1k.dt == pytest.approx(1e-3)
+    assert c1k.kinematics.window == 41          # (W − 1)·dt: 40 ms at both rates
+    assert (c1k.kinematics.window - 1) * c1k.dt == pytest.approx((cfg.kinematics.window - 1) * cfg.dt)
+    np.testing.assert_allclose(c1k.estimator.R, 10 * cfg.estimator.R)
+    assert c1k.estimator.nis_window == 10 * cfg.estimator.nis_window
+    assert c1k.estimator.Sigma_nom_dt == cfg.estimator.Sigma_nom_dt and c1k.model == cfg.model
+    assert at_rate(cfg, None) is cfg and at_rate(cfg, 100.0) is cfg
+    back = at_rate(c1k, 100)
+    assert back.kinematics == cfg.kinematics
+    np.testing.assert_allclose(back.estimator.R, cfg.estimator.R)
+    ma = dataclasses.replace(cfg.kinematics, method="ma", window=5)
+    assert window_at(ma, 100, 1000) == 50
+    assert same_in_time(cfg, c1k) and not same_in_time(cfg, dataclasses.replace(c1k, kinematics=cfg.kinematics))
+    with pytest.raises(InputError, match="kinematics.window would be"):
+        at_rate(cfg, 5000)
+
+
+def test_a_model_file_of_100_hz_loads_at_1_khz_and_a_changed_window_is_refused(tmp_path):
+    from sea_daemon.core.learning import ResidualGP
+    from sea_daemon.io.gpmodel import load_gp_model, save_gp_model
+    cfg = load_config(CFG)
+    res = ResidualGP(1, cfg.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        res.update(rng.uniform(-1, 1, 3), np.array([0.1]))
+    p = tmp_path / "m.npz"
+    save_gp_model(p, cfg, res, {"test": True})
+    r, _ = load_gp_model(p, at_rate(cfg, 1000))
+    assert r.n_points == res.n_points
+    wrong = dataclasses.replace(at_rate(cfg, 1000), kinematics=cfg.kinematics)     # W = 5 at 1 kHz
+    with pytest.raises(ModelFileError, match="kinematics|rate_hz"):
+        load_gp_model(p, wrong)
+
+
+# ------------------------------------------------------------------ the ipc bus
+def _msg(i, data=b"\x01\x02"):
+    return can.Message(arbitration_id=i, data=data, is_extended_id=False)
+
+
+def test_ipc_bus_is_a_broadcast_bus_with_filters_applied_by_the_senders():
+    from drivers.ipc_bus import IpcBus
+    ch = f"t-{uuid.uuid4().hex[:8]}"
+    a, b, c = IpcBus(ch), IpcBus(ch), IpcBus(ch, receive_own_messages=True)
+    try:
+        a.send(_msg(0x181, b"\x11" * 8))
+        for bus in (b, c):
+            m = bus.recv(1.0)
+            assert m.arbitration_id == 0x181 and bytes(m.data) == b"\x11" * 8 and m.dlc == 8
+        assert a.recv(0.05) is None                              # not its own frame
+        c.send(_msg(0x80, b""))
+        assert a.recv(1.0).arbitration_id == 0x80 and c.recv(1.0).arbitration_id == 0x80
+        assert b.recv(1.0).arbitration_id == 0x80
+        # b takes 0x182 only: the others' frames are not even sent to it
+        b.set_filters([{"can_id": 0x182, "can_mask": 0x7FF, "extended": False}])
+        assert os.path.exists(b.path + ".filter")
+        time.sleep(0.01)
+        for _ in range(30):                                       # more than a socket queues (10)
+            a.send(_msg(0x701, b"\x05"))
+        a.send(_msg(0x182, b"\x22" * 4))
+        m = b.recv(1.0)
+        assert m.arbitration_id == 0x182 and b.recv(0.0) is None       # b's queue held its frame only
+        assert a.overruns > 0                      # c (no filter, not reading) lost what its queue could not hold
+    finally:
+        for bus in (a, b, c):
+            bus.shutdown()
+    assert not os.listdir(os.path.dirname(a.path))
+
+
+def test_ipc_bus_forgets_a_member_that_went_away():
+    from drivers.ipc_bus import IpcBus
+    ch = f"t-{uuid.uuid4().hex[:8]}"
+    a, b = IpcBus(ch), IpcBus(ch)
+    b._sock.close()                                  # gone without shutdown: the file stays, nobody reads
+    a.send(_msg(0x80))
+    assert all(p != b.path for p, _ in a._peers) and not os.path.exists(b.path)
+    a.send(_msg(0x80))
+    a.shutdown()
+
+
+def test_make_bus_opens_ipc_and_a_remote_channel_is_still_checked():
+    from drivers.bus import make_bus
+    from drivers.ipc_bus import IpcBus
+    from sea_daemon.core.config import BusConfig
+    b = BusConfig.from_dict({"interface": "ipc", "channel": f"t-{uuid.uuid4().hex[:8]}"}, 1, "test")
+    bus = make_bus(b)
+    try:
+        assert isinstance(bus, IpcBus)
+    finally:
+        bus.shutdown()
+
+
+def test_device_model_reports_its_answer_latency_and_frames():
+    from _hil import hil_config, hil_rig
+    rig = hil_rig(hil_config("ipc"))
+    try:
+        rig.hw.start()
+        for _ in range(20):
+            rig.hw.read()
+            rig.hw.write(np.zeros(1))
+        st = rig.device_model.answer_stats()
+    finally:
+        rig.stop()
+    assert st["syncs"] >= 20 and st["frames"] > 60 and st["data_bytes"] > 0
+    assert 0 < st["answer_us"]["median"] < 1e6 and st["handler_cpu_us"]["median"] > 0
