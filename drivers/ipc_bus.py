@@ -81,6 +81,8 @@ class IpcBus(can.BusABC):
         self._peers: list[str] = []
         self._mtime = -1
         self._buf = bytearray(_FRAME.size)
+        self._rbuf = bytearray(64)                  # recv_frame's receive buffer
+        self._rview = memoryview(self._rbuf)
         self._closed = False
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         super().__init__(channel=self.channel, **kwargs)
@@ -209,6 +211,45 @@ class IpcBus(can.BusABC):
                 if not any(can_id & m == i & m for i, m in acc):
                     continue                     # another frame: the queue is read on (no time check)
             return self._decode(raw), True
+
+    def recv_frame(self, timeout: float):
+        """The cycle's receive path (:class:`drivers.canopen_rx.TpdoWindow`): the next frame
+        this member accepts as ``(arbitration id, data)`` — ``data`` a view of a receive buffer
+        that the next call overwrites — or None after ``timeout`` seconds (0: only what is
+        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
+        if self._pending:
+            msg = self._pending.pop(0)
+            return msg.arbitration_id, msg.data
+        if self._closed:
+            return None
+        sock, buf, acc = self._sock, self._rbuf, self._accept
+        end = None
+        while True:
+            if timeout > 0.0:
+                # wait first: after a SYNC the answer is not there yet (no exception per frame)
+                if end is None:
+                    end = time.monotonic() + timeout
+                    left = timeout
+                else:
+                    left = end - time.monotonic()
+                    if left <= 0.0:
+                        return None
+                if not select.select(self._rd, (), (), left)[0]:
+                    return None
+            try:
+                nb = sock.recv_into(buf, 64, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                if timeout > 0.0:
+                    continue
+                return None
+            except OSError:
+                return None
+            if nb != _FRAME.size:
+                continue
+            can_id = buf[0] | buf[1] << 8 | buf[2] << 16 | buf[3] << 24
+            if acc is not None and not buf[4] & _ERR and not any(can_id & m == i & m for i, m in acc):
+                continue                     # another frame: the queue is read on
+            return can_id, self._rview[8:8 + buf[5]]
 
     def fileno(self) -> int:
         return self._sock.fileno()
