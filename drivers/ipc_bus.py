@@ -113,7 +113,7 @@ class IpcBus(can.BusABC):
                         acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
                 except (OSError, ValueError):
                     acc = None
-            peers.append((os.path.join(self._dir, f), acc))
+            peers.append((os.path.join(self._dir, f), acc, {}))     # {} : id -> accepted (cache)
         self._peers = peers
 
     def _gone(self, peer: str, stale: bool) -> None:
@@ -134,14 +134,23 @@ class IpcBus(can.BusABC):
         dlc = msg.dlc
         if dlc > 8:
             raise can.CanOperationError(f"ipc bus: classic CAN only, DLC {dlc} > 8")
-        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, bytes(msg.data[:dlc]), time.time())
+        data = msg.data
+        if len(data) != dlc:
+            data = bytes(data[:dlc])
+        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, data, time.time())
         self._refresh()
         sendto = self._sock.sendto
         buf = self._buf
         can_id = msg.arbitration_id
-        for peer, acc in self._peers:
-            if acc is not None and not flags & _ERR and not any(can_id & m == i & m for i, m in acc):
-                continue                           # that member does not take this id
+        for peer, acc, seen in self._peers:
+            if acc is not None and not flags & _ERR:
+                ok = seen.get(can_id)
+                if ok is None:
+                    ok = any(can_id & m == i & m for i, m in acc)
+                    if len(seen) < 4096:           # bounded: extended ids are many
+                        seen[can_id] = ok
+                if not ok:
+                    continue                       # that member does not take this id
             try:
                 sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
