@@ -289,7 +289,9 @@ def run(args) -> int:
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
           f"{out['bound']} every cycle, published; passive-scenario PID; real-time pace; {res.realtime}")
     print(f"measured {n_cycles} cycles ({measured} periods), TPDO deadline {deadline_ms * 1e3:.0f} us after SYNC, "
-          f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}")
+          f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
+          + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
+             if out['fault'] != 'NONE' else ""))
     j, pr, c = out["jitter_us"], out["period_us"], out["compute_us"]
     print(f"overruns: {st.overruns} in {n_cycles} cycles = {out['overruns_per_1e5']:.0f} per 1e5 cycles "
           f"(max late {out['max_late_us']:.0f} us, deadlines skipped {st.skipped})")
