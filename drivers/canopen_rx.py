@@ -8,7 +8,9 @@ loop thread receives them directly in ``read()`` of :class:`drivers.canopen_hw.C
 :meth:`TpdoWindow.drain` before the SYNC (frames that arrived since the last window belong to an
 earlier cycle: counted as late, never decoded), :meth:`TpdoWindow.collect` after it until every
 TPDO arrived or the deadline — no receive thread, no lock, no hand-over between threads on the
-cycle's path, nothing allocated beyond python-can's message object per frame.  canopen's own
+cycle's path, nothing allocated beyond python-can's message object per frame (none on the
+``ipc`` bus, whose :meth:`~drivers.ipc_bus.IpcBus.recv_frame` gives id and data from its own
+buffer).  canopen's own
 receive thread keeps the rest of the traffic (SDO, heartbeats, EMCY; its handle is filtered to
 those).  :class:`ErrorFrames` watches the bus for the bus-off flag.
 """
@@ -49,6 +51,7 @@ class TpdoWindow:
         self.slots: list[TpdoSlot] = []
         self._by_cob: dict[int, TpdoSlot] = {}
         self.bus: can.BusABC | None = None
+        self._recv = self._recv_message
 
     def add(self, node: int, cob_id: int, length: int) -> TpdoSlot:
         slot = TpdoSlot(node, cob_id, length)
@@ -61,21 +64,28 @@ class TpdoWindow:
         python-can (SocketCAN's kernel filter, the ipc bus): python-can's software filter would
         end ``recv(0)`` at the first other frame and leave TPDOs queued behind it."""
         self.bus = bus
+        # the bus's own frame path where it has one (the ipc bus: no can.Message per frame)
+        self._recv = getattr(bus, "recv_frame", None) or self._recv_message
         from drivers.ipc_bus import IpcBus
         if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
             bus.set_filters([{"can_id": s.cob_id, "can_mask": 0x7FF, "extended": False} for s in self.slots])
+
+    def _recv_message(self, timeout: float):
+        """``(arbitration id, data)`` of the next frame from python-can's ``recv``, or None."""
+        msg = self.bus.recv(timeout)
+        return None if msg is None else (msg.arbitration_id, msg.data)
 
     def drain(self) -> bool:
         """Before the SYNC: take what arrived since the last window (late frames) and reset the
         slots; True when there were any."""
         late = False
-        recv = self.bus.recv
+        recv = self._recv
         by_cob = self._by_cob
         while True:
-            msg = recv(0.0)
-            if msg is None:
+            frame = recv(0.0)
+            if frame is None:
                 break
-            if msg.arbitration_id in by_cob:       # a bus that ignores filters (python-can-remote)
+            if frame[0] in by_cob:                 # a bus that ignores filters (python-can-remote)
                 late = True
         for s in self.slots:
             s.count = 0
@@ -86,7 +96,7 @@ class TpdoWindow:
         """After the SYNC: receive until every TPDO arrived or ``clock() >= deadline``; each
         slot's ``snap`` gets its frame's bytes (a slot without a frame keeps the last ones),
         ``snap_count`` the number of frames."""
-        recv = self.bus.recv
+        recv = self._recv
         need = len(self.slots)
         arrived = 0
         by_cob = self._by_cob
@@ -94,13 +104,13 @@ class TpdoWindow:
             left = deadline - clock()
             if left <= 0.0:
                 break
-            msg = recv(left)
-            if msg is None:
+            frame = recv(left)
+            if frame is None:
                 break
-            s = by_cob.get(msg.arbitration_id)
+            s = by_cob.get(frame[0])
             if s is None:
                 continue
-            data = msg.data
+            data = frame[1]
             k = len(data)
             if s.length and k != s.length:
                 s.bad_len = k or -1                      # reported by read(), never decoded

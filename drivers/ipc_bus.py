@@ -81,6 +81,8 @@ class IpcBus(can.BusABC):
         self._peers: list[str] = []
         self._mtime = -1
         self._buf = bytearray(_FRAME.size)
+        self._rbuf = bytearray(64)                  # recv_frame's receive buffer
+        self._rview = memoryview(self._rbuf)
         self._closed = False
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         super().__init__(channel=self.channel, **kwargs)
@@ -111,7 +113,7 @@ class IpcBus(can.BusABC):
                         acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
                 except (OSError, ValueError):
                     acc = None
-            peers.append((os.path.join(self._dir, f), acc))
+            peers.append((os.path.join(self._dir, f), acc, {}))     # {} : id -> accepted (cache)
         self._peers = peers
 
     def _gone(self, peer: str, stale: bool) -> None:
@@ -132,14 +134,23 @@ class IpcBus(can.BusABC):
         dlc = msg.dlc
         if dlc > 8:
             raise can.CanOperationError(f"ipc bus: classic CAN only, DLC {dlc} > 8")
-        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, bytes(msg.data[:dlc]), time.time())
+        data = msg.data
+        if len(data) != dlc:
+            data = bytes(data[:dlc])
+        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, data, time.time())
         self._refresh()
         sendto = self._sock.sendto
         buf = self._buf
         can_id = msg.arbitration_id
-        for peer, acc in self._peers:
-            if acc is not None and not flags & _ERR and not any(can_id & m == i & m for i, m in acc):
-                continue                           # that member does not take this id
+        for peer, acc, seen in self._peers:
+            if acc is not None and not flags & _ERR:
+                ok = seen.get(can_id)
+                if ok is None:
+                    ok = any(can_id & m == i & m for i, m in acc)
+                    if len(seen) < 4096:           # bounded: extended ids are many
+                        seen[can_id] = ok
+                if not ok:
+                    continue                       # that member does not take this id
             try:
                 sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
@@ -209,6 +220,45 @@ class IpcBus(can.BusABC):
                 if not any(can_id & m == i & m for i, m in acc):
                     continue                     # another frame: the queue is read on (no time check)
             return self._decode(raw), True
+
+    def recv_frame(self, timeout: float):
+        """The cycle's receive path (:class:`drivers.canopen_rx.TpdoWindow`): the next frame
+        this member accepts as ``(arbitration id, data)`` — ``data`` a view of a receive buffer
+        that the next call overwrites — or None after ``timeout`` seconds (0: only what is
+        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
+        if self._pending:
+            msg = self._pending.pop(0)
+            return msg.arbitration_id, msg.data
+        if self._closed:
+            return None
+        sock, buf, acc = self._sock, self._rbuf, self._accept
+        end = None
+        while True:
+            if timeout > 0.0:
+                # wait first: after a SYNC the answer is not there yet (no exception per frame)
+                if end is None:
+                    end = time.monotonic() + timeout
+                    left = timeout
+                else:
+                    left = end - time.monotonic()
+                    if left <= 0.0:
+                        return None
+                if not select.select(self._rd, (), (), left)[0]:
+                    return None
+            try:
+                nb = sock.recv_into(buf, 64, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                if timeout > 0.0:
+                    continue
+                return None
+            except OSError:
+                return None
+            if nb != _FRAME.size:
+                continue
+            can_id = buf[0] | buf[1] << 8 | buf[2] << 16 | buf[3] << 24
+            if acc is not None and not buf[4] & _ERR and not any(can_id & m == i & m for i, m in acc):
+                continue                     # another frame: the queue is read on
+            return can_id, self._rview[8:8 + buf[5]]
 
     def fileno(self) -> int:
         return self._sock.fileno()

@@ -20,6 +20,8 @@ import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 
+_F8 = np.dtype(float)
+
 
 def min_jerk(s: float) -> tuple[float, float, float]:
     """Minimum-jerk blend σ(s) = 10s³ − 15s⁴ + 6s⁵ on s ∈ [0, 1], with σ' and σ'' (Flash & Hogan 1985)."""
@@ -99,6 +101,7 @@ class PID:
         self._q_prev = None
         self._dq = np.zeros(1)
         self._gains = None               # (3, n) kp, ki, kd of the compiled step
+        self._u_fast = None              # the command array once the state arrays exist (step_into)
 
     def reset(self, q: np.ndarray, u0=0.0) -> None:
         """Start at rest with output u0 (bumpless); q is the measured angle the D term differentiates."""
@@ -109,9 +112,26 @@ class PID:
         u0 = np.broadcast_to(np.asarray(u0, dtype=float), q.shape)
         self.integral = np.where(ki > 0, u0 / np.where(ki > 0, ki, 1.0), 0.0)
         self._gains = None
+        self._u_fast = None
 
     def step(self, q_ref, q_meas, dq_ref=0.0, theta_m_meas=None) -> np.ndarray:
         """One control period: the motor-torque command [N m] for the measured q (and θ_m)."""
+        return self.step_into(q_ref, q_meas, dq_ref, theta_m_meas).copy()
+
+    def step_into(self, q_ref, q_meas, dq_ref=0.0, theta_m_meas=None) -> np.ndarray:
+        """:meth:`step` without the copy: the command in the PID's own array (overwritten by the
+        next step; the loop's per-cycle call, no allocation once the state arrays exist)."""
+        u = self._u_fast
+        if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
+            # the loop's measurement arrays (float64, n): no conversion needed
+            v = q_meas if self.derivative == "load" else theta_m_meas
+            if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
+                ref = self._ref
+                ref[0] = q_ref
+                ref[1] = dq_ref
+                _pid_step(ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev,
+                          self.integral, u)
+                return u
         q = np.atleast_1d(np.asarray(q_meas, dtype=float))
         if self.derivative == "motor" and theta_m_meas is None:
             raise ValueError("PID(derivative='motor') needs theta_m_meas")
@@ -133,7 +153,8 @@ class PID:
         ref[1] = dq_ref
         _pid_step(ref, q, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev, self.integral,
                   self._u)
-        return self._u.copy()
+        self._u_fast = self._u
+        return self._u
 
 @njit
 def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):

@@ -29,6 +29,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",
     "sea_daemon.core.estimators.health",
+    "sea_daemon.core.estimators.gp_hook",
     "sea_daemon.core.gp.gp_core",
     "sea_daemon.core.gp.exact",
     "sea_daemon.core.gp.hyper",

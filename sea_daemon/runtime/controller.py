@@ -101,7 +101,9 @@ class ScenarioController:
             self.start(q, theta_m)
         if self.pid is not None:
             self.q_ref, dq_ref, _ = self.traj.reference(t)
-            self._out[:] = self.pid.step(self.q_ref, q, dq_ref, theta_m)
+            # the PID's command is already within ±limit (the same limit): no clip needed
+            self._out[:] = self.pid.step_into(self.q_ref, q, dq_ref, theta_m)
+            return self._out
         else:
             k = round(t / self.dt)                    # t is k whole periods (class docstring)
             k0 = self.estimation_from

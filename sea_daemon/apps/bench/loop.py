@@ -222,10 +222,15 @@ def run(args) -> int:
             if k < n_cycles:
                 rx_cpu[k] = probe["rx"].now()
         dev_stats = None
+        # the estimate and its bound published every cycle as the daemon does: the TPDOs of its
+        # node on the bus and the datagram socket for local readers (none subscribed here)
+        from sea_daemon.runtime.publish import make_publisher
+        publisher = make_publisher(rig, cfg, controller, socket_path=tmp / "sea-daemon.sock")
         try:
             res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                         progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
-                        supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62))
+                        supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62),
+                        publisher=publisher)
             if rig.device_model is not None:
                 dev_stats = rig.device_model.answer_stats()
         finally:
@@ -274,7 +279,7 @@ def run(args) -> int:
         "max_late_us": st.max_late_s * 1e6,
         "compute_us": _pcts(compute), "read_us": _pcts(read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
-        "log_rows_dropped": res.log["rows_dropped"],
+        "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
     }
     print(f"bench loop on {out['machine']}")
     print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine, "
@@ -282,9 +287,11 @@ def run(args) -> int:
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
-          f"{out['bound']} every cycle; passive-scenario PID; real-time pace; {res.realtime}")
+          f"{out['bound']} every cycle, published; passive-scenario PID; real-time pace; {res.realtime}")
     print(f"measured {n_cycles} cycles ({measured} periods), TPDO deadline {deadline_ms * 1e3:.0f} us after SYNC, "
-          f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}")
+          f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
+          + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
+             if out['fault'] != 'NONE' else ""))
     j, pr, c = out["jitter_us"], out["period_us"], out["compute_us"]
     print(f"overruns: {st.overruns} in {n_cycles} cycles = {out['overruns_per_1e5']:.0f} per 1e5 cycles "
           f"(max late {out['max_late_us']:.0f} us, deadlines skipped {st.skipped})")
@@ -308,6 +315,11 @@ def run(args) -> int:
     print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included); "
           f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
           f"worst-case stuffing")
+    pub = out["publish"] or {}
+    can_pub = pub.get("can") or {}
+    print(f"published every cycle: {pub.get('published', 0)} cycles; TPDOs of node {cfg.hardware.bus.master_node} "
+          f"sent {can_pub.get('frames_sent', 0)}, dropped {can_pub.get('frames_dropped', 0)}; local socket "
+          f"(no reader subscribed)")
     print(f"log rows dropped: {out['log_rows_dropped']}")
     save(out)
     return 0

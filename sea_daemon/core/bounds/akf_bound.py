@@ -77,6 +77,7 @@ class AKFTheoremBound:
         self.compiled = bool(compiled)
         self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
         self._pack_at = -1                # n_learned when the pack was made
+        self._args = None                 # the compiled step's arguments that stay (_call_compiled)
         est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
         # the configuration's estimator.gp_beta
@@ -308,9 +309,11 @@ class AKFTheoremBound:
             return ()
         if getattr(akf, "learning", False):
             return None
+        n_l = self._n_learned()
+        if self._pack is not None and self._pack_at == n_l:
+            return self._pack_args        # the pack of the frozen GP (its constants checked when made)
         if not all(type(c) is BoundConstants for c in self.gp_constants or ()):
             return None                   # constants of one's own (an eta() of its own): the Python step
-        n_l = self._n_learned()
         if self._pack is None or self._pack_at != n_l:
             gps = residual_gps(akf)
             local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
@@ -320,6 +323,7 @@ class AKFTheoremBound:
             self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
             self._gamma = np.array([k.gamma for k in c], dtype=float)
             self._pack_args = self._pack.args()
+            self._args = None
         return self._pack_args
 
     def _step_compiled(self, est, x0, P0, u, dt, gp) -> None:
@@ -349,15 +353,22 @@ class AKFTheoremBound:
         est.tau_h_act_bound[:] = self._rho
 
     def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
-        """:func:`bound_core.bound_step` with this bound's arrays."""
-        return bound_core.bound_step(
-            sm.G_, x0, P0, akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
-            self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
-            self._grid_step, self._Uz, has_gp, self._scales is not None,
-            self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
-            self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c, self.tau_h_act_rate,
-            self.tau_h_act_rate > 0, sm.generator_limit(), sm.delta_noise / n, sm._z_tau, gp if has_gp else
-            self._empty, self._rho, self.eta_, self.gp_lin_err_, self._b)
+        """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same
+        from step to step kept in two tuples, made again when the pack, the box or an output
+        array changed)."""
+        a = self._args
+        if a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_:
+            mid = (akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
+                   self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
+                   self._grid_step, self._Uz, has_gp, self._scales is not None,
+                   self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
+                   self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c,
+                   self.tau_h_act_rate, self.tau_h_act_rate > 0)
+            tail = (sm.delta_noise / n, sm._z_tau, gp if has_gp else self._empty, self._rho, self.eta_,
+                    self.gp_lin_err_, self._b)
+            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, mid, tail)
+        mid, tail = a[4], a[5]
+        return bound_core.bound_step(sm.G_, x0, P0, *mid, sm.generator_limit(), *tail)
 
     def step(self, est, x0, P0, u, dt) -> None:
         """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:

@@ -85,6 +85,8 @@ class GPPack:
         self.hi = np.zeros((L, d))
         self.clip = np.zeros(L, dtype=np.bool_)
         self.r = np.zeros(L)
+        # σ_on² per leaf (the GP-AKF's compiled hook, gp_hook.hook_predict)
+        self.sn2 = np.array([lf.sigma_n ** 2 for lf, _ in leaves], dtype=float)
         ro = po = 0
         for i, (lf, r) in enumerate(leaves):
             m = lf.n_

@@ -29,7 +29,8 @@ from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
-from sea_daemon.core.estimators import akf_core
+from sea_daemon.core.estimators import akf_core, gp_hook
+from sea_daemon.core.gp.loggp import LoGGP
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.estimators.health import InputBox
@@ -59,8 +60,36 @@ class _ResidualHook:
                 lg = g.leaf(leaf)
                 if lg.n_:
                     self.box.add_many(lg.X_[:lg.n_])
+        # the compiled path (freeze): LoG-GPs only
+        self._loggp = all(type(g) is LoGGP for g in gp.gps)
+        self._key = self._pack_key = None
+        self._pack_args = ()
+
+    def freeze(self, key) -> None:
+        """``key``: None while the GP learns (the Python path), else a value that changes whenever
+        the GP does (the GP-AKF's count of learned pairs): the prediction runs as one compiled
+        call (:func:`gp_hook.hook_predict`) over a pack of the GPs made for that key."""
+        if key is None or not self._loggp:
+            self._key = None
+            return
+        if key != self._pack_key:
+            from sea_daemon.core.bounds.bound_core import GPPack
+            pack = GPPack(self.gp.gps)
+            self._pack_args = pack.args() + (pack.sn2,)
+            self._pack_key = key
+        self._key = key
 
     def predict(self, z):
+        if self._key is not None:
+            box = self.box
+            if type(z) is not np.ndarray or z.dtype != np.float64 or not z.flags.c_contiguous:
+                z = np.ascontiguousarray(z, dtype=float)
+            any_clipped = gp_hook.hook_predict(z, box._lo, box._hi, box._z, box.clipped, self.noise_in_Q, self.mu,
+                                               self.jac, self.var, *self._pack_args)
+            box.any_clipped = any_clipped
+            if any_clipped:
+                box.n_clipped += 1
+            return self.mu, self.jac, self.var
         # z clipped to the training box ± margin; the clipped coordinates get a zero Jacobian
         zc = self.box.clip(z)
         for i, g in enumerate(self.gp.gps):
@@ -117,6 +146,10 @@ class GPAKF(AKF):
     def update(self, q, theta_m, tau_m, dt: float | None = None) -> Estimate:
         """One sample: the GP-AKF step (Alg. 2), then, while learning, one training pair."""
         was_ready = self._ready
+        # frozen (learning off): the hook's compiled path over the GP as it is now
+        freeze = getattr(self.residual, "freeze", None)       # a residual of one's own has none
+        if freeze is not None:
+            freeze(None if self.learning else self.n_learned)
         e = super().update(q, theta_m, tau_m, dt)
         if self.learning:
             # learning assumes a passive subject (τ_h,act = 0): τ̂_h,act holds the residual not
