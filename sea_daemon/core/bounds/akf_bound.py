@@ -220,6 +220,10 @@ class AKFTheoremBound:
 
     def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
         """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
+        tables = getattr(self.akf, "_tables", None)
+        if tables is not None:
+            # the same, compiled over all the points at once (model_core)
+            return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
         f_nom = self.akf.model.f_nom
         f0 = f_nom(x0, u)
         b = np.zeros(self.akf.d)

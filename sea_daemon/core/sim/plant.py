@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.effects import MAX_PARAMS, Gravity, deadband, side_torque
+from sea_daemon.core.effects import MAX_PARAMS, Effect, Gravity, deadband, side_torque
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
@@ -97,7 +97,10 @@ class Plant:
         self._hist_t: list[float] = [-math.inf]
         self._hist_u: list[np.ndarray] = [tau_hold.copy()]
         self.extra_load_torque = extra_load_torque
-        self._scalar = n == 1 and extra_load_torque is None
+        # the compiled substeps know the vocabulary's effects (codes of effects.evaluate); an
+        # effect that evaluates itself (outside the vocabulary) takes the model's sums
+        self._scalar = n == 1 and extra_load_torque is None and \
+            all(type(e).evaluate is Effect.evaluate for e in m.effects)
         if self._scalar:
             self._compile_scalar()
 
