@@ -1,4 +1,4 @@
-"""``sea-daemon bench generalize``: calibrate once, hold everywhere (issue 12).
+"""``sea-daemon bench generalize``: calibrate once, hold everywhere (docs/calibration.md).
 
 A family of random plants (:mod:`._family`: nominal robot ±30 %, hidden effects in and outside
 the vocabulary, noise levels, encoder resolutions, 100 Hz and 1 kHz).  Each plant is
@@ -20,12 +20,11 @@ the Theorem-1 bound ρ_k of the GP-AKF with the guaranteed (Lederer et al. 2019)
 and mean ρ / mean |error|.
 
 Seeds: ``--seeds`` (e.g. ``100-123``).  The seeds that chose any setting of the calibration
-are listed in REPORT_i12.md (development: 0–5); the headline figures use other seeds.
+are 0–5 (:data:`DEVELOPMENT_SEEDS`); the headline figures use other seeds.
 """
 from __future__ import annotations
 
 import json
-import math
 import os
 import pickle
 import time
@@ -34,9 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sea_daemon.io.files import atomic_write_text
+
 NAME = "generalize"
-HELP = "calibrate random plants once on a passive session, test on unlike sessions (issue 12)"
+HELP = "calibrate random plants once on a passive session, test on unlike sessions"
 ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
+#: the plant seeds used while choosing the calibration's settings (not for headline figures)
+DEVELOPMENT_SEEDS = tuple(range(6))
 
 
 def add_arguments(p) -> None:
@@ -222,13 +225,24 @@ def _job(args):
 
 def run(args) -> int:
     from sea_daemon.apps.bench import machine
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from sea_daemon.errors import InputError
+    from sea_daemon.io.files import check_output_dir
+    try:
+        seeds = parse_seeds(args.seeds)
+    except ValueError:
+        raise InputError(f"--seeds {args.seeds}: expected 'a-b' or a comma list of integers") from None
+    if not seeds:
+        raise InputError(f"--seeds {args.seeds}: no seed")
+    used = sorted(set(seeds) & set(DEVELOPMENT_SEEDS))
+    if used:
+        print(f"bench generalize: note: seeds {used} were used to choose the calibration's settings", flush=True)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    out = check_output_dir("--out", args.out)
     cache = None if args.no_cache else out / "cache"
     if cache is not None:
         cache.mkdir(exist_ok=True)
-    seeds = parse_seeds(args.seeds)
-    est = [s.strip() for s in args.estimators.split(",") if s.strip()]
+    from sea_daemon.apps.bench import choose
+    est = choose(args.estimators, ESTIMATORS, "--estimators")
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), calibration {args.cal_s:g} s, "
           f"estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
     jobs = [(s, args.cal_s, cache, est, args.bound) for s in seeds]
@@ -244,10 +258,10 @@ def run(args) -> int:
             row = _job(j)
             rows.append(row)
             _print_row(row)
-            (out / "results.json").write_text(json.dumps({"rows": rows}, indent=1, default=float))
+            atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
     rows.sort(key=lambda r: r["seed"])
     summary = summarize(rows)
-    (out / "results.json").write_text(json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))
+    atomic_write_text(out / "results.json", json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))
     print(json.dumps(summary, indent=1, default=float))
     print(f"results: {out / 'results.json'}  (load average {os.getloadavg()[0]:.2f})")
     return 0

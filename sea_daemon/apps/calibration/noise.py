@@ -10,7 +10,7 @@
   differentiator's error on accelerating motion, measured on the log itself as the variance of
   (causal velocity − zero-phase velocity) (``kinematics.smooth_derivatives``, ~0.1 s window);
   the encoder-noise part (‖c_v‖² R_ang) is the floor.  On the simulator this equals the
-  variance against the true velocity within ~20 % (docs: REPORT_i12.md), where ALS alone is
+  variance against the true velocity within ~20 % (tests/test_calibration.py), where ALS alone is
   10–1000× too small and makes the filter diverge.
 * :func:`motor_torque_noise` — σ_u of the torque actually applied (held per sample) from the
   motor-side balance of the model (eq:motorside) over second differences at lag m
@@ -42,7 +42,7 @@ def choose_kinematics(rate_hz: float, span_s: float = 0.015) -> KinematicsConfig
     A short span: the window's error on accelerating motion grows like (span)⁴ jerk², so a long
     window that is best on the calibration's motion is ~10× off on a faster session (at 1 kHz,
     45 vs 15 samples: θ̇_m error ×15 from the calibration log to a fast session, ×3 with 15;
-    REPORT_i12.md), and the filter's NIS diverges there.  The encoder noise of a short window
+    docs/calibration.md), and the filter's NIS diverges there.  The encoder noise of a short window
     is white and the same on every session; R carries it."""
     W = max(5, int(round(span_s * rate_hz)))
     if W % 2 == 0:
@@ -63,7 +63,7 @@ def select_kinematics(log: MeasuredLog, cfg: ModelConfig, max_span_s: float = 0.
     fit(W) the rest of var(causal − zero-phase velocity) on this log: the window's error on
     accelerating motion, which grows with the motion (∝ jerk²) — ``margin`` = 9 keeps W right
     for sessions three times as jerky as the calibration (a long window that is best on the
-    calibration's motion is 10× off on a faster one: docs, REPORT_i12.md)."""
+    calibration's motion is 10× off on a faster one: docs/calibration.md)."""
     vq, vm = _quantisation(cfg)
     Wmax = max(5, int(round(max_span_s * cfg.rate_hz)))
     rows = []

@@ -189,6 +189,7 @@ class AKFTheoremBound:
             self.refresh_gp_constants()
         self.sm.reset()
         self.gp_box_violations_ = 0
+        self.saturated_ = 0
         if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
@@ -351,6 +352,7 @@ class AKFTheoremBound:
         self.gp_box_violations_ += int(out)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
+        self._saturate(est)
 
     def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
         """:func:`bound_core.bound_step` with this bound's arrays."""
@@ -429,6 +431,17 @@ class AKFTheoremBound:
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
+        self._saturate(est)
+
+    def _saturate(self, est) -> None:
+        """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no
+        guarantee any more (its linearisation error grew faster than the filter contracts it,
+        e.g. a steep friction at standstill): it is held at the caps — finite, counted in
+        :attr:`saturated_` — instead of growing to overflow."""
+        caps = getattr(self.akf, "_P_max", None)
+        if caps is not None and self.sm.saturate(np.sqrt(caps)):
+            self.saturated_ += 1
+            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
 
 def theorem_bound(akf) -> AKFTheoremBound | None:

@@ -325,6 +325,21 @@ class SetMembershipBound:
             return np.sqrt(np.clip(np.diag(self._X), 0.0, None))
         return np.sum(np.abs(self.G_), axis=1)
 
+    def saturate(self, caps: np.ndarray) -> bool:
+        """Hold the set of means inside the box of half-widths ``caps`` (per state): every axis
+        whose half-width exceeds its cap is scaled down to it (D X̂, D diagonal ≤ 1).  Not an
+        outer approximation any more: the caller flags the step.  Returns whether it acted."""
+        hw = self.means_half_widths()
+        over = hw > caps
+        if not np.any(over):
+            return False
+        D = np.where(over, caps / np.where(over, hw, 1.0), 1.0)
+        if self.sets == "ellipsoid":
+            self._X = self._X * D[:, None] * D[None, :]
+        else:
+            self.G_ = self.G_ * D[:, None]
+        return True
+
     def rho(self, P: np.ndarray) -> np.ndarray:
         """ρ_k per τ state: exact half-width of X̂_k ⊕ E(0, s_τ P) along each τ axis."""
         i = self.tau_idx
