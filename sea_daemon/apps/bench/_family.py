@@ -51,6 +51,8 @@ class _Outside(Effect):
     partials in Python (``evaluate`` overridden), so the plant and an oracle model evaluate it
     through :class:`~sea_daemon.core.model.SEAModel`'s sums (never through the compiled table)."""
 
+    sides: ClassVar[tuple[str, ...]] = ("load",)
+
     def evaluate(self, angle, vel, acc):
         return (self.torque(angle, vel, acc), *self.partials(angle, vel, acc))
 
@@ -66,7 +68,6 @@ class PositionFriction(_Outside):
     phi: float = 0.0
     eps: float = 0.01
     type: ClassVar[str] = "x_position_friction"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("F0", "r", "phi")
 
     def torque(self, angle, vel, acc):
@@ -85,7 +86,6 @@ class GravityHarmonic(_Outside):
     a2: float = 0.0
     phi: float = 0.0
     type: ClassVar[str] = "x_gravity_harmonic"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("a2", "phi")
 
     def torque(self, angle, vel, acc):
@@ -102,7 +102,6 @@ class TissueCubic(_Outside):
     k3: float = 0.0
     q0: float = 0.9
     type: ClassVar[str] = "x_tissue_cubic"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("k3", "q0")
 
     def torque(self, angle, vel, acc):
@@ -118,7 +117,6 @@ class PowerDamping(_Outside):
 
     b2: float = 0.0
     type: ClassVar[str] = "x_power_damping"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("b2",)
 
     def torque(self, angle, vel, acc):
@@ -136,7 +134,6 @@ class AsymmetricFriction(_Outside):
     d: float = 0.0
     eps: float = 0.01
     type: ClassVar[str] = "x_asymmetric_friction"
-    sides: ClassVar[tuple[str, ...]] = ("load",)
     param_names: ClassVar[tuple[str, ...]] = ("d",)
 
     def torque(self, angle, vel, acc):
