@@ -147,7 +147,9 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     """The identified model as a simulated plant: a moving session (PID tracking the log's own
     motion) and a still-arm session (Sec. V-C, held at the log's median angle), each with a
     synthetic human torque of the declared band and RMS.  With ``gp`` the plant has the residual
-    the estimator believes in too (its variance-weighted mean, as ``extra_load_torque``)."""
+    the estimator believes in too (its variance-weighted mean, as ``extra_load_torque``, held over
+    each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
+    and the plant's compiled integration)."""
     from sea_daemon.core.sim.session import BandLimitedTorque, run_session
     from sea_daemon.core.kinematics import smooth_derivatives
     n = cfg.joints
@@ -174,10 +176,10 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
 
     f_lo, f_hi = human.band_hz
     out = [run_session(plant_cfg, t[-1], reference=_Ref(), human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 1),
-                       seed=seed + 11, extra_load_torque=extra),
+                       seed=seed + 11, extra_load_torque=extra, extra_held=True),
            run_session(plant_cfg, t[-1], hold_q=float(np.median(log.q[:N, 0])),
                        human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 2), seed=seed + 12,
-                       extra_load_torque=extra)]
+                       extra_load_torque=extra, extra_held=True)]
     return out
 
 

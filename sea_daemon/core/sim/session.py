@@ -93,9 +93,9 @@ class PIDGains:
 def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hold_q: float | None = None,
                 human=None, seed: int = 0, gains: PIDGains = PIDGains(), substep_hz: float | None = None,
                 sign_eps: float = 3e-3, torque_noise: float | None = None, t0: float = 0.0,
-                extra_load_torque=None) -> MeasuredLog:
+                extra_load_torque=None, extra_held: bool = False) -> MeasuredLog:
     """Simulate one session of the plant ``true_cfg`` (nominal model + hidden effects); see the
-    module docstring (``extra_load_torque``: as :class:`~sea_daemon.core.sim.plant.Plant`).  Returns the measured log with the truth ``tau_h_act`` and, in ``extra``,
+    module docstring (``extra_load_torque``, ``extra_held``: as :class:`~sea_daemon.core.sim.plant.Plant`).  Returns the measured log with the truth ``tau_h_act`` and, in ``extra``,
     ``q_true``, ``dq_true``, ``q_ref``."""
     rate = float(true_cfg.rate_hz)
     dt = 1.0 / rate
@@ -105,7 +105,7 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
         raise ValueError("run_session needs a reference or hold_q")
     q0 = reference.reference(0.0)[0] if reference is not None else float(hold_q)
     plant = Plant(true_cfg, q0=q0, seed=seed, substep_hz=sub, sign_eps=sign_eps, torque_noise=torque_noise,
-                  extra_load_torque=extra_load_torque)
+                  extra_load_torque=extra_load_torque, extra_held=extra_held)
     limit = true_cfg.hardware.torque_limit
     pid = None
     if reference is not None:
