@@ -195,43 +195,50 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
                opts: CalibrationOptions, tune_eps: bool = True, gp=None,
                v_gate: float = 0.0) -> tuple[float, float, dict]:
     """(q_τ [N² m²/s], sign_eps [rad/s], info): the τ_h,act random walk and the friction-sign
-    smoothing of the estimator's model minimising the RMS of the τ̂ errors over the synthetic
-    active sessions and the real passive log (the AKF on the identified model; health monitor
-    off while scanning).  Coordinate search: q_τ over decades at the configured sign_eps, then
-    sign_eps over :data:`EPS_GRID` at that q_τ, then q_τ at half-decades around the best.
+    smoothing of the estimator's model (the AKF on the identified model, or the GP-AKF with
+    ``gp``; health monitor off while scanning).  Each from the data that can speak for it:
 
-    Why sign_eps belongs here: the estimator's friction is tanh(q̇/ε); at a turning point the
-    true friction takes whatever value holds the joint, and with ε wider than the velocity the
-    filter resolves, the smoothed friction lags the stick and the difference leaks into τ̂
-    (on the simulator: passive RMSE 0.038 N m at ε = 0.01, 0.010 at ε = 0.003, oracle model);
-    too narrow and the filter's velocity noise flips the friction sign.  Which ε the data
-    support is what the passive log says; the synthetic sessions keep the active side honest."""
+    * sign_eps, a property of the plant's friction, from the real passive log alone: the ε of
+      :data:`EPS_GRID` with the smallest RMS of τ̂ there (τ_h,act = 0, so every τ̂ is the
+      leakage of model error).  At a turning point the true friction takes whatever value holds
+      the joint; with ε wider than the velocity the filter resolves, the smoothed friction lags
+      the stick and the difference leaks into τ̂ (on the simulator: passive RMSE 0.038 N m at
+      ε = 0.01, 0.010 at ε = 0.003, oracle model); too narrow, the filter's velocity noise
+      flips the friction sign, which the passive log shows as well.
+    * q_τ, how fast the subject's torque moves, from the synthetic active sessions alone (the
+      identified model as the plant, a human torque of the declared band and size, moving and
+      still arm): decades of :attr:`CalibrationOptions.q_tau_grid` then its half-decades around
+      the best, the smallest q_τ within 2 % of the best RMS (the objective is flat over decades
+      once the walk is fast enough: the smoothest estimate the data do not contradict).  A
+      passive log says nothing about the subject's torque (it only pulls q_τ to 0).
+
+    sign_eps is chosen at the declared walk (:func:`declared_walk`), q_τ at that sign_eps, then
+    sign_eps again at the chosen q_τ.  When the identified model cannot be simulated, q_τ is the
+    declared walk."""
     # at most ~4000 samples per synthetic session (20 s at 100 Hz, 10 s at 1 kHz: the lowest
     # declared frequency still shows)
     T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
     # the passive log's first 2 T seconds (the leakage of model error into τ̂)
-    passive = log.slice(0, min(len(log), int(round(2 * T / log.dt))))
+    passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
     try:
         synth = synthetic_sessions(cfg, log, human, sigma_u, T, opts.seed, gp=gp, power=opts.weight_power,
                                    v_gate=v_gate)
-        logs = {"synthetic_moving": synth[0], "synthetic_still": synth[1], "passive_log": passive}
+        active = {"synthetic_moving": synth[0], "synthetic_still": synth[1]}
         synth_note = None
     except (RuntimeError, ValueError, ArithmeticError, InputError) as e:
         # the identified model cannot be simulated (e.g. no static equilibrium found for its
         # spring): q_τ from the declared torque alone, the friction smoothing from the passive log
-        logs = {"passive_log": passive}
+        active = {}
         synth_note = f"synthetic replay failed ({type(e).__name__}: {e}); q_tau from the declared torque"
-        opts = dataclasses.replace(opts, q_tau_grid=(declared_walk(human),))
-    table = []
+    table: dict = {}
     has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
 
-    def evaluate(q, eps):
-        for r in table:
-            if r["q_tau"] == float(q) and r["sign_eps"] == float(eps):
-                return r
+    def evaluate(q, eps, logs):
+        row = table.setdefault((float(q), float(eps)), {"q_tau": float(q), "sign_eps": float(eps)})
         c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, float(q)))
-        row = {}
         for name, lg in logs.items():
+            if name in row:
+                continue
             try:
                 if gp is None:
                     est = AKF(c, dt=lg.dt)
@@ -240,40 +247,46 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
                 row[name] = _rmse(lg, est)
             except EstimatorFault:
                 row[name] = math.inf
-        row["q_tau"] = float(q)
-        row["sign_eps"] = float(eps)
-        row["objective"] = float(np.sqrt(np.mean([row[k] ** 2 for k in logs])))
-        table.append(row)
         return row
 
-    best_of = lambda: min(table, key=lambda r: r["objective"])
-    grid = np.asarray(opts.q_tau_grid, dtype=float)
-    eps0 = float(cfg.estimator.sign_eps)
-    for q in grid[::2]:
-        evaluate(q, eps0)
-    if tune_eps and has_friction:
-        q = best_of()["q_tau"]
-        for eps in EPS_GRID:
-            evaluate(q, eps)
-    b = best_of()
-    i = int(np.argmin(np.abs(grid - b["q_tau"])))
-    for j in (i - 1, i + 1):
-        if 0 <= j < len(grid):
-            evaluate(grid[j], b["sign_eps"])
-    table.sort(key=lambda r: (r["sign_eps"], r["q_tau"]))
-    # the objective is flat over decades of q_τ once the walk is fast enough: of the settings within
-    # 2 % of the best, the smallest walk (the smoothest estimate the data do not contradict)
-    b = best_of()
-    near = [r for r in table if r["sign_eps"] == b["sign_eps"] and r["objective"] <= 1.02 * b["objective"]]
-    best = min(near, key=lambda r: r["q_tau"])
+    def objective(row, logs):
+        return float(np.sqrt(np.mean([row[k] ** 2 for k in logs])))
+
+    def best_eps(q):
+        if not (tune_eps and has_friction):
+            return float(cfg.estimator.sign_eps)
+        return min(EPS_GRID, key=lambda e: objective(evaluate(q, e, passive), passive))
+
+    q0 = declared_walk(human)
+    eps = best_eps(q0)
+    if active:
+        grid = np.asarray(opts.q_tau_grid, dtype=float)
+        for q in grid[::2]:
+            evaluate(q, eps, active)
+        on = lambda: [r for (q, e), r in table.items() if e == eps and all(k in r for k in active)]
+        b = min(on(), key=lambda r: objective(r, active))
+        i = int(np.argmin(np.abs(grid - b["q_tau"])))
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(grid):
+                evaluate(grid[j], eps, active)
+        rows = on()
+        f_best = min(objective(r, active) for r in rows)
+        qt = min(r["q_tau"] for r in rows if objective(r, active) <= 1.02 * f_best)
+    else:
+        qt = q0
+    eps = best_eps(qt)
+    logs = {**active, **passive}
+    best = evaluate(qt, eps, logs)
+    best["objective"] = objective(best, logs)
     # the NIS monitor's scale: what the chosen filter shows on these logs (its windowed mean NIS at
     # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
     # torque is not divergence
     scale = _nis_scale(cfg, gp, logs, best, opts, v_gate)
-    info = {"grid": table, "chosen": best, "nis_scale": scale}
+    grid_rows = sorted(table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
+    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
     if synth_note:
         info["note"] = synth_note
-    return best["q_tau"], best["sign_eps"], info
+    return qt, eps, info
 
 
 def declared_walk(human: HumanSpec) -> float:
