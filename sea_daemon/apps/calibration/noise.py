@@ -17,10 +17,10 @@
   (m dt ≈ 10 ms): the white part of that residual is the torque noise (its smooth part is
   model error), ``σ² = var(r_k − r_{k−2m}) / (2 Σ c_i²)`` with c_i the weights of the held
   samples in the second difference.
-* :func:`human_walk` — the τ_h,act random walk q_τ [N² m²/s] chosen by replaying the
-  identified model with synthetic human torques of the declared band and size (a simulated
-  active session, moving and still) together with the real passive calibration log: the q_τ
-  of a grid that minimises the mean squared τ̂_h,act error over the three.
+* :func:`~sea_daemon.apps.calibration.pipeline.human_walk` — the τ_h,act random walk q_τ
+  [N² m²/s] chosen by replaying the identified model with synthetic human torques of the
+  declared band and size (a simulated active session, moving and still), and the friction-sign
+  smoothing chosen on the real passive calibration log.
 """
 from __future__ import annotations
 

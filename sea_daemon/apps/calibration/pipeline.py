@@ -14,7 +14,8 @@ gives is kept, see :func:`given_keys`):
    (the augmented model, ``model_augmented.yaml``);
 3. the motor-torque noise σ_u (:func:`~.noise.motor_torque_noise`) on the augmented model;
 4. the τ_h,act random walk q_τ (:func:`human_walk`): the identified model replayed with
-   synthetic human torques of the declared band and size, plus the real passive log;
+   synthetic human torques of the declared band and size; the friction-sign smoothing on the
+   real passive log;
 5. the residual GP (LoG-GP) on what the augmented model leaves: hyperparameters by maximum
    likelihood on a subsample of the training pairs (σ_f then is the size of that leftover, so
    the GP error bound shrinks with it), learned online over the log by the GP-AKF itself;
