@@ -120,7 +120,7 @@ class AKFTheoremBound:
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
-        # order reduction at most every REDUCE_PERIOD_S (setmember): 1 at 100 Hz, 10 at 1 kHz
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
         self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._I = np.eye(d)
         m = akf.model
