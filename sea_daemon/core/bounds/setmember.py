@@ -67,7 +67,7 @@ from sea_daemon.core.bounds.zonotope import predict_generators, zonotope_shape
 #: (1e4 N m after 1 s); at 100 Hz the filter of a calibrated model (docs/calibration.md: the
 #: passive demo's, measured velocities, a friction model) has a one-step map of spectral
 #: radius 0.96 whose box grows ×1.5 per 0.15 s — reduced every step or every second step, its
-#: ρ_k grew to the caps (100 N m) within 2 s of a move; every third step or less often it
+#: ρ_k grows to the caps (100 N m) within 2 s of a move; every third step or less often it
 #: stays at 0.43 N m.  Every 50 ms: 5 steps at 100 Hz, 50 at 1 kHz.
 REDUCE_PERIOD_S = 0.05
 
