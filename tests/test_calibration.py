@@ -248,6 +248,23 @@ def test_calibration_finds_the_physics_and_keeps_given_values(plant, cal_log, ca
     assert given_keys({"estimator": {"R": [1, 2, 3, 4]}, "kinematics": {"window": 5}}) == {"R", "kinematics"}
 
 
+def test_friction_smoothing_from_the_passive_log_and_walk_from_the_synthetic_subjects(calibrated):
+    """sign_eps is chosen on the passive log alone (every candidate scored there, none on the
+    synthetic subjects); q_τ on the synthetic subjects alone, at the chosen sign_eps."""
+    from sea_daemon.apps.calibration.pipeline import EPS_GRID
+    walk = calibrated.report["tau_h_act_walk"]
+    grid, chosen = walk["grid"], walk["chosen"]
+    eps = chosen["sign_eps"]
+    assert eps == calibrated.cfg.estimator.sign_eps and eps in EPS_GRID
+    scored = [r for r in grid if "passive_log" in r and r["q_tau"] == chosen["q_tau"]]
+    assert {r["sign_eps"] for r in scored} == set(EPS_GRID)
+    assert chosen["passive_log"] == min(r["passive_log"] for r in scored)
+    synth = [r for r in grid if "synthetic_moving" in r]
+    assert len(synth) >= 6 and {r["sign_eps"] for r in synth} == {eps}
+    best = min(math.hypot(r["synthetic_moving"], r["synthetic_still"]) for r in synth)
+    assert math.hypot(chosen["synthetic_moving"], chosen["synthetic_still"]) <= 1.02 * best + 1e-12
+
+
 def test_gp_akf_is_never_much_worse_than_the_physics_on_unlike_sessions(plant, calibrated):
     nom, true = plant
     res = calibrated

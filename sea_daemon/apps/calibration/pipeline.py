@@ -272,7 +272,8 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
                 evaluate(grid[j], eps, active)
         rows = on()
         f_best = min(objective(r, active) for r in rows)
-        qt = min(r["q_tau"] for r in rows if objective(r, active) <= 1.02 * f_best)
+        # every synthetic replay faulted: the declared walk
+        qt = min(r["q_tau"] for r in rows if objective(r, active) <= 1.02 * f_best) if math.isfinite(f_best) else q0
     else:
         qt = q0
     eps = best_eps(qt)
