@@ -182,6 +182,30 @@ def test_zonotope_outer_ellipsoid_and_order_reduction_contain_the_zonotope():
     assert reduce_generators(G, 40) is G
 
 
+def test_reduction_every_few_steps_holds_a_map_whose_one_step_box_grows():
+    """A contracting map (spectral radius 0.93) whose one step still grows an axis-aligned box
+    (two badly scaled, correlated coordinates, like the AKF's τ_h,act error and velocity):
+    boxed at every step the set of means grows ~1000× beyond the exact one; reduced every 5 steps
+    (the AKF bound's 50 ms at 100 Hz, REDUCE_PERIOD_S) it stays within 2× of it."""
+    from sea_daemon.core.bounds.setmember import REDUCE_PERIOD_S
+    assert round(REDUCE_PERIOD_S / 0.01) >= 5
+    S = np.diag([1.0, 100.0])
+    M = S @ np.array([[0.95, 0.3], [-0.05, 0.9]]) @ np.linalg.inv(S)
+    g = np.array([[0.01], [1.0]])
+    ratio = {}
+    for every in (1, 5):
+        sm = SetMembershipBound(2, [1], 0.05, max_generators=6)
+        sm.reduce_every = every
+        exact = np.zeros((2, 0))
+        for _ in range(300):
+            sm.predict(M, Gamma=g, eta=np.array([1.0]))
+            sm.update(np.zeros((2, 1)), np.zeros((1, 2)))
+            exact = np.hstack([M @ exact, g])
+        ratio[every] = sm.means_half_widths() / np.abs(exact).sum(1)
+        assert np.all(ratio[every] >= 1 - 1e-12)                    # an outer approximation
+    assert np.all(ratio[1] > 100) and np.all(ratio[5] < 2)
+
+
 def test_compiled_zonotope_prediction_equals_the_direct_formulas():
     # SetMembershipBound.predict (one compiled call) = F·G ⊕ Γ·|η| ⊕ Φ·|b| without the zero
     # generators and Girard's reduction written out with numpy; zonotope_shape = its formula

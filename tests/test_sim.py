@@ -117,6 +117,45 @@ def test_generic_path_matches_scalar_path():
     np.testing.assert_allclose(a.state, b.state, atol=1e-10)
 
 
+def test_outside_effects_on_the_scalar_path():
+    """Load effects that evaluate themselves (outside the compiled vocabulary) ride the one-joint
+    path in Python around the compiled accelerations, integrating like the numpy path."""
+    from sea_daemon.apps.bench._family import AsymmetricFriction, PositionFriction
+    effs = [make_effect("gravity", "load", a=2.2, phi=0.0), make_effect("coulomb", "load", F_c=0.3),
+            PositionFriction(side="load", F0=0.2, r=0.5, phi=0.4), AsymmetricFriction(side="load", d=0.1)]
+    a = Plant(quiet(nominal(), effs), q0=0.3)
+    b = Plant(quiet(nominal(), effs), q0=0.3)
+    assert a._scalar and len(a._py_load) == 2
+    b._scalar = False
+    x = np.array([0.2, 0.01, 0.3, -0.1, 0.4])
+    ref_th, ref_q = a.model.accelerations(x, np.array([1.0]))
+    ddq, ddth = a._deriv_scalar(0.21, 0.2, 0.2, 0.3, 1.0, 0.4)
+    assert ddq == pytest.approx(ref_q[0], rel=1e-12) and ddth == pytest.approx(ref_th[0], rel=1e-12)
+    for k in range(60):
+        u = a.hold_torque + 2.0 * math.sin(0.2 * k)
+        a.step(u, 0.01, 0.1)
+        b.step(u, 0.01, 0.1)
+    np.testing.assert_allclose(a.state, b.state, atol=1e-10)
+
+
+def test_extra_load_torque_held_over_the_step():
+    """extra_held: f(q, q̇) evaluated once per step and held, i.e. τ_h,act − f on the compiled path."""
+    effs = [make_effect("gravity", "load", a=2.2, phi=0.0)]
+    a = Plant(quiet(nominal(), effs), q0=0.3, extra_load_torque=lambda q, dq: np.array([0.3]), extra_held=True)
+    b = Plant(quiet(nominal(), effs), q0=0.3)
+    c = Plant(quiet(nominal(), effs), q0=0.3, extra_load_torque=lambda q, dq: 0.2 * dq + 0.1 * q)
+    d = Plant(quiet(nominal(), effs), q0=0.3, extra_load_torque=lambda q, dq: 0.2 * dq + 0.1 * q, extra_held=True)
+    assert a._scalar and d._scalar and not c._scalar
+    for k in range(50):
+        u = a.hold_torque + math.sin(0.2 * k)
+        a.step(u, 0.001, 0.5)
+        b.step(u, 0.001, 0.2)
+        c.step(u, 0.001, 0.5)
+        d.step(u, 0.001, 0.5)
+    np.testing.assert_allclose(a._y, b._y, atol=1e-12)
+    np.testing.assert_allclose(d._y, c._y, atol=2e-4)          # first order in the step
+
+
 def test_two_joints_conserve_energy():
     d = {"joints": 2, "rate_hz": 100,
          "model": {"M": [0.12, 0.2], "J": [0.08, 0.1], "D_m": 0.0, "K_s": [110.0, 200.0], "D_s": 0.0,

@@ -341,6 +341,56 @@ class AssistConfig:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """What the user declares for the calibration (``calibration``; docs/calibration.md): the
+    joint's working range the excitation covers, and the band and size of the subject's active
+    torque (the τ_h,act random walk is chosen for it).  Absent: the working range is the
+    calibration log's own, the human torque 0.1–1 Hz at 1.5 N m RMS."""
+
+    q_min_deg: float | None = None       # working range [deg]
+    q_max_deg: float | None = None
+    v_max: float = 1.5                   # fastest speed of the excitation [rad/s]
+    a_max: float = 12.0                  # largest acceleration of the excitation [rad/s²]
+    duration_s: float = 60.0             # length of the excitation [s]
+    human_band_hz: tuple[float, float] = (0.1, 1.0)   # band of τ_h,act [Hz]
+    human_torque_rms: float = 1.5        # RMS of τ_h,act [N m]
+    seed: int = 0                        # of the excitation's random moves
+
+    KEYS = ["q_min_deg", "q_max_deg", "v_max", "a_max", "duration_s", "human_band_hz", "human_torque_rms", "seed"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "CalibrationConfig":
+        validate.check_keys(source, "calibration.", d, cls.KEYS, [])
+        k = "calibration."
+        out: dict = {}
+        for key in ("q_min_deg", "q_max_deg"):
+            if d.get(key) is not None:
+                out[key] = validate.num(source, k + key, d[key], lo=-360.0, hi=360.0)
+        for key in ("v_max", "a_max", "duration_s", "human_torque_rms"):
+            if key in d:
+                out[key] = validate.num(source, k + key, d[key], positive=True)
+        if "human_band_hz" in d:
+            b = validate.vector(source, k + "human_band_hz", d["human_band_hz"], 2, positive=True)
+            if not b[0] < b[1]:
+                raise ConfigError(source, k + "human_band_hz", f"must be [low, high] with low < high, got {list(b)}")
+            out["human_band_hz"] = (float(b[0]), float(b[1]))
+        if "seed" in d:
+            v = d["seed"]
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ConfigError(source, k + "seed", f"must be an integer >= 0, got {v!r}")
+            out["seed"] = v
+        if out.get("q_min_deg") is not None and out.get("q_max_deg") is not None \
+                and not out["q_min_deg"] < out["q_max_deg"]:
+            raise ConfigError(source, k + "q_max_deg", "must be > q_min_deg")
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["human_band_hz"] = list(self.human_band_hz)
+        return d
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """The whole YAML of docs/interfaces.md §2 (plus the optional sections)."""
 
@@ -353,8 +403,10 @@ class ModelConfig:
     hardware: HardwareConfig = field(default_factory=HardwareConfig)
     source: str = "<memory>"
     assist: AssistConfig = field(default_factory=AssistConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
 
-    TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware", "assist"]
+    TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware", "assist",
+                "calibration"]
 
     @property
     def dt(self) -> float:
@@ -377,6 +429,7 @@ class ModelConfig:
             hardware=hardware,
             source=source,
             assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
+            calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
         )
 
     def to_dict(self) -> dict:
@@ -384,7 +437,7 @@ class ModelConfig:
             "joints": self.joints, "rate_hz": self.rate_hz, "model": self.model.to_dict(),
             "estimator": self.estimator.to_dict(), "kinematics": self.kinematics.to_dict(),
             "learning": self.learning.to_dict(), "hardware": self.hardware.to_dict(),
-            "assist": self.assist.to_dict(),
+            "assist": self.assist.to_dict(), "calibration": self.calibration.to_dict(),
         }
 
     def with_effects(self, effects) -> "ModelConfig":

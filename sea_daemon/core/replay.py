@@ -41,7 +41,8 @@ class ReplayResult:
 def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None) -> ReplayResult:
     """Run ``estimator`` over ``log``; ``clock`` (e.g. time.perf_counter) times each update.
 
-    An :class:`EstimatorFault` is re-raised naming the log and the sample time.
+    An :class:`EstimatorFault` is re-raised naming the log and the sample time; so is a numerical
+    breakdown inside a step (LinAlgError, overflow, ...), as the estimator's divergence.
     """
     N, n = len(log), log.n
     hat = np.zeros((N, n))
@@ -67,6 +68,10 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
             ok[k] = e.valid
     except EstimatorFault as exc:
         raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+    except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError, OverflowError) as exc:
+        # numerical breakdown inside an estimator step is divergence (a typed fault), not an internal error
+        raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): the estimator diverged "
+                             f"({type(exc).__name__}: {exc})") from None
     return ReplayResult(t=log.t.copy(), tau_h_act_hat=hat, tau_h_act_sigma=sig, tau_h_act_bound=bnd,
                         x_hat=xs, tau_h_act=None if log.tau_h_act is None else log.tau_h_act.copy(),
                         step_time_s=times, estimator=getattr(estimator, "name", type(estimator).__name__),

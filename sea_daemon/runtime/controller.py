@@ -47,6 +47,7 @@ class ScenarioController:
 
     ``estimation_from``: the sample k at which the estimation phase starts — 0 for a run of the
     estimation phase, the training length for a run of both phases, None for a training run.
+    ``reference``: a trajectory the PID tracks instead of the scenario's moves.
     ``hold``: the torque already holding the arm; the controller starts bumplessly from it
     (:meth:`start`, by default at the first update).  Without it (real hardware) it is the
     nominal model's static load torque at the first sample.  After each update :attr:`q_ref`
@@ -54,7 +55,7 @@ class ScenarioController:
     """
 
     def __init__(self, sc: Scenario, cfg: ModelConfig, hold: np.ndarray | None = None, *, delay: int = 0,
-                 estimation_from: int | None = 0):
+                 estimation_from: int | None = 0, reference=None):
         if delay not in (0, 1):
             raise ValueError(f"delay must be 0 or 1 (the hardware's actuation delay), got {delay!r}")
         self.n = cfg.joints
@@ -71,8 +72,11 @@ class ScenarioController:
         self.ol: OpenLoopTorque | None = None     # built at the start (τ_comp)
         if isinstance(self.spec, PIDSpec):
             tr = self.spec.trajectory
-            self.traj = MinJerkTrajectory(np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves,
-                                          cyclic=True, hold_s=tr.hold_s)
+            # ``reference``: another trajectory with reference(t) -> (q, q̇, q̈) tracked by the
+            # scenario's PID instead of its moves (the calibration excitation, calibrate --excitation)
+            self.traj = reference if reference is not None else MinJerkTrajectory(
+                np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves, cyclic=True,
+                hold_s=tr.hold_s)
             self.pid = PID(self.spec.kp, self.spec.ki, self.spec.kd, cfg.dt, self.limit, self.spec.velocity_filter_hz,
                            derivative=self.spec.derivative)
         self.q_ref = self.spec.q0

@@ -7,8 +7,14 @@ moves the joint, and the GP-AKF learns the load-side residual online in the fixe
 (bounded work per cycle: one LoG-GP update and its hyperparameter slice).  Then the model is
 saved atomically (versioned, checksummed, no pickle; :mod:`sea_daemon.io.gpmodel`) and the
 measured log (docs/interfaces.md §1 through the off-loop log writer) is kept as
-``DIR/calibration-<UTC time>.csv`` — the input of ``sea-daemon diagnose``; a configuration it
-writes (``model_augmented.yaml``) calibrates the same way.  A JSON summary goes to stdout, the
+``DIR/calibration-<UTC time>.csv`` — the input of ``sea-daemon diagnose`` and ``sea-daemon fit``; a
+configuration it writes (``model_augmented.yaml``) calibrates the same way.
+
+``--excitation`` drives the calibration excitation over the configuration's working range
+(``calibration`` section: moves spread over angles, speeds and accelerations) instead of the
+scenario's moves; ``--fit`` runs the whole calibration on the session's log (docs/calibration.md:
+noise, diagnose's physics, residual GP, process noise) and writes the calibrated model to
+MODEL.npz and the complete configuration to MODEL.yaml beside it.  A JSON summary goes to stdout, the
 progress bar to stderr.
 
 On the real bus the drives and encoder answer on ``hardware.bus``; ``--device-model`` starts the
@@ -38,6 +44,12 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="MODEL.npz", required=True, help="model file to write (atomically)")
     _daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--excitation", action="store_true",
+                   help="drive the calibration excitation over the configuration's calibration section "
+                        "(working range, speeds) instead of the scenario's moves")
+    p.add_argument("--fit", action="store_true",
+                   help="then the whole calibration on the session's log (as sea-daemon fit): MODEL.npz is the "
+                        "calibrated model and MODEL.yaml beside it the complete configuration")
 
 
 def run(args) -> int:
@@ -45,7 +57,9 @@ def run(args) -> int:
 
     from sea_daemon.runtime.service import StateFile
 
-    cfg, log_dir, state_dir, realtime = _daemon_args.load(args, outputs=[("--out", args.out)])
+    from pathlib import Path
+    outs = [("--out", args.out)] + ([("--out", Path(args.out).with_suffix(".yaml"))] if args.fit else [])
+    cfg, log_dir, state_dir, realtime = _daemon_args.load(args, outputs=outs)
     # one instance per state directory and bus, before the drives are touched
     with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
         code, summary, message = calibrate(
@@ -53,7 +67,8 @@ def run(args) -> int:
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
             rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
             progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config),
-            socket_path=_daemon_args.socket_path(args, state_dir))
+            socket_path=_daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
+            config_path=args.config)
     print(json.dumps(summary))
     if code:
         print(f"sea-daemon calibrate: {message}", file=sys.stderr)

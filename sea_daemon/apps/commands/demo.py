@@ -6,17 +6,19 @@ exoskeleton runs as CANopen devices (drive + load encoder, :mod:`drivers.device_
 scenario's true plant with its hidden effects, lock-step with SYNC) on a fresh virtual CAN bus,
 and the daemon talks to it through its own code paths:
 
-1. ``sea-daemon calibrate`` — the training phase (subject passive; the scenario's controller
-   moves the joint), the GP learned online in the fixed-rate loop, the model file saved;
-2. ``sea-daemon calibrate-bound`` — a second, held-out calibration session (the same moves,
-   independent noise: the scenario's seed + 1000) checks the configured β of the GP error bound
-   (``estimator.gp_beta``: the fraction of that session's steps its ρ_k covers); a configuration
-   without a number there gets the β calibrated on that session's torque error written in
-   (``--target torque``, docs/bounds.md §2c).  The run's configuration also has the scenario's
-   declared human-torque rate (``estimator.tau_h_act_rate``, §6) if it declares one;
-3. ``sea-daemon run --model`` — the estimation phase: the GP-AKF with the learned model runs
+1. ``sea-daemon calibrate --fit`` — the training phase (subject passive; the scenario's
+   controller moves the joint) from the nominal robot alone (the configuration's model and
+   hardware, no estimator settings; the scenario's declared human-torque rate if it declares
+   one), then the whole calibration on its log (docs/calibration.md: noise, diagnose's physics,
+   residual GP, process noise): ``<name>_model.npz`` and the complete ``<name>_model.yaml``;
+2. ``sea-daemon run --model`` — the estimation phase: the GP-AKF on the calibrated model runs
    online in the loop (the scenario's controller drives, the subject acts as the scenario says)
-   and publishes the Theorem-1 bound ρ_k with every estimate.
+   and publishes the Theorem-1 bound ρ_k (the guaranteed β of Lederer et al. 2019) with every
+   estimate.
+
+``--online-gp`` runs the GP learned online on the configured model instead: calibrate,
+``calibrate-bound`` on a held-out session (the same moves, the scenario's seed + 1000: it checks
+the configured β or calibrates one on that session's torque error, docs/bounds.md §2c), run.
 
 Then the daemon's measured log of the estimation phase, with the subject's true torque added
 (known from the device model), is replayed with the AKF and the spring-torque estimate, and the
@@ -56,6 +58,9 @@ HELD_OUT_MIN = 120
 
 def add_arguments(p) -> None:
     p.add_argument("--out", default="demo_out", help="output directory (default: demo_out)")
+    p.add_argument("--online-gp", action="store_true",
+                   help="the GP learned online on the configured model (and calibrate-bound's beta) instead of "
+                        "the calibration (calibrate --fit from the nominal robot)")
     p.add_argument("--scenario", action="append", choices=SCENARIOS, default=None,
                    help="run only this embedded scenario (repeatable; default: both)")
     p.add_argument("--config", default=str(repo_root() / "configs" / "exo_1dof_sim.yaml"),
@@ -113,8 +118,50 @@ def _daemon(argv: list[str]) -> dict:
     return summary
 
 
+def _online_gp(out: Path, name: str, sc, sc_path: str, cfg, cfg_path: Path, model: Path, common, logs: Path,
+               n_tr: int, per: float):
+    """``--online-gp``: calibrate (the GP learned online), calibrate-bound on a held-out session,
+    the run's configuration.  Returns (calibrate's JSON, calibrate-bound's JSON, run config)."""
+    from sea_daemon.io.configfile import save_config
+    cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
+    held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
+    hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
+                    "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, int(HELD_OUT_MIN * per)))])
+    run_cfg = out / f"{name}_config.yaml"
+    base_cfg = cfg_path
+    if sc.tau_h_act_rate is not None:
+        # what the experimenter declares about the subject: the bound's human-torque rate
+        base_cfg = out / f"{name}_declared.yaml"
+        save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
+    if isinstance(cfg.estimator.gp_beta, float):
+        # the configured β: the held-out session checks it, the run uses it
+        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
+        run_cfg = base_cfg
+    else:
+        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
+                         "--target", "torque", "--write", str(run_cfg)])
+    return cal, bound, run_cfg
+
+
+def _robot_config(cfg, sc, path: Path) -> None:
+    """The nominal robot a user starts from: the configuration's model and hardware, no
+    estimator, kinematics or learning settings (the calibration identifies them), and the
+    scenario's declared human-torque rate when it declares one."""
+    import yaml
+    d = cfg.to_dict()
+    for key in ("estimator", "kinematics", "learning"):
+        d.pop(key, None)
+    if sc.tau_h_act_rate is not None:
+        d["estimator"] = {"tau_h_act_rate": float(sc.tau_h_act_rate)}
+    atomic_write_text(path, "# sea-daemon demo: the nominal robot the calibration starts from\n"
+                      + yaml.safe_dump(json.loads(json.dumps(d)), sort_keys=False))
+
+
 def _beta_summary(bound: dict) -> dict:
     """What the run's β is and what the held-out session said about it (calibrate-bound's JSON)."""
+    if bound.get("lederer"):
+        return {"beta": "lederer", "source": "guaranteed (Lederer et al. 2019)",
+                "text": "guaranteed beta (Lederer et al. 2019) of the calibrated residual GP"}
     c = bound.get("configured")
     if c is not None:
         return {"beta": c["beta"], "source": "configured", "held_out_coverage": c["coverage"],
@@ -191,23 +238,17 @@ def run(args) -> int:
             return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
                     "--pace", args.pace, "--scenario", str(scenario), *rate_args]
         t0 = time.perf_counter()
-        cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
-        held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
-        hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
-                        "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, int(HELD_OUT_MIN * per)))])
-        run_cfg = out / f"{name}_config.yaml"
-        base_cfg = cfg_path
-        if sc.tau_h_act_rate is not None:
-            # what the experimenter declares about the subject: the bound's human-torque rate
-            base_cfg = out / f"{name}_declared.yaml"
-            save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
-        if isinstance(cfg.estimator.gp_beta, float):
-            # the configured β: the held-out session checks it, the run uses it
-            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
-            run_cfg = base_cfg
+        if args.online_gp:
+            cal, bound, run_cfg = _online_gp(out, name, sc, sc_path, cfg, cfg_path, model, common, logs, n_tr, per)
         else:
-            bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
-                             "--target", "torque", "--write", str(run_cfg)])
+            # the calibration from the nominal robot alone: calibrate --fit writes the model file
+            # and the complete configuration beside it
+            robot_cfg = out / f"{name}_robot.yaml"
+            _robot_config(cfg, sc, robot_cfg)
+            cal = _daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
+                           "--fit", "--no-progress"])
+            run_cfg = Path(cal["config_calibrated"])
+            bound = {"lederer": True}
         t1 = time.perf_counter()
         est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
         t2 = time.perf_counter()
@@ -225,6 +266,7 @@ def run(args) -> int:
         results = {}
         entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
                        "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
+                       "calibration": cal.get("calibration"),
                        "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
                        "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
                        "gp_beta": _beta_summary(bound),

@@ -1,7 +1,11 @@
-"""``sea-daemon replay LOG.csv --config MODEL.yaml [--train TRAIN.csv] --estimator E --out EST.csv``
+"""``sea-daemon replay LOG.csv --config MODEL.yaml [--train TRAIN.csv | --model MODEL.npz] --estimator E --out EST.csv``
 
 Runs an estimator over a measured log (docs/interfaces.md §1, §3), writes EST.csv and prints a JSON
-summary on stdout (``rmse`` when the log has ``tau_h_act``).
+summary on stdout (``rmse`` when the log has ``tau_h_act``).  gp-akf with ``--train`` runs the
+whole calibration on TRAIN.csv first (docs/calibration.md: noise, diagnose's physics, residual
+GP, process noise; the values the configuration gives are kept), with ``--model`` it loads a
+calibrated model (``sea-daemon fit``).  An estimator fault (a log that does not fit the model or
+its settings) is exit 2 with the sample and the reason.
 """
 from __future__ import annotations
 
@@ -9,8 +13,8 @@ import json
 import sys
 import time
 
-from sea_daemon.io.configfile import load_config
-from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import load_config, load_yaml
+from sea_daemon.errors import InputError, shown
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log, write_columns
@@ -25,7 +29,8 @@ DESCRIPTION = (
     "tau_h_act_sigma (and tau_h_act when the log has it, and the state estimates). Prints a JSON "
     "summary on stdout. akf: augmented-state EKF (Park et al.; paper Alg. 1) on the model of "
     "--config; spring: the spring torque tau_s; gp-akf: the AKF with the residual learned online "
-    "from --train (paper Alg. 2). An 'oracle' AKF is akf with the true plant's config as --config.")
+    "from --train (paper Alg. 2) after the whole calibration on it (docs/calibration.md), or a calibrated model "
+    "from --model (sea-daemon fit). An 'oracle' AKF is akf with the true plant's config as --config.")
 
 CHOICES = ("gp-akf", "akf", "spring")
 
@@ -36,21 +41,50 @@ def add_arguments(p) -> None:
                    help="training log with a passive human, learned before estimation (gp-akf)")
     p.add_argument("--estimator", choices=CHOICES, default="gp-akf", help="estimator (default: gp-akf)")
     p.add_argument("--out", metavar="EST.csv", required=True, help="where to write the estimates")
+    p.add_argument("--model", metavar="MODEL.npz", default=None,
+                   help="a calibrated model file (sea-daemon fit / calibrate) instead of --train (gp-akf)")
+
+
+def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=None):
+    """(estimator, calibration result or None).  gp-akf: with ``model_path`` the calibrated model
+    file; with ``train`` the whole calibration on it (:func:`~sea_daemon.apps.calibration.pipeline.calibrate_log`,
+    the values the configuration's YAML ``raw`` gives kept); the Theorem-1 bound on both."""
+    from sea_daemon.core.bounds.akf_bound import theorem_bound
+    if name == "gp-akf" and model_path is not None:
+        from sea_daemon.apps.calibration.modelio import estimator_from_model
+        from sea_daemon.io.gpmodel import load_gp_model
+        residual, meta = load_gp_model(model_path, cfg)
+        est = estimator_from_model(cfg, residual, meta, dt=dt, bound=theorem_bound)
+        if est is None:
+            raise InputError(f"--model {model_path}: not a calibrated model (write one with sea-daemon fit)")
+        return est, None
+    if name == "gp-akf":
+        from sea_daemon.apps.calibration.pipeline import calibrate_log
+        from sea_daemon.core.estimators.factory import RATE_TOLERANCE
+        if abs(train.dt - dt) > RATE_TOLERANCE * dt:
+            # the calibration identifies the differentiator's noise and the process noise at the log's rate
+            raise InputError(f"--train {shown(train.path)}: sample period {train.dt:.6g} s, the log's is {dt:.6g} s; "
+                             f"allowed within {100 * RATE_TOLERANCE:g} % (record both at one rate)")
+        result = calibrate_log(train, cfg, raw)
+        return result.estimator(dt=dt, bound=theorem_bound), result
+    return make_estimator(name, cfg, dt=dt), None
 
 
 def run(args) -> int:
-    check_outputs([("--out", args.out)], inputs=[args.log, args.config, args.train])
+    check_outputs([("--out", args.out)], inputs=[args.log, args.config, args.train, args.model])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     train = read_log(args.train, n=cfg.joints, min_rows=2) if args.train else None
     if train is not None and args.estimator != "gp-akf":
         print(f"sea-daemon replay: note: --train is used only by gp-akf; ignored for {args.estimator}",
               file=sys.stderr)
-    if args.estimator == "gp-akf" and train is None:
+    if args.estimator == "gp-akf" and train is None and args.model is None:
         raise InputError("--estimator gp-akf needs --train TRAIN.csv (a log with a passive subject "
-                         "to learn the residual from)")
-    # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (gp-akf: GP error constants from the trained LoG-GPs)
-    est = make_estimator(args.estimator, cfg, dt=log.dt, train=train if args.estimator == "gp-akf" else None)
+                         "to calibrate on) or --model MODEL.npz (a calibrated model, sea-daemon fit)")
+    if args.estimator == "gp-akf" and train is not None and args.model is not None:
+        raise InputError("--train and --model: give one (--train calibrates, --model loads a calibration)")
+    # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (gp-akf: GP error constants from the calibrated LoG-GPs)
+    est, cal = build_estimator(args.estimator, cfg, log.dt, train, load_yaml(args.config), args.model)
     res = replay(log, est, clock=time.perf_counter)
     res.estimator = args.estimator
     try:
@@ -58,10 +92,18 @@ def run(args) -> int:
     except OSError as e:
         raise InputError(f"--out {args.out}: cannot write: {e.strerror or e}") from None
     extra = {}
-    if getattr(est, "gp", None) is not None and train is not None:
-        # GP-AKF: what was learned from --train (one LoG-GP per joint)
-        extra["train"] = {"log": str(args.train), "pairs": int(est.n_learned),
-                          "leaves": [int(g.n_leaves) for g in est.gp.gps]}
+    if cal is not None:
+        # what the calibration on --train identified, in numbers and plain words
+        from sea_daemon.apps.calibration.modelio import summary as cal_summary
+        extra["calibration"] = _jsonable(cal_summary(cal))
+        extra["train"] = {"log": str(args.train)}
+    if hasattr(est, "n_outside"):
+        # samples whose z = [q, q̇, q̈] left the region the calibration data covered
+        extra["outside_covered_share"] = est.n_outside / max(len(log) - 1, 1)
     summary = summarize(res, log=str(args.log), config=str(args.config), out=str(args.out), **extra)
     print(json.dumps(summary))
     return 0
+
+
+def _jsonable(x):
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else float(o)))

@@ -68,7 +68,13 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
     residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
     # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
     # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
-    estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
+    # a calibrated model (sea-daemon fit, calibrate --fit): the GP-AKF on the augmented model with
+    # the variance-weighted residual (the AKF when the calibration kept no GP)
+    from sea_daemon.apps.calibration.modelio import estimator_from_model
+    from sea_daemon.core.bounds.akf_bound import theorem_bound
+    estimator = estimator_from_model(cfg, residual, meta, dt=cfg.dt, bound=theorem_bound)
+    if estimator is None:
+        estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
     sc = load_scenario(scen) if scen else None

@@ -121,7 +121,7 @@ class AKFTheoremBound:
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
-        # order reduction at most every REDUCE_PERIOD_S (setmember): 1 at 100 Hz, 10 at 1 kHz
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
         self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._I = np.eye(d)
         m = akf.model
@@ -190,6 +190,7 @@ class AKFTheoremBound:
             self.refresh_gp_constants()
         self.sm.reset()
         self.gp_box_violations_ = 0
+        self.saturated_ = 0
         if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
@@ -221,6 +222,10 @@ class AKFTheoremBound:
 
     def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
         """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
+        tables = getattr(self.akf, "_tables", None)
+        if tables is not None:
+            # the same, compiled over all the points at once (model_core)
+            return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
         f_nom = self.akf.model.f_nom
         f0 = f_nom(x0, u)
         b = np.zeros(self.akf.d)
@@ -351,6 +356,7 @@ class AKFTheoremBound:
         self.gp_box_violations_ += int(out)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
+        self._saturate(est)
 
     def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
         """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same
@@ -436,6 +442,17 @@ class AKFTheoremBound:
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
+        self._saturate(est)
+
+    def _saturate(self, est) -> None:
+        """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no
+        guarantee any more (its linearisation error grew faster than the filter contracts it,
+        e.g. a steep friction at standstill): it is held at the caps — finite, counted in
+        :attr:`saturated_` — instead of growing to overflow."""
+        caps = getattr(self.akf, "_P_max", None)
+        if caps is not None and self.sm.saturate(np.sqrt(caps)):
+            self.saturated_ += 1
+            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
 
 def theorem_bound(akf) -> AKFTheoremBound | None:

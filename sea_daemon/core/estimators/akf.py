@@ -43,10 +43,11 @@ from sea_daemon.core.jit import warm_up
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
+from sea_daemon.core.model_core import ModelTables
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
-from sea_daemon.core.estimators.health import CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
+from sea_daemon.core.estimators.health import CovarianceDiverged, CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 from sea_daemon.errors import EstimatorFault
 
 
@@ -57,6 +58,11 @@ MAX_GAP = 10.0
 class SampleGap(EstimatorFault):
     """A step much longer than the period (a gap in a log); raised before the filter moves."""
 
+
+#: caps of bounded P (standard deviations): angles [rad], velocities [rad/s], τ_h,act [× hardware.torque_limit]
+P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE = 1.0, 50.0, 10.0
+#: a predicted variance beyond this many times its cap is divergence (the typed fault)
+DIVERGED = 1e12
 
 #: the start-up gate (:meth:`AKF._gate`): the estimate is valid once what is left of the initial
 #: error is at most this share of the published bound
@@ -150,6 +156,11 @@ class AKF:
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
+        # bounded P: caps of the variances of [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] (akf_core.cap_covariance)
+        lim = float(cfg.hardware.torque_limit)
+        self._P_max = np.repeat([P_CAP_ANGLE ** 2, P_CAP_ANGLE ** 2, P_CAP_VEL ** 2, P_CAP_VEL ** 2,
+                                 (P_CAP_TORQUE * lim) ** 2], n)
+        self.n_capped = 0
         # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
         self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale)
         # --- input history for the declared delay (τ_m(t − delay), linear interpolation
@@ -167,6 +178,12 @@ class AKF:
         # affine in x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of
         # F_nom and f_nom are built once here (same values as SEAModel.F_nom / f_nom).
         self._affine = not self.model.effects
+        self._no_offsets = not (np.any(self.model.offset_load) or np.any(self.model.offset_motor))
+        # declared effects: F_nom / f_nom compiled (model_core, through effects.evaluate; equal to
+        # SEAModel.F_nom / f_nom)
+        self._tables = None
+        if not self._affine and ModelTables.supports(self.model):
+            self._tables = ModelTables(self.model)
         if self._affine:
             m_ = self.model
             # F_nom at q = 0 contains −M⁻¹ diag(g cos 0) in the θ̈_s rows; add it back
@@ -204,7 +221,7 @@ class AKF:
     def measure(self, q, theta_m) -> np.ndarray:
         """y = [θ_m, θ_s, θ̇_m, θ̇_s] from raw encoder angles (updates the differentiator)."""
         n = self.n
-        if self._affine:                    # no declared effects, so no encoder offsets
+        if self._no_offsets:                # no declared encoder offsets: the angles as read
             self._ang[:n] = q
             self._ang[n:] = theta_m
         else:
@@ -408,6 +425,9 @@ class AKF:
         x = self.x
         if self._affine:
             self._nominal_affine(x, np.asarray(u, dtype=float))
+        elif self._tables is not None:
+            # Alg. 1 line 3 / eq:nonlindyn, eq:linearization with the declared effects (compiled)
+            self._tables.f_and_F(x, np.asarray(u, dtype=float), self.A_k, self.xdot_k)
         else:
             # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
             self.A_k[:] = self.model.F_nom(x, u)
@@ -442,6 +462,15 @@ class AKF:
             raise EstimatorNonFinite(f"AKF step {k}: state or covariance became non-finite "
                                      f"(non-finite measurement or diverging model/noise settings)")
         self.nis = nis
+        # bounded P (akf_core.cap_covariance): no variance beyond its physical cap; a prior far
+        # beyond the caps means the linearised model expands the covariance without bound: a
+        # typed fault with the step and the reason, never an overflow later
+        pmax = float(np.max(np.diag(self.P_prior) / self._P_max))
+        if not pmax < DIVERGED:
+            raise CovarianceDiverged(f"AKF step {self.est.k + 1}: the predicted covariance is {pmax:.3g} x its "
+                                     f"physical cap (the linearised model diverges: check the model, R, "
+                                     f"Sigma_nom, or a log that does not fit the model)")
+        self.n_capped += akf_core.cap_covariance(self.P, self._P_max)
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1

@@ -271,6 +271,26 @@ def input_noise(A, B, dt, var_u, S_base, Gam_u, S):
             S[i, j] = S_base[i, j] + var_u * s
 
 
+@njit
+def cap_covariance(P, P_max) -> int:
+    """Bounded P: where a variance exceeds its cap, scale its row and column so that it equals
+    the cap, P ← D P D with D = diag(min(1, √(P_max,i / P_ii))) (symmetric, positive
+    semi-definite and with its correlations kept).  Returns how many variances were capped
+    (0 in normal operation: the caps are physical limits of the state)."""
+    d = P.shape[0]
+    n_cap = 0
+    D = np.ones(d)
+    for i in range(d):
+        if P[i, i] > P_max[i]:
+            D[i] = math.sqrt(P_max[i] / P[i, i])
+            n_cap += 1
+    if n_cap:
+        for i in range(d):
+            for j in range(d):
+                P[i, j] *= D[i] * D[j]
+    return n_cap
+
+
 @warmer
 def _warm() -> None:
     """Compile with the types the AKF passes (1 joint; shapes do not change the types)."""
@@ -286,3 +306,4 @@ def _warm() -> None:
     residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
     fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())
     input_noise(np.eye(d), np.ones((d, n)), 0.01, 1e-4, np.eye(d), np.zeros((d, n)), np.zeros((d, d)))
+    cap_covariance(np.eye(d), np.ones(d))

@@ -185,6 +185,10 @@ class GPAKF(AKF):
             # declared effects: f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m)
             akf_core.residual_affine(ang[:n], vel[:n], acc[:n], vel[n:], acc[n:], tau, m.M, m.gravity,
                                      m.J, m.D_m, self.f_train)
+        elif self._tables is not None:
+            # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects (compiled)
+            self._tables.residual(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:],
+                                  np.ascontiguousarray(tau, dtype=float), self.f_train)
         else:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects included
             self.f_train[:] = m.residual_from_kinematics(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:], tau)

@@ -55,6 +55,12 @@ class CovarianceNotPD(EstimatorFault):
     fault = Fault.COVARIANCE_NOT_PD
 
 
+class CovarianceDiverged(EstimatorFault):
+    """The predicted covariance grew far beyond its physical caps: the linearised model diverges."""
+
+    fault = Fault.COVARIANCE_NOT_PD
+
+
 def check_pd(P: np.ndarray, what: str = "P", step: int | None = None, full: bool = True) -> None:
     """Raise :class:`EstimatorFault` unless ``P`` is finite, symmetric and positive definite.
 

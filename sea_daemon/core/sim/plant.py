@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.effects import MAX_PARAMS, Gravity, deadband, side_torque
+from sea_daemon.core.effects import MAX_PARAMS, Effect, Gravity, deadband, side_torque
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
@@ -63,6 +63,11 @@ class Plant:
         vocabulary that the load must overcome (for tests and benchmarks: an effect no model
         can name).  Not part of the static equilibrium at q0; the plant then integrates on the
         generic path.
+    extra_held : evaluate ``extra_load_torque`` once per :meth:`step`, at the state the step
+        starts from, and hold it over the step like τ_h,act (zero-order hold; it then enters
+        eq:unknwn_load as −f on the τ_h,act side, and the compiled one-joint path applies).
+        The discrete-time model the estimator predicts with holds its residual over the
+        sample the same way (eq:fwdynwtorqueresidual1).
 
     ``step(tau_m, dt, tau_h_act)`` advances by dt with the commanded torque held; the
     applied torque is clip(tau_m, ±torque_limit) + noise (then κ and the delay act).
@@ -70,7 +75,8 @@ class Plant:
 
     def __init__(self, cfg: ModelConfig, q0=0.0, seed: int | None = None, *,
                  substep_hz: float = SUBSTEP_HZ, sign_eps: float = PLANT_SIGN_EPS,
-                 torque_noise: float | None = None, tau_h_act0=0.0, extra_load_torque=None):
+                 torque_noise: float | None = None, tau_h_act0=0.0, extra_load_torque=None,
+                 extra_held: bool = False):
         self.cfg = cfg
         self.model = SEAModel(cfg.model, sign_eps=sign_eps)
         m = self.model
@@ -96,8 +102,16 @@ class Plant:
         # input history for the delay effect: start times and applied torques
         self._hist_t: list[float] = [-math.inf]
         self._hist_u: list[np.ndarray] = [tau_hold.copy()]
-        self.extra_load_torque = extra_load_torque
-        self._scalar = n == 1 and extra_load_torque is None
+        #: the held residual (evaluated per step) or the one evaluated in every RK4 stage
+        self._extra_held = extra_load_torque if extra_held else None
+        self.extra_load_torque = None if extra_held else extra_load_torque
+        # the compiled substeps know the vocabulary's effects (codes of effects.evaluate); an
+        # effect that evaluates itself (outside the vocabulary) takes the model's sums
+        #: load effects that evaluate themselves: added at every RK4 stage in Python around
+        #: the compiled accelerations (:meth:`_rk4_outside`)
+        self._py_load = tuple(e for e in m.load_effects if type(e).evaluate is not Effect.evaluate)
+        self._scalar = n == 1 and self.extra_load_torque is None and \
+            all(type(e).evaluate is Effect.evaluate for e in (*m.motor_effects, *m.spring_effects))
         if self._scalar:
             self._compile_scalar()
 
@@ -175,15 +189,18 @@ class Plant:
                     v = np.zeros(n)
                     v[j] = ts
                     return m.spring_torque(v, z)[j] - target[j]
-                lo_b, hi_b = -0.5, 0.5
-                for _ in range(60):        # τ_s is non-decreasing and unbounded in θ_s
-                    if g(lo_b) <= 0:
+                # a bracket grown symmetrically around the linear spring's deflection: the root
+                # nearest to it (an identified spring effect may bend τ_s back far out, e.g. a
+                # softening cubic, where a second, unphysical root lies)
+                t0 = target[j] / K[j, j]
+                d = 1e-3 + 0.1 * abs(t0)
+                for _ in range(80):
+                    lo_b, hi_b = t0 - d, t0 + d
+                    if g(lo_b) <= 0 <= g(hi_b):
                         break
-                    lo_b *= 2
-                for _ in range(60):
-                    if g(hi_b) >= 0:
-                        break
-                    hi_b *= 2
+                    d *= 2
+                else:
+                    raise ValueError(f"no static equilibrium of the spring at q = {q[j]:g} rad")
                 th_s[j] = brentq(g, lo_b, hi_b, xtol=1e-14, rtol=1e-14)
         else:
             sol = root(lambda ts: m.spring_torque(ts, z) - target, np.linalg.solve(K, target), tol=1e-14)
@@ -198,6 +215,10 @@ class Plant:
 
     def step(self, tau_m, dt: float, tau_h_act=0.0) -> None:
         """Advance by dt [s] with the commanded motor torque and τ_h,act held (ZOH)."""
+        if self._extra_held is not None:
+            # eq:unknwn_load: M q̈ + ... + f = τ_h,act, f held over the step
+            f = np.asarray(self._extra_held(self.q, self.dq), dtype=float)
+            tau_h_act = np.broadcast_to(np.asarray(tau_h_act, dtype=float), (self.n,)) - f
         if self._scalar and not self.model.delay[0]:
             self._step_scalar(tau_m, dt, tau_h_act)
             return
@@ -252,9 +273,40 @@ class Plant:
         k = max(1, int(math.ceil(dt / self.h_max - 1e-9)))
         y = self._s_y
         y[:] = self._y
-        _rk4_1(y, u, th, dt / k, k, self._s_c, *self._s_sides)
+        if self._py_load:
+            self._rk4_outside(y, u, th, dt / k, k)
+        else:
+            _rk4_1(y, u, th, dt / k, k, self._s_c, *self._s_sides)
         self._y = y.copy()
         self.t = self.t + dt
+
+    def _rk4_outside(self, y, u: float, tau_h: float, h: float, k: int) -> None:
+        """:func:`_rk4_1` with the load effects outside the compiled vocabulary evaluated in
+        Python at every stage: their torque f enters eq:unknwn_load on the τ_h,act side,
+        M q̈ = (τ_h,act − f) − Σ_compiled − τ_s (what ``SEAModel.accelerations`` sums)."""
+        c, sides, eff = self._s_c, self._s_sides, self._py_load
+
+        def acc(q, th, dq, dth):
+            f = 0.0
+            for e in eff:
+                f += e.evaluate(q, dq, 0.0)[0]
+            return _accel_1(q, th, dq, dth, u, tau_h - f, c, *sides)
+
+        q, th, dq, dth = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+        h2 = 0.5 * h
+        for _ in range(k):
+            a1q, a1t = acc(q, th, dq, dth)
+            v2q, v2t = dq + h2 * a1q, dth + h2 * a1t
+            a2q, a2t = acc(q + h2 * dq, th + h2 * dth, v2q, v2t)
+            v3q, v3t = dq + h2 * a2q, dth + h2 * a2t
+            a3q, a3t = acc(q + h2 * v2q, th + h2 * v2t, v3q, v3t)
+            v4q, v4t = dq + h * a3q, dth + h * a3t
+            a4q, a4t = acc(q + h * v3q, th + h * v3t, v4q, v4t)
+            q += h / 6.0 * (dq + 2.0 * v2q + 2.0 * v3q + v4q)
+            th += h / 6.0 * (dth + 2.0 * v2t + 2.0 * v3t + v4t)
+            dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
+            dth += h / 6.0 * (a1t + 2.0 * a2t + 2.0 * a3t + a4t)
+        y[0], y[1], y[2], y[3] = q, th, dq, dth
 
     def _delayed_input(self, t: float) -> np.ndarray:
         """Applied torque reaching the motor at time t: u(t − delay) from the ZOH history."""
@@ -300,7 +352,7 @@ class Plant:
                               0.5 * bl.width if bl is not None else 0.0])
         # C(q) = gravity·sin(q) (eq:unknwn_load) is a gravity effect of the load side here
         link = [Gravity("load", a=float(m.gravity[0]))] if m.gravity[0] else []
-        self._s_load = _side_arrays(link + list(m.load_effects))
+        self._s_load = _side_arrays(link + [e for e in m.load_effects if all(e is not p for p in self._py_load)])
         self._s_motor = _side_arrays(m.motor_effects)
         self._s_spring = _side_arrays(m.spring_effects)
         self._s_y = np.zeros(4)
@@ -310,8 +362,10 @@ class Plant:
         _rk4_1(self._s_y.copy(), 0.0, 0.0, self.h_max, 0, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
 
     def _deriv_scalar(self, q, th, dq, dth, u, tau_h) -> tuple[float, float]:
-        """(q̈, θ̈_m) of the one joint (:func:`_accel_1`)."""
-        return _accel_1(q, th, dq, dth, u, tau_h, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
+        """(q̈, θ̈_m) of the one joint (:func:`_accel_1`, the load effects outside the compiled
+        vocabulary on the τ_h,act side as in :meth:`_rk4_outside`)."""
+        f = sum(e.evaluate(q, dq, 0.0)[0] for e in self._py_load)
+        return _accel_1(q, th, dq, dth, u, tau_h - f, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
 
     def _integrate_scalar(self, t0: float, h: float, k: int) -> None:
         y = self._s_y
@@ -322,7 +376,12 @@ class Plant:
             for i in range(k):
                 # input held over the substep, evaluated at its midpoint for the delay lookup
                 u = float(self._delayed_input(t0 + i * h + 0.5 * h)[0])
-                _rk4_1(y, u, tau_h, h, 1, self._s_c, *sides)
+                if self._py_load:
+                    self._rk4_outside(y, u, tau_h, h, 1)
+                else:
+                    _rk4_1(y, u, tau_h, h, 1, self._s_c, *sides)
+        elif self._py_load:
+            self._rk4_outside(y, float(self._hist_u[-1][0]), tau_h, h, k)
         else:
             _rk4_1(y, float(self._hist_u[-1][0]), tau_h, h, k, self._s_c, *sides)
         self._y = y.copy()

@@ -1,8 +1,15 @@
-"""The calibration phase on the hardware: the daemon's controller moves the joint (passive
-subject), the GP-AKF learns the residual online in the fixed-rate loop, the model file is saved.
+"""Calibration: the daemon's calibration phase on the hardware and the calibration of a log.
 
-:func:`calibrate` is what ``sea-daemon calibrate`` runs and what other applications (the loop
-benchmark, the demo) call for a calibrated model.
+:func:`calibrate` is the calibration phase that ``sea-daemon calibrate`` runs and other
+applications (the loop benchmark, the demo) call: the daemon's controller moves the joint
+(passive subject) — the scenario's moves or the calibration excitation over the configured
+working range (``excitation``) — the GP-AKF learns the residual online in the fixed-rate loop and
+the model file is saved; with ``fit`` the whole calibration of :mod:`.pipeline` runs on the
+session's log instead and the model file is the calibrated model (:mod:`.modelio`).
+
+:mod:`.pipeline` — one calibration from a passive log and the nominal model (noise, diagnose's
+physics, residual GP, process noise); :mod:`.noise` — its noise identification; :mod:`.modelio`
+— the calibrated model on disk (docs/calibration.md).
 """
 from __future__ import annotations
 
@@ -58,8 +65,15 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
               state: StateFile | None = None, cycles: int | None = None, sim: str | None = None,
               device_model: str | None = None, realtime: bool = True, rt_priority: int | None = 80,
               supervisor: SafetySupervisor | None = None, progress: bool = False,
-              config_name: str = "<memory>", socket_path: Path | None = None) -> tuple[int, dict, str]:
+              config_name: str = "<memory>", socket_path: Path | None = None, excitation: bool = False,
+              fit: bool = False, config_path: str | Path | None = None) -> tuple[int, dict, str]:
     """Run the training phase and save the model to ``out``.
+
+    ``excitation``: the PID tracks the calibration excitation over ``cfg.calibration``'s working
+    range (:func:`excitation_reference`) instead of the scenario's moves.  ``fit``: the whole
+    calibration (:func:`.pipeline.calibrate_log`, values ``config_path`` gives kept) on the
+    session's log; ``out`` is then the calibrated model and ``out`` with ``.yaml`` the complete
+    configuration beside it.
 
     ``state``: the claimed :class:`~sea_daemon.runtime.service.StateFile` the pid file goes to
     (None: none).  Returns ``(exit status, JSON summary, message)``: 0 with the model saved; 1
@@ -72,10 +86,15 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     if sc.nominal.joints != cfg.joints:
         raise InputError(f"--scenario {scenario}: {sc.nominal.joints} joint(s), the configuration has {cfg.joints}")
     cycles = cycles or sc.training_samples
+    reference = None
+    if excitation:
+        reference = excitation_reference(cfg, sc.controller.q0)
+        cycles = cycles if cycles != sc.training_samples else int(round(reference.duration / cfg.dt))
     # the training phase (ass:passive_human): learning on in every cycle
     estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, learning=True, bound=False)
     rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
-    controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=None)
+    controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=None,
+                                    reference=reference)
     bar = _Progress(cycles, progress, estimator)
     from sea_daemon.runtime.publish import make_publisher
     publisher = make_publisher(rig, cfg, controller, socket_path=socket_path)
@@ -101,8 +120,42 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     if res.log["error"]:
         return 1, summary, (f"log incomplete, {res.log['rows_lost']} rows lost ({res.log['error']}); "
                             f"model not saved")
+    if fit:
+        return _fit(out, log_path, cfg, config_path, summary, rig.description, st.cycles)
     save_gp_model(out, cfg, estimator.gp, {
         "command": "calibrate", "scenario": str(scenario), "config": config_name, "log": str(log_path),
         "hardware": rig.description, "cycles": st.cycles, "pairs_learned": estimator.n_learned})
     summary["model"] = str(out)
+    return 0, summary, ""
+
+
+def excitation_reference(cfg: ModelConfig, q0: float):
+    """The calibration excitation (:func:`~sea_daemon.core.excitation.excitation`) over the
+    configuration's ``calibration`` working range, from ``q0``; without one declared, 10°–90°."""
+    import math
+
+    from sea_daemon.core.excitation import WorkingRange, excitation
+    c = cfg.calibration
+    lo = math.radians(c.q_min_deg if c.q_min_deg is not None else 10.0)
+    hi = math.radians(c.q_max_deg if c.q_max_deg is not None else 90.0)
+    return excitation(WorkingRange(lo, hi, c.v_max, c.a_max), c.duration_s, seed=c.seed, q0=float(q0))
+
+
+def _fit(out, log_path: Path, cfg: ModelConfig, config_path, summary: dict, hardware: str,
+         cycles: int) -> tuple[int, dict, str]:
+    """The whole calibration on the session's log: ``out`` (model file) and ``out``.yaml."""
+    from sea_daemon.apps.calibration.modelio import save_calibrated, summary as cal_summary
+    from sea_daemon.apps.calibration.pipeline import calibrate_log
+    from sea_daemon.io.configfile import load_yaml
+    from sea_daemon.io.logcsv import read_log
+    raw = load_yaml(config_path) if config_path is not None else None
+    result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw)
+    yaml_path, npz_path = save_calibrated(Path(out).with_suffix(""), result,
+                                          {"command": "calibrate --fit", "log": str(log_path),
+                                           "hardware": hardware, "cycles": cycles})
+    s = cal_summary(result)
+    for line in s["text"]:
+        print(line, file=sys.stderr)
+    summary.update({"model": str(npz_path), "config_calibrated": str(yaml_path),
+                    "calibration": {k: v for k, v in s.items() if k != "text"}})
     return 0, summary, ""

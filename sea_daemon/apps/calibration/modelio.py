@@ -1,0 +1,98 @@
+"""The calibrated model on disk: ``OUT.yaml`` (the complete configuration) + ``OUT.npz``.
+
+``OUT.yaml`` is an ordinary model configuration (docs/interfaces.md §2): the nominal robot with the
+effects ``diagnose`` found, the identified R, process noise, kinematics and GP hyperparameters,
+with a header saying what was identified and what was given.  ``OUT.npz`` is the model file
+of :mod:`sea_daemon.io.gpmodel` (versioned, checksummed, atomic): the residual GP (empty when
+the calibration kept none) with, in its provenance, ``calibration`` = the coverage map, whether
+the GP is used, and the calibration's summary.  ``sea-daemon run --config OUT.yaml --model
+OUT.npz`` and ``replay`` load both.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.estimators.calibrated import CalibratedAKF, CalibratedGPAKF
+from sea_daemon.core.excitation import Coverage
+from sea_daemon.core.learning import ResidualGP
+from sea_daemon.io.configfile import save_config
+from sea_daemon.io.gpmodel import save_gp_model
+
+
+def _jsonable(x):
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else float(o)))
+
+
+def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) -> tuple[Path, Path]:
+    """Write ``prefix.yaml`` and ``prefix.npz``; returns their paths."""
+    prefix = Path(prefix)
+    yaml_path, npz_path = prefix.with_suffix(".yaml"), prefix.with_suffix(".npz")
+    rep = result.report
+    header = ["sea-daemon calibration of " + str(rep.get("log")) + ": the complete model",
+              "identified: " + ", ".join(k for k in ("kinematics", "R", "effects", "tau_m_noise", "Sigma_nom", "learning")
+                                         if k not in rep.get("given", []))]
+    if rep.get("given"):
+        header.append("kept as given: " + ", ".join(rep["given"]))
+    save_config(result.cfg, yaml_path, header="\n".join(header))
+    gp = result.gp if result.gp is not None else ResidualGP.from_config(result.cfg)
+    prov = {"command": "calibration", **(provenance or {}),
+            "calibration": {"gp_used": result.gp is not None, "coverage": result.coverage.to_dict(),
+                            "gp_v_gate": float(result.report.get("gp_v_gate", 0.0)),
+                            "summary": _jsonable(summary(result))}}
+    save_gp_model(npz_path, result.cfg, gp, prov)
+    return yaml_path, npz_path
+
+
+def estimator_from_model(cfg: ModelConfig, residual, meta: dict, dt: float | None = None, bound=None):
+    """The estimator a calibrated model file describes (GP-AKF with the weighted residual, or
+    the AKF when the calibration kept no GP); ``None`` if the file is not a calibration's.
+    ``bound``: a bound factory (:class:`~sea_daemon.core.estimators.akf.AKF`)."""
+    cal = (meta.get("provenance") or {}).get("calibration")
+    if not cal:
+        return None
+    cov = Coverage.from_dict(cal["coverage"])
+    if cal.get("gp_used"):
+        return CalibratedGPAKF(cfg, residual, dt=dt, coverage=cov, v_gate=float(cal.get("gp_v_gate", 0.0)),
+                               bound=bound)
+    return CalibratedAKF(cfg, dt=dt, coverage=cov, bound=bound)
+
+
+def summary(result) -> dict:
+    """What was identified and the expected accuracy, as numbers and plain sentences."""
+    rep = result.report
+    cfg = result.cfg
+    n = cfg.joints
+    eff = rep.get("diagnose", {}).get("effects_added", [])
+    walk = rep.get("tau_h_act_walk", {})
+    chosen = walk.get("chosen") or {}
+    cov = rep.get("coverage", {})
+    lines = []
+    lines.append(f"Measurement noise R: {'given' if 'R' in rep.get('given', []) else 'identified'} "
+                 f"(velocity std {np.sqrt(np.diag(cfg.estimator.R))[2 * n:].round(4).tolist()} rad/s).")
+    if eff:
+        names = ", ".join(f"{d['type']} ({d['side']})" for d in eff)
+        lines.append(f"Physical effects found by diagnose and added to the model: {names}; the residual fell "
+                     f"from {rep['diagnose']['residual_rms_before']:.3g} to {rep['diagnose']['residual_rms_after']:.3g} N m RMS.")
+    else:
+        lines.append("diagnose found no effect to add: the configured model explains the log.")
+    lines.append(f"Motor-torque noise: {cfg.estimator.tau_m_noise:.3g} N m.")
+    if "q_tau" in walk:
+        h = walk["human"]
+        lines.append(f"Active-torque random walk {walk['q_tau']:.3g} N^2 m^2/s, chosen for a subject torque of "
+                     f"{h['band_hz'][0]:g}-{h['band_hz'][1]:g} Hz at {h['rms']:g} N m RMS.")
+    lines.append(f"What the physical model leaves: {rep['leftover']['rms']:.3g} N m RMS; residual GP "
+                 f"{'kept' if rep.get('gp_kept') else 'not used (it did not predict the leftover better than zero on held-out parts of the log)'}.")
+    lines.append(f"The log covers {100 * cov.get('q_qdot_share', 0):.0f} % of the (angle, speed) box of the working range "
+                 f"({100 * cov.get('box_share', 0):.0f} % of (angle, speed, acceleration)); estimation flags samples outside it.")
+    if chosen:
+        lines.append(f"Expected accuracy (the identified model replayed with synthetic subjects): RMSE "
+                     f"{chosen.get('synthetic_moving', float('nan')):.3g} N m with an active subject while moving, "
+                     f"{chosen.get('synthetic_still', float('nan')):.3g} N m with the arm held still, "
+                     f"{chosen.get('passive_log', float('nan')):.3g} N m on this passive log.")
+    return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff],
+            "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
+            "coverage": cov, "expected_rmse": {k: chosen.get(k) for k in ("synthetic_moving", "synthetic_still", "passive_log")}}

@@ -1,0 +1,546 @@
+"""One calibration from one passive log and the nominal robot model: nothing hand-tuned.
+
+    from sea_daemon.apps.calibration.pipeline import calibrate, CalibrationOptions
+    result = calibrate(log, cfg, given=given_keys(raw_yaml))
+    est = result.estimator()            # the GP-AKF on the calibrated model
+
+In this order (each step uses what the previous ones identified; a value the configuration
+gives is kept, see :func:`given_keys`):
+
+1. kinematics (:func:`~.noise.choose_kinematics`) and measurement noise R
+   (:func:`~.noise.measurement_noise`: ALS on the encoder angles, made robust, plus the
+   differentiator's velocity error measured on the log);
+2. the physical model: ``diagnose`` on the log → the nominal model with the effects it finds
+   (the augmented model, ``model_augmented.yaml``);
+3. the motor-torque noise σ_u (:func:`~.noise.motor_torque_noise`) on the augmented model;
+4. the τ_h,act random walk q_τ (:func:`human_walk`): the identified model replayed with
+   synthetic human torques of the declared band and size; the friction-sign smoothing on the
+   real passive log;
+5. the residual GP (LoG-GP) on what the augmented model leaves: hyperparameters by maximum
+   likelihood on a subsample of the training pairs (σ_f then is the size of that leftover, so
+   the GP error bound shrinks with it), learned online over the log by the GP-AKF itself;
+   kept only if blocked cross-validation shows it predicts the leftover better than zero
+   (``gp='auto'``);
+6. the coverage of (q, q̇, q̈) by the log's data (:class:`~.excitation.Coverage`) and the
+   expected accuracy (the synthetic replay's RMSE at the chosen q_τ, passive and active).
+
+Pure numerics and simulation: no files (the commands write them).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from sea_daemon.apps.calibration.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.core.config import LearningConfig, ModelConfig
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
+from sea_daemon.core.estimators.health import NISMonitor
+from sea_daemon.core.estimators.weighted import WeightedResidual
+from sea_daemon.core.excitation import Coverage, WorkingRange
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.errors import EstimatorFault, InputError
+
+#: estimator keys whose presence in the YAML means "given, keep it"
+ESTIMATOR_KEYS = ("R", "Sigma_nom", "tau_m_noise", "sign_eps")
+
+
+@dataclass(frozen=True)
+class HumanSpec:
+    """What the user declares about the subject's active torque: its band [Hz] and RMS [N m]."""
+
+    band_hz: tuple[float, float] = (0.1, 1.0)
+    rms: float = 1.5
+
+    @property
+    def rate(self) -> float:
+        """A bound of |dτ_h,act/dt| for a torque of this band and size [N m/s] (2π f_max √2 RMS)."""
+        return 2.0 * math.pi * self.band_hz[1] * math.sqrt(2.0) * self.rms
+
+
+@dataclass
+class CalibrationOptions:
+    human: HumanSpec = field(default_factory=HumanSpec)
+    working_range: WorkingRange | None = None     # default: the log's own range
+    gp: str = "auto"                               # auto | on | off
+    gp_cv_gain: float = 0.1                        # auto: held-out MSE must fall by this share
+    q_tau_grid: tuple[float, ...] = tuple(np.geomspace(1e-3, 1e2, 11))
+    synth_s: float = 20.0                          # length of each synthetic session [s]
+    seed: int = 0
+    weight_power: float = 2.0
+    hyper_points: int = 400                        # subsample for the ML hyperparameters
+    diagnose: bool = True
+
+
+@dataclass
+class CalibrationResult:
+    cfg: ModelConfig                  # the complete model: augmented physics + identified noise
+    gp: object | None                 # ResidualGP or None (physics alone)
+    coverage: Coverage
+    report: dict
+    options: CalibrationOptions
+
+    def estimator(self, dt: float | None = None, kind: str = "gp-akf", bound=None):
+        """The estimator on the calibrated model: 'gp-akf' (the residual GP weighted by its
+        variance; the AKF when the GP was not kept), 'akf' (physics alone).  ``bound``: a bound
+        factory (e.g. :func:`~sea_daemon.core.bounds.akf_bound.theorem_bound`)."""
+        return make_calibrated(self.cfg, self.gp, self.coverage, dt=dt, kind=kind, power=self.options.weight_power,
+                               v_gate=self.report.get("gp_v_gate", 0.0), bound=bound)
+
+
+def given_keys(raw: Mapping | None) -> set[str]:
+    """Which calibration values a raw YAML mapping gives: 'kinematics', 'learning' and the
+    estimator keys of :data:`ESTIMATOR_KEYS` ('R', 'Sigma_nom', 'tau_m_noise')."""
+    out: set[str] = set()
+    if not raw:
+        return out
+    est = raw.get("estimator") or {}
+    out |= {k for k in ESTIMATOR_KEYS if k in est}
+    for sec in ("kinematics", "learning"):
+        if raw.get(sec):
+            out.add(sec)
+    return out
+
+
+def decimate(log: MeasuredLog, max_rate_hz: float = 250.0) -> MeasuredLog:
+    """The log at ≤ ``max_rate_hz``: angles sampled every m-th sample, the motor torque
+    averaged over the m commands it replaces (the torque held over the longer interval that
+    moves the plant the same to first order, eq:motorside).  Unchanged when already slow."""
+    m = int(math.ceil(1.0 / (max_rate_hz * log.dt) - 1e-9))
+    if m <= 1:
+        return log
+    N = (len(log) - 1) // m * m + 1
+    idx = np.arange(0, N, m)
+    tau = np.asarray(log.tau_m[:N - 1], float).reshape(-1, m, log.n).mean(axis=1)
+    tau = np.vstack([tau, log.tau_m[N - 1:N]])
+    return MeasuredLog(t=log.t[idx], q=log.q[idx], theta_m=log.theta_m[idx], tau_m=tau,
+                       tau_h_act=None if log.tau_h_act is None else log.tau_h_act[idx], path=log.path)
+
+
+def _replace_est(cfg: ModelConfig, **kw) -> ModelConfig:
+    return dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, **kw))
+
+
+def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
+    """Estimator keys of the process noise: angles 1e-16 per step (conditioning), velocities
+    through the motor-torque noise only, τ_h,act random walk q_τ [N² m²/s] × dt."""
+    n = cfg.joints
+    dt = cfg.dt
+    S = np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n), np.full(n, q_tau * dt)]))
+    return {"Sigma_nom": S, "Sigma_nom_dt": dt}
+
+
+def with_R(cfg: ModelConfig, R: np.ndarray) -> ModelConfig:
+    """R and P0's measurement block = R (Sec. V-B)."""
+    from sea_daemon.core.als import config_with_R
+    return config_with_R(cfg, R)
+
+
+# ---------------------------------------------------------------------------- τ_h,act walk
+
+def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
+                       duration_s: float, seed: int, gp=None, power: float = 2.0,
+                       v_gate: float = 0.0) -> list[MeasuredLog]:
+    """The identified model as a simulated plant: a moving session (PID tracking the log's own
+    motion) and a still-arm session (Sec. V-C, held at the log's median angle), each with a
+    synthetic human torque of the declared band and RMS.  With ``gp`` the plant has the residual
+    the estimator believes in too (its variance-weighted mean, as ``extra_load_torque``, held over
+    each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
+    and the plant's compiled integration)."""
+    from sea_daemon.core.sim.session import BandLimitedTorque, run_session
+    from sea_daemon.core.kinematics import smooth_derivatives
+    n = cfg.joints
+    if n != 1:
+        raise InputError("the synthetic replay supports one joint for now")
+    plant_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, torque_noise=float(sigma_u),
+                                                                      torque_limit=max(cfg.hardware.torque_limit, 25.0)))
+    extra = None
+    if gp is not None:
+        # the residual the estimator believes in, as a load-side torque of the plant: its
+        # variance-weighted mean at z = [q, q̇, 0] (the residual GP is long in q̈)
+        hook = WeightedResidual(gp, cfg.estimator.gp_input_margin, False, power=power, v_gate=v_gate)
+
+        def extra(q, dq):
+            mu, _, _ = hook.predict(np.array([q[0], dq[0], 0.0]))
+            return mu.copy()
+    N = min(len(log), int(round(duration_s / log.dt)))
+    t = log.t[:N] - log.t[0]
+    qs, _, _ = smooth_derivatives(log.t[:N], log.q[:N, 0], window=max(7, int(round(0.1 / log.dt)) | 1), degree=3)
+
+    class _Ref:
+        def reference(self, tt):
+            return float(np.interp(tt, t, qs)), 0.0, 0.0
+
+    f_lo, f_hi = human.band_hz
+    out = [run_session(plant_cfg, t[-1], reference=_Ref(), human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 1),
+                       seed=seed + 11, extra_load_torque=extra, extra_held=True),
+           run_session(plant_cfg, t[-1], hold_q=float(np.median(log.q[:N, 0])),
+                       human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 2), seed=seed + 12,
+                       extra_load_torque=extra, extra_held=True)]
+    return out
+
+
+def _rmse(log: MeasuredLog, est) -> float:
+    from sea_daemon.core.replay import replay
+    res = replay(log, est)
+    truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(res.tau_h_act_hat)
+    e = res.tau_h_act_hat - truth
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
+               opts: CalibrationOptions, tune_eps: bool = True, gp=None,
+               v_gate: float = 0.0) -> tuple[float, float, dict]:
+    """(q_τ [N² m²/s], sign_eps [rad/s], info): the τ_h,act random walk and the friction-sign
+    smoothing of the estimator's model (the AKF on the identified model, or the GP-AKF with
+    ``gp``; health monitor off while scanning).  Each from the data that can speak for it:
+
+    * sign_eps, a property of the plant's friction, from the real passive log alone: the ε of
+      :data:`EPS_GRID` with the smallest RMS of τ̂ there (τ_h,act = 0, so every τ̂ is the
+      leakage of model error).  At a turning point the true friction takes whatever value holds
+      the joint; with ε wider than the velocity the filter resolves, the smoothed friction lags
+      the stick and the difference leaks into τ̂ (on the simulator: passive RMSE 0.038 N m at
+      ε = 0.01, 0.010 at ε = 0.003, oracle model); too narrow, the filter's velocity noise
+      flips the friction sign, which the passive log shows as well.
+    * q_τ, how fast the subject's torque moves, from the synthetic active sessions alone (the
+      identified model as the plant, a human torque of the declared band and size, moving and
+      still arm): decades of :attr:`CalibrationOptions.q_tau_grid` then its half-decades around
+      the best, the smallest q_τ within 2 % of the best RMS (the objective is flat over decades
+      once the walk is fast enough: the smoothest estimate the data do not contradict).  A
+      passive log says nothing about the subject's torque (it only pulls q_τ to 0).
+
+    sign_eps is chosen at the declared walk (:func:`declared_walk`), q_τ at that sign_eps, then
+    sign_eps again at the chosen q_τ.  When the identified model cannot be simulated, q_τ is the
+    declared walk."""
+    # at most ~4000 samples per synthetic session (20 s at 100 Hz, 10 s at 1 kHz: the lowest
+    # declared frequency still shows)
+    T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
+    # the passive log's first 2 T seconds (the leakage of model error into τ̂)
+    passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
+    try:
+        synth = synthetic_sessions(cfg, log, human, sigma_u, T, opts.seed, gp=gp, power=opts.weight_power,
+                                   v_gate=v_gate)
+        active = {"synthetic_moving": synth[0], "synthetic_still": synth[1]}
+        synth_note = None
+    except (RuntimeError, ValueError, ArithmeticError, InputError) as e:
+        # the identified model cannot be simulated (e.g. no static equilibrium found for its
+        # spring): q_τ from the declared torque alone, the friction smoothing from the passive log
+        active = {}
+        synth_note = f"synthetic replay failed ({type(e).__name__}: {e}); q_tau from the declared torque"
+    table: dict = {}
+    has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
+
+    def evaluate(q, eps, logs):
+        row = table.setdefault((float(q), float(eps)), {"q_tau": float(q), "sign_eps": float(eps)})
+        c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, float(q)))
+        for name, lg in logs.items():
+            if name in row:
+                continue
+            try:
+                if gp is None:
+                    est = AKF(c, dt=lg.dt)
+                else:
+                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=v_gate)
+                row[name] = _rmse(lg, est)
+            except EstimatorFault:
+                row[name] = math.inf
+        return row
+
+    def objective(row, logs):
+        return float(np.sqrt(np.mean([row[k] ** 2 for k in logs])))
+
+    def best_eps(q):
+        if not (tune_eps and has_friction):
+            return float(cfg.estimator.sign_eps)
+        return min(EPS_GRID, key=lambda e: objective(evaluate(q, e, passive), passive))
+
+    q0 = declared_walk(human)
+    eps = best_eps(q0)
+    if active:
+        grid = np.asarray(opts.q_tau_grid, dtype=float)
+        for q in grid[::2]:
+            evaluate(q, eps, active)
+        on = lambda: [r for (q, e), r in table.items() if e == eps and all(k in r for k in active)]
+        b = min(on(), key=lambda r: objective(r, active))
+        i = int(np.argmin(np.abs(grid - b["q_tau"])))
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(grid):
+                evaluate(grid[j], eps, active)
+        rows = on()
+        f_best = min(objective(r, active) for r in rows)
+        # every synthetic replay faulted: the declared walk
+        qt = min(r["q_tau"] for r in rows if objective(r, active) <= 1.02 * f_best) if math.isfinite(f_best) else q0
+    else:
+        qt = q0
+    eps = best_eps(qt)
+    logs = {**active, **passive}
+    best = evaluate(qt, eps, logs)
+    best["objective"] = objective(best, logs)
+    # the NIS monitor's scale: what the chosen filter shows on these logs (its windowed mean NIS at
+    # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
+    # torque is not divergence
+    scale = _nis_scale(cfg, gp, logs, best, opts, v_gate)
+    grid_rows = sorted(table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
+    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
+    if synth_note:
+        info["note"] = synth_note
+    return qt, eps, info
+
+
+def declared_walk(human: HumanSpec) -> float:
+    """q_τ [N² m²/s] from the declared torque alone: 2π f_max RMS² (a random walk whose spread
+    over one period of the fastest declared component is ~ the torque's size)."""
+    return 2.0 * math.pi * human.band_hz[1] * human.rms ** 2
+
+
+def _nis_scale(cfg, gp, logs, best, opts, v_gate: float = 0.0) -> float:
+    """max(configured nis_scale, 3 × the largest windowed mean NIS / the band's upper edge) of the
+    chosen filter over the calibration's logs (passive log and synthetic subjects)."""
+    c = _replace_est(cfg, nis_scale=1e12, sign_eps=best["sign_eps"], **sigma_nom_for(cfg, best["q_tau"]))
+    worst = 0.0
+    for lg in logs.values():
+        est = AKF(c, dt=lg.dt) if gp is None else CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power,
+                                                                  v_gate=v_gate)
+        mon = NISMonitor(4 * cfg.joints, c.estimator.nis_window, c.estimator.nis_alpha, 1e12)
+        try:
+            est.reset(lg.q[0], lg.theta_m[0], lg.tau_m[0])
+            for k in range(1, len(lg)):
+                est.update(lg.q[k], lg.theta_m[k], lg.tau_m[k], lg.t[k] - lg.t[k - 1])
+                if est.est.k > 0:
+                    worst = max(worst, mon.update(est.nis) / mon.upper)
+        except EstimatorFault:
+            continue
+    return float(max(cfg.estimator.nis_scale, 3.0 * worst))
+
+
+#: friction-sign smoothings [rad/s] the calibration chooses from
+EPS_GRID = (0.002, 0.003, 0.005, 0.01, 0.02)
+
+
+# ---------------------------------------------------------------------------- residual GP
+
+def _training_pairs(cfg: ModelConfig, log: MeasuredLog):
+    """Causal training pairs exactly as the GP-AKF forms them online (for comparison)."""
+    from sea_daemon.core.learning import training_pairs_from_log
+    from sea_daemon.core.model import SEAModel
+    return training_pairs_from_log(SEAModel.from_config(cfg), log, cfg.kinematics, causal=True)
+
+
+#: floors of the data spans the GP's length-scale bounds are taken from [rad, rad/s, rad/s²]
+SPAN_Q_MIN, SPAN_DQ_MIN, SPAN_DDQ_MIN = 0.4, 0.5, 10.0
+#: [rad/s] no GP training pairs below this speed (nor below 3 × sign_eps): the sticking phases
+V_EXCLUDE = 0.03
+#: fewer moving pairs than this: the log is a still-arm log, all its pairs are used
+MIN_MOVING_PAIRS = 200
+
+
+def stick_velocity_of(cfg: ModelConfig) -> float:
+    from sea_daemon.apps.diagnose.residuals import stick_velocity
+    return stick_velocity(cfg)
+
+
+def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
+    """Training pairs for the offline calibration: z = [q, q̇, q̈] and the leftover
+    f = r_load + r_motor of the augmented model (= eq:loadsidewmotor, τ_h,act = 0), both from
+    the zero-phase kinematics of ``diagnose`` (:func:`~sea_daemon.diagnose.residuals.residual_channels`:
+    one smoother over the whole balance, static friction set-valued while the joint sticks).
+
+    Why not the causal pairs the GP-AKF learns online: their q̈ carries the differentiator's
+    encoder noise both in the input and, times M, in the target — errors in variables: the GP
+    then learns a spurious slope in q̈ (on 16-bit encoders at 100 Hz: ~0.2 N m of M q̈ noise) and
+    its confident mean is wrong on any other session.  Decimated to ``rate_hz`` (neighbouring
+    smoothed samples carry no new information)."""
+    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity, window_samples
+    from sea_daemon.core.model import SEAModel
+    model = SEAModel.from_config(cfg)
+    kin = kinematics_from_log(log)
+    r = residual_channels(model, kin, passive=True, v_stick=stick_velocity(cfg))
+    n = cfg.joints
+    F = r[:, :n] + r[:, n:]
+    q, _ = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
+    Z = np.hstack([q, kin.dq, kin.ddq])
+    edge = window_samples(log.t)
+    step = max(1, int(round(1.0 / (rate_hz * log.dt))))
+    sl = slice(edge, len(log) - edge, step)
+    Z, F = Z[sl], F[sl]
+    # no pairs while the joint sticks (|q̇| < v_stick): static friction is set-valued there, the
+    # torque it takes depends on how the joint came to rest (the controller's history), not on z;
+    # learned, it would be a confident offset on every still arm (the physics' convention,
+    # friction 0 at rest, is what the filter can hold)
+    moving = np.all(np.abs(Z[:, n:2 * n]) >= max(stick_velocity(cfg), V_EXCLUDE), axis=1)
+    if np.sum(moving) < MIN_MOVING_PAIRS:
+        # a log that (almost) never moves (the paper's still-arm training, Sec. V-C): the static
+        # balance at rest is all there is to learn, and friction holds nothing there
+        return Z, F
+    return Z[moving], F[moving]
+
+
+def fit_gp_hyper(Z: np.ndarray, F: np.ndarray, points: int, seed: int, min_ls_dq: float = 0.1,
+                 ls_ddq: float | None = None) -> dict:
+    """Maximum-likelihood hyperparameters (eq:SE, σ_on) on a subsample of the pairs, with the
+    physics-first priors: l_q̇ ≥ ``min_ls_dq`` (the GP may not be sharper in q̇ than the filter
+    knows the velocity near standstill: static friction is set-valued there, the physical model
+    holds its smoothed sign), l_q̈ fixed long (default 2 × the pairs' q̈ range: inertia is the
+    physical model's, diagnose fits it; the residual has no business keying on q̈)."""
+    from sea_daemon.core.gp.hyper import fit_hyperparameters
+    rng = np.random.default_rng(seed)
+    idx = np.sort(rng.choice(len(Z), size=min(points, len(Z)), replace=False))
+    X, y = Z[idx], F[idx, 0]
+    # floors of the spans: a still-arm log spans a few encoder counts, and a length scale of that
+    # size would make the GP forget its data at the first drift of the arm
+    span = np.maximum(np.ptp(Z, axis=0), [SPAN_Q_MIN, SPAN_DQ_MIN, SPAN_DDQ_MIN])
+    s = max(float(np.sqrt(np.mean(F[:, 0] ** 2))), 1e-4)
+    l_dd = 2.0 * span[2] if ls_ddq is None else ls_ddq
+    ls0 = np.array([0.2 * span[0], max(0.2 * span[1], 2 * min_ls_dq), l_dd])
+    # σ_f at most twice the leftover's RMS and length scales at most half the data's span: a
+    # local model that returns to zero (the physics) off its data — an ML fit left free drifts to
+    # σ_f → ∞ with long length scales (a global trend that extrapolates, and whose variance never
+    # grows towards σ_f², so the variance weighting could not switch it off)
+    bounds = [(math.log(1e-4), math.log(2.0 * s)),
+              (math.log(0.05 * span[0]), math.log(0.5 * span[0])),
+              (math.log(min_ls_dq), math.log(max(0.5 * span[1], 1.0001 * min_ls_dq))),
+              (math.log(l_dd), math.log(l_dd * 1.0000001)),
+              (math.log(1e-4), math.log(2.0 * s))]
+    sf, ls, sn = fit_hyperparameters(X, y, sigma_f=s, lengthscales=ls0, sigma_n=0.3 * s, bounds=bounds)
+    return {"sigma_f": float(sf), "lengthscales": [float(v) for v in np.atleast_1d(ls)], "sigma_n": float(sn)}
+
+
+def gp_cross_validation(Z: np.ndarray, F: np.ndarray, lc: LearningConfig, folds: int = 5) -> dict:
+    """Blocked K-fold: a LoG-GP (learning config ``lc``, no online hyperparameters) trained on
+    K−1 contiguous blocks predicts the held-out one; MSE against predicting 0 (the physics)."""
+    from sea_daemon.core.learning import ResidualGP
+    N = len(Z)
+    edges = np.linspace(0, N, folds + 1).astype(int)
+    mse_gp = mse_0 = 0.0
+    lc0 = dataclasses.replace(lc, hyperopt=False)
+    for k in range(folds):
+        test = np.arange(edges[k], edges[k + 1])
+        train = np.setdiff1d(np.arange(N), test)
+        gp = ResidualGP(1, lc0)
+        gp.train(Z[train], F[train])
+        mu, _ = gp.gps[0].predict_many(Z[test])
+        mse_gp += float(np.sum((F[test, 0] - mu) ** 2))
+        mse_0 += float(np.sum(F[test, 0] ** 2))
+    return {"mse_gp": mse_gp / N, "mse_zero": mse_0 / N, "gain": 1.0 - mse_gp / max(mse_0, 1e-300)}
+
+
+# ---------------------------------------------------------------------------- the whole flow
+
+def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
+              opts: CalibrationOptions | None = None) -> CalibrationResult:
+    """The calibration of the module docstring on one passive log."""
+    from sea_daemon.apps.diagnose import run_diagnosis
+    opts = opts or CalibrationOptions()
+    given = set() if given is None else set(given)
+    if log.n != cfg.joints:
+        raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
+    if cfg.joints != 1:
+        raise InputError("calibrate: one joint for now")
+    report: dict = {"log": log.path, "samples": len(log), "given": sorted(given)}
+    # 1. kinematics and R
+    if "kinematics" not in given:
+        cfg = dataclasses.replace(cfg, kinematics=choose_kinematics(cfg.rate_hz))
+    report["kinematics"] = dataclasses.asdict(cfg.kinematics)
+    if "R" not in given:
+        R, rinfo = measurement_noise(log, cfg)
+        cfg = with_R(cfg, R)
+        report["R"] = {"identified": np.diag(R).tolist(), **rinfo}
+    else:
+        report["R"] = {"given": np.diag(cfg.estimator.R).tolist()}
+    # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
+    # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
+    # on it at 1 kHz)
+    cfg = _replace_est(cfg, init_after_kinematics=True, gp_noise_in_Q=True,
+                       nis_window=max(cfg.estimator.nis_window, int(round(cfg.rate_hz))))
+    # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
+    if opts.diagnose:
+        dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False)
+        report["diagnose"] = {"effects_added": dg.result["effects_added"],
+                              "residual_rms_before": dg.result["residual_rms_before"],
+                              "residual_rms_after": dg.result["residual_rms_after"],
+                              "unexplained_fraction": dg.result["unexplained_fraction"],
+                              "statements": dg.result["statements"]}
+        cfg = dg.cfg_after
+    # 3. motor-torque noise
+    if "tau_m_noise" not in given:
+        su, sinfo = motor_torque_noise(log, cfg)
+        cfg = _replace_est(cfg, tau_m_noise=su)
+        report["tau_m_noise"] = {"identified": su, **sinfo}
+    else:
+        report["tau_m_noise"] = {"given": cfg.estimator.tau_m_noise}
+    # 4. residual GP (before the process noise: the walk is chosen for the complete model)
+    Z, F = smooth_pairs(cfg, log)
+    # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
+    v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
+    report["gp_v_gate"] = v_gate
+    report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
+    if "learning" not in given:
+        hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
+        lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
+                                 sigma_n=hyp["sigma_n"], hyperopt=False)
+        cfg = dataclasses.replace(cfg, learning=lc)
+        report["gp_hyper"] = hyp
+    gp = None
+    keep = opts.gp == "on"
+    if opts.gp == "auto":
+        cv = gp_cross_validation(Z, F, cfg.learning)
+        report["gp_cv"] = cv
+        keep = cv["gain"] >= opts.gp_cv_gain
+    if keep:
+        # the same pairs the GP-AKF would learn online (causal kinematics, eq:loadsidewmotor):
+        # trained directly, no filter in the loop (nothing to diverge)
+        gp = _offline_gp(cfg, Z, F)
+    report["gp_kept"] = gp is not None
+    # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
+    if "Sigma_nom" not in given:
+        qt, eps, qinfo = human_walk(cfg, log, opts.human, cfg.estimator.tau_m_noise or 0.0, opts,
+                                    tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"])
+        cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
+        report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}
+    else:
+        report["tau_h_act_walk"] = {"given": np.diag(cfg.estimator.Sigma_nom).tolist()}
+    cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
+    # 6. coverage
+    wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
+                                            float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
+    cov = Coverage(wr)
+    cov.add(Z)
+    report["coverage"] = cov.report()
+    return CalibrationResult(cfg, gp, cov, report, opts)
+
+
+def _offline_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray):
+    """The residual GP trained on the pairs directly (when the online training faulted)."""
+    from sea_daemon.core.learning import ResidualGP
+    gp = ResidualGP.from_config(cfg)
+    gp.train(Z, F)
+    return gp
+
+
+def options_from_config(cfg: ModelConfig, gp: str = "auto") -> CalibrationOptions:
+    """:class:`CalibrationOptions` from the configuration's ``calibration`` section."""
+    c = cfg.calibration
+    wr = None
+    if c.q_min_deg is not None and c.q_max_deg is not None:
+        wr = WorkingRange(math.radians(c.q_min_deg), math.radians(c.q_max_deg), c.v_max, c.a_max)
+    return CalibrationOptions(human=HumanSpec(tuple(c.human_band_hz), c.human_torque_rms), working_range=wr,
+                              gp=gp, seed=c.seed)
+
+
+def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto") -> CalibrationResult:
+    """The calibration of ``log`` with the configuration ``cfg`` whose YAML mapping is ``raw``
+    (its given values kept, :func:`given_keys`; options from its ``calibration`` section)."""
+    return calibrate(log, cfg, given=given_keys(raw), opts=options_from_config(cfg, gp))
+
+
+def calibrate_from_files(log_path, config_path, gp: str = "auto") -> CalibrationResult:
+    """The calibration of the log file ``log_path`` with the configuration file ``config_path``."""
+    from sea_daemon.io.configfile import load_config, load_yaml
+    from sea_daemon.io.logcsv import read_log
+    cfg = load_config(config_path)
+    log = read_log(log_path, n=cfg.joints, min_rows=2)
+    return calibrate_log(log, cfg, load_yaml(config_path), gp)

@@ -1,0 +1,58 @@
+"""``sea-daemon fit CAL.csv --config MODEL.yaml --out PREFIX``: the whole calibration offline.
+
+From one passive calibration log (the subject relaxed, e.g. what ``sea-daemon calibrate`` keeps)
+and the model configuration (the nominal robot; any value it gives is kept): measurement noise,
+the physical effects ``diagnose`` finds, the motor-torque noise, the residual GP on what the
+physics leaves, the active-torque random walk for the declared human torque
+(``calibration.human_band_hz``, ``human_torque_rms``), the coverage of (q, q̇, q̈)
+(docs/calibration.md).  Writes ``PREFIX.yaml`` (the complete configuration), ``PREFIX.npz``
+(the model file for ``run --model`` / ``replay --model``) and ``PREFIX.report.json``; prints
+what was identified and the expected accuracy in plain words (stderr) and a JSON summary
+(stdout).  Exit 2 on bad input.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from sea_daemon.apps.commands import add_log_and_config
+
+NAME = "fit"
+HELP = "calibrate from a passive log offline: noise, physical effects, residual GP -> complete model"
+ORDER = 57
+DESCRIPTION = __doc__
+
+
+def add_arguments(p) -> None:
+    add_log_and_config(p, log_help="passive calibration log")
+    p.add_argument("--out", metavar="PREFIX", required=True, help="writes PREFIX.yaml, PREFIX.npz, PREFIX.report.json")
+    p.add_argument("--gp", choices=("auto", "on", "off"), default="auto",
+                   help="residual GP: auto (kept if it predicts the leftover on held-out parts of the log), on, off")
+
+
+def outputs(prefix) -> list[tuple[str, Path]]:
+    """The files ``fit --out PREFIX`` writes."""
+    p = Path(prefix)
+    return [("--out", p.with_suffix(".yaml")), ("--out", p.with_suffix(".npz")),
+            ("--out", Path(str(p) + ".report.json"))]
+
+
+def run(args) -> int:
+    from sea_daemon.apps.calibration.modelio import save_calibrated, summary
+    from sea_daemon.apps.calibration.pipeline import calibrate_from_files
+    from sea_daemon.io.files import atomic_write_text, check_outputs
+    outs = outputs(args.out)
+    check_outputs(outs, inputs=[args.log, args.config])
+    result = calibrate_from_files(args.log, args.config, args.gp)
+    yaml_path, npz_path = save_calibrated(args.out, result, {"command": "fit", "log": str(args.log),
+                                                             "config": str(args.config)})
+    rep_path = outs[2][1]
+    atomic_write_text(rep_path, json.dumps(result.report, indent=1,
+                                           default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    s = summary(result)
+    for line in s["text"]:
+        print(line, file=sys.stderr)
+    print(json.dumps({"config": str(yaml_path), "model": str(npz_path), "report": str(rep_path), **s},
+                     default=float))
+    return 0

@@ -1,0 +1,89 @@
+"""The estimators on a calibrated model (:func:`sea_daemon.apps.calibration.pipeline.calibrate`).
+
+* ``gp-akf``: :class:`CalibratedGPAKF` — the GP-AKF (Alg. 2) on the augmented physical model
+  with the residual GP behind :class:`~sea_daemon.core.estimators.weighted.WeightedResidual` (its mean and Jacobian
+  weighted by how much its variance has shrunk), learning off; the plain AKF when the
+  calibration did not keep a GP;
+* ``akf``: the AKF (Alg. 1) on the augmented model.
+
+Both flag, per step, whether z = [q, q̇, q̈] lies in the region the calibration data covered
+(:class:`~sea_daemon.core.excitation.Coverage`): ``z_outside`` (this step), ``n_outside`` (count since reset).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.gpakf import GPAKF
+from sea_daemon.core.estimators.weighted import WeightedResidual
+
+
+class _CoverageFlag:
+    """Mixin: the coverage flag after every update."""
+
+    def _init_flag(self, coverage):
+        self.coverage = coverage
+        self.z_outside = False
+        self.n_outside = 0
+        self._zc = np.zeros(3)
+
+    def _flag(self):
+        if self.coverage is None:
+            return
+        n = self.n
+        # z of this sample from the state estimate and the measured q̈ (as the GP sees it)
+        self._zc[0] = self.x[0] + self.x[n]
+        self._zc[1] = self.x[2 * n] + self.x[3 * n]
+        self._zc[2] = self._ddq[0]
+        self.z_outside = not self.coverage.covered(self._zc)
+        self.n_outside += int(self.z_outside)
+
+
+class CalibratedAKF(_CoverageFlag, AKF):
+    name = "akf"
+
+    def __init__(self, cfg, dt=None, coverage=None, bound=None):
+        super().__init__(cfg, dt=dt, bound=bound)
+        self._init_flag(coverage)
+
+    def reset(self, *a, **k):
+        self.n_outside = 0
+        return super().reset(*a, **k)
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        e = super().update(q, theta_m, tau_m, dt)
+        self._flag()
+        return e
+
+
+class CalibratedGPAKF(_CoverageFlag, GPAKF):
+    name = "gp-akf"
+
+    def __init__(self, cfg, gp, dt=None, coverage=None, power: float = 2.0, v_gate: float = 0.0, bound=None):
+        super().__init__(cfg, dt=dt, residual=gp, learning=False)
+        # alg:torqueresidualAKF line 5 through the variance-weighted hook
+        self.residual = WeightedResidual(gp, cfg.estimator.gp_input_margin, cfg.estimator.gp_noise_in_Q,
+                                         power=power, M=self.model.M, dt=self.dt, v_gate=v_gate)
+        self._init_flag(coverage)
+        # the bound is built on the weighted hook (AKF builds it at the end of its constructor)
+        if bound is not None:
+            self.bound = bound(self)
+
+    def reset(self, *a, **k):
+        self.n_outside = 0
+        return super().reset(*a, **k)
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        e = super().update(q, theta_m, tau_m, dt)
+        self._flag()
+        return e
+
+
+def make_calibrated(cfg, gp, coverage, dt=None, kind: str = "gp-akf", power: float = 2.0, v_gate: float = 0.0,
+                    bound=None):
+    """The estimator ``kind`` on a calibrated model: 'gp-akf' (:class:`CalibratedGPAKF`; the
+    AKF when ``gp`` is None) or 'akf' (:class:`CalibratedAKF`, physics alone).  ``bound``: a
+    bound factory as :class:`~sea_daemon.core.estimators.akf.AKF` takes."""
+    if kind == "gp-akf" and gp is not None:
+        return CalibratedGPAKF(cfg, gp, dt=dt, coverage=coverage, power=power, v_gate=v_gate, bound=bound)
+    return CalibratedAKF(cfg, dt=dt, coverage=coverage, bound=bound)

@@ -1,0 +1,297 @@
+"""Issue 12: calibrate once from a passive log, hold on other sessions.
+
+Behaviour checked: the compiled effect path equals the model; the excitation covers the
+working range and the coverage map flags z outside it; the noise identification recovers the
+simulator's torque noise and velocity error; the variance-weighted residual returns to the
+physics off its data; bounded P and typed faults; the whole calibration on a simulated plant
+(diagnose's effects, GP no worse than the physics alone on unlike sessions, given values kept);
+``fit`` / ``replay --model`` / ``replay --train``.
+"""
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from sea_daemon.apps import cli
+from sea_daemon.apps.calibration.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate, decimate, given_keys, with_R
+from sea_daemon.core.config import SEAParams
+from sea_daemon.core.effects import make_effect
+from sea_daemon.core.estimators import akf_core
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.excitation import Coverage, WorkingRange, excitation, paper_moves
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.model_core import ModelTables
+from sea_daemon.core.replay import replay
+from sea_daemon.core.sim.session import BandLimitedTorque, run_session
+from sea_daemon.errors import EstimatorFault
+from sea_daemon.io.configfile import load_config, repo_root, save_config
+from sea_daemon.io.logcsv import write_log
+
+NOMINAL = repo_root() / "configs" / "exo_1dof_robot.yaml"
+HIDDEN = [make_effect("inertia", "load", dI=0.04), make_effect("gravity", "load", a=1.8, phi=0.05),
+          make_effect("human_viscoelastic", "load", k_h=1.5, q_h0=1.2, b_h=0.25),
+          make_effect("coulomb", "load", F_c=0.3), make_effect("viscous", "load", b=0.03)]
+
+
+def _rmse(log, est):
+    r = replay(log, est)
+    return float(np.sqrt(np.mean((r.tau_h_act_hat - log.tau_h_act) ** 2)))
+
+
+# ------------------------------------------------------------------ compiled model with effects
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_compiled_effects_equal_the_model(n):
+    rng = np.random.default_rng(n)
+    I = np.eye(n)
+    eff = []
+    for j in range(n):
+        eff += [make_effect("coulomb", "load", j, F_c=0.3), make_effect("stribeck", "load", j, F_s=0.2, v_s=0.05),
+                make_effect("gravity", "load", j, a=1.2, phi=0.1),
+                make_effect("human_viscoelastic", "load", j, k_h=2.0, q_h0=1.0, b_h=0.3),
+                make_effect("viscous", "motor", j, b=0.1), make_effect("coulomb", "motor", j, F_c=0.05),
+                make_effect("cogging", "motor", j, A=0.02, periods=3.0, phi=0.2),
+                make_effect("spring_cubic", "spring", j, k3=100.0),
+                make_effect("spring_saturation", "spring", j, theta_max=0.03, k_stop=300.0),
+                make_effect("spring_backlash", "spring", j, width=0.002), make_effect("torque_scale", "motor", j, kappa=0.9),
+                make_effect("inertia", "load", j, dI=0.03)]
+    p = SEAParams(M=I * 0.12 + 0.01 * (1 - I), J=I * 0.08, D_m=I * 0.6, K_s=I * 110 + 5 * (1 - I), D_s=I * 0.25,
+                  gravity=np.full(n, 2.9), effects=tuple(eff))
+    m = SEAModel(p, sign_eps=0.01)
+    t = ModelTables(m)
+    for _ in range(50):
+        x = rng.normal(size=5 * n) * np.repeat([0.5, 0.04, 0.5, 0.2, 1.0], n)
+        u = rng.normal(size=n)
+        A, xd = np.zeros((5 * n, 5 * n)), np.zeros(5 * n)
+        t.f_and_F(x, u, A, xd)
+        assert np.allclose(A, m.F_nom(x, u), rtol=1e-12, atol=1e-9)
+        assert np.allclose(xd, m.f_nom(x, u), rtol=1e-12, atol=1e-9)
+        k = [rng.normal(size=n) for _ in range(7)]
+        out = np.zeros(n)
+        t.residual(*k, out)
+        assert np.allclose(out, m.residual_from_kinematics(*k), rtol=1e-12, atol=1e-10)
+        X = x + rng.normal(size=(7, 5 * n)) * 0.01
+        b = t.lin_error_box(X, u, x, A)
+        ref = np.max([np.abs(m.f_nom(xx, u) - xd - A @ (xx - x)) for xx in X], axis=0)
+        assert np.allclose(b, ref, rtol=1e-9, atol=1e-12)
+
+
+# ------------------------------------------------------------------ excitation and coverage
+
+
+def test_excitation_spreads_over_the_working_range_and_coverage_flags_outside():
+    wr = WorkingRange(math.radians(5), math.radians(100), v_max=1.5, a_max=12.0)
+    ex = excitation(wr, 60.0, seed=3)
+    t = np.arange(0, ex.duration, 0.01)
+    z = np.array([ex.reference(tt) for tt in t])
+    assert z[:, 0].min() >= wr.q_min - 1e-9 and z[:, 0].max() <= wr.q_max + 1e-9
+    assert np.ptp(z[:, 0]) > 0.95 * wr.width                    # both ends reached
+    peaks = []                                                   # peak speed per move: spread, not one
+    for i in range(len(ex.targets)):
+        sl = (t >= ex._t[i]) & (t < ex._t[i] + ex.durations[i])
+        peaks.append(np.abs(z[sl, 1]).max())
+    assert np.max(np.abs(z[:, 1])) <= wr.v_max * 1.001 and np.max(np.abs(z[:, 2])) <= wr.a_max * 1.001
+    assert np.percentile(peaks, 90) > 2.0 * np.percentile(peaks, 10)
+    assert excitation(wr, 60.0, seed=3) == ex and excitation(wr, 60.0, seed=4) != ex
+    cov = Coverage(wr)
+    cov.add(z)
+    rep = cov.report()
+    one = Coverage(wr)                                            # the paper's one repeated move
+    pm = paper_moves(math.radians(10), math.radians(75), 3.5, 17)
+    one.add(np.array([pm.reference(tt) for tt in t]))
+    assert rep["q_qdot_share"] > 1.5 * one.report()["q_qdot_share"]
+    assert cov.covered(z[len(z) // 2]) and not cov.covered([wr.q_max + 0.3, 0.0, 0.0])
+    assert Coverage.from_dict(cov.to_dict()).report() == rep
+
+
+# ------------------------------------------------------------------ noise identification
+
+
+@pytest.fixture(scope="module")
+def plant():
+    nom = load_config(NOMINAL)
+    return nom, nom.with_effects(HIDDEN)
+
+
+@pytest.fixture(scope="module")
+def cal_log(plant):
+    nom, true = plant
+    wr = WorkingRange(math.radians(5), math.radians(95), 1.4, 12.0)
+    return run_session(true, 60.0, reference=excitation(wr, 60.0, seed=1), seed=11)
+
+
+def test_motor_torque_noise_is_recovered_at_100_hz_and_1_khz(plant):
+    nom, true = plant
+    for rate in (100.0, 1000.0):
+        tc = dataclasses.replace(true, rate_hz=rate)
+        log = run_session(tc, 12.0, reference=paper_moves(math.radians(10), math.radians(75), 2.0, 10), seed=3)
+        cfg = dataclasses.replace(tc.with_effects(HIDDEN), kinematics=choose_kinematics(rate))
+        s, _ = motor_torque_noise(log, cfg)
+        assert abs(s / tc.hardware.torque_noise - 1) < 0.15, (rate, s)
+
+
+def test_measured_velocity_noise_matches_the_error_against_the_truth(plant, cal_log):
+    nom, _ = plant
+    cfg = dataclasses.replace(nom, kinematics=choose_kinematics(nom.rate_hz))
+    R, info = measurement_noise(cal_log, cfg)
+    from sea_daemon.apps.calibration.noise import causal_measurements
+    y, _ = causal_measurements(cal_log, cfg)
+    ex = cal_log.extra
+    v_true = np.column_stack([ex["dtheta_m_true"], ex["dq_true"] - ex["dtheta_m_true"]])
+    err = np.var((y[:, 2:] - v_true)[50:], axis=0)
+    ratio = np.diag(R)[2:] / err
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+    q_var = (2 * np.pi / 2 ** 19) ** 2 / 12
+    assert R[1, 1] >= q_var                                      # the load encoder's quantisation is a floor
+
+
+def test_decimate_keeps_the_mean_torque():
+    t = np.arange(0, 1.0, 0.001)
+    log = MeasuredLog(t=t, q=np.sin(t)[:, None], theta_m=np.cos(t)[:, None], tau_m=np.arange(len(t), dtype=float)[:, None])
+    d = decimate(log, 250.0)
+    assert np.allclose(np.diff(d.t), 0.004) and d.tau_m[0, 0] == pytest.approx(1.5) and d.q[1, 0] == log.q[4, 0]
+
+
+# ------------------------------------------------------------------ the weighted residual
+
+
+def test_weighted_residual_returns_to_the_physics_off_its_data_and_clips_steep_slopes():
+    from sea_daemon.core.estimators.weighted import WeightedResidual
+    from sea_daemon.core.config import LearningConfig
+    from sea_daemon.core.learning import ResidualGP
+    rng = np.random.default_rng(0)
+    Z = np.column_stack([rng.uniform(0.2, 1.2, 600), rng.uniform(-1, 1, 600), rng.uniform(-5, 5, 600)])
+    F = (0.3 * np.sin(3 * Z[:, 0]) + 0.2 * Z[:, 1])[:, None] + 0.005 * rng.normal(size=(600, 1))
+    gp = ResidualGP(1, LearningConfig(sigma_f=0.3, lengthscales=(0.3, 0.5, 50.0), sigma_n=0.01, hyperopt=False))
+    gp.train(Z, F)
+    M = np.array([[0.16]])
+    hook = WeightedResidual(gp, margin=10.0, noise_in_Q=False, M=M, dt=0.01)
+    mu, J, var = (np.array(a) for a in hook.predict(np.array([0.7, 0.3, 0.0])))
+    assert hook.w[0] > 0.95 and mu[0] == pytest.approx(0.3 * np.sin(2.1) + 0.06, abs=0.02)
+    mu, J, var = (np.array(a) for a in hook.predict(np.array([4.0, 0.3, 0.0])))    # far off the data in q
+    assert hook.w[0] < 0.01 and abs(mu[0]) < 1e-3 and np.all(np.abs(J) < 1e-2)
+    assert var[0] == pytest.approx(0.09, rel=0.05)              # the prior variance goes to Q
+    steep = ResidualGP(1, LearningConfig(sigma_f=5.0, lengthscales=(0.3, 0.002, 50.0), sigma_n=0.01, hyperopt=False))
+    steep.train(Z, 5 * np.sign(Z[:, 1:2]))
+    h2 = WeightedResidual(steep, M=M, dt=0.01)
+    for v in np.linspace(-0.01, 0.01, 21):
+        _, J, _ = h2.predict(np.array([0.7, v, 0.0]))
+        assert abs(J[0, 1]) <= 0.5 * 0.16 / 0.01 + 1e-12
+
+
+# ------------------------------------------------------------------ bounded P, typed faults
+
+
+def test_cap_covariance_keeps_psd_and_correlations():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(5, 5))
+    P = A @ A.T * np.array([1, 1, 1, 1, 1e12])[:, None] * np.array([1, 1, 1, 1, 1e12])[None, :] + np.eye(5)
+    corr = P / np.sqrt(np.outer(np.diag(P), np.diag(P)))
+    cap = np.full(5, 1e4)
+    assert akf_core.cap_covariance(P, cap) >= 1
+    assert np.all(np.diag(P) <= cap * (1 + 1e-12)) and np.all(np.linalg.eigvalsh(P) > -1e-9)
+    assert np.allclose(P / np.sqrt(np.outer(np.diag(P), np.diag(P))), corr)
+
+
+def test_a_log_that_does_not_fit_the_model_is_a_typed_fault_and_exit_2(plant, tmp_path, capsys):
+    nom, true = plant
+    log = run_session(true, 6.0, hold_q=0.3, human=BandLimitedTorque(3.0, 1.0, 3.0, seed=1), seed=2)
+    # a wild segment: the load encoder jumps by 0.5 rad for 0.5 s
+    q = log.q.copy()
+    q[200:250] += 0.5
+    bad = MeasuredLog(t=log.t, q=q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=log.tau_h_act)
+    cfg = dataclasses.replace(nom, estimator=dataclasses.replace(nom.estimator, R=np.diag([1e-12, 1e-12, 1e-8, 1e-8]),
+                                                                Sigma_nom=np.diag([1e-16, 1e-16, 0, 0, 1e-8])))
+    try:
+        r = replay(bad, AKF(cfg))
+        assert np.all(np.isfinite(r.tau_h_act_hat)) and np.all(np.isfinite(r.x_hat))
+    except EstimatorFault as e:
+        assert "sample" in str(e)
+    p_log, p_cfg = tmp_path / "bad.csv", tmp_path / "cfg.yaml"
+    write_log(p_log, bad)
+    save_config(cfg, p_cfg)
+    code = cli.main(["replay", str(p_log), "--config", str(p_cfg), "--estimator", "akf", "--out", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err
+    assert code in (0, 2) and "Traceback" not in err and "internal" not in err
+    if code == 2:
+        assert "sample" in err and "fault" in err
+
+
+# ------------------------------------------------------------------ the whole calibration
+
+
+@pytest.fixture(scope="module")
+def calibrated(plant, cal_log):
+    nom, _ = plant
+    return calibrate(cal_log, nom, opts=CalibrationOptions(human=HumanSpec((0.1, 1.0), 1.5), gp="on", synth_s=10.0))
+
+
+def test_calibration_finds_the_physics_and_keeps_given_values(plant, cal_log, calibrated):
+    nom, true = plant
+    res = calibrated
+    found = {d["type"] for d in res.report["diagnose"]["effects_added"]}
+    assert {"gravity", "human_viscoelastic", "coulomb", "inertia"} <= found
+    g = next(e for e in res.cfg.model.effects if e.type == "gravity")
+    assert g.a == pytest.approx(1.8, rel=0.05)
+    assert res.report["leftover"]["rms"] < 0.05
+    assert 0 < res.cfg.estimator.tau_m_noise < 0.05 and res.report["tau_h_act_walk"]["q_tau"] > 0
+    # given values are kept
+    given = with_R(nom, np.diag([1e-10, 2e-10, 3e-5, 4e-5]))
+    res2 = calibrate(cal_log, given, given={"R", "Sigma_nom"}, opts=CalibrationOptions(gp="off", synth_s=10.0))
+    assert np.allclose(res2.cfg.estimator.R, given.estimator.R)
+    assert np.allclose(res2.cfg.estimator.Sigma_nom, nom.estimator.Sigma_nom)
+    assert given_keys({"estimator": {"R": [1, 2, 3, 4]}, "kinematics": {"window": 5}}) == {"R", "kinematics"}
+
+
+def test_friction_smoothing_from_the_passive_log_and_walk_from_the_synthetic_subjects(calibrated):
+    """sign_eps is chosen on the passive log alone (every candidate scored there, none on the
+    synthetic subjects); q_τ on the synthetic subjects alone, at the chosen sign_eps."""
+    from sea_daemon.apps.calibration.pipeline import EPS_GRID
+    walk = calibrated.report["tau_h_act_walk"]
+    grid, chosen = walk["grid"], walk["chosen"]
+    eps = chosen["sign_eps"]
+    assert eps == calibrated.cfg.estimator.sign_eps and eps in EPS_GRID
+    scored = [r for r in grid if "passive_log" in r and r["q_tau"] == chosen["q_tau"]]
+    assert {r["sign_eps"] for r in scored} == set(EPS_GRID)
+    assert chosen["passive_log"] == min(r["passive_log"] for r in scored)
+    synth = [r for r in grid if "synthetic_moving" in r]
+    assert len(synth) >= 6 and {r["sign_eps"] for r in synth} == {eps}
+    best = min(math.hypot(r["synthetic_moving"], r["synthetic_still"]) for r in synth)
+    assert math.hypot(chosen["synthetic_moving"], chosen["synthetic_still"]) <= 1.02 * best + 1e-12
+
+
+def test_gp_akf_is_never_much_worse_than_the_physics_on_unlike_sessions(plant, calibrated):
+    nom, true = plant
+    res = calibrated
+    assert res.gp is not None
+    d = math.radians
+    sessions = [run_session(true, 12.0, reference=paper_moves(d(10), d(105), 2.0, 10), seed=21),   # wider, faster
+                run_session(true, 12.0, hold_q=d(20), human=BandLimitedTorque(1.5, 0.1, 1.0, seed=2), seed=22)]
+    for log in sessions:
+        g = _rmse(log, res.estimator(dt=log.dt))
+        a = _rmse(log, res.estimator(dt=log.dt, kind="akf"))
+        assert g <= 1.1 * a + 1e-3, (g, a)
+        assert g < 0.15
+
+
+def test_fit_writes_a_complete_model_that_replay_and_run_load(plant, cal_log, tmp_path, capsys):
+    nom, true = plant
+    p_cal, p_log = tmp_path / "cal.csv", tmp_path / "log.csv"
+    write_log(p_cal, MeasuredLog(t=cal_log.t[:2500], q=cal_log.q[:2500], theta_m=cal_log.theta_m[:2500],
+                                 tau_m=cal_log.tau_m[:2500]))
+    log = run_session(true, 5.0, hold_q=0.3, human=BandLimitedTorque(1.0, 0.1, 0.5, seed=4), seed=5)
+    write_log(p_log, log)
+    code = cli.main(["fit", str(p_cal), "--config", str(NOMINAL), "--out", str(tmp_path / "m")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["effects"] and (tmp_path / "m.yaml").exists() and (tmp_path / "m.npz").exists()
+    cfg = load_config(tmp_path / "m.yaml")
+    assert any(e.type == "gravity" for e in cfg.model.effects)
+    code = cli.main(["replay", str(p_log), "--config", str(tmp_path / "m.yaml"), "--model", str(tmp_path / "m.npz"),
+                     "--estimator", "gp-akf", "--out", str(tmp_path / "e.csv")])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 0 and s["rmse"] < 0.2
