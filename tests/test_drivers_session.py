@@ -66,9 +66,17 @@ def test_estimation_run_over_can_as_good_as_offline():
     assert np.allclose(again.tau_h_act_hat[100:, 0], est.extra["tau_h_act_hat"][100:], atol=0.02)
 
 
+def test_demo_refuses_a_calibration_session_too_short_for_diagnose(tmp_path, capsys):
+    from sea_daemon.apps.cli import main
+    assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40"]) == 2
+    assert "allowed >= 100" in capsys.readouterr().err
+
+
 def test_demo_command_quick(tmp_path, capsys):
     from sea_daemon.apps.cli import main
-    assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40"]) == 0
+    # the paper's flow (the GP learned online) is the quick one; the calibration's flow needs a
+    # session long enough for diagnose (tests/test_calibration.py)
+    assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40", "--online-gp"]) == 0
     printed = capsys.readouterr().out
     assert "active    akf" in printed and "CAN cycles" in printed
     import json

@@ -113,6 +113,9 @@ def _daemon(argv: list[str]) -> dict:
         rc = main(argv)
     lines = [ln for ln in buf.getvalue().splitlines() if ln.startswith("{")]
     summary = json.loads(lines[-1]) if lines else {}
+    if rc == 2:                 # the step refused its input (already said on stderr): the demo's too
+        from sea_daemon.errors import InputError
+        raise InputError(f"sea-daemon {argv[0]} refused its input (above); the demo stops there")
     if rc != 0:
         raise RuntimeError(f"sea-daemon {argv[0]} exited with {rc}: {summary}")
     return summary
@@ -208,6 +211,10 @@ def run(args) -> int:
 
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
+    if args.samples is not None and args.samples < 100 and not args.online_gp:
+        # the calibration's diagnose needs four smoothing windows of the session's log
+        raise InputError(f"--samples {args.samples}: allowed >= 100 (the calibration diagnoses the session's "
+                         "log), or >= 10 with --online-gp")
     out = check_output_dir("--out", args.out, [args.config])
     cfg = load_config(args.config)
     if args.sync_rpdo:
