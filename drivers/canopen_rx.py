@@ -145,25 +145,28 @@ class TpdoWindow:
 class FrameTap:
     """Frames of a few COB-IDs on a handle of the loop thread's own, filtered to them below
     python-can (SocketCAN, ipc): :meth:`take` hands each queued frame to ``on_frame(cob_id,
-    data)`` (``data`` valid during the call).  The devices' heartbeats: taken once a cycle, no
+    data)`` (``data`` valid during the call; other frames that pass every filter — error frames —
+    are skipped).  The devices' heartbeats: taken once a cycle, no
     receive thread.  The handle's queue is the socket's (on ``ipc`` ``net.unix.max_dgram_qlen``
     frames): while nobody takes them, the oldest stay and newer ones are lost."""
 
     def __init__(self, bus: can.BusABC, cob_ids, on_frame):
         self.bus = bus
         self.on_frame = on_frame
+        self.cob_ids = frozenset(cob_ids)
         self._recv = frame_receiver(bus)
-        if not set_controller_filters(bus, exact_filters(cob_ids)):
+        if not set_controller_filters(bus, exact_filters(self.cob_ids)):
             raise ValueError(f"{type(bus).__name__} filters in python-can only: a FrameTap would queue "
                              "every frame of the bus")
 
     def take(self) -> None:
-        recv, on_frame = self._recv, self.on_frame
+        recv, on_frame, ids = self._recv, self.on_frame, self.cob_ids
         while True:
             frame = recv(0.0)
             if frame is None:
                 return
-            on_frame(frame[0], frame[1])
+            if frame[0] in ids:
+                on_frame(frame[0], frame[1])
 
 
 class ErrorFrames(can.Listener):
