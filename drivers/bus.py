@@ -55,6 +55,19 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None
 
 
+def set_controller_filters(bus: can.BusABC, filters: list[dict]) -> bool:
+    """Set acceptance ``filters`` (python-can's ``can_filters``) on ``bus`` where the bus applies
+    them below python-can, as a CAN controller's acceptance filter does: SocketCAN's kernel
+    filter, the ``ipc`` bus (checked on the raw id, and published to the senders, which then
+    send that member nothing it rejects).  Elsewhere (``virtual``, ``remote``) python-can's
+    software filter would end a ``recv(0)`` at the first other frame: left unset, False."""
+    from drivers.ipc_bus import IpcBus
+    if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
+        bus.set_filters(filters)
+        return True
+    return False
+
+
 def frame_bits(dlc: int, stuffing: str = "none") -> int:
     """Bits of a CAN 2.0A data frame (11-bit id) with ``dlc`` data bytes, including the 3-bit IFS.
 

@@ -25,7 +25,8 @@ over SDO is :class:`drivers.canopen_setup.NodeSetup`:
    :attr:`CanopenHardware.meas` until the first ``read()``.
 
 Cycle — PDOs only, pipelined as a CANopen master does: the loop calls ``read()`` at its deadline;
-``read()`` sends SYNC first, checks heartbeats / EMCY / bus-off and sends the master heartbeat
+``read()`` sends SYNC first, takes and checks heartbeats / EMCY / bus-off and sends the master
+heartbeat
 while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
 SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
 this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
@@ -33,7 +34,7 @@ RPDO before the next SYNC, and the estimator runs after it, off the bus's critic
 ``read()`` takes the cycle's
 TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
-structs).
+structs; on SocketCAN and ``ipc`` the devices' heartbeats too, on a third handle).
 Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
 multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
 TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
@@ -56,9 +57,9 @@ from canopen.emcy import EmcyError
 from sea_daemon.core.config import ModelConfig
 
 from drivers import cia402
-from drivers.bus import make_bus
 from drivers.canopen_positions import Positions
-from drivers.canopen_rx import NETWORK_FILTERS, ErrorFrames, TpdoWindow
+from drivers.bus import make_bus, set_controller_filters
+from drivers.canopen_rx import CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, TpdoWindow
 from drivers.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
 from drivers.errors import (
@@ -70,6 +71,9 @@ NMT_OPERATIONAL = 0x05
 
 class CanopenHardware(HardwareInterface):
     """:class:`HardwareInterface` on a CANopen bus (see the module docstring for the sequence)."""
+
+    #: receive timeout [s] of canopen's thread once the heartbeats come on the loop thread
+    IDLE_CYCLE = 0.25
 
     def __init__(self, cfg: ModelConfig, bus: can.BusABC | None = None, *, period: float | None = None,
                  pdo_timeout: float | None = None, clock=time.monotonic):
@@ -87,6 +91,7 @@ class CanopenHardware(HardwareInterface):
         self.clock = clock
         self._bus, self._owns_bus = bus, bus is None
         self._tpdo_bus = None
+        self._hb_tap: FrameTap | None = None     # the heartbeats on the loop thread (once cycling)
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
         self.drives: list = []
@@ -180,6 +185,7 @@ class CanopenHardware(HardwareInterface):
                         "consumer heartbeat time")
         self._send_master_heartbeat(force=True)        # the drives' watch starts with this one
         self._hb_on = True
+        self._heartbeats_in_cycle()
         for drive in self.drives:
             setup.write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
             mode = setup.read(drive, 0x6060 + 1, 0, "modes of operation display")
@@ -188,6 +194,32 @@ class CanopenHardware(HardwareInterface):
                                   f"is {mode}, expected {cia402.MODE_CST} (cyclic synchronous torque)")
             setup.enable(drive)
         self._prime()
+
+    def _heartbeats_in_cycle(self) -> None:
+        """Where the handles filter below python-can (SocketCAN, ipc): from here on the devices'
+        heartbeats come on a handle of their own that ``read()`` takes in the loop thread
+        (:class:`~drivers.canopen_rx.FrameTap`), and the network's handle stops taking them, so
+        canopen's receive thread does not wake for them inside the cycle.  A heartbeat counts
+        from when ``read()`` takes it (at most a period after it arrived while the loop cycles).
+        Elsewhere canopen's receive thread keeps them."""
+        if not self._rx.filtered:
+            return
+        bus = make_bus(self.bus_cfg)
+        try:
+            self._hb_tap = FrameTap(bus, [0x700 + node.id for node in self.drives + self.encoders], self._hb_frame)
+        except BaseException:
+            bus.shutdown()
+            raise
+        set_controller_filters(self._bus, CYCLE_NETWORK_FILTERS)
+        # nothing periodic left on the network's handle: its thread wakes every IDLE_CYCLE for
+        # its stop flag, in < 1 % of the cycles at 1 kHz (a stop waits for it up to that long)
+        if self.network.notifier is not None:
+            self.network.notifier.timeout = self.IDLE_CYCLE
+
+    def receive_pending(self) -> None:
+        """Take the heartbeats waiting now: for a caller that waits for one between cycles."""
+        if self._hb_tap is not None:
+            self._hb_tap.take()
 
     def _keepalive(self) -> None:
         """During SDO sequences: keep the drives' watch of our heartbeat happy (once it runs)."""
@@ -239,9 +271,12 @@ class CanopenHardware(HardwareInterface):
 
     # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
+        self._hb_frame(can_id, data)
+
+    def _hb_frame(self, can_id, data) -> None:
         node = can_id - 0x700
         self._hb_last[node] = self.clock()
-        self._hb_state[node] = data[0] & 0x7F if data else None
+        self._hb_state[node] = data[0] & 0x7F if len(data) else None
 
     def _on_emcy(self, can_id, data, timestamp) -> None:
         if len(data) < 3:
@@ -293,6 +328,8 @@ class CanopenHardware(HardwareInterface):
         # while this thread checks what arrived between cycles and sends its heartbeat
         t_sync = self.clock()
         self._send(self._sync_msg, "SYNC")
+        if self._hb_tap is not None:
+            self._hb_tap.take()
         self._check_async()
         self._send_master_heartbeat()
         self._rx.collect(t_sync + self.pdo_timeout, self.clock)
@@ -426,6 +463,9 @@ class CanopenHardware(HardwareInterface):
         if self._tpdo_bus is not None:
             self._tpdo_bus.shutdown()
             self._tpdo_bus = None
+        if self._hb_tap is not None:
+            self._hb_tap.bus.shutdown()
+            self._hb_tap = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
             self._bus = None

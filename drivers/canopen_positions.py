@@ -72,27 +72,34 @@ class Positions:
             raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m, cycle)
         self._u_q[j] += dq
         self._u_m[j] += dm
-        self._angles(m, j, qc, pos)
-        self._check_stuck(m, j, enc_node, drive_node)
+        q, th = self._angles(m, j, qc, pos)
+        # a stuck encoder: its count unchanged while the other encoder of the joint moves
+        if qc == self._prev_q[j]:
+            self._stuck(m, self._stuck_q[j], th, enc_node, "0x6004 load position value", qc)
+        else:
+            run = self._stuck_q[j]
+            run[0], run[1] = 0, th
+        if pos == self._prev_m[j]:
+            self._stuck(m, self._stuck_m[j], q, drive_node, "0x6064 motor position actual value", pos)
+        else:
+            run = self._stuck_m[j]
+            run[0], run[1] = 0, q
+        self._prev_q[j], self._prev_m[j] = qc, pos
 
-    def _angles(self, m: Measurement, j: int, qc: int, pos: int) -> None:
+    def _angles(self, m: Measurement, j: int, qc: int, pos: int) -> tuple[float, float]:
         self._raw_q[j], self._raw_m[j] = qc, pos
-        m.q[j] = self._u_q[j] * self.k_q - self.q_offset[j]
-        m.theta_m[j] = self._u_m[j] * self.k_m - self.theta_m_offset[j]
+        q = self._u_q[j] * self.k_q - float(self.q_offset[j])
+        th = self._u_m[j] * self.k_m - float(self.theta_m_offset[j])
+        m.q[j] = q
+        m.theta_m[j] = th
+        return q, th
 
-    def _check_stuck(self, m: Measurement, j: int, enc_node: int, drive_node: int) -> None:
+    def _stuck(self, m: Measurement, run: list, other: float, node: int, obj: str, count: int) -> None:
+        """One more cycle of an unchanged count; raises once it has lasted ``stuck_cycles`` while
+        the other encoder moved by more than ``stuck_motion``."""
+        run[0] += 1
+        moved = abs(other - run[1])
         b = self.bus_cfg
-        for run, changed, other, node, obj, count in (
-                (self._stuck_q[j], m.q_counts[j] != self._prev_q[j], m.theta_m[j], enc_node,
-                 "0x6004 load position value", int(m.q_counts[j])),
-                (self._stuck_m[j], m.theta_m_counts[j] != self._prev_m[j], m.q[j], drive_node,
-                 "0x6064 motor position actual value", int(m.theta_m_counts[j]))):
-            if changed:
-                run[0], run[1] = 0, other
-                continue
-            run[0] += 1
-            moved = abs(other - run[1])
-            if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
-                m.faults |= FaultFlag.ENCODER_STUCK
-                raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)
-        self._prev_q[j], self._prev_m[j] = int(m.q_counts[j]), int(m.theta_m_counts[j])
+        if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
+            m.faults |= FaultFlag.ENCODER_STUCK
+            raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)

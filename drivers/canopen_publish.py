@@ -38,6 +38,7 @@ class TpdoPublisher:
         self._status = can.Message(arbitration_id=STATUS_FUNCTION + node, data=bytearray(TPDO_STATUS.size),
                                    is_extended_id=False)
         self.sent = 0
+        self.sent_bytes = 0
         self.dropped = 0
 
     def send(self, cycle: int, hat, bound, valid_mask: int, fault: int, flags: int) -> None:
@@ -58,5 +59,6 @@ class TpdoPublisher:
             with net.send_lock:
                 net.bus.send(msg, timeout=0.0)
             self.sent += 1
+            self.sent_bytes += msg.dlc
         except Exception:  # noqa: BLE001 - a publication never stops the cycle: counted
             self.dropped += 1

@@ -11,17 +11,42 @@ TPDO arrived or the deadline — no receive thread, no lock, no hand-over betwee
 cycle's path, nothing allocated beyond python-can's message object per frame (none on the
 ``ipc`` bus, whose :meth:`~drivers.ipc_bus.IpcBus.recv_frame` gives id and data from its own
 buffer).  canopen's own
-receive thread keeps the rest of the traffic (SDO, heartbeats, EMCY; its handle is filtered to
-those).  :class:`ErrorFrames` watches the bus for the bus-off flag.
+receive thread keeps the rest of the traffic (SDO, EMCY; its handle is filtered to those).  Where
+the handles filter below python-can (SocketCAN, ``ipc``), the devices' heartbeats, once the cycle
+runs, come on a third handle that the loop thread reads in ``read()`` (:class:`FrameTap`): a few
+µs of Python in the loop thread instead of a wake-up of canopen's thread and its per-heartbeat
+handling inside the cycle.  :class:`ErrorFrames` watches the bus for the bus-off flag.
 """
 from __future__ import annotations
 
 import can
 
+from drivers.bus import set_controller_filters
+
 #: accept filters of the canopen network's handle: everything but the TPDO range 0x180..0x4FF
 #: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)
 NETWORK_FILTERS = [{"can_id": cid, "can_mask": 0x780, "extended": False}
                    for cid in (0x000, 0x080, 0x500, 0x580, 0x600, 0x680, 0x700)]
+#: the same without the heartbeats, once a :class:`FrameTap` takes them
+CYCLE_NETWORK_FILTERS = NETWORK_FILTERS[:-1]
+
+
+def frame_receiver(bus: can.BusABC):
+    """``recv(timeout) -> (arbitration id, data) | None`` on ``bus``: the bus's own frame path
+    where it has one (the ipc bus: no can.Message per frame), else python-can's ``recv``."""
+    fast = getattr(bus, "recv_frame", None)
+    if fast is not None:
+        return fast
+
+    def recv(timeout: float):
+        msg = bus.recv(timeout)
+        return None if msg is None else (msg.arbitration_id, msg.data)
+    return recv
+
+
+def exact_filters(cob_ids) -> list[dict]:
+    """python-can ``can_filters`` accepting exactly these 11-bit COB-IDs."""
+    return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in cob_ids]
 
 
 class TpdoSlot:
@@ -51,7 +76,9 @@ class TpdoWindow:
         self.slots: list[TpdoSlot] = []
         self._by_cob: dict[int, TpdoSlot] = {}
         self.bus: can.BusABC | None = None
-        self._recv = self._recv_message
+        self._recv = None
+        #: whether the handle's filters apply below python-can (SocketCAN, ipc)
+        self.filtered = False
 
     def add(self, node: int, cob_id: int, length: int) -> TpdoSlot:
         slot = TpdoSlot(node, cob_id, length)
@@ -64,16 +91,8 @@ class TpdoWindow:
         python-can (SocketCAN's kernel filter, the ipc bus): python-can's software filter would
         end ``recv(0)`` at the first other frame and leave TPDOs queued behind it."""
         self.bus = bus
-        # the bus's own frame path where it has one (the ipc bus: no can.Message per frame)
-        self._recv = getattr(bus, "recv_frame", None) or self._recv_message
-        from drivers.ipc_bus import IpcBus
-        if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
-            bus.set_filters([{"can_id": s.cob_id, "can_mask": 0x7FF, "extended": False} for s in self.slots])
-
-    def _recv_message(self, timeout: float):
-        """``(arbitration id, data)`` of the next frame from python-can's ``recv``, or None."""
-        msg = self.bus.recv(timeout)
-        return None if msg is None else (msg.arbitration_id, msg.data)
+        self._recv = frame_receiver(bus)
+        self.filtered = set_controller_filters(bus, exact_filters(s.cob_id for s in self.slots))
 
     def drain(self) -> bool:
         """Before the SYNC: take what arrived since the last window (late frames) and reset the
@@ -121,6 +140,33 @@ class TpdoWindow:
                 arrived += 1
         for s in self.slots:
             s.snap_count = s.count
+
+
+class FrameTap:
+    """Frames of a few COB-IDs on a handle of the loop thread's own, filtered to them below
+    python-can (SocketCAN, ipc): :meth:`take` hands each queued frame to ``on_frame(cob_id,
+    data)`` (``data`` valid during the call; other frames that pass every filter — error frames —
+    are skipped).  The devices' heartbeats: taken once a cycle, no
+    receive thread.  The handle's queue is the socket's (on ``ipc`` ``net.unix.max_dgram_qlen``
+    frames): while nobody takes them, the oldest stay and newer ones are lost."""
+
+    def __init__(self, bus: can.BusABC, cob_ids, on_frame):
+        self.bus = bus
+        self.on_frame = on_frame
+        self.cob_ids = frozenset(cob_ids)
+        self._recv = frame_receiver(bus)
+        if not set_controller_filters(bus, exact_filters(self.cob_ids)):
+            raise ValueError(f"{type(bus).__name__} filters in python-can only: a FrameTap would queue "
+                             "every frame of the bus")
+
+    def take(self) -> None:
+        recv, on_frame, ids = self._recv, self.on_frame, self.cob_ids
+        while True:
+            frame = recv(0.0)
+            if frame is None:
+                return
+            if frame[0] in ids:
+                on_frame(frame[0], frame[1])
 
 
 class ErrorFrames(can.Listener):

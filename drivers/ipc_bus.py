@@ -80,6 +80,7 @@ class IpcBus(can.BusABC):
         self._rd = (self._sock,)
         self._peers: list[str] = []
         self._mtime = -1
+        self._dfd = -1                              # the channel directory, open: fstat per send
         self._buf = bytearray(_FRAME.size)
         self._rbuf = bytearray(64)                  # recv_frame's receive buffer
         self._rview = memoryview(self._rbuf)
@@ -90,13 +91,20 @@ class IpcBus(can.BusABC):
 
     # ------------------------------------------------------------------ members
     def _refresh(self) -> None:
-        """Re-read the members and their filters when the directory changed (one stat per send
-        otherwise)."""
+        """Re-read the members and their filters when the directory changed (one fstat of the
+        open directory per send otherwise; a directory removed meanwhile is made again)."""
         try:
-            m = os.stat(self._dir).st_mtime_ns
-        except FileNotFoundError:
+            st = os.fstat(self._dfd)
+            if st.st_nlink == 0:                   # removed: the path leads elsewhere (or nowhere)
+                raise FileNotFoundError
+            m = st.st_mtime_ns
+        except OSError:
+            if self._dfd >= 0:
+                os.close(self._dfd)
+                self._dfd = -1
             os.makedirs(self._dir, mode=0o770, exist_ok=True)
-            m = os.stat(self._dir).st_mtime_ns
+            self._dfd = os.open(self._dir, os.O_RDONLY | os.O_DIRECTORY)
+            m = os.fstat(self._dfd).st_mtime_ns
         if m == self._mtime:
             return
         self._mtime = m
@@ -267,6 +275,9 @@ class IpcBus(can.BusABC):
         if self._closed:
             return
         self._closed = True
+        if self._dfd >= 0:
+            os.close(self._dfd)
+            self._dfd = -1
         try:
             self._sock.close()
         finally:

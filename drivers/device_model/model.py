@@ -27,6 +27,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from drivers.bus import set_controller_filters
 from drivers.device_model.drive import DriveNode
 from drivers.device_model.encoder import EncoderNode
 from drivers.device_model.faults import FaultSpec
@@ -77,7 +78,20 @@ class DeviceModel:
         self.handler_cpu_s = np.zeros(self.STATS_CAP)
 
     # ------------------------------------------------------------------ life cycle
+    def acceptance_filters(self) -> list[dict]:
+        """What the devices' CAN controllers accept (python-can ``can_filters``): NMT, SYNC,
+        their own RPDOs and SDO requests, heartbeats (the master's, watched by the drives).
+        Other nodes' PDOs — the daemon's published TPDOs among them — never reach the model."""
+        ids = [0x000, 0x080]
+        for node in self.drives + self.encoders:
+            ids += [f + node.id for f in (0x200, 0x300, 0x400, 0x500, 0x600)]
+        out = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids]
+        out.append({"can_id": 0x700, "can_mask": 0x780, "extended": False})
+        return out
+
     def start(self) -> "DeviceModel":
+        # the controllers' acceptance filter where the bus applies one below python-can
+        set_controller_filters(self.bus, self.acceptance_filters())
         self.network.connect()
         self._sample()
         for node in self.drives + self.encoders:

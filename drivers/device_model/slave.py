@@ -56,7 +56,8 @@ class DeviceNetwork(canopen.Network):
         self.gate = None           # callable(can_id, data) -> bool: True = send now (gate may send later)
         self.deaf: set[int] = set()   # node ids that ignore what they receive (bus-off)
         # every frame this network sent or received, and their data bytes (bus load: with the
-        # master as the only other member, everything on the bus)
+        # master as the only other member, everything on the bus but the frames the devices'
+        # acceptance filter rejects — the master's published TPDOs, counted by their sender)
         self.frames = 0
         self.data_bytes = 0
 

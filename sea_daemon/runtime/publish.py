@@ -232,7 +232,8 @@ class Publisher:
     def stats(self) -> dict:
         out = {"published": self.published, "errors": self.errors}
         if self.tpdo is not None:
-            out["can"] = {"frames_sent": self.tpdo.sent, "frames_dropped": self.tpdo.dropped}
+            out["can"] = {"frames_sent": self.tpdo.sent, "bytes_sent": self.tpdo.sent_bytes,
+                          "frames_dropped": self.tpdo.dropped}
         if self.local is not None:
             out["local"] = {"socket": str(self.local.path), "datagrams_sent": self.local.sent,
                             "dropped_full": self.local.dropped, "readers_gone": self.local.gone,

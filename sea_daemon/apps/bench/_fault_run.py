@@ -152,6 +152,7 @@ class FaultRun:
                     time.sleep(0.002)
                 while rig.hw._hb_last.get(node.id, 0.0) is None or \
                         time.monotonic() - rig.hw._hb_last[node.id] > 0.05:
+                    rig.hw.receive_pending()       # the heartbeats come on the cycle's handle
                     time.sleep(0.002)
             self._restore = restore
             inj.note = target
