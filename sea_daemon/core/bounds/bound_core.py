@@ -151,19 +151,12 @@ def _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, l
     var = sf2[l] - vv
     if var < 0.0:
         var = 0.0
-    if clip[l]:
-        out = False
-        for i in range(x.shape[0]):
-            v = min(max(x[i], lo[l, i]), hi[l, i])
-            xc[i] = v
-            if v != x[i]:
-                out = True
-        if out:
-            gp_core.query(xc, center[l], il2[l], a)
-            gp_core.kernel_vector(Al, m, a, kv)
-            mu = 0.0
-            for i in range(m):
-                mu += kv[i] * al[i]
+    if clip[l] and gp_core.clip_into(x, lo[l], hi[l], xc):
+        gp_core.query(xc, center[l], il2[l], a)
+        gp_core.kernel_vector(Al, m, a, kv)
+        mu = 0.0
+        for i in range(m):
+            mu += kv[i] * al[i]
     return mu, var
 
 

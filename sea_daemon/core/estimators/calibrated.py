@@ -19,7 +19,16 @@ from sea_daemon.core.estimators.weighted import WeightedResidual
 
 
 class _CoverageFlag:
-    """Mixin: the coverage flag after every update."""
+    """Mixin (before the estimator in the bases): the coverage flag after every update."""
+
+    def reset(self, *a, **k):
+        self.n_outside = 0
+        return super().reset(*a, **k)
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        e = super().update(q, theta_m, tau_m, dt)
+        self._flag()
+        return e
 
     def _init_flag(self, coverage):
         self.coverage = coverage
@@ -46,15 +55,6 @@ class CalibratedAKF(_CoverageFlag, AKF):
         super().__init__(cfg, dt=dt, bound=bound)
         self._init_flag(coverage)
 
-    def reset(self, *a, **k):
-        self.n_outside = 0
-        return super().reset(*a, **k)
-
-    def update(self, q, theta_m, tau_m, dt=None):
-        e = super().update(q, theta_m, tau_m, dt)
-        self._flag()
-        return e
-
 
 class CalibratedGPAKF(_CoverageFlag, GPAKF):
     name = "gp-akf"
@@ -68,15 +68,6 @@ class CalibratedGPAKF(_CoverageFlag, GPAKF):
         # the bound is built on the weighted hook (AKF builds it at the end of its constructor)
         if bound is not None:
             self.bound = bound(self)
-
-    def reset(self, *a, **k):
-        self.n_outside = 0
-        return super().reset(*a, **k)
-
-    def update(self, q, theta_m, tau_m, dt=None):
-        e = super().update(q, theta_m, tau_m, dt)
-        self._flag()
-        return e
 
 
 def make_calibrated(cfg, gp, coverage, dt=None, kind: str = "gp-akf", power: float = 2.0, v_gate: float = 0.0,

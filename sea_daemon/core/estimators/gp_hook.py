@@ -30,21 +30,14 @@ def _leaf_grad(l, x, nn, row, apo, A, beta, alpha, ap, center, il2, sf2, lo, hi,
     apl = ap[p0:p0 + m * (m + 1) // 2]
     bl = beta[r0:r0 + m]
     al = alpha[r0:r0 + m]
-    if clip[l]:
-        out = False
+    if clip[l] and gp_core.clip_into(x, lo[l], hi[l], xc):
+        var = gp_core.predict(Al, apl, bl, center[l], il2[l], m, sf2[l], x)[1]
+        mu, _ = gp_core.predict_with_grad(Al, apl, bl, al, True, center[l], il2[l], m, sf2[l], xc, False, dmu,
+                                          dmu)
         for i in range(x.shape[0]):
-            v = min(max(x[i], lo[l, i]), hi[l, i])
-            xc[i] = v
-            if v != x[i]:
-                out = True
-        if out:
-            var = gp_core.predict(Al, apl, bl, center[l], il2[l], m, sf2[l], x)[1]
-            mu, _ = gp_core.predict_with_grad(Al, apl, bl, al, True, center[l], il2[l], m, sf2[l], xc, False, dmu,
-                                              dmu)
-            for i in range(x.shape[0]):
-                if xc[i] != x[i]:
-                    dmu[i] = 0.0
-            return mu, var
+            if xc[i] != x[i]:
+                dmu[i] = 0.0
+        return mu, var
     return gp_core.predict_with_grad(Al, apl, bl, al, True, center[l], il2[l], m, sf2[l], x, False, dmu, dvar)
 
 

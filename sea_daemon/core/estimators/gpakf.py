@@ -54,12 +54,7 @@ class _ResidualHook:
         self.var = np.zeros(n)
         # bounded GP inputs (health.InputBox): the box of the training inputs, from the data a
         # loaded model already holds, widened by ``margin`` of its width on each side
-        self.box = InputBox(3 * n, margin)
-        for g in gp.gps:
-            for leaf in g.leaves():
-                lg = g.leaf(leaf)
-                if lg.n_:
-                    self.box.add_many(lg.X_[:lg.n_])
+        self.box = InputBox.of_residual(gp, margin)
         # the compiled path (freeze): LoG-GPs only
         self._loggp = all(type(g) is LoGGP for g in gp.gps)
         self._key = self._pack_key = None

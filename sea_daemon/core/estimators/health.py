@@ -188,6 +188,18 @@ class InputBox:
         self.n_clipped = 0
         self._z = np.zeros(self.dim)
 
+    @classmethod
+    def of_residual(cls, gp, margin: float = 0.1) -> "InputBox":
+        """The box of the training inputs a residual's GPs (``gp.gps``, LoG-GP leaves) already
+        hold — a loaded model's — widened by ``margin``."""
+        box = cls(3 * gp.n, margin)
+        for g in gp.gps:
+            for leaf in g.leaves():
+                lg = g.leaf(leaf)
+                if lg.n_:
+                    box.add_many(lg.X_[:lg.n_])
+        return box
+
     @property
     def empty(self) -> bool:
         return not np.isfinite(self.lo_[0])

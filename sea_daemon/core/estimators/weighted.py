@@ -55,12 +55,7 @@ class WeightedResidual:
         self.jac = np.zeros((n, 3 * n))
         self.var = np.zeros(n)
         self.w = np.ones(n)
-        self.box = InputBox(3 * n, margin)
-        for g in gp.gps:
-            for leaf in g.leaves():
-                lg = g.leaf(leaf)
-                if lg.n_:
-                    self.box.add_many(lg.X_[:lg.n_])
+        self.box = InputBox.of_residual(gp, margin)
         self._cap = None
         if M is not None and dt is not None:
             m = np.abs(np.diag(np.asarray(M, dtype=float)))

@@ -50,6 +50,19 @@ def se_matrix(A, B, il2, sf2, K):
             K[i, j] = sf2 * math.exp(-0.5 * se_r2(a, B, j, il2))
 
 
+@njit
+def clip_into(x, lo, hi, xc) -> bool:
+    """xc ← x clipped into the box [lo, hi] (a leaf's training box, clip_mean); whether any
+    coordinate changed."""
+    out = False
+    for i in range(x.shape[0]):
+        v = min(max(x[i], lo[i]), hi[i])
+        xc[i] = v
+        if v != x[i]:
+            out = True
+    return out
+
+
 @njit(fast=True)
 def query(x, c, il2, a):
     """a = a(x) = [x̄, 1, −½ Σ_j x̄_j² / l_j²] (length ρ + 2)."""
