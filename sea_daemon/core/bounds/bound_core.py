@@ -381,14 +381,21 @@ def gravity_remainder(qh, r, g, grid, grid_step, v):
         v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
 
 
-@warmer
-def _warm() -> None:
-    """:func:`bound_step` with the argument types the bound passes (one joint, d = 5)."""
+def warm_up_loggp():
+    """A one-joint LoG-GP of four points: the argument types of the compiled GP calls, for
+    their warm-up (here and in :mod:`sea_daemon.core.estimators.gp_hook`)."""
     from sea_daemon.core.gp.loggp import LoGGP
     gpm = LoGGP(3)
     rng = np.random.default_rng(0)
     for _ in range(4):
         gpm.update(rng.standard_normal(3), 0.1)
+    return gpm
+
+
+@warmer
+def _warm() -> None:
+    """:func:`bound_step` with the argument types the bound passes (one joint, d = 5)."""
+    gpm = warm_up_loggp()
     pack = GPPack([gpm], [{k: 0.01 for k in gpm.leaves()}])
     d = 5
     E_q = np.zeros((1, d))

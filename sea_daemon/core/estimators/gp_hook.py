@@ -97,13 +97,8 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
 @warmer
 def _warm() -> None:
     """:func:`hook_predict` with the argument types the hook passes (one joint, z of 3)."""
-    from sea_daemon.core.bounds.bound_core import GPPack
-    from sea_daemon.core.gp.loggp import LoGGP
-    gpm = LoGGP(3)
-    rng = np.random.default_rng(0)
-    for _ in range(4):
-        gpm.update(rng.standard_normal(3), 0.1)
-    pack = GPPack([gpm])
+    from sea_daemon.core.bounds.bound_core import GPPack, warm_up_loggp
+    pack = GPPack([warm_up_loggp()])
     for noise in (False, True):
         hook_predict(np.zeros(3), -np.ones(3), np.ones(3), np.zeros(3), np.zeros(3, np.bool_), noise, np.zeros(1),
                      np.zeros((1, 3)), np.zeros(1), *pack.args(), pack.sn2)
