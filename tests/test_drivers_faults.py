@@ -13,6 +13,7 @@ from drivers.device_model import FaultSpec
 from drivers.errors import (
     BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost, PdoTimeout, SendFailed)
 from drivers.interface import FaultFlag
+from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.errors import Fault
 
@@ -168,9 +169,9 @@ def test_loop_latches_and_quick_stops_the_drive(make_rig):
     """The daemon's fixed-rate loop turns a driver fault into zero torque / quick stop at once."""
     rig = started(make_rig)
 
-    class Est:
+    class Est:                       # an estimator still starting: its estimate not valid
         def update(self, q, theta_m, tau_m):
-            return None
+            return Estimate.zeros(1)
 
     class Push:
         def update(self, t, q, theta_m, est):

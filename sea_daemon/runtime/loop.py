@@ -238,7 +238,7 @@ class FixedRateLoop:
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
                     # the estimator's own flag: 0 at a (re)start and until the filter converged
-                    valid = 1.0 if est is not None and est.valid else 0.0
+                    valid = 1.0 if est.valid else 0.0
                 except Exception as e:  # noqa: BLE001
                     self._failed(e, k, start)
             if not sup.ok:
