@@ -67,7 +67,8 @@ def add_arguments(p) -> None:
                    help="daemon configuration (default: configs/exo_1dof_sim.yaml, the estimator settings "
                         "for the simulated sensors)")
     p.add_argument("--samples", type=int, default=None,
-                   help="shorten both phases to this many samples each (quick look)")
+                   help="shorten both phases to this many samples each (quick look; the calibration's diagnose "
+                        "needs four smoothing windows of the session, --online-gp does not)")
     p.add_argument("--sync-rpdo", action="store_true",
                    help="torque RPDO actuated at the next SYNC (one cycle more delay) instead of on reception")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
@@ -211,10 +212,6 @@ def run(args) -> int:
 
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
-    if args.samples is not None and args.samples < 100 and not args.online_gp:
-        # the calibration's diagnose needs four smoothing windows of the session's log
-        raise InputError(f"--samples {args.samples}: allowed >= 100 (the calibration diagnoses the session's "
-                         "log), or >= 10 with --online-gp")
     out = check_output_dir("--out", args.out, [args.config])
     cfg = load_config(args.config)
     if args.sync_rpdo:
