@@ -156,12 +156,12 @@ def check_output_dir(flag: str, directory: str | Path, inputs: Iterable[str | Pa
     for i in (Path(p) for p in inputs if p is not None):
         if _same(d, i):
             raise InputError(f"{flag} {shown(d)}: is also an input of this command")
+    if d.exists() and not d.is_dir():
+        raise InputError(f"{flag} {shown(d)}: is not a directory")
     try:
         d.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"{flag} {shown(d)}: cannot create: {e.strerror or e}") from None
-    if not d.is_dir():
-        raise InputError(f"{flag} {shown(d)}: is not a directory")
     _probe(flag, d, d)
     return d
 

@@ -48,10 +48,7 @@ def run(args) -> int:
 
     # before any work: DIR can be written and none of its files is an input
     inputs = [args.log, args.config, *args.apply]
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a directory")
-    out = check_output_dir("--out", out, inputs)
+    out = check_output_dir("--out", args.out, inputs)
     check_outputs([("--out", out / name) for name in OUTPUTS], inputs)
     for i in map(Path, inputs):
         if i.suffix.lower() == ".png" and i.resolve().parent == out.resolve():
