@@ -13,7 +13,7 @@ from sea_daemon.io.scenario import load_scenario
 
 from tests._cli import refused, run
 
-PLANTS = ("newrobot", "newrobot2")
+PLANTS = ("newrobot", "newrobot2", "newrobot3")
 
 
 @pytest.mark.parametrize("name", PLANTS)
