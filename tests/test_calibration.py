@@ -295,3 +295,23 @@ def test_fit_writes_a_complete_model_that_replay_and_run_load(plant, cal_log, tm
                      "--estimator", "gp-akf", "--out", str(tmp_path / "e.csv")])
     s = json.loads(capsys.readouterr().out)
     assert code == 0 and s["rmse"] < 0.2
+
+
+def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):
+    """diagnose's collinear pairs reach the calibration's plain-words summary with the angles
+    and speeds the log spans (the physics may extrapolate wrongly beyond them)."""
+    import copy
+    from sea_daemon.apps.calibration.modelio import summary
+    assert isinstance(calibrated.report["diagnose"]["correlated_pairs"], list)
+    res = copy.copy(calibrated)
+    res.report = copy.deepcopy(calibrated.report)
+    res.report["diagnose"]["correlated_pairs"] = [{"kept": "human_viscoelastic/load", "dropped": "gravity/load",
+                                                   "correlation": 0.997}]
+    s = summary(res)
+    line = next(t for t in s["text"] if "cannot tell apart" in t)
+    q = res.report["data_range"]["q"]
+    assert "human_viscoelastic/load from gravity/load (parameter correlation +1.00" in line
+    assert f"{math.degrees(q[0]):.0f}-{math.degrees(q[1]):.0f} deg" in line and "--excitation" in line
+    assert s["ambiguous"] == res.report["diagnose"]["correlated_pairs"]
+    if not calibrated.report["diagnose"]["correlated_pairs"]:
+        assert not any("cannot tell apart" in t for t in summary(calibrated)["text"])

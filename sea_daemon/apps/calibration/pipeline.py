@@ -471,7 +471,10 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
                               "residual_rms_before": dg.result["residual_rms_before"],
                               "residual_rms_after": dg.result["residual_rms_after"],
                               "unexplained_fraction": dg.result["unexplained_fraction"],
-                              "statements": dg.result["statements"]}
+                              "statements": dg.result["statements"],
+                              # effects the log cannot tell apart: one kept, the other dropped
+                              "correlated_pairs": [{k: c[k] for k in ("kept", "dropped", "correlation")}
+                                                   for c in dg.result.get("correlated_pairs", [])]}
         cfg = dg.cfg_after
     # 3. motor-torque noise
     if "tau_m_noise" not in given:
@@ -486,6 +489,9 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
     report["gp_v_gate"] = v_gate
     report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
+    # the angles and speeds the log's moving data span [rad, rad/s]
+    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
+                            "dq": float(np.max(np.abs(Z[:, 1])))}
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
         lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
