@@ -19,6 +19,10 @@ with ``robot.yaml`` — what ``sea-daemon replay LOG --train CAL.csv --config ro
 robot, the AKF on the augmented model (diagnose's effects), the oracle AKF (the true plant),
 RMSE of τ̂_h,act against the truth; the target of issue 12: passive ≤ 0.05 N m, active ≤ 0.1.
 
+``--calibration excitation`` calibrates instead on the calibration excitation over
+``robot.yaml``'s ``calibration`` section (what ``sea-daemon calibrate --excitation`` drives), on
+the same plant with the calibration scenario's PID gains and seed.
+
 The logs are written to ``OUT/logs/*.csv`` (docs/interfaces.md §1, with ``tau_h_act``), so each
 row can be re-run with ``sea-daemon replay``; the figures go to ``OUT/results.json``.
 """
@@ -49,6 +53,10 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default="bench_newrobot", help="directory for results.json and logs/ (default bench_newrobot)")
     add_choice_argument(p, "--estimators", ESTIMATORS)
     p.add_argument("--bound", action="store_true", help="also the Theorem-1 bound of the GP-AKF (guaranteed beta)")
+    p.add_argument("--calibration", choices=("scenario", "excitation"), default="scenario",
+                   help="the calibration log: the calibration scenario's training phase (default), or the "
+                        "calibration excitation over robot.yaml's calibration section (what calibrate "
+                        "--excitation drives) on the same plant")
     p.add_argument("--gp", choices=("auto", "on", "off"), default="auto",
                    help="the residual GP: kept when cross-validation shows it helps (auto, default: what replay "
                         "--train does), always (on), never (off); as sea-daemon fit --gp")
@@ -97,6 +105,24 @@ def load_table(plant_dir: Path):
     return cal, out
 
 
+def excitation_log(sc):
+    """The calibration excitation (:func:`sea_daemon.apps.calibration.excitation_reference`: the
+    moves ``calibrate --excitation`` drives over the configuration's working range) on the
+    scenario's true plant, tracked by the scenario's PID gains, its noise seed."""
+    from sea_daemon.apps.calibration import excitation_reference
+    from sea_daemon.core.sim.session import PIDGains, run_session
+    from sea_daemon.errors import ConfigError
+    from sea_daemon.io.scenario import PIDSpec
+    ctl = sc.controller
+    if not isinstance(ctl, PIDSpec):
+        raise ConfigError(sc.source, "controller.type", "--calibration excitation tracks the moves with the "
+                                                        "scenario's PID: needs controller.type pid")
+    ref = excitation_reference(sc.nominal, ctl.q0)
+    gains = PIDGains(ctl.kp, ctl.ki, ctl.kd, ctl.velocity_filter_hz, ctl.derivative)
+    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=gains,
+                       substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps, torque_noise=sc.plant.torque_noise)
+
+
 def run(args) -> int:
     from sea_daemon.apps.bench import choose, machine
     from sea_daemon.apps.bench.generalize import ESTIMATORS, calibration_row, run_sessions
@@ -114,14 +140,19 @@ def run(args) -> int:
     print(f"bench newrobot: plant {plant_dir} (nominal robot {cal_sc.model_path.name}, {len(sessions)} sessions), "
           f"estimators {', '.join(est)}; {machine()}", flush=True)
     t0 = time.perf_counter()
-    cal = simulate(cal_sc).training
+    if args.calibration == "excitation":
+        cal = excitation_log(cal_sc)
+        cal_what = f"the calibration excitation over {cal_sc.model_path.name}'s calibration section"
+    else:
+        cal = simulate(cal_sc).training
+        cal_what = cal_sc.description
     write_log(out / "logs" / "calibration.csv", cal)
     tests, kinds = {}, {}
     for s in sessions:
         tests[s.name] = simulate(s.scenario, seed=s.seed).estimation
         kinds[s.name] = "passive" if s.scenario.human == "passive" else "active"
         write_log(out / "logs" / f"{s.name}.csv", tests[s.name])
-    print(f"simulated: calibration {len(cal)} samples ({cal_sc.description}), sessions "
+    print(f"simulated: calibration {len(cal)} samples ({cal_what}), sessions "
           f"{', '.join(f'{k} {len(v)}' for k, v in tests.items())} ({time.perf_counter() - t0:.0f} s)", flush=True)
     print(f"calibrating on the calibration log (the nominal robot model and the log only; --gp {args.gp}) ...",
           flush=True)
@@ -145,16 +176,16 @@ def run(args) -> int:
         table.append({"session": s.name, "description": s.scenario.description, "kind": kinds[s.name],
                       "target": target, "met": ("rmse" in g and g["rmse"] <= target) if "gp-akf" in r else None,
                       **{k: r[k].get("rmse") for k in est}})
-    _print_table(table, est, plant_dir)
-    result = {"plant": str(plant_dir), "gp": args.gp, "machine": machine(), "calibration_s": cal_s, "calibration": crow,
+    _print_table(table, est, plant_dir, cal_what)
+    result = {"plant": str(plant_dir), "gp": args.gp, "calibration_log": cal_what, "machine": machine(), "calibration_s": cal_s, "calibration": crow,
               "table": table, "sessions": rows}
     atomic_write_text(out / "results.json", json.dumps(result, indent=1, default=float))
     print(f"results: {out / 'results.json'}, logs: {out / 'logs'}  (load average {os.getloadavg()[0]:.2f})")
     return 0
 
 
-def _print_table(table, est, plant_dir) -> None:
-    print(f"\nRMSE of tau_h_act_hat [N m], {plant_dir}, calibrated once on calibration.yaml's training phase:")
+def _print_table(table, est, plant_dir, cal_what) -> None:
+    print(f"\nRMSE of tau_h_act_hat [N m], {plant_dir}, calibrated once on: {cal_what}")
     w = max(len(r["description"]) for r in table)
     print(f"| {'session':{w}s} | " + " | ".join(f"{k:9s}" for k in est) + " | target | met |")
     for r in table:
