@@ -48,3 +48,23 @@ def test_a_table_mixing_plants_or_naming_a_session_twice_is_refused(tmp_path, ca
     code, _, err = run(["bench", "newrobot", "--plant", d, "--out", tmp_path / "out"], capsys)
     refused(code, err, r"sessions\[1\]\.name", "named twice")
     assert not (tmp_path / "out").exists()
+
+
+def test_the_excitation_calibration_log_spans_the_declared_working_range():
+    """--calibration excitation: the moves calibrate --excitation drives, on the plant's true
+    plant with a passive subject, over robot.yaml's working range."""
+    import math
+
+    import numpy as np
+
+    from sea_daemon.apps.bench.newrobot import excitation_log
+    cal, _ = load_table(repo_root() / "configs" / "scenarios" / "newrobot3")
+    c = cal.nominal.calibration
+    log = excitation_log(cal)
+    # the excitation (plus the move from the scenario's start angle onto it)
+    assert c.duration_s - 0.5 <= log.t[-1] <= c.duration_s + 5.0 and not np.any(log.tau_h_act)
+    q = np.degrees(log.q[:, 0])
+    lo, hi = c.q_min_deg, c.q_max_deg
+    assert q.min() < lo + 0.1 * (hi - lo) and q.max() > hi - 0.1 * (hi - lo)
+    dq = np.gradient(log.q[:, 0], log.t)
+    assert np.max(np.abs(dq)) > 0.5 * c.v_max and math.isfinite(float(np.max(np.abs(dq))))
