@@ -315,3 +315,21 @@ def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):
     assert s["ambiguous"] == res.report["diagnose"]["correlated_pairs"]
     if not calibrated.report["diagnose"]["correlated_pairs"]:
         assert not any("cannot tell apart" in t for t in summary(calibrated)["text"])
+
+
+def test_the_gp_pairs_carry_the_load_sides_leftover_only(plant):
+    """A motor-side torque the physics misses (cogging) stays out of the residual GP's targets:
+    the filter applies f on the load side, where it would move τ̂_h,act by its size."""
+    from sea_daemon.apps.calibration.pipeline import smooth_pairs
+    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity
+    nom, true = plant
+    cog = make_effect("cogging", "motor", A=0.08, periods=6.0, phi=0.3)
+    aug = true                                                    # the model: the load side's physics complete
+    log = run_session(true.with_effects(tuple(true.model.effects) + (cog,)), 12.0,
+                      reference=paper_moves(math.radians(10), math.radians(75), 2.0, 10), seed=7)
+    Z, F = smooth_pairs(aug, log)
+    r = residual_channels(SEAModel.from_config(aug), kinematics_from_log(log), passive=True,
+                          v_stick=stick_velocity(aug))
+    rms = lambda a: float(np.sqrt(np.mean(a ** 2)))
+    assert rms(r[50:-50, 1]) > 0.04                              # the cogging is in the motor side's balance
+    assert len(Z) > 200 and rms(F[:, 0]) < 0.25 * rms(r[50:-50, 1])
