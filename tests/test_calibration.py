@@ -295,3 +295,41 @@ def test_fit_writes_a_complete_model_that_replay_and_run_load(plant, cal_log, tm
                      "--estimator", "gp-akf", "--out", str(tmp_path / "e.csv")])
     s = json.loads(capsys.readouterr().out)
     assert code == 0 and s["rmse"] < 0.2
+
+
+def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):
+    """diagnose's collinear pairs reach the calibration's plain-words summary with the angles
+    and speeds the log spans (the physics may extrapolate wrongly beyond them)."""
+    import copy
+    from sea_daemon.apps.calibration.modelio import summary
+    assert isinstance(calibrated.report["diagnose"]["correlated_pairs"], list)
+    res = copy.copy(calibrated)
+    res.report = copy.deepcopy(calibrated.report)
+    res.report["diagnose"]["correlated_pairs"] = [{"kept": "human_viscoelastic/load", "dropped": "gravity/load",
+                                                   "correlation": 0.997}]
+    s = summary(res)
+    line = next(t for t in s["text"] if "cannot tell apart" in t)
+    q = res.report["data_range"]["q"]
+    assert "human_viscoelastic/load from gravity/load (parameter correlation +1.00" in line
+    assert f"{math.degrees(q[0]):.0f}-{math.degrees(q[1]):.0f} deg" in line and "--excitation" in line
+    assert s["ambiguous"] == res.report["diagnose"]["correlated_pairs"]
+    if not calibrated.report["diagnose"]["correlated_pairs"]:
+        assert not any("cannot tell apart" in t for t in summary(calibrated)["text"])
+
+
+def test_the_gp_pairs_carry_the_load_sides_leftover_only(plant):
+    """A motor-side torque the physics misses (cogging) stays out of the residual GP's targets:
+    the filter applies f on the load side, where it would move τ̂_h,act by its size."""
+    from sea_daemon.apps.calibration.pipeline import smooth_pairs
+    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity
+    nom, true = plant
+    cog = make_effect("cogging", "motor", A=0.08, periods=6.0, phi=0.3)
+    aug = true                                                    # the model: the load side's physics complete
+    log = run_session(true.with_effects(tuple(true.model.effects) + (cog,)), 12.0,
+                      reference=paper_moves(math.radians(10), math.radians(75), 2.0, 10), seed=7)
+    Z, F = smooth_pairs(aug, log)
+    r = residual_channels(SEAModel.from_config(aug), kinematics_from_log(log), passive=True,
+                          v_stick=stick_velocity(aug))
+    rms = lambda a: float(np.sqrt(np.mean(a ** 2)))
+    assert rms(r[50:-50, 1]) > 0.04                              # the cogging is in the motor side's balance
+    assert len(Z) > 200 and rms(F[:, 0]) < 0.25 * rms(r[50:-50, 1])

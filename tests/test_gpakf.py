@@ -256,8 +256,10 @@ def test_bench_latency_gp_akf_case_runs(capsys):
     assert code == 0
     assert "gp-akf-1e3: pre-filled 1000 points" in out and "gp-akf-1e3: per step median" in out
     assert "load average" in out and "gp-akf-1e4" not in out
+    # the calibrated model's step (learning off) is timed too
+    assert "gp-akf-calibrated: residual GP of" in out and "gp-akf-calibrated: per step median" in out
     # the CPU time split by what the LoG-GP did: 950 steps, mostly plain, slices every 10 updates
-    line = next(l for l in out.splitlines() if "CPU time by what the LoG-GP did" in l)
+    line = next(l for l in out.splitlines() if "CPU time by what the LoG-GP did" in l)  # gp-akf-1e3's
     assert "plain" in line and "hyper phase 1" in line and "hyper phase 2" in line
 
 

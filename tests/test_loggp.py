@@ -334,3 +334,35 @@ def test_batched_prediction_equals_per_point(overlap):
     np.testing.assert_allclose(gp.predict_many(Z)[0], [gp.predict(z)[0] for z in Z], rtol=1e-13, atol=1e-15)
     with pytest.raises(InputError):
         gp.predict_many(np.full((2, 3), np.nan))
+
+
+def test_tree_arrays_follow_every_split():
+    """The compiled routing's arrays are written by each split (not rebuilt per step): after
+    hundreds of splits with predictions in between they equal the tree's lists, and routing
+    through them gives the predictions of arrays built afresh."""
+    from sea_daemon.core.gp.routing import Tree
+    gp = LoGGP(input_dim=2, max_points=10, overlap=0.1, seed=1)
+    rng = np.random.default_rng(0)
+    Z = rng.uniform(-1.0, 1.0, (50, 2))
+    for k in range(1500):
+        x = rng.uniform(-1.0, 1.0, 2)
+        gp.update(x, float(np.sin(3.0 * x[0]) + x[1]))
+        if k % 7 == 0:
+            gp.predict_with_grad(Z[k % 50])         # the arrays exist between the splits
+    assert gp.n_leaves > 100
+    # a split with room left writes into the same arrays (no copy of the tree)
+    t0, leaves = gp._tree_arrays(), gp.n_leaves
+    while gp.n_leaves == leaves:
+        x = rng.uniform(-1.0, 1.0, 2)
+        gp.update(x, float(np.sin(3.0 * x[0]) + x[1]))
+    assert len(gp._dim) <= t0.links.shape[1] and gp._tree_arrays().links is t0.links
+    t = gp._tree_arrays()
+    fresh = Tree.of(gp._dim, gp._lo, gp._hi, gp._left, gp._right)
+    n = len(gp._dim)
+    assert np.array_equal(t.links[:, :n], fresh.links) and np.array_equal(t.span[:, :n], fresh.span)
+    mu, var = gp.predict_many(Z)
+    g = [gp.predict_with_grad(z)[2] for z in Z]
+    gp._tree_cache = None
+    mu2, var2 = gp.predict_many(Z)
+    assert np.array_equal(mu, mu2) and np.array_equal(var, var2)
+    assert all(np.array_equal(a, gp.predict_with_grad(z)[2]) for a, z in zip(g, Z))

@@ -11,6 +11,12 @@ cycled with a small jitter (2 % of each input's spread) so that every point is n
 tree is unbounded (``max_leaves=None``) so it really holds N points; the pre-fill runs with
 the hyperparameter slices off (it is set-up, not measured) and they are switched on for the
 timed steps.  Pre-fill time is printed (about 50-100 µs per point on the 2-core bench machine).
+
+``gp-akf-calibrated``: the step the daemon runs on a calibrated model (``fit``, ``calibrate
+--fit``; :class:`~sea_daemon.core.estimators.calibrated.CalibratedGPAKF`): the residual GP
+behind the variance weighting, learning off (the calibration trains the GP offline), and the
+coverage flag.  Its GP holds the log's training pairs (one leaf's worth is what a calibration
+keeps per region), with the calibration's own hyperparameter fit on them.
 """
 from __future__ import annotations
 
@@ -62,13 +68,46 @@ def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = 
     return est
 
 
+CALIBRATED = "gp-akf-calibrated"
+
+
+def calibrated_gpakf(cfg, dt, log, verbose: bool = True):
+    """The calibrated GP-AKF (no learning) with a residual GP trained on ``log``'s pairs and a
+    coverage map of them (see the module docstring)."""
+    import dataclasses
+    from sea_daemon.apps.calibration.pipeline import fit_gp_hyper
+    from sea_daemon.core.estimators.calibrated import make_calibrated
+    from sea_daemon.core.excitation import Coverage, WorkingRange
+    from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
+    from sea_daemon.core.model import SEAModel
+
+    Z, F = training_pairs_from_log(SEAModel.from_config(cfg), log, kinematics=cfg.kinematics, causal=True)
+    hyp = fit_gp_hyper(Z, F, 400, 0)
+    lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
+                             sigma_n=hyp["sigma_n"], hyperopt=False)
+    cfg = dataclasses.replace(cfg, learning=lc, estimator=dataclasses.replace(cfg.estimator, gp_noise_in_Q=True))
+    gp = ResidualGP.from_config(cfg)
+    gp.train(Z, F)
+    cov = Coverage(WorkingRange(float(Z[:, 0].min()), float(Z[:, 0].max()), float(np.abs(Z[:, 1]).max()),
+                                float(np.abs(Z[:, 2]).max())))
+    cov.add(Z)
+    est = make_calibrated(cfg, gp, cov, dt=dt)
+    if verbose:
+        g0 = gp.gps[0]
+        print(f"{CALIBRATED:>12s}: residual GP of {g0.n_points} points ({g0.n_leaves} leaves), learning off, "
+              f"coverage flag on", flush=True)
+    return est
+
+
 def register(register_fn, max_points: int = SIZES[-1], hyper_every: int | None = None) -> list[str]:
-    """Register ``gp-akf-1eK`` cases up to ``max_points`` with ``register_fn(label, builder)``
-    (``hyper_every``: updates between hyperparameter slices, default the LoG-GP's)."""
+    """Register ``gp-akf-1eK`` cases up to ``max_points`` and ``gp-akf-calibrated`` with
+    ``register_fn(label, builder)`` (``hyper_every``: updates between hyperparameter slices of
+    the learning cases, default the LoG-GP's)."""
     labels = []
     for n in SIZES:
         if n > max_points:
             break
         register_fn(label(n), lambda cfg, dt, log, n=n: prefilled_gpakf(cfg, dt, log, n, hyper_every=hyper_every))
         labels.append(label(n))
-    return labels
+    register_fn(CALIBRATED, lambda cfg, dt, log: calibrated_gpakf(cfg, dt, log))
+    return labels + [CALIBRATED]

@@ -121,9 +121,7 @@ def _run(log, est, bound: bool = False) -> dict:
 
 def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str) -> dict:
     """Calibrate plant ``seed`` once and run every estimator on every test session."""
-    import dataclasses
     from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
-    from sea_daemon.core.estimators.akf import AKF
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs(seed, cal_s, cache)
     t_sim = time.perf_counter() - t0
@@ -137,21 +135,38 @@ def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mod
         row["calibration_error"] = f"{type(e).__name__}: {e}"
         row["traceback"] = traceback.format_exc()[-2000:]
         return row
-    rep = res.report
-    row["calibration"] = {
+    row["calibration"] = calibration_row(res.report)
+    do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
+    row["sessions"] = run_sessions(res, pd.nominal, pd.true, tests, estimators, do_bound)
+    row["wall_s"] = time.perf_counter() - t0 + t_sim
+    return row
+
+
+def calibration_row(rep: dict) -> dict:
+    """What a calibration report says, for a benchmark's results: the effects diagnose added, the
+    identified noise, the GP kept or not and its hyperparameters, the coverage, the expected RMSE."""
+    return {
         "effects": [f"{d['type']}({d['side']})" for d in rep.get("diagnose", {}).get("effects_added", [])],
         "q_tau": rep["tau_h_act_walk"].get("q_tau"), "tau_m_noise": rep["tau_m_noise"].get("identified"),
         "R": rep["R"].get("identified"), "gp_kept": rep["gp_kept"], "gp_cv": rep.get("gp_cv"),
         "gp_hyper": rep.get("gp_hyper"), "leftover_rms": rep["leftover"]["rms"], "coverage": rep["coverage"],
         "expected": rep["tau_h_act_walk"].get("chosen")}
+
+
+def run_sessions(res, nominal, true, tests: dict, estimators, do_bound: bool = False, on_session=None) -> dict:
+    """Every estimator of ``estimators`` on every log of ``tests`` ({name: log}) after the
+    calibration ``res``: the GP-AKF and the AKF on the calibrated model, the AKF on the nominal
+    robot ``nominal`` and on the true plant ``true`` (both with the calibrated noise settings).
+    ``on_session(name, result)`` is called after each session.  {name: {estimator: result}}."""
+    import dataclasses
+    from sea_daemon.core.estimators.akf import AKF
     cfg = res.cfg
     # the robot-only AKF with the health monitor off: its model does not fit any of these logs
     # (NIS divergence would stop it at once), and the comparison wants its estimate
-    robot = dataclasses.replace(pd.nominal, estimator=dataclasses.replace(cfg.estimator, nis_scale=1e12),
+    robot = dataclasses.replace(nominal, estimator=dataclasses.replace(cfg.estimator, nis_scale=1e12),
                                 kinematics=cfg.kinematics)
-    oracle = dataclasses.replace(pd.true, estimator=cfg.estimator, kinematics=cfg.kinematics)
-    do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
-    row["sessions"] = {}
+    oracle = dataclasses.replace(true, estimator=cfg.estimator, kinematics=cfg.kinematics)
+    out = {}
     for name, log in tests.items():
         r = {}
         for lab in estimators:
@@ -166,9 +181,10 @@ def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mod
                     r[lab] = _run(log, AKF(oracle, dt=log.dt))
             except Exception as e:
                 r[lab] = {"internal_error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-1500:]}
-        row["sessions"][name] = r
-    row["wall_s"] = time.perf_counter() - t0 + t_sim
-    return row
+        out[name] = r
+        if on_session is not None:
+            on_session(name, r)
+    return out
 
 
 def summarize(rows: list[dict]) -> dict:

@@ -129,8 +129,9 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=30.0, help="length of the synthetic log [s]")
     p.add_argument("--repeat", type=int, default=3, help="passes over the log per estimator")
     p.add_argument("--estimators", default="akf,spring,gp-akf",
-                   help="comma-separated labels; 'gp-akf' = every gp-akf-1eK case up to --max-points "
-                        "(known: akf, spring, gp-akf-1e3 … gp-akf-1e6)")
+                   help="comma-separated labels; 'gp-akf' = every gp-akf-1eK case up to --max-points and "
+                        "gp-akf-calibrated (known: akf, spring, gp-akf-1e3 … gp-akf-1e6 with online learning, "
+                        "gp-akf-calibrated: the calibrated model's step, learning off)")
     p.add_argument("--max-points", type=float, default=1e6,
                    help="largest LoG-GP pre-fill of the gp-akf cases (default 1e6; ~50-100 us per point)")
     p.add_argument("--hyper-every", type=int, default=None,

@@ -11,6 +11,7 @@ OUT.npz`` and ``replay`` load both.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,15 @@ def summary(result) -> dict:
                      f"from {rep['diagnose']['residual_rms_before']:.3g} to {rep['diagnose']['residual_rms_after']:.3g} N m RMS.")
     else:
         lines.append("diagnose found no effect to add: the configured model explains the log.")
+    pairs = rep.get("diagnose", {}).get("correlated_pairs", [])
+    if pairs:
+        box = rep.get("data_range")
+        where = (f" ({math.degrees(box['q'][0]):.0f}-{math.degrees(box['q'][1]):.0f} deg, up to "
+                 f"{box['dq']:.2g} rad/s)") if box else ""
+        lines.append("This log cannot tell apart " + "; ".join(
+            f"{c['kept']} from {c['dropped']} (parameter correlation {c['correlation']:+.2f}; {c['kept']} kept)"
+            for c in pairs) + f": beyond the angles and speeds the log covers{where} the model may be wrong "
+            "there. Calibrate over the working range (sea-daemon calibrate --excitation).")
     lines.append(f"Motor-torque noise: {cfg.estimator.tau_m_noise:.3g} N m.")
     if "q_tau" in walk:
         h = walk["human"]
@@ -93,6 +103,6 @@ def summary(result) -> dict:
                      f"{chosen.get('synthetic_moving', float('nan')):.3g} N m with an active subject while moving, "
                      f"{chosen.get('synthetic_still', float('nan')):.3g} N m with the arm held still, "
                      f"{chosen.get('passive_log', float('nan')):.3g} N m on this passive log.")
-    return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff],
+    return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff], "ambiguous": pairs,
             "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
             "coverage": cov, "expected_rmse": {k: chosen.get(k) for k in ("synthetic_moving", "synthetic_still", "passive_log")}}

@@ -16,7 +16,7 @@ gives is kept, see :func:`given_keys`):
 4. the τ_h,act random walk q_τ (:func:`human_walk`): the identified model replayed with
    synthetic human torques of the declared band and size; the friction-sign smoothing on the
    real passive log;
-5. the residual GP (LoG-GP) on what the augmented model leaves: hyperparameters by maximum
+5. the residual GP (LoG-GP) on what the augmented model leaves on the load side: hyperparameters by maximum
    likelihood on a subsample of the training pairs (σ_f then is the size of that leftover, so
    the GP error bound shrinks with it), learned online over the log by the GP-AKF itself;
    kept only if blocked cross-validation shows it predicts the leftover better than zero
@@ -344,10 +344,17 @@ def stick_velocity_of(cfg: ModelConfig) -> float:
 
 
 def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
-    """Training pairs for the offline calibration: z = [q, q̇, q̈] and the leftover
-    f = r_load + r_motor of the augmented model (= eq:loadsidewmotor, τ_h,act = 0), both from
-    the zero-phase kinematics of ``diagnose`` (:func:`~sea_daemon.diagnose.residuals.residual_channels`:
-    one smoother over the whole balance, static friction set-valued while the joint sticks).
+    """Training pairs for the offline calibration: z = [q, q̇, q̈] and the load side's leftover
+    f = r_load of the augmented model (eq:unknwn_load with τ_h,act = 0: the term the filter's
+    load-side dynamics carry), both from the zero-phase kinematics of ``diagnose``
+    (:func:`~sea_daemon.diagnose.residuals.residual_channels`: one smoother over the whole
+    balance, static friction set-valued while the joint sticks).
+
+    Why not r_load + r_motor (eq:loadsidewmotor, what the GP-AKF learns online): the filter
+    applies f on the load side, so a motor-side leftover (cogging, a drive's friction or torque
+    constant the physics missed) learned into f moves τ̂_h,act by its own size — the filter
+    sees the motor side through θ_m and absorbs it there.  With the calibration's physics the
+    two sides are measured apart (the spring's deflection gives τ_s), and each goes where it acts.
 
     Why not the causal pairs the GP-AKF learns online: their q̈ carries the differentiator's
     encoder noise both in the input and, times M, in the target — errors in variables: the GP
@@ -360,7 +367,8 @@ def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
     kin = kinematics_from_log(log)
     r = residual_channels(model, kin, passive=True, v_stick=stick_velocity(cfg))
     n = cfg.joints
-    F = r[:, :n] + r[:, n:]
+    # eq:unknwn_load: the load side's leftover (r_motor stays with the motor side, see above)
+    F = r[:, :n]
     q, _ = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
     Z = np.hstack([q, kin.dq, kin.ddq])
     edge = window_samples(log.t)
@@ -463,7 +471,10 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
                               "residual_rms_before": dg.result["residual_rms_before"],
                               "residual_rms_after": dg.result["residual_rms_after"],
                               "unexplained_fraction": dg.result["unexplained_fraction"],
-                              "statements": dg.result["statements"]}
+                              "statements": dg.result["statements"],
+                              # effects the log cannot tell apart: one kept, the other dropped
+                              "correlated_pairs": [{k: c[k] for k in ("kept", "dropped", "correlation")}
+                                                   for c in dg.result.get("correlated_pairs", [])]}
         cfg = dg.cfg_after
     # 3. motor-torque noise
     if "tau_m_noise" not in given:
@@ -478,6 +489,9 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
     report["gp_v_gate"] = v_gate
     report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
+    # the angles and speeds the log's moving data span [rad, rad/s]
+    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
+                            "dq": float(np.max(np.abs(Z[:, 1])))}
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
         lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
@@ -491,8 +505,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         report["gp_cv"] = cv
         keep = cv["gain"] >= opts.gp_cv_gain
     if keep:
-        # the same pairs the GP-AKF would learn online (causal kinematics, eq:loadsidewmotor):
-        # trained directly, no filter in the loop (nothing to diverge)
+        # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
         gp = _offline_gp(cfg, Z, F)
     report["gp_kept"] = gp is not None
     # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
