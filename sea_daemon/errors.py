@@ -58,6 +58,11 @@ class HardwareError(SeaDaemonError):
     """Base of faults raised by the hardware layer (``drivers``)."""
 
 
+class RunFault(SeaDaemonError):
+    """A daemon run stopped with a fault latched (bus timeout, lost heartbeat, ...): the system
+    did what its safety policy says, the job could not finish.  CLI exit status 1, one line."""
+
+
 #: The fault codes of the daemon's single fault policy (:mod:`sea_daemon.runtime.safety`): every
 #: estimator and hardware exception carries one as ``.fault``; the log's ``fault`` column holds it.
 class Fault(enum.IntEnum):

@@ -14,7 +14,7 @@ import pkgutil
 import sys
 
 from sea_daemon import __version__
-from sea_daemon.errors import EstimatorFault, InputError, shown
+from sea_daemon.errors import EstimatorFault, InputError, SeaDaemonError, shown
 
 
 class Parser(argparse.ArgumentParser):
@@ -65,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def guarded(prog: str, run, args) -> int:
     """``run(args)`` under the exit-status policy: 0 success, 2 bad input (one line on stderr,
-    no traceback), 130 interrupted, 1 internal fault (one line; SEA_DAEMON_DEBUG=1 re-raises).
+    no traceback), 130 interrupted, 1 a typed fault of the system (e.g. a run that stopped on a
+    latched fault) or an internal fault (one line; SEA_DAEMON_DEBUG=1 re-raises).
 
     An estimator fault that reaches here (a filter diverging on a log in replay, identify-noise,
     diagnose, ...) is bad input too: the log does not fit the model or its settings.  The service
@@ -83,6 +84,11 @@ def guarded(prog: str, run, args) -> int:
             raise
         _say(f"{prog}: error: estimator fault ({type(e).__name__}): {e}")
         return 2
+    except SeaDaemonError as e:     # a typed fault of the system (not the user's input): exit 1
+        if debug:
+            raise
+        _say(f"{prog}: error: {type(e).__name__}: {e}")
+        return 1
     except KeyboardInterrupt:
         _say(f"{prog}: interrupted")
         return 130

@@ -117,8 +117,10 @@ def _daemon(argv: list[str]) -> dict:
     if rc == 2:                 # the step refused its input (already said on stderr): the demo's too
         from sea_daemon.errors import InputError
         raise InputError(f"sea-daemon {argv[0]} refused its input (above); the demo stops there")
-    if rc != 0:
-        raise RuntimeError(f"sea-daemon {argv[0]} exited with {rc}: {summary}")
+    if rc != 0:                 # the step stopped on a latched fault (said on stderr): not a bug
+        from sea_daemon.errors import RunFault
+        fault = summary.get("fault") or summary.get("faults") or "see the line above"
+        raise RunFault(f"sea-daemon {argv[0]} stopped with exit status {rc} ({fault}); the demo stops there")
     return summary
 
 
