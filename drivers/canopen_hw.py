@@ -113,6 +113,7 @@ class CanopenHardware(HardwareInterface):
         self._rx = TpdoWindow()
         self._hb_last = {}
         self._watching = False               # the TPDO window hands over heartbeats and EMCY
+        self._loop_takes_async = False       # heartbeats and EMCY: the loop thread's, not canopen's
         self._late_pending = False           # late TPDOs found by receive_pending()
         self._hb_state = {}
         self._emcy: dict[int, tuple[int, int, bytes] | None] = {}
@@ -169,7 +170,7 @@ class CanopenHardware(HardwareInterface):
             self._hb_state[node.id] = None
             self._emcy[node.id] = None
             net.subscribe(0x700 + node.id, self._on_heartbeat)
-            net.subscribe(0x80 + node.id, self._on_emcy)
+            net.subscribe(0x80 + node.id, self._on_net_emcy)
         net.nmt.state = "PRE-OPERATIONAL"                                 # broadcast
         setup = self.setup
         for j in range(self.n):
@@ -226,6 +227,9 @@ class CanopenHardware(HardwareInterface):
         else:
             self._rx.watch(hb_ids + emcy_ids, self._tap_frame)
             self._watching = True
+        # canopen's thread ignores them from now on (a bus that ignores filters — python-can-remote —
+        # still brings them to it: taken twice, one EMCY would latch again after its reset)
+        self._loop_takes_async = True
         self._bus.set_filters(CYCLE_NETWORK_FILTERS)
         # nothing periodic left on the network's handle: its thread wakes every IDLE_CYCLE for
         # its stop flag, in < 1 % of the cycles at 1 kHz (a stop waits for it up to that long)
@@ -297,7 +301,12 @@ class CanopenHardware(HardwareInterface):
 
     # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
-        self._hb_frame(can_id, data, timestamp)
+        if not self._loop_takes_async:
+            self._hb_frame(can_id, data, timestamp)
+
+    def _on_net_emcy(self, can_id, data, timestamp) -> None:
+        if not self._loop_takes_async:
+            self._on_emcy(can_id, data, timestamp)
 
     def _hb_frame(self, can_id, data, timestamp) -> None:
         """A node's heartbeat: dated by its arrival on the bus (a frame taken late is not younger)."""
@@ -503,6 +512,7 @@ class CanopenHardware(HardwareInterface):
         self._started = False
         self._hb_on = False
         self._watching = False
+        self._loop_takes_async = False
         if net is not None and net.notifier is not None:
             net.notifier.stop(2.0)
         if self._tpdo_bus is not None:
