@@ -105,7 +105,7 @@ class CanopenHardware(HardwareInterface):
         self.nm_per_permille = b.rated_torque / 1e6 * self.gear            # 1 ‰ of 0x6076 on the joint side
         self.max_permille = min(32767, int(math.ceil(self.torque_limit / self.nm_per_permille)))
         self.setup = NodeSetup(b, res=self.res, gear=self.gear, period=self.period, max_permille=self.max_permille,
-                               keepalive=self._keepalive)
+                               keepalive=self.keepalive)
         self.positions = Positions(n, self.res, self.gear, b, self.period)
         # cycle state
         self.meas = Measurement(n)
@@ -248,10 +248,10 @@ class CanopenHardware(HardwareInterface):
             if self._rx.drain():
                 self._late_pending = True
 
-    def _keepalive(self) -> None:
-        """During SDO sequences: keep the drives' watch of our heartbeat happy (once it runs),
-        and take the devices' heartbeats and EMCY off the loop thread's handle (its queue would
-        fill while no ``read()`` takes it)."""
+    def keepalive(self) -> None:
+        """Between cycles (SDO sequences, a caller that waits): keep the drives' watch of our
+        heartbeat happy (once it runs), and take the devices' heartbeats and EMCY off the loop
+        thread's handle (its queue would fill while no ``read()`` takes it)."""
         if self._hb_on:
             self._send_master_heartbeat()
         self.receive_pending()

@@ -151,13 +151,16 @@ class FaultRun:
             def restore(node=node):
                 node.heartbeat_suppressed = False
                 node.nmt.start_heartbeat(self.cfg.hardware.bus.heartbeat_ms)
+                # the loop waits here: the daemon's own heartbeat goes on meanwhile (keepalive), as
+                # it would from a loop that keeps cycling
                 t0 = time.monotonic()
                 seen = self.sniffer.hb_seen.get(node.id, 0.0)
                 while self.sniffer.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
+                    rig.hw.keepalive()
                     time.sleep(0.002)
                 while rig.hw._hb_last.get(node.id, 0.0) is None or \
                         time.monotonic() - rig.hw._hb_last[node.id] > 0.05:
-                    rig.hw.receive_pending()       # the heartbeats come on the cycle's handle
+                    rig.hw.keepalive()             # the heartbeats come on the cycle's handles
                     time.sleep(0.002)
             self._restore = restore
             inj.note = target
