@@ -34,7 +34,11 @@ RPDO before the next SYNC, and the estimator runs after it, off the bus's critic
 ``read()`` takes the cycle's
 TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
-structs; on SocketCAN and ``ipc`` the devices' heartbeats too, on a third handle).
+structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` on a third
+handle, taken after the SYNC and again after the TPDOs; on ``virtual`` and ``remote`` on the
+TPDO handle, which sees every frame there).  A heartbeat counts from its arrival on the bus (the
+frame's timestamp, :func:`drivers.canopen_rx.arrival`), so the heartbeat timeout does not grow
+by the time a thread took to get to the frame.
 Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
 multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
 TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
@@ -58,8 +62,8 @@ from sea_daemon.core.config import ModelConfig
 
 from drivers import cia402
 from drivers.canopen_positions import Positions
-from drivers.bus import make_bus, set_controller_filters
-from drivers.canopen_rx import CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, TpdoWindow
+from drivers.bus import make_bus
+from drivers.canopen_rx import CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, TpdoWindow, arrival
 from drivers.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
 from drivers.errors import (
@@ -72,7 +76,7 @@ NMT_OPERATIONAL = 0x05
 class CanopenHardware(HardwareInterface):
     """:class:`HardwareInterface` on a CANopen bus (see the module docstring for the sequence)."""
 
-    #: receive timeout [s] of canopen's thread once the heartbeats come on the loop thread
+    #: receive timeout [s] of canopen's thread once heartbeats and EMCY come on the loop thread
     IDLE_CYCLE = 0.25
 
     def __init__(self, cfg: ModelConfig, bus: can.BusABC | None = None, *, period: float | None = None,
@@ -92,6 +96,7 @@ class CanopenHardware(HardwareInterface):
         self._bus, self._owns_bus = bus, bus is None
         self._tpdo_bus = None
         self._hb_tap: FrameTap | None = None     # the heartbeats on the loop thread (once cycling)
+        self._emcy_tap: FrameTap | None = None   # the EMCY on the loop thread (once cycling)
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
         self.drives: list = []
@@ -100,13 +105,16 @@ class CanopenHardware(HardwareInterface):
         self.nm_per_permille = b.rated_torque / 1e6 * self.gear            # 1 ‰ of 0x6076 on the joint side
         self.max_permille = min(32767, int(math.ceil(self.torque_limit / self.nm_per_permille)))
         self.setup = NodeSetup(b, res=self.res, gear=self.gear, period=self.period, max_permille=self.max_permille,
-                               keepalive=self._keepalive)
+                               keepalive=self.keepalive)
         self.positions = Positions(n, self.res, self.gear, b, self.period)
         # cycle state
         self.meas = Measurement(n)
         self._act = np.zeros(n)             # actuated()'s result
         self._rx = TpdoWindow()
         self._hb_last = {}
+        self._watching = False               # the TPDO window hands over heartbeats and EMCY
+        self._loop_takes_async = False       # heartbeats and EMCY: the loop thread's, not canopen's
+        self._late_pending = False           # late TPDOs found by receive_pending()
         self._hb_state = {}
         self._emcy: dict[int, tuple[int, int, bytes] | None] = {}
         self._errors = ErrorFrames()
@@ -162,7 +170,7 @@ class CanopenHardware(HardwareInterface):
             self._hb_state[node.id] = None
             self._emcy[node.id] = None
             net.subscribe(0x700 + node.id, self._on_heartbeat)
-            net.subscribe(0x80 + node.id, self._on_emcy)
+            net.subscribe(0x80 + node.id, self._on_net_emcy)
         net.nmt.state = "PRE-OPERATIONAL"                                 # broadcast
         setup = self.setup
         for j in range(self.n):
@@ -185,7 +193,7 @@ class CanopenHardware(HardwareInterface):
                         "consumer heartbeat time")
         self._send_master_heartbeat(force=True)        # the drives' watch starts with this one
         self._hb_on = True
-        self._heartbeats_in_cycle()
+        self._async_in_cycle()
         for drive in self.drives:
             setup.write(drive, 0x6060, 0, cia402.MODE_CST, "modes of operation")
             mode = setup.read(drive, 0x6060 + 1, 0, "modes of operation display")
@@ -195,36 +203,58 @@ class CanopenHardware(HardwareInterface):
             setup.enable(drive)
         self._prime()
 
-    def _heartbeats_in_cycle(self) -> None:
-        """Where the handles filter below python-can (SocketCAN, ipc): from here on the devices'
-        heartbeats come on a handle of their own that ``read()`` takes in the loop thread
-        (:class:`~drivers.canopen_rx.FrameTap`), and the network's handle stops taking them, so
-        canopen's receive thread does not wake for them inside the cycle.  A heartbeat counts
-        from when ``read()`` takes it (at most a period after it arrived while the loop cycles).
-        Elsewhere canopen's receive thread keeps them."""
-        if not self._rx.filtered:
-            return
-        bus = make_bus(self.bus_cfg)
-        try:
-            self._hb_tap = FrameTap(bus, [0x700 + node.id for node in self.drives + self.encoders], self._hb_frame)
-        except BaseException:
-            bus.shutdown()
-            raise
-        set_controller_filters(self._bus, CYCLE_NETWORK_FILTERS)
+    def _async_in_cycle(self) -> None:
+        """From here on the loop thread takes the devices' heartbeats and EMCY in ``read()``,
+        and the network's handle stops taking them: canopen's receive thread does not wake for
+        them inside the cycle, and an EMCY queued before ``read()`` (or before the cycle's
+        TPDOs) is raised by that ``read()``, whatever the scheduler does with canopen's thread.
+        Where the handles filter below python-can (SocketCAN, ipc) each comes on a handle of
+        its own (:class:`~drivers.canopen_rx.FrameTap`; EMCY apart from the heartbeats, so that
+        heartbeats filling a queue nobody takes — the ipc bus queues 10 frames — cannot crowd out
+        an EMCY); on ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and
+        hands them over (``TpdoWindow.watch``)."""
+        nodes = self.drives + self.encoders
+        hb_ids = [0x700 + node.id for node in nodes]
+        emcy_ids = [0x80 + node.id for node in nodes]
+        if self._rx.filtered:
+            for attr, ids, on_frame in (("_hb_tap", hb_ids, self._hb_frame), ("_emcy_tap", emcy_ids, self._on_emcy)):
+                bus = make_bus(self.bus_cfg)
+                try:
+                    setattr(self, attr, FrameTap(bus, ids, on_frame))
+                except BaseException:
+                    bus.shutdown()
+                    raise
+        else:
+            self._rx.watch(hb_ids + emcy_ids, self._tap_frame)
+            self._watching = True
+        # canopen's thread ignores them from now on (a bus that ignores filters — python-can-remote —
+        # still brings them to it: taken twice, one EMCY would latch again after its reset)
+        self._loop_takes_async = True
+        self._bus.set_filters(CYCLE_NETWORK_FILTERS)
         # nothing periodic left on the network's handle: its thread wakes every IDLE_CYCLE for
         # its stop flag, in < 1 % of the cycles at 1 kHz (a stop waits for it up to that long)
         if self.network.notifier is not None:
             self.network.notifier.timeout = self.IDLE_CYCLE
 
     def receive_pending(self) -> None:
-        """Take the heartbeats waiting now: for a caller that waits for one between cycles."""
+        """Take the heartbeats and EMCY waiting now (on the loop thread's handle, where there is
+        one): for a caller that waits for a heartbeat between cycles."""
         if self._hb_tap is not None:
             self._hb_tap.take()
+        if self._emcy_tap is not None:
+            self._emcy_tap.take()
+        if self._watching:
+            # the TPDO handle: frames of an earlier cycle found here are reported by the next read()
+            if self._rx.drain():
+                self._late_pending = True
 
-    def _keepalive(self) -> None:
-        """During SDO sequences: keep the drives' watch of our heartbeat happy (once it runs)."""
+    def keepalive(self) -> None:
+        """Between cycles (SDO sequences, a caller that waits): keep the drives' watch of our
+        heartbeat happy (once it runs), and take the devices' heartbeats and EMCY off the loop
+        thread's handle (its queue would fill while no ``read()`` takes it)."""
         if self._hb_on:
             self._send_master_heartbeat()
+        self.receive_pending()
 
     # ---------------------------------------------------------------- PDOs of the cycle
     def _configure_drive(self, d) -> None:
@@ -271,12 +301,27 @@ class CanopenHardware(HardwareInterface):
 
     # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
-        self._hb_frame(can_id, data)
+        if not self._loop_takes_async:
+            self._hb_frame(can_id, data, timestamp)
 
-    def _hb_frame(self, can_id, data) -> None:
+    def _on_net_emcy(self, can_id, data, timestamp) -> None:
+        if not self._loop_takes_async:
+            self._on_emcy(can_id, data, timestamp)
+
+    def _hb_frame(self, can_id, data, timestamp) -> None:
+        """A node's heartbeat: dated by its arrival on the bus (a frame taken late is not younger)."""
         node = can_id - 0x700
-        self._hb_last[node] = self.clock()
+        t = arrival(self.clock(), timestamp)
+        last = self._hb_last.get(node)
+        self._hb_last[node] = t if last is None or t > last else last
         self._hb_state[node] = data[0] & 0x7F if len(data) else None
+
+    def _tap_frame(self, can_id, data, timestamp) -> None:
+        """A frame the TPDO window hands over (``virtual``, ``remote``): a heartbeat or an EMCY."""
+        if can_id >= 0x700:
+            self._hb_frame(can_id, data, timestamp)
+        else:
+            self._on_emcy(can_id, data, timestamp)
 
     def _on_emcy(self, can_id, data, timestamp) -> None:
         if len(data) < 3:
@@ -321,7 +366,8 @@ class CanopenHardware(HardwareInterface):
         m.faults = 0
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
-        if self._rx.drain():
+        if self._rx.drain() or self._late_pending:
+            self._late_pending = False
             m.faults |= FaultFlag.FRAME_LATE
             self.late_cycles += 1
         # SYNC first (the loop calls read() at its deadline): the devices sample now and answer
@@ -330,11 +376,16 @@ class CanopenHardware(HardwareInterface):
         self._send(self._sync_msg, "SYNC")
         if self._hb_tap is not None:
             self._hb_tap.take()
+        tap = self._emcy_tap
+        if tap is not None:
+            tap.take()
         self._check_async()
         self._send_master_heartbeat()
         self._rx.collect(t_sync + self.pdo_timeout, self.clock)
         self._cycle += 1
-        self._check_emcy()                 # an EMCY sent before the TPDOs has arrived before them
+        if tap is not None:
+            tap.take()                     # an EMCY sent before the TPDOs is queued before them
+        self._check_emcy()
         m.cycle = self._cycle
         m.t = self._cycle * self.period
         m.t_mono = t_sync
@@ -425,7 +476,9 @@ class CanopenHardware(HardwareInterface):
             pass
 
     def reset_fault(self) -> None:
-        """Operator reset: clear the drive's fault, re-enable, reset the unwrapping reference."""
+        """Operator reset: clear the drive's fault, re-enable, reset the unwrapping reference.
+        The EMCY that arrived before the reset is what it clears."""
+        self.receive_pending()
         for k in self._emcy:
             self._emcy[k] = None
         self._errors.bus_off = False
@@ -458,14 +511,17 @@ class CanopenHardware(HardwareInterface):
         net, self.network = self.network, None
         self._started = False
         self._hb_on = False
+        self._watching = False
+        self._loop_takes_async = False
         if net is not None and net.notifier is not None:
             net.notifier.stop(2.0)
         if self._tpdo_bus is not None:
             self._tpdo_bus.shutdown()
             self._tpdo_bus = None
-        if self._hb_tap is not None:
-            self._hb_tap.bus.shutdown()
-            self._hb_tap = None
+        for tap in (self._hb_tap, self._emcy_tap):
+            if tap is not None:
+                tap.bus.shutdown()
+        self._hb_tap = self._emcy_tap = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
             self._bus = None

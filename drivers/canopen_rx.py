@@ -11,13 +11,20 @@ TPDO arrived or the deadline — no receive thread, no lock, no hand-over betwee
 cycle's path, nothing allocated beyond python-can's message object per frame (none on the
 ``ipc`` bus, whose :meth:`~drivers.ipc_bus.IpcBus.recv_frame` gives id and data from its own
 buffer).  canopen's own
-receive thread keeps the rest of the traffic (SDO, EMCY; its handle is filtered to those).  Where
-the handles filter below python-can (SocketCAN, ``ipc``), the devices' heartbeats, once the cycle
-runs, come on a third handle that the loop thread reads in ``read()`` (:class:`FrameTap`): a few
-µs of Python in the loop thread instead of a wake-up of canopen's thread and its per-heartbeat
-handling inside the cycle.  :class:`ErrorFrames` watches the bus for the bus-off flag.
+receive thread keeps the rest of the traffic (SDO, NMT; its handle is filtered to those).  Where
+the handles filter below python-can (SocketCAN, ``ipc``), the devices' heartbeats and EMCY, once
+the cycle runs, come on a third handle that the loop thread reads in ``read()``
+(:class:`FrameTap`): a few µs of Python in the loop thread instead of a wake-up of canopen's
+thread inside the cycle; on ``virtual`` and ``remote``, whose TPDO handle sees every frame anyway,
+the window hands them over as it meets them (:meth:`TpdoWindow.watch`).  Either way an EMCY
+queued before ``read()`` — or before the cycle's TPDOs — is seen by that ``read()``, whatever the
+scheduler does with canopen's thread.  A heartbeat counts from its arrival on the bus
+(:func:`arrival`), not from when a thread took it.  :class:`ErrorFrames` watches the bus for the
+bus-off flag.
 """
 from __future__ import annotations
+
+import time
 
 import can
 
@@ -27,20 +34,41 @@ from drivers.bus import set_controller_filters
 #: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)
 NETWORK_FILTERS = [{"can_id": cid, "can_mask": 0x780, "extended": False}
                    for cid in (0x000, 0x080, 0x500, 0x580, 0x600, 0x680, 0x700)]
-#: the same without the heartbeats, once a :class:`FrameTap` takes them
-CYCLE_NETWORK_FILTERS = NETWORK_FILTERS[:-1]
+#: the same without SYNC/EMCY and the heartbeats, once a :class:`FrameTap` takes them
+CYCLE_NETWORK_FILTERS = [f for f in NETWORK_FILTERS if f["can_id"] not in (0x080, 0x700)]
 
 
-def frame_receiver(bus: can.BusABC):
-    """``recv(timeout) -> (arbitration id, data) | None`` on ``bus``: the bus's own frame path
-    where it has one (the ipc bus: no can.Message per frame), else python-can's ``recv``."""
+def arrival(now: float, timestamp: float | None) -> float:
+    """When a frame arrived, on the clock that reads ``now``: ``now`` minus the frame's age by
+    its bus timestamp (``can.Message.timestamp``: the kernel's reception time on SocketCAN, the
+    sender's ``time.time()`` on ``virtual``, ``ipc`` and ``remote``).  A frame a thread takes late
+    is dated when it came, not when it was taken; no timestamp, or one from the future (the wall
+    clock stepped back), dates it ``now``."""
+    if timestamp:
+        age = time.time() - timestamp
+        if age > 0.0:
+            return now - age
+    return now
+
+
+def frame_receiver(bus: can.BusABC, stamped: bool = False):
+    """``recv(timeout) -> (arbitration id, data[, timestamp]) | None`` on ``bus``: the bus's own
+    frame path where it has one (the ipc bus: no can.Message per frame; the timestamp only when
+    ``stamped``), else python-can's ``recv`` (always with the frame's timestamp)."""
     fast = getattr(bus, "recv_frame", None)
     if fast is not None:
-        return fast
+        if not stamped:
+            return fast
+        stamp = bus.frame_timestamp
+
+        def recv_stamped(timeout: float):
+            frame = fast(timeout)
+            return None if frame is None else (frame[0], frame[1], stamp())
+        return recv_stamped
 
     def recv(timeout: float):
         msg = bus.recv(timeout)
-        return None if msg is None else (msg.arbitration_id, msg.data)
+        return None if msg is None else (msg.arbitration_id, msg.data, msg.timestamp)
     return recv
 
 
@@ -79,6 +107,8 @@ class TpdoWindow:
         self._recv = None
         #: whether the handle's filters apply below python-can (SocketCAN, ipc)
         self.filtered = False
+        self._other: frozenset = frozenset()     # COB-IDs handed to _on_other (see watch())
+        self._on_other = None
 
     def add(self, node: int, cob_id: int, length: int) -> TpdoSlot:
         slot = TpdoSlot(node, cob_id, length)
@@ -94,18 +124,30 @@ class TpdoWindow:
         self._recv = frame_receiver(bus)
         self.filtered = set_controller_filters(bus, exact_filters(s.cob_id for s in self.slots))
 
+    def watch(self, cob_ids, on_frame) -> None:
+        """On a handle that sees every frame (``virtual``, ``remote``): hand the frames of
+        ``cob_ids`` met while draining or collecting to ``on_frame(cob_id, data, timestamp)``
+        (the devices' heartbeats and EMCY, taken by the loop thread in the order they came
+        with the TPDOs)."""
+        if self.filtered:
+            raise ValueError("TpdoWindow.watch: the handle filters below python-can; use a FrameTap")
+        self._other = frozenset(cob_ids)
+        self._on_other = on_frame
+
     def drain(self) -> bool:
         """Before the SYNC: take what arrived since the last window (late frames) and reset the
         slots; True when there were any."""
         late = False
         recv = self._recv
-        by_cob = self._by_cob
+        by_cob, other = self._by_cob, self._other
         while True:
             frame = recv(0.0)
             if frame is None:
                 break
             if frame[0] in by_cob:                 # a bus that ignores filters (python-can-remote)
                 late = True
+            elif frame[0] in other:
+                self._on_other(frame[0], frame[1], frame[2])
         for s in self.slots:
             s.count = 0
             s.bad_len = 0
@@ -118,7 +160,7 @@ class TpdoWindow:
         recv = self._recv
         need = len(self.slots)
         arrived = 0
-        by_cob = self._by_cob
+        by_cob, other = self._by_cob, self._other
         while arrived < need:
             left = deadline - clock()
             if left <= 0.0:
@@ -128,6 +170,8 @@ class TpdoWindow:
                 break
             s = by_cob.get(frame[0])
             if s is None:
+                if frame[0] in other:
+                    self._on_other(frame[0], frame[1], frame[2])
                 continue
             data = frame[1]
             k = len(data)
@@ -145,16 +189,17 @@ class TpdoWindow:
 class FrameTap:
     """Frames of a few COB-IDs on a handle of the loop thread's own, filtered to them below
     python-can (SocketCAN, ipc): :meth:`take` hands each queued frame to ``on_frame(cob_id,
-    data)`` (``data`` valid during the call; other frames that pass every filter — error frames —
-    are skipped).  The devices' heartbeats: taken once a cycle, no
-    receive thread.  The handle's queue is the socket's (on ``ipc`` ``net.unix.max_dgram_qlen``
-    frames): while nobody takes them, the oldest stay and newer ones are lost."""
+    data, timestamp)`` (``data`` valid during the call, ``timestamp`` the frame's bus timestamp;
+    other frames that pass every filter — error frames — are skipped).  The devices' heartbeats
+    and EMCY: taken in every cycle, no receive thread.  The handle's queue is the socket's (on
+    ``ipc`` ``net.unix.max_dgram_qlen`` frames): while nobody takes them, the oldest stay and
+    newer ones are lost."""
 
     def __init__(self, bus: can.BusABC, cob_ids, on_frame):
         self.bus = bus
         self.on_frame = on_frame
         self.cob_ids = frozenset(cob_ids)
-        self._recv = frame_receiver(bus)
+        self._recv = frame_receiver(bus, stamped=True)
         if not set_controller_filters(bus, exact_filters(self.cob_ids)):
             raise ValueError(f"{type(bus).__name__} filters in python-can only: a FrameTap would queue "
                              "every frame of the bus")
@@ -166,7 +211,7 @@ class FrameTap:
             if frame is None:
                 return
             if frame[0] in ids:
-                on_frame(frame[0], frame[1])
+                on_frame(frame[0], frame[1], frame[2])
 
 
 class ErrorFrames(can.Listener):

@@ -39,6 +39,7 @@ import can
 
 BASE_DIR = "/dev/shm/sea-can" if os.path.isdir("/dev/shm") else "/tmp/sea-can"
 _FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 24 bytes
+_TS = struct.Struct("<d")                    # the timestamp, at byte 16 of a frame
 _EXT, _RTR, _ERR = 1, 2, 4
 FILTER_SUFFIX = ".filter"
 _counter = itertools.count()
@@ -84,6 +85,7 @@ class IpcBus(can.BusABC):
         self._buf = bytearray(_FRAME.size)
         self._rbuf = bytearray(64)                  # recv_frame's receive buffer
         self._rview = memoryview(self._rbuf)
+        self._pending_ts: float | None = None       # frame_timestamp() of a frame from _pending
         self._closed = False
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         super().__init__(channel=self.channel, **kwargs)
@@ -236,7 +238,9 @@ class IpcBus(can.BusABC):
         queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
         if self._pending:
             msg = self._pending.pop(0)
+            self._pending_ts = msg.timestamp
             return msg.arbitration_id, msg.data
+        self._pending_ts = None
         if self._closed:
             return None
         sock, buf, acc = self._sock, self._rbuf, self._accept
@@ -267,6 +271,12 @@ class IpcBus(can.BusABC):
             if acc is not None and not buf[4] & _ERR and not any(can_id & m == i & m for i, m in acc):
                 continue                     # another frame: the queue is read on
             return can_id, self._rview[8:8 + buf[5]]
+
+    def frame_timestamp(self) -> float:
+        """The sender's ``time.time()`` of the frame :meth:`recv_frame` returned last."""
+        if self._pending_ts is not None:
+            return self._pending_ts
+        return _TS.unpack_from(self._rbuf, 16)[0]
 
     def fileno(self) -> int:
         return self._sock.fileno()

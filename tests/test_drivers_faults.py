@@ -128,6 +128,32 @@ def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
     assert starts[-2] - last_hb <= 0.25 < starts[-1] - last_hb + 1e-3     # the cycle before was still in time
 
 
+def test_heartbeat_timeout_runs_from_the_last_heartbeats_arrival_not_from_when_it_was_taken(make_rig):
+    """The loop stalls and the encoder falls silent during the stall: its last heartbeat is taken
+    late (after the stall), yet every read() that starts later than the timeout after that
+    heartbeat's arrival on the bus (a sniffer of its own: python-can's receive thread, the frame's
+    timestamp) raises — the timeout does not grow by the stall."""
+    from drivers.bus import make_bus
+    from sea_daemon.apps.bench._rig import HeartbeatSniffer
+    rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=500)
+    sniffer = HeartbeatSniffer(make_bus(rig.hw.bus_cfg))
+    try:
+        time.sleep(0.15)                              # the loop stalls (the drive's watch of us: 500 ms) ...
+        rig.device_model.inject(FaultSpec("heartbeat", target="encoder"))   # ... and the encoder falls silent
+        time.sleep(0.15)
+        starts = []
+        with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms"):
+            for _ in range(400):
+                starts.append(time.monotonic())
+                rig.hw.read()
+                rig.hw.write(np.zeros(1))
+                time.sleep(0.005)
+        last = sniffer.hb_seen[rig.encoder.id]        # the encoder's last heartbeat on the bus
+    finally:
+        sniffer.close()
+    assert len(starts) >= 2 and starts[-2] <= last + 0.5
+
+
 def test_device_bus_off_is_seen_as_missing_frames(make_rig):
     rig = started(make_rig)
     rig.device_model.inject(FaultSpec("busoff", target="drive"))

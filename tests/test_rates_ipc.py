@@ -127,7 +127,7 @@ def test_device_model_reports_its_answer_latency_and_frames():
     assert 0 < st["answer_us"]["median"] < 1e6 and st["handler_cpu_us"]["median"] > 0
 
 
-def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_the_heartbeats():
+def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_heartbeats_and_emcy():
     from _hil import hil_config, hil_rig
     rig = hil_rig(hil_config("ipc"))
     try:
@@ -142,10 +142,12 @@ def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_the_hear
         node = rig.hw.bus_cfg.master_node
         assert not any(accepted(f + node) for f in (0x180, 0x280, 0x380, 0x480))    # the daemon's TPDOs
         assert all(accepted(i) for i in (0x000, 0x080, 0x201, 0x601, 0x700 + node))
-        # the heartbeats: on the loop thread's own handle, no longer on the network's
-        ids = {0x700 + i for i in rig.hw.bus_cfg.drive_node + rig.hw.bus_cfg.encoder_node}
+        # heartbeats and EMCY: on the loop thread's own handle, no longer on the network's
+        nodes = rig.hw.bus_cfg.drive_node + rig.hw.bus_cfg.encoder_node
+        ids = {0x700 + i for i in nodes}
         assert rig.hw._hb_tap is not None and rig.hw._hb_tap.cob_ids == ids
-        assert not any((i & m) == (c & m) for i in ids for c, m in net._accept)
+        assert rig.hw._emcy_tap is not None and rig.hw._emcy_tap.cob_ids == {0x80 + i for i in nodes}
+        assert not any((i & m) == (c & m) for i in ids | rig.hw._emcy_tap.cob_ids for c, m in net._accept)
         t0 = time.monotonic()
         for _ in range(10):
             rig.hw.read()

@@ -101,11 +101,12 @@ class _Nmt(NmtSlave):
 
     The heartbeat is sent by a small thread through the network's gate (so a bus-off node
     falls silent) instead of the bus's periodic-send task: python-can-remote's task cannot
-    change its data (heartbeat state) and stops with the client."""
+    change its data (heartbeat state) and stops with the client.  Once :meth:`stop_heartbeat`
+    returns, no heartbeat of that thread is sent any more (one it was sending is on the bus)."""
 
     def __init__(self, node_id: int, local_node):
         super().__init__(node_id, local_node)
-        self._hb_stop: threading.Event | None = None
+        self._hb_stop: tuple[threading.Event, threading.Lock] | None = None
 
     def on_command(self, can_id, data, timestamp):
         old = self._state
@@ -118,21 +119,28 @@ class _Nmt(NmtSlave):
         self.stop_heartbeat()
         if heartbeat_time_ms <= 0 or self._local_node.heartbeat_suppressed:
             return
-        stop = self._hb_stop = threading.Event()
+        stop, sending = threading.Event(), threading.Lock()
+        self._hb_stop = (stop, sending)
         period = heartbeat_time_ms / 1000.0
 
         def produce():
             while not stop.wait(period):
-                try:
-                    self.network.send_message(0x700 + self.id, [self._state])
-                except Exception:  # noqa: BLE001 - bus closed: the node is gone
-                    return
+                with sending:
+                    if stop.is_set():
+                        return
+                    try:
+                        self.network.send_message(0x700 + self.id, [self._state])
+                    except Exception:  # noqa: BLE001 - bus closed: the node is gone
+                        return
         threading.Thread(target=produce, name=f"heartbeat-{self.id}", daemon=True).start()
 
     def stop_heartbeat(self):
         if self._hb_stop is not None:
-            self._hb_stop.set()
+            stop, sending = self._hb_stop
             self._hb_stop = None
+            stop.set()
+            with sending:                  # a heartbeat being sent now has gone out
+                pass
 
     def update_heartbeat(self):
         pass                               # the producer reads the current state every period

@@ -30,6 +30,7 @@ import numpy as np
 
 from drivers import cia402
 from drivers.bus import frame_bits
+from drivers.canopen_rx import arrival
 from drivers.interface import HardwareInterface
 
 from sea_daemon.core.config import ModelConfig
@@ -94,7 +95,8 @@ class _BusListener:
 
 
 class HeartbeatSniffer(_BusListener):
-    """The monotonic time each node's heartbeat was last seen on the bus: ``hb_seen[node]``."""
+    """The monotonic time each node's heartbeat last arrived on the bus: ``hb_seen[node]``
+    (dated by the frame's timestamp, as the driver dates it: :func:`drivers.canopen_rx.arrival`)."""
 
     def __init__(self, bus: can.BusABC):
         self.hb_seen: dict[int, float] = {}
@@ -102,7 +104,7 @@ class HeartbeatSniffer(_BusListener):
 
     def _on_frame(self, msg: can.Message) -> None:
         if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
-            self.hb_seen[msg.arbitration_id - 0x700] = time.monotonic()
+            self.hb_seen[msg.arbitration_id - 0x700] = arrival(time.monotonic(), msg.timestamp)
 
 
 class FrameCounter(_BusListener):

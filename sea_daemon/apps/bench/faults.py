@@ -13,7 +13,8 @@ state machine and 0x6071):
 
 * **detected**: the fault latched is the injected type, not before the injection;
 * **latency**: cycles from the injection to the latch (includes what the fault's
-  definition takes: k missed cycles, the heartbeat timeout, the stuck-encoder run);
+  definition takes: k missed cycles, the heartbeat timeout in paced cycles, the
+  stuck-encoder run);
 * **reaction**: cycles from the cycle in which the fault's condition is met (per its
   definition, from an independent observer: the injection cycle for EMCY / jump / bus-off /
   send failure / estimator state; the k-th missed TPDO; the first cycle past the last
@@ -31,7 +32,11 @@ the latched cycles, ``valid`` 0 and the torque 0 in them.
 
 The loop's clock is virtual (advanced by its sleeps and by the injected stall only), so the
 lock-step run is deterministic in loop time; heartbeats, SDO and PDO timeouts run on the
-real clock.  Bus-off is the driver's controller reporting bus-off (error frame); the
+real clock.  A lock-step cycle takes whatever wall time the machine gives it, so while a
+heartbeat loss is pending the run paces its cycles to one period of wall time each (as the
+loop runs in production): the heartbeat timeout is then a number of cycles independent of the
+machine's load, and ``max_wait`` cycles are always longer than it.  The bus sniffer and the
+driver date a heartbeat by the same frame timestamp.  Bus-off is the driver's controller reporting bus-off (error frame); the
 virtual bus still carries the quick stop, a real bus-off controller would not — then the
 drive's own watch of the daemon's heartbeat (0x1016, quick stop) stops it within
 ``heartbeat_timeout_ms``.  A send failure is one refused frame (transient).
