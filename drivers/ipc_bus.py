@@ -78,6 +78,8 @@ class IpcBus(can.BusABC):
             pass
         self._sock.bind(self.path)
         self._rd = (self._sock,)
+        self._poll = select.poll()                  # recv_frame(0): is a frame queued (no exception)
+        self._poll.register(self._sock.fileno(), select.POLLIN)
         self._peers: list[str] = []
         self._mtime = -1
         self._dfd = -1                              # the channel directory, open: fstat per send
@@ -86,6 +88,8 @@ class IpcBus(can.BusABC):
         self._rview = memoryview(self._rbuf)
         self._closed = False
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
+        self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
+        self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
         super().__init__(channel=self.channel, **kwargs)
         self._refresh()
 
@@ -121,11 +125,13 @@ class IpcBus(can.BusABC):
                         acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
                 except (OSError, ValueError):
                     acc = None
-            peers.append((os.path.join(self._dir, f), acc, {}))     # {} : id -> accepted (cache)
+            peers.append((os.path.join(self._dir, f), acc))
         self._peers = peers
+        self._dest = {}
 
     def _gone(self, peer: str, stale: bool) -> None:
         self._peers = [p for p in self._peers if p[0] != peer]
+        self._dest = {}
         if stale:                                  # nobody bound to it any more: remove the files
             for f in (peer, peer + FILTER_SUFFIX):
                 try:
@@ -145,20 +151,20 @@ class IpcBus(can.BusABC):
         data = msg.data
         if len(data) != dlc:
             data = bytes(data[:dlc])
-        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, data, time.time())
-        self._refresh()
-        sendto = self._sock.sendto
-        buf = self._buf
         can_id = msg.arbitration_id
-        for peer, acc, seen in self._peers:
-            if acc is not None and not flags & _ERR:
-                ok = seen.get(can_id)
-                if ok is None:
-                    ok = any(can_id & m == i & m for i, m in acc)
-                    if len(seen) < 4096:           # bounded: extended ids are many
-                        seen[can_id] = ok
-                if not ok:
-                    continue                       # that member does not take this id
+        buf = self._buf
+        _FRAME.pack_into(buf, 0, can_id, flags, dlc, data, time.time())
+        self._refresh()
+        # the members that take this id (their published filters; error frames pass every filter)
+        key = -1 if flags & _ERR else can_id
+        dest = self._dest.get(key)
+        if dest is None:
+            dest = tuple(peer for peer, acc in self._peers
+                         if key < 0 or acc is None or any(can_id & m == i & m for i, m in acc))
+            if len(self._dest) < 4096:             # bounded: extended ids are many
+                self._dest[key] = dest
+        sendto = self._sock.sendto
+        for peer in dest:
             try:
                 sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
@@ -187,6 +193,7 @@ class IpcBus(can.BusABC):
             self._accept = None
         else:
             self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters)
+        self._accepts = {}
         # published next to the socket: the senders skip this member for other ids (a member's
         # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
         # must not fill with frames it drops anyway)
@@ -241,6 +248,8 @@ class IpcBus(can.BusABC):
             return None
         sock, buf, acc = self._sock, self._rbuf, self._accept
         end = None
+        if timeout <= 0.0 and not self._poll.poll(0):
+            return None                      # nothing queued (a poll, not an exception per empty read)
         while True:
             if timeout > 0.0:
                 # wait first: after a SYNC the answer is not there yet (no exception per frame)
@@ -264,8 +273,14 @@ class IpcBus(can.BusABC):
             if nb != _FRAME.size:
                 continue
             can_id = buf[0] | buf[1] << 8 | buf[2] << 16 | buf[3] << 24
-            if acc is not None and not buf[4] & _ERR and not any(can_id & m == i & m for i, m in acc):
-                continue                     # another frame: the queue is read on
+            if acc is not None and not buf[4] & _ERR:
+                ok = self._accepts.get(can_id)
+                if ok is None:
+                    ok = any(can_id & m == i & m for i, m in acc)
+                    if len(self._accepts) < 4096:
+                        self._accepts[can_id] = ok
+                if not ok:
+                    continue                 # another frame: the queue is read on
             return can_id, self._rview[8:8 + buf[5]]
 
     def fileno(self) -> int:

@@ -135,7 +135,7 @@ def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_the_hear
         dev = rig.device_model.bus
         net = rig.hw._bus                                 # the canopen network's handle
         net._refresh()
-        acc = {p: a for p, a, _ in net._peers}[dev.path]      # the device model's published filter
+        acc = {p: a for p, a in net._peers}[dev.path]      # the device model's published filter
 
         def accepted(i):
             return any(i & m == c & m for c, m in acc)
