@@ -9,8 +9,9 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
 
 * The channel is a directory (``/dev/shm/sea-can/<channel>``, or the channel itself when it is
   an absolute path); every open bus binds one socket file in it.  A member learns the others
-  from the directory (re-read when its modification time changes, i.e. when one joins or
-  leaves) and sends each frame to each of them — what a CAN bus does: every node sees every
+  from the directory (re-read when it changes, i.e. when one joins, leaves or sets its filters:
+  an inotify watch, one ``poll`` per send; without inotify its modification time, one ``fstat``
+  per send) and sends each frame to each of them — what a CAN bus does: every node sees every
   frame but its own (``receive_own_messages`` adds one's own).
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
   bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
@@ -27,6 +28,7 @@ Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`
 """
 from __future__ import annotations
 
+import ctypes
 import errno
 import itertools
 import os
@@ -42,6 +44,50 @@ _FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 
 _EXT, _RTR, _ERR = 1, 2, 4
 FILTER_SUFFIX = ".filter"
 _counter = itertools.count()
+
+
+#: inotify events of the channel directory that change its members or their filters: a socket
+#: or filter file created, removed or renamed into place, the directory itself removed or moved
+_WATCH_MASK = 0x4 | 0x8 | 0x40 | 0x80 | 0x100 | 0x200 | 0x400 | 0x800
+
+
+class _DirWatch:
+    """inotify on the channel directory (Linux): :meth:`changed` says, with one ``poll`` and no
+    ``stat``, whether a member joined, left or changed its filter since the last call (every
+    change, however close together; the directory's mtime has the kernel's coarse clock)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self._poll = select.poll()
+        self._poll.register(fd, select.POLLIN)
+
+    @classmethod
+    def open(cls, path: str) -> "_DirWatch | None":
+        """A watch of ``path``, or None where inotify is not available (then an fstat per send)."""
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        except (OSError, AttributeError):
+            return None
+        if fd < 0:
+            return None
+        if libc.inotify_add_watch(fd, os.fsencode(path), _WATCH_MASK) < 0:
+            os.close(fd)
+            return None
+        return cls(fd)
+
+    def changed(self) -> bool:
+        if not self._poll.poll(0):
+            return False
+        try:
+            while os.read(self.fd, 4096):          # the events themselves are not needed
+                pass
+        except BlockingIOError:
+            pass
+        return True
+
+    def close(self) -> None:
+        os.close(self.fd)
 
 
 def channel_dir(channel: str) -> str:
@@ -82,7 +128,8 @@ class IpcBus(can.BusABC):
         self._poll.register(self._sock.fileno(), select.POLLIN)
         self._peers: list[str] = []
         self._mtime = -1
-        self._dfd = -1                              # the channel directory, open: fstat per send
+        self._dfd = -1                              # the channel directory, open
+        self._watch: _DirWatch | None = None        # its inotify watch (None: an fstat per send)
         self._buf = bytearray(_FRAME.size)
         self._rbuf = bytearray(64)                  # recv_frame's receive buffer
         self._rview = memoryview(self._rbuf)
@@ -95,8 +142,12 @@ class IpcBus(can.BusABC):
 
     # ------------------------------------------------------------------ members
     def _refresh(self) -> None:
-        """Re-read the members and their filters when the directory changed (one fstat of the
-        open directory per send otherwise; a directory removed meanwhile is made again)."""
+        """Re-read the members and their filters when the directory changed: its inotify watch
+        (one ``poll`` per send), or where there is none its mtime (one fstat per send); a
+        directory removed meanwhile is made again."""
+        w = self._watch
+        if w is not None and not w.changed():
+            return
         try:
             st = os.fstat(self._dfd)
             if st.st_nlink == 0:                   # removed: the path leads elsewhere (or nowhere)
@@ -106,10 +157,16 @@ class IpcBus(can.BusABC):
             if self._dfd >= 0:
                 os.close(self._dfd)
                 self._dfd = -1
+            if w is not None:
+                w.close()
+                self._watch = w = None
             os.makedirs(self._dir, mode=0o770, exist_ok=True)
             self._dfd = os.open(self._dir, os.O_RDONLY | os.O_DIRECTORY)
+            # watched before it is listed: a change after the listing is seen at the next send
+            self._watch = w = _DirWatch.open(self._dir)
             m = os.fstat(self._dfd).st_mtime_ns
-        if m == self._mtime:
+            self._mtime = -1
+        if w is None and m == self._mtime:
             return
         self._mtime = m
         me = os.path.basename(self.path)
@@ -293,6 +350,9 @@ class IpcBus(can.BusABC):
         if self._dfd >= 0:
             os.close(self._dfd)
             self._dfd = -1
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
         try:
             self._sock.close()
         finally:
