@@ -183,10 +183,14 @@ class GPAKF(AKF):
         dt = self.dt
         if not a or a[0] is not res._pack_args or a[3] is not self.bound or a[4] is not self._sigma_base(dt):
             a = self._fz_args = self._frozen_args(res)
-        q = q if type(q) is np.ndarray and q.dtype == np.float64 else np.asarray(q, dtype=float)
-        theta_m = theta_m if type(theta_m) is np.ndarray and theta_m.dtype == np.float64 else \
-            np.asarray(theta_m, dtype=float)
-        tau_m = tau_m if type(tau_m) is np.ndarray and tau_m.dtype == np.float64 else np.asarray(tau_m, dtype=float)
+        # float64 C-contiguous (n,) arrays as the loop's measurement is (others converted: the
+        # compiled calls have one signature, made at construction)
+        if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous):
+            q = np.ascontiguousarray(q, dtype=float)
+        if not (type(theta_m) is np.ndarray and theta_m.dtype == np.float64 and theta_m.flags.c_contiguous):
+            theta_m = np.ascontiguousarray(theta_m, dtype=float)
+        if not (type(tau_m) is np.ndarray and tau_m.dtype == np.float64 and tau_m.flags.c_contiguous):
+            tau_m = np.ascontiguousarray(tau_m, dtype=float)
         iout, fout, kin = self._fz_iout, self._fz_fout, self.kin
         head = self._hhead
         iout[gpakf_core.I_KIN_HEAD] = kin._head
