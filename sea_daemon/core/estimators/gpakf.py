@@ -232,10 +232,10 @@ class GPAKF(AKF):
         pack = res._pack_args[:-1]
         s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
         sample = (self._buf, self.d, self.m, self.n, self._ang, kin._buf, kin.C, kin._out, self._ddq, self.z,
-                  self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin, self._MinvG, float(self._gp_var_scale), box._lo, box._hi,
-                  box._z, box.clipped, res.noise_in_Q, res.mu, res.jac, res.var, pack, res._pack_args[-1],
-                  self.bound is not None, self._x_prev, self._P_prev, self._P_max, DIVERGED, self._fz_iout,
-                  self._fz_fout)
+                  self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
+                  self._MinvG, float(self._gp_var_scale), box._lo, box._hi, box._z, box.clipped, res.noise_in_Q,
+                  res.mu, res.jac, res.var, pack, res._pack_args[-1], self.bound is not None, self._x_prev,
+                  self._P_prev, self._P_max, DIVERGED, self._fz_iout, self._fz_fout)
         finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
         return res._pack_args, sample, finish, self.bound, self._S_base
 

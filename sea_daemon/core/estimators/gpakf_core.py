@@ -44,8 +44,9 @@ F_NIS, F_PMAX = range(2)
 
 @njit
 def frozen_sample(q, theta_m, dt, buf, d, m, n, ang, kin_buf, kin_C, kin_out, ddq, z, hu, s_mode, S_base, B_u,
-                  tau_m_var, Gamma_u, A_lin, B_lin, MinvG, gp_var_scale, box_lo, box_hi, box_z, box_clipped, noise_in_Q, hook_mu, hook_jac,
-                  hook_var, pack, sn2, keep_prev, x_prev, P_prev, P_max, diverged, iout, fout):
+                  tau_m_var, Gamma_u, A_lin, B_lin, MinvG, gp_var_scale, box_lo, box_hi, box_z, box_clipped,
+                  noise_in_Q, hook_mu, hook_jac, hook_var, pack, sn2, keep_prev, x_prev, P_prev, P_max, diverged,
+                  iout, fout):
     """Steps 1-4 of one sample (module docstring) up to the Cholesky attempt of P, on the AKF's
     own arrays, in place; :func:`frozen_finish` completes it once the caller's checks passed.
     ``iout[I_KIN_HEAD]`` and ``iout[I_HHEAD]`` hold the ring heads on entry; the kinematics'
