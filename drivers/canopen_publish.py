@@ -37,6 +37,7 @@ class TpdoPublisher:
                                    is_extended_id=False) for j in range(n)]
         self._status = can.Message(arbitration_id=STATUS_FUNCTION + node, data=bytearray(TPDO_STATUS.size),
                                    is_extended_id=False)
+        self._frames = (*self._joint, self._status)    # the order on the bus: TPDO2 closes the cycle
         self.sent = 0
         self.sent_bytes = 0
         self.dropped = 0
@@ -49,16 +50,14 @@ class TpdoPublisher:
             return
         for j, msg in enumerate(self._joint):
             TPDO_JOINT.pack_into(msg.data, 0, hat[j], bound[j])
-            self._send(net, msg)
         TPDO_STATUS.pack_into(self._status.data, 0, cycle & 0xFFFFFFFF, fault & 0xFFFF, valid_mask & 0xFF,
                               flags & 0xFF)
-        self._send(net, self._status)
-
-    def _send(self, net, msg) -> None:
-        try:
-            with net.send_lock:
-                net.bus.send(msg, timeout=0.0)
-            self.sent += 1
-            self.sent_bytes += msg.dlc
-        except Exception:  # noqa: BLE001 - a publication never stops the cycle: counted
-            self.dropped += 1
+        bus = net.bus
+        with net.send_lock:                           # one hold of the lock for the cycle's frames
+            for msg in self._frames:
+                try:
+                    bus.send(msg, timeout=0.0)
+                    self.sent += 1
+                    self.sent_bytes += msg.dlc
+                except Exception:  # noqa: BLE001 - a publication never stops the cycle: counted
+                    self.dropped += 1

@@ -9,8 +9,9 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
 
 * The channel is a directory (``/dev/shm/sea-can/<channel>``, or the channel itself when it is
   an absolute path); every open bus binds one socket file in it.  A member learns the others
-  from the directory (re-read when its modification time changes, i.e. when one joins or
-  leaves) and sends each frame to each of them — what a CAN bus does: every node sees every
+  from the directory (re-read when it changes, i.e. when one joins, leaves or sets its filters:
+  an inotify watch, one ``poll`` per send; without inotify its modification time, one ``fstat``
+  per send) and sends each frame to each of them — what a CAN bus does: every node sees every
   frame but its own (``receive_own_messages`` adds one's own).
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
   bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
@@ -27,6 +28,7 @@ Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`
 """
 from __future__ import annotations
 
+import ctypes
 import errno
 import itertools
 import os
@@ -43,6 +45,50 @@ _TS = struct.Struct("<d")                    # the timestamp, at byte 16 of a fr
 _EXT, _RTR, _ERR = 1, 2, 4
 FILTER_SUFFIX = ".filter"
 _counter = itertools.count()
+
+
+#: inotify events of the channel directory that change its members or their filters: a socket
+#: or filter file created, removed or renamed into place, the directory itself removed or moved
+_WATCH_MASK = 0x4 | 0x8 | 0x40 | 0x80 | 0x100 | 0x200 | 0x400 | 0x800
+
+
+class _DirWatch:
+    """inotify on the channel directory (Linux): :meth:`changed` says, with one ``poll`` and no
+    ``stat``, whether a member joined, left or changed its filter since the last call (every
+    change, however close together; the directory's mtime has the kernel's coarse clock)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self._poll = select.poll()
+        self._poll.register(fd, select.POLLIN)
+
+    @classmethod
+    def open(cls, path: str) -> "_DirWatch | None":
+        """A watch of ``path``, or None where inotify is not available (then an fstat per send)."""
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        except (OSError, AttributeError):
+            return None
+        if fd < 0:
+            return None
+        if libc.inotify_add_watch(fd, os.fsencode(path), _WATCH_MASK) < 0:
+            os.close(fd)
+            return None
+        return cls(fd)
+
+    def changed(self) -> bool:
+        if not self._poll.poll(0):
+            return False
+        try:
+            while os.read(self.fd, 4096):          # the events themselves are not needed
+                pass
+        except BlockingIOError:
+            pass
+        return True
+
+    def close(self) -> None:
+        os.close(self.fd)
 
 
 def channel_dir(channel: str) -> str:
@@ -79,22 +125,31 @@ class IpcBus(can.BusABC):
             pass
         self._sock.bind(self.path)
         self._rd = (self._sock,)
+        self._poll = select.poll()                  # recv_frame(0): is a frame queued (no exception)
+        self._poll.register(self._sock.fileno(), select.POLLIN)
         self._peers: list[str] = []
         self._mtime = -1
-        self._dfd = -1                              # the channel directory, open: fstat per send
+        self._dfd = -1                              # the channel directory, open
+        self._watch: _DirWatch | None = None        # its inotify watch (None: an fstat per send)
         self._buf = bytearray(_FRAME.size)
         self._rbuf = bytearray(64)                  # recv_frame's receive buffer
         self._rview = memoryview(self._rbuf)
         self._pending_ts: float | None = None       # frame_timestamp() of a frame from _pending
         self._closed = False
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
+        self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
+        self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
         super().__init__(channel=self.channel, **kwargs)
         self._refresh()
 
     # ------------------------------------------------------------------ members
     def _refresh(self) -> None:
-        """Re-read the members and their filters when the directory changed (one fstat of the
-        open directory per send otherwise; a directory removed meanwhile is made again)."""
+        """Re-read the members and their filters when the directory changed: its inotify watch
+        (one ``poll`` per send), or where there is none its mtime (one fstat per send); a
+        directory removed meanwhile is made again."""
+        w = self._watch
+        if w is not None and not w.changed():
+            return
         try:
             st = os.fstat(self._dfd)
             if st.st_nlink == 0:                   # removed: the path leads elsewhere (or nowhere)
@@ -104,10 +159,16 @@ class IpcBus(can.BusABC):
             if self._dfd >= 0:
                 os.close(self._dfd)
                 self._dfd = -1
+            if w is not None:
+                w.close()
+                self._watch = w = None
             os.makedirs(self._dir, mode=0o770, exist_ok=True)
             self._dfd = os.open(self._dir, os.O_RDONLY | os.O_DIRECTORY)
+            # watched before it is listed: a change after the listing is seen at the next send
+            self._watch = w = _DirWatch.open(self._dir)
             m = os.fstat(self._dfd).st_mtime_ns
-        if m == self._mtime:
+            self._mtime = -1
+        if w is None and m == self._mtime:
             return
         self._mtime = m
         me = os.path.basename(self.path)
@@ -123,11 +184,13 @@ class IpcBus(can.BusABC):
                         acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
                 except (OSError, ValueError):
                     acc = None
-            peers.append((os.path.join(self._dir, f), acc, {}))     # {} : id -> accepted (cache)
+            peers.append((os.path.join(self._dir, f), acc))
         self._peers = peers
+        self._dest = {}
 
     def _gone(self, peer: str, stale: bool) -> None:
         self._peers = [p for p in self._peers if p[0] != peer]
+        self._dest = {}
         if stale:                                  # nobody bound to it any more: remove the files
             for f in (peer, peer + FILTER_SUFFIX):
                 try:
@@ -147,20 +210,20 @@ class IpcBus(can.BusABC):
         data = msg.data
         if len(data) != dlc:
             data = bytes(data[:dlc])
-        _FRAME.pack_into(self._buf, 0, msg.arbitration_id, flags, dlc, data, time.time())
-        self._refresh()
-        sendto = self._sock.sendto
-        buf = self._buf
         can_id = msg.arbitration_id
-        for peer, acc, seen in self._peers:
-            if acc is not None and not flags & _ERR:
-                ok = seen.get(can_id)
-                if ok is None:
-                    ok = any(can_id & m == i & m for i, m in acc)
-                    if len(seen) < 4096:           # bounded: extended ids are many
-                        seen[can_id] = ok
-                if not ok:
-                    continue                       # that member does not take this id
+        buf = self._buf
+        _FRAME.pack_into(buf, 0, can_id, flags, dlc, data, time.time())
+        self._refresh()
+        # the members that take this id (their published filters; error frames pass every filter)
+        key = -1 if flags & _ERR else can_id
+        dest = self._dest.get(key)
+        if dest is None:
+            dest = tuple(peer for peer, acc in self._peers
+                         if key < 0 or acc is None or any(can_id & m == i & m for i, m in acc))
+            if len(self._dest) < 4096:             # bounded: extended ids are many
+                self._dest[key] = dest
+        sendto = self._sock.sendto
+        for peer in dest:
             try:
                 sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
@@ -189,6 +252,7 @@ class IpcBus(can.BusABC):
             self._accept = None
         else:
             self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters)
+        self._accepts = {}
         # published next to the socket: the senders skip this member for other ids (a member's
         # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
         # must not fill with frames it drops anyway)
@@ -245,6 +309,8 @@ class IpcBus(can.BusABC):
             return None
         sock, buf, acc = self._sock, self._rbuf, self._accept
         end = None
+        if timeout <= 0.0 and not self._poll.poll(0):
+            return None                      # nothing queued (a poll, not an exception per empty read)
         while True:
             if timeout > 0.0:
                 # wait first: after a SYNC the answer is not there yet (no exception per frame)
@@ -268,8 +334,14 @@ class IpcBus(can.BusABC):
             if nb != _FRAME.size:
                 continue
             can_id = buf[0] | buf[1] << 8 | buf[2] << 16 | buf[3] << 24
-            if acc is not None and not buf[4] & _ERR and not any(can_id & m == i & m for i, m in acc):
-                continue                     # another frame: the queue is read on
+            if acc is not None and not buf[4] & _ERR:
+                ok = self._accepts.get(can_id)
+                if ok is None:
+                    ok = any(can_id & m == i & m for i, m in acc)
+                    if len(self._accepts) < 4096:
+                        self._accepts[can_id] = ok
+                if not ok:
+                    continue                 # another frame: the queue is read on
             return can_id, self._rview[8:8 + buf[5]]
 
     def frame_timestamp(self) -> float:
@@ -288,6 +360,9 @@ class IpcBus(can.BusABC):
         if self._dfd >= 0:
             os.close(self._dfd)
             self._dfd = -1
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
         try:
             self._sock.close()
         finally:

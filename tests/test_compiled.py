@@ -103,13 +103,17 @@ def test_no_writable_cache_falls_back_to_in_memory_compilation(monkeypatch):
 
 
 def _dispatchers():
+    import sea_daemon.core.bounds.akf_bound as ab
+    import sea_daemon.core.bounds.bound_core as bc
     import sea_daemon.core.estimators.akf_core as a
+    import sea_daemon.core.estimators.gp_hook as gh
+    import sea_daemon.core.estimators.gpakf_core as ga
     import sea_daemon.core.estimators.health as h
     import sea_daemon.core.gp.gp_core as g
     import sea_daemon.core.kinematics as k
     import sea_daemon.core.linalg as s
     from numba.core.registry import CPUDispatcher
-    return {f"{m.__name__}.{n}": v for m in (a, h, g, k, s) for n, v in vars(m).items()
+    return {f"{m.__name__}.{n}": v for m in (a, h, g, k, s, ab, bc, gh, ga) for n, v in vars(m).items()
             if isinstance(v, CPUDispatcher)}
 
 
@@ -131,6 +135,34 @@ def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
         est.update([0.3 * np.sin(2 * tk)], [0.29 * np.sin(2 * tk)], [np.cos(3 * tk)])
     g = est.gp.gps[0]
     assert g.n_leaves > 1 and g.n_hyper_steps > 0
+    after = {k: len(d.signatures) for k, d in _dispatchers().items()}
+    assert after == before
+
+
+def test_frozen_gpakf_with_its_bound_compiles_nothing_in_its_steps(cfg):
+    """The daemon's estimator — a GP-AKF with learning frozen and the Theorem-1 bound — runs its
+    samples through the compiled calls made at construction (gpakf_core, bound_core): no new
+    signature in its steps, also for a measurement given as lists."""
+    from dataclasses import replace
+    from sea_daemon.core.bounds.akf_bound import theorem_bound
+    from sea_daemon.core.estimators.gpakf import GPAKF
+    c = replace(cfg, learning=replace(cfg.learning, max_points=40))
+    est = GPAKF(c)
+    t = np.arange(1, 400) * 0.01
+    q, th, u = 0.3 * np.sin(2 * t), 0.29 * np.sin(2 * t), np.cos(3 * t)
+    est.reset([0.0], [0.0], [0.0])
+    for k in range(200):
+        est.update([q[k]], [th[k]], [u[k]])
+    est.learning = False
+    est.bound = theorem_bound(est)
+    est.reset([q[200]], [th[200]], [u[200]])
+    before = {k: len(d.signatures) for k, d in _dispatchers().items()}
+    for k in ("estimators.gpakf_core.frozen_sample", "estimators.gpakf_core.frozen_finish",
+              "bounds.bound_core.bound_step", "bounds.akf_bound._generators_check"):
+        assert before["sea_daemon.core." + k] > 0, k
+    for k in range(201, len(t)):
+        e = est.update([q[k]], [th[k]], [u[k]]) if k % 2 else est.update(q[k:k + 1], th[k:k + 1], u[k:k + 1])
+    assert est._fz_args and np.isfinite(e.tau_h_act_bound).all()
     after = {k: len(d.signatures) for k, d in _dispatchers().items()}
     assert after == before
 

@@ -4,6 +4,7 @@ import os
 import shutil
 import socket
 import subprocess
+import time
 import zipfile
 
 import numpy as np
@@ -86,6 +87,29 @@ def test_logwriter_counts_drops_when_full(tmp_path):
         os.kill(w._proc.pid, 18)  # SIGCONT
     assert sum(ok) == 8 and w.dropped == 12
     assert w.close()["rows_written"] == 8
+
+
+def test_notifier_sends_the_watchdog_at_most_every_40th_of_its_period(tmp_path, monkeypatch):
+    """The loop calls watchdog() every cycle; systemd gets WATCHDOG=1 at most every 1/40 of
+    WatchdogSec (8 s here: every 0.2 s)."""
+    sock_path = str(tmp_path / "notify.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    srv.bind(sock_path)
+    monkeypatch.setenv("WATCHDOG_USEC", "8000000")
+    n = Notifier(sock_path)
+    assert n.watchdog_s == 8.0
+    assert all(n.watchdog() for _ in range(100))
+    srv.settimeout(2)
+    assert srv.recv(100) == b"WATCHDOG=1"
+    srv.settimeout(0.05)
+    with pytest.raises(socket.timeout):
+        srv.recv(100)                                  # the other 99 calls sent nothing
+    time.sleep(0.25)
+    assert n.watchdog()
+    srv.settimeout(2)
+    assert srv.recv(100) == b"WATCHDOG=1"
+    n.close()
+    srv.close()
 
 
 def test_notifier_sends_datagrams(tmp_path):

@@ -334,3 +334,31 @@ def test_residual_hook_with_noise_in_q_adds_the_merged_leaf_noise():
         assert var1[0] == pytest.approx(var0[0] + g.noise_variance(z), rel=1e-12, abs=1e-15)
         seen.add(len(g.route(z)) > 1)
     assert seen == {False, True}
+
+
+def test_frozen_sample_in_one_compiled_call_equals_the_python_step(passive, trained):
+    """The frozen GP-AKF's compiled sample (gpakf_core) with the Theorem-1 bound gives the Python
+    path's estimate, bound, σ, validity, state and set of means bit for bit, and the same typed
+    fault for a non-finite sample."""
+    from sea_daemon.core.bounds.akf_bound import theorem_bound
+    from sea_daemon.core.estimators.health import EstimatorNonFinite
+    cfg, _, log = passive
+    runs = []
+    for fused in (True, False):
+        est = GPAKF(cfg, dt=log.dt, residual=trained.gp, learning=False, bound=theorem_bound)
+        est._fz_ok = est._fz_ok and fused
+        assert est._fz_ok == fused
+        out = np.zeros((len(log), 4))
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        for k in range(1, len(log)):
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k])
+            out[k] = e.tau_h_act_hat[0], e.tau_h_act_bound[0], e.tau_h_act_sigma[0], e.valid
+        assert bool(est._fz_args) == fused                  # the compiled sample ran (or not)
+        runs.append((out, est.x.copy(), est.P.copy(), est.bound.sm.G_.copy(), est.n_capped))
+        bad = log.q[-1].copy()
+        bad[0] = np.nan
+        with pytest.raises(EstimatorNonFinite, match="prediction became non-finite"):
+            est.update(bad, log.theta_m[-1], log.tau_m[-1])
+    (a, xa, Pa, Ga, ca), (b, xb, Pb, Gb, cb) = runs
+    assert np.array_equal(a, b) and np.array_equal(xa, xb) and np.array_equal(Pa, Pb) and np.array_equal(Ga, Gb)
+    assert ca == cb and a[-1, 3] == 1.0 and np.all(np.isfinite(a[1:, 1]))

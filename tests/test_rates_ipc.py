@@ -89,6 +89,30 @@ def test_ipc_bus_is_a_broadcast_bus_with_filters_applied_by_the_senders():
     assert not os.listdir(os.path.dirname(a.path))
 
 
+def test_ipc_bus_reaches_members_that_join_between_two_sends():
+    """Members that join after a send, two in the same instant, get the next frame (the
+    directory's inotify watch, not its coarse mtime); one that leaves is no longer sent to."""
+    from drivers.ipc_bus import IpcBus
+    ch = f"t-{uuid.uuid4().hex[:8]}"
+    a = IpcBus(ch)
+    others = []
+    try:
+        assert a._watch is not None                                # Linux: the inotify path
+        a.send(_msg(0x80))                                         # nobody there yet
+        others = [IpcBus(ch), IpcBus(ch)]
+        a.send(_msg(0x181, b"\x07"))
+        for bus in others:
+            m = bus.recv(1.0)
+            assert m is not None and m.arbitration_id == 0x181 and bytes(m.data) == b"\x07"
+        gone = others.pop()
+        gone.shutdown()
+        a.send(_msg(0x182))
+        assert [p for p, _ in a._peers] == [others[0].path]
+    finally:
+        for bus in [a, *others]:
+            bus.shutdown()
+
+
 def test_ipc_bus_forgets_a_member_that_went_away():
     from drivers.ipc_bus import IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
@@ -135,7 +159,7 @@ def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_heartbea
         dev = rig.device_model.bus
         net = rig.hw._bus                                 # the canopen network's handle
         net._refresh()
-        acc = {p: a for p, a, _ in net._peers}[dev.path]      # the device model's published filter
+        acc = {p: a for p, a in net._peers}[dev.path]      # the device model's published filter
 
         def accepted(i):
             return any(i & m == c & m for c, m in acc)

@@ -139,6 +139,11 @@ def test_bench_latency_runs(capsys):
     assert code == 0
     assert "machine:" in out and "akf: per step median" in out and "(50 runs)" in out
     assert cli.main(["bench", "latency", "--estimators", "magic"]) == 2
+    # steps after the loop's idle time: each step timed after a sleep, said in the header
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1", "--estimators", "akf", "--idle-ms", "2"])
+    out, _ = capsys.readouterr()
+    assert code == 0 and "2 ms asleep before each step" in out and "akf: per step median" in out
+    assert cli.main(["bench", "latency", "--estimators", "akf", "--idle-ms", "-1"]) == 2
 
 
 def test_replay_two_joints_suffixed_columns(tmp_path, capsys):

@@ -31,6 +31,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.estimators.akf_core",
     "sea_daemon.core.estimators.health",
     "sea_daemon.core.estimators.gp_hook",
+    "sea_daemon.core.estimators.gpakf_core",
     "sea_daemon.core.gp.gp_core",
     "sea_daemon.core.gp.exact",
     "sea_daemon.core.gp.hyper",

@@ -21,8 +21,9 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
    after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0; the last
    measured angles held, the time one period on, no NaN), ``valid`` is the estimator's own
    flag (0 while it starts or converges, and whenever a fault is latched), ``fault`` the
-   latched code; a log writer that cannot write latches LOG_FAILED; WATCHDOG=1 to systemd
-   from every cycle the loop runs (latched or not)
+   latched code; a log writer that cannot write latches LOG_FAILED; the watchdog from every
+   cycle the loop runs (latched or not; the notifier sends WATCHDOG=1 to systemd at most every
+   1/40 of its watchdog period)
 7. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
    deadlines missed by a whole period or more are skipped (counted), not caught up in a burst;
    lock-step runs (``realtime=False``) do not sleep

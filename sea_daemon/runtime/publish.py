@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import socket
 import time
 from pathlib import Path
@@ -64,6 +65,8 @@ class LocalPublisher:
             self.sock.bind(str(self.path))
             os.chmod(self.path, mode)
             self.sock.setblocking(False)
+            self._rpoll = select.poll()               # a request waiting? (no exception per empty read)
+            self._rpoll.register(self.sock.fileno(), select.POLLIN)
         except OSError as e:
             self.sock.close()
             raise InputError(f"--socket {self.path}: cannot bind: {e.strerror or e}") from None
@@ -109,7 +112,7 @@ class LocalPublisher:
             return
         self._next_poll = now + self.poll_s
         sock = self.sock
-        for _ in range(16):
+        for _ in range(16 if self._rpoll.poll(0) else 0):
             try:
                 nbytes, addr = sock.recvfrom_into(self._req)
             except (BlockingIOError, InterruptedError):
@@ -127,8 +130,9 @@ class LocalPublisher:
                     self.refused += 1
             elif magic == UNSUB_MAGIC:
                 self._readers.pop(addr, None)
-        for addr in [a for a, end in self._readers.items() if end < now]:
-            del self._readers[addr]
+        if self._readers:
+            for addr in [a for a, end in self._readers.items() if end < now]:
+                del self._readers[addr]
 
     def send(self) -> None:
         """Send :attr:`buf` (packed by :class:`Publisher`) to every reader."""

@@ -73,14 +73,17 @@ def model_log(cfg, t, tau_m, tau_h, path: str = "<synthetic>") -> MeasuredLog:
     return MeasuredLog(t=t, q=q, theta_m=th, tau_m=tau_m, tau_h_act=tau_h, path=path)
 
 
-def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds: list | None = None):
+def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds: list | None = None,
+               idle_s: float = 0.0):
     """Seconds per ``update`` call over the log (first ``warmup`` steps not recorded).
 
     With ``cpu``: ``(wall, cpu)``, the second the CPU time of this thread per call
     (``time.thread_time_ns``), which excludes the time the scheduler gave to other processes
     -- on a shared machine the closer figure to what the step costs on an idle one.
     ``kinds``: a list that receives, per recorded step, what the step's LoG-GP did
-    (:func:`step_kind`; GP-AKF only).
+    (:func:`step_kind`; GP-AKF only).  ``idle_s``: this thread sleeps that long before each
+    step, as the loop does between its cycles (the step then finds the caches as another
+    process left them).
     """
     est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     clock = time.perf_counter_ns
@@ -91,6 +94,8 @@ def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds
     for k in range(1, len(log)):
         q, th, u, dt = log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1]
         before = _gp_counters(g) if g is not None else None
+        if idle_s > 0.0:
+            time.sleep(idle_s)
         c0 = tclock()
         t0 = clock()
         est.update(q, th, u, dt)
@@ -137,6 +142,9 @@ def add_arguments(p) -> None:
     p.add_argument("--hyper-every", type=int, default=None,
                    help="gp-akf cases: updates between two hyperparameter slices (default: the LoG-GP "
                         "default, 10; each slice is two O(N̄³) phases on consecutive updates)")
+    p.add_argument("--idle-ms", type=float, default=0.0,
+                   help="sleep this long before each step, as the loop does between cycles (9 at 100 Hz, "
+                        "0.5 at 1 kHz; default 0: the steps back to back)")
     p.add_argument("--quick", action="store_true",
                    help="quick run: 10 s log, 1 pass, gp-akf up to 1e4 points")
 
@@ -167,13 +175,16 @@ def run(args) -> int:
         raise InputError(f"--estimators: unknown {', '.join(unknown)}; allowed: {', '.join(CASES)}")
     if args.repeat < 1:
         raise InputError(f"--repeat must be >= 1, got {args.repeat}")
+    if not 0.0 <= args.idle_ms <= 1000.0:
+        raise InputError(f"--idle-ms must be in 0..1000, got {args.idle_ms}")
     log = read_log(args.log, n=cfg.joints, min_rows=100) if args.log else synthetic_log(cfg, args.seconds)
     import os
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     print("per step: wall-clock time (perf_counter); 'CPU time': thread CPU time of the same calls "
           "(thread_time), without the time other processes had the core")
     print(f"data: {log.path}, {len(log)} samples at {1 / log.dt:.0f} Hz, {cfg.joints} joint(s), "
-          f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass")
+          f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass; "
+          + (f"{args.idle_ms:g} ms asleep before each step" if args.idle_ms > 0 else "steps back to back"))
     if gp_labels:
         print("gp-akf-1eK: GP-AKF step WITH online learning (GP mean + Jacobian + variance, filter step, "
               "training pair, LoG-GP update incl. hyperparameter slices) with the LoG-GP pre-filled to "
@@ -181,7 +192,8 @@ def run(args) -> int:
     for label in labels:
         est = CASES[label](cfg, log.dt, log)
         kinds = [] if hasattr(est, "gp") else None
-        runs = [time_steps(est, log, cpu=True, kinds=kinds) for _ in range(args.repeat)]
+        runs = [time_steps(est, log, cpu=True, kinds=kinds, idle_s=args.idle_ms * 1e-3)
+                for _ in range(args.repeat)]
         times = np.concatenate([r[0] for r in runs])
         cpu = np.concatenate([r[1] for r in runs])
         print(f"{label:>12s}: per step {summarize(times)}; load average {os.getloadavg()[0]:.2f}", flush=True)

@@ -72,6 +72,9 @@ def add_arguments(p) -> None:
                    help="TPDOs collected until this fraction of the period after the SYNC (default 0.6)")
     p.add_argument("--max-missed", type=int, default=3,
                    help="cycles in a row a late TPDO may be held before TPDO_MISSING latches (default 3)")
+    p.add_argument("--stages", action="store_true",
+                   help="also time each stage of the cycle (read, controller, write, estimator and its bound, "
+                        "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
@@ -144,6 +147,40 @@ class _ThreadCpu:
 
     def now(self) -> float:
         return sum(time.clock_gettime(c) for c in self.clocks)
+
+
+class _Stages:
+    """Thread CPU time of each stage of the cycle: the stage's method on its object replaced by a
+    wrapper that reads the thread's CPU clock around the call (an instance attribute: the class
+    and other instances are untouched)."""
+
+    def __init__(self):
+        self.times: dict[str, list] = {}
+
+    def wrap(self, label: str, obj, name: str) -> None:
+        if obj is None or not hasattr(obj, name):
+            return
+        f = getattr(obj, name)
+        acc = self.times.setdefault(label, [])
+        clock = time.thread_time
+
+        def timed(*a, **k):
+            c0 = clock()
+            try:
+                return f(*a, **k)
+            finally:
+                acc.append(clock() - c0)
+        setattr(obj, name, timed)
+
+    def summary(self, skip: int) -> dict:
+        """Median / p99 [µs] per stage over the calls after the first ``skip``."""
+        out = {}
+        for label, v in self.times.items():
+            v = np.asarray(v[skip:], dtype=float)
+            if v.size:
+                out[label] = {"median": float(np.median(v) * 1e6), "p99": float(np.percentile(v, 99) * 1e6),
+                              "calls": int(v.size)}
+        return out
 
 
 def run(args) -> int:
@@ -228,6 +265,15 @@ def run(args) -> int:
         # node on the bus and the datagram socket for local readers (none subscribed here)
         from sea_daemon.runtime.publish import make_publisher
         publisher = make_publisher(rig, cfg, controller, socket_path=tmp / "sea-daemon.sock")
+        stages = None
+        if args.stages:
+            stages = _Stages()
+            for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
+                                     ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
+                                     ("estimator (with its bound)", estimator, "update"),
+                                     ("bound", getattr(estimator, "bound", None), "step"),
+                                     ("publication", publisher, "publish")):
+                stages.wrap(label, obj, name)
         try:
             res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                         progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
@@ -289,6 +335,8 @@ def run(args) -> int:
         "compute_us": _pcts(compute), "read_us": _pcts(read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
         "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
+        # the start-up's priming read and the first cycle not counted
+        "stages_cpu_us": stages.summary(2) if stages is not None else None,
     }
     print(f"bench loop on {out['machine']}")
     print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine, "
@@ -335,5 +383,8 @@ def run(args) -> int:
           f"sent {can_pub.get('frames_sent', 0)}, dropped {can_pub.get('frames_dropped', 0)}; local socket "
           f"(no reader subscribed)")
     print(f"log rows dropped: {out['log_rows_dropped']}")
+    if out["stages_cpu_us"]:
+        print("loop thread CPU per stage (median / p99; a wrapper around each adds about 1 us): " + "; ".join(
+            f"{k} {v['median']:.0f} / {v['p99']:.0f} us" for k, v in out["stages_cpu_us"].items()))
     save(out)
     return 0

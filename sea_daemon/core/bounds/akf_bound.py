@@ -45,7 +45,7 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import warmer
+from sea_daemon.core.jit import njit, warmer
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -57,10 +57,29 @@ from sea_daemon.core.bounds import bound_core
 from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
 
 
+@njit
+def _generators_check(G, caps) -> int:
+    """The compiled step's new generators: 1 when one is not finite, 2 when a half-width of the
+    set of means (Σ_j |G_ij|) may exceed its cap (within 1e-12 relative: the exact test is
+    SetMembershipBound.saturate's), else 0."""
+    over = False
+    for i in range(G.shape[0]):
+        s = 0.0
+        for j in range(G.shape[1]):
+            v = G[i, j]
+            if not math.isfinite(v):
+                return 1
+            s += abs(v)
+        if s > caps[i] * (1.0 - 1e-12):
+            over = True
+    return 2 if over else 0
+
+
 @warmer
 def _warm() -> None:
-    """The compiled kernel of this module with the argument types the bound uses (see _jit)."""
+    """The compiled kernels of this module with the argument types the bound uses (see _jit)."""
     _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    _generators_check(np.zeros((5, 3)), np.ones(5))
 
 
 class AKFTheoremBound:
@@ -78,6 +97,7 @@ class AKFTheoremBound:
         self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
         self._pack_at = -1                # n_learned when the pack was made
         self._args = None                 # the compiled step's arguments that stay (_call_compiled)
+        self._caps = self._sqrt_caps = None   # the AKF's caps of bounded P and their square roots
         est_cfg = getattr(getattr(akf, "cfg", None), "estimator", None)
         # 'lederer' (LUH19, eq:gpmeanbounds) or a configured β (η = β √(σ² + σ_n²)); default:
         # the configuration's estimator.gp_beta
@@ -348,7 +368,12 @@ class AKFTheoremBound:
             # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
             # projection): the typed estimator fault, as the Python step raises it
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged ({e})") from None
-        if not np.isfinite(G).all():
+        caps = getattr(akf, "_P_max", None)
+        if caps is not self._caps:
+            self._caps = caps
+            self._sqrt_caps = np.sqrt(caps) if caps is not None else np.full(akf.d, np.inf)
+        check = _generators_check(G, self._sqrt_caps)
+        if check == 1:
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
@@ -356,7 +381,8 @@ class AKFTheoremBound:
         self.gp_box_violations_ += int(out)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
-        self._saturate(est)
+        if check:                          # a half-width at its cap: the exact test, maybe saturation
+            self._saturate(est)
 
     def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
         """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same

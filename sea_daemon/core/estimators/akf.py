@@ -391,9 +391,7 @@ class AKF:
           (:func:`sea_daemon.core.linalg.zoh`, one (5n+n)² expm).
         """
         S = self.Sigma_nom
-        if dt != self._S_base_dt:                    # Σ_nom·dt/T, cached per step length
-            self._S_base_dt = dt
-            self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
+        self._sigma_base(dt)
         if self._tau_m_var > 0:
             # Γ_u = ∫₀^dt e^{As} ds B (Van Loan), S = Σ_nom·dt/T + Γ_u σ_u² Γ_uᵀ
             # (compiled: akf_core.input_noise)
@@ -402,6 +400,13 @@ class AKF:
         else:
             S[:] = self._S_base
         return S
+
+    def _sigma_base(self, dt: float) -> np.ndarray:
+        """Σ_nom·dt/T (``estimator.Sigma_nom_dt`` = T; the configured Σ_nom without), cached per step length."""
+        if dt != self._S_base_dt:
+            self._S_base_dt = dt
+            self._S_base = self.Sigma_nom_cfg * (dt / self._S_dt) if self._S_dt > 0 else self.Sigma_nom_cfg
+        return self._S_base
 
     def _nominal_affine(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F_nom(x, u), f_nom(x, u)) for a model without declared effects, from cached blocks,
@@ -451,25 +456,14 @@ class AKF:
         # GP terms of eq:fwdynwtorqueresidual1 / eq:linearization; x̂⁻, P⁻, S, K, ν, x̂, P)
         status, nis = akf_core.filter_step(self._buf, self.d, self.m, self.n, use_gp, float(dt))
         if status != akf_core.OK:
-            k = self.est.k + 1
-            if status == akf_core.PRIOR_NONFINITE:
-                raise EstimatorNonFinite(f"AKF step {k}: prediction became non-finite "
-                                         f"(non-finite state, measurement or covariance)")
-            if status == akf_core.S_NOT_PD:
-                raise CovarianceNotPD(f"AKF step {k}: innovation covariance S is not positive definite "
-                                      f"(min diag {np.min(np.diag(self.S_k)):.3g}); check R, Sigma_nom, P0")
-            self.nis = nis
-            raise EstimatorNonFinite(f"AKF step {k}: state or covariance became non-finite "
-                                     f"(non-finite measurement or diverging model/noise settings)")
+            self._step_failed(status, nis)
         self.nis = nis
         # bounded P (akf_core.cap_covariance): no variance beyond its physical cap; a prior far
         # beyond the caps means the linearised model expands the covariance without bound: a
         # typed fault with the step and the reason, never an overflow later
         pmax = float(np.max(np.diag(self.P_prior) / self._P_max))
         if not pmax < DIVERGED:
-            raise CovarianceDiverged(f"AKF step {self.est.k + 1}: the predicted covariance is {pmax:.3g} x its "
-                                     f"physical cap (the linearised model diverges: check the model, R, "
-                                     f"Sigma_nom, or a log that does not fit the model)")
+            self._diverged(pmax)
         self.n_capped += akf_core.cap_covariance(self.P, self._P_max)
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
@@ -479,6 +473,25 @@ class AKF:
             self.bound.step(e, self._x_prev, self._P_prev, u, dt)
         e.valid = self.converged or self._gate(e)
         return e
+
+    def _step_failed(self, status: int, nis: float) -> None:
+        """Raise the typed fault of a filter step that returned ``status`` (not OK)."""
+        k = self.est.k + 1
+        if status == akf_core.PRIOR_NONFINITE:
+            raise EstimatorNonFinite(f"AKF step {k}: prediction became non-finite "
+                                     f"(non-finite state, measurement or covariance)")
+        if status == akf_core.S_NOT_PD:
+            raise CovarianceNotPD(f"AKF step {k}: innovation covariance S is not positive definite "
+                                  f"(min diag {np.min(np.diag(self.S_k)):.3g}); check R, Sigma_nom, P0")
+        self.nis = nis
+        raise EstimatorNonFinite(f"AKF step {k}: state or covariance became non-finite "
+                                 f"(non-finite measurement or diverging model/noise settings)")
+
+    def _diverged(self, pmax: float) -> None:
+        """Raise CovarianceDiverged: the predicted covariance is ``pmax`` times its cap."""
+        raise CovarianceDiverged(f"AKF step {self.est.k + 1}: the predicted covariance is {pmax:.3g} x its "
+                                 f"physical cap (the linearised model diverges: check the model, R, "
+                                 f"Sigma_nom, or a log that does not fit the model)")
 
     # ------------------------------------------------------------------ start-up gate
 

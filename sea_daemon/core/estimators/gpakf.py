@@ -29,11 +29,11 @@ from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
-from sea_daemon.core.estimators import akf_core, gp_hook
+from sea_daemon.core.estimators import akf_core, gp_hook, gpakf_core
 from sea_daemon.core.gp.loggp import LoGGP
-from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.akf import AKF, DIVERGED
 from sea_daemon.core.estimators.base import Estimate
-from sea_daemon.core.estimators.health import InputBox
+from sea_daemon.core.estimators.health import InputBox, check_pd
 
 
 class _ResidualHook:
@@ -130,6 +130,13 @@ class GPAKF(AKF):
         S_dt = float(cfg.estimator.Sigma_nom_dt)
         self.learn_every = max(1, int(round(S_dt / self.dt))) if S_dt > 0 else 1
         self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
+        # the frozen sample in one compiled call (gpakf_core) where it applies: no declared
+        # effects, offsets, delay or motor-torque noise, and the hook of this class
+        self._fz_ok = (self._affine and self._no_offsets and not self._has_delay
+                       and type(self.residual) is _ResidualHook)
+        self._fz_args = ()
+        self._fz_iout = np.zeros(6, dtype=np.int64)
+        self._fz_fout = np.zeros(2)
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """As :meth:`AKF.reset`; the learned model is kept."""
@@ -145,7 +152,11 @@ class GPAKF(AKF):
         freeze = getattr(self.residual, "freeze", None)       # a residual of one's own has none
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
-        e = super().update(q, theta_m, tau_m, dt)
+        if (self._fz_ok and was_ready and not self._filling and (dt is None or dt == self.dt)
+                and type(self.residual) is _ResidualHook and self.residual._key is not None and self.kin._primed):
+            e = self._frozen_update(q, theta_m, tau_m)
+        else:
+            e = super().update(q, theta_m, tau_m, dt)
         if self.learning:
             # learning assumes a passive subject (τ_h,act = 0): τ̂_h,act holds the residual not
             # learned yet, no estimate of the subject's torque (the training phase publishes none)
@@ -161,6 +172,72 @@ class GPAKF(AKF):
                 (self._since_reset - self.kin.L) % self.learn_every == 0:
             self._learn(tau_m)
         return e
+
+    def _frozen_update(self, q, theta_m, tau_m) -> Estimate:
+        """:meth:`AKF.update` of a sample at the nominal period with the GP frozen, its numerics in
+        two compiled calls (:mod:`.gpakf_core`); the checks, the bound and the start-up gate as
+        in :meth:`AKF.step` (the input history is pushed before the bound's step, which does not
+        read it)."""
+        res = self.residual
+        a = self._fz_args
+        dt = self.dt
+        if not a or a[0] is not res._pack_args or a[3] is not self.bound or a[4] is not self._sigma_base(dt):
+            a = self._fz_args = self._frozen_args(res)
+        # float64 C-contiguous (n,) arrays as the loop's measurement is (others converted: the
+        # compiled calls have one signature, made at construction)
+        if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous):
+            q = np.ascontiguousarray(q, dtype=float)
+        if not (type(theta_m) is np.ndarray and theta_m.dtype == np.float64 and theta_m.flags.c_contiguous):
+            theta_m = np.ascontiguousarray(theta_m, dtype=float)
+        if not (type(tau_m) is np.ndarray and tau_m.dtype == np.float64 and tau_m.flags.c_contiguous):
+            tau_m = np.ascontiguousarray(tau_m, dtype=float)
+        iout, fout, kin = self._fz_iout, self._fz_fout, self.kin
+        head = self._hhead
+        iout[gpakf_core.I_KIN_HEAD] = kin._head
+        iout[gpakf_core.I_HHEAD] = head
+        gpakf_core.frozen_sample(q, theta_m, dt, *a[1])
+        kin._head = int(iout[gpakf_core.I_KIN_HEAD])
+        box = res.box
+        box.any_clipped = bool(iout[gpakf_core.I_CLIPPED])
+        if box.any_clipped:
+            box.n_clipped += 1
+        nis = float(fout[gpakf_core.F_NIS])
+        status = int(iout[gpakf_core.I_STATUS])
+        if status != akf_core.OK:
+            self._step_failed(status, nis)
+        self.nis = nis
+        pmax = float(fout[gpakf_core.F_PMAX])
+        if not pmax < DIVERGED:
+            self._diverged(pmax)
+        self.n_capped += int(iout[gpakf_core.I_CAPPED])
+        k = self.est.k + 1
+        if iout[gpakf_core.I_PD] != 0:
+            check_pd(self.P, "P", k, full=False)       # raises CovarianceNotPD with the pivot
+        self.health.nis.update(nis, k)
+        self.est.k = k
+        self._t += dt
+        gpakf_core.frozen_finish(*a[2], tau_m, self._ht, self._hu, self._hcap, self._t, iout)
+        self._hhead = int(iout[gpakf_core.I_HHEAD])
+        e = self.est
+        if self.bound is not None:
+            self.bound.step(e, self._x_prev, self._P_prev, self._hu[head], dt)
+        e.valid = self.converged or self._gate(e)
+        return e
+
+    def _frozen_args(self, res: _ResidualHook) -> tuple:
+        """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` (the same objects
+        every sample; made again when the hook's pack changes)."""
+        kin, box, e = self.kin, res.box, self.est
+        self._sigma_base(self.dt)
+        pack = res._pack_args[:-1]
+        s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
+        sample = (self._buf, self.d, self.m, self.n, self._ang, kin._buf, kin.C, kin._out, self._ddq, self.z,
+                  self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
+                  self._MinvG, float(self._gp_var_scale), box._lo, box._hi, box._z, box.clipped, res.noise_in_Q,
+                  res.mu, res.jac, res.var, pack, res._pack_args[-1], self.bound is not None, self._x_prev,
+                  self._P_prev, self._P_max, DIVERGED, self._fz_iout, self._fz_fout)
+        finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
+        return res._pack_args, sample, finish, self.bound, self._S_base
 
     def _training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
         """(z, f) of the current sample from the causal kinematics (eq:loadsidewmotor)."""
