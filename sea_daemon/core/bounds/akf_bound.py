@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from sea_daemon.core.jit import warmer
+from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -55,6 +56,7 @@ from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 from sea_daemon.core.bounds import bound_core
 from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
+from sea_daemon.core.bounds.zonotope import predict_generators
 
 
 @warmer
@@ -150,6 +152,10 @@ class AKFTheoremBound:
         self._minv = np.ascontiguousarray(m.Minv, dtype=float)
         self._M = np.ascontiguousarray(m.M, dtype=float)
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
+        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
+        # error (_friction_candidate; docs/bounds.md §4 "Friction from its range")
+        self._fric, self._smooth_tables = self._friction_groups(m, sets)
+        self.friction_range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
@@ -191,6 +197,7 @@ class AKFTheoremBound:
         self.sm.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
+        self.friction_range_steps_ = 0
         if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
@@ -237,6 +244,116 @@ class AKFTheoremBound:
             r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
             np.maximum(b, r, out=b)
         return b
+
+    def _friction_groups(self, model, sets: str):
+        """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
+        with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
+        column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
+        eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
+        Also the compiled tables of the model without these effects (f_smooth).  ([], None) when
+        the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
+        compiled vocabulary)."""
+        tables = getattr(self.akf, "_tables", None)
+        if sets != "zonotope" or tables is None:
+            return [], None
+        import copy
+        from sea_daemon.core.model_core import ModelTables
+        n, d = model.n, 5 * model.n
+        groups = {}
+        for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
+            for e in effs:
+                if e.code in (COULOMB, STRIBECK):
+                    groups.setdefault((side, e.joint), []).append((int(e.code), np.asarray(e.vector, dtype=float)))
+        if not groups:
+            return [], None
+        out = []
+        for (side, j), effs in sorted(groups.items()):
+            ell = np.zeros(d)
+            c = np.zeros(d)
+            ell[2 * n + j] = 1.0
+            if side == "load":
+                ell[3 * n + j] = 1.0
+                c[3 * n:4 * n] = -model.Minv[:, j]
+            else:
+                c[2 * n:3 * n] = -model.Jinv[:, j]
+                c[3 * n:4 * n] = model.Jinv[:, j]
+            out.append((side, ell, c, effs))
+        smooth = copy.copy(model)
+        smooth.load_effects = [e for e in model.load_effects if e.code not in (COULOMB, STRIBECK)]
+        smooth.motor_effects = [e for e in model.motor_effects if e.code not in (COULOMB, STRIBECK)]
+        return out, ModelTables(smooth)
+
+    @staticmethod
+    def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
+        """[L, U] ⊇ {τ_g(v) : lo ≤ v ≤ hi} for τ_g = Σ p₀ m(v) tanh(v/ε), m ≡ 1 (Coulomb) or
+        exp(−(v/v_s)²) (Stribeck): interval arithmetic (tanh is increasing; m > 0 lies between its
+        values at the interval's largest and smallest |v|), rigorous."""
+        L = U = 0.0
+        for code, p in effs:
+            eps = p[1] if code == COULOMB else p[2]          # the smoothing ε (effects.evaluate)
+            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
+            if code == STRIBECK:
+                vmax = max(abs(lo), abs(hi))
+                vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
+                m_lo, m_hi = math.exp(-(vmax / p[1]) ** 2), math.exp(-(vmin / p[1]) ** 2)
+            else:
+                m_lo = m_hi = 1.0
+            a, b = min(m_lo * t_lo, m_hi * t_lo), max(m_lo * t_hi, m_hi * t_hi)
+            a, b = (p[0] * a, p[0] * b) if p[0] >= 0.0 else (p[0] * b, p[0] * a)
+            L += a
+            U += b
+        return L, U
+
+    def _friction_candidate(self, x0, u, P0, C: Ellipsoid, A_nom: np.ndarray, dt: float):
+        """The set of means' step with the friction linearised at zero slope (module docstring).
+
+        The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
+        s_g the filter's slope at v̂.  With x − x̂ = a + g (a in the set of means, g ~ N(0, P) the
+        Gaussian part) the step of a (eq:predwLinErrsetandGPerrset, ε held over the step) is
+
+            a⁺ = F a + Φ ε = (F − Σ_g Φc s_g ℓᵀ) a + Φ ε_smooth + Σ_g Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg],
+
+        exactly; F g is the filter's own Gaussian part and stays with P.  So the set of means may
+        be propagated with F_B = F − Σ Φc s_g ℓᵀ (the filter's transition without the friction's
+        slope) and the bounded inputs Φ box(b_smooth) and Φc·[−w_g, w_g] with
+        w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
+        + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
+        filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
+        Returns (F_B, Γ columns Φc (d, groups), w, b_smooth, Φ of b_smooth)."""
+        akf = self.akf
+        n, d = akf.n, akf.d
+        nf = len(self._fric)
+        FB = np.array(akf.F_k, dtype=float)
+        GamF = np.empty((d, nf))
+        w = np.empty(nf)
+        A_s = A_nom.copy()
+        Phi_full = None
+        s_set = self.sm.s_state
+        for i, (side, ell, c, effs) in enumerate(self._fric):
+            v0 = float(ell @ x0)
+            t0 = sl = 0.0
+            for code, p in effs:
+                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
+                t0 += t_
+                sl += dv
+            r = float(self.sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
+            L, U = self._friction_range(effs, v0 - r, v0 + r)
+            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
+            w[i] = max(U - t0, t0 - L) + abs(sl) * rg
+            if side == "load":
+                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
+                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
+                GamF[:, i] = -akf.Gamma_mu[:, j]
+            else:
+                if Phi_full is None:
+                    Phi_full = discretize(akf.A_k, self._I, dt)[1]
+                GamF[:, i] = Phi_full @ c
+            # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
+            FB -= sl * np.outer(GamF[:, i], ell)
+            A_s -= sl * np.outer(c, ell)
+        pts = self.sm.sample_points(C)
+        b = (1.0 + self.sm.margin) * self._smooth_tables.lin_error_box(pts, u, x0, A_s)
+        return FB, GamF, w, b, self._phi(akf.A_k, b, dt)
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -386,6 +503,7 @@ class AKFTheoremBound:
         akf = self.akf
         zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
+        fric = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
@@ -401,6 +519,8 @@ class AKFTheoremBound:
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
             b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+            if self._fric:
+                fric = self._friction_candidate(x0, u, P0, C, A_nom, dt)
         eta = None
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
@@ -435,7 +555,10 @@ class AKFTheoremBound:
                 self._eta_all[n:] = self.tau_h_act_rate
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
-        sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        if fric is None:
+            sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        else:
+            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric)
         sm.update(akf.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
@@ -443,6 +566,36 @@ class AKFTheoremBound:
                                  f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
         self._saturate(est)
+
+    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric) -> None:
+        """X⁻ from the filter-slope step (F, Φ box(b)) or the friction-range step of
+        :meth:`_friction_candidate`, whichever gives the narrower τ_h,act half-width after the filter
+        step (I − KH).  Both contain the propagated set of means under Theorem 1's assumptions,
+        so the choice keeps the guarantee whatever the rule."""
+        sm = self.sm
+        limit = sm.generator_limit()
+        GA = sm.prior_generators(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
+                                 limit=limit)
+        FB, GamF, w, bS, PhiS = fric
+        if Gam is None or eta is None:
+            GamB, etB = GamF, w
+        else:
+            GamB, etB = np.hstack([Gam, GamF]), np.concatenate([eta, w])
+        GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bS if np.any(bS) else None, Phi=PhiS,
+                                 limit=limit)
+        tau = sm.tau_idx
+        R = -(akf.K_k[tau] @ akf.H)               # the τ rows of I − K H
+        R[np.arange(tau.size), tau] += 1.0
+        hA = np.abs(R @ GA).sum(axis=1)
+        hB = np.abs(R @ GB).sum(axis=1)
+        if np.sum(hB) < np.sum(hA):
+            sm.Gprior_ = GB
+            sm.lin_err_ = bS
+            self.lin_err_ = bS
+            self.friction_range_steps_ += 1
+        else:
+            sm.Gprior_ = GA
+            sm.lin_err_ = b
 
     def _saturate(self, est) -> None:
         """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no
