@@ -286,22 +286,36 @@ class AKFTheoremBound:
     @staticmethod
     def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
         """[L, U] ⊇ {τ_g(v) : lo ≤ v ≤ hi} for τ_g = Σ p₀ m(v) tanh(v/ε), m ≡ 1 (Coulomb) or
-        exp(−(v/v_s)²) (Stribeck): interval arithmetic (tanh is increasing; m > 0 lies between its
-        values at the interval's largest and smallest |v|), rigorous."""
-        L = U = 0.0
+        exp(−(v/v_s)²) (Stribeck), by interval arithmetic — rigorous: tanh is increasing, and m > 0
+        lies between its values at the interval's largest and smallest |v|.  With one ε for all
+        (the estimator's ``sign_eps``) τ_g = tanh(v/ε)·Σ p₀ m(v) is bounded as one product, which
+        keeps a Coulomb and a Stribeck term of opposite signs from adding their widths."""
+        vmax = max(abs(lo), abs(hi))
+        vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
+        L = U = 0.0          # per-effect sum (any ε)
+        hl = hu = 0.0        # Σ p₀ m(v) over the interval (shared ε)
+        eps0 = None
+        shared = True
         for code, p in effs:
             eps = p[1] if code == COULOMB else p[2]          # the smoothing ε (effects.evaluate)
-            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
             if code == STRIBECK:
-                vmax = max(abs(lo), abs(hi))
-                vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
                 m_lo, m_hi = math.exp(-(vmax / p[1]) ** 2), math.exp(-(vmin / p[1]) ** 2)
             else:
                 m_lo = m_hi = 1.0
-            a, b = min(m_lo * t_lo, m_hi * t_lo), max(m_lo * t_hi, m_hi * t_hi)
-            a, b = (p[0] * a, p[0] * b) if p[0] >= 0.0 else (p[0] * b, p[0] * a)
-            L += a
-            U += b
+            a, b = (p[0] * m_lo, p[0] * m_hi) if p[0] >= 0.0 else (p[0] * m_hi, p[0] * m_lo)
+            hl += a
+            hu += b
+            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
+            # [a, b]·[t_lo, t_hi]: the extreme corner products
+            c = (a * t_lo, a * t_hi, b * t_lo, b * t_hi)
+            L += min(c)
+            U += max(c)
+            shared = shared and (eps0 is None or eps == eps0)
+            eps0 = eps
+        if shared and eps0 is not None:
+            t_lo, t_hi = math.tanh(lo / eps0), math.tanh(hi / eps0)
+            c = (hl * t_lo, hl * t_hi, hu * t_lo, hu * t_hi)
+            L, U = max(L, min(c)), min(U, max(c))
         return L, U
 
     def _friction_candidate(self, x0, u, P0, C: Ellipsoid, A_nom: np.ndarray, dt: float):
