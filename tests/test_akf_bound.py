@@ -399,19 +399,30 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     assert etas[1e-4] >= x0[0] - 1e-12 and etas[1.0] > etas[1e-4]
 
 
-@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate"])
+@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate", "gp-friction"])
 def test_compiled_step_gives_the_python_steps_rho(case):
     """bound_core.bound_step (the daemon's compiled step) against the Python step it replaces:
-    the same ρ_k, GP error, linearisation error and box violations, to rounding."""
+    the same ρ_k, GP error, linearisation error, box violations and choices of the range form,
+    to rounding.  ``gp-friction``: the plant has a Coulomb friction the model lacks and moves and
+    stops, so the GP learns a steep residual and the range form is taken at some steps."""
     import dataclasses
+    from sea_daemon.core.effects import make_effect
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.configfile import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     if case.startswith("local"):
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(
             cfg.estimator, gp_beta=1.5, tau_h_act_rate=4.0 if case == "local+rate" else 0.0))
-    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
-    log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
+    if case == "gp-friction":
+        true = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, effects=tuple(cfg.model.effects) + (
+            make_effect("coulomb", "load", F_c=0.5, eps=0.003),)))
+        tm = lambda t: np.array([np.sin(2 * np.pi * 0.5 * t) if (t % 2.0) < 1.0 else 0.4])
+        train = simulate(SEAModel.from_config(true), T=2.0, seed=6, tau_m=tm)
+        log = simulate(SEAModel.from_config(true), T=1.0, seed=8, tau_m=tm,
+                       tau_h=lambda t: np.array([0.3 * np.sin(4 * t)]))
+    else:
+        train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+        log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
     outs, bounds = [], []
     for compiled in (False, True):
         if case == "akf":
@@ -426,6 +437,9 @@ def test_compiled_step_gives_the_python_steps_rho(case):
     np.testing.assert_allclose(bounds[1].eta_, bounds[0].eta_, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(bounds[1].lin_err_, bounds[0].lin_err_, rtol=1e-12, atol=1e-14)
     assert bounds[1].gp_box_violations_ == bounds[0].gp_box_violations_
+    assert bounds[1].range_steps_ == bounds[0].range_steps_
+    if case == "gp-friction":
+        assert bounds[0].range_steps_ > 0
     np.testing.assert_allclose(bounds[1].sm.G_, bounds[0].sm.G_, rtol=1e-10, atol=1e-14)
 
 
@@ -491,7 +505,8 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     akf.F_k[:] = F
     akf.Gamma_mu[:] = Phi @ model.I_mu @ model.Minv
     C = tb.sm.confidence_set(x0, P0)
-    FB, GamF, w, _, _ = tb._friction_candidate(x0, u, P0, C, akf.A_k.copy(), dt)
+    dF, GamF, w, _, _ = tb._friction_candidate(x0, u, P0, C, akf.A_k.copy(), dt)
+    FB = akf.F_k + dF
     from sea_daemon.core.effects import evaluate
     tau_g = lambda v: sum(evaluate(code, p, 0.0, v, 0.0)[0] for code, p in effs)
     s_g = sum(evaluate(code, p, 0.0, float(ell @ x0), 0.0)[2] for code, p in effs)
@@ -540,7 +555,7 @@ def test_friction_range_keeps_the_bound_valid_and_finite_at_standstill():
             tb._fric = []
         out = run(akf, log)
         e = np.abs(out[1:, 0] - log.tau_h_act[1:, 0])
-        res[use_range] = (out[1:, 1], e, tb.friction_range_steps_)
+        res[use_range] = (out[1:, 1], e, tb.range_steps_)
     rho, e, steps = res[True]
     assert steps > 0
     assert np.all(np.isfinite(rho))

@@ -155,7 +155,7 @@ class AKFTheoremBound:
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (_friction_candidate; docs/bounds.md §4 "Friction from its range")
         self._fric, self._smooth_tables = self._friction_groups(m, sets)
-        self.friction_range_steps_ = 0           # steps whose set of means took the range candidate
+        self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
@@ -197,7 +197,7 @@ class AKFTheoremBound:
         self.sm.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
-        self.friction_range_steps_ = 0
+        self.range_steps_ = 0
         if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
@@ -333,11 +333,11 @@ class AKFTheoremBound:
         w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
         + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
         filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
-        Returns (F_B, Γ columns Φc (d, groups), w, b_smooth, Φ of b_smooth)."""
+        Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth, Φ of b_smooth)."""
         akf = self.akf
         n, d = akf.n, akf.d
         nf = len(self._fric)
-        FB = np.array(akf.F_k, dtype=float)
+        dF = np.zeros((d, d))
         GamF = np.empty((d, nf))
         w = np.empty(nf)
         A_s = A_nom.copy()
@@ -363,11 +363,11 @@ class AKFTheoremBound:
                     Phi_full = discretize(akf.A_k, self._I, dt)[1]
                 GamF[:, i] = Phi_full @ c
             # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
-            FB -= sl * np.outer(GamF[:, i], ell)
+            dF -= sl * np.outer(GamF[:, i], ell)
             A_s -= sl * np.outer(c, ell)
         pts = self.sm.sample_points(C)
         b = (1.0 + self.sm.margin) * self._smooth_tables.lin_error_box(pts, u, x0, A_s)
-        return FB, GamF, w, b, self._phi(akf.A_k, b, dt)
+        return dF, GamF, w, b, self._phi(akf.A_k, b, dt)
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -409,8 +409,11 @@ class AKFTheoremBound:
                 MU[i], S[i] = m_, v_
         if not local:
             S = np.sqrt(np.maximum(S, 0.0))
-        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s)
+        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s); |μ(z) − μ(ẑ_clip)| for the
+        # range form (_gp_range_candidate)
         E = np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T)
+        self._E0 = np.abs(MU - mu0)
+        self._J0 = J0
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
@@ -474,7 +477,7 @@ class AKFTheoremBound:
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
         try:
-            G, out = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+            G, out, took_range = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
             # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
             # projection): the typed estimator fault, as the Python step raises it
@@ -485,6 +488,7 @@ class AKFTheoremBound:
                                  f"the confidence set")
         sm.G_ = G
         self.gp_box_violations_ += int(out)
+        self.range_steps_ += int(took_range)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         self._saturate(est)
@@ -517,7 +521,7 @@ class AKFTheoremBound:
         akf = self.akf
         zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
-        fric = None
+        fric = gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
@@ -550,6 +554,8 @@ class AKFTheoremBound:
             # of the two maxima, which may sit at different points), the sampled part + margin
             Lm = (1.0 + sm.margin) * E
             eta = np.max(H + Lm, axis=0)
+            if sm.sets == "zonotope":
+                gp_range = self._gp_range_candidate(H, P0)
             self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
             self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
@@ -569,10 +575,10 @@ class AKFTheoremBound:
                 self._eta_all[n:] = self.tau_h_act_rate
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
-        if fric is None:
+        if fric is None and gp_range is None:
             sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         else:
-            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric)
+            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric, gp_range)
         sm.update(akf.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
@@ -581,32 +587,65 @@ class AKFTheoremBound:
         est.tau_h_act_bound[:] = sm.rho(akf.P)
         self._saturate(est)
 
-    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric) -> None:
-        """X⁻ from the filter-slope step (F, Φ box(b)) or the friction-range step of
-        :meth:`_friction_candidate`, whichever gives the narrower τ_h,act half-width after the filter
-        step (I − KH).  Both contain the propagated set of means under Theorem 1's assumptions,
-        so the choice keeps the guarantee whatever the rule."""
+    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray):
+        """The GP part of the range form: the GP mean linearised at zero slope.
+
+        The filter's drift carries −I_μM⁻¹[μ(ẑ) + J T(x − x̂)] (eq:linearization, J = ∂μ/∂z at ẑ,
+        T x = (q, q̇)); the true one −I_μM⁻¹ f(z).  With x − x̂ = a + g as in
+        :meth:`_friction_candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
+
+            a⁺ = F a − Γ_μ [f(z) − μ(ẑ) − J T(a + g)]
+               = (F + Γ_μ J T) a − Γ_μ [(f − μ)(z) + μ(z) − μ(ẑ) − J T g],
+
+        so the set of means may be propagated with F + Γ_μ J T and the torque error
+        η_B = max over the points of [√β s + γ + c e + (1 + margin)|μ(z) − μ(ẑ)|] + √(s_z J T P Tᵀ Jᵀ)
+        (J T g on the χ² set of (q, q̇), the event the GP points already use) instead of the
+        filter's slope and the GP mean's linearisation error.  Returns (F_B − F, η_B)."""
+        akf = self.akf
+        n = akf.n
+        J0 = self._J0
+        Lm0 = (1.0 + self.sm.margin) * self._E0
+        JT = J0 @ self._T                          # (n, d)
+        eta_b = np.max(H + Lm0, axis=0) + np.sqrt(np.maximum(self._s_z * np.sum((JT @ P0) * JT, axis=1), 0.0))
+        return akf.Gamma_mu @ JT, eta_b
+
+    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric, gp_range) -> None:
+        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
+        friction of :meth:`_friction_candidate` and the GP mean of :meth:`_gp_range_candidate`
+        linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
+        filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
+        assumptions, so the choice keeps the guarantee whatever the rule."""
         sm = self.sm
+        n = akf.n
         limit = sm.generator_limit()
         GA = sm.prior_generators(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
                                  limit=limit)
-        FB, GamF, w, bS, PhiS = fric
-        if Gam is None or eta is None:
-            GamB, etB = GamF, w
-        else:
-            GamB, etB = np.hstack([Gam, GamF]), np.concatenate([eta, w])
-        GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bS if np.any(bS) else None, Phi=PhiS,
+        FB = np.array(akf.F_k, dtype=float)
+        GamB, etB, bB, PhiB = Gam, eta, b, Phi
+        if gp_range is not None:
+            dF, eta_gp = gp_range
+            FB += dF
+            etB = np.array(eta, dtype=float)
+            etB[:n] = eta_gp                      # [η | r]: the GP columns come first
+        if fric is not None:
+            dF, GamF, w, bB, PhiB = fric
+            FB += dF
+            if Gam is None or etB is None:
+                GamB, etB = GamF, w
+            else:
+                GamB, etB = np.hstack([Gam, GamF]), np.concatenate([etB, w])
+        GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bB if np.any(bB) else None, Phi=PhiB,
                                  limit=limit)
         tau = sm.tau_idx
         R = -(akf.K_k[tau] @ akf.H)               # the τ rows of I − K H
         R[np.arange(tau.size), tau] += 1.0
-        hA = np.abs(R @ GA).sum(axis=1)
-        hB = np.abs(R @ GB).sum(axis=1)
-        if np.sum(hB) < np.sum(hA):
+        hA = np.abs(R @ GA).sum()
+        hB = np.abs(R @ GB).sum()
+        if hB < hA:
             sm.Gprior_ = GB
-            sm.lin_err_ = bS
-            self.lin_err_ = bS
-            self.friction_range_steps_ += 1
+            sm.lin_err_ = bB
+            self.lin_err_ = bB
+            self.range_steps_ += 1
         else:
             sm.Gprior_ = GA
             sm.lin_err_ = b

@@ -237,7 +237,8 @@ def _abs_row_sum(M, i):
 def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, margin, T, E_q, grid, grid_step,
                Uz, has_gp, local, c_ext, sqrt_beta, gamma, box_lo, box_hi, has_box, Gam_tau, rate, has_rate,
                max_gen, delta_tau, z_tau, gp, rho, eta_out, lin_out, b_out):
-    """One step of the set of means (module docstring); returns (new generators, GP box left).
+    """One step of the set of means (module docstring); returns (new generators, GP box left,
+    whether the range form was taken).
 
     ``J0``: the filter's ∂μ/∂z at ẑ (n, 3n), of which the (q, q̇) columns are used.
     ``gp``: the tuple of :meth:`GPPack.args`.  Writes ρ_k into ``rho``, the GP error alone
@@ -272,6 +273,8 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
     out = False
     ng = 0
     eta = np.zeros(0)
+    eta_b = np.zeros(0)
+    JT = np.zeros((0, d))
     if has_gp:
         # 2. the projection of C_{k−1} on (q, q̇) and its points (SetMembershipBound.confidence_set)
         c = T @ x0
@@ -301,10 +304,15 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
                     acc += (pts[p, i] - zhat[i]) * J0[j, i]
                 DJ[p, j] = acc
         eta = np.empty(n)
+        eta_b = np.empty(n)
+        # the range form (AKFTheoremBound._gp_range_candidate): J T (n, d) and √(s_z J T P Tᵀ Jᵀ)
+        JT = np.ascontiguousarray(J0[:, :2 * n]) @ T
+        JTP = JT @ P0
         for j in range(n):
             best = -np.inf
             hbest = -np.inf
             lbest = -np.inf
+            bbest = -np.inf
             for p in range(npt):
                 e = abs(MU[p, j] - mu0[j] - DJ[p, j])
                 h = sqrt_beta[j] * S[p, j] + gamma[j] + XT[p, j]
@@ -316,9 +324,16 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
                     hbest = h
                 if lm > lbest:
                     lbest = lm
+                tb = h + (1.0 + margin) * abs(MU[p, j] - mu0[j])
+                if tb > bbest:
+                    bbest = tb
             eta[j] = best
             eta_out[j] = hbest
             lin_out[j] = lbest
+            q = 0.0
+            for c in range(d):
+                q += JTP[j, c] * JT[j, c]
+            eta_b[j] = bbest + math.sqrt(max(s_z * q, 0.0))
         if has_box:
             for i in range(dz):
                 hw = math.sqrt(max(Xc[i, i], 0.0)) if i < 2 * n else 0.0
@@ -356,6 +371,21 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
     IKH = -(K @ H)
     for i in range(d):
         IKH[i, i] += 1.0
+    took_range = False
+    if has_gp:
+        # the range form: F + Γ_μ J T with η_B, if its τ half-width after (I − KH) is narrower
+        # (AKFTheoremBound._predict_best_of_two; both contain the set of means)
+        for j in range(ng):
+            et[j] = eta_b[j]
+        GpB = predict_generators(F + Gam_mu @ JT, G, Gam, et, Phi, bb2, max_gen)
+        hA = 0.0
+        hB = 0.0
+        for j in range(n):
+            hA += _abs_row_sum(IKH[4 * n + j:4 * n + j + 1] @ Gp, 0)
+            hB += _abs_row_sum(IKH[4 * n + j:4 * n + j + 1] @ GpB, 0)
+        if hB < hA:
+            Gp = GpB
+            took_range = True
     Gn = IKH @ Gp
     h = np.empty(n)
     sd = np.empty(n)
@@ -363,7 +393,7 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         h[j] = _abs_row_sum(Gn, 4 * n + j)
         sd[j] = math.sqrt(max(P[4 * n + j, 4 * n + j], 0.0))
     _shifted_halfwidth(h, sd, delta_tau, z_tau, 8, rho)
-    return Gn, out
+    return Gn, out, took_range
 
 
 @njit
