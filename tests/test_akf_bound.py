@@ -440,6 +440,7 @@ def test_compiled_step_gives_the_python_steps_rho(case):
     assert bounds[1].range_steps_ == bounds[0].range_steps_
     if case == "gp-friction":
         assert bounds[0].range_steps_ > 0
+        assert np.mean(np.abs(outs[0][1:, 0] - log.tau_h_act[1:, 0]) <= outs[0][1:, 1]) >= 0.95
     np.testing.assert_allclose(bounds[1].sm.G_, bounds[0].sm.G_, rtol=1e-10, atol=1e-14)
 
 

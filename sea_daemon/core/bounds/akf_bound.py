@@ -31,6 +31,15 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
   bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
+* the range form (zonotope sets): the declared Coulomb/Stribeck friction and the GP mean
+  linearised at zero slope instead of the filter's — the set propagated with the filter's
+  transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
+  range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
+  plus the slope times the Gaussian part's extent (:meth:`AKFTheoremBound._friction_candidate`,
+  :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
+  the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
+  the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
+  friction, a stiction leaf's for the GP) times the set's q̇ extent is what the range form avoids.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
 With one, δ_GP (default δ/2) is the failure probability the caller used for the GP

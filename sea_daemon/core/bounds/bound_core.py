@@ -15,7 +15,9 @@ compiled call, :func:`bound_step`, with the same formulas in the same order:
    extrapolation term, as :class:`~sea_daemon.core.bounds.gp_bound.LocalScale` or
    :meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_many`), the GP mean's linearisation error
    against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the sum;
-3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction), X̂ = (I − KH) X⁻,
+3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction) and, with a GP, the
+   range form (F + Γ_μ J T) X̂ ⊕ Γ box(η_B) ⊕ Φ box(b) (AKFTheoremBound._gp_range_candidate);
+   the one with the narrower τ_h,act half-width after (I − KH) is kept; X̂ = (I − KH) X⁻,
    ρ_k (shifted_gaussian_halfwidth).
 
 The frozen LoG-GPs are flattened once (:class:`GPPack`: the trees and every leaf's factor,
