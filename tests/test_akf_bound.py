@@ -506,7 +506,10 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     akf.F_k[:] = F
     akf.Gamma_mu[:] = Phi @ model.I_mu @ model.Minv
     C = tb.sm.confidence_set(x0, P0)
-    dF, GamF, w, _, _ = tb._friction_candidate(x0, u, P0, C, akf.A_k.copy(), dt)
+    pts = tb.sm.sample_points(C)
+    dF, GamF, w, b_s, _, b = tb._friction_candidate(x0, u, P0, pts, akf.A_k.copy(), dt)
+    # the one-pass boxes are the filter-slope box and the box of the model without friction
+    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf._tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
     FB = akf.F_k + dF
     from sea_daemon.core.effects import evaluate
     tau_g = lambda v: sum(evaluate(code, p, 0.0, v, 0.0)[0] for code, p in effs)
@@ -535,6 +538,8 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
         assert np.allclose(lhs, rhs, rtol=1e-9, atol=1e-12 * (1 + np.abs(lhs).max()))
         assert abs(bracket) <= w[0] * (1 + 1e-12)
         worst = max(worst, abs(bracket))
+    eps_pts = np.array([smooth(x) - smooth(x0) - A_s @ (x - x0) for x in pts])
+    np.testing.assert_allclose(b_s, (1 + tb.sm.margin) * np.abs(eps_pts).max(axis=0), rtol=1e-9, atol=1e-12)
     assert worst > 0.5 * w[0]            # w is reached, not a loose cap
 
 

@@ -163,7 +163,7 @@ class AKFTheoremBound:
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (_friction_candidate; docs/bounds.md §4 "Friction from its range")
-        self._fric, self._smooth_tables = self._friction_groups(m, sets)
+        self._fric, self._fric_arrays = self._friction_groups(m, sets)
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
@@ -259,14 +259,12 @@ class AKFTheoremBound:
         with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
         column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
         eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
-        Also the compiled tables of the model without these effects (f_smooth).  ([], None) when
+        Also the same as arrays for :func:`bound_core.lin_error_boxes`.  ([], None) when
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
         compiled vocabulary)."""
         tables = getattr(self.akf, "_tables", None)
         if sets != "zonotope" or tables is None:
             return [], None
-        import copy
-        from sea_daemon.core.model_core import ModelTables
         n, d = model.n, 5 * model.n
         groups = {}
         for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
@@ -287,10 +285,12 @@ class AKFTheoremBound:
                 c[2 * n:3 * n] = -model.Jinv[:, j]
                 c[3 * n:4 * n] = model.Jinv[:, j]
             out.append((side, ell, c, effs))
-        smooth = copy.copy(model)
-        smooth.load_effects = [e for e in model.load_effects if e.code not in (COULOMB, STRIBECK)]
-        smooth.motor_effects = [e for e in model.motor_effects if e.code not in (COULOMB, STRIBECK)]
-        return out, ModelTables(smooth)
+        # the same as arrays for bound_core.lin_error_boxes (one f_nom per point for both boxes)
+        arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
+                  np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
+                  np.array([code for g in out for code, _ in g[3]], dtype=np.int64),
+                  np.ascontiguousarray([p for g in out for _, p in g[3]], dtype=float))
+        return out, arrays
 
     @staticmethod
     def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
@@ -327,7 +327,7 @@ class AKFTheoremBound:
             L, U = max(L, min(c)), min(U, max(c))
         return L, U
 
-    def _friction_candidate(self, x0, u, P0, C: Ellipsoid, A_nom: np.ndarray, dt: float):
+    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float):
         """The set of means' step with the friction linearised at zero slope (module docstring).
 
         The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
@@ -342,14 +342,15 @@ class AKFTheoremBound:
         w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
         + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
         filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
-        Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth, Φ of b_smooth)."""
+        ``pts``: the point set of C_{k−1}.  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
+        Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
         akf = self.akf
         n, d = akf.n, akf.d
         nf = len(self._fric)
         dF = np.zeros((d, d))
         GamF = np.empty((d, nf))
         w = np.empty(nf)
-        A_s = A_nom.copy()
+        slopes = np.empty(nf)
         Phi_full = None
         s_set = self.sm.s_state
         for i, (side, ell, c, effs) in enumerate(self._fric):
@@ -373,10 +374,17 @@ class AKFTheoremBound:
                 GamF[:, i] = Phi_full @ c
             # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
             dF -= sl * np.outer(GamF[:, i], ell)
-            A_s -= sl * np.outer(c, ell)
-        pts = self.sm.sample_points(C)
-        b = (1.0 + self.sm.margin) * self._smooth_tables.lin_error_box(pts, u, x0, A_s)
-        return dF, GamF, w, b, self._phi(akf.A_k, b, dt)
+            slopes[i] = sl
+        # both sampled boxes in one pass: the filter-slope form's b (f_nom with A_nom) and
+        # b_smooth (f_nom without the friction groups, with A_nom minus their slopes)
+        b = np.zeros(d)
+        b_s = np.zeros(d)
+        ell_a, col_a, eg, ec, ep = self._fric_arrays
+        bound_core.lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
+                                   np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
+                                   *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+        b_s *= 1.0 + self.sm.margin
+        return dF, GamF, w, b_s, self._phi(akf.A_k, b_s, dt), (1.0 + self.sm.margin) * b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -545,9 +553,11 @@ class AKFTheoremBound:
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
             if self._fric:
-                fric = self._friction_candidate(x0, u, P0, C, A_nom, dt)
+                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt)
+                b = fric[5]
+            else:
+                b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
@@ -637,7 +647,7 @@ class AKFTheoremBound:
             etB = np.array(eta, dtype=float)
             etB[:n] = eta_gp                      # [η | r]: the GP columns come first
         if fric is not None:
-            dF, GamF, w, bB, PhiB = fric
+            dF, GamF, w, bB, PhiB, _ = fric
             FB += dF
             if Gam is None or etB is None:
                 GamB, etB = GamF, w
