@@ -65,7 +65,6 @@ from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
 from sea_daemon.core.bounds import bound_core
 from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
-from sea_daemon.core.bounds.zonotope import predict_generators
 
 
 @warmer
@@ -162,7 +161,7 @@ class AKFTheoremBound:
         self._M = np.ascontiguousarray(m.M, dtype=float)
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
-        # error (_friction_candidate; docs/bounds.md §4 "Friction from its range")
+        # error (_friction_candidate; docs/bounds.md §4 "The range form")
         self._fric, self._fric_arrays = self._friction_groups(m, sets)
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
@@ -621,7 +620,6 @@ class AKFTheoremBound:
         (J T g on the χ² set of (q, q̇), the event the GP points already use) instead of the
         filter's slope and the GP mean's linearisation error.  Returns (F_B − F, η_B)."""
         akf = self.akf
-        n = akf.n
         J0 = self._J0
         Lm0 = (1.0 + self.sm.margin) * self._E0
         JT = J0 @ self._T                          # (n, d)
