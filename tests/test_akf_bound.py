@@ -399,19 +399,30 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     assert etas[1e-4] >= x0[0] - 1e-12 and etas[1.0] > etas[1e-4]
 
 
-@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate"])
+@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate", "gp-friction"])
 def test_compiled_step_gives_the_python_steps_rho(case):
     """bound_core.bound_step (the daemon's compiled step) against the Python step it replaces:
-    the same ρ_k, GP error, linearisation error and box violations, to rounding."""
+    the same ρ_k, GP error, linearisation error, box violations and choices of the range form,
+    to rounding.  ``gp-friction``: the plant has a Coulomb friction the model lacks and moves and
+    stops, so the GP learns a steep residual and the range form is taken at some steps."""
     import dataclasses
+    from sea_daemon.core.effects import make_effect
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.configfile import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     if case.startswith("local"):
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(
             cfg.estimator, gp_beta=1.5, tau_h_act_rate=4.0 if case == "local+rate" else 0.0))
-    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
-    log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
+    if case == "gp-friction":
+        true = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, effects=tuple(cfg.model.effects) + (
+            make_effect("coulomb", "load", F_c=0.5, eps=0.003),)))
+        tm = lambda t: np.array([np.sin(2 * np.pi * 0.5 * t) if (t % 2.0) < 1.0 else 0.4])
+        train = simulate(SEAModel.from_config(true), T=2.0, seed=6, tau_m=tm)
+        log = simulate(SEAModel.from_config(true), T=1.0, seed=8, tau_m=tm,
+                       tau_h=lambda t: np.array([0.3 * np.sin(4 * t)]))
+    else:
+        train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
+        log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
     outs, bounds = [], []
     for compiled in (False, True):
         if case == "akf":
@@ -426,6 +437,10 @@ def test_compiled_step_gives_the_python_steps_rho(case):
     np.testing.assert_allclose(bounds[1].eta_, bounds[0].eta_, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(bounds[1].lin_err_, bounds[0].lin_err_, rtol=1e-12, atol=1e-14)
     assert bounds[1].gp_box_violations_ == bounds[0].gp_box_violations_
+    assert bounds[1].range_steps_ == bounds[0].range_steps_
+    if case == "gp-friction":
+        assert bounds[0].range_steps_ > 0
+        assert np.mean(np.abs(outs[0][1:, 0] - log.tau_h_act[1:, 0]) <= outs[0][1:, 1]) >= 0.95
     np.testing.assert_allclose(bounds[1].sm.G_, bounds[0].sm.G_, rtol=1e-10, atol=1e-14)
 
 
@@ -434,3 +449,121 @@ def test_compiled_step_is_skipped_while_the_gp_learns():
     cfg = _from_first_sample(load_config(default_config_path()))
     est = make_estimator("gp-akf", cfg)
     assert est.learning and est.bound._compiled_pack() is None
+
+
+def _friction_cfg(side: str = "load"):
+    """A 100 Hz model with declared Coulomb + Stribeck friction on ``side`` (and gravity), the
+    estimator's sign smoothing 0.005 rad/s."""
+    return _from_first_sample(ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
+        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 1.5, "effects": [
+            {"type": "coulomb", "side": side, "F_c": 0.4},
+            {"type": "stribeck", "side": side, "F_s": 0.3, "v_s": 0.05}]},
+        "estimator": {"sign_eps": 0.005}}))
+
+
+def test_friction_range_contains_the_friction_torque_over_the_interval():
+    """_friction_range is interval arithmetic: every value of τ_g on [lo, hi] (dense samples) lies
+    in [L, U] — for a Stribeck term of either sign, and for one with its own ε — and the interval
+    is not vacuous: on average within 0.1 N m of the sampled range (F_c + |F_s| = 0.7 N m)."""
+    from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate
+    rng = np.random.default_rng(3)
+    for F_s, eps_s in ((-0.3, 0.005), (0.3, 0.005), (0.3, 0.02)):
+        effs = [(COULOMB, np.array([0.4, 0.005, 0.0])), (STRIBECK, np.array([F_s, 0.05, eps_s]))]
+        excess = []
+        for _ in range(200):
+            c, r = rng.normal(0.0, 0.05), abs(rng.normal(0.0, 0.03))
+            lo, hi = c - r, c + r
+            L, U = AKFTheoremBound._friction_range(effs, lo, hi)
+            v = np.linspace(lo, hi, 4001)
+            tau = np.array([sum(evaluate(code, p, 0.0, vv, 0.0)[0] for code, p in effs) for vv in v])
+            assert L <= tau.min() + 1e-12 and tau.max() <= U + 1e-12
+            excess.append((U - L) - (tau.max() - tau.min()))
+        assert np.mean(excess) < 0.1
+
+
+@pytest.mark.parametrize("side", ["load", "motor"])
+def test_friction_range_step_is_the_filter_step_rewritten(side):
+    """The identity behind the range candidate: for x = x̂ + a + g,
+    F a + Φ ε(x) = F_B a + Φ ε_smooth(x) + Σ Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg] (ε the filter's
+    linearisation error, ε_smooth the model's without friction), and the bracket lies in ±w_g
+    for a in the set of means and g on the χ² set of P."""
+    from sea_daemon.core.linalg import discretize
+    cfg = _friction_cfg(side)
+    model = SEAModel.from_config(cfg)
+    log = simulate(model, T=1.0, seed=2)
+    akf = AKF(cfg)
+    tb = with_bound(akf)
+    assert len(tb._fric) == 1
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for k in range(1, 40):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    x0, P0, u, dt = akf._x_prev.copy(), akf._P_prev.copy(), np.asarray(log.tau_m[39], float), 0.01
+    side_, ell, c, effs = tb._fric[0]
+    x0[2:4] = 0.0                        # the friction's velocity at 0, where its slope is steepest
+    # the filter's step from there: A_k, F_k = e^{A dt}, Γ_μ = Φ I_μ M⁻¹
+    akf.A_k[:] = model.F_nom(x0, u)
+    F, Phi = discretize(akf.A_k, np.eye(5), dt)
+    akf.F_k[:] = F
+    akf.Gamma_mu[:] = Phi @ model.I_mu @ model.Minv
+    C = tb.sm.confidence_set(x0, P0)
+    pts = tb.sm.sample_points(C)
+    dF, GamF, w, b_s, _, b = tb._friction_candidate(x0, u, P0, pts, akf.A_k.copy(), dt)
+    # the one-pass boxes are the filter-slope box and the box of the model without friction
+    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf._tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
+    FB = akf.F_k + dF
+    from sea_daemon.core.effects import evaluate
+    tau_g = lambda v: sum(evaluate(code, p, 0.0, v, 0.0)[0] for code, p in effs)
+    s_g = sum(evaluate(code, p, 0.0, float(ell @ x0), 0.0)[2] for code, p in effs)
+    smooth = lambda x: model.f_nom(x, u) - c * tau_g(float(ell @ x))
+    A_s = akf.A_k - s_g * np.outer(c, ell)
+    rng = np.random.default_rng(0)
+    L = np.linalg.cholesky(P0 + 1e-30 * np.eye(5))
+    s = tb.sm.s_state
+    G = tb.sm.G_
+    g_ext = P0 @ ell * np.sqrt(s / float(ell @ P0 @ ell))     # the point of E(0, sP) with the largest ℓᵀg
+    worst = 0.0
+    for i in range(100):
+        a = G @ rng.uniform(-1, 1, G.shape[1]) if G.shape[1] else np.zeros(5)
+        if i % 2:
+            z = rng.normal(size=5)
+            g = L @ (z / np.linalg.norm(z) * np.sqrt(s) * rng.uniform(0, 1))
+        else:
+            g = g_ext * rng.uniform(-1, 1)
+        x = x0 + a + g
+        eps = model.f_nom(x, u) - model.f_nom(x0, u) - akf.A_k @ (x - x0)
+        lhs = akf.F_k @ a + Phi @ eps
+        bracket = tau_g(float(ell @ x)) - tau_g(float(ell @ x0)) - s_g * float(ell @ g)
+        eps_s = smooth(x) - smooth(x0) - A_s @ (x - x0)
+        rhs = FB @ a + Phi @ eps_s + GamF[:, 0] * bracket
+        assert np.allclose(lhs, rhs, rtol=1e-9, atol=1e-12 * (1 + np.abs(lhs).max()))
+        assert abs(bracket) <= w[0] * (1 + 1e-12)
+        worst = max(worst, abs(bracket))
+    eps_pts = np.array([smooth(x) - smooth(x0) - A_s @ (x - x0) for x in pts])
+    np.testing.assert_allclose(b_s, (1 + tb.sm.margin) * np.abs(eps_pts).max(axis=0), rtol=1e-9, atol=1e-12)
+    assert worst > 0.5 * w[0]            # w is reached, not a loose cap
+
+
+def test_friction_range_keeps_the_bound_valid_and_finite_at_standstill():
+    """A plant with the declared friction (model = truth) that moves, stops and holds still while
+    the subject pushes: the range candidate is taken at the stops, ρ covers the true torque, and
+    its peak is far below the filter-slope bound's (which grows with the set's q̇ extent at
+    q̇ = 0, where the slope is (F_c + F_s)/ε)."""
+    cfg = _friction_cfg()
+    model = SEAModel.from_config(cfg)
+    tau_m = lambda t: np.array([1.2 * np.sin(2 * np.pi * 0.5 * t) if t < 2.0 else 0.3])
+    tau_h = lambda t: np.array([0.5 * np.sin(2 * np.pi * 0.3 * t) if t >= 2.0 else 0.0])
+    log = simulate(model, T=4.0, tau_m=tau_m, tau_h=tau_h, seed=4)
+    res = {}
+    for use_range in (True, False):
+        akf = AKF(cfg)
+        tb = with_bound(akf)
+        if not use_range:
+            tb._fric = []
+        out = run(akf, log)
+        e = np.abs(out[1:, 0] - log.tau_h_act[1:, 0])
+        res[use_range] = (out[1:, 1], e, tb.range_steps_)
+    rho, e, steps = res[True]
+    assert steps > 0
+    assert np.all(np.isfinite(rho))
+    assert np.mean(e <= rho) >= 0.95
+    assert rho.max() < 0.5 * res[False][0].max()

@@ -31,6 +31,15 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
   bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
+* the range form (zonotope sets): the declared Coulomb/Stribeck friction and the GP mean
+  linearised at zero slope instead of the filter's — the set propagated with the filter's
+  transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
+  range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
+  plus the slope times the Gaussian part's extent (:meth:`AKFTheoremBound._friction_candidate`,
+  :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
+  the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
+  the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
+  friction, a stiction leaf's for the GP) times the set's q̇ extent is what the range form avoids.
 
 Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
 With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
@@ -46,6 +55,7 @@ import math
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -170,6 +180,10 @@ class AKFTheoremBound:
         self._minv = np.ascontiguousarray(m.Minv, dtype=float)
         self._M = np.ascontiguousarray(m.M, dtype=float)
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
+        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
+        # error (_friction_candidate; docs/bounds.md §4 "The range form")
+        self._fric, self._fric_arrays = self._friction_groups(m, sets)
+        self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
@@ -211,6 +225,7 @@ class AKFTheoremBound:
         self.sm.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
+        self.range_steps_ = 0
         if self.akf._ready:
             est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
 
@@ -258,6 +273,138 @@ class AKFTheoremBound:
             np.maximum(b, r, out=b)
         return b
 
+    def _friction_groups(self, model, sets: str):
+        """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
+        with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
+        column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
+        eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
+        Also the same as arrays for :func:`bound_core.lin_error_boxes`.  ([], None) when
+        the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
+        compiled vocabulary)."""
+        tables = getattr(self.akf, "_tables", None)
+        if sets != "zonotope" or tables is None:
+            return [], None
+        n, d = model.n, 5 * model.n
+        groups = {}
+        for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
+            for e in effs:
+                if e.code in (COULOMB, STRIBECK):
+                    groups.setdefault((side, e.joint), []).append((int(e.code), np.asarray(e.vector, dtype=float)))
+        if not groups:
+            return [], None
+        out = []
+        for (side, j), effs in sorted(groups.items()):
+            ell = np.zeros(d)
+            c = np.zeros(d)
+            ell[2 * n + j] = 1.0
+            if side == "load":
+                ell[3 * n + j] = 1.0
+                c[3 * n:4 * n] = -model.Minv[:, j]
+            else:
+                c[2 * n:3 * n] = -model.Jinv[:, j]
+                c[3 * n:4 * n] = model.Jinv[:, j]
+            out.append((side, ell, c, effs))
+        # the same as arrays for bound_core.lin_error_boxes (one f_nom per point for both boxes)
+        arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
+                  np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
+                  np.array([code for g in out for code, _ in g[3]], dtype=np.int64),
+                  np.ascontiguousarray([p for g in out for _, p in g[3]], dtype=float))
+        return out, arrays
+
+    @staticmethod
+    def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
+        """[L, U] ⊇ {τ_g(v) : lo ≤ v ≤ hi} for τ_g = Σ p₀ m(v) tanh(v/ε), m ≡ 1 (Coulomb) or
+        exp(−(v/v_s)²) (Stribeck), by interval arithmetic — rigorous: tanh is increasing, and m > 0
+        lies between its values at the interval's largest and smallest |v|.  With one ε for all
+        (the estimator's ``sign_eps``) τ_g = tanh(v/ε)·Σ p₀ m(v) is bounded as one product, which
+        keeps a Coulomb and a Stribeck term of opposite signs from adding their widths."""
+        vmax = max(abs(lo), abs(hi))
+        vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
+        L = U = 0.0          # per-effect sum (any ε)
+        hl = hu = 0.0        # Σ p₀ m(v) over the interval (shared ε)
+        eps0 = None
+        shared = True
+        for code, p in effs:
+            eps = p[1] if code == COULOMB else p[2]          # the smoothing ε (effects.evaluate)
+            if code == STRIBECK:
+                m_lo, m_hi = math.exp(-(vmax / p[1]) ** 2), math.exp(-(vmin / p[1]) ** 2)
+            else:
+                m_lo = m_hi = 1.0
+            a, b = (p[0] * m_lo, p[0] * m_hi) if p[0] >= 0.0 else (p[0] * m_hi, p[0] * m_lo)
+            hl += a
+            hu += b
+            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
+            # [a, b]·[t_lo, t_hi]: the extreme corner products
+            c = (a * t_lo, a * t_hi, b * t_lo, b * t_hi)
+            L += min(c)
+            U += max(c)
+            shared = shared and (eps0 is None or eps == eps0)
+            eps0 = eps
+        if shared and eps0 is not None:
+            t_lo, t_hi = math.tanh(lo / eps0), math.tanh(hi / eps0)
+            c = (hl * t_lo, hl * t_hi, hu * t_lo, hu * t_hi)
+            L, U = max(L, min(c)), min(U, max(c))
+        return L, U
+
+    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float):
+        """The set of means' step with the friction linearised at zero slope (module docstring).
+
+        The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
+        s_g the filter's slope at v̂.  With x − x̂ = a + g (a in the set of means, g ~ N(0, P) the
+        Gaussian part) the step of a (eq:predwLinErrsetandGPerrset, ε held over the step) is
+
+            a⁺ = F a + Φ ε = (F − Σ_g Φc s_g ℓᵀ) a + Φ ε_smooth + Σ_g Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg],
+
+        exactly; F g is the filter's own Gaussian part and stays with P.  So the set of means may
+        be propagated with F_B = F − Σ Φc s_g ℓᵀ (the filter's transition without the friction's
+        slope) and the bounded inputs Φ box(b_smooth) and Φc·[−w_g, w_g] with
+        w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
+        + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
+        filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
+        ``pts``: the point set of C_{k−1}.  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
+        Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
+        akf = self.akf
+        n, d = akf.n, akf.d
+        nf = len(self._fric)
+        dF = np.zeros((d, d))
+        GamF = np.empty((d, nf))
+        w = np.empty(nf)
+        slopes = np.empty(nf)
+        Phi_full = None
+        s_set = self.sm.s_state
+        for i, (side, ell, c, effs) in enumerate(self._fric):
+            v0 = float(ell @ x0)
+            t0 = sl = 0.0
+            for code, p in effs:
+                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
+                t0 += t_
+                sl += dv
+            r = float(self.sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
+            L, U = self._friction_range(effs, v0 - r, v0 + r)
+            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
+            w[i] = max(U - t0, t0 - L) + abs(sl) * rg
+            if side == "load":
+                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
+                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
+                GamF[:, i] = -akf.Gamma_mu[:, j]
+            else:
+                if Phi_full is None:
+                    Phi_full = discretize(akf.A_k, self._I, dt)[1]
+                GamF[:, i] = Phi_full @ c
+            # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
+            dF -= sl * np.outer(GamF[:, i], ell)
+            slopes[i] = sl
+        # both sampled boxes in one pass: the filter-slope form's b (f_nom with A_nom) and
+        # b_smooth (f_nom without the friction groups, with A_nom minus their slopes)
+        b = np.zeros(d)
+        b_s = np.zeros(d)
+        ell_a, col_a, eg, ec, ep = self._fric_arrays
+        bound_core.lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
+                                   np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
+                                   *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+        b_s *= 1.0 + self.sm.margin
+        return dF, GamF, w, b_s, self._phi(akf.A_k, b_s, dt), (1.0 + self.sm.margin) * b
+
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
         depends on x only through them (q̈ is measured): the GP mean's linearisation error
@@ -298,8 +445,11 @@ class AKFTheoremBound:
                 MU[i], S[i] = m_, v_
         if not local:
             S = np.sqrt(np.maximum(S, 0.0))
-        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s)
+        # per point: |μ(z) − μ(ẑ_clip) − ∂μ/∂z (z − ẑ)| and σ (or s); |μ(z) − μ(ẑ_clip)| for the
+        # range form (_gp_range_candidate)
         E = np.abs(MU - mu0 - (pts - zhat[:2 * n]) @ J0.T)
+        self._E0 = np.abs(MU - mu0)
+        self._J0 = J0
         if self.gp_box is not None:
             # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
             hw = Cz.axis_half_widths()
@@ -363,7 +513,7 @@ class AKFTheoremBound:
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
         try:
-            G, out = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+            G, out, took_range = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
             # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
             # projection): the typed estimator fault, as the Python step raises it
@@ -379,6 +529,7 @@ class AKFTheoremBound:
                                  f"the confidence set")
         sm.G_ = G
         self.gp_box_violations_ += int(out)
+        self.range_steps_ += int(took_range)
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         if check:                          # a half-width at its cap: the exact test, maybe saturation
@@ -412,6 +563,7 @@ class AKFTheoremBound:
         akf = self.akf
         zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
+        fric = gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
@@ -426,7 +578,11 @@ class AKFTheoremBound:
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+            if self._fric:
+                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt)
+                b = fric[5]
+            else:
+                b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
         eta = None
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
@@ -442,6 +598,8 @@ class AKFTheoremBound:
             # of the two maxima, which may sit at different points), the sampled part + margin
             Lm = (1.0 + sm.margin) * E
             eta = np.max(H + Lm, axis=0)
+            if sm.sets == "zonotope":
+                gp_range = self._gp_range_candidate(H, P0)
             self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
             self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
@@ -461,7 +619,10 @@ class AKFTheoremBound:
                 self._eta_all[n:] = self.tau_h_act_rate
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
-        sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        if fric is None and gp_range is None:
+            sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+        else:
+            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric, gp_range)
         sm.update(akf.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
@@ -469,6 +630,68 @@ class AKFTheoremBound:
                                  f"the confidence set")
         est.tau_h_act_bound[:] = sm.rho(akf.P)
         self._saturate(est)
+
+    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray):
+        """The GP part of the range form: the GP mean linearised at zero slope.
+
+        The filter's drift carries −I_μM⁻¹[μ(ẑ) + J T(x − x̂)] (eq:linearization, J = ∂μ/∂z at ẑ,
+        T x = (q, q̇)); the true one −I_μM⁻¹ f(z).  With x − x̂ = a + g as in
+        :meth:`_friction_candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
+
+            a⁺ = F a − Γ_μ [f(z) − μ(ẑ) − J T(a + g)]
+               = (F + Γ_μ J T) a − Γ_μ [(f − μ)(z) + μ(z) − μ(ẑ) − J T g],
+
+        so the set of means may be propagated with F + Γ_μ J T and the torque error
+        η_B = max over the points of [√β s + γ + c e + (1 + margin)|μ(z) − μ(ẑ)|] + √(s_z J T P Tᵀ Jᵀ)
+        (J T g on the χ² set of (q, q̇), the event the GP points already use) instead of the
+        filter's slope and the GP mean's linearisation error.  Returns (F_B − F, η_B)."""
+        akf = self.akf
+        J0 = self._J0
+        Lm0 = (1.0 + self.sm.margin) * self._E0
+        JT = J0 @ self._T                          # (n, d)
+        eta_b = np.max(H + Lm0, axis=0) + np.sqrt(np.maximum(self._s_z * np.sum((JT @ P0) * JT, axis=1), 0.0))
+        return akf.Gamma_mu @ JT, eta_b
+
+    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric, gp_range) -> None:
+        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
+        friction of :meth:`_friction_candidate` and the GP mean of :meth:`_gp_range_candidate`
+        linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
+        filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
+        assumptions, so the choice keeps the guarantee whatever the rule."""
+        sm = self.sm
+        n = akf.n
+        limit = sm.generator_limit()
+        GA = sm.prior_generators(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
+                                 limit=limit)
+        FB = np.array(akf.F_k, dtype=float)
+        GamB, etB, bB, PhiB = Gam, eta, b, Phi
+        if gp_range is not None:
+            dF, eta_gp = gp_range
+            FB += dF
+            etB = np.array(eta, dtype=float)
+            etB[:n] = eta_gp                      # [η | r]: the GP columns come first
+        if fric is not None:
+            dF, GamF, w, bB, PhiB, _ = fric
+            FB += dF
+            if Gam is None or etB is None:
+                GamB, etB = GamF, w
+            else:
+                GamB, etB = np.hstack([Gam, GamF]), np.concatenate([etB, w])
+        GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bB if np.any(bB) else None, Phi=PhiB,
+                                 limit=limit)
+        tau = sm.tau_idx
+        R = -(akf.K_k[tau] @ akf.H)               # the τ rows of I − K H
+        R[np.arange(tau.size), tau] += 1.0
+        hA = np.abs(R @ GA).sum()
+        hB = np.abs(R @ GB).sum()
+        if hB < hA:
+            sm.Gprior_ = GB
+            sm.lin_err_ = bB
+            self.lin_err_ = bB
+            self.range_steps_ += 1
+        else:
+            sm.Gprior_ = GA
+            sm.lin_err_ = b
 
     def _saturate(self, est) -> None:
         """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no

@@ -15,7 +15,9 @@ compiled call, :func:`bound_step`, with the same formulas in the same order:
    extrapolation term, as :class:`~sea_daemon.core.bounds.gp_bound.LocalScale` or
    :meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_many`), the GP mean's linearisation error
    against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the sum;
-3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction), X̂ = (I − KH) X⁻,
+3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction) and, with a GP, the
+   range form (F + Γ_μ J T) X̂ ⊕ Γ box(η_B) ⊕ Φ box(b) (AKFTheoremBound._gp_range_candidate);
+   the one with the narrower τ_h,act half-width after (I − KH) is kept; X̂ = (I − KH) X⁻,
    ρ_k (shifted_gaussian_halfwidth).
 
 The frozen LoG-GPs are flattened once (:class:`GPPack`: the trees and every leaf's factor,
@@ -31,6 +33,8 @@ import math
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.effects import evaluate as effect_torque
+from sea_daemon.core.model_core import nominal
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.gp.routing import _route
 from sea_daemon.core.bounds.setmember import _ellipsoid_points, _shifted_halfwidth
@@ -237,7 +241,8 @@ def _abs_row_sum(M, i):
 def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, margin, T, E_q, grid, grid_step,
                Uz, has_gp, local, c_ext, sqrt_beta, gamma, box_lo, box_hi, has_box, Gam_tau, rate, has_rate,
                max_gen, delta_tau, z_tau, gp, rho, eta_out, lin_out, b_out):
-    """One step of the set of means (module docstring); returns (new generators, GP box left).
+    """One step of the set of means (module docstring); returns (new generators, GP box left,
+    whether the range form was taken).
 
     ``J0``: the filter's ∂μ/∂z at ẑ (n, 3n), of which the (q, q̇) columns are used.
     ``gp``: the tuple of :meth:`GPPack.args`.  Writes ρ_k into ``rho``, the GP error alone
@@ -272,6 +277,8 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
     out = False
     ng = 0
     eta = np.zeros(0)
+    eta_b = np.zeros(0)
+    JT = np.zeros((0, d))
     if has_gp:
         # 2. the projection of C_{k−1} on (q, q̇) and its points (SetMembershipBound.confidence_set)
         c = T @ x0
@@ -301,10 +308,15 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
                     acc += (pts[p, i] - zhat[i]) * J0[j, i]
                 DJ[p, j] = acc
         eta = np.empty(n)
+        eta_b = np.empty(n)
+        # the range form (AKFTheoremBound._gp_range_candidate): J T (n, d) and √(s_z J T P Tᵀ Jᵀ)
+        JT = np.ascontiguousarray(J0[:, :2 * n]) @ T
+        JTP = JT @ P0
         for j in range(n):
             best = -np.inf
             hbest = -np.inf
             lbest = -np.inf
+            bbest = -np.inf
             for p in range(npt):
                 e = abs(MU[p, j] - mu0[j] - DJ[p, j])
                 h = sqrt_beta[j] * S[p, j] + gamma[j] + XT[p, j]
@@ -316,9 +328,16 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
                     hbest = h
                 if lm > lbest:
                     lbest = lm
+                tb = h + (1.0 + margin) * abs(MU[p, j] - mu0[j])
+                if tb > bbest:
+                    bbest = tb
             eta[j] = best
             eta_out[j] = hbest
             lin_out[j] = lbest
+            q = 0.0
+            for c in range(d):
+                q += JTP[j, c] * JT[j, c]
+            eta_b[j] = bbest + math.sqrt(max(s_z * q, 0.0))
         if has_box:
             for i in range(dz):
                 hw = math.sqrt(max(Xc[i, i], 0.0)) if i < 2 * n else 0.0
@@ -356,6 +375,21 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
     IKH = -(K @ H)
     for i in range(d):
         IKH[i, i] += 1.0
+    took_range = False
+    if has_gp:
+        # the range form: F + Γ_μ J T with η_B, if its τ half-width after (I − KH) is narrower
+        # (AKFTheoremBound._predict_best_of_two; both contain the set of means)
+        for j in range(ng):
+            et[j] = eta_b[j]
+        GpB = predict_generators(F + Gam_mu @ JT, G, Gam, et, Phi, bb2, max_gen)
+        hA = 0.0
+        hB = 0.0
+        for j in range(n):
+            hA += _abs_row_sum(IKH[4 * n + j:4 * n + j + 1] @ Gp, 0)
+            hB += _abs_row_sum(IKH[4 * n + j:4 * n + j + 1] @ GpB, 0)
+        if hB < hA:
+            Gp = GpB
+            took_range = True
     Gn = IKH @ Gp
     h = np.empty(n)
     sd = np.empty(n)
@@ -363,7 +397,68 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         h[j] = _abs_row_sum(Gn, 4 * n + j)
         sd[j] = math.sqrt(max(P[4 * n + j, 4 * n + j], 0.0))
     _shifted_halfwidth(h, sd, delta_tau, z_tau, 8, rho)
-    return Gn, out
+    return Gn, out, took_range
+
+
+@njit
+def lin_error_boxes(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
+                    sc, sj, sP, ell, col, slope, eff_group, eff_code, eff_p, b, b_smooth) -> None:
+    """Over the rows x of X: b = max |ε(x)| with ε = f_nom(x) − f_nom(x0) − A0 (x − x0) (what
+    ``ModelTables.lin_error_box`` gives) and b_smooth = max |ε_smooth(x)|, the same for the model
+    without the friction groups (AkfTheoremBound._friction_candidate):
+    ε_smooth = ε − Σ_g col_g [τ_g(ℓ_gᵀx) − τ_g(ℓ_gᵀx0) − slope_g ℓ_gᵀ(x − x0)], τ_g the sum of the
+    effects (eff_code, eff_p) with eff_group = g.  One f_nom evaluation per point for both."""
+    d = x0.shape[0]
+    ng = ell.shape[0]
+    f0 = np.empty(d)
+    fx = np.empty(d)
+    Aw = np.empty((d, d))
+    nominal(x0, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
+            Aw, f0, False)
+    v0 = np.zeros(ng)
+    t0 = np.zeros(ng)
+    for g in range(ng):
+        for i in range(d):
+            v0[g] += ell[g, i] * x0[i]
+    for e in range(eff_code.shape[0]):
+        t0[eff_group[e]] += effect_torque(eff_code[e], eff_p[e], 0.0, v0[eff_group[e]], 0.0)[0]
+    fr = np.empty(ng)
+    for r in range(X.shape[0]):
+        x = X[r]
+        nominal(x, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
+                Aw, fx, False)
+        # the friction groups' bracket τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂) at this point
+        for g in range(ng):
+            v = 0.0
+            for i in range(d):
+                v += ell[g, i] * x[i]
+            fr[g] = -t0[g] - slope[g] * (v - v0[g])
+        for e in range(eff_code.shape[0]):
+            g = eff_group[e]
+            v = 0.0
+            for i in range(d):
+                v += ell[g, i] * x[i]
+            fr[g] += effect_torque(eff_code[e], eff_p[e], 0.0, v, 0.0)[0]
+        for i in range(d):
+            lin = 0.0
+            for k in range(d):
+                lin += A0[i, k] * (x[k] - x0[k])
+            e = fx[i] - f0[i] - lin
+            es = e
+            for g in range(ng):
+                es -= col[g, i] * fr[g]
+            # rounding floor, so an exactly linear drift gives exactly 0 (ModelTables.lin_error_box)
+            tol = 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin))
+            ae = abs(e)
+            if ae <= tol:
+                ae = 0.0
+            aes = abs(es)
+            if aes <= tol:
+                aes = 0.0
+            if ae > b[i]:
+                b[i] = ae
+            if aes > b_smooth[i]:
+                b_smooth[i] = aes
 
 
 @njit
@@ -402,6 +497,13 @@ def _warm() -> None:
     E_q[0, 0] = E_q[0, 1] = 1.0
     T = np.zeros((2, d))
     T[0, 0] = T[0, 1] = T[1, 2] = T[1, 3] = 1.0
+    # the friction candidate's one-pass boxes (AKFTheoremBound._friction_candidate), one load group
+    e, P, I, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.eye(1), np.zeros(1)
+    tabs = (I, I, I, I, I, v, np.ones(1), np.full(1, -1.0), np.array([1], np.int64), np.zeros(1, np.int64),
+            np.array([[0.1, 0.01, 0.0]]), e, e, P, e, e, P)
+    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), *tabs, np.ones((1, d)), np.ones((1, d)),
+                    np.ones(1), np.zeros(1, np.int64), np.array([1], np.int64), np.array([[0.1, 0.01, 0.0]]),
+                    np.zeros(d), np.zeros(d))
     for has_gp, local, has_rate in ((True, True, True), (True, False, False), (False, False, False)):
         bound_step(np.zeros((d, 2)), np.zeros(d), np.eye(d), np.zeros(3), np.zeros(1), np.zeros((1, 3)), np.eye(d),
                    np.zeros((d, 4)), np.zeros((4, d)), np.ones((d, 1)), np.eye(1), np.eye(1), np.eye(d), np.ones(1),

@@ -391,18 +391,8 @@ class SetMembershipBound:
             # exact: F·Z ⊕ Γ·box(η) ⊕ Φ·box(b) is the zonotope with the union of the generators
             # (eq:Dmuhat, eq:GPboundsellipse: the GP error box, generators Γ_j η_j;
             # eq:linearerrellipsoid: the linearisation-error box, generators Φ_i b_i)
-            d = self.d
-            if eta is not None and Gamma is not None:
-                Gam, et = np.ascontiguousarray(Gamma, dtype=float), np.asarray(eta, dtype=float)
-            else:
-                Gam, et = np.zeros((d, 0)), np.zeros(0)
-            if lin_err_box is not None:
-                Ph = np.eye(d) if Phi is None else np.ascontiguousarray(Phi, dtype=float)
-                bb = np.asarray(lin_err_box, dtype=float)
-            else:
-                Ph, bb = np.zeros((d, 0)), np.zeros(0)
-            self.Gprior_ = predict_generators(np.ascontiguousarray(F), np.ascontiguousarray(self.G_, dtype=float),
-                                               Gam, et, Ph, bb, self.generator_limit())
+            self.Gprior_ = self.prior_generators(F, Gamma=Gamma, eta=eta, lin_err_box=lin_err_box, Phi=Phi,
+                                                 limit=self.generator_limit())
             return self.Gprior_
         shapes = [F @ self._X @ F.T]
         if eta is not None and Gamma is not None:
@@ -413,6 +403,24 @@ class SetMembershipBound:
             shapes += segments_shapes(np.eye(self.d) if Phi is None else Phi, lin_err_box)
         self.Xprior_ = minkowski_shape(shapes, self.weight)
         return self.Xprior_
+
+    def prior_generators(self, F: np.ndarray, *, Gamma: np.ndarray | None = None, eta: np.ndarray | None = None,
+                         lin_err_box: np.ndarray | None = None, Phi: np.ndarray | None = None,
+                         limit: int) -> np.ndarray:
+        """The generators of F·Z ⊕ Γ·box(η) ⊕ Φ·box(b) (zonotope mode, :meth:`predict`) reduced to
+        at most ``limit``, without storing them (a candidate step)."""
+        d = self.d
+        if eta is not None and Gamma is not None:
+            Gam, et = np.ascontiguousarray(Gamma, dtype=float), np.asarray(eta, dtype=float)
+        else:
+            Gam, et = np.zeros((d, 0)), np.zeros(0)
+        if lin_err_box is not None:
+            Ph = np.eye(d) if Phi is None else np.ascontiguousarray(Phi, dtype=float)
+            bb = np.asarray(lin_err_box, dtype=float)
+        else:
+            Ph, bb = np.zeros((d, 0)), np.zeros(0)
+        return predict_generators(np.ascontiguousarray(F, dtype=float), np.ascontiguousarray(self.G_, dtype=float),
+                                  Gam, et, Ph, bb, int(limit))
 
     def generator_limit(self) -> int:
         """The generator limit of this prediction (counts it): ``max_generators`` on a reduction
