@@ -280,6 +280,8 @@ def test_calibration_finds_the_physics_and_keeps_given_values(plant, cal_log, ca
     g = next(e for e in res.cfg.model.effects if e.type == "gravity")
     assert g.a == pytest.approx(1.8, rel=0.05)
     assert res.report["leftover"]["rms"] < 0.05
+    # the residual GP's tree splits in length scales
+    assert res.cfg.learning.split_in_lengthscales and all(g.split_in_lengthscales for g in res.gp.gps)
     assert 0 < res.cfg.estimator.tau_m_noise < 0.05 and res.report["tau_h_act_walk"]["q_tau"] > 0
     # given values are kept
     given = with_R(nom, np.diag([1e-10, 2e-10, 3e-5, 4e-5]))

@@ -482,8 +482,10 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
+        # the tree splits in length scales: in raw units q̈ (span ~10–30 rad/s², length scale twice
+        # that) would take every split and the routing would key the mean on q̈
         lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
-                                 sigma_n=hyp["sigma_n"], hyperopt=False)
+                                 sigma_n=hyp["sigma_n"], hyperopt=False, split_in_lengthscales=True)
         cfg = dataclasses.replace(cfg, learning=lc)
         report["gp_hyper"] = hyp
     gp = None
