@@ -184,6 +184,47 @@ def test_weighted_residual_returns_to_the_physics_off_its_data_and_clips_steep_s
         assert abs(J[0, 1]) <= 0.5 * 0.16 / 0.01 + 1e-12
 
 
+def test_weighted_residual_trusts_the_mean_only_where_its_variance_is_below_the_leftovers():
+    """The weight's reference is the leftover's latent mean square s_0² (what predicting 0 costs
+    on the calibration data), not σ_f² alone: a GP whose σ_f is inflated over a small, noisy
+    leftover keeps its mean out; a GP that knows its well-sampled leftover keeps it in."""
+    from sea_daemon.apps.calibration.pipeline import leftover_latent_variance
+    from sea_daemon.core.config import LearningConfig
+    from sea_daemon.core.estimators.weighted import WeightedResidual
+    from sea_daemon.core.learning import ResidualGP
+    rng = np.random.default_rng(1)
+    # sparse noisy pairs of a small leftover (latent RMS 0.035, noise 0.05), σ_f at 0.3
+    Z = np.column_stack([rng.uniform(0.2, 1.2, 40), rng.uniform(-1, 1, 40), np.zeros(40)])
+    F = (0.05 * np.sin(3 * Z[:, 0]))[:, None] + 0.05 * rng.normal(size=(40, 1))
+    lc = LearningConfig(sigma_f=0.3, lengthscales=(0.3, 0.5, 50.0), sigma_n=0.05, hyperopt=False)
+    gp = ResidualGP(1, lc)
+    gp.train(Z, F)
+    s0 = leftover_latent_variance(F, lc.sigma_n)
+    assert 0 < s0 < 0.01
+    z = np.array([0.7, 0.2, 0.0])
+    old = WeightedResidual(gp, margin=10.0, noise_in_Q=False)
+    mu_old = float(old.predict(z)[0][0])
+    w_old = float(old.w[0])
+    new = WeightedResidual(gp, margin=10.0, noise_in_Q=False, var_ref=s0)
+    mu_new, _, var_new = (np.array(a) for a in new.predict(z))
+    assert w_old > 0.7 and new.w[0] < 0.5 * w_old and abs(mu_new[0]) < abs(mu_old)
+    assert var_new[0] == pytest.approx(float(old.var[0]))       # the variance in Q is the GP's own
+    # a reference above σ_f² changes nothing
+    big = WeightedResidual(gp, margin=10.0, noise_in_Q=False, var_ref=1.0)
+    big.predict(z)
+    assert big.w[0] == w_old
+    # dense, nearly noise-free pairs of a leftover the GP resolves: the weight stays ~1
+    Z2 = np.column_stack([rng.uniform(0.2, 1.2, 600), rng.uniform(-1, 1, 600), rng.uniform(-5, 5, 600)])
+    F2 = (0.3 * np.sin(3 * Z2[:, 0]) + 0.2 * Z2[:, 1])[:, None] + 0.005 * rng.normal(size=(600, 1))
+    gp2 = ResidualGP(1, LearningConfig(sigma_f=0.3, lengthscales=(0.3, 0.5, 50.0), sigma_n=0.01, hyperopt=False))
+    gp2.train(Z2, F2)
+    h2 = WeightedResidual(gp2, margin=10.0, noise_in_Q=False, var_ref=leftover_latent_variance(F2, 0.01))
+    h2.predict(z)
+    assert h2.w[0] > 0.9
+    with pytest.raises(ValueError):
+        WeightedResidual(gp, var_ref=float("nan"))
+
+
 # ------------------------------------------------------------------ bounded P, typed faults
 
 
@@ -239,6 +280,8 @@ def test_calibration_finds_the_physics_and_keeps_given_values(plant, cal_log, ca
     g = next(e for e in res.cfg.model.effects if e.type == "gravity")
     assert g.a == pytest.approx(1.8, rel=0.05)
     assert res.report["leftover"]["rms"] < 0.05
+    # the residual GP's tree splits in length scales
+    assert res.cfg.learning.split_in_lengthscales and all(g.split_in_lengthscales for g in res.gp.gps)
     assert 0 < res.cfg.estimator.tau_m_noise < 0.05 and res.report["tau_h_act_walk"]["q_tau"] > 0
     # given values are kept
     given = with_R(nom, np.diag([1e-10, 2e-10, 3e-5, 4e-5]))
@@ -291,6 +334,14 @@ def test_fit_writes_a_complete_model_that_replay_and_run_load(plant, cal_log, tm
     assert code == 0 and out["effects"] and (tmp_path / "m.yaml").exists() and (tmp_path / "m.npz").exists()
     cfg = load_config(tmp_path / "m.yaml")
     assert any(e.type == "gravity" for e in cfg.model.effects)
+    from sea_daemon.apps.calibration.modelio import estimator_from_model
+    from sea_daemon.io.gpmodel import load_gp_model
+    residual, meta = load_gp_model(tmp_path / "m.npz", cfg)
+    loaded = estimator_from_model(cfg, residual, meta)
+    if meta["provenance"]["calibration"]["gp_used"]:
+        # the weight's reference travels with the model file
+        assert loaded.residual.var_ref == pytest.approx(meta["provenance"]["calibration"]["gp_var_ref"])
+        assert loaded.residual.var_ref > 0
     code = cli.main(["replay", str(p_log), "--config", str(tmp_path / "m.yaml"), "--model", str(tmp_path / "m.npz"),
                      "--estimator", "gp-akf", "--out", str(tmp_path / "e.csv")])
     s = json.loads(capsys.readouterr().out)

@@ -366,3 +366,22 @@ def test_tree_arrays_follow_every_split():
     mu2, var2 = gp.predict_many(Z)
     assert np.array_equal(mu, mu2) and np.array_equal(var, var2)
     assert all(np.array_equal(a, gp.predict_with_grad(z)[2]) for a, z in zip(g, Z))
+
+
+def test_split_in_lengthscales_splits_the_dimension_the_kernel_resolves():
+    """In raw units the wide-but-smooth dimension (span 30, length scale 60) takes every split;
+    measured in length scales the tree splits the dimension the kernel resolves (span 1,
+    length scale 0.2), and the option survives a save/load."""
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(0, 1, 600), rng.uniform(-15, 15, 600)])
+    y = np.sin(6 * X[:, 0])
+    dims = {}
+    for scaled in (False, True):
+        gp = LoGGP(2, max_points=50, lengthscales=[0.2, 60.0], sigma_f=1.0, sigma_n=0.05,
+                   split_in_lengthscales=scaled)
+        for x, t in zip(X, y):
+            gp.update(x, t)
+        dims[scaled] = {d for d in gp._dim if d >= 0}
+        back = LoGGP.from_dict(gp.to_dict())
+        assert back.split_in_lengthscales is scaled
+    assert dims[False] == {1} and dims[True] == {0}

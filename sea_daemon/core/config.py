@@ -239,9 +239,12 @@ class LearningConfig:
     # every leaf's mean is evaluated at the input clipped into the box of its own data (its σ
     # at the input): no leaf extrapolates its mean (docs/learning.md "Novelty")
     clip_leaf_mean: bool = True
+    # a full leaf splits the dimension of the widest spread in its length scales, not in raw
+    # units (LoGGP split_in_lengthscales; the calibration's residual GP)
+    split_in_lengthscales: bool = False
 
     KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
-            "extrapolation_scale", "clip_leaf_mean"]
+            "extrapolation_scale", "clip_leaf_mean", "split_in_lengthscales"]
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
@@ -269,7 +272,7 @@ class LearningConfig:
         for k in ("sigma_f", "sigma_n"):
             if k in d:
                 out[k] = validate.num(source, f"learning.{k}", d[k], positive=True)
-        for k in ("hyperopt", "clip_leaf_mean"):
+        for k in ("hyperopt", "clip_leaf_mean", "split_in_lengthscales"):
             if k in d:
                 if not isinstance(d[k], bool):
                     raise ConfigError(source, f"learning.{k}", f"must be true or false, got {d[k]!r}")

@@ -116,7 +116,7 @@ class ResidualGP:
         opts = dict(max_points=lc.max_points, max_leaves=lc.max_leaves, overlap=lc.overlap,
                     lengthscales=list(ls), sigma_f=lc.sigma_f, sigma_n=lc.sigma_n,
                     hyperopt=lc.hyperopt, extrapolation_scale=lc.extrapolation_scale,
-                    clip_leaf_mean=lc.clip_leaf_mean)
+                    clip_leaf_mean=lc.clip_leaf_mean, split_in_lengthscales=lc.split_in_lengthscales)
         opts.update(overrides)
         self.gps = [LoGGP(3 * self.n, seed=lc.seed + i, **opts) for i in range(self.n)]
 

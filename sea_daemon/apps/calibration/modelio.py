@@ -43,6 +43,7 @@ def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) 
     prov = {"command": "calibration", **(provenance or {}),
             "calibration": {"gp_used": result.gp is not None, "coverage": result.coverage.to_dict(),
                             "gp_v_gate": float(result.report.get("gp_v_gate", 0.0)),
+                            "gp_var_ref": float(result.report.get("gp_var_ref", 0.0)),
                             "summary": _jsonable(summary(result))}}
     save_gp_model(npz_path, result.cfg, gp, prov)
     return yaml_path, npz_path
@@ -58,7 +59,7 @@ def estimator_from_model(cfg: ModelConfig, residual, meta: dict, dt: float | Non
     cov = Coverage.from_dict(cal["coverage"])
     if cal.get("gp_used"):
         return CalibratedGPAKF(cfg, residual, dt=dt, coverage=cov, v_gate=float(cal.get("gp_v_gate", 0.0)),
-                               bound=bound)
+                               var_ref=float(cal.get("gp_var_ref", 0.0)), bound=bound)
     return CalibratedAKF(cfg, dt=dt, coverage=cov, bound=bound)
 
 

@@ -89,7 +89,8 @@ class CalibrationResult:
         variance; the AKF when the GP was not kept), 'akf' (physics alone).  ``bound``: a bound
         factory (e.g. :func:`~sea_daemon.core.bounds.akf_bound.theorem_bound`)."""
         return make_calibrated(self.cfg, self.gp, self.coverage, dt=dt, kind=kind, power=self.options.weight_power,
-                               v_gate=self.report.get("gp_v_gate", 0.0), bound=bound)
+                               v_gate=self.report.get("gp_v_gate", 0.0), bound=bound,
+                               var_ref=self.report.get("gp_var_ref", 0.0))
 
 
 def given_keys(raw: Mapping | None) -> set[str]:
@@ -144,7 +145,7 @@ def with_R(cfg: ModelConfig, R: np.ndarray) -> ModelConfig:
 
 def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
                        duration_s: float, seed: int, gp=None, power: float = 2.0,
-                       v_gate: float = 0.0) -> list[MeasuredLog]:
+                       v_gate: float = 0.0, var_ref: float = 0.0) -> list[MeasuredLog]:
     """The identified model as a simulated plant: a moving session (PID tracking the log's own
     motion) and a still-arm session (Sec. V-C, held at the log's median angle), each with a
     synthetic human torque of the declared band and RMS.  With ``gp`` the plant has the residual
@@ -162,7 +163,8 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     if gp is not None:
         # the residual the estimator believes in, as a load-side torque of the plant: its
         # variance-weighted mean at z = [q, q̇, 0] (the residual GP is long in q̈)
-        hook = WeightedResidual(gp, cfg.estimator.gp_input_margin, False, power=power, v_gate=v_gate)
+        hook = WeightedResidual(gp, cfg.estimator.gp_input_margin, False, power=power, v_gate=v_gate,
+                                var_ref=var_ref)
 
         def extra(q, dq):
             mu, _, _ = hook.predict(np.array([q[0], dq[0], 0.0]))
@@ -194,7 +196,7 @@ def _rmse(log: MeasuredLog, est) -> float:
 
 def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
                opts: CalibrationOptions, tune_eps: bool = True, gp=None,
-               v_gate: float = 0.0) -> tuple[float, float, dict]:
+               v_gate: float = 0.0, var_ref: float = 0.0) -> tuple[float, float, dict]:
     """(q_τ [N² m²/s], sign_eps [rad/s], info): the τ_h,act random walk and the friction-sign
     smoothing of the estimator's model (the AKF on the identified model, or the GP-AKF with
     ``gp``; health monitor off while scanning).  Each from the data that can speak for it:
@@ -223,7 +225,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
     try:
         synth = synthetic_sessions(cfg, log, human, sigma_u, T, opts.seed, gp=gp, power=opts.weight_power,
-                                   v_gate=v_gate)
+                                   v_gate=v_gate, var_ref=var_ref)
         active = {"synthetic_moving": synth[0], "synthetic_still": synth[1]}
         synth_note = None
     except (RuntimeError, ValueError, ArithmeticError, InputError) as e:
@@ -244,7 +246,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
                 if gp is None:
                     est = AKF(c, dt=lg.dt)
                 else:
-                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=v_gate)
+                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=v_gate, var_ref=var_ref)
                 row[name] = _rmse(lg, est)
             except EstimatorFault:
                 row[name] = math.inf
@@ -283,7 +285,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     # the NIS monitor's scale: what the chosen filter shows on these logs (its windowed mean NIS at
     # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
     # torque is not divergence
-    scale = _nis_scale(cfg, gp, logs, best, opts, v_gate)
+    scale = _nis_scale(cfg, gp, logs, best, opts, v_gate, var_ref)
     grid_rows = sorted(table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
     info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
     if synth_note:
@@ -297,14 +299,14 @@ def declared_walk(human: HumanSpec) -> float:
     return 2.0 * math.pi * human.band_hz[1] * human.rms ** 2
 
 
-def _nis_scale(cfg, gp, logs, best, opts, v_gate: float = 0.0) -> float:
+def _nis_scale(cfg, gp, logs, best, opts, v_gate: float = 0.0, var_ref: float = 0.0) -> float:
     """max(configured nis_scale, 3 × the largest windowed mean NIS / the band's upper edge) of the
     chosen filter over the calibration's logs (passive log and synthetic subjects)."""
     c = _replace_est(cfg, nis_scale=1e12, sign_eps=best["sign_eps"], **sigma_nom_for(cfg, best["q_tau"]))
     worst = 0.0
     for lg in logs.values():
         est = AKF(c, dt=lg.dt) if gp is None else CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power,
-                                                                  v_gate=v_gate)
+                                                                  v_gate=v_gate, var_ref=var_ref)
         mon = NISMonitor(4 * cfg.joints, c.estimator.nis_window, c.estimator.nis_alpha, 1e12)
         try:
             est.reset(lg.q[0], lg.theta_m[0], lg.tau_m[0])
@@ -494,8 +496,10 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
                             "dq": float(np.max(np.abs(Z[:, 1])))}
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
+        # the tree splits in length scales: in raw units q̈ (span ~10–30 rad/s², length scale twice
+        # that) would take every split and the routing would key the mean on q̈
         lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
-                                 sigma_n=hyp["sigma_n"], hyperopt=False)
+                                 sigma_n=hyp["sigma_n"], hyperopt=False, split_in_lengthscales=True)
         cfg = dataclasses.replace(cfg, learning=lc)
         report["gp_hyper"] = hyp
     gp = None
@@ -508,10 +512,14 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
         gp = _offline_gp(cfg, Z, F)
     report["gp_kept"] = gp is not None
+    # the weight's reference (core/estimators/weighted.py): what the physics alone costs on these
+    # pairs, the leftover's mean square less the GP's noise variance σ_on² (its latent part)
+    report["gp_var_ref"] = leftover_latent_variance(F, cfg.learning.sigma_n)
     # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
     if "Sigma_nom" not in given:
         qt, eps, qinfo = human_walk(cfg, log, opts.human, cfg.estimator.tau_m_noise or 0.0, opts,
-                                    tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"])
+                                    tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
+                                    var_ref=report["gp_var_ref"])
         cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
         report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}
     else:
@@ -524,6 +532,13 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     cov.add(Z)
     report["coverage"] = cov.report()
     return CalibrationResult(cfg, gp, cov, report, opts)
+
+
+def leftover_latent_variance(F: np.ndarray, sigma_n: float) -> float:
+    """s_0² [N² m²] of the weighted hook (:class:`~sea_daemon.core.estimators.weighted.WeightedResidual`):
+    the mean square of the leftover ``F`` less the noise variance σ_on², at least 1e-12 (a leftover
+    that is all noise: the GP's mean never enters)."""
+    return float(max(np.mean(np.asarray(F, float) ** 2) - float(sigma_n) ** 2, 1e-12))
 
 
 def _offline_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray):

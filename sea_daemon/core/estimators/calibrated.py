@@ -59,11 +59,13 @@ class CalibratedAKF(_CoverageFlag, AKF):
 class CalibratedGPAKF(_CoverageFlag, GPAKF):
     name = "gp-akf"
 
-    def __init__(self, cfg, gp, dt=None, coverage=None, power: float = 2.0, v_gate: float = 0.0, bound=None):
+    def __init__(self, cfg, gp, dt=None, coverage=None, power: float = 2.0, v_gate: float = 0.0, bound=None,
+                 var_ref: float = 0.0):
         super().__init__(cfg, dt=dt, residual=gp, learning=False)
         # alg:torqueresidualAKF line 5 through the variance-weighted hook
         self.residual = WeightedResidual(gp, cfg.estimator.gp_input_margin, cfg.estimator.gp_noise_in_Q,
-                                         power=power, M=self.model.M, dt=self.dt, v_gate=v_gate)
+                                         power=power, M=self.model.M, dt=self.dt, v_gate=v_gate,
+                                         var_ref=var_ref)
         self._init_flag(coverage)
         # the bound is built on the weighted hook (AKF builds it at the end of its constructor)
         if bound is not None:
@@ -71,10 +73,12 @@ class CalibratedGPAKF(_CoverageFlag, GPAKF):
 
 
 def make_calibrated(cfg, gp, coverage, dt=None, kind: str = "gp-akf", power: float = 2.0, v_gate: float = 0.0,
-                    bound=None):
+                    bound=None, var_ref: float = 0.0):
     """The estimator ``kind`` on a calibrated model: 'gp-akf' (:class:`CalibratedGPAKF`; the
     AKF when ``gp`` is None) or 'akf' (:class:`CalibratedAKF`, physics alone).  ``bound``: a
-    bound factory as :class:`~sea_daemon.core.estimators.akf.AKF` takes."""
+    bound factory as :class:`~sea_daemon.core.estimators.akf.AKF` takes; ``v_gate``, ``var_ref``: the
+    weighted hook's (:class:`~sea_daemon.core.estimators.weighted.WeightedResidual`)."""
     if kind == "gp-akf" and gp is not None:
-        return CalibratedGPAKF(cfg, gp, dt=dt, coverage=coverage, power=power, v_gate=v_gate, bound=bound)
+        return CalibratedGPAKF(cfg, gp, dt=dt, coverage=coverage, power=power, v_gate=v_gate, bound=bound,
+                               var_ref=var_ref)
     return CalibratedAKF(cfg, dt=dt, coverage=coverage, bound=bound)

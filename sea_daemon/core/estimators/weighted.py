@@ -5,15 +5,22 @@ models only what the physics leaves.  :class:`WeightedResidual` is the GP-AKF's 
 hook (``predict(z) -> (μ, ∂μ/∂z, σ²)``, alg:torqueresidualAKF line 5) that lets the GP's mean
 and Jacobian into the filter only as far as its variance allows:
 
-    w(z) = clip(1 − σ²(z) / σ_f²(z), 0, 1)^p                         (variance reduction)
+    w(z) = clip(1 − σ²(z) / s²(z), 0, 1)^p                           (variance reduction)
+    s²(z) = min(σ_f²(z), s_0²)
     μ_w = w μ,   ∂μ_w/∂z = w ∂μ/∂z,   σ²_Q = σ² (+ σ_on²)            (eq:fwdynwtorqueresidual1,
                                                                         eq:linearization, eq:GPvarfwd)
 
-σ_f²(z) is the prior variance of the leaves z reaches.  On the data σ² ≪ σ_f², w ≈ 1: the GP
-acts fully.  Off the data σ² → σ_f², w → 0: the residual returns to zero, i.e. to the
-physical model, smoothly, and its Jacobian with it (a GP's mean already reverts to the prior
-mean 0, but only over a length scale, and its Jacobian can be steep on the way; w makes the
-return happen where the GP itself says it does not know).  ∂w/∂z is left out of the
+σ_f²(z) is the prior variance of the leaves z reaches; s_0² (``var_ref``) is what the physics
+alone costs on the calibration data: the leftover's mean square less the GP's noise variance
+σ_on² (its latent part).  The GP's mean is trusted as far as its uncertainty at z is below the
+error of predicting 0 there.  σ_f² alone is no such measure: the maximum-likelihood fit puts it
+up to its bound, 2 × the leftover's RMS (4 × its mean square), when the leftover has
+long-range structure, and then a GP that explains a fifth of its held-out leftover still
+reports w ≈ 0.9 on its data.  On the data σ² ≪ s², w ≈ 1: the GP acts fully.  Off the data
+σ² → σ_f² ≥ s², w → 0: the residual returns to zero, i.e. to the physical model, smoothly, and
+its Jacobian with it (a GP's mean already reverts to the prior mean 0, but only over a length
+scale, and its Jacobian can be steep on the way; w makes the return happen where the GP itself
+says it does not know).  ∂w/∂z is left out of the
 linearisation (w varies on the length scale; the Theorem-1 bound samples the GP mean itself at
 the set's points, so its linearisation error covers it).
 
@@ -31,6 +38,8 @@ Inputs are clipped to the training box ± margin as the plain hook does
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from sea_daemon.core.estimators.health import InputBox
@@ -39,12 +48,17 @@ from sea_daemon.core.estimators.health import InputBox
 class WeightedResidual:
     """GP-AKF residual hook over a :class:`~sea_daemon.core.learning.ResidualGP` with variance
     weighting (module docstring).  ``power`` p of the weight; ``noise_in_Q``: σ² + σ_on² in Q;
-    ``M`` (n×n) and ``dt`` for the Jacobian clip (None: no clip)."""
+    ``M`` (n×n) and ``dt`` for the Jacobian clip (None: no clip); ``var_ref`` s_0² [N² m²], the
+    leftover's latent mean square on the calibration data (0: the weight's reference is σ_f²
+    alone)."""
 
     def __init__(self, gp, margin: float = 0.1, noise_in_Q: bool = True, power: float = 1.0,
                  M: np.ndarray | None = None, dt: float | None = None, clip: float = 0.5,
-                 v_gate: float = 0.0):
+                 v_gate: float = 0.0, var_ref: float = 0.0):
         self.gp = gp
+        if not (math.isfinite(var_ref) and var_ref >= 0.0):
+            raise ValueError(f"var_ref {var_ref}: expected a finite value >= 0")
+        self.var_ref = float(var_ref)
         # the GP's data exclude the sticking phases (|q̇| < v_gate, sea_daemon.apps.calibration.pipeline.smooth_pairs):
         # below v_gate/2 it has nothing to say, so its weight ramps to 0 there (the physics holds)
         self.v_gate = float(v_gate)
@@ -87,6 +101,9 @@ class WeightedResidual:
                 leaf = g.leaf(node)
                 s2 += wr * leaf.sigma_f * leaf.sigma_f
                 sn2 += wr * leaf.sigma_n * leaf.sigma_n
+            if self.var_ref > 0.0 and self.var_ref < s2:
+                # the reference: what predicting 0 (the physics) costs on the calibration data
+                s2 = self.var_ref
             r = 1.0 - var / s2 if s2 > 0 else 0.0
             w = min(max(r, 0.0), 1.0) ** self.power
             if self.v_gate > 0.0:

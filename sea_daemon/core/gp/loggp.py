@@ -12,7 +12,8 @@ Method (as in the LoG-GP paper and its reference implementation ``lgrt4gps``):
 * Every leaf is an exact GP (:class:`sea_daemon.core.gp.exact.IncrementalGP`) holding at most
   ``N̄ = max_points`` points; adding a point costs O(N̄²) (one new Cholesky row).
 * A full leaf that receives a point splits: dimension ``j`` of the widest spread of its
-  ``N̄ + 1`` points, split value ``s`` the centre of that spread, overlap width
+  ``N̄ + 1`` points (with ``split_in_lengthscales``: the widest in units of the leaf's length
+  scales, width_j / l_j), split value ``s`` the centre of that spread, overlap width
   ``o = overlap · width``.  The probability of the *left* child (smaller values) is the linear
   ramp ``p(x) = clip(½ − (x_j − s)/o, 0, 1)``: 1 below ``s − o/2``, 0 above ``s + o/2``.  Each
   point goes to exactly one child, drawn with ``p`` (seeded, deterministic).  Children inherit
@@ -87,6 +88,10 @@ class LoGGP(LoGGPState):
         of its own training inputs and its variance at the input itself
         (:class:`~sea_daemon.core.gp.exact.IncrementalGP` ``clip_mean``): a leaf never extrapolates its
         mean beyond its data, while its σ still grows there (docs/learning.md, "Novelty").
+    split_in_lengthscales: a full leaf splits the dimension of the widest spread measured in its
+        length scales (width_j / l_j) instead of in raw units.  In raw units a dimension with a
+        large numeric span but a long length scale (q̈ in rad/s² beside q in rad) takes every
+        split, and the tree's routing then makes the mean key on it where the kernel does not.
     seed: seed of the random split assignment.
     """
 
@@ -95,7 +100,7 @@ class LoGGP(LoGGPState):
                  sigma_n: float = 0.05, hyperopt: bool = False, hyper_every: int = 10,
                  hyper_lr: float = 0.05, hyper_min_points: int = 10, hyper_points: int | None = None,
                  evict: int | None = None, extrapolation_scale: float = 0.0, clip_leaf_mean: bool = False,
-                 seed: int = 0, jitter: float = 1e-10):
+                 seed: int = 0, jitter: float = 1e-10, split_in_lengthscales: bool = False):
         def _int(name, v, lo):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
@@ -121,6 +126,7 @@ class LoGGP(LoGGPState):
             raise InputError(f"extrapolation_scale must be in [0, 10], got {extrapolation_scale!r}")
         self.extrapolation_scale = float(extrapolation_scale)
         self.clip_leaf_mean = bool(clip_leaf_mean)
+        self.split_in_lengthscales = bool(split_in_lengthscales)
         # validates the hyperparameters (raises InputError naming the value)
         proto = IncrementalGP(self.input_dim, sigma_f, lengthscales, sigma_n, capacity=1)
         self._theta0 = proto.log_theta
@@ -238,7 +244,8 @@ class LoGGP(LoGGPState):
         Y[n] = y
         mi, ma = X.min(axis=0), X.max(axis=0)
         width = ma - mi
-        j = int(np.argmax(width))
+        # the dimension of the widest spread, in the leaf's length scales if so configured
+        j = int(np.argmax(width / gp.lengthscales)) if self.split_in_lengthscales else int(np.argmax(width))
         if not width[j] > 0.0:
             return -1
         s = 0.5 * (ma[j] + mi[j])
