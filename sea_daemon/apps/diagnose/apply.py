@@ -147,9 +147,9 @@ def _theorem1_line(b: dict, a: dict, scale: float) -> str:
     tb, ta = b.get("theorem1"), a.get("theorem1")
     line = f"- the Theorem-1 bound ρ that `replay` and `run` publish: before {say(tb)}; after {say(ta)}."
     if ta and (ta.get("diverged") or ta["share_vacuous"] > 0.05):
-        line += ("  Declared friction F·tanh(v/ε) is linearised by the filter; over a velocity set that reaches "
-                 "across zero its linearisation error grows with the set, by about F·dt/(ε·I) per step on a side of "
-                 "inertia I, so while a side creeps or sticks ρ grows step after step (docs/diagnose.md, Limits). "
+        line += ("  Declared friction F·tanh(v/ε) is steep around zero speed: while a side creeps or sticks, the "
+                 "friction's unknown sign enters ρ at every step (through the filter's Jacobian or, when narrower, "
+                 "as the friction's range over the set's velocity interval; docs/diagnose.md, Limits). "
                  "The band drawn here is therefore the filter's own interval, not ρ.")
     return line
 
