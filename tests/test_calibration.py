@@ -346,6 +346,14 @@ def test_fit_writes_a_complete_model_that_replay_and_run_load(plant, cal_log, tm
                      "--estimator", "gp-akf", "--out", str(tmp_path / "e.csv")])
     s = json.loads(capsys.readouterr().out)
     assert code == 0 and s["rmse"] < 0.2
+    # a provenance field that does not fit (a hand-edited or corrupt file) is a typed refusal
+    import copy
+    from sea_daemon.errors import ModelFileError
+    for key, bad in (("gp_var_ref", float("nan")), ("gp_v_gate", "fast"), ("coverage", None)):
+        m2 = copy.deepcopy(meta)
+        m2["provenance"]["calibration"][key] = bad
+        with pytest.raises(ModelFileError, match="calibration provenance"):
+            estimator_from_model(cfg, residual, m2)
 
 
 def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):

@@ -22,6 +22,7 @@ from sea_daemon.core.excitation import Coverage
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.gpmodel import save_gp_model
+from sea_daemon.errors import ModelFileError, shown
 
 
 def _jsonable(x):
@@ -56,10 +57,15 @@ def estimator_from_model(cfg: ModelConfig, residual, meta: dict, dt: float | Non
     cal = (meta.get("provenance") or {}).get("calibration")
     if not cal:
         return None
-    cov = Coverage.from_dict(cal["coverage"])
+    try:        # a model file is user data: a field that does not fit is a typed refusal
+        cov = Coverage.from_dict(cal["coverage"])
+        v_gate, var_ref = float(cal.get("gp_v_gate", 0.0)), float(cal.get("gp_var_ref", 0.0))
+        if not (math.isfinite(v_gate) and v_gate >= 0.0 and math.isfinite(var_ref) and var_ref >= 0.0):
+            raise ValueError(f"gp_v_gate {v_gate}, gp_var_ref {var_ref}: expected finite values >= 0")
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise ModelFileError(f"model file's calibration provenance does not fit: {shown(e, 200)}") from None
     if cal.get("gp_used"):
-        return CalibratedGPAKF(cfg, residual, dt=dt, coverage=cov, v_gate=float(cal.get("gp_v_gate", 0.0)),
-                               var_ref=float(cal.get("gp_var_ref", 0.0)), bound=bound)
+        return CalibratedGPAKF(cfg, residual, dt=dt, coverage=cov, v_gate=v_gate, var_ref=var_ref, bound=bound)
     return CalibratedAKF(cfg, dt=dt, coverage=cov, bound=bound)
 
 
