@@ -119,7 +119,8 @@ def _daemon(argv: list[str]) -> dict:
         raise InputError(f"sea-daemon {argv[0]} refused its input (above); the demo stops there")
     if rc != 0:                 # the step stopped on a latched fault (said on stderr): not a bug
         from sea_daemon.errors import RunFault
-        fault = summary.get("fault") or summary.get("faults") or "see the line above"
+        fault = summary.get("fault")
+        fault = fault if fault and fault != "NONE" else "see the line above"
         raise RunFault(f"sea-daemon {argv[0]} stopped with exit status {rc} ({fault}); the demo stops there")
     return summary
 
