@@ -101,7 +101,7 @@ def test_merged_extrapolation_weights_the_leaves_and_the_option_persists():
 
 def test_learning_config_passes_the_scale_to_every_joint():
     lc = LearningConfig.from_dict({"extrapolation_scale": 2.0}, 2, "x.yaml")
-    assert lc.extrapolation_scale == 2.0 and LearningConfig().extrapolation_scale == 0.5
+    assert lc.extrapolation_scale == 2.0 and LearningConfig().extrapolation_scale == 0.7
     assert lc.to_dict()["extrapolation_scale"] == 2.0
     res = ResidualGP(2, lc)
     assert [g.extrapolation_scale for g in res.gps] == [2.0, 2.0]

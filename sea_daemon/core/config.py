@@ -235,7 +235,7 @@ class LearningConfig:
     seed: int = 0
     # c of the GP error bound's extrapolation term c·e(z) (LocalScale; docs/learning.md
     # "Novelty"); 0: off.  The GP's predictions do not change.
-    extrapolation_scale: float = 0.5
+    extrapolation_scale: float = 0.7
     # every leaf's mean is evaluated at the input clipped into the box of its own data (its σ
     # at the input): no leaf extrapolates its mean (docs/learning.md "Novelty")
     clip_leaf_mean: bool = True
