@@ -161,29 +161,76 @@ def nominal(x, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, 
 
 
 @njit
-def lin_error_box(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
-                  sc, sj, sP, b) -> None:
-    """b = max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| (module docstring)."""
+def lin_error_boxes(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
+                    sc, sj, sP, ell, col, slope, eff_group, eff_code, eff_p, b, b_smooth) -> None:
+    """Over the rows x of X: b = max |ε(x)| with ε = f_nom(x) − f_nom(x0) − A0 (x − x0) (what
+    :func:`lin_error_box` gives) and b_smooth = max |ε_smooth(x)|, the same for the model
+    without the friction groups (the bound's friction candidate, AKFTheoremBound._friction_candidate):
+    ε_smooth = ε − Σ_g col_g [τ_g(ℓ_gᵀx) − τ_g(ℓ_gᵀx0) − slope_g ℓ_gᵀ(x − x0)], τ_g the sum of the
+    effects (eff_code, eff_p) with eff_group = g.  One f_nom evaluation per point for both."""
     d = x0.shape[0]
+    ng = ell.shape[0]
     f0 = np.empty(d)
     fx = np.empty(d)
     Aw = np.empty((d, d))
     nominal(x0, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
             Aw, f0, False)
+    v0 = np.zeros(ng)
+    t0 = np.zeros(ng)
+    for g in range(ng):
+        for i in range(d):
+            v0[g] += ell[g, i] * x0[i]
+    for e in range(eff_code.shape[0]):
+        t0[eff_group[e]] += evaluate(eff_code[e], eff_p[e], 0.0, v0[eff_group[e]], 0.0)[0]
+    fr = np.empty(ng)
     for r in range(X.shape[0]):
         x = X[r]
         nominal(x, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
                 Aw, fx, False)
+        # the friction groups' bracket τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂) at this point
+        for g in range(ng):
+            v = 0.0
+            for i in range(d):
+                v += ell[g, i] * x[i]
+            fr[g] = -t0[g] - slope[g] * (v - v0[g])
+        for e in range(eff_code.shape[0]):
+            g = eff_group[e]
+            v = 0.0
+            for i in range(d):
+                v += ell[g, i] * x[i]
+            fr[g] += evaluate(eff_code[e], eff_p[e], 0.0, v, 0.0)[0]
         for i in range(d):
             lin = 0.0
             for k in range(d):
                 lin += A0[i, k] * (x[k] - x0[k])
-            e = abs(fx[i] - f0[i] - lin)
+            e = fx[i] - f0[i] - lin
+            es = e
+            for g in range(ng):
+                es -= col[g, i] * fr[g]
             # rounding floor, so an exactly linear drift gives exactly 0
-            if e <= 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin)):
-                e = 0.0
-            if e > b[i]:
-                b[i] = e
+            tol = 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin))
+            ae = abs(e)
+            if ae <= tol:
+                ae = 0.0
+            aes = abs(es)
+            if aes <= tol:
+                aes = 0.0
+            if ae > b[i]:
+                b[i] = ae
+            if aes > b_smooth[i]:
+                b_smooth[i] = aes
+
+
+@njit
+def lin_error_box(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
+                  sc, sj, sP, b) -> None:
+    """b = max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| (module docstring):
+    :func:`lin_error_boxes` without friction groups."""
+    d = x0.shape[0]
+    none = np.zeros(0, dtype=np.int64)
+    lin_error_boxes(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
+                    sc, sj, sP, np.zeros((0, d)), np.zeros((0, d)), np.zeros(0), none, none, np.zeros((0, 1)), b,
+                    np.zeros(d))
 
 
 @njit

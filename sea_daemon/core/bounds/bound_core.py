@@ -33,8 +33,7 @@ import math
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.effects import evaluate as effect_torque
-from sea_daemon.core.model_core import nominal
+from sea_daemon.core.model_core import lin_error_boxes
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.gp.routing import _route
 from sea_daemon.core.bounds.setmember import _ellipsoid_points, _shifted_halfwidth
@@ -398,67 +397,6 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         sd[j] = math.sqrt(max(P[4 * n + j, 4 * n + j], 0.0))
     _shifted_halfwidth(h, sd, delta_tau, z_tau, 8, rho)
     return Gn, out, took_range
-
-
-@njit
-def lin_error_boxes(X, u, x0, A0, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP,
-                    sc, sj, sP, ell, col, slope, eff_group, eff_code, eff_p, b, b_smooth) -> None:
-    """Over the rows x of X: b = max |ε(x)| with ε = f_nom(x) − f_nom(x0) − A0 (x − x0) (what
-    ``ModelTables.lin_error_box`` gives) and b_smooth = max |ε_smooth(x)|, the same for the model
-    without the friction groups (AkfTheoremBound._friction_candidate):
-    ε_smooth = ε − Σ_g col_g [τ_g(ℓ_gᵀx) − τ_g(ℓ_gᵀx0) − slope_g ℓ_gᵀ(x − x0)], τ_g the sum of the
-    effects (eff_code, eff_p) with eff_group = g.  One f_nom evaluation per point for both."""
-    d = x0.shape[0]
-    ng = ell.shape[0]
-    f0 = np.empty(d)
-    fx = np.empty(d)
-    Aw = np.empty((d, d))
-    nominal(x0, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
-            Aw, f0, False)
-    v0 = np.zeros(ng)
-    t0 = np.zeros(ng)
-    for g in range(ng):
-        for i in range(d):
-            v0[g] += ell[g, i] * x0[i]
-    for e in range(eff_code.shape[0]):
-        t0[eff_group[e]] += effect_torque(eff_code[e], eff_p[e], 0.0, v0[eff_group[e]], 0.0)[0]
-    fr = np.empty(ng)
-    for r in range(X.shape[0]):
-        x = X[r]
-        nominal(x, u, Minv, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, lc, lj, lP, mc, mj, mP, sc, sj, sP,
-                Aw, fx, False)
-        # the friction groups' bracket τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂) at this point
-        for g in range(ng):
-            v = 0.0
-            for i in range(d):
-                v += ell[g, i] * x[i]
-            fr[g] = -t0[g] - slope[g] * (v - v0[g])
-        for e in range(eff_code.shape[0]):
-            g = eff_group[e]
-            v = 0.0
-            for i in range(d):
-                v += ell[g, i] * x[i]
-            fr[g] += effect_torque(eff_code[e], eff_p[e], 0.0, v, 0.0)[0]
-        for i in range(d):
-            lin = 0.0
-            for k in range(d):
-                lin += A0[i, k] * (x[k] - x0[k])
-            e = fx[i] - f0[i] - lin
-            es = e
-            for g in range(ng):
-                es -= col[g, i] * fr[g]
-            # rounding floor, so an exactly linear drift gives exactly 0 (ModelTables.lin_error_box)
-            tol = 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin))
-            ae = abs(e)
-            if ae <= tol:
-                ae = 0.0
-            aes = abs(es)
-            if aes <= tol:
-                aes = 0.0
-            if ae > b[i]:
-                b[i] = ae
-            if aes > b_smooth[i]:
-                b_smooth[i] = aes
 
 
 @njit
