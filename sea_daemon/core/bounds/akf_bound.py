@@ -56,6 +56,7 @@ import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
+from sea_daemon.core.model_core import lin_error_boxes
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -278,7 +279,7 @@ class AKFTheoremBound:
         with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
         column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
         eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
-        Also the same as arrays for :func:`bound_core.lin_error_boxes`.  ([], None) when
+        Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
         compiled vocabulary)."""
         tables = getattr(self.akf, "_tables", None)
@@ -304,7 +305,7 @@ class AKFTheoremBound:
                 c[2 * n:3 * n] = -model.Jinv[:, j]
                 c[3 * n:4 * n] = model.Jinv[:, j]
             out.append((side, ell, c, effs))
-        # the same as arrays for bound_core.lin_error_boxes (one f_nom per point for both boxes)
+        # the same as arrays for model_core.lin_error_boxes (one f_nom per point for both boxes)
         arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
                   np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
                   np.array([code for g in out for code, _ in g[3]], dtype=np.int64),
@@ -399,9 +400,9 @@ class AKFTheoremBound:
         b = np.zeros(d)
         b_s = np.zeros(d)
         ell_a, col_a, eg, ec, ep = self._fric_arrays
-        bound_core.lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
-                                   np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                                   *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+        lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
+                        np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
+                        *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
         b_s *= 1.0 + self.sm.margin
         return dF, GamF, w, b_s, self._phi(akf.A_k, b_s, dt), (1.0 + self.sm.margin) * b
 
