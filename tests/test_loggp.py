@@ -385,3 +385,29 @@ def test_split_in_lengthscales_splits_the_dimension_the_kernel_resolves():
         back = LoGGP.from_dict(gp.to_dict())
         assert back.split_in_lengthscales is scaled
     assert dims[False] == {1} and dims[True] == {0}
+
+
+def test_a_saturated_leaf_forgets_instead_of_splitting():
+    """With split_in_lengthscales, points that all lie within a small fraction of the length
+    scales (a still arm: encoder and velocity noise) are one location to the kernel: the full
+    leaf forgets its oldest points instead of splitting on the noise; in raw units it splits.
+    Points spread over the length scale still split."""
+    from sea_daemon.core.gp.loggp import MIN_SPLIT_SPREAD
+    rng = np.random.default_rng(5)
+    ls = np.array([0.2, 0.2, 20.0])
+    still = rng.normal(0.0, 1e-3, (300, 3)) * ls        # spread ~0.006 length scales
+    y = 2.0 + 0.01 * rng.standard_normal(300)
+    for scaled, leaves in ((True, 1), (False, None)):
+        gp = LoGGP(3, max_points=50, lengthscales=ls, sigma_f=2.0, sigma_n=0.01, split_in_lengthscales=scaled)
+        for x, t in zip(still, y):
+            gp.update(x, t)
+        if leaves is None:
+            assert gp.n_leaves > 1 and gp.n_evicted == 0
+        else:
+            assert gp.n_leaves == 1 and gp.n_points == 50 and gp.n_evicted == 250
+            assert abs(gp.predict(still[0])[0] - 2.0) < 0.01
+    moving = rng.uniform(-1, 1, (300, 3)) * ls * 5 * MIN_SPLIT_SPREAD
+    gp = LoGGP(3, max_points=50, lengthscales=ls, sigma_f=2.0, sigma_n=0.01, split_in_lengthscales=True)
+    for x in moving:
+        gp.update(x, float(np.sin(x[0] / ls[0])))
+    assert gp.n_leaves > 1 and gp.n_evicted == 0

@@ -30,7 +30,8 @@ splitting.  A full leaf that receives a point forgets its oldest ``evict`` point
 default ``max(1, N̄ // 10)``) and refactorises once (O(N̄³)/evict amortised per update =
 O(N̄²)); the new point is then appended in O(N̄²).  So memory is O(max_leaves · N̄²) and the
 model keeps tracking slowly changing dynamics.  A leaf whose points are all identical cannot
-split and uses the same rule.
+split and uses the same rule; so does, with ``split_in_lengthscales``, a leaf whose points span
+less than :data:`MIN_SPLIT_SPREAD` of its length scales in every dimension (saturated).
 
 Online hyperparameters: see :mod:`sea_daemon.core.gp.hyper` (``hyperopt=True``): every
 ``hyper_every`` updates one bounded slice runs — one Adam step of the log marginal likelihood
@@ -60,6 +61,12 @@ from sea_daemon.core.gp.hyper import AdamHyper
 from sea_daemon.core.gp.loggp_state import LoGGPState
 from sea_daemon.core.gp.routing import Tree, route
 
+
+
+#: with ``split_in_lengthscales``: a full leaf whose points span less than this many of its length
+#: scales in every dimension does not split (its kernel sees one location: correlation
+#: exp(−0.1²/2) ≥ 0.995 across it); it forgets its oldest points, as a leaf of a full tree does
+MIN_SPLIT_SPREAD = 0.1
 
 
 class LoGGP(LoGGPState):
@@ -92,6 +99,9 @@ class LoGGP(LoGGPState):
         length scales (width_j / l_j) instead of in raw units.  In raw units a dimension with a
         large numeric span but a long length scale (q̈ in rad/s² beside q in rad) takes every
         split, and the tree's routing then makes the mean key on it where the kernel does not.
+        A leaf whose widest spread is below :data:`MIN_SPLIT_SPREAD` length scales is saturated
+        (one location to its kernel: more points there only average the noise) and does not
+        split; it forgets its oldest points instead.
     seed: seed of the random split assignment.
     """
 
@@ -245,7 +255,17 @@ class LoGGP(LoGGPState):
         mi, ma = X.min(axis=0), X.max(axis=0)
         width = ma - mi
         # the dimension of the widest spread, in the leaf's length scales if so configured
-        j = int(np.argmax(width / gp.lengthscales)) if self.split_in_lengthscales else int(np.argmax(width))
+        if self.split_in_lengthscales:
+            spread = width / gp.lengthscales
+            j = int(np.argmax(spread))
+            # a saturated leaf: all its points within MIN_SPLIT_SPREAD length scales are one
+            # location to its kernel (eq:SE: correlation ≥ 0.995); a split would key the routing
+            # on differences the kernel cannot see (input noise), each child learning the same
+            # value from half the data.  It forgets its oldest points instead (as below).
+            if not spread[j] >= MIN_SPLIT_SPREAD:
+                return -1
+        else:
+            j = int(np.argmax(width))
         if not width[j] > 0.0:
             return -1
         s = 0.5 * (ma[j] + mi[j])
