@@ -525,6 +525,12 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     else:
         report["tau_h_act_walk"] = {"given": np.diag(cfg.estimator.Sigma_nom).tolist()}
     cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
+    # off the covered region (step 6) the model is extrapolated: its error there may change as fast
+    # as the declared subject's torque, so the filter's τ_h,act walk is at least the declared one
+    # there (core/estimators/calibrated.py); a value the configuration gives is kept
+    if not cfg.estimator.tau_h_act_walk_outside:
+        cfg = _replace_est(cfg, tau_h_act_walk_outside=declared_walk(opts.human))
+    report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
     # 6. coverage
     wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
                                             float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
