@@ -10,10 +10,10 @@ Both flag, per step, whether z = [q, q̇, q̈] lies in the region the calibratio
 (:class:`~sea_daemon.core.excitation.Coverage`): ``z_outside`` (this step), ``n_outside`` (count since reset).
 Off that region the model is less accurate (its effects extrapolated, the GP's weight gone to
 zero): the step after a sample outside it predicts with the τ_h,act random walk at least
-``estimator.tau_h_act_walk_outside`` (the calibration sets it to the declared subject's walk), so
-the filter books the load side's larger model error there as a faster-changing τ_h,act (a
-motor-side or spring error, which τ_h,act does not enter, still ends in the NIS-divergence
-fault).
+``estimator.tau_h_act_walk_outside`` when that is set (default 0: off; the calibration leaves it
+as configured, docs/calibration.md), so the filter books the load side's larger model error
+there as a faster-changing τ_h,act (a motor-side or spring error, which τ_h,act does not enter,
+still ends in the NIS-divergence fault).
 """
 from __future__ import annotations
 
