@@ -392,3 +392,43 @@ def test_the_gp_pairs_carry_the_load_sides_leftover_only(plant):
     rms = lambda a: float(np.sqrt(np.mean(a ** 2)))
     assert rms(r[50:-50, 1]) > 0.04                              # the cogging is in the motor side's balance
     assert len(Z) > 200 and rms(F[:, 0]) < 0.25 * rms(r[50:-50, 1])
+
+
+# ------------------------------------------------------------------ off the covered region
+
+
+def test_off_the_covered_region_the_filter_widens_its_walk_there_only(plant, tmp_path):
+    """estimator.tau_h_act_walk_outside: the step after a sample outside the covered region
+    predicts with the τ_h,act walk at least q_out·dt, inside it with the configured Σ_nom; the
+    key round-trips through the configuration file."""
+    from sea_daemon.core.estimators.calibrated import make_calibrated
+    nom, true = plant
+    q_out = 25.0
+    cfg = dataclasses.replace(nom, estimator=dataclasses.replace(nom.estimator, tau_h_act_walk_outside=q_out))
+    save_config(cfg, tmp_path / "c.yaml")
+    assert load_config(tmp_path / "c.yaml").estimator.tau_h_act_walk_outside == q_out
+    wr = WorkingRange(0.0, math.radians(110), 2.0, 20.0)
+    cov = Coverage(wr)
+    pm = paper_moves(math.radians(10), math.radians(60), 3.0, 4)          # covered: 10-60 deg
+    cov.add(np.array([pm.reference(t) for t in np.arange(0, pm.duration, 0.01)]))
+    log = run_session(true, 12.0, reference=paper_moves(math.radians(10), math.radians(95), 3.0, 4), seed=5)
+    est = make_calibrated(cfg, None, cov, kind="akf")
+    base = None
+    seen = {True: 0, False: 0}
+    for k in range(len(log)):
+        outside = est.z_outside
+        est.update(log.q[k], log.theta_m[k], log.tau_m[k])
+        if k < 20:
+            continue
+        s = est.Sigma_nom[4, 4]
+        if outside:
+            assert s >= q_out * est.dt * (1 - 1e-12)
+        else:
+            base = s if base is None else base
+            assert s == pytest.approx(base) and s < q_out * est.dt
+        seen[outside] += 1
+    assert seen[True] > 50 and seen[False] > 50 and est.n_outside > 50
+    # without the key the walk is the configured one everywhere
+    est0 = make_calibrated(nom, None, cov, kind="akf")
+    r = replay(log, est0)
+    assert np.all(np.isfinite(r.tau_h_act_hat)) and np.max(est0.Sigma_nom[4, 4]) == pytest.approx(base)

@@ -18,6 +18,7 @@ import pytest
 
 from sea_daemon.apps.diagnose import diagnose
 from sea_daemon.core.effects import make_effect
+from sea_daemon.io.configfile import repo_root
 
 from diagnose_sim import PositionFrictionPlant, passive_log
 
@@ -105,3 +106,23 @@ def test_static_log_claims_nothing_it_cannot_determine(tmp_path):
         for p, (lo, hi) in d["ci95"].items():
             assert p in ("phi", "q_h0") or (hi - lo) / 2 <= abs(d["params"][p]), d
     assert any("hardly moves the joint" in s for s in res["statements"])
+
+
+def test_narrow_passive_log_torque_constant_not_a_spring_and_the_arms_weight_kept():
+    """Development plant newrobot3 (configs/scenarios/newrobot3): its calibration log (10-75 deg,
+    passive) hides an arm (gravity and a viscoelastic elbow, which trade over that range), load
+    friction, cogging and a torque constant 4 % low.  A spring term must not stand in for the
+    torque constant (a spring acts on both balances, the torque constant on the motor's only),
+    and of the arm's weight and the elbow's stiffness the weight is never the one dropped."""
+    from sea_daemon.apps.calibration.pipeline import decimate
+    from sea_daemon.apps.diagnose import run_diagnosis
+    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.sim_runner import simulate
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "newrobot3" / "calibration.yaml")
+    log = simulate(sc).training
+    dg = run_diagnosis(decimate(log), sc.nominal, passive=True, estimate=False)
+    found = {(d["type"], d["side"]): d for d in dg.result["effects_added"]}
+    assert not any(side == "spring" for _, side in found), found
+    assert ("torque_scale", "motor") in found and ("gravity", "load") in found
+    assert abs(found[("torque_scale", "motor")]["params"]["kappa"] - 0.96) < 0.02
+    assert all(c["dropped"] != "gravity/load" for c in dg.result.get("correlated_pairs", []))

@@ -104,10 +104,15 @@ class EstimatorConfig:
     # the start-up gate (Estimate.valid): the largest |τ_h,act| [N m] when the filter starts or is
     # reset, i.e. the initial torque error the gate lets decay; None: hardware.torque_limit
     tau_h_act_max: float | None = None
+    # the τ_h,act random walk [N² m²/s] while z = [q, q̇, q̈] lies outside the region the
+    # calibration covered (a calibrated model's estimators; docs/calibration.md): off its data the
+    # model is less accurate, and its error may change there as fast as a declared subject's
+    # torque; 0: the walk of Sigma_nom everywhere
+    tau_h_act_walk_outside: float = 0.0
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
             "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
-            "tau_h_act_rate", "tau_h_act_max"]
+            "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside"]
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -159,6 +164,7 @@ class EstimatorConfig:
         S_dt = _nonneg("Sigma_nom_dt", 0.01, " [s] (0: Sigma_nom per step)")
         tau_m_noise = _nonneg("tau_m_noise", 0.0, " [N m]")
         rate = _nonneg("tau_h_act_rate", 0.0, " [N m/s]")
+        walk_out = _nonneg("tau_h_act_walk_outside", 0.0, " [N^2 m^2/s]")
         t_max = d.get("tau_h_act_max")
         if t_max is not None:
             t_max = validate.num(source, "estimator.tau_h_act_max", t_max, positive=True)
@@ -174,7 +180,8 @@ class EstimatorConfig:
                    gp_input_margin=margin,
                    gp_beta=gp_beta,
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
-                   init_after_kinematics=init_kin, tau_h_act_rate=rate, tau_h_act_max=t_max)
+                   init_after_kinematics=init_kin, tau_h_act_rate=rate, tau_h_act_max=t_max,
+                   tau_h_act_walk_outside=walk_out)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -186,6 +193,7 @@ class EstimatorConfig:
                 "Sigma_nom_dt": self.Sigma_nom_dt,
                 "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
                 "init_after_kinematics": self.init_after_kinematics, "tau_h_act_rate": self.tau_h_act_rate,
+                **({"tau_h_act_walk_outside": self.tau_h_act_walk_outside} if self.tau_h_act_walk_outside else {}),
                 **({} if self.tau_h_act_max is None else {"tau_h_act_max": self.tau_h_act_max})}
 
 

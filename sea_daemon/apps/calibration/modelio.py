@@ -104,7 +104,10 @@ def summary(result) -> dict:
     lines.append(f"What the physical model leaves: {rep['leftover']['rms']:.3g} N m RMS; residual GP "
                  f"{'kept' if rep.get('gp_kept') else 'not used (it did not predict the leftover better than zero on held-out parts of the log)'}.")
     lines.append(f"The log covers {100 * cov.get('q_qdot_share', 0):.0f} % of the (angle, speed) box of the working range "
-                 f"({100 * cov.get('box_share', 0):.0f} % of (angle, speed, acceleration)); estimation flags samples outside it.")
+                 f"({100 * cov.get('box_share', 0):.0f} % of (angle, speed, acceleration)); estimation flags samples outside it"
+                 + (f" and lets the active-torque estimate move faster there (random walk at least "
+                    f"{cfg.estimator.tau_h_act_walk_outside:.3g} N^2 m^2/s: the model is extrapolated)."
+                    if cfg.estimator.tau_h_act_walk_outside else "."))
     if chosen:
         lines.append(f"Expected accuracy (the identified model replayed with synthetic subjects): RMSE "
                      f"{chosen.get('synthetic_moving', float('nan')):.3g} N m with an active subject while moving, "

@@ -187,6 +187,11 @@ class Candidate:
     # --- physical sense (the joint refinement's arbiter between correlated effects)
     #: the parameter whose size says how much of the effect there is (None: not one number)
     size_param: str | None = None
+    #: physical prior of the pair rule (:meth:`.select.Selector._conflict`): of two effects the
+    #: log cannot tell apart, both plausible, the one with the higher prior is kept (then the
+    #: earlier chosen).  An effect every plant of its kind has ranks 1 (the weight of an arm
+    #: on the load); 0 for those a plant may or may not have
+    prior: int = 0
 
     def magnitude(self, params: dict) -> float | None:
         """How much of the effect there is (0: none), for telling a refinement that takes an
@@ -303,6 +308,10 @@ class GravityC(Candidate):
     type, linear, params = "gravity", ("a_cos_phi", "a_sin_phi"), ("a", "phi")
 
     size_param = "a"
+    # a limb on the load always has weight; a relaxed elbow's stiffness may be absent.  Over a
+    # narrow range of q the two trade (a sin(q + φ) and k_h (q − q_h0) are both nearly lines);
+    # beyond it the weight's sine stays bounded while a line fitted in its place runs away
+    prior = 1
 
     def design(self, ctx, theta):
         s = self._unit(ctx, a=1.0, phi=0.0)

@@ -8,6 +8,12 @@
 
 Both flag, per step, whether z = [q, q̇, q̈] lies in the region the calibration data covered
 (:class:`~sea_daemon.core.excitation.Coverage`): ``z_outside`` (this step), ``n_outside`` (count since reset).
+Off that region the model is less accurate (its effects extrapolated, the GP's weight gone to
+zero): the step after a sample outside it predicts with the τ_h,act random walk at least
+``estimator.tau_h_act_walk_outside`` when that is set (default 0: off; the calibration leaves it
+as configured, docs/calibration.md), so the filter books the load side's larger model error
+there as a faster-changing τ_h,act (a motor-side or spring error, which τ_h,act does not enter,
+still ends in the NIS-divergence fault).
 """
 from __future__ import annotations
 
@@ -35,6 +41,19 @@ class _CoverageFlag:
         self.z_outside = False
         self.n_outside = 0
         self._zc = np.zeros(3)
+        # [N² m²/s] the τ_h,act walk off the covered region (0: none); Σ_nom is then filled every step
+        self._q_out = float(self.cfg.estimator.tau_h_act_walk_outside) if coverage is not None else 0.0
+        if self._q_out > 0:
+            self._S_varies = True
+
+    def fill_sigma_nom(self, dt):
+        S = super().fill_sigma_nom(dt)
+        if self._q_out > 0 and self.z_outside:
+            # the τ_h,act block of Σ_nom,k (eq:unknown's random walk) at least q_out·dt off the data
+            n = self.n
+            for i in range(4 * n, 5 * n):
+                S[i, i] = max(S[i, i], self._q_out * dt)
+        return S
 
     def _flag(self):
         if self.coverage is None:
