@@ -86,7 +86,7 @@ class LoopStats:
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute", "read", "measured"]
+             "period", "compute", "read", "measured", "bound_cycle"]
 
 
 def log_columns(n: int) -> list[str]:
@@ -98,8 +98,9 @@ def log_columns(n: int) -> list[str]:
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
     # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s];
-    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read
-    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured"]
+    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read;
+    # bound_cycle: the cycle whose sample the row's tau_h_act_bound belongs to (−1: no estimate)
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle"]
 
 
 class FixedRateLoop:
@@ -115,6 +116,10 @@ class FixedRateLoop:
     first fault out of :meth:`run`, after the fault policy's zero torque, instead of going on
     latched.  ``publisher``: the publication step (a :class:`sea_daemon.runtime.publish.Publisher`),
     called every cycle after the estimate with the estimate (None when invalid or faulted).
+    ``bound_link``: the estimator's bound when it runs in a worker
+    (:class:`sea_daemon.runtime.bound_worker.BoundWorker`): the loop tells it each cycle's index,
+    logs the cycle of the sample whose ρ it published (``bound_cycle``) and latches BOUND_LOST
+    when it reports a fault (the worker died or fell a whole ring behind).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
@@ -123,7 +128,8 @@ class FixedRateLoop:
                  cpu_clock: Callable[[], float] = time.thread_time,
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
-                 initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None):
+                 initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None,
+                 bound_link=None):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -135,6 +141,8 @@ class FixedRateLoop:
         self.on_cycle = on_cycle
         self.fail_fast = fail_fast
         self.publisher = publisher
+        self.bound_link = bound_link
+        self._bound_fault_seen = False
         self.stats = LoopStats()
         self._row = np.zeros(len(log_columns(n)))
         self._zero = np.zeros(n)
@@ -190,6 +198,7 @@ class FixedRateLoop:
         last_start = t0
         k = 0
         cpu_clock = self.cpu_clock
+        link = self.bound_link
         while not self._stop and (cycles is None or k < cycles):
             start = self.clock()
             cpu0 = cpu_clock()
@@ -236,6 +245,8 @@ class FixedRateLoop:
                 except Exception as e:  # noqa: BLE001
                     self._failed(e, k, start)
             if meas is not None and sup.ok and self.estimator is not None:
+                if link is not None:
+                    link.cycle = k
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
                     # the estimator's own flag: 0 at a (re)start and until the filter converged
@@ -285,12 +296,21 @@ class FixedRateLoop:
                 row[i + 4] = done - start
                 row[i + 5] = t_read - start
                 row[i + 6] = 1.0 if meas is not None else 0.0
+                # the cycle of the sample the published ρ belongs to (the worker's bound lags)
+                row[i + 7] = (k if link is None else link.bound_cycle) if (est is not None and valid) else -1.0
                 self.log.append(row)
                 # a log that cannot be written is a fault (latched once, again after a reset)
                 lost = self.log.fault()
                 if lost is not None and (sup.ok or not self._log_fault_seen):
                     self._log_fault_seen = True
                     self._trip(Fault.LOG_FAILED, k, start, lost)
+            if link is not None:
+                # a bound worker that died or fell a whole ring behind: BOUND_LOST (once, again
+                # after a reset while it lasts)
+                gone = link.fault()
+                if gone is not None and (sup.ok or not self._bound_fault_seen):
+                    self._bound_fault_seen = True
+                    self._trip(Fault.BOUND_LOST, k, start, gone)
             # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
             # only a stuck loop and never clears a latched fault behind the operator's back
             if self.notifier is not None:
