@@ -198,8 +198,8 @@ class FixedRateLoop:
         last_start = t0
         k = 0
         cpu_clock = self.cpu_clock
-        link = self.bound_link
         while not self._stop and (cycles is None or k < cycles):
+            link = self.bound_link                    # may be attached while the loop runs
             start = self.clock()
             cpu0 = cpu_clock()
             self.cycle_start = start
