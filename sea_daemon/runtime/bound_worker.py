@@ -13,9 +13,11 @@ Per cycle, on the loop's side (no allocation, no pickling, no lock, never blocki
 
 * :meth:`BoundWorker.step` copies the step's inputs — the AKF's step buffer (F_k, K_k, Γ_μ, P_k,
   μ, ∂μ/∂z, … of step k), ẑ_{k−1}, x̂_{k−1}, P_{k−1}, the input u, dt, the box of the start-up
-  gate and the loop's cycle — into the next slot of a ring in shared memory, publishes the
-  slot (an integer store) and wakes the worker (one byte on a pipe);
-* it then reads the newest result the worker has finished (cycle, ρ, valid) and fills the
+  gate and the loop's cycle — into the next slot of a ring in shared memory;
+* :meth:`BoundWorker.flush`, called by the loop at the end of the cycle (after its log row),
+  publishes the slots written (an integer store) and wakes the worker (one byte on a pipe): the
+  worker computes while the loop sleeps, not beside the loop's own work;
+* :meth:`BoundWorker.step` also reads the newest result the worker has finished (cycle, ρ, valid) and fills the
   estimate with it: ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the loop cycle
   of that sample (the log's ``bound_cycle``), ``valid`` = its gate and the age
   (cycle − bound_cycle) at most ``max_age`` cycles.  An older bound (worker behind, or none
@@ -275,6 +277,7 @@ class BoundWorker:
         self.steps = 0
         self.broken = False                      # the ring was full: no bound until the next reset
         self._head = 0
+        self._published = 0
         self._seen = 0
         self._epoch = 0
         self._fault = None
@@ -318,6 +321,7 @@ class BoundWorker:
             self._final = self.stats()
             self._release()
             return self._final
+        self.flush()
         self._hdr[_STOP] = 1
         self._wake()
         self._proc.join(timeout)
@@ -363,9 +367,16 @@ class BoundWorker:
         return self._slots[h % self.capacity]
 
     def _publish_slot(self) -> None:
-        self._head += 1
-        self._hdr[_HEAD] = self._head
-        self._wake()
+        self._head += 1                          # written; published by flush()
+
+    def flush(self) -> None:
+        """Publish the slots written since the last call and wake the worker (the loop calls it
+        once per cycle, after the cycle's log row)."""
+        h = self._head
+        if h != self._published:
+            self._published = h
+            self._hdr[_HEAD] = h
+            self._wake()
 
     def reset(self, est) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""

@@ -118,7 +118,7 @@ class FixedRateLoop:
     called every cycle after the estimate with the estimate (None when invalid or faulted).
     ``bound_link``: the estimator's bound when it runs in a worker
     (:class:`sea_daemon.runtime.bound_worker.BoundWorker`): the loop tells it each cycle's index,
-    logs the cycle of the sample whose ρ it published (``bound_cycle``) and latches BOUND_LOST
+    hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample whose ρ it published (``bound_cycle``) and latches BOUND_LOST
     when it reports a fault (the worker died or fell a whole ring behind).
     """
 
@@ -305,8 +305,10 @@ class FixedRateLoop:
                     self._log_fault_seen = True
                     self._trip(Fault.LOG_FAILED, k, start, lost)
             if link is not None:
-                # a bound worker that died or fell a whole ring behind: BOUND_LOST (once, again
+                # the cycle's sample to the bound worker now, so that it computes while the loop
+                # sleeps; a worker that died or fell a whole ring behind: BOUND_LOST (once, again
                 # after a reset while it lasts)
+                link.flush()
                 gone = link.fault()
                 if gone is not None and (sup.ok or not self._bound_fault_seen):
                     self._bound_fault_seen = True
