@@ -13,7 +13,9 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
 3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
 4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
    one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
-   with delay 1; raises EstimatorFault instead of emitting NaN
+   with delay 1; raises EstimatorFault instead of emitting NaN.  With the bound worker
+   (:mod:`sea_daemon.runtime.bound_worker`) the step runs the filter, and the estimate carries
+   the newest ρ the worker finished, of the sample of cycle ``bound_cycle`` (logged)
 5. ``publisher.publish()``    the estimate, its bound, validity and the latched fault to the bus and
    to local readers (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
 6. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
@@ -118,8 +120,9 @@ class FixedRateLoop:
     called every cycle after the estimate with the estimate (None when invalid or faulted).
     ``bound_link``: the estimator's bound when it runs in a worker
     (:class:`sea_daemon.runtime.bound_worker.BoundWorker`): the loop tells it each cycle's index,
-    hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample whose ρ it published (``bound_cycle``) and latches BOUND_LOST
-    when it reports a fault (the worker died or fell a whole ring behind).
+    hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample
+    whose ρ it published (``bound_cycle``) and latches BOUND_LOST when it reports a fault (the
+    worker died or fell a whole ring behind).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,

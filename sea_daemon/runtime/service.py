@@ -7,8 +7,8 @@ the controller from :mod:`sea_daemon.runtime.controller`.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``
   and ``sea-daemon watch`` (it names the publication socket).
 * :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
-  the bound worker (:mod:`.bound_worker`, ``estimator.bound_in``), real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the
-  loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
+  the bound worker (:mod:`.bound_worker`, ``estimator.bound_in``), real-time set-up, signals
+  (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
   and log close.
 """
 from __future__ import annotations
@@ -324,11 +324,11 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
     warm_up()
     notifier = notifier or Notifier()
+    if bound_in not in ("auto", "worker", "loop"):
+        raise ValueError(f"bound_in must be auto, worker or loop, got {bound_in!r}")
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
     link = None
     where = {"where": "loop"}
-    if bound_in not in ("auto", "worker", "loop"):
-        raise ValueError(f"bound_in must be auto, worker or loop, got {bound_in!r}")
     if estimator is not None and (bound_in == "worker" or (bound_in == "auto" and realtime)):
         why = why_not(estimator)
         if why is None:

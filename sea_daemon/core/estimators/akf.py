@@ -473,7 +473,7 @@ class AKF:
         b = self.bound
         if b is not None:
             b.step(e, self._x_prev, self._P_prev, u, dt)
-            if getattr(b, "deferred", False):                   # computed elsewhere: its ρ and the gate come with it
+            if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
                 e.valid = b.valid
                 return e
         e.valid = self.converged or self._gate(e)
