@@ -36,6 +36,8 @@ if TYPE_CHECKING:                     # a Rig's module loads the scenario and si
     from sea_daemon.runtime.rig import Rig
 
 PID_FILE = "sea-daemon.pid"
+#: the bound worker's SCHED_FIFO priority: this far below the loop's (``rt_priority``)
+WORKER_PRIORITY_BELOW = 20
 LOCK_FILE = "sea-daemon.lock"
 
 
@@ -314,7 +316,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     ``bound_in`` (``estimator.bound_in``): where the estimator's Theorem-1 bound is computed —
     ``worker`` (:class:`~sea_daemon.runtime.bound_worker.BoundWorker`, started here and stopped
     with the service; ρ at most ``bound_max_age`` cycles old), ``loop`` (in the estimator's step),
-    ``auto`` (the worker when ``realtime``, the loop in lock-step).  An estimator without a bound,
+    ``auto`` (the worker when ``realtime``, the loop in lock-step); in real-time pace the worker
+    runs SCHED_FIFO :data:`WORKER_PRIORITY_BELOW` below ``rt_priority``.  An estimator without a bound,
     or one that learns, keeps it in the loop.  ``bound_record``: the worker keeps the first
     that many steps' bound age and CPU time (``bench loop``).  ``extra["bound"]`` says where it ran.
 
@@ -333,8 +336,9 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         why = why_not(estimator)
         if why is None:
             try:
-                # forked before SCHED_FIFO and before the hardware's threads start
-                link = BoundWorker(estimator, max_age=bound_max_age, record=bound_record).start()
+                # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
+                prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
+                link = BoundWorker(estimator, max_age=bound_max_age, record=bound_record, rt_priority=prio).start()
             except BaseException:
                 log.close()
                 raise

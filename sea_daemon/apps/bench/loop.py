@@ -335,7 +335,8 @@ def run(args) -> int:
         have = ages[ages >= 0]
         wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
         worker = {
-            "pid": bound_where.get("pid"), "max_age_cycles": link.max_age, "filter_steps": link.steps,
+            "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "max_age_cycles": link.max_age,
+            "filter_steps": link.steps,
             "samples_done": bound_where.get("samples_done"),
             "cycles_without_bound_within_max_age": bound_where.get("stale"),
             "without_bound_before_first_result": int(np.argmax(ages >= 0)) if have.size else steps,
@@ -375,7 +376,8 @@ def run(args) -> int:
           f"{os.cpu_count()} cores)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
-    where = (f"computed in a worker process, published with its sample's cycle, at most {max_age} cycles old"
+    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}), published with its "
+             f"sample's cycle, at most {max_age} cycles old"
              if worker is not None else "computed in the loop's estimator step"
              + (f" ({bound_where['why_not_worker']})" if bound_where.get("why_not_worker") else ""))
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
