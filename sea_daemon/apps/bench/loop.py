@@ -4,7 +4,10 @@ What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.ser
 with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
 at ``--model-rate`` (default 100 Hz: the model file of the 100 Hz daemon, run at ``--rate``
 through :func:`sea_daemon.core.rates.at_rate`), learning frozen, the Theorem-1 bound ρ_k
-published every cycle (``--no-bound``: the filter's own bound), the passive scenario's PID
+published every cycle (``--no-bound``: the filter's own bound) — computed in the bound worker
+process (``--bound-in worker``, the configuration's default in real-time pace; ρ of an earlier
+sample, at most ``--bound-max-age`` cycles old) or in the loop's estimator step (``--bound-in
+loop``) — the passive scenario's PID
 controller, the off-loop log writer, the loop in real-time pace, SCHED_FIFO / mlockall tried
 (what applied is printed).  The device model (the passive scenario's true plant behind a
 CANopen drive and load encoder, lock-step with SYNC) runs in this process on a python-can
@@ -20,7 +23,11 @@ Figures, over the N measured cycles: the loop period (start to start) minus nomi
 p99, max of |period − nominal|; overruns (cycles that ended after their deadline) per 10⁵
 cycles; the daemon's own CPU time per cycle — the loop thread's (``time.thread_time`` from the
 start of the cycle to its log row) plus the CAN receive thread's over the same cycle (its
-thread CPU clock), median / p99 — and the cycle's wall time (read → log row, the log's
+thread CPU clock), median / p99; the bound worker's process is not part of it and has its own
+line: its CPU time per sample (the bound's step and the start-up gate, its thread CPU clock),
+median / p99 / max, and its whole process's CPU time per cycle; the bound's age (cycle of the
+estimate − cycle of the bound's sample) over the filter steps, median / p99 / max, and the steps
+with no bound within the maximum age (the estimate not valid there) — and the cycle's wall time (read → log row, the log's
 ``compute``) with the part spent in ``hw.read()`` (SYNC → TPDOs, waiting for the devices);
 the device model's answer latency (its SYNC frame's send time to its last TPDO handed to the
 bus, measured in the device model's process) and its SYNC handler's CPU time; CAN frames per
