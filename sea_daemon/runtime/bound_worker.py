@@ -243,7 +243,7 @@ class BoundWorker:
 
     deferred = True
 
-    def __init__(self, estimator, max_age: int = 3, capacity: int = 256, record: int = 0, rt_priority: int = 0):
+    def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0):
         why = why_not(estimator)
         if why is not None:
             raise ValueError(f"bound worker: {why}")

@@ -127,7 +127,9 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                 if bound_in == "worker":
                     # the GP is frozen now: the worker's copy of it stays the loop's
                     from sea_daemon.runtime.bound_worker import BoundWorker
-                    loop.bound_link = links["worker"] = BoundWorker(est).start()
+                    from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
+                    prio = 80 - WORKER_PRIORITY_BELOW if rt.get("sched", "").startswith("fifo") else 0
+                    loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start()
         if k % stride == 0 or k == warmup:
             rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
             trace.append(rec)
@@ -224,7 +226,7 @@ def run(args) -> int:
           + (f" in {'a worker process' if r['bound_in'] == 'worker' else 'the loop'}" if r['bound'] else ""))
     bw = r.get("bound_worker")
     if bw:
-        print(f"bound worker        {bw['samples_done']} samples, {bw['stale']} of {bw['steps']} filter steps with no "
+        print(f"bound worker        sched {bw['sched']}; {bw['samples_done']} samples, {bw['stale']} of {bw['steps']} filter steps with no "
               f"bound within {bw['max_age']} cycles; ring full: {bw['broken']}; fault: {bw['fault']}; its CPU "
               f"{bw['worker_cpu_process_s']:.1f} s")
     print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
