@@ -283,6 +283,7 @@ class BoundWorker:
             a, b = lay["P"]
             v["P"] = s[a:b].reshape(d, d)
             self._slots.append((s, v["u"], v["z"], v["x"], v["P"], v["b0"], v["buf"]))
+        self._results = [(self._res[i], self._res[i, _NRES:_NRES + n]) for i in range(cap)]
         self.ages = np.full(max(self.record, 1), -1, dtype=np.int64)   # per step (record): age, −1 none
         self.cycle = 0                           # the loop's cycle of the step being made (set by the loop)
         self.bound_cycle = -1                    # the cycle of the sample whose ρ is in the estimate
@@ -356,7 +357,7 @@ class BoundWorker:
         return self._final
 
     def _release(self) -> None:
-        del self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec, self._slots
+        del self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec, self._slots, self._results
         self._shm.close()
         self._shm.unlink()
 
@@ -437,10 +438,10 @@ class BoundWorker:
         done = int(self._hdr[_DONE])
         if done > self._seen:
             self._seen = done
-            r = self._res[(done - 1) % self.capacity]
+            r, rho = self._results[(done - 1) % self.capacity]
             seq = r[_RSEQ]
             status, epoch, cyc, ok = r[_RSTATUS], r[_REPOCH], r[_RCYC], r[_RVALID] != 0.0
-            self._rho_in[:] = r[_NRES:_NRES + self.n]
+            self._rho_in[:] = rho
             if r[_RSEQ] != seq or seq != done - 1:
                 epoch = -1.0                         # overwritten meanwhile (a ring full of later samples)
             if epoch == self._epoch:
