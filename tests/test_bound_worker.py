@@ -126,7 +126,7 @@ def test_worker_bound_equals_the_in_loop_bound_sample_by_sample(cfg):
 
 
 def test_a_killed_worker_latches_BOUND_LOST_and_the_loop_goes_on(cfg):
-    rows, loop, st, link = _run(cfg, 200, worker=True, pause=0.002, kill_at=120)
+    rows, loop, st, link = _run(cfg, 200, worker=True, pause=0.002, kill_at=120, max_age=50)
     sup = loop.supervisor
     assert len(rows) == 200 and loop.stats.cycles == 200          # the loop ran every cycle
     assert sup.latched == Fault.BOUND_LOST and "exited" in sup.latched_detail
