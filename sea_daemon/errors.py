@@ -82,3 +82,4 @@ class Fault(enum.IntEnum):
     INTERNAL = 13              # an unexpected exception in the loop
     LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)
     INNOVATION_OUTLIER = 15    # assist mode: one step's normalised innovation beyond assist.innovation_max
+    BOUND_LOST = 16            # the bound worker died, or fell a whole ring of samples behind

@@ -8,7 +8,7 @@ from sea_daemon.apps import cli
 def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
     out_json = tmp_path / "loop.json"
     code = cli.main(["bench", "loop", "--rate", "100", "--cycles", "100", "--bus", "virtual", "--train", "300",
-                     "--rt-priority", "0", "--stages", "--json", str(out_json)])
+                     "--rt-priority", "0", "--stages", "--bound-in", "loop", "--json", str(out_json)])
     out, _ = capsys.readouterr()
     assert code == 0, out
     data = json.loads(out_json.read_text())
@@ -24,3 +24,22 @@ def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
     # the bound is a part of the estimator's step
     assert stages["bound"]["median"] < stages["estimator (with its bound)"]["median"]
     assert "loop thread CPU per stage" in out and data["fault"] == "NONE"
+
+
+def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp_path, capsys):
+    out_json = tmp_path / "loop.json"
+    code = cli.main(["bench", "loop", "--rate", "100", "--cycles", "100", "--bus", "virtual", "--train", "300",
+                     "--rt-priority", "0", "--stages", "--bound-in", "worker", "--json", str(out_json)])
+    out, _ = capsys.readouterr()
+    assert code == 0, out
+    data = json.loads(out_json.read_text())
+    assert data["bound_in"] == "worker" and data["fault"] == "NONE"
+    w = data["bound_worker"]
+    # the worker took every filter step's sample; the ages are those of published bounds
+    assert w["samples_done"] >= w["filter_steps"] >= 90 and w["cpu_per_sample_us"]["median"] > 0
+    assert 0 <= w["age_cycles"]["median"] <= w["age_cycles"]["max"]
+    assert 0 <= w["cycles_without_bound_within_max_age"] <= w["filter_steps"]
+    # the loop's estimator step hands the bound over: no bound stage in the loop thread
+    assert "bound" not in data["stages_cpu_us"]
+    assert data["stages_cpu_us"]["estimator (filter, bound handed to the worker)"]["calls"] >= 99
+    assert "the bound worker's process is not included" in out and "bound age" in out

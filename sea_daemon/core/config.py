@@ -109,10 +109,18 @@ class EstimatorConfig:
     # model is less accurate, and its error may change there as fast as a declared subject's
     # torque; 0: the walk of Sigma_nom everywhere
     tau_h_act_walk_outside: float = 0.0
+    # where the real-time loop computes the Theorem-1 bound (docs/daemon.md, "The bound worker"):
+    # "worker" (a process of its own, ρ_k published with its sample's cycle), "loop" (in the
+    # estimator's step), "auto" (the worker in real-time pace, the loop in lock-step runs)
+    bound_in: str = "auto"
+    # the oldest bound the loop publishes, in cycles behind the estimate (worker only); older:
+    # the estimate is not valid in that cycle
+    bound_max_age: int = 3
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
             "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
-            "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside"]
+            "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside", "bound_in", "bound_max_age"]
+    BOUND_IN = ("auto", "worker", "loop")
 
     @classmethod
     def default(cls, n: int) -> "EstimatorConfig":
@@ -174,6 +182,9 @@ class EstimatorConfig:
                 raise ConfigError(source, f"estimator.{key}", f"must be true or false, got {v!r}")
             return v
         gp_noise, init_kin = _bool("gp_noise_in_Q"), _bool("init_after_kinematics")
+        bound_in = d.get("bound_in", "auto")
+        if bound_in not in cls.BOUND_IN:
+            raise ConfigError(source, "estimator.bound_in", f"must be one of {', '.join(cls.BOUND_IN)}, got {bound_in!r}")
         return cls(R=R, Sigma_nom=S, P0=P0, delta=delta,
                    sign_eps=validate.num(source, "estimator.sign_eps", d.get("sign_eps", 0.01), positive=True),
                    nis_window=_int("nis_window", 100, 1, 100000), nis_alpha=nis_alpha, nis_scale=nis_scale,
@@ -181,7 +192,8 @@ class EstimatorConfig:
                    gp_beta=gp_beta,
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
                    init_after_kinematics=init_kin, tau_h_act_rate=rate, tau_h_act_max=t_max,
-                   tau_h_act_walk_outside=walk_out)
+                   tau_h_act_walk_outside=walk_out,
+                   bound_in=bound_in, bound_max_age=_int("bound_max_age", 3, 1, 100000))
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -194,7 +206,9 @@ class EstimatorConfig:
                 "tau_m_noise": self.tau_m_noise, "gp_noise_in_Q": self.gp_noise_in_Q,
                 "init_after_kinematics": self.init_after_kinematics, "tau_h_act_rate": self.tau_h_act_rate,
                 **({"tau_h_act_walk_outside": self.tau_h_act_walk_outside} if self.tau_h_act_walk_outside else {}),
-                **({} if self.tau_h_act_max is None else {"tau_h_act_max": self.tau_h_act_max})}
+                **({} if self.tau_h_act_max is None else {"tau_h_act_max": self.tau_h_act_max}),
+                **({} if self.bound_in == "auto" else {"bound_in": self.bound_in}),
+                **({} if self.bound_max_age == 3 else {"bound_max_age": self.bound_max_age})}
 
 
 @dataclass(frozen=True)

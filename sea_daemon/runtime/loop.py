@@ -13,7 +13,9 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
 3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
 4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
    one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
-   with delay 1; raises EstimatorFault instead of emitting NaN
+   with delay 1; raises EstimatorFault instead of emitting NaN.  With the bound worker
+   (:mod:`sea_daemon.runtime.bound_worker`) the step runs the filter, and the estimate carries
+   the newest ρ the worker finished, of the sample of cycle ``bound_cycle`` (logged)
 5. ``publisher.publish()``    the estimate, its bound, validity and the latched fault to the bus and
    to local readers (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
 6. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
@@ -86,7 +88,7 @@ class LoopStats:
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute", "read", "measured"]
+             "period", "compute", "read", "measured", "bound_cycle"]
 
 
 def log_columns(n: int) -> list[str]:
@@ -98,8 +100,9 @@ def log_columns(n: int) -> list[str]:
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
     # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s];
-    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read
-    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured"]
+    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read;
+    # bound_cycle: the cycle whose sample the row's tau_h_act_bound belongs to (−1: no estimate)
+    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle"]
 
 
 class FixedRateLoop:
@@ -115,6 +118,11 @@ class FixedRateLoop:
     first fault out of :meth:`run`, after the fault policy's zero torque, instead of going on
     latched.  ``publisher``: the publication step (a :class:`sea_daemon.runtime.publish.Publisher`),
     called every cycle after the estimate with the estimate (None when invalid or faulted).
+    ``bound_link``: the estimator's bound when it runs in a worker
+    (:class:`sea_daemon.runtime.bound_worker.BoundWorker`): the loop tells it each cycle's index,
+    hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample
+    whose ρ it published (``bound_cycle``) and latches BOUND_LOST when it reports a fault (the
+    worker died or fell a whole ring behind).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
@@ -123,7 +131,8 @@ class FixedRateLoop:
                  cpu_clock: Callable[[], float] = time.thread_time,
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
-                 initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None):
+                 initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None,
+                 bound_link=None):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -135,6 +144,8 @@ class FixedRateLoop:
         self.on_cycle = on_cycle
         self.fail_fast = fail_fast
         self.publisher = publisher
+        self.bound_link = bound_link
+        self._bound_fault_seen = False
         self.stats = LoopStats()
         self._row = np.zeros(len(log_columns(n)))
         self._zero = np.zeros(n)
@@ -191,6 +202,7 @@ class FixedRateLoop:
         k = 0
         cpu_clock = self.cpu_clock
         while not self._stop and (cycles is None or k < cycles):
+            link = self.bound_link                    # may be attached while the loop runs
             start = self.clock()
             cpu0 = cpu_clock()
             self.cycle_start = start
@@ -236,6 +248,8 @@ class FixedRateLoop:
                 except Exception as e:  # noqa: BLE001
                     self._failed(e, k, start)
             if meas is not None and sup.ok and self.estimator is not None:
+                if link is not None:
+                    link.cycle = k
                 try:
                     est = self.estimator.update(meas.q, meas.theta_m, self._tau)
                     # the estimator's own flag: 0 at a (re)start and until the filter converged
@@ -285,12 +299,23 @@ class FixedRateLoop:
                 row[i + 4] = done - start
                 row[i + 5] = t_read - start
                 row[i + 6] = 1.0 if meas is not None else 0.0
+                # the cycle of the sample the published ρ belongs to (the worker's bound lags)
+                row[i + 7] = (k if link is None else link.bound_cycle) if (est is not None and valid) else -1.0
                 self.log.append(row)
                 # a log that cannot be written is a fault (latched once, again after a reset)
                 lost = self.log.fault()
                 if lost is not None and (sup.ok or not self._log_fault_seen):
                     self._log_fault_seen = True
                     self._trip(Fault.LOG_FAILED, k, start, lost)
+            if link is not None:
+                # the cycle's sample to the bound worker now, so that it computes while the loop
+                # sleeps; a worker that died or fell a whole ring behind: BOUND_LOST (once, again
+                # after a reset while it lasts)
+                link.flush()
+                gone = link.fault()
+                if gone is not None and (sup.ok or not self._bound_fault_seen):
+                    self._bound_fault_seen = True
+                    self._trip(Fault.BOUND_LOST, k, start, gone)
             # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
             # only a stuck loop and never clears a latched fault behind the operator's back
             if self.notifier is not None:

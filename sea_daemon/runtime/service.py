@@ -7,8 +7,8 @@ the controller from :mod:`sea_daemon.runtime.controller`.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``
   and ``sea-daemon watch`` (it names the publication socket).
 * :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
-  real-time set-up, signals (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the
-  loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
+  the bound worker (:mod:`.bound_worker`, ``estimator.bound_in``), real-time set-up, signals
+  (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
   and log close.
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from sea_daemon.errors import InputError, shown
+from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
@@ -35,6 +36,8 @@ if TYPE_CHECKING:                     # a Rig's module loads the scenario and si
     from sea_daemon.runtime.rig import Rig
 
 PID_FILE = "sea-daemon.pid"
+#: the bound worker's SCHED_FIFO priority: this far below the loop's (``rt_priority``)
+WORKER_PRIORITY_BELOW = 20
 LOCK_FILE = "sea-daemon.lock"
 
 
@@ -306,8 +309,17 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
           cycles: int | None = None, realtime: bool = True, notifier: Notifier | None = None,
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
-          supervisor: SafetySupervisor | None = None, publisher=None) -> ServeResult:
+          supervisor: SafetySupervisor | None = None, publisher=None, bound_in: str = "auto",
+          bound_max_age: int = 3, bound_record: int = 0) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal.
+
+    ``bound_in`` (``estimator.bound_in``): where the estimator's Theorem-1 bound is computed —
+    ``worker`` (:class:`~sea_daemon.runtime.bound_worker.BoundWorker`, started here and stopped
+    with the service; ρ at most ``bound_max_age`` cycles old), ``loop`` (in the estimator's step),
+    ``auto`` (the worker when ``realtime``, the loop in lock-step); in real-time pace the worker
+    runs SCHED_FIFO :data:`WORKER_PRIORITY_BELOW` below ``rt_priority``.  An estimator without a bound,
+    or one that learns, keeps it in the loop.  ``bound_record``: the worker keeps the first
+    that many steps' bound age and CPU time (``bench loop``).  ``extra["bound"]`` says where it ran.
 
     ``publisher``: the loop's publication step (:func:`sea_daemon.runtime.publish.make_publisher`),
     closed (its socket removed) when the service stops; its counts go into ``extra["publish"]``."""
@@ -315,7 +327,23 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
     warm_up()
     notifier = notifier or Notifier()
+    if bound_in not in ("auto", "worker", "loop"):
+        raise ValueError(f"bound_in must be auto, worker or loop, got {bound_in!r}")
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
+    link = None
+    where = {"where": "loop"}
+    if estimator is not None and (bound_in == "worker" or (bound_in == "auto" and realtime)):
+        why = why_not(estimator)
+        if why is None:
+            try:
+                # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
+                prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
+                link = BoundWorker(estimator, max_age=bound_max_age, record=bound_record, rt_priority=prio).start()
+            except BaseException:
+                log.close()
+                raise
+        else:
+            where["why_not_worker"] = why
     rt = try_realtime(rt_priority) if (realtime and rt_priority) else {"sched": "other (not asked)",
                                                                        "mlockall": "skipped (not asked)"}
     loop = None
@@ -348,7 +376,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     try:
         loop = FixedRateLoop(rig.hw, estimator, controller, n=n, period=period, log=log, notifier=notifier,
                              realtime=realtime, record_periods=record_periods, on_cycle=on_cycle,
-                             initial_torque=rig.initial_torque, supervisor=supervisor, publisher=publisher)
+                             initial_torque=rig.initial_torque, supervisor=supervisor, publisher=publisher,
+                             bound_link=link)
         signal.signal(signal.SIGTERM, on_stop)
         signal.signal(signal.SIGINT, on_stop)
         signal.signal(signal.SIGUSR1, on_reset)
@@ -372,6 +401,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
             rig.stop()
         finally:
             final = log.close()
+            if link is not None:
+                where = link.close()
             if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log
                 for f in final["files"]:
                     Path(f).unlink(missing_ok=True)
@@ -386,4 +417,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     notifier.status(f"{label}: stopped after {stats.cycles} cycles, {stats.overruns} overruns, "
                     f"{sup.status_line()}{lost}")
     extra = {"publish": publisher.stats()} if publisher is not None else {}
+    extra["bound"] = where
+    if link is not None:
+        extra["bound_link"] = link
     return ServeResult(stats, sup, final, rt, time.monotonic() - t_wall, stopped["signal"], extra)

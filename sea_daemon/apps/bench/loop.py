@@ -4,7 +4,10 @@ What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.ser
 with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
 at ``--model-rate`` (default 100 Hz: the model file of the 100 Hz daemon, run at ``--rate``
 through :func:`sea_daemon.core.rates.at_rate`), learning frozen, the Theorem-1 bound ρ_k
-published every cycle (``--no-bound``: the filter's own bound), the passive scenario's PID
+published every cycle (``--no-bound``: the filter's own bound) — computed in the bound worker
+process (``--bound-in worker``, the configuration's default in real-time pace; ρ of an earlier
+sample, at most ``--bound-max-age`` cycles old) or in the loop's estimator step (``--bound-in
+loop``) — the passive scenario's PID
 controller, the off-loop log writer, the loop in real-time pace, SCHED_FIFO / mlockall tried
 (what applied is printed).  The device model (the passive scenario's true plant behind a
 CANopen drive and load encoder, lock-step with SYNC) runs in this process on a python-can
@@ -20,7 +23,11 @@ Figures, over the N measured cycles: the loop period (start to start) minus nomi
 p99, max of |period − nominal|; overruns (cycles that ended after their deadline) per 10⁵
 cycles; the daemon's own CPU time per cycle — the loop thread's (``time.thread_time`` from the
 start of the cycle to its log row) plus the CAN receive thread's over the same cycle (its
-thread CPU clock), median / p99 — and the cycle's wall time (read → log row, the log's
+thread CPU clock), median / p99; the bound worker's process is not part of it and has its own
+line: its CPU time per sample (the bound's step and the start-up gate, its thread CPU clock),
+median / p99 / max, and its whole process's CPU time per cycle; the bound's age (cycle of the
+estimate − cycle of the bound's sample) over the filter steps, median / p99 / max, and the steps
+with no bound within the maximum age (the estimate not valid there) — and the cycle's wall time (read → log row, the log's
 ``compute``) with the part spent in ``hw.read()`` (SYNC → TPDOs, waiting for the devices);
 the device model's answer latency (its SYNC frame's send time to its last TPDO handed to the
 bus, measured in the device model's process) and its SYNC handler's CPU time; CAN frames per
@@ -65,6 +72,13 @@ def add_arguments(p) -> None:
                    help="estimator in the loop (default gp-akf; akf: without the GP, for comparison)")
     p.add_argument("--no-bound", action="store_true",
                    help="publish the filter's own bound instead of the Theorem-1 rho_k (for comparison)")
+    p.add_argument("--bound-in", choices=("auto", "worker", "loop"), default="auto",
+                   help="where the Theorem-1 bound is computed: worker (a process of its own, rho_k published "
+                        "with its sample's cycle), loop (in the estimator's step); auto (default): the "
+                        "configuration's estimator.bound_in, the worker in real-time pace")
+    p.add_argument("--bound-max-age", type=int, default=None,
+                   help="oldest bound published, in cycles behind the estimate (worker; default: the "
+                        "configuration's estimator.bound_max_age)")
     p.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority tried (0: do not)")
     p.add_argument("--device-rt-priority", type=int, default=70,
                    help="SCHED_FIFO priority of the device model's process (ipc, remote; 0: do not)")
@@ -266,19 +280,23 @@ def run(args) -> int:
         from sea_daemon.runtime.publish import make_publisher
         publisher = make_publisher(rig, cfg, controller, socket_path=tmp / "sea-daemon.sock")
         stages = None
+        bound_in = cfg.estimator.bound_in if args.bound_in == "auto" else args.bound_in
+        max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
+        in_worker = bound_in in ("auto", "worker") and not args.no_bound
         if args.stages:
             stages = _Stages()
             for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
                                      ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
-                                     ("estimator (with its bound)", estimator, "update"),
-                                     ("bound", getattr(estimator, "bound", None), "step"),
+                                     ("estimator (with its bound)" if not in_worker else
+                                      "estimator (filter, bound handed to the worker)", estimator, "update"),
+                                     ("bound", None if in_worker else getattr(estimator, "bound", None), "step"),
                                      ("publication", publisher, "publish")):
                 stages.wrap(label, obj, name)
         try:
             res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                         progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
                         supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62),
-                        publisher=publisher)
+                        publisher=publisher, bound_in=bound_in, bound_max_age=max_age, bound_record=n_cycles + 10)
             if rig.device_model is not None:
                 dev_stats = rig.device_model.answer_stats()
         finally:
@@ -315,10 +333,32 @@ def run(args) -> int:
         load_typ = (47 * F + 8 * B) / dev_stats["syncs"] * args.rate / 1e6
         load_worst = (55 * F + 10 * B) / dev_stats["syncs"] * args.rate / 1e6
     hw = rig.hw
+    bound_where = res.extra.get("bound") or {}
+    link = res.extra.get("bound_link")
+    worker = None
+    if link is not None:
+        steps = min(link.steps, link.record)
+        ages = link.ages[:steps]
+        have = ages[ages >= 0]
+        wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
+        worker = {
+            "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "max_age_cycles": link.max_age,
+            "filter_steps": link.steps,
+            "samples_done": bound_where.get("samples_done"),
+            "cycles_without_bound_within_max_age": bound_where.get("stale"),
+            "without_bound_before_first_result": int(np.argmax(ages >= 0)) if have.size else steps,
+            "broken": bound_where.get("broken"),
+            "age_cycles": ({"median": float(np.median(have)), "p99": float(np.percentile(have, 99)),
+                            "max": int(have.max())} if have.size else None),
+            "cpu_per_sample_us": _pcts(wcpu) if wcpu.size else None,
+            "process_cpu_s": bound_where.get("worker_cpu_process_s"),
+            "process_cpu_per_cycle_us": (bound_where.get("worker_cpu_process_s") or 0.0) / n_cycles * 1e6,
+        }
     out = {
         "machine": machine(), "rate_hz": args.rate, "estimator": args.estimator, "bus": args.bus, "hardware": rig.description,
         "cycles_measured": measured, "realtime": res.realtime, "fault": res.supervisor.latched.name,
         "bound": "theorem-1 rho_k" if not args.no_bound else "filter's own", "model_rate_hz": args.model_rate,
+        "bound_in": bound_where.get("where", "loop"), "bound_worker": worker,
         "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": deadline_ms * 1e3,
         "loadavg_before": load_before, "loadavg_after": load_after,
         "jitter_us": _pcts(jit),
@@ -343,8 +383,12 @@ def run(args) -> int:
           f"{os.cpu_count()} cores)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
+    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}), published with its "
+             f"sample's cycle, at most {max_age} cycles old"
+             if worker is not None else "computed in the loop's estimator step"
+             + (f" ({bound_where['why_not_worker']})" if bound_where.get("why_not_worker") else ""))
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
-          f"{out['bound']} every cycle, published; passive-scenario PID; real-time pace; {res.realtime}")
+          f"{out['bound']} every cycle, {where}; passive-scenario PID; real-time pace; {res.realtime}")
     print(f"measured {n_cycles} cycles ({measured} periods), TPDO deadline {deadline_ms * 1e3:.0f} us after SYNC, "
           f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
           + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
@@ -355,13 +399,27 @@ def run(args) -> int:
     print(f"|period - {dt * 1e6:.0f} us|: median {j['median']:.1f} us, p99 {j['p99']:.1f} us, max {j['max']:.1f} us"
           f"  (period median {pr['median']:.1f}, p99 {pr['p99']:.1f}, max {pr['max']:.1f} us)")
     dc, lc, xc = out["daemon_cpu_us"], out["loop_thread_cpu_us"], out["rx_thread_cpu_us"]
-    print(f"daemon CPU per cycle (loop thread + CAN receive thread): median {dc['median']:.0f} us, p99 "
+    print(f"daemon CPU per cycle (loop thread + CAN receive thread"
+          + ("; the bound worker's process is not included, see below" if worker is not None else "")
+          + f"): median {dc['median']:.0f} us, p99 "
           f"{dc['p99']:.0f} us, max {dc['max']:.0f} us  (loop thread median {lc['median']:.0f} / p99 {lc['p99']:.0f}; "
           f"receive thread median {xc['median']:.0f} / p99 {xc['p99']:.0f})")
     bf = out["daemon_cpu_before_fault_us"]
     if bf is not None:
         print(f"  over the {res.supervisor.latched_cycle - 1} cycles before the fault latched: median "
               f"{bf['median']:.0f} us, p99 {bf['p99']:.0f} us, max {bf['max']:.0f} us")
+    if worker is not None:
+        wc, ag = worker["cpu_per_sample_us"], worker["age_cycles"]
+        if wc is not None:
+            print(f"bound worker CPU per sample (its bound step and start-up gate, thread CPU): median "
+                  f"{wc['median']:.0f} us, p99 {wc['p99']:.0f} us, max {wc['max']:.0f} us; its whole process "
+                  f"{worker['process_cpu_per_cycle_us']:.0f} us per cycle ({worker['samples_done']} samples)")
+        if ag is not None:
+            print(f"bound age (cycle of the estimate - cycle of the bound's sample): median {ag['median']:.0f}, "
+                  f"p99 {ag['p99']:.0f}, max {ag['max']} cycles; filter steps with no bound within "
+                  f"{worker['max_age_cycles']} cycles: {worker['cycles_without_bound_within_max_age']} of "
+                  f"{worker['filter_steps']} ({worker['without_bound_before_first_result']} before the first "
+                  f"result){'; ring full: bound lost' if worker['broken'] else ''}")
     print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
     r = out["read_us"]
     print(f"  of which hw.read() (SYNC -> TPDOs, waiting for the devices): median {r['median']:.0f} us, "

@@ -63,6 +63,9 @@ def add_arguments(p) -> None:
     p.add_argument("--bound", action="store_true",
                    help="publish the Theorem-1 bound rho_k once learning stops (with --learn-cycles; default: the "
                         "filter's own bound)")
+    p.add_argument("--bound-in", choices=("worker", "loop"), default="worker",
+                   help="with --bound: the bound in a worker process started when learning stops (default, as the "
+                        "daemon in real-time pace) or in the loop's estimator step")
 
 
 def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
@@ -83,7 +86,7 @@ def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
 
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
          out_dir: Path, samples: int = 20, progress=None, bus: str = "virtual", learn_cycles: int | None = None,
-         bound: bool = False, max_missed: int = 3) -> dict:
+         bound: bool = False, max_missed: int = 3, bound_in: str = "worker") -> dict:
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.core.rates import at_rate
     cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
@@ -112,6 +115,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     trace = []                                    # (cycle, loop RSS kB, writer RSS kB, GP leaves, GP points)
     gp = est.gp.gps[0]
     marks = {}
+    links = {}
 
     def on_cycle(k, meas, e, tau):
         if learn_cycles is not None and k == learn_cycles:
@@ -120,6 +124,12 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                 from sea_daemon.core.bounds.akf_bound import theorem_bound
                 est.bound = theorem_bound(est)
                 est.bound.reset(est.est)          # the set of means starts at a point here
+                if bound_in == "worker":
+                    # the GP is frozen now: the worker's copy of it stays the loop's
+                    from sea_daemon.runtime.bound_worker import BoundWorker
+                    from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
+                    prio = 80 - WORKER_PRIORITY_BELOW if rt.get("sched", "").startswith("fifo") else 0
+                    loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start()
         if k % stride == 0 or k == warmup:
             rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
             trace.append(rec)
@@ -144,6 +154,8 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
         trace.append(end)
         closed = log.close()
+        if "worker" in links:
+            links["bound"] = links["worker"].close()
         rig.stop()
         if dev is not None:
             dev.terminate()
@@ -154,6 +166,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     wgrowth = (end[2] - w[2]) / w[2] * 100.0 if w[2] > 0 else float("nan")
     return {
         "cycles": st.cycles, "rate_hz": rate, "bus": bus, "realtime": rt, "bound": bound,
+        "bound_in": (bound_in if bound else None), "bound_worker": links.get("bound"),
         "learn_cycles": learn_cycles, "hardware": getattr(rig, "description", ""),
         "missed_tpdo_cycles": int(getattr(rig.hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(rig.hw, "late_cycles", 0)), "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
         "overruns": st.overruns, "max_late_s": st.max_late_s,
@@ -199,7 +212,7 @@ def run(args) -> int:
     try:
         r = soak(args.cycles, args.rate, warmup, args.max_leaves, args.overrun_streak,
                  int(args.rotate_mb * 1e6), out, args.samples, progress, bus=args.bus, learn_cycles=args.learn_cycles,
-                 bound=args.bound, max_missed=args.max_missed)
+                 bound=args.bound, max_missed=args.max_missed, bound_in=args.bound_in)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -209,7 +222,13 @@ def run(args) -> int:
         print(f"# stopped by a signal after {r['cycles']} of {args.cycles} cycles")
     print(f"hardware            {r['hardware']}; loop {r['realtime']['sched']}; GP learning "
           f"{'all cycles' if r['learn_cycles'] is None else 'first %d cycles, then frozen' % r['learn_cycles']}; "
-          f"bound {'Theorem-1 rho_k' if r['bound'] else 'the filter own'}")
+          f"bound {'Theorem-1 rho_k' if r['bound'] else 'the filter own'}"
+          + (f" in {'a worker process' if r['bound_in'] == 'worker' else 'the loop'}" if r['bound'] else ""))
+    bw = r.get("bound_worker")
+    if bw:
+        print(f"bound worker        sched {bw['sched']}; {bw['samples_done']} samples, {bw['stale']} of {bw['steps']} filter steps with no "
+              f"bound within {bw['max_age']} cycles; ring full: {bw['broken']}; fault: {bw['fault']}; its CPU "
+              f"{bw['worker_cpu_process_s']:.1f} s")
     print(f"cycles run          {r['cycles']} in {r['wall_s']:.0f} s ({r['achieved_hz']:.0f} Hz achieved, "
           f"{r['rate_hz']:g} Hz asked)")
     print(f"overruns            {r['overruns']} (max late {r['max_late_s'] * 1e3:.1f} ms); TPDO cycles missed at "

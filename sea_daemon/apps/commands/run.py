@@ -93,7 +93,8 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
     publisher = make_publisher(rig, cfg, controller, socket_path=_daemon_args.socket_path(args, state_dir))
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
                 notifier=Notifier(), state=state, rt_priority=args.rt_priority,
-                supervisor=_daemon_args.supervisor(args), label="run", publisher=publisher)
+                supervisor=_daemon_args.supervisor(args), label="run", publisher=publisher,
+                bound_in=cfg.estimator.bound_in, bound_max_age=cfg.estimator.bound_max_age)
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,
                "cycles": st.cycles, "overruns": st.overruns, "skipped": st.skipped,
@@ -103,7 +104,7 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                "fault": sup.latched.name, "faults_latched": st.faults, "realtime": res.realtime,
                "pace": "realtime" if realtime else "lockstep", "wall_s": round(res.wall_s, 3),
                "stopped_by_signal": res.stopped_by_signal, "controller": kind,
-               "publish": res.extra.get("publish")}
+               "publish": res.extra.get("publish"), "bound": res.extra.get("bound")}
     print(json.dumps(summary))
     if not sup.ok:
         print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)

@@ -96,6 +96,9 @@ def _warm() -> None:
 class AKFTheoremBound:
     """The Theorem-1 bound component of one AKF instance (see module docstring)."""
 
+    #: computed in the AKF's own step (:class:`~sea_daemon.core.estimators.base.Bound`)
+    deferred = False
+
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,

@@ -209,6 +209,7 @@ class AKF:
         self.tau_h_act_max = float(t_max)
         self.converged = False
         self.converged_at = -1               # step count k at which the gate opened (−1: not yet)
+        self.gate_starts = 0                 # how often the gate started (a deferred bound's copy follows it)
         # the bound component and x̂_{k−1}, P_{k−1} kept for it before each step
         self._x_prev = np.zeros(d)
         self._P_prev = np.zeros((d, d))
@@ -469,10 +470,21 @@ class AKF:
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
         e = self._fill_estimate()
-        if self.bound is not None:
-            self.bound.step(e, self._x_prev, self._P_prev, u, dt)
+        b = self.bound
+        if b is not None:
+            b.step(e, self._x_prev, self._P_prev, u, dt)
+            if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
+                e.valid = b.valid
+                return e
         e.valid = self.converged or self._gate(e)
         return e
+
+    def gate(self, e: Estimate) -> bool:
+        """Whether the estimate of this step is valid (the start-up gate, :meth:`_gate`), with
+        ``e.tau_h_act_bound`` the step's ρ_k: what :meth:`step` sets ``e.valid`` to.  For a bound
+        computed elsewhere (a :class:`~sea_daemon.core.estimators.base.Bound` with ``deferred``),
+        the copy of this AKF that computes it calls this after the bound's step."""
+        return self.converged or self._gate(e)
 
     def _step_failed(self, status: int, nis: float) -> None:
         """Raise the typed fault of a filter step that returned ``status`` (not OK)."""
@@ -506,6 +518,7 @@ class AKF:
         self._Phi[:] = 0.0
         np.fill_diagonal(self._Phi, 1.0)
         self.converged, self.converged_at = False, -1
+        self.gate_starts += 1
 
     def _gate(self, e: Estimate) -> bool:
         """Whether the start-up transient has decayed (called after each filter step until it has).

@@ -77,6 +77,12 @@ class Bound(Protocol):
     ``_ready`` tells whether from a sample).  ``step(est, x_prev, P_prev, u, dt)``: the filter
     stepped from (x̂_{k−1}, P_{k−1}) = (x_prev, P_prev) with the input u held over dt; the AKF's
     per-step attributes hold step k.  Both overwrite ``est.tau_h_act_bound``.
+
+    A bound with ``deferred`` True is computed elsewhere (the daemon's bound worker,
+    :mod:`sea_daemon.runtime.bound_worker`): its ``step`` hands the step's inputs on and fills
+    ``est.tau_h_act_bound`` with the newest ρ it has, and the AKF takes ``valid`` from it (the
+    start-up gate runs where ρ_k is computed, :meth:`AKF.gate`).  Without the attribute the
+    bound is computed in the step.
     """
 
     def reset(self, est: Estimate) -> None: ...

@@ -219,8 +219,12 @@ class GPAKF(AKF):
         gpakf_core.frozen_finish(*a[2], tau_m, self._ht, self._hu, self._hcap, self._t, iout)
         self._hhead = int(iout[gpakf_core.I_HHEAD])
         e = self.est
-        if self.bound is not None:
-            self.bound.step(e, self._x_prev, self._P_prev, self._hu[head], dt)
+        b = self.bound
+        if b is not None:
+            b.step(e, self._x_prev, self._P_prev, self._hu[head], dt)
+            if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
+                e.valid = b.valid
+                return e
         e.valid = self.converged or self._gate(e)
         return e
 
