@@ -97,9 +97,6 @@ class SelectOptions:
     #: an undetermined effect whose parameters correlate beyond this with another chosen one:
     #: the pair is reported and only the sensible one kept
     max_correlation: float = 0.9
-    #: a spring effect must lower each balance's sum of squares by at least this share of what
-    #: it lowers the other's (:meth:`Selector._one_sided`)
-    spring_both: float = 0.25
     #: share of the log at its end kept back from the fit and scored separately (time-blocked
     #: validation); 0: fit and score the whole log
     holdout: float = 0.25
@@ -467,12 +464,6 @@ class Selector:
                 if why:
                     out.append(why)
                     return out
-                why = self._one_sided(f, y, base_X, res_cur,
-                                      [g for g in fits if g.cand.side != "spring" and g.bic < bic_cur
-                                       and not self._unphysical(g, chosen)])
-                if why:
-                    out.append(why)
-                    return out
                 f.cv = self.cv_mse(y, base_X, f.o, f.X)
                 if not f.cv < cv_cur * (1.0 - o_cfg.min_cv_gain):
                     out.append(f"held-out mean square falls only {100 * (1 - f.cv / cv_cur):.1f} % "
@@ -715,47 +706,6 @@ class Selector:
             why = g.cand.implausible(self.ctx, pg)
             if why:
                 return f"not physical with {g.cand.name}, which it pulls to {why}"
-        return None
-
-    def _side_gains(self, f: CandidateFit, y, base_X, res_cur) -> list[float]:
-        """How much fit ``f`` lowers each balance's sum of squares: [load, motor] of its joint."""
-        yy = y if f.o is None else y - f.o
-        A = np.hstack([base_X, f.X]) if base_X.shape[1] else f.X
-        res_f = yy - (A @ f.beta if A.shape[1] else 0.0)
-        rc, rf = self._as_channels(res_cur), self._as_channels(res_f)
-        n, j = self.ctx.n, f.cand.joint
-        return [float(rc[:, c] @ rc[:, c] - rf[:, c] @ rf[:, c]) for c in (j, n + j)]
-
-    def _one_sided(self, f: CandidateFit, y, base_X, res_cur, others: list[CandidateFit]) -> str | None:
-        """Why a spring candidate's gain is not a spring's, or None.
-
-        A spring effect is one torque on both balances, +e on the load side and −e on the motor
-        side (eq:unknwn_load, eq:motorside): what it explains must show on both, and on each at
-        least as well as an effect of that side alone.  On a passive log θ_s is a function of q,
-        so a spring term can take a load-side leftover of q (a missing elbow stiffness) while a
-        torque-constant error takes the motor side's; a spring term is refused when (a) one
-        balance's decrease is under :attr:`SelectOptions.spring_both` of the other's, or (b) an
-        effect of one side alone (``others``: this step's candidates whose BIC falls, physical)
-        lowers that side's balance at least as much."""
-        if f.cand.side != "spring":
-            return None
-        g = self._side_gains(f, y, base_X, res_cur)
-        lo, hi = min(g), max(g)
-        if hi <= 0:
-            return None
-        if lo < self.opts.spring_both * hi:
-            side = ("load", "motor")[int(g[0] < g[1])]
-            return (f"not a spring's: it lowers the {side} balance's sum of squares by {hi:.3g}, the other's by "
-                    f"{lo:.3g} (under {self.opts.spring_both:g} of it; a spring acts on both alike, so it stands in "
-                    f"for a {side}-side effect)")
-        for k, side in enumerate(("load", "motor")):
-            for o in others:
-                if o.cand.side == side and o.cand.joint == f.cand.joint:
-                    go = self._side_gains(o, y, base_X, res_cur)
-                    if go[k] >= g[k]:
-                        return (f"not a spring's: {o.cand.name} alone lowers the {side} balance's sum of squares "
-                                f"as much ({go[k]:.3g} against {g[k]:.3g}); what the spring term adds beyond it is "
-                                f"on the other balance only")
         return None
 
     def _effects_from(self, fits: list[CandidateFit], beta: np.ndarray):
