@@ -17,6 +17,7 @@ from sea_daemon.errors import Fault
 from sea_daemon.io.configfile import default_config_path, load_config, repo_root
 from sea_daemon.runtime.bound_worker import BoundWorker
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from test_loop import ListLog
 
 COLS = log_columns(1)
 T = np.arange(0, 800) * 0.01
@@ -72,21 +73,9 @@ class _Zero:
         return np.zeros(1)
 
 
-class _Log:
-    def __init__(self):
-        self.rows = []
-
-    def append(self, row):
-        self.rows.append(row.copy())
-        return True
-
-    def fault(self):
-        return None
-
-
 def _run(cfg, cycles, worker=False, pause=0.0, kill_at=None, **kw):
     est = _estimator(cfg)
-    log = _Log()
+    log = ListLog()
     link = BoundWorker(est, capacity=1024, **kw).start() if worker else None
     hw = _HW(pause)
     if kill_at is not None:
