@@ -469,14 +469,19 @@ class AKF:
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
-        e = self._fill_estimate()
+        return self._bound_and_gate(self._fill_estimate(), u, dt)
+
+    def _bound_and_gate(self, e: Estimate, u: np.ndarray, dt: float) -> Estimate:
+        """The end of a filter step (this one and the GP-AKF's compiled one): the bound's step on
+        x̂_{k−1}, P_{k−1} and the input ``u`` over ``dt``, then ``e.valid`` from the start-up gate
+        (:meth:`gate`) — or, for a bound computed elsewhere (``deferred``), as that bound says."""
         b = self.bound
         if b is not None:
             b.step(e, self._x_prev, self._P_prev, u, dt)
             if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
                 e.valid = b.valid
                 return e
-        e.valid = self.converged or self._gate(e)
+        e.valid = self.gate(e)
         return e
 
     def gate(self, e: Estimate) -> bool:

@@ -218,15 +218,7 @@ class GPAKF(AKF):
         self._t += dt
         gpakf_core.frozen_finish(*a[2], tau_m, self._ht, self._hu, self._hcap, self._t, iout)
         self._hhead = int(iout[gpakf_core.I_HHEAD])
-        e = self.est
-        b = self.bound
-        if b is not None:
-            b.step(e, self._x_prev, self._P_prev, self._hu[head], dt)
-            if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
-                e.valid = b.valid
-                return e
-        e.valid = self.converged or self._gate(e)
-        return e
+        return self._bound_and_gate(self.est, self._hu[head], dt)
 
     def _frozen_args(self, res: _ResidualHook) -> tuple:
         """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` (the same objects
