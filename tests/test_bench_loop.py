@@ -5,13 +5,19 @@ import json
 from sea_daemon.apps import cli
 
 
-def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
+def _bench_loop(tmp_path, capsys, bound_in):
+    """A short ``bench loop --stages`` at 100 Hz on the virtual bus with the bound ``bound_in``:
+    (printed output, its JSON); the run must succeed."""
     out_json = tmp_path / "loop.json"
     code = cli.main(["bench", "loop", "--rate", "100", "--cycles", "100", "--bus", "virtual", "--train", "300",
-                     "--rt-priority", "0", "--stages", "--bound-in", "loop", "--json", str(out_json)])
+                     "--rt-priority", "0", "--stages", "--bound-in", bound_in, "--json", str(out_json)])
     out, _ = capsys.readouterr()
     assert code == 0, out
-    data = json.loads(out_json.read_text())
+    return out, json.loads(out_json.read_text())
+
+
+def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
+    out, data = _bench_loop(tmp_path, capsys, "loop")
     stages = data["stages_cpu_us"]
     assert set(stages) == {"read", "controller", "write", "actuated", "estimator (with its bound)", "bound",
                            "publication"}
@@ -27,12 +33,7 @@ def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
 
 
 def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp_path, capsys):
-    out_json = tmp_path / "loop.json"
-    code = cli.main(["bench", "loop", "--rate", "100", "--cycles", "100", "--bus", "virtual", "--train", "300",
-                     "--rt-priority", "0", "--stages", "--bound-in", "worker", "--json", str(out_json)])
-    out, _ = capsys.readouterr()
-    assert code == 0, out
-    data = json.loads(out_json.read_text())
+    out, data = _bench_loop(tmp_path, capsys, "worker")
     assert data["bound_in"] == "worker" and data["fault"] == "NONE"
     w = data["bound_worker"]
     # the worker took every filter step's sample; the ages are those of published bounds

@@ -114,16 +114,22 @@ def test_encoder_emcy(make_rig):
         rig.hw.read()
 
 
+def _cycle(rig, cycles, starts):
+    """Up to ``cycles`` read/write cycles of 5 ms, each start time appended to ``starts``
+    (the caller expects one to raise)."""
+    for _ in range(cycles):
+        starts.append(time.monotonic())
+        rig.hw.read()
+        rig.hw.write(np.zeros(1))
+        time.sleep(0.005)
+
+
 def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
     rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=250)
     rig.device_model.inject(FaultSpec("heartbeat", target="encoder"))
     starts = []
     with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms, allowed <= 250 ms"):
-        for _ in range(200):
-            starts.append(time.monotonic())
-            rig.hw.read()
-            rig.hw.write(np.zeros(1))
-            time.sleep(0.005)
+        _cycle(rig, 200, starts)
     last_hb = rig.hw._hb_last[rig.encoder.id]
     assert starts[-2] - last_hb <= 0.25 < starts[-1] - last_hb + 1e-3     # the cycle before was still in time
 
@@ -143,11 +149,7 @@ def test_heartbeat_timeout_runs_from_the_last_heartbeats_arrival_not_from_when_i
         time.sleep(0.15)
         starts = []
         with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms"):
-            for _ in range(400):
-                starts.append(time.monotonic())
-                rig.hw.read()
-                rig.hw.write(np.zeros(1))
-                time.sleep(0.005)
+            _cycle(rig, 400, starts)
         last = sniffer.hb_seen[rig.encoder.id]        # the encoder's last heartbeat on the bus
     finally:
         sniffer.close()
