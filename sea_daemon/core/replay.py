@@ -32,6 +32,9 @@ class ReplayResult:
     step_time_s: np.ndarray | None
     estimator: str
     valid: np.ndarray | None = None          # (N,) Estimate.valid per sample
+    #: (N,) the sample whose ρ row k publishes (−1: none); None: each row's own (a bound computed
+    #: in the step).  A daemon log of a bound worker: the log's ``bound_cycle`` as a sample index.
+    bound_of: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -94,6 +97,14 @@ def summarize(res: ReplayResult, **extra) -> dict:
             # the promise of valid = 1: the estimate inside its bound (docs/estimators.md, "Validity")
             v = res.valid
             out["coverage_valid"] = float(np.mean(np.abs(err[v]) <= res.tau_h_act_bound[v]))
+        if res.bound_of is not None and res.valid is not None:
+            # a bound from a worker belongs to an earlier sample: each ρ against its own
+            # sample's error (Theorem 1's claim), over the valid rows
+            rows = np.flatnonzero(res.valid & (res.bound_of >= 0))
+            if rows.size:
+                own = np.abs(err[res.bound_of[rows]]) <= res.tau_h_act_bound[rows]
+                out["coverage_own_sample"] = float(np.mean(own))
+                out["bound_age_max"] = int(np.max(rows - res.bound_of[rows]))
     else:
         out["rmse"] = None
     if res.valid is not None:

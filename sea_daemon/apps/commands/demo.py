@@ -205,6 +205,15 @@ def _with_truth(log_path: str, tau_h, n: int):
     return MeasuredLog(t=log.t, q=log.q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=truth, extra=log.extra)
 
 
+def _bound_rows(cycle: np.ndarray, bound_cycle: np.ndarray) -> np.ndarray:
+    """Per row of a daemon log, the row of the sample its ρ belongs to (the log's ``bound_cycle``
+    as a row index; −1 where the row publishes none or that sample has no row)."""
+    cycle = np.asarray(cycle, dtype=np.int64)
+    bc = np.asarray(bound_cycle, dtype=np.int64)
+    i = np.clip(np.searchsorted(cycle, bc), 0, max(cycle.size - 1, 0))
+    return np.where((bc >= 0) & (cycle[i] == bc), i, -1)
+
+
 def run(args) -> int:
     from sea_daemon.io.configfile import load_config, save_config
     from sea_daemon.runtime.rig import subject_torque
@@ -269,7 +278,8 @@ def run(args) -> int:
                           tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
                           tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
                           x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
-                          step_time_s=x["compute"], estimator="gp-akf")
+                          step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
+                          bound_of=_bound_rows(x["cycle"], x["bound_cycle"]))
         results = {}
         entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
                        "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
@@ -305,5 +315,11 @@ def run(args) -> int:
               f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
               f"{e['cycle_compute_us_median']} us, p99 {e['cycle_compute_us_p99']} us; overruns "
               f"{e['calibrate']['overruns'] + e['run']['overruns']}); bound: {e['gp_beta']['text']}")
+        g = e["estimators"]["gp-akf"]
+        if g.get("bound_age_max", 0) > 0:
+            # the bound worker (real-time pace): ρ of an earlier sample is published with the estimate
+            print(f"{name}: the GP-AKF's bound came from the worker, up to {g['bound_age_max']} cycles behind its "
+                  f"estimate: each rho against its own sample's error covers {g['coverage_own_sample']:.3f} of the "
+                  f"valid rows (the table's coverage: against the estimate published with it)")
     print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
     return 0
