@@ -108,28 +108,28 @@ class CountReader:
         mv = memoryview(self._buf)
         # one target list per number of bytes kept (0..7): readv into the buffer after them
         self._into = [[mv[c:c + 8 * values]] for c in range(8)]
-        self._kept = 0                       # bytes of an incomplete count at the buffer's start
-        self._tail = (0, 0)                  # where they are after the last read
+        self._kept = 0                       # bytes of an incomplete count, at the buffer's start
+        self._move = 0                       # > 0: they are still at this offset (after whole counts)
         self.eof = False
 
     def read(self) -> int:
         """One read: the number of complete counts it made (0: none, or only part of one).
         Raises BlockingIOError on a non-blocking pipe with nothing to read; sets :attr:`eof`
         when the writing end is closed."""
-        a, b = self._tail
-        if a:                                # the incomplete count to the buffer's start (rare)
-            self._buf[:b - a] = self._buf[a:b]
-            self._tail = (0, 0)
         c = self._kept
+        a = self._move
+        if a:                                # the incomplete count to the buffer's start (rare)
+            self._buf[:c] = self._buf[a:a + c]
+            self._move = 0
         got = os.readv(self.fd, self._into[c])
         if got == 0:
             self.eof = True
             return 0
         total = c + got
         whole = total & ~7
-        self._kept = total - whole
-        if self._kept and whole:
-            self._tail = (whole, total)
+        self._kept = kept = total - whole
+        if kept and whole:
+            self._move = whole
         return whole >> 3
 
     def value(self, i: int) -> int:
