@@ -296,9 +296,10 @@ def test_the_worker_computes_a_sample_only_once_its_head_came_whole_through_the_
     link = BoundWorker(est, max_age=10 ** 6).start()
     e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1))
 
-    def done_after(seconds: float) -> int:
+    def done_after(seconds: float, until: int | None = None) -> int:
+        """The count of samples done the loop has read after ``seconds`` (or once it is ``until``)."""
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and link._done != until:
             link.cycle += 1
             link._collect(e)
             time.sleep(0.01)
@@ -317,11 +318,56 @@ def test_the_worker_computes_a_sample_only_once_its_head_came_whole_through_the_
         os.write(link._heads_w, _i64(h - 2)[:3])
         assert done_after(0.5) == 0                          # part of a head: nothing computed
         os.write(link._heads_w, _i64(h - 2)[3:] + _i64(h)[:6])
-        assert done_after(20.0) == h - 2                     # the whole head, not the partial one after it
+        assert done_after(20.0, until=h - 2) == h - 2        # the whole head, not the partial one after it
+        assert done_after(0.5) == h - 2
         os.write(link._heads_w, _i64(h)[6:])
-        assert done_after(2.0) == h
+        assert done_after(20.0, until=h) == h
         assert link.bound_cycle >= 0 and link.stats()["samples_done"] == h
         st = link.close(timeout=10.0)                        # the stop through the same pipe
         assert st["fault"] is None and link._proc.exitcode == 0
+    finally:
+        link.close()
+
+
+def test_a_full_count_pipe_blocks_neither_side_and_the_newest_count_comes_later(cfg):
+    import fcntl
+    est = _estimator(cfg)
+    link = BoundWorker(est, max_age=10 ** 6)
+    fcntl.fcntl(link._counts_w, fcntl.F_SETPIPE_SZ, 4096)   # room for 512 counts
+    link.start()
+    e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1))
+
+    def batch() -> int:
+        """The loop hands 560 samples over without reading the worker's counts; the worker's own
+        count once it has computed them all."""
+        for k in range(TRAIN, TRAIN + 560):
+            link.cycle = k
+            est.update([Q[k]], [TH[k]], [U[k]])
+            if k == TRAIN:
+                link._collect = lambda est: None             # the loop stops reading
+        link.flush()
+        end = time.monotonic() + 60
+        while link._hdr[bw._DONE] < link._head and time.monotonic() < end:
+            time.sleep(0.01)
+        del link._collect
+        return int(link._hdr[bw._DONE])
+
+    try:
+        h = batch()
+        assert h == link._head > 512 and link._proc.is_alive()
+        time.sleep(0.2)
+        link._collect(e)                                     # 512 counts: the pipe's room
+        assert link._done == 512
+        end = time.monotonic() + 10                          # then the newest one, written later
+        while link._done < h and time.monotonic() < end:
+            time.sleep(0.01)
+            link._collect(e)
+        assert link._done == h
+        est.reset()
+        h = batch()                                          # full again, and the loop stops the worker
+        assert h == link._head and link._done < h
+        t0 = time.monotonic()
+        st = link.close(timeout=10.0)
+        assert link._proc.exitcode == 0 and time.monotonic() - t0 < 5 and st["samples_done"] == h
     finally:
         link.close()
