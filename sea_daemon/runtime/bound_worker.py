@@ -49,17 +49,17 @@ it as BOUND_LOST (docs/safety.md), as a log writer that died latches LOG_FAILED.
 diverged in the worker (EstimatorFault in its step) raises the same EstimatorFault out of the
 loop's estimator step when its result arrives, as the in-loop bound raises it in its own step.
 
-Neither side ever blocks on the other's pipe.  The loop writes the head non-blocking; a write
-that finds the pipe full (8192 heads unread in a pipe of 64 KiB: the worker stopped reading) is repeated at the next
-flush, a later head replacing it.  The worker writes its counts non-blocking too; a count that
-does not fit (the loop not reading) is written later, when the pipe has room or after the next
-sample, the newest count replacing it; meanwhile the loop sees fewer free slots, never a wrong
-result.  The worker exits when :meth:`close` asks (a head of −1), when the pipe's writing end
-closes, when the loop's pipe's reading end closes, or when the parent dies (PR_SET_PDEATHSIG,
-and its parent id checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that
-priority (below the loop's: the loop preempts it, and a machine busy with other work does not
-starve it of the CPU it needs, ≈ 0.1 ms per sample), else SCHED_OTHER; what applied is in
-:meth:`BoundWorker.stats`.
+Neither side ever blocks on a pipe.  The loop writes its heads non-blocking; a head that finds
+the worker's pipe full (8192 heads unread in a pipe of 64 KiB: the worker stopped reading) is
+written at the next flush, a later head replacing it.  The worker writes its counts non-blocking
+too; a count that does not fit in the loop's pipe (the loop not reading) is written later, when
+the pipe has room or after the next sample, the newest count replacing it; meanwhile the loop
+sees fewer free slots, never a wrong result.  The worker exits when :meth:`close` asks (a head
+of −1, after the samples before it), when the writing end of its pipe closes, when the reading
+end of the loop's pipe closes, or when the parent dies (PR_SET_PDEATHSIG, and its parent id
+checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority (below the
+loop's: the loop preempts it, and a machine busy with other work does not starve it of the CPU
+it needs, ≈ 0.1 ms per sample), else SCHED_OTHER; what applied is in :meth:`BoundWorker.stats`.
 """
 from __future__ import annotations
 
