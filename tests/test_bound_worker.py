@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -15,7 +16,8 @@ import pytest
 
 from sea_daemon.errors import Fault
 from sea_daemon.io.configfile import default_config_path, load_config, repo_root
-from sea_daemon.runtime.bound_worker import BoundWorker
+from sea_daemon.runtime import bound_worker as bw
+from sea_daemon.runtime.bound_worker import BoundWorker, CountReader
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from test_loop import ListLog
 
@@ -153,7 +155,8 @@ _ORPHAN = """
 import os, sys, numpy as np
 sys.path.insert(0, {root!r}); sys.path.insert(0, {tests!r})
 from test_bound_worker import _estimator, load_config, default_config_path, replace
-from sea_daemon.runtime.bound_worker import BoundWorker
+from sea_daemon.runtime import bound_worker as bw
+from sea_daemon.runtime.bound_worker import BoundWorker, CountReader
 c = load_config(default_config_path()); c = replace(c, learning=replace(c.learning, max_points=40))
 w = BoundWorker(_estimator(c)).start()
 print(w.pid, flush=True)
@@ -185,3 +188,186 @@ def test_no_worker_outlives_its_parent_or_the_session(cfg):
     assert est.bound is w and _alive(w.pid)
     w.close()
     assert not _alive(w.pid) and est.bound is bound
+
+
+# ---------------------------------------------------------------- the pipes' framing and order
+
+def _i64(v: int) -> bytes:
+    return struct.pack("=q", v)
+
+
+def test_a_count_split_across_two_reads_is_completed_by_the_second():
+    r, w = os.pipe()
+    os.set_blocking(r, False)
+    try:
+        rd = CountReader(r, values=4)
+        with pytest.raises(BlockingIOError):
+            rd.read()                                        # nothing written yet
+        os.write(w, _i64(1234)[:3])
+        assert rd.read() == 0                                # 3 bytes: no count yet
+        os.write(w, _i64(1234)[3:] + _i64(-1) + _i64(987654321)[:2])
+        assert rd.read() == 2 and (rd.value(0), rd.value(1)) == (1234, -1)
+        os.write(w, _i64(987654321)[2:] + _i64(5))
+        assert rd.read() == 2 and (rd.value(0), rd.value(1)) == (987654321, 5)
+        # more than the buffer holds (4 counts): the rest at the next read, nothing lost
+        os.write(w, b"".join(_i64(v) for v in range(10, 16)))
+        assert rd.read() == 4 and [rd.value(i) for i in range(4)] == [10, 11, 12, 13]
+        assert rd.read() == 2 and [rd.value(i) for i in range(2)] == [14, 15]
+        os.close(w)
+        w = -1
+        assert rd.read() == 0 and rd.eof
+    finally:
+        os.close(r)
+        if w >= 0:
+            os.close(w)
+
+
+def _hand(link: BoundWorker, est, cycle: int) -> None:
+    """The loop's estimator step with a bound worker: the sample of ``cycle`` handed over, the
+    newest result collected into ``est``."""
+    akf = link.akf
+    link.cycle = cycle
+    link.step(est, np.zeros(akf.d), np.eye(akf.d), np.zeros(akf.n), 0.01)
+
+
+def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bw.OK, epoch: int = 0) -> None:
+    """Sample i's result in shared memory, as the worker writes it."""
+    r = link._res[i % link.capacity]
+    r[bw._RSEQ], r[bw._RCYC], r[bw._RK], r[bw._RVALID] = i, cycle, i, 1.0
+    r[bw._RSTATUS], r[bw._REPOCH] = status, epoch
+    r[bw._NRES:] = rho
+    link._hdr[bw._DONE] = i + 1
+
+
+def test_the_loop_takes_a_result_only_once_its_count_came_through_the_pipe(cfg):
+    # the test plays the worker (not started): results and counts written by hand
+    link = BoundWorker(_estimator(cfg), max_age=10)
+    try:
+        e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
+        _hand(link, e, 7)                                    # sample 0
+        _result(link, 0, 7, 1.25)                            # complete in shared memory, no count sent
+        link.cycle = 8
+        link._collect(e)
+        assert link.bound_cycle == -1 and not link.valid and e.tau_h_act_bound[0] == 0.0
+        os.write(link._counts_w, _i64(1)[:5])                # the count, split across two writes
+        link._collect(e)
+        assert link.bound_cycle == -1 and not link.valid and e.tau_h_act_bound[0] == 0.0
+        os.write(link._counts_w, _i64(1)[5:])
+        link._collect(e)
+        assert link.bound_cycle == 7 and link.valid and e.tau_h_act_bound[0] == 1.25
+        assert link.stale == 3 and link.steps == 4
+    finally:
+        link.close()
+
+
+def test_a_full_ring_breaks_the_bound_until_the_reset_and_the_old_chain_is_never_published(cfg):
+    link = BoundWorker(_estimator(cfg), max_age=10, capacity=4)   # not started: the test is the worker
+    try:
+        e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
+        for c in range(4):
+            _hand(link, e, c)                                # samples 0..3: the ring's 4 slots
+        assert not link.broken
+        _hand(link, e, 4)                                    # no count came back: no free slot
+        assert link.broken and "full" in link.fault() and link._head == 4
+        for i in range(3):
+            _result(link, i, i, 1.0 + i)
+        os.write(link._counts_w, _i64(1) + _i64(2) + _i64(3))
+        link.cycle = 5
+        link._collect(e)
+        assert link._done == 3 and link.bound_cycle == -1   # broken: nothing published
+        link.reset(e)                                        # a new chain: sample 4 its reset
+        assert not link.broken and link._head == 5
+        _result(link, 3, 3, 4.0)                             # the old chain's last sample, after the reset
+        os.write(link._counts_w, _i64(4))
+        _hand(link, e, 6)                                    # sample 5
+        assert link._done == 4 and link.bound_cycle == -1 and e.tau_h_act_bound[0] == 0.0
+        _result(link, 4, 5, 0.0, status=bw.NO_BOUND, epoch=1)
+        _result(link, 5, 6, 2.5, epoch=1)
+        os.write(link._counts_w, _i64(5) + _i64(6))
+        link.cycle = 7
+        link._collect(e)
+        assert link.bound_cycle == 6 and link.valid and e.tau_h_act_bound[0] == 2.5
+    finally:
+        link.close()
+
+
+def test_the_worker_computes_a_sample_only_once_its_head_came_whole_through_the_pipe(cfg):
+    est = _estimator(cfg)
+    link = BoundWorker(est, max_age=10 ** 6).start()
+    e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1))
+
+    def done_after(seconds: float, until: int | None = None) -> int:
+        """The count of samples done the loop has read after ``seconds`` (or once it is ``until``)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and link._done != until:
+            link.cycle += 1
+            link._collect(e)
+            time.sleep(0.01)
+        return link._done
+
+    def updates(k0: int, k1: int) -> None:
+        for k in range(k0, k1):
+            link.cycle = k
+            est.update([Q[k]], [TH[k]], [U[k]])
+
+    try:
+        updates(TRAIN, TRAIN + 40)                           # the filter's start: samples in the ring
+        h = link._head
+        assert h >= 3
+        assert done_after(0.5) == 0                          # written, not published
+        os.write(link._heads_w, _i64(h - 2)[:3])
+        assert done_after(0.5) == 0                          # part of a head: nothing computed
+        os.write(link._heads_w, _i64(h - 2)[3:] + _i64(h)[:6])
+        assert done_after(20.0, until=h - 2) == h - 2        # the whole head, not the partial one after it
+        assert done_after(0.5) == h - 2
+        os.write(link._heads_w, _i64(h)[6:])
+        assert done_after(20.0, until=h) == h
+        assert link.bound_cycle >= 0 and link.stats()["samples_done"] == h
+        st = link.close(timeout=10.0)                        # the stop through the same pipe
+        assert st["fault"] is None and link._proc.exitcode == 0
+    finally:
+        link.close()
+
+
+def test_a_full_count_pipe_blocks_neither_side_and_the_newest_count_comes_later(cfg):
+    import fcntl
+    est = _estimator(cfg)
+    link = BoundWorker(est, max_age=10 ** 6)
+    fcntl.fcntl(link._counts_w, fcntl.F_SETPIPE_SZ, 4096)   # room for 512 counts
+    link.start()
+    e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1))
+
+    def batch() -> int:
+        """The loop hands 560 samples over without reading the worker's counts; the worker's own
+        count once it has computed them all."""
+        for k in range(TRAIN, TRAIN + 560):
+            link.cycle = k
+            est.update([Q[k]], [TH[k]], [U[k]])
+            if k == TRAIN:
+                link._collect = lambda est: None             # the loop stops reading
+        link.flush()
+        end = time.monotonic() + 60
+        while link._hdr[bw._DONE] < link._head and time.monotonic() < end:
+            time.sleep(0.01)
+        del link._collect
+        return int(link._hdr[bw._DONE])
+
+    try:
+        h = batch()
+        assert h == link._head > 512 and link._proc.is_alive()
+        time.sleep(0.2)
+        link._collect(e)                                     # 512 counts: the pipe's room
+        assert link._done == 512
+        end = time.monotonic() + 10                          # then the newest one, written later
+        while link._done < h and time.monotonic() < end:
+            time.sleep(0.01)
+            link._collect(e)
+        assert link._done == h
+        est.reset()
+        h = batch()                                          # full again, and the loop stops the worker
+        assert h == link._head and link._done < h
+        t0 = time.monotonic()
+        st = link.close(timeout=10.0)
+        assert link._proc.exitcode == 0 and time.monotonic() - t0 < 5 and st["samples_done"] == h
+    finally:
+        link.close()

@@ -9,33 +9,57 @@ loop's own step would have computed: the bound's step, then the start-up gate
 (:meth:`~sea_daemon.core.estimators.akf.AKF.gate`).  Same objects, same compiled kernels, same
 inputs: the same ρ_k to the bit.
 
-Per cycle, on the loop's side (no allocation, no pickling, no lock, never blocking):
+Per cycle, on the loop's side (no pickling, no lock, never blocking, nothing allocated but
+integers):
 
 * :meth:`BoundWorker.step` copies the step's inputs — the AKF's step buffer (F_k, K_k, Γ_μ, P_k,
   μ, ∂μ/∂z, … of step k), ẑ_{k−1}, x̂_{k−1}, P_{k−1}, the input u, dt, the box of the start-up
   gate and the loop's cycle — into the next slot of a ring in shared memory;
 * :meth:`BoundWorker.flush`, called by the loop at the end of the cycle (after its log row),
-  publishes the slots written (an integer store) and wakes the worker (one byte on a pipe): the
-  worker computes while the loop sleeps, not beside the loop's own work;
-* :meth:`BoundWorker.step` also reads the newest result the worker has finished (cycle, ρ, valid) and fills the
-  estimate with it: ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the loop cycle
-  of that sample (the log's ``bound_cycle``), ``valid`` = its gate and the age
+  publishes the slots written: it writes the number of samples handed over (the head, an int64)
+  to the worker's pipe, which also wakes the worker: the worker computes while the loop sleeps,
+  not beside the loop's own work;
+* :meth:`BoundWorker.step` also reads, without waiting, the newest count of samples finished
+  that the worker wrote to the loop's pipe, and fills the estimate with the result of that
+  sample (cycle, ρ, valid): ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the
+  loop cycle of that sample (the log's ``bound_cycle``), ``valid`` = its gate and the age
   (cycle − bound_cycle) at most ``max_age`` cycles.  An older bound (worker behind, or none
   yet) is not published: the estimate is not valid in that cycle, counted in :attr:`stale`.
 
-A ring full (the worker a whole ring of samples behind) breaks the set recursion: the bound is
-unavailable until the estimator's next reset (:attr:`broken`).  That, and a worker that died,
-is what :meth:`fault` reports — the loop latches it as BOUND_LOST (docs/safety.md), as a log
-writer that died latches LOG_FAILED.  A bound that diverged in the worker (EstimatorFault in
-its step) raises the same EstimatorFault out of the loop's estimator step when its result
-arrives, as the in-loop bound raises it in its own step.
+Memory order.  Python has no fences, and a weakly ordered CPU (aarch64) may make stores and
+loads to shared memory visible out of program order, so every count that orders the ring goes
+through a pipe, never through shared memory: a pipe's write and read are system calls that take
+the pipe's lock, so what a process wrote before a write is visible to the process that has read
+those bytes.  The worker computes a slot only once it has read a head beyond it from its pipe,
+so the slot's inputs are visible to it.  It writes the sample's count to the loop's pipe after
+the sample's result, so the loop reads a result only once it is complete.  The loop reuses a
+slot only once a count beyond it came back, so the worker has finished reading its inputs, and
+the worker writes its result slot again only for a sample the loop publishes after it has read
+the result.  The counts are cumulative int64s: a reader takes the newest complete one and keeps
+the bytes of one split across two reads.  The rest of the header is read without that order:
+the worker's CPU time and scheduling (statistics), and its own count of samples done, stored
+after each count written to the pipe — the loop reads its pipe only in a cycle where that count
+is ahead of the last one the pipe gave it (no system call in a cycle with nothing new); seen
+late it delays the read, seen early the read finds nothing yet.
 
-The worker exits when :meth:`close` asks, when the pipe's writing end closes, or when the
-parent dies (PR_SET_PDEATHSIG, and its parent id checked every second).  With ``rt_priority``
-it runs SCHED_FIFO at that priority (below the loop's: the loop preempts it, and a machine busy
-with other work does not starve it of the CPU it needs, ≈ 0.1 ms per sample), else SCHED_OTHER;
-what applied is in :meth:`BoundWorker.stats`.  Shared memory is ordered by x86-64's store order and the
-pipe's system calls.
+A ring full (the worker a whole ring of samples behind, as far as the counts that came back
+say) breaks the set recursion: the bound is unavailable until the estimator's next reset
+(:attr:`broken`).  That, and a worker that died, is what :meth:`fault` reports — the loop latches
+it as BOUND_LOST (docs/safety.md), as a log writer that died latches LOG_FAILED.  A bound that
+diverged in the worker (EstimatorFault in its step) raises the same EstimatorFault out of the
+loop's estimator step when its result arrives, as the in-loop bound raises it in its own step.
+
+Neither side ever blocks on a pipe.  The loop writes its heads non-blocking; a head that finds
+the worker's pipe full (8192 heads unread in a pipe of 64 KiB: the worker stopped reading) is
+written at the next flush, a later head replacing it.  The worker writes its counts non-blocking
+too; a count that does not fit in the loop's pipe (the loop not reading) is written later, when
+the pipe has room or after the next sample, the newest count replacing it; meanwhile the loop
+sees fewer free slots, never a wrong result.  The worker exits when :meth:`close` asks (a head
+of −1, after the samples before it), when the writing end of its pipe closes, when the reading
+end of the loop's pipe closes, or when the parent dies (PR_SET_PDEATHSIG, and its parent id
+checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority (below the
+loop's: the loop preempts it, and a machine busy with other work does not starve it of the CPU
+it needs, ≈ 0.1 ms per sample), else SCHED_OTHER; what applied is in :meth:`BoundWorker.stats`.
 """
 from __future__ import annotations
 
@@ -45,6 +69,7 @@ import multiprocessing as mp
 import os
 import select
 import signal
+import struct
 import time
 from multiprocessing import shared_memory
 
@@ -52,8 +77,9 @@ import numpy as np
 
 from sea_daemon.errors import EstimatorFault
 
-# int64 header slots (_SCHED: the worker's SCHED_FIFO priority, 0 SCHED_OTHER, −1 not known yet)
-_HEAD, _DONE, _STOP, _ERR, _SCHED, _NHDR = 0, 1, 2, 3, 4, 8
+# int64 header slots, read without order (module docstring): the worker's count of samples done
+# (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet)
+_DONE, _SCHED, _NHDR = 0, 1, 8
 # float64 header slots (after the int64 ones): the worker's CPU time [s]: in bound steps, whole process
 _F_STEPS, _F_PROC, _NFHDR = 0, 1, 4
 # input slot: kind, cycle, k, dt, ready, gate_starts, epoch, then the arrays
@@ -62,6 +88,52 @@ STEP, RESET = 1.0, 2.0
 # result slot: seq, cycle, k, valid, status, epoch, cpu, then ρ (n)
 _RSEQ, _RCYC, _RK, _RVALID, _RSTATUS, _REPOCH, _RCPU, _NRES = 0, 1, 2, 3, 4, 5, 6, 8
 OK, FAILED, NO_BOUND = 0.0, 1.0, 2.0
+# the head that asks the worker to stop (after the samples published before it)
+STOP = -1
+_INT64 = struct.Struct("=q")
+
+
+class CountReader:
+    """The int64 counts a pipe carries, read in whatever pieces the reads return.
+
+    :meth:`read` makes one read into a buffer made once (up to ``values`` counts); the bytes of a
+    count split across two reads are kept and completed by the next read.  After it,
+    :meth:`value` (i) is its i-th complete count, valid until the next read.
+    """
+
+    def __init__(self, fd: int, values: int = 512):
+        self.fd = fd
+        self._buf = bytearray(8 * (values + 1))
+        self._i64 = np.frombuffer(self._buf, dtype=np.int64)
+        mv = memoryview(self._buf)
+        # one target list per number of bytes kept (0..7): readv into the buffer after them
+        self._into = [[mv[c:c + 8 * values]] for c in range(8)]
+        self._kept = 0                       # bytes of an incomplete count, at the buffer's start
+        self._move = 0                       # > 0: they are still at this offset (after whole counts)
+        self.eof = False
+
+    def read(self) -> int:
+        """One read: the number of complete counts it made (0: none, or only part of one).
+        Raises BlockingIOError on a non-blocking pipe with nothing to read; sets :attr:`eof`
+        when the writing end is closed."""
+        c = self._kept
+        a = self._move
+        if a:                                # the incomplete count to the buffer's start (rare)
+            self._buf[:c] = self._buf[a:a + c]
+            self._move = 0
+        got = os.readv(self.fd, self._into[c])
+        if got == 0:
+            self.eof = True
+            return 0
+        total = c + got
+        whole = total & ~7
+        self._kept = kept = total - whole
+        if kept and whole:
+            self._move = whole
+        return whole >> 3
+
+    def value(self, i: int) -> int:
+        return self._i64.item(i)
 
 
 def akf_of(estimator):
@@ -108,12 +180,13 @@ def _pdeathsig() -> None:
 
 
 def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict, record: int,
-                 rfd: int, wfd: int, parent_pid: int, rt_priority: int) -> None:
+                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int) -> None:
     _pdeathsig()
-    try:
-        os.close(wfd)                              # the parent's end: EOF here once the parent is gone
-    except OSError:
-        pass
+    for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
+        try:
+            os.close(fd)
+        except OSError:
+            pass
     sched = 0
     try:
         if rt_priority > 0:
@@ -140,18 +213,15 @@ def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dic
         res = np.ndarray((cap, rwidth), dtype=np.float64, buffer=shm.buf, offset=o)
         o += cap * rwidth * 8
         cpu_rec = np.ndarray((max(record, 1),), dtype=np.float64, buffer=shm.buf, offset=o)
-        _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, rfd, parent_pid)
-    except BaseException:
-        if hdr is not None and hdr[_ERR] == 0:
-            hdr[_ERR] = 1
-        raise
+        _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid)
     finally:
         del hdr, fhdr, ring, res, cpu_rec
         shm.close()
 
 
-def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, rfd, parent_pid) -> None:
-    """The worker's loop: every slot in order, then wait for the next wake-up."""
+def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid) -> None:
+    """The worker's loop: every slot up to the newest head read from ``heads``, in order, each
+    one's count written to ``counts`` after its result (module docstring); then wait."""
     bound = akf.bound
     e = akf.est
     d, n = akf.d, akf.n
@@ -160,15 +230,16 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, rfd, parent_pid) -> 
     gates = -1
     clock = time.thread_time
     cpu_total = 0.0
+    reader = CountReader(heads)
+    out = bytearray(8)
+    head = done = 0
+    stop = unsent = False
     while True:
-        head = int(hdr[_HEAD])
-        done = int(hdr[_DONE])
         if done < head:
             c0 = clock()
             s = ring[done % cap]
             r = res[done % cap]
             kind = s[_KIND]
-            r[_RSEQ] = -1.0                          # the slot is being written (the loop checks it)
             akf._buf[:] = s[sl["buf"]]
             e.k = int(s[_K])
             status = OK
@@ -201,31 +272,49 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, rfd, parent_pid) -> 
                     valid = 1.0 if akf.gate(e) else 0.0
                 except EstimatorFault:
                     status = FAILED
+            r[_RSEQ] = done
             r[_RCYC] = s[_CYC]
             r[_RK] = s[_K]
             r[_RVALID] = valid
             r[_RSTATUS] = status
             r[_REPOCH] = s[_EPOCH]
-            r[8:8 + n] = e.tau_h_act_bound
+            r[_NRES:_NRES + n] = e.tau_h_act_bound
             spent = clock() - c0
             r[_RCPU] = spent
-            r[_RSEQ] = done
             if record and done < record:
                 cpu_rec[done] = spent
             cpu_total += spent
             fhdr[_F_STEPS] = cpu_total
-            hdr[_DONE] = done + 1
+            done += 1
+            unsent = True
+        if unsent:
+            # the count after the result: the loop reads the result once it has read the count
+            _INT64.pack_into(out, 0, done)
+            try:
+                os.write(counts, out)            # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
+                unsent = False
+            except BlockingIOError:              # the loop not reading: the newest count later
+                pass
+            except OSError:                      # the loop's end closed: the parent is gone
+                return
+            hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe
+        if done < head:
             continue
         fhdr[_F_PROC] = time.process_time()
-        if hdr[_STOP]:
+        if stop or reader.eof:
             return
-        ready, _, _ = select.select([rfd], [], [], 1.0)
+        ready, writable, _ = select.select([heads], [counts] if unsent else [], [], 1.0)
         if ready:
             try:
-                if not os.read(rfd, 4096):
-                    return                           # EOF: the parent closed its end (or died)
+                got = reader.read()
             except OSError:
                 return
+            for i in range(got):
+                h = reader.value(i)
+                if h == STOP:
+                    stop = True
+                elif h > head:
+                    head = h
         if os.getppid() != parent_pid:
             return
 
@@ -291,8 +380,9 @@ class BoundWorker:
         self.stale = 0                           # steps with no bound within max_age
         self.steps = 0
         self.broken = False                      # the ring was full: no bound until the next reset
-        self._head = 0
-        self._published = 0
+        self._head = 0                           # samples written into the ring
+        self._published = 0                      # the newest head written to the worker's pipe
+        self._done = 0                           # the newest count of samples done read from the loop's pipe
         self._seen = 0
         self._epoch = 0
         self._fault = None
@@ -304,9 +394,15 @@ class BoundWorker:
         self._rho_in = np.zeros(n)
         self._final = None
         self.cpu_per_sample = np.array([])
-        self._one = b"\x01"
         self._proc = None
-        self._rfd = self._wfd = -1
+        # the worker's pipe (heads, loop → worker) and the loop's (counts done, worker → loop);
+        # the ends the loop writes and reads never block, nor does the worker's writing end
+        self._heads_r, self._heads_w = os.pipe()
+        self._counts_r, self._counts_w = os.pipe()
+        for fd in (self._heads_w, self._counts_r, self._counts_w):
+            os.set_blocking(fd, False)
+        self._hbuf = bytearray(8)
+        self._counts = CountReader(self._counts_r)
         self.started = False
 
     # ------------------------------------------------------------------ life
@@ -314,15 +410,13 @@ class BoundWorker:
     def start(self) -> "BoundWorker":
         """Fork the worker (its AKF a copy of the loop's as it is now, with the bound) and take
         the bound's place in the loop's AKF."""
-        rfd, wfd = os.pipe()
-        os.set_blocking(wfd, False)
         ctx = mp.get_context("fork")
         self._proc = ctx.Process(target=_worker_main, name="sea-daemon-bound", daemon=True,
                                  args=(self.akf, self._shm.name, self.capacity, self._width, self._rwidth,
-                                       self._lay, self.record, rfd, wfd, os.getpid(), self.rt_priority))
+                                       self._lay, self.record, self._heads_r, self._counts_w,
+                                       (self._heads_w, self._counts_r), os.getpid(), self.rt_priority))
         self._proc.start()
-        os.close(rfd)
-        self._wfd = wfd
+        self._close_fds("_heads_r", "_counts_w")          # the worker's ends
         self.akf.bound = self
         self.started = True
         return self
@@ -332,21 +426,18 @@ class BoundWorker:
         the steps made meanwhile) and return :meth:`stats`.  Safe to call twice."""
         if self._final is not None:
             return self._final
-        if not self.started:                     # never started: only the shared memory to free
+        if not self.started:                     # never started: only the shared memory and pipes to free
             self._final = self.stats()
             self._release()
             return self._final
         self.flush()
-        self._hdr[_STOP] = 1
-        self._wake()
+        self._send(STOP)                         # after the samples published: they are computed first
+        self._close_fds("_heads_w")              # and EOF, should the pipe be full
         self._proc.join(timeout)
         if self._proc.is_alive():
             self._proc.kill()
             self._proc.join(5)
-        try:
-            os.close(self._wfd)
-        except OSError:
-            pass
+        # the worker has exited (and was waited for): all it wrote is visible
         self.cpu_per_sample = np.array(self._cpu_rec[:min(self.record, int(self._hdr[_DONE]))])
         self._final = self.stats()
         self.started = False
@@ -357,9 +448,20 @@ class BoundWorker:
         return self._final
 
     def _release(self) -> None:
+        self._close_fds("_heads_r", "_heads_w", "_counts_r", "_counts_w")
         del self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec, self._slots, self._results
         self._shm.close()
         self._shm.unlink()
+
+    def _close_fds(self, *names: str) -> None:
+        for name in names:
+            fd = getattr(self, name)
+            if fd >= 0:
+                setattr(self, name, -1)
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
 
     @property
     def pid(self) -> int | None:
@@ -367,16 +469,20 @@ class BoundWorker:
 
     # ------------------------------------------------------------------ the loop's side
 
-    def _wake(self) -> None:
+    def _send(self, head: int) -> bool:
+        """Write ``head`` to the worker's pipe (which wakes it); False if it did not go."""
+        _INT64.pack_into(self._hbuf, 0, head)
         try:
-            os.write(self._wfd, self._one)
-        except OSError:                          # pipe full (worker behind) or closed (worker gone)
-            pass
+            os.write(self._heads_w, self._hbuf)  # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
+        except OSError:                          # pipe full (worker not reading) or closed (worker gone)
+            return False
+        return True
 
     def _slot(self):
-        """The next free slot, or None when the ring is full (the chain is broken then)."""
+        """The next free slot, or None when the ring is full (the chain is broken then): a slot
+        is free once the worker's count of samples done, read from its pipe, is past it."""
         h = self._head
-        if h - int(self._hdr[_DONE]) >= self.capacity:
+        if h - self._done >= self.capacity:
             self.broken = True
             return None
         return self._slots[h % self.capacity]
@@ -388,10 +494,8 @@ class BoundWorker:
         """Publish the slots written since the last call and wake the worker (the loop calls it
         once per cycle, after the cycle's log row)."""
         h = self._head
-        if h != self._published:
+        if h != self._published and self._send(h):   # not sent: again at the next flush
             self._published = h
-            self._hdr[_HEAD] = h
-            self._wake()
 
     def reset(self, est) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""
@@ -435,15 +539,27 @@ class BoundWorker:
         self._collect(est)
 
     def _collect(self, est) -> None:
-        done = int(self._hdr[_DONE])
+        if self._hdr.item(_DONE) > self._done:
+            # the worker's own count, seen in shared memory, says that a newer count is in the
+            # pipe (or soon will be): read it.  Only what came through the pipe is used; a count
+            # seen late in shared memory delays the read, one seen early finds the pipe empty
+            counts = self._counts
+            try:
+                got = counts.read()
+            except OSError:                          # nothing yet (EAGAIN)
+                got = 0
+            if got:
+                self._done = counts.value(got - 1)
+        done = self._done
         if done > self._seen:
             self._seen = done
+            # sample done − 1's result, complete: its count came through the pipe after it; and
+            # not overwritten while read: that needs a sample the loop publishes after this
             r, rho = self._results[(done - 1) % self.capacity]
-            seq = r[_RSEQ]
             status, epoch, cyc, ok = r[_RSTATUS], r[_REPOCH], r[_RCYC], r[_RVALID] != 0.0
             self._rho_in[:] = rho
-            if r[_RSEQ] != seq or seq != done - 1:
-                epoch = -1.0                         # overwritten meanwhile (a ring full of later samples)
+            if r[_RSEQ] != done - 1:
+                epoch = -1.0                         # not that sample's (the ring's order rules it out)
             if epoch == self._epoch:
                 if status == FAILED:
                     self._newest_cycle = -1
@@ -478,7 +594,7 @@ class BoundWorker:
         if self._fault is not None:
             return self._fault
         if self.broken:
-            return (f"bound worker {self._head - int(self._hdr[_DONE])} samples behind (its ring of "
+            return (f"bound worker {self._head - self._done} samples behind (its ring of "
                     f"{self.capacity} is full): the Theorem-1 bound is unavailable until the estimator's reset")
         now = time.monotonic()
         if now < self._next_alive:
