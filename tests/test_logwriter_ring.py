@@ -137,3 +137,46 @@ def test_a_process_forked_from_the_loop_does_not_keep_the_writer_running(tmp_pat
         os.kill(pid, 9)
         os.waitpid(pid, 0)
     _check_rows(tmp_path / "x.csv", 10)
+
+
+_CHILD = """
+import os, signal, sys, time
+import numpy as np
+sys.path.insert(0, {tests!r})
+from test_logwriter_ring import COLS, _row, _store_unpublished
+from sea_daemon.runtime.logwriter import LogWriter
+if __name__ == "__main__":
+    w = LogWriter(sys.argv[1], COLS, capacity=256, flush_interval=0.5)
+    for i in range(100):
+        assert w.append(_row(i))
+    _store_unpublished(w, 100)           # its head in shared memory only
+    print(w._proc.pid, flush=True)
+    if sys.argv[2] == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    # else: the interpreter exits without close()
+"""
+
+
+def _child(tmp_path, how):
+    import subprocess
+    import sys
+    from sea_daemon.io.configfile import repo_root
+    path = tmp_path / "x.csv"
+    code = _CHILD.format(tests=str(repo_root() / "tests"))
+    p = subprocess.run([sys.executable, "-c", code, str(path), how], capture_output=True, text=True, timeout=60,
+                       cwd=repo_root(), env={"PYTHONPATH": str(repo_root()), "PATH": "/usr/bin:/bin"})
+    writer = int(p.stdout.split()[0])
+    assert _wait(lambda: not os.path.exists(f"/proc/{writer}") or "State:\tZ" in open(f"/proc/{writer}/status").read())
+    return path, p
+
+
+def test_the_loop_killed_its_last_rows_are_written_once_the_pipe_has_ended(tmp_path):
+    path, p = _child(tmp_path, "kill")
+    assert p.returncode == -9
+    _check_rows(path, 101)
+
+
+def test_a_loop_that_exits_without_close_has_every_row_written_and_exits(tmp_path):
+    path, p = _child(tmp_path, "exit")               # without the end of the pipe at exit: no exit at all
+    assert p.returncode == 0
+    _check_rows(path, 101)

@@ -35,8 +35,8 @@ so the slot's inputs are visible to it.  It writes the sample's count to the loo
 the sample's result, so the loop reads a result only once it is complete.  The loop reuses a
 slot only once a count beyond it came back, so the worker has finished reading its inputs, and
 the worker writes its result slot again only for a sample the loop publishes after it has read
-the result.  The counts are cumulative int64s: a reader takes the newest complete one and keeps
-the bytes of one split across two reads.  The rest of the header is read without that order:
+the result.  The counts are cumulative int64s (:mod:`sea_daemon.runtime.counts`): a reader takes
+the newest complete one and keeps the bytes of one split across two reads.  The rest of the header is read without that order:
 the worker's CPU time and scheduling (statistics), and its own count of samples done, stored
 after each count written to the pipe — the loop reads its pipe only in a cycle where that count
 is ahead of the last one the pipe gave it (no system call in a cycle with nothing new); seen

@@ -55,6 +55,7 @@ it as the LOG_FAILED fault (docs/safety.md) — and :meth:`LogWriter.close` repo
 """
 from __future__ import annotations
 
+import atexit
 import multiprocessing as mp
 import os
 import time
@@ -126,6 +127,19 @@ def _drain_heads(heads: CountReader, head: int) -> int:
         return head
 
 
+def _send_tail(fd: int, out: bytearray, tail: int) -> bool:
+    """Write the tail to the loop's pipe without waiting; True when it must be written again
+    later (the pipe full: the loop not reading), False when it went or no one reads it."""
+    INT64.pack_into(out, 0, tail)
+    try:
+        os.write(fd, out)                    # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
+    except BlockingIOError:
+        return True
+    except OSError:                          # the loop's end closed: no one reads tails
+        pass
+    return False
+
+
 def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
                  heads_fd, tails_fd):
     try:
@@ -158,7 +172,6 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
         out = bytearray(8)
         head = tail = 0          # rows published (read from the loop's pipe), rows copied out
         unsent = False           # a tail not yet written to the loop's pipe (it was full)
-        tails_open = True
         final = False            # every write end of the loop's pipe closed: its last head is known
         orphan = 0.0             # when the loop's process was first seen gone (0: not yet)
         while True:
@@ -175,17 +188,8 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
                 idx = np.arange(tail, tail + n) % capacity
                 block = data[idx]                    # a copy: the ring slots are free again
                 tail += n
-                unsent = tails_open
-                if tails_open:
-                    # the tail after the copy: the loop reuses the slots once it has read it
-                    INT64.pack_into(out, 0, tail)
-                    try:
-                        os.write(tails_fd, out)      # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
-                        unsent = False
-                    except BlockingIOError:          # the loop not reading: the newest tail later
-                        pass
-                    except OSError:                  # the loop's end closed: no one reads tails
-                        tails_open = unsent = False
+                # the tail after the copy: the loop reuses the slots once it has read it
+                unsent = _send_tail(tails_fd, out, tail)
                 if failed:
                     hdr[_LOST] += n
                     continue
@@ -224,14 +228,7 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
             if final:
                 break
             if unsent:
-                INT64.pack_into(out, 0, tail)
-                try:
-                    os.write(tails_fd, out)
-                    unsent = False
-                except BlockingIOError:
-                    pass
-                except OSError:
-                    tails_open = unsent = False
+                unsent = _send_tail(tails_fd, out, tail)
             if os.getppid() != parent_pid:
                 # the loop's process is gone but the pipe's end is still open (a process forked
                 # from it holds it): the rows whose heads came through the pipe are written;
@@ -292,7 +289,15 @@ def _after_fork_in_child() -> None:
         w._close_fds()
 
 
+def _at_exit() -> None:
+    # a process that exits without close(): its writers drain every row and stop (multiprocessing
+    # waits for them after this, its own exit handler having been registered before this one)
+    for w in list(_LIVE):
+        w._close_fds("_heads_w")
+
+
 os.register_at_fork(after_in_child=_after_fork_in_child)
+atexit.register(_at_exit)
 
 
 class LogWriter:
