@@ -17,7 +17,8 @@ import pytest
 from sea_daemon.errors import Fault
 from sea_daemon.io.configfile import default_config_path, load_config, repo_root
 from sea_daemon.runtime import bound_worker as bw
-from sea_daemon.runtime.bound_worker import BoundWorker, CountReader
+from sea_daemon.runtime.bound_worker import BoundWorker
+from sea_daemon.runtime.counts import CountReader
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from test_loop import ListLog
 
@@ -156,7 +157,7 @@ import os, sys, numpy as np
 sys.path.insert(0, {root!r}); sys.path.insert(0, {tests!r})
 from test_bound_worker import _estimator, load_config, default_config_path, replace
 from sea_daemon.runtime import bound_worker as bw
-from sea_daemon.runtime.bound_worker import BoundWorker, CountReader
+from sea_daemon.runtime.bound_worker import BoundWorker
 c = load_config(default_config_path()); c = replace(c, learning=replace(c.learning, max_points=40))
 w = BoundWorker(_estimator(c)).start()
 print(w.pid, flush=True)

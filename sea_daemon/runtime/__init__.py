@@ -5,7 +5,8 @@ to an absolute deadline) that the estimation service (:mod:`.service`), the offl
 (:mod:`.sim_runner`) and the hardware-in-the-loop session (:mod:`.hil_session`) all run; the
 hardware a run is against (:mod:`.rig`), the scenario's controller (:mod:`.controller`), the
 rows of a lock-step run (:mod:`.recorder`), the single fault policy (:mod:`.safety`), the
-off-loop log writer (:mod:`.logwriter`), the Theorem-1 bound's worker process (:mod:`.bound_worker`)
+off-loop log writer (:mod:`.logwriter`), the Theorem-1 bound's worker process (:mod:`.bound_worker`),
+the counts through pipes that order the rings those two share with the loop (:mod:`.counts`)
 and systemd notification (:mod:`.notify`).  May import
 ``drivers``, :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and :mod:`sea_daemon.errors`.
 """

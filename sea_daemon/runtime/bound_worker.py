@@ -35,8 +35,8 @@ so the slot's inputs are visible to it.  It writes the sample's count to the loo
 the sample's result, so the loop reads a result only once it is complete.  The loop reuses a
 slot only once a count beyond it came back, so the worker has finished reading its inputs, and
 the worker writes its result slot again only for a sample the loop publishes after it has read
-the result.  The counts are cumulative int64s: a reader takes the newest complete one and keeps
-the bytes of one split across two reads.  The rest of the header is read without that order:
+the result.  The counts are cumulative int64s (:mod:`sea_daemon.runtime.counts`): a reader takes
+the newest complete one and keeps the bytes of one split across two reads.  The rest of the header is read without that order:
 the worker's CPU time and scheduling (statistics), and its own count of samples done, stored
 after each count written to the pipe — the loop reads its pipe only in a cycle where that count
 is ahead of the last one the pipe gave it (no system call in a cycle with nothing new); seen
@@ -69,13 +69,13 @@ import multiprocessing as mp
 import os
 import select
 import signal
-import struct
 import time
 from multiprocessing import shared_memory
 
 import numpy as np
 
 from sea_daemon.errors import EstimatorFault
+from sea_daemon.runtime.counts import INT64 as _INT64, CountReader, write_count
 
 # int64 header slots, read without order (module docstring): the worker's count of samples done
 # (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet)
@@ -90,50 +90,6 @@ _RSEQ, _RCYC, _RK, _RVALID, _RSTATUS, _REPOCH, _RCPU, _NRES = 0, 1, 2, 3, 4, 5, 
 OK, FAILED, NO_BOUND = 0.0, 1.0, 2.0
 # the head that asks the worker to stop (after the samples published before it)
 STOP = -1
-_INT64 = struct.Struct("=q")
-
-
-class CountReader:
-    """The int64 counts a pipe carries, read in whatever pieces the reads return.
-
-    :meth:`read` makes one read into a buffer made once (up to ``values`` counts); the bytes of a
-    count split across two reads are kept and completed by the next read.  After it,
-    :meth:`value` (i) is its i-th complete count, valid until the next read.
-    """
-
-    def __init__(self, fd: int, values: int = 512):
-        self.fd = fd
-        self._buf = bytearray(8 * (values + 1))
-        self._i64 = np.frombuffer(self._buf, dtype=np.int64)
-        mv = memoryview(self._buf)
-        # one target list per number of bytes kept (0..7): readv into the buffer after them
-        self._into = [[mv[c:c + 8 * values]] for c in range(8)]
-        self._kept = 0                       # bytes of an incomplete count, at the buffer's start
-        self._move = 0                       # > 0: they are still at this offset (after whole counts)
-        self.eof = False
-
-    def read(self) -> int:
-        """One read: the number of complete counts it made (0: none, or only part of one).
-        Raises BlockingIOError on a non-blocking pipe with nothing to read; sets :attr:`eof`
-        when the writing end is closed."""
-        c = self._kept
-        a = self._move
-        if a:                                # the incomplete count to the buffer's start (rare)
-            self._buf[:c] = self._buf[a:a + c]
-            self._move = 0
-        got = os.readv(self.fd, self._into[c])
-        if got == 0:
-            self.eof = True
-            return 0
-        total = c + got
-        whole = total & ~7
-        self._kept = kept = total - whole
-        if kept and whole:
-            self._move = whole
-        return whole >> 3
-
-    def value(self, i: int) -> int:
-        return self._i64.item(i)
 
 
 def akf_of(estimator):
@@ -471,12 +427,8 @@ class BoundWorker:
 
     def _send(self, head: int) -> bool:
         """Write ``head`` to the worker's pipe (which wakes it); False if it did not go."""
-        _INT64.pack_into(self._hbuf, 0, head)
-        try:
-            os.write(self._heads_w, self._hbuf)  # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
-        except OSError:                          # pipe full (worker not reading) or closed (worker gone)
-            return False
-        return True
+        # False: pipe full (the worker not reading) or closed (the worker gone)
+        return write_count(self._heads_w, self._hbuf, head)
 
     def _slot(self):
         """The next free slot, or None when the ring is full (the chain is broken then): a slot

@@ -1,12 +1,41 @@
 """Measured-log writer that never blocks the fixed-rate loop and accounts for every row.
 
 The loop copies each row (a preallocated float64 vector) into a ring buffer in shared
-memory — one slice assignment and one integer store, no allocation, no I/O, no lock.  A
-separate *process* (so CSV formatting never competes for the loop's GIL) drains the ring and
-writes measured-log CSV (docs/interfaces.md §1) with one ``write`` per batch of whole lines,
-rotates to a new numbered file (each with its header) when a file exceeds ``rotate_bytes``, and
-on close drains everything and fsyncs.  If the loop's process dies, the writer notices and
-drains what is in the ring before exiting.
+memory and publishes it — one slice assignment, two integer stores and one non-blocking write
+of 8 bytes, no allocation, no lock, never waiting.  A separate *process* (so CSV formatting
+never competes for the loop's GIL) drains the ring and writes measured-log CSV
+(docs/interfaces.md §1) with one ``write`` per batch of whole lines, rotates to a new numbered
+file (each with its header) when a file exceeds ``rotate_bytes``, and on close drains
+everything and fsyncs.  If the loop's process dies, the writer drains what is in the ring
+before exiting.
+
+Memory order.  Python has no fences, and a weakly ordered CPU (aarch64) may make stores and
+loads to shared memory visible to the other process out of program order, so the counts that
+order the ring go through pipes (:mod:`sea_daemon.runtime.counts`): what a process stored before
+it wrote a count is visible to the process that has read the count.
+
+* loop → writer: after copying a row, the loop writes its head (rows appended, a cumulative
+  int64) to the heads pipe.  The writer copies only rows up to the newest head it has read from
+  that pipe, which it drains without waiting at each poll.  It polls on a timer and never waits
+  on the pipe, so the loop's write never wakes it (a write that wakes a waiting reader costs
+  the loop about twice as much).  A head that finds the pipe full (8192 heads unread: the writer
+  stopped reading) is written again by the next append or :meth:`LogWriter.fault`, a later head
+  replacing it.
+* writer → loop: after copying rows out of the ring, the writer writes its tail (rows copied)
+  to the tails pipe, without waiting; one that does not fit is written later, the newest
+  replacing it.  The loop reuses a slot only once a tail beyond it came through that pipe, so
+  the writer's loads of the slot are complete.  The loop reads the pipe every 256 rows and when
+  the tail it knows says the ring is full; a row is dropped (``dropped``) only when the ring is
+  full by the newest tail in the pipe.
+* the end: :meth:`LogWriter.close` closes the loop's end of the heads pipe, and so does the
+  kernel when the loop's process dies (after every store of that process).  The writer reads
+  the pipe's end only after those stores, so it may then trust the head the loop also stores in
+  shared memory with each row: it writes every row up to it and exits.  Processes forked from
+  the loop's close their copies of the loop's ends.  Should another process still hold one, the
+  writer stops 2 s after the loop's process is gone, with the rows whose heads it had read.
+
+The rest of the shared header (rows written and lost, files, errno) is the writer's report,
+read by the loop without order: seen late, a fault is reported a cycle later.
 
 Nothing is lost silently:
 
@@ -26,19 +55,27 @@ it as the LOG_FAILED fault (docs/safety.md) — and :meth:`LogWriter.close` repo
 """
 from __future__ import annotations
 
+import atexit
 import multiprocessing as mp
 import os
 import time
-from multiprocessing import shared_memory
+import weakref
+from multiprocessing import reduction, shared_memory
 from pathlib import Path
 
 import numpy as np
 
 from sea_daemon.errors import InputError, shown
+from sea_daemon.runtime.counts import INT64, CountReader, write_count
 
-# header slots (int64) of the shared block
-_HEAD, _TAIL, _STOP, _WRITTEN, _FILES, _ERRNO, _LOST, _NHDR = 0, 1, 2, 3, 4, 5, 6, 8
+# header slots (int64) of the shared block, read without order (module docstring): the loop's
+# head (read by the writer only after the loop's end of the heads pipe closed), the writer's
+# counts of rows written and lost, files and errno
+_HEAD, _WRITTEN, _FILES, _ERRNO, _LOST, _NHDR = 0, 1, 2, 3, 4, 8
 _UNKNOWN = -1                        # _ERRNO of a failure that was not an OSError
+_TAIL_EVERY = 256                    # the loop reads the writer's tails every this many rows
+_pack = INT64.pack_into
+_ORPHAN_WAIT = 2.0                   # s the writer waits for the heads pipe's end after the loop's process is gone
 
 
 def segment_path(path: Path, index: int) -> Path:
@@ -81,13 +118,38 @@ def _open_segment(path: Path, header: bytes) -> int:
     return fd
 
 
-def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll):
+def _drain_heads(heads: CountReader, head: int) -> int:
+    """The newest head in the loop's pipe (``head`` when none came)."""
+    try:
+        return heads.newest(head)
+    except OSError:                          # not a pipe any more: as at its end
+        heads.eof = True
+        return head
+
+
+def _send_tail(fd: int, out: bytearray, tail: int) -> bool:
+    """Write the tail to the loop's pipe without waiting; True when it must be written again
+    later (the pipe full: the loop not reading), False when it went or no one reads it."""
+    INT64.pack_into(out, 0, tail)
+    try:
+        os.write(fd, out)                    # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
+    except BlockingIOError:
+        return True
+    except OSError:                          # the loop's end closed: no one reads tails
+        pass
+    return False
+
+
+def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
+                 heads_fd, tails_fd):
     try:
         # the writer must never compete with the loop: back to SCHED_OTHER when it inherited
         # SCHED_FIFO (systemd's CPUSchedulingPolicy=fifo applies to the whole service)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
+    os.set_blocking(heads_fd, False)
+    os.set_blocking(tails_fd, False)
     shm = shared_memory.SharedMemory(name=shm_name)
     hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
     data = None
@@ -106,14 +168,28 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
             failed = True
             hdr[_ERRNO] = e.errno or _UNKNOWN
         line_fmt = ",".join([fmt] * ncols) + "\n"
+        heads = CountReader(heads_fd)
+        out = bytearray(8)
+        head = tail = 0          # rows published (read from the loop's pipe), rows copied out
+        unsent = False           # a tail not yet written to the loop's pipe (it was full)
+        final = False            # every write end of the loop's pipe closed: its last head is known
+        orphan = 0.0             # when the loop's process was first seen gone (0: not yet)
         while True:
-            head = int(hdr[_HEAD])
-            tail = int(hdr[_TAIL])
+            if not final:
+                head = _drain_heads(heads, head)
+                if heads.eof:
+                    # the loop closed its end (close()) or its process is gone: the kernel
+                    # closed the end after every store of that process, and this read of the end
+                    # came after, so the head it stored last, and its rows, are visible
+                    final = True
+                    head = max(head, int(hdr[_HEAD]))
             if head > tail:
                 n = min(head - tail, capacity, 1024)
                 idx = np.arange(tail, tail + n) % capacity
                 block = data[idx]                    # a copy: the ring slots are free again
-                hdr[_TAIL] = tail + n
+                tail += n
+                # the tail after the copy: the loop reuses the slots once it has read it
+                unsent = _send_tail(tails_fd, out, tail)
                 if failed:
                     hdr[_LOST] += n
                     continue
@@ -149,10 +225,20 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
                         except OSError:
                             pass
                 continue
-            if hdr[_STOP] or os.getppid() != parent_pid:
-                if int(hdr[_HEAD]) == int(hdr[_TAIL]):
+            if final:
+                break
+            if unsent:
+                unsent = _send_tail(tails_fd, out, tail)
+            if os.getppid() != parent_pid:
+                # the loop's process is gone but the pipe's end is still open (a process forked
+                # from it holds it): the rows whose heads came through the pipe are written;
+                # wait a while for the end to close, then stop
+                now = time.monotonic()
+                if not orphan:
+                    orphan = now
+                elif now - orphan > _ORPHAN_WAIT:
                     break
-                continue
+            # a timed poll, not a wait on the pipe: the loop's writes never wake this process
             time.sleep(poll)
         if fd >= 0:
             try:
@@ -170,8 +256,48 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
                 os.close(fd)
             except OSError:
                 pass
+        for f in (heads_fd, tails_fd):
+            try:
+                os.close(f)
+            except OSError:
+                pass
         del hdr, data
         shm.close()
+
+
+class _PassFd:
+    """A descriptor handed to the spawned writer process (passed to it as it starts)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+
+    def __reduce__(self):
+        return _detach, (reduction.DupFd(self.fd),)
+
+
+def _detach(dup) -> int:
+    return dup.detach()
+
+
+_LIVE: "weakref.WeakSet[LogWriter]" = weakref.WeakSet()
+
+
+def _after_fork_in_child() -> None:
+    # a process forked from the loop's (the bound worker) must not hold the loop's ends of the
+    # pipes: the writer takes the end of the head pipe closing as the loop's process being gone
+    for w in list(_LIVE):
+        w._close_fds()
+
+
+def _at_exit() -> None:
+    # a process that exits without close(): its writers drain every row and stop (multiprocessing
+    # waits for them after this, its own exit handler having been registered before this one)
+    for w in list(_LIVE):
+        w._close_fds("_heads_w")
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
+atexit.register(_at_exit)
 
 
 class LogWriter:
@@ -203,34 +329,80 @@ class LogWriter:
         self._data[:] = 0.0      # pre-fault the ring: the loop never takes a page fault on it
         self.dropped = 0
         self.appended = 0
+        self._tail = 0                           # rows the writer has copied out, as its pipe said
+        self._read_at = _TAIL_EVERY              # the append that reads the writer's pipe next
+        self._unsent = False                     # the newest head not yet in the writer's pipe
         self._fault: str | None = None
         self._next_alive = 0.0
+        # heads (loop → writer) and tails (writer → loop): the loop's ends never block
+        self._heads_r, self._heads_w = os.pipe()
+        self._tails_r, self._tails_w = os.pipe()
+        for f in (self._heads_r, self._heads_w, self._tails_r, self._tails_w):
+            os.set_blocking(f, False)
+        self._hbuf = bytearray(8)
+        self._tails = CountReader(self._tails_r)
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(target=_writer_main, name="sea-daemon-logwriter", daemon=False,
                                  args=(self._shm.name, self.capacity, self.ncols, str(self.path), self.columns,
-                                       rotate_bytes, fmt, os.getpid(), min(0.02, flush_interval / 4)))
-        self._proc.start()
+                                       rotate_bytes, fmt, os.getpid(), min(0.02, flush_interval / 4),
+                                       _PassFd(self._heads_r), _PassFd(self._tails_w)))
+        try:
+            self._proc.start()
+        finally:
+            self._close_fds("_heads_r", "_tails_w")      # the writer's ends
+        _LIVE.add(self)
         self._closed = False
 
+    def _close_fds(self, *names: str) -> None:
+        for name in names or ("_heads_w", "_tails_r"):
+            fd = getattr(self, name, -1)
+            if fd >= 0:
+                setattr(self, name, -1)
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
     def append(self, row: np.ndarray) -> bool:
-        """Copy one row into the ring (real-time safe).  False when the ring is full (counted)."""
+        """Copy one row into the ring and publish it (real-time safe: a copy, two integer
+        stores, one non-blocking write of 8 bytes).  False when the ring is full (counted)."""
         h = self.appended
-        if h - int(self._hdr[_TAIL]) >= self.capacity:
-            self.dropped += 1
-            return False
+        if h >= self._read_at or h - self._tail >= self.capacity:
+            # the writer's newest tail: every _TAIL_EVERY rows, and when the ring looks full
+            self._read_at = h + _TAIL_EVERY
+            try:
+                self._tail = self._tails.newest(self._tail)
+            except OSError:
+                pass
+            if h - self._tail >= self.capacity:
+                self.dropped += 1
+                return False
         self._data[h % self.capacity] = row
-        self.appended = h + 1
-        self._hdr[_HEAD] = h + 1
+        h += 1
+        self.appended = h
+        self._hdr[_HEAD] = h             # read by the writer only once the loop's end is closed
+        # the head through the pipe, after the row: the writer copies rows up to a head it read
+        _pack(self._hbuf, 0, h)
+        try:
+            os.write(self._heads_w, self._hbuf)  # ≤ PIPE_BUF, non-blocking: all 8 bytes or none
+            self._unsent = False
+        except OSError:
+            # pipe full (the writer not reading: 8192 heads unread): a later head replaces it;
+            # closed (the writer gone): fault() reports it
+            self._unsent = True
         return True
 
     def fault(self) -> str | None:
         """None while every row offered can still reach the file; else one line saying what
-        failed (the same string on every later call).  Real-time safe: an integer read, and
-        every 0.2 s whether the writer process still runs."""
+        failed (the same string on every later call).  Real-time safe: an integer read, a head
+        that did not fit in the pipe written again, and every 0.2 s whether the writer process
+        still runs."""
         if self._fault is not None:
             return self._fault
         if self._closed:
             return self._final["error"]
+        if self._unsent:                 # a head that did not fit: again (the loop may stop appending)
+            self._unsent = not write_count(self._heads_w, self._hbuf, self.appended)
         err = int(self._hdr[_ERRNO])
         if err:
             why = os.strerror(err) if err > 0 else "the writer failed"
@@ -264,7 +436,8 @@ class LogWriter:
         ``rows_lost`` = rows the loop offered (appended + dropped) − rows written; ``error``:
         what failed (:meth:`fault`), None when nothing did."""
         if not self._closed:
-            self._hdr[_STOP] = 1
+            _LIVE.discard(self)
+            self._close_fds("_heads_w")          # the writer drains up to the last head, then stops
             self._proc.join(timeout)
             if self._proc.is_alive():
                 self._proc.terminate()
@@ -283,6 +456,7 @@ class LogWriter:
                            "rows_dropped": self.dropped, "rows_lost": lost, "error": err,
                            "files": [str(f) for f in files]}
             self._closed = True
+            self._close_fds("_tails_r")
             del self._hdr, self._data
             self._shm.close()
             self._shm.unlink()
