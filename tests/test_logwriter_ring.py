@@ -20,11 +20,15 @@ def _row(i: int) -> np.ndarray:
     return np.array([float(i), i + 0.25, -i - 0.5, 2.0 * i])      # exact in the log's 10 digits
 
 
-def _wait(cond, timeout=30.0) -> bool:
+def _wait(cond, timeout=30.0, loop: LogWriter | None = None) -> bool:
+    """Until ``cond()``; ``loop``: call its fault() meanwhile, as the loop does every cycle (it
+    writes a head that is due)."""
     deadline = time.monotonic() + timeout
     while not cond():
         if time.monotonic() > deadline:
             return False
+        if loop is not None:
+            assert loop.fault() is None
         time.sleep(0.005)
     return True
 
@@ -50,7 +54,7 @@ def test_a_row_whose_head_is_only_in_shared_memory_is_not_written_until_the_pipe
     w = LogWriter(tmp_path / "x.csv", COLS, capacity=64, flush_interval=0.04)   # polls every 10 ms
     for i in range(3):
         assert w.append(_row(i))
-    assert _wait(lambda: w.rows_written == 3)
+    assert _wait(lambda: w.rows_written == 3, loop=w)
     _store_unpublished(w, 3)
     time.sleep(0.3)                                   # 30 polls
     assert w.rows_written == 3                        # the head in shared memory alone is not trusted
@@ -63,7 +67,7 @@ def test_a_head_split_across_two_writes_is_completed(tmp_path):
     w = LogWriter(tmp_path / "x.csv", COLS, capacity=64, flush_interval=0.04)
     for i in range(2):
         assert w.append(_row(i))
-    assert _wait(lambda: w.rows_written == 2)
+    assert _wait(lambda: w.rows_written == 2, loop=w)
     b = _store_unpublished(w, 2)
     assert os.write(w._heads_w, b[:4]) == 4
     time.sleep(0.3)
@@ -96,7 +100,7 @@ def test_a_full_tail_pipe_blocks_neither_side_and_the_newest_tail_comes_later(tm
     for _ in range(500):                                       # the writer goes on with a full pipe
         assert w.append(_row(i))
         i += 1
-    assert _wait(lambda: w.rows_written == i)
+    assert _wait(lambda: w.rows_written == i, loop=w)
     assert w._tail == 0                                        # nothing read yet
     assert _wait(lambda: w._tails.newest(w._tail) == i)   # the newest tail, once there is room
     fin = w.close()
@@ -180,3 +184,20 @@ def test_a_loop_that_exits_without_close_has_every_row_written_and_exits(tmp_pat
     path, p = _child(tmp_path, "exit")               # without the end of the pipe at exit: no exit at all
     assert p.returncode == 0
     _check_rows(path, 101)
+
+
+def test_heads_go_to_the_pipe_every_so_many_rows_or_once_due_and_every_row_arrives(tmp_path):
+    """A head per 32 rows (a quarter of a smaller ring) or once its time is due, not one per row;
+    a loop that stops appending has its last rows written through fault()."""
+    w = LogWriter(tmp_path / "x.csv", COLS, capacity=1024, flush_interval=0.4)    # heads due after 0.05 s
+    assert w._pub_rows == 32 and w._pub_s == 0.05
+    for i in range(40):
+        assert w.append(_row(i))
+    assert w._published == 33                        # the first row's head (due at once), then 32 rows on
+    assert _wait(lambda: w.rows_written == 33)
+    time.sleep(0.3)
+    assert w.rows_written == 33                       # rows 34-40: no head in the pipe yet, no fault() call
+    assert _wait(lambda: w.rows_written == 40, loop=w)
+    fin = w.close()
+    assert fin["rows_written"] == 40 and fin["error"] is None
+    _check_rows(tmp_path / "x.csv", 40)
