@@ -75,7 +75,7 @@ from multiprocessing import shared_memory
 import numpy as np
 
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.runtime.counts import INT64 as _INT64, CountReader, write_count
+from sea_daemon.runtime.counts import INT64 as _INT64, CountReader, close_fds, write_count
 
 # int64 header slots, read without order (module docstring): the worker's count of samples done
 # (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet)
@@ -410,14 +410,7 @@ class BoundWorker:
         self._shm.unlink()
 
     def _close_fds(self, *names: str) -> None:
-        for name in names:
-            fd = getattr(self, name)
-            if fd >= 0:
-                setattr(self, name, -1)
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self, names)
 
     @property
     def pid(self) -> int | None:

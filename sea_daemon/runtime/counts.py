@@ -88,3 +88,16 @@ class CountReader:
                 known = self.value(got - 1)
             elif self.eof:
                 return known
+
+
+def close_fds(obj, names) -> None:
+    """Close the descriptors held in ``obj``'s attributes ``names`` (each set to −1 first, so
+    that a second call closes nothing)."""
+    for name in names:
+        fd = getattr(obj, name, -1)
+        if fd >= 0:
+            setattr(obj, name, -1)
+            try:
+                os.close(fd)
+            except OSError:
+                pass

@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.errors import InputError, shown
-from sea_daemon.runtime.counts import INT64, CountReader
+from sea_daemon.runtime.counts import INT64, CountReader, close_fds
 
 # header slots (int64) of the shared block, read without order (module docstring): the loop's
 # head (read by the writer only after the loop's end of the heads pipe closed), the writer's
@@ -363,14 +363,7 @@ class LogWriter:
         self._closed = False
 
     def _close_fds(self, *names: str) -> None:
-        for name in names or ("_heads_w", "_tails_r"):
-            fd = getattr(self, name, -1)
-            if fd >= 0:
-                setattr(self, name, -1)
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self, names or ("_heads_w", "_tails_r"))
 
     def append(self, row: np.ndarray) -> bool:
         """Copy one row into the ring (real-time safe: a copy, two integer stores, and every
