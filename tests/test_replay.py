@@ -187,8 +187,7 @@ def test_train_is_validated_and_noted_for_akf(log_path, tmp_path, capsys):
 def test_summary_scores_a_lagging_bound_against_its_own_sample():
     """A bound worker's ρ belongs to an earlier sample (bound_of): coverage_own_sample pairs each ρ
     with that sample's error, not with the estimate published beside it."""
-    from sea_daemon.apps.commands.demo import _bound_rows
-    from sea_daemon.core.replay import ReplayResult
+    from sea_daemon.core.replay import ReplayResult, bound_rows
     N = 6
     truth = np.zeros((N, 1))
     # errors 0, 1, 0, 1, 0, 1; each row publishes the bound of the row before it, 0.5 where the
@@ -197,7 +196,7 @@ def test_summary_scores_a_lagging_bound_against_its_own_sample():
     cycle = np.arange(10, 10 + N)
     bound_cycle = np.array([-1, 10, 11, 12, 13, 14])
     bound = np.array([[0.0], [0.5], [1.5], [0.5], [1.5], [0.5]])
-    of = _bound_rows(cycle, bound_cycle)
+    of = bound_rows(cycle, bound_cycle)
     np.testing.assert_array_equal(of, [-1, 0, 1, 2, 3, 4])
     res = ReplayResult(t=np.arange(N) * 0.01, tau_h_act_hat=hat, tau_h_act_sigma=np.zeros((N, 1)),
                        tau_h_act_bound=bound, x_hat=np.zeros((N, 5)), tau_h_act=truth, step_time_s=None,
@@ -206,4 +205,4 @@ def test_summary_scores_a_lagging_bound_against_its_own_sample():
     assert s["coverage_own_sample"] == 1.0 and s["bound_age_max"] == 1
     assert s["coverage_valid"] == 0.4            # against the estimates published with them: 2 of 5
     # a bound_cycle with no row in the log (before its first row) points nowhere
-    np.testing.assert_array_equal(_bound_rows(cycle, np.array([9, 10, -1, 15, 16, 3])), [-1, 0, -1, 5, -1, -1])
+    np.testing.assert_array_equal(bound_rows(cycle, np.array([9, 10, -1, 15, 16, 3])), [-1, 0, -1, 5, -1, -1])

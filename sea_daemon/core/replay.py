@@ -81,6 +81,16 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
                         valid=ok)
 
 
+def bound_rows(cycle: np.ndarray, bound_cycle: np.ndarray) -> np.ndarray:
+    """:attr:`ReplayResult.bound_of` of a daemon log: per row, the row of the sample its ρ
+    belongs to (the log's ``bound_cycle`` as a row index of its ``cycle`` column; −1 where the
+    row publishes none or that sample has no row)."""
+    cycle = np.asarray(cycle, dtype=np.int64)
+    bc = np.asarray(bound_cycle, dtype=np.int64)
+    i = np.clip(np.searchsorted(cycle, bc), 0, max(cycle.size - 1, 0))
+    return np.where((bc >= 0) & (cycle[i] == bc), i, -1)
+
+
 def summarize(res: ReplayResult, **extra) -> dict:
     """JSON summary (docs/interfaces.md §3): estimator, samples, rmse (with truth), mean |error|,
     mean bound, coverage (fraction of samples × joints with |error| ≤ bound), step time."""

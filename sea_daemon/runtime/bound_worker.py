@@ -75,7 +75,7 @@ from multiprocessing import shared_memory
 import numpy as np
 
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.runtime.counts import INT64 as _INT64, CountReader, close_fds, write_count
+from sea_daemon.runtime.counts import CountReader, close_fds, write_count
 
 # int64 header slots, read without order (module docstring): the worker's count of samples done
 # (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet)
@@ -245,12 +245,8 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, paren
             unsent = True
         if unsent:
             # the count after the result: the loop reads the result once it has read the count
-            _INT64.pack_into(out, 0, done)
             try:
-                os.write(counts, out)            # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
-                unsent = False
-            except BlockingIOError:              # the loop not reading: the newest count later
-                pass
+                unsent = not write_count(counts, out, done)   # full: the newest count later
             except OSError:                      # the loop's end closed: the parent is gone
                 return
             hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe
@@ -421,7 +417,10 @@ class BoundWorker:
     def _send(self, head: int) -> bool:
         """Write ``head`` to the worker's pipe (which wakes it); False if it did not go."""
         # False: pipe full (the worker not reading) or closed (the worker gone)
-        return write_count(self._heads_w, self._hbuf, head)
+        try:
+            return write_count(self._heads_w, self._hbuf, head)
+        except OSError:
+            return False
 
     def _slot(self):
         """The next free slot, or None when the ring is full (the chain is broken then): a slot

@@ -23,12 +23,13 @@ INT64 = struct.Struct("=q")
 
 def write_count(fd: int, buf: bytearray, value: int) -> bool:
     """Write ``value`` as 8 bytes (``buf``: 8 bytes made once) to a non-blocking pipe: True when
-    it went, False when the pipe is full or its reading end is closed (≤ PIPE_BUF: all 8 bytes
-    go, or none)."""
+    it went, False when the pipe is full (the reader behind: write the newest count later;
+    ≤ PIPE_BUF, so all 8 bytes go or none).  Any other OSError — the reading end closed —
+    is raised."""
     INT64.pack_into(buf, 0, value)
     try:
         os.write(fd, buf)
-    except OSError:
+    except BlockingIOError:
         return False
     return True
 

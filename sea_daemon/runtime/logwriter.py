@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.errors import InputError, shown
-from sea_daemon.runtime.counts import INT64, CountReader, close_fds
+from sea_daemon.runtime.counts import CountReader, close_fds, write_count
 
 # header slots (int64) of the shared block, read without order (module docstring): the loop's
 # head (read by the writer only after the loop's end of the heads pipe closed), the writer's
@@ -79,7 +79,6 @@ _UNKNOWN = -1                        # _ERRNO of a failure that was not an OSErr
 _TAIL_EVERY = 256                    # the loop reads the writer's tails every this many rows
 _PUBLISH_ROWS = 32                   # the loop writes its head to the pipe every this many rows …
 _PUBLISH_S = 0.05                    # … or after this long [s] (at most a quarter of flush_interval)
-_pack = INT64.pack_into
 _ORPHAN_WAIT = 2.0                   # s the writer waits for the heads pipe's end after the loop's process is gone
 
 
@@ -135,14 +134,10 @@ def _drain_heads(heads: CountReader, head: int) -> int:
 def _send_tail(fd: int, out: bytearray, tail: int) -> bool:
     """Write the tail to the loop's pipe without waiting; True when it must be written again
     later (the pipe full: the loop not reading), False when it went or no one reads it."""
-    INT64.pack_into(out, 0, tail)
     try:
-        os.write(fd, out)                    # ≤ PIPE_BUF, non-blocking: all 8 bytes or EAGAIN
-    except BlockingIOError:
-        return True
+        return not write_count(fd, out, tail)
     except OSError:                          # the loop's end closed: no one reads tails
-        pass
-    return False
+        return False
 
 
 def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
@@ -393,9 +388,9 @@ class LogWriter:
         """The head through the pipe, after its rows: the writer copies rows up to a head it
         read.  A pipe full (the writer not reading: 8192 heads unread) or closed (the writer
         gone: fault() reports it) leaves the head for a later call."""
-        _pack(self._hbuf, 0, h)
         try:
-            os.write(self._heads_w, self._hbuf)  # ≤ PIPE_BUF, non-blocking: all 8 bytes or none
+            if not write_count(self._heads_w, self._hbuf, h):
+                return
         except OSError:
             return
         self._published = h

@@ -205,21 +205,12 @@ def _with_truth(log_path: str, tau_h, n: int):
     return MeasuredLog(t=log.t, q=log.q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=truth, extra=log.extra)
 
 
-def _bound_rows(cycle: np.ndarray, bound_cycle: np.ndarray) -> np.ndarray:
-    """Per row of a daemon log, the row of the sample its ρ belongs to (the log's ``bound_cycle``
-    as a row index; −1 where the row publishes none or that sample has no row)."""
-    cycle = np.asarray(cycle, dtype=np.int64)
-    bc = np.asarray(bound_cycle, dtype=np.int64)
-    i = np.clip(np.searchsorted(cycle, bc), 0, max(cycle.size - 1, 0))
-    return np.where((bc >= 0) & (cycle[i] == bc), i, -1)
-
-
 def run(args) -> int:
     from sea_daemon.io.configfile import load_config, save_config
     from sea_daemon.runtime.rig import subject_torque
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.logcsv import write_columns, write_log
-    from sea_daemon.core.replay import ReplayResult, est_columns, replay, summarize
+    from sea_daemon.core.replay import ReplayResult, bound_rows, est_columns, replay, summarize
     from sea_daemon.io.scenario import load_scenario
 
     if args.samples is not None and args.samples < 10:
@@ -279,7 +270,7 @@ def run(args) -> int:
                           tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
                           x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
                           step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
-                          bound_of=_bound_rows(x["cycle"], x["bound_cycle"]))
+                          bound_of=bound_rows(x["cycle"], x["bound_cycle"]))
         results = {}
         entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
                        "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
