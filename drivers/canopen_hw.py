@@ -63,7 +63,8 @@ from sea_daemon.core.config import ModelConfig
 from drivers import cia402
 from drivers.canopen_positions import Positions
 from drivers.bus import make_bus
-from drivers.canopen_rx import CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, TpdoWindow, arrival
+from drivers.canopen_rx import (
+    CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, Queued, TpdoWindow, arrival)
 from drivers.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
 from drivers.errors import (
@@ -71,6 +72,9 @@ from drivers.errors import (
 from drivers.interface import FaultFlag, HardwareInterface, Measurement
 
 NMT_OPERATIONAL = 0x05
+
+#: the statusword bits (mask 0x6F) of a drive in OPERATION ENABLED (read in every cycle)
+_OPERATION_ENABLED = cia402.State.OPERATION_ENABLED.bits
 
 
 class CanopenHardware(HardwareInterface):
@@ -96,6 +100,7 @@ class CanopenHardware(HardwareInterface):
         self._bus, self._owns_bus = bus, bus is None
         self._tpdo_bus = None
         self._hb_tap: FrameTap | None = None     # the heartbeats on the loop thread (once cycling)
+        self._queued: Queued | None = None       # one poll: the TPDO handle, the two taps (bits 1, 2, 4)
         self._emcy_tap: FrameTap | None = None   # the EMCY on the loop thread (once cycling)
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
@@ -224,6 +229,7 @@ class CanopenHardware(HardwareInterface):
                 except BaseException:
                     bus.shutdown()
                     raise
+            self._queued = Queued.of([self._rx.bus, self._hb_tap.bus, self._emcy_tap.bus])
         else:
             self._rx.watch(hb_ids + emcy_ids, self._tap_frame)
             self._watching = True
@@ -366,18 +372,22 @@ class CanopenHardware(HardwareInterface):
         m.faults = 0
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
-        if self._rx.drain() or self._late_pending:
+        # which handles have frames queued: one poll for the TPDO handle and the two taps
+        queued = self._queued
+        mask = queued.mask() if queued is not None else 7
+        if self._rx.drain(bool(mask & 1)) or self._late_pending:
             self._late_pending = False
             m.faults |= FaultFlag.FRAME_LATE
             self.late_cycles += 1
         # SYNC first (the loop calls read() at its deadline): the devices sample now and answer
-        # while this thread checks what arrived between cycles and sends its heartbeat
+        # while this thread checks what arrived between cycles and sends its heartbeat (what
+        # came after the poll is taken at the next cycle; an EMCY before the TPDOs, below)
         t_sync = self.clock()
         self._send(self._sync_msg, "SYNC")
-        if self._hb_tap is not None:
+        if self._hb_tap is not None and mask & 2:
             self._hb_tap.take()
         tap = self._emcy_tap
-        if tap is not None:
+        if tap is not None and mask & 4:
             tap.take()
         self._check_async()
         self._send_master_heartbeat()
@@ -446,7 +456,7 @@ class CanopenHardware(HardwareInterface):
             m.q_counts[j] = qc
             m.theta_m_counts[j] = pos
             m.tau_m_applied[j] = torque * self.nm_per_permille
-            if sw & 0x6F != cia402.State.OPERATION_ENABLED.bits and self._primed:
+            if sw & 0x6F != _OPERATION_ENABLED and self._primed:
                 m.faults |= FaultFlag.DRIVE_STATE
                 st = cia402.state_of(sw)
                 if not (self._quick_stopped and st is not cia402.State.FAULT):
@@ -522,6 +532,7 @@ class CanopenHardware(HardwareInterface):
             if tap is not None:
                 tap.bus.shutdown()
         self._hb_tap = self._emcy_tap = None
+        self._queued = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
             self._bus = None

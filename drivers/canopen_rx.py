@@ -24,6 +24,7 @@ bus-off flag.
 """
 from __future__ import annotations
 
+import select
 import time
 
 import can
@@ -134,13 +135,14 @@ class TpdoWindow:
         self._other = frozenset(cob_ids)
         self._on_other = on_frame
 
-    def drain(self) -> bool:
+    def drain(self, queued: bool = True) -> bool:
         """Before the SYNC: take what arrived since the last window (late frames) and reset the
-        slots; True when there were any."""
+        slots; True when there were any.  ``queued=False``: the caller knows that the handle has
+        nothing queued (:class:`Queued`), only the slots are reset."""
         late = False
         recv = self._recv
         by_cob, other = self._by_cob, self._other
-        while True:
+        while queued:
             frame = recv(0.0)
             if frame is None:
                 break
@@ -212,6 +214,40 @@ class FrameTap:
                 return
             if frame[0] in ids:
                 on_frame(frame[0], frame[1], frame[2])
+
+
+class Queued:
+    """Which of a few receive handles have frames queued, in one ``poll`` for all of them: the
+    cycle asks once instead of once per handle.  :meth:`of` gives None when a handle has no file
+    descriptor to poll (``virtual``, python-can-remote): every handle is then read as before."""
+
+    def __init__(self, fds):
+        self._poll = select.poll()
+        self._bit = {}
+        for i, fd in enumerate(fds):
+            self._poll.register(fd, select.POLLIN)
+            self._bit[fd] = 1 << i
+
+    @classmethod
+    def of(cls, buses) -> "Queued | None":
+        fds = []
+        for bus in buses:
+            try:
+                fd = bus.fileno()
+            except (NotImplementedError, AttributeError, OSError, ValueError):
+                return None
+            if not isinstance(fd, int) or fd < 0:
+                return None
+            fds.append(fd)
+        return cls(fds)
+
+    def mask(self) -> int:
+        """Bit i set: handle i (in the order given) has a frame queued, or an error pending."""
+        m = 0
+        bit = self._bit
+        for fd, _ in self._poll.poll(0):
+            m |= bit.get(fd, 0)
+        return m
 
 
 class ErrorFrames(can.Listener):

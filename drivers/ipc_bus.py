@@ -9,10 +9,14 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
 
 * The channel is a directory (``/dev/shm/sea-can/<channel>``, or the channel itself when it is
   an absolute path); every open bus binds one socket file in it.  A member learns the others
-  from the directory (re-read when it changes, i.e. when one joins, leaves or sets its filters:
-  an inotify watch, one ``poll`` per send; without inotify its modification time, one ``fstat``
-  per send) and sends each frame to each of them — what a CAN bus does: every node sees every
-  frame but its own (``receive_own_messages`` adds one's own).
+  from the directory, re-read when the channel's membership count changes: an 8-byte counter in
+  the file ``.members`` of the directory, mapped into every member's memory and incremented
+  (under ``flock``) by whoever joins, leaves or sets its filters — a send reads it from memory,
+  no system call.  A member increments it before it sends anything, so a member that answers a
+  frame of a newcomer (its boot-up, say) has seen the newcomer's increment (the send and the
+  receive between them order it).  The last member to leave removes the file.  Every member
+  sends each frame to each of the others — what a CAN bus does: every node sees every frame but
+  its own (``receive_own_messages`` adds one's own).
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
   bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
 * Sends never block: a member whose receive queue is full (not reading; a UNIX datagram socket
@@ -28,9 +32,10 @@ Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`
 """
 from __future__ import annotations
 
-import ctypes
 import errno
+import fcntl
 import itertools
+import mmap
 import os
 import select
 import socket
@@ -38,6 +43,7 @@ import struct
 import time
 
 import can
+import numpy as np
 
 BASE_DIR = "/dev/shm/sea-can" if os.path.isdir("/dev/shm") else "/tmp/sea-can"
 _FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 24 bytes
@@ -47,47 +53,71 @@ FILTER_SUFFIX = ".filter"
 _counter = itertools.count()
 
 
-#: inotify events of the channel directory that change its members or their filters: a socket
-#: or filter file created, removed or renamed into place, the directory itself removed or moved
-_WATCH_MASK = 0x4 | 0x8 | 0x40 | 0x80 | 0x100 | 0x200 | 0x400 | 0x800
+MEMBERS_FILE = ".members"                   # the channel's membership count (see the module docstring)
 
 
-class _DirWatch:
-    """inotify on the channel directory (Linux): :meth:`changed` says, with one ``poll`` and no
-    ``stat``, whether a member joined, left or changed its filter since the last call (every
-    change, however close together; the directory's mtime has the kernel's coarse clock)."""
+class _Members:
+    """The membership count of a channel directory: ``.members``, 8 bytes, mapped shared.
 
-    def __init__(self, fd: int):
-        self.fd = fd
-        self._poll = select.poll()
-        self._poll.register(fd, select.POLLIN)
+    :meth:`count` reads it (no system call); :meth:`bump` increments it under an exclusive
+    ``flock`` (a member joined, left or changed its filter).  ``open`` holds the lock while it
+    makes sure the file it mapped is still the directory's (the last member to leave removes it
+    under the same lock), and returns locked: the joiner binds its socket before it unlocks, so
+    a member that leaves either sees the newcomer's socket or removed the file before the
+    newcomer looked at it."""
+
+    def __init__(self, fd: int, mm: mmap.mmap):
+        self.fd, self._mm = fd, mm
+        self._count = np.frombuffer(mm, dtype=np.int64, count=1)
 
     @classmethod
-    def open(cls, path: str) -> "_DirWatch | None":
-        """A watch of ``path``, or None where inotify is not available (then an fstat per send)."""
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
-        except (OSError, AttributeError):
-            return None
-        if fd < 0:
-            return None
-        if libc.inotify_add_watch(fd, os.fsencode(path), _WATCH_MASK) < 0:
-            os.close(fd)
-            return None
-        return cls(fd)
+    def open_locked(cls, directory: str) -> "_Members":
+        path = os.path.join(directory, MEMBERS_FILE)
+        while True:
+            os.makedirs(directory, mode=0o770, exist_ok=True)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o660)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                if os.fstat(fd).st_nlink == 0:       # removed by the last leaver meanwhile: anew
+                    os.close(fd)
+                    continue
+                if os.fstat(fd).st_size < 8:
+                    os.ftruncate(fd, 8)
+                mm = mmap.mmap(fd, 8)
+            except BaseException:
+                os.close(fd)
+                raise
+            return cls(fd, mm)
 
-    def changed(self) -> bool:
-        if not self._poll.poll(0):
-            return False
+    def count(self) -> int:
+        return self._count.item(0)
+
+    def linked(self) -> bool:
+        """Whether the file is still the directory's (not removed with it)."""
         try:
-            while os.read(self.fd, 4096):          # the events themselves are not needed
-                pass
-        except BlockingIOError:
-            pass
-        return True
+            return os.fstat(self.fd).st_nlink > 0
+        except OSError:
+            return False
+
+    def lock(self) -> None:
+        fcntl.flock(self.fd, fcntl.LOCK_EX)
+
+    def unlock(self) -> None:
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+
+    def bump(self, locked: bool = False) -> None:
+        """Count one change (under the lock, taken here unless ``locked``)."""
+        if not locked:
+            self.lock()
+        try:
+            self._count[0] += 1
+        finally:
+            if not locked:
+                self.unlock()
 
     def close(self) -> None:
+        del self._count
+        self._mm.close()
         os.close(self.fd)
 
 
@@ -113,24 +143,15 @@ class IpcBus(can.BusABC):
         self._own = receive_own_messages
         self._pending: list[can.Message] = []
         self.overruns = 0                       # frames a full member queue lost (all members)
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        try:
-            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
-        except OSError:
-            pass
+        self._rcvbuf = rcvbuf
+        self._sock = self._socket()
         self.path = os.path.join(self._dir, f"{os.getpid()}-{next(_counter)}")
-        try:
-            os.unlink(self.path)
-        except FileNotFoundError:
-            pass
-        self._sock.bind(self.path)
         self._rd = (self._sock,)
         self._poll = select.poll()                  # recv_frame(0): is a frame queued (no exception)
         self._poll.register(self._sock.fileno(), select.POLLIN)
-        self._peers: list[str] = []
-        self._mtime = -1
-        self._dfd = -1                              # the channel directory, open
-        self._watch: _DirWatch | None = None        # its inotify watch (None: an fstat per send)
+        self._peers: list[tuple] = []
+        self._seen = -1                             # the membership count the list was made at
+        self._next_link_check = 0.0                 # when to check that .members is the directory's
         self._buf = bytearray(_FRAME.size)
         self._rbuf = bytearray(64)                  # recv_frame's receive buffer
         self._rview = memoryview(self._rbuf)
@@ -139,43 +160,60 @@ class IpcBus(can.BusABC):
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
         self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
+        self._members = self._join()
         super().__init__(channel=self.channel, **kwargs)
         self._refresh()
 
     # ------------------------------------------------------------------ members
-    def _refresh(self) -> None:
-        """Re-read the members and their filters when the directory changed: its inotify watch
-        (one ``poll`` per send), or where there is none its mtime (one fstat per send); a
-        directory removed meanwhile is made again."""
-        w = self._watch
-        if w is not None and not w.changed():
-            return
+    def _socket(self) -> socket.socket:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            st = os.fstat(self._dfd)
-            if st.st_nlink == 0:                   # removed: the path leads elsewhere (or nowhere)
-                raise FileNotFoundError
-            m = st.st_mtime_ns
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
         except OSError:
-            if self._dfd >= 0:
-                os.close(self._dfd)
-                self._dfd = -1
-            if w is not None:
-                w.close()
-                self._watch = w = None
-            os.makedirs(self._dir, mode=0o770, exist_ok=True)
-            self._dfd = os.open(self._dir, os.O_RDONLY | os.O_DIRECTORY)
-            # watched before it is listed: a change after the listing is seen at the next send
-            self._watch = w = _DirWatch.open(self._dir)
-            m = os.fstat(self._dfd).st_mtime_ns
-            self._mtime = -1
-        if w is None and m == self._mtime:
+            pass
+        return sock
+
+    def _join(self) -> _Members:
+        """Bind this member's socket and count the change, under the channel's lock."""
+        members = _Members.open_locked(self._dir)
+        try:
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+            self._sock.bind(self.path)
+            members.bump(locked=True)
+        except BaseException:
+            members.unlock()
+            members.close()
+            self._sock.close()
+            raise
+        members.unlock()
+        return members
+
+    def _refresh(self) -> None:
+        """Re-read the members and their filters when the channel's membership count moved (a
+        read of shared memory per send); every 0.25 s also whether the count's file is still
+        the directory's (a directory removed and made again: joined anew)."""
+        m = self._members
+        now = time.monotonic()
+        if now >= self._next_link_check:
+            self._next_link_check = now + 0.25
+            if not m.linked():
+                self._rejoin()
+                m = self._members
+        c = m.count()
+        if c == self._seen:
             return
-        self._mtime = m
+        self._seen = c
         me = os.path.basename(self.path)
-        names = set(os.listdir(self._dir))
+        try:
+            names = set(os.listdir(self._dir))
+        except OSError:
+            names = set()
         peers = []
         for f in sorted(names):
-            if f == me or f.endswith((FILTER_SUFFIX, ".tmp")):
+            if f == me or f.startswith(".") or f.endswith((FILTER_SUFFIX, ".tmp")):
                 continue
             acc = None
             if f + FILTER_SUFFIX in names:
@@ -188,6 +226,31 @@ class IpcBus(can.BusABC):
         self._peers = peers
         self._dest = {}
 
+    def _rejoin(self) -> None:
+        """The channel's directory went (removed under the members): make it again, bind anew."""
+        old = self._members
+        self._members = _Members.open_locked(self._dir)
+        try:
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+            sock = self._socket()
+            try:
+                sock.bind(self.path)
+                # the new socket under the old descriptor: whoever polls this handle's fileno()
+                # (the driver's one poll for its handles) keeps polling the right socket
+                os.dup2(sock.fileno(), self._sock.fileno())
+            finally:
+                sock.close()
+            if self._accept is not None:
+                self._publish_filter()
+            self._members.bump(locked=True)
+        finally:
+            self._members.unlock()
+            old.close()
+        self._seen = -1
+
     def _gone(self, peer: str, stale: bool) -> None:
         self._peers = [p for p in self._peers if p[0] != peer]
         self._dest = {}
@@ -197,6 +260,7 @@ class IpcBus(can.BusABC):
                     os.unlink(f)
                 except OSError:
                     pass
+            self._members.bump()
 
     # ------------------------------------------------------------------ BusABC
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -211,8 +275,6 @@ class IpcBus(can.BusABC):
         if len(data) != dlc:
             data = bytes(data[:dlc])
         can_id = msg.arbitration_id
-        buf = self._buf
-        _FRAME.pack_into(buf, 0, can_id, flags, dlc, data, time.time())
         self._refresh()
         # the members that take this id (their published filters; error frames pass every filter)
         key = -1 if flags & _ERR else can_id
@@ -222,6 +284,10 @@ class IpcBus(can.BusABC):
                          if key < 0 or acc is None or any(can_id & m == i & m for i, m in acc))
             if len(self._dest) < 4096:             # bounded: extended ids are many
                 self._dest[key] = dest
+        if not dest and not self._own:
+            return                                 # nobody takes it: nothing to send
+        buf = self._buf
+        _FRAME.pack_into(buf, 0, can_id, flags, dlc, data, time.time())
         sendto = self._sock.sendto
         for peer in dest:
             try:
@@ -256,6 +322,10 @@ class IpcBus(can.BusABC):
         # published next to the socket: the senders skip this member for other ids (a member's
         # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
         # must not fill with frames it drops anyway)
+        self._publish_filter()
+        self._members.bump()
+
+    def _publish_filter(self) -> None:
         path = self.path + FILTER_SUFFIX
         try:
             if self._accept is None:
@@ -357,21 +427,35 @@ class IpcBus(can.BusABC):
         if self._closed:
             return
         self._closed = True
-        if self._dfd >= 0:
-            os.close(self._dfd)
-            self._dfd = -1
-        if self._watch is not None:
-            self._watch.close()
-            self._watch = None
         try:
             self._sock.close()
-        finally:
-            for f in (self.path, self.path + FILTER_SUFFIX):
+        except OSError:
+            pass
+        m = getattr(self, "_members", None)        # None: never joined (the constructor failed)
+        if m is not None:
+            # leave under the channel's lock; the last member removes the count's file
+            m.lock()
+            try:
+                for f in (self.path, self.path + FILTER_SUFFIX):
+                    try:
+                        os.unlink(f)
+                    except OSError:
+                        pass
+                m.bump(locked=True)
                 try:
-                    os.unlink(f)
+                    left = [f for f in os.listdir(self._dir) if not f.startswith(".")
+                            and not f.endswith((FILTER_SUFFIX, ".tmp"))]
                 except OSError:
-                    pass
-            super().shutdown()
+                    left = None
+                if left == []:
+                    try:
+                        os.unlink(os.path.join(self._dir, MEMBERS_FILE))
+                    except OSError:
+                        pass
+            finally:
+                m.unlock()
+                m.close()
+        super().shutdown()
 
     @staticmethod
     def _detect_available_configs():

@@ -96,12 +96,15 @@ def _run(cfg, cycles, worker=False, pause=0.0, kill_at=None, **kw):
     return np.array(log.rows), loop, stats, link
 
 
-def test_worker_bound_equals_the_in_loop_bound_sample_by_sample(cfg):
+@pytest.mark.parametrize("counts", ["pipe", "memory"])
+def test_worker_bound_equals_the_in_loop_bound_sample_by_sample(cfg, counts):
+    if counts == "memory" and bw.counts_path() != "memory":
+        pytest.skip("counts through shared memory only on a CPU with total store order (x86-64)")
     a, _, _, _ = _run(cfg, 400)
     # a lock-step loop outruns the worker: a large max age, so that every finished bound is published
-    b, _, st, _ = _run(cfg, 400, worker=True, pause=0.002, max_age=10 ** 6)
+    b, _, st, _ = _run(cfg, 400, worker=True, pause=0.002, max_age=10 ** 6, counts=counts)
     iv, ic, ib, ih = (COLS.index(c) for c in ("valid", "bound_cycle", "tau_h_act_bound", "tau_h_act_hat"))
-    assert st["where"] == "worker" and not st["broken"] and st["fault"] is None
+    assert st["where"] == "worker" and st["counts"] == counts and not st["broken"] and st["fault"] is None
     # the filter is the loop's in both: the same estimates
     both = (a[:, iv] > 0) & (b[:, iv] > 0)
     assert both.sum() > 300 and np.array_equal(a[both, ih], b[both, ih])
@@ -242,7 +245,7 @@ def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bw.OK, epo
 
 def test_the_loop_takes_a_result_only_once_its_count_came_through_the_pipe(cfg):
     # the test plays the worker (not started): results and counts written by hand
-    link = BoundWorker(_estimator(cfg), max_age=10)
+    link = BoundWorker(_estimator(cfg), max_age=10, counts="pipe")
     try:
         e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
         _hand(link, e, 7)                                    # sample 0
@@ -261,8 +264,31 @@ def test_the_loop_takes_a_result_only_once_its_count_came_through_the_pipe(cfg):
         link.close()
 
 
+def test_with_counts_in_shared_memory_the_loop_takes_a_result_once_the_count_is_stored(cfg):
+    # x86-64 (total store order): the worker's count of samples done is the header's, no pipe
+    assert bw.counts_path("x86_64") == "memory" and bw.counts_path("aarch64") == "pipe"
+    assert bw.counts_path("armv7l") == "pipe" and bw.counts_path("riscv64") == "pipe"
+    with pytest.raises(ValueError, match="auto, pipe or memory"):
+        BoundWorker(_estimator(cfg), counts="fence")
+    link = BoundWorker(_estimator(cfg), max_age=10, counts="memory")   # not started: the test is the worker
+    try:
+        e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
+        _hand(link, e, 7)                                    # sample 0
+        _result(link, 0, 7, 1.25)                            # complete, its count not stored yet
+        link._hdr[bw._DONE] = 0
+        link.cycle = 8
+        link._collect(e)
+        assert link.bound_cycle == -1 and not link.valid and e.tau_h_act_bound[0] == 0.0
+        link._hdr[bw._DONE] = 1                              # the worker's store after the result, no pipe
+        link._collect(e)
+        assert link.bound_cycle == 7 and link.valid and e.tau_h_act_bound[0] == 1.25
+        assert link.stats()["counts"] == "memory"
+    finally:
+        link.close()
+
+
 def test_a_full_ring_breaks_the_bound_until_the_reset_and_the_old_chain_is_never_published(cfg):
-    link = BoundWorker(_estimator(cfg), max_age=10, capacity=4)   # not started: the test is the worker
+    link = BoundWorker(_estimator(cfg), max_age=10, capacity=4, counts="pipe")   # not started: the test is the worker
     try:
         e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
         for c in range(4):
@@ -333,7 +359,7 @@ def test_the_worker_computes_a_sample_only_once_its_head_came_whole_through_the_
 def test_a_full_count_pipe_blocks_neither_side_and_the_newest_count_comes_later(cfg):
     import fcntl
     est = _estimator(cfg)
-    link = BoundWorker(est, max_age=10 ** 6)
+    link = BoundWorker(est, max_age=10 ** 6, counts="pipe")
     fcntl.fcntl(link._counts_w, fcntl.F_SETPIPE_SZ, 4096)   # room for 512 counts
     link.start()
     e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1))

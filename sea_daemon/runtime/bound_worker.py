@@ -40,7 +40,12 @@ the newest complete one and keeps the bytes of one split across two reads.  The 
 the worker's CPU time and scheduling (statistics), and its own count of samples done, stored
 after each count written to the pipe — the loop reads its pipe only in a cycle where that count
 is ahead of the last one the pipe gave it (no system call in a cycle with nothing new); seen
-late it delays the read, seen early the read finds nothing yet.
+late it delays the read, seen early the read finds nothing yet.  On a CPU with total store order
+(x86-64: stores become visible in program order, loads are not reordered with loads or with later
+stores) that count in shared memory is itself enough — stored after the sample's result and
+after the worker read the slot's inputs — and the loop reads it instead of the pipe
+(``counts="auto"`` picks it there, :func:`counts_path`; one system call less per cycle).  The
+heads go through the worker's pipe on every CPU: its write is what wakes the worker.
 
 A ring full (the worker a whole ring of samples behind, as far as the counts that came back
 say) breaks the set recursion: the bound is unavailable until the estimator's next reset
@@ -67,6 +72,7 @@ import ctypes
 import ctypes.util
 import multiprocessing as mp
 import os
+import platform
 import select
 import signal
 import time
@@ -136,7 +142,8 @@ def _pdeathsig() -> None:
 
 
 def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict, record: int,
-                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int) -> None:
+                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
+                 via_pipe: bool = True) -> None:
     _pdeathsig()
     for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
         try:
@@ -169,15 +176,16 @@ def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dic
         res = np.ndarray((cap, rwidth), dtype=np.float64, buffer=shm.buf, offset=o)
         o += cap * rwidth * 8
         cpu_rec = np.ndarray((max(record, 1),), dtype=np.float64, buffer=shm.buf, offset=o)
-        _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid)
+        _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid, via_pipe)
     finally:
         del hdr, fhdr, ring, res, cpu_rec
         shm.close()
 
 
-def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid) -> None:
+def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid, via_pipe=True) -> None:
     """The worker's loop: every slot up to the newest head read from ``heads``, in order, each
-    one's count written to ``counts`` after its result (module docstring); then wait."""
+    one's count written to ``counts`` after its result (``via_pipe``), else stored in shared
+    memory only (module docstring); then wait."""
     bound = akf.bound
     e = akf.est
     d, n = akf.d, akf.n
@@ -244,11 +252,14 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, paren
             done += 1
             unsent = True
         if unsent:
-            # the count after the result: the loop reads the result once it has read the count
-            try:
-                unsent = not write_count(counts, out, done)   # full: the newest count later
-            except OSError:                      # the loop's end closed: the parent is gone
-                return
+            if via_pipe:
+                # the count after the result: the loop reads the result once it has read the count
+                try:
+                    unsent = not write_count(counts, out, done)   # full: the newest count later
+                except OSError:                  # the loop's end closed: the parent is gone
+                    return
+            else:
+                unsent = False                   # total store order: the store below is the count
             hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe
         if done < head:
             continue
@@ -271,6 +282,18 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, paren
             return
 
 
+#: CPUs whose stores become visible to other cores in program order and whose loads are not
+#: reordered with other loads or with later stores (total store order)
+TSO_MACHINES = frozenset({"x86_64", "amd64", "i386", "i686", "x86"})
+
+
+def counts_path(machine: str | None = None) -> str:
+    """``memory`` on a CPU with total store order (:data:`TSO_MACHINES`, ``platform.machine()``),
+    else ``pipe`` (module docstring, Memory order)."""
+    m = (platform.machine() if machine is None else machine).lower()
+    return "memory" if m in TSO_MACHINES else "pipe"
+
+
 class BoundWorker:
     """The estimator's bound in a worker process (see module docstring).
 
@@ -279,12 +302,19 @@ class BoundWorker:
     published, in cycles behind the estimate.  ``capacity``: ring slots (samples the worker may
     be behind).  ``record``: keep the first ``record`` steps' bound age and the worker's CPU time
     per sample (for ``bench loop``; 0: none).  ``rt_priority``: the worker's SCHED_FIFO priority
-    (0: SCHED_OTHER; SCHED_OTHER too where SCHED_FIFO is not permitted).
+    (0: SCHED_OTHER; SCHED_OTHER too where SCHED_FIFO is not permitted).  ``counts``: how the
+    worker's counts of samples done reach the loop — ``pipe``, ``memory`` (shared memory only:
+    correct on a CPU with total store order, x86-64), ``auto`` (:func:`counts_path`: memory on
+    x86-64, the pipe on every other CPU).
     """
 
     deferred = True
 
-    def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0):
+    def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0,
+                 counts: str = "auto"):
+        if counts not in ("auto", "pipe", "memory"):
+            raise ValueError(f"bound worker: counts must be auto, pipe or memory, got {counts!r}")
+        self.counts_via = counts_path() if counts == "auto" else counts
         why = why_not(estimator)
         if why is not None:
             raise ValueError(f"bound worker: {why}")
@@ -366,7 +396,8 @@ class BoundWorker:
         self._proc = ctx.Process(target=_worker_main, name="sea-daemon-bound", daemon=True,
                                  args=(self.akf, self._shm.name, self.capacity, self._width, self._rwidth,
                                        self._lay, self.record, self._heads_r, self._counts_w,
-                                       (self._heads_w, self._counts_r), os.getpid(), self.rt_priority))
+                                       (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
+                                       self.counts_via == "pipe"))
         self._proc.start()
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
         self.akf.bound = self
@@ -483,7 +514,13 @@ class BoundWorker:
         self._collect(est)
 
     def _collect(self, est) -> None:
-        if self._hdr.item(_DONE) > self._done:
+        if self.counts_via == "memory":
+            # total store order: the worker stored its count after the result (and after it read
+            # the slot's inputs); loads are not reordered with loads
+            d = self._hdr.item(_DONE)
+            if d > self._done:
+                self._done = d
+        elif self._hdr.item(_DONE) > self._done:
             # the worker's own count, seen in shared memory, says that a newer count is in the
             # pipe (or soon will be): read it.  Only what came through the pipe is used; a count
             # seen late in shared memory delays the read, one seen early finds the pipe empty
@@ -557,6 +594,7 @@ class BoundWorker:
         done = int(self._hdr[_DONE])
         sched = int(self._hdr[_SCHED])
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
+                "counts": self.counts_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
                 "worker_cpu_steps_s": float(self._fhdr[_F_STEPS]), "worker_cpu_process_s": float(self._fhdr[_F_PROC]),

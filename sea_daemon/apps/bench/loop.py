@@ -383,7 +383,9 @@ def run(args) -> int:
           f"{os.cpu_count()} cores)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
-    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}), published with its "
+    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, its counts of samples "
+             f"done through {'shared memory' if worker and worker.get('counts') == 'memory' else 'a pipe'}), "
+             f"published with its "
              f"sample's cycle, at most {max_age} cycles old"
              if worker is not None else "computed in the loop's estimator step"
              + (f" ({bound_where['why_not_worker']})" if bound_where.get("why_not_worker") else ""))
