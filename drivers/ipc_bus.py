@@ -12,9 +12,11 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
   from the directory, re-read when the channel's membership count changes: an 8-byte counter in
   the file ``.members`` of the directory, mapped into every member's memory and incremented
   (under ``flock``) by whoever joins, leaves or sets its filters — a send reads it from memory,
-  no system call.  A member increments it before it sends anything, so a member that answers a
-  frame of a newcomer (its boot-up, say) has seen the newcomer's increment (the send and the
-  receive between them order it).  The last member to leave removes the file.  Every member
+  no system call; a member that sees it move lists the directory under the shared ``flock``,
+  which orders the changes on any CPU.  A member increments it before it sends anything, so a
+  member that answers a frame of a newcomer (its boot-up, say) has seen the newcomer's
+  increment (the send and the receive between them order it).  The last member to leave
+  removes the file.  Every member
   sends each frame to each of the others — what a CAN bus does: every node sees every frame but
   its own (``receive_own_messages`` adds one's own).
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
@@ -60,11 +62,13 @@ class _Members:
     """The membership count of a channel directory: ``.members``, 8 bytes, mapped shared.
 
     :meth:`count` reads it (no system call); :meth:`bump` increments it under an exclusive
-    ``flock`` (a member joined, left or changed its filter).  ``open`` holds the lock while it
-    makes sure the file it mapped is still the directory's (the last member to leave removes it
-    under the same lock), and returns locked: the joiner binds its socket before it unlocks, so
-    a member that leaves either sees the newcomer's socket or removed the file before the
-    newcomer looked at it."""
+    ``flock`` (a member joined, left or changed its filter), after the change.  A member that
+    sees the count move lists the directory under the shared lock, so it sees every change
+    counted (the lock, not the mapped memory, orders them on any CPU).  :meth:`open_locked`
+    holds the lock while it makes sure the file it mapped is still the directory's (the last
+    member to leave removes it under the same lock), and returns locked: the joiner binds its
+    socket before it unlocks, so a member that leaves either sees the newcomer's socket or
+    removed the file before the newcomer looked at it."""
 
     def __init__(self, fd: int, mm: mmap.mmap):
         self.fd, self._mm = fd, mm
@@ -99,8 +103,8 @@ class _Members:
         except OSError:
             return False
 
-    def lock(self) -> None:
-        fcntl.flock(self.fd, fcntl.LOCK_EX)
+    def lock(self, shared: bool = False) -> None:
+        fcntl.flock(self.fd, fcntl.LOCK_SH if shared else fcntl.LOCK_EX)
 
     def unlock(self) -> None:
         fcntl.flock(self.fd, fcntl.LOCK_UN)
@@ -202,27 +206,31 @@ class IpcBus(can.BusABC):
             if not m.linked():
                 self._rejoin()
                 m = self._members
-        c = m.count()
-        if c == self._seen:
+        if m.count() == self._seen:
             return
-        self._seen = c
         me = os.path.basename(self.path)
-        try:
-            names = set(os.listdir(self._dir))
-        except OSError:
-            names = set()
         peers = []
-        for f in sorted(names):
-            if f == me or f.startswith(".") or f.endswith((FILTER_SUFFIX, ".tmp")):
-                continue
-            acc = None
-            if f + FILTER_SUFFIX in names:
-                try:
-                    with open(os.path.join(self._dir, f + FILTER_SUFFIX)) as fh:
-                        acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
-                except (OSError, ValueError):
-                    acc = None
-            peers.append((os.path.join(self._dir, f), acc))
+        m.lock(shared=True)                        # every change counted is in the directory
+        try:
+            c = m.count()
+            try:
+                names = set(os.listdir(self._dir))
+            except OSError:
+                names = set()
+            for f in sorted(names):
+                if f == me or f.startswith(".") or f.endswith((FILTER_SUFFIX, ".tmp")):
+                    continue
+                acc = None
+                if f + FILTER_SUFFIX in names:
+                    try:
+                        with open(os.path.join(self._dir, f + FILTER_SUFFIX)) as fh:
+                            acc = tuple(tuple(int(v, 16) for v in item.split(":")) for item in fh.read().split())
+                    except (OSError, ValueError):
+                        acc = None
+                peers.append((os.path.join(self._dir, f), acc))
+        finally:
+            m.unlock()
+        self._seen = c
         self._peers = peers
         self._dest = {}
 
