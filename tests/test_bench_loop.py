@@ -44,3 +44,7 @@ def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp
     assert "bound" not in data["stages_cpu_us"]
     assert data["stages_cpu_us"]["estimator (filter, bound handed to the worker)"]["calls"] >= 99
     assert "the bound worker's process is not included" in out and "bound age" in out
+    # how its counts reach the loop: shared memory on x86-64, the pipe elsewhere (and said so)
+    from sea_daemon.runtime.bound_worker import counts_path
+    assert w["counts"] == counts_path()
+    assert ("through shared memory" if w["counts"] == "memory" else "through a pipe") in out

@@ -2,6 +2,8 @@
 import csv
 import json
 
+import time
+
 import numpy as np
 import pytest
 
@@ -140,10 +142,20 @@ def test_bench_latency_runs(capsys):
     assert "machine:" in out and "akf: per step median" in out and "(50 runs)" in out
     assert cli.main(["bench", "latency", "--estimators", "magic"]) == 2
     # steps after the loop's idle time: each step timed after a sleep, said in the header
+    c0 = time.process_time()
     code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1", "--estimators", "akf", "--idle-ms", "2"])
+    asleep = time.process_time() - c0
     out, _ = capsys.readouterr()
     assert code == 0 and "2 ms asleep before each step" in out and "akf: per step median" in out
     assert cli.main(["bench", "latency", "--estimators", "akf", "--idle-ms", "-1"]) == 2
+    # or busy-waiting that long: ~100 steps, each 2 ms more on the CPU than asleep
+    c0 = time.process_time()
+    code = cli.main(["bench", "latency", "--seconds", "1", "--repeat", "1", "--estimators", "akf", "--idle-ms", "2",
+                     "--idle-spin"])
+    spun = time.process_time() - c0
+    out, _ = capsys.readouterr()
+    assert code == 0 and "2 ms busy-waiting before each step" in out
+    assert spun - asleep > 0.6 * 0.002 * 100
 
 
 def test_replay_two_joints_suffixed_columns(tmp_path, capsys):

@@ -74,7 +74,7 @@ def model_log(cfg, t, tau_m, tau_h, path: str = "<synthetic>") -> MeasuredLog:
 
 
 def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds: list | None = None,
-               idle_s: float = 0.0):
+               idle_s: float = 0.0, spin: bool = False):
     """Seconds per ``update`` call over the log (first ``warmup`` steps not recorded).
 
     With ``cpu``: ``(wall, cpu)``, the second the CPU time of this thread per call
@@ -83,7 +83,8 @@ def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds
     ``kinds``: a list that receives, per recorded step, what the step's LoG-GP did
     (:func:`step_kind`; GP-AKF only).  ``idle_s``: this thread sleeps that long before each
     step, as the loop does between its cycles (the step then finds the caches as another
-    process left them).
+    process left them); with ``spin`` it busy-waits that long instead (the thread keeps its
+    CPU: what is left is what the time itself does to the caches).
     """
     est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     clock = time.perf_counter_ns
@@ -95,7 +96,12 @@ def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds
         q, th, u, dt = log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1]
         before = _gp_counters(g) if g is not None else None
         if idle_s > 0.0:
-            time.sleep(idle_s)
+            if spin:
+                end = time.monotonic() + idle_s
+                while time.monotonic() < end:
+                    pass
+            else:
+                time.sleep(idle_s)
         c0 = tclock()
         t0 = clock()
         est.update(q, th, u, dt)
@@ -145,6 +151,8 @@ def add_arguments(p) -> None:
     p.add_argument("--idle-ms", type=float, default=0.0,
                    help="sleep this long before each step, as the loop does between cycles (9 at 100 Hz, "
                         "0.5 at 1 kHz; default 0: the steps back to back)")
+    p.add_argument("--idle-spin", action="store_true",
+                   help="busy-wait the --idle-ms instead of sleeping (the thread never gives up its CPU)")
     p.add_argument("--quick", action="store_true",
                    help="quick run: 10 s log, 1 pass, gp-akf up to 1e4 points")
 
@@ -184,7 +192,8 @@ def run(args) -> int:
           "(thread_time), without the time other processes had the core")
     print(f"data: {log.path}, {len(log)} samples at {1 / log.dt:.0f} Hz, {cfg.joints} joint(s), "
           f"config {args.config}; {args.repeat} pass(es), 50 warm-up steps dropped per pass; "
-          + (f"{args.idle_ms:g} ms asleep before each step" if args.idle_ms > 0 else "steps back to back"))
+          + (f"{args.idle_ms:g} ms {'busy-waiting' if args.idle_spin else 'asleep'} before each step"
+             if args.idle_ms > 0 else "steps back to back"))
     if gp_labels:
         print("gp-akf-1eK: GP-AKF step WITH online learning (GP mean + Jacobian + variance, filter step, "
               "training pair, LoG-GP update incl. hyperparameter slices) with the LoG-GP pre-filled to "
@@ -192,7 +201,7 @@ def run(args) -> int:
     for label in labels:
         est = CASES[label](cfg, log.dt, log)
         kinds = [] if hasattr(est, "gp") else None
-        runs = [time_steps(est, log, cpu=True, kinds=kinds, idle_s=args.idle_ms * 1e-3)
+        runs = [time_steps(est, log, cpu=True, kinds=kinds, idle_s=args.idle_ms * 1e-3, spin=args.idle_spin)
                 for _ in range(args.repeat)]
         times = np.concatenate([r[0] for r in runs])
         cpu = np.concatenate([r[1] for r in runs])

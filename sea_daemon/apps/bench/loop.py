@@ -342,7 +342,8 @@ def run(args) -> int:
         have = ages[ages >= 0]
         wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
         worker = {
-            "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "max_age_cycles": link.max_age,
+            "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
+            "max_age_cycles": link.max_age,
             "filter_steps": link.steps,
             "samples_done": bound_where.get("samples_done"),
             "cycles_without_bound_within_max_age": bound_where.get("stale"),
