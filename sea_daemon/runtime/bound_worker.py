@@ -260,7 +260,7 @@ def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, paren
                     return
             else:
                 unsent = False                   # total store order: the store below is the count
-            hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe
+            hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe (memory: the count)
         if done < head:
             continue
         fhdr[_F_PROC] = time.process_time()
