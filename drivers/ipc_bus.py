@@ -82,10 +82,11 @@ class _Members:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o660)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX)
-                if os.fstat(fd).st_nlink == 0:       # removed by the last leaver meanwhile: anew
+                st = os.fstat(fd)
+                if st.st_nlink == 0:                 # removed by the last leaver meanwhile: anew
                     os.close(fd)
                     continue
-                if os.fstat(fd).st_size < 8:
+                if st.st_size < 8:
                     os.ftruncate(fd, 8)
                 mm = mmap.mmap(fd, 8)
             except BaseException:
@@ -164,7 +165,11 @@ class IpcBus(can.BusABC):
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
         self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
-        self._members = self._join()
+        try:
+            self._members = self._join(self._sock.bind)
+        except BaseException:
+            self._sock.close()
+            raise
         super().__init__(channel=self.channel, **kwargs)
         self._refresh()
 
@@ -177,20 +182,22 @@ class IpcBus(can.BusABC):
             pass
         return sock
 
-    def _join(self) -> _Members:
-        """Bind this member's socket and count the change, under the channel's lock."""
+    def _join(self, bind) -> _Members:
+        """Under the channel's lock: remove a stale file at this member's path, ``bind(path)``,
+        publish its filter (if set) and count the change.  Returns the channel's count, unlocked."""
         members = _Members.open_locked(self._dir)
         try:
             try:
                 os.unlink(self.path)
             except FileNotFoundError:
                 pass
-            self._sock.bind(self.path)
+            bind(self.path)
+            if self._accept is not None:
+                self._publish_filter()
             members.bump(locked=True)
         except BaseException:
             members.unlock()
             members.close()
-            self._sock.close()
             raise
         members.unlock()
         return members
@@ -236,28 +243,20 @@ class IpcBus(can.BusABC):
 
     def _rejoin(self) -> None:
         """The channel's directory went (removed under the members): make it again, bind anew."""
-        old = self._members
-        self._members = _Members.open_locked(self._dir)
-        try:
-            try:
-                os.unlink(self.path)
-            except FileNotFoundError:
-                pass
-            sock = self._socket()
-            try:
-                sock.bind(self.path)
-                # the new socket under the old descriptor: whoever polls this handle's fileno()
-                # (the driver's one poll for its handles) keeps polling the right socket
-                os.dup2(sock.fileno(), self._sock.fileno())
-            finally:
-                sock.close()
-            if self._accept is not None:
-                self._publish_filter()
-            self._members.bump(locked=True)
-        finally:
-            self._members.unlock()
-            old.close()
+        members = self._join(self._rebind)
+        self._members, old = members, self._members
+        old.close()
         self._seen = -1
+
+    def _rebind(self, path: str) -> None:
+        """A new socket bound to ``path`` under this handle's descriptor: whoever polls its
+        fileno() (the driver's one poll for its handles) keeps polling the right socket."""
+        sock = self._socket()
+        try:
+            sock.bind(path)
+            os.dup2(sock.fileno(), self._sock.fileno())
+        finally:
+            sock.close()
 
     def _gone(self, peer: str, stale: bool) -> None:
         self._peers = [p for p in self._peers if p[0] != peer]
