@@ -340,6 +340,28 @@ def test_min_jerk_trajectory_hits_endpoints():
     assert tr.reference(1.75)[1] == pytest.approx(1.875 * math.radians(65) / 3.5)
 
 
+def test_pid_track_into_is_reference_then_step():
+    """The loop's one compiled call (minimum-jerk reference and PID step) gives the commands and
+    references of reference() followed by step_into(), sample by sample, with holds and cycling."""
+    tr = MinJerkTrajectory(math.radians(10), math.radians(75), 0.5, 2, cyclic=True, hold_s=0.2)
+    a = PID([40.0, 30.0], [5.0, 0.0], [2.0, 1.5], 0.01, torque_limit=3.0, derivative="motor")
+    b = PID([40.0, 30.0], [5.0, 0.0], [2.0, 1.5], 0.01, torque_limit=3.0, derivative="motor")
+    rng = np.random.default_rng(7)
+    q = np.full(2, math.radians(12))
+    for p in (a, b):
+        p.reset(q, np.array([0.4, -0.2]))
+    for k in range(400):                      # 4 s: holds, moves both ways, past the last move
+        t = 0.01 * k
+        q = np.full(2, tr.reference(t)[0]) + 0.02 * rng.standard_normal(2)
+        th = q + 0.01 * rng.standard_normal(2)
+        ua = a.track_into(tr.fields, t, q, th).copy()
+        q_ref, dq_ref, _ = tr.reference(t)
+        ub = b.step_into(q_ref, q, dq_ref, th)
+        np.testing.assert_array_equal(ua, ub)
+        assert np.all(a.ref[0] == q_ref) and np.all(a.ref[1] == dq_ref)
+    assert np.any(np.abs(ua) > 0.1)
+
+
 def test_pid_antiwindup_and_limit():
     pid = PID(100.0, 100.0, 0.0, 0.01, torque_limit=2.0, derivative="load")
     pid.reset(np.zeros(1), 0.0)

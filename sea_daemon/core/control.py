@@ -23,12 +23,33 @@ from sea_daemon.core.jit import njit, warmer
 _F8 = np.dtype(float)
 
 
+@njit
 def min_jerk(s: float) -> tuple[float, float, float]:
     """Minimum-jerk blend σ(s) = 10s³ − 15s⁴ + 6s⁵ on s ∈ [0, 1], with σ' and σ'' (Flash & Hogan 1985)."""
     s = min(max(s, 0.0), 1.0)
-    return (s**3 * (10.0 - 15.0 * s + 6.0 * s * s),
-            30.0 * s * s * (1.0 - s) ** 2,
+    return (s**3.0 * (10.0 - 15.0 * s + 6.0 * s * s),
+            30.0 * s * s * (1.0 - s) ** 2.0,
             60.0 * s * (1.0 - s) * (1.0 - 2.0 * s))
+
+
+@njit
+def min_jerk_reference(t: float, q_start: float, q_end: float, move_s: float, hold_s: float, moves: int,
+                       cyclic: bool) -> tuple[float, float, float]:
+    """:meth:`MinJerkTrajectory.reference` of the trajectory with these fields: (q_ref, q̇_ref, q̈_ref) at t [s]."""
+    if t <= 0.0:
+        return q_start, 0.0, 0.0
+    step = hold_s + move_s
+    i = int(t // step)
+    if not cyclic:
+        i = min(i, moves - 1)
+    tau = min(max(t - i * step - hold_s, 0.0) / move_s, 1.0)
+    if i % 2 == 0:
+        a, b = q_start, q_end
+    else:
+        a, b = q_end, q_start
+    s, ds, dds = min_jerk(tau)
+    d = b - a
+    return a + d * s, d * ds / move_s, d * dds / move_s**2.0
 
 
 @dataclass(frozen=True)
@@ -54,17 +75,13 @@ class MinJerkTrajectory:
 
     def reference(self, t: float) -> tuple[float, float, float]:
         """(q_ref, q̇_ref, q̈_ref) at time t [s]."""
-        if t <= 0.0:
-            return self.q_start, 0.0, 0.0
-        step = self.hold_s + self.move_s
-        i = int(t // step)
-        if not self.cyclic:
-            i = min(i, self.moves - 1)
-        tau = min(max(t - i * step - self.hold_s, 0.0) / self.move_s, 1.0)
-        a, b = (self.q_start, self.q_end) if i % 2 == 0 else (self.q_end, self.q_start)
-        s, ds, dds = min_jerk(tau)
-        d = b - a
-        return a + d * s, d * ds / self.move_s, d * dds / self.move_s**2
+        return min_jerk_reference(float(t), float(self.q_start), float(self.q_end), float(self.move_s),
+                                  float(self.hold_s), int(self.moves), bool(self.cyclic))
+
+    @property
+    def fields(self) -> np.ndarray:
+        """The fields :meth:`PID.track_into` takes: q_start, q_end, move_s, hold_s, moves, cyclic."""
+        return np.array([self.q_start, self.q_end, self.move_s, self.hold_s, self.moves, 1.0 if self.cyclic else 0.0])
 
 
 class PID:
@@ -102,6 +119,7 @@ class PID:
         self._dq = np.zeros(1)
         self._gains = None               # (3, n) kp, ki, kd of the compiled step
         self._u_fast = None              # the command array once the state arrays exist (step_into)
+        self._ref = np.zeros((2, 1))     # the last step's q_ref, q̇_ref (2, n)
 
     def reset(self, q: np.ndarray, u0=0.0) -> None:
         """Start at rest with output u0 (bumpless); q is the measured angle the D term differentiates."""
@@ -156,6 +174,38 @@ class PID:
         self._u_fast = self._u
         return self._u
 
+    def track_into(self, traj: np.ndarray, t: float, q_meas, theta_m_meas=None) -> np.ndarray:
+        """:meth:`step_into` on the minimum-jerk reference at t of the trajectory with the
+        :attr:`MinJerkTrajectory.fields` ``traj``, the reference and the step in one compiled
+        call; afterwards :attr:`ref` holds (q_ref, q̇_ref) per joint."""
+        u = self._u_fast
+        if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
+            v = q_meas if self.derivative == "load" else theta_m_meas
+            if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
+                _track_step(t, traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
+                            self._q_prev, self.integral, u)
+                return u
+        q_ref, dq_ref, _ = min_jerk_reference(float(t), traj[0], traj[1], traj[2], traj[3], int(traj[4]),
+                                              traj[5] != 0.0)
+        return self.step_into(q_ref, q_meas, dq_ref, theta_m_meas)
+
+    @property
+    def ref(self) -> np.ndarray:
+        """The last step's reference, rows q_ref and q̇_ref per joint (2, n)."""
+        return self._ref
+
+
+@njit
+def _track_step(t, traj, ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
+    """:meth:`PID.track_into`: the reference of :func:`min_jerk_reference` at t into ``ref``,
+    then :func:`_pid_step`."""
+    q_ref, dq_ref, _ = min_jerk_reference(t, traj[0], traj[1], traj[2], traj[3], int(traj[4]), traj[5] != 0.0)
+    for j in range(ref.shape[1]):
+        ref[0, j] = q_ref
+        ref[1, j] = dq_ref
+    _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out)
+
+
 @njit
 def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
     """:meth:`PID.step` per joint, the same operations in the same order as its numpy form
@@ -182,9 +232,14 @@ def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
 
 @warmer
 def _warm() -> None:
-    """The PID's compiled step with the argument types :class:`PID` passes."""
+    """The PID's compiled step, and with the minimum-jerk reference, with the argument types :class:`PID` passes."""
     _pid_step(np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, 10.0, np.zeros(1),
               np.zeros(1), np.zeros(1), np.zeros(1))
+    traj = MinJerkTrajectory(0.1, 1.0, 3.5, 6, cyclic=True)
+    traj.reference(1.0)
+    _track_step(1.0, traj.fields, np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, 10.0,
+                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
+    min_jerk(0.5)
 
 
 def cosine_torque(t: float, amplitude: float = 2.0, frequency_hz: float = 0.1, offset: float = 2.0) -> float:

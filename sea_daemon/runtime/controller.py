@@ -79,6 +79,8 @@ class ScenarioController:
                 hold_s=tr.hold_s)
             self.pid = PID(self.spec.kp, self.spec.ki, self.spec.kd, cfg.dt, self.limit, self.spec.velocity_filter_hz,
                            derivative=self.spec.derivative)
+        # minimum-jerk moves: the reference and the PID step in one compiled call (PID.track_into)
+        self._track = self.traj.fields if self.pid is not None and isinstance(self.traj, MinJerkTrajectory) else None
         self.q_ref = self.spec.q0
         self.tau_des = 0.0
 
@@ -103,6 +105,11 @@ class ScenarioController:
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
         if not self._started:
             self.start(q, theta_m)
+        if self._track is not None:
+            # the PID's command is already within ±limit (the same limit): no clip needed
+            self._out[:] = self.pid.track_into(self._track, t, q, theta_m)
+            self.q_ref = self.pid.ref.item(0)
+            return self._out
         if self.pid is not None:
             self.q_ref, dq_ref, _ = self.traj.reference(t)
             # the PID's command is already within ±limit (the same limit): no clip needed
