@@ -64,7 +64,8 @@ class Measurement:
     theta_m_counts: np.ndarray = field(default=None)  # (n,) raw drive position actual value (0x6064)
     statusword: np.ndarray = field(default=None)    # (n,) CiA 402 statusword (0x6041)
     faults: int = 0                     # FaultFlag bits seen in this cycle
-    valid: bool = False                 # False when values were held (missing TPDO)
+    valid: bool = False                 # False when values were held (missing TPDO; the loop
+    #                                     passes such a sample on extrapolated, runtime/loop.py)
 
     def __post_init__(self):
         n = self.n

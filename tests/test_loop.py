@@ -282,3 +282,81 @@ def test_a_log_that_fails_latches_LOG_FAILED_once_and_again_after_a_reset():
     loop.request_reset()
     loop.run(3)
     assert sup.latched == Fault.LOG_FAILED and sup.trips == 2       # a dead log is not cleared by a reset
+
+
+def test_a_sample_the_hardware_missed_goes_on_extrapolated_not_held():
+    """A sample the hardware missed within its tolerance (valid False, the driver's values held)
+    reaches the controller, the estimator and the log as the constant-velocity extrapolation of
+    the two samples before it (measured 0), not as the held angles; two misses in a row go on
+    at that velocity."""
+
+    class Ramp(FakeHW):
+        missing = {5, 9, 10}
+
+        def read(self):
+            k = self.k
+            self.k += 1
+            held = k in self.missing
+            j = max(m for m in range(k + 1) if m not in self.missing)      # the last sample received
+            q = 0.1 + 0.01 * j + 0.001 * j * j
+            return types.SimpleNamespace(t=k * 0.01, q=np.array([q]), theta_m=np.array([0.5 * q]), valid=not held)
+
+    class Rec(ConstEstimator):
+        def __init__(self):
+            super().__init__()
+            self.got = []
+
+        def update(self, q, theta_m, tau_m, dt=None):
+            self.got.append((float(q[0]), float(theta_m[0])))
+            return super().update(q, theta_m, tau_m, dt)
+
+    class RecCtl:
+        def __init__(self):
+            self.got = []
+
+        def update(self, t, q, theta_m, est):
+            self.got.append(float(q[0]))
+            return np.array([1.0])
+
+    est, ctl = Rec(), RecCtl()
+    loop = FixedRateLoop(Ramp(), est, ctl, n=1, period=0.01, log=ListLog(), realtime=False)
+    loop.run(14)
+    x = [0.1 + 0.01 * j + 0.001 * j * j for j in range(14)]
+    want = list(x)
+    want[5] = 2 * x[4] - x[3]
+    want[9] = 2 * x[8] - x[7]
+    want[10] = 2 * want[9] - x[8]
+    got_q = [g[0] for g in est.got]
+    np.testing.assert_allclose(got_q, want, rtol=0, atol=1e-15)
+    np.testing.assert_allclose([g[1] for g in est.got], 0.5 * np.array(want), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(ctl.got, want, rtol=0, atol=1e-15)
+    rows = np.array(loop.log.rows)
+    cols = log_columns(1)
+    np.testing.assert_allclose(rows[:, cols.index("q")], want, rtol=0, atol=1e-15)
+    assert [k for k in range(14) if rows[k, cols.index("measured")] == 0.0] == [5, 9, 10]
+    assert loop.stats.extrapolated == 3
+    # on this ramp (20 rad/s² at 100 Hz) the extrapolation is off by the second difference,
+    # 0.002 rad, the held value by the step, 0.019 rad
+    assert abs(want[5] - x[5]) == pytest.approx(0.002) and abs(x[4] - x[5]) == pytest.approx(0.019)
+
+
+def test_without_two_samples_before_a_missed_one_goes_on_held():
+    """No history (the first samples; after a failed read or a reset): nothing to extrapolate
+    from, the held values go on as the hardware gave them (measured 0 all the same)."""
+
+    class Hw(FakeHW):
+        def read(self):
+            k = self.k
+            self.k += 1
+            return types.SimpleNamespace(t=k * 0.01, q=np.array([0.1 + 0.01 * min(k, 1)]), theta_m=np.array([0.0]),
+                                         valid=k != 1)
+
+    est = ConstEstimator()
+    got = []
+    orig = est.update
+    est.update = lambda q, th, tau, dt=None: (got.append(float(q[0])), orig(q, th, tau))[1]
+    loop = FixedRateLoop(Hw(), est, Push(), n=1, period=0.01, log=ListLog(), realtime=False)
+    loop.run(3)
+    assert got == [0.1, 0.11, 0.11]
+    assert loop.stats.extrapolated == 0
+    assert [r[log_columns(1).index("measured")] for r in loop.log.rows] == [1.0, 0.0, 1.0]

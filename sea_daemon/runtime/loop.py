@@ -8,7 +8,11 @@ and the device model) run it against a :class:`drivers.interface.HardwareInterfa
 One cycle k (the estimator after the write, so that it gets the torque that acts over
 [t_k, t_k+1] — see :mod:`drivers.interface`):
 
-1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault)
+1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault); a
+   sample the hardware missed within its tolerance (``valid`` False: a TPDO that did not come,
+   its values held) goes on to the controller, the estimator and the log as the constant-velocity
+   extrapolation 2·x_{k−1} − x_{k−2} of the angles of the two cycles before (``measured`` 0 in
+   its row; counted in ``stats.extrapolated``), not as the held angles
 2. ``controller.update()``   the torque command from the measurement and the last estimate
 3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
 4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
@@ -85,6 +89,7 @@ class LoopStats:
     cpu: list = field(default_factory=list)       # the loop thread's CPU time per cycle [s] (record_periods)
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
+    extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
 
 
 LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
@@ -100,7 +105,8 @@ def log_columns(n: int) -> list[str]:
     for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
         cols += column_names(base, n)
     # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s];
-    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read;
+    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read
+    # and for a sample the hardware missed (its angles extrapolated, FixedRateLoop docstring);
     # bound_cycle: the cycle whose sample the row's tau_h_act_bound belongs to (−1: no estimate)
     return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle"]
 
@@ -155,6 +161,11 @@ class FixedRateLoop:
         self._stop = False
         self._reset_requested = False
         self._t_row = -float("inf")              # the last row's time (rows strictly increasing)
+        # the angles the last two cycles passed on (a sample the hardware missed is extrapolated
+        # from them) and how many there are since the start, a failed read or a reset (≤ 2)
+        self._q1, self._q2, self._th1, self._th2 = (np.zeros(n) for _ in range(4))
+        self._qx, self._thx = np.zeros(n), np.zeros(n)
+        self._passed = 0
         self._log_fault_seen = False
         self.last_estimate = None
         self.cycle_start = 0.0
@@ -208,6 +219,7 @@ class FixedRateLoop:
             self.cycle_start = start
             if self._reset_requested:
                 self._reset_requested = False
+                self._passed = 0
                 was = sup.reset()
                 try:
                     self.hw.reset_fault()
@@ -233,9 +245,34 @@ class FixedRateLoop:
                     self._failed(e, k, start)
                 from_start = False
             t_read = self.clock()
+            measured = meas is not None
+            if measured:
+                q, theta_m = meas.q, meas.theta_m
+                if not getattr(meas, "valid", True):
+                    # the hardware missed this sample (a TPDO within its tolerance, the values
+                    # held): a held angle reads as a stop then a jump (to the PID's D term, the
+                    # differentiator, the filter's innovation); constant velocity from the two
+                    # samples before it instead: 2·x_{k−1} − x_{k−2} (held without them)
+                    measured = False
+                    if self._passed >= 2:
+                        q, theta_m = self._qx, self._thx
+                        np.multiply(self._q1, 2.0, out=q)
+                        q -= self._q2
+                        np.multiply(self._th1, 2.0, out=theta_m)
+                        theta_m -= self._th2
+                        st.extrapolated += 1
+                # the history: the buffers swap, the new sample copied in
+                self._q1, self._q2 = self._q2, self._q1
+                self._th1, self._th2 = self._th2, self._th1
+                self._q1[:] = q
+                self._th1[:] = theta_m
+                if self._passed < 2:
+                    self._passed += 1
+            else:
+                self._passed = 0
             if meas is not None and sup.ok and not from_start:
                 try:
-                    cmd = self.controller.update(meas.t, meas.q, meas.theta_m, self.last_estimate)
+                    cmd = self.controller.update(meas.t, q, theta_m, self.last_estimate)
                     self.hw.write(cmd)
                     act = self.hw.actuated(cmd)
                     if self._delay:
@@ -251,7 +288,7 @@ class FixedRateLoop:
                 if link is not None:
                     link.cycle = k
                 try:
-                    est = self.estimator.update(meas.q, meas.theta_m, self._tau)
+                    est = self.estimator.update(q, theta_m, self._tau)
                     # the estimator's own flag: 0 at a (re)start and until the filter converged
                     valid = 1.0 if est.valid else 0.0
                 except Exception as e:  # noqa: BLE001
@@ -278,8 +315,8 @@ class FixedRateLoop:
                     # the hardware's time is whole periods; one that did not move on past a
                     # placeholder row (a read that failed before its SYNC) continues from it
                     row[0] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
-                    row[1:1 + n] = meas.q
-                    row[1 + n:1 + 2 * n] = meas.theta_m
+                    row[1:1 + n] = q
+                    row[1 + n:1 + 2 * n] = theta_m
                 else:
                     row[0] = self._t_row + self.period if k else 0.0
                 self._t_row = row[0]
@@ -298,7 +335,7 @@ class FixedRateLoop:
                 row[i + 3] = start - last_start
                 row[i + 4] = done - start
                 row[i + 5] = t_read - start
-                row[i + 6] = 1.0 if meas is not None else 0.0
+                row[i + 6] = 1.0 if measured else 0.0
                 # the cycle of the sample the published ρ belongs to (the worker's bound lags)
                 row[i + 7] = (k if link is None else link.bound_cycle) if (est is not None and valid) else -1.0
                 self.log.append(row)

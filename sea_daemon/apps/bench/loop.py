@@ -16,8 +16,9 @@ GIL), or in its own process (SCHED_FIFO ``--device-rt-priority``) on the ``ipc``
 datagram sockets, one hop per frame) or behind ``python -m can_remote`` (``remote``:
 websockets through the relay process).  The TPDOs are collected until ``--tpdo-deadline`` of
 the period after the SYNC (a deadline inside the period); a cycle whose TPDOs are later holds
-the last values (up to ``--max-missed`` cycles in a row, then the TPDO_MISSING fault) and is
-counted.
+the last values in the driver (up to ``--max-missed`` cycles in a row, then the TPDO_MISSING
+fault), which the loop passes on as the constant-velocity extrapolation of the two cycles
+before; both are counted.
 
 Figures, over the N measured cycles: the loop period (start to start) minus nominal — median,
 p99, max of |period − nominal|; overruns (cycles that ended after their deadline) per 10⁵
@@ -369,6 +370,7 @@ def run(args) -> int:
                                        if res.supervisor.latched_cycle > 100 else None),
         "device_model": dev_stats,
         "missed_tpdo_cycles": int(getattr(hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(hw, "late_cycles", 0)),
+        "extrapolated_samples": int(getattr(st, "extrapolated", 0)),
         "period_us": {"median": float(np.median(periods) * 1e6), "p99": float(np.percentile(periods, 99) * 1e6),
                       "max": float(periods.max() * 1e6)},
         "overruns": st.overruns, "overruns_per_1e5": st.overruns / n_cycles * 1e5, "skipped_deadlines": st.skipped,
@@ -433,7 +435,8 @@ def run(args) -> int:
         print(f"device model answer latency (SYNC sent -> its last TPDO sent, in its process): median "
               f"{a['median']:.0f} us, p99 {a['p99']:.0f} us, max {a['max']:.0f} us; its SYNC handler CPU median "
               f"{h['median']:.0f} us, p99 {h['p99']:.0f} us ({ds['syncs']} SYNCs)")
-    print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}")
+    print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}; "
+          f"samples the loop extrapolated over them: {out['extrapolated_samples']}")
     print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
           f"and the daemon's published TPDOs); "
           f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
