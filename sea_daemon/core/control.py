@@ -182,7 +182,7 @@ class PID:
         if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
             v = q_meas if self.derivative == "load" else theta_m_meas
             if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
-                _track_step(t, traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
+                _track_step(float(t), traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
                             self._q_prev, self.integral, u)
                 return u
         q_ref, dq_ref, _ = min_jerk_reference(float(t), traj[0], traj[1], traj[2], traj[3], int(traj[4]),
