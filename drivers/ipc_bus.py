@@ -58,6 +58,12 @@ _counter = itertools.count()
 MEMBERS_FILE = ".members"                   # the channel's membership count (see the module docstring)
 
 
+def _is_member(name: str) -> bool:
+    """Whether a file of the channel directory is a member's socket (not the count, a filter or
+    a filter being written)."""
+    return not name.startswith(".") and not name.endswith((FILTER_SUFFIX, ".tmp"))
+
+
 class _Members:
     """The membership count of a channel directory: ``.members``, 8 bytes, mapped shared.
 
@@ -225,7 +231,7 @@ class IpcBus(can.BusABC):
             except OSError:
                 names = set()
             for f in sorted(names):
-                if f == me or f.startswith(".") or f.endswith((FILTER_SUFFIX, ".tmp")):
+                if f == me or not _is_member(f):
                     continue
                 acc = None
                 if f + FILTER_SUFFIX in names:
@@ -438,31 +444,36 @@ class IpcBus(can.BusABC):
             self._sock.close()
         except OSError:
             pass
+        try:
+            self._leave()
+        finally:
+            super().shutdown()
+
+    def _leave(self) -> None:
+        """Leave the channel under its lock; the last member removes the count's file."""
         m = getattr(self, "_members", None)        # None: never joined (the constructor failed)
-        if m is not None:
-            # leave under the channel's lock; the last member removes the count's file
-            m.lock()
-            try:
-                for f in (self.path, self.path + FILTER_SUFFIX):
-                    try:
-                        os.unlink(f)
-                    except OSError:
-                        pass
-                m.bump(locked=True)
+        if m is None:
+            return
+        m.lock()
+        try:
+            for f in (self.path, self.path + FILTER_SUFFIX):
                 try:
-                    left = [f for f in os.listdir(self._dir) if not f.startswith(".")
-                            and not f.endswith((FILTER_SUFFIX, ".tmp"))]
+                    os.unlink(f)
                 except OSError:
-                    left = None
-                if left == []:
-                    try:
-                        os.unlink(os.path.join(self._dir, MEMBERS_FILE))
-                    except OSError:
-                        pass
-            finally:
-                m.unlock()
-                m.close()
-        super().shutdown()
+                    pass
+            m.bump(locked=True)
+            try:
+                left = [f for f in os.listdir(self._dir) if _is_member(f)]
+            except OSError:
+                left = None
+            if left == []:
+                try:
+                    os.unlink(os.path.join(self._dir, MEMBERS_FILE))
+                except OSError:
+                    pass
+        finally:
+            m.unlock()
+            m.close()
 
     @staticmethod
     def _detect_available_configs():
