@@ -136,20 +136,28 @@ class PID:
         """One control period: the motor-torque command [N m] for the measured q (and θ_m)."""
         return self.step_into(q_ref, q_meas, dq_ref, theta_m_meas).copy()
 
+    def _fast_v(self, q_meas, theta_m_meas):
+        """The angle the D term differentiates when the compiled step can take the arrays as they
+        are (the state arrays exist; float64 arrays of n, as the loop's measurement is), else None."""
+        u = self._u_fast
+        if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
+            v = q_meas if self.derivative == "load" else theta_m_meas
+            if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
+                return v
+        return None
+
     def step_into(self, q_ref, q_meas, dq_ref=0.0, theta_m_meas=None) -> np.ndarray:
         """:meth:`step` without the copy: the command in the PID's own array (overwritten by the
         next step; the loop's per-cycle call, no allocation once the state arrays exist)."""
-        u = self._u_fast
-        if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
-            # the loop's measurement arrays (float64, n): no conversion needed
-            v = q_meas if self.derivative == "load" else theta_m_meas
-            if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
-                ref = self._ref
-                ref[0] = q_ref
-                ref[1] = dq_ref
-                _pid_step(ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev,
-                          self.integral, u)
-                return u
+        v = self._fast_v(q_meas, theta_m_meas)
+        if v is not None:
+            u = self._u_fast
+            ref = self._ref
+            ref[0] = q_ref
+            ref[1] = dq_ref
+            _pid_step(ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev,
+                      self.integral, u)
+            return u
         q = np.atleast_1d(np.asarray(q_meas, dtype=float))
         if self.derivative == "motor" and theta_m_meas is None:
             raise ValueError("PID(derivative='motor') needs theta_m_meas")
@@ -178,13 +186,12 @@ class PID:
         """:meth:`step_into` on the minimum-jerk reference at t of the trajectory with the
         :attr:`MinJerkTrajectory.fields` ``traj``, the reference and the step in one compiled
         call; afterwards :attr:`ref` holds (q_ref, q̇_ref) per joint."""
-        u = self._u_fast
-        if u is not None and type(q_meas) is np.ndarray and q_meas.shape == u.shape and q_meas.dtype == _F8:
-            v = q_meas if self.derivative == "load" else theta_m_meas
-            if type(v) is np.ndarray and v.shape == u.shape and v.dtype == _F8:
-                _track_step(float(t), traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
-                            self._q_prev, self.integral, u)
-                return u
+        v = self._fast_v(q_meas, theta_m_meas)
+        if v is not None:
+            u = self._u_fast
+            _track_step(float(t), traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
+                        self._q_prev, self.integral, u)
+            return u
         q_ref, dq_ref, _ = min_jerk_reference(float(t), traj[0], traj[1], traj[2], traj[3], int(traj[4]),
                                               traj[5] != 0.0)
         return self.step_into(q_ref, q_meas, dq_ref, theta_m_meas)
