@@ -10,7 +10,8 @@ def _bench_loop(tmp_path, capsys, bound_in):
     (printed output, its JSON); the run must succeed."""
     out_json = tmp_path / "loop.json"
     code = cli.main(["bench", "loop", "--rate", "100", "--cycles", "100", "--bus", "virtual", "--train", "300",
-                     "--rt-priority", "0", "--stages", "--bound-in", bound_in, "--json", str(out_json)])
+                     "--rt-priority", "0", "--stages", "--bound-in", bound_in, "--host-rounds", "10",
+                     "--json", str(out_json)])
     out, _ = capsys.readouterr()
     assert code == 0, out
     return out, json.loads(out_json.read_text())
@@ -30,6 +31,38 @@ def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
     # the bound is a part of the estimator's step
     assert stages["bound"]["median"] < stages["estimator (with its bound)"]["median"]
     assert "loop thread CPU per stage" in out and data["fault"] == "NONE"
+    # the host's reference workload, before and after, one period's sleep before each round
+    for w in (data["host_wake_before"], data["host_wake_after"]):
+        assert w["samples"] == 10 and w["period_s"] == 0.01 and w["hot_us"] > 0 and w["after_sleep_us"] > 0
+    assert "host: a fixed reference workload" in out
+
+
+def test_host_wake_times_the_reference_right_after_the_sleep_and_hot():
+    """The round: sleep one period, the reference timed (cold), run again, timed again (hot); the
+    factor is the ratio of the medians.  A fake clock that advances 3 per call after a sleep and 1
+    otherwise gives 3 against 1."""
+    from sea_daemon.apps.bench import host_wake
+    import pytest
+    state = {"t": 0.0, "slept": False, "sleeps": []}
+
+    def sleep(s):
+        state["sleeps"].append(s)
+        state["slept"] = True
+
+    def clock():
+        # each call ends one run of the reference: 3 s when it came right after a sleep
+        state["t"] += 3.0 if state.pop("cold", False) else 1.0
+        if state["slept"]:
+            state["slept"] = False
+            state["cold"] = True
+        return state["t"]
+
+    w = host_wake(0.004, 5, clock=clock, sleep=sleep)
+    assert state["sleeps"] == [0.004] * 5
+    assert w["after_sleep_us"] == pytest.approx(3e6) and w["hot_us"] == pytest.approx(1e6)
+    assert w["factor"] == pytest.approx(3.0) and w["samples"] == 5
+    with pytest.raises(ValueError, match="period must be > 0"):
+        host_wake(0.0, 5)
 
 
 def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp_path, capsys):

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import platform
+import struct
+import time
 
 import numpy as np
 
@@ -24,6 +26,59 @@ def machine() -> str:
     except OSError:
         pass
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+
+
+_REF_FRAME = struct.Struct("<IBB2x8sd")
+
+
+def _reference_work(a: np.ndarray, b: np.ndarray, table: dict, buf: bytearray) -> float:
+    """A fixed piece of work of the kind a cycle is made of (Python calls, dict lookups, small
+    numpy operations, struct packing); not the daemon's code, so that its cost describes the
+    host, not a change of the daemon."""
+    s = 0.0
+    for i in range(40):
+        a[1:4] = b[2:5]
+        np.multiply(a, 1.5, out=b)
+        b -= a
+        _REF_FRAME.pack_into(buf, 0, 0x180 + (i & 7), 0, 8, b"\x01\x02\x03\x04\x05\x06\x07\x08", s)
+        s += table.get(i & 15, 0.0) + float(a[1]) * 1e-9 + len(buf)
+    return s
+
+
+def host_wake(period: float, samples: int = 200, clock=time.thread_time, sleep=time.sleep) -> dict:
+    """What a cycle that starts after sleeping costs on this host, against the same work hot.
+
+    A fixed-rate loop sleeps between its cycles: the CPU may idle (and, in a virtual machine,
+    the host run something else on it) and the cycle starts with cold caches and predictors.
+    :func:`_reference_work` (fixed, not the daemon's code) is timed with the thread's CPU clock
+    ``samples`` times right after sleeping ``period`` and, in the same round, after running it
+    twice more back to back (hot).  Returns the medians [µs] and their ratio: the factor by which
+    a cycle's own CPU time on this host exceeds the same code run hot."""
+    if not period > 0 or samples < 1:
+        raise ValueError(f"host_wake: period must be > 0 s and samples >= 1, got {period!r}, {samples!r}")
+    a, b = np.zeros(8), np.linspace(0.0, 1.0, 8)
+    table = {i: 0.5 * i for i in range(16)}
+    buf = bytearray(_REF_FRAME.size)
+    cold, hot = np.empty(samples), np.empty(samples)
+    for i in range(samples):
+        sleep(period)
+        c0 = clock()
+        _reference_work(a, b, table, buf)
+        c1 = clock()
+        _reference_work(a, b, table, buf)
+        c2 = clock()
+        _reference_work(a, b, table, buf)
+        c3 = clock()
+        cold[i], hot[i] = c1 - c0, c3 - c2
+    c, h = float(np.median(cold)) * 1e6, float(np.median(hot)) * 1e6
+    return {"period_s": float(period), "samples": int(samples), "after_sleep_us": c, "hot_us": h,
+            "factor": c / h if h > 0 else float("nan")}
+
+
+def describe_host_wake(w: dict) -> str:
+    """:func:`host_wake`'s figures in words."""
+    return (f"median {w['after_sleep_us']:.0f} us after sleeping {w['period_s'] * 1e3:g} ms, "
+            f"{w['hot_us']:.0f} us hot (x{w['factor']:.2f}, {w['samples']} rounds)")
 
 
 def choose(text: str | None, allowed, flag: str) -> list[str]:

@@ -36,7 +36,9 @@ cycle and the load they are on a 1 Mbit/s bus (every frame the device model sent
 start-up included, plus the daemon's published TPDOs, which the devices' acceptance filter keeps
 out of the device model; bits per frame 47 + 8·DLC without stuffing, 55 + 10·DLC with worst-case
 stuffing); missed and late TPDO cycles; log rows dropped.  The machine's load average is printed
-before and after: the machine is shared.  The OVERRUN_STREAK fault is off by default here
+before and after: the machine is shared; so is what starting a cycle cold costs on it
+(:func:`sea_daemon.apps.bench.host_wake`: a fixed reference workload timed right after sleeping
+one period and hot, before and after the run).  The OVERRUN_STREAK fault is off by default here
 (``--overrun-fault`` keeps it), so that every measured cycle does the full work; when another fault
 latches (the estimator stops), the daemon's CPU is given over the cycles before it too.
 """
@@ -54,7 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.apps.bench import add_json_argument, json_output, machine
+from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
 
 NAME = "loop"
 HELP = "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"
@@ -90,6 +92,9 @@ def add_arguments(p) -> None:
     p.add_argument("--stages", action="store_true",
                    help="also time each stage of the cycle (read, controller, write, estimator and its bound, "
                         "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
+    p.add_argument("--host-rounds", type=int, default=100,
+                   help="rounds of the host's reference workload before and after the run (what starting a "
+                        "cycle cold costs on this machine; default 100; 0: not measured)")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
@@ -225,7 +230,11 @@ def run(args) -> int:
     if not 0.05 <= args.tpdo_deadline <= 50:
         print("sea-daemon bench loop: --tpdo-deadline must be in 0.05..50 (fraction of the period)", file=sys.stderr)
         return 2
+    if args.host_rounds < 0:
+        print("sea-daemon bench loop: --host-rounds must be >= 0", file=sys.stderr)
+        return 2
     load_before = _loadavg()
+    wake_before = host_wake(dt, args.host_rounds) if args.host_rounds else None
     procs = []
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
         tmp = Path(tmp)
@@ -316,6 +325,7 @@ def run(args) -> int:
         compute = log.extra["compute"]
         read_s = log.extra["read"]
     load_after = _loadavg()
+    wake_after = host_wake(dt, args.host_rounds) if args.host_rounds else None
     st = res.stats
     periods = np.asarray(st.periods, dtype=float)
     jit = np.abs(periods - dt)
@@ -363,6 +373,7 @@ def run(args) -> int:
         "bound_in": bound_where.get("where", "loop"), "bound_worker": worker,
         "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": deadline_ms * 1e3,
         "loadavg_before": load_before, "loadavg_after": load_after,
+        "host_wake_before": wake_before, "host_wake_after": wake_after,
         "jitter_us": _pcts(jit),
         "daemon_cpu_us": _pcts(own_cpu), "loop_thread_cpu_us": _pcts(loop_cpu), "rx_thread_cpu_us": _pcts(rx),
         # a latched fault stops the estimator: the cycles before it are the ones doing the full work
@@ -384,6 +395,10 @@ def run(args) -> int:
     print(f"bench loop on {out['machine']}")
     print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine, "
           f"{os.cpu_count()} cores)")
+    if wake_before is not None:
+        print(f"host: a fixed reference workload (not the daemon's code) costs, in thread CPU, before the run "
+              f"{describe_host_wake(wake_before)}; after the run {describe_host_wake(wake_after)} -- a cycle "
+              f"starts after such a sleep")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, its counts of samples "
