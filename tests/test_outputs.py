@@ -138,6 +138,13 @@ def test_diagnose_never_writes_a_model_its_loader_refuses(tmp_path, capsys, monk
     write_log(log, simulate(load_scenario(PASSIVE)).estimation)
     cfg = tmp_path / "k.yaml"
     cfg.write_text(CFG.read_text().replace("K_s: 110.0", "K_s: 1100.0"))
+    found = {}
+    diagnosis = dg.run_diagnosis
+
+    def remembered(*a, **k):
+        found["dg"] = diagnosis(*a, **k)
+        return found["dg"]
+    monkeypatch.setattr(dg, "run_diagnosis", remembered)
     code, _, err = run(["diagnose", log, "--config", cfg, "--out", tmp_path / "d", "--no-plots"], capsys)
     assert code == 0, err
     load_config(tmp_path / "d" / "model_augmented.yaml")            # the loader takes what was written
@@ -145,6 +152,8 @@ def test_diagnose_never_writes_a_model_its_loader_refuses(tmp_path, capsys, monk
     def refuse(c, path):
         raise ConfigError(str(path), "effects[0].params.kappa", "must be > 0, got -0.219")
     monkeypatch.setattr(dg, "config_text", refuse)
+    # the same diagnosis again (not recomputed): only what is written differs
+    monkeypatch.setattr(dg, "run_diagnosis", lambda *a, **k: found["dg"])
     code, _, err = run(["diagnose", log, "--config", cfg, "--out", tmp_path / "e", "--no-plots"], capsys)
     refused(code, err, r"the effects found make a configuration the loader refuses", r"kappa", r"nothing written")
     assert not (tmp_path / "e").exists() or not list((tmp_path / "e").iterdir())

@@ -81,11 +81,11 @@ def test_client_and_watch_against_a_run(model, tmp_path):
     from sea_daemon.client import default_socket
 
     d = short_dir(tmp_path)
-    # real-time pace (20 s at 100 Hz, however fast a cycle computes): the reader and `watch` start
+    # real-time pace (10 s at 100 Hz, however fast a cycle computes): the reader and `watch` start
     # while the daemon runs; no SCHED_FIFO for a test, and timing is not under test: the shared
     # machine's load must not latch OVERRUN_STREAK
     proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "run", "--config", CONFIG, "--model", str(model),
-                             "--device-model", PASSIVE, "--log-dir", str(d), "--cycles", "2000", "--pace", "realtime",
+                             "--device-model", PASSIVE, "--log-dir", str(d), "--cycles", "1000", "--pace", "realtime",
                              "--rt-priority", "0", "--overrun-streak", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     sock = default_socket(d)
