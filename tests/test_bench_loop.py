@@ -2,6 +2,8 @@
 figures themselves are the benchmark's; here only that it runs and reports what it says)."""
 import json
 
+import pytest
+
 from sea_daemon.apps import cli
 
 
@@ -42,7 +44,6 @@ def test_host_wake_times_the_reference_right_after_the_sleep_and_hot():
     factor is the ratio of the medians.  A fake clock that advances 3 per call after a sleep and 1
     otherwise gives 3 against 1."""
     from sea_daemon.apps.bench import host_wake
-    import pytest
     state = {"t": 0.0, "slept": False, "sleeps": []}
 
     def sleep(s):

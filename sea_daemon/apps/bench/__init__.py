@@ -45,15 +45,17 @@ def _reference_work(a: np.ndarray, b: np.ndarray, table: dict, buf: bytearray) -
     return s
 
 
-def host_wake(period: float, samples: int = 200, clock=time.thread_time, sleep=time.sleep) -> dict:
+def host_wake(period: float, samples: int = 100, clock=time.thread_time, sleep=time.sleep) -> dict:
     """What a cycle that starts after sleeping costs on this host, against the same work hot.
 
     A fixed-rate loop sleeps between its cycles: the CPU may idle (and, in a virtual machine,
     the host run something else on it) and the cycle starts with cold caches and predictors.
     :func:`_reference_work` (fixed, not the daemon's code) is timed with the thread's CPU clock
     ``samples`` times right after sleeping ``period`` and, in the same round, after running it
-    twice more back to back (hot).  Returns the medians [µs] and their ratio: the factor by which
-    a cycle's own CPU time on this host exceeds the same code run hot."""
+    twice more back to back (hot).  Returns the medians [µs] and their ratio, a property of the
+    host at the time (printed so that runs at different times can be compared); a cycle of the
+    daemon, with more code and data than the reference and a second wake for its TPDOs, shows a
+    larger factor."""
     if not period > 0 or samples < 1:
         raise ValueError(f"host_wake: period must be > 0 s and samples >= 1, got {period!r}, {samples!r}")
     a, b = np.zeros(8), np.linspace(0.0, 1.0, 8)
