@@ -5,15 +5,9 @@
 every kernel in one process takes about 100 s of one core; the tests then load the cache.
 Usage: ``python .ci/compile.py PART PARTS``.
 """
-import importlib
 import sys
 
 from sea_daemon.core import jit
 
 part, parts = int(sys.argv[1]), int(sys.argv[2])
-mine = {name for i, name in enumerate(jit.KERNEL_MODULES) if i % parts == part}
-for name in jit.KERNEL_MODULES:
-    importlib.import_module(name)
-for fn in jit._WARMERS:
-    if fn.__module__ in mine:
-        fn()
+jit.warm_modules({name for i, name in enumerate(jit.KERNEL_MODULES) if i % parts == part})

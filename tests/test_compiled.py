@@ -180,6 +180,27 @@ def test_warm_up_knows_every_module_with_compiled_kernels():
     assert _jit._n_warm == len(_jit._WARMERS)
 
 
+def test_warm_modules_runs_the_example_calls_of_the_named_modules_only(monkeypatch):
+    """A part of warm_up (CI compiles the parts in two processes at once): only the warmers the
+    named modules registered run; a name outside KERNEL_MODULES is refused."""
+    import importlib
+    for name in _jit.KERNEL_MODULES:                 # registered before the list is replaced
+        importlib.import_module(name)
+    ran = []
+
+    def example(module):
+        def fn():
+            ran.append(module)
+        fn.__module__ = module
+        return fn
+    monkeypatch.setattr(_jit, "_WARMERS", [example("sea_daemon.core.linalg"), example("sea_daemon.core.control"),
+                                           example("sea_daemon.core.kinematics")])
+    _jit.warm_modules({"sea_daemon.core.control", "sea_daemon.core.kinematics"})
+    assert ran == ["sea_daemon.core.control", "sea_daemon.core.kinematics"]
+    with pytest.raises(ValueError, match="not modules of KERNEL_MODULES"):
+        _jit.warm_modules({"sea_daemon.core.nothing"})
+
+
 def test_the_filter_step_arrays_are_named_views_of_one_buffer(cfg):
     """akf_core.views lays every array of the step out in the buffer, without gaps or overlap,
     and the AKF's named attributes are those views."""

@@ -84,3 +84,17 @@ def warm_up() -> None:
         fn = _WARMERS[_n_warm]
         _n_warm += 1
         fn()
+
+
+def warm_modules(names) -> None:
+    """Compile (or load from the cache) the kernels whose example calls the modules ``names``
+    of :data:`KERNEL_MODULES` registered -- a part of :func:`warm_up`, for compiling the parts
+    in separate processes at once (``.ci/compile.py``)."""
+    unknown = set(names) - set(KERNEL_MODULES)
+    if unknown:
+        raise ValueError(f"not modules of KERNEL_MODULES: {sorted(unknown)}")
+    for name in KERNEL_MODULES:
+        importlib.import_module(name)
+    for fn in list(_WARMERS):
+        if fn.__module__ in names:
+            fn()
