@@ -72,14 +72,19 @@ def warmer(fn: Callable[[], None]) -> Callable[[], None]:
     return fn
 
 
+def _register_all() -> None:
+    """Import every module of :data:`KERNEL_MODULES`: each registers its example calls."""
+    for name in KERNEL_MODULES:
+        importlib.import_module(name)
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel of :data:`KERNEL_MODULES`, once;
     later calls return at once."""
     global _n_warm
     if _n_warm and _n_warm == len(_WARMERS):
         return
-    for name in KERNEL_MODULES:
-        importlib.import_module(name)
+    _register_all()
     while _n_warm < len(_WARMERS):
         fn = _WARMERS[_n_warm]
         _n_warm += 1
@@ -93,8 +98,7 @@ def warm_modules(names) -> None:
     unknown = set(names) - set(KERNEL_MODULES)
     if unknown:
         raise ValueError(f"not modules of KERNEL_MODULES: {sorted(unknown)}")
-    for name in KERNEL_MODULES:
-        importlib.import_module(name)
-    for fn in list(_WARMERS):
+    _register_all()
+    for fn in _WARMERS:
         if fn.__module__ in names:
             fn()
