@@ -286,7 +286,7 @@ def test_a_log_that_fails_latches_LOG_FAILED_once_and_again_after_a_reset():
 
 def test_a_sample_the_hardware_missed_goes_on_extrapolated_not_held():
     """A sample the hardware missed within its tolerance (valid False, the driver's values held)
-    reaches the controller, the estimator and the log as the constant-velocity extrapolation of
+    reaches the controller, the estimator, the publication and the log as the constant-velocity extrapolation of
     the two samples before it (measured 0), not as the held angles; two misses in a row go on
     at that velocity."""
 
@@ -318,8 +318,15 @@ def test_a_sample_the_hardware_missed_goes_on_extrapolated_not_held():
             self.got.append(float(q[0]))
             return np.array([1.0])
 
-    est, ctl = Rec(), RecCtl()
-    loop = FixedRateLoop(Ramp(), est, ctl, n=1, period=0.01, log=ListLog(), realtime=False)
+    class RecPub:
+        def __init__(self):
+            self.got = []
+
+        def publish(self, k, meas, est, tau, fault, q=None):
+            self.got.append(float(q[0]))
+
+    est, ctl, pub = Rec(), RecCtl(), RecPub()
+    loop = FixedRateLoop(Ramp(), est, ctl, n=1, period=0.01, log=ListLog(), realtime=False, publisher=pub)
     loop.run(14)
     x = [0.1 + 0.01 * j + 0.001 * j * j for j in range(14)]
     want = list(x)
@@ -330,6 +337,7 @@ def test_a_sample_the_hardware_missed_goes_on_extrapolated_not_held():
     np.testing.assert_allclose(got_q, want, rtol=0, atol=1e-15)
     np.testing.assert_allclose([g[1] for g in est.got], 0.5 * np.array(want), rtol=0, atol=1e-15)
     np.testing.assert_allclose(ctl.got, want, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(pub.got, want, rtol=0, atol=1e-15)      # the local readers see them too
     rows = np.array(loop.log.rows)
     cols = log_columns(1)
     np.testing.assert_allclose(rows[:, cols.index("q")], want, rtol=0, atol=1e-15)

@@ -98,8 +98,11 @@ def test_local_publication_every_cycle_inf_when_invalid(sockpath):
             pub.publish(1, Meas(2, 0.01), estimate(2, valid=False), np.zeros(2), 0)
             pub.publish(2, Meas(2, 0.02), estimate(2), np.array([0.5, 0.6]), 0)
             pub.publish(3, Meas(2, 0.03), None, np.zeros(2), int(Fault.EMCY))
-            got = [sub.receive(1.0) for _ in range(4)]
-        assert [s.cycle for s in got] == [0, 1, 2, 3]
+            # a sample the hardware missed: the angles the loop passed on (extrapolated), not meas.q
+            pub.publish(4, Meas(2, 0.04), estimate(2), np.zeros(2), 0, np.array([0.3, 0.4]))
+            got = [sub.receive(1.0) for _ in range(5)]
+        assert [s.cycle for s in got] == [0, 1, 2, 3, 4]
+        assert got[2].q == (0.1, 0.2) and got[4].q == (0.3, 0.4)
         assert got[0].tau_h_act_bound == (math.inf, math.inf) and got[0].valid == (False, False)
         assert got[1].tau_h_act_bound == (math.inf, math.inf) and got[1].tau_h_act_hat == (1.25, 2.25)
         assert got[2].tau_h_act_bound == (0.5, 0.5) and got[2].valid == (True, True) and got[2].tau_m == (0.5, 0.6)

@@ -21,7 +21,8 @@ One cycle k (the estimator after the write, so that it gets the torque that acts
    (:mod:`sea_daemon.runtime.bound_worker`) the step runs the filter, and the estimate carries
    the newest ρ the worker finished, of the sample of cycle ``bound_cycle`` (logged)
 5. ``publisher.publish()``    the estimate, its bound, validity and the latched fault to the bus and
-   to local readers (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
+   to local readers, with the angles the cycle passed on (a missed sample's extrapolation)
+   (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
 6. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
    ``tau_m`` is that same torque, docs/interfaces.md §1) — in **every** cycle, through and
    after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0; the last
@@ -304,7 +305,9 @@ class FixedRateLoop:
                     pass
             self.last_estimate = est if valid else None
             if self.publisher is not None:
-                self.publisher.publish(k, meas, self.last_estimate, self._tau, sup.latched)
+                # the angles the estimate was made from: a missed sample's extrapolation, not the held values
+                self.publisher.publish(k, meas, self.last_estimate, self._tau, sup.latched,
+                                       q if meas is not None else None)
             if self.on_cycle is not None:
                 self.on_cycle(k, meas, est, self._tau)
             done = self.clock()

@@ -181,16 +181,18 @@ class Publisher:
         self.published = 0
         self.errors = 0
 
-    def publish(self, k: int, meas, est, tau, fault: int) -> None:
+    def publish(self, k: int, meas, est, tau, fault: int, q=None) -> None:
         """Cycle k: ``meas`` (None when the read failed), ``est`` (None when there is none or a
-        fault latched), ``tau`` the torque acting over [t_k, t_k+1], ``fault`` the latched code."""
+        fault latched), ``tau`` the torque acting over [t_k, t_k+1], ``fault`` the latched code,
+        ``q`` the load angles the loop passed on in this cycle (a sample the hardware missed goes
+        on extrapolated, not as the driver's held values; None: ``meas.q``)."""
         try:
-            self._publish(k, meas, est, tau, int(fault))
+            self._publish(k, meas, est, tau, int(fault), meas.q if q is None and meas is not None else q)
             self.published += 1
         except Exception:  # noqa: BLE001 - the publication never stops the cycle: counted
             self.errors += 1
 
-    def _publish(self, k: int, meas, est, tau, fault: int) -> None:
+    def _publish(self, k: int, meas, est, tau, fault: int, q) -> None:
         n = self.n
         ok = est is not None and bool(getattr(est, "valid", True)) and fault == 0
         hat, bound = self.hat, self.bound
@@ -227,7 +229,7 @@ class Publisher:
                 off = HEADER.size
                 for j in range(n):
                     sig = float(est.tau_h_act_sigma[j]) if est is not None else 0.0
-                    JOINT.pack_into(buf, off, float(meas.q[j]) if meas is not None else 0.0, float(tau[j]),
+                    JOINT.pack_into(buf, off, float(q[j]) if q is not None else 0.0, float(tau[j]),
                                     hat[j], bound[j], sig if sig == sig else 0.0,
                                     float(self.assist[j]) if (self.assist is not None and not fault) else 0.0)
                     off += JOINT.size
