@@ -33,6 +33,11 @@ def test_bench_loop_reports_the_daemons_cpu_per_stage(tmp_path, capsys):
     # the bound is a part of the estimator's step
     assert stages["bound"]["median"] < stages["estimator (with its bound)"]["median"]
     assert "loop thread CPU per stage" in out and data["fault"] == "NONE"
+    # the loop thread's page faults after the first tenth of the run are counted (the figure is the
+    # benchmark's: in this process Python's allocator may still map a page now and then)
+    pf = data["loop_thread_page_faults"]
+    assert pf["cycles"] == 90 and pf["minor"] >= 0 and pf["major"] >= 0
+    assert f"page faults of the loop thread over cycles 10..100: {pf['minor']} minor" in out
     # the host's reference workload, before and after, one period's sleep before each round
     for w in (data["host_wake_before"], data["host_wake_after"]):
         assert w["samples"] == 10 and w["period_s"] == 0.01 and w["hot_us"] > 0 and w["after_sleep_us"] > 0

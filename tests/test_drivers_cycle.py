@@ -113,3 +113,34 @@ def test_interpolation_period_encoding():
     assert interpolation_period(0.5) == (5, -1)
     with pytest.raises(ValueError):
         interpolation_period(1000.0)
+
+
+def test_tpdos_queued_by_a_late_collect_are_taken_without_waiting():
+    """The TPDO deadline bounds the wait, not the taking: a loop thread that comes to collect
+    after its deadline (preempted after the SYNC) takes the frames already queued, and does not
+    wait for more."""
+    from drivers.canopen_rx import LATE_TAKE, TpdoWindow
+    w = TpdoWindow()
+    drive, enc = w.add(1, 0x181, 8), w.add(2, 0x182, 4)
+    queue = [(0x700 + 1, b"\x05", 0.0), (0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)]
+    waits = []
+
+    def recv(timeout):
+        waits.append(timeout)
+        return queue.pop(0) if queue else None
+    w._recv = recv
+    w.drain(queued=False)
+    w.collect(deadline=1.0, clock=lambda: 2.0)            # already past the deadline
+    assert (drive.snap_count, enc.snap_count) == (1, 1)
+    assert bytes(drive.snap) == bytes(range(8)) and bytes(enc.snap[:4]) == b"\x01\x02\x03\x04"
+    assert all(t == 0.0 for t in waits)                    # no waiting past the deadline
+    # an empty queue ends it at once; a flood of other frames after at most LATE_TAKE per slot
+    w.drain(queued=False)
+    waits.clear()
+    w.collect(deadline=1.0, clock=lambda: 2.0)
+    assert (drive.snap_count, enc.snap_count) == (0, 0) and waits == [0.0]
+    queue[:] = [(0x123, b"", 0.0)] * 100
+    w.drain(queued=False)
+    waits.clear()
+    w.collect(deadline=1.0, clock=lambda: 2.0)
+    assert len(waits) == LATE_TAKE * 2 and len(queue) == 100 - LATE_TAKE * 2

@@ -32,8 +32,18 @@ from drivers.device_model.drive import DriveNode
 from drivers.device_model.encoder import EncoderNode
 from drivers.device_model.faults import FaultSpec
 from drivers.device_model.slave import DeviceNetwork
+from sea_daemon.core.buffers import resident_zeros
 
 TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
+#: the SYNC from which the handler's page faults are counted (after its start-up)
+_FAULTS_FROM_SYNC = 100
+
+
+def thread_page_faults() -> tuple[int, int]:
+    """The calling thread's (minor, major) page faults so far."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_THREAD)
+    return r.ru_minflt, r.ru_majflt
 
 
 class DeviceModel:
@@ -73,9 +83,13 @@ class DeviceModel:
         self.last_tau_h_act = np.zeros(self.n)
         self.error: BaseException | None = None
         # answer latency per SYNC (ring of the last STATS_CAP): SYNC frame's timestamp (the
-        # sender's time.time()) to the last TPDO handed to the bus, and the handler's CPU time
-        self.answer_s = np.zeros(self.STATS_CAP)
-        self.handler_cpu_s = np.zeros(self.STATS_CAP)
+        # sender's time.time()) to the last TPDO handed to the bus, and the handler's CPU time;
+        # resident now: a page first written in the SYNC handler (one every 512 SYNCs) stalled
+        # the answer by milliseconds on a virtual machine (sea_daemon.core.buffers)
+        self.answer_s = resident_zeros(self.STATS_CAP)
+        self.handler_cpu_s = resident_zeros(self.STATS_CAP)
+        self._faults0: tuple | None = None        # (thread id, its faults) at SYNC _FAULTS_FROM_SYNC
+        self._faults_final: dict | None = None    # handler_page_faults() when stopped (the thread ends)
 
     # ------------------------------------------------------------------ life cycle
     def acceptance_filters(self) -> list[dict]:
@@ -111,6 +125,7 @@ class DeviceModel:
 
     def stop(self) -> None:
         self._running = False
+        self._faults_final = self.handler_page_faults()   # while the handler's thread is there
         if self._thread is not None:
             self._thread.join(2.0)
         if self._monitor is not None:
@@ -180,10 +195,11 @@ class DeviceModel:
     def answer_stats(self) -> dict:
         """The device's answer to SYNC over the SYNCs seen (at most the last STATS_CAP): latency
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
-        handler's CPU time, median / p99 / max in µs."""
+        handler's CPU time, median / p99 / max in µs; the handler's page faults
+        (:meth:`handler_page_faults`)."""
         k = min(self.syncs, self.STATS_CAP)
         out = {"syncs": int(self.syncs), "frames": int(self.network.frames),
-               "data_bytes": int(self.network.data_bytes)}
+               "data_bytes": int(self.network.data_bytes), "handler_page_faults": self.handler_page_faults()}
         for key, a in (("answer_us", self.answer_s[:k]), ("handler_cpu_us", self.handler_cpu_s[:k])):
             a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
             out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
@@ -198,6 +214,23 @@ class DeviceModel:
             i = (self.syncs - 1) % self.STATS_CAP
             self.answer_s[i] = time.time() - timestamp if timestamp else 0.0
             self.handler_cpu_s[i] = time.thread_time() - c0
+            if self.syncs == _FAULTS_FROM_SYNC:
+                self._faults0 = (threading.get_native_id(), thread_page_faults())
+
+    def handler_page_faults(self) -> dict | None:
+        """Page faults of the thread that handles the SYNCs from its :data:`_FAULTS_FROM_SYNC`-th
+        SYNC on (``{"minor", "major"}``; None before it, or where /proc cannot tell); after
+        :meth:`stop`, the count at the stop."""
+        if self._faults_final is not None or self._faults0 is None:
+            return self._faults_final
+        tid, (mi0, ma0) = self._faults0
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                s = f.read()
+        except OSError:
+            return None
+        r = s[s.rindex(")") + 2:].split()              # fields from 3 on: minflt is 10, majflt 12
+        return {"minor": int(r[7]) - mi0, "major": int(r[9]) - ma0}
 
     def _sync(self, timestamp) -> None:
         try:

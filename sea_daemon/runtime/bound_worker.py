@@ -64,7 +64,9 @@ of −1, after the samples before it), when the writing end of its pipe closes, 
 end of the loop's pipe closes, or when the parent dies (PR_SET_PDEATHSIG, and its parent id
 checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority (below the
 loop's: the loop preempts it, and a machine busy with other work does not starve it of the CPU
-it needs, ≈ 0.1 ms per sample), else SCHED_OTHER; what applied is in :meth:`BoundWorker.stats`.
+it needs, ≈ 0.1 ms per sample) with its memory locked where permitted
+(:func:`sea_daemon.runtime.realtime.lock_memory`), else SCHED_OTHER; what applied is in
+:meth:`BoundWorker.stats`.
 """
 from __future__ import annotations
 
@@ -82,10 +84,15 @@ import numpy as np
 
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
+from sea_daemon.runtime.realtime import lock_memory
 
 # int64 header slots, read without order (module docstring): the worker's count of samples done
-# (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet)
-_DONE, _SCHED, _NHDR = 0, 1, 8
+# (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet),
+# its memory locked (1) or not (0)
+_DONE, _SCHED, _LOCKED, _NHDR = 0, 1, 2, 8
+#: how long :meth:`BoundWorker.start` waits for the worker to be set up (a dead or slow one is
+#: left to the loop's checks: BOUND_LOST, stale bounds)
+_START_WAIT_S = 30.0
 # float64 header slots (after the int64 ones): the worker's CPU time [s]: in bound steps, whole process
 _F_STEPS, _F_PROC, _NFHDR = 0, 1, 4
 # input slot: kind, cycle, k, dt, ready, gate_starts, epoch, then the arrays
@@ -164,11 +171,14 @@ def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dic
             pass
     if os.getppid() != parent_pid:
         return
+    # a forked process inherits no memory locks: its own, in real-time pace
+    locked = rt_priority > 0 and lock_memory().startswith("locked")
     shm = shared_memory.SharedMemory(name=shm_name)
     hdr = fhdr = ring = res = cpu_rec = None
     try:
         hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
         hdr[_SCHED] = sched
+        hdr[_LOCKED] = 1 if locked else 0
         fhdr = np.ndarray((_NFHDR,), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
         o = (_NHDR + _NFHDR) * 8
         ring = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf, offset=o)
@@ -389,9 +399,10 @@ class BoundWorker:
 
     # ------------------------------------------------------------------ life
 
-    def start(self) -> "BoundWorker":
+    def start(self, wait: bool = True) -> "BoundWorker":
         """Fork the worker (its AKF a copy of the loop's as it is now, with the bound) and take
-        the bound's place in the loop's AKF."""
+        the bound's place in the loop's AKF; with ``wait``, once the worker has its scheduling
+        and memory (not from inside a running loop: locking may take a second or more)."""
         ctx = mp.get_context("fork")
         self._proc = ctx.Process(target=_worker_main, name="sea-daemon-bound", daemon=True,
                                  args=(self.akf, self._shm.name, self.capacity, self._width, self._rwidth,
@@ -400,6 +411,11 @@ class BoundWorker:
                                        self.counts_via == "pipe"))
         self._proc.start()
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
+        # until the worker has its scheduling and its memory locked (faulting a few hundred MB in
+        # on one core): then the loop's first cycles do not run beside that
+        end = time.monotonic() + (_START_WAIT_S if wait else 0.0)
+        while self._hdr[_SCHED] < 0 and self._proc.is_alive() and time.monotonic() < end:
+            time.sleep(0.005)
         self.akf.bound = self
         self.started = True
         return self
@@ -596,6 +612,7 @@ class BoundWorker:
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
                 "counts": self.counts_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"),
+                "memory_locked": bool(self._hdr[_LOCKED]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
                 "worker_cpu_steps_s": float(self._fhdr[_F_STEPS]), "worker_cpu_process_s": float(self._fhdr[_F_PROC]),
                 "fault": self._fault}

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 import numpy as np
 
 from drivers.interface import HardwareInterface, Measurement
+from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.errors import EstimatorFault, Fault, HardwareError
 from sea_daemon.runtime.safety import SafetySupervisor
 
@@ -81,13 +82,43 @@ def fault_of(exc: BaseException) -> Fault:
     return Fault.INTERNAL
 
 
+class Series:
+    """float64 values appended one per cycle into a resident buffer (:mod:`sea_daemon.core.buffers`):
+    no page is first written, and nothing allocated, in the cycle — a Python list of floats takes
+    a page fault every few hundred cycles.  :meth:`reserve` before the loop; a run longer than
+    reserved doubles the buffer (an allocation then, once).  ``np.asarray(series)``: the values."""
+
+    def __init__(self, capacity: int = 1024):
+        self._a = resident_zeros(max(1, int(capacity)))
+        self.n = 0
+
+    def reserve(self, capacity: int) -> None:
+        if capacity > self._a.size:
+            a = resident_zeros(int(capacity))
+            a[:self.n] = self._a[:self.n]
+            self._a = a
+
+    def append(self, x: float) -> None:
+        if self.n == self._a.size:
+            self.reserve(2 * self.n)
+        self._a[self.n] = x
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __array__(self, dtype=None, copy=None):
+        v = self._a[:self.n]
+        return v if dtype is None else v.astype(dtype, copy=False)
+
+
 @dataclass
 class LoopStats:
     cycles: int = 0
     overruns: int = 0
     max_late_s: float = 0.0
-    periods: list = field(default_factory=list)   # filled only when record_periods=True
-    cpu: list = field(default_factory=list)       # the loop thread's CPU time per cycle [s] (record_periods)
+    periods: Series = field(default_factory=Series)   # filled only when record_periods=True
+    cpu: Series = field(default_factory=Series)       # the loop thread's CPU time per cycle [s] (record_periods)
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
     extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
@@ -213,6 +244,9 @@ class FixedRateLoop:
         last_start = t0
         k = 0
         cpu_clock = self.cpu_clock
+        if self.record_periods and cycles is not None:
+            st.cpu.reserve(len(st.cpu) + cycles)
+            st.periods.reserve(len(st.periods) + cycles)
         while not self._stop and (cycles is None or k < cycles):
             link = self.bound_link                    # may be attached while the loop runs
             start = self.clock()

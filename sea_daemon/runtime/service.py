@@ -3,18 +3,16 @@
 The hardware comes as a :class:`~sea_daemon.runtime.rig.Rig` (:func:`~sea_daemon.runtime.rig.make_rig`),
 the controller from :mod:`sea_daemon.runtime.controller`.
 
-* :func:`try_realtime` — best-effort SCHED_FIFO and ``mlockall``, skipped when not permitted.
 * :class:`StateFile` — ``sea-daemon.pid`` (JSON) in the state directory, for ``sea-daemon reset``
   and ``sea-daemon watch`` (it names the publication socket).
 * :func:`serve` — the compiled kernels loaded (:func:`sea_daemon.core.jit.warm_up`), log writer,
-  the bound worker (:mod:`.bound_worker`, ``estimator.bound_in``), real-time set-up, signals
+  the bound worker (:mod:`.bound_worker`, ``estimator.bound_in``), real-time set-up
+  (:func:`sea_daemon.runtime.realtime.try_realtime`: SCHED_FIFO, locked memory), signals
   (SIGTERM/SIGINT stop, SIGUSR1 reset), hardware start, READY=1, the loop (WATCHDOG=1 each cycle, latched or not, STATUS= once a second), STOPPING=1, clean stop
   and log close.
 """
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import gc
 import json
 import os
@@ -29,6 +27,7 @@ from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
 from sea_daemon.runtime.notify import Notifier
+from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor
 
 if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
@@ -39,36 +38,6 @@ PID_FILE = "sea-daemon.pid"
 #: the bound worker's SCHED_FIFO priority: this far below the loop's (``rt_priority``)
 WORKER_PRIORITY_BELOW = 20
 LOCK_FILE = "sea-daemon.lock"
-
-
-# ---------------------------------------------------------------------------- real time
-def try_realtime(priority: int = 80) -> dict[str, str]:
-    """SCHED_FIFO for this thread (threads started later inherit it) and mlockall, when permitted.
-
-    ``mlockall(MCL_CURRENT | MCL_FUTURE)`` is tried only when RLIMIT_MEMLOCK is unlimited (with a
-    finite limit MCL_FUTURE would make later allocations fail).  Returns what applied, e.g.
-    ``{"sched": "fifo 80", "mlockall": "skipped (EPERM)"}``; never raises.
-    """
-    out = {}
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        out["sched"] = f"fifo {priority}"
-    except (OSError, AttributeError) as e:
-        out["sched"] = f"other (SCHED_FIFO not permitted: {getattr(e, 'strerror', e)})"
-    try:
-        import resource
-        soft, _ = resource.getrlimit(resource.RLIMIT_MEMLOCK)
-        if soft != resource.RLIM_INFINITY:
-            out["mlockall"] = f"skipped (RLIMIT_MEMLOCK {soft} bytes, not unlimited)"
-        else:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-            if libc.mlockall(3) == 0:                         # MCL_CURRENT | MCL_FUTURE
-                out["mlockall"] = "locked"
-            else:
-                out["mlockall"] = f"skipped ({os.strerror(ctypes.get_errno())})"
-    except Exception as e:  # noqa: BLE001 - best effort by design
-        out["mlockall"] = f"skipped ({type(e).__name__})"
-    return out
 
 
 # ---------------------------------------------------------------------------- state file

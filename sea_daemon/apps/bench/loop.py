@@ -35,7 +35,11 @@ bus, measured in the device model's process) and its SYNC handler's CPU time; CA
 cycle and the load they are on a 1 Mbit/s bus (every frame the device model sent or received,
 start-up included, plus the daemon's published TPDOs, which the devices' acceptance filter keeps
 out of the device model; bits per frame 47 + 8·DLC without stuffing, 55 + 10·DLC with worst-case
-stuffing); missed and late TPDO cycles; log rows dropped.  The machine's load average is printed
+stuffing); missed and late TPDO cycles; log rows dropped; the page faults of the loop thread over
+the cycles after the first tenth and of the device model's SYNC handler from its 100th SYNC on
+(a page first written on the real-time path; the memory each process locked is printed: the
+loop's and the device model's with their scheduling, the worker's with the bound).  The
+machine's load average is printed
 before and after: the machine is shared; so is what starting a cycle cold costs on it
 (:func:`sea_daemon.apps.bench.host_wake`: a fixed reference workload timed right after sleeping
 one period and hot, before and after the run).  The OVERRUN_STREAK fault is off by default here
@@ -57,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
+from sea_daemon.runtime.loop import Series
 
 NAME = "loop"
 HELP = "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"
@@ -172,16 +177,18 @@ class _ThreadCpu:
 class _Stages:
     """Thread CPU time of each stage of the cycle: the stage's method on its object replaced by a
     wrapper that reads the thread's CPU clock around the call (an instance attribute: the class
-    and other instances are untouched)."""
+    and other instances are untouched); the times go into resident buffers for ``calls`` calls
+    (:class:`~sea_daemon.runtime.loop.Series`: no page fault added to the cycle)."""
 
-    def __init__(self):
-        self.times: dict[str, list] = {}
+    def __init__(self, calls: int = 1024):
+        self.times: dict[str, Series] = {}
+        self.calls = calls
 
     def wrap(self, label: str, obj, name: str) -> None:
         if obj is None or not hasattr(obj, name):
             return
         f = getattr(obj, name)
-        acc = self.times.setdefault(label, [])
+        acc = self.times.setdefault(label, Series(self.calls))
         clock = time.thread_time
 
         def timed(*a, **k):
@@ -196,7 +203,7 @@ class _Stages:
         """Median / p99 [µs] per stage over the calls after the first ``skip``."""
         out = {}
         for label, v in self.times.items():
-            v = np.asarray(v[skip:], dtype=float)
+            v = np.asarray(v, dtype=float)[skip:]
             if v.size:
                 out[label] = {"median": float(np.median(v) * 1e6), "p99": float(np.percentile(v, 99) * 1e6),
                               "calls": int(v.size)}
@@ -216,6 +223,8 @@ def run(args) -> int:
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.apps.bench.can_cycle import _server
+    from sea_daemon.core.buffers import resident_zeros
+    from drivers.device_model.model import thread_page_faults
 
     if args.cycles < 100:
         print("sea-daemon bench loop: --cycles must be >= 100", file=sys.stderr)
@@ -276,14 +285,21 @@ def run(args) -> int:
         sc = load_scenario(scen)
         controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
         n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
-        rx_cpu = np.zeros(n_cycles)                        # the receive threads' CPU clock at each cycle's end
+        # the receive threads' CPU clock at each cycle's end (resident: no page first written in the loop)
+        rx_cpu = resident_zeros(n_cycles)
         probe = {}
+
+        # the loop thread's page faults over the cycles after the first tenth (its start-up:
+        # the first filter steps, the bound worker's first results)
+        k_faults = max(1, n_cycles // 10)
 
         def progress(k, est):
             if k == 0:
                 probe["rx"] = _ThreadCpu(rig.hw)
             if k < n_cycles:
                 rx_cpu[k] = probe["rx"].now()
+            if k == k_faults or k == n_cycles - 1:
+                probe[k] = thread_page_faults()
         dev_stats = None
         # the estimate and its bound published every cycle as the daemon does: the TPDOs of its
         # node on the bus and the datagram socket for local readers (none subscribed here)
@@ -294,7 +310,7 @@ def run(args) -> int:
         max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
         in_worker = bound_in in ("auto", "worker") and not args.no_bound
         if args.stages:
-            stages = _Stages()
+            stages = _Stages(n_cycles + 10)
             for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
                                      ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
                                      ("estimator (with its bound)" if not in_worker else
@@ -354,6 +370,7 @@ def run(args) -> int:
         wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
         worker = {
             "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
+            "memory_locked": bound_where.get("memory_locked"),
             "max_age_cycles": link.max_age,
             "filter_steps": link.steps,
             "samples_done": bound_where.get("samples_done"),
@@ -389,6 +406,10 @@ def run(args) -> int:
         "compute_us": _pcts(compute), "read_us": _pcts(read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
         "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
+        "loop_thread_page_faults": ({"cycles": n_cycles - 1 - k_faults,
+                                     "minor": probe[n_cycles - 1][0] - probe[k_faults][0],
+                                     "major": probe[n_cycles - 1][1] - probe[k_faults][1]}
+                                    if k_faults in probe and n_cycles - 1 in probe else None),
         # the start-up's priming read and the first cycle not counted
         "stages_cpu_us": stages.summary(2) if stages is not None else None,
     }
@@ -401,7 +422,8 @@ def run(args) -> int:
               f"starts after such a sleep")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
-    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, its counts of samples "
+    where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
+             f"{'locked' if worker and worker.get('memory_locked') else 'not locked'}, its counts of samples "
              f"done through {'shared memory' if worker and worker.get('counts') == 'memory' else 'a pipe'}), "
              f"published with its "
              f"sample's cycle, at most {max_age} cycles old"
@@ -462,6 +484,12 @@ def run(args) -> int:
           f"sent {can_pub.get('frames_sent', 0)}, dropped {can_pub.get('frames_dropped', 0)}; local socket "
           f"(no reader subscribed)")
     print(f"log rows dropped: {out['log_rows_dropped']}")
+    pf = out["loop_thread_page_faults"]
+    if pf is not None:
+        dpf = (ds or {}).get("handler_page_faults")
+        print(f"page faults of the loop thread over cycles {k_faults}..{n_cycles - 1}: {pf['minor']} minor, "
+              f"{pf['major']} major" + (f"; of the device model's SYNC handler from its 100th SYNC on: "
+                                        f"{dpf['minor']} minor, {dpf['major']} major" if dpf else ""))
     if out["stages_cpu_us"]:
         print("loop thread CPU per stage (median / p99; a wrapper around each adds about 1 us): " + "; ".join(
             f"{k} {v['median']:.0f} / {v['p99']:.0f} us" for k, v in out["stages_cpu_us"].items()))

@@ -32,7 +32,7 @@ import numpy as np
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import FixedRateLoop, log_columns
 from sea_daemon.runtime.safety import SafetySupervisor
-from sea_daemon.runtime.service import try_realtime
+from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
 from sea_daemon.apps.bench._rig import SineTracker, bench_config, bench_rig, vm_rss_kb
 
@@ -104,8 +104,10 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                                 pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
         cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
         dev, rig = device_model_process(cfg, out_dir, ["--q0", "0.6", "--seed", "0"])
-        rig.start()
+        # as the service does: SCHED_FIFO and the memory locked before the hardware starts (locking
+        # faults the process in, which must not happen while the drives watch its heartbeat)
         rt = try_realtime(80)
+        rig.start()
     else:
         rig = bench_rig(cfg)
         rt = {"sched": "other (not asked)"}
@@ -129,7 +131,8 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                     from sea_daemon.runtime.bound_worker import BoundWorker
                     from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
                     prio = 80 - WORKER_PRIORITY_BELOW if rt.get("sched", "").startswith("fifo") else 0
-                    loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start()
+                    # started from inside the running loop: not waiting for the worker's set-up
+                    loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start(wait=False)
         if k % stride == 0 or k == warmup:
             rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
             trace.append(rec)

@@ -93,8 +93,9 @@ def run(args) -> int:
         signal.signal(sig, lambda *_: stop.set())
     rt = "not asked"
     if args.rt_priority:
-        from sea_daemon.runtime.service import try_realtime     # before the threads start: they inherit it
-        rt = try_realtime(args.rt_priority)["sched"]
+        from sea_daemon.runtime.realtime import try_realtime    # before the threads start: they inherit it
+        r = try_realtime(args.rt_priority)
+        rt = f"{r['sched']}, memory {r['mlockall']}"
     model.start()
     try:
         for f in faults:
