@@ -1,12 +1,13 @@
 """Buffers that are resident before a real-time path writes them.
 
 A freshly allocated buffer (``np.zeros``: calloc, mmap) has no pages yet: the kernel maps each
-one at its first write, a page fault on whichever path writes it first.  On a machine where
-that costs a few microseconds it is jitter; on a virtual machine whose host backs guest memory
-only when the guest first touches it, a first touch has been measured at 1–16 ms (docs/daemon.md,
-"Memory").  A buffer that the loop, the device model or the bound worker fills one sample per
-cycle is made resident here, at start-up, instead.  ``mlockall`` (``sea_daemon.runtime.realtime``)
-does the same for the whole process where it is permitted; this works without the permission.
+one at its first write, a page fault on whichever path writes it first.  On a machine where that
+costs a few microseconds it is jitter; on a virtual machine whose host backs guest memory only
+when the guest first touches it, a first touch has been measured at 1–16 ms (docs/daemon.md,
+"Memory on the real-time path").  A buffer that the loop, the device model or the bound worker
+fills one sample per cycle is made resident here, at start-up, instead.  ``mlockall``
+(``sea_daemon.runtime.realtime``) does the same for the whole process where it is permitted;
+this works without the permission.
 """
 from __future__ import annotations
 
