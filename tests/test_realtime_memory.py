@@ -63,6 +63,8 @@ def test_the_loops_series_records_a_run_without_page_faults():
     for k in range(10):
         small.append(float(k))
     assert np.array_equal(np.asarray(small, dtype=float), np.arange(10.0))
+    np.array(small)[0] = 99.0                                  # np.array copies, np.asarray views
+    assert np.asarray(small)[0] == 0.0
 
 
 def _status(tmp_path, capeff: int):

@@ -32,4 +32,3 @@ def make_resident(a: np.ndarray) -> np.ndarray:
 def resident_zeros(shape, dtype=np.float64) -> np.ndarray:
     """``np.zeros(shape, dtype)`` with every page mapped (:func:`make_resident`)."""
     return make_resident(np.zeros(shape, dtype))
-

@@ -84,8 +84,8 @@ def fault_of(exc: BaseException) -> Fault:
 
 class Series:
     """float64 values appended one per cycle into a resident buffer (:mod:`sea_daemon.core.buffers`):
-    no page is first written, and nothing allocated, in the cycle — a Python list of floats takes
-    a page fault every few hundred cycles.  :meth:`reserve` before the loop; a run longer than
+    no page is first written, and nothing allocated, in the cycle — a Python list of floats took
+    a page fault about every 100 appends.  :meth:`reserve` before the loop; a run longer than
     reserved doubles the buffer (an allocation then, once).  ``np.asarray(series)``: the values."""
 
     def __init__(self, capacity: int = 1024):
@@ -109,7 +109,9 @@ class Series:
 
     def __array__(self, dtype=None, copy=None):
         v = self._a[:self.n]
-        return v if dtype is None else v.astype(dtype, copy=False)
+        if dtype is not None:
+            v = v.astype(dtype, copy=bool(copy))
+        return v.copy() if copy and dtype is None else v
 
 
 @dataclass
