@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 from sea_daemon.errors import InputError
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.replay import replay, summarize
@@ -61,7 +61,7 @@ def register(label: str, builder: Callable) -> None:
 
 
 def default_scenarios() -> list[str]:
-    d = repo_root() / "configs" / "scenarios"
+    d = data_root() / "configs" / "scenarios"
     return [str(d / "passive.yaml"), str(d / "active.yaml")]
 
 

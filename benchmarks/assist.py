@@ -37,11 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root, import_root
 
 NAME = "assist"
 HELP = "assist-as-needed in the device model's tracking task: effort, tracking, stability, corrupted estimates"
-SCENARIO = repo_root() / "configs" / "scenarios" / "assist_track.yaml"
+SCENARIO = data_root() / "configs" / "scenarios" / "assist_track.yaml"
 
 
 def add_arguments(p) -> None:
@@ -190,7 +190,7 @@ def metrics(r: dict, task, dt: float, skip_s: float = 2.0) -> dict:
 # ---------------------------------------------------------------------------- corruptions
 def corrupted(scenario: Path, cfg, residual, gain: float, seconds: float, base_max: float, at: float = 10.0):
     """Runs with an estimator fault and with load-encoder biases at ``at`` s; returns rows."""
-    from drivers.device_model import parse_fault
+    from sea_daemon.hw.device_model import parse_fault
 
     rows = []
     k_at = int(round(at * cfg.rate_hz))
@@ -241,7 +241,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
     from sea_daemon.io.configfile import save_config
 
-    env = dict(os.environ, PYTHONPATH=str(repo_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=str(import_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -262,7 +262,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
                     raise RuntimeError("python -m can_remote did not start")
                 time.sleep(0.05)
         dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote", "--channel", url,
-                                "--config", str(repo_root() / "configs" / "exo_1dof_assist.yaml"),
+                                "--config", str(data_root() / "configs" / "exo_1dof_assist.yaml"),
                                 "--scenario", str(scenario), "--duration", "900"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         line = dev.stdout.readline()

@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.bench import add_settings_argument, apply_settings, start_simulated
 
@@ -228,7 +228,7 @@ class _TimedBound:
 
 
 def _cases(paths):
-    d = repo_root() / "configs" / "scenarios"
+    d = data_root() / "configs" / "scenarios"
     if not paths:
         return [(d / "passive.yaml", d / "passive.yaml"), (d / "active.yaml", d / "active.yaml"),
                 (d / "unseen_range.yaml", d / "passive.yaml"), (d / "unseen_load.yaml", d / "passive.yaml")]

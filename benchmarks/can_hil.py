@@ -26,7 +26,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from sea_daemon.runtime.hil_session import run_scenario
 
-    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.io.configfile import data_root
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.core.replay import replay
     from sea_daemon.runtime.sim_runner import simulate
@@ -37,7 +37,7 @@ def run(args) -> int:
 
     print(f"can-hil on {machine()}")
     for name in args.scenario or ("passive", "active"):
-        sc = load_scenario(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
+        sc = load_scenario(data_root() / "configs" / "scenarios" / f"{name}.yaml")
         dt = sc.nominal.dt
         off = simulate(sc)
         r_off = replay(off.estimation, make_estimator("akf", sc.nominal, dt=dt))

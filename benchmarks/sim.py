@@ -14,13 +14,13 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.io.configfile import data_root
     from sea_daemon.runtime.sim_runner import simulate
     from sea_daemon.io.scenario import load_scenario
 
     print(f"machine: {machine()}")
     for name in ("passive", "active"):
-        sc = load_scenario(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
+        sc = load_scenario(data_root() / "configs" / "scenarios" / f"{name}.yaml")
         n = sc.training_samples + sc.estimation_samples
         walls, cpus = [], []
         for r in range(max(1, args.runs)):

@@ -15,7 +15,7 @@ import argparse
 import numpy as np
 
 from sea_daemon.core.estimators import make_estimator
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.sim_runner import simulate
 
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     p.add_argument("--configs", default=",".join(CONFIGS))
     p.add_argument("--starts", default="0,500,1500", help="reset samples of the estimation log")
     args = p.parse_args(argv)
-    root = repo_root()
+    root = data_root()
     starts = [int(s) for s in args.starts.split(",")]
     print(f"{'scenario':<13}{'config':<19}{'reset at':>9}{'tau_h':>7}{'valid from':>11}"
           f"{'invalid (outside)':>19}{'valid (outside)':>17}{'worst |err|/bound':>19}")

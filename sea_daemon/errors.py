@@ -55,7 +55,7 @@ class EstimatorFault(SeaDaemonError):
 
 
 class HardwareError(SeaDaemonError):
-    """Base of faults raised by the hardware layer (``drivers``)."""
+    """Base of faults raised by the hardware layer (``sea_daemon.hw``)."""
 
 
 class RunFault(SeaDaemonError):

@@ -1,6 +1,6 @@
 """HIL test rig: the CANopen driver against the device model on a real python-can bus.
 
-Bus kinds: ``virtual`` (python-can, in-process), ``ipc`` (:mod:`drivers.ipc_bus`, UNIX datagram
+Bus kinds: ``virtual`` (python-can, in-process), ``ipc`` (:mod:`sea_daemon.hw.ipc_bus`, UNIX datagram
 sockets), ``remote`` (python-can-remote: a
 ``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
 (``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
@@ -18,7 +18,7 @@ import uuid
 import numpy as np
 import pytest
 
-from drivers.bus import socketcan_available
+from sea_daemon.hw.bus import socketcan_available
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.io.configfile import default_config_path, load_config, load_yaml

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.core.effects import Gravity
 from sea_daemon.runtime import sim_runner as runner
 from sea_daemon.core.sim.plant import Plant

@@ -313,7 +313,7 @@ def test_passive_scenario_akf_error_is_large_like_table_1():
     """Paper Table I on the simulator's passive scenario (shortened to 7 s): the unmodelled
     arm and friction make the plain AKF's error large; the AKF given the true plant is not."""
     import dataclasses
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     from sea_daemon.core.replay import replay, summarize
     from sea_daemon.runtime.sim_runner import simulate as sim_run
     from sea_daemon.io.scenario import load_scenario

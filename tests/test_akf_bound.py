@@ -339,7 +339,7 @@ def test_declared_human_torque_rate_bounds_the_filters_lag_on_a_ramp():
 
 def _passive_gp_akf(seed):
     from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6)
     return (make_estimator("gp-akf", cfg, train=train, bound=False),
@@ -408,7 +408,7 @@ def test_compiled_step_gives_the_python_steps_rho(case):
     import dataclasses
     from sea_daemon.core.effects import make_effect
     from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     cfg = load_config(repo_root() / "configs" / "exo_1dof_sim.yaml")
     if case.startswith("local"):
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(

@@ -192,7 +192,7 @@ class ScriptedEstimator(FakeFilter):
 
 @pytest.mark.parametrize("kind", ["nan", "outlier"])
 def test_corrupted_estimate_zero_torque_in_that_cycle(kind):
-    from drivers.sim_hw import SimHardware
+    from sea_daemon.hw.sim_hw import SimHardware
     from sea_daemon.core.sim.plant import Plant
     from sea_daemon.runtime.controller import AssistController
     from sea_daemon.runtime.loop import FixedRateLoop

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sea_daemon.core.estimators.base import Estimate
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.runtime.controller import AssistController
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.rig import make_rig
@@ -83,7 +83,7 @@ def test_sensor_bias_below_the_jump_detector_is_a_fault_in_its_cycle(rad):
     """A step bias of the load encoder the driver's jump check lets through (max_joint_speed·dt =
     0.2 rad) corrupts the estimate by K_s·bias; the innovation check latches the fault in the
     very cycle the biased sample is estimated, and the torque is zero from that cycle on."""
-    from drivers.device_model import parse_fault
+    from sea_daemon.hw.device_model import parse_fault
     from sea_daemon.core.assist import InnovationGuard
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.errors import Fault

@@ -21,7 +21,8 @@ import yaml
 
 from _cli import run
 from sea_daemon.apps.cli import main
-from sea_daemon.io.configfile import default_config_path, load_config, repo_root
+from sea_daemon.io.configfile import default_config_path, load_config
+from _paths import repo_root
 from sea_daemon.errors import InputError, LogFormatError
 from sea_daemon.io.logcsv import read_log
 
@@ -241,11 +242,11 @@ def test_model_files_corrupt_foreign_or_pickled_are_refused(tmp_path):
 @pytest.fixture
 def eds_rig(tmp_path, monkeypatch):
     """Device model whose drive is built from a copied EDS with 0x1000 changed (a CiA 406 device)."""
-    from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware
-    from drivers.canopen_setup import DRIVE_EDS
-    from drivers.device_model import DeviceModel
-    from drivers.device_model.drive import DriveNode
+    from sea_daemon.hw.bus import make_bus
+    from sea_daemon.hw.canopen_hw import CanopenHardware
+    from sea_daemon.hw.canopen_setup import DRIVE_EDS
+    from sea_daemon.hw.device_model import DeviceModel
+    from sea_daemon.hw.device_model.drive import DriveNode
     from sea_daemon.core.sim.plant import Plant
 
     eds = tmp_path / "wrong_drive.eds"
@@ -272,7 +273,7 @@ def eds_rig(tmp_path, monkeypatch):
 
 
 def test_eds_with_a_wrong_device_type_is_named(eds_rig):
-    from drivers.errors import DeviceMismatch
+    from sea_daemon.hw.errors import DeviceMismatch
     model, hw = eds_rig
     assert model.drives[0].sdo[0x1000].raw == 0x00010196
     with pytest.raises(DeviceMismatch, match=r"^node 1: 0x1000 device type: is 0x00010196 \(profile 406\), "
@@ -281,8 +282,8 @@ def test_eds_with_a_wrong_device_type_is_named(eds_rig):
 
 
 def test_tpdo_of_the_wrong_length_is_named_at_run_time():
-    from drivers.device_model import FaultSpec  # noqa: F401
-    from drivers.errors import PdoLengthError
+    from sea_daemon.hw.device_model import FaultSpec  # noqa: F401
+    from sea_daemon.hw.errors import PdoLengthError
     from sea_daemon.apps.bench._rig import bench_config, bench_rig
     from sea_daemon.errors import Fault
     rig = bench_rig(bench_config(pdo_timeout_ms=500.0, sdo_timeout_ms=1000, heartbeat_timeout_ms=1000))
@@ -391,8 +392,8 @@ def test_daemon_commands_bad_arguments(tmp_path, capsys, model_file, argv, expec
 
 
 def test_run_on_a_device_with_the_wrong_eds_names_node_and_object(tmp_path, capsys, model_file, monkeypatch):
-    from drivers.canopen_setup import DRIVE_EDS
-    from drivers.device_model.drive import DriveNode
+    from sea_daemon.hw.canopen_setup import DRIVE_EDS
+    from sea_daemon.hw.device_model.drive import DriveNode
     eds = tmp_path / "wrong_drive.eds"
     text = DRIVE_EDS.read_text()
     sec = re.search(r"\[1000\][^\[]*", text).group(0)

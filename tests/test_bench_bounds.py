@@ -6,7 +6,7 @@ import yaml
 
 from benchmarks import bounds as bench_bounds
 from benchmarks._cli import main as bench_main
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 
 def _short(tmp_path, name, train, est):

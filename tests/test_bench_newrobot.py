@@ -8,7 +8,8 @@ import shutil
 import pytest
 
 from sea_daemon.apps.bench.newrobot import load_table
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 from sea_daemon.io.scenario import load_scenario
 
 from tests._cli import refused, run

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.errors import Fault
-from sea_daemon.io.configfile import default_config_path, load_config, repo_root
+from sea_daemon.io.configfile import default_config_path, load_config
+from _paths import repo_root
 from sea_daemon.runtime import bound_worker as bw
 from sea_daemon.runtime.bound_worker import BoundWorker
 from sea_daemon.runtime.counts import CountReader

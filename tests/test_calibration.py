@@ -28,7 +28,8 @@ from sea_daemon.core.model_core import ModelTables
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.io.configfile import load_config, repo_root, save_config
+from sea_daemon.io.configfile import load_config, save_config
+from _paths import repo_root
 from sea_daemon.io.logcsv import write_log
 
 NOMINAL = repo_root() / "configs" / "exo_1dof_robot.yaml"

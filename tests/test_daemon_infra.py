@@ -15,7 +15,7 @@ from sea_daemon.runtime.notify import Notifier
 from sea_daemon.errors import ModelFileError
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.modelfile import load_model, save_model
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 
 def test_model_roundtrip_and_refusals(tmp_path):

@@ -11,9 +11,9 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from _hil import recording_plant
-from drivers import cia402
-from drivers.canopen_setup import DRIVE_EDS
-from drivers.device_model import DeviceModel, parse_fault
+from sea_daemon.hw import cia402
+from sea_daemon.hw.canopen_setup import DRIVE_EDS
+from sea_daemon.hw.device_model import DeviceModel, parse_fault
 from sea_daemon.errors import InputError
 
 
@@ -165,7 +165,7 @@ def test_device_model_command_rejects_bad_input(capsys):
 
 def test_human_torque_follows_the_scenario():
     from sea_daemon.io.scenario import human_torque
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     from sea_daemon.core.control import cosine_torque
     from sea_daemon.io.scenario import load_scenario
     active = load_scenario(repo_root() / "configs" / "scenarios" / "active.yaml")

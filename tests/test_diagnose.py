@@ -18,7 +18,7 @@ import pytest
 
 from sea_daemon.apps.diagnose import diagnose
 from sea_daemon.core.effects import make_effect
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 from diagnose_sim import PositionFrictionPlant, passive_log
 
@@ -93,7 +93,7 @@ def test_static_log_claims_nothing_it_cannot_determine(tmp_path):
     parameters the log cannot determine — nothing is added, and the report says why."""
     import dataclasses
 
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     from sea_daemon.runtime.sim_runner import simulate
     from sea_daemon.io.scenario import load_scenario
 

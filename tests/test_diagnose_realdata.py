@@ -24,7 +24,8 @@ from sea_daemon.apps.diagnose.candidates import TorqueScaleC
 from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residuals_for
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.replay import replay
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 from sea_daemon.io.logcsv import read_log
 
 DATA = repo_root() / "tests" / "data" / "capstone_sea"

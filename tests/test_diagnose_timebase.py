@@ -15,7 +15,8 @@ from sea_daemon.apps.diagnose.prepare import MAX_GAP, encoder_quanta, observed_q
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import LogFormatError
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 from sea_daemon.io.logcsv import read_log, write_log
 
 DATA = repo_root() / "tests" / "data" / "capstone_sea"

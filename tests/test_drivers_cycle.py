@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from _hil import bus_kind, make_rig, recording_plant, remote_url  # noqa: F401  (fixtures)
-from drivers.canopen_setup import interpolation_period
+from sea_daemon.hw.canopen_setup import interpolation_period
 
 Q = 2 * math.pi / 2**19               # load encoder quantum [rad]
 QM = 2 * math.pi / (2**19 * 100)      # motor encoder quantum, joint side [rad]
@@ -119,7 +119,7 @@ def test_tpdos_queued_by_a_late_collect_are_taken_without_waiting():
     """The TPDO deadline bounds the wait, not the taking: a loop thread that comes to collect
     after its deadline (preempted after the SYNC) takes the frames already queued, and does not
     wait for more."""
-    from drivers.canopen_rx import LATE_TAKE, TpdoWindow
+    from sea_daemon.hw.canopen_rx import LATE_TAKE, TpdoWindow
     w = TpdoWindow()
     drive, enc = w.add(1, 0x181, 8), w.add(2, 0x182, 4)
     queue = [(0x700 + 1, b"\x05", 0.0), (0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)]

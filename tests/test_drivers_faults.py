@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from _hil import bus_kind, make_rig, remote_url  # noqa: F401  (fixtures)
-from drivers import cia402
-from drivers.device_model import FaultSpec
-from drivers.errors import (
+from sea_daemon.hw import cia402
+from sea_daemon.hw.device_model import FaultSpec
+from sea_daemon.hw.errors import (
     BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost, PdoTimeout, SendFailed)
-from drivers.interface import FaultFlag
+from sea_daemon.hw.interface import FaultFlag
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.errors import Fault
@@ -139,7 +139,7 @@ def test_heartbeat_timeout_runs_from_the_last_heartbeats_arrival_not_from_when_i
     late (after the stall), yet every read() that starts later than the timeout after that
     heartbeat's arrival on the bus (a sniffer of its own: python-can's receive thread, the frame's
     timestamp) raises — the timeout does not grow by the stall."""
-    from drivers.bus import make_bus
+    from sea_daemon.hw.bus import make_bus
     from sea_daemon.apps.bench._rig import HeartbeatSniffer
     rig = started(make_rig, heartbeat_ms=20, heartbeat_timeout_ms=500)
     sniffer = HeartbeatSniffer(make_bus(rig.hw.bus_cfg))

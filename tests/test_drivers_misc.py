@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from _hil import recording_plant
-from drivers.bus import make_bus, socketcan_available
-from drivers.canopen_hw import CanopenHardware
-from drivers.device_model import DeviceModel
-from drivers.errors import DeviceMismatch
-from drivers.sim_hw import SimHardware
+from sea_daemon.hw.bus import make_bus, socketcan_available
+from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.hw.device_model import DeviceModel
+from sea_daemon.hw.errors import DeviceMismatch
+from sea_daemon.hw.sim_hw import SimHardware
 from sea_daemon.core.config import BusConfig, ModelConfig
 from sea_daemon.io.configfile import default_config_path, load_yaml
 

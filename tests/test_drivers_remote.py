@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from _hil import RemoteServer, hil_config
-from drivers.canopen_hw import CanopenHardware
-from drivers.errors import EncoderJump
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.hw.errors import EncoderJump
+from _paths import repo_root
 
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sea_daemon.runtime.hil_session import run_scenario
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.logcsv import read_log, write_log
 from sea_daemon.core.replay import replay

@@ -7,9 +7,9 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from _hil import bus_kind, make_rig, remote_url  # noqa: F401  (fixtures)
-from drivers import cia402
-from drivers.canopen_hw import CanopenHardware
-from drivers.errors import DeviceMismatch
+from sea_daemon.hw import cia402
+from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.io.configfile import default_config_path, load_yaml
 from sea_daemon.errors import ConfigError

@@ -8,7 +8,8 @@ import pytest
 
 from sea_daemon.apps import cli
 from sea_daemon.apps.bench import apply_settings
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 from sea_daemon.core.estimators import AKF
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.estimators.gpakf import GPAKF, learn_from_log

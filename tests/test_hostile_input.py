@@ -14,7 +14,7 @@ import pytest
 
 from _cli import passive_log, refused, run
 from sea_daemon.io import modelfile
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 CFG = str(repo_root() / "configs" / "exo_1dof.yaml")
 ROBOT = "joints: 1\nrate_hz: 100\nmodel: {M: 0.12, J: 0.08, D_m: 0.6, K_s: 110.0, D_s: 0.25}\n"

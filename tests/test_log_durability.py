@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.io.logcsv import read_log
 
 CHILD = textwrap.dedent("""

@@ -164,7 +164,7 @@ if __name__ == "__main__":
 def _child(tmp_path, how):
     import subprocess
     import sys
-    from sea_daemon.io.configfile import repo_root
+    from _paths import repo_root
     path = tmp_path / "x.csv"
     code = _CHILD.format(tests=str(repo_root() / "tests"))
     p = subprocess.run([sys.executable, "-c", code, str(path), how], capture_output=True, text=True, timeout=60,

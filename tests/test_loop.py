@@ -4,7 +4,7 @@ import types
 import numpy as np
 import pytest
 
-from drivers.interface import HardwareInterface
+from sea_daemon.hw.interface import HardwareInterface
 from sea_daemon.runtime.loop import FixedRateLoop, fault_of, log_columns
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.safety import SafetySupervisor

@@ -8,7 +8,7 @@ import shutil
 import pytest
 
 from _cli import passive_log, refused, run
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 ROOT = repo_root()
 CFG = ROOT / "configs" / "exo_1dof.yaml"

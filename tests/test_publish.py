@@ -17,7 +17,7 @@ import pytest
 from sea_daemon import client
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.errors import Fault, InputError
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 
 class Meas:
@@ -64,7 +64,7 @@ def test_tpdo_layout_and_decoding():
 
 def test_client_imports_nothing_of_the_daemon():
     code = ("import sys; import sea_daemon.client; "
-            "bad = [m for m in ('numpy', 'scipy', 'numba', 'can', 'canopen', 'sea_daemon.core', 'drivers', "
+            "bad = [m for m in ('numpy', 'scipy', 'numba', 'can', 'canopen', 'sea_daemon.core', 'sea_daemon.hw', "
             "'sea_daemon.runtime') if m in sys.modules]; print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                        env={**os.environ, "PYTHONPATH": str(repo_root())})
@@ -176,7 +176,7 @@ def test_tpdos_decode_with_the_eds():
     import can
     import canopen
 
-    from drivers.canopen_publish import TpdoPublisher
+    from sea_daemon.hw.canopen_publish import TpdoPublisher
     from sea_daemon.runtime.publish import Publisher
 
     ch = f"pub-{uuid.uuid4().hex[:8]}"

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 
 pytestmark = pytest.mark.slow
 

@@ -1,5 +1,5 @@
 """One configuration at 100 Hz and 1 kHz (sea_daemon.core.rates), the model file's rate rule,
-the ipc bus (drivers.ipc_bus) and the device model's answer statistics."""
+the ipc bus (sea_daemon.hw.ipc_bus) and the device model's answer statistics."""
 from __future__ import annotations
 
 import dataclasses
@@ -13,7 +13,8 @@ import pytest
 
 from sea_daemon.core.rates import at_rate, same_in_time, window_at
 from sea_daemon.errors import InputError, ModelFileError
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 
 CFG = repo_root() / "configs" / "exo_1dof_sim.yaml"
 
@@ -61,7 +62,7 @@ def _msg(i, data=b"\x01\x02"):
 
 
 def test_ipc_bus_is_a_broadcast_bus_with_filters_applied_by_the_senders():
-    from drivers.ipc_bus import IpcBus
+    from sea_daemon.hw.ipc_bus import IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
     a, b, c = IpcBus(ch), IpcBus(ch), IpcBus(ch, receive_own_messages=True)
     try:
@@ -93,7 +94,7 @@ def test_ipc_bus_reaches_members_that_join_between_two_sends():
     """Members that join after a send, two in the same instant, get the next frame (the
     channel's membership count in shared memory, not the directory's coarse mtime); one that
     leaves is no longer sent to."""
-    from drivers.ipc_bus import IpcBus
+    from sea_daemon.hw.ipc_bus import IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
     a = IpcBus(ch)
     others = []
@@ -118,7 +119,7 @@ def test_ipc_bus_member_answers_a_newcomers_first_frame_and_rejoins_a_channel_ma
     sent); the channel's directory removed under a member and made again by a newcomer: within
     0.25 s the member has joined it anew and the two hear each other."""
     import shutil
-    from drivers.ipc_bus import MEMBERS_FILE, IpcBus
+    from sea_daemon.hw.ipc_bus import MEMBERS_FILE, IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
     a = IpcBus(ch)
     b = c = None
@@ -149,7 +150,7 @@ def test_ipc_bus_member_answers_a_newcomers_first_frame_and_rejoins_a_channel_ma
 
 
 def test_ipc_bus_forgets_a_member_that_went_away():
-    from drivers.ipc_bus import IpcBus
+    from sea_daemon.hw.ipc_bus import IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
     a, b = IpcBus(ch), IpcBus(ch)
     b._sock.close()                                  # gone without shutdown: the file stays, nobody reads
@@ -160,8 +161,8 @@ def test_ipc_bus_forgets_a_member_that_went_away():
 
 
 def test_make_bus_opens_ipc_and_a_remote_channel_is_still_checked():
-    from drivers.bus import make_bus
-    from drivers.ipc_bus import IpcBus
+    from sea_daemon.hw.bus import make_bus
+    from sea_daemon.hw.ipc_bus import IpcBus
     from sea_daemon.core.config import BusConfig
     b = BusConfig.from_dict({"interface": "ipc", "channel": f"t-{uuid.uuid4().hex[:8]}"}, 1, "test")
     bus = make_bus(b)
@@ -218,11 +219,11 @@ def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_heartbea
 
 
 def test_one_poll_says_which_receive_handles_have_frames_queued():
-    """drivers.canopen_rx.Queued: one poll for the cycle's receive handles (the driver's TPDO
+    """sea_daemon.hw.canopen_rx.Queued: one poll for the cycle's receive handles (the driver's TPDO
     handle and its two taps); a handle with no descriptor (virtual) gives None: read as before."""
     import can
-    from drivers.canopen_rx import Queued
-    from drivers.ipc_bus import IpcBus
+    from sea_daemon.hw.canopen_rx import Queued
+    from sea_daemon.hw.ipc_bus import IpcBus
     ch = f"t-{uuid.uuid4().hex[:8]}"
     tx, a, b, c = IpcBus(ch), IpcBus(ch), IpcBus(ch), IpcBus(ch)
     v = can.Bus(interface="virtual", channel=f"q-{uuid.uuid4().hex[:6]}")

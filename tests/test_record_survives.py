@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.device_model import parse_fault
+from sea_daemon.hw.device_model import parse_fault
 from sea_daemon.apps.bench.record import serve_with_action as _serve
 from sea_daemon.errors import Fault, InputError
 from sea_daemon.io.logcsv import read_log

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sea_daemon.io.configfile import default_config_path, load_config, repo_root
+from sea_daemon.io.configfile import default_config_path, load_config
+from _paths import repo_root
 from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, min_jerk
 from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import ConfigError

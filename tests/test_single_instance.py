@@ -12,7 +12,7 @@ import time
 import pytest
 
 from sea_daemon.apps.cli import main
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.runtime.service import StateFile, process_start_time
 
 ROOT = repo_root()

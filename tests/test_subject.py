@@ -9,7 +9,7 @@ import yaml
 
 from sea_daemon.core.sim.subject import TrackingSubject, TrackingTask
 from sea_daemon.errors import ConfigError, InputError
-from sea_daemon.io.configfile import repo_root
+from _paths import repo_root
 from sea_daemon.io.scenario import human_torque, load_scenario, task_plant
 
 TRACK = repo_root() / "configs" / "scenarios" / "assist_track.yaml"

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.core.estimators import make_estimator
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config
+from _paths import repo_root
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.sim_runner import simulate
 

@@ -2,6 +2,6 @@
 
 :mod:`.cli` and :mod:`.commands` (one module per command), :mod:`.diagnose` (closing the loop
 on measured data) and :mod:`.bench` (the benchmarks a user runs on the target machine).  May
-import every layer below: :mod:`sea_daemon.runtime`, ``drivers``, :mod:`sea_daemon.io`,
+import every layer below: :mod:`sea_daemon.runtime`, ``sea_daemon.hw``, :mod:`sea_daemon.io`,
 :mod:`sea_daemon.core`, :mod:`sea_daemon.errors`.
 """

@@ -24,7 +24,7 @@ def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
 
 @dataclass(frozen=True)
 class BusConfig:
-    """The CAN bus and the CANopen devices on it (``drivers``; issue 5).
+    """The CAN bus and the CANopen devices on it (``sea_daemon.hw``).
 
     Angles and speeds are joint side [rad, rad/s]; ``rated_torque`` is the drive's 0x6076 on the
     MOTOR side in mN m, so one per mille of 0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m
@@ -133,7 +133,7 @@ class HardwareConfig:
     encoder_bits: int = 19           # both absolute encoders
     torque_limit: float = 10.0       # |τ_m| limit, joint side [N m]
     torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
-    bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (drivers)
+    bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (sea_daemon.hw)
     # counts per revolution of the shaft each encoder reads, per joint: the load encoder on the
     # joint, the motor encoder on the motor shaft (before the gear).  () = 2^encoder_bits.
     encoder_counts_load: tuple[int, ...] = ()

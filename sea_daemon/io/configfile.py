@@ -11,6 +11,7 @@ from typing import Any
 
 import yaml
 
+from sea_daemon import data
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import ConfigError, shown
 from sea_daemon.io.files import atomic_write_text, read_text
@@ -141,10 +142,17 @@ def save_config(cfg: ModelConfig, path: str | Path, header: str | None = None) -
     atomic_write_text(path, text)
 
 
-def repo_root() -> Path:
-    """The project checkout (configs/ lives beside the package)."""
-    return Path(__file__).resolve().parent.parent.parent
+def data_root() -> Path:
+    """The package data (:mod:`sea_daemon.data`): ``configs/`` (model YAML, scenarios, EDS files)
+    and ``systemd/``."""
+    return data.path()
+
+
+def import_root() -> Path:
+    """The folder a child Python process needs on ``PYTHONPATH`` to import this ``sea_daemon``
+    (a checkout or site-packages)."""
+    return Path(data.__file__).resolve().parent.parent.parent
 
 
 def default_config_path() -> Path:
-    return repo_root() / "configs" / "exo_1dof.yaml"
+    return data_root() / "configs" / "exo_1dof.yaml"

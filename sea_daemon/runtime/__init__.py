@@ -8,5 +8,5 @@ rows of a lock-step run (:mod:`.recorder`), the single fault policy (:mod:`.safe
 off-loop log writer (:mod:`.logwriter`), the Theorem-1 bound's worker process (:mod:`.bound_worker`),
 the counts through pipes that order the rings those two share with the loop (:mod:`.counts`)
 and systemd notification (:mod:`.notify`).  May import
-``drivers``, :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and :mod:`sea_daemon.errors`.
+``sea_daemon.hw``, :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and :mod:`sea_daemon.errors`.
 """

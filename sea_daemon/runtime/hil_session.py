@@ -9,7 +9,7 @@ estimation logs in the measured-log shape (docs/interfaces.md §1), so every est
 ``replay`` can use them; with ``estimator`` given, the estimator also runs online in the
 cycle, as the daemon runs it.
 
-Timing (see :mod:`drivers.interface`): sample 0 is the driver's start-up cycle (plant time 0,
+Timing (see :mod:`sea_daemon.hw.interface`): sample 0 is the driver's start-up cycle (plant time 0,
 the torque holding the arm in force); row k of the log carries the torque acting over
 [t_k, t_k+1] — the command of cycle k-1 with a synchronous RPDO (``hw.actuation_delay`` = 1),
 of cycle k without — and the estimator is updated in cycle k, after the write, with that torque.

@@ -1,12 +1,12 @@
 """The fixed-rate loop: read → update → write → sleep to an absolute deadline (ros2_control style).
 
 The one cycle loop of the project: the daemon (:mod:`.service`), the offline simulator
-(:mod:`.sim_runner`, lock-step over :class:`drivers.sim_hw.SimHardware`) and the
-hardware-in-the-loop session (:mod:`.hil_session`, over :class:`drivers.canopen_hw.CanopenHardware`
-and the device model) run it against a :class:`drivers.interface.HardwareInterface`.
+(:mod:`.sim_runner`, lock-step over :class:`sea_daemon.hw.sim_hw.SimHardware`) and the
+hardware-in-the-loop session (:mod:`.hil_session`, over :class:`sea_daemon.hw.canopen_hw.CanopenHardware`
+and the device model) run it against a :class:`sea_daemon.hw.interface.HardwareInterface`.
 
 One cycle k (the estimator after the write, so that it gets the torque that acts over
-[t_k, t_k+1] — see :mod:`drivers.interface`):
+[t_k, t_k+1] — see :mod:`sea_daemon.hw.interface`):
 
 1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault); a
    sample the hardware missed within its tolerance (``valid`` False: a TPDO that did not come,
@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from drivers.interface import HardwareInterface, Measurement
+from sea_daemon.hw.interface import HardwareInterface, Measurement
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.errors import EstimatorFault, Fault, HardwareError
 from sea_daemon.runtime.safety import SafetySupervisor

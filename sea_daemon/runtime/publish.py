@@ -4,7 +4,7 @@
 calls :meth:`Publisher.publish` once per cycle, after the estimate and the fault policy of that
 cycle).  It fills preallocated buffers and hands them to
 
-* :class:`drivers.canopen_publish.TpdoPublisher` — the TPDOs of the daemon's own node
+* :class:`sea_daemon.hw.canopen_publish.TpdoPublisher` — the TPDOs of the daemon's own node
   (``hardware.bus.master_node``; docs/can.md, ``configs/eds/sea_daemon.eds``);
 * :class:`LocalPublisher` — datagrams on a UNIX socket (``STATE_DIR/sea-daemon.sock``) to every
   subscribed reader (:mod:`sea_daemon.client`, ``sea-daemon watch``).
@@ -162,7 +162,7 @@ class LocalPublisher:
 class Publisher:
     """The loop's publication step: one cycle's estimate to the bus and to local readers.
 
-    ``tpdo``: a :class:`drivers.canopen_publish.TpdoPublisher` (or None); ``local``: a
+    ``tpdo``: a :class:`sea_daemon.hw.canopen_publish.TpdoPublisher` (or None); ``local``: a
     :class:`LocalPublisher` (or None); ``controller``: the loop's controller, read for its
     assistance (``tau_assist``, an :class:`~sea_daemon.runtime.controller.AssistController`);
     ``has_estimator``: whether the loop runs an estimator.
@@ -256,7 +256,7 @@ def make_publisher(rig, cfg, controller, *, socket_path: str | os.PathLike | Non
     ``hardware.bus.publish`` is on; the local socket when ``socket_path`` is given."""
     tpdo = None
     if cfg.hardware.bus.publish and hasattr(rig.hw, "network"):
-        from drivers.canopen_publish import TpdoPublisher
+        from sea_daemon.hw.canopen_publish import TpdoPublisher
         tpdo = TpdoPublisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
     local = LocalPublisher(socket_path, cfg.joints) if socket_path is not None else None
     if tpdo is None and local is None:

@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from drivers.interface import HardwareInterface
+from sea_daemon.hw.interface import HardwareInterface
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, human_torque, load_scenario, make_plant, task_plant
@@ -40,7 +40,7 @@ class Rig:
     hold_torque: np.ndarray | None = None         # known for a simulated plant (experimenter's calibration)
     tau_h_act: Callable[[float], np.ndarray] | None = None   # the simulated subject (truth), plant time
     plant: Any = None                             # the simulated plant, when there is one
-    device_model: Any = None                      # drivers.device_model.DeviceModel
+    device_model: Any = None                      # sea_daemon.hw.device_model.DeviceModel
     cfg: ModelConfig | None = None                # the configuration the hardware runs with
     dev_bus: Any = None                           # the device model's bus handle
     drv_bus: Any = None                           # the driver's bus handle
@@ -69,12 +69,12 @@ class Rig:
 
     @property
     def drive(self):
-        """The device model's first drive (a :class:`drivers.device_model.DriveNode`)."""
+        """The device model's first drive (a :class:`sea_daemon.hw.device_model.DriveNode`)."""
         return self.device_model.drives[0]
 
     @property
     def encoder(self):
-        """The device model's first load encoder (a :class:`drivers.device_model.EncoderNode`)."""
+        """The device model's first load encoder (a :class:`sea_daemon.hw.device_model.EncoderNode`)."""
         return self.device_model.encoders[0]
 
 
@@ -110,11 +110,11 @@ def device_model_rig(cfg: ModelConfig, plant, *, tau_h_act: Callable[[float], np
                      initial_torque: np.ndarray | None = None, position_preset: int = 0, lock_step: bool = True,
                      description: str | None = None) -> Rig:
     """``plant`` behind the device model (``tau_h_act``, ``position_preset``, ``lock_step``: see
-    :class:`drivers.device_model.DeviceModel`) and :class:`drivers.canopen_hw.CanopenHardware`,
+    :class:`sea_daemon.hw.device_model.DeviceModel`) and :class:`sea_daemon.hw.canopen_hw.CanopenHardware`,
     on two handles of the bus of ``cfg``; nothing started yet.  ``initial_torque``: default zero."""
-    from drivers.bus import make_bus
-    from drivers.canopen_hw import CanopenHardware
-    from drivers.device_model import DeviceModel
+    from sea_daemon.hw.bus import make_bus
+    from sea_daemon.hw.canopen_hw import CanopenHardware
+    from sea_daemon.hw.device_model import DeviceModel
     n, b = cfg.joints, cfg.hardware.bus
     dev_bus = make_bus(b)
     try:
@@ -138,7 +138,7 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
         raise InputError("--sim and --device-model exclude each other")
     scen = sim or device_model
     if not scen:
-        from drivers.canopen_hw import CanopenHardware
+        from sea_daemon.hw.canopen_hw import CanopenHardware
         b = cfg.hardware.bus
         return Rig(CanopenHardware(cfg), f"CAN {b.interface} {b.channel}", np.zeros(n), cfg=cfg)
     sc = load_scenario(scen)
@@ -152,7 +152,7 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
         tau_h = subject_torque(sc, phase)
     hold = np.array(plant.hold_torque, dtype=float).reshape(n)
     if sim:
-        from drivers.sim_hw import SimHardware
+        from sea_daemon.hw.sim_hw import SimHardware
         hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=tau_h)
         return Rig(hw, f"simulator ({scen}), no CAN", hold, hold, tau_h, plant=plant, cfg=cfg)
     cfg = on_fresh_virtual_channel(cfg, "sea-daemon")

@@ -2,7 +2,7 @@
 
 The fixed-rate loop (:class:`~sea_daemon.runtime.loop.FixedRateLoop`, lock-step, no sleeping)
 runs the :class:`~sea_daemon.runtime.controller.ScenarioController` over
-:class:`drivers.sim_hw.SimHardware` on the scenario's plant, no estimator.  Per cycle k
+:class:`sea_daemon.hw.sim_hw.SimHardware` on the scenario's plant, no estimator.  Per cycle k
 (period dt = 1/rate_hz of the nominal model config), at t_k = k·dt:
 
 1. ``read()`` steps the plant over [t_k-1, t_k] with the torque written in cycle k-1 (+ noise)
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim_hw import SimHardware
+from sea_daemon.hw.sim_hw import SimHardware
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, make_plant

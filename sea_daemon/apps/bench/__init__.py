@@ -156,10 +156,10 @@ def start_simulated(args):
     settings.  Returns ``(out directory, settings)``."""
     from pathlib import Path
 
-    from sea_daemon.io.configfile import load_config, repo_root
+    from sea_daemon.io.configfile import load_config, data_root
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    path = args.settings or str(repo_root() / "configs" / "exo_1dof_sim.yaml")
+    path = args.settings or str(data_root() / "configs" / "exo_1dof_sim.yaml")
     settings = None if path == "scenario" else load_config(path)
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     print(_describe_settings(path, settings))

@@ -29,7 +29,7 @@ import numpy as np
 from sea_daemon.core.excitation import MoveSequence, WorkingRange, excitation, paper_moves
 from sea_daemon.core.config import HardwareConfig, ModelConfig
 from sea_daemon.core.effects import Effect, make_effect
-from sea_daemon.io.configfile import load_config, repo_root
+from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.sim.session import BandLimitedTorque, SineReference
 
 # --------------------------------------------------------------- effects outside the vocabulary
@@ -170,7 +170,7 @@ def _u(rng, lo, hi):
 def draw_plant(seed: int, rate_hz: float | None = None) -> PlantDraw:
     """Draw plant ``seed`` (deterministic)."""
     rng = np.random.default_rng(10_000 + seed)
-    base = load_config(repo_root() / "configs" / "exo_1dof.yaml")
+    base = load_config(data_root() / "configs" / "exo_1dof.yaml")
     if rate_hz is None:
         rate_hz = 1000.0 if seed % 3 == 2 else 100.0
     p = base.model

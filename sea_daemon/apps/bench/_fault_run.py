@@ -20,8 +20,8 @@ import time
 import can
 import numpy as np
 
-from drivers.bus import make_bus
-from drivers.device_model import FaultSpec
+from sea_daemon.hw.bus import make_bus
+from sea_daemon.hw.device_model import FaultSpec
 
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.logwriter import LogWriter

@@ -1,8 +1,8 @@
 """What the reliability benchmarks add to the runtime's rig: a configuration, a controller, probes.
 
-The daemon's own pieces — :class:`~drivers.canopen_hw.CanopenHardware`, the
+The daemon's own pieces — :class:`~sea_daemon.hw.canopen_hw.CanopenHardware`, the
 :class:`~sea_daemon.runtime.loop.FixedRateLoop` and its :class:`SafetySupervisor` — run
-against the device model (:mod:`drivers.device_model`, the simulator's true plant behind a
+against the device model (:mod:`sea_daemon.hw.device_model`, the simulator's true plant behind a
 CiA 402 drive and a CiA 406 load encoder) on one python-can ``virtual`` channel: the runtime's
 :class:`~sea_daemon.runtime.rig.Rig` (:func:`bench_rig`).  The controller is a PID (the
 simulator's, motor-velocity damping) tracking a slow sine (:class:`SineTracker`), so the arm
@@ -28,10 +28,10 @@ import uuid
 import can
 import numpy as np
 
-from drivers import cia402
-from drivers.bus import frame_bits
-from drivers.canopen_rx import arrival
-from drivers.interface import HardwareInterface
+from sea_daemon.hw import cia402
+from sea_daemon.hw.bus import frame_bits
+from sea_daemon.hw.canopen_rx import arrival
+from sea_daemon.hw.interface import HardwareInterface
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.control import PID
@@ -96,7 +96,7 @@ class _BusListener:
 
 class HeartbeatSniffer(_BusListener):
     """The monotonic time each node's heartbeat last arrived on the bus: ``hb_seen[node]``
-    (dated by the frame's timestamp, as the driver dates it: :func:`drivers.canopen_rx.arrival`)."""
+    (dated by the frame's timestamp, as the driver dates it: :func:`sea_daemon.hw.canopen_rx.arrival`)."""
 
     def __init__(self, bus: can.BusABC):
         self.hb_seen: dict[int, float] = {}
@@ -108,7 +108,7 @@ class HeartbeatSniffer(_BusListener):
 
 
 class FrameCounter(_BusListener):
-    """Counts the frames on the bus and their bits (:func:`drivers.bus.frame_bits`)."""
+    """Counts the frames on the bus and their bits (:func:`sea_daemon.hw.bus.frame_bits`)."""
 
     def __init__(self, bus: can.BusABC):
         self.frames = 0

@@ -1,6 +1,6 @@
 """``sea-daemon bench can-cycle``: one CANopen cycle (RPDO, SYNC, TPDOs, decode) against the device model.
 
-Measures, per cycle, ``hw.write(tau)`` + ``hw.read()`` of :class:`drivers.canopen_hw.CanopenHardware`
+Measures, per cycle, ``hw.write(tau)`` + ``hw.read()`` of :class:`sea_daemon.hw.canopen_hw.CanopenHardware`
 talking to the device model (lock-step, the simulator's plant) over a python-can virtual bus (both
 in this process), the ipc bus (UNIX datagram sockets between the two handles, one hop) or
 python-can-remote (server subprocess, device model in this process: each frame crosses the relay).  The
@@ -26,7 +26,7 @@ HELP = "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"
 
 def add_arguments(p) -> None:
     p.add_argument("--bus", choices=("virtual", "ipc", "remote"), default="virtual",
-                   help="virtual: python-can in-process; ipc: UNIX datagram sockets (drivers.ipc_bus); remote: "
+                   help="virtual: python-can in-process; ipc: UNIX datagram sockets (sea_daemon.hw.ipc_bus); remote: "
                         "python-can-remote's relay process (the difference to ipc is what the relay costs)")
     p.add_argument("--cycles", type=int, default=2000)
 

@@ -131,8 +131,8 @@ def _wait_line(proc, text: str, timeout: float) -> str:
 def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
     """``sea-daemon device-model`` in its own process on ``cfg``'s bus (``--stats``, SCHED_FIFO
     ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
-    from drivers.canopen_hw import CanopenHardware
-    from sea_daemon.io.configfile import repo_root, save_config
+    from sea_daemon.hw.canopen_hw import CanopenHardware
+    from sea_daemon.io.configfile import import_root, save_config
     from sea_daemon.runtime.rig import Rig
     path = Path(tmp) / "device-model.yaml"
     save_config(cfg, path)
@@ -140,7 +140,7 @@ def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70
     proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
                              b.channel, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                            env=dict(os.environ, PYTHONPATH=str(repo_root())))
+                            env=dict(os.environ, PYTHONPATH=str(import_root())))
     try:
         ready = _wait_line(proc, "device-model ready", 120)
     except BaseException:
@@ -211,10 +211,10 @@ class _Stages:
 
 
 def run(args) -> int:
-    from drivers.canopen_hw import CanopenHardware
+    from sea_daemon.hw.canopen_hw import CanopenHardware
 
     save = json_output(args)
-    from sea_daemon.io.configfile import load_config, repo_root, save_config
+    from sea_daemon.io.configfile import load_config, data_root, save_config
     from sea_daemon.io.gpmodel import load_gp_model
     from sea_daemon.runtime.controller import ScenarioController
     from sea_daemon.runtime.rig import make_rig
@@ -224,12 +224,12 @@ def run(args) -> int:
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.apps.bench.can_cycle import _server
     from sea_daemon.core.buffers import resident_zeros
-    from drivers.device_model.model import thread_page_faults
+    from sea_daemon.hw.device_model.model import thread_page_faults
 
     if args.cycles < 100:
         print("sea-daemon bench loop: --cycles must be >= 100", file=sys.stderr)
         return 2
-    root = repo_root()
+    root = data_root()
     scen = str(root / "configs" / "scenarios" / "passive.yaml")
     from sea_daemon.core.rates import at_rate
     base = load_config(root / "configs" / "exo_1dof_sim.yaml")

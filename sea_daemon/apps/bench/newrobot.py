@@ -46,8 +46,8 @@ TARGET = {"passive": 0.05, "active": 0.1}
 def add_arguments(p) -> None:
     from sea_daemon.apps.bench import add_choice_argument
     from sea_daemon.apps.bench.generalize import ESTIMATORS
-    from sea_daemon.io.configfile import repo_root
-    p.add_argument("--plant", default=str(repo_root() / "configs" / "scenarios" / "newrobot"),
+    from sea_daemon.io.configfile import data_root
+    p.add_argument("--plant", default=str(data_root() / "configs" / "scenarios" / "newrobot"),
                    help="directory with table.yaml, the nominal robot and the scenarios "
                         "(default configs/scenarios/newrobot)")
     p.add_argument("--out", default="bench_newrobot", help="directory for results.json and logs/ (default bench_newrobot)")

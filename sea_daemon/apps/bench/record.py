@@ -68,13 +68,13 @@ class _Status:
 def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=None):
     """The service against the device model for ``cycles`` cycles; ``action(rig)`` in cycle ``at``."""
     from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.configfile import load_config, repo_root
+    from sea_daemon.io.configfile import load_config, data_root
     from sea_daemon.runtime import service
     from sea_daemon.runtime.controller import ScenarioController
     from sea_daemon.io.scenario import load_scenario
     from sea_daemon.runtime.rig import make_rig
 
-    root = repo_root()
+    root = data_root()
     cfg = load_config(root / "configs" / "exo_1dof_sim.yaml")
     scen = root / "configs" / "scenarios" / "passive.yaml"
     rig = make_rig(cfg, device_model=str(scen), phase="estimation")
@@ -183,9 +183,9 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
 
 
 def attack_restart(tmp: Path, cycles: int, rng) -> dict:
-    from sea_daemon.io.configfile import repo_root
+    from sea_daemon.io.configfile import data_root
     from sea_daemon.io.logcsv import read_log
-    root = repo_root()
+    root = data_root()
     cfg = root / "configs" / "exo_1dof_sim.yaml"
     scen = root / "configs" / "scenarios" / "passive.yaml"
     logs = tmp / "logs"

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import sys
 
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 from sea_daemon.apps.commands import _daemon_args
 
 NAME = "calibrate"
@@ -39,7 +39,7 @@ DESCRIPTION = __doc__
 
 def add_arguments(p) -> None:
     p.add_argument("--scenario", metavar="SCENARIO.yaml",
-                   default=str(repo_root() / "configs" / "scenarios" / "passive.yaml"),
+                   default=str(data_root() / "configs" / "scenarios" / "passive.yaml"),
                    help="trajectory and controller gains (default: configs/scenarios/passive.yaml)")
     p.add_argument("--out", metavar="MODEL.npz", required=True, help="model file to write (atomically)")
     _daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")

@@ -2,7 +2,7 @@
 
 For each embedded scenario (``configs/scenarios/passive.yaml``: Sec. V-B, PID moves with a
 passive subject; ``active.yaml``: Sec. V-C, a subject resisting a cosine torque) the simulated
-exoskeleton runs as CANopen devices (drive + load encoder, :mod:`drivers.device_model`, the
+exoskeleton runs as CANopen devices (drive + load encoder, :mod:`sea_daemon.hw.device_model`, the
 scenario's true plant with its hidden effects, lock-step with SYNC) on a fresh virtual CAN bus,
 and the daemon talks to it through its own code paths:
 
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 from sea_daemon.io.files import atomic_write_text, check_output_dir
 from sea_daemon.errors import InputError
 
@@ -63,7 +63,7 @@ def add_arguments(p) -> None:
                         "the calibration (calibrate --fit from the nominal robot)")
     p.add_argument("--scenario", action="append", choices=SCENARIOS, default=None,
                    help="run only this embedded scenario (repeatable; default: both)")
-    p.add_argument("--config", default=str(repo_root() / "configs" / "exo_1dof_sim.yaml"),
+    p.add_argument("--config", default=str(data_root() / "configs" / "exo_1dof_sim.yaml"),
                    help="daemon configuration (default: configs/exo_1dof_sim.yaml, the estimator settings "
                         "for the simulated sensors)")
     p.add_argument("--samples", type=int, default=None,
@@ -235,7 +235,7 @@ def run(args) -> int:
     rows = []
     t_all = time.perf_counter()
     for name in args.scenario or SCENARIOS:
-        sc_path = str(repo_root() / "configs" / "scenarios" / f"{name}.yaml")
+        sc_path = str(data_root() / "configs" / "scenarios" / f"{name}.yaml")
         sc = load_scenario(sc_path)
         n_tr = args.samples or int(round(sc.training_samples * per))
         n_est = args.samples or int(round(sc.estimation_samples * per))

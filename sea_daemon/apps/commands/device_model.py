@@ -1,6 +1,6 @@
 """``sea-daemon device-model``: the exoskeleton's CANopen devices on a bus, around the simulator.
 
-Runs a CiA 402 drive and a CiA 406 load encoder per joint (:mod:`drivers.device_model`) with
+Runs a CiA 402 drive and a CiA 406 load encoder per joint (:mod:`sea_daemon.hw.device_model`) with
 the simulator's true plant as their physics, until SIGINT/SIGTERM or ``--duration``.  With
 ``--bus remote`` it joins a ``python -m can_remote`` server, so a driver in another process can
 talk to it where the kernel has no SocketCAN.  Prints one line ``device-model ready ...`` on
@@ -68,10 +68,10 @@ def _plant(args, cfg):
 
 
 def run(args) -> int:
-    from drivers.bus import make_bus
-    from drivers.device_model import DeviceModel, parse_fault
+    from sea_daemon.hw.bus import make_bus
+    from sea_daemon.hw.device_model import DeviceModel, parse_fault
 
-    from drivers.errors import DeviceMismatch
+    from sea_daemon.hw.errors import DeviceMismatch
 
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]

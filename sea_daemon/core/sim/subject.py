@@ -19,7 +19,7 @@ the behaviour an assist-as-needed controller relies on.  ``k_p``, ``k_d`` are th
 voluntary feedback, ``d`` the sensory delay, ``T_a`` the muscle's activation time constant.
 
 The subject is called once per plant step with the plant time t at the start of the step
-(:class:`drivers.device_model.DeviceModel` and :class:`drivers.sim_hw.SimHardware` do), reads
+(:class:`sea_daemon.hw.device_model.DeviceModel` and :class:`sea_daemon.hw.sim_hw.SimHardware` do), reads
 the plant's true state at t, and returns τ_h,act held over the step.  A second call with the same
 t returns the same torque without stepping (a recorder may ask what the subject applies).
 Pure numerics: no clock, no I/O.

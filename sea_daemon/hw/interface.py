@@ -1,15 +1,15 @@
 """The narrow hardware interface (ros2_control style): ``start/read/write/safe_stop/stop``.
 
 Everything the daemon sees of the exoskeleton goes through :class:`HardwareInterface`; the
-CANopen implementation (:mod:`drivers.canopen_hw`) and the in-process simulator
-(:mod:`drivers.sim_hw`) sit behind it.  All quantities are on the **joint side** of the gear,
+CANopen implementation (:mod:`sea_daemon.hw.canopen_hw`) and the in-process simulator
+(:mod:`sea_daemon.hw.sim_hw`) sit behind it.  All quantities are on the **joint side** of the gear,
 in SI units (docs/interfaces.md §1).
 
 Timing: ``read()`` in cycle k returns the state sampled at t_k (the SYNC of cycle k).  The
 torque given to ``write()`` in cycle k acts over [t_k+d, t_k+d+1], d = :attr:`actuation_delay`:
 
 * d = 0 when the drive actuates the RPDO on reception (``hardware.bus.sync_rpdo: false``, the
-  default; :class:`drivers.sim_hw.SimHardware` by default): the torque written in cycle k acts
+  default; :class:`sea_daemon.hw.sim_hw.SimHardware` by default): the torque written in cycle k acts
   over [t_k, t_k+1], like the offline simulator's zero-order hold — it is the ``tau_m`` of row
   k of a measured log (docs/interfaces.md §1), and an estimator updated in cycle k after the write gets it;
 * d = 1 for a synchronous RPDO (actuated at the next SYNC, ``sync_rpdo: true``): the torque
@@ -85,7 +85,7 @@ class HardwareInterface(abc.ABC):
 
     Life cycle: ``start(initial_torque)`` (configure, enable; raises on a device mismatch) →
     ``read()`` / ``write()`` once per cycle → ``safe_stop()`` on a fault → ``stop()``.  Faults
-    raise subclasses of :class:`sea_daemon.errors.HardwareError` (see :mod:`drivers.errors`);
+    raise subclasses of :class:`sea_daemon.errors.HardwareError` (see :mod:`sea_daemon.hw.errors`);
     each carries ``.fault`` for the daemon's fault policy.  Every implementation has the same
     methods and attributes: what an implementation does not need keeps the default here.
     """

@@ -27,11 +27,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from drivers.bus import set_controller_filters
-from drivers.device_model.drive import DriveNode
-from drivers.device_model.encoder import EncoderNode
-from drivers.device_model.faults import FaultSpec
-from drivers.device_model.slave import DeviceNetwork
+from sea_daemon.hw.bus import set_controller_filters
+from sea_daemon.hw.device_model.drive import DriveNode
+from sea_daemon.hw.device_model.encoder import EncoderNode
+from sea_daemon.hw.device_model.faults import FaultSpec
+from sea_daemon.hw.device_model.slave import DeviceNetwork
 from sea_daemon.core.buffers import resident_zeros
 
 TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)

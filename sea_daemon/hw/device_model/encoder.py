@@ -1,7 +1,7 @@
 """The SEA load-side encoder as a CANopen slave: CiA 406 single-turn absolute, 19 bit."""
 from __future__ import annotations
 
-from drivers.device_model.slave import SlaveNode
+from sea_daemon.hw.device_model.slave import SlaveNode
 
 
 class EncoderNode(SlaveNode):

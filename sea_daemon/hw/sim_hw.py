@@ -1,7 +1,7 @@
 """:class:`HardwareInterface` directly on the simulator's plant, without CAN (offline daemon).
 
 Same timing as the CANopen hardware against the lock-step device model (see
-:mod:`drivers.interface`): ``read()`` of cycle k first steps the plant over [t_k-1, t_k] with
+:mod:`sea_daemon.hw.interface`): ``read()`` of cycle k first steps the plant over [t_k-1, t_k] with
 the torque in force, then samples the encoders at t_k (the simulator's quantised
 ``measure()`` when the plant has one); a torque given to ``write()`` in cycle k is in force
 over [t_k+d, t_k+d+1], d = ``actuation_delay`` (default 0: the simulator's zero-order hold;
@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.interface import HardwareInterface, Measurement
+from sea_daemon.hw.interface import HardwareInterface, Measurement
 
 
 class SimHardware(HardwareInterface):

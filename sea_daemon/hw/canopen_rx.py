@@ -4,12 +4,12 @@
 own (:meth:`TpdoWindow.bind`), filtered to the TPDOs' COB-IDs (a kernel filter on SocketCAN,
 an id check before decoding on the ``ipc`` bus; on ``virtual`` and ``remote`` every frame comes
 and the others are skipped here).  The
-loop thread receives them directly in ``read()`` of :class:`drivers.canopen_hw.CanopenHardware`:
+loop thread receives them directly in ``read()`` of :class:`sea_daemon.hw.canopen_hw.CanopenHardware`:
 :meth:`TpdoWindow.drain` before the SYNC (frames that arrived since the last window belong to an
 earlier cycle: counted as late, never decoded), :meth:`TpdoWindow.collect` after it until every
 TPDO arrived or the deadline — no receive thread, no lock, no hand-over between threads on the
 cycle's path, nothing allocated beyond python-can's message object per frame (none on the
-``ipc`` bus, whose :meth:`~drivers.ipc_bus.IpcBus.recv_frame` gives id and data from its own
+``ipc`` bus, whose :meth:`~sea_daemon.hw.ipc_bus.IpcBus.recv_frame` gives id and data from its own
 buffer).  canopen's own
 receive thread keeps the rest of the traffic (SDO, NMT; its handle is filtered to those).  Where
 the handles filter below python-can (SocketCAN, ``ipc``), the devices' heartbeats and EMCY, once
@@ -29,7 +29,7 @@ import time
 
 import can
 
-from drivers.bus import set_controller_filters
+from sea_daemon.hw.bus import set_controller_filters
 
 #: accept filters of the canopen network's handle: everything but the TPDO range 0x180..0x4FF
 #: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)

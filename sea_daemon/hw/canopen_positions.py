@@ -4,9 +4,9 @@
 load encoder's position value 0x6004 (single-turn on the first sample, centred on (-π, π],
 then unwrapped across its range) and the drive's position actual value 0x6064 (a multi-turn
 int32 count of the motor shaft, its wraps undone), through the gear ratio, minus the
-configured offsets.  From the second sample on it raises :class:`~drivers.errors.EncoderJump`
+configured offsets.  From the second sample on it raises :class:`~sea_daemon.hw.errors.EncoderJump`
 when a count moves by more than ``max_joint_speed`` allows in a period (plus two counts), and
-:class:`~drivers.errors.EncoderStuck` when a count stays unchanged for ``stuck_cycles`` while
+:class:`~sea_daemon.hw.errors.EncoderStuck` when a count stays unchanged for ``stuck_cycles`` while
 the other encoder of the joint moves by more than ``stuck_motion``.
 """
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numpy as np
 
 from sea_daemon.core.config import BusConfig
 
-from drivers.errors import EncoderJump, EncoderStuck
-from drivers.interface import FaultFlag, Measurement
+from sea_daemon.hw.errors import EncoderJump, EncoderStuck
+from sea_daemon.hw.interface import FaultFlag, Measurement
 
 
 def _wrap(delta: int, span: int) -> int:

@@ -1,12 +1,12 @@
 """The exoskeleton on CANopen: CiA 402 drive (CST, mode 10) + CiA 406 load encoder per joint.
 
 Start-up (:meth:`CanopenHardware.start`), after CiA 301 / 402 / 406; what it asks of each node
-over SDO is :class:`drivers.canopen_setup.NodeSetup`:
+over SDO is :class:`sea_daemon.hw.canopen_setup.NodeSetup`:
 
 1. NMT pre-operational; per node: device type 0x1000 (profile 402 / 406), identity 0x1018
    (vendor, product as in our EDS), encoder resolution (drive 0x608F = 2^bits per motor turn,
    encoder 0x6501 = 2^bits, 0x6502 turns), gear 0x6091, supported modes 0x6502 (CST), rated
-   torque 0x6076 — any difference is a :class:`~drivers.errors.DeviceMismatch` naming node and
+   torque 0x6076 — any difference is a :class:`~sea_daemon.hw.errors.DeviceMismatch` naming node and
    object;
 2. interpolation period 0x60C2 = the loop period, max torque 0x6072 from ``torque_limit``;
 3. PDO mapping written with canopen's PDO API and read back: drive TPDO1 = statusword 0x6041,
@@ -32,21 +32,21 @@ SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that
 this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
 RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
 ``read()`` takes the cycle's
-TPDOs (:class:`drivers.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
+TPDOs (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
 structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` on a third
 handle, taken after the SYNC and again after the TPDOs; on ``virtual`` and ``remote`` on the
 TPDO handle, which sees every frame there).  A heartbeat counts from its arrival on the bus (the
-frame's timestamp, :func:`drivers.canopen_rx.arrival`), so the heartbeat timeout does not grow
+frame's timestamp, :func:`sea_daemon.hw.canopen_rx.arrival`), so the heartbeat timeout does not grow
 by the time a thread took to get to the frame.
-Counts become joint-side radians (:class:`drivers.canopen_positions.Positions`: gear ratio,
+Counts become joint-side radians (:class:`sea_daemon.hw.canopen_positions.Positions`: gear ratio,
 multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
 TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
 beyond ``max_joint_speed``, stuck encoders, failed sends and bus-off.
 
 The synchronous RPDO written in cycle k is actuated by the drive at SYNC k+1 and acts over
 [t_k+1, t_k+2]; :attr:`Measurement.tau_m_applied` (0x6077) is the torque that acted over the
-cycle ending at the sample time (see :mod:`drivers.interface` for the whole timing).
+cycle ending at the sample time (see :mod:`sea_daemon.hw.interface` for the whole timing).
 """
 from __future__ import annotations
 
@@ -60,16 +60,16 @@ from canopen.emcy import EmcyError
 
 from sea_daemon.core.config import ModelConfig
 
-from drivers import cia402
-from drivers.canopen_positions import Positions
-from drivers.bus import make_bus
-from drivers.canopen_rx import (
+from sea_daemon.hw import cia402
+from sea_daemon.hw.canopen_positions import Positions
+from sea_daemon.hw.bus import make_bus
+from sea_daemon.hw.canopen_rx import (
     CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, Queued, TpdoWindow, arrival)
-from drivers.canopen_setup import (
+from sea_daemon.hw.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
-from drivers.errors import (
+from sea_daemon.hw.errors import (
     BusOff, DriveFault, EmcyReceived, HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
-from drivers.interface import FaultFlag, HardwareInterface, Measurement
+from sea_daemon.hw.interface import FaultFlag, HardwareInterface, Measurement
 
 NMT_OPERATIONAL = 0x05
 
@@ -93,7 +93,7 @@ class CanopenHardware(HardwareInterface):
         self.res = 1 << hw.encoder_bits
         self.torque_limit = hw.torque_limit
         self.pdo_timeout = pdo_timeout if pdo_timeout is not None else b.pdo_timeout_ms / 1e3
-        #: cycles between write() and the interval the torque acts over (see drivers.interface)
+        #: cycles between write() and the interval the torque acts over (see sea_daemon.hw.interface)
         self.actuation_delay = 1 if b.sync_rpdo else 0
         self.hb_timeout = b.heartbeat_timeout_ms / 1e3
         self.clock = clock
@@ -214,7 +214,7 @@ class CanopenHardware(HardwareInterface):
         them inside the cycle, and an EMCY queued before ``read()`` (or before the cycle's
         TPDOs) is raised by that ``read()``, whatever the scheduler does with canopen's thread.
         Where the handles filter below python-can (SocketCAN, ipc) each comes on a handle of
-        its own (:class:`~drivers.canopen_rx.FrameTap`; EMCY apart from the heartbeats, so that
+        its own (:class:`~sea_daemon.hw.canopen_rx.FrameTap`; EMCY apart from the heartbeats, so that
         heartbeats filling a queue nobody takes — the ipc bus queues 10 frames — cannot crowd out
         an EMCY); on ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and
         hands them over (``TpdoWindow.watch``)."""

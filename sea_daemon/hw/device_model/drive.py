@@ -7,8 +7,8 @@ import time
 
 from canopen.sdo import SdoAbortedError
 
-from drivers import cia402
-from drivers.device_model.slave import SlaveNode
+from sea_daemon.hw import cia402
+from sea_daemon.hw.device_model.slave import SlaveNode
 
 INT32 = 1 << 32
 

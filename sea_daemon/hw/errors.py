@@ -3,14 +3,14 @@
 Every class derives from :class:`sea_daemon.errors.HardwareError`, names the CANopen node and
 object involved, the value seen and the allowed range, and carries ``fault`` — the code of the
 daemon's single fault policy (:class:`sea_daemon.errors.Fault`) — and ``flag``, the bit it
-sets in :attr:`drivers.interface.Measurement.faults`.
+sets in :attr:`sea_daemon.hw.interface.Measurement.faults`.
 """
 from __future__ import annotations
 
 from sea_daemon.errors import Fault
 from sea_daemon.errors import HardwareError, InputError
 
-from drivers.interface import FaultFlag
+from sea_daemon.hw.interface import FaultFlag
 
 
 def _node(node: int | None) -> str:

@@ -1,11 +1,11 @@
 """What the CANopen start-up asks of each node over SDO, and the PDO layout it sets up.
 
-:class:`NodeSetup` is the SDO side of :meth:`drivers.canopen_hw.CanopenHardware.start`
+:class:`NodeSetup` is the SDO side of :meth:`sea_daemon.hw.canopen_hw.CanopenHardware.start`
 (steps 1–3 and the CiA 402 walk of its module docstring): the device checks — device type
 0x1000 (profile 402 / 406), identity 0x1018 (vendor, product as in our EDS), encoder
 resolution (drive 0x608F = 2^bits per motor turn, encoder 0x6501 = 2^bits, 0x6502 turns), gear
 0x6091, supported modes 0x6502 (CST), rated torque 0x6076 — each difference a
-:class:`~drivers.errors.DeviceMismatch` / :class:`~drivers.errors.WrongDevice` naming node and
+:class:`~sea_daemon.hw.errors.DeviceMismatch` / :class:`~sea_daemon.hw.errors.WrongDevice` naming node and
 object; interpolation period 0x60C2 and max torque 0x6072; the PDO mapping, written with
 canopen's PDO API and read back; the state machine walked to OPERATION_ENABLED.  Every SDO
 transfer first calls ``keepalive`` (the daemon's heartbeat, once the drives watch it).
@@ -23,12 +23,12 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 
-from drivers import cia402
-from drivers.errors import DeviceMismatch, WrongDevice
+from sea_daemon.hw import cia402
+from sea_daemon.hw.errors import DeviceMismatch, WrongDevice
 
-EDS_DIR = repo_root() / "configs" / "eds"
+EDS_DIR = data_root() / "configs" / "eds"
 DRIVE_EDS = EDS_DIR / "sea_drive.eds"
 ENCODER_EDS = EDS_DIR / "sea_load_encoder.eds"
 

@@ -24,9 +24,9 @@ import canopen
 from canopen.nmt import NmtSlave
 from canopen.sdo import SdoAbortedError
 
-from sea_daemon.io.configfile import repo_root
+from sea_daemon.io.configfile import data_root
 
-EDS_DIR = repo_root() / "configs" / "eds"
+EDS_DIR = data_root() / "configs" / "eds"
 PDO_INVALID = 0x80000000
 
 

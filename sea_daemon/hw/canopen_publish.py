@@ -25,7 +25,7 @@ from sea_daemon.client import JOINT_FUNCTIONS, STATUS_FUNCTION, TPDO_JOINT, TPDO
 
 class TpdoPublisher:
     """TPDOs of node ``node`` for ``n`` joints (1..3) on the bus of ``hw`` (a started
-    :class:`drivers.canopen_hw.CanopenHardware`: its canopen network's bus and send lock)."""
+    :class:`sea_daemon.hw.canopen_hw.CanopenHardware`: its canopen network's bus and send lock)."""
 
     def __init__(self, hw, node: int, n: int):
         if not 1 <= n <= len(JOINT_FUNCTIONS):

@@ -30,7 +30,7 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
   so a handle read once a cycle — the driver's TPDO handle — only queues its TPDOs.
 
 Registered as the python-can interface ``sea-ipc`` (entry point ``can.interface`` in
-``pyproject.toml``); :func:`drivers.bus.make_bus` opens it for ``hardware.bus.interface: ipc``.
+``pyproject.toml``); :func:`sea_daemon.hw.bus.make_bus` opens it for ``hardware.bus.interface: ipc``.
 """
 from __future__ import annotations
 
@@ -379,7 +379,7 @@ class IpcBus(can.BusABC):
             return self._decode(raw), True
 
     def recv_frame(self, timeout: float):
-        """The cycle's receive path (:class:`drivers.canopen_rx.TpdoWindow`): the next frame
+        """The cycle's receive path (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`): the next frame
         this member accepts as ``(arbitration id, data)`` — ``data`` a view of a receive buffer
         that the next call overwrites — or None after ``timeout`` seconds (0: only what is
         queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
