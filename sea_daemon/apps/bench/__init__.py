@@ -1,6 +1,7 @@
-"""Benchmarks run by ``sea-daemon bench NAME``, one module each (discovered).
+"""Benchmarks run by ``sea-daemon bench NAME``, one module each, named in
+:data:`sea_daemon.apps.commands.bench.BENCHMARKS`.
 
-A module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
+A module defines ``add_arguments(parser)`` and ``run(args) -> int`` (optional ``DESCRIPTION``).
 Every benchmark prints what it measured, on what (machine, data), with how many runs, as
 medians and percentiles.  :func:`summarize` gives the figures in one place.
 """

@@ -20,8 +20,6 @@ import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
 
-NAME = "can-cycle"
-HELP = "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"
 
 
 def add_arguments(p) -> None:

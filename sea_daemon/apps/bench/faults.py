@@ -53,8 +53,6 @@ import numpy as np
 from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 from sea_daemon.apps.bench._fault_run import BUS, FAULTS, OVERRUN_STREAK, FaultRun, record_heartbeats
 
-NAME = "faults"
-HELP = "fault injection over the device model: detection, cycles to zero torque, false alarms"
 DESCRIPTION = __doc__
 
 

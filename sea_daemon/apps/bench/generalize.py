@@ -35,8 +35,6 @@ import numpy as np
 
 from sea_daemon.io.files import atomic_write_text
 
-NAME = "generalize"
-HELP = "calibrate random plants once on a passive session, test on unlike sessions"
 ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
 #: the plant seeds used while choosing the calibration's settings (not for headline figures):
 #: 0–5 for the calibration's steps; 100–119 for the GP weight's reference (plants 101 and 104,

@@ -27,8 +27,6 @@ from sea_daemon.io.logcsv import read_log
 from sea_daemon.core.linalg import discretize
 from sea_daemon.core.model import SEAModel
 
-NAME = "latency"
-HELP = "time per estimator step (median, p99, p99.9) on a simulated or given log"
 
 #: label -> builder(cfg, dt, log) -> Estimator
 CASES: dict[str, Callable] = {

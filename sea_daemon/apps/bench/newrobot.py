@@ -36,8 +36,6 @@ from pathlib import Path
 
 from sea_daemon.io.files import atomic_write_text
 
-NAME = "newrobot"
-HELP = "calibrate one plant of scenario files once on a passive session, estimate on its other sessions"
 DESCRIPTION = __doc__
 #: issue 12's targets [N m]: passive sessions (τ_h,act = 0) and active subjects
 TARGET = {"passive": 0.05, "active": 0.1}
