@@ -19,7 +19,9 @@ import uuid
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
-
+from sea_daemon.core.sim.plant import Plant
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.runtime.rig import device_model_rig
 
 
 def add_arguments(p) -> None:
@@ -29,7 +31,9 @@ def add_arguments(p) -> None:
     p.add_argument("--cycles", type=int, default=2000)
 
 
-def _server():
+def remote_server():
+    """A python-can-remote relay (``python -m can_remote``, virtual bus) on a free local port,
+    started and answering: (its process, its ``ws://`` URL).  The caller terminates it."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -48,15 +52,11 @@ def _server():
 
 
 def run(args) -> int:
-    from sea_daemon.core.sim.plant import Plant
-    from sea_daemon.io.configfile import default_config_path, load_config
-    from sea_daemon.runtime.rig import device_model_rig
-
     cfg = load_config(default_config_path())
     proc = None
     channel = f"bench-{uuid.uuid4().hex[:8]}"
     if args.bus == "remote":
-        proc, channel = _server()
+        proc, channel = remote_server()
     b = dataclasses.replace(cfg.hardware.bus, interface=args.bus, channel=channel, pdo_timeout_ms=1000.0)
     cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
     rig = device_model_rig(cfg, Plant(cfg, q0=0.3, seed=0))

@@ -222,7 +222,7 @@ def run(args) -> int:
     from sea_daemon.runtime.service import serve
     from sea_daemon.core.estimators import make_estimator
     from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.apps.bench.can_cycle import _server
+    from sea_daemon.apps.bench.can_cycle import remote_server as _server
     from sea_daemon.core.buffers import resident_zeros
     from sea_daemon.hw.device_model.model import thread_page_faults
 
