@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING, Any, Callable
 from sea_daemon.errors import InputError, shown
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor

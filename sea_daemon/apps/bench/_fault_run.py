@@ -25,7 +25,8 @@ from sea_daemon.hw.device_model import FaultSpec
 
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
 

@@ -162,7 +162,7 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
     size = max(2, int(rng.uniform(0.25, 0.75) * cycles * ROW_BYTES) // 4096) * 4096
     with _small_disk(tmp, size) as (d, mounted):
         def limit(w):                    # no tmpfs: the writer's files may grow to the same size
-            resource.prlimit(w._proc.pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
+            resource.prlimit(w.writer_pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
         res, path, note = serve_with_action(d, cycles, -1, None, writer_hook=None if mounted else limit)
         fin = res.log
         log = read_log(path, n=1) if fin["rows_written"] >= 2 else None

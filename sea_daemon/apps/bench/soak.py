@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
@@ -134,7 +135,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                     # started from inside the running loop: not waiting for the worker's set-up
                     loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start(wait=False)
         if k % stride == 0 or k == warmup:
-            rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
+            rec = (k, vm_rss_kb(), vm_rss_kb(log.writer_pid), gp.n_leaves, gp.n_points)
             trace.append(rec)
             if k == warmup:
                 marks["warmup"] = rec
@@ -154,7 +155,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         for sig, h in old_handlers.items():
             signal.signal(sig, h)
         wall = time.monotonic() - t0
-        end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
+        end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log.writer_pid), gp.n_leaves, gp.n_points)
         trace.append(end)
         closed = log.close()
         if "worker" in links:
