@@ -26,7 +26,7 @@ import numpy as np
 
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.jit import warmer
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import EstimatorFault, Fault, InputError
 
 _PACKED_ORDER: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 _EMPTY = np.empty((0, 0))
@@ -290,7 +290,7 @@ class IncrementalGP:
             jit = max(10.0 * jit, 1e-10 * self._sf2)
         else:
             raise EstimatorFault(f"GP kernel matrix not positive definite with jitter {jit:g} "
-                                 f"(sigma_n = {self.sigma_n:g} must be > 0)")
+                                 f"(sigma_n = {self.sigma_n:g} must be > 0)", fault=Fault.COVARIANCE_NOT_PD)
         # β = L⁻¹ y, so that μ = (L⁻¹k)ᵀβ (eq:GPmean)
         self.beta_[:n] = self.y_[:n]
         gp_core.solve_lower(self.ap_, n, self.beta_)

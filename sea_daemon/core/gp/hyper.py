@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import EstimatorFault, Fault, InputError
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.gp.exact import IncrementalGP, kernel_from_rows, packed_order
 
@@ -65,7 +65,7 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
         info = gp_core.cholesky_packed(K, n, sigma_n ** 2 + jitter, ap)
         if info != 0:
             raise EstimatorFault(f"K + σ_on² I is not positive definite (Cholesky pivot {info}); "
-                                 f"σ_on = {sigma_n} must be > 0")
+                                 f"σ_on = {sigma_n} must be > 0", fault=Fault.COVARIANCE_NOT_PD)
     else:
         ap[:] = np.asarray(L, dtype=float)[packed_order(n)]
     g = np.empty(d + 2)
