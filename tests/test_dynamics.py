@@ -13,6 +13,7 @@ from sea_daemon.core import dynamics as dyn
 from sea_daemon.core.config import SEAParams
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.model import SEAModel
+from sea_daemon.core.model_core import ModelTables
 
 
 def _effects(n):
@@ -180,3 +181,26 @@ def test_effects_outside_the_vocabulary_enter_as_a_load_torque():
     f = np.array([pf.torque(q, dq, 0.0)])
     np.testing.assert_allclose(m.f_nom(x, u), m0.f_nom(x, u, f), rtol=1e-14)
     np.testing.assert_allclose(m.F_nom(x, u), _fd(lambda y: m.f_nom(y, u), x), rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_model_tables_for_the_filter(n):
+    """ModelTables (the filter with declared effects): f_nom and F_nom in place, the training
+    residual, and the linearisation-error box = the maximum over the sampled points."""
+    m = _model(n)
+    t = ModelTables(m)
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        x, u = _state(rng, n), rng.normal(size=n)
+        A, xd = np.zeros((5 * n, 5 * n)), np.zeros(5 * n)
+        t.f_and_F(x, u, A, xd)
+        np.testing.assert_array_equal(A, m.F_nom(x, u))
+        np.testing.assert_array_equal(xd, m.f_nom(x, u))
+        k = [rng.normal(size=n) for _ in range(7)]
+        out = np.zeros(n)
+        t.residual(*k, out)
+        np.testing.assert_array_equal(out, m.residual_from_kinematics(*k))
+        X = x + rng.normal(size=(7, 5 * n)) * 0.01
+        b = t.lin_error_box(X, u, x, A)
+        ref = np.max([np.abs(m.f_nom(xx, u) - xd - A @ (xx - x)) for xx in X], axis=0)
+        assert np.allclose(b, ref, rtol=1e-9, atol=1e-12)

@@ -63,7 +63,8 @@ class ModelTables:
 def lin_error_boxes(X, u, x0, A0, p, ell, col, slope, eff_group, eff_code, eff_p, b, b_smooth) -> None:
     """Over the rows x of X: b = max |ε(x)| with ε = f_nom(x) − f_nom(x0) − A0 (x − x0) (what
     :func:`lin_error_box` gives) and b_smooth = max |ε_smooth(x)|, the same for the model
-    without the friction groups (the bound's friction candidate, AKFTheoremBound._friction_candidate):
+    without the friction groups (the bound's friction candidate,
+    AKFTheoremBound._friction_candidate):
     ε_smooth = ε − Σ_g col_g [τ_g(ℓ_gᵀx) − τ_g(ℓ_gᵀx0) − slope_g ℓ_gᵀ(x − x0)], τ_g the sum of the
     effects (eff_code, eff_p) with eff_group = g.  One f_nom evaluation per point for both;
     p the packed :class:`~sea_daemon.core.dynamics.Dynamics`."""
