@@ -437,9 +437,10 @@ def _warm() -> None:
     T[0, 0] = T[0, 1] = T[1, 2] = T[1, 3] = 1.0
     # the friction candidate's one-pass boxes (AKFTheoremBound._friction_candidate), one load group
     e, P, I, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.eye(1), np.zeros(1)
-    tabs = (I, I, I, I, I, v, np.ones(1), np.full(1, -1.0), np.array([1], np.int64), np.zeros(1, np.int64),
-            np.array([[0.1, 0.01, 0.0]]), e, e, P, e, e, P)
-    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), *tabs, np.ones((1, d)), np.ones((1, d)),
+    # the packed Dynamics (core.dynamics): M, M⁻¹, J, J⁻¹, D_m, K_s, D_s, gravity, κ, half band, one load effect
+    dyn = (I, I, I, I, I, I, I, v, np.ones(1), np.full(1, -1.0),
+           (np.array([1], np.int64), np.zeros(1, np.int64), np.array([[0.1, 0.01, 0.0]])), (e, e, P), (e, e, P))
+    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), dyn, np.ones((1, d)), np.ones((1, d)),
                     np.ones(1), np.zeros(1, np.int64), np.array([1], np.int64), np.array([[0.1, 0.01, 0.0]]),
                     np.zeros(d), np.zeros(d))
     for has_gp, local, has_rate in ((True, True, True), (True, False, False), (False, False, False)):
