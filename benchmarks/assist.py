@@ -40,7 +40,7 @@ import numpy as np
 import yaml
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.apps.bench.can_cycle import remote_server
+from sea_daemon.apps.bench.can_cycle import remote_relay
 from sea_daemon.apps.calibration import calibrate
 from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
 from sea_daemon.core.assist import InnovationGuard
@@ -236,7 +236,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     """``sea-daemon run`` (assist on) and ``sea-daemon device-model`` in their own processes on a
     python-can-remote bus; TPDO1/TPDO2 received in this process, compared with the run's log."""
     env = dict(os.environ, PYTHONPATH=str(import_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    server, url = remote_server()
+    server, url = remote_relay()
     dev = listener_bus = None
     frames: list = []
     stop = threading.Event()

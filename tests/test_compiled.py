@@ -126,8 +126,8 @@ def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
     est = GPAKF(c)
     before = {k: len(d.signatures) for k, d in _dispatchers().items()}
     for k in ("estimators.akf_core.filter_step", "gp.gp_core.predict_with_grad", "gp.gp_core.add_point",
-              "gp.gp_core.lml_grad", "gp.gp_core.cholesky_packed", "estimators.health._box_clip",
-              "kinematics._fir_push"):
+              "gp.gp_core.lml_grad", "gp.gp_core.cholesky_packed", "estimators.health.box_clip",
+              "kinematics.fir_push"):
         assert before["sea_daemon.core." + k] > 0, k
     est.reset([0.0], [0.0], [0.0])
     t = np.arange(1, 200) * 0.01

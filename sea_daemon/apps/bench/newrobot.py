@@ -38,7 +38,7 @@ from sea_daemon.apps.bench import add_choice_argument, choose, machine
 from sea_daemon.apps.bench.generalize import ESTIMATORS, calibration_row, run_sessions
 from sea_daemon.apps.calibration import excitation_reference
 from sea_daemon.apps.calibration.pipeline import calibrate_log
-from sea_daemon.core.sim.session import PIDGains, run_session
+from sea_daemon.core.sim.session import run_session
 from sea_daemon.core.validate import check_keys
 from sea_daemon.errors import ConfigError
 from sea_daemon.io.configfile import data_root, load_yaml
@@ -116,8 +116,8 @@ def excitation_log(sc):
         raise ConfigError(sc.source, "controller.type", "--calibration excitation tracks the moves with the "
                                                         "scenario's PID: needs controller.type pid")
     ref = excitation_reference(sc.nominal, ctl.q0)
-    gains = PIDGains(ctl.kp, ctl.ki, ctl.kd, ctl.velocity_filter_hz, ctl.derivative)
-    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=gains,
+    # the scenario's controller is its PID gains (PIDSpec is a PIDGains) and a trajectory
+    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=ctl,
                        substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps, torque_noise=sc.plant.torque_noise)
 
 

@@ -35,7 +35,7 @@ import numpy as np
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model_core import lin_error_boxes
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.gp.routing import _route
+from sea_daemon.core.gp.routing import route
 from sea_daemon.core.bounds.setmember import _ellipsoid_points, _shifted_halfwidth
 from sea_daemon.core.bounds.zonotope import _zonotope_shape, predict_generators
 
@@ -182,7 +182,7 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
     """Merged LoG-GP prediction per row of ``Z`` and joint j into MU[:, j], S[:, j], XT[:, j]:
     with ``local`` the mean, the scale √(σ̃² + s_loc²) and the extrapolation term c e(z)
     (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero).  The
-    leaves and weights of each row are the LoG-GP's own routing (:func:`routing._route`)."""
+    leaves and weights of each row are the LoG-GP's own routing (:func:`routing.route`)."""
     P, dz = Z.shape
     xc = np.empty(dz)
     xq = np.empty((1, dz))
@@ -190,7 +190,7 @@ def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, a
     a = np.empty(dz + 2)
     kv = np.empty(max(1, np.max(nn)) if nn.shape[0] else 1)
     for j in range(links.shape[0]):
-        idx, nodes, ws, _ = _route(Z, links[j], span[j], False)
+        idx, nodes, ws, _ = route(Z, links[j], span[j], False)
         i = 0
         for p in range(P):
             x = Z[p]
@@ -437,9 +437,10 @@ def _warm() -> None:
     T[0, 0] = T[0, 1] = T[1, 2] = T[1, 3] = 1.0
     # the friction candidate's one-pass boxes (AKFTheoremBound._friction_candidate), one load group
     e, P, I, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.eye(1), np.zeros(1)
-    tabs = (I, I, I, I, I, v, np.ones(1), np.full(1, -1.0), np.array([1], np.int64), np.zeros(1, np.int64),
-            np.array([[0.1, 0.01, 0.0]]), e, e, P, e, e, P)
-    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), *tabs, np.ones((1, d)), np.ones((1, d)),
+    # the packed Dynamics (core.dynamics): M, M⁻¹, J, J⁻¹, D_m, K_s, D_s, gravity, κ, half band, one load effect
+    dyn = (I, I, I, I, I, I, I, v, np.ones(1), np.full(1, -1.0),
+           (np.array([1], np.int64), np.zeros(1, np.int64), np.array([[0.1, 0.01, 0.0]])), (e, e, P), (e, e, P))
+    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), dyn, np.ones((1, d)), np.ones((1, d)),
                     np.ones(1), np.zeros(1, np.int64), np.array([1], np.int64), np.array([[0.1, 0.01, 0.0]]),
                     np.zeros(d), np.zeros(d))
     for has_gp, local, has_rate in ((True, True, True), (True, False, False), (False, False, False)):

@@ -284,7 +284,8 @@ def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
         for k in range(1, len(log)):
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
     except EstimatorFault as exc:
-        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}",
+                             fault=exc.fault) from None
     finally:
         est.bound = bound
     return est
