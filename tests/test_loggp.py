@@ -222,9 +222,9 @@ def test_hyper_slice_runs_in_two_phases_on_consecutive_updates():
         gp.update(xi, yi)
     theta0 = gp.leaf(0).log_theta
     gp.update(X[19], y[19])                          # 20th update: phase 1 (propose)
-    assert gp._pending is not None and np.array_equal(gp.leaf(0).log_theta, theta0)
+    assert gp.hyper_proposal is not None and np.array_equal(gp.leaf(0).log_theta, theta0)
     gp.update(X[20], y[20])                          # 21st: phase 2 (swap in, rebuilt)
-    assert gp._pending is None and not np.array_equal(gp.leaf(0).log_theta, theta0)
+    assert gp.hyper_proposal is None and not np.array_equal(gp.leaf(0).log_theta, theta0)
     ref = IncrementalGP(3, *(lambda t: (np.exp(t[0]), np.exp(t[1:4]), np.exp(t[4])))(gp.leaf(0).log_theta))
     ref.fit(X[:21], y[:21])
     assert gp.predict(X[30]) == pytest.approx(ref.predict(X[30]), rel=1e-8)

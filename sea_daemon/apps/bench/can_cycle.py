@@ -19,9 +19,9 @@ import uuid
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
-
-NAME = "can-cycle"
-HELP = "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"
+from sea_daemon.core.sim.plant import Plant
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.runtime.rig import device_model_rig
 
 
 def add_arguments(p) -> None:
@@ -51,10 +51,6 @@ def remote_relay():
 
 
 def run(args) -> int:
-    from sea_daemon.core.sim.plant import Plant
-    from sea_daemon.io.configfile import default_config_path, load_config
-    from sea_daemon.runtime.rig import device_model_rig
-
     cfg = load_config(default_config_path())
     proc = None
     channel = f"bench-{uuid.uuid4().hex[:8]}"

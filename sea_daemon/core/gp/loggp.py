@@ -161,7 +161,7 @@ class LoGGP(LoGGPState):
         self.n_evicted = 0
         self.n_hyper_steps = 0
         self.last_leaf = 0
-        self._pending: tuple[int, np.ndarray] | None = None
+        self.hyper_proposal: tuple[int, np.ndarray] | None = None    # phase 1's (leaf, θ), for phase 2
         self._hyper_due = False
 
     def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
@@ -226,10 +226,10 @@ class LoGGP(LoGGPState):
             # call without a split or an eviction
             if heavy:
                 return
-            if self._pending is not None:
+            if self.hyper_proposal is not None:
                 # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
-                pnode, theta = self._pending
-                self._pending = None
+                pnode, theta = self.hyper_proposal
+                self.hyper_proposal = None
                 g = self._gp[pnode]
                 if g is not None:              # (a leaf that split meanwhile keeps its values)
                     self.hyper.apply(g, theta)
@@ -311,7 +311,7 @@ class LoGGP(LoGGPState):
             st = self._adam[node] = self.hyper.new_state()
         lml, theta = self.hyper.propose(gp, st, self.hyper_points)
         if theta is not None:
-            self._pending = (node, theta)
+            self.hyper_proposal = (node, theta)
         self.n_hyper_steps += 1
         return lml
 
@@ -323,9 +323,9 @@ class LoGGP(LoGGPState):
         the two phases on consecutive calls instead).  Cost O(N̄³) with N̄ = ``max_points``,
         independent of the tree size.  Returns the leaf's LML before the step (None if skipped).
         """
-        if self._pending is not None:
-            pnode, theta = self._pending
-            self._pending = None
+        if self.hyper_proposal is not None:
+            pnode, theta = self.hyper_proposal
+            self.hyper_proposal = None
             if self._gp[pnode] is not None:
                 self.hyper.apply(self._gp[pnode], theta)
         node = self.last_leaf if leaf is None else leaf
