@@ -124,8 +124,8 @@ def test_phi_shortcut_matches_expm():
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     b = np.array([0, 0, 0, 1.0, 0])
     full = discretize(akf.A_k, np.eye(5), akf.dt)[1]
-    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
-    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
+    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt, akf.Gamma_mu)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt, akf.Gamma_mu), full)
 
 
 def _residual(learning, cfg, noise: float = 0.0):
@@ -497,7 +497,7 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     for k in range(1, 40):
         akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-    x0, P0, u, dt = akf._x_prev.copy(), akf._P_prev.copy(), np.asarray(log.tau_m[39], float), 0.01
+    x0, P0, u, dt = akf.record.x_prev.copy(), akf.record.P_prev.copy(), np.asarray(log.tau_m[39], float), 0.01
     side_, ell, c, effs = tb._fric[0]
     x0[2:4] = 0.0                        # the friction's velocity at 0, where its slope is steepest
     # the filter's step from there: A_k, F_k = e^{A dt}, Γ_μ = Φ I_μ M⁻¹
@@ -507,9 +507,9 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     akf.Gamma_mu[:] = Phi @ model.I_mu @ model.Minv
     C = tb.sm.confidence_set(x0, P0)
     pts = tb.sm.sample_points(C)
-    dF, GamF, w, b_s, _, b = tb._friction_candidate(x0, u, P0, pts, akf.A_k.copy(), dt)
+    dF, GamF, w, b_s, _, b = tb._friction_candidate(x0, u, P0, pts, akf.A_k.copy(), dt, akf.A_k, akf.Gamma_mu)
     # the one-pass boxes are the filter-slope box and the box of the model without friction
-    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf._tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
+    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf.tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
     FB = akf.F_k + dF
     from sea_daemon.core.effects import evaluate
     tau_g = lambda v: sum(evaluate(code, p, 0.0, v, 0.0)[0] for code, p in effs)

@@ -3,10 +3,12 @@
 :class:`AKFTheoremBound` is the bound component (:class:`~sea_daemon.core.estimators.base.Bound`)
 of one :class:`~sea_daemon.core.estimators.akf.AKF` (plain AKF or GP-AKF: an AKF with a
 residual), given at its construction (``AKF(cfg, bound=theorem_bound)``; :func:`theorem_bound`
-is the default the estimator factory uses).  The AKF calls it after every filter step: it
-propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps per
-step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
-``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.  The calibration of
+is the default the estimator factory uses).  The AKF hands it every filter step's
+:class:`~sea_daemon.core.estimators.record.StepRecord`: it propagates the set of means with
+:class:`SetMembershipBound`, using the record's x̂_{k−1}, P_{k−1}, u, ẑ_{k−1}, μ(ẑ), ∂μ/∂z,
+``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``
+and ``P``, and the filter's constants (``H``, the model, δ), and overwrites
+``est.tau_h_act_bound`` with ρ_k.  The calibration of
 its GP constants is :mod:`sea_daemon.core.bounds.calibration`.
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
@@ -95,9 +97,6 @@ def _warm() -> None:
 
 class AKFTheoremBound:
     """The Theorem-1 bound component of one AKF instance (see module docstring)."""
-
-    #: computed in the AKF's own step (:class:`~sea_daemon.core.estimators.base.Bound`)
-    deferred = False
 
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
@@ -220,7 +219,7 @@ class AKFTheoremBound:
             return int(n)
         return int(sum(g.n_points for g in residual_gps(self.akf) or []))
 
-    def reset(self, est) -> None:
+    def reset(self, est, record) -> None:
         """After the AKF's reset: the set of means back to a point, ρ_0 (GP constants of the GP
         as trained when estimation starts, with 'auto')."""
         if self._auto:
@@ -230,8 +229,8 @@ class AKFTheoremBound:
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
-        if self.akf._ready:
-            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+        if record.ready:
+            est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
     # ------------------------------------------------------------------ linearisation error
 
@@ -261,7 +260,7 @@ class AKFTheoremBound:
 
     def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
         """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
-        tables = getattr(self.akf, "_tables", None)
+        tables = self.akf.tables
         if tables is not None:
             # the same, compiled over all the points at once (model_core)
             return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
@@ -285,7 +284,7 @@ class AKFTheoremBound:
         Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
         compiled vocabulary)."""
-        tables = getattr(self.akf, "_tables", None)
+        tables = self.akf.tables
         if sets != "zonotope" or tables is None:
             return [], None
         n, d = model.n, 5 * model.n
@@ -350,7 +349,8 @@ class AKFTheoremBound:
             L, U = max(L, min(c)), min(U, max(c))
         return L, U
 
-    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float):
+    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float, A_k: np.ndarray,
+                            Gamma_mu: np.ndarray):
         """The set of means' step with the friction linearised at zero slope (module docstring).
 
         The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
@@ -365,7 +365,7 @@ class AKFTheoremBound:
         w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
         + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
         filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
-        ``pts``: the point set of C_{k−1}.  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
+        ``pts``: the point set of C_{k−1}; ``A_k``, ``Gamma_mu``: the filter's step (StepRecord).  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
         Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
         akf = self.akf
         n, d = akf.n, akf.d
@@ -390,10 +390,10 @@ class AKFTheoremBound:
             if side == "load":
                 # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
                 j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
-                GamF[:, i] = -akf.Gamma_mu[:, j]
+                GamF[:, i] = -Gamma_mu[:, j]
             else:
                 if Phi_full is None:
-                    Phi_full = discretize(akf.A_k, self._I, dt)[1]
+                    Phi_full = discretize(A_k, self._I, dt)[1]
                 GamF[:, i] = Phi_full @ c
             # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
             dF -= sl * np.outer(GamF[:, i], ell)
@@ -405,9 +405,9 @@ class AKFTheoremBound:
         ell_a, col_a, eg, ec, ep = self._fric_arrays
         lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
                         np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                        *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+                        *akf.tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
         b_s *= 1.0 + self.sm.margin
-        return dF, GamF, w, b_s, self._phi(akf.A_k, b_s, dt), (1.0 + self.sm.margin) * b
+        return dF, GamF, w, b_s, self._phi(A_k, b_s, dt, Gamma_mu), (1.0 + self.sm.margin) * b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -464,7 +464,7 @@ class AKFTheoremBound:
             out = bool(np.any(zl < lo) or np.any(zh > hi))
         return E, S, X, out
 
-    def _phi(self, A, b, dt):
+    def _phi(self, A, b, dt, Gamma_mu):
         """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
         already has Γ_μ = Φ I_μ M⁻¹); any other column costs one expm."""
         if not np.any(b):
@@ -474,7 +474,7 @@ class AKFTheoremBound:
         nz = np.flatnonzero(b)
         if np.all((nz >= 3 * n) & (nz < 4 * n)):
             Phi = np.zeros((akf.d, akf.d))
-            Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
+            Phi[:, 3 * n:4 * n] = Gamma_mu @ akf.model.M
             return Phi
         return discretize(A, self._I, dt)[1]
 
@@ -505,24 +505,24 @@ class AKFTheoremBound:
             self._args = None
         return self._pack_args
 
-    def _step_compiled(self, est, x0, P0, u, dt, gp) -> None:
+    def _step_compiled(self, est, record, gp) -> None:
         """The same step in one compiled call (:mod:`.bound_core`)."""
         akf = self.akf
         sm = self.sm
         n = akf.n
         has_gp = akf.residual is not None
         if self.tau_h_act_rate > 0:
-            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            zoh(record.A_k, self._E_tau, float(record.dt), self._aug_tau, self._Ezoh_tau)
             self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
         try:
-            G, out, took_range = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+            G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
             # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
             # projection): the typed estimator fault, as the Python step raises it
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged ({e})") from None
-        caps = getattr(akf, "_P_max", None)
+        caps = akf.P_max
         if caps is not self._caps:
             self._caps = caps
             self._sqrt_caps = np.sqrt(caps) if caps is not None else np.full(akf.d, np.inf)
@@ -537,35 +537,38 @@ class AKFTheoremBound:
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         if check:                          # a half-width at its cap: the exact test, maybe saturation
-            self._saturate(est)
+            self._saturate(est, record.P)
 
-    def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
+    def _call_compiled(self, rec, sm, n, has_gp, box, lo, hi, gp):
         """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same
         from step to step kept in two tuples, made again when the pack, the box or an output
         array changed)."""
         a = self._args
-        if a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_:
-            mid = (akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
-                   self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
+        if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
+                or a[6] is not rec):
+            mid = (rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k, self.akf.H, rec.Gamma_mu,
+                   self._M, self._minv, rec.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
                    self._grid_step, self._Uz, has_gp, self._scales is not None,
                    self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
                    self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c,
                    self.tau_h_act_rate, self.tau_h_act_rate > 0)
             tail = (sm.delta_noise / n, sm._z_tau, gp if has_gp else self._empty, self._rho, self.eta_,
                     self.gp_lin_err_, self._b)
-            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, mid, tail)
+            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, mid, tail, rec)
         mid, tail = a[4], a[5]
-        return bound_core.bound_step(sm.G_, x0, P0, *mid, sm.generator_limit(), *tail)
+        return bound_core.bound_step(sm.G_, rec.x_prev, rec.P_prev, *mid, sm.generator_limit(), *tail)
 
-    def step(self, est, x0, P0, u, dt) -> None:
-        """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
-        propagate the set of means and publish ρ_k."""
+    def step(self, est, record) -> None:
+        """After the AKF's step k (its :class:`~sea_daemon.core.estimators.record.StepRecord`:
+        from x̂_{k−1}, P_{k−1} with the input u held over dt): propagate the set of means and
+        publish ρ_k."""
         gp = self._compiled_pack()
         if gp is not None:
-            self._step_compiled(est, x0, P0, u, dt, gp)
+            self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
+        x0, P0, u, dt = record.x_prev, record.P_prev, record.u, record.dt
+        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
         fric = gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
@@ -578,12 +581,13 @@ class AKFTheoremBound:
             b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
         else:
             C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
-            A_nom = akf.A_k.copy()
+            A_nom = record.A_k.copy()
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
             if self._fric:
-                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt)
+                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
+                                                record.Gamma_mu)
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
@@ -603,39 +607,39 @@ class AKFTheoremBound:
             Lm = (1.0 + sm.margin) * E
             eta = np.max(H + Lm, axis=0)
             if sm.sets == "zonotope":
-                gp_range = self._gp_range_candidate(H, P0)
+                gp_range = self._gp_range_candidate(H, P0, record.Gamma_mu)
             self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
             self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
-        Phi = self._phi(akf.A_k, b, dt)
-        Gam = akf.Gamma_mu
+        Phi = self._phi(record.A_k, b, dt, record.Gamma_mu)
+        Gam = record.Gamma_mu
         if self.tau_h_act_rate > 0:
             # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
             # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
-            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            zoh(record.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
             n = akf.n
             if eta is None:
                 Gam, eta = self._Gam_tau, self._rate
             else:
-                self._Gam_all[:, :n] = akf.Gamma_mu
+                self._Gam_all[:, :n] = record.Gamma_mu
                 self._Gam_all[:, n:] = self._Gam_tau
                 self._eta_all[:n] = eta
                 self._eta_all[n:] = self.tau_h_act_rate
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         if fric is None and gp_range is None:
-            sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+            sm.predict(record.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         else:
-            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric, gp_range)
-        sm.update(akf.K_k, akf.H)
+            self._predict_best_of_two(record, Gam, eta, b, Phi, fric, gp_range)
+        sm.update(record.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
-        est.tau_h_act_bound[:] = sm.rho(akf.P)
-        self._saturate(est)
+        est.tau_h_act_bound[:] = sm.rho(record.P)
+        self._saturate(est, record.P)
 
-    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray):
+    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray, Gamma_mu: np.ndarray):
         """The GP part of the range form: the GP mean linearised at zero slope.
 
         The filter's drift carries −I_μM⁻¹[μ(ẑ) + J T(x − x̂)] (eq:linearization, J = ∂μ/∂z at ẑ,
@@ -649,25 +653,24 @@ class AKFTheoremBound:
         η_B = max over the points of [√β s + γ + c e + (1 + margin)|μ(z) − μ(ẑ)|] + √(s_z J T P Tᵀ Jᵀ)
         (J T g on the χ² set of (q, q̇), the event the GP points already use) instead of the
         filter's slope and the GP mean's linearisation error.  Returns (F_B − F, η_B)."""
-        akf = self.akf
         J0 = self._J0
         Lm0 = (1.0 + self.sm.margin) * self._E0
         JT = J0 @ self._T                          # (n, d)
         eta_b = np.max(H + Lm0, axis=0) + np.sqrt(np.maximum(self._s_z * np.sum((JT @ P0) * JT, axis=1), 0.0))
-        return akf.Gamma_mu @ JT, eta_b
+        return Gamma_mu @ JT, eta_b
 
-    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric, gp_range) -> None:
+    def _predict_best_of_two(self, rec, Gam, eta, b, Phi, fric, gp_range) -> None:
         """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
         friction of :meth:`_friction_candidate` and the GP mean of :meth:`_gp_range_candidate`
         linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
         filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
         assumptions, so the choice keeps the guarantee whatever the rule."""
         sm = self.sm
-        n = akf.n
+        n = self.akf.n
         limit = sm.generator_limit()
-        GA = sm.prior_generators(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
+        GA = sm.prior_generators(rec.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
                                  limit=limit)
-        FB = np.array(akf.F_k, dtype=float)
+        FB = np.array(rec.F_k, dtype=float)
         GamB, etB, bB, PhiB = Gam, eta, b, Phi
         if gp_range is not None:
             dF, eta_gp = gp_range
@@ -684,7 +687,7 @@ class AKFTheoremBound:
         GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bB if np.any(bB) else None, Phi=PhiB,
                                  limit=limit)
         tau = sm.tau_idx
-        R = -(akf.K_k[tau] @ akf.H)               # the τ rows of I − K H
+        R = -(rec.K_k[tau] @ self.akf.H)          # the τ rows of I − K H
         R[np.arange(tau.size), tau] += 1.0
         hA = np.abs(R @ GA).sum()
         hB = np.abs(R @ GB).sum()
@@ -697,15 +700,15 @@ class AKFTheoremBound:
             sm.Gprior_ = GA
             sm.lin_err_ = b
 
-    def _saturate(self, est) -> None:
-        """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no
+    def _saturate(self, est, P) -> None:
+        """A set of means beyond the physical caps of bounded P (``AKF.P_max``) carries no
         guarantee any more (its linearisation error grew faster than the filter contracts it,
         e.g. a steep friction at standstill): it is held at the caps — finite, counted in
         :attr:`saturated_` — instead of growing to overflow."""
-        caps = getattr(self.akf, "_P_max", None)
+        caps = getattr(self.akf, "P_max", None)
         if caps is not None and self.sm.saturate(np.sqrt(caps)):
             self.saturated_ += 1
-            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+            est.tau_h_act_bound[:] = self.sm.rho(P)
 
 
 def theorem_bound(akf) -> AKFTheoremBound | None:

@@ -132,7 +132,7 @@ class GPAKF(AKF):
         self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
         # the frozen sample in one compiled call (gpakf_core) where it applies: no declared
         # effects, offsets, delay or motor-torque noise, and the hook of this class
-        self._fz_ok = (self._affine and self._no_offsets and not self._has_delay
+        self._fz_ok = (self._affine and self._no_offsets and not self.has_delay
                        and type(self.residual) is _ResidualHook)
         self._fz_args = ()
         self._fz_iout = np.zeros(6, dtype=np.int64)
@@ -230,8 +230,8 @@ class GPAKF(AKF):
         sample = (self._buf, self.d, self.m, self.n, self._ang, kin._buf, kin.C, kin._out, self._ddq, self.z,
                   self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
                   self._MinvG, float(self._gp_var_scale), box._lo, box._hi, box._z, box.clipped, res.noise_in_Q,
-                  res.mu, res.jac, res.var, pack, res._pack_args[-1], self.bound is not None, self._x_prev,
-                  self._P_prev, self._P_max, DIVERGED, self._fz_iout, self._fz_fout)
+                  res.mu, res.jac, res.var, pack, res._pack_args[-1], self.bound is not None, self.record.x_prev,
+                  self.record.P_prev, self.P_max, DIVERGED, self._fz_iout, self._fz_fout)
         finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
         return res._pack_args, sample, finish, self.bound, self._S_base
 
@@ -244,7 +244,7 @@ class GPAKF(AKF):
         z[n:2 * n] = vel[:n]
         z[2 * n:] = acc[:n]
         tau = self._tau_hist[self.tau_lag] if self.tau_lag else np.ascontiguousarray(tau_m, dtype=float)
-        if self._has_delay:
+        if self.has_delay:
             # a declared delay: the motor side felt τ_m(t − lag·dt − delay)
             tau = self._delayed_input(self._t - self.tau_lag * self.dt).copy()
         m = self.model
@@ -253,9 +253,9 @@ class GPAKF(AKF):
             # declared effects: f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m)
             akf_core.residual_affine(ang[:n], vel[:n], acc[:n], vel[n:], acc[n:], tau, m.M, m.gravity,
                                      m.J, m.D_m, self.f_train)
-        elif self._tables is not None:
+        elif self.tables is not None:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects (compiled)
-            self._tables.residual(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:],
+            self.tables.residual(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:],
                                   np.ascontiguousarray(tau, dtype=float), self.f_train)
         else:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects included
