@@ -190,13 +190,13 @@ def test_no_worker_outlives_its_parent_or_the_session(cfg):
     while _alive(pid) and time.monotonic() < end:
         time.sleep(0.05)
     assert not _alive(pid)
-    # closed by its owner: gone, and the AKF has its own bound back
+    # closed by its owner: gone, and the AKF computes its own bound again
     est = _estimator(cfg)
     bound = est.bound
     w = BoundWorker(est).start()
-    assert est.bound is w and _alive(w.pid)
+    assert est.consumer is w and est.bound is bound and _alive(w.pid)
     w.close()
-    assert not _alive(w.pid) and est.bound is bound
+    assert not _alive(w.pid) and est.consumer is None and est.bound is bound
 
 
 # ---------------------------------------------------------------- the pipes' framing and order
