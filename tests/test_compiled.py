@@ -110,10 +110,11 @@ def _dispatchers():
     import sea_daemon.core.estimators.gpakf_core as ga
     import sea_daemon.core.estimators.health as h
     import sea_daemon.core.gp.gp_core as g
+    import sea_daemon.core.gp.pack as gpk
     import sea_daemon.core.kinematics as k
     import sea_daemon.core.linalg as s
     from numba.core.registry import CPUDispatcher
-    return {f"{m.__name__}.{n}": v for m in (a, h, g, k, s, ab, bc, gh, ga) for n, v in vars(m).items()
+    return {f"{m.__name__}.{n}": v for m in (a, h, g, gpk, k, s, ab, bc, gh, ga) for n, v in vars(m).items()
             if isinstance(v, CPUDispatcher)}
 
 
@@ -126,8 +127,8 @@ def test_gpakf_is_compiled_at_construction_not_in_its_steps(cfg):
     est = GPAKF(c)
     before = {k: len(d.signatures) for k, d in _dispatchers().items()}
     for k in ("estimators.akf_core.filter_step", "gp.gp_core.predict_with_grad", "gp.gp_core.add_point",
-              "gp.gp_core.lml_grad", "gp.gp_core.cholesky_packed", "estimators.health._box_clip",
-              "kinematics._fir_push"):
+              "gp.gp_core.lml_grad", "gp.gp_core.cholesky_packed", "estimators.health.box_clip",
+              "kinematics.fir_push"):
         assert before["sea_daemon.core." + k] > 0, k
     est.reset([0.0], [0.0], [0.0])
     t = np.arange(1, 200) * 0.01

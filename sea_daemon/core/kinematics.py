@@ -141,12 +141,12 @@ class CausalDifferentiator:
         if not self._primed:
             self.reset(angle)
         a = np.ascontiguousarray(angle, dtype=float).reshape(self.n)
-        self._head = _fir_push(self._buf, self._head, self.C, a, self._out)
+        self._head = fir_push(self._buf, self._head, self.C, a, self._out)
         return self._out[0], self._out[1], self._out[2]
 
 
 @njit
-def _fir_push(buf, head, C, angle, out) -> int:
+def fir_push(buf, head, C, angle, out) -> int:
     """Push ``angle`` into the doubled ring buffer and apply the FIR rows ``C`` to the L newest
     samples (oldest … newest): out = C · buf[h+1 : h+1+L].  Returns the new head."""
     L = C.shape[1]

@@ -65,8 +65,9 @@ from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
+    REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
 from sea_daemon.core.bounds import bound_core
+from sea_daemon.core.gp.pack import GPPack, empty_pack
 from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
 
 
@@ -107,7 +108,7 @@ class AKFTheoremBound:
         self.akf = akf
         # the compiled step (bound_core.bound_step) where it applies, else the Python step below
         self.compiled = bool(compiled)
-        self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
+        self._pack = None                 # gp.pack.GPPack of the frozen LoG-GPs
         self._pack_at = -1                # n_learned when the pack was made
         self._args = None                 # the compiled step's arguments that stay (_call_compiled)
         self._caps = self._sqrt_caps = None   # the AKF's caps of bounded P and their square roots
@@ -172,12 +173,12 @@ class AKFTheoremBound:
         self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
-        self._Uz = _directions(2 * n, n_dirs, seed)
+        self._Uz = unit_directions(2 * n, n_dirs, seed)
         self.gp_box_violations_ = 0
         self._rho = np.zeros(n)
         self._b = np.zeros(d)
         self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
-        self._empty = bound_core.empty_args()
+        self._empty = empty_pack()
         self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
                        and (not has_gp or residual_gps(akf) is not None))
         self._minv = np.ascontiguousarray(m.Minv, dtype=float)
@@ -496,12 +497,12 @@ class AKFTheoremBound:
         if self._pack is None or self._pack_at != n_l:
             gps = residual_gps(akf)
             local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
-            self._pack = bound_core.GPPack(gps, local_r)
+            self._pack = GPPack(gps, local_r)
             self._pack_at = n_l
             c = self.gp_constants
             self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
             self._gamma = np.array([k.gamma for k in c], dtype=float)
-            self._pack_args = self._pack.args()
+            self._pack_args = self._pack.arrays()
             self._args = None
         return self._pack_args
 
@@ -540,23 +541,25 @@ class AKFTheoremBound:
             self._saturate(est, record.P)
 
     def _call_compiled(self, rec, sm, n, has_gp, box, lo, hi, gp):
-        """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same
-        from step to step kept in two tuples, made again when the pack, the box or an output
-        array changed)."""
+        """:func:`bound_core.bound_step` with this bound's arrays (its named arguments that stay the
+        same from step to step kept, made again when the pack, the box, an output array or the
+        record changed)."""
         a = self._args
         if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
-                or a[6] is not rec):
-            mid = (rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k, self.akf.H, rec.Gamma_mu,
-                   self._M, self._minv, rec.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
-                   self._grid_step, self._Uz, has_gp, self._scales is not None,
-                   self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
-                   self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c,
-                   self.tau_h_act_rate, self.tau_h_act_rate > 0)
-            tail = (sm.delta_noise / n, sm._z_tau, gp if has_gp else self._empty, self._rho, self.eta_,
-                    self.gp_lin_err_, self._b)
-            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, mid, tail, rec)
-        mid, tail = a[4], a[5]
-        return bound_core.bound_step(sm.G_, rec.x_prev, rec.P_prev, *mid, sm.generator_limit(), *tail)
+                or a[4] is not rec):
+            st = bound_core.FilterStep(rec.x_prev, rec.P_prev, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
+                                       rec.Gamma_mu, rec.P)
+            c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
+                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau)
+            gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
+                                     self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
+                                     lo, hi, box is not None)
+            rt = bound_core.RateTerm(self._Gam_tau_c, self.tau_h_act_rate, self.tau_h_act_rate > 0)
+            out = bound_core.BoundOutputs(self._rho, self.eta_, self.gp_lin_err_, self._b)
+            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, rec,
+                              (st, c, gpt, rt, gp if has_gp else self._empty, out))
+        st, c, gpt, rt, pack, out = a[5]
+        return bound_core.bound_step(sm.G_, sm.generator_limit(), st, c, gpt, rt, pack, out)
 
     def step(self, est, record) -> None:
         """After the AKF's step k (its :class:`~sea_daemon.core.estimators.record.StepRecord`:

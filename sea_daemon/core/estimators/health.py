@@ -220,7 +220,7 @@ class InputBox:
         """``z`` clipped into the widened box (a work array, overwritten by the next call);
         :attr:`clipped` marks the coordinates that were clipped.  Non-finite inputs are
         clipped to the box too (NaN → the box centre), never passed to the GP."""
-        self.any_clipped = _box_clip(np.ascontiguousarray(z, dtype=float), self._lo, self._hi, self._z,
+        self.any_clipped = box_clip(np.ascontiguousarray(z, dtype=float), self._lo, self._hi, self._z,
                                      self.clipped)
         if self.any_clipped:
             self.n_clipped += 1
@@ -244,7 +244,7 @@ def _box_add(z, lo_, hi_, margin, min_margin, lo, hi):
 
 
 @njit
-def _box_clip(z, lo, hi, out, clipped) -> bool:
+def box_clip(z, lo, hi, out, clipped) -> bool:
     """out ← z clipped into [lo, hi] (NaN → the box centre; an empty box: ±inf → ±1e6, NaN → 0);
     clipped[j] ← whether coordinate j changed.  Returns whether any did."""
     any_ = False

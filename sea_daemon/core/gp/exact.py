@@ -165,6 +165,16 @@ class IncrementalGP:
         self._sn2 = self.sigma_n ** 2
 
     @property
+    def sf2(self) -> float:
+        """σ_f², the kernel's signal variance."""
+        return self._sf2
+
+    @property
+    def il2(self) -> np.ndarray:
+        """1/l² per input dimension (the kernel's inverse squared length scales)."""
+        return self._il2
+
+    @property
     def log_theta(self) -> np.ndarray:
         """``[log σ_f, log l_1 … log l_ρ, log σ_on]``."""
         return np.concatenate(([math.log(self.sigma_f)], np.log(self.lengthscales),

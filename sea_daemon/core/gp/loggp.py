@@ -381,10 +381,10 @@ class LoGGP(LoGGPState):
         """Leaves reached by ``x``: ``[(node, ω, ∂ω/∂x)]`` in routing order (∂ω/∂x zeros
         without ``grad``)."""
         x, _ = self._check_x(x)
-        nodes, ws, dws = self._route_one(x, grad)
+        nodes, ws, dws = self.route_one(x, grad)
         return list(zip(nodes, ws.tolist(), dws))
 
-    def _route_one(self, x: np.ndarray, grad: bool):
+    def route_one(self, x: np.ndarray, grad: bool):
         """Leaves reached by one input ``x`` (:func:`~sea_daemon.core.gp.routing.route`):
         (nodes as a list, ω, ∂ω/∂x)."""
         _, nodes, ws, dws = route(x.reshape(1, -1), self._tree_arrays(), grad)
@@ -393,7 +393,7 @@ class LoGGP(LoGGPState):
     def predict(self, x) -> tuple[float, float]:
         """Merged posterior mean and variance at ``x`` (floats)."""
         x, _ = self._check_x(x)
-        nodes, ws, _ = self._route_one(x, False)
+        nodes, ws, _ = self.route_one(x, False)
         gps = self._gp
         if len(nodes) == 1:
             return gps[nodes[0]].predict(x)
@@ -490,9 +490,9 @@ class LoGGP(LoGGPState):
         merged with the prediction weights as the local scale merges its terms."""
         Z = np.ascontiguousarray(Z, dtype=float)
         idx, nodes, w, _, _ = self.leaf_predictions(Z)
-        return self._extrapolation_rows(Z, idx, nodes, w)
+        return self.extrapolation_rows(Z, idx, nodes, w)
 
-    def _extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Σ_i ω_i e_i(z) per row of ``Z`` from a routing (row index, node, ω) of
         :meth:`leaf_predictions`."""
         ex = np.empty(len(idx))
@@ -518,7 +518,7 @@ class LoGGP(LoGGPState):
         return r[0], r[1]
 
     def _predict_with_grad(self, x: np.ndarray, var_grad: bool, out, noise: bool = False):
-        nodes, ws, dws = self._route_one(x, True)
+        nodes, ws, dws = self.route_one(x, True)
         gps = self._gp
         if noise:
             # σ² + Σ ω_i σ_on,i² (noise_variance)
@@ -565,7 +565,7 @@ class LoGGP(LoGGPState):
         """
         x, _ = self._check_x(x)
         gps = self._gp
-        nodes, ws, _ = self._route_one(x, False)
+        nodes, ws, _ = self.route_one(x, False)
         return float(sum(w * gps[node].sigma_n ** 2 for node, w in zip(nodes, ws.tolist())))
 
     # ------------------------------------------------------------------ introspection

@@ -35,11 +35,11 @@ def route(Z: np.ndarray, tree: Tree, grad: bool = False):
     """Leaves reached by every row of ``Z`` (m, ρ): ``(row, node, ω, ∂ω/∂x)``, arrays of equal
     length (∂ω/∂x of shape (·, ρ), zeros without ``grad``), rows in order, each row's leaves
     in depth-first order, left first."""
-    return _route(Z, tree.links, tree.span, grad)
+    return route_nodes(Z, tree.links, tree.span, grad)
 
 
 @njit
-def _route(Z, links, span, grad):
+def route_nodes(Z, links, span, grad):
     """:func:`route` (compiled)."""
     dim, left, right = links[0], links[1], links[2]
     lo, hi = span[0], span[1]
