@@ -240,7 +240,7 @@ def _hand(link: BoundWorker, est, cycle: int) -> None:
     link.take(est, rec)
 
 
-def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bw.OK, epoch: int = 0) -> None:
+def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bs.OK, epoch: int = 0) -> None:
     """Sample i's result in shared memory, as the worker writes it."""
     r = link._res[i % link.capacity]
     r[bs.R_SEQ], r[bs.R_CYC], r[bs.R_K], r[bs.R_VALID] = i, cycle, i, 1.0
@@ -316,7 +316,7 @@ def test_a_full_ring_breaks_the_bound_until_the_reset_and_the_old_chain_is_never
         os.write(link._counts_w, _i64(4))
         _hand(link, e, 6)                                    # sample 5
         assert link._done == 4 and link.bound_cycle == -1 and e.tau_h_act_bound[0] == 0.0
-        _result(link, 4, 5, 0.0, status=bw.NO_BOUND, epoch=1)
+        _result(link, 4, 5, 0.0, status=bs.NO_BOUND, epoch=1)
         _result(link, 5, 6, 2.5, epoch=1)
         os.write(link._counts_w, _i64(5) + _i64(6))
         link.cycle = 7

@@ -159,7 +159,7 @@ def test_frozen_gpakf_with_its_bound_compiles_nothing_in_its_steps(cfg):
     est.reset([q[200]], [th[200]], [u[200]])
     before = {k: len(d.signatures) for k, d in _dispatchers().items()}
     for k in ("estimators.gpakf_core.frozen_sample", "estimators.gpakf_core.frozen_finish",
-              "bounds.bound_core.bound_step", "bounds.akf_bound._generators_check"):
+              "bounds.bound_core.bound_step", "bounds.bound_core.generators_check"):
         assert before["sea_daemon.core." + k] > 0, k
     for k in range(201, len(t)):
         e = est.update([q[k]], [th[k]], [u[k]]) if k % 2 else est.update(q[k:k + 1], th[k:k + 1], u[k:k + 1])

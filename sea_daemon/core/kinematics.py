@@ -38,6 +38,7 @@ Pure numerics: no I/O, no clock.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -72,6 +73,15 @@ def _savgol_coefficients(window: int, degree: int, dt: float) -> np.ndarray:
     pinv = np.linalg.pinv(V)                           # (d+1, W): coefficients c = pinv θ
     # p(0) = c0, p'(0) = c1 / dt, p''(0) = 2 c2 / dt²
     return np.vstack([pinv[0], pinv[1] / dt, 2.0 * pinv[2] / dt**2])
+
+
+class FIRRing(NamedTuple):
+    """A differentiator's online state: ``buf`` (2L, n) the doubled ring buffer, ``C`` (3, L) the
+    FIR rows of (angle, velocity, acceleration), ``out`` (3, n) the last outputs."""
+
+    buf: np.ndarray
+    C: np.ndarray
+    out: np.ndarray
 
 
 class CausalDifferentiator:
@@ -128,6 +138,28 @@ class CausalDifferentiator:
         return tuple(float(np.linalg.norm(r)) for r in self.C)
 
     # -- online -----------------------------------------------------------------------
+
+    @property
+    def primed(self) -> bool:
+        """Whether the buffer holds samples (else the next :meth:`update` primes it with its own)."""
+        return self._primed
+
+    def restart(self) -> None:
+        """Forget the samples: the next :meth:`update` primes the buffer with its sample."""
+        self._primed = False
+
+    def ring(self) -> FIRRing:
+        """The online state as named arrays (views, for a compiled caller of :func:`fir_push`)."""
+        return FIRRing(self._buf, self.C, self._out)
+
+    @property
+    def head(self) -> int:
+        """The ring buffer's head (the newest sample's row; :func:`fir_push` returns the next)."""
+        return self._head
+
+    @head.setter
+    def head(self, h: int) -> None:
+        self._head = int(h)
 
     def reset(self, angle) -> None:
         """Prime the whole buffer with ``angle`` (velocity and acceleration read 0)."""

@@ -85,7 +85,7 @@ from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime.bound_serve import worker_main
-from sea_daemon.runtime.bound_slots import FAILED, NO_BOUND, OK, STOP  # noqa: F401 - the results' statuses
+from sea_daemon.runtime.bound_slots import FAILED, OK, STOP
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
 
 #: how long :meth:`BoundWorker.start` waits for the worker to be set up (a dead or slow one is

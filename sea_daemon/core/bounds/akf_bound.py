@@ -37,7 +37,7 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   linearised at zero slope instead of the filter's — the set propagated with the filter's
   transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
   range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
-  plus the slope times the Gaussian part's extent (:meth:`AKFTheoremBound._friction_candidate`,
+  plus the slope times the Gaussian part's extent (:meth:`FrictionRange.candidate <sea_daemon.core.bounds.friction_range.FrictionRange.candidate>`,
   :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
   the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
   the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
@@ -56,9 +56,6 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
-from sea_daemon.core.model_core import lin_error_boxes
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
@@ -67,33 +64,9 @@ from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
 from sea_daemon.core.bounds import bound_core
+from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
-from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
-
-
-@njit
-def _generators_check(G, caps) -> int:
-    """The compiled step's new generators: 1 when one is not finite, 2 when a half-width of the
-    set of means (Σ_j |G_ij|) may exceed its cap (within 1e-12 relative: the exact test is
-    SetMembershipBound.saturate's), else 0."""
-    over = False
-    for i in range(G.shape[0]):
-        s = 0.0
-        for j in range(G.shape[1]):
-            v = G[i, j]
-            if not math.isfinite(v):
-                return 1
-            s += abs(v)
-        if s > caps[i] * (1.0 - 1e-12):
-            over = True
-    return 2 if over else 0
-
-
-@warmer
-def _warm() -> None:
-    """The compiled kernels of this module with the argument types the bound uses (see _jit)."""
-    _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
-    _generators_check(np.zeros((5, 3)), np.ones(5))
+from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
 
 
 class AKFTheoremBound:
@@ -121,9 +94,37 @@ class AKFTheoremBound:
             raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
         self.gp_beta = gp_beta
         n, d = akf.n, akf.d
-        # declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk (default estimator.tau_h_act_rate)
-        if tau_h_act_rate is None:
-            tau_h_act_rate = getattr(est_cfg, "tau_h_act_rate", 0.0)
+        self._init_rate(getattr(est_cfg, "tau_h_act_rate", 0.0) if tau_h_act_rate is None else tau_h_act_rate)
+        delta = akf.delta if delta is None else float(delta)
+        has_gp = akf.residual is not None
+        if delta_gp is None:
+            delta_gp = 0.5 * delta if has_gp else 0.0
+        self._init_gp_constants(gp_constants, has_gp)
+        self.gp_box = gp_box
+        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
+                                     sets=sets)
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
+        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
+        self._init_geometry(has_gp, n_dirs, seed)
+        self.gp_box_violations_ = 0
+        self._rho = np.zeros(n)
+        self._b = np.zeros(d)
+        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
+        self._empty = empty_pack()
+        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+                       and (not has_gp or residual_gps(akf) is not None))
+        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
+        # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
+        self.friction = FrictionRange(akf.model, akf.tables, sets)
+        self.range_steps_ = 0           # steps whose set of means took the range candidate
+        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
+        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
+
+    def _init_rate(self, tau_h_act_rate) -> None:
+        """The declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk and its work arrays."""
+        n, d = self.akf.n, self.akf.d
         if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate)
                 and tau_h_act_rate >= 0):
             raise ValueError(f"tau_h_act_rate must be a finite number >= 0 [N m/s], got {tau_h_act_rate!r}")
@@ -136,10 +137,9 @@ class AKFTheoremBound:
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
-        delta = akf.delta if delta is None else float(delta)
-        has_gp = akf.residual is not None
-        if delta_gp is None:
-            delta_gp = 0.5 * delta if has_gp else 0.0
+
+    def _init_gp_constants(self, gp_constants, has_gp: bool) -> None:
+        """The GP constants: a list, or 'auto' (computed from the residual's LoG-GPs)."""
         if has_gp and gp_constants is None:
             raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
                              "see sea_daemon.core.bounds.calibration.gp_constants)")
@@ -151,14 +151,12 @@ class AKFTheoremBound:
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
         self._scales = None
         self._update_scales()
-        self.gp_box = gp_box
-        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
-                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
-                                     sets=sets)
-        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
-        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
+
+    def _init_geometry(self, has_gp: bool, n_dirs: int, seed: int) -> None:
+        """The model's and the sets' constants: which errors depend on which coordinates."""
+        n, d = self.akf.n, self.akf.d
+        m = self.akf.model
         self._I = np.eye(d)
-        m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
         self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
         # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
@@ -169,28 +167,14 @@ class AKFTheoremBound:
         self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
                      else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
-        self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._T = np.asarray(self.akf.dz_dx, dtype=float)[:2 * n]
         self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
         self._Uz = unit_directions(2 * n, n_dirs, seed)
-        self.gp_box_violations_ = 0
-        self._rho = np.zeros(n)
-        self._b = np.zeros(d)
-        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
-        self._empty = empty_pack()
-        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
-                       and (not has_gp or residual_gps(akf) is not None))
         self._minv = np.ascontiguousarray(m.Minv, dtype=float)
         self._M = np.ascontiguousarray(m.M, dtype=float)
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
-        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
-        # error (_friction_candidate; docs/bounds.md §4 "The range form")
-        self._fric, self._fric_arrays = self._friction_groups(m, sets)
-        self.range_steps_ = 0           # steps whose set of means took the range candidate
-        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
-        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
-        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
 
     # ------------------------------------------------------------------ hooks
 
@@ -255,7 +239,7 @@ class AKFTheoremBound:
         qh = x0[:n] + x0[n:2 * n]
         r = self.sm.half_widths(self._E_q, P0, s=self._s_z)   # along e_θm,j + e_θs,j
         v = np.empty(n)
-        _gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
+        gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
         b[3 * n:4 * n] = np.abs(model.Minv) @ v
         return b
 
@@ -276,139 +260,6 @@ class AKFTheoremBound:
             r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
             np.maximum(b, r, out=b)
         return b
-
-    def _friction_groups(self, model, sets: str):
-        """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
-        with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
-        column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
-        eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
-        Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
-        the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
-        compiled vocabulary)."""
-        tables = self.akf.tables
-        if sets != "zonotope" or tables is None:
-            return [], None
-        n, d = model.n, 5 * model.n
-        groups = {}
-        for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
-            for e in effs:
-                if e.code in (COULOMB, STRIBECK):
-                    groups.setdefault((side, e.joint), []).append((int(e.code), np.asarray(e.vector, dtype=float)))
-        if not groups:
-            return [], None
-        out = []
-        for (side, j), effs in sorted(groups.items()):
-            ell = np.zeros(d)
-            c = np.zeros(d)
-            ell[2 * n + j] = 1.0
-            if side == "load":
-                ell[3 * n + j] = 1.0
-                c[3 * n:4 * n] = -model.Minv[:, j]
-            else:
-                c[2 * n:3 * n] = -model.Jinv[:, j]
-                c[3 * n:4 * n] = model.Jinv[:, j]
-            out.append((side, ell, c, effs))
-        # the same as arrays for model_core.lin_error_boxes (one f_nom per point for both boxes)
-        arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
-                  np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
-                  np.array([code for g in out for code, _ in g[3]], dtype=np.int64),
-                  np.ascontiguousarray([p for g in out for _, p in g[3]], dtype=float))
-        return out, arrays
-
-    @staticmethod
-    def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
-        """[L, U] ⊇ {τ_g(v) : lo ≤ v ≤ hi} for τ_g = Σ p₀ m(v) tanh(v/ε), m ≡ 1 (Coulomb) or
-        exp(−(v/v_s)²) (Stribeck), by interval arithmetic — rigorous: tanh is increasing, and m > 0
-        lies between its values at the interval's largest and smallest |v|.  With one ε for all
-        (the estimator's ``sign_eps``) τ_g = tanh(v/ε)·Σ p₀ m(v) is bounded as one product, which
-        keeps a Coulomb and a Stribeck term of opposite signs from adding their widths."""
-        vmax = max(abs(lo), abs(hi))
-        vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
-        L = U = 0.0          # per-effect sum (any ε)
-        hl = hu = 0.0        # Σ p₀ m(v) over the interval (shared ε)
-        eps0 = None
-        shared = True
-        for code, p in effs:
-            eps = p[1] if code == COULOMB else p[2]          # the smoothing ε (effects.evaluate)
-            if code == STRIBECK:
-                m_lo, m_hi = math.exp(-(vmax / p[1]) ** 2), math.exp(-(vmin / p[1]) ** 2)
-            else:
-                m_lo = m_hi = 1.0
-            a, b = (p[0] * m_lo, p[0] * m_hi) if p[0] >= 0.0 else (p[0] * m_hi, p[0] * m_lo)
-            hl += a
-            hu += b
-            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
-            # [a, b]·[t_lo, t_hi]: the extreme corner products
-            c = (a * t_lo, a * t_hi, b * t_lo, b * t_hi)
-            L += min(c)
-            U += max(c)
-            shared = shared and (eps0 is None or eps == eps0)
-            eps0 = eps
-        if shared and eps0 is not None:
-            t_lo, t_hi = math.tanh(lo / eps0), math.tanh(hi / eps0)
-            c = (hl * t_lo, hl * t_hi, hu * t_lo, hu * t_hi)
-            L, U = max(L, min(c)), min(U, max(c))
-        return L, U
-
-    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float, A_k: np.ndarray,
-                            Gamma_mu: np.ndarray):
-        """The set of means' step with the friction linearised at zero slope (module docstring).
-
-        The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
-        s_g the filter's slope at v̂.  With x − x̂ = a + g (a in the set of means, g ~ N(0, P) the
-        Gaussian part) the step of a (eq:predwLinErrsetandGPerrset, ε held over the step) is
-
-            a⁺ = F a + Φ ε = (F − Σ_g Φc s_g ℓᵀ) a + Φ ε_smooth + Σ_g Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg],
-
-        exactly; F g is the filter's own Gaussian part and stays with P.  So the set of means may
-        be propagated with F_B = F − Σ Φc s_g ℓᵀ (the filter's transition without the friction's
-        slope) and the bounded inputs Φ box(b_smooth) and Φc·[−w_g, w_g] with
-        w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
-        + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
-        filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
-        ``pts``: the point set of C_{k−1}; ``A_k``, ``Gamma_mu``: the filter's step (StepRecord).  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
-        Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
-        akf = self.akf
-        n, d = akf.n, akf.d
-        nf = len(self._fric)
-        dF = np.zeros((d, d))
-        GamF = np.empty((d, nf))
-        w = np.empty(nf)
-        slopes = np.empty(nf)
-        Phi_full = None
-        s_set = self.sm.s_state
-        for i, (side, ell, c, effs) in enumerate(self._fric):
-            v0 = float(ell @ x0)
-            t0 = sl = 0.0
-            for code, p in effs:
-                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
-                t0 += t_
-                sl += dv
-            r = float(self.sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
-            L, U = self._friction_range(effs, v0 - r, v0 + r)
-            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
-            w[i] = max(U - t0, t0 - L) + abs(sl) * rg
-            if side == "load":
-                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
-                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
-                GamF[:, i] = -Gamma_mu[:, j]
-            else:
-                if Phi_full is None:
-                    Phi_full = discretize(A_k, self._I, dt)[1]
-                GamF[:, i] = Phi_full @ c
-            # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
-            dF -= sl * np.outer(GamF[:, i], ell)
-            slopes[i] = sl
-        # both sampled boxes in one pass: the filter-slope form's b (f_nom with A_nom) and
-        # b_smooth (f_nom without the friction groups, with A_nom minus their slopes)
-        b = np.zeros(d)
-        b_s = np.zeros(d)
-        ell_a, col_a, eg, ec, ep = self._fric_arrays
-        lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
-                        np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                        *akf.tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
-        b_s *= 1.0 + self.sm.margin
-        return dF, GamF, w, b_s, self._phi(A_k, b_s, dt, Gamma_mu), (1.0 + self.sm.margin) * b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -527,7 +378,7 @@ class AKFTheoremBound:
         if caps is not self._caps:
             self._caps = caps
             self._sqrt_caps = np.sqrt(caps) if caps is not None else np.full(akf.d, np.inf)
-        check = _generators_check(G, self._sqrt_caps)
+        check = generators_check(G, self._sqrt_caps)
         if check == 1:
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
@@ -588,9 +439,9 @@ class AKFTheoremBound:
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            if self._fric:
-                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
-                                                record.Gamma_mu)
+            if self.friction.groups:
+                fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
+                                               record.Gamma_mu, sm, self._phi)
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
@@ -647,7 +498,7 @@ class AKFTheoremBound:
 
         The filter's drift carries −I_μM⁻¹[μ(ẑ) + J T(x − x̂)] (eq:linearization, J = ∂μ/∂z at ẑ,
         T x = (q, q̇)); the true one −I_μM⁻¹ f(z).  With x − x̂ = a + g as in
-        :meth:`_friction_candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
+        :meth:`FrictionRange.candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
 
             a⁺ = F a − Γ_μ [f(z) − μ(ẑ) − J T(a + g)]
                = (F + Γ_μ J T) a − Γ_μ [(f − μ)(z) + μ(z) − μ(ẑ) − J T g],
@@ -664,7 +515,7 @@ class AKFTheoremBound:
 
     def _predict_best_of_two(self, rec, Gam, eta, b, Phi, fric, gp_range) -> None:
         """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
-        friction of :meth:`_friction_candidate` and the GP mean of :meth:`_gp_range_candidate`
+        friction of :meth:`FrictionRange.candidate` and the GP mean of :meth:`_gp_range_candidate`
         linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
         filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
         assumptions, so the choice keeps the guarantee whatever the rule."""

@@ -333,6 +333,24 @@ def gravity_remainder(qh, r, g, grid, grid_step, v):
         v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
 
 
+@njit
+def generators_check(G, caps) -> int:
+    """The compiled step's new generators (AKFTheoremBound's check after :func:`bound_step`): 1 when one is not finite, 2 when a half-width of the
+    set of means (Σ_j |G_ij|) may exceed its cap (within 1e-12 relative: the exact test is
+    SetMembershipBound.saturate's), else 0."""
+    over = False
+    for i in range(G.shape[0]):
+        s = 0.0
+        for j in range(G.shape[1]):
+            v = G[i, j]
+            if not math.isfinite(v):
+                return 1
+            s += abs(v)
+        if s > caps[i] * (1.0 - 1e-12):
+            over = True
+    return 2 if over else 0
+
+
 @warmer
 def _warm() -> None:
     """:func:`bound_step` with the argument types the bound passes (one joint, d = 5)."""
@@ -359,3 +377,6 @@ def _warm() -> None:
         gpt = GPTerms(has_gp, local, 0.5, np.ones(1), np.zeros(1), -np.ones(3), np.ones(3), True)
         rt = RateTerm(np.ones((d, 1)), 1.0, has_rate)
         bound_step(np.zeros((d, 2)), 40, st, c, gpt, rt, pack.arrays() if has_gp else empty_pack(), out)
+    # the Python step's calls (AKFTheoremBound._gravity_box, the check after the compiled step)
+    gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    generators_check(np.zeros((5, 3)), np.ones(5))

@@ -81,8 +81,8 @@ class _ResidualHook:
             box = self.box
             if type(z) is not np.ndarray or z.dtype != np.float64 or not z.flags.c_contiguous:
                 z = np.ascontiguousarray(z, dtype=float)
-            any_clipped = gp_hook.hook_predict(z, box._lo, box._hi, box._z, box.clipped, self.noise_in_Q, self.mu,
-                                               self.jac, self.var, *self.pack_args)
+            any_clipped = gp_hook.hook_predict(z, box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
+                                               self.noise_in_Q, self.mu, self.jac, self.var, *self.pack_args)
             box.any_clipped = any_clipped
             if any_clipped:
                 box.n_clipped += 1
@@ -155,7 +155,7 @@ class GPAKF(AKF):
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
         if (self._fz_ok and was_ready and not self._filling and (dt is None or dt == self.dt)
-                and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin._primed):
+                and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin.primed):
             e = self._frozen_update(q, theta_m, tau_m)
         else:
             e = super().update(q, theta_m, tau_m, dt)
@@ -195,10 +195,10 @@ class GPAKF(AKF):
             tau_m = np.ascontiguousarray(tau_m, dtype=float)
         iout, fout, kin = self._fz_iout, self._fz_fout, self.kin
         head = self._hhead
-        iout[gpakf_core.I_KIN_HEAD] = kin._head
+        iout[gpakf_core.I_KIN_HEAD] = kin.head
         iout[gpakf_core.I_HHEAD] = head
         gpakf_core.frozen_sample(q, theta_m, dt, *a[1])
-        kin._head = int(iout[gpakf_core.I_KIN_HEAD])
+        kin.head = int(iout[gpakf_core.I_KIN_HEAD])
         box = res.box
         box.any_clipped = bool(iout[gpakf_core.I_CLIPPED])
         if box.any_clipped:
@@ -225,14 +225,14 @@ class GPAKF(AKF):
     def _frozen_args(self, res: _ResidualHook) -> tuple:
         """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` (the same objects
         every sample; made again when the hook's pack changes)."""
-        kin, box, e = self.kin, res.box, self.est
+        ring, box, e = self.kin.ring(), res.box, self.est
         self._sigma_base(self.dt)
         pack = res.pack_args[:-1]
         s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
-        sample = (self._buf, self.d, self.m, self.n, self._ang, kin._buf, kin.C, kin._out, self._ddq, self.z,
+        sample = (self._buf, self.d, self.m, self.n, self._ang, ring.buf, ring.C, ring.out, self._ddq, self.z,
                   self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
-                  self._MinvG, float(self._gp_var_scale), box._lo, box._hi, box._z, box.clipped, res.noise_in_Q,
-                  res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None, self.record.x_prev,
+                  self._MinvG, float(self._gp_var_scale), box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
+                  res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None, self.record.x_prev,
                   self.record.P_prev, self.P_max, DIVERGED, self._fz_iout, self._fz_fout)
         finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
         return res.pack_args, sample, finish, self.bound, self._S_base
