@@ -24,12 +24,15 @@ input history.  An "oracle" AKF is this class built from the true plant's config
 
 The numerics of a step are compiled (:mod:`~sea_daemon.core.estimators.akf_core`, numba; compiled
 or loaded from numba's cache at construction).  Pure numerics: no I/O, no clock, no
-threads.  Per-step quantities the Theorem-1 bounds need are kept as attributes: ``A_k``
+threads.  Per-step quantities are kept as attributes (as filterpy's): ``A_k``
 (continuous Jacobian), ``F_k`` (discrete transition), ``Gamma_mu`` (discrete map of a torque
 error held over the step to the state), ``Q_k``, ``xdot_k``, ``x_prior``, ``P_prior``,
 ``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior); and the causal
 kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
-[q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
+[q, θ_m]).  What the Theorem-1 bound needs of a step is its :attr:`record`
+(:class:`~sea_daemon.core.estimators.record.StepRecord`, views of these attributes and x̂_{k−1},
+P_{k−1}, u, dt), handed to the bound at the end of every reset and step (:meth:`AKF.finish_step`)
+or to a consumer attached in its place (:meth:`AKF.attach`).  The differentiator assumes the nominal period ``dt``; the prediction uses each
 step's own dt.
 """
 from __future__ import annotations
@@ -67,7 +70,6 @@ P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE = 1.0, 50.0, 10.0
 DIVERGED = 1e12
 
 
-
 class AKF:
     """Augmented-state EKF (Alg. 1); with ``residual`` the GP-AKF (Alg. 2).
 
@@ -76,8 +78,11 @@ class AKF:
     ``residual``: optional :class:`~sea_daemon.core.estimators.base.Residual` (learned f(z)).
     ``bound``: optional ``bound(akf) -> Bound | None``, called once at the end of construction;
     the :class:`~sea_daemon.core.estimators.base.Bound` it returns (:attr:`bound`) fills
-    ``tau_h_act_bound`` at the end of every reset and filter step (e.g.
-    :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k).
+    ``tau_h_act_bound`` at the end of every reset and filter step from the step's :attr:`record`
+    (e.g. :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k); then the
+    start-up gate (:attr:`gate`, a :class:`StartupGate`) sets ``valid``.  A
+    :class:`~sea_daemon.core.estimators.record.BoundConsumer` attached with :meth:`attach`
+    takes the records instead (the daemon's bound worker).
 
     Without a bound ``tau_h_act_bound`` is the KF's own ellipsoidal bound sqrt(s·P_ττ) with s
     the χ² quantile for 5n degrees of freedom at 1 − δ (eq:gaussianellipsoid): the confidence
