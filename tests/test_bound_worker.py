@@ -22,7 +22,8 @@ from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime import bound_worker as bw
 from sea_daemon.runtime.bound_worker import BoundWorker
 from sea_daemon.runtime.counts import CountReader
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from test_loop import ListLog
 
 COLS = log_columns(1)

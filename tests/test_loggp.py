@@ -368,6 +368,29 @@ def test_tree_arrays_follow_every_split():
     assert all(np.array_equal(a, gp.predict_with_grad(z)[2]) for a, z in zip(g, Z))
 
 
+def test_tree_views_and_route_one():
+    """The public, read-only views of the tree: ``n_nodes``, ``tree`` (the lists as arrays,
+    leaves −1 / 0) and ``route_one`` (the leaves ``route`` reports, with the same weights)."""
+    gp = LoGGP(input_dim=2, max_points=10, overlap=0.2, seed=1)
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        x = rng.uniform(-1.0, 1.0, 2)
+        gp.update(x, float(np.sin(3.0 * x[0]) + x[1]))
+    n = gp.n_nodes
+    assert n == len(gp._dim) and n == 2 * gp.n_leaves - 1
+    t = gp.tree
+    assert t.links.shape == (3, n) and t.span.shape == (2, n)
+    assert t.links.tolist() == [gp._dim, gp._left, gp._right]
+    assert t.span.tolist() == [gp._lo, gp._hi]
+    with pytest.raises(ValueError):
+        t.links[0, 0] = 5
+    for z in rng.uniform(-1.0, 1.0, (20, 2)):
+        nodes, ws, dws = gp.route_one(np.ascontiguousarray(z), True)
+        want = gp.route(z, grad=True)
+        assert nodes == [r[0] for r in want] and ws.tolist() == [r[1] for r in want]
+        assert all(np.array_equal(a, r[2]) for a, r in zip(dws, want))
+
+
 def test_split_in_lengthscales_splits_the_dimension_the_kernel_resolves():
     """In raw units the wide-but-smooth dimension (span 30, length scale 60) takes every split;
     measured in length scales the tree splits the dimension the kernel resolves (span 1,

@@ -84,6 +84,19 @@ class MinJerkTrajectory:
         return np.array([self.q_start, self.q_end, self.move_s, self.hold_s, self.moves, 1.0 if self.cyclic else 0.0])
 
 
+@dataclass(frozen=True)
+class PIDGains:
+    """The gains of :class:`PID`: kp [N m/rad], ki [N m/(rad s)], kd [N m s/rad], the velocity
+    low-pass [Hz] and the angle the derivative acts on (``motor`` or ``load``).  The scenario
+    file's controller (:class:`sea_daemon.io.scenario.PIDSpec`) is these gains and a trajectory."""
+
+    kp: float
+    ki: float
+    kd: float
+    velocity_filter_hz: float = 20.0
+    derivative: str = "motor"
+
+
 class PID:
     """PID position controller: τ_m = K_p e + K_i ∫e + K_d (q̇_ref − v), e = q_ref − q.
 

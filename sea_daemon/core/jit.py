@@ -26,6 +26,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.linalg",
     "sea_daemon.core.control",
     "sea_daemon.core.effects",
+    "sea_daemon.core.dynamics",
     "sea_daemon.core.model_core",
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",

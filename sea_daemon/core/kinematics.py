@@ -38,7 +38,6 @@ Pure numerics: no I/O, no clock.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
@@ -75,15 +74,6 @@ def _savgol_coefficients(window: int, degree: int, dt: float) -> np.ndarray:
     return np.vstack([pinv[0], pinv[1] / dt, 2.0 * pinv[2] / dt**2])
 
 
-class FIRRing(NamedTuple):
-    """A differentiator's online state: ``buf`` (2L, n) the doubled ring buffer, ``C`` (3, L) the
-    FIR rows of (angle, velocity, acceleration), ``out`` (3, n) the last outputs."""
-
-    buf: np.ndarray
-    C: np.ndarray
-    out: np.ndarray
-
-
 class CausalDifferentiator:
     """Online causal differentiator of ``n`` angle channels (see module docstring).
 
@@ -91,6 +81,11 @@ class CausalDifferentiator:
     (n,) that the next call overwrites — copy them if you keep them.
 
     The buffer is primed with the first sample (so velocities start at 0).
+
+    The ring's state is public for estimators that run :func:`fir_push` inside their own
+    compiled step: ``buf`` (2L, n) the doubled ring buffer, ``head`` the row of the newest
+    sample, ``out`` (3, n) the last (angle_f, vel, acc), ``primed`` whether the buffer holds
+    samples (:meth:`forget` clears it: the next :meth:`update` primes it again).
     """
 
     def __init__(self, dt: float, window: int = 5, n: int = 1, method: str = "ma", degree: int = 2):
@@ -110,10 +105,10 @@ class CausalDifferentiator:
         self.L = self.C.shape[1]
         # doubled ring buffer: buf[i] and buf[i+L] hold the same sample, so the L newest
         # samples are always the contiguous view buf[head+1 : head+1+L] (oldest … newest)
-        self._buf = np.zeros((2 * self.L, self.n))
-        self._head = self.L - 1
-        self._out = np.zeros((3, self.n))
-        self._primed = False
+        self.buf = np.zeros((2 * self.L, self.n))
+        self.head = self.L - 1
+        self.out = np.zeros((3, self.n))
+        self.primed = False
 
     # -- analysis ---------------------------------------------------------------------
 
@@ -139,42 +134,24 @@ class CausalDifferentiator:
 
     # -- online -----------------------------------------------------------------------
 
-    @property
-    def primed(self) -> bool:
-        """Whether the buffer holds samples (else the next :meth:`update` primes it with its own)."""
-        return self._primed
-
-    def restart(self) -> None:
-        """Forget the samples: the next :meth:`update` primes the buffer with its sample."""
-        self._primed = False
-
-    def ring(self) -> FIRRing:
-        """The online state as named arrays (views, for a compiled caller of :func:`fir_push`)."""
-        return FIRRing(self._buf, self.C, self._out)
-
-    @property
-    def head(self) -> int:
-        """The ring buffer's head (the newest sample's row; :func:`fir_push` returns the next)."""
-        return self._head
-
-    @head.setter
-    def head(self, h: int) -> None:
-        self._head = int(h)
-
     def reset(self, angle) -> None:
         """Prime the whole buffer with ``angle`` (velocity and acceleration read 0)."""
         a = np.asarray(angle, dtype=float).reshape(self.n)
-        self._buf[:] = a
-        self._head = self.L - 1
-        self._primed = True
+        self.buf[:] = a
+        self.head = self.L - 1
+        self.primed = True
+
+    def forget(self) -> None:
+        """Forget the samples: the next :meth:`update` primes the buffer with its angle."""
+        self.primed = False
 
     def update(self, angle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Push one sample; return (angle_f, vel, acc) as views of preallocated arrays."""
-        if not self._primed:
+        if not self.primed:
             self.reset(angle)
         a = np.ascontiguousarray(angle, dtype=float).reshape(self.n)
-        self._head = fir_push(self._buf, self._head, self.C, a, self._out)
-        return self._out[0], self._out[1], self._out[2]
+        self.head = fir_push(self.buf, self.head, self.C, a, self.out)
+        return self.out[0], self.out[1], self.out[2]
 
 
 @njit
@@ -201,6 +178,7 @@ def fir_push(buf, head, C, angle, out) -> int:
 @warmer
 def _warm() -> None:
     CausalDifferentiator(0.01, 5, 2).update(np.zeros(2))
+
 
 
 def smooth_derivatives(t, angle, window: int = 11, degree: int = 3):

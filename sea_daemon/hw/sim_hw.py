@@ -69,7 +69,7 @@ class SimHardware(HardwareInterface):
         m.q[:] = q
         m.theta_m[:] = th
         m.tau_m_applied[:] = self._tau                 # the torque over [t_k-1, t_k]
-        m.faults, m.valid = 0, True
+        m.faults, m.valid, m.late = 0, True, False
         return m
 
     def write(self, tau_m: np.ndarray) -> None:

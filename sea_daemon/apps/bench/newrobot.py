@@ -110,7 +110,7 @@ def excitation_log(sc):
     moves ``calibrate --excitation`` drives over the configuration's working range) on the
     scenario's true plant, tracked by the scenario's PID gains, its noise seed."""
     from sea_daemon.apps.calibration import excitation_reference
-    from sea_daemon.core.sim.session import PIDGains, run_session
+    from sea_daemon.core.sim.session import run_session
     from sea_daemon.errors import ConfigError
     from sea_daemon.io.scenario import PIDSpec
     ctl = sc.controller
@@ -118,8 +118,8 @@ def excitation_log(sc):
         raise ConfigError(sc.source, "controller.type", "--calibration excitation tracks the moves with the "
                                                         "scenario's PID: needs controller.type pid")
     ref = excitation_reference(sc.nominal, ctl.q0)
-    gains = PIDGains(ctl.kp, ctl.ki, ctl.kd, ctl.velocity_filter_hz, ctl.derivative)
-    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=gains,
+    # the scenario's controller is its PID gains (PIDSpec is a PIDGains) and a trajectory
+    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=ctl,
                        substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps, torque_noise=sc.plant.torque_noise)
 
 

@@ -42,7 +42,7 @@ import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model_core import lin_error_boxes
-from sea_daemon.core.gp.pack import GPPack, PackArrays, empty_pack, gp_points, warm_up_loggp
+from sea_daemon.core.gp.pack import GPPack, empty_pack, gp_points, warm_up_loggp
 from sea_daemon.core.bounds.setmember import points_of_ellipsoid, shifted_halfwidth_into
 from sea_daemon.core.bounds.zonotope import outer_ellipsoid_shape, predict_generators
 
@@ -361,11 +361,12 @@ def _warm() -> None:
     E_q[0, 0] = E_q[0, 1] = 1.0
     T = np.zeros((2, d))
     T[0, 0] = T[0, 1] = T[1, 2] = T[1, 3] = 1.0
-    # the friction candidate's one-pass boxes (AKFTheoremBound._friction_candidate), one load group
+    # the friction candidate's one-pass boxes (friction_range.FrictionRange.candidate), one load group
     e, P, I, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.eye(1), np.zeros(1)
-    tabs = (I, I, I, I, I, v, np.ones(1), np.full(1, -1.0), np.array([1], np.int64), np.zeros(1, np.int64),
-            np.array([[0.1, 0.01, 0.0]]), e, e, P, e, e, P)
-    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), *tabs, np.ones((1, d)), np.ones((1, d)),
+    # the packed Dynamics (core.dynamics): M, M⁻¹, J, J⁻¹, D_m, K_s, D_s, gravity, κ, half band, one load effect
+    dyn = (I, I, I, I, I, I, I, v, np.ones(1), np.full(1, -1.0),
+           (np.array([1], np.int64), np.zeros(1, np.int64), np.array([[0.1, 0.01, 0.0]])), (e, e, P), (e, e, P))
+    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), dyn, np.ones((1, d)), np.ones((1, d)),
                     np.ones(1), np.zeros(1, np.int64), np.array([1], np.int64), np.array([[0.1, 0.01, 0.0]]),
                     np.zeros(d), np.zeros(d))
     st = FilterStep(np.zeros(d), np.eye(d), np.zeros(3), np.zeros(1), np.zeros((1, 3)), np.eye(d),

@@ -157,7 +157,7 @@ class FrictionRange:
         ell_a, col_a, eg, ec, ep = self.arrays
         lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
                         np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                        *self.tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+                        self.tables.dynamics, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
         b_s *= 1.0 + sm.margin
         return dF, GamF, w, b_s, phi(A_k, b_s, dt, Gamma_mu), (1.0 + sm.margin) * b
 

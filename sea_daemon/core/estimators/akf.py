@@ -346,7 +346,7 @@ class AKF:
             self.est.k = 0
             self._hand_reset(self.est)
             return self.est
-        self.kin.restart()
+        self.kin.forget()
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
         y = self.measure(q, theta_m)
         self._check_finite(y, tau_m)

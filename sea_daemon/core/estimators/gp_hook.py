@@ -14,7 +14,7 @@ import numpy as np
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.gp.pack import GPPack, warm_up_loggp
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.gp.routing import route_nodes
+from sea_daemon.core.gp.routing import route
 from sea_daemon.core.estimators.health import box_clip
 
 
@@ -58,7 +58,7 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
     xc = np.empty(d)
     acc = np.empty(d)
     for j in range(links.shape[0]):
-        _, nodes, ws, dws = route_nodes(Zr, links[j], span[j], True)
+        _, nodes, ws, dws = route(Zr, links[j], span[j], True)
         k = nodes.shape[0]
         if k == 1:
             mu, var = _leaf_grad(leaf_of[j, nodes[0]], zc, nn, row, apo, A, beta, alpha, ap, center, il2, sf2, lo,

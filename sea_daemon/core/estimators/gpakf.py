@@ -225,11 +225,11 @@ class GPAKF(AKF):
     def _frozen_args(self, res: _ResidualHook) -> tuple:
         """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` (the same objects
         every sample; made again when the hook's pack changes)."""
-        ring, box, e = self.kin.ring(), res.box, self.est
+        kin, box, e = self.kin, res.box, self.est
         self._sigma_base(self.dt)
         pack = res.pack_args[:-1]
         s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
-        sample = (self._buf, self.d, self.m, self.n, self._ang, ring.buf, ring.C, ring.out, self._ddq, self.z,
+        sample = (self._buf, self.d, self.m, self.n, self._ang, kin.buf, kin.C, kin.out, self._ddq, self.z,
                   self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
                   self._MinvG, float(self._gp_var_scale), box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
                   res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None, self.record.x_prev,
@@ -286,7 +286,8 @@ def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
         for k in range(1, len(log)):
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
     except EstimatorFault as exc:
-        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}",
+                             fault=exc.fault) from None
     finally:
         est.bound = bound
     return est

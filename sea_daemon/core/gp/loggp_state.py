@@ -1,6 +1,5 @@
 """Persistence of the LoG-GP (:class:`~sea_daemon.core.gp.loggp.LoGGP`): its whole state as a
-JSON-able dict or as numeric arrays plus JSON metadata (no numpy objects, no pickle), and back;
-and its tree as arrays (:meth:`LoGGPState.frozen_tree`, what a compiled consumer flattens).
+JSON-able dict or as numeric arrays plus JSON metadata (no numpy objects, no pickle), and back.
 
 The factors are not stored: every leaf's Cholesky factor is rebuilt from its data on load, so
 a loaded model predicts exactly as the saved one (tests/test_loggp.py).  Malformed input raises
@@ -13,7 +12,6 @@ import math
 import numpy as np
 
 from sea_daemon.core.gp.exact import IncrementalGP
-from sea_daemon.core.gp.routing import Tree
 from sea_daemon.errors import InputError, ModelFileError
 
 _FORMAT = "sea-daemon-loggp"
@@ -22,17 +20,6 @@ _VERSION = 1
 
 class LoGGPState:
     """The save/load half of :class:`~sea_daemon.core.gp.loggp.LoGGP` (a mixin of its attributes)."""
-
-    @property
-    def n_nodes(self) -> int:
-        """Nodes of the tree (split nodes and leaves)."""
-        return len(self._dim)
-
-    def frozen_tree(self) -> Tree:
-        """The tree as it is now, as arrays of exactly :attr:`n_nodes` columns (a copy: it does not
-        follow later splits): ``links`` rows split dimension, left and right child (−1 at a
-        leaf), ``span`` rows the overlap's lo and hi (:class:`~sea_daemon.core.gp.routing.Tree`)."""
-        return Tree.of(self._dim, self._lo, self._hi, self._left, self._right)
 
     def to_dict(self) -> dict:
         """JSON-serialisable state (no numpy, no pickle); factors are rebuilt on load."""

@@ -2,7 +2,7 @@
 
 A residual's LoG-GPs (one per joint, :class:`~sea_daemon.core.gp.loggp.LoGGP`) whose learning
 is off are flattened once into a few arrays (:class:`PackArrays`): per joint its tree
-(:meth:`LoGGP.frozen_tree`), per leaf its data, factor and hyperparameters.  Two compiled
+(:attr:`LoGGP.tree`), per leaf its data, factor and hyperparameters.  Two compiled
 consumers read them: the Theorem-1 bound's step (:func:`~sea_daemon.core.bounds.bound_core.bound_step`,
 through :func:`gp_points`) and the GP-AKF's residual hook
 (:func:`~sea_daemon.core.estimators.gp_hook.hook_predict`).  A pack is made again when the GPs
@@ -18,7 +18,7 @@ import numpy as np
 from sea_daemon.core.jit import njit
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.gp.loggp import LoGGP
-from sea_daemon.core.gp.routing import route_nodes
+from sea_daemon.core.gp.routing import route
 
 
 class PackArrays(NamedTuple):
@@ -65,7 +65,7 @@ class GPPack:
         self.signature = self._signature()
         n = len(self.gps)
         d = self.gps[0].input_dim
-        trees = [g.frozen_tree() for g in self.gps]
+        trees = [g.tree for g in self.gps]
         nodes = max(t.links.shape[1] for t in trees)
         self.links = np.full((n, 3, nodes), -1, dtype=np.int64)
         self.span = np.zeros((n, 2, nodes))
@@ -199,7 +199,7 @@ def gp_points(Z, local, c_ext, p, MU, S, XT):
     """Merged LoG-GP prediction of pack ``p`` per row of ``Z`` and joint j into MU[:, j], S[:, j],
     XT[:, j]: with ``local`` the mean, the scale √(σ̃² + s_loc²) and the extrapolation term
     c e(z) (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero).
-    The leaves and weights of each row are the LoG-GP's own routing (:func:`routing.route_nodes`)."""
+    The leaves and weights of each row are the LoG-GP's own routing (:func:`routing.route`)."""
     P, dz = Z.shape
     xc = np.empty(dz)
     xq = np.empty((1, dz))
@@ -207,7 +207,7 @@ def gp_points(Z, local, c_ext, p, MU, S, XT):
     a = np.empty(dz + 2)
     kv = np.empty(max(1, np.max(p.nn)) if p.nn.shape[0] else 1)
     for j in range(p.links.shape[0]):
-        idx, nodes, ws, _ = route_nodes(Z, p.links[j], p.span[j], False)
+        idx, nodes, ws, _ = route(Z, p.links[j], p.span[j], False)
         i = 0
         for q in range(P):
             x = Z[q]

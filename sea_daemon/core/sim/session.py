@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID
+from sea_daemon.core.control import PID, PIDGains
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.sim.plant import Plant
 
@@ -81,17 +81,12 @@ class BandLimitedTorque:
         return float(np.sum(np.abs(self._c) * 2 * math.pi * self._f))
 
 
-@dataclass(frozen=True)
-class PIDGains:
-    kp: float = 40.0
-    ki: float = 80.0
-    kd: float = 2.0
-    velocity_filter_hz: float = 30.0
-    derivative: str = "motor"
+#: the gains a session's PID tracks its reference with unless given
+SESSION_GAINS = PIDGains(40.0, 80.0, 2.0, velocity_filter_hz=30.0)
 
 
 def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hold_q: float | None = None,
-                human=None, seed: int = 0, gains: PIDGains = PIDGains(), substep_hz: float | None = None,
+                human=None, seed: int = 0, gains: PIDGains = SESSION_GAINS, substep_hz: float | None = None,
                 sign_eps: float = 3e-3, torque_noise: float | None = None, t0: float = 0.0,
                 extra_load_torque=None, extra_held: bool = False) -> MeasuredLog:
     """Simulate one session of the plant ``true_cfg`` (nominal model + hidden effects); see the
