@@ -17,7 +17,7 @@ class Estimate:
     covariance; ``k`` the step counter (0 after reset); ``valid`` whether this is an estimate of
     τ_h,act that users may act on, inside its published bound: False while the estimator starts
     (the reset sample, the differentiator's window) and until the filter's start-up transient
-    has decayed (the AKF's gate, :meth:`~sea_daemon.core.estimators.akf.AKF._gate`), and while
+    has decayed (the AKF's start-up gate, :class:`~sea_daemon.core.estimators.gate.StartupGate`), and while
     a GP-AKF learns (training phase, subject assumed passive); then True until the next reset.
     """
 
