@@ -216,8 +216,8 @@ class _TimedBound:
     def __init__(self, bound, spent):
         self.bound, self.spent = bound, spent
 
-    def reset(self, est):
-        self.bound.reset(est)
+    def reset(self, *args):
+        self.bound.reset(*args)
 
     def step(self, *args):
         t0 = time.perf_counter()

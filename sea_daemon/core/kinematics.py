@@ -153,12 +153,6 @@ class CausalDifferentiator:
         self.head = fir_push(self.buf, self.head, self.C, a, self.out)
         return self.out[0], self.out[1], self.out[2]
 
-    # the ring's state under its former private names, for callers not yet using the public ones
-    _buf = property(lambda self: self.buf)
-    _out = property(lambda self: self.out)
-    _head = property(lambda self: self.head, lambda self, v: setattr(self, "head", v))
-    _primed = property(lambda self: self.primed, lambda self, v: setattr(self, "primed", v))
-
 
 @njit
 def fir_push(buf, head, C, angle, out) -> int:
@@ -185,9 +179,6 @@ def fir_push(buf, head, C, angle, out) -> int:
 def _warm() -> None:
     CausalDifferentiator(0.01, 5, 2).update(np.zeros(2))
 
-
-# the kernel under its former private name, for modules not yet importing it as ``fir_push``
-_fir_push = fir_push
 
 
 def smooth_derivatives(t, angle, window: int = 11, degree: int = 3):

@@ -122,7 +122,7 @@ class _SoakProbe:
             return
         from sea_daemon.core.bounds.akf_bound import theorem_bound
         est.bound = theorem_bound(est)
-        est.bound.reset(est.est)              # the set of means starts at a point here
+        est.bound.reset(est.est, est.record)  # the set of means starts at a point here
         if self.bound_in == "worker":
             # the GP is frozen now: the worker's copy of it stays the loop's
             from sea_daemon.runtime.bound_worker import BoundWorker

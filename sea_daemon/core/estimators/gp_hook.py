@@ -4,7 +4,7 @@ With learning frozen, the hook's prediction — the GP input clipped into the tr
 joint the merged LoG-GP mean, its Jacobian and variance (:meth:`LoGGP.predict_grad_into`:
 routing, each leaf's compiled prediction, the merge in routing order) — runs as one compiled
 call, :func:`hook_predict`, over the LoG-GPs flattened by
-:class:`~sea_daemon.core.bounds.bound_core.GPPack` (the pack the Theorem-1 bound uses), with the
+:class:`~sea_daemon.core.gp.pack.GPPack` (the pack the Theorem-1 bound uses), with the
 same operations in the same order.  A GP that is learning stays on the Python path.
 """
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.gp.pack import GPPack, warm_up_loggp
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.gp.routing import route
 from sea_daemon.core.estimators.health import box_clip
@@ -97,7 +98,6 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
 @warmer
 def _warm() -> None:
     """:func:`hook_predict` with the argument types the hook passes (one joint, z of 3)."""
-    from sea_daemon.core.bounds.bound_core import GPPack, warm_up_loggp
     pack = GPPack([warm_up_loggp()])
     for noise in (False, True):
         hook_predict(np.zeros(3), -np.ones(3), np.ones(3), np.zeros(3), np.zeros(3, np.bool_), noise, np.zeros(1),

@@ -471,9 +471,9 @@ class LoGGP(LoGGPState):
         merged with the prediction weights as the local scale merges its terms."""
         Z = np.ascontiguousarray(Z, dtype=float)
         idx, nodes, w, _, _ = self.leaf_predictions(Z)
-        return self._extrapolation_rows(Z, idx, nodes, w)
+        return self.extrapolation_rows(Z, idx, nodes, w)
 
-    def _extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Σ_i ω_i e_i(z) per row of ``Z`` from a routing (row index, node, ω) of
         :meth:`leaf_predictions`."""
         ex = np.empty(len(idx))
