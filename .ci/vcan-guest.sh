@@ -11,9 +11,9 @@ ip link add dev vcan0 type vcan
 ip link set up vcan0
 ip -details link show vcan0 | head -n 3
 export SEA_DAEMON_REQUIRE_SOCKETCAN=1 NUMBA_CPU_NAME=generic MPLBACKEND=Agg
-# the kernels load from numba's cache (a compilation here would take minutes under emulation)
-NUMBA_DEBUG_CACHE=1 "$py" -c 'from sea_daemon.core import jit; jit.warm_up()' > "$out/numba.log" 2>&1 || true
-echo "numba cache in the VM: $(grep -c 'data loaded' "$out/numba.log") kernels loaded, $(grep -c 'data saved' "$out/numba.log") compiled"
+touch "$out/start"
 set +e
 { "$py" -m pytest -q -rs -m socketcan -p no:cacheprovider $(cat "$out/files"); echo $? > "$out/rc"; } 2>&1 | tee "$out/pytest.log"
+# the kernels load from numba's cache: one compiled here (minutes under emulation) is reported
+echo "numba: $(find sea_daemon -name '*.nbc' -newer "$out/start" | wc -l) kernels compiled in the VM"
 exit "$(cat "$out/rc")"

@@ -29,7 +29,9 @@ NUMBA_CPU_NAME=generic python .ci/compile.py 0 2 & first=$!
 NUMBA_CPU_NAME=generic python .ci/compile.py 1 2
 wait "$first"
 
-out=$(mktemp -d /tmp/sea-vcan.XXXXXX)
+# the guest's /tmp is its own: what it reports goes to a directory of the checkout
+mkdir -p out
+out=$(mktemp -d "$PWD/out/vcan.XXXXXX")
 python -m pytest -q --collect-only -m socketcan tests/ | grep '::' > "$out/ids"
 expected=$(wc -l < "$out/ids")
 cut -d: -f1 "$out/ids" | sort -u > "$out/files"
@@ -38,9 +40,10 @@ echo "vcan: ${expected} socketcan tests; booting $(basename "$kernel") under QEM
 
 accel=(--disable-kvm)
 [ "${VCAN_KVM:-0}" = 1 ] && accel=()
-rc=0
-timeout 3600 "$vng" --run "$kernel" "${accel[@]}" --memory 4G --cpus 2 --rw --cwd "$PWD" \
-    --exec "sh .ci/vcan-guest.sh '$py' '$out'" || rc=$?
+# through a pipe: QEMU opens its standard output anew, which would truncate a log file
+{ timeout 3600 "$vng" --run "$kernel" "${accel[@]}" --memory 4G --cpus 2 --rw --cwd "$PWD" \
+    --exec "sh .ci/vcan-guest.sh '$py' '$out'"; echo $? > "$out/vng_rc"; } 2>&1 | cat
+rc=$(cat "$out/vng_rc")
 t2=$(date +%s)
 
 summary=$(tail -n 1 "$out/pytest.log" 2>/dev/null || true)
