@@ -13,7 +13,7 @@ ip -details link show vcan0 | head -n 3
 export SEA_DAEMON_REQUIRE_SOCKETCAN=1 NUMBA_CPU_NAME=generic MPLBACKEND=Agg
 touch "$out/start"
 set +e
-{ "$py" -m pytest -q -rs -m socketcan -p no:cacheprovider $(cat "$out/files"); echo $? > "$out/rc"; } 2>&1 | tee "$out/pytest.log"
+{ "$py" -m pytest -q -rs --durations=5 -m socketcan -p no:cacheprovider $(cat "$out/files"); echo $? > "$out/rc"; } 2>&1 | tee "$out/pytest.log"
 # the kernels load from numba's cache: one compiled here (minutes under emulation) is reported
 echo "numba: $(find sea_daemon -name '*.nbc' -newer "$out/start" | wc -l) kernels compiled in the VM"
 exit "$(cat "$out/rc")"

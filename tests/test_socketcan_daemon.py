@@ -71,12 +71,13 @@ class TpdoReader:
 def bus_config(path) -> str:
     """The simulation configuration on vcan0, its timeouts for a loaded or emulated machine (the
     device model is a Python process sharing its CPUs): the TPDOs may take up to 100 ms after the
-    SYNC, two late cycles are held, a heartbeat may take 1 s; an overrun is logged, not a fault.
+    SYNC, two late cycles are held, a heartbeat may take 5 s (also the drives' watch of the daemon's
+    heartbeat, from the start-up to the loop's first cycle); an overrun is logged, not a fault.
     The bus's timing at 1 kHz is measured by ``sea-daemon bench``, not here."""
     from sea_daemon.io.configfile import load_config, save_config
     cfg = load_config(CONFIG)
     bus = dataclasses.replace(cfg.hardware.bus, interface="socketcan", channel=CHANNEL, pdo_timeout_ms=100.0,
-                              max_missed_cycles=2, heartbeat_timeout_ms=1000, sdo_timeout_ms=2000)
+                              max_missed_cycles=2, heartbeat_timeout_ms=5000, sdo_timeout_ms=2000)
     save_config(dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=bus)), path)
     return str(path)
 
