@@ -12,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-import threading
 
 import numpy as np
 import pytest
@@ -20,6 +19,7 @@ import pytest
 from _hil import REQUIRE_SOCKETCAN, need_socketcan
 from _paths import repo_root
 from test_drivers_remote import DeviceProcess
+from test_publish_hil import CanListener
 
 ROOT = repo_root()
 CONFIG = ROOT / "configs" / "exo_1dof_sim.yaml"
@@ -42,30 +42,6 @@ def read_log(path) -> dict[str, np.ndarray]:
         names = f.readline().strip().split(",")
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     return {n: data[:, i] for i, n in enumerate(names)}
-
-
-class TpdoReader:
-    """The daemon node's TPDOs, received on a SocketCAN socket of this process (kernel filters)."""
-
-    def __init__(self, ids):
-        import can
-        self.bus = can.Bus(interface="socketcan", channel=CHANNEL,
-                           can_filters=[{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids])
-        self.frames: list = []
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        while not self._stop.is_set():
-            m = self.bus.recv(0.1)
-            if m is not None:
-                self.frames.append((m.arbitration_id, bytes(m.data)))
-
-    def close(self):
-        self._stop.set()
-        self.thread.join(5)
-        self.bus.shutdown()
 
 
 def bus_config(path) -> str:
@@ -104,7 +80,7 @@ def test_a_calibration_on_vcan0_with_the_device_model_in_another_process(tmp_pat
                         ready_s=900)
     reader = None
     try:
-        reader = TpdoReader(tpdo_cob_ids(127, 1).values())
+        reader = CanListener(CHANNEL, tpdo_cob_ids(127, 1).values(), interface="socketcan")
         r, cal = daemon("calibrate", "--config", cfg, "--scenario", PASSIVE, "--cycles", CYCLES, "--socket", "none",
                         "--rt-priority", "0", "--overrun-streak", "0", "--no-progress",
                         "--out", tmp_path / "m.npz", "--log-dir", tmp_path)
