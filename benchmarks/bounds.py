@@ -274,7 +274,7 @@ def run(args) -> int:
         trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
         print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
         if args.als:
-            from sea_daemon.core.als import config_with_R, floored_R, identify_noise
+            from sea_daemon.analysis.als import config_with_R, floored_R, identify_noise
             R, enc, _ = floored_R(nominal, identify_noise(nominal, train))
             nominal, true = config_with_R(nominal, R), config_with_R(true, R)
             print(f"  R identified by ALS on the training log ({len(train)} samples): encoder variances "

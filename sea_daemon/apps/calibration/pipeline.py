@@ -35,7 +35,7 @@ from typing import Mapping
 
 import numpy as np
 
-from sea_daemon.apps.calibration.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.core.config import LearningConfig, ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
@@ -137,7 +137,7 @@ def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
 
 def with_R(cfg: ModelConfig, R: np.ndarray) -> ModelConfig:
     """R and P0's measurement block = R (Sec. V-B)."""
-    from sea_daemon.core.als import config_with_R
+    from sea_daemon.analysis.als import config_with_R
     return config_with_R(cfg, R)
 
 
@@ -341,7 +341,7 @@ MIN_MOVING_PAIRS = 200
 
 
 def stick_velocity_of(cfg: ModelConfig) -> float:
-    from sea_daemon.apps.diagnose.residuals import stick_velocity
+    from sea_daemon.analysis.diagnose.residuals import stick_velocity
     return stick_velocity(cfg)
 
 
@@ -363,7 +363,7 @@ def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
     then learns a spurious slope in q̈ (on 16-bit encoders at 100 Hz: ~0.2 N m of M q̈ noise) and
     its confident mean is wrong on any other session.  Decimated to ``rate_hz`` (neighbouring
     smoothed samples carry no new information)."""
-    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity, window_samples
+    from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity, window_samples
     from sea_daemon.core.model import SEAModel
     model = SEAModel.from_config(cfg)
     kin = kinematics_from_log(log)

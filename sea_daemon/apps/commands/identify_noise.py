@@ -52,7 +52,7 @@ def run(args) -> int:
     check_outputs([("--write", args.write)], inputs=[args.log, args.config])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
-    from sea_daemon.core.als import R_FLOOR, config_with_R, floored_R, identify_noise
+    from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints

@@ -31,11 +31,11 @@ from sea_daemon.io.configfile import config_text, save_config
 from sea_daemon.io.files import atomic_write_text
 from sea_daemon.errors import ConfigError, InputError, LogFormatError, shown
 from sea_daemon.core.log import MeasuredLog
-from sea_daemon.apps.diagnose.candidates import Context, build_candidates
-from sea_daemon.apps.diagnose.evaluate import estimate_rmse, gpakf_rmse
-from sea_daemon.apps.diagnose.prepare import encoder_quanta, prepare_log, segment_log
-from sea_daemon.apps.diagnose.residuals import kinematics_from_log, rms, window_samples
-from sea_daemon.apps.diagnose.select import SelectOptions, Selection, Selector
+from sea_daemon.analysis.diagnose.candidates import Context, build_candidates
+from sea_daemon.analysis.diagnose.evaluate import estimate_rmse, gpakf_rmse
+from sea_daemon.analysis.diagnose.prepare import encoder_quanta, prepare_log, segment_log
+from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, rms, window_samples
+from sea_daemon.analysis.diagnose.select import SelectOptions, Selection, Selector
 
 __all__ = ["diagnose", "SelectOptions", "run_diagnosis", "Diagnosis"]
 

@@ -22,8 +22,8 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.apps.diagnose.evaluate import akf_run
-from sea_daemon.apps.diagnose.prepare import prepare_log
+from sea_daemon.analysis.diagnose.evaluate import akf_run
+from sea_daemon.analysis.diagnose.prepare import prepare_log
 
 
 def apply_model(log: MeasuredLog, cfg_before: ModelConfig, cfg_after: ModelConfig) -> dict:

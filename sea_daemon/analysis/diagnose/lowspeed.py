@@ -31,8 +31,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from sea_daemon.core.effects import Effect
-from sea_daemon.apps.diagnose.candidates import Candidate
-from sea_daemon.apps.diagnose.residuals import integrated_autocorr_time
+from sea_daemon.analysis.diagnose.candidates import Candidate
+from sea_daemon.analysis.diagnose.residuals import integrated_autocorr_time
 
 #: friction types this stage tries
 FRICTION = ("coulomb", "stribeck")

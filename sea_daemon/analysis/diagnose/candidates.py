@@ -33,7 +33,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
 from sea_daemon.core.model import SEAModel
-from sea_daemon.apps.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
+from sea_daemon.analysis.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
 
 
 @dataclass

@@ -47,10 +47,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
-from sea_daemon.apps.diagnose.candidates import Candidate, Context
-from sea_daemon.apps.diagnose.lowspeed import LowSpeedStage
-from sea_daemon.apps.diagnose.prepare import MAX_ROWS
-from sea_daemon.apps.diagnose.residuals import Z95, integrated_autocorr_time
+from sea_daemon.analysis.diagnose.candidates import Candidate, Context
+from sea_daemon.analysis.diagnose.lowspeed import LowSpeedStage
+from sea_daemon.analysis.diagnose.prepare import MAX_ROWS
+from sea_daemon.analysis.diagnose.residuals import Z95, integrated_autocorr_time
 
 
 
