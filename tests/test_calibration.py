@@ -189,7 +189,7 @@ def test_weighted_residual_trusts_the_mean_only_where_its_variance_is_below_the_
     """The weight's reference is the leftover's latent mean square s_0² (what predicting 0 costs
     on the calibration data), not σ_f² alone: a GP whose σ_f is inflated over a small, noisy
     leftover keeps its mean out; a GP that knows its well-sampled leftover keeps it in."""
-    from sea_daemon.apps.calibration.pipeline import leftover_latent_variance
+    from sea_daemon.apps.calibration.residual_gp import leftover_latent_variance
     from sea_daemon.core.config import LearningConfig
     from sea_daemon.core.estimators.weighted import WeightedResidual
     from sea_daemon.core.learning import ResidualGP
@@ -380,7 +380,7 @@ def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):
 def test_the_gp_pairs_carry_the_load_sides_leftover_only(plant):
     """A motor-side torque the physics misses (cogging) stays out of the residual GP's targets:
     the filter applies f on the load side, where it would move τ̂_h,act by its size."""
-    from sea_daemon.apps.calibration.pipeline import smooth_pairs
+    from sea_daemon.apps.calibration.residual_gp import smooth_pairs
     from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity
     nom, true = plant
     cog = make_effect("cogging", "motor", A=0.08, periods=6.0, phi=0.3)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sea_daemon.io.configfile import default_config_path, load_config
-from sea_daemon.analysis.diagnose.candidates import Context, build_candidates
+from sea_daemon.analysis.diagnose.candidates import build_candidates
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels
 from sea_daemon.core.effects import EFFECT_TYPES, make_effect
 from sea_daemon.core.log import MeasuredLog

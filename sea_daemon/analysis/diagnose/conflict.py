@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea_daemon.analysis.diagnose.candidates import Context
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.records import Selection
 
 

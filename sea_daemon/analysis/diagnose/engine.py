@@ -27,7 +27,8 @@ from scipy.signal import savgol_coeffs
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import InputError, LogFormatError
-from sea_daemon.analysis.diagnose.candidates import Candidate, Context, build_candidates
+from sea_daemon.analysis.diagnose.candidates import Candidate, build_candidates
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.evaluate import estimate_rmse, gpakf_rmse
 from sea_daemon.analysis.diagnose.prepare import Prepared, encoder_quanta, prepare_log, segment_log
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, rms, window_samples

@@ -13,7 +13,8 @@ import math
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from sea_daemon.analysis.diagnose.candidates import Candidate, Context
+from sea_daemon.analysis.diagnose.candidates import Candidate
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.records import CandidateFit
 from sea_daemon.analysis.diagnose.samples import FitSamples, lstsq
 

@@ -31,7 +31,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from sea_daemon.core.effects import Effect
-from sea_daemon.analysis.diagnose.candidates import Candidate, Context
+from sea_daemon.analysis.diagnose.candidates import Candidate
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.options import SelectOptions
 from sea_daemon.analysis.diagnose.residuals import integrated_autocorr_time
 from sea_daemon.analysis.diagnose.samples import FitSamples

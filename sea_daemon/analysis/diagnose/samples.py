@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sea_daemon.analysis.diagnose.candidates import Context
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.options import SelectOptions
 
 

@@ -52,8 +52,9 @@ import math
 
 import numpy as np
 
-from sea_daemon.analysis.diagnose.candidates import Candidate, Context
+from sea_daemon.analysis.diagnose.candidates import Candidate
 from sea_daemon.analysis.diagnose.conflict import find_conflict, undetermined
+from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.fitting import LinearFits
 from sea_daemon.analysis.diagnose.linear import LinearStage, SelectionState
 from sea_daemon.analysis.diagnose.lowspeed import LowSpeedStage

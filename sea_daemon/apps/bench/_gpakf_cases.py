@@ -75,7 +75,7 @@ def calibrated_gpakf(cfg, dt, log, verbose: bool = True):
     """The calibrated GP-AKF (no learning) with a residual GP trained on ``log``'s pairs and a
     coverage map of them (see the module docstring)."""
     import dataclasses
-    from sea_daemon.apps.calibration.pipeline import fit_gp_hyper
+    from sea_daemon.apps.calibration.residual_gp import fit_gp_hyper
     from sea_daemon.core.estimators.calibrated import make_calibrated
     from sea_daemon.core.excitation import Coverage, WorkingRange
     from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
