@@ -1,4 +1,4 @@
-"""Candidate effects for tracing the residuals (issue 6, item 2).
+"""Candidate effects for tracing the residuals.
 
 Every type of the effect vocabulary (docs/interfaces.md §2, plus the ``spring_saturation`` extension)
 on every side it may sit on, for every joint.  A candidate explains a part of the stacked

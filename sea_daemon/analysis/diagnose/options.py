@@ -23,7 +23,7 @@ def size_floor(tau_m: np.ndarray) -> float:
 
 @dataclass
 class SelectOptions:
-    """Thresholds of the selection (see the module docstring)."""
+    """Thresholds of the selection (see :mod:`.select`)."""
 
     min_fraction: float = 0.05      # of the initial mean square, per accepted effect ...
     min_fraction_current: float = 0.3   # ... or of the mean square still unexplained

@@ -1,4 +1,4 @@
-"""The two model residuals of a measured log (issue 6, item 1).
+"""The two model residuals of a measured log.
 
 From the log's encoder angles and motor torque, with zero-phase smoothed derivatives (an
 offline log allows a non-causal filter), and the configured model:
