@@ -35,11 +35,12 @@ from typing import Callable
 
 import numpy as np
 
-from sea_daemon.io.configfile import data_root
-from sea_daemon.errors import InputError
+from sea_daemon.apps.bench import add_settings_argument, apply_settings, choose, start_simulated
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.replay import replay, summarize
-from sea_daemon.apps.bench import add_settings_argument, apply_settings, start_simulated
+from sea_daemon.io.configfile import data_root
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
 NAME = "accuracy"
 HELP = "RMSE of spring / AKF / oracle AKF (and GP-AKF when registered) on the paper's scenarios; plots"
@@ -79,6 +80,7 @@ def add_arguments(p) -> None:
 
 def plot(path: Path, title: str, t: np.ndarray, truth: np.ndarray, results: dict) -> None:
     """Estimate vs truth with the 2σ band of P_k (paper Fig. 3/4)."""
+    # local: matplotlib takes ~0.5 s to import and its backend is a process-wide choice, made here
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -101,12 +103,6 @@ def plot(path: Path, title: str, t: np.ndarray, truth: np.ndarray, results: dict
 
 
 def run(args) -> int:
-    try:
-        from sea_daemon.runtime.sim_runner import simulate
-        from sea_daemon.io.scenario import load_scenario
-    except ImportError:
-        raise InputError("bench accuracy needs the simulator (sea_daemon.core.sim), which is not installed") from None
-    from sea_daemon.apps.bench import choose
     labels = choose(args.estimators, CASES, "--estimators")
     out, settings = start_simulated(args)
     table = {}

@@ -23,6 +23,7 @@ Prints what it measured, on what, with how many runs; ``--out DIR`` keeps the ar
 """
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 import math
@@ -34,10 +35,25 @@ import threading
 import time
 from pathlib import Path
 
+import can
 import numpy as np
+import yaml
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.io.configfile import data_root, import_root
+from sea_daemon.apps.bench.can_cycle import remote_relay
+from sea_daemon.apps.calibration import calibrate
+from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
+from sea_daemon.core.assist import InnovationGuard
+from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.hw.device_model import parse_fault
+from sea_daemon.io.configfile import data_root, import_root, save_config
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.io.logcsv import read_log
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.controller import AssistController
+from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.runtime.rig import make_rig
 
 NAME = "assist"
 HELP = "assist-as-needed in the device model's tracking task: effort, tracking, stability, corrupted estimates"
@@ -57,7 +73,6 @@ def add_arguments(p) -> None:
 
 
 def _scenario_copy(src: Path, dest: Path, **changes) -> Path:
-    import yaml
     d = yaml.safe_load(src.read_text())
     d["model"] = str((src.parent / d["model"]).resolve())
     d.update(changes)
@@ -72,12 +87,6 @@ def rms(x) -> float:
 # ---------------------------------------------------------------------------- calibration
 def calibrated(sc, cfg, rate: float, out: Path) -> tuple[object, float, dict]:
     """(GP residual, β, info) for ``cfg`` at ``rate``: calibration, held-out calibration, torque β."""
-    from sea_daemon.apps.calibration import calibrate
-    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.io.logcsv import read_log
-
     src = Path(sc.source)
     n_cal = int(round(sc.training_samples * sc.nominal.dt * rate))
     n_held = min(n_cal, int(round(12.0 * rate)))                   # 12 s: the β replays are the cost
@@ -105,12 +114,6 @@ def calibrated(sc, cfg, rate: float, out: Path) -> tuple[object, float, dict]:
 def task_run(scenario: Path, cfg, residual, gain: float, seconds: float, *, inject=None) -> dict:
     """The task on the device model with the daemon's loop; ``inject(k, rig, estimator)`` is called
     at the end of every cycle (corruptions).  Returns the recorded arrays and the fault."""
-    from sea_daemon.core.assist import InnovationGuard
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.runtime.controller import AssistController
-    from sea_daemon.runtime.loop import FixedRateLoop
-    from sea_daemon.runtime.rig import make_rig
-
     rig = make_rig(cfg, device_model=str(scenario), phase="estimation")
     subject = rig.tau_h_act
     est = InnovationGuard(make_estimator("gp-akf", rig.cfg, dt=cfg.dt, residual=residual, learning=False),
@@ -190,8 +193,6 @@ def metrics(r: dict, task, dt: float, skip_s: float = 2.0) -> dict:
 # ---------------------------------------------------------------------------- corruptions
 def corrupted(scenario: Path, cfg, residual, gain: float, seconds: float, base_max: float, at: float = 10.0):
     """Runs with an estimator fault and with load-encoder biases at ``at`` s; returns rows."""
-    from sea_daemon.hw.device_model import parse_fault
-
     rows = []
     k_at = int(round(at * cfg.rate_hz))
 
@@ -234,40 +235,13 @@ def _real32_equal(frame: float, logged: str) -> bool:
 def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: int = 3000) -> dict:
     """``sea-daemon run`` (assist on) and ``sea-daemon device-model`` in their own processes on a
     python-can-remote bus; TPDO1/TPDO2 received in this process, compared with the run's log."""
-    import can
-    import csv
-    import socket
-
-    from sea_daemon.client import tpdo_cob_ids, tpdo_cycles
-    from sea_daemon.io.configfile import save_config
-
     env = dict(os.environ, PYTHONPATH=str(import_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    url = f"ws://127.0.0.1:{port}/"
-    server = subprocess.Popen([sys.executable, "-m", "can_remote", "-i", "virtual", "-c", "bench", "-H", "127.0.0.1",
-                               "-p", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    server, url = remote_relay()
     dev = listener_bus = None
     frames: list = []
     stop = threading.Event()
     try:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise RuntimeError("python -m can_remote did not start")
-                time.sleep(0.05)
-        dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote", "--channel", url,
-                                "--config", str(data_root() / "configs" / "exo_1dof_assist.yaml"),
-                                "--scenario", str(scenario), "--duration", "900"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        line = dev.stdout.readline()
-        if "device-model ready" not in line:
-            raise RuntimeError(f"device model did not start: {line!r}")
+        dev = _device_model_process(scenario, url, env)
         listener_bus = can.Bus(interface="remote", channel=url)
         ids = set(tpdo_cob_ids(cfg.hardware.bus.master_node, 1).values())
 
@@ -278,16 +252,7 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
                     frames.append((m.arbitration_id, bytes(m.data)))
         th = threading.Thread(target=listen, daemon=True)
         th.start()
-        bus = dataclasses.replace(cfg.hardware.bus, pdo_timeout_ms=200.0, max_missed_cycles=2,
-                                  heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
-        run_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=bus),
-                                      estimator=dataclasses.replace(cfg.estimator, gp_beta=beta))
-        save_config(run_cfg, out / "can_run.yaml")
-        logs = Path(tempfile.mkdtemp(prefix="sea-can-"))
-        r = subprocess.run([sys.executable, "-m", "sea_daemon", "run", "--config", str(out / "can_run.yaml"),
-                            "--model", str(model), "--bus", "remote", "--channel", url, "--log-dir", str(logs),
-                            "--cycles", str(cycles), "--overrun-streak", "0", "--rt-priority", "0"],
-                           capture_output=True, text=True, env=env, timeout=3600)
+        r = _daemon_run(cfg, beta, model, url, out, cycles, env)
         time.sleep(1.0)
         stop.set()
         th.join(5)
@@ -305,7 +270,42 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     with open(summary["log"]) as f:
         log = {int(float(row["cycle"])): row for row in csv.DictReader(f)}
-    by_cycle = tpdo_cycles(frames, cfg.hardware.bus.master_node)
+    return {**_frames_against_log(tpdo_cycles(frames, cfg.hardware.bus.master_node), log),
+            "run_fault": summary["fault"], "overruns": summary["overruns"], "run_wall_s": summary["wall_s"],
+            "publish": summary["publish"]}
+
+
+def _device_model_process(scenario: Path, url: str, env: dict) -> subprocess.Popen:
+    """``sea-daemon device-model`` on the remote bus ``url`` in its own process, once ready."""
+    dev = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote", "--channel", url,
+                            "--config", str(data_root() / "configs" / "exo_1dof_assist.yaml"),
+                            "--scenario", str(scenario), "--duration", "900"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    line = dev.stdout.readline()
+    if "device-model ready" not in line:
+        dev.terminate()
+        raise RuntimeError(f"device model did not start: {line!r}")
+    return dev
+
+
+def _daemon_run(cfg, beta: float, model: Path, url: str, out: Path, cycles: int, env: dict):
+    """``sea-daemon run`` of ``cycles`` cycles on the remote bus ``url`` (the configuration with
+    ``gp_beta`` = ``beta``, written to ``out/can_run.yaml``), in its own process: its result."""
+    bus = dataclasses.replace(cfg.hardware.bus, pdo_timeout_ms=200.0, max_missed_cycles=2,
+                              heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
+    run_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=bus),
+                                  estimator=dataclasses.replace(cfg.estimator, gp_beta=beta))
+    save_config(run_cfg, out / "can_run.yaml")
+    logs = Path(tempfile.mkdtemp(prefix="sea-can-"))
+    return subprocess.run([sys.executable, "-m", "sea_daemon", "run", "--config", str(out / "can_run.yaml"),
+                           "--model", str(model), "--bus", "remote", "--channel", url, "--log-dir", str(logs),
+                           "--cycles", str(cycles), "--overrun-streak", "0", "--rt-priority", "0"],
+                          capture_output=True, text=True, env=env, timeout=3600)
+
+
+def _frames_against_log(by_cycle: dict, log: dict) -> dict:
+    """The published TPDOs (``by_cycle``: cycle -> (TPDO1 fields, status)) against the run's log
+    rows (``log``: cycle -> row): counts of equal, +inf while not valid, and mismatches."""
     got = [k for k in log if k in by_cycle]
     equal = inf_invalid = mismatch = 0
     examples: list = []                        # the first mismatches, to say what differed
@@ -324,14 +324,11 @@ def can_check(scenario: Path, cfg, model: Path, beta: float, out: Path, cycles: 
             examples.append({"cycle": k, "frame": j1, "status": st, "log": {c: row[c] for c in
                              ("t", "tau_h_act_hat", "tau_h_act_bound", "valid", "fault")}})
     return {"examples": examples, "log_rows": len(log), "cycles_with_tpdo1": len(got), "equal_to_log": equal,
-            "inf_while_invalid": inf_invalid, "mismatch": mismatch, "run_fault": summary["fault"],
-            "overruns": summary["overruns"], "run_wall_s": summary["wall_s"], "publish": summary["publish"]}
+            "inf_while_invalid": inf_invalid, "mismatch": mismatch}
 
 
 # ---------------------------------------------------------------------------- main
 def run(args) -> int:
-    from sea_daemon.io.scenario import load_scenario
-
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench-assist-"))
     out.mkdir(parents=True, exist_ok=True)
     src = Path(args.scenario)

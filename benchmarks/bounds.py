@@ -44,26 +44,30 @@ the bound component's step).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.io.configfile import data_root
+from sea_daemon.apps.bench import add_settings_argument, apply_settings, choose, start_simulated, summarize
+from sea_daemon.analysis.als import config_with_R, floored_R, identify_noise
+from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
+from sea_daemon.core.bounds.calibration import conformal_gp_constants, gp_constants, residual_gps
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
+from sea_daemon.core.estimators import make_estimator
 from sea_daemon.errors import EstimatorFault, InputError
-from sea_daemon.apps.bench import add_settings_argument, apply_settings, start_simulated
+from sea_daemon.io.configfile import data_root
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
 NAME = "bounds"
 HELP = "coverage of the Theorem-1 bound rho_k (and of the KF's own bound) on the paper's scenarios; plots"
 
 
 def _builders(gp_betas):
-    from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
-    from sea_daemon.core.bounds.calibration import conformal_gp_constants, gp_constants, residual_gps
-    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
-    from sea_daemon.core.estimators import make_estimator
-
     out = {"akf": lambda nominal, true, train, cal, dt: make_estimator("akf", nominal, dt=dt),
            "oracle-akf": lambda nominal, true, train, cal, dt: make_estimator("akf", true, dt=dt)}
 
@@ -147,9 +151,6 @@ class _ExactGPError:
     @staticmethod
     def feeder(est, log, sc):
         """``feed(k)``: set η for the step k−1 → k from the log's true-state columns."""
-        import dataclasses
-
-        from sea_daemon.core.bounds.calibration import residual_gps
         gps = residual_gps(est)
         effects = [dataclasses.replace(e, eps=sc.plant.sign_eps) if hasattr(e, "eps") else e
                    for e in sc.plant.effects if e.side == "load" and e.additive]
@@ -174,7 +175,6 @@ def _run_one(est, log, feed=None):
     """Replay with the per-step KF-only bound recorded next to ρ_k, and the step time split
     into the filter step and the bound's own share; ``feed(k)`` (if given) runs before step k,
     outside the timing."""
-    from sea_daemon.core.bounds.ellipsoid import chi2_quantile
     N, n = len(log), log.n
     hat, rho, kf = np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n))
     times, inner = np.zeros(N - 1), np.zeros(N - 1)
@@ -216,8 +216,8 @@ class _TimedBound:
     def __init__(self, bound, spent):
         self.bound, self.spent = bound, spent
 
-    def reset(self, est):
-        self.bound.reset(est)
+    def reset(self, *args):
+        self.bound.reset(*args)
 
     def step(self, *args):
         t0 = time.perf_counter()
@@ -240,12 +240,6 @@ def _cases(paths):
 
 
 def run(args) -> int:
-    try:
-        from sea_daemon.runtime.sim_runner import simulate
-        from sea_daemon.io.scenario import load_scenario
-    except ImportError:
-        raise InputError("bench bounds needs the simulator (sea_daemon.core.sim)") from None
-    from sea_daemon.apps.bench import choose, summarize
     gp_betas = _gp_betas(args.gp_beta)
     builders = _builders(gp_betas)
     labels = choose(args.estimators, builders, "--estimators")
@@ -260,80 +254,8 @@ def run(args) -> int:
         return sims[key]
 
     for est_path, train_path in _cases(args.scenarios):
-        sc, sc_train = load_scenario(est_path), load_scenario(train_path)
-        log = sim_of(est_path).estimation
-        train = sim_of(train_path).training
-        cal = None
-        if "conformal" in gp_betas or "torque" in gp_betas:
-            # held-out calibration: the training session again, independent noise (seed + 1000)
-            cal = sim_of(train_path, sc_train.seed + 1000).training
-        name = Path(est_path).stem
-        delta = sc.nominal.estimator.delta
-        nominal = sc.declared(apply_settings(sc.nominal, settings))
-        true = sc.declared(apply_settings(sc.true_config(), settings))
-        trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
-        print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
-        if args.als:
-            from sea_daemon.analysis.als import config_with_R, floored_R, identify_noise
-            R, enc, _ = floored_R(nominal, identify_noise(nominal, train))
-            nominal, true = config_with_R(nominal, R), config_with_R(true, R)
-            print(f"  R identified by ALS on the training log ({len(train)} samples): encoder variances "
-                  f"{enc}; diag R = {np.array2string(np.diag(R), precision=3)}")
-        print(f"  {'estimator':<14s} {'cover rho':>9s} {'cover KF':>9s} {'mean rho':>9s} {'mean KF':>8s} "
-              f"{'mean|e|':>8s} {'max|e|':>8s} {'rho/|e|':>8s}  step time / bound's share [us]")
-        rows, curves = {}, {}
-        for label in labels:
-            try:
-                est = builders[label](nominal, true, train, cal, log.dt)
-            except EstimatorFault as exc:
-                rows[label] = {"fault": f"training: {exc}"}
-                print(f"  {label:<14s} fault while learning the training log: {exc}")
-                continue
-            feed = _ExactGPError.feeder(est, log, sc) if label == "gp-akf/exact" else None
-            hat, rho, kf, times, btimes, fault = _run_one(est, log, feed)
-            err = np.abs(hat - log.tau_h_act[:len(hat)])
-            row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
-                   "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
-                   "mean_abs_error": float(np.mean(err)), "max_abs_error": float(np.max(err)),
-                   "step_time": summarize(times)}
-            row["rho_over_error"] = row["mean_rho"] / max(row["mean_abs_error"], 1e-300)
-            if fault is not None:
-                row["fault_step"], row["fault"] = fault
-                row["valid_fraction"] = len(hat) / len(log)
-            tail = f"step median {1e6 * np.median(times):.0f}, p99 {1e6 * np.percentile(times, 99):.0f}"
-            if btimes is not None:
-                row["bound_time"] = summarize(btimes)
-                row["bound_time_median_us"] = float(1e6 * np.median(btimes))
-                row["bound_time_p99_us"] = float(1e6 * np.percentile(btimes, 99))
-                tail += f"; bound median {row['bound_time_median_us']:.0f}, p99 {row['bound_time_p99_us']:.0f}"
-            tb = getattr(est, "bound", None)
-            if tb is not None:
-                row["gp_box_violations"] = int(tb.gp_box_violations_)
-                if tb.gp_constants:
-                    c = tb.gp_constants[0]
-                    row["gp_beta"] = float(c.sqrt_beta)
-                    row["gp_gamma"] = float(c.gamma)
-                    row["gp_beta_method"] = c.method
-                    tail += f"; beta {c.sqrt_beta:.3g} ({c.method}), box violations {tb.gp_box_violations_}"
-            info = getattr(est, "conformal_info_", None)
-            if info is not None:
-                row["conformal_calibration_pairs"] = int(info[1])
-            tinfo = getattr(est, "torque_info_", None)
-            if tinfo is not None:
-                row["torque_calibration"] = {k: tinfo[k] for k in ("beta", "coverage", "steps", "target")}
-                tail += f"; calibration log covered {tinfo['coverage']:.3f} ({tinfo['steps']} steps)"
-            if fault is not None:
-                tail += (f"; FAULT latched at step {fault[0]} (t = {log.t[fault[0]] - log.t[0]:.2f} s, "
-                         f"{fault[1].split(':')[0]}): figures over the {len(hat)} valid samples")
-            rows[label] = row
-            curves[label] = (hat, rho)
-            print(f"  {label:<14s} {row['coverage_rho']:9.3f} {row['coverage_kf']:9.3f} {row['mean_rho']:9.3f} "
-                  f"{row['mean_kf_bound']:8.3f} {row['mean_abs_error']:8.3f} {row['max_abs_error']:8.3f} "
-                  f"{row['rho_over_error']:8.1f}  {tail}")
-        png = out / f"{name}.png"
-        _plot(png, f"{name}{trained}: estimate ± Theorem-1 bound ρ_k (δ = {delta})", log.t, log.tau_h_act, curves)
-        print(f"  plot: {png}")
-        table[name] = rows
+        table[Path(est_path).stem] = _scenario(args, est_path, train_path, sim_of, gp_betas,
+                                               {label: builders[label] for label in labels}, settings, out)
     (out / "results.json").write_text(json.dumps(table, indent=1))
     print(f"\nresults: {out / 'results.json'}  (cover = fraction of samples with |error| <= bound; "
           f"eq:bounds promises >= 1 - delta where Theorem 1's assumptions hold; KF = the filter's own "
@@ -341,7 +263,92 @@ def run(args) -> int:
     return 0
 
 
+def _scenario(args, est_path, train_path, sim_of, gp_betas, builders: dict, settings, out: Path) -> dict:
+    """One scenario (estimated on ``est_path``'s estimation log, trained on ``train_path``'s
+    training log): every estimator of ``builders`` replayed, its row printed, the plot.
+    Returns label -> row."""
+    sc, sc_train = load_scenario(est_path), load_scenario(train_path)
+    log = sim_of(est_path).estimation
+    train = sim_of(train_path).training
+    cal = None
+    if "conformal" in gp_betas or "torque" in gp_betas:
+        # held-out calibration: the training session again, independent noise (seed + 1000)
+        cal = sim_of(train_path, sc_train.seed + 1000).training
+    name = Path(est_path).stem
+    delta = sc.nominal.estimator.delta
+    nominal = sc.declared(apply_settings(sc.nominal, settings))
+    true = sc.declared(apply_settings(sc.true_config(), settings))
+    trained = "" if train_path == est_path else f", trained on {Path(train_path).stem}"
+    print(f"\nscenario {name}{trained}: {len(log)} samples, delta = {delta}, seed {sc.seed}")
+    if args.als:
+        R, enc, _ = floored_R(nominal, identify_noise(nominal, train))
+        nominal, true = config_with_R(nominal, R), config_with_R(true, R)
+        print(f"  R identified by ALS on the training log ({len(train)} samples): encoder variances "
+              f"{enc}; diag R = {np.array2string(np.diag(R), precision=3)}")
+    print(f"  {'estimator':<14s} {'cover rho':>9s} {'cover KF':>9s} {'mean rho':>9s} {'mean KF':>8s} "
+          f"{'mean|e|':>8s} {'max|e|':>8s} {'rho/|e|':>8s}  step time / bound's share [us]")
+    rows, curves = {}, {}
+    for label, build in builders.items():
+        try:
+            est = build(nominal, true, train, cal, log.dt)
+        except EstimatorFault as exc:
+            rows[label] = {"fault": f"training: {exc}"}
+            print(f"  {label:<14s} fault while learning the training log: {exc}")
+            continue
+        rows[label], curves[label] = _estimator_row(label, est, log, sc)
+    png = out / f"{name}.png"
+    _plot(png, f"{name}{trained}: estimate ± Theorem-1 bound ρ_k (δ = {delta})", log.t, log.tau_h_act, curves)
+    print(f"  plot: {png}")
+    return rows
+
+
+def _estimator_row(label: str, est, log, sc) -> tuple[dict, tuple]:
+    """One estimator replayed over ``log``: its row of results.json (printed) and its curve
+    (estimate, ρ_k)."""
+    feed = _ExactGPError.feeder(est, log, sc) if label == "gp-akf/exact" else None
+    hat, rho, kf, times, btimes, fault = _run_one(est, log, feed)
+    err = np.abs(hat - log.tau_h_act[:len(hat)])
+    row = {"coverage_rho": float(np.mean(err <= rho)), "coverage_kf": float(np.mean(err <= kf)),
+           "mean_rho": float(np.mean(rho)), "mean_kf_bound": float(np.mean(kf)),
+           "mean_abs_error": float(np.mean(err)), "max_abs_error": float(np.max(err)),
+           "step_time": summarize(times)}
+    row["rho_over_error"] = row["mean_rho"] / max(row["mean_abs_error"], 1e-300)
+    if fault is not None:
+        row["fault_step"], row["fault"] = fault
+        row["valid_fraction"] = len(hat) / len(log)
+    tail = f"step median {1e6 * np.median(times):.0f}, p99 {1e6 * np.percentile(times, 99):.0f}"
+    if btimes is not None:
+        row["bound_time"] = summarize(btimes)
+        row["bound_time_median_us"] = float(1e6 * np.median(btimes))
+        row["bound_time_p99_us"] = float(1e6 * np.percentile(btimes, 99))
+        tail += f"; bound median {row['bound_time_median_us']:.0f}, p99 {row['bound_time_p99_us']:.0f}"
+    tb = getattr(est, "bound", None)
+    if tb is not None:
+        row["gp_box_violations"] = int(tb.gp_box_violations_)
+        if tb.gp_constants:
+            c = tb.gp_constants[0]
+            row["gp_beta"] = float(c.sqrt_beta)
+            row["gp_gamma"] = float(c.gamma)
+            row["gp_beta_method"] = c.method
+            tail += f"; beta {c.sqrt_beta:.3g} ({c.method}), box violations {tb.gp_box_violations_}"
+    info = getattr(est, "conformal_info_", None)
+    if info is not None:
+        row["conformal_calibration_pairs"] = int(info[1])
+    tinfo = getattr(est, "torque_info_", None)
+    if tinfo is not None:
+        row["torque_calibration"] = {k: tinfo[k] for k in ("beta", "coverage", "steps", "target")}
+        tail += f"; calibration log covered {tinfo['coverage']:.3f} ({tinfo['steps']} steps)"
+    if fault is not None:
+        tail += (f"; FAULT latched at step {fault[0]} (t = {log.t[fault[0]] - log.t[0]:.2f} s, "
+                 f"{fault[1].split(':')[0]}): figures over the {len(hat)} valid samples")
+    print(f"  {label:<14s} {row['coverage_rho']:9.3f} {row['coverage_kf']:9.3f} {row['mean_rho']:9.3f} "
+          f"{row['mean_kf_bound']:8.3f} {row['mean_abs_error']:8.3f} {row['max_abs_error']:8.3f} "
+          f"{row['rho_over_error']:8.1f}  {tail}")
+    return row, (hat, rho)
+
+
 def _plot(path: Path, title: str, t, truth, curves) -> None:
+    # local: matplotlib takes ~0.5 s to import and its backend is a process-wide choice, made here
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

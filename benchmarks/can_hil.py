@@ -14,6 +14,12 @@ import time
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.replay import replay
+from sea_daemon.io.configfile import data_root
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.hil_session import run_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
 NAME = "can-hil"
 HELP = "offline simulator vs the same scenarios through the CAN stack (AKF RMSE, tracking, cycle time)"
@@ -24,14 +30,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.runtime.hil_session import run_scenario
-
-    from sea_daemon.io.configfile import data_root
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.core.replay import replay
-    from sea_daemon.runtime.sim_runner import simulate
-    from sea_daemon.io.scenario import load_scenario
-
     def rms(x):
         return float(np.sqrt(np.mean(np.square(x))))
 

@@ -11,10 +11,15 @@ not reach are reported as not measured (no extrapolation).
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
+from sea_daemon.core.config import LearningConfig
+from sea_daemon.core.gp.hyper import AdamHyper
+from sea_daemon.core.gp.loggp import LoGGP
+from sea_daemon.errors import InputError
 
 NAME = "loggp"
 HELP = "LoG-GP update/predict latency and memory vs lgrt4gps at 1e3..1e6 points"
@@ -70,7 +75,6 @@ class _Ours:
     name = "sea_daemon LoGGP"
 
     def __init__(self, d, max_points, overlap, max_leaves, seed):
-        from sea_daemon.core.gp.loggp import LoGGP
         self.m = LoGGP(d, max_points, max_leaves=max_leaves, overlap=overlap,
                        lengthscales=[0.3, 1.0, 5.0], sigma_f=1.0, sigma_n=0.05, seed=seed)
 
@@ -88,8 +92,7 @@ class _Lgrt:
     name = "lgrt4gps LGRTN"
 
     def __init__(self, d, max_points, overlap, Z, Y):
-        import warnings
-
+        # local: lgrt4gps is optional (the bench extra), needed only when it is compared
         from lgrt4gps.lgrtn import LGRTN
         warnings.filterwarnings("ignore", module="lgrt4gps")
         self.m = LGRTN(d, 1, max_pts=max_points, div_method="center",
@@ -123,8 +126,6 @@ def _time(fn, Z, Y, idx) -> tuple[np.ndarray, np.ndarray]:
 
 def _time_slices(m, max_points: int, count: int = 200) -> dict | None:
     """Cost of the two phases of a hyperparameter slice on the fullest leaves of ``m``."""
-    from sea_daemon.core.gp.hyper import AdamHyper
-
     min_n = int(0.9 * max_points)
     leaves = [m.leaf(i) for i in m.leaves() if m.leaf(i).n_ >= min_n][:count]
     if not leaves:
@@ -150,9 +151,6 @@ def _time_slices(m, max_points: int, count: int = 200) -> dict | None:
 
 
 def run(args) -> int:
-    from sea_daemon.core.config import LearningConfig
-    from sea_daemon.errors import InputError
-
     sizes = sorted({int(s) for s in args.sizes})
     window, budget = args.window, args.lgrt_budget
     if args.quick:
@@ -179,6 +177,7 @@ def run(args) -> int:
     runners = [("ours", lambda: _Ours(3, args.max_points, overlap, max_leaves, args.seed))]
     if not args.no_lgrt:
         try:
+            # local: lgrt4gps is optional (the bench extra); without it the comparison is skipped
             import lgrt4gps  # noqa: F401
             runners.append(("lgrt", lambda: _Lgrt(3, args.max_points, overlap, Z, Y)))
         except ImportError:
@@ -186,44 +185,58 @@ def run(args) -> int:
 
     for key, make in runners:
         model = make()
-        res = results[key] = {}
-        start = time.perf_counter()
-        filled = 0
-        stopped = None
-        for c in sizes:
-            # untimed fill up to the window before the checkpoint
-            while filled < c - window:
-                model.update(Z[filled], Y[filled], filled)
-                filled += 1
-                if key == "lgrt" and filled % 200 == 0 and time.perf_counter() - start > budget:
-                    stopped = filled
-                    break
-            if stopped is not None:
-                break
-            tu, _ = _time(model.update, Z, Y, range(filled, c))
-            filled = c
-            tp, mu = _time(model.predict, Z, None, range(c, c + window))
-            row = {"update": tu, "predict": tp,
-                   "rmse": float(np.sqrt(np.mean((mu - f_true[c:c + window]) ** 2)))}
-            if hasattr(model, "predict_grad"):
-                row["predict_grad"] = _time(model.predict_grad, Z, None, range(c, c + window))[0]
-                m = model.m
-                row["leaves"], row["depth"], row["bytes"] = m.n_leaves, m.depth, m.memory_bytes()
-                row["route"] = float(np.mean([len(m.route(Z[i]))
-                                              for i in range(c, c + window)]))
-            res[c] = row
-            el = time.perf_counter() - start
-            print(f"  [{model.name}] reached {c} points after {el:.1f} s", flush=True)
-            if key == "lgrt" and el > budget and c != sizes[-1]:
-                stopped = c
-                break
+        results[key] = _checkpoints(key, model, sizes, window, budget, Z, Y, f_true)
         if key == "ours":
             results["slices"] = _time_slices(model.m, args.max_points)
-        if stopped is not None:
-            print(f"  [{model.name}] stopped at {stopped} points: wall-time budget {budget:.0f} s "
-                  f"spent; larger checkpoints NOT measured")
 
     print()
+    _print_results(results, sizes)
+    return 0
+
+
+def _checkpoints(key: str, model, sizes: list, window: int, budget: float, Z, Y, f_true) -> dict:
+    """``model`` filled with the stream (Z, Y) up to each checkpoint of ``sizes``, the ``window``
+    updates before and predictions after each timed; lgrt4gps (``key`` 'lgrt') stops when its
+    wall-time ``budget`` is spent.  Returns checkpoint -> figures."""
+    res = {}
+    start = time.perf_counter()
+    filled = 0
+    stopped = None
+    for c in sizes:
+        # untimed fill up to the window before the checkpoint
+        while filled < c - window:
+            model.update(Z[filled], Y[filled], filled)
+            filled += 1
+            if key == "lgrt" and filled % 200 == 0 and time.perf_counter() - start > budget:
+                stopped = filled
+                break
+        if stopped is not None:
+            break
+        tu, _ = _time(model.update, Z, Y, range(filled, c))
+        filled = c
+        tp, mu = _time(model.predict, Z, None, range(c, c + window))
+        row = {"update": tu, "predict": tp,
+               "rmse": float(np.sqrt(np.mean((mu - f_true[c:c + window]) ** 2)))}
+        if hasattr(model, "predict_grad"):
+            row["predict_grad"] = _time(model.predict_grad, Z, None, range(c, c + window))[0]
+            m = model.m
+            row["leaves"], row["depth"], row["bytes"] = m.n_leaves, m.depth, m.memory_bytes()
+            row["route"] = float(np.mean([len(m.route(Z[i]))
+                                          for i in range(c, c + window)]))
+        res[c] = row
+        el = time.perf_counter() - start
+        print(f"  [{model.name}] reached {c} points after {el:.1f} s", flush=True)
+        if key == "lgrt" and el > budget and c != sizes[-1]:
+            stopped = c
+            break
+    if stopped is not None:
+        print(f"  [{model.name}] stopped at {stopped} points: wall-time budget {budget:.0f} s "
+              f"spent; larger checkpoints NOT measured")
+    return res
+
+
+def _print_results(results: dict, sizes: list) -> None:
+    """The slices' cost and, per checkpoint, both models' figures and their ratio."""
     sl = results.get("slices")
     if sl:
         print(f"hyperparameter slice on {sl['n']} leaves holding >= {sl['min_n']} points "
@@ -256,8 +269,6 @@ def run(args) -> int:
         if o:
             step = np.median(o["update"]) + np.median(o["predict_grad"])
             print(f"  LoG-GP predict_with_grad + update, sum of medians: {step * 1e6:.1f} us")
-    return 0
-
 
 if __name__ == "__main__":
     import sys

@@ -4,6 +4,9 @@ from __future__ import annotations
 import time
 
 from sea_daemon.apps.bench import machine, summarize
+from sea_daemon.io.configfile import data_root
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
 NAME = "sim"
 HELP = "simulator speed: wall time per scenario and per 10 ms sample (real-time factor)"
@@ -14,10 +17,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.io.configfile import data_root
-    from sea_daemon.runtime.sim_runner import simulate
-    from sea_daemon.io.scenario import load_scenario
-
     print(f"machine: {machine()}")
     for name in ("passive", "active"):
         sc = load_scenario(data_root() / "configs" / "scenarios" / f"{name}.yaml")

@@ -21,8 +21,43 @@ def shown(value, limit: int = 120) -> str:
     return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
+class Fault(enum.IntEnum):
+    """The fault codes of the daemon's single fault policy (:mod:`sea_daemon.runtime.safety`):
+    every exception of the hierarchy below carries one as ``.fault``; the log's ``fault`` column
+    and the published frames hold the code latched (docs/interfaces.md §1, §6)."""
+
+    NONE = 0
+    TPDO_MISSING = 1
+    HEARTBEAT_LOST = 2
+    EMCY = 3
+    ENCODER_JUMP = 4
+    ENCODER_STUCK = 5
+    BUS_OFF = 6
+    SEND_FAILED = 7
+    ESTIMATOR_NONFINITE = 8
+    COVARIANCE_NOT_PD = 9
+    NIS_DIVERGENCE = 10
+    OVERRUN_STREAK = 11
+    DEVICE_FAULT = 12          # drive reports CiA 402 fault state
+    INTERNAL = 13              # an unexpected exception in the loop
+    LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)
+    INNOVATION_OUTLIER = 15    # assist mode: one step's normalised innovation beyond assist.innovation_max
+    BOUND_LOST = 16            # the bound worker died, or fell a whole ring of samples behind
+
+    @property
+    def bit(self) -> int:
+        """This code's bit in a set of codes seen in one cycle
+        (:attr:`sea_daemon.hw.interface.Measurement.faults`): ``1 << code``."""
+        return 1 << self.value
+
+
 class SeaDaemonError(Exception):
-    """Base class of every error raised on purpose by sea-daemon."""
+    """Base class of every error raised on purpose by sea-daemon.
+
+    ``fault``: the :class:`Fault` it stands for when it stops the fixed-rate loop (a class
+    attribute; :class:`EstimatorFault` also takes it as a constructor field)."""
+
+    fault: Fault = Fault.INTERNAL
 
 
 class InputError(SeaDaemonError):
@@ -51,11 +86,25 @@ class ModelFileError(InputError):
 
 
 class EstimatorFault(SeaDaemonError):
-    """The estimator lost numerical health (NaN/inf, covariance not positive definite)."""
+    """The estimator lost numerical health (NaN/inf, covariance not positive definite).
+
+    ``fault``: the code (default :attr:`Fault.ESTIMATOR_NONFINITE`, a subclass's own otherwise),
+    e.g. ``EstimatorFault(msg, fault=Fault.COVARIANCE_NOT_PD)``; a wrapping fault passes on the
+    wrapped one's."""
+
+    fault: Fault = Fault.ESTIMATOR_NONFINITE
+
+    def __init__(self, *args, fault: Fault | None = None):
+        super().__init__(*args)
+        if fault is not None:
+            self.fault = Fault(fault)
 
 
 class HardwareError(SeaDaemonError):
-    """Base of faults raised by the hardware layer (``sea_daemon.hw``)."""
+    """Base of faults raised by the hardware layer (``sea_daemon.hw``); each class carries its
+    own ``fault`` (:mod:`sea_daemon.hw.errors`), a device fault by default."""
+
+    fault: Fault = Fault.DEVICE_FAULT
 
 
 class RunFault(SeaDaemonError):
@@ -63,23 +112,7 @@ class RunFault(SeaDaemonError):
     did what its safety policy says, the job could not finish.  CLI exit status 1, one line."""
 
 
-#: The fault codes of the daemon's single fault policy (:mod:`sea_daemon.runtime.safety`): every
-#: estimator and hardware exception carries one as ``.fault``; the log's ``fault`` column holds it.
-class Fault(enum.IntEnum):
-    NONE = 0
-    TPDO_MISSING = 1
-    HEARTBEAT_LOST = 2
-    EMCY = 3
-    ENCODER_JUMP = 4
-    ENCODER_STUCK = 5
-    BUS_OFF = 6
-    SEND_FAILED = 7
-    ESTIMATOR_NONFINITE = 8
-    COVARIANCE_NOT_PD = 9
-    NIS_DIVERGENCE = 10
-    OVERRUN_STREAK = 11
-    DEVICE_FAULT = 12          # drive reports CiA 402 fault state
-    INTERNAL = 13              # an unexpected exception in the loop
-    LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)
-    INNOVATION_OUTLIER = 15    # assist mode: one step's normalised innovation beyond assist.innovation_max
-    BOUND_LOST = 16            # the bound worker died, or fell a whole ring of samples behind
+def fault_of(exc: BaseException) -> Fault:
+    """The fault an exception raised in a cycle stands for: its ``fault`` for an exception of
+    this hierarchy, :attr:`Fault.INTERNAL` for anything else (an unexpected exception)."""
+    return exc.fault if isinstance(exc, SeaDaemonError) else Fault.INTERNAL

@@ -4,6 +4,7 @@ import pytest
 
 from sea_daemon.core import learning
 from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
+from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.bounds.gp_bound import BoundConstants
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.config import ModelConfig
@@ -124,8 +125,8 @@ def test_phi_shortcut_matches_expm():
     akf.update(np.array([0.31]), np.array([0.295]), np.array([0.1]))
     b = np.array([0, 0, 0, 1.0, 0])
     full = discretize(akf.A_k, np.eye(5), akf.dt)[1]
-    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
-    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt), full)
+    np.testing.assert_allclose(tb._phi(akf.A_k, b, akf.dt, akf.Gamma_mu)[:, 3], full[:, 3], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(tb._phi(akf.A_k, np.ones(5), akf.dt, akf.Gamma_mu), full)
 
 
 def _residual(learning, cfg, noise: float = 0.0):
@@ -462,7 +463,7 @@ def _friction_cfg(side: str = "load"):
 
 
 def test_friction_range_contains_the_friction_torque_over_the_interval():
-    """_friction_range is interval arithmetic: every value of τ_g on [lo, hi] (dense samples) lies
+    """FrictionRange.range is interval arithmetic: every value of τ_g on [lo, hi] (dense samples) lies
     in [L, U] — for a Stribeck term of either sign, and for one with its own ε — and the interval
     is not vacuous: on average within 0.1 N m of the sampled range (F_c + |F_s| = 0.7 N m)."""
     from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate
@@ -473,7 +474,7 @@ def test_friction_range_contains_the_friction_torque_over_the_interval():
         for _ in range(200):
             c, r = rng.normal(0.0, 0.05), abs(rng.normal(0.0, 0.03))
             lo, hi = c - r, c + r
-            L, U = AKFTheoremBound._friction_range(effs, lo, hi)
+            L, U = FrictionRange.range(effs, lo, hi)
             v = np.linspace(lo, hi, 4001)
             tau = np.array([sum(evaluate(code, p, 0.0, vv, 0.0)[0] for code, p in effs) for vv in v])
             assert L <= tau.min() + 1e-12 and tau.max() <= U + 1e-12
@@ -493,12 +494,12 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     log = simulate(model, T=1.0, seed=2)
     akf = AKF(cfg)
     tb = with_bound(akf)
-    assert len(tb._fric) == 1
+    assert len(tb.friction.groups) == 1
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     for k in range(1, 40):
         akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-    x0, P0, u, dt = akf._x_prev.copy(), akf._P_prev.copy(), np.asarray(log.tau_m[39], float), 0.01
-    side_, ell, c, effs = tb._fric[0]
+    x0, P0, u, dt = akf.record.x_prev.copy(), akf.record.P_prev.copy(), np.asarray(log.tau_m[39], float), 0.01
+    side_, ell, c, effs = tb.friction.groups[0]
     x0[2:4] = 0.0                        # the friction's velocity at 0, where its slope is steepest
     # the filter's step from there: A_k, F_k = e^{A dt}, Γ_μ = Φ I_μ M⁻¹
     akf.A_k[:] = model.F_nom(x0, u)
@@ -507,9 +508,10 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
     akf.Gamma_mu[:] = Phi @ model.I_mu @ model.Minv
     C = tb.sm.confidence_set(x0, P0)
     pts = tb.sm.sample_points(C)
-    dF, GamF, w, b_s, _, b = tb._friction_candidate(x0, u, P0, pts, akf.A_k.copy(), dt)
+    dF, GamF, w, b_s, _, b = tb.friction.candidate(x0, u, P0, pts, akf.A_k.copy(), dt, akf.A_k, akf.Gamma_mu,
+                                                  tb.sm, tb._phi)
     # the one-pass boxes are the filter-slope box and the box of the model without friction
-    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf._tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
+    np.testing.assert_allclose(b, (1 + tb.sm.margin) * akf.tables.lin_error_box(pts, u, x0, akf.A_k), rtol=1e-12)
     FB = akf.F_k + dF
     from sea_daemon.core.effects import evaluate
     tau_g = lambda v: sum(evaluate(code, p, 0.0, v, 0.0)[0] for code, p in effs)
@@ -558,7 +560,7 @@ def test_friction_range_keeps_the_bound_valid_and_finite_at_standstill():
         akf = AKF(cfg)
         tb = with_bound(akf)
         if not use_range:
-            tb._fric = []
+            tb.friction.groups = []
         out = run(akf, log)
         e = np.abs(out[1:, 0] - log.tau_h_act[1:, 0])
         res[use_range] = (out[1:, 1], e, tb.range_steps_)

@@ -13,7 +13,7 @@ from sea_daemon.core.config import AssistConfig, ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.errors import ConfigError, Fault
 from sea_daemon.io.configfile import default_config_path, load_yaml
-from sea_daemon.runtime.loop import fault_of
+from sea_daemon.errors import fault_of
 
 
 def cfg_with(assist: dict | None = None, torque_limit: float = 10.0) -> ModelConfig:

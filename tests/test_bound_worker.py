@@ -17,10 +17,13 @@ import pytest
 from sea_daemon.errors import Fault
 from sea_daemon.io.configfile import default_config_path, load_config
 from _paths import repo_root
+from sea_daemon.core.estimators.record import RESET, StepRecord
+from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime import bound_worker as bw
 from sea_daemon.runtime.bound_worker import BoundWorker
 from sea_daemon.runtime.counts import CountReader
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from test_loop import ListLog
 
 COLS = log_columns(1)
@@ -160,6 +163,8 @@ _ORPHAN = """
 import os, sys, numpy as np
 sys.path.insert(0, {root!r}); sys.path.insert(0, {tests!r})
 from test_bound_worker import _estimator, load_config, default_config_path, replace
+from sea_daemon.core.estimators.record import RESET, StepRecord
+from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime import bound_worker as bw
 from sea_daemon.runtime.bound_worker import BoundWorker
 c = load_config(default_config_path()); c = replace(c, learning=replace(c.learning, max_points=40))
@@ -186,13 +191,13 @@ def test_no_worker_outlives_its_parent_or_the_session(cfg):
     while _alive(pid) and time.monotonic() < end:
         time.sleep(0.05)
     assert not _alive(pid)
-    # closed by its owner: gone, and the AKF has its own bound back
+    # closed by its owner: gone, and the AKF computes its own bound again
     est = _estimator(cfg)
     bound = est.bound
     w = BoundWorker(est).start()
-    assert est.bound is w and _alive(w.pid)
+    assert est.consumer is w and est.bound is bound and _alive(w.pid)
     w.close()
-    assert not _alive(w.pid) and est.bound is bound
+    assert not _alive(w.pid) and est.consumer is None and est.bound is bound
 
 
 # ---------------------------------------------------------------- the pipes' framing and order
@@ -230,18 +235,19 @@ def test_a_count_split_across_two_reads_is_completed_by_the_second():
 def _hand(link: BoundWorker, est, cycle: int) -> None:
     """The loop's estimator step with a bound worker: the sample of ``cycle`` handed over, the
     newest result collected into ``est``."""
-    akf = link.akf
+    rec = StepRecord.zeros(link.akf.n)
+    rec.dt = 0.01
     link.cycle = cycle
-    link.step(est, np.zeros(akf.d), np.eye(akf.d), np.zeros(akf.n), 0.01)
+    link.take(est, rec)
 
 
-def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bw.OK, epoch: int = 0) -> None:
+def _result(link: BoundWorker, i: int, cycle: int, rho: float, status=bs.OK, epoch: int = 0) -> None:
     """Sample i's result in shared memory, as the worker writes it."""
     r = link._res[i % link.capacity]
-    r[bw._RSEQ], r[bw._RCYC], r[bw._RK], r[bw._RVALID] = i, cycle, i, 1.0
-    r[bw._RSTATUS], r[bw._REPOCH] = status, epoch
-    r[bw._NRES:] = rho
-    link._hdr[bw._DONE] = i + 1
+    r[bs.R_SEQ], r[bs.R_CYC], r[bs.R_K], r[bs.R_VALID] = i, cycle, i, 1.0
+    r[bs.R_STATUS], r[bs.R_EPOCH] = status, epoch
+    r[bs.N_RES:] = rho
+    link._hdr[bs.H_DONE] = i + 1
 
 
 def test_the_loop_takes_a_result_only_once_its_count_came_through_the_pipe(cfg):
@@ -276,11 +282,11 @@ def test_with_counts_in_shared_memory_the_loop_takes_a_result_once_the_count_is_
         e = types.SimpleNamespace(tau_h_act_bound=np.zeros(1), k=0)
         _hand(link, e, 7)                                    # sample 0
         _result(link, 0, 7, 1.25)                            # complete, its count not stored yet
-        link._hdr[bw._DONE] = 0
+        link._hdr[bs.H_DONE] = 0
         link.cycle = 8
         link._collect(e)
         assert link.bound_cycle == -1 and not link.valid and e.tau_h_act_bound[0] == 0.0
-        link._hdr[bw._DONE] = 1                              # the worker's store after the result, no pipe
+        link._hdr[bs.H_DONE] = 1                              # the worker's store after the result, no pipe
         link._collect(e)
         assert link.bound_cycle == 7 and link.valid and e.tau_h_act_bound[0] == 1.25
         assert link.stats()["counts"] == "memory"
@@ -303,13 +309,15 @@ def test_a_full_ring_breaks_the_bound_until_the_reset_and_the_old_chain_is_never
         link.cycle = 5
         link._collect(e)
         assert link._done == 3 and link.bound_cycle == -1   # broken: nothing published
-        link.reset(e)                                        # a new chain: sample 4 its reset
+        rec = StepRecord.zeros(1)
+        rec.kind = RESET
+        link.take(e, rec)                                    # a new chain: sample 4 its reset
         assert not link.broken and link._head == 5
         _result(link, 3, 3, 4.0)                             # the old chain's last sample, after the reset
         os.write(link._counts_w, _i64(4))
         _hand(link, e, 6)                                    # sample 5
         assert link._done == 4 and link.bound_cycle == -1 and e.tau_h_act_bound[0] == 0.0
-        _result(link, 4, 5, 0.0, status=bw.NO_BOUND, epoch=1)
+        _result(link, 4, 5, 0.0, status=bs.NO_BOUND, epoch=1)
         _result(link, 5, 6, 2.5, epoch=1)
         os.write(link._counts_w, _i64(5) + _i64(6))
         link.cycle = 7
@@ -375,10 +383,10 @@ def test_a_full_count_pipe_blocks_neither_side_and_the_newest_count_comes_later(
                 link._collect = lambda est: None             # the loop stops reading
         link.flush()
         end = time.monotonic() + 60
-        while link._hdr[bw._DONE] < link._head and time.monotonic() < end:
+        while link._hdr[bs.H_DONE] < link._head and time.monotonic() < end:
             time.sleep(0.01)
         del link._collect
-        return int(link._hdr[bw._DONE])
+        return int(link._hdr[bs.H_DONE])
 
     try:
         h = batch()

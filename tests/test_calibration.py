@@ -24,7 +24,6 @@ from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.excitation import Coverage, WorkingRange, excitation, paper_moves
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
-from sea_daemon.core.model_core import ModelTables
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault
@@ -41,45 +40,6 @@ HIDDEN = [make_effect("inertia", "load", dI=0.04), make_effect("gravity", "load"
 def _rmse(log, est):
     r = replay(log, est)
     return float(np.sqrt(np.mean((r.tau_h_act_hat - log.tau_h_act) ** 2)))
-
-
-# ------------------------------------------------------------------ compiled model with effects
-
-
-@pytest.mark.parametrize("n", [1, 2])
-def test_compiled_effects_equal_the_model(n):
-    rng = np.random.default_rng(n)
-    I = np.eye(n)
-    eff = []
-    for j in range(n):
-        eff += [make_effect("coulomb", "load", j, F_c=0.3), make_effect("stribeck", "load", j, F_s=0.2, v_s=0.05),
-                make_effect("gravity", "load", j, a=1.2, phi=0.1),
-                make_effect("human_viscoelastic", "load", j, k_h=2.0, q_h0=1.0, b_h=0.3),
-                make_effect("viscous", "motor", j, b=0.1), make_effect("coulomb", "motor", j, F_c=0.05),
-                make_effect("cogging", "motor", j, A=0.02, periods=3.0, phi=0.2),
-                make_effect("spring_cubic", "spring", j, k3=100.0),
-                make_effect("spring_saturation", "spring", j, theta_max=0.03, k_stop=300.0),
-                make_effect("spring_backlash", "spring", j, width=0.002), make_effect("torque_scale", "motor", j, kappa=0.9),
-                make_effect("inertia", "load", j, dI=0.03)]
-    p = SEAParams(M=I * 0.12 + 0.01 * (1 - I), J=I * 0.08, D_m=I * 0.6, K_s=I * 110 + 5 * (1 - I), D_s=I * 0.25,
-                  gravity=np.full(n, 2.9), effects=tuple(eff))
-    m = SEAModel(p, sign_eps=0.01)
-    t = ModelTables(m)
-    for _ in range(50):
-        x = rng.normal(size=5 * n) * np.repeat([0.5, 0.04, 0.5, 0.2, 1.0], n)
-        u = rng.normal(size=n)
-        A, xd = np.zeros((5 * n, 5 * n)), np.zeros(5 * n)
-        t.f_and_F(x, u, A, xd)
-        assert np.allclose(A, m.F_nom(x, u), rtol=1e-12, atol=1e-9)
-        assert np.allclose(xd, m.f_nom(x, u), rtol=1e-12, atol=1e-9)
-        k = [rng.normal(size=n) for _ in range(7)]
-        out = np.zeros(n)
-        t.residual(*k, out)
-        assert np.allclose(out, m.residual_from_kinematics(*k), rtol=1e-12, atol=1e-10)
-        X = x + rng.normal(size=(7, 5 * n)) * 0.01
-        b = t.lin_error_box(X, u, x, A)
-        ref = np.max([np.abs(m.f_nom(xx, u) - xd - A @ (xx - x)) for xx in X], axis=0)
-        assert np.allclose(b, ref, rtol=1e-9, atol=1e-12)
 
 
 # ------------------------------------------------------------------ excitation and coverage

@@ -16,7 +16,7 @@ from sea_daemon.apps.cli import main
 from sea_daemon.io.configfile import load_config
 from _paths import repo_root
 from sea_daemon.io.gpmodel import load_gp_model
-from sea_daemon.runtime.loop import log_columns
+from sea_daemon.core.log import log_columns
 from sea_daemon.io.logcsv import read_log
 
 ROOT = repo_root()

@@ -26,7 +26,7 @@ def test_torque_reaches_plant_and_positions_come_back(make_rig, sync_rpdo):
         # the TPDOs of SYNC k show the plant at t_k (the model steps before it samples)
         assert plant.q[0] - Q <= m.q[0] <= plant.q[0] + 1e-15
         assert plant.theta_m[0] - QM <= m.theta_m[0] <= plant.theta_m[0] + 1e-15
-        assert m.t == pytest.approx((k + 1) * 0.01) and m.valid and m.faults == 0
+        assert m.t == pytest.approx((k + 1) * 0.01) and m.valid and m.faults == 0 and not m.late
         assert len(plant.steps) == k + 1
         hw.write(np.array([tau]))
     for _ in range(2):

@@ -12,7 +12,6 @@ from sea_daemon.hw import cia402
 from sea_daemon.hw.device_model import FaultSpec
 from sea_daemon.hw.errors import (
     BusOff, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost, PdoTimeout, SendFailed)
-from sea_daemon.hw.interface import FaultFlag
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.errors import Fault
@@ -42,22 +41,22 @@ def test_missed_cycles_tolerated_up_to_the_limit(make_rig):
     rig.device_model.inject(FaultSpec("drop", target="drive", params={"count": 3}))
     for _ in range(2):
         m = rig.hw.read()
-        assert not m.valid and m.faults & FaultFlag.PDO_MISSING
+        assert not m.valid and m.saw(Fault.TPDO_MISSING)
         assert np.array_equal(m.q, q_before)                      # values held
     with pytest.raises(PdoTimeout, match=r"node 1: TPDO 0x181 .* 3 consecutive"):
         rig.hw.read()
     m = rig.hw.read()                                             # frames flow again
-    assert m.valid and m.faults == 0
+    assert m.valid and m.faults == 0 and not m.late
 
 
 def test_delayed_frame_is_missing_then_flagged_late(make_rig):
     rig = started(make_rig, max_missed_cycles=1)
     rig.device_model.inject(FaultSpec("delay", target="drive", params={"count": 1, "seconds": 0.5}))
     m = rig.hw.read()                                              # waits 0.3 s
-    assert not m.valid and m.faults & FaultFlag.PDO_MISSING
+    assert not m.valid and m.saw(Fault.TPDO_MISSING)
     time.sleep(0.5)                                                # the late frame lands between cycles
     m = rig.hw.read()
-    assert m.valid and m.faults & FaultFlag.FRAME_LATE
+    assert m.valid and m.late
 
 
 def test_stuck_encoder(make_rig):
@@ -221,7 +220,7 @@ def test_after_safe_stop_reads_go_on_with_zero_torque(make_rig):
     rig.hw.safe_stop()
     m = rig.hw.read()
     assert rig.drive.sm.state is cia402.State.QUICK_STOP_ACTIVE
-    assert m.valid and m.faults & FaultFlag.DRIVE_STATE            # flagged, not raised: it was asked for
+    assert m.valid and m.saw(Fault.DEVICE_FAULT)            # flagged, not raised: it was asked for
     rig.hw.write(np.array([3.0]))
     rig.hw.read()
     assert rig.drive.applied_permille == 0
@@ -229,7 +228,7 @@ def test_after_safe_stop_reads_go_on_with_zero_torque(make_rig):
     rig.hw.write(np.array([3.0]))
     rig.hw.read()
     m = rig.hw.read()
-    assert m.faults == 0 and rig.drive.applied_permille == 300
+    assert m.faults == 0 and not m.late and rig.drive.applied_permille == 300
 
 
 def test_drive_quick_stops_when_the_daemon_goes_silent(make_rig):

@@ -77,14 +77,13 @@ def test_demo_refuses_a_calibration_session_too_short_for_diagnose(tmp_path, cap
 def test_a_demo_step_stopped_by_a_fault_is_a_typed_fault_not_an_internal_error(monkeypatch, capsys):
     # a step of the demo (calibrate/run) that ends with a latched fault (exit 1, e.g. a TPDO
     # timeout on a loaded machine) stops the demo with exit 1 and one line naming the fault
-    import sea_daemon.apps.commands as commands
     from sea_daemon.apps.commands import demo, guarded
     from sea_daemon.errors import RunFault
 
     def step(argv):
         print('{"fault": "TPDO_MISSING"}')
         return 1
-    monkeypatch.setattr(commands, "main", step)
+    monkeypatch.setattr(demo, "main", step)
     with pytest.raises(RunFault, match="calibrate stopped with exit status 1 \\(TPDO_MISSING\\)"):
         demo._daemon(["calibrate"])
     assert guarded("sea-daemon demo", lambda a: demo._daemon(["calibrate"]), None) == 1

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sea_daemon.io.configfile import default_config_path, load_config
-from sea_daemon.runtime.loop import fault_of
+from sea_daemon.errors import fault_of
 from sea_daemon.errors import Fault
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.estimators.akf import AKF

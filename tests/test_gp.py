@@ -154,3 +154,24 @@ def test_lml_of_the_oldest_points_uses_the_leading_factor_block():
     lml, g = gp.log_marginal_likelihood(points=25)
     lml2, g2 = log_marginal_likelihood(X[:25], y[:25], SF, L_TRUE, SN)
     assert lml == pytest.approx(lml2, rel=1e-9) and np.allclose(g, g2, rtol=1e-7, atol=1e-8)
+
+
+def test_fit_about_a_given_centre_and_the_read_only_hyperparameter_views():
+    """``fit(X, y, center)`` factorises about that centre (as a model rebuilt from a snapshot
+    must, to predict to the last bit as the saved one); ``sf2`` and ``il2`` are σ_f² and 1/l²
+    and cannot be written through."""
+    X, y = _data(n=30)
+    a = IncrementalGP(3, SF, L_TRUE, SN).fit(X[5:], y[5:])
+    for x in X[:5]:
+        a.add(x, 0.0)                                  # centre stays the first point fitted
+    b = IncrementalGP(3, SF, L_TRUE, SN).fit(a.X_[:a.n_], a.y_[:a.n_], a.center_)
+    assert np.array_equal(b.center_, X[5])
+    x = np.array([0.1, 0.2, 0.3])
+    assert b.predict(x) == pytest.approx(a.predict(x), rel=1e-12)
+    back = IncrementalGP.from_dict(a.to_dict())          # rebuilt about the saved centre
+    assert np.array_equal(back.center_, X[5]) and back.predict(x) == b.predict(x)
+    assert np.array_equal(back.ap_[:465], b.ap_[:465])
+    assert b.sf2 == SF ** 2
+    np.testing.assert_allclose(b.il2, 1.0 / np.asarray(L_TRUE, dtype=float) ** 2, rtol=1e-15)
+    with pytest.raises(ValueError):
+        b.il2[0] = 1.0

@@ -119,7 +119,7 @@ def _step_at(est, log, k):
         est.update(log.q[i], log.theta_m[i], log.tau_m[i])
     x, P = est.x.copy(), est.P.copy()
     est.update(log.q[k], log.theta_m[k], log.tau_m[k])
-    return x, P, est.u_applied.copy() if est._has_delay else log.tau_m[k - 1].copy(), est.z.copy()
+    return x, P, est.u_applied.copy() if est.has_delay else log.tau_m[k - 1].copy(), est.z.copy()
 
 
 def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passive, trained):

@@ -100,3 +100,23 @@ def test_smooth_derivatives_zero_phase():
     np.testing.assert_allclose(ang[k], x[k], atol=1e-4)
     a1, v1, _ = smooth_derivatives(t[:4], np.sin(w * t[:4]))
     assert v1.shape == (4,)
+
+
+def test_public_ring_state_and_forget():
+    """The ring's public state is what :func:`fir_push` reads and writes; ``forget`` makes the
+    next update prime the buffer again (velocity 0)."""
+    from sea_daemon.core.kinematics import fir_push
+    d = CausalDifferentiator(DT, 5, n=2)
+    for k in range(10):
+        d.update(np.array([k * DT, -k * DT]))
+    assert d.primed and d.buf.shape == (2 * d.L, 2) and d.out.shape == (3, 2)
+    buf, head, out = d.buf.copy(), d.head, d.out.copy()
+    a = np.array([10 * DT, -10 * DT])
+    h = fir_push(buf, head, d.C, a, out)
+    ang, vel, acc = d.update(a)
+    assert h == d.head and np.array_equal(buf, d.buf) and np.array_equal(out, d.out)
+    np.testing.assert_allclose(vel, [1.0, -1.0])
+    d.forget()
+    assert not d.primed
+    _, vel, _ = d.update(np.array([5.0, 5.0]))
+    assert d.primed and np.array_equal(vel, [0.0, 0.0])

@@ -222,9 +222,9 @@ def test_hyper_slice_runs_in_two_phases_on_consecutive_updates():
         gp.update(xi, yi)
     theta0 = gp.leaf(0).log_theta
     gp.update(X[19], y[19])                          # 20th update: phase 1 (propose)
-    assert gp._pending is not None and np.array_equal(gp.leaf(0).log_theta, theta0)
+    assert gp.hyper_proposal is not None and np.array_equal(gp.leaf(0).log_theta, theta0)
     gp.update(X[20], y[20])                          # 21st: phase 2 (swap in, rebuilt)
-    assert gp._pending is None and not np.array_equal(gp.leaf(0).log_theta, theta0)
+    assert gp.hyper_proposal is None and not np.array_equal(gp.leaf(0).log_theta, theta0)
     ref = IncrementalGP(3, *(lambda t: (np.exp(t[0]), np.exp(t[1:4]), np.exp(t[4])))(gp.leaf(0).log_theta))
     ref.fit(X[:21], y[:21])
     assert gp.predict(X[30]) == pytest.approx(ref.predict(X[30]), rel=1e-8)
@@ -366,6 +366,29 @@ def test_tree_arrays_follow_every_split():
     mu2, var2 = gp.predict_many(Z)
     assert np.array_equal(mu, mu2) and np.array_equal(var, var2)
     assert all(np.array_equal(a, gp.predict_with_grad(z)[2]) for a, z in zip(g, Z))
+
+
+def test_tree_views_and_route_one():
+    """The public, read-only views of the tree: ``n_nodes``, ``tree`` (the lists as arrays,
+    leaves −1 / 0) and ``route_one`` (the leaves ``route`` reports, with the same weights)."""
+    gp = LoGGP(input_dim=2, max_points=10, overlap=0.2, seed=1)
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        x = rng.uniform(-1.0, 1.0, 2)
+        gp.update(x, float(np.sin(3.0 * x[0]) + x[1]))
+    n = gp.n_nodes
+    assert n == len(gp._dim) and n == 2 * gp.n_leaves - 1
+    t = gp.tree
+    assert t.links.shape == (3, n) and t.span.shape == (2, n)
+    assert t.links.tolist() == [gp._dim, gp._left, gp._right]
+    assert t.span.tolist() == [gp._lo, gp._hi]
+    with pytest.raises(ValueError):
+        t.links[0, 0] = 5
+    for z in rng.uniform(-1.0, 1.0, (20, 2)):
+        nodes, ws, dws = gp.route_one(np.ascontiguousarray(z), True)
+        want = gp.route(z, grad=True)
+        assert nodes == [r[0] for r in want] and ws.tolist() == [r[1] for r in want]
+        assert all(np.array_equal(a, r[2]) for a, r in zip(dws, want))
 
 
 def test_split_in_lengthscales_splits_the_dimension_the_kernel_resolves():

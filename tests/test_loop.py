@@ -5,14 +5,15 @@ import numpy as np
 import pytest
 
 from sea_daemon.hw.interface import HardwareInterface
-from sea_daemon.runtime.loop import FixedRateLoop, fault_of, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.safety import SafetySupervisor
-from sea_daemon.errors import EstimatorFault, HardwareError
+from sea_daemon.errors import EstimatorFault, HardwareError, fault_of
 
 
 class HeartbeatLost(HardwareError):
-    pass
+    fault = Fault.HEARTBEAT_LOST
 
 
 class FakeHW(HardwareInterface):
@@ -139,8 +140,29 @@ def test_overrun_streak_trips():
 
 def test_fault_mapping_by_exception_type():
     assert fault_of(HeartbeatLost("x")) == Fault.HEARTBEAT_LOST
-    assert fault_of(EstimatorFault("P is not positive definite")) == Fault.COVARIANCE_NOT_PD
+    assert fault_of(EstimatorFault("P is not positive definite", fault=Fault.COVARIANCE_NOT_PD)) == Fault.COVARIANCE_NOT_PD
     assert fault_of(RuntimeError("?")) == Fault.INTERNAL
+
+
+def test_fault_is_carried_by_the_exception_not_its_name():
+    """Every exception of the hierarchy carries its Fault; the class name plays no part."""
+    from sea_daemon.core.estimators.health import CovarianceNotPD
+    from sea_daemon.errors import InputError, RunFault
+    from sea_daemon.hw.errors import BusOff, DriveFault, PdoTimeout
+
+    class SendTimeoutHeartbeatError(Exception):      # a foreign exception whatever its name says
+        pass
+
+    assert fault_of(EstimatorFault("state became non-finite")) == Fault.ESTIMATOR_NONFINITE
+    assert fault_of(CovarianceNotPD("P")) == Fault.COVARIANCE_NOT_PD
+    assert fault_of(HardwareError("?")) == Fault.DEVICE_FAULT
+    assert fault_of(PdoTimeout(1, 0x181, 3, 0.01)) == Fault.TPDO_MISSING
+    assert fault_of(BusOff("x")) == Fault.BUS_OFF
+    assert fault_of(DriveFault(1, 0x08, "FAULT")) == Fault.DEVICE_FAULT
+    assert fault_of(InputError("x")) == fault_of(RunFault("x")) == Fault.INTERNAL
+    assert fault_of(SendTimeoutHeartbeatError()) == Fault.INTERNAL
+    # a wrapping estimator fault passes the wrapped one's on
+    assert EstimatorFault("log.csv: sample 3", fault=CovarianceNotPD("P").fault).fault == Fault.COVARIANCE_NOT_PD
 
 
 class TorqueRecorder(ConstEstimator):
@@ -368,3 +390,38 @@ def test_without_two_samples_before_a_missed_one_goes_on_held():
     assert got == [0.1, 0.11, 0.11]
     assert loop.stats.extrapolated == 0
     assert [r[log_columns(1).index("measured")] for r in loop.log.rows] == [1.0, 0.0, 1.0]
+
+
+def test_cycle_keeps_no_allocation():
+    """The loop's steps hand the cycle on in preallocated state: cycles leave no allocated
+    block behind (a per-cycle list, dict or array kept would grow the count with the cycles)."""
+    import gc
+    import sys
+
+    class Log:
+        def append(self, row):
+            pass
+
+        def fault(self):
+            return None
+
+    t = [0.0]
+
+    def clock():
+        t[0] += 1e-3
+        return t[0]
+
+    hw = FakeHW()
+    hw.write = lambda tau: None
+    loop = FixedRateLoop(hw, ConstEstimator(), Push(), n=1, period=0.01, log=Log(), clock=clock,
+                         sleep=lambda s: None, cpu_clock=clock)
+    loop.run(500)
+    gc.collect()
+    gc.disable()
+    try:
+        before = sys.getallocatedblocks()
+        loop.run(10000)
+        grown = sys.getallocatedblocks() - before
+    finally:
+        gc.enable()
+    assert grown < 200, grown               # less than one block per 50 cycles: none per cycle

@@ -51,7 +51,7 @@ def test_the_gate_opens_only_once_the_initial_error_has_decayed():
     while not akf.converged:
         e = akf.update(q, th, np.zeros(1))
         if e.k >= akf.kin.L:
-            t.append(akf._transient[0])
+            t.append(akf.gate.transient[0])
             assert e.valid == (t[-1] <= 0.1 * e.tau_h_act_bound[0])
         assert e.k < 500
     assert t[0] > t[-1] and t[-1] <= 0.1 * e.tau_h_act_bound[0]

@@ -249,7 +249,7 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     Y[0], X[0] = akf.y, akf.x
     for k in range(1, N):
         akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-        U[k - 1] = akf.u_applied if akf._has_delay else log.tau_m[k - 1]
+        U[k - 1] = akf.u_applied if akf.has_delay else log.tau_m[k - 1]
         Y[k], X[k] = akf.y, akf.x
     U[N - 1] = log.tau_m[N - 1]
     dt = float(np.median(np.diff(log.t)))

@@ -26,6 +26,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.linalg",
     "sea_daemon.core.control",
     "sea_daemon.core.effects",
+    "sea_daemon.core.dynamics",
     "sea_daemon.core.model_core",
     "sea_daemon.core.kinematics",
     "sea_daemon.core.estimators.akf_core",
@@ -36,9 +37,9 @@ KERNEL_MODULES = (
     "sea_daemon.core.gp.exact",
     "sea_daemon.core.gp.hyper",
     "sea_daemon.core.gp.routing",
+    "sea_daemon.core.gp.pack",
     "sea_daemon.core.bounds.setmember",
     "sea_daemon.core.bounds.zonotope",
-    "sea_daemon.core.bounds.akf_bound",
     "sea_daemon.core.bounds.bound_core",
     "sea_daemon.core.sim.plant",
 )

@@ -81,6 +81,11 @@ class CausalDifferentiator:
     (n,) that the next call overwrites — copy them if you keep them.
 
     The buffer is primed with the first sample (so velocities start at 0).
+
+    The ring's state is public for estimators that run :func:`fir_push` inside their own
+    compiled step: ``buf`` (2L, n) the doubled ring buffer, ``head`` the row of the newest
+    sample, ``out`` (3, n) the last (angle_f, vel, acc), ``primed`` whether the buffer holds
+    samples (:meth:`forget` clears it: the next :meth:`update` primes it again).
     """
 
     def __init__(self, dt: float, window: int = 5, n: int = 1, method: str = "ma", degree: int = 2):
@@ -100,10 +105,10 @@ class CausalDifferentiator:
         self.L = self.C.shape[1]
         # doubled ring buffer: buf[i] and buf[i+L] hold the same sample, so the L newest
         # samples are always the contiguous view buf[head+1 : head+1+L] (oldest … newest)
-        self._buf = np.zeros((2 * self.L, self.n))
-        self._head = self.L - 1
-        self._out = np.zeros((3, self.n))
-        self._primed = False
+        self.buf = np.zeros((2 * self.L, self.n))
+        self.head = self.L - 1
+        self.out = np.zeros((3, self.n))
+        self.primed = False
 
     # -- analysis ---------------------------------------------------------------------
 
@@ -132,21 +137,25 @@ class CausalDifferentiator:
     def reset(self, angle) -> None:
         """Prime the whole buffer with ``angle`` (velocity and acceleration read 0)."""
         a = np.asarray(angle, dtype=float).reshape(self.n)
-        self._buf[:] = a
-        self._head = self.L - 1
-        self._primed = True
+        self.buf[:] = a
+        self.head = self.L - 1
+        self.primed = True
+
+    def forget(self) -> None:
+        """Forget the samples: the next :meth:`update` primes the buffer with its angle."""
+        self.primed = False
 
     def update(self, angle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Push one sample; return (angle_f, vel, acc) as views of preallocated arrays."""
-        if not self._primed:
+        if not self.primed:
             self.reset(angle)
         a = np.ascontiguousarray(angle, dtype=float).reshape(self.n)
-        self._head = _fir_push(self._buf, self._head, self.C, a, self._out)
-        return self._out[0], self._out[1], self._out[2]
+        self.head = fir_push(self.buf, self.head, self.C, a, self.out)
+        return self.out[0], self.out[1], self.out[2]
 
 
 @njit
-def _fir_push(buf, head, C, angle, out) -> int:
+def fir_push(buf, head, C, angle, out) -> int:
     """Push ``angle`` into the doubled ring buffer and apply the FIR rows ``C`` to the L newest
     samples (oldest … newest): out = C · buf[h+1 : h+1+L].  Returns the new head."""
     L = C.shape[1]
@@ -169,6 +178,7 @@ def _fir_push(buf, head, C, angle, out) -> int:
 @warmer
 def _warm() -> None:
     CausalDifferentiator(0.01, 5, 2).update(np.zeros(2))
+
 
 
 def smooth_derivatives(t, angle, window: int = 11, degree: int = 3):

@@ -11,6 +11,12 @@ Spring       τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s),  θ_s = q − 
 with C(q) = gravity ⊙ sin(q), g the backlash dead band (identity when none is declared),
 κ the declared torque scale (1 when none), and the declared effects of docs/interfaces.md §2.
 Inertia effects are folded into M and J (they are linear in the acceleration).
+
+The equations are written once, in the compiled kernels of :mod:`sea_daemon.core.dynamics`;
+:class:`SEAModel` collects the declared parameters and effects into their
+:class:`~sea_daemon.core.dynamics.Dynamics` (:attr:`SEAModel.dynamics`) and calls them.  Load
+effects outside the vocabulary (an effect class with its own Python ``evaluate``) are summed
+here and enter the kernels as a residual load torque f (eq:unknwn_load).
 """
 from __future__ import annotations
 
@@ -19,7 +25,9 @@ import dataclasses
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig, SEAParams
-from sea_daemon.core.effects import Delay, EncoderOffset, Inertia, SpringBacklash, TorqueScale
+from sea_daemon.core import dynamics
+from sea_daemon.core.dynamics import make_dynamics
+from sea_daemon.core.effects import Delay, Effect, EncoderOffset, Inertia, SpringBacklash, TorqueScale
 
 
 class SEAModel:
@@ -60,6 +68,20 @@ class SEAModel:
                 self.delay[e.joint] += e.seconds
             elif isinstance(e, EncoderOffset):
                 (self.offset_load if e.side == "load" else self.offset_motor)[e.joint] += e.delta
+        #: load effects outside the vocabulary (their own Python ``evaluate``): the kernels take
+        #: their torque as a residual load torque f (eq:unknwn_load)
+        self.outside_effects = tuple(e for e in self.load_effects if not _in_vocabulary(e))
+        if any(not _in_vocabulary(e) for e in (*self.motor_effects, *self.spring_effects)):
+            raise ValueError("effects outside the vocabulary (a Python evaluate) act on the load side only")
+        half_band = np.full(n, -1.0)          # backlash half-width per joint (−1: none)
+        for j, e in self.backlash.items():
+            half_band[j] = 0.5 * e.width
+        #: the parameters of the dynamics kernels (:mod:`sea_daemon.core.dynamics`)
+        self.dynamics = make_dynamics(M, J, self.D_m, self.K_s, self.D_s, self.gravity, self.kappa, half_band,
+                                      [e for e in self.load_effects if _in_vocabulary(e)], self.motor_effects,
+                                      self.spring_effects)
+        #: the same in the packed form the kernels take (:meth:`Dynamics.packed`)
+        self.kernel = self.dynamics.packed()
         # I_μ: selects the θ̈_s rows (eq:unknown), 5n × n
         self.I_mu = np.zeros((5 * n, n))
         self.I_mu[3 * n:4 * n, :] = np.eye(n)
@@ -90,37 +112,31 @@ class SEAModel:
             d_vel[j] += pv
         return tau, d_ang, d_vel
 
-    def _deflection(self, theta_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """g(θ_s) and g'(θ_s): the backlash dead band, identity without one."""
-        if not self.backlash:
-            return theta_s, np.ones(self.n)
-        g = np.array(theta_s, dtype=float)
-        dg = np.ones(self.n)
-        for j, e in self.backlash.items():
-            g[j], dg[j] = e.deadband(theta_s[j])
-        return g, dg
+    def _outside(self, q, dq):
+        """(f, ∂f/∂q, ∂f/∂q̇) of the load effects outside the vocabulary (Python ``evaluate``):
+        the kernels take them as a residual load torque f (eq:unknwn_load)."""
+        z = np.zeros(self.n)
+        return self._sum(self.outside_effects, self.n, q, dq, z)
 
     def spring_torque(self, theta_s: np.ndarray, dtheta_s: np.ndarray) -> np.ndarray:
-        """τ_s (eq:spring_torque) with the declared spring effects."""
-        g, _ = self._deflection(np.atleast_1d(theta_s))
-        z = np.zeros(self.n)
-        tau_e, _, _ = self._sum(self.spring_effects, self.n, np.atleast_1d(theta_s), z, z)
-        return self.K_s @ g + self.D_s @ np.atleast_1d(dtheta_s) + tau_e
+        """τ_s (eq:spring_torque) with the declared spring effects (:func:`dynamics.spring_torque`)."""
+        return dynamics.spring_torque(self.kernel, _vec(theta_s), _vec(dtheta_s))
 
     def spring_torque_jac(self, theta_s: np.ndarray) -> np.ndarray:
         """∂τ_s/∂θ_s (n×n); ∂τ_s/∂θ̇_s is D_s."""
-        _, dg = self._deflection(theta_s)
-        z = np.zeros(self.n)
-        _, d_e, _ = self._sum(self.spring_effects, self.n, theta_s, z, z)
-        return self.K_s * dg[None, :] + np.diag(d_e)
+        return dynamics.spring_torque_jac(self.kernel, _vec(theta_s))
 
     def load_effects_torque(self, q, dq):
-        z = np.zeros(self.n)
-        return self._sum(self.load_effects, self.n, q, dq, z)
+        """(Σ τ, ∂/∂q, ∂/∂q̇) of the declared load effects, the ones outside the vocabulary last."""
+        q, dq = _vec(q), _vec(dq)
+        t = dynamics.side_torques(self.kernel[10], q, dq)
+        if not self.outside_effects:
+            return t
+        return tuple(a + b for a, b in zip(t, self._outside(q, dq)))
 
     def motor_effects_torque(self, theta_m, dtheta_m):
-        z = np.zeros(self.n)
-        return self._sum(self.motor_effects, self.n, theta_m, dtheta_m, z)
+        """(Σ τ, ∂/∂θ_m, ∂/∂θ̇_m) of the declared motor effects."""
+        return dynamics.side_torques(self.kernel[11], _vec(theta_m), _vec(dtheta_m))
 
     def applied_torque(self, tau_m: np.ndarray) -> np.ndarray:
         """Torque reaching the motor-side dynamics: κ τ_m (the delay is applied by the caller)."""
@@ -132,59 +148,44 @@ class SEAModel:
         n = self.n
         return x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:4 * n], x[4 * n:5 * n]
 
+    def _f(self, q, dq, f_res) -> np.ndarray:
+        """The residual load torque the kernels take: f_res plus the effects outside the vocabulary."""
+        f = np.zeros(self.n) if f_res is None else _vec(f_res)
+        if self.outside_effects:
+            f = f + self._outside(q, dq)[0]
+        return f
+
     def accelerations(self, x: np.ndarray, u: np.ndarray, f_res: np.ndarray | None = None):
         """(θ̈_m, q̈) for state x, input τ_m = u and residual load torque f(z) (eq:thetadd, eq:xsdd)."""
+        x = _vec(x)
         th_m, th_s, dth_m, dth_s, tau_h = self.split(x)
         q = th_m + th_s
         dq = dth_m + dth_s
-        tau_s = self.spring_torque(th_s, dth_s)
-        mo, _, _ = self.motor_effects_torque(th_m, dth_m)
-        lo, _, _ = self.load_effects_torque(q, dq)
-        # eq:thetadd
-        ddth_m = self.Jinv @ (self.applied_torque(u) + tau_s - self.D_m @ dth_m - mo)
-        # eq:unknwn_load solved for q̈
-        rhs = tau_h - self.C(q) - lo - tau_s
-        if f_res is not None:
-            rhs = rhs - f_res
-        ddq = self.Minv @ rhs
+        p = self.kernel
+        tau_s = dynamics.spring_torque(p, th_s, dth_s)
+        ddth_m = dynamics.motor_accel(p, th_m, dth_m, _vec(u), tau_s)
+        ddq = dynamics.load_accel(p, q, dq, tau_h, tau_s, self._f(q, dq, f_res))
         return ddth_m, ddq
 
     def f_nom(self, x: np.ndarray, u: np.ndarray, f_res: np.ndarray | None = None) -> np.ndarray:
-        """ẋ = f_nom(x, u) − I_μ M⁻¹ f(z) (eq:nonlindyn, eq:unknown)."""
+        """ẋ = f_nom(x, u) − I_μ M⁻¹ f(z) (eq:nonlindyn, eq:unknown; :func:`dynamics.f_nom`)."""
+        x = _vec(x)
         n = self.n
-        ddth_m, ddq = self.accelerations(x, u, f_res)
         xd = np.empty(5 * n)
-        xd[:n] = x[2 * n:3 * n]
-        xd[n:2 * n] = x[3 * n:4 * n]
-        xd[2 * n:3 * n] = ddth_m
-        # eq:xsdd: θ̈_s = q̈ − θ̈_m
-        xd[3 * n:4 * n] = ddq - ddth_m
-        xd[4 * n:] = 0.0  # zero-order model of τ_h,act
+        dynamics.f_nom(self.kernel, x, _vec(u), self._f(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n], f_res),
+                       xd)
         return xd
 
     def F_nom(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Analytic Jacobian ∂f_nom/∂x (5n×5n) (Park et al.; eq:linearization without the GP)."""
+        x = _vec(x)
         n = self.n
-        th_m, th_s, dth_m, dth_s, _ = self.split(x)
-        q = th_m + th_s
-        dq = dth_m + dth_s
-        dts = self.spring_torque_jac(th_s)                  # ∂τ_s/∂θ_s
-        _, dmo_a, dmo_v = self.motor_effects_torque(th_m, dth_m)
-        _, dlo_a, dlo_v = self.load_effects_torque(q, dq)
-        dCq = np.diag(self.dC(q) + dlo_a)                  # ∂(C + load effects)/∂q
-        dLv = np.diag(dlo_v)
-        Ji, Mi = self.Jinv, self.Minv
-        # rows of θ̈_m (eq:thetadd)
-        am = [Ji @ -np.diag(dmo_a), Ji @ dts, Ji @ (-self.D_m - np.diag(dmo_v)), Ji @ self.D_s, np.zeros((n, n))]
-        # rows of q̈ (eq:unknwn_load)
-        aq = [Mi @ -dCq, Mi @ (-dCq - dts), Mi @ -dLv, Mi @ (-dLv - self.D_s), Mi]
-        A = np.zeros((5 * n, 5 * n))
-        A[:n, 2 * n:3 * n] = np.eye(n)
-        A[n:2 * n, 3 * n:4 * n] = np.eye(n)
-        for b in range(5):
-            A[2 * n:3 * n, b * n:(b + 1) * n] = am[b]
-            # eq:xsdd: θ̈_s = q̈ − θ̈_m
-            A[3 * n:4 * n, b * n:(b + 1) * n] = aq[b] - am[b]
+        A = np.empty((5 * n, 5 * n))
+        if self.outside_effects:
+            _, f_q, f_v = self._outside(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n])
+        else:
+            f_q = f_v = np.zeros(n)
+        dynamics.F_nom(self.kernel, x, _vec(u), f_q, f_v, A)
         return A
 
     def B_nom(self) -> np.ndarray:
@@ -200,16 +201,20 @@ class SEAModel:
 
     def load_torque(self, q, dq, ddq) -> np.ndarray:
         """τ_l(z) = M q̈ + C(q) plus the declared load effects (eq:loadsidewmotor)."""
-        lo, _, _ = self.load_effects_torque(q, dq)
-        return self.M @ ddq + self.C(q) + lo
+        q, dq = _vec(q), _vec(dq)
+        t = dynamics.load_torque(self.kernel, q, dq, _vec(ddq))
+        return t + self._outside(q, dq)[0] if self.outside_effects else t
 
     def residual_from_kinematics(self, q, dq, ddq, th_m, dth_m, ddth_m, tau_m, tau_h_act=None) -> np.ndarray:
         """f(z) = τ_h,act + κτ_m − (τ_l(z) + J θ̈_m + D_m θ̇_m + motor effects)   (eq:loadsidewmotor).
 
         With the passive-human assumption (ass:passive_human) τ_h,act = 0.
         """
-        mo, _, _ = self.motor_effects_torque(th_m, dth_m)
-        f = self.applied_torque(tau_m) - (self.load_torque(q, dq, ddq) + self.J @ ddth_m + self.D_m @ dth_m + mo)
+        q, dq = _vec(q), _vec(dq)
+        f = np.empty(self.n)
+        dynamics.residual(self.kernel, q, dq, _vec(ddq), _vec(th_m), _vec(dth_m), _vec(ddth_m), _vec(tau_m), f)
+        if self.outside_effects:
+            f = f - self._outside(q, dq)[0]
         if tau_h_act is not None:
             f = f + tau_h_act
         return f
@@ -217,3 +222,13 @@ class SEAModel:
     def correct_measurement(self, q_meas: np.ndarray, th_m_meas: np.ndarray):
         """Remove declared encoder offsets: the encoders read angle + δ (docs/interfaces.md §2)."""
         return q_meas - self.offset_load, th_m_meas - self.offset_motor
+
+
+def _vec(a) -> np.ndarray:
+    """A 1-d contiguous float array (what the kernels take)."""
+    return np.ascontiguousarray(np.atleast_1d(a), dtype=float)
+
+
+def _in_vocabulary(e) -> bool:
+    """The effect's formula is in the compiled :func:`~sea_daemon.core.effects.evaluate`."""
+    return type(e).evaluate is Effect.evaluate

@@ -70,7 +70,7 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
             hat[k], sig[k], bnd[k], xs[k] = e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound, e.x_hat
             ok[k] = e.valid
     except EstimatorFault as exc:
-        raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+        raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): {exc}", fault=exc.fault) from None
     except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError, OverflowError) as exc:
         # numerical breakdown inside an estimator step is divergence (a typed fault), not an internal error
         raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): the estimator diverged "

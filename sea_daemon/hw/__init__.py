@@ -19,8 +19,8 @@ The hardware layer: may import :mod:`sea_daemon.io`, :mod:`sea_daemon.core` and
 from sea_daemon.hw.errors import (
     BusOff, DeviceMismatch, DriveFault, EmcyReceived, EncoderJump, EncoderStuck, HeartbeatLost,
     PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
-from sea_daemon.hw.interface import FaultFlag, HardwareInterface, Measurement
+from sea_daemon.hw.interface import HardwareInterface, Measurement
 
-__all__ = ["HardwareInterface", "Measurement", "FaultFlag", "PdoTimeout", "HeartbeatLost", "EmcyReceived",
+__all__ = ["HardwareInterface", "Measurement", "PdoTimeout", "HeartbeatLost", "EmcyReceived",
            "EncoderJump", "EncoderStuck", "BusOff", "SendFailed", "DeviceMismatch", "WrongDevice",
            "PdoLengthError", "DriveFault"]

@@ -67,9 +67,10 @@ from sea_daemon.hw.canopen_rx import (
     CYCLE_NETWORK_FILTERS, NETWORK_FILTERS, ErrorFrames, FrameTap, Queued, TpdoWindow, arrival)
 from sea_daemon.hw.canopen_setup import (
     ABORT_QUICK_STOP, DRIVE_EDS, DRIVE_RPDO, DRIVE_TPDO, ENCODER_EDS, ENCODER_TPDO, NodeSetup)
+from sea_daemon.errors import Fault
 from sea_daemon.hw.errors import (
     BusOff, DriveFault, EmcyReceived, HeartbeatLost, PdoLengthError, PdoTimeout, SendFailed, WrongDevice)
-from sea_daemon.hw.interface import FaultFlag, HardwareInterface, Measurement
+from sea_daemon.hw.interface import HardwareInterface, Measurement
 
 NMT_OPERATIONAL = 0x05
 
@@ -262,6 +263,16 @@ class CanopenHardware(HardwareInterface):
             self._send_master_heartbeat()
         self.receive_pending()
 
+    def heartbeat_arrival(self, node: int) -> float | None:
+        """When the newest heartbeat of ``node`` arrived (this driver's clock [s]); None before
+        the first one since start-up (read-only, for a caller that waits for a heartbeat)."""
+        return self._hb_last.get(node)
+
+    @property
+    def bus_off(self) -> bool:
+        """Whether an error frame with the bus-off flag has been seen (until :meth:`reset_fault`)."""
+        return self._errors.bus_off
+
     # ---------------------------------------------------------------- PDOs of the cycle
     def _configure_drive(self, d) -> None:
         self.setup.configure_drive(self.network, d)
@@ -370,6 +381,7 @@ class CanopenHardware(HardwareInterface):
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
         m.faults = 0
+        m.late = False
         if self._errors.bus_off:
             raise BusOff("error frame with the bus-off flag received")
         # which handles have frames queued: one poll for the TPDO handle and the two taps
@@ -377,7 +389,7 @@ class CanopenHardware(HardwareInterface):
         mask = queued.mask() if queued is not None else 7
         if self._rx.drain(bool(mask & 1)) or self._late_pending:
             self._late_pending = False
-            m.faults |= FaultFlag.FRAME_LATE
+            m.late = True
             self.late_cycles += 1
         # SYNC first (the loop calls read() at its deadline): the devices sample now and answer
         # while this thread checks what arrived between cycles and sends its heartbeat (what
@@ -403,19 +415,19 @@ class CanopenHardware(HardwareInterface):
         missing = None
         for s in self._rx.slots:
             if s.bad_len:
-                m.faults |= FaultFlag.PDO_MISSING
+                m.faults |= Fault.TPDO_MISSING.bit
                 m.valid = False
                 raise PdoLengthError(s.node, s.cob_id, max(s.bad_len, 0), s.length, self._cycle)
             if s.snap_count == 0:
                 s.missed += 1
-                m.faults |= FaultFlag.PDO_MISSING
+                m.faults |= Fault.TPDO_MISSING.bit
                 m.valid = False
                 if missing is None or s.missed > missing.missed:
                     missing = s
             else:
                 s.missed = 0
                 if s.snap_count > 1:
-                    m.faults |= FaultFlag.FRAME_LATE
+                    m.late = True
         if missing is not None:
             self.missed_cycles += 1
             if missing.missed > self.bus_cfg.max_missed_cycles or not self._primed:
@@ -428,7 +440,7 @@ class CanopenHardware(HardwareInterface):
         for node, e in self._emcy.items():
             if e is not None:
                 self._emcy[node] = None
-                self.meas.faults |= FaultFlag.EMCY
+                self.meas.faults |= Fault.EMCY.bit
                 raise EmcyReceived(node, e[0], e[1], e[2], EmcyError(e[0], e[1], e[2], 0.0).get_desc())
 
     def _check_async(self) -> None:
@@ -439,11 +451,11 @@ class CanopenHardware(HardwareInterface):
         now = self.clock()
         for node, last in self._hb_last.items():
             if last is None or now - last > self.hb_timeout:
-                self.meas.faults |= FaultFlag.HEARTBEAT_LOST
+                self.meas.faults |= Fault.HEARTBEAT_LOST.bit
                 raise HeartbeatLost(node, now - (last or 0.0), self.hb_timeout)
             state = self._hb_state[node]
             if self._primed and state is not None and state != NMT_OPERATIONAL:
-                self.meas.faults |= FaultFlag.HEARTBEAT_LOST
+                self.meas.faults |= Fault.HEARTBEAT_LOST.bit
                 raise HeartbeatLost(node, now - last, self.hb_timeout, state)
 
     def _decode(self, m: Measurement) -> None:
@@ -457,7 +469,7 @@ class CanopenHardware(HardwareInterface):
             m.theta_m_counts[j] = pos
             m.tau_m_applied[j] = torque * self.nm_per_permille
             if sw & 0x6F != _OPERATION_ENABLED and self._primed:
-                m.faults |= FaultFlag.DRIVE_STATE
+                m.faults |= Fault.DEVICE_FAULT.bit
                 st = cia402.state_of(sw)
                 if not (self._quick_stopped and st is not cia402.State.FAULT):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")

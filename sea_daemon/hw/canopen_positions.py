@@ -17,8 +17,9 @@ import numpy as np
 
 from sea_daemon.core.config import BusConfig
 
+from sea_daemon.errors import Fault
 from sea_daemon.hw.errors import EncoderJump, EncoderStuck
-from sea_daemon.hw.interface import FaultFlag, Measurement
+from sea_daemon.hw.interface import Measurement
 
 
 def _wrap(delta: int, span: int) -> int:
@@ -65,10 +66,10 @@ class Positions:
         dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
         dm = _wrap(pos - self._raw_m[j], 1 << 32)
         if abs(dq * self.k_q) > self.allowed_q:
-            m.faults |= FaultFlag.ENCODER_JUMP
+            m.faults |= Fault.ENCODER_JUMP.bit
             raise EncoderJump(enc_node, "0x6004 load position value", dq * self.k_q, self.allowed_q, cycle)
         if abs(dm * self.k_m) > self.allowed_m:
-            m.faults |= FaultFlag.ENCODER_JUMP
+            m.faults |= Fault.ENCODER_JUMP.bit
             raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m, cycle)
         self._u_q[j] += dq
         self._u_m[j] += dm
@@ -101,5 +102,5 @@ class Positions:
         moved = abs(other - run[1])
         b = self.bus_cfg
         if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
-            m.faults |= FaultFlag.ENCODER_STUCK
+            m.faults |= Fault.ENCODER_STUCK.bit
             raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)

@@ -2,15 +2,13 @@
 
 Every class derives from :class:`sea_daemon.errors.HardwareError`, names the CANopen node and
 object involved, the value seen and the allowed range, and carries ``fault`` — the code of the
-daemon's single fault policy (:class:`sea_daemon.errors.Fault`) — and ``flag``, the bit it
-sets in :attr:`sea_daemon.hw.interface.Measurement.faults`.
+daemon's single fault policy (:class:`sea_daemon.errors.Fault`); the driver also sets that
+code's bit (``fault.bit``) in :attr:`sea_daemon.hw.interface.Measurement.faults`.
 """
 from __future__ import annotations
 
 from sea_daemon.errors import Fault
 from sea_daemon.errors import HardwareError, InputError
-
-from sea_daemon.hw.interface import FaultFlag
 
 
 def _node(node: int | None) -> str:
@@ -20,7 +18,7 @@ def _node(node: int | None) -> str:
 class PdoTimeout(HardwareError):
     """A TPDO of this cycle did not arrive within the PDO timeout after SYNC."""
 
-    fault, flag = Fault.TPDO_MISSING, FaultFlag.PDO_MISSING
+    fault = Fault.TPDO_MISSING
 
     def __init__(self, node: int, cob_id: int, cycle: int, timeout_s: float, missed: int = 1):
         self.node, self.cob_id, self.cycle, self.timeout_s, self.missed = node, cob_id, cycle, timeout_s, missed
@@ -32,7 +30,7 @@ class PdoLengthError(HardwareError):
     """A TPDO of this cycle arrived with a length other than its mapping's (CiA 301: a PDO
     length error; the data cannot be decoded).  Treated as a missing TPDO."""
 
-    fault, flag = Fault.TPDO_MISSING, FaultFlag.PDO_MISSING
+    fault = Fault.TPDO_MISSING
 
     def __init__(self, node: int, cob_id: int, got: int, expected: int, cycle: int):
         self.node, self.cob_id, self.got, self.expected, self.cycle = node, cob_id, got, expected, cycle
@@ -43,7 +41,7 @@ class PdoLengthError(HardwareError):
 class HeartbeatLost(HardwareError):
     """No heartbeat from a node within its consumer time (canopen itself does not check)."""
 
-    fault, flag = Fault.HEARTBEAT_LOST, FaultFlag.HEARTBEAT_LOST
+    fault = Fault.HEARTBEAT_LOST
 
     def __init__(self, node: int, silent_s: float, timeout_s: float, state: int | None = None):
         self.node, self.silent_s, self.timeout_s, self.state = node, silent_s, timeout_s, state
@@ -55,7 +53,7 @@ class HeartbeatLost(HardwareError):
 class EmcyReceived(HardwareError):
     """An emergency (EMCY) frame arrived from a node."""
 
-    fault, flag = Fault.EMCY, FaultFlag.EMCY
+    fault = Fault.EMCY
 
     def __init__(self, node: int, code: int, register: int, data: bytes = b"", description: str = ""):
         self.node, self.code, self.register, self.data = node, code, register, bytes(data)
@@ -67,7 +65,7 @@ class EmcyReceived(HardwareError):
 class EncoderJump(HardwareError):
     """An encoder moved further in one cycle than the joint's maximum speed allows."""
 
-    fault, flag = Fault.ENCODER_JUMP, FaultFlag.ENCODER_JUMP
+    fault = Fault.ENCODER_JUMP
 
     def __init__(self, node: int, obj: str, step_rad: float, allowed_rad: float, cycle: int):
         self.node, self.obj, self.step_rad, self.allowed_rad, self.cycle = node, obj, step_rad, allowed_rad, cycle
@@ -78,7 +76,7 @@ class EncoderJump(HardwareError):
 class EncoderStuck(HardwareError):
     """An encoder's raw count stayed constant while the other encoder of the joint moved."""
 
-    fault, flag = Fault.ENCODER_STUCK, FaultFlag.ENCODER_STUCK
+    fault = Fault.ENCODER_STUCK
 
     def __init__(self, node: int, obj: str, count: int, cycles: int, other_motion_rad: float, allowed_rad: float):
         self.node, self.obj, self.count, self.cycles = node, obj, count, cycles
@@ -90,7 +88,7 @@ class EncoderStuck(HardwareError):
 class SendFailed(HardwareError):
     """Writing a frame to the bus raised (controller error, buffer full, link down)."""
 
-    fault, flag = Fault.SEND_FAILED, FaultFlag.SEND_FAILED
+    fault = Fault.SEND_FAILED
 
     def __init__(self, cob_id: int, what: str, cause: BaseException | str):
         self.cob_id, self.what, self.cause = cob_id, what, cause
@@ -100,7 +98,7 @@ class SendFailed(HardwareError):
 class BusOff(SendFailed):
     """The CAN controller went bus-off (error frame with the bus-off flag, or bus state ERROR)."""
 
-    fault, flag = Fault.BUS_OFF, FaultFlag.BUS_OFF
+    fault = Fault.BUS_OFF
 
     def __init__(self, detail: str):
         HardwareError.__init__(self, f"bus: controller is bus-off: {detail}")
@@ -111,7 +109,7 @@ class DeviceMismatch(HardwareError):
     """A device is not what the configuration expects: wrong type, resolution, PDO length, an
     SDO abort, or no answer at start-up.  Named by node and object."""
 
-    fault, flag = Fault.DEVICE_FAULT, FaultFlag.DEVICE
+    fault = Fault.DEVICE_FAULT
 
     def __init__(self, node: int, obj: str, problem: str):
         self.node, self.obj, self.problem = node, obj, problem
@@ -129,7 +127,7 @@ class WrongDevice(DeviceMismatch, InputError):
 class DriveFault(HardwareError):
     """The drive left *operation enabled* (CiA 402 fault, quick stop, disabled) during the cycle."""
 
-    fault, flag = Fault.DEVICE_FAULT, FaultFlag.DRIVE_STATE
+    fault = Fault.DEVICE_FAULT
 
     def __init__(self, node: int, statusword: int, state: str):
         self.node, self.statusword, self.state = node, statusword, state

@@ -22,26 +22,11 @@ that acted over [t_k-1, t_k].
 from __future__ import annotations
 
 import abc
-import enum
 from dataclasses import dataclass, field
 
 import numpy as np
 
-
-class FaultFlag(enum.IntFlag):
-    """Bits of :attr:`Measurement.faults` (what the driver saw in this cycle)."""
-
-    NONE = 0
-    PDO_MISSING = 1 << 0        # a TPDO of this cycle did not arrive (values held from the last cycle)
-    FRAME_LATE = 1 << 1         # a TPDO arrived outside its cycle's window (after the timeout)
-    HEARTBEAT_LOST = 1 << 2
-    EMCY = 1 << 3
-    ENCODER_JUMP = 1 << 4
-    ENCODER_STUCK = 1 << 5
-    SEND_FAILED = 1 << 6
-    BUS_OFF = 1 << 7
-    DRIVE_STATE = 1 << 8        # drive not in operation enabled / mode 10
-    DEVICE = 1 << 9             # device mismatch
+from sea_daemon.errors import Fault
 
 
 @dataclass
@@ -63,9 +48,11 @@ class Measurement:
     q_counts: np.ndarray = field(default=None)      # (n,) raw load encoder position value (0x6004)
     theta_m_counts: np.ndarray = field(default=None)  # (n,) raw drive position actual value (0x6064)
     statusword: np.ndarray = field(default=None)    # (n,) CiA 402 statusword (0x6041)
-    faults: int = 0                     # FaultFlag bits seen in this cycle
+    faults: int = 0                     # the fault codes seen in this cycle, one bit each
+    #                                     (``Fault.X.bit``, :class:`sea_daemon.errors.Fault`)
     valid: bool = False                 # False when values were held (missing TPDO; the loop
     #                                     passes such a sample on extrapolated, runtime/loop.py)
+    late: bool = False                  # a frame arrived outside its cycle's window (docs/can.md)
 
     def __post_init__(self):
         n = self.n
@@ -74,10 +61,14 @@ class Measurement:
             if getattr(self, name) is None:
                 setattr(self, name, np.zeros(n, dtype=dt))
 
+    def saw(self, fault: Fault) -> bool:
+        """Whether ``fault``'s bit is set in :attr:`faults`."""
+        return bool(self.faults & fault.bit)
+
     def copy(self) -> "Measurement":
         return Measurement(self.n, self.t, self.cycle, self.t_mono, self.q.copy(), self.theta_m.copy(),
                            self.tau_m_applied.copy(), self.q_counts.copy(), self.theta_m_counts.copy(),
-                           self.statusword.copy(), self.faults, self.valid)
+                           self.statusword.copy(), self.faults, self.valid, self.late)
 
 
 class HardwareInterface(abc.ABC):

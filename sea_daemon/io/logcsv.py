@@ -2,9 +2,11 @@
 
 The in-memory log is :class:`sea_daemon.core.log.MeasuredLog`.
 
-Columns (joint side, SI): ``t, q, theta_m, tau_m`` required, ``tau_h_act`` optional; with
-n > 1 joints every per-joint column carries a 1-based suffix (``q_1 … q_n``).  Other columns
-are kept in :attr:`MeasuredLog.extra` and otherwise ignored.
+Columns (joint side, SI; their names defined once in :mod:`sea_daemon.core.log`): ``t, q,
+theta_m, tau_m`` required, ``tau_h_act`` optional; with n > 1 joints every per-joint column
+carries a 1-based suffix (``q_1 … q_n``).  Other columns are kept in :attr:`MeasuredLog.extra`
+and otherwise ignored.  :func:`csv_header` / :func:`csv_rows` are the project's one CSV format,
+used by :func:`write_columns` and by the daemon's log writer.
 
 A bad file raises :class:`~sea_daemon.errors.LogFormatError` naming the file, the line and
 the problem (the CLI turns it into exit status 2 and one line).
@@ -17,12 +19,9 @@ from typing import Mapping
 
 import numpy as np
 
-from sea_daemon.core.log import MeasuredLog, column_names
+from sea_daemon.core.log import REQUIRED, MeasuredLog, column_names
 from sea_daemon.errors import LogFormatError
 from sea_daemon.io.files import atomic_file
-
-REQUIRED = ("q", "theta_m", "tau_m")
-OPTIONAL = ("tau_h_act",)
 
 
 #: angle columns checked for units by range (joint side, rad)
@@ -87,6 +86,41 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
     """
     p = str(path)
     lines = _lines(p)
+    header = _header(p, lines)
+    if n is None:
+        n = 1 if "q" in header else sum(1 for h in header if h.startswith("q_") and h[2:].isdigit())
+        n = max(n, 1)
+    need = ["t"] + [c for base in REQUIRED for c in column_names(base, n)]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
+                                   f"(need {', '.join(need)} for {n} joint(s))")
+    data = _rows(p, lines, header)
+    if len(data) < min_rows:
+        raise LogFormatError(p, None, f"has {len(data)} data rows; this operation needs at least {min_rows}")
+    col = {h: i for i, h in enumerate(header)}
+    t = data[:, col["t"]]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LogFormatError(p, i + 2, f"time does not increase: t = {t[i]} after {t[i - 1]}")
+    _check_angles(p, data, col, n)
+    _check_torques(p, data, col, n)
+
+    def block(base):
+        return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)
+
+    tau_h = None
+    if all(c in col for c in column_names("tau_h_act", n)):
+        tau_h = block("tau_h_act")
+    known = set(need) | set(column_names("tau_h_act", n))
+    extra = {h: data[:, i] for h, i in col.items() if h not in known}
+    return MeasuredLog(t=t, q=block("q"), theta_m=block("theta_m"), tau_m=block("tau_m"),
+                       tau_h_act=tau_h, extra=extra, path=p)
+
+
+def _header(p: str, lines) -> list[str]:
+    """The header row's column names: present, not too long, none twice."""
     try:
         _, head = next(lines)
     except StopIteration:
@@ -97,15 +131,12 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise LogFormatError(p, 1, f"duplicate column(s) {', '.join(dup)}")
-    if n is None:
-        n = 1 if "q" in header else sum(1 for h in header if h.startswith("q_") and h[2:].isdigit())
-        n = max(n, 1)
-    need = ["t"] + [c for base in REQUIRED for c in column_names(base, n)]
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
-                                   f"(need {', '.join(need)} for {n} joint(s))")
-    # the rows go straight into float64 blocks (8 bytes a value, not a Python float in a list)
+    return header
+
+
+def _rows(p: str, lines, header: list[str]) -> np.ndarray:
+    """The data rows (N, columns): every field a finite decimal number, every row as wide as the
+    header; parsed straight into float64 blocks (8 bytes a value, not a Python float in a list)."""
     width = len(header)
     blocks: list[np.ndarray] = []
     block = np.empty((_BLOCK_ROWS, width))
@@ -133,21 +164,14 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
             block = np.empty((_BLOCK_ROWS, width))
             filled = 0
     blocks.append(block[:filled])
-    data = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-    del blocks, block
-    if len(data) < min_rows:
-        raise LogFormatError(p, None, f"has {len(data)} data rows; this operation needs at least {min_rows}")
-    col = {h: i for i, h in enumerate(header)}
-    t = data[:, col["t"]]
-    bad = np.nonzero(np.diff(t) <= 0)[0]
-    if bad.size:
-        i = int(bad[0]) + 1
-        raise LogFormatError(p, i + 2, f"time does not increase: t = {t[i]} after {t[i - 1]}")
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
 
-    # angles in degrees instead of radians, detected by range: an exoskeleton joint moves less
-    # than one turn, so every angle of a valid log (joint side, rad) lies within ±2π and spans
-    # less than 2π; a log in degrees breaks that for any motion of more than 6.3°, or any
-    # angle beyond ±6.3°
+
+def _check_angles(p: str, data: np.ndarray, col: dict[str, int], n: int) -> None:
+    """Angles in degrees instead of radians, detected by range: an exoskeleton joint moves less
+    than one turn, so every angle of a valid log (joint side, rad) lies within ±2π and spans
+    less than 2π; a log in degrees breaks that for any motion of more than 6.3°, or any angle
+    beyond ±6.3°."""
     for base in ANGLE_COLUMNS:
         for c in column_names(base, n):
             a = data[:, col[c]]
@@ -160,6 +184,9 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
                                      + ": degrees instead of radians? (a joint moves less than one turn; "
                                        "angles must be in rad, within ±2π)")
 
+
+def _check_torques(p: str, data: np.ndarray, col: dict[str, int], n: int) -> None:
+    """Torques beyond what any actuator gives (:data:`TORQUE_LIMIT`): a unit error."""
     for base in TORQUE_COLUMNS:
         for c in column_names(base, n):
             if c in col:
@@ -168,17 +195,6 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2) -> Measu
                     i = int(np.argmax(a))
                     raise LogFormatError(p, i + 2, f"column {c}: {data[i, col[c]]:g} N m, allowed |{c}| <= "
                                                    f"{TORQUE_LIMIT:g} (joint side, N m: check the units)")
-
-    def block(base):
-        return np.stack([data[:, col[c]] for c in column_names(base, n)], axis=1)
-
-    tau_h = None
-    if all(c in col for c in column_names("tau_h_act", n)):
-        tau_h = block("tau_h_act")
-    known = set(need) | set(column_names("tau_h_act", n))
-    extra = {h: data[:, i] for h, i in col.items() if h not in known}
-    return MeasuredLog(t=t, q=block("q"), theta_m=block("theta_m"), tau_m=block("tau_m"),
-                       tau_h_act=tau_h, extra=extra, path=p)
 
 
 def write_log(path: str | Path, log: MeasuredLog, extra: Mapping[str, np.ndarray] | None = None,
@@ -201,5 +217,24 @@ def write_columns(path: str | Path, cols: Mapping[str, np.ndarray], fmt: str = "
     old file or the whole new one, never a torn one)."""
     names = list(cols)
     data = np.column_stack([np.asarray(cols[k], dtype=float).reshape(-1) for k in names])
-    with atomic_file(path) as fh:                 # streamed: no copy of the text in memory
-        np.savetxt(fh, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    with atomic_file(path) as fh:                 # streamed: no copy of the whole text in memory
+        fh.write(csv_header(names))
+        for i in range(0, len(data), _BLOCK_ROWS):
+            fh.write(csv_rows(data[i:i + _BLOCK_ROWS], fmt))
+
+
+# ---------------------------------------------------------------------------- the CSV format
+# the one CSV writer of the project: the offline outputs (write_columns) and the daemon's log
+# writer (sea_daemon.runtime.logwriter) format their lines here
+
+
+def csv_header(names) -> bytes:
+    """The header line: the column names joined by commas, UTF-8."""
+    return (",".join(names) + "\n").encode()
+
+
+def csv_rows(block: np.ndarray, fmt: str) -> bytes:
+    """The lines of the rows of ``block`` (rows, columns), each value formatted with ``fmt``
+    (``%``-style, e.g. ``%.9g``), comma-separated, one ``\n``-terminated line a row."""
+    line = ",".join([fmt] * block.shape[1]) + "\n"
+    return "".join(line % tuple(r) for r in block).encode()

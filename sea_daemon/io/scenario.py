@@ -49,7 +49,7 @@ import numpy as np
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.validate import check_keys as _check_keys, num as _num
-from sea_daemon.core.control import cosine_torque
+from sea_daemon.core.control import PIDGains, cosine_torque
 from sea_daemon.io.configfile import load_config, load_yaml
 from sea_daemon.core.effects import Effect, effect_from_dict
 from sea_daemon.core.model import SEAModel
@@ -126,16 +126,12 @@ class TrajectorySpec:
                    hold_s=_num(source, p + "hold_s", d.get("hold_s", 0.0), lo=0.0, hi=3600.0))
 
 
-@dataclass(frozen=True)
-class PIDSpec:
-    """PID position control on the load angle tracking a minimum-jerk trajectory."""
+@dataclass(frozen=True, kw_only=True)
+class PIDSpec(PIDGains):
+    """PID position control on the load angle tracking a minimum-jerk trajectory: the gains
+    (:class:`~sea_daemon.core.control.PIDGains`) and the trajectory."""
 
-    kp: float
-    ki: float
-    kd: float
     trajectory: TrajectorySpec
-    velocity_filter_hz: float = 20.0
-    derivative: str = "motor"
     type: str = "pid"
 
     KEYS = ["type", "kp", "ki", "kd", "velocity_filter_hz", "derivative", "trajectory"]

@@ -1,25 +1,27 @@
 """The Theorem-1 bound in a worker process: the loop's estimator step runs the filter only.
 
-:class:`BoundWorker` takes the bound component (:class:`~sea_daemon.core.estimators.base.Bound`,
-e.g. :class:`~sea_daemon.core.bounds.akf_bound.AKFTheoremBound`) off the loop's AKF and puts
-itself in its place (``deferred``: the AKF hands every step's inputs on and takes ρ and the
-validity from it).  A forked process holds a copy of the AKF with the original bound and
-computes, sample by sample and in order (the set of means needs every sample), exactly what the
-loop's own step would have computed: the bound's step, then the start-up gate
-(:meth:`~sea_daemon.core.estimators.akf.AKF.gate`).  Same objects, same compiled kernels, same
+:class:`BoundWorker` is a :class:`~sea_daemon.core.estimators.record.BoundConsumer` attached to
+the loop's AKF (:meth:`~sea_daemon.core.estimators.akf.AKF.attach`): the AKF hands it every
+reset's and step's :class:`~sea_daemon.core.estimators.record.StepRecord` instead of running its
+bound component (:class:`~sea_daemon.core.estimators.base.Bound`, e.g.
+:class:`~sea_daemon.core.bounds.akf_bound.AKFTheoremBound`), and takes ρ and the validity from
+it.  A forked process (:mod:`.bound_serve`) holds a copy of the AKF with its bound and computes,
+sample by sample and in order (the set of means needs every sample), exactly what the loop's own
+step would have computed: :meth:`~sea_daemon.core.estimators.akf.AKF.finish_step` on the
+record — the bound's step, then the start-up gate.  Same objects, same compiled kernels, same
 inputs: the same ρ_k to the bit.
 
 Per cycle, on the loop's side (no pickling, no lock, never blocking, nothing allocated but
 integers):
 
-* :meth:`BoundWorker.step` copies the step's inputs — the AKF's step buffer (F_k, K_k, Γ_μ, P_k,
-  μ, ∂μ/∂z, … of step k), ẑ_{k−1}, x̂_{k−1}, P_{k−1}, the input u, dt, the box of the start-up
-  gate and the loop's cycle — into the next slot of a ring in shared memory;
+* :meth:`BoundWorker.take` copies the step's record — x̂_{k−1}, P_{k−1}, u, dt, ẑ_{k−1}, A_k,
+  F_k, Γ_μ, K_k, P_k, μ, ∂μ/∂z, the box of the start-up gate — and the loop's cycle into the next
+  slot of a ring in shared memory (:mod:`.bound_slots`);
 * :meth:`BoundWorker.flush`, called by the loop at the end of the cycle (after its log row),
   publishes the slots written: it writes the number of samples handed over (the head, an int64)
   to the worker's pipe, which also wakes the worker: the worker computes while the loop sleeps,
   not beside the loop's own work;
-* :meth:`BoundWorker.step` also reads, without waiting, the newest count of samples finished
+* :meth:`BoundWorker.take` also reads, without waiting, the newest count of samples finished
   that the worker wrote to the loop's pipe, and fills the estimate with the result of that
   sample (cycle, ρ, valid): ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the
   loop cycle of that sample (the log's ``bound_cycle``), ``valid`` = its gate and the age
@@ -70,47 +72,33 @@ it needs, ≈ 0.1 ms per sample) with its memory locked where permitted
 """
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import multiprocessing as mp
 import os
 import platform
-import select
-import signal
 import time
 from multiprocessing import shared_memory
 
 import numpy as np
 
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.errors import EstimatorFault
+from sea_daemon.runtime import bound_slots as bs
+from sea_daemon.runtime.bound_serve import worker_main
+from sea_daemon.runtime.bound_slots import FAILED, OK, STOP
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
-from sea_daemon.runtime.realtime import lock_memory
 
-# int64 header slots, read without order (module docstring): the worker's count of samples done
-# (the loop's hint to read its pipe), its SCHED_FIFO priority (0 SCHED_OTHER, −1 not known yet),
-# its memory locked (1) or not (0)
-_DONE, _SCHED, _LOCKED, _NHDR = 0, 1, 2, 8
 #: how long :meth:`BoundWorker.start` waits for the worker to be set up (a dead or slow one is
 #: left to the loop's checks: BOUND_LOST, stale bounds)
-_START_WAIT_S = 30.0
-# float64 header slots (after the int64 ones): the worker's CPU time [s]: in bound steps, whole process
-_F_STEPS, _F_PROC, _NFHDR = 0, 1, 4
-# input slot: kind, cycle, k, dt, ready, gate_starts, epoch, then the arrays
-_KIND, _CYC, _K, _DT, _READY, _GATES, _EPOCH, _NIN = 0, 1, 2, 3, 4, 5, 6, 8
-STEP, RESET = 1.0, 2.0
-# result slot: seq, cycle, k, valid, status, epoch, cpu, then ρ (n)
-_RSEQ, _RCYC, _RK, _RVALID, _RSTATUS, _REPOCH, _RCPU, _NRES = 0, 1, 2, 3, 4, 5, 6, 8
-OK, FAILED, NO_BOUND = 0.0, 1.0, 2.0
-# the head that asks the worker to stop (after the samples published before it)
-STOP = -1
+START_WAIT_S = 30.0
 
 
-def akf_of(estimator):
+def akf_of(estimator) -> AKF | None:
     """The AKF inside ``estimator`` (through wrappers such as the assist's InnovationGuard that
     keep it as ``.estimator``), or None."""
     obj = estimator
     for _ in range(8):
-        if obj is None or hasattr(obj, "_buf"):
+        if obj is None or isinstance(obj, AKF):
             return obj
         obj = vars(obj).get("estimator") if hasattr(obj, "__dict__") else None
     return None
@@ -119,177 +107,13 @@ def akf_of(estimator):
 def why_not(estimator) -> str | None:
     """None when the estimator's bound can run in a worker, else why not (one line)."""
     akf = akf_of(estimator)
-    if akf is None or getattr(akf, "bound", None) is None:
+    if akf is None or akf.bound is None:
         return "the estimator publishes no Theorem-1 bound"
-    if getattr(akf.bound, "deferred", False):
+    if akf.consumer is not None:
         return "the bound already runs elsewhere"
     if getattr(akf, "learning", False):
         return "the GP learns in the loop (the worker's copy would not follow it)"
     return None
-
-
-def _layout(d: int, m: int, n: int, nbuf: int) -> dict:
-    """Offsets of the input slot's arrays."""
-    o = _NIN
-    out = {}
-    for name, size in (("u", n), ("z", 3 * n), ("x", d), ("P", d * d), ("b0", d), ("buf", nbuf)):
-        out[name] = (o, o + size)
-        o += size
-    out["width"] = o
-    return out
-
-
-def _pdeathsig() -> None:
-    """Linux: SIGKILL this process when its parent thread exits (best effort)."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)          # PR_SET_PDEATHSIG
-    except Exception:  # noqa: BLE001 - other kernels: the parent id check below remains
-        pass
-
-
-def _worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict, record: int,
-                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
-                 via_pipe: bool = True) -> None:
-    _pdeathsig()
-    for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-    sched = 0
-    try:
-        if rt_priority > 0:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
-            sched = rt_priority
-        else:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        try:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        except (OSError, AttributeError):
-            pass
-    if os.getppid() != parent_pid:
-        return
-    # a forked process inherits no memory locks: its own, in real-time pace
-    locked = rt_priority > 0 and lock_memory().startswith("locked")
-    shm = shared_memory.SharedMemory(name=shm_name)
-    hdr = fhdr = ring = res = cpu_rec = None
-    try:
-        hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
-        hdr[_SCHED] = sched
-        hdr[_LOCKED] = 1 if locked else 0
-        fhdr = np.ndarray((_NFHDR,), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
-        o = (_NHDR + _NFHDR) * 8
-        ring = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf, offset=o)
-        o += cap * width * 8
-        res = np.ndarray((cap, rwidth), dtype=np.float64, buffer=shm.buf, offset=o)
-        o += cap * rwidth * 8
-        cpu_rec = np.ndarray((max(record, 1),), dtype=np.float64, buffer=shm.buf, offset=o)
-        _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid, via_pipe)
-    finally:
-        del hdr, fhdr, ring, res, cpu_rec
-        shm.close()
-
-
-def _serve(akf, hdr, fhdr, ring, res, cpu_rec, record, lay, heads, counts, parent_pid, via_pipe=True) -> None:
-    """The worker's loop: every slot up to the newest head read from ``heads``, in order, each
-    one's count written to ``counts`` after its result (``via_pipe``), else stored in shared
-    memory only (module docstring); then wait."""
-    bound = akf.bound
-    e = akf.est
-    d, n = akf.d, akf.n
-    cap = ring.shape[0]
-    sl = {k: slice(*v) for k, v in lay.items() if k != "width"}
-    gates = -1
-    clock = time.thread_time
-    cpu_total = 0.0
-    reader = CountReader(heads)
-    out = bytearray(8)
-    head = done = 0
-    stop = unsent = False
-    while True:
-        if done < head:
-            c0 = clock()
-            s = ring[done % cap]
-            r = res[done % cap]
-            kind = s[_KIND]
-            akf._buf[:] = s[sl["buf"]]
-            e.k = int(s[_K])
-            status = OK
-            valid = 0.0
-            if kind == RESET:
-                # AKF.reset: the filter restarted (from a sample when ready); the bound's reset
-                akf._ready = bool(s[_READY])
-                akf.converged, akf.converged_at = False, -1
-                try:
-                    bound.reset(e)
-                except Exception:  # noqa: BLE001 - reported as a failed step of the loop's estimator
-                    status = FAILED
-                else:
-                    status = NO_BOUND
-            else:
-                akf.z[:] = s[sl["z"]]
-                g = int(s[_GATES])
-                if g != gates:
-                    # the loop's AKF started its gate (_start_gate) since the last step: its box b₀, Φ = I
-                    gates = g
-                    akf._b0[:] = s[sl["b0"]]
-                    akf._Phi[:] = 0.0
-                    np.fill_diagonal(akf._Phi, 1.0)
-                    akf.converged, akf.converged_at = False, -1
-                x_prev = s[sl["x"]]
-                P_prev = s[sl["P"]].reshape(d, d)
-                try:
-                    # the same step as the loop's AKF.step / GPAKF._frozen_update would run
-                    bound.step(e, x_prev, P_prev, s[sl["u"]], float(s[_DT]))
-                    valid = 1.0 if akf.gate(e) else 0.0
-                except EstimatorFault:
-                    status = FAILED
-            r[_RSEQ] = done
-            r[_RCYC] = s[_CYC]
-            r[_RK] = s[_K]
-            r[_RVALID] = valid
-            r[_RSTATUS] = status
-            r[_REPOCH] = s[_EPOCH]
-            r[_NRES:_NRES + n] = e.tau_h_act_bound
-            spent = clock() - c0
-            r[_RCPU] = spent
-            if record and done < record:
-                cpu_rec[done] = spent
-            cpu_total += spent
-            fhdr[_F_STEPS] = cpu_total
-            done += 1
-            unsent = True
-        if unsent:
-            if via_pipe:
-                # the count after the result: the loop reads the result once it has read the count
-                try:
-                    unsent = not write_count(counts, out, done)   # full: the newest count later
-                except OSError:                  # the loop's end closed: the parent is gone
-                    return
-            else:
-                unsent = False                   # total store order: the store below is the count
-            hdr[_DONE] = done                    # after the write: the loop's hint to read the pipe (memory: the count)
-        if done < head:
-            continue
-        fhdr[_F_PROC] = time.process_time()
-        if stop or reader.eof:
-            return
-        ready, writable, _ = select.select([heads], [counts] if unsent else [], [], 1.0)
-        if ready:
-            try:
-                got = reader.read()
-            except OSError:
-                return
-            for i in range(got):
-                h = reader.value(i)
-                if h == STOP:
-                    stop = True
-                elif h > head:
-                    head = h
-        if os.getppid() != parent_pid:
-            return
 
 
 #: CPUs whose stores become visible to other cores in program order and whose loads are not
@@ -318,8 +142,6 @@ class BoundWorker:
     x86-64, the pipe on every other CPU).
     """
 
-    deferred = True
-
     def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0,
                  counts: str = "auto"):
         if counts not in ("auto", "pipe", "memory"):
@@ -329,42 +151,12 @@ class BoundWorker:
         if why is not None:
             raise ValueError(f"bound worker: {why}")
         akf = self.akf = akf_of(estimator)
-        self.bound = akf.bound
         self.max_age = int(max_age)
         self.capacity = cap = int(capacity)
         self.record = int(record)
         self.rt_priority = int(rt_priority)
-        d, m, n = akf.d, akf.m, akf.n
-        self.n = n
-        self._lay = lay = _layout(d, m, n, akf._buf.size)
-        self._width = w = lay["width"]
-        self._rwidth = rw = _NRES + n
-        size = (_NHDR + _NFHDR) * 8 + cap * (w + rw) * 8 + max(self.record, 1) * 8
-        self._shm = shared_memory.SharedMemory(create=True, size=size)
-        buf = self._shm.buf
-        self._hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=buf)
-        self._hdr[:] = 0
-        self._hdr[_SCHED] = -1
-        self._fhdr = np.ndarray((_NFHDR,), dtype=np.float64, buffer=buf, offset=_NHDR * 8)
-        self._fhdr[:] = 0.0
-        o = (_NHDR + _NFHDR) * 8
-        self._ring = np.ndarray((cap, w), dtype=np.float64, buffer=buf, offset=o)
-        o += cap * w * 8
-        self._res = np.ndarray((cap, rw), dtype=np.float64, buffer=buf, offset=o)
-        o += cap * rw * 8
-        self._cpu_rec = np.ndarray((max(self.record, 1),), dtype=np.float64, buffer=buf, offset=o)
-        self._ring[:] = 0.0                      # pre-fault every page: no page fault in the loop
-        self._res[:] = -1.0
-        self._cpu_rec[:] = np.nan
-        # per slot: views of its arrays (the loop writes into them, nothing is made per cycle)
-        self._slots = []
-        for i in range(cap):
-            s = self._ring[i]
-            v = {k: s[a:b] for k, (a, b) in ((k, lay[k]) for k in ("u", "z", "x", "b0", "buf"))}
-            a, b = lay["P"]
-            v["P"] = s[a:b].reshape(d, d)
-            self._slots.append((s, v["u"], v["z"], v["x"], v["P"], v["b0"], v["buf"]))
-        self._results = [(self._res[i], self._res[i, _NRES:_NRES + n]) for i in range(cap)]
+        self.n = n = akf.n
+        self._map_shared(akf, n, cap)
         self.ages = np.full(max(self.record, 1), -1, dtype=np.int64)   # per step (record): age, −1 none
         self.cycle = 0                           # the loop's cycle of the step being made (set by the loop)
         self.bound_cycle = -1                    # the cycle of the sample whose ρ is in the estimate
@@ -397,14 +189,33 @@ class BoundWorker:
         self._counts = CountReader(self._counts_r)
         self.started = False
 
+    def _map_shared(self, akf: AKF, n: int, cap: int) -> None:
+        """The shared memory (:mod:`.bound_slots`): slots laid out for the AKF's step record,
+        every page touched now (no page fault in the loop), views of each slot's arrays."""
+        self._lay, w = bs.layout(akf.record)
+        self._width = w
+        self._rwidth = rw = bs.N_RES + n
+        self._shm = shared_memory.SharedMemory(create=True, size=bs.shared_size(cap, w, rw, self.record))
+        v = bs.map_shared(self._shm.buf, cap, w, rw, self.record)
+        self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec = v
+        self._hdr[:] = 0
+        self._hdr[bs.H_SCHED] = -1
+        self._fhdr[:] = 0.0
+        self._ring[:] = 0.0                      # pre-fault every page: no page fault in the loop
+        self._res[:] = -1.0
+        self._cpu_rec[:] = np.nan
+        # per slot: the slot and views of its arrays (the loop writes into them, nothing is made per cycle)
+        self._slots = [(self._ring[i], bs.slot_arrays(self._ring[i], self._lay)) for i in range(cap)]
+        self._results = [(self._res[i], self._res[i, bs.N_RES:bs.N_RES + n]) for i in range(cap)]
+
     # ------------------------------------------------------------------ life
 
     def start(self, wait: bool = True) -> "BoundWorker":
-        """Fork the worker (its AKF a copy of the loop's as it is now, with the bound) and take
-        the bound's place in the loop's AKF; with ``wait``, once the worker has its scheduling
+        """Fork the worker (its AKF a copy of the loop's as it is now, with the bound) and attach
+        to the loop's AKF in the bound's place (:meth:`AKF.attach`); with ``wait``, once the worker has its scheduling
         and memory (not from inside a running loop: locking may take a second or more)."""
         ctx = mp.get_context("fork")
-        self._proc = ctx.Process(target=_worker_main, name="sea-daemon-bound", daemon=True,
+        self._proc = ctx.Process(target=worker_main, name="sea-daemon-bound", daemon=True,
                                  args=(self.akf, self._shm.name, self.capacity, self._width, self._rwidth,
                                        self._lay, self.record, self._heads_r, self._counts_w,
                                        (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
@@ -413,16 +224,17 @@ class BoundWorker:
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
         # until the worker has its scheduling and its memory locked (faulting a few hundred MB in
         # on one core): then the loop's first cycles do not run beside that
-        end = time.monotonic() + (_START_WAIT_S if wait else 0.0)
-        while self._hdr[_SCHED] < 0 and self._proc.is_alive() and time.monotonic() < end:
+        end = time.monotonic() + (START_WAIT_S if wait else 0.0)
+        while self._hdr[bs.H_SCHED] < 0 and self._proc.is_alive() and time.monotonic() < end:
             time.sleep(0.005)
-        self.akf.bound = self
+        self.akf.attach(self)
         self.started = True
         return self
 
     def close(self, timeout: float = 5.0) -> dict:
-        """Stop the worker, give the AKF its bound back (reset: its set of means did not follow
-        the steps made meanwhile) and return :meth:`stats`.  Safe to call twice."""
+        """Stop the worker, detach from the AKF, which computes its bound in its step again (reset:
+        its set of means did not follow the steps made meanwhile) and return :meth:`stats`.  Safe
+        to call twice."""
         if self._final is not None:
             return self._final
         if not self.started:                     # never started: only the shared memory and pipes to free
@@ -437,11 +249,11 @@ class BoundWorker:
             self._proc.kill()
             self._proc.join(5)
         # the worker has exited (and was waited for): all it wrote is visible
-        self.cpu_per_sample = np.array(self._cpu_rec[:min(self.record, int(self._hdr[_DONE]))])
+        self.cpu_per_sample = np.array(self._cpu_rec[:min(self.record, int(self._hdr[bs.H_DONE]))])
         self._final = self.stats()
         self.started = False
-        if self.akf.bound is self:
-            self.akf.bound = self.bound
+        if self.akf.consumer is self:
+            self.akf.detach()
             self.akf.reset()
         self._release()
         return self._final
@@ -478,9 +290,6 @@ class BoundWorker:
             return None
         return self._slots[h % self.capacity]
 
-    def _publish_slot(self) -> None:
-        self._head += 1                          # written; published by flush()
-
     def flush(self) -> None:
         """Publish the slots written since the last call and wake the worker (the loop calls it
         once per cycle, after the cycle's log row)."""
@@ -488,55 +297,51 @@ class BoundWorker:
         if h != self._published and self._send(h):   # not sent: again at the next flush
             self._published = h
 
-    def reset(self, est) -> None:
+    def take(self, est, record) -> None:
+        """The loop's AKF ended a reset or a step (:class:`~sea_daemon.core.estimators.record.BoundConsumer`):
+        hand its record to the worker; after a step, fill ``est`` with the newest bound (module docstring)."""
+        if record.kind == KIND_RESET:
+            self._reset(est, record)
+            return
+        if not self.broken:
+            slot = self._slot()
+            if slot is not None:
+                self._write(slot, bs.STEP, est, record)
+        self._collect(est)
+        est.valid = self.valid
+
+    def _reset(self, est, record) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""
         self._epoch += 1
         self.valid = False
         self.bound_cycle = -1
         self.broken = False
         slot = self._slot()
-        if slot is None:
-            return
-        s, _, _, _, _, _, buf = slot
-        akf = self.akf
-        s[_KIND] = RESET
-        s[_CYC] = self.cycle
-        s[_K] = est.k
-        s[_READY] = 1.0 if akf._ready else 0.0
-        s[_EPOCH] = self._epoch
-        buf[:] = akf._buf
-        self._publish_slot()
+        if slot is not None:
+            self._write(slot, bs.RESET, est, record)
 
-    def step(self, est, x_prev, P_prev, u, dt) -> None:
-        """Hand step k's inputs to the worker; fill ``est`` with the newest bound (module docstring)."""
-        if not self.broken:
-            slot = self._slot()
-            if slot is not None:
-                s, su, sz, sx, sP, sb0, sbuf = slot
-                akf = self.akf
-                s[_KIND] = STEP
-                s[_CYC] = self.cycle
-                s[_K] = est.k
-                s[_DT] = dt
-                s[_GATES] = akf.gate_starts
-                s[_EPOCH] = self._epoch
-                su[:] = u
-                sz[:] = akf.z
-                sx[:] = x_prev
-                sP[:] = P_prev
-                sb0[:] = akf._b0
-                sbuf[:] = akf._buf
-                self._publish_slot()
-        self._collect(est)
+    def _write(self, slot, kind: float, est, record) -> None:
+        """The record into the slot, published at the next :meth:`flush`."""
+        s, arrays = slot
+        s[bs.I_KIND] = kind
+        s[bs.I_CYC] = self.cycle
+        s[bs.I_K] = est.k
+        s[bs.I_DT] = record.dt
+        s[bs.I_READY] = 1.0 if record.ready else 0.0
+        s[bs.I_GATES] = record.gate_starts
+        s[bs.I_EPOCH] = self._epoch
+        for name, view in arrays:
+            view[...] = getattr(record, name)
+        self._head += 1
 
     def _collect(self, est) -> None:
         if self.counts_via == "memory":
             # total store order: the worker stored its count after the result (and after it read
             # the slot's inputs); loads are not reordered with loads
-            d = self._hdr.item(_DONE)
+            d = self._hdr.item(bs.H_DONE)
             if d > self._done:
                 self._done = d
-        elif self._hdr.item(_DONE) > self._done:
+        elif self._hdr.item(bs.H_DONE) > self._done:
             # the worker's own count, seen in shared memory, says that a newer count is in the
             # pipe (or soon will be): read it.  Only what came through the pipe is used; a count
             # seen late in shared memory delays the read, one seen early finds the pipe empty
@@ -553,9 +358,9 @@ class BoundWorker:
             # sample done − 1's result, complete: its count came through the pipe after it; and
             # not overwritten while read: that needs a sample the loop publishes after this
             r, rho = self._results[(done - 1) % self.capacity]
-            status, epoch, cyc, ok = r[_RSTATUS], r[_REPOCH], r[_RCYC], r[_RVALID] != 0.0
+            status, epoch, cyc, ok = r[bs.R_STATUS], r[bs.R_EPOCH], r[bs.R_CYC], r[bs.R_VALID] != 0.0
             self._rho_in[:] = rho
-            if r[_RSEQ] != done - 1:
+            if r[bs.R_SEQ] != done - 1:
                 epoch = -1.0                         # not that sample's (the ring's order rules it out)
             if epoch == self._epoch:
                 if status == FAILED:
@@ -607,12 +412,12 @@ class BoundWorker:
         """Counts and the worker's CPU time (bound steps, whole process) [s]."""
         if self._final is not None:
             return self._final
-        done = int(self._hdr[_DONE])
-        sched = int(self._hdr[_SCHED])
+        done = int(self._hdr[bs.H_DONE])
+        sched = int(self._hdr[bs.H_SCHED])
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
                 "counts": self.counts_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"),
-                "memory_locked": bool(self._hdr[_LOCKED]),
+                "memory_locked": bool(self._hdr[bs.H_LOCKED]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
-                "worker_cpu_steps_s": float(self._fhdr[_F_STEPS]), "worker_cpu_process_s": float(self._fhdr[_F_PROC]),
+                "worker_cpu_steps_s": float(self._fhdr[bs.F_STEPS]), "worker_cpu_process_s": float(self._fhdr[bs.F_PROC]),
                 "fault": self._fault}

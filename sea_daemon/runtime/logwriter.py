@@ -69,6 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.errors import InputError, shown
+from sea_daemon.io.logcsv import csv_header, csv_rows
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
 
 # header slots (int64) of the shared block, read without order (module docstring): the loop's
@@ -140,95 +141,52 @@ def _send_tail(fd: int, out: bytearray, tail: int) -> bool:
         return False
 
 
-def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
-                 heads_fd, tails_fd):
+def _leave_realtime() -> None:
+    """The writer must never compete with the loop: back to SCHED_OTHER when it inherited
+    SCHED_FIFO (systemd's CPUSchedulingPolicy=fifo applies to the whole service)."""
     try:
-        # the writer must never compete with the loop: back to SCHED_OTHER when it inherited
-        # SCHED_FIFO (systemd's CPUSchedulingPolicy=fifo applies to the whole service)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
-    os.set_blocking(heads_fd, False)
-    os.set_blocking(tails_fd, False)
-    shm = shared_memory.SharedMemory(name=shm_name)
-    hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
-    data = None
-    fd = -1
-    try:
-        data = np.ndarray((capacity, ncols), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
-        float(data.sum())        # map every page of the ring now (steady memory from the start)
-        path = Path(path)
-        header = (",".join(columns) + "\n").encode()
-        seg = 0
-        failed = False
+
+
+class _Drain:
+    """The writer process's side of the ring (module docstring): the loop's heads in, the rows
+    up to them out to the current segment file as whole lines, the tails back to the loop.
+
+    ``hdr``, ``data``: the shared header and ring; ``failed``: a write failed (the rows drained
+    from then on are counted lost); ``good``: bytes of whole lines in the current file."""
+
+    def __init__(self, hdr: np.ndarray, data: np.ndarray, path: Path, header: bytes, rotate_bytes: int,
+                 fmt: str, heads_fd: int, tails_fd: int):
+        self.hdr, self.data, self.capacity = hdr, data, data.shape[0]
+        self.path, self.header, self.rotate_bytes, self.fmt = path, header, rotate_bytes, fmt
+        self.heads, self.tails_fd, self.out = CountReader(heads_fd), tails_fd, bytearray(8)
+        self.head = self.tail = 0     # rows published (read from the loop's pipe), rows copied out
+        self.unsent = False           # a tail not yet written to the loop's pipe (it was full)
+        self.final = False            # every write end of the loop's pipe closed: its last head is known
+        self.seg, self.fd, self.good, self.failed = 0, -1, 0, False
         try:
-            fd = os.open(segment_path(path, seg), os.O_WRONLY | os.O_APPEND)  # created with its header
-            good = os.fstat(fd).st_size              # bytes of whole lines in the current file
+            self.fd = os.open(segment_path(path, 0), os.O_WRONLY | os.O_APPEND)  # created with its header
+            self.good = os.fstat(self.fd).st_size
         except OSError as e:
-            failed = True
+            self.failed = True
             hdr[_ERRNO] = e.errno or _UNKNOWN
-        line_fmt = ",".join([fmt] * ncols) + "\n"
-        heads = CountReader(heads_fd)
-        out = bytearray(8)
-        head = tail = 0          # rows published (read from the loop's pipe), rows copied out
-        unsent = False           # a tail not yet written to the loop's pipe (it was full)
-        final = False            # every write end of the loop's pipe closed: its last head is known
-        orphan = 0.0             # when the loop's process was first seen gone (0: not yet)
+
+    def run(self, parent_pid: int, poll: float) -> None:
+        """Drain until the loop's end of the heads pipe closed and every row up to its last head
+        is out; a loop process gone with the end still open: stop :data:`_ORPHAN_WAIT` later."""
+        orphan = 0.0                  # when the loop's process was first seen gone (0: not yet)
         while True:
-            if not final:
-                head = _drain_heads(heads, head)
-                if heads.eof:
-                    # the loop closed its end (close()) or its process is gone: the kernel
-                    # closed the end after every store of that process, and this read of the end
-                    # came after, so the head it stored last, and its rows, are visible
-                    final = True
-                    head = max(head, int(hdr[_HEAD]))
-            if head > tail:
-                n = min(head - tail, capacity, 1024)
-                idx = np.arange(tail, tail + n) % capacity
-                block = data[idx]                    # a copy: the ring slots are free again
-                tail += n
-                # the tail after the copy: the loop reuses the slots once it has read it
-                unsent = _send_tail(tails_fd, out, tail)
-                if failed:
-                    hdr[_LOST] += n
-                    continue
-                text = b""
-                try:
-                    if rotate_bytes and good >= rotate_bytes:   # rotate before writing: no empty files
-                        os.fsync(fd)
-                        os.close(fd)
-                        fd = -1
-                        seg += 1
-                        fd = _open_segment(segment_path(path, seg), header)
-                        good = len(header)
-                        hdr[_FILES] = seg + 1
-                    text = "".join(line_fmt % tuple(r) for r in block).encode()
-                    _write_all(fd, text)
-                    good += len(text)
-                    hdr[_WRITTEN] += n
-                except OSError as e:
-                    # disk full, I/O error, file size limit: keep the whole lines that reached the
-                    # file, cut the torn one, record the cause, account for the rows from here on
-                    failed = True
-                    hdr[_ERRNO] = e.errno or _UNKNOWN
-                    kept = 0
-                    if isinstance(e, _PartialWrite) and e.done:
-                        cut = text.rfind(b"\n", 0, e.done) + 1
-                        kept = text.count(b"\n", 0, cut)
-                        good += cut
-                        hdr[_WRITTEN] += kept
-                    hdr[_LOST] += n - kept
-                    if fd >= 0:
-                        try:
-                            os.ftruncate(fd, good)
-                        except OSError:
-                            pass
+            if not self.final:
+                self._read_heads()
+            if self.head > self.tail:
+                self._drain_block()
                 continue
-            if final:
-                break
-            if unsent:
-                unsent = _send_tail(tails_fd, out, tail)
+            if self.final:
+                return
+            if self.unsent:
+                self.unsent = _send_tail(self.tails_fd, self.out, self.tail)
             if os.getppid() != parent_pid:
                 # the loop's process is gone but the pipe's end is still open (a process forked
                 # from it holds it): the rows whose heads came through the pipe are written;
@@ -237,31 +195,120 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
                 if not orphan:
                     orphan = now
                 elif now - orphan > _ORPHAN_WAIT:
-                    break
+                    return
             # a timed poll, not a wait on the pipe: the loop's writes never wake this process
             time.sleep(poll)
-        if fd >= 0:
+
+    def _read_heads(self) -> None:
+        self.head = _drain_heads(self.heads, self.head)
+        if self.heads.eof:
+            # the loop closed its end (close()) or its process is gone: the kernel closed the end
+            # after every store of that process, and this read of the end came after, so the
+            # head it stored last, and its rows, are visible
+            self.final = True
+            self.head = max(self.head, int(self.hdr[_HEAD]))
+
+    def _drain_block(self) -> None:
+        """Copy up to 1024 published rows out of the ring, hand the tail back, write them."""
+        n = min(self.head - self.tail, self.capacity, 1024)
+        idx = np.arange(self.tail, self.tail + n) % self.capacity
+        block = self.data[idx]                   # a copy: the ring slots are free again
+        self.tail += n
+        # the tail after the copy: the loop reuses the slots once it has read it
+        self.unsent = _send_tail(self.tails_fd, self.out, self.tail)
+        if self.failed:
+            self.hdr[_LOST] += n
+            return
+        text = b""
+        try:
+            if self.rotate_bytes and self.good >= self.rotate_bytes:   # rotate before writing: no empty files
+                self._rotate()
+            text = csv_rows(block, self.fmt)
+            _write_all(self.fd, text)
+            self.good += len(text)
+            self.hdr[_WRITTEN] += n
+        except OSError as e:
+            self._write_failed(e, text, n)
+
+    def _rotate(self) -> None:
+        os.fsync(self.fd)
+        os.close(self.fd)
+        self.fd = -1
+        self.seg += 1
+        self.fd = _open_segment(segment_path(self.path, self.seg), self.header)
+        self.good = len(self.header)
+        self.hdr[_FILES] = self.seg + 1
+
+    def _write_failed(self, e: OSError, text: bytes, n: int) -> None:
+        """Disk full, I/O error, file size limit: keep the whole lines that reached the file, cut
+        the torn one, record the cause, account for the rows from here on."""
+        hdr = self.hdr
+        self.failed = True
+        hdr[_ERRNO] = e.errno or _UNKNOWN
+        kept = 0
+        if isinstance(e, _PartialWrite) and e.done:
+            cut = text.rfind(b"\n", 0, e.done) + 1
+            kept = text.count(b"\n", 0, cut)
+            self.good += cut
+            hdr[_WRITTEN] += kept
+        hdr[_LOST] += n - kept
+        if self.fd >= 0:
             try:
-                os.fsync(fd)
+                os.ftruncate(self.fd, self.good)
+            except OSError:
+                pass
+
+    def sync(self) -> None:
+        """fsync the current file; a failure is the log's error unless one came before."""
+        if self.fd >= 0:
+            try:
+                os.fsync(self.fd)
             except OSError as e:
-                if not failed:
-                    hdr[_ERRNO] = e.errno or _UNKNOWN
+                if not self.failed:
+                    self.hdr[_ERRNO] = e.errno or _UNKNOWN
+
+    def close(self) -> None:
+        """Close the current file and drop the views of the shared block (a traceback that
+        still holds this object must not keep the block from closing)."""
+        if self.fd >= 0:
+            try:
+                os.close(self.fd)
+            except OSError:
+                pass
+            self.fd = -1
+        self.hdr = self.data = None
+
+
+def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
+                 heads_fd, tails_fd):
+    """The writer process: drain the ring into the log's files (:class:`_Drain`) until the loop
+    is done; any failure leaves its errno (or :data:`_UNKNOWN`) in the shared header."""
+    _leave_realtime()
+    os.set_blocking(heads_fd, False)
+    os.set_blocking(tails_fd, False)
+    shm = shared_memory.SharedMemory(name=shm_name)
+    hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
+    data = drain = None
+    try:
+        data = np.ndarray((capacity, ncols), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
+        float(data.sum())        # map every page of the ring now (steady memory from the start)
+        drain = _Drain(hdr, data, Path(path), csv_header(columns), rotate_bytes, fmt, heads_fd, tails_fd)
+        data = None
+        drain.run(parent_pid, poll)
+        drain.sync()
     except BaseException:
         if hdr[_ERRNO] == 0:
             hdr[_ERRNO] = _UNKNOWN
         raise
     finally:
-        if fd >= 0:
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        if drain is not None:
+            drain.close()
         for f in (heads_fd, tails_fd):
             try:
                 os.close(f)
             except OSError:
                 pass
-        del hdr, data
+        del hdr, data, drain     # the views of the shared block go before it closes
         shm.close()
 
 
@@ -286,14 +333,14 @@ def _after_fork_in_child() -> None:
     # a process forked from the loop's (the bound worker) must not hold the loop's ends of the
     # pipes: the writer takes the end of the head pipe closing as the loop's process being gone
     for w in list(_LIVE):
-        w._close_fds()
+        w.close_loop_ends()
 
 
 def _at_exit() -> None:
     # a process that exits without close(): its writers drain every row and stop (multiprocessing
     # waits for them after this, its own exit handler having been registered before this one)
     for w in list(_LIVE):
-        w._close_fds("_heads_w")
+        w.end_heads()
 
 
 os.register_at_fork(after_in_child=_after_fork_in_child)
@@ -318,7 +365,7 @@ class LogWriter:
         self._closed = True                      # until the writer runs
         # the first file and its header now: a log that cannot be written stops the start-up
         try:
-            os.close(_open_segment(self.path, (",".join(self.columns) + "\n").encode()))
+            os.close(_open_segment(self.path, csv_header(self.columns)))
         except OSError as e:
             raise InputError(f"log {shown(self.path)}: cannot write: {e.strerror or e}") from None
         self._shm = shared_memory.SharedMemory(create=True, size=_NHDR * 8 + self.capacity * self.ncols * 8)
@@ -359,6 +406,21 @@ class LogWriter:
 
     def _close_fds(self, *names: str) -> None:
         close_fds(self, names or ("_heads_w", "_tails_r"))
+
+    def close_loop_ends(self) -> None:
+        """Close this process's ends of the pipes, as a process forked from the loop's must (the
+        writer takes the end of the heads pipe closing as the loop's process being gone)."""
+        self._close_fds()
+
+    def end_heads(self) -> None:
+        """Close the heads pipe: the writer drains every row up to the last head and stops
+        (what :meth:`close` does first; at the exit of a process that did not close)."""
+        self._close_fds("_heads_w")
+
+    @property
+    def writer_pid(self) -> int | None:
+        """The writer process's pid (read-only: for a benchmark that measures or limits it)."""
+        return self._proc.pid
 
     def append(self, row: np.ndarray) -> bool:
         """Copy one row into the ring (real-time safe: a copy, two integer stores, and every
@@ -441,7 +503,7 @@ class LogWriter:
         what failed (:meth:`fault`), None when nothing did."""
         if not self._closed:
             _LIVE.discard(self)
-            self._close_fds("_heads_w")          # the writer drains up to the last head, then stops
+            self.end_heads()                     # the writer drains up to the last head, then stops
             self._proc.join(timeout)
             if self._proc.is_alive():
                 self._proc.terminate()

@@ -1,42 +1,47 @@
-"""The fixed-rate loop: read → update → write → sleep to an absolute deadline (ros2_control style).
+"""The fixed-rate loop: read → control → estimate → publish → record → sleep to an absolute deadline (ros2_control).
 
 The one cycle loop of the project: the daemon (:mod:`.service`), the offline simulator
 (:mod:`.sim_runner`, lock-step over :class:`sea_daemon.hw.sim_hw.SimHardware`) and the
 hardware-in-the-loop session (:mod:`.hil_session`, over :class:`sea_daemon.hw.canopen_hw.CanopenHardware`
 and the device model) run it against a :class:`sea_daemon.hw.interface.HardwareInterface`.
 
-One cycle k (the estimator after the write, so that it gets the torque that acts over
-[t_k, t_k+1] — see :mod:`sea_daemon.hw.interface`):
+One cycle k, each step a method of :class:`FixedRateLoop` (the estimator after the write, so
+that it gets the torque that acts over [t_k, t_k+1] — see :mod:`sea_daemon.hw.interface`):
 
-1. ``hw.read()``             the measurement sampled at t_k (raises a HardwareError on a fault); a
-   sample the hardware missed within its tolerance (``valid`` False: a TPDO that did not come,
-   its values held) goes on to the controller, the estimator and the log as the constant-velocity
-   extrapolation 2·x_{k−1} − x_{k−2} of the angles of the two cycles before (``measured`` 0 in
-   its row; counted in ``stats.extrapolated``), not as the held angles
-2. ``controller.update()``   the torque command from the measurement and the last estimate
-3. ``hw.write(tau_m)``       the command (or ``hw.safe_stop()`` in the cycle a fault latches)
-4. ``estimator.update()``    with the torque acting over [t_k, t_k+1]: ``hw.actuated()`` of the
-   one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO), of the previous cycle's
-   with delay 1; raises EstimatorFault instead of emitting NaN.  With the bound worker
-   (:mod:`sea_daemon.runtime.bound_worker`) the step runs the filter, and the estimate carries
-   the newest ρ the worker finished, of the sample of cycle ``bound_cycle`` (logged)
-5. ``publisher.publish()``    the estimate, its bound, validity and the latched fault to the bus and
-   to local readers, with the angles the cycle passed on (a missed sample's extrapolation)
+1. read (``_read``): ``hw.read()``, the measurement sampled at t_k (raises a HardwareError on a
+   fault); a sample the hardware missed within its tolerance (``valid`` False: a TPDO that did
+   not come, its values held) goes on to the controller, the estimator and the log as the
+   constant-velocity extrapolation 2·x_{k−1} − x_{k−2} of the angles of the two cycles before
+   (``measured`` 0 in its row; counted in ``stats.extrapolated``), not as the held angles
+2. control (``_control``): ``controller.update()``, the torque command from the measurement and
+   the last estimate, then ``hw.write(tau_m)``
+3. estimate (``_estimate``): ``estimator.update()`` with the torque acting over [t_k, t_k+1]:
+   ``hw.actuated()`` of the one written now with ``hw.actuation_delay`` 0 (asynchronous RPDO),
+   of the previous cycle's with delay 1; raises EstimatorFault instead of emitting NaN.  With
+   the bound worker (:mod:`sea_daemon.runtime.bound_worker`) the step runs the filter, and the
+   estimate carries the newest ρ the worker finished, of the sample of cycle ``bound_cycle`` (logged)
+4. fault policy: an exception of any step latches its ``fault`` (:func:`sea_daemon.errors.fault_of`;
+   ``_failed``: ``hw.safe_stop()`` in the cycle it latches), and while a fault is latched the
+   loop writes zero torque and has no estimate (``_hold_when_latched``)
+5. publish (``_publish``): the estimate, its bound, validity and the latched fault to the bus
+   and to local readers, with the angles the cycle passed on (a missed sample's extrapolation)
    (:mod:`sea_daemon.runtime.publish`; never blocks, never raises)
-6. ``on_cycle`` (the caller's recorder) and one row into the off-loop log writer (row k's
-   ``tau_m`` is that same torque, docs/interfaces.md §1) — in **every** cycle, through and
-   after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0; the last
-   measured angles held, the time one period on, no NaN), ``valid`` is the estimator's own
-   flag (0 while it starts or converges, and whenever a fault is latched), ``fault`` the
-   latched code; a log writer that cannot write latches LOG_FAILED; the watchdog from every
-   cycle the loop runs (latched or not; the notifier sends WATCHDOG=1 to systemd at most every
-   1/40 of its watchdog period)
-7. sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is an overrun, and
-   deadlines missed by a whole period or more are skipped (counted), not caught up in a burst;
-   lock-step runs (``realtime=False``) do not sleep
+6. record (``_record``, ``_fill_row``, ``_keep_alive``): ``on_cycle`` (the caller's recorder)
+   and one row into the off-loop log writer (row k's ``tau_m`` is that same torque, its columns
+   :class:`sea_daemon.core.log.DaemonLogLayout`, docs/interfaces.md §1) — in **every** cycle,
+   through and after a fault: a cycle whose read failed gets a placeholder row (``measured`` 0;
+   the last measured angles held, the time one period on, no NaN), ``valid`` is the estimator's
+   own flag (0 while it starts or converges, and whenever a fault is latched), ``fault`` the
+   latched code; a log writer that cannot write latches LOG_FAILED; the cycle's sample to the
+   bound worker; the watchdog from every cycle the loop runs (latched or not; the notifier
+   sends WATCHDOG=1 to systemd at most every 1/40 of its watchdog period)
+7. pace (``_pace``): sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is
+   an overrun, and deadlines missed by a whole period or more are skipped (counted), not caught
+   up in a burst; lock-step runs (``realtime=False``) do not sleep
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
-row vector is preallocated and the log writer only copies it.  Faults follow the single
+row vector and the cycle's state (:class:`CycleState`) are preallocated and overwritten, and
+the log writer only copies the row.  Faults follow the single
 policy of :mod:`sea_daemon.runtime.safety`.
 """
 from __future__ import annotations
@@ -49,7 +54,8 @@ import numpy as np
 
 from sea_daemon.hw.interface import HardwareInterface, Measurement
 from sea_daemon.core.buffers import resident_zeros
-from sea_daemon.errors import EstimatorFault, Fault, HardwareError
+from sea_daemon.core.log import DaemonLogLayout
+from sea_daemon.errors import Fault, fault_of
 from sea_daemon.runtime.safety import SafetySupervisor
 
 if TYPE_CHECKING:                     # the estimators load compiled kernels: not for a type
@@ -60,26 +66,6 @@ class Controller(Protocol):
     """What the loop asks for the torque command (e.g. :class:`sea_daemon.runtime.controller.ScenarioController`)."""
 
     def update(self, t: float, q: np.ndarray, theta_m: np.ndarray, estimate: Any) -> np.ndarray: ...
-
-
-def fault_of(exc: BaseException) -> Fault:
-    """Map an exception raised in the cycle to the fault it stands for."""
-    code = getattr(exc, "fault", None)
-    if isinstance(code, Fault):
-        return code
-    name = type(exc).__name__.lower()
-    table = (("heartbeat", Fault.HEARTBEAT_LOST), ("emcy", Fault.EMCY), ("jump", Fault.ENCODER_JUMP),
-             ("stuck", Fault.ENCODER_STUCK), ("busoff", Fault.BUS_OFF), ("bus_off", Fault.BUS_OFF),
-             ("send", Fault.SEND_FAILED), ("pdo", Fault.TPDO_MISSING), ("timeout", Fault.TPDO_MISSING),
-             ("devicefault", Fault.DEVICE_FAULT))
-    for key, f in table:
-        if key in name:
-            return f
-    if isinstance(exc, EstimatorFault):
-        return Fault.COVARIANCE_NOT_PD if "definite" in str(exc) else Fault.ESTIMATOR_NONFINITE
-    if isinstance(exc, HardwareError):
-        return Fault.DEVICE_FAULT
-    return Fault.INTERNAL
 
 
 class Series:
@@ -126,27 +112,29 @@ class LoopStats:
     extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
 
 
-LOG_EXTRA = ["tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma", "valid", "fault", "cycle",
-             "period", "compute", "read", "measured", "bound_cycle"]
+class CycleState:
+    """What one cycle has so far, overwritten in place by the next (no allocation per cycle):
+    the steps of :meth:`FixedRateLoop.run` hand it on.
 
+    ``meas``: the measurement (None when the read failed); ``q``, ``theta_m``: the angles the
+    cycle passes on (a missed sample's extrapolation, not the held values); ``measured``: the
+    row holds this cycle's sample; ``from_start``: cycle 0 is ``hw.start()``'s sample; ``est``,
+    ``valid``: the estimate and the estimator's own validity flag (1.0 / 0.0); ``start``,
+    ``t_read`` [s]: ``clock()`` at the start of the cycle and after the read."""
 
-def log_columns(n: int) -> list[str]:
-    """Daemon log: docs/interfaces.md §1 columns plus estimate, bound, validity and loop timing."""
-    from sea_daemon.core.log import column_names
-    cols = ["t"]
-    for base in ("q", "theta_m", "tau_m"):
-        cols += column_names(base, n)
-    for base in ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma"):
-        cols += column_names(base, n)
-    # period: start to start of cycles [s]; compute: start of read to the log row [s]; read: hw.read() [s];
-    # measured: 1 when the row holds this cycle's sample, 0 for the placeholder of a failed read
-    # and for a sample the hardware missed (its angles extrapolated, FixedRateLoop docstring);
-    # bound_cycle: the cycle whose sample the row's tau_h_act_bound belongs to (−1: no estimate)
-    return cols + ["valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle"]
+    __slots__ = ("k", "start", "t_read", "meas", "q", "theta_m", "measured", "from_start", "est", "valid")
+
+    def __init__(self):
+        self.k = 0
+        self.start = self.t_read = 0.0
+        self.meas = self.q = self.theta_m = self.est = None
+        self.measured = self.from_start = False
+        self.valid = 0.0
 
 
 class FixedRateLoop:
-    """read → update → write → estimate → record → sleep to an absolute deadline, with the fault policy.
+    """read → control (update, write) → estimate → fault policy → publish → record → pace to an
+    absolute deadline (module docstring; each a step of :meth:`run`).
 
     ``estimator``: None runs no estimation (the offline simulator).  ``initial_torque``: the
     torque in force when the loop starts (what ``hw.start()`` primed with); with
@@ -187,7 +175,9 @@ class FixedRateLoop:
         self.bound_link = bound_link
         self._bound_fault_seen = False
         self.stats = LoopStats()
-        self._row = np.zeros(len(log_columns(n)))
+        #: the log row's columns, each quantity's index or slice (docs/interfaces.md §1)
+        self.layout = DaemonLogLayout.of(n)
+        self._row = np.zeros(len(self.layout.columns))
         self._zero = np.zeros(n)
         self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
         self._act_prev = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
@@ -201,6 +191,9 @@ class FixedRateLoop:
         self._qx, self._thx = np.zeros(n), np.zeros(n)
         self._passed = 0
         self._log_fault_seen = False
+        self._cycle = CycleState()
+        self._t0 = 0.0                           # the pacing origin: cycle k's deadline is t0 + k·period
+        self._last_start = 0.0                   # clock() at the start of the cycle before
         self.last_estimate = None
         self.cycle_start = 0.0
 
@@ -210,6 +203,7 @@ class FixedRateLoop:
     def request_reset(self) -> None:         # operator action (sea-daemon reset → SIGUSR1)
         self._reset_requested = True
 
+    # ------------------------------------------------------------------ the fault policy
     def _trip(self, code: Fault, cycle: int, t: float, detail: str) -> None:
         if self.supervisor.trip(code, cycle, t, detail):
             self._latched()
@@ -225,11 +219,43 @@ class FixedRateLoop:
             self.notifier.status(self.supervisor.status_line())
 
     def _failed(self, e: BaseException, cycle: int, t: float) -> None:
-        """An exception in the cycle: latch its fault (zero torque now); re-raise it when ``fail_fast``."""
+        """An exception in the cycle: latch its fault (``e.fault``, zero torque now); re-raise it
+        when ``fail_fast``."""
         self._trip(fault_of(e), cycle, t, f"{type(e).__name__}: {e}")
         if self.fail_fast:
             raise e
 
+    def _operator_reset(self, k: int, start: float) -> None:
+        """The operator's reset, asked for since the last cycle: clear the latch, reset the
+        hardware and the estimator; a reset that fails leaves (or latches) the fault."""
+        self._reset_requested = False
+        self._passed = 0
+        was = self.supervisor.reset()
+        try:
+            self.hw.reset_fault()
+            if self.estimator is not None:
+                self.estimator.reset()
+        except Exception as e:  # noqa: BLE001 - a failed reset leaves the fault latched
+            self._trip(fault_of(e) if was == Fault.NONE else was, k, start,
+                       f"operator reset failed: {type(e).__name__}: {e}")
+        else:
+            if self.notifier is not None:
+                self.notifier.status("fault reset by operator")
+
+    def _hold_when_latched(self, c: CycleState) -> None:
+        """While a fault is latched: zero torque in force and written, no estimate."""
+        if self.supervisor.ok:
+            return
+        self._tau[:] = 0.0
+        self._act_prev[:] = 0.0
+        c.valid = 0.0
+        c.est = None
+        try:
+            self.hw.write(self._zero)
+        except Exception:  # noqa: BLE001 - the bus may be gone; safe_stop was already asked
+            pass
+
+    # ------------------------------------------------------------------ the cycle
     def run(self, cycles: int | None = None, start_sample: Measurement | None = None) -> LoopStats:
         """Run ``cycles`` cycles (None: until :meth:`request_stop`).
 
@@ -237,188 +263,206 @@ class FixedRateLoop:
         cycle); cycle 0 is then that sample, estimated and recorded with the initial torque
         (in force over [t_0, t_1]) and no command, and the reads start at t_1.
         """
-        n = self.n
-        sup = self.supervisor
-        row = self._row
         st = self.stats
-        t0 = self.clock()
-        deadline = t0
-        last_start = t0
+        c = self._cycle
+        self._t0 = self._last_start = self.clock()
         k = 0
-        cpu_clock = self.cpu_clock
         if self.record_periods and cycles is not None:
             st.cpu.reserve(len(st.cpu) + cycles)
             st.periods.reserve(len(st.periods) + cycles)
         while not self._stop and (cycles is None or k < cycles):
             link = self.bound_link                    # may be attached while the loop runs
-            start = self.clock()
-            cpu0 = cpu_clock()
+            c.k = k
+            c.start = start = self.clock()
+            cpu0 = self.cpu_clock()
             self.cycle_start = start
             if self._reset_requested:
-                self._reset_requested = False
-                self._passed = 0
-                was = sup.reset()
-                try:
-                    self.hw.reset_fault()
-                    if self.estimator is not None:
-                        self.estimator.reset()
-                except Exception as e:  # noqa: BLE001 - a failed reset leaves the fault latched
-                    self._trip(fault_of(e) if was == Fault.NONE else was, k, start,
-                               f"operator reset failed: {type(e).__name__}: {e}")
-                else:
-                    if self.notifier is not None:
-                        self.notifier.status("fault reset by operator")
-            meas = None
-            est = None
-            valid = 0.0
-            if start_sample is not None:
-                meas, start_sample = start_sample, None
-                self._tau[:] = self._act_prev          # the initial torque acts over [t_0, t_1]
-                from_start = True
-            else:
-                try:
-                    meas = self.hw.read()
-                except Exception as e:  # noqa: BLE001 - every hardware fault latches
-                    self._failed(e, k, start)
-                from_start = False
-            t_read = self.clock()
-            measured = meas is not None
-            if measured:
-                q, theta_m = meas.q, meas.theta_m
-                if not getattr(meas, "valid", True):
-                    # the hardware missed this sample (a TPDO within its tolerance, the values
-                    # held): a held angle reads as a stop then a jump (to the PID's D term, the
-                    # differentiator, the filter's innovation); constant velocity from the two
-                    # samples before it instead: 2·x_{k−1} − x_{k−2} (held without them)
-                    measured = False
-                    if self._passed >= 2:
-                        q, theta_m = self._qx, self._thx
-                        np.multiply(self._q1, 2.0, out=q)
-                        q -= self._q2
-                        np.multiply(self._th1, 2.0, out=theta_m)
-                        theta_m -= self._th2
-                        st.extrapolated += 1
-                # the history: the buffers swap, the new sample copied in
-                self._q1, self._q2 = self._q2, self._q1
-                self._th1, self._th2 = self._th2, self._th1
-                self._q1[:] = q
-                self._th1[:] = theta_m
-                if self._passed < 2:
-                    self._passed += 1
-            else:
-                self._passed = 0
-            if meas is not None and sup.ok and not from_start:
-                try:
-                    cmd = self.controller.update(meas.t, q, theta_m, self.last_estimate)
-                    self.hw.write(cmd)
-                    act = self.hw.actuated(cmd)
-                    if self._delay:
-                        # synchronous RPDO: the previous command acts over [t_k, t_k+1]
-                        self._tau[:] = self._act_prev
-                        self._act_prev[:] = act
-                    else:
-                        # actuated on reception: this command acts over [t_k, t_k+1]
-                        self._tau[:] = act
-                except Exception as e:  # noqa: BLE001
-                    self._failed(e, k, start)
-            if meas is not None and sup.ok and self.estimator is not None:
-                if link is not None:
-                    link.cycle = k
-                try:
-                    est = self.estimator.update(q, theta_m, self._tau)
-                    # the estimator's own flag: 0 at a (re)start and until the filter converged
-                    valid = 1.0 if est.valid else 0.0
-                except Exception as e:  # noqa: BLE001
-                    self._failed(e, k, start)
-            if not sup.ok:
-                self._tau[:] = 0.0
-                self._act_prev[:] = 0.0
-                valid = 0.0
-                est = None
-                try:
-                    self.hw.write(self._zero)
-                except Exception:  # noqa: BLE001 - the bus may be gone; safe_stop was already asked
-                    pass
-            self.last_estimate = est if valid else None
-            if self.publisher is not None:
-                # the angles the estimate was made from: a missed sample's extrapolation, not the held values
-                self.publisher.publish(k, meas, self.last_estimate, self._tau, sup.latched,
-                                       q if meas is not None else None)
-            if self.on_cycle is not None:
-                self.on_cycle(k, meas, est, self._tau)
-            done = self.clock()
-            if self.log is not None:
-                # one row in every cycle; without a sample, the last measured angles are held
-                # (zero before the first) and the time moves one period on
-                if meas is not None:
-                    # the hardware's time is whole periods; one that did not move on past a
-                    # placeholder row (a read that failed before its SYNC) continues from it
-                    row[0] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
-                    row[1:1 + n] = q
-                    row[1 + n:1 + 2 * n] = theta_m
-                else:
-                    row[0] = self._t_row + self.period if k else 0.0
-                self._t_row = row[0]
-                row[1 + 2 * n:1 + 3 * n] = self._tau
-                i = 1 + 3 * n
-                if est is not None and valid:
-                    row[i:i + n] = est.tau_h_act_hat
-                    row[i + n:i + 2 * n] = est.tau_h_act_bound
-                    row[i + 2 * n:i + 3 * n] = est.tau_h_act_sigma
-                else:
-                    row[i:i + 3 * n] = 0.0
-                i += 3 * n
-                row[i] = valid
-                row[i + 1] = float(sup.latched)
-                row[i + 2] = k
-                row[i + 3] = start - last_start
-                row[i + 4] = done - start
-                row[i + 5] = t_read - start
-                row[i + 6] = 1.0 if measured else 0.0
-                # the cycle of the sample the published ρ belongs to (the worker's bound lags)
-                row[i + 7] = (k if link is None else link.bound_cycle) if (est is not None and valid) else -1.0
-                self.log.append(row)
-                # a log that cannot be written is a fault (latched once, again after a reset)
-                lost = self.log.fault()
-                if lost is not None and (sup.ok or not self._log_fault_seen):
-                    self._log_fault_seen = True
-                    self._trip(Fault.LOG_FAILED, k, start, lost)
-            if link is not None:
-                # the cycle's sample to the bound worker now, so that it computes while the loop
-                # sleeps; a worker that died or fell a whole ring behind: BOUND_LOST (once, again
-                # after a reset while it lasts)
-                link.flush()
-                gone = link.fault()
-                if gone is not None and (sup.ok or not self._bound_fault_seen):
-                    self._bound_fault_seen = True
-                    self._trip(Fault.BOUND_LOST, k, start, gone)
-            # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
-            # only a stuck loop and never clears a latched fault behind the operator's back
-            if self.notifier is not None:
-                self.notifier.watchdog()
-            if self.record_periods:
-                st.cpu.append(cpu_clock() - cpu0)
-                if k > 0:
-                    st.periods.append(start - last_start)
-            last_start = start
+                self._operator_reset(k, start)
+            self._read(c, start_sample)
+            start_sample = None
+            self._control(c)
+            self._estimate(c, link)
+            self._hold_when_latched(c)
+            self._publish(c)
+            self._record(c, link)
+            self._keep_alive(c, link, cpu0)
             k += 1
             st.cycles = k
-            deadline = t0 + k * self.period
-            if self.realtime:
-                now = self.clock()
-                late = now - deadline
-                if late > 0:
-                    st.overruns += 1
-                    st.max_late_s = max(st.max_late_s, late)
-                    if late >= self.period:
-                        # skip the deadlines already missed: re-phase instead of a catch-up burst
-                        skip = int(late // self.period)
-                        st.skipped += skip
-                        t0 += skip * self.period
-                    # the cycle that just ended (k − 1) overran its deadline
-                    if sup.overrun(True, k - 1, now):
-                        self._latched()
-                else:
-                    sup.overrun(False, k - 1, now)
-                    self.sleep(-late)
+            self._pace(k)
         return st
+
+    def _read(self, c: CycleState, start_sample: Measurement | None) -> None:
+        """``hw.read()`` (or ``start_sample``), then the angles the cycle passes on: a sample the
+        hardware missed goes on as the constant-velocity extrapolation (:meth:`_pass_on`)."""
+        c.meas, c.est, c.valid = None, None, 0.0
+        c.from_start = start_sample is not None
+        if c.from_start:
+            c.meas = start_sample
+            self._tau[:] = self._act_prev          # the initial torque acts over [t_0, t_1]
+        else:
+            try:
+                c.meas = self.hw.read()
+            except Exception as e:  # noqa: BLE001 - every hardware fault latches
+                self._failed(e, c.k, c.start)
+        c.t_read = self.clock()
+        c.measured = c.meas is not None
+        if c.measured:
+            self._pass_on(c)
+        else:
+            self._passed = 0
+
+    def _pass_on(self, c: CycleState) -> None:
+        meas = c.meas
+        q, theta_m = meas.q, meas.theta_m
+        if not getattr(meas, "valid", True):
+            # the hardware missed this sample (a TPDO within its tolerance, the values held): a
+            # held angle reads as a stop then a jump (to the PID's D term, the differentiator,
+            # the filter's innovation); constant velocity from the two samples before it
+            # instead: 2·x_{k−1} − x_{k−2} (held without them)
+            c.measured = False
+            if self._passed >= 2:
+                q, theta_m = self._qx, self._thx
+                np.multiply(self._q1, 2.0, out=q)
+                q -= self._q2
+                np.multiply(self._th1, 2.0, out=theta_m)
+                theta_m -= self._th2
+                self.stats.extrapolated += 1
+        # the history: the buffers swap, the new sample copied in
+        self._q1, self._q2 = self._q2, self._q1
+        self._th1, self._th2 = self._th2, self._th1
+        self._q1[:] = q
+        self._th1[:] = theta_m
+        if self._passed < 2:
+            self._passed += 1
+        c.q, c.theta_m = q, theta_m
+
+    def _control(self, c: CycleState) -> None:
+        """``controller.update()`` → ``hw.write()``; the torque acting over [t_k, t_k+1] into
+        ``_tau`` (the one written now, or the previous cycle's with a synchronous RPDO)."""
+        if c.meas is None or not self.supervisor.ok or c.from_start:
+            return
+        try:
+            cmd = self.controller.update(c.meas.t, c.q, c.theta_m, self.last_estimate)
+            self.hw.write(cmd)
+            act = self.hw.actuated(cmd)
+            if self._delay:
+                # synchronous RPDO: the previous command acts over [t_k, t_k+1]
+                self._tau[:] = self._act_prev
+                self._act_prev[:] = act
+            else:
+                # actuated on reception: this command acts over [t_k, t_k+1]
+                self._tau[:] = act
+        except Exception as e:  # noqa: BLE001
+            self._failed(e, c.k, c.start)
+
+    def _estimate(self, c: CycleState, link) -> None:
+        """``estimator.update()`` with the torque acting over [t_k, t_k+1]; ``valid`` is the
+        estimator's own flag (0 at a (re)start and until the filter converged)."""
+        if c.meas is None or not self.supervisor.ok or self.estimator is None:
+            return
+        if link is not None:
+            link.cycle = c.k
+        try:
+            c.est = self.estimator.update(c.q, c.theta_m, self._tau)
+            c.valid = 1.0 if c.est.valid else 0.0
+        except Exception as e:  # noqa: BLE001
+            self._failed(e, c.k, c.start)
+
+    def _publish(self, c: CycleState) -> None:
+        """The estimate (None when invalid or faulted), the torque, the latched fault and the
+        angles the estimate was made from — a missed sample's extrapolation, not the held values."""
+        self.last_estimate = c.est if c.valid else None
+        if self.publisher is not None:
+            self.publisher.publish(c.k, c.meas, self.last_estimate, self._tau, self.supervisor.latched,
+                                   c.q if c.meas is not None else None)
+
+    def _record(self, c: CycleState, link) -> None:
+        """The caller's ``on_cycle``, then one row into the log writer — in every cycle; a log
+        that cannot be written latches LOG_FAILED (once, again after a reset)."""
+        if self.on_cycle is not None:
+            self.on_cycle(c.k, c.meas, c.est, self._tau)
+        done = self.clock()
+        if self.log is None:
+            return
+        self._fill_row(c, link, done)
+        self.log.append(self._row)
+        lost = self.log.fault()
+        if lost is not None and (self.supervisor.ok or not self._log_fault_seen):
+            self._log_fault_seen = True
+            self._trip(Fault.LOG_FAILED, c.k, c.start, lost)
+
+    def _fill_row(self, c: CycleState, link, done: float) -> None:
+        """The cycle's log row (docs/interfaces.md §1) in the preallocated vector."""
+        row, L = self._row, self.layout
+        meas = c.meas
+        if meas is not None:
+            # the hardware's time is whole periods; one that did not move on past a placeholder
+            # row (a read that failed before its SYNC) continues from it
+            row[L.t] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
+            row[L.q] = c.q
+            row[L.theta_m] = c.theta_m
+        else:
+            # no sample: the last measured angles held (zero before the first), the time one period on
+            row[L.t] = self._t_row + self.period if c.k else 0.0
+        self._t_row = row[L.t]
+        row[L.tau_m] = self._tau
+        est = c.est if c.valid else None
+        if est is not None:
+            row[L.tau_h_act_hat] = est.tau_h_act_hat
+            row[L.tau_h_act_bound] = est.tau_h_act_bound
+            row[L.tau_h_act_sigma] = est.tau_h_act_sigma
+        else:
+            row[L.estimate] = 0.0
+        row[L.valid] = c.valid
+        row[L.fault] = float(self.supervisor.latched)
+        row[L.cycle] = c.k
+        row[L.period] = c.start - self._last_start
+        row[L.compute] = done - c.start
+        row[L.read] = c.t_read - c.start
+        row[L.measured] = 1.0 if c.measured else 0.0
+        # the cycle of the sample the published ρ belongs to (the worker's bound lags)
+        row[L.bound_cycle] = -1.0 if est is None else (c.k if link is None else link.bound_cycle)
+
+    def _keep_alive(self, c: CycleState, link, cpu0: float) -> None:
+        """The cycle's sample to the bound worker (it computes while the loop sleeps; a worker
+        that died or fell a whole ring behind: BOUND_LOST, once, again after a reset while it
+        lasts), WATCHDOG=1, and the cycle's CPU time and period when recorded."""
+        sup, k = self.supervisor, c.k
+        if link is not None:
+            link.flush()
+            gone = link.fault()
+            if gone is not None and (sup.ok or not self._bound_fault_seen):
+                self._bound_fault_seen = True
+                self._trip(Fault.BOUND_LOST, k, c.start, gone)
+        # the loop is alive: WATCHDOG=1 even while a fault is latched, so systemd restarts
+        # only a stuck loop and never clears a latched fault behind the operator's back
+        if self.notifier is not None:
+            self.notifier.watchdog()
+        if self.record_periods:
+            self.stats.cpu.append(self.cpu_clock() - cpu0)
+            if k > 0:
+                self.stats.periods.append(c.start - self._last_start)
+        self._last_start = c.start
+
+    def _pace(self, k: int) -> None:
+        """Sleep until ``t0 + k·period`` (k cycles done); a late wake-up is an overrun of cycle
+        k − 1, deadlines missed by a whole period or more are skipped (re-phased), not caught up."""
+        if not self.realtime:
+            return
+        st, sup = self.stats, self.supervisor
+        deadline = self._t0 + k * self.period
+        now = self.clock()
+        late = now - deadline
+        if late > 0:
+            st.overruns += 1
+            st.max_late_s = max(st.max_late_s, late)
+            if late >= self.period:
+                # skip the deadlines already missed: re-phase instead of a catch-up burst
+                skip = int(late // self.period)
+                st.skipped += skip
+                self._t0 += skip * self.period
+            if sup.overrun(True, k - 1, now):
+                self._latched()
+        else:
+            sup.overrun(False, k - 1, now)
+            self.sleep(-late)

@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING, Any, Callable
 from sea_daemon.errors import InputError, shown
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import Controller, FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor
@@ -299,57 +300,23 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     if bound_in not in ("auto", "worker", "loop"):
         raise ValueError(f"bound_in must be auto, worker or loop, got {bound_in!r}")
     log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
-    link = None
-    where = {"where": "loop"}
-    if estimator is not None and (bound_in == "worker" or (bound_in == "auto" and realtime)):
-        why = why_not(estimator)
-        if why is None:
-            try:
-                # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
-                prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
-                link = BoundWorker(estimator, max_age=bound_max_age, record=bound_record, rt_priority=prio).start()
-            except BaseException:
-                log.close()
-                raise
-        else:
-            where["why_not_worker"] = why
+    try:
+        link, where = _bound_link(estimator, bound_in, realtime, rt_priority, bound_max_age, bound_record)
+    except BaseException:
+        log.close()
+        raise
     rt = try_realtime(rt_priority) if (realtime and rt_priority) else {"sched": "other (not asked)",
                                                                        "mlockall": "skipped (not asked)"}
-    loop = None
-    next_status = [0.0]
-    rt_text = f"sched {rt['sched']}; mlockall {rt['mlockall']}"
-    stopped = {"signal": False}
-
-    def on_cycle(k, meas, est, tau):
-        now = time.monotonic()
-        if now >= next_status[0]:                        # STATUS= once a second (wall clock)
-            next_status[0] = now + 1.0
-            st = loop.stats
-            notifier.status(f"{label}: {k} cycles, {st.overruns} overruns, {st.skipped} skipped, "
-                            f"log rows written {log.rows_written}, {loop.supervisor.status_line()}")
-        if progress is not None:
-            progress(k, est)
-
-    def on_stop(signum, frame):
-        stopped["signal"] = True
-        if loop is not None:
-            loop.request_stop()
-
-    def on_reset(signum, frame):
-        if loop is not None:
-            loop.request_reset()
-
-    old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)}
+    status = _StatusLine(label, notifier, log, progress)
+    signals = _Signals()
     t_wall = time.monotonic()
     started = False
     try:
-        loop = FixedRateLoop(rig.hw, estimator, controller, n=n, period=period, log=log, notifier=notifier,
-                             realtime=realtime, record_periods=record_periods, on_cycle=on_cycle,
-                             initial_torque=rig.initial_torque, supervisor=supervisor, publisher=publisher,
-                             bound_link=link)
-        signal.signal(signal.SIGTERM, on_stop)
-        signal.signal(signal.SIGINT, on_stop)
-        signal.signal(signal.SIGUSR1, on_reset)
+        loop = status.loop = signals.loop = FixedRateLoop(
+            rig.hw, estimator, controller, n=n, period=period, log=log, notifier=notifier, realtime=realtime,
+            record_periods=record_periods, on_cycle=status, initial_torque=rig.initial_torque,
+            supervisor=supervisor, publisher=publisher, bound_link=link)
+        signals.install()
         if state is not None:
             sock = getattr(getattr(publisher, "local", None), "path", None)
             state.write(command=label, log=str(log_path), hardware=rig.description,
@@ -357,7 +324,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         rig.start()
         started = True
         # the drives watch our heartbeat from read(): the loop starts right away
-        notifier.ready(f"{label}: {rig.description}; {rt_text}")
+        notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}")
         t_wall = time.monotonic()
         # what exists now is never garbage: out of the collector's reach, so that a collection in
         # the loop only walks what the loop's cycles create (short pauses, no full-heap sweeps)
@@ -369,18 +336,95 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         try:
             rig.stop()
         finally:
-            final = log.close()
-            if link is not None:
-                where = link.close()
-            if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log
-                for f in final["files"]:
-                    Path(f).unlink(missing_ok=True)
-            if state is not None:
-                state.remove()
-            if publisher is not None:
-                publisher.close()
-            for s, h in old.items():
-                signal.signal(s, h)
+            final, where = _shut_down(log, link, where, started, state, publisher, signals)
+    return _result(loop, stats, final, rt, time.monotonic() - t_wall, signals.stopped, publisher, where, link,
+                   label, notifier)
+
+
+def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | None, max_age: int, record: int):
+    """The bound worker, when the estimator's bound runs in one (``serve``'s ``bound_in``), and
+    where the bound runs: (worker or None, {"where": ..., "why_not_worker": ...})."""
+    where = {"where": "loop"}
+    if estimator is None or not (bound_in == "worker" or (bound_in == "auto" and realtime)):
+        return None, where
+    why = why_not(estimator)
+    if why is not None:
+        where["why_not_worker"] = why
+        return None, where
+    # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
+    prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
+    return BoundWorker(estimator, max_age=max_age, record=record, rt_priority=prio).start(), where
+
+
+class _StatusLine:
+    """The service's ``on_cycle``: STATUS= once a second (wall clock), and the caller's progress."""
+
+    def __init__(self, label: str, notifier: Notifier, log: LogWriter, progress):
+        self.label, self.notifier, self.log, self.progress = label, notifier, log, progress
+        self.loop: FixedRateLoop | None = None
+        self.next_status = 0.0
+
+    def __call__(self, k, meas, est, tau) -> None:
+        now = time.monotonic()
+        if now >= self.next_status:
+            self.next_status = now + 1.0
+            st = self.loop.stats
+            self.notifier.status(f"{self.label}: {k} cycles, {st.overruns} overruns, {st.skipped} skipped, "
+                                 f"log rows written {self.log.rows_written}, {self.loop.supervisor.status_line()}")
+        if self.progress is not None:
+            self.progress(k, est)
+
+
+class _Signals:
+    """SIGTERM / SIGINT stop the loop, SIGUSR1 asks for the operator reset; :meth:`restore` puts
+    the handlers found back."""
+
+    def __init__(self):
+        self.loop: FixedRateLoop | None = None
+        self.stopped = False
+        self.old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)}
+
+    def install(self) -> None:
+        signal.signal(signal.SIGTERM, self.on_stop)
+        signal.signal(signal.SIGINT, self.on_stop)
+        signal.signal(signal.SIGUSR1, self.on_reset)
+
+    def on_stop(self, signum, frame) -> None:
+        self.stopped = True
+        if self.loop is not None:
+            self.loop.request_stop()
+
+    def on_reset(self, signum, frame) -> None:
+        if self.loop is not None:
+            self.loop.request_reset()
+
+    def restore(self) -> None:
+        for s, h in self.old.items():
+            signal.signal(s, h)
+
+
+def _shut_down(log: LogWriter, link, where: dict, started: bool, state, publisher, signals: _Signals):
+    """After the hardware stopped: the log closed (no empty log when the hardware never came up),
+    the worker, the state file, the publisher, the signal handlers; (the log's counts, where the
+    bound ran)."""
+    try:
+        final = log.close()
+        if link is not None:
+            where = link.close()
+        if not started and final["rows_written"] == 0:     # the hardware never came up: no empty log
+            for f in final["files"]:
+                Path(f).unlink(missing_ok=True)
+        if state is not None:
+            state.remove()
+        if publisher is not None:
+            publisher.close()
+    finally:
+        signals.restore()
+    return final, where
+
+
+def _result(loop: FixedRateLoop, stats, final: dict, rt: dict, wall_s: float, stopped: bool, publisher,
+            where: dict, link, label: str, notifier: Notifier) -> ServeResult:
     sup = loop.supervisor
     lost = f"; log incomplete, {final['rows_lost']} rows lost: {final['error']}" if final["error"] else ""
     notifier.status(f"{label}: stopped after {stats.cycles} cycles, {stats.overruns} overruns, "
@@ -389,4 +433,4 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     extra["bound"] = where
     if link is not None:
         extra["bound_link"] = link
-    return ServeResult(stats, sup, final, rt, time.monotonic() - t_wall, stopped["signal"], extra)
+    return ServeResult(stats, sup, final, rt, wall_s, stopped, extra)

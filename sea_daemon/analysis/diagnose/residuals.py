@@ -43,6 +43,7 @@ from scipy.ndimage import correlate1d
 from scipy.signal import savgol_coeffs
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.dynamics import spring_torque_many
 from sea_daemon.core.effects import Coulomb, Stribeck
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.log import MeasuredLog
@@ -180,13 +181,12 @@ def applied_torque(model: SEAModel, kin: Kinematics, zoh: bool = True) -> np.nda
 
 
 def spring_torque(model: SEAModel, theta_s: np.ndarray, dtheta_s: np.ndarray) -> np.ndarray:
-    """τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s)  (eq:spring_torque), vectorised over time."""
-    g = np.array(theta_s, dtype=float)
-    for j, e in model.backlash.items():
-        # the dead band of the spring deflection (SpringBacklash)
-        g[:, j] = e.deadband_array(theta_s[:, j])
-    z = np.zeros_like(theta_s)
-    return g @ model.K_s.T + dtheta_s @ model.D_s.T + _effect_sum(model.spring_effects, model.n, theta_s, z, z)
+    """τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s)  (eq:spring_torque) at every sample of (N, n)
+    arrays (:func:`sea_daemon.core.dynamics.spring_torque_many`)."""
+    th = np.ascontiguousarray(theta_s, dtype=float)
+    out = np.empty_like(th)
+    spring_torque_many(model.kernel, th, np.ascontiguousarray(dtheta_s, dtype=float), out)
+    return out
 
 
 def _static_limit(effects, n) -> np.ndarray:

@@ -1,17 +1,25 @@
-"""Benchmarks run by ``sea-daemon bench NAME``, one module each (discovered).
+"""Benchmarks run by ``sea-daemon bench NAME``, one module each, named in
+:data:`sea_daemon.apps.commands.bench.BENCHMARKS`.
 
-A module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
+A module defines ``add_arguments(parser)`` and ``run(args) -> int`` (optional ``DESCRIPTION``).
 Every benchmark prints what it measured, on what (machine, data), with how many runs, as
 medians and percentiles.  :func:`summarize` gives the figures in one place.
 """
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 import platform
 import struct
 import time
+from pathlib import Path
 
 import numpy as np
+
+from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import data_root, load_config
+from sea_daemon.io.files import atomic_write_text, check_outputs
 
 
 def machine() -> str:
@@ -88,7 +96,6 @@ def choose(text: str | None, allowed, flag: str) -> list[str]:
 
     An unknown label is an InputError naming the flag, the value and the allowed ones.
     """
-    from sea_daemon.errors import InputError
     allowed = list(allowed)
     labels = [s.strip() for s in (text or "").split(",") if s.strip()] or allowed
     unknown = [s for s in labels if s not in allowed]
@@ -120,9 +127,6 @@ def add_json_argument(p, what: str = "the figures") -> None:
 
 def json_output(args):
     """A writer of ``args.json`` (a no-op without it), the path checked now, before the run."""
-    import json
-
-    from sea_daemon.io.files import atomic_write_text, check_outputs
     check_outputs([("--json", args.json)])
 
     def write(data) -> None:
@@ -143,7 +147,6 @@ def add_settings_argument(p) -> None:
 def apply_settings(cfg, settings):
     """``cfg`` with the estimator, kinematics and learning sections of ``settings`` (the model,
     i.e. what the estimator knows of the plant, is kept): one setting for every estimator."""
-    import dataclasses
     if settings is None:
         return cfg
     return dataclasses.replace(cfg, estimator=settings.estimator, kinematics=settings.kinematics,
@@ -154,9 +157,6 @@ def start_simulated(args):
     """Start of a benchmark on simulated scenarios (accuracy, bounds): creates ``args.out``,
     loads ``--settings`` (None: each scenario's own config) and prints the machine and the
     settings.  Returns ``(out directory, settings)``."""
-    from pathlib import Path
-
-    from sea_daemon.io.configfile import load_config, data_root
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = args.settings or str(data_root() / "configs" / "exo_1dof_sim.yaml")

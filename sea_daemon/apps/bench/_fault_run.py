@@ -20,12 +20,14 @@ import time
 import can
 import numpy as np
 
+from sea_daemon.core.log import DaemonColumns
 from sea_daemon.hw.bus import make_bus
 from sea_daemon.hw.device_model import FaultSpec
 
 from sea_daemon.errors import Fault
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
 
@@ -135,95 +137,109 @@ class FaultRun:
     # ------------------------------------------------------------------ injection
     def _inject(self, k: int) -> None:
         """Called in on_cycle(k): the fault is present from cycle k + 1 on (the stall: in k)."""
-        kind, rng, rig = self.kind, self.rng, self.rig
-        inj = Injection(kind, k + 1)
-        target = "drive" if rng.random() < 0.5 else "encoder"
-        node = rig.drive if target == "drive" else rig.encoder
-        if kind == "tpdo_missing":
-            kk = self.cfg.hardware.bus.max_missed_cycles + 1
-            rig.device_model.inject(FaultSpec("drop", target=target, params={"count": kk}))
-            inj.cond = k + kk
-            inj.note = f"{kk} cycles"
-        elif kind == "heartbeat_lost":
-            node.suppress_heartbeat()
-            inj.cond = -2                     # from the sniffer, once the latch is seen
-
-            def restore(node=node):
-                node.heartbeat_suppressed = False
-                node.nmt.start_heartbeat(self.cfg.hardware.bus.heartbeat_ms)
-                # the loop waits here: the daemon's own heartbeat goes on meanwhile (keepalive), as
-                # it would from a loop that keeps cycling
-                t0 = time.monotonic()
-                seen = self.sniffer.hb_seen.get(node.id, 0.0)
-                while self.sniffer.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
-                    rig.hw.keepalive()
-                    time.sleep(0.002)
-                while rig.hw._hb_last.get(node.id, 0.0) is None or \
-                        time.monotonic() - rig.hw._hb_last[node.id] > 0.05:
-                    rig.hw.keepalive()             # the heartbeats come on the cycle's handles
-                    time.sleep(0.002)
-            self._restore = restore
-            inj.note = target
-        elif kind == "emcy":
-            code = int(rng.choice([0x2310, 0x4210, 0x7305, 0x5530]))
-            rig.device_model.inject(FaultSpec("emcy", target=target, params={"code": code}))
-            inj.cond = k + 1
-            inj.note = f"{target} 0x{code:04X}"
-        elif kind == "encoder_jump":
-            rad = float(rng.uniform(0.3, 1.0) * rng.choice([-1, 1]))
-            before = node.jump_counts
-            rig.device_model.inject(FaultSpec("jump", target=target, params={"rad": rad}))
-            delta = node.jump_counts - before
-
-            def restore(node=node, delta=delta):
-                node.jump_counts -= delta
-            self._restore = restore
-            inj.cond = k + 1
-            inj.note = f"{target} {rad:+.2f} rad"
-        elif kind == "encoder_stuck":
-            rig.device_model.inject(FaultSpec("stuck", target=target))
-
-            def restore(node=node):
-                node.frozen = None
-            self._restore = restore
-            inj.cond = -3                     # recomputed from the recorded counts
-            inj.note = target
-        elif kind == "bus_off":
-            rig.dev_bus.send(can.Message(arbitration_id=0x40, is_error_frame=True, is_extended_id=False,
-                                         data=bytes(8)))
-            t0 = time.monotonic()
-            while not rig.hw._errors.bus_off and time.monotonic() - t0 < 2.0:   # controller state known
-                time.sleep(0.0005)
-            inj.cond = k + 1
-        elif kind == "send_failed":
-            self.probe.fail_sends = 1
-            inj.cond = k + 1
-        elif kind == "estimator_nonfinite":
-            if rng.random() < 0.5:
-                self.est.akf.x[int(rng.integers(0, self.est.akf.d))] = np.nan
-                inj.note = "state x"
-            else:
-                self.est.nan_next = True
-                inj.note = "measurement q"
-            inj.cond = k + 1
-        elif kind == "covariance_not_pd":
-            i = int(rng.integers(0, self.est.akf.d))
-            self.est.akf.P[i, i] = -float(rng.uniform(1.0, 100.0)) * max(1.0, abs(self.est.akf.P[i, i]))
-            inj.cond = k + 1
-            inj.note = f"P[{i},{i}] < 0"
-        elif kind == "overrun_streak":
-            # the loop turns slow: each of m >= streak consecutive cycles (from this one on) takes
-            # 1.1..3 periods (the loop re-phases after a single long stall, so one stall alone is
-            # one overrun; a streak needs consecutive slow cycles)
-            m = OVERRUN_STREAK + int(rng.integers(0, 4))
-            self._slow = [float(x) * self.cfg.dt for x in rng.uniform(1.1, 3.0, size=m)]
-            slow = list(self._slow)
-            self._slow_cycle()                # this cycle is the first slow one
-            inj.cycle = k
-            inj.cond = k + OVERRUN_STREAK - 1
-            inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
+        inj = Injection(self.kind, k + 1)
+        target = "drive" if self.rng.random() < 0.5 else "encoder"
+        node = self.rig.drive if target == "drive" else self.rig.encoder
+        getattr(self, f"_inject_{self.kind}")(inj, k, target, node)
         self.injections.append(inj)
         self.cur = inj
+
+    def _inject_tpdo_missing(self, inj: Injection, k: int, target: str, node) -> None:
+        kk = self.cfg.hardware.bus.max_missed_cycles + 1
+        self.rig.device_model.inject(FaultSpec("drop", target=target, params={"count": kk}))
+        inj.cond = k + kk
+        inj.note = f"{kk} cycles"
+
+    def _inject_heartbeat_lost(self, inj: Injection, k: int, target: str, node) -> None:
+        node.suppress_heartbeat()
+        inj.cond = -2                     # from the sniffer, once the latch is seen
+        self._restore = lambda: self._restore_heartbeat(node)
+        inj.note = target
+
+    def _restore_heartbeat(self, node) -> None:
+        hw = self.rig.hw
+        node.heartbeat_suppressed = False
+        node.nmt.start_heartbeat(self.cfg.hardware.bus.heartbeat_ms)
+        # the loop waits here: the daemon's own heartbeat goes on meanwhile (keepalive), as it
+        # would from a loop that keeps cycling
+        t0 = time.monotonic()
+        seen = self.sniffer.hb_seen.get(node.id, 0.0)
+        while self.sniffer.hb_seen.get(node.id, 0.0) <= seen and time.monotonic() - t0 < 2.0:
+            hw.keepalive()
+            time.sleep(0.002)
+        while hw.heartbeat_arrival(node.id) is None or time.monotonic() - hw.heartbeat_arrival(node.id) > 0.05:
+            hw.keepalive()                 # the heartbeats come on the cycle's handles
+            time.sleep(0.002)
+
+    def _inject_emcy(self, inj: Injection, k: int, target: str, node) -> None:
+        code = int(self.rng.choice([0x2310, 0x4210, 0x7305, 0x5530]))
+        self.rig.device_model.inject(FaultSpec("emcy", target=target, params={"code": code}))
+        inj.cond = k + 1
+        inj.note = f"{target} 0x{code:04X}"
+
+    def _inject_encoder_jump(self, inj: Injection, k: int, target: str, node) -> None:
+        rng = self.rng
+        rad = float(rng.uniform(0.3, 1.0) * rng.choice([-1, 1]))
+        before = node.jump_counts
+        self.rig.device_model.inject(FaultSpec("jump", target=target, params={"rad": rad}))
+        delta = node.jump_counts - before
+
+        def restore(node=node, delta=delta):
+            node.jump_counts -= delta
+        self._restore = restore
+        inj.cond = k + 1
+        inj.note = f"{target} {rad:+.2f} rad"
+
+    def _inject_encoder_stuck(self, inj: Injection, k: int, target: str, node) -> None:
+        self.rig.device_model.inject(FaultSpec("stuck", target=target))
+
+        def restore(node=node):
+            node.frozen = None
+        self._restore = restore
+        inj.cond = -3                     # recomputed from the recorded counts
+        inj.note = target
+
+    def _inject_bus_off(self, inj: Injection, k: int, target: str, node) -> None:
+        self.rig.dev_bus.send(can.Message(arbitration_id=0x40, is_error_frame=True, is_extended_id=False,
+                                          data=bytes(8)))
+        t0 = time.monotonic()
+        while not self.rig.hw.bus_off and time.monotonic() - t0 < 2.0:   # controller state known
+            time.sleep(0.0005)
+        inj.cond = k + 1
+
+    def _inject_send_failed(self, inj: Injection, k: int, target: str, node) -> None:
+        self.probe.fail_sends = 1
+        inj.cond = k + 1
+
+    def _inject_estimator_nonfinite(self, inj: Injection, k: int, target: str, node) -> None:
+        rng = self.rng
+        if rng.random() < 0.5:
+            self.est.akf.x[int(rng.integers(0, self.est.akf.d))] = np.nan
+            inj.note = "state x"
+        else:
+            self.est.nan_next = True
+            inj.note = "measurement q"
+        inj.cond = k + 1
+
+    def _inject_covariance_not_pd(self, inj: Injection, k: int, target: str, node) -> None:
+        rng, P = self.rng, self.est.akf.P
+        i = int(rng.integers(0, self.est.akf.d))
+        P[i, i] = -float(rng.uniform(1.0, 100.0)) * max(1.0, abs(P[i, i]))
+        inj.cond = k + 1
+        inj.note = f"P[{i},{i}] < 0"
+
+    def _inject_overrun_streak(self, inj: Injection, k: int, target: str, node) -> None:
+        # the loop turns slow: each of m >= streak consecutive cycles (from this one on) takes
+        # 1.1..3 periods (the loop re-phases after a single long stall, so one stall alone is
+        # one overrun; a streak needs consecutive slow cycles)
+        rng = self.rng
+        m = OVERRUN_STREAK + int(rng.integers(0, 4))
+        self._slow = [float(x) * self.cfg.dt for x in rng.uniform(1.1, 3.0, size=m)]
+        slow = list(self._slow)
+        self._slow_cycle()                # this cycle is the first slow one
+        inj.cycle = k
+        inj.cond = k + OVERRUN_STREAK - 1
+        inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
 
     def _slow_cycle(self) -> None:
         """Injected slowness of this cycle (advances the loop's virtual clock)."""
@@ -305,18 +321,18 @@ class FaultRun:
         commanded torque of those rows is zero."""
         from sea_daemon.io.logcsv import read_log
         log = read_log(self.log_path, n=1)
-        ex = log.extra
-        fault = ex["fault"] != 0
+        ex = DaemonColumns.of(log)
+        fault = ex.fault != 0
         n = self.loop.stats.cycles
         self.log_check = {
             "cycles": n, "rows": len(log), "rows_lost": closed["rows_lost"],
-            "every_cycle": bool(len(log) == n and np.array_equal(ex["cycle"], np.arange(n))
+            "every_cycle": bool(len(log) == n and np.array_equal(ex.cycle, np.arange(n))
                                 and np.all(np.diff(log.t) > 0)),
             "fault_rows": int(fault.sum()),
             "fault_rows_match": bool(np.array_equal(fault, self.latched_at[:n])),
-            "no_valid_while_latched": bool(not np.any(ex["valid"][fault])),
+            "no_valid_while_latched": bool(not np.any(ex.valid[fault])),
             "zero_torque_while_latched": bool(np.all(log.tau_m[fault] == 0)),
-            "placeholder_rows": int(np.count_nonzero(ex["measured"] == 0)),
+            "placeholder_rows": int(np.count_nonzero(ex.measured == 0)),
         }
         self.log_check["ok"] = all(v for k, v in self.log_check.items() if isinstance(v, bool)) \
             and closed["rows_lost"] == 0
@@ -376,7 +392,7 @@ class FaultRun:
 def record_heartbeats(run: FaultRun) -> None:
     """Record, for heartbeat injections, the sniffer's last heartbeat of the silenced node
     before the latch (read in on_cycle of the latch cycle: nothing has been restored yet)."""
-    orig = run._on_cycle
+    orig = run.loop.on_cycle
 
     def on_cycle(k, meas, est, tau):
         inj = run.cur

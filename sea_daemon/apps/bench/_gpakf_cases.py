@@ -20,9 +20,17 @@ keeps per region), with the calibration's own hyperparameter fit on them.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
+
+from sea_daemon.apps.calibration.residual_gp import fit_gp_hyper
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.estimators.calibrated import make_calibrated
+from sea_daemon.core.excitation import Coverage, WorkingRange
+from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
+from sea_daemon.core.model import SEAModel
 
 #: default pre-fill sizes
 SIZES = (1_000, 10_000, 100_000, 1_000_000)
@@ -35,10 +43,6 @@ def label(n_points: int) -> str:
 def prefilled_gpakf(cfg, dt, log, n_points: int, seed: int = 0, verbose: bool = True,
                     hyper_every: int | None = None):
     """A learning GP-AKF whose LoG-GP already holds ``n_points`` points near ``log``'s inputs."""
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
-    from sea_daemon.core.model import SEAModel
-
     model = SEAModel.from_config(cfg)
     Z, F = training_pairs_from_log(model, log, kinematics=cfg.kinematics, causal=True)
     rng = np.random.default_rng(seed)
@@ -74,13 +78,6 @@ CALIBRATED = "gp-akf-calibrated"
 def calibrated_gpakf(cfg, dt, log, verbose: bool = True):
     """The calibrated GP-AKF (no learning) with a residual GP trained on ``log``'s pairs and a
     coverage map of them (see the module docstring)."""
-    import dataclasses
-    from sea_daemon.apps.calibration.residual_gp import fit_gp_hyper
-    from sea_daemon.core.estimators.calibrated import make_calibrated
-    from sea_daemon.core.excitation import Coverage, WorkingRange
-    from sea_daemon.core.learning import ResidualGP, training_pairs_from_log
-    from sea_daemon.core.model import SEAModel
-
     Z, F = training_pairs_from_log(SEAModel.from_config(cfg), log, kinematics=cfg.kinematics, causal=True)
     hyp = fit_gp_hyper(Z, F, 400, 0)
     lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),

@@ -28,13 +28,13 @@ import uuid
 import can
 import numpy as np
 
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.control import PID
+from sea_daemon.core.sim.plant import Plant
 from sea_daemon.hw import cia402
 from sea_daemon.hw.bus import frame_bits
 from sea_daemon.hw.canopen_rx import arrival
 from sea_daemon.hw.interface import HardwareInterface
-
-from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.runtime.rig import Rig, device_model_rig
 
@@ -68,7 +68,6 @@ def bench_rig(cfg: ModelConfig, q0: float = 0.6) -> Rig:
     """The benchmarks' rig, started: the simulator's plant at rest at ``q0`` (no torque noise)
     behind the device model (lock-step) and the driver (:func:`~sea_daemon.runtime.rig.device_model_rig`),
     primed with zero torque."""
-    from sea_daemon.core.sim.plant import Plant
     rig = device_model_rig(cfg, Plant(cfg, q0=q0, seed=0, torque_noise=0.0))
     try:
         rig.start()

@@ -19,9 +19,9 @@ import uuid
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
-
-NAME = "can-cycle"
-HELP = "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"
+from sea_daemon.core.sim.plant import Plant
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.runtime.rig import device_model_rig
 
 
 def add_arguments(p) -> None:
@@ -31,7 +31,8 @@ def add_arguments(p) -> None:
     p.add_argument("--cycles", type=int, default=2000)
 
 
-def _server():
+def remote_relay():
+    """``python -m can_remote`` on a free local port (a virtual bus behind it): (process, its URL)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -50,15 +51,11 @@ def _server():
 
 
 def run(args) -> int:
-    from sea_daemon.core.sim.plant import Plant
-    from sea_daemon.io.configfile import default_config_path, load_config
-    from sea_daemon.runtime.rig import device_model_rig
-
     cfg = load_config(default_config_path())
     proc = None
     channel = f"bench-{uuid.uuid4().hex[:8]}"
     if args.bus == "remote":
-        proc, channel = _server()
+        proc, channel = remote_relay()
     b = dataclasses.replace(cfg.hardware.bus, interface=args.bus, channel=channel, pdo_timeout_ms=1000.0)
     cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
     rig = device_model_rig(cfg, Plant(cfg, q0=0.3, seed=0))

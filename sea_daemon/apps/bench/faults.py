@@ -52,9 +52,8 @@ import numpy as np
 
 from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 from sea_daemon.apps.bench._fault_run import BUS, FAULTS, OVERRUN_STREAK, FaultRun, record_heartbeats
+from sea_daemon.errors import InputError
 
-NAME = "faults"
-HELP = "fault injection over the device model: detection, cycles to zero torque, false alarms"
 DESCRIPTION = __doc__
 
 
@@ -152,7 +151,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.errors import InputError
     save = json_output(args)
     kinds = choose(args.kinds, FAULTS, "--kinds")
     if args.cycles < 1000 or args.fault_free_cycles < 0:

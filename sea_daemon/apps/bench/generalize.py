@@ -24,7 +24,9 @@ are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the he
 """
 from __future__ import annotations
 
+import dataclasses
 import json
+import multiprocessing as mp
 import os
 import pickle
 import time
@@ -33,10 +35,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sea_daemon.io.files import atomic_write_text
+from sea_daemon.apps.bench import choose, machine
+from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
+from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
+from sea_daemon.core.bounds.akf_bound import theorem_bound
+from sea_daemon.core.config import CalibrationConfig
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.replay import replay
+from sea_daemon.core.sim.session import run_session
+from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.io.files import atomic_write_text, check_output_dir
 
-NAME = "generalize"
-HELP = "calibrate random plants once on a passive session, test on unlike sessions"
 ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
 #: the plant seeds used while choosing the calibration's settings (not for headline figures):
 #: 0–5 for the calibration's steps; 100–119 for the GP weight's reference (plants 101 and 104,
@@ -72,13 +81,10 @@ def parse_seeds(text: str) -> list[int]:
 
 def plant_logs(seed: int, cal_s: float, cache: Path | None):
     """(plant, calibration log, {session: log}) of plant ``seed``, simulated or from the cache."""
-    from sea_daemon.core.sim.session import run_session
-    from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
     p = None if cache is None else cache / f"plant_{seed}_{int(cal_s)}.pkl"
     if p is not None and p.exists():
         with open(p, "rb") as fh:
             out = pickle.load(fh)
-        from sea_daemon.core.config import CalibrationConfig
         for c in (out[0].nominal, out[0].true):        # caches written before the calibration section
             if "calibration" not in c.__dict__:
                 object.__setattr__(c, "calibration", CalibrationConfig())
@@ -99,8 +105,6 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None):
 def _run(log, est, bound: bool = False) -> dict:
     """Replay ``est`` over ``log``; ``bound``: the estimator carries the Theorem-1 bound (built with
     ``bound=theorem_bound``) and its ρ_k is scored."""
-    from sea_daemon.errors import EstimatorFault
-    from sea_daemon.core.replay import replay
     try:
         t0 = time.perf_counter()
         r = replay(log, est)
@@ -125,7 +129,6 @@ def _run(log, est, bound: bool = False) -> dict:
 
 def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str) -> dict:
     """Calibrate plant ``seed`` once and run every estimator on every test session."""
-    from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs(seed, cal_s, cache)
     t_sim = time.perf_counter() - t0
@@ -162,9 +165,6 @@ def run_sessions(res, nominal, true, tests: dict, estimators, do_bound: bool = F
     calibration ``res``: the GP-AKF and the AKF on the calibrated model, the AKF on the nominal
     robot ``nominal`` and on the true plant ``true`` (both with the calibrated noise settings).
     ``on_session(name, result)`` is called after each session.  {name: {estimator: result}}."""
-    import dataclasses
-    from sea_daemon.core.bounds.akf_bound import theorem_bound
-    from sea_daemon.core.estimators.akf import AKF
     cfg = res.cfg
     # the robot-only AKF with the health monitor off: its model does not fit any of these logs
     # (NIS divergence would stop it at once), and the comparison wants its estimate
@@ -246,9 +246,6 @@ def _job(args):
 
 
 def run(args) -> int:
-    from sea_daemon.apps.bench import machine
-    from sea_daemon.errors import InputError
-    from sea_daemon.io.files import check_output_dir
     try:
         seeds = parse_seeds(args.seeds)
     except ValueError:
@@ -263,14 +260,12 @@ def run(args) -> int:
     cache = None if args.no_cache else out / "cache"
     if cache is not None:
         cache.mkdir(exist_ok=True)
-    from sea_daemon.apps.bench import choose
     est = choose(args.estimators, ESTIMATORS, "--estimators")
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), calibration {args.cal_s:g} s, "
           f"estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
     jobs = [(s, args.cal_s, cache, est, args.bound) for s in seeds]
     rows = []
     if args.jobs > 1:
-        import multiprocessing as mp
         with mp.get_context("fork").Pool(args.jobs) as pool:
             for row in pool.imap_unordered(_job, jobs):
                 rows.append(row)

@@ -14,21 +14,22 @@ here; ``--estimators`` selects by label).
 """
 from __future__ import annotations
 
+import os
 import time
 from typing import Callable
 
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
-from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.apps.bench._gpakf_cases import register as register_gpakf_cases
 from sea_daemon.core.estimators import make_estimator
-from sea_daemon.core.log import MeasuredLog
-from sea_daemon.io.logcsv import read_log
 from sea_daemon.core.linalg import discretize
+from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
+from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.io.logcsv import read_log
 
-NAME = "latency"
-HELP = "time per estimator step (median, p99, p99.9) on a simulated or given log"
 
 #: label -> builder(cfg, dt, log) -> Estimator
 CASES: dict[str, Callable] = {
@@ -116,7 +117,7 @@ def time_steps(est, log: MeasuredLog, warmup: int = 50, cpu: bool = False, kinds
 
 
 def _gp_counters(g) -> tuple:
-    return g.n_leaves, g.n_evicted, g.n_hyper_steps, g._pending is not None
+    return g.n_leaves, g.n_evicted, g.n_hyper_steps, g.hyper_proposal is not None
 
 
 def step_kind(before: tuple, after: tuple) -> str:
@@ -159,12 +160,10 @@ def add_arguments(p) -> None:
 
 def _register_gp_akf(max_points: float, hyper_every: int | None = None) -> list[str]:
     """The GP-AKF cases (:mod:`._gpakf_cases`)."""
-    from sea_daemon.apps.bench import _gpakf_cases
-    return _gpakf_cases.register(register, int(max_points), hyper_every)
+    return register_gpakf_cases(register, int(max_points), hyper_every)
 
 
 def run(args) -> int:
-    from sea_daemon.errors import InputError
     cfg = load_config(args.config)
     if args.quick:
         args.seconds, args.repeat, args.max_points = min(args.seconds, 10.0), 1, min(args.max_points, 1e4)
@@ -186,7 +185,6 @@ def run(args) -> int:
     if not 0.0 <= args.idle_ms <= 1000.0:
         raise InputError(f"--idle-ms must be in 0..1000, got {args.idle_ms}")
     log = read_log(args.log, n=cfg.joints, min_rows=100) if args.log else synthetic_log(cfg, args.seconds)
-    import os
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f} at start")
     print("per step: wall-clock time (perf_counter); 'CPU time': thread CPU time of the same calls "
           "(thread_time), without the time other processes had the core")

@@ -57,10 +57,13 @@ import tempfile
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
+from sea_daemon.apps.bench.can_cycle import remote_relay
+from sea_daemon.core.log import DaemonColumns
 from sea_daemon.runtime.loop import Series
 
 NAME = "loop"
@@ -210,200 +213,269 @@ class _Stages:
         return out
 
 
+@dataclasses.dataclass
+class _Measured:
+    """What one bench run measured (:func:`_measure`), for the figures and the report."""
+
+    res: Any                       # the service's ServeResult
+    rig: Any
+    n_cycles: int
+    k_faults: int                  # the loop thread's page faults counted from this cycle on
+    rx_cpu: np.ndarray             # the receive threads' CPU clock at each cycle's end [s]
+    probe: dict                    # cycle -> the loop thread's (minor, major) page faults
+    dev_stats: dict | None         # the device model's answer statistics
+    stages: Any                    # _Stages, or None
+    max_age: int                   # the worker's oldest bound [cycles]
+    compute: np.ndarray            # the log's compute column [s]
+    read_s: np.ndarray             # the log's read column [s]
+
+
+def _bad_args(args) -> str | None:
+    if args.cycles < 100:
+        return "--cycles must be >= 100"
+    if not 0.05 <= args.tpdo_deadline <= 50:
+        return "--tpdo-deadline must be in 0.05..50 (fraction of the period)"
+    if args.host_rounds < 0:
+        return "--host-rounds must be >= 0"
+    return None
+
+
 def run(args) -> int:
-    from sea_daemon.hw.canopen_hw import CanopenHardware
+    from sea_daemon.io.configfile import load_config, data_root
+    from sea_daemon.core.rates import at_rate
 
     save = json_output(args)
-    from sea_daemon.io.configfile import load_config, data_root, save_config
-    from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.runtime.controller import ScenarioController
-    from sea_daemon.runtime.rig import make_rig
-    from sea_daemon.runtime.safety import SafetySupervisor
-    from sea_daemon.runtime.service import serve
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.apps.bench.can_cycle import _server
-    from sea_daemon.core.buffers import resident_zeros
-    from sea_daemon.hw.device_model.model import thread_page_faults
-
-    if args.cycles < 100:
-        print("sea-daemon bench loop: --cycles must be >= 100", file=sys.stderr)
+    problem = _bad_args(args)
+    if problem is not None:
+        print(f"sea-daemon bench loop: {problem}", file=sys.stderr)
         return 2
     root = data_root()
     scen = str(root / "configs" / "scenarios" / "passive.yaml")
-    from sea_daemon.core.rates import at_rate
     base = load_config(root / "configs" / "exo_1dof_sim.yaml")
     cfg_model = at_rate(base, args.model_rate)
     cfg = at_rate(base, args.rate)
-    dt = cfg.dt
-    if not 0.05 <= args.tpdo_deadline <= 50:
-        print("sea-daemon bench loop: --tpdo-deadline must be in 0.05..50 (fraction of the period)", file=sys.stderr)
-        return 2
-    if args.host_rounds < 0:
-        print("sea-daemon bench loop: --host-rounds must be >= 0", file=sys.stderr)
-        return 2
     load_before = _loadavg()
-    wake_before = host_wake(dt, args.host_rounds) if args.host_rounds else None
-    procs = []
+    wake_before = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
         tmp = Path(tmp)
-        cfg_path = tmp / "config.yaml"
-        save_config(cfg_model, cfg_path)
-        # the residual, learned by the calibration at --model-rate (lock-step, not timed)
-        from sea_daemon.apps.calibration import calibrate
-        rc, summary, message = calibrate(cfg_model, scen, tmp / "model.npz", tmp / "calibration.csv",
-                                         cycles=args.train, device_model=scen, realtime=False,
-                                         config_name=str(cfg_path))
-        if rc != 0:
-            print(f"sea-daemon bench loop: calibration failed: {message} {json.dumps(summary)}", file=sys.stderr)
+        calibrated = _calibrated_estimator(args, cfg_model, cfg, scen, tmp)
+        if calibrated is None:
             return 1
-        residual, _ = load_gp_model(tmp / "model.npz", cfg)
-        bound = not args.no_bound
-        if args.estimator == "gp-akf":
-            estimator = make_estimator("gp-akf", cfg, dt=dt, residual=residual, learning=False, bound=bound)
-        else:
-            estimator = make_estimator("akf", cfg, dt=dt, bound=bound)
-        deadline_ms = args.tpdo_deadline * dt * 1e3
-        dev = None
-        if args.bus == "virtual":
-            rig = make_rig(cfg, device_model=scen, phase="estimation")
-            b = dataclasses.replace(rig.cfg.hardware.bus, pdo_timeout_ms=deadline_ms,
-                                    max_missed_cycles=args.max_missed)
-            rig.hw = CanopenHardware(dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware,
-                                                                                                 bus=b)), rig.drv_bus)
-        else:
-            if args.bus == "remote":
-                server, url = _server()
-                procs.append(server)
-            else:
-                url = f"bench-{uuid.uuid4().hex[:8]}"
-            cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
-                cfg.hardware.bus, interface=args.bus, channel=url, pdo_timeout_ms=deadline_ms,
-                max_missed_cycles=args.max_missed, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)))
-            dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
-            procs.append(dev)
-        sc = load_scenario(scen)
-        controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=0)
-        n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
-        # the receive threads' CPU clock at each cycle's end (resident: no page first written in the loop)
-        rx_cpu = resident_zeros(n_cycles)
-        probe = {}
-
-        # the loop thread's page faults over the cycles after the first tenth (its start-up:
-        # the first filter steps, the bound worker's first results)
-        k_faults = max(1, n_cycles // 10)
-
-        def progress(k, est):
-            if k == 0:
-                probe["rx"] = _ThreadCpu(rig.hw)
-            if k < n_cycles:
-                rx_cpu[k] = probe["rx"].now()
-            if k == k_faults or k == n_cycles - 1:
-                probe[k] = thread_page_faults()
-        dev_stats = None
-        # the estimate and its bound published every cycle as the daemon does: the TPDOs of its
-        # node on the bus and the datagram socket for local readers (none subscribed here)
-        from sea_daemon.runtime.publish import make_publisher
-        publisher = make_publisher(rig, cfg, controller, socket_path=tmp / "sea-daemon.sock")
-        stages = None
-        bound_in = cfg.estimator.bound_in if args.bound_in == "auto" else args.bound_in
-        max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
-        in_worker = bound_in in ("auto", "worker") and not args.no_bound
-        if args.stages:
-            stages = _Stages(n_cycles + 10)
-            for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
-                                     ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
-                                     ("estimator (with its bound)" if not in_worker else
-                                      "estimator (filter, bound handed to the worker)", estimator, "update"),
-                                     ("bound", None if in_worker else getattr(estimator, "bound", None), "step"),
-                                     ("publication", publisher, "publish")):
-                stages.wrap(label, obj, name)
-        try:
-            res = serve(rig, estimator, controller, cfg.joints, dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
-                        progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
-                        supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62),
-                        publisher=publisher, bound_in=bound_in, bound_max_age=max_age, bound_record=n_cycles + 10)
-            if rig.device_model is not None:
-                dev_stats = rig.device_model.answer_stats()
-        finally:
-            for p in reversed(procs):
-                p.terminate()
-                try:
-                    out_text, _ = p.communicate(timeout=20)
-                    if p is dev:
-                        for line in (out_text or "").splitlines():
-                            if line.startswith("device-model stats "):
-                                dev_stats = json.loads(line[len("device-model stats "):])
-                except subprocess.TimeoutExpired:
-                    p.kill()
-        from sea_daemon.io.logcsv import read_log
-        log = read_log(tmp / "run.csv", n=cfg.joints)
-        compute = log.extra["compute"]
-        read_s = log.extra["read"]
+        estimator, residual = calibrated
+        m = _measure(args, cfg, scen, tmp, estimator)
     load_after = _loadavg()
-    wake_after = host_wake(dt, args.host_rounds) if args.host_rounds else None
-    st = res.stats
-    periods = np.asarray(st.periods, dtype=float)
-    jit = np.abs(periods - dt)
-    measured = periods.size
-    loop_cpu = np.asarray(st.cpu, dtype=float)[:n_cycles]
-    rx = np.diff(rx_cpu, prepend=rx_cpu[0])[1:]            # receive threads' CPU between cycle ends
-    own_cpu = loop_cpu[1:] + rx
-    fpc = load_typ = load_worst = float("nan")
-    pub_can = (res.extra.get("publish") or {}).get("can") or {}
-    if dev_stats and dev_stats.get("syncs"):
-        # the device model's frames (sent or accepted by its nodes) and the daemon's published
-        # TPDOs, which the devices' acceptance filter keeps out of the model
-        F = dev_stats["frames"] + pub_can.get("frames_sent", 0)
-        B = dev_stats["data_bytes"] + pub_can.get("bytes_sent", 0)
-        fpc = F / dev_stats["syncs"]
-        load_typ = (47 * F + 8 * B) / dev_stats["syncs"] * args.rate / 1e6
-        load_worst = (55 * F + 10 * B) / dev_stats["syncs"] * args.rate / 1e6
-    hw = rig.hw
+    wake_after = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
+    out = _figures(args, cfg, m, {"loadavg_before": load_before, "loadavg_after": load_after,
+                                  "host_wake_before": wake_before, "host_wake_after": wake_after})
+    _report(args, cfg, m, out, residual)
+    save(out)
+    return 0
+
+
+def _calibrated_estimator(args, cfg_model, cfg, scen: str, tmp: Path):
+    """The residual learned by the calibration at --model-rate (lock-step, not timed) and the
+    estimator of the run on it; None (after one line on stderr) when the calibration failed."""
+    from sea_daemon.apps.calibration import calibrate
+    from sea_daemon.core.estimators import make_estimator
+    from sea_daemon.io.configfile import save_config
+    from sea_daemon.io.gpmodel import load_gp_model
+    cfg_path = tmp / "config.yaml"
+    save_config(cfg_model, cfg_path)
+    rc, summary, message = calibrate(cfg_model, scen, tmp / "model.npz", tmp / "calibration.csv",
+                                     cycles=args.train, device_model=scen, realtime=False,
+                                     config_name=str(cfg_path))
+    if rc != 0:
+        print(f"sea-daemon bench loop: calibration failed: {message} {json.dumps(summary)}", file=sys.stderr)
+        return None
+    residual, _ = load_gp_model(tmp / "model.npz", cfg)
+    bound = not args.no_bound
+    if args.estimator == "gp-akf":
+        estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False, bound=bound)
+    else:
+        estimator = make_estimator("akf", cfg, dt=cfg.dt, bound=bound)
+    return estimator, residual
+
+
+def _bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
+    """The rig of --bus: the device model in this process (virtual) or in its own process
+    (ipc, remote: appended to ``procs`` with the relay); (rig, device model process or None)."""
+    from sea_daemon.hw.canopen_hw import CanopenHardware
+    from sea_daemon.runtime.rig import make_rig
+    deadline_ms = args.tpdo_deadline * cfg.dt * 1e3
+    if args.bus == "virtual":
+        rig = make_rig(cfg, device_model=scen, phase="estimation")
+        b = dataclasses.replace(rig.cfg.hardware.bus, pdo_timeout_ms=deadline_ms,
+                                max_missed_cycles=args.max_missed)
+        rig.hw = CanopenHardware(dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware,
+                                                                                             bus=b)), rig.drv_bus)
+        return rig, None
+    if args.bus == "remote":
+        server, url = remote_relay()
+        procs.append(server)
+    else:
+        url = f"bench-{uuid.uuid4().hex[:8]}"
+    cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
+        cfg.hardware.bus, interface=args.bus, channel=url, pdo_timeout_ms=deadline_ms,
+        max_missed_cycles=args.max_missed, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)))
+    dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
+    procs.append(dev)
+    return rig, dev
+
+
+def _stop_procs(procs: list, dev) -> dict | None:
+    """Stop the helper processes; the device model's statistics line, when it printed one."""
+    dev_stats = None
+    for p in reversed(procs):
+        p.terminate()
+        try:
+            out_text, _ = p.communicate(timeout=20)
+            if p is dev:
+                for line in (out_text or "").splitlines():
+                    if line.startswith("device-model stats "):
+                        dev_stats = json.loads(line[len("device-model stats "):])
+        except subprocess.TimeoutExpired:
+            p.kill()
+    return dev_stats
+
+
+def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
+    """The service on the bench rig for --cycles + 1 cycles, with the receive threads' CPU and
+    the loop thread's page faults probed from its progress callback, and the log read back."""
+    from sea_daemon.core.buffers import resident_zeros
+    from sea_daemon.hw.device_model.model import thread_page_faults
+    from sea_daemon.io.logcsv import read_log
+    from sea_daemon.io.scenario import load_scenario
+    from sea_daemon.runtime.controller import ScenarioController
+    from sea_daemon.runtime.publish import make_publisher
+    from sea_daemon.runtime.safety import SafetySupervisor
+    from sea_daemon.runtime.service import serve
+    procs: list = []
+    rig, dev = _bench_rig(args, cfg, scen, tmp, procs)
+    controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
+                                    estimation_from=0)
+    n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
+    # the receive threads' CPU clock at each cycle's end (resident: no page first written in the loop)
+    rx_cpu = resident_zeros(n_cycles)
+    probe = {}
+    # the loop thread's page faults over the cycles after the first tenth (its start-up:
+    # the first filter steps, the bound worker's first results)
+    k_faults = max(1, n_cycles // 10)
+
+    def progress(k, est):
+        if k == 0:
+            probe["rx"] = _ThreadCpu(rig.hw)
+        if k < n_cycles:
+            rx_cpu[k] = probe["rx"].now()
+        if k == k_faults or k == n_cycles - 1:
+            probe[k] = thread_page_faults()
+    dev_stats = None
+    # the estimate and its bound published every cycle as the daemon does: the TPDOs of its
+    # node on the bus and the datagram socket for local readers (none subscribed here)
+    publisher = make_publisher(rig, cfg, controller, socket_path=tmp / "sea-daemon.sock")
+    bound_in = cfg.estimator.bound_in if args.bound_in == "auto" else args.bound_in
+    max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
+    in_worker = bound_in in ("auto", "worker") and not args.no_bound
+    stages = _stage_timers(n_cycles, rig, controller, estimator, publisher, in_worker) if args.stages else None
+    try:
+        res = serve(rig, estimator, controller, cfg.joints, cfg.dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
+                    progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
+                    supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62),
+                    publisher=publisher, bound_in=bound_in, bound_max_age=max_age, bound_record=n_cycles + 10)
+        if rig.device_model is not None:
+            dev_stats = rig.device_model.answer_stats()
+    finally:
+        dev_stats = _stop_procs(procs, dev) or dev_stats
+    log = read_log(tmp / "run.csv", n=cfg.joints)
+    cols = DaemonColumns.of(log)
+    return _Measured(res, rig, n_cycles, k_faults, rx_cpu, probe, dev_stats, stages, max_age,
+                     cols.compute, cols.read)
+
+
+def _stage_timers(n_cycles: int, rig, controller, estimator, publisher, in_worker: bool) -> "_Stages":
+    stages = _Stages(n_cycles + 10)
+    for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
+                             ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
+                             ("estimator (with its bound)" if not in_worker else
+                              "estimator (filter, bound handed to the worker)", estimator, "update"),
+                             ("bound", None if in_worker else getattr(estimator, "bound", None), "step"),
+                             ("publication", publisher, "publish")):
+        stages.wrap(label, obj, name)
+    return stages
+
+
+def _bus_load(args, dev_stats: dict | None, pub_can: dict) -> tuple[float, float, float]:
+    """CAN frames per cycle and the bus load at 1 Mbit/s without / with worst-case stuffing:
+    the device model's frames (sent or accepted by its nodes) and the daemon's published TPDOs,
+    which the devices' acceptance filter keeps out of the model."""
+    if not (dev_stats and dev_stats.get("syncs")):
+        return float("nan"), float("nan"), float("nan")
+    F = dev_stats["frames"] + pub_can.get("frames_sent", 0)
+    B = dev_stats["data_bytes"] + pub_can.get("bytes_sent", 0)
+    fpc = F / dev_stats["syncs"]
+    load_typ = (47 * F + 8 * B) / dev_stats["syncs"] * args.rate / 1e6
+    load_worst = (55 * F + 10 * B) / dev_stats["syncs"] * args.rate / 1e6
+    return fpc, load_typ, load_worst
+
+
+def _worker_figures(res, n_cycles: int) -> dict | None:
+    """The bound worker's figures (None: the bound ran in the loop)."""
     bound_where = res.extra.get("bound") or {}
     link = res.extra.get("bound_link")
-    worker = None
-    if link is not None:
-        steps = min(link.steps, link.record)
-        ages = link.ages[:steps]
-        have = ages[ages >= 0]
-        wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
-        worker = {
-            "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
-            "memory_locked": bound_where.get("memory_locked"),
-            "max_age_cycles": link.max_age,
-            "filter_steps": link.steps,
-            "samples_done": bound_where.get("samples_done"),
-            "cycles_without_bound_within_max_age": bound_where.get("stale"),
-            "without_bound_before_first_result": int(np.argmax(ages >= 0)) if have.size else steps,
-            "broken": bound_where.get("broken"),
-            "age_cycles": ({"median": float(np.median(have)), "p99": float(np.percentile(have, 99)),
-                            "max": int(have.max())} if have.size else None),
-            "cpu_per_sample_us": _pcts(wcpu) if wcpu.size else None,
-            "process_cpu_s": bound_where.get("worker_cpu_process_s"),
-            "process_cpu_per_cycle_us": (bound_where.get("worker_cpu_process_s") or 0.0) / n_cycles * 1e6,
-        }
-    out = {
-        "machine": machine(), "rate_hz": args.rate, "estimator": args.estimator, "bus": args.bus, "hardware": rig.description,
-        "cycles_measured": measured, "realtime": res.realtime, "fault": res.supervisor.latched.name,
+    if link is None:
+        return None
+    steps = min(link.steps, link.record)
+    ages = link.ages[:steps]
+    have = ages[ages >= 0]
+    wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
+    return {
+        "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
+        "memory_locked": bound_where.get("memory_locked"),
+        "max_age_cycles": link.max_age,
+        "filter_steps": link.steps,
+        "samples_done": bound_where.get("samples_done"),
+        "cycles_without_bound_within_max_age": bound_where.get("stale"),
+        "without_bound_before_first_result": int(np.argmax(ages >= 0)) if have.size else steps,
+        "broken": bound_where.get("broken"),
+        "age_cycles": ({"median": float(np.median(have)), "p99": float(np.percentile(have, 99)),
+                        "max": int(have.max())} if have.size else None),
+        "cpu_per_sample_us": _pcts(wcpu) if wcpu.size else None,
+        "process_cpu_s": bound_where.get("worker_cpu_process_s"),
+        "process_cpu_per_cycle_us": (bound_where.get("worker_cpu_process_s") or 0.0) / n_cycles * 1e6,
+    }
+
+
+def _figures(args, cfg, m: _Measured, host: dict) -> dict:
+    """The JSON summary's figures of the run; ``host``: the machine's load and wake-up figures
+    before and after it."""
+    res, st, n_cycles, dt = m.res, m.res.stats, m.n_cycles, cfg.dt
+    periods = np.asarray(st.periods, dtype=float)
+    loop_cpu = np.asarray(st.cpu, dtype=float)[:n_cycles]
+    rx = np.diff(m.rx_cpu, prepend=m.rx_cpu[0])[1:]            # receive threads' CPU between cycle ends
+    own_cpu = loop_cpu[1:] + rx
+    fpc, load_typ, load_worst = _bus_load(args, m.dev_stats, (res.extra.get("publish") or {}).get("can") or {})
+    hw, probe, k_faults = m.rig.hw, m.probe, m.k_faults
+    return {
+        "machine": machine(), "rate_hz": args.rate, "estimator": args.estimator, "bus": args.bus,
+        "hardware": m.rig.description, "cycles_measured": periods.size, "realtime": res.realtime,
+        "fault": res.supervisor.latched.name,
         "bound": "theorem-1 rho_k" if not args.no_bound else "filter's own", "model_rate_hz": args.model_rate,
-        "bound_in": bound_where.get("where", "loop"), "bound_worker": worker,
-        "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": deadline_ms * 1e3,
-        "loadavg_before": load_before, "loadavg_after": load_after,
-        "host_wake_before": wake_before, "host_wake_after": wake_after,
-        "jitter_us": _pcts(jit),
+        "bound_in": (res.extra.get("bound") or {}).get("where", "loop"),
+        "bound_worker": _worker_figures(res, n_cycles),
+        "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": args.tpdo_deadline * dt * 1e3 * 1e3,
+        **host,
+        "jitter_us": _pcts(np.abs(periods - dt)),
         "daemon_cpu_us": _pcts(own_cpu), "loop_thread_cpu_us": _pcts(loop_cpu), "rx_thread_cpu_us": _pcts(rx),
         # a latched fault stops the estimator: the cycles before it are the ones doing the full work
         "daemon_cpu_before_fault_us": (_pcts(own_cpu[:res.supervisor.latched_cycle - 1])
                                        if res.supervisor.latched_cycle > 100 else None),
-        "device_model": dev_stats,
+        "device_model": m.dev_stats,
         "missed_tpdo_cycles": int(getattr(hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(hw, "late_cycles", 0)),
         "extrapolated_samples": int(getattr(st, "extrapolated", 0)),
         "period_us": {"median": float(np.median(periods) * 1e6), "p99": float(np.percentile(periods, 99) * 1e6),
                       "max": float(periods.max() * 1e6)},
         "overruns": st.overruns, "overruns_per_1e5": st.overruns / n_cycles * 1e5, "skipped_deadlines": st.skipped,
         "max_late_us": st.max_late_s * 1e6,
-        "compute_us": _pcts(compute), "read_us": _pcts(read_s),
+        "compute_us": _pcts(m.compute), "read_us": _pcts(m.read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
         "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
         "loop_thread_page_faults": ({"cycles": n_cycles - 1 - k_faults,
@@ -411,27 +483,34 @@ def run(args) -> int:
                                      "major": probe[n_cycles - 1][1] - probe[k_faults][1]}
                                     if k_faults in probe and n_cycles - 1 in probe else None),
         # the start-up's priming read and the first cycle not counted
-        "stages_cpu_us": stages.summary(2) if stages is not None else None,
+        "stages_cpu_us": m.stages.summary(2) if m.stages is not None else None,
     }
+
+
+def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
+    """The printed report: the run, the loop's timing, the worker, the bus and the log."""
+    res, st, n_cycles, dt = m.res, m.res.stats, m.n_cycles, cfg.dt
+    worker, bound_where = out["bound_worker"], res.extra.get("bound") or {}
     print(f"bench loop on {out['machine']}")
-    print(f"load average before {load_before}, after {load_after} (1/5/15 min; shared machine, "
+    print(f"load average before {out['loadavg_before']}, after {out['loadavg_after']} (1/5/15 min; shared machine, "
           f"{os.cpu_count()} cores)")
-    if wake_before is not None:
+    if out["host_wake_before"] is not None:
         print(f"host: a fixed reference workload (not the daemon's code) costs, in thread CPU, before the run "
-              f"{describe_host_wake(wake_before)}; after the run {describe_host_wake(wake_after)} -- a cycle "
-              f"starts after such a sleep")
+              f"{describe_host_wake(out['host_wake_before'])}; after the run "
+              f"{describe_host_wake(out['host_wake_after'])} -- a cycle starts after such a sleep")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
              f"{'locked' if worker and worker.get('memory_locked') else 'not locked'}, its counts of samples "
              f"done through {'shared memory' if worker and worker.get('counts') == 'memory' else 'a pipe'}), "
              f"published with its "
-             f"sample's cycle, at most {max_age} cycles old"
+             f"sample's cycle, at most {m.max_age} cycles old"
              if worker is not None else "computed in the loop's estimator step"
              + (f" ({bound_where['why_not_worker']})" if bound_where.get("why_not_worker") else ""))
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
           f"{out['bound']} every cycle, {where}; passive-scenario PID; real-time pace; {res.realtime}")
-    print(f"measured {n_cycles} cycles ({measured} periods), TPDO deadline {deadline_ms * 1e3:.0f} us after SYNC, "
+    print(f"measured {n_cycles} cycles ({out['cycles_measured']} periods), TPDO deadline "
+          f"{out['tpdo_deadline_us']:.0f} us after SYNC, "
           f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
           + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
              if out['fault'] != 'NONE' else ""))
@@ -440,6 +519,13 @@ def run(args) -> int:
           f"(max late {out['max_late_us']:.0f} us, deadlines skipped {st.skipped})")
     print(f"|period - {dt * 1e6:.0f} us|: median {j['median']:.1f} us, p99 {j['p99']:.1f} us, max {j['max']:.1f} us"
           f"  (period median {pr['median']:.1f}, p99 {pr['p99']:.1f}, max {pr['max']:.1f} us)")
+    _report_cpu(out, res)
+    print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
+    _report_bus(cfg, m, out)
+
+
+def _report_cpu(out: dict, res) -> None:
+    worker = out["bound_worker"]
     dc, lc, xc = out["daemon_cpu_us"], out["loop_thread_cpu_us"], out["rx_thread_cpu_us"]
     print(f"daemon CPU per cycle (loop thread + CAN receive thread"
           + ("; the bound worker's process is not included, see below" if worker is not None else "")
@@ -462,7 +548,9 @@ def run(args) -> int:
                   f"{worker['max_age_cycles']} cycles: {worker['cycles_without_bound_within_max_age']} of "
                   f"{worker['filter_steps']} ({worker['without_bound_before_first_result']} before the first "
                   f"result){'; ring full: bound lost' if worker['broken'] else ''}")
-    print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
+
+
+def _report_bus(cfg, m: _Measured, out: dict) -> None:
     r = out["read_us"]
     print(f"  of which hw.read() (SYNC -> TPDOs, waiting for the devices): median {r['median']:.0f} us, "
           f"p99 {r['p99']:.0f} us, max {r['max']:.0f} us")
@@ -474,6 +562,7 @@ def run(args) -> int:
               f"{h['median']:.0f} us, p99 {h['p99']:.0f} us ({ds['syncs']} SYNCs)")
     print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}; "
           f"samples the loop extrapolated over them: {out['extrapolated_samples']}")
+    fpc, load_typ, load_worst = out["frames_per_cycle"], out["bus_load_1mbit_typical"], out["bus_load_1mbit_worst_stuffing"]
     print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
           f"and the daemon's published TPDOs); "
           f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
@@ -487,11 +576,9 @@ def run(args) -> int:
     pf = out["loop_thread_page_faults"]
     if pf is not None:
         dpf = (ds or {}).get("handler_page_faults")
-        print(f"page faults of the loop thread over cycles {k_faults}..{n_cycles - 1}: {pf['minor']} minor, "
+        print(f"page faults of the loop thread over cycles {m.k_faults}..{m.n_cycles - 1}: {pf['minor']} minor, "
               f"{pf['major']} major" + (f"; of the device model's SYNC handler from its 100th SYNC on: "
                                         f"{dpf['minor']} minor, {dpf['major']} major" if dpf else ""))
     if out["stages_cpu_us"]:
         print("loop thread CPU per stage (median / p99; a wrapper around each adds about 1 us): " + "; ".join(
             f"{k} {v['median']:.0f} / {v['p99']:.0f} us" for k, v in out["stages_cpu_us"].items()))
-    save(out)
-    return 0

@@ -34,19 +34,25 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sea_daemon.io.files import atomic_write_text
+from sea_daemon.apps.bench import add_choice_argument, choose, machine
+from sea_daemon.apps.bench.generalize import ESTIMATORS, calibration_row, run_sessions
+from sea_daemon.apps.calibration import excitation_reference
+from sea_daemon.apps.calibration.pipeline import calibrate_log
+from sea_daemon.core.sim.session import run_session
+from sea_daemon.core.validate import check_keys
+from sea_daemon.errors import ConfigError
+from sea_daemon.io.configfile import data_root, load_yaml
+from sea_daemon.io.files import atomic_write_text, check_output_dir
+from sea_daemon.io.logcsv import write_log
+from sea_daemon.io.scenario import PIDSpec, load_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
-NAME = "newrobot"
-HELP = "calibrate one plant of scenario files once on a passive session, estimate on its other sessions"
 DESCRIPTION = __doc__
 #: issue 12's targets [N m]: passive sessions (τ_h,act = 0) and active subjects
 TARGET = {"passive": 0.05, "active": 0.1}
 
 
 def add_arguments(p) -> None:
-    from sea_daemon.apps.bench import add_choice_argument
-    from sea_daemon.apps.bench.generalize import ESTIMATORS
-    from sea_daemon.io.configfile import data_root
     p.add_argument("--plant", default=str(data_root() / "configs" / "scenarios" / "newrobot"),
                    help="directory with table.yaml, the nominal robot and the scenarios "
                         "(default configs/scenarios/newrobot)")
@@ -72,10 +78,6 @@ class Session:
 def load_table(plant_dir: Path):
     """(calibration scenario, [Session]) of ``plant_dir/table.yaml``; every scenario must have
     the same nominal robot and the same hidden plant (one plant, several sessions)."""
-    from sea_daemon.core.validate import check_keys
-    from sea_daemon.errors import ConfigError
-    from sea_daemon.io.configfile import load_yaml
-    from sea_daemon.io.scenario import load_scenario
     src = plant_dir / "table.yaml"
     if not src.is_file():
         raise ConfigError(str(src), "<file>", "table file not found (--plant names a directory with table.yaml)")
@@ -109,28 +111,17 @@ def excitation_log(sc):
     """The calibration excitation (:func:`sea_daemon.apps.calibration.excitation_reference`: the
     moves ``calibrate --excitation`` drives over the configuration's working range) on the
     scenario's true plant, tracked by the scenario's PID gains, its noise seed."""
-    from sea_daemon.apps.calibration import excitation_reference
-    from sea_daemon.core.sim.session import PIDGains, run_session
-    from sea_daemon.errors import ConfigError
-    from sea_daemon.io.scenario import PIDSpec
     ctl = sc.controller
     if not isinstance(ctl, PIDSpec):
         raise ConfigError(sc.source, "controller.type", "--calibration excitation tracks the moves with the "
                                                         "scenario's PID: needs controller.type pid")
     ref = excitation_reference(sc.nominal, ctl.q0)
-    gains = PIDGains(ctl.kp, ctl.ki, ctl.kd, ctl.velocity_filter_hz, ctl.derivative)
-    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=gains,
+    # the scenario's controller is its PID gains (PIDSpec is a PIDGains) and a trajectory
+    return run_session(sc.true_config(), ref.duration, reference=ref, seed=sc.seed, gains=ctl,
                        substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps, torque_noise=sc.plant.torque_noise)
 
 
 def run(args) -> int:
-    from sea_daemon.apps.bench import choose, machine
-    from sea_daemon.apps.bench.generalize import ESTIMATORS, calibration_row, run_sessions
-    from sea_daemon.apps.calibration.pipeline import calibrate_log
-    from sea_daemon.io.configfile import load_yaml
-    from sea_daemon.io.files import check_output_dir
-    from sea_daemon.io.logcsv import write_log
-    from sea_daemon.runtime.sim_runner import simulate
     est = choose(args.estimators, ESTIMATORS, "--estimators")
     plant_dir = Path(args.plant)
     cal_sc, sessions = load_table(plant_dir)

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sea_daemon.core.log import DaemonColumns
 from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 
 NAME = "record"
@@ -118,22 +119,22 @@ def attack_device_model_stopped(tmp: Path, cycles: int, rng) -> dict:
     at = int(rng.integers(cycles // 4, 3 * cycles // 4))
     res, path, note = serve_with_action(tmp, cycles, at, lambda rig: rig.device_model.stop())
     log = read_log(path, n=1)
-    ex = log.extra
-    f = ex["fault"] != 0
+    ex = DaemonColumns.of(log)
+    f = ex.fault != 0
     first = int(np.argmax(f)) if f.any() else -1
     checks = {
-        "every_cycle": len(log) == cycles == res.stats.cycles and np.array_equal(ex["cycle"], np.arange(cycles))
+        "every_cycle": len(log) == cycles == res.stats.cycles and np.array_equal(ex.cycle, np.arange(cycles))
         and bool(np.all(np.diff(log.t) > 0)),
         "none_lost": res.log["rows_lost"] == 0 and res.log["error"] is None,
         "latched_after_stop": at <= first <= at + 5 and bool(f[first:].all()),
-        "invalid_and_zero_torque_latched": not ex["valid"][f].any() and bool(np.all(log.tau_m[f] == 0)),
-        "placeholders_without_sample": bool(np.all(ex["measured"][first + 1:] == 0)),
+        "invalid_and_zero_torque_latched": not ex.valid[f].any() and bool(np.all(log.tau_m[f] == 0)),
+        "placeholders_without_sample": bool(np.all(ex.measured[first + 1:] == 0)),
         "status_reported": any("FAULT" in s for s in note.lines),
         "exit_status_1": _exit_status(res) == 1,
     }
     return {"cycles": cycles, "rows": len(log), "rows_lost": res.log["rows_lost"], "at": at,
             "latched": res.supervisor.latched.name, "latched_cycle": first,
-            "placeholder_rows": int(np.count_nonzero(ex["measured"] == 0)), "checks": checks}
+            "placeholder_rows": int(np.count_nonzero(ex.measured == 0)), "checks": checks}
 
 
 @contextlib.contextmanager
@@ -162,7 +163,7 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
     size = max(2, int(rng.uniform(0.25, 0.75) * cycles * ROW_BYTES) // 4096) * 4096
     with _small_disk(tmp, size) as (d, mounted):
         def limit(w):                    # no tmpfs: the writer's files may grow to the same size
-            resource.prlimit(w._proc.pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
+            resource.prlimit(w.writer_pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
         res, path, note = serve_with_action(d, cycles, -1, None, writer_hook=None if mounted else limit)
         fin = res.log
         log = read_log(path, n=1) if fin["rows_written"] >= 2 else None
@@ -172,7 +173,7 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
             "rows_lost_accounted": fin["rows_lost"] == cycles - fin["rows_written"] > 0,
             "file_holds_rows_written": rows_in_file == fin["rows_written"]
             and (log is None or (len(log) == fin["rows_written"]
-                                 and np.array_equal(log.extra["cycle"], np.arange(len(log))))),
+                                 and np.array_equal(DaemonColumns.of(log).cycle, np.arange(len(log))))),
             "whole_lines": _lines_whole(path),
             "status_reported": any("LOG_FAILED" in s for s in note.lines)
             and any("rows lost" in s for s in note.lines),
@@ -216,7 +217,7 @@ def attack_restart(tmp: Path, cycles: int, rng) -> dict:
     checks = {
         "killed_mid_run": killed,
         "killed_log_whole_and_contiguous": log1 is not None and _lines_whole(first_log)
-        and np.array_equal(log1.extra["cycle"], np.arange(len(log1))),
+        and np.array_equal(DaemonColumns.of(log1).cycle, np.arange(len(log1))),
         "restart_gets_the_lock": r.returncode == 0 and "another sea-daemon" not in r.stderr,
         "restarted_every_cycle": log2 is not None and len(log2) == cycles == summary.get("rows_written")
         and summary.get("rows_lost") == 0,

@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.runtime.loop import FixedRateLoop, log_columns
+from sea_daemon.core.log import log_columns
+from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
@@ -84,6 +85,71 @@ def _count_rows(files) -> tuple[int, np.ndarray, np.ndarray]:
     return rows, np.asarray(per), np.asarray(comp)
 
 
+class _SoakProbe:
+    """The soak's ``on_cycle``: freezes the GP after ``learn_cycles`` (and starts the bound, in
+    its worker or the loop, with ``bound``), and samples the memory every ``stride`` cycles and
+    at the end of the warm-up into :attr:`trace`: (cycle, loop RSS kB, writer RSS kB, GP leaves,
+    GP points)."""
+
+    def __init__(self, est, log: LogWriter, rt: dict, warmup: int, stride: int, learn_cycles: int | None,
+                 bound: bool, bound_in: str, progress):
+        self.est, self.log, self.rt, self.warmup, self.stride = est, log, rt, warmup, stride
+        self.learn_cycles, self.bound, self.bound_in, self.progress = learn_cycles, bound, bound_in, progress
+        self.gp = est.gp.gps[0]
+        self.loop: FixedRateLoop | None = None
+        self.trace: list = []
+        self.marks: dict = {}
+        self.links: dict = {}
+
+    def sample(self, k: int) -> tuple:
+        return (k, vm_rss_kb(), vm_rss_kb(self.log.writer_pid), self.gp.n_leaves, self.gp.n_points)
+
+    def __call__(self, k, meas, e, tau) -> None:
+        if self.learn_cycles is not None and k == self.learn_cycles:
+            self._freeze()
+        if k % self.stride == 0 or k == self.warmup:
+            rec = self.sample(k)
+            self.trace.append(rec)
+            if k == self.warmup:
+                self.marks["warmup"] = rec
+            if self.progress and k % self.stride == 0:
+                self.progress(rec, self.loop.stats)
+
+    def _freeze(self) -> None:
+        est = self.est
+        est.learning = False                  # the model frozen from here on (the daemon's run)
+        if not self.bound:
+            return
+        from sea_daemon.core.bounds.akf_bound import theorem_bound
+        est.bound = theorem_bound(est)
+        est.bound.reset(est.est, est.record)  # the set of means starts at a point here
+        if self.bound_in == "worker":
+            # the GP is frozen now: the worker's copy of it stays the loop's
+            from sea_daemon.runtime.bound_worker import BoundWorker
+            from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
+            prio = 80 - WORKER_PRIORITY_BELOW if self.rt.get("sched", "").startswith("fifo") else 0
+            # started from inside the running loop: not waiting for the worker's set-up
+            self.loop.bound_link = self.links["worker"] = BoundWorker(est, rt_priority=prio).start(wait=False)
+
+
+def _soak_rig(cfg, bus: str, out_dir: Path, rate: float, max_missed: int):
+    """The device model in this process (virtual) or, started here, in its own (ipc); (cfg, rig,
+    device model process or None, what real-time set-up applied)."""
+    if bus != "ipc":
+        return cfg, bench_rig(cfg), None, {"sched": "other (not asked)"}
+    from sea_daemon.apps.bench.loop import device_model_process
+    # the TPDO deadline inside the period; a late answer is held for 3 cycles (counted)
+    b = dataclasses.replace(cfg.hardware.bus, interface="ipc", channel=f"soak-{os.getpid()}",
+                            pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
+    cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
+    dev, rig = device_model_process(cfg, out_dir, ["--q0", "0.6", "--seed", "0"])
+    # as the service does: SCHED_FIFO and the memory locked before the hardware starts (locking
+    # faults the process in, which must not happen while the drives watch its heartbeat)
+    rt = try_realtime(80)
+    rig.start()
+    return cfg, rig, dev, rt
+
+
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
          out_dir: Path, samples: int = 20, progress=None, bus: str = "virtual", learn_cycles: int | None = None,
          bound: bool = False, max_missed: int = 3, bound_in: str = "worker") -> dict:
@@ -96,53 +162,13 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     rss = {"start": vm_rss_kb()}
     # the Theorem-1 bound needs a GP with data (its constants): it starts when learning stops
     est = make_estimator("gp-akf", cfg, bound=False)
-    dev = None
-    if bus == "ipc":
-        from sea_daemon.apps.bench.loop import device_model_process
-        # the TPDO deadline inside the period; a late answer is held for 3 cycles (counted)
-        b = dataclasses.replace(cfg.hardware.bus, interface="ipc", channel=f"soak-{os.getpid()}",
-                                pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
-        cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
-        dev, rig = device_model_process(cfg, out_dir, ["--q0", "0.6", "--seed", "0"])
-        # as the service does: SCHED_FIFO and the memory locked before the hardware starts (locking
-        # faults the process in, which must not happen while the drives watch its heartbeat)
-        rt = try_realtime(80)
-        rig.start()
-    else:
-        rig = bench_rig(cfg)
-        rt = {"sched": "other (not asked)"}
+    cfg, rig, dev, rt = _soak_rig(cfg, bus, out_dir, rate, max_missed)
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
     sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
-    stride = max(1, cycles // max(1, samples))
-    trace = []                                    # (cycle, loop RSS kB, writer RSS kB, GP leaves, GP points)
-    gp = est.gp.gps[0]
-    marks = {}
-    links = {}
-
-    def on_cycle(k, meas, e, tau):
-        if learn_cycles is not None and k == learn_cycles:
-            est.learning = False                  # the model frozen from here on (the daemon's run)
-            if bound:
-                from sea_daemon.core.bounds.akf_bound import theorem_bound
-                est.bound = theorem_bound(est)
-                est.bound.reset(est.est)          # the set of means starts at a point here
-                if bound_in == "worker":
-                    # the GP is frozen now: the worker's copy of it stays the loop's
-                    from sea_daemon.runtime.bound_worker import BoundWorker
-                    from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
-                    prio = 80 - WORKER_PRIORITY_BELOW if rt.get("sched", "").startswith("fifo") else 0
-                    # started from inside the running loop: not waiting for the worker's set-up
-                    loop.bound_link = links["worker"] = BoundWorker(est, rt_priority=prio).start(wait=False)
-        if k % stride == 0 or k == warmup:
-            rec = (k, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
-            trace.append(rec)
-            if k == warmup:
-                marks["warmup"] = rec
-            if progress and k % stride == 0:
-                progress(rec, loop.stats)
-
-    loop = FixedRateLoop(rig.hw, est, SineTracker(cfg), n=cfg.joints, period=cfg.dt, log=log,
-                         supervisor=sup, realtime=True, on_cycle=on_cycle)
+    probe = _SoakProbe(est, log, rt, warmup, max(1, cycles // max(1, samples)), learn_cycles, bound, bound_in,
+                       progress)
+    loop = probe.loop = FixedRateLoop(rig.hw, est, SineTracker(cfg), n=cfg.joints, period=cfg.dt, log=log,
+                                      supervisor=sup, realtime=True, on_cycle=probe)
     rss["after_start"] = vm_rss_kb()
     gc.collect()
     # SIGTERM / SIGINT end the soak early and cleanly: the figures are of the cycles run
@@ -154,22 +180,28 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
         for sig, h in old_handlers.items():
             signal.signal(sig, h)
         wall = time.monotonic() - t0
-        end = (loop.stats.cycles, vm_rss_kb(), vm_rss_kb(log._proc.pid), gp.n_leaves, gp.n_points)
-        trace.append(end)
+        probe.trace.append(probe.sample(loop.stats.cycles))
         closed = log.close()
-        if "worker" in links:
-            links["bound"] = links["worker"].close()
+        if "worker" in probe.links:
+            probe.links["bound"] = probe.links["worker"].close()
         rig.stop()
         if dev is not None:
             dev.terminate()
             dev.communicate(timeout=20)
+    return _soak_summary(cfg, rig, est, sup, st, probe, rss, rt, closed, wall, rate=rate, bus=bus, bound=bound,
+                         bound_in=bound_in, learn_cycles=learn_cycles)
+
+
+def _soak_summary(cfg, rig, est, sup, st, probe: _SoakProbe, rss: dict, rt: dict, closed: dict, wall: float, *,
+                  rate: float, bus: str, bound: bool, bound_in: str, learn_cycles: int | None) -> dict:
     rows, per, comp = _count_rows(closed["files"])
-    w = marks.get("warmup", trace[0])
+    end = probe.trace[-1]
+    w = probe.marks.get("warmup", probe.trace[0])
     growth = (end[1] - w[1]) / w[1] * 100.0 if w[1] > 0 else float("nan")
     wgrowth = (end[2] - w[2]) / w[2] * 100.0 if w[2] > 0 else float("nan")
     return {
         "cycles": st.cycles, "rate_hz": rate, "bus": bus, "realtime": rt, "bound": bound,
-        "bound_in": (bound_in if bound else None), "bound_worker": links.get("bound"),
+        "bound_in": (bound_in if bound else None), "bound_worker": probe.links.get("bound"),
         "learn_cycles": learn_cycles, "hardware": getattr(rig, "description", ""),
         "missed_tpdo_cycles": int(getattr(rig.hw, "missed_cycles", 0)), "late_tpdo_cycles": int(getattr(rig.hw, "late_cycles", 0)), "wall_s": wall, "achieved_hz": st.cycles / wall if wall else 0.0,
         "overruns": st.overruns, "max_late_s": st.max_late_s,
@@ -184,7 +216,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
                 "dropped": closed["rows_dropped"], "counted_in_files": rows, "files": len(closed["files"])},
         "period": summarize(per[1:], 1e3, "ms") if len(per) > 1 else "-",
         "compute": summarize(comp, 1e3, "ms") if len(comp) else "-",
-        "trace": trace,
+        "trace": probe.trace,
     }
 
 

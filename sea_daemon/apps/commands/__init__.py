@@ -1,17 +1,20 @@
 """The ``sea-daemon`` sub-commands, one module each, and the machinery that runs them.
 
-A command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``
-(optional ``ORDER``, ``DESCRIPTION``); :func:`main` finds them by discovery.  Exit status (the
-:func:`guarded` policy): 0 success, 2 bad input or configuration (one line on stderr, no
-traceback), 1 internal fault.  ``SEA_DAEMON_DEBUG=1`` shows tracebacks.
+:data:`COMMANDS` names them (name, module, one line of help) in the order ``sea-daemon --help``
+lists them.  A command module defines ``add_arguments(parser)`` and ``run(args) -> int``
+(optional ``DESCRIPTION``, the text of ``sea-daemon NAME --help``).  Only the chosen command's
+module is imported (:class:`CommandParser`): ``sea-daemon --help`` and a light command start
+without the estimator's libraries.  Exit status (the :func:`guarded` policy): 0 success, 2 bad
+input or configuration (one line on stderr, no traceback), 1 internal fault.
+``SEA_DAEMON_DEBUG=1`` shows tracebacks.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import os
-import pkgutil
 import sys
+from typing import NamedTuple
 
 from sea_daemon import __version__
 from sea_daemon.errors import EstimatorFault, InputError, SeaDaemonError, shown
@@ -25,15 +28,70 @@ class Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def _discover():
-    mods = []
-    for info in pkgutil.iter_modules(__path__):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"{__name__}.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
-            mods.append(mod)
-    return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
+class Command(NamedTuple):
+    """A sub-command: its name on the command line, the module that implements it (in the
+    package ``COMMANDS`` belongs to) and its line in the list of commands."""
+    name: str
+    module: str
+    help: str
+
+
+#: the commands of ``sea-daemon``, in the order ``sea-daemon --help`` lists them
+COMMANDS = (
+    Command("demo", "demo",
+            "device model + daemon on a virtual CAN bus: calibration, estimation, RMSE table and plots"),
+    Command("simulate", "simulate",
+            "offline physics simulation of a scenario to measured logs (training + estimation phase)"),
+    Command("replay", "replay",
+            "run an estimator (gp-akf, akf, spring) over a measured log; EST.csv + JSON summary"),
+    Command("diagnose", "diagnose",
+            "find effects the model lacks in a measured log; write diagnosis.json, model_augmented.yaml, report.md"),
+    Command("calibrate", "calibrate",
+            "training phase on the bus: PID moves, GP learned online, model file + measured log"),
+    Command("fit", "fit",
+            "calibrate from a passive log offline: noise, physical effects, residual GP -> complete model"),
+    Command("identify-noise", "identify_noise",
+            "identify the measurement noise R (and Q) from a log by autocovariance least squares"),
+    Command("run", "run",
+            "estimation service on the CAN bus (GP-AKF from a calibrated model; systemd notify)"),
+    Command("calibrate-bound", "calibrate_bound",
+            "split-conformal beta of the GP error bound from a held-out passive log (estimator.gp_beta)"),
+    Command("watch", "watch",
+            "live view of the published estimate, its bound, validity and faults (terminal)"),
+    Command("reset", "reset", "clear a latched fault of the running daemon (SIGUSR1)"),
+    Command("device-model", "device_model",
+            "run the simulated drive + load encoder as CANopen slaves on a CAN bus (HIL tests, demo)"),
+    Command("bench", "bench", "run a benchmark (accuracy, latency, bounds, ...) and print what it measured"),
+)
+
+
+class CommandParser(Parser):
+    """The parser of one sub-command, its module imported only when the command is chosen.
+
+    ``module`` (a dotted name) defines ``add_arguments(parser)``, ``run(args)`` and optionally
+    ``DESCRIPTION``; when the command line names this command, the module is imported, its
+    arguments are added and ``func`` is set to its ``run`` before parsing."""
+
+    def __init__(self, *args, module: str | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.module = module
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self.module is not None:
+            mod = importlib.import_module(self.module)
+            self.module = None
+            self.description = getattr(mod, "DESCRIPTION", self.description)
+            mod.add_arguments(self)
+            self.set_defaults(func=mod.run)
+        return super().parse_known_args(args, namespace)
+
+
+def add_commands(parser, commands, package: str, dest: str, metavar: str) -> None:
+    """Sub-commands ``commands`` (:class:`Command`, modules in ``package``) of ``parser``; the
+    chosen one's name goes to ``args.<dest>``, its ``run`` to ``args.func``."""
+    sub = parser.add_subparsers(dest=dest, metavar=metavar, parser_class=CommandParser)
+    for c in commands:
+        sub.add_parser(c.name, help=c.help, description=c.help, module=f"{package}.{c.module}")
 
 
 def add_log_and_config(p, log_help: str = "measured log") -> None:
@@ -46,21 +104,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="sea-daemon", description="Active human torque estimation for SEA exoskeletons "
                      "(GP-enhanced augmented-state Kalman filter with guaranteed bounds).")
     parser.add_argument("--version", action="version", version=f"sea-daemon {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for mod in _discover():
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
-        mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+    add_commands(parser, COMMANDS, __name__, dest="command", metavar="COMMAND")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "_run", None):
+    if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
-    return guarded(f"sea-daemon {args.command}", args._run, args)
+    return guarded(f"sea-daemon {args.command}", args.func, args)
 
 
 def guarded(prog: str, run, args) -> int:

@@ -1,38 +1,33 @@
 """``sea-daemon bench NAME``: benchmarks (see :mod:`sea_daemon.apps.bench`)."""
 from __future__ import annotations
 
-import importlib
-import pkgutil
+from sea_daemon.apps.commands import Command, add_commands
 
-from sea_daemon.apps import bench as _bench
+#: the benchmarks, one module each in :mod:`sea_daemon.apps.bench`, in the order ``sea-daemon bench
+#: --help`` lists them; only the chosen one's module is imported
+BENCHMARKS = (
+    Command("can-cycle", "can_cycle", "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"),
+    Command("faults", "faults",
+            "fault injection over the device model: detection, cycles to zero torque, false alarms"),
+    Command("generalize", "generalize", "calibrate random plants once on a passive session, test on unlike sessions"),
+    Command("latency", "latency", "time per estimator step (median, p99, p99.9) on a simulated or given log"),
+    Command("loop", "loop",
+            "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"),
+    Command("newrobot", "newrobot",
+            "calibrate one plant of scenario files once on a passive session, estimate on its other sessions"),
+    Command("record", "record",
+            "the measured log through faults: device model stopped, disk full, service killed and restarted"),
+    Command("soak", "soak",
+            "long run: loop + CAN + device model + GP-AKF learning online + log writer; memory, overruns, rows"),
+)
 
-NAME = "bench"
-HELP = "run a benchmark (accuracy, latency, bounds, ...) and print what it measured"
-ORDER = 90
 
-
-def _modules():
-    out = {}
-    for info in pkgutil.iter_modules(_bench.__path__):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"{_bench.__name__}.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
-            out[mod.NAME] = mod
-    return out
-
-
-def add_arguments(p):
-    sub = p.add_subparsers(dest="bench", metavar="NAME", parser_class=type(p))
-    for name, mod in sorted(_modules().items()):
-        sp = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
-        mod.add_arguments(sp)
-        sp.set_defaults(_bench_run=mod.run)
+def add_arguments(p) -> None:
+    add_commands(p, BENCHMARKS, "sea_daemon.apps.bench", dest="bench", metavar="NAME")
 
 
 def run(args) -> int:
-    if not getattr(args, "_bench_run", None):
-        names = ", ".join(sorted(_modules())) or "none yet"
-        print(f"sea-daemon bench: name a benchmark: {names}")
-        return 2
-    return int(args._bench_run(args) or 0)
+    """Without a benchmark's name (a named benchmark's ``run`` takes this one's place)."""
+    names = ", ".join(b.name for b in BENCHMARKS)
+    print(f"sea-daemon bench: name a benchmark: {names}")
+    return 2

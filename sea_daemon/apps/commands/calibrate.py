@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
+from sea_daemon.apps.calibration import calibrate
+from sea_daemon.apps.commands import daemon_args
 from sea_daemon.io.configfile import data_root
-from sea_daemon.apps.commands import _daemon_args
+from sea_daemon.runtime.service import StateFile
 
-NAME = "calibrate"
-HELP = "training phase on the bus: PID moves, GP learned online, model file + measured log"
-ORDER = 55
 DESCRIPTION = __doc__
 
 
@@ -42,7 +42,7 @@ def add_arguments(p) -> None:
                    default=str(data_root() / "configs" / "scenarios" / "passive.yaml"),
                    help="trajectory and controller gains (default: configs/scenarios/passive.yaml)")
     p.add_argument("--out", metavar="MODEL.npz", required=True, help="model file to write (atomically)")
-    _daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")
+    daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--excitation", action="store_true",
                    help="drive the calibration excitation over the configuration's calibration section "
@@ -53,21 +53,16 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.apps.calibration import calibrate
-
-    from sea_daemon.runtime.service import StateFile
-
-    from pathlib import Path
     outs = [("--out", args.out)] + ([("--out", Path(args.out).with_suffix(".yaml"))] if args.fit else [])
-    cfg, log_dir, state_dir, realtime = _daemon_args.load(args, outputs=outs)
+    cfg, log_dir, state_dir, realtime = daemon_args.load(args, outputs=outs)
     # one instance per state directory and bus, before the drives are touched
-    with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
+    with StateFile(state_dir).claim(daemon_args.bus_key(args, cfg)) as state:
         code, summary, message = calibrate(
-            cfg, args.scenario, args.out, _daemon_args.log_name(log_dir, "calibration"), state=state,
+            cfg, args.scenario, args.out, daemon_args.log_name(log_dir, "calibration"), state=state,
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
-            rt_priority=args.rt_priority, supervisor=_daemon_args.supervisor(args),
+            rt_priority=args.rt_priority, supervisor=daemon_args.supervisor(args),
             progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config),
-            socket_path=_daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
+            socket_path=daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
             config_path=args.config)
     print(json.dumps(summary))
     if code:

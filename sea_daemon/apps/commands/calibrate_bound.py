@@ -11,20 +11,24 @@ fraction of the log's steps its ρ_k covers (``configured``): a held-out check o
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 
 import numpy as np
+from tqdm import tqdm
 
-from sea_daemon.io.configfile import load_config, save_config
-from sea_daemon.errors import InputError
-from sea_daemon.io.files import check_outputs
-from sea_daemon.io.logcsv import read_log
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.core.bounds.calibration import conformal_gp_constants
+from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta, torque_coverage
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.rates import at_rate
+from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import load_config, save_config
+from sea_daemon.io.files import check_outputs
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.io.logcsv import read_log
 
-NAME = "calibrate-bound"
-HELP = "split-conformal beta of the GP error bound from a held-out passive log (estimator.gp_beta)"
-ORDER = 61
 DESCRIPTION = (
     "Run the GP-AKF of --config with the GP of --model (frozen) over LOG.csv, a log with a passive "
     "subject (ass:passive_human) that the model was NOT trained on (e.g. a second calibration "
@@ -51,14 +55,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    import dataclasses
-
-    from sea_daemon.core.bounds.calibration import conformal_gp_constants
-    from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.core.estimators import make_estimator
-
     check_outputs([("--write", args.write)], inputs=[args.log, args.config, args.model])
-    from sea_daemon.core.rates import at_rate
     cfg_file = load_config(args.config)
     log = read_log(args.log, n=cfg_file.joints, min_rows=2)
     # the configuration at the log's rate (sea_daemon.core.rates): a 1 kHz log with the 100 Hz file
@@ -92,7 +89,6 @@ def run(args) -> int:
                                     for q in ("50", "90", "99")})
     if isinstance(cfg.estimator.gp_beta, float):
         # a held-out check of the configured β: the fraction of steps its ρ_k covers
-        from sea_daemon.core.bounds.torque_beta import torque_coverage
         cov, steps = torque_coverage(est, log, cfg.estimator.gp_beta, log.tau_h_act)
         out["configured"] = {"beta": cfg.estimator.gp_beta, "coverage": cov, "steps": steps}
     if args.write:
@@ -109,10 +105,6 @@ def run(args) -> int:
 
 def _torque_beta(est, log, delta: float, path) -> dict:
     """:func:`~sea_daemon.core.bounds.torque_beta.torque_calibrated_beta` with a progress bar on stderr."""
-    from tqdm import tqdm
-
-    from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta
-
     with tqdm(desc="calibrate-bound (torque): replays", unit="beta", file=sys.stderr, leave=False) as bar:
         def progress(b, c):
             bar.set_postfix_str(f"beta {b:.3g}: coverage {c:.3f}")

@@ -40,14 +40,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
-from sea_daemon.io.configfile import data_root
+from sea_daemon.apps.commands import main
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.rates import at_rate
+from sea_daemon.core.replay import ReplayResult, bound_rows, est_columns, replay, summarize
+from sea_daemon.errors import InputError, RunFault
+from sea_daemon.io.configfile import data_root, load_config, load_yaml, save_config
 from sea_daemon.io.files import atomic_write_text, check_output_dir
-from sea_daemon.errors import InputError
+from sea_daemon.io.logcsv import read_log, write_columns, write_log
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.rig import subject_torque
 
-NAME = "demo"
-HELP = "device model + daemon on a virtual CAN bus: calibration, estimation, RMSE table and plots"
-ORDER = 10
 DESCRIPTION = __doc__
 
 SCENARIOS = ("passive", "active")
@@ -80,6 +86,7 @@ def add_arguments(p) -> None:
 
 
 def _plot(path: Path, name: str, est_log, results: dict) -> None:
+    # local: matplotlib takes ~0.5 s to import and its backend is a process-wide choice, made here
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -108,17 +115,14 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
 
 def _daemon(argv: list[str]) -> dict:
     """Run a daemon command in this process; its JSON summary (stdout) is returned."""
-    from sea_daemon.apps.commands import main
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         rc = main(argv)
     lines = [ln for ln in buf.getvalue().splitlines() if ln.startswith("{")]
     summary = json.loads(lines[-1]) if lines else {}
     if rc == 2:                 # the step refused its input (already said on stderr): the demo's too
-        from sea_daemon.errors import InputError
         raise InputError(f"sea-daemon {argv[0]} refused its input (above); the demo stops there")
     if rc != 0:                 # the step stopped on a latched fault (said on stderr): not a bug
-        from sea_daemon.errors import RunFault
         fault = summary.get("fault")
         fault = fault if fault and fault != "NONE" else "see the line above"
         raise RunFault(f"sea-daemon {argv[0]} stopped with exit status {rc} ({fault}); the demo stops there")
@@ -129,7 +133,6 @@ def _online_gp(out: Path, name: str, sc, sc_path: str, cfg, cfg_path: Path, mode
                n_tr: int, per: float):
     """``--online-gp``: calibrate (the GP learned online), calibrate-bound on a held-out session,
     the run's configuration.  Returns (calibrate's JSON, calibrate-bound's JSON, run config)."""
-    from sea_daemon.io.configfile import save_config
     cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
     held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
     hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
@@ -154,7 +157,6 @@ def _robot_config(cfg, sc, path: Path) -> None:
     """The nominal robot a user starts from: the configuration's model and hardware, no
     estimator, kinematics or learning settings (the calibration identifies them), and the
     scenario's declared human-torque rate when it declares one."""
-    import yaml
     d = cfg.to_dict()
     for key in ("estimator", "kinematics", "learning"):
         d.pop(key, None)
@@ -185,9 +187,6 @@ def _beta_summary(bound: dict) -> dict:
 def _held_out_scenario(sc_path: str, dest: Path) -> Path:
     """A copy of the scenario with another noise seed (seed + 1000) and its model path made
     absolute: a calibration session the GP never learned, for calibrate-bound."""
-    import yaml
-
-    from sea_daemon.io.configfile import load_yaml
     src = Path(sc_path)
     d = load_yaml(src)
     d["seed"] = int(d.get("seed", 0)) + 1000
@@ -198,21 +197,30 @@ def _held_out_scenario(sc_path: str, dest: Path) -> Path:
 
 def _with_truth(log_path: str, tau_h, n: int):
     """The daemon's log as a MeasuredLog with the subject's true torque over each row's interval."""
-    from sea_daemon.core.log import MeasuredLog
-    from sea_daemon.io.logcsv import read_log
     log = read_log(log_path, n=n)
     truth = np.array([np.array(tau_h(t), dtype=float).reshape(n) for t in log.t])
     return MeasuredLog(t=log.t, q=log.q, theta_m=log.theta_m, tau_m=log.tau_m, tau_h_act=truth, extra=log.extra)
 
 
 def run(args) -> int:
-    from sea_daemon.io.configfile import load_config, save_config
-    from sea_daemon.runtime.rig import subject_torque
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.logcsv import write_columns, write_log
-    from sea_daemon.core.replay import ReplayResult, bound_rows, est_columns, replay, summarize
-    from sea_daemon.io.scenario import load_scenario
+    out, cfg, cfg_path, cfg_rate = _prepare(args)
+    summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
+                     "pace": args.pace, "rate_hz": cfg_rate.rate_hz,
+                     "kinematics_window": cfg_rate.kinematics.window, "scenarios": {}}
+    rows = []
+    t_all = time.perf_counter()
+    for name in args.scenario or SCENARIOS:
+        summary["scenarios"][name], scenario_rows = _scenario(args, name, out, cfg, cfg_path, cfg_rate)
+        rows += scenario_rows
+    summary["wall_s"] = round(time.perf_counter() - t_all, 2)
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
+    _print_summary(out, summary, rows)
+    return 0
 
+
+def _prepare(args):
+    """The arguments checked, ``--out`` created and the configuration used written there:
+    (out directory, configuration, its copy's path, the configuration at ``--rate``)."""
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
     out = check_output_dir("--out", args.out, [args.config])
@@ -222,82 +230,98 @@ def run(args) -> int:
             cfg.hardware, bus=dataclasses.replace(cfg.hardware.bus, sync_rpdo=True)))
     cfg_path = out / "config.yaml"
     save_config(cfg, cfg_path, header="configuration used by sea-daemon demo")
-    from sea_daemon.core.rates import at_rate
     if args.rate is not None and not 1.0 <= args.rate <= 100000.0:
         raise InputError(f"--rate {args.rate:g}: allowed 1..100000 Hz")
-    cfg_rate = at_rate(cfg, args.rate)
-    n, dt = cfg.joints, cfg_rate.dt
+    return out, cfg, cfg_path, at_rate(cfg, args.rate)
+
+
+def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tuple[dict, list]:
+    """One embedded scenario: calibration and estimation by the daemon on the virtual bus, its
+    logs with the subject's true torque, the estimators scored on the estimation log.
+    Returns (its entry of summary.json, its rows of the table)."""
+    n = cfg.joints
     per = cfg_rate.rate_hz / cfg.rate_hz                # samples per scenario sample
     rate_args = ["--rate", f"{cfg_rate.rate_hz:g}"] if args.rate is not None else []
-    summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
-                     "pace": args.pace, "rate_hz": cfg_rate.rate_hz,
-                     "kinematics_window": cfg_rate.kinematics.window, "scenarios": {}}
-    rows = []
-    t_all = time.perf_counter()
-    for name in args.scenario or SCENARIOS:
-        sc_path = str(data_root() / "configs" / "scenarios" / f"{name}.yaml")
-        sc = load_scenario(sc_path)
-        n_tr = args.samples or int(round(sc.training_samples * per))
-        n_est = args.samples or int(round(sc.estimation_samples * per))
-        logs = out / name
-        model = out / f"{name}_model.npz"
-        def common(config, scenario, log_dir):
-            return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
-                    "--pace", args.pace, "--scenario", str(scenario), *rate_args]
-        t0 = time.perf_counter()
-        if args.online_gp:
-            cal, bound, run_cfg = _online_gp(out, name, sc, sc_path, cfg, cfg_path, model, common, logs, n_tr, per)
+    sc_path = str(data_root() / "configs" / "scenarios" / f"{name}.yaml")
+    sc = load_scenario(sc_path)
+    n_tr = args.samples or int(round(sc.training_samples * per))
+    n_est = args.samples or int(round(sc.estimation_samples * per))
+    logs = out / name
+    model = out / f"{name}_model.npz"
+
+    def common(config, scenario, log_dir):
+        return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
+                "--pace", args.pace, "--scenario", str(scenario), *rate_args]
+    t0 = time.perf_counter()
+    if args.online_gp:
+        cal, bound, run_cfg = _online_gp(out, name, sc, sc_path, cfg, cfg_path, model, common, logs, n_tr, per)
+    else:
+        # the calibration from the nominal robot alone: calibrate --fit writes the model file
+        # and the complete configuration beside it
+        robot_cfg = out / f"{name}_robot.yaml"
+        _robot_config(cfg, sc, robot_cfg)
+        cal = _daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
+                       "--fit", "--no-progress"])
+        run_cfg = Path(cal["config_calibrated"])
+        bound = {"lederer": True}
+    t1 = time.perf_counter()
+    est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
+    t2 = time.perf_counter()
+    # the device model's subject: passive in calibration, the scenario's in estimation
+    train_log = _with_truth(cal["log"], subject_torque(sc, "training"), n)
+    est_log = _with_truth(est["log"], subject_torque(sc, "estimation"), n)
+    write_log(out / f"{name}_train.csv", train_log)
+    write_log(out / f"{name}_est.csv", est_log)
+    x = est_log.extra
+    entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
+                   "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
+                   "calibration": cal.get("calibration"),
+                   "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
+                   "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
+                   "gp_beta": _beta_summary(bound),
+                   "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
+                   "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
+                   "estimators": {}}
+    rows = _score(out, name, est_log, cfg_rate, n, entry["estimators"])
+    return entry, rows
+
+
+def _online_result(est_log, n: int) -> ReplayResult:
+    """The GP-AKF's own online estimate, read from the daemon's estimation log."""
+    x = est_log.extra
+    return ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
+                        tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
+                        tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
+                        x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
+                        step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
+                        bound_of=bound_rows(x["cycle"], x["bound_cycle"]))
+
+
+def _score(out: Path, name: str, est_log, cfg_rate, n: int, summaries: dict) -> list:
+    """The estimators on the estimation log of ``n`` joints (the GP-AKF's online estimate, the
+    others replayed at ``cfg_rate``): their EST.csv files, their summaries into ``summaries``,
+    the plot; the table's rows."""
+    gp = _online_result(est_log, n)
+    results, rows = {}, []
+    for est_name in ESTIMATORS:
+        if est_name == "gp-akf":
+            res = gp                                  # the daemon's own online estimate
         else:
-            # the calibration from the nominal robot alone: calibrate --fit writes the model file
-            # and the complete configuration beside it
-            robot_cfg = out / f"{name}_robot.yaml"
-            _robot_config(cfg, sc, robot_cfg)
-            cal = _daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
-                           "--fit", "--no-progress"])
-            run_cfg = Path(cal["config_calibrated"])
-            bound = {"lederer": True}
-        t1 = time.perf_counter()
-        est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
-        t2 = time.perf_counter()
-        # the device model's subject: passive in calibration, the scenario's in estimation
-        train_log = _with_truth(cal["log"], subject_torque(sc, "training"), n)
-        est_log = _with_truth(est["log"], subject_torque(sc, "estimation"), n)
-        write_log(out / f"{name}_train.csv", train_log)
-        write_log(out / f"{name}_est.csv", est_log)
-        x = est_log.extra
-        gp = ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
-                          tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
-                          tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
-                          x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
-                          step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
-                          bound_of=bound_rows(x["cycle"], x["bound_cycle"]))
-        results = {}
-        entry: dict = {"cycles": int(cal["cycles"] + est["cycles"]), "wall_s": round(t2 - t0, 2),
-                       "calibrate": {k: cal[k] for k in ("cycles", "gp_points", "overruns", "wall_s", "log", "model")},
-                       "calibration": cal.get("calibration"),
-                       "run": {k: est[k] for k in ("cycles", "overruns", "wall_s", "log", "rows_written")},
-                       "calibrate_wall_s": round(t1 - t0, 2), "run_wall_s": round(t2 - t1, 2),
-                       "gp_beta": _beta_summary(bound),
-                       "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
-                       "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
-                       "estimators": {}}
-        for est_name in ESTIMATORS:
-            if est_name == "gp-akf":
-                res = gp                                  # the daemon's own online estimate
-            else:
-                res = replay(est_log, make_estimator(est_name, cfg_rate, dt=dt), clock=time.perf_counter)
-                res.estimator = est_name
-            results[est_name] = res
-            write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
-            s = summarize(res)
-            if est_name == "gp-akf":
-                s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
-            entry["estimators"][est_name] = s
-            rows.append((name, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
-        _plot(out / f"{name}.png", name, est_log, results)
-        summary["scenarios"][name] = entry
-    summary["wall_s"] = round(time.perf_counter() - t_all, 2)
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
+            res = replay(est_log, make_estimator(est_name, cfg_rate, dt=cfg_rate.dt), clock=time.perf_counter)
+            res.estimator = est_name
+        results[est_name] = res
+        write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
+        s = summarize(res)
+        if est_name == "gp-akf":
+            s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
+        summaries[est_name] = s
+        rows.append((name, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
+    _plot(out / f"{name}.png", name, est_log, results)
+    return rows
+
+
+def _print_summary(out: Path, summary: dict, rows: list) -> None:
+    """The RMSE table and one line per scenario on stdout."""
     print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
     for name, est_name, rmse, cov, bound in rows:
         print(f"{name:<9} {est_name:<8} {rmse:>10.4f} {cov if cov is not None else float('nan'):>9.3f} {bound:>11.3f}")
@@ -313,4 +337,3 @@ def run(args) -> int:
                   f"estimate: each rho against its own sample's error covers {g['coverage_own_sample']:.3f} of the "
                   f"valid rows (the table's coverage: against the estimate published with it)")
     print(f"wrote {out}/summary.json, logs, model files, estimates and plots ({summary['wall_s']} s)")
-    return 0

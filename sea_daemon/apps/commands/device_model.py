@@ -16,12 +16,15 @@ import sys
 import threading
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.core.sim.plant import Plant
 from sea_daemon.errors import InputError
+from sea_daemon.hw.bus import make_bus
+from sea_daemon.hw.device_model import DeviceModel, parse_fault
+from sea_daemon.hw.errors import DeviceMismatch
+from sea_daemon.io.configfile import default_config_path, load_config
+from sea_daemon.io.scenario import human_torque, load_scenario, make_plant, task_plant
+from sea_daemon.runtime.realtime import try_realtime
 
-NAME = "device-model"
-HELP = "run the simulated drive + load encoder as CANopen slaves on a CAN bus (HIL tests, demo)"
-ORDER = 70
 DESCRIPTION = __doc__
 
 
@@ -49,18 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _plant(args, cfg):
-    try:
-        from sea_daemon.core.sim.plant import Plant
-    except ImportError:
-        raise InputError("device-model needs the simulator (sea_daemon.core.sim), which is not installed") from None
     if args.scenario:
-        from sea_daemon.io.scenario import make_plant
-        from sea_daemon.io.scenario import load_scenario
-        from sea_daemon.io.scenario import human_torque
         sc = load_scenario(args.scenario)
         if sc.human == "track":
             # the task's estimation phase: the subject tracks from t = 0, the arm at rest at its start
-            from sea_daemon.io.scenario import task_plant
             plant, subject = task_plant(sc, seed=args.seed)
             return plant, sc.nominal, subject
         return make_plant(sc, args.seed), sc.nominal, human_torque(sc)
@@ -68,11 +63,6 @@ def _plant(args, cfg):
 
 
 def run(args) -> int:
-    from sea_daemon.hw.bus import make_bus
-    from sea_daemon.hw.device_model import DeviceModel, parse_fault
-
-    from sea_daemon.hw.errors import DeviceMismatch
-
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]
     b = cfg.hardware.bus
@@ -93,7 +83,7 @@ def run(args) -> int:
         signal.signal(sig, lambda *_: stop.set())
     rt = "not asked"
     if args.rt_priority:
-        from sea_daemon.runtime.realtime import try_realtime    # before the threads start: they inherit it
+        # before the threads start: they inherit it
         r = try_realtime(args.rt_priority)
         rt = f"{r['sched']}, memory {r['mlockall']}"
     model.start()

@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from sea_daemon.apps.commands import add_log_and_config
 
-NAME = "diagnose"
+from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.apps.diagnose import SelectOptions, diagnose
+from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import load_config
+from sea_daemon.io.files import check_output_dir, check_outputs
+from sea_daemon.io.logcsv import read_log
+
 #: the files diagnose writes into --out besides its PNG plots
 OUTPUTS = ("diagnosis.json", "model_augmented.yaml", "report.md")
-HELP = "find effects the model lacks in a measured log; write diagnosis.json, model_augmented.yaml, report.md"
-ORDER = 40
 DESCRIPTION = ("Closes the loop on measured data: computes the load- and motor-side model residuals of the "
                "log, traces them to effects of the vocabulary (docs/interfaces.md §2), writes DIR/diagnosis.json, "
                "DIR/model_augmented.yaml (the config plus the effects found), DIR/report.md and PNG plots, "
@@ -40,11 +43,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.io.configfile import load_config
-    from sea_daemon.apps.diagnose import SelectOptions, diagnose
-    from sea_daemon.errors import InputError
-    from sea_daemon.io.files import check_output_dir, check_outputs
-    from sea_daemon.io.logcsv import read_log
 
     # before any work: DIR can be written and none of its files is an input
     inputs = [args.log, args.config, *args.apply]

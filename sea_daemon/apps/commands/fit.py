@@ -16,11 +16,11 @@ import json
 import sys
 from pathlib import Path
 
+from sea_daemon.apps.calibration.modelio import save_calibrated, summary
+from sea_daemon.apps.calibration.pipeline import calibrate_from_files
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.io.files import atomic_write_text, check_outputs
 
-NAME = "fit"
-HELP = "calibrate from a passive log offline: noise, physical effects, residual GP -> complete model"
-ORDER = 57
 DESCRIPTION = __doc__
 
 
@@ -39,9 +39,6 @@ def outputs(prefix) -> list[tuple[str, Path]]:
 
 
 def run(args) -> int:
-    from sea_daemon.apps.calibration.modelio import save_calibrated, summary
-    from sea_daemon.apps.calibration.pipeline import calibrate_from_files
-    from sea_daemon.io.files import atomic_write_text, check_outputs
     outs = outputs(args.out)
     check_outputs(outs, inputs=[args.log, args.config])
     result = calibrate_from_files(args.log, args.config, args.gp)

@@ -11,15 +11,13 @@ import json
 
 import numpy as np
 
+from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
 from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.apps.commands import add_log_and_config
 
-NAME = "identify-noise"
-HELP = "identify the measurement noise R (and Q) from a log by autocovariance least squares"
-ORDER = 60
 DESCRIPTION = (
     "Run the AKF of --config over LOG.csv, linearise the SEA model at the log's mean operating "
     "point, filter the measurements with a fixed stabilising gain and identify the noise "
@@ -52,7 +50,6 @@ def run(args) -> int:
     check_outputs([("--write", args.write)], inputs=[args.log, args.config])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
-    from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints

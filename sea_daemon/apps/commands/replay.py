@@ -13,17 +13,20 @@ import json
 import sys
 import time
 
-from sea_daemon.io.configfile import load_config, load_yaml
-from sea_daemon.errors import InputError, shown
-from sea_daemon.core.estimators import make_estimator
-from sea_daemon.io.files import check_outputs
-from sea_daemon.io.logcsv import read_log, write_columns
-from sea_daemon.core.replay import est_columns, replay, summarize
+from sea_daemon.apps.calibration.modelio import estimator_from_model
+from sea_daemon.apps.calibration.modelio import summary as cal_summary
+from sea_daemon.apps.calibration.pipeline import calibrate_log
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.core.bounds.akf_bound import theorem_bound
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.estimators.factory import RATE_TOLERANCE
+from sea_daemon.core.replay import est_columns, replay, summarize
+from sea_daemon.errors import InputError, shown
+from sea_daemon.io.configfile import load_config, load_yaml
+from sea_daemon.io.files import check_outputs
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.io.logcsv import read_log, write_columns
 
-NAME = "replay"
-HELP = "run an estimator (gp-akf, akf, spring) over a measured log; EST.csv + JSON summary"
-ORDER = 30
 DESCRIPTION = (
     "Run an estimator over LOG.csv and write EST.csv with t, tau_h_act_hat, tau_h_act_bound, "
     "tau_h_act_sigma (and tau_h_act when the log has it, and the state estimates). Prints a JSON "
@@ -49,18 +52,13 @@ def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=
     """(estimator, calibration result or None).  gp-akf: with ``model_path`` the calibrated model
     file; with ``train`` the whole calibration on it (:func:`~sea_daemon.apps.calibration.pipeline.calibrate_log`,
     the values the configuration's YAML ``raw`` gives kept); the Theorem-1 bound on both."""
-    from sea_daemon.core.bounds.akf_bound import theorem_bound
     if name == "gp-akf" and model_path is not None:
-        from sea_daemon.apps.calibration.modelio import estimator_from_model
-        from sea_daemon.io.gpmodel import load_gp_model
         residual, meta = load_gp_model(model_path, cfg)
         est = estimator_from_model(cfg, residual, meta, dt=dt, bound=theorem_bound)
         if est is None:
             raise InputError(f"--model {model_path}: not a calibrated model (write one with sea-daemon fit)")
         return est, None
     if name == "gp-akf":
-        from sea_daemon.apps.calibration.pipeline import calibrate_log
-        from sea_daemon.core.estimators.factory import RATE_TOLERANCE
         if abs(train.dt - dt) > RATE_TOLERANCE * dt:
             # the calibration identifies the differentiator's noise and the process noise at the log's rate
             raise InputError(f"--train {shown(train.path)}: sample period {train.dt:.6g} s, the log's is {dt:.6g} s; "
@@ -94,7 +92,6 @@ def run(args) -> int:
     extra = {}
     if cal is not None:
         # what the calibration on --train identified, in numbers and plain words
-        from sea_daemon.apps.calibration.modelio import summary as cal_summary
         extra["calibration"] = _jsonable(cal_summary(cal))
         extra["train"] = {"log": str(args.train)}
     if hasattr(est, "n_outside"):

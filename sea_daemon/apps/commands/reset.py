@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import signal
 
-NAME = "reset"
-HELP = "clear a latched fault of the running daemon (SIGUSR1)"
-ORDER = 65
+from sea_daemon.runtime.service import StateFile
+
 DESCRIPTION = __doc__
 
 
@@ -25,7 +24,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.runtime.service import StateFile
     d = args.state_dir or args.log_dir or "/var/log/sea-daemon"
     pid = StateFile(d).signal(signal.SIGUSR1)
     print(f"sent reset (SIGUSR1) to sea-daemon pid {pid}")

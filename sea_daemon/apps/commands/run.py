@@ -29,49 +29,43 @@ from __future__ import annotations
 import json
 import sys
 
-from sea_daemon.apps.commands import _daemon_args
+from sea_daemon.apps.calibration.modelio import estimator_from_model
+from sea_daemon.apps.commands import daemon_args
+from sea_daemon.core.assist import InnovationGuard
+from sea_daemon.core.bounds.akf_bound import theorem_bound
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.controller import AssistController, ScenarioController, ZeroTorque
+from sea_daemon.runtime.notify import Notifier
+from sea_daemon.runtime.publish import make_publisher
+from sea_daemon.runtime.rig import make_rig
+from sea_daemon.runtime.service import StateFile, serve
 
-NAME = "run"
-HELP = "estimation service on the CAN bus (GP-AKF from a calibrated model; systemd notify)"
-ORDER = 60
 DESCRIPTION = __doc__
 
 
 def add_arguments(p) -> None:
     p.add_argument("--model", metavar="MODEL.npz", required=True, help="model file written by sea-daemon calibrate")
-    _daemon_args.add_common(p, cycles_help="stop after this many cycles (default: run until SIGTERM)")
+    daemon_args.add_common(p, cycles_help="stop after this many cycles (default: run until SIGTERM)")
     p.add_argument("--scenario", metavar="SCENARIO.yaml", default=None,
                    help="run this scenario's controller (estimation phase); default: the --device-model / "
                         "--sim scenario's, zero torque otherwise (estimation only)")
 
 
 def run(args) -> int:
-    from sea_daemon.runtime.service import StateFile
-
-    cfg, log_dir, state_dir, realtime = _daemon_args.load(args)
+    cfg, log_dir, state_dir, realtime = daemon_args.load(args)
     # one instance per state directory and bus, before the drives are touched
-    with StateFile(state_dir).claim(_daemon_args.bus_key(args, cfg)) as state:
+    with StateFile(state_dir).claim(daemon_args.bus_key(args, cfg)) as state:
         return _run(args, cfg, log_dir, state_dir, state, realtime)
 
 
 def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
-    from sea_daemon.core.assist import InnovationGuard
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.gpmodel import load_gp_model
-    from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.runtime.controller import AssistController, ScenarioController, ZeroTorque
-    from sea_daemon.runtime.publish import make_publisher
-    from sea_daemon.runtime.notify import Notifier
-    from sea_daemon.runtime.rig import make_rig
-    from sea_daemon.runtime.service import serve
-
     residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
     # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
     # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
     # a calibrated model (sea-daemon fit, calibrate --fit): the GP-AKF on the augmented model with
     # the variance-weighted residual (the AKF when the calibration kept no GP)
-    from sea_daemon.apps.calibration.modelio import estimator_from_model
-    from sea_daemon.core.bounds.akf_bound import theorem_bound
     estimator = estimator_from_model(cfg, residual, meta, dt=cfg.dt, bound=theorem_bound)
     if estimator is None:
         estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
@@ -89,11 +83,11 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                                               estimation_from=0), "scenario"
     else:
         controller, kind = ZeroTorque(cfg.joints), "zero"
-    log_path = _daemon_args.log_name(log_dir, "run")
-    publisher = make_publisher(rig, cfg, controller, socket_path=_daemon_args.socket_path(args, state_dir))
+    log_path = daemon_args.log_name(log_dir, "run")
+    publisher = make_publisher(rig, cfg, controller, socket_path=daemon_args.socket_path(args, state_dir))
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
                 notifier=Notifier(), state=state, rt_priority=args.rt_priority,
-                supervisor=_daemon_args.supervisor(args), label="run", publisher=publisher,
+                supervisor=daemon_args.supervisor(args), label="run", publisher=publisher,
                 bound_in=cfg.estimator.bound_in, bound_max_age=cfg.estimator.bound_max_age)
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,

@@ -4,10 +4,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from sea_daemon.errors import InputError
+from sea_daemon.io.files import check_outputs
+from sea_daemon.io.logcsv import write_log
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.sim_runner import simulate
 
-NAME = "simulate"
-HELP = "offline physics simulation of a scenario to measured logs (training + estimation phase)"
-ORDER = 20
 DESCRIPTION = (
     "Simulate the exoskeleton with a human forearm (true plant = nominal model + hidden effects) "
     "for a scenario YAML (configs/scenarios/*.yaml).  Writes the estimation phase to --out and the "
@@ -32,10 +33,6 @@ def train_path_for(out: Path) -> Path:
 
 
 def run(args) -> int:
-    from sea_daemon.io.files import check_outputs
-    from sea_daemon.io.logcsv import write_log
-    from sea_daemon.runtime.sim_runner import simulate
-    from sea_daemon.io.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:

@@ -18,11 +18,9 @@ import time
 from collections import deque
 from pathlib import Path
 
+from sea_daemon.client import FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, Subscriber, default_socket
 from sea_daemon.errors import InputError
 
-NAME = "watch"
-HELP = "live view of the published estimate, its bound, validity and faults (terminal)"
-ORDER = 63
 DESCRIPTION = __doc__
 
 BAND, EST, ASSIST, INVALID, AXIS = "░", "●", "a", "×", "─"
@@ -43,7 +41,6 @@ def add_arguments(p) -> None:
 
 
 def find_socket(args) -> Path:
-    from sea_daemon.client import default_socket
     if args.socket:
         return Path(args.socket)
     d = Path(args.state_dir or ".")
@@ -84,7 +81,6 @@ class View:
         if s is None:
             return [f"sea-daemon watch  {sock}: waiting for the daemon's first sample …"]
         silent = time.monotonic() - self.last_wall
-        from sea_daemon.client import FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON
         fault = "none" if not s.fault else f"\x1b[1;31m{s.fault_name} — torque zero, reset needed\x1b[0m"
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
                   "on, engaged" if s.flags & FLAG_ASSIST_ENGAGED else "on, idle")
@@ -164,8 +160,6 @@ class View:
 
 
 def run(args) -> int:
-    from sea_daemon.client import Subscriber
-
     if not args.window > 0 or not args.refresh > 0:
         raise InputError(f"--window {args.window} / --refresh {args.refresh}: allowed > 0 s")
     if args.frames is not None and args.frames < 1:

@@ -3,10 +3,12 @@
 :class:`AKFTheoremBound` is the bound component (:class:`~sea_daemon.core.estimators.base.Bound`)
 of one :class:`~sea_daemon.core.estimators.akf.AKF` (plain AKF or GP-AKF: an AKF with a
 residual), given at its construction (``AKF(cfg, bound=theorem_bound)``; :func:`theorem_bound`
-is the default the estimator factory uses).  The AKF calls it after every filter step: it
-propagates the set of means with :class:`SetMembershipBound`, using what the AKF keeps per
-step — ``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹),
-``K_k``, ``H``, ``P`` — and overwrites ``est.tau_h_act_bound`` with ρ_k.  The calibration of
+is the default the estimator factory uses).  The AKF hands it every filter step's
+:class:`~sea_daemon.core.estimators.record.StepRecord`: it propagates the set of means with
+:class:`SetMembershipBound`, using the record's x̂_{k−1}, P_{k−1}, u, ẑ_{k−1}, μ(ẑ), ∂μ/∂z,
+``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``
+and ``P``, and the filter's constants (``H``, the model, δ), and overwrites
+``est.tau_h_act_bound`` with ρ_k.  The calibration of
 its GP constants is :mod:`sea_daemon.core.bounds.calibration`.
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
@@ -35,7 +37,7 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   linearised at zero slope instead of the filter's — the set propagated with the filter's
   transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
   range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
-  plus the slope times the Gaussian part's extent (:meth:`AKFTheoremBound._friction_candidate`,
+  plus the slope times the Gaussian part's extent (:meth:`FrictionRange.candidate <sea_daemon.core.bounds.friction_range.FrictionRange.candidate>`,
   :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
   the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
   the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
@@ -54,50 +56,21 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.jit import njit, warmer
-from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
-from sea_daemon.core.model_core import lin_error_boxes
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    REDUCE_PERIOD_S, SetMembershipBound, _unit_directions as _directions, ellipsoid_points)
+    REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
 from sea_daemon.core.bounds import bound_core
-from sea_daemon.core.bounds.bound_core import gravity_remainder as _gravity_remainder
-
-
-@njit
-def _generators_check(G, caps) -> int:
-    """The compiled step's new generators: 1 when one is not finite, 2 when a half-width of the
-    set of means (Σ_j |G_ij|) may exceed its cap (within 1e-12 relative: the exact test is
-    SetMembershipBound.saturate's), else 0."""
-    over = False
-    for i in range(G.shape[0]):
-        s = 0.0
-        for j in range(G.shape[1]):
-            v = G[i, j]
-            if not math.isfinite(v):
-                return 1
-            s += abs(v)
-        if s > caps[i] * (1.0 - 1e-12):
-            over = True
-    return 2 if over else 0
-
-
-@warmer
-def _warm() -> None:
-    """The compiled kernels of this module with the argument types the bound uses (see _jit)."""
-    _gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
-    _generators_check(np.zeros((5, 3)), np.ones(5))
+from sea_daemon.core.bounds.friction_range import FrictionRange
+from sea_daemon.core.gp.pack import GPPack, empty_pack
+from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
 
 
 class AKFTheoremBound:
     """The Theorem-1 bound component of one AKF instance (see module docstring)."""
-
-    #: computed in the AKF's own step (:class:`~sea_daemon.core.estimators.base.Bound`)
-    deferred = False
 
     def __init__(self, akf, *, gp_constants: list[BoundConstants] | str | None = None,
                  gp_box: tuple[np.ndarray, np.ndarray] | None = None, delta: float | None = None,
@@ -108,7 +81,7 @@ class AKFTheoremBound:
         self.akf = akf
         # the compiled step (bound_core.bound_step) where it applies, else the Python step below
         self.compiled = bool(compiled)
-        self._pack = None                 # bound_core.GPPack of the frozen LoG-GPs
+        self._pack = None                 # gp.pack.GPPack of the frozen LoG-GPs
         self._pack_at = -1                # n_learned when the pack was made
         self._args = None                 # the compiled step's arguments that stay (_call_compiled)
         self._caps = self._sqrt_caps = None   # the AKF's caps of bounded P and their square roots
@@ -121,9 +94,37 @@ class AKFTheoremBound:
             raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
         self.gp_beta = gp_beta
         n, d = akf.n, akf.d
-        # declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk (default estimator.tau_h_act_rate)
-        if tau_h_act_rate is None:
-            tau_h_act_rate = getattr(est_cfg, "tau_h_act_rate", 0.0)
+        self._init_rate(getattr(est_cfg, "tau_h_act_rate", 0.0) if tau_h_act_rate is None else tau_h_act_rate)
+        delta = akf.delta if delta is None else float(delta)
+        has_gp = akf.residual is not None
+        if delta_gp is None:
+            delta_gp = 0.5 * delta if has_gp else 0.0
+        self._init_gp_constants(gp_constants, has_gp)
+        self.gp_box = gp_box
+        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
+                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
+                                     sets=sets)
+        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
+        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
+        self._init_geometry(has_gp, n_dirs, seed)
+        self.gp_box_violations_ = 0
+        self._rho = np.zeros(n)
+        self._b = np.zeros(d)
+        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
+        self._empty = empty_pack()
+        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+                       and (not has_gp or residual_gps(akf) is not None))
+        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
+        # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
+        self.friction = FrictionRange(akf.model, akf.tables, sets)
+        self.range_steps_ = 0           # steps whose set of means took the range candidate
+        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
+        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
+
+    def _init_rate(self, tau_h_act_rate) -> None:
+        """The declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk and its work arrays."""
+        n, d = self.akf.n, self.akf.d
         if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate)
                 and tau_h_act_rate >= 0):
             raise ValueError(f"tau_h_act_rate must be a finite number >= 0 [N m/s], got {tau_h_act_rate!r}")
@@ -136,10 +137,9 @@ class AKFTheoremBound:
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
-        delta = akf.delta if delta is None else float(delta)
-        has_gp = akf.residual is not None
-        if delta_gp is None:
-            delta_gp = 0.5 * delta if has_gp else 0.0
+
+    def _init_gp_constants(self, gp_constants, has_gp: bool) -> None:
+        """The GP constants: a list, or 'auto' (computed from the residual's LoG-GPs)."""
         if has_gp and gp_constants is None:
             raise ValueError("a GP-AKF needs gp_constants (a list, or 'auto' for a ResidualGP; "
                              "see sea_daemon.core.bounds.calibration.gp_constants)")
@@ -151,14 +151,12 @@ class AKFTheoremBound:
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
         self._scales = None
         self._update_scales()
-        self.gp_box = gp_box
-        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
-                                     n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
-                                     sets=sets)
-        # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
-        self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
+
+    def _init_geometry(self, has_gp: bool, n_dirs: int, seed: int) -> None:
+        """The model's and the sets' constants: which errors depend on which coordinates."""
+        n, d = self.akf.n, self.akf.d
+        m = self.akf.model
         self._I = np.eye(d)
-        m = akf.model
         # only gravity is non-linear in a nominal model without declared effects
         self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
         # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
@@ -169,28 +167,14 @@ class AKFTheoremBound:
         self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
                      else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
-        self._T = np.asarray(akf.dz_dx, dtype=float)[:2 * n]
+        self._T = np.asarray(self.akf.dz_dx, dtype=float)[:2 * n]
         self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
-        self._Uz = _directions(2 * n, n_dirs, seed)
-        self.gp_box_violations_ = 0
-        self._rho = np.zeros(n)
-        self._b = np.zeros(d)
-        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
-        self._empty = bound_core.empty_args()
-        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
-                       and (not has_gp or residual_gps(akf) is not None))
+        self._Uz = unit_directions(2 * n, n_dirs, seed)
         self._minv = np.ascontiguousarray(m.Minv, dtype=float)
         self._M = np.ascontiguousarray(m.M, dtype=float)
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
-        # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
-        # error (_friction_candidate; docs/bounds.md §4 "The range form")
-        self._fric, self._fric_arrays = self._friction_groups(m, sets)
-        self.range_steps_ = 0           # steps whose set of means took the range candidate
-        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
-        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
-        self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
 
     # ------------------------------------------------------------------ hooks
 
@@ -220,7 +204,7 @@ class AKFTheoremBound:
             return int(n)
         return int(sum(g.n_points for g in residual_gps(self.akf) or []))
 
-    def reset(self, est) -> None:
+    def reset(self, est, record) -> None:
         """After the AKF's reset: the set of means back to a point, ρ_0 (GP constants of the GP
         as trained when estimation starts, with 'auto')."""
         if self._auto:
@@ -230,8 +214,8 @@ class AKFTheoremBound:
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
-        if self.akf._ready:
-            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+        if record.ready:
+            est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
     # ------------------------------------------------------------------ linearisation error
 
@@ -255,13 +239,13 @@ class AKFTheoremBound:
         qh = x0[:n] + x0[n:2 * n]
         r = self.sm.half_widths(self._E_q, P0, s=self._s_z)   # along e_θm,j + e_θs,j
         v = np.empty(n)
-        _gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
+        gravity_remainder(qh, r, g, self._grid, self._grid_step, v)
         b[3 * n:4 * n] = np.abs(model.Minv) @ v
         return b
 
     def _sampled_nominal_box(self, x0, u, C: Ellipsoid, A_nom: np.ndarray) -> np.ndarray:
         """max over the point set of C of |f_nom(x) − f_nom(x̂) − F_nom (x − x̂)| (declared effects)."""
-        tables = getattr(self.akf, "_tables", None)
+        tables = self.akf.tables
         if tables is not None:
             # the same, compiled over all the points at once (model_core)
             return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
@@ -276,138 +260,6 @@ class AKFTheoremBound:
             r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
             np.maximum(b, r, out=b)
         return b
-
-    def _friction_groups(self, model, sets: str):
-        """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
-        with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
-        column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
-        eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
-        Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
-        the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
-        compiled vocabulary)."""
-        tables = getattr(self.akf, "_tables", None)
-        if sets != "zonotope" or tables is None:
-            return [], None
-        n, d = model.n, 5 * model.n
-        groups = {}
-        for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
-            for e in effs:
-                if e.code in (COULOMB, STRIBECK):
-                    groups.setdefault((side, e.joint), []).append((int(e.code), np.asarray(e.vector, dtype=float)))
-        if not groups:
-            return [], None
-        out = []
-        for (side, j), effs in sorted(groups.items()):
-            ell = np.zeros(d)
-            c = np.zeros(d)
-            ell[2 * n + j] = 1.0
-            if side == "load":
-                ell[3 * n + j] = 1.0
-                c[3 * n:4 * n] = -model.Minv[:, j]
-            else:
-                c[2 * n:3 * n] = -model.Jinv[:, j]
-                c[3 * n:4 * n] = model.Jinv[:, j]
-            out.append((side, ell, c, effs))
-        # the same as arrays for model_core.lin_error_boxes (one f_nom per point for both boxes)
-        arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
-                  np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
-                  np.array([code for g in out for code, _ in g[3]], dtype=np.int64),
-                  np.ascontiguousarray([p for g in out for _, p in g[3]], dtype=float))
-        return out, arrays
-
-    @staticmethod
-    def _friction_range(effs, lo: float, hi: float) -> tuple[float, float]:
-        """[L, U] ⊇ {τ_g(v) : lo ≤ v ≤ hi} for τ_g = Σ p₀ m(v) tanh(v/ε), m ≡ 1 (Coulomb) or
-        exp(−(v/v_s)²) (Stribeck), by interval arithmetic — rigorous: tanh is increasing, and m > 0
-        lies between its values at the interval's largest and smallest |v|.  With one ε for all
-        (the estimator's ``sign_eps``) τ_g = tanh(v/ε)·Σ p₀ m(v) is bounded as one product, which
-        keeps a Coulomb and a Stribeck term of opposite signs from adding their widths."""
-        vmax = max(abs(lo), abs(hi))
-        vmin = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
-        L = U = 0.0          # per-effect sum (any ε)
-        hl = hu = 0.0        # Σ p₀ m(v) over the interval (shared ε)
-        eps0 = None
-        shared = True
-        for code, p in effs:
-            eps = p[1] if code == COULOMB else p[2]          # the smoothing ε (effects.evaluate)
-            if code == STRIBECK:
-                m_lo, m_hi = math.exp(-(vmax / p[1]) ** 2), math.exp(-(vmin / p[1]) ** 2)
-            else:
-                m_lo = m_hi = 1.0
-            a, b = (p[0] * m_lo, p[0] * m_hi) if p[0] >= 0.0 else (p[0] * m_hi, p[0] * m_lo)
-            hl += a
-            hu += b
-            t_lo, t_hi = math.tanh(lo / eps), math.tanh(hi / eps)
-            # [a, b]·[t_lo, t_hi]: the extreme corner products
-            c = (a * t_lo, a * t_hi, b * t_lo, b * t_hi)
-            L += min(c)
-            U += max(c)
-            shared = shared and (eps0 is None or eps == eps0)
-            eps0 = eps
-        if shared and eps0 is not None:
-            t_lo, t_hi = math.tanh(lo / eps0), math.tanh(hi / eps0)
-            c = (hl * t_lo, hl * t_hi, hu * t_lo, hu * t_hi)
-            L, U = max(L, min(c)), min(U, max(c))
-        return L, U
-
-    def _friction_candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float):
-        """The set of means' step with the friction linearised at zero slope (module docstring).
-
-        The filter's drift error splits as ε = ε_smooth + Σ_g c (τ_g(v) − τ_g(v̂) − s_g ℓᵀ(x − x̂)),
-        s_g the filter's slope at v̂.  With x − x̂ = a + g (a in the set of means, g ~ N(0, P) the
-        Gaussian part) the step of a (eq:predwLinErrsetandGPerrset, ε held over the step) is
-
-            a⁺ = F a + Φ ε = (F − Σ_g Φc s_g ℓᵀ) a + Φ ε_smooth + Σ_g Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg],
-
-        exactly; F g is the filter's own Gaussian part and stays with P.  So the set of means may
-        be propagated with F_B = F − Σ Φc s_g ℓᵀ (the filter's transition without the friction's
-        slope) and the bounded inputs Φ box(b_smooth) and Φc·[−w_g, w_g] with
-        w_g = max|τ_g(v) − τ_g(v̂)| over v ∈ ℓᵀC_{k−1} (interval arithmetic, :meth:`_friction_range`)
-        + |s_g| √(s ℓᵀP ℓ) (g on its χ² set, the same event as x ∈ C_{k−1}).  Both this and the
-        filter-slope step contain a⁺ under Theorem 1's assumptions, so either may be taken.
-        ``pts``: the point set of C_{k−1}.  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
-        Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
-        akf = self.akf
-        n, d = akf.n, akf.d
-        nf = len(self._fric)
-        dF = np.zeros((d, d))
-        GamF = np.empty((d, nf))
-        w = np.empty(nf)
-        slopes = np.empty(nf)
-        Phi_full = None
-        s_set = self.sm.s_state
-        for i, (side, ell, c, effs) in enumerate(self._fric):
-            v0 = float(ell @ x0)
-            t0 = sl = 0.0
-            for code, p in effs:
-                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
-                t0 += t_
-                sl += dv
-            r = float(self.sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
-            L, U = self._friction_range(effs, v0 - r, v0 + r)
-            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
-            w[i] = max(U - t0, t0 - L) + abs(sl) * rg
-            if side == "load":
-                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
-                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
-                GamF[:, i] = -akf.Gamma_mu[:, j]
-            else:
-                if Phi_full is None:
-                    Phi_full = discretize(akf.A_k, self._I, dt)[1]
-                GamF[:, i] = Phi_full @ c
-            # F_B = F − Φc s_g ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
-            dF -= sl * np.outer(GamF[:, i], ell)
-            slopes[i] = sl
-        # both sampled boxes in one pass: the filter-slope form's b (f_nom with A_nom) and
-        # b_smooth (f_nom without the friction groups, with A_nom minus their slopes)
-        b = np.zeros(d)
-        b_s = np.zeros(d)
-        ell_a, col_a, eg, ec, ep = self._fric_arrays
-        lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
-                        np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                        *akf._tables._args, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
-        b_s *= 1.0 + self.sm.margin
-        return dF, GamF, w, b_s, self._phi(akf.A_k, b_s, dt), (1.0 + self.sm.margin) * b
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -464,7 +316,7 @@ class AKFTheoremBound:
             out = bool(np.any(zl < lo) or np.any(zh > hi))
         return E, S, X, out
 
-    def _phi(self, A, b, dt):
+    def _phi(self, A, b, dt, Gamma_mu):
         """Φ = ∫₀^dt e^{As} ds on the columns where b ≠ 0.  The θ̈_s columns are Γ_μ M (the AKF
         already has Γ_μ = Φ I_μ M⁻¹); any other column costs one expm."""
         if not np.any(b):
@@ -474,7 +326,7 @@ class AKFTheoremBound:
         nz = np.flatnonzero(b)
         if np.all((nz >= 3 * n) & (nz < 4 * n)):
             Phi = np.zeros((akf.d, akf.d))
-            Phi[:, 3 * n:4 * n] = akf.Gamma_mu @ akf.model.M
+            Phi[:, 3 * n:4 * n] = Gamma_mu @ akf.model.M
             return Phi
         return discretize(A, self._I, dt)[1]
 
@@ -496,37 +348,37 @@ class AKFTheoremBound:
         if self._pack is None or self._pack_at != n_l:
             gps = residual_gps(akf)
             local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
-            self._pack = bound_core.GPPack(gps, local_r)
+            self._pack = GPPack(gps, local_r)
             self._pack_at = n_l
             c = self.gp_constants
             self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
             self._gamma = np.array([k.gamma for k in c], dtype=float)
-            self._pack_args = self._pack.args()
+            self._pack_args = self._pack.arrays()
             self._args = None
         return self._pack_args
 
-    def _step_compiled(self, est, x0, P0, u, dt, gp) -> None:
+    def _step_compiled(self, est, record, gp) -> None:
         """The same step in one compiled call (:mod:`.bound_core`)."""
         akf = self.akf
         sm = self.sm
         n = akf.n
         has_gp = akf.residual is not None
         if self.tau_h_act_rate > 0:
-            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            zoh(record.A_k, self._E_tau, float(record.dt), self._aug_tau, self._Ezoh_tau)
             self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
         try:
-            G, out, took_range = self._call_compiled(akf, sm, n, has_gp, box, lo, hi, gp, x0, P0)
+            G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
             # a set of means grown to inf/NaN inside the step (e.g. the eigendecomposition of its
             # projection): the typed estimator fault, as the Python step raises it
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged ({e})") from None
-        caps = getattr(akf, "_P_max", None)
+        caps = akf.P_max
         if caps is not self._caps:
             self._caps = caps
             self._sqrt_caps = np.sqrt(caps) if caps is not None else np.full(akf.d, np.inf)
-        check = _generators_check(G, self._sqrt_caps)
+        check = generators_check(G, self._sqrt_caps)
         if check == 1:
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(self._b):.3g}); the model's non-linearity is too strong for "
@@ -537,35 +389,40 @@ class AKFTheoremBound:
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         if check:                          # a half-width at its cap: the exact test, maybe saturation
-            self._saturate(est)
+            self._saturate(est, record.P)
 
-    def _call_compiled(self, akf, sm, n, has_gp, box, lo, hi, gp, x0, P0):
-        """:func:`bound_core.bound_step` with this bound's arrays (the arguments that stay the same
-        from step to step kept in two tuples, made again when the pack, the box or an output
-        array changed)."""
+    def _call_compiled(self, rec, sm, n, has_gp, box, lo, hi, gp):
+        """:func:`bound_core.bound_step` with this bound's arrays (its named arguments that stay the
+        same from step to step kept, made again when the pack, the box, an output array or the
+        record changed)."""
         a = self._args
-        if a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_:
-            mid = (akf.z, akf.mu, akf._dmu, akf.F_k, akf.K_k, akf.H, akf.Gamma_mu,
-                   self._M, self._minv, akf.P, self._g, self._s_z, sm.margin, self._T, self._E_q, self._grid,
-                   self._grid_step, self._Uz, has_gp, self._scales is not None,
-                   self._pack.c_ext if has_gp else 0.0, self._sqrt_beta if has_gp else self._g,
-                   self._gamma if has_gp else self._g, lo, hi, box is not None, self._Gam_tau_c,
-                   self.tau_h_act_rate, self.tau_h_act_rate > 0)
-            tail = (sm.delta_noise / n, sm._z_tau, gp if has_gp else self._empty, self._rho, self.eta_,
-                    self.gp_lin_err_, self._b)
-            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, mid, tail)
-        mid, tail = a[4], a[5]
-        return bound_core.bound_step(sm.G_, x0, P0, *mid, sm.generator_limit(), *tail)
+        if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
+                or a[4] is not rec):
+            st = bound_core.FilterStep(rec.x_prev, rec.P_prev, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
+                                       rec.Gamma_mu, rec.P)
+            c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
+                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau)
+            gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
+                                     self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
+                                     lo, hi, box is not None)
+            rt = bound_core.RateTerm(self._Gam_tau_c, self.tau_h_act_rate, self.tau_h_act_rate > 0)
+            out = bound_core.BoundOutputs(self._rho, self.eta_, self.gp_lin_err_, self._b)
+            a = self._args = (gp, box, self.eta_, self.gp_lin_err_, rec,
+                              (st, c, gpt, rt, gp if has_gp else self._empty, out))
+        st, c, gpt, rt, pack, out = a[5]
+        return bound_core.bound_step(sm.G_, sm.generator_limit(), st, c, gpt, rt, pack, out)
 
-    def step(self, est, x0, P0, u, dt) -> None:
-        """After the AKF's step k from x̂_{k−1} = x0, P_{k−1} = P0 with input u over dt:
-        propagate the set of means and publish ρ_k."""
+    def step(self, est, record) -> None:
+        """After the AKF's step k (its :class:`~sea_daemon.core.estimators.record.StepRecord`:
+        from x̂_{k−1}, P_{k−1} with the input u held over dt): propagate the set of means and
+        publish ρ_k."""
         gp = self._compiled_pack()
         if gp is not None:
-            self._step_compiled(est, x0, P0, u, dt, gp)
+            self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        zhat = akf.z                              # ẑ_{k−1}, where the AKF evaluated the GP
+        x0, P0, u, dt = record.x_prev, record.P_prev, record.u, record.dt
+        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
         fric = gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
@@ -578,12 +435,13 @@ class AKFTheoremBound:
             b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
         else:
             C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
-            A_nom = akf.A_k.copy()
+            A_nom = record.A_k.copy()
             if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            if self._fric:
-                fric = self._friction_candidate(x0, u, P0, sm.sample_points(C), A_nom, dt)
+            if self.friction.groups:
+                fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
+                                               record.Gamma_mu, sm, self._phi)
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
@@ -603,44 +461,44 @@ class AKFTheoremBound:
             Lm = (1.0 + sm.margin) * E
             eta = np.max(H + Lm, axis=0)
             if sm.sets == "zonotope":
-                gp_range = self._gp_range_candidate(H, P0)
+                gp_range = self._gp_range_candidate(H, P0, record.Gamma_mu)
             self.eta_ = np.max(H, axis=0)          # the GP error alone (diagnostic)
             self.gp_lin_err_ = np.max(Lm, axis=0)  # the GP mean's linearisation error alone
         self.lin_err_ = b
-        Phi = self._phi(akf.A_k, b, dt)
-        Gam = akf.Gamma_mu
+        Phi = self._phi(record.A_k, b, dt, record.Gamma_mu)
+        Gam = record.Gamma_mu
         if self.tau_h_act_rate > 0:
             # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
             # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
-            zoh(akf.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
+            zoh(record.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
             n = akf.n
             if eta is None:
                 Gam, eta = self._Gam_tau, self._rate
             else:
-                self._Gam_all[:, :n] = akf.Gamma_mu
+                self._Gam_all[:, :n] = record.Gamma_mu
                 self._Gam_all[:, n:] = self._Gam_tau
                 self._eta_all[:n] = eta
                 self._eta_all[n:] = self.tau_h_act_rate
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         if fric is None and gp_range is None:
-            sm.predict(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+            sm.predict(record.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
         else:
-            self._predict_best_of_two(akf, Gam, eta, b, Phi, fric, gp_range)
-        sm.update(akf.K_k, akf.H)
+            self._predict_best_of_two(record, Gam, eta, b, Phi, fric, gp_range)
+        sm.update(record.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
-        est.tau_h_act_bound[:] = sm.rho(akf.P)
-        self._saturate(est)
+        est.tau_h_act_bound[:] = sm.rho(record.P)
+        self._saturate(est, record.P)
 
-    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray):
+    def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray, Gamma_mu: np.ndarray):
         """The GP part of the range form: the GP mean linearised at zero slope.
 
         The filter's drift carries −I_μM⁻¹[μ(ẑ) + J T(x − x̂)] (eq:linearization, J = ∂μ/∂z at ẑ,
         T x = (q, q̇)); the true one −I_μM⁻¹ f(z).  With x − x̂ = a + g as in
-        :meth:`_friction_candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
+        :meth:`FrictionRange.candidate`, Γ_μ = Φ I_μM⁻¹ (eq:Dmuhat):
 
             a⁺ = F a − Γ_μ [f(z) − μ(ẑ) − J T(a + g)]
                = (F + Γ_μ J T) a − Γ_μ [(f − μ)(z) + μ(z) − μ(ẑ) − J T g],
@@ -649,25 +507,24 @@ class AKFTheoremBound:
         η_B = max over the points of [√β s + γ + c e + (1 + margin)|μ(z) − μ(ẑ)|] + √(s_z J T P Tᵀ Jᵀ)
         (J T g on the χ² set of (q, q̇), the event the GP points already use) instead of the
         filter's slope and the GP mean's linearisation error.  Returns (F_B − F, η_B)."""
-        akf = self.akf
         J0 = self._J0
         Lm0 = (1.0 + self.sm.margin) * self._E0
         JT = J0 @ self._T                          # (n, d)
         eta_b = np.max(H + Lm0, axis=0) + np.sqrt(np.maximum(self._s_z * np.sum((JT @ P0) * JT, axis=1), 0.0))
-        return akf.Gamma_mu @ JT, eta_b
+        return Gamma_mu @ JT, eta_b
 
-    def _predict_best_of_two(self, akf, Gam, eta, b, Phi, fric, gp_range) -> None:
+    def _predict_best_of_two(self, rec, Gam, eta, b, Phi, fric, gp_range) -> None:
         """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
-        friction of :meth:`_friction_candidate` and the GP mean of :meth:`_gp_range_candidate`
+        friction of :meth:`FrictionRange.candidate` and the GP mean of :meth:`_gp_range_candidate`
         linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
         filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
         assumptions, so the choice keeps the guarantee whatever the rule."""
         sm = self.sm
-        n = akf.n
+        n = self.akf.n
         limit = sm.generator_limit()
-        GA = sm.prior_generators(akf.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
+        GA = sm.prior_generators(rec.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi,
                                  limit=limit)
-        FB = np.array(akf.F_k, dtype=float)
+        FB = np.array(rec.F_k, dtype=float)
         GamB, etB, bB, PhiB = Gam, eta, b, Phi
         if gp_range is not None:
             dF, eta_gp = gp_range
@@ -684,7 +541,7 @@ class AKFTheoremBound:
         GB = sm.prior_generators(FB, Gamma=GamB, eta=etB, lin_err_box=bB if np.any(bB) else None, Phi=PhiB,
                                  limit=limit)
         tau = sm.tau_idx
-        R = -(akf.K_k[tau] @ akf.H)               # the τ rows of I − K H
+        R = -(rec.K_k[tau] @ self.akf.H)          # the τ rows of I − K H
         R[np.arange(tau.size), tau] += 1.0
         hA = np.abs(R @ GA).sum()
         hB = np.abs(R @ GB).sum()
@@ -697,15 +554,15 @@ class AKFTheoremBound:
             sm.Gprior_ = GA
             sm.lin_err_ = b
 
-    def _saturate(self, est) -> None:
-        """A set of means beyond the physical caps of bounded P (``AKF._P_max``) carries no
+    def _saturate(self, est, P) -> None:
+        """A set of means beyond the physical caps of bounded P (``AKF.P_max``) carries no
         guarantee any more (its linearisation error grew faster than the filter contracts it,
         e.g. a steep friction at standstill): it is held at the caps — finite, counted in
         :attr:`saturated_` — instead of growing to overflow."""
-        caps = getattr(self.akf, "_P_max", None)
+        caps = getattr(self.akf, "P_max", None)
         if caps is not None and self.sm.saturate(np.sqrt(caps)):
             self.saturated_ += 1
-            est.tau_h_act_bound[:] = self.sm.rho(self.akf.P)
+            est.tau_h_act_bound[:] = self.sm.rho(P)
 
 
 def theorem_bound(akf) -> AKFTheoremBound | None:

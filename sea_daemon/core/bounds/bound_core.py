@@ -8,222 +8,110 @@ GP-AKF whose LoG-GPs are frozen (learning off) — this module does the same ste
 compiled call, :func:`bound_step`, with the same formulas in the same order:
 
 1. the gravity term's linearisation-error box b (half-widths of C_{k−1} along e_θm + e_θs,
-   :func:`~sea_daemon.core.bounds.akf_bound._gravity_remainder`);
+   :func:`gravity_remainder`; :func:`_gravity_stage`);
 2. the GP part: the projection of C_{k−1} on (q, q̇) (zonotope_shape of the mapped generators
    ⊕ E(0, s_z T P Tᵀ)), its deterministic points (ellipsoid_points), at each point the merged
    LoG-GP prediction (routing, leaf means with ``clip_mean``, variance, local scale and
    extrapolation term, as :class:`~sea_daemon.core.bounds.gp_bound.LocalScale` or
    :meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_many`), the GP mean's linearisation error
-   against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the sum;
+   against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the sum
+   (:func:`_gp_stage`);
 3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction) and, with a GP, the
    range form (F + Γ_μ J T) X̂ ⊕ Γ box(η_B) ⊕ Φ box(b) (AKFTheoremBound._gp_range_candidate);
-   the one with the narrower τ_h,act half-width after (I − KH) is kept; X̂ = (I − KH) X⁻,
-   ρ_k (shifted_gaussian_halfwidth).
+   the one with the narrower τ_h,act half-width after (I − KH) is kept; X̂ = (I − KH) X⁻
+   (:func:`_prior_stage`), ρ_k (shifted_gaussian_halfwidth).
 
-The frozen LoG-GPs are flattened once (:class:`GPPack`: the trees and every leaf's factor,
-data and hyperparameters in a few arrays); a pack is rebuilt when the GP changed
-(``GPPack.stale``).  Everything else (ellipsoid sets, other projections, declared effects, a
+Its arguments are named structures: the filter's step (:class:`FilterStep`, the fields of the
+AKF's :class:`~sea_daemon.core.estimators.record.StepRecord`), the bound's constants
+(:class:`SetConstants`), the GP's (:class:`GPTerms`) and the declared human-torque rate's
+(:class:`RateTerm`), the frozen LoG-GPs (:class:`~sea_daemon.core.gp.pack.PackArrays`) and the
+outputs (:class:`BoundOutputs`).
+
+The frozen LoG-GPs are flattened once (:class:`~sea_daemon.core.gp.pack.GPPack`: the trees and
+every leaf's factor, data and hyperparameters in a few arrays); a pack is rebuilt when the GP
+changed (``GPPack.stale``).  Everything else (ellipsoid sets, other projections, declared effects, a
 GP that is learning) stays on the Python path of :mod:`.akf_bound`, which is the reference:
 ``tests/test_akf_bound.py`` checks that both give the same ρ_k (to rounding).
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model_core import lin_error_boxes
-from sea_daemon.core.gp import gp_core
-from sea_daemon.core.gp.routing import _route
-from sea_daemon.core.bounds.setmember import _ellipsoid_points, _shifted_halfwidth
-from sea_daemon.core.bounds.zonotope import _zonotope_shape, predict_generators
+from sea_daemon.core.gp.pack import GPPack, empty_pack, gp_points, warm_up_loggp
+from sea_daemon.core.bounds.setmember import points_of_ellipsoid, shifted_halfwidth_into
+from sea_daemon.core.bounds.zonotope import outer_ellipsoid_shape, predict_generators
 
 
-class GPPack:
-    """The LoG-GPs of a residual (one per joint) as flat arrays for :func:`bound_step`.
+class FilterStep(NamedTuple):
+    """The filter's step k → what the bound reads of it (StepRecord's fields; d = 5n, m = 4n)."""
 
-    Per joint j: its tree (``links[j]`` dim/left/right, ``span[j]`` lo/hi, padded with leaves)
-    and, per node, the index of its leaf in the leaf arrays (``leaf_of[j, node]``, −1 for a
-    split node).  Per leaf: rows ``row[l] .. row[l] + nn[l]`` of ``A`` (kernel features), ``X``
-    (inputs), ``beta``, ``alpha``; the packed Cholesky factor at ``apo[l]``; centre, inverse
-    squared length scales, σ_f², the input box (``clip_mean``) and the local residual scale r.
-    """
-
-    def __init__(self, gps, local_r: list[dict] | None = None):
-        self.gps = list(gps)
-        self.signature = self._signature()
-        n = len(self.gps)
-        d = self.gps[0].input_dim
-        nodes = max(len(g._dim) for g in self.gps)
-        self.links = np.full((n, 3, nodes), -1, dtype=np.int64)
-        self.span = np.zeros((n, 2, nodes))
-        self.leaf_of = np.full((n, nodes), -1, dtype=np.int64)
-        leaves = []
-        for j, g in enumerate(self.gps):
-            m = len(g._dim)
-            self.links[j, 0, :m] = g._dim
-            self.links[j, 1, :m] = g._left
-            self.links[j, 2, :m] = g._right
-            self.span[j, 0, :m] = g._lo
-            self.span[j, 1, :m] = g._hi
-            for node in g.leaves():
-                self.leaf_of[j, node] = len(leaves)
-                r = 0.0 if local_r is None else float(local_r[j].get(node, 0.0))
-                leaves.append((g.leaf(node), r))
-        L = len(leaves)
-        self.nn = np.array([lf.n_ for lf, _ in leaves], dtype=np.int64)
-        self.row = np.zeros(L, dtype=np.int64)
-        self.apo = np.zeros(L, dtype=np.int64)
-        rows = int(self.nn.sum())
-        self.A = np.zeros((max(rows, 1), d + 2))
-        self.X = np.zeros((max(rows, 1), d))
-        self.beta = np.zeros(max(rows, 1))
-        self.alpha = np.zeros(max(rows, 1))
-        self.ap = np.zeros(max(int(np.sum(self.nn * (self.nn + 1) // 2)), 1))
-        self.center = np.zeros((L, d))
-        self.il2 = np.zeros((L, d))
-        self.sf2 = np.zeros(L)
-        self.lo = np.zeros((L, d))
-        self.hi = np.zeros((L, d))
-        self.clip = np.zeros(L, dtype=np.bool_)
-        self.r = np.zeros(L)
-        # σ_on² per leaf (the GP-AKF's compiled hook, gp_hook.hook_predict)
-        self.sn2 = np.array([lf.sigma_n ** 2 for lf, _ in leaves], dtype=float)
-        ro = po = 0
-        for i, (lf, r) in enumerate(leaves):
-            m = lf.n_
-            self.row[i], self.apo[i] = ro, po
-            self.sf2[i] = lf._sf2
-            self.il2[i] = lf._il2
-            self.clip[i] = lf.clip_mean
-            self.r[i] = r
-            if m:
-                self.A[ro:ro + m] = lf.A_[:m]
-                self.X[ro:ro + m] = lf.X_[:m]
-                self.beta[ro:ro + m] = lf.beta_[:m]
-                self.alpha[ro:ro + m] = lf.alpha_
-                self.ap[po:po + m * (m + 1) // 2] = lf.ap_[:m * (m + 1) // 2]
-                self.center[i] = lf.center_
-                self.lo[i], self.hi[i] = lf.lo_, lf.hi_
-            ro += m
-            po += m * (m + 1) // 2
-        self.c_ext = float(getattr(self.gps[0], "extrapolation_scale", 0.0))
-
-    def _signature(self) -> tuple:
-        """What changes when a LoG-GP learns: its node count and every leaf's point count."""
-        return tuple((len(g._dim), tuple(g.leaf(k).n_ for k in g.leaves())) for g in self.gps)
-
-    def stale(self) -> bool:
-        """The GPs changed since the pack was made (learning, a split, a load)."""
-        return self._signature() != self.signature
-
-    def args(self) -> tuple:
-        return (self.links, self.span, self.leaf_of, self.nn, self.row, self.apo, self.A, self.X, self.beta,
-                self.alpha, self.ap, self.center, self.il2, self.sf2, self.lo, self.hi, self.clip, self.r)
+    x_prev: np.ndarray     # x̂_{k−1} (d,)
+    P_prev: np.ndarray     # P_{k−1} (d, d)
+    z: np.ndarray          # ẑ_{k−1} (3n,)
+    mu: np.ndarray         # μ(ẑ_{k−1}) (n,)
+    dmu_dz: np.ndarray     # ∂μ/∂z at ẑ_{k−1} (n, 3n), of which the (q, q̇) columns are used
+    F_k: np.ndarray        # discrete transition (d, d)
+    K_k: np.ndarray        # Kalman gain (d, m)
+    Gamma_mu: np.ndarray   # Γ_μ = ∫₀^dt e^{As} ds I_μ M⁻¹ (d, n)
+    P: np.ndarray          # P_k (d, d)
 
 
-def empty_args() -> tuple:
-    """A pack's argument types without a GP (the plain AKF's call of :func:`bound_step`)."""
-    i1, i2, i3 = np.zeros(1, np.int64), np.full((1, 1), -1, np.int64), np.full((1, 3, 1), -1, np.int64)
-    f1, f2 = np.zeros(1), np.zeros((1, 1))
-    return (i3, np.zeros((1, 2, 1)), i2, i1, i1, i1, f2, f2, f1, f1, f1, f2, f2, f1, f2, f2,
-            np.zeros(1, np.bool_), f1)
+class SetConstants(NamedTuple):
+    """The bound's constants: the filter's H, the model's M, M⁻¹, |g|; the Gaussian part's
+    quantile s_z of the coordinates the errors depend on and the sampling margin; T (2n, d) the
+    map x → (q, q̇), E_q (n, d) the map x → q; the gravity grid on [−1, 1] and its step; the
+    directions of the points on the projected set (Uz); δ_N per τ component and its quantile."""
+
+    H: np.ndarray
+    M: np.ndarray
+    Minv: np.ndarray
+    g: np.ndarray
+    s_z: float
+    margin: float
+    T: np.ndarray
+    E_q: np.ndarray
+    grid: np.ndarray
+    grid_step: float
+    Uz: np.ndarray
+    delta_tau: float
+    z_tau: float
 
 
-@njit
-def _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc, a, kv):
-    """(μ, σ²) of leaf l at x (IncrementalGP.predict_many's row, with clip_mean): σ² = k(x,x) −
-    ‖L⁻¹k‖² (eq:GPvariance, one O(N²) solve), μ = kᵀα (eq:GPmean with α = L⁻ᵀβ, O(N); at the
-    clipped input with clip_mean outside the leaf's box)."""
-    m = nn[l]
-    if m == 0:
-        return 0.0, sf2[l]
-    r0, p0 = row[l], apo[l]
-    Al = A[r0:r0 + m]
-    al = alpha[r0:r0 + m]
-    gp_core.query(x, center[l], il2[l], a)
-    gp_core.kernel_vector(Al, m, a, kv)
-    mu = 0.0
-    for i in range(m):
-        mu += kv[i] * al[i]
-    gp_core.solve_lower(ap[p0:p0 + m * (m + 1) // 2], m, kv)
-    vv = 0.0
-    for i in range(m):
-        vv += kv[i] * kv[i]
-    var = sf2[l] - vv
-    if var < 0.0:
-        var = 0.0
-    if clip[l] and gp_core.clip_into(x, lo[l], hi[l], xc):
-        gp_core.query(xc, center[l], il2[l], a)
-        gp_core.kernel_vector(Al, m, a, kv)
-        mu = 0.0
-        for i in range(m):
-            mu += kv[i] * al[i]
-    return mu, var
+class GPTerms(NamedTuple):
+    """The GP error's constants (eq:gpmeanbounds): with a GP, the local scale (or σ), the
+    extrapolation scale c, √β_j and γ_j per joint, the GP constants' input box (``has_box``)."""
+
+    has_gp: bool
+    local: bool
+    c_ext: float
+    sqrt_beta: np.ndarray
+    gamma: np.ndarray
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+    has_box: bool
 
 
-@njit
-def _leaf_extrapolation(l, x, nn, row, X, alpha, il2, sf2, e1, xq):
-    """e(x) of leaf l (IncrementalGP.extrapolation_many's row)."""
-    m = nn[l]
-    if m == 0:
-        return 0.0
-    r0 = row[l]
-    for i in range(x.shape[0]):
-        xq[0, i] = x[i]
-    gp_core.extrapolation_many(X[r0:r0 + m], m, alpha[r0:r0 + m], il2[l], sf2[l], xq, e1)
-    return e1[0]
+class RateTerm(NamedTuple):
+    """The declared human-torque rate r (docs/bounds.md §6): Γ_τ (d, n) of the step and r."""
+
+    Gam_tau: np.ndarray
+    rate: float
+    has_rate: bool
 
 
-@njit
-def gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2,
-              lo, hi, clip, r, MU, S, XT):
-    """Merged LoG-GP prediction per row of ``Z`` and joint j into MU[:, j], S[:, j], XT[:, j]:
-    with ``local`` the mean, the scale √(σ̃² + s_loc²) and the extrapolation term c e(z)
-    (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero).  The
-    leaves and weights of each row are the LoG-GP's own routing (:func:`routing._route`)."""
-    P, dz = Z.shape
-    xc = np.empty(dz)
-    xq = np.empty((1, dz))
-    e1 = np.empty(1)
-    a = np.empty(dz + 2)
-    kv = np.empty(max(1, np.max(nn)) if nn.shape[0] else 1)
-    for j in range(links.shape[0]):
-        idx, nodes, ws, _ = _route(Z, links[j], span[j], False)
-        i = 0
-        for p in range(P):
-            x = Z[p]
-            mu = m2 = sl = ex = 0.0
-            count = 0
-            m_one = v_one = 0.0
-            while i < idx.shape[0] and idx[i] == p:           # row p's leaves, in routing order
-                l = leaf_of[j, nodes[i]]
-                w = ws[i]
-                m, v = _leaf_predict(l, x, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, xc,
-                                     a, kv)
-                mu += w * m
-                m2 += w * (v + m * m)
-                if local:
-                    sl += w * r[l]
-                    if c_ext > 0.0:
-                        ex += w * _leaf_extrapolation(l, x, nn, row, X, alpha, il2, sf2, e1, xq)
-                count += 1
-                m_one, v_one = m, v
-                i += 1
-            var = m2 - mu * mu
-            if var < 0.0:
-                var = 0.0
-            if local:
-                MU[p, j] = mu
-                S[p, j] = math.sqrt(var + sl * sl)
-                XT[p, j] = c_ext * ex if c_ext > 0.0 else 0.0
-            else:
-                if count == 1:                      # one leaf: its prediction as is (LoGGP.predict_many)
-                    mu, var = m_one, v_one
-                MU[p, j] = mu
-                S[p, j] = math.sqrt(var if var > 0.0 else 0.0)
-                XT[p, j] = 0.0
+class BoundOutputs(NamedTuple):
+    """What the step writes: ρ_k (n,), the GP error alone (n,), the GP mean's linearisation
+    error (n,), the linearisation-error box b (d,)."""
+
+    rho: np.ndarray
+    eta: np.ndarray
+    gp_lin_err: np.ndarray
+    lin_err_box: np.ndarray
 
 
 @njit
@@ -237,20 +125,12 @@ def _abs_row_sum(M, i):
 
 
 @njit
-def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, margin, T, E_q, grid, grid_step,
-               Uz, has_gp, local, c_ext, sqrt_beta, gamma, box_lo, box_hi, has_box, Gam_tau, rate, has_rate,
-               max_gen, delta_tau, z_tau, gp, rho, eta_out, lin_out, b_out):
-    """One step of the set of means (module docstring); returns (new generators, GP box left,
-    whether the range form was taken).
-
-    ``J0``: the filter's ∂μ/∂z at ẑ (n, 3n), of which the (q, q̇) columns are used.
-    ``gp``: the tuple of :meth:`GPPack.args`.  Writes ρ_k into ``rho``, the GP error alone
-    and the GP mean's linearisation error (per joint) into ``eta_out`` / ``lin_out``, the
-    linearisation-error box into ``b_out``."""
+def _gravity_stage(G, st, c, b):
+    """1. eq:linerrsetdx for the gravity term into ``b`` (its θ̈_s rows): r_j = half-width of
+    C_{k−1} along e_θm,j + e_θs,j (SetMembershipBound.half_widths), then the remainder."""
+    x0, P0, g, E_q = st.x_prev, st.P_prev, c.g, c.E_q
     d = x0.shape[0]
-    n = rho.shape[0]
-    # 1. gravity: r_j = half-width of C_{k−1} along e_θm,j + e_θs,j (SetMembershipBound.half_widths)
-    b = b_out
+    n = g.shape[0]
     b[:] = 0.0
     any_g = False
     for j in range(n):
@@ -264,105 +144,120 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         for j in range(n):
             hx = _abs_row_sum(EG, j)
             q = 0.0
-            for c in range(d):
-                q += EP[j, c] * E_q[j, c]
-            r[j] = hx + math.sqrt(max(s_z * q, 0.0))
+            for cc in range(d):
+                q += EP[j, cc] * E_q[j, cc]
+            r[j] = hx + math.sqrt(max(c.s_z * q, 0.0))
             qh[j] = x0[j] + x0[n + j]
         v = np.empty(n)
-        gravity_remainder(qh, r, g, grid, grid_step, v)
-        bb = np.abs(Minv) @ v
+        gravity_remainder(qh, r, g, c.grid, c.grid_step, v)
+        bb = np.abs(c.Minv) @ v
         for j in range(n):
             b[3 * n + j] = bb[j]
-    out = False
-    ng = 0
-    eta = np.zeros(0)
-    eta_b = np.zeros(0)
-    JT = np.zeros((0, d))
-    if has_gp:
-        # 2. the projection of C_{k−1} on (q, q̇) and its points (SetMembershipBound.confidence_set)
-        c = T @ x0
-        sP = s_z * (T @ P0 @ T.T)
-        Xc = _zonotope_shape(np.ascontiguousarray(T @ G), sP, True)
-        Xc = 0.5 * (Xc + Xc.T)
-        pts = _ellipsoid_points(c, Xc, Uz)
-        npt = pts.shape[0]
-        dz = zhat.shape[0]
-        Z = np.empty((npt, dz))
-        for p in range(npt):
-            for i in range(2 * n):
-                Z[p, i] = pts[p, i]
-            for i in range(2 * n, dz):
-                Z[p, i] = zhat[i]
-        MU = np.empty((npt, n))
-        S = np.empty((npt, n))
-        XT = np.empty((npt, n))
-        (links, span, leaf_of, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, rr) = gp
-        gp_points(Z, local, c_ext, links, span, leaf_of, nn, row, apo, A, X, beta, alpha, ap, center, il2, sf2,
-                  lo, hi, clip, rr, MU, S, XT)
-        DJ = np.zeros((npt, n))                  # (z − ẑ) ∂μ/∂z over the (q, q̇) columns of J0 (n, 3n)
-        for p in range(npt):
-            for j in range(n):
-                acc = 0.0
-                for i in range(2 * n):
-                    acc += (pts[p, i] - zhat[i]) * J0[j, i]
-                DJ[p, j] = acc
-        eta = np.empty(n)
-        eta_b = np.empty(n)
-        # the range form (AKFTheoremBound._gp_range_candidate): J T (n, d) and √(s_z J T P Tᵀ Jᵀ)
-        JT = np.ascontiguousarray(J0[:, :2 * n]) @ T
-        JTP = JT @ P0
+
+
+@njit
+def _gp_stage(G, st, c, gpt, pack, out):
+    """2. The GP part: the projection of C_{k−1} on (q, q̇) and its points
+    (SetMembershipBound.confidence_set), the merged LoG-GP there, η (GP error + the GP mean's
+    linearisation error, max over the points of the sum), η_B of the range form, J T; and
+    whether the projected set leaves the GP constants' input box."""
+    x0, P0, zhat, mu0, J0, T = st.x_prev, st.P_prev, st.z, st.mu, st.dmu_dz, c.T
+    d = x0.shape[0]
+    n = mu0.shape[0]
+    s_z, margin = c.s_z, c.margin
+    cz = T @ x0
+    sP = s_z * (T @ P0 @ T.T)
+    Xc = outer_ellipsoid_shape(np.ascontiguousarray(T @ G), sP, True)
+    Xc = 0.5 * (Xc + Xc.T)
+    pts = points_of_ellipsoid(cz, Xc, c.Uz)
+    npt = pts.shape[0]
+    dz = zhat.shape[0]
+    Z = np.empty((npt, dz))
+    for p in range(npt):
+        for i in range(2 * n):
+            Z[p, i] = pts[p, i]
+        for i in range(2 * n, dz):
+            Z[p, i] = zhat[i]
+    MU = np.empty((npt, n))
+    S = np.empty((npt, n))
+    XT = np.empty((npt, n))
+    gp_points(Z, gpt.local, gpt.c_ext, pack, MU, S, XT)
+    DJ = np.zeros((npt, n))                  # (z − ẑ) ∂μ/∂z over the (q, q̇) columns of J0 (n, 3n)
+    for p in range(npt):
         for j in range(n):
-            best = -np.inf
-            hbest = -np.inf
-            lbest = -np.inf
-            bbest = -np.inf
-            for p in range(npt):
-                e = abs(MU[p, j] - mu0[j] - DJ[p, j])
-                h = sqrt_beta[j] * S[p, j] + gamma[j] + XT[p, j]
-                lm = (1.0 + margin) * e
-                t = h + lm
-                if t > best:
-                    best = t
-                if h > hbest:
-                    hbest = h
-                if lm > lbest:
-                    lbest = lm
-                tb = h + (1.0 + margin) * abs(MU[p, j] - mu0[j])
-                if tb > bbest:
-                    bbest = tb
-            eta[j] = best
-            eta_out[j] = hbest
-            lin_out[j] = lbest
-            q = 0.0
-            for c in range(d):
-                q += JTP[j, c] * JT[j, c]
-            eta_b[j] = bbest + math.sqrt(max(s_z * q, 0.0))
-        if has_box:
-            for i in range(dz):
-                hw = math.sqrt(max(Xc[i, i], 0.0)) if i < 2 * n else 0.0
-                if Z[0, i] - hw < box_lo[i] or Z[0, i] + hw > box_hi[i]:
-                    out = True
-        ng = n
-    # 3. the bounded inputs [Γ_μ η | Γ_τ r] and Φ b (AKFTheoremBound._phi: θ̈_s columns Γ_μ M)
-    nt = n if has_rate else 0
+            acc = 0.0
+            for i in range(2 * n):
+                acc += (pts[p, i] - zhat[i]) * J0[j, i]
+            DJ[p, j] = acc
+    eta = np.empty(n)
+    eta_b = np.empty(n)
+    # the range form (AKFTheoremBound._gp_range_candidate): J T (n, d) and √(s_z J T P Tᵀ Jᵀ)
+    JT = np.ascontiguousarray(J0[:, :2 * n]) @ T
+    JTP = JT @ P0
+    for j in range(n):
+        best = -np.inf
+        hbest = -np.inf
+        lbest = -np.inf
+        bbest = -np.inf
+        for p in range(npt):
+            e = abs(MU[p, j] - mu0[j] - DJ[p, j])
+            h = gpt.sqrt_beta[j] * S[p, j] + gpt.gamma[j] + XT[p, j]
+            lm = (1.0 + margin) * e
+            t = h + lm
+            if t > best:
+                best = t
+            if h > hbest:
+                hbest = h
+            if lm > lbest:
+                lbest = lm
+            tb = h + (1.0 + margin) * abs(MU[p, j] - mu0[j])
+            if tb > bbest:
+                bbest = tb
+        eta[j] = best
+        out.eta[j] = hbest
+        out.gp_lin_err[j] = lbest
+        q = 0.0
+        for cc in range(d):
+            q += JTP[j, cc] * JT[j, cc]
+        eta_b[j] = bbest + math.sqrt(max(s_z * q, 0.0))
+    leaves_box = False
+    if gpt.has_box:
+        for i in range(dz):
+            hw = math.sqrt(max(Xc[i, i], 0.0)) if i < 2 * n else 0.0
+            if Z[0, i] - hw < gpt.box_lo[i] or Z[0, i] + hw > gpt.box_hi[i]:
+                leaves_box = True
+    return eta, eta_b, JT, leaves_box
+
+
+@njit
+def _prior_stage(G, max_gen, st, c, rt, has_gp, eta, eta_b, JT, b):
+    """3. eq:predwLinErrsetandGPerrset: the bounded inputs [Γ_μ η | Γ_τ r] and Φ b
+    (AKFTheoremBound._phi: θ̈_s columns Γ_μ M), X⁻ (and with a GP the range form, if its τ
+    half-width after (I − KH) is narrower), then the filter step on the set X̂ = (I − KH) X⁻.
+    Returns (generators of X̂, whether the range form was taken)."""
+    F, K, H, Gam_mu = st.F_k, st.K_k, c.H, st.Gamma_mu
+    d = F.shape[0]
+    n = Gam_mu.shape[1]
+    ng = n if has_gp else 0
+    nt = n if rt.has_rate else 0
     Gam = np.empty((d, ng + nt))
     et = np.empty(ng + nt)
     for i in range(d):
         for j in range(ng):
             Gam[i, j] = Gam_mu[i, j]
         for j in range(nt):
-            Gam[i, ng + j] = Gam_tau[i, j]
+            Gam[i, ng + j] = rt.Gam_tau[i, j]
     for j in range(ng):
         et[j] = eta[j]
     for j in range(nt):
-        et[ng + j] = rate
+        et[ng + j] = rt.rate
     any_b = False
     for i in range(d):
         if b[i] != 0.0:
             any_b = True
     if any_b:
         Phi = np.zeros((d, d))
-        GM = Gam_mu @ M
+        GM = Gam_mu @ c.M
         for i in range(d):
             for j in range(n):
                 Phi[i, 3 * n + j] = GM[i, j]
@@ -389,14 +284,38 @@ def bound_step(G, x0, P0, zhat, mu0, J0, F, K, H, Gam_mu, M, Minv, P, g, s_z, ma
         if hB < hA:
             Gp = GpB
             took_range = True
-    Gn = IKH @ Gp
+    return IKH @ Gp, took_range
+
+
+@njit
+def bound_step(G, max_gen, st, c, gpt, rt, pack, out):
+    """One step of the set of means (module docstring) from its generators ``G`` (at most
+    ``max_gen`` after the step): ``st`` :class:`FilterStep`, ``c`` :class:`SetConstants`, ``gpt``
+    :class:`GPTerms`, ``rt`` :class:`RateTerm`, ``pack`` the frozen LoG-GPs
+    (:class:`~sea_daemon.core.gp.pack.PackArrays`), ``out`` :class:`BoundOutputs` (ρ_k, the GP
+    error alone, the GP mean's linearisation error, the linearisation-error box).  Returns (new
+    generators, GP box left, whether the range form was taken)."""
+    n = out.rho.shape[0]
+    b = out.lin_err_box
+    # 1. eq:linerrsetdx / eq:linearerrellipsoid, gravity (analytic)
+    _gravity_stage(G, st, c, b)
+    out_of_box = False
+    eta = np.zeros(0)
+    eta_b = np.zeros(0)
+    JT = np.zeros((0, b.shape[0]))
+    if gpt.has_gp:
+        # 2. the GP error and the GP mean's linearisation error at the points of the set
+        eta, eta_b, JT, out_of_box = _gp_stage(G, st, c, gpt, pack, out)
+    # 3. eq:predwLinErrsetandGPerrset, then the filter step on the set
+    Gn, took_range = _prior_stage(G, max_gen, st, c, rt, gpt.has_gp, eta, eta_b, JT, b)
+    # ρ_k: the set's τ half-widths h and the Gaussian part's σ (Theorem 1's confidence set)
     h = np.empty(n)
     sd = np.empty(n)
     for j in range(n):
         h[j] = _abs_row_sum(Gn, 4 * n + j)
-        sd[j] = math.sqrt(max(P[4 * n + j, 4 * n + j], 0.0))
-    _shifted_halfwidth(h, sd, delta_tau, z_tau, 8, rho)
-    return Gn, out, took_range
+        sd[j] = math.sqrt(max(st.P[4 * n + j, 4 * n + j], 0.0))
+    shifted_halfwidth_into(h, sd, c.delta_tau, c.z_tau, 8, out.rho)
+    return Gn, out_of_box, took_range
 
 
 @njit
@@ -414,15 +333,22 @@ def gravity_remainder(qh, r, g, grid, grid_step, v):
         v[j] = g[j] * min(hmax + min(2.0, r[j]) * r[j] * grid_step / 2.0, r[j] * r[j] / 2.0)
 
 
-def warm_up_loggp():
-    """A one-joint LoG-GP of four points: the argument types of the compiled GP calls, for
-    their warm-up (here and in :mod:`sea_daemon.core.estimators.gp_hook`)."""
-    from sea_daemon.core.gp.loggp import LoGGP
-    gpm = LoGGP(3)
-    rng = np.random.default_rng(0)
-    for _ in range(4):
-        gpm.update(rng.standard_normal(3), 0.1)
-    return gpm
+@njit
+def generators_check(G, caps) -> int:
+    """The compiled step's new generators (AKFTheoremBound's check after :func:`bound_step`): 1 when one is not finite, 2 when a half-width of the
+    set of means (Σ_j |G_ij|) may exceed its cap (within 1e-12 relative: the exact test is
+    SetMembershipBound.saturate's), else 0."""
+    over = False
+    for i in range(G.shape[0]):
+        s = 0.0
+        for j in range(G.shape[1]):
+            v = G[i, j]
+            if not math.isfinite(v):
+                return 1
+            s += abs(v)
+        if s > caps[i] * (1.0 - 1e-12):
+            over = True
+    return 2 if over else 0
 
 
 @warmer
@@ -435,17 +361,23 @@ def _warm() -> None:
     E_q[0, 0] = E_q[0, 1] = 1.0
     T = np.zeros((2, d))
     T[0, 0] = T[0, 1] = T[1, 2] = T[1, 3] = 1.0
-    # the friction candidate's one-pass boxes (AKFTheoremBound._friction_candidate), one load group
+    # the friction candidate's one-pass boxes (friction_range.FrictionRange.candidate), one load group
     e, P, I, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.eye(1), np.zeros(1)
-    tabs = (I, I, I, I, I, v, np.ones(1), np.full(1, -1.0), np.array([1], np.int64), np.zeros(1, np.int64),
-            np.array([[0.1, 0.01, 0.0]]), e, e, P, e, e, P)
-    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), *tabs, np.ones((1, d)), np.ones((1, d)),
+    # the packed Dynamics (core.dynamics): M, M⁻¹, J, J⁻¹, D_m, K_s, D_s, gravity, κ, half band, one load effect
+    dyn = (I, I, I, I, I, I, I, v, np.ones(1), np.full(1, -1.0),
+           (np.array([1], np.int64), np.zeros(1, np.int64), np.array([[0.1, 0.01, 0.0]])), (e, e, P), (e, e, P))
+    lin_error_boxes(np.zeros((2, d)), v, np.zeros(d), np.zeros((d, d)), dyn, np.ones((1, d)), np.ones((1, d)),
                     np.ones(1), np.zeros(1, np.int64), np.array([1], np.int64), np.array([[0.1, 0.01, 0.0]]),
                     np.zeros(d), np.zeros(d))
+    st = FilterStep(np.zeros(d), np.eye(d), np.zeros(3), np.zeros(1), np.zeros((1, 3)), np.eye(d),
+                    np.zeros((d, 4)), np.ones((d, 1)), np.eye(d))
+    c = SetConstants(np.zeros((4, d)), np.eye(1), np.eye(1), np.ones(1), 4.0, 0.25, T, E_q, np.linspace(-1.0, 1.0, 5),
+                     0.5, np.ones((2, 2)) / np.sqrt(2.0), 0.025, 2.0)
+    out = BoundOutputs(np.empty(1), np.empty(1), np.empty(1), np.empty(d))
     for has_gp, local, has_rate in ((True, True, True), (True, False, False), (False, False, False)):
-        bound_step(np.zeros((d, 2)), np.zeros(d), np.eye(d), np.zeros(3), np.zeros(1), np.zeros((1, 3)), np.eye(d),
-                   np.zeros((d, 4)), np.zeros((4, d)), np.ones((d, 1)), np.eye(1), np.eye(1), np.eye(d), np.ones(1),
-                   4.0, 0.25, T, E_q, np.linspace(-1.0, 1.0, 5), 0.5, np.ones((2, 2)) / np.sqrt(2.0), has_gp, local,
-                   0.5, np.ones(1), np.zeros(1), -np.ones(3), np.ones(3), True, np.ones((d, 1)), 1.0, has_rate, 40,
-                   0.025, 2.0, pack.args() if has_gp else empty_args(), np.empty(1), np.empty(1), np.empty(1),
-                   np.empty(d))
+        gpt = GPTerms(has_gp, local, 0.5, np.ones(1), np.zeros(1), -np.ones(3), np.ones(3), True)
+        rt = RateTerm(np.ones((d, 1)), 1.0, has_rate)
+        bound_step(np.zeros((d, 2)), 40, st, c, gpt, rt, pack.arrays() if has_gp else empty_pack(), out)
+    # the Python step's calls (AKFTheoremBound._gravity_box, the check after the compiled step)
+    gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    generators_check(np.zeros((5, 3)), np.ones(5))

@@ -76,9 +76,9 @@ def conformal_scores(est, log) -> np.ndarray:
         est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
         for k in range(1, len(log)):
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-            if est._since_reset < est.kin.L:
+            if est.since_reset < est.kin.L:
                 continue
-            z, y = est._training_pair(log.tau_m[k])
+            z, y = est.training_pair(log.tau_m[k])
             row = np.empty(len(gps))
             for j, g in enumerate(gps):
                 mu, var = g.predict(z)

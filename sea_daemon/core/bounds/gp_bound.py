@@ -222,7 +222,7 @@ class LocalScale:
         x = np.zeros(rows)
         if ext and self.c_ext > 0.0:
             # c e(z), e = Σ ω_i Σ_j |∂μ_i/∂z_j| |z_j − x*_ij| (the extrapolation term above)
-            x = self.c_ext * self.gp._extrapolation_rows(Z, idx, nodes, w)
+            x = self.c_ext * self.gp.extrapolation_rows(Z, idx, nodes, w)
         return mu, var, np.sqrt(var + sl * sl), x
 
     def predict(self, z) -> tuple[float, float, float]:

@@ -89,7 +89,7 @@ def shifted_gaussian_halfwidth(h: np.ndarray, sigma: np.ndarray, delta: float, i
     hb = np.ascontiguousarray(np.broadcast_to(h, shape), dtype=float).ravel()
     sb = np.ascontiguousarray(np.broadcast_to(s, shape), dtype=float).ravel()
     out = np.empty(hb.size)
-    _shifted_halfwidth(hb, sb, float(delta), float(ndtri(1.0 - delta)), int(iters), out)
+    shifted_halfwidth_into(hb, sb, float(delta), float(ndtri(1.0 - delta)), int(iters), out)
     return out.reshape(shape)
 
 
@@ -105,7 +105,7 @@ def _ndtr(x):
 
 
 @njit
-def _shifted_halfwidth(h, s, delta, z, iters, out):
+def shifted_halfwidth_into(h, s, delta, z, iters, out):
     """The Newton iteration of :func:`shifted_gaussian_halfwidth` per element (z = z_{1−δ})."""
     c = 1.0 / math.sqrt(2.0 * math.pi)
     for i in range(h.shape[0]):
@@ -132,7 +132,7 @@ def _warm() -> None:
     sm.rho(np.eye(2))
 
 
-def _unit_directions(d: int, m: int, seed: int) -> np.ndarray:
+def unit_directions(d: int, m: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed + 7919 * d)
     U = rng.standard_normal((m, d))
     return U / np.linalg.norm(U, axis=1, keepdims=True)
@@ -143,11 +143,11 @@ def ellipsoid_points(C: Ellipsoid, U: np.ndarray) -> np.ndarray:
     coordinate-extreme points c ± X e_i/√X_ii, c ± X^{1/2} u and c ± ½ X^{1/2} u for the unit
     directions u in the rows of U ((m, dim); may be empty)."""
     d = C.dim
-    return _ellipsoid_points(C.c, C.X, np.ascontiguousarray(np.asarray(U, dtype=float).reshape(-1, d)))
+    return points_of_ellipsoid(C.c, C.X, np.ascontiguousarray(np.asarray(U, dtype=float).reshape(-1, d)))
 
 
 @njit
-def _ellipsoid_points(c, X, U):
+def points_of_ellipsoid(c, X, U):
     """:func:`ellipsoid_points` (compiled): rows centre, +axes, −axes, +ext, −ext, +r, −r, +r/2, −r/2."""
     d = c.shape[0]
     m = U.shape[0]
@@ -237,7 +237,7 @@ class SetMembershipBound:
                       else chi2_quantile(1.0 - self.delta_noise, self.tau_idx.size) if projection == "marginal"
                       else chi2_quantile(1.0 - self.delta_noise / self.tau_idx.size, 1))
         # z_{1−δ_N/n_τ}, the start of shifted_gaussian_halfwidth's Newton iteration in rho
-        self._z_tau = float(ndtri(1.0 - self.delta_noise / self.tau_idx.size))
+        self.z_tau = float(ndtri(1.0 - self.delta_noise / self.tau_idx.size))
         if sets not in ("zonotope", "ellipsoid"):
             raise ValueError(f"sets must be 'zonotope' or 'ellipsoid', got {sets!r}")
         self.sets = sets
@@ -248,7 +248,7 @@ class SetMembershipBound:
         self._steps = 0                              # predictions since the reset (reduction phase)
         self.weight = weight
         self.margin = float(margin)
-        self._U = _unit_directions(self.d, n_dirs, seed)
+        self._U = unit_directions(self.d, n_dirs, seed)
         self._X = np.zeros((self.d, self.d))       # X̂_k, shape of the set of means (ellipsoid mode)
         self.Xprior_ = np.zeros((self.d, self.d))  # X⁻_{k+1} (ellipsoid mode)
         self.G_ = np.zeros((self.d, 0))            # generators of the set of means (zonotope mode)
@@ -352,7 +352,7 @@ class SetMembershipBound:
         if self.projection == "scalar":
             # eq:bounds per joint: worst case over the set of means of a shifted Gaussian
             out = np.empty(i.size)
-            _shifted_halfwidth(h, np.sqrt(Ptt), self.delta_noise / i.size, self._z_tau, 8, out)
+            shifted_halfwidth_into(h, np.sqrt(Ptt), self.delta_noise / i.size, self.z_tau, 8, out)
             return out
         # support functions add over a Minkowski sum: h = h_X̂(e) + sqrt(s eᵀPe); for a zonotope
         # h_X̂(e) = Σ_g |eᵀg|, for an ellipsoid sqrt(eᵀX̂e)

@@ -20,12 +20,12 @@ def zonotope_shape(G: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray
     """
     G = np.ascontiguousarray(G, dtype=float)
     if extra is None:
-        return _zonotope_shape(G, np.zeros((G.shape[0], G.shape[0])), False)
-    return _zonotope_shape(G, np.ascontiguousarray(extra, dtype=float), True)
+        return outer_ellipsoid_shape(G, np.zeros((G.shape[0], G.shape[0])), False)
+    return outer_ellipsoid_shape(G, np.ascontiguousarray(extra, dtype=float), True)
 
 
 @njit
-def _zonotope_shape(G, extra, has_extra):
+def outer_ellipsoid_shape(G, extra, has_extra):
     """:func:`zonotope_shape` (compiled; ``extra`` ignored unless ``has_extra``)."""
     d, k = G.shape
     t = np.empty(k)

@@ -24,12 +24,15 @@ input history.  An "oracle" AKF is this class built from the true plant's config
 
 The numerics of a step are compiled (:mod:`~sea_daemon.core.estimators.akf_core`, numba; compiled
 or loaded from numba's cache at construction).  Pure numerics: no I/O, no clock, no
-threads.  Per-step quantities the Theorem-1 bounds need are kept as attributes: ``A_k``
+threads.  Per-step quantities are kept as attributes (as filterpy's): ``A_k``
 (continuous Jacobian), ``F_k`` (discrete transition), ``Gamma_mu`` (discrete map of a torque
 error held over the step to the state), ``Q_k``, ``xdot_k``, ``x_prior``, ``P_prior``,
 ``S_k``, ``K_k``, ``innovation``, ``nis``, ``y``, ``P`` (posterior); and the causal
 kinematics of the sample (``kin_angle``, ``kin_vel``, ``kin_acc``, each
-[q, θ_m]).  The differentiator assumes the nominal period ``dt``; the prediction uses each
+[q, θ_m]).  What the Theorem-1 bound needs of a step is its :attr:`record`
+(:class:`~sea_daemon.core.estimators.record.StepRecord`, views of these attributes and x̂_{k−1},
+P_{k−1}, u, dt), handed to the bound at the end of every reset and step (:meth:`AKF.finish_step`)
+or to a consumer attached in its place (:meth:`AKF.attach`).  The differentiator assumes the nominal period ``dt``; the prediction uses each
 step's own dt.
 """
 from __future__ import annotations
@@ -47,6 +50,8 @@ from sea_daemon.core.model_core import ModelTables
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
+from sea_daemon.core.estimators.gate import StartupGate
+from sea_daemon.core.estimators.record import RESET, STEP, BoundConsumer, StepRecord
 from sea_daemon.core.estimators.health import CovarianceDiverged, CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 from sea_daemon.errors import EstimatorFault
 
@@ -64,10 +69,6 @@ P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE = 1.0, 50.0, 10.0
 #: a predicted variance beyond this many times its cap is divergence (the typed fault)
 DIVERGED = 1e12
 
-#: the start-up gate (:meth:`AKF._gate`): the estimate is valid once what is left of the initial
-#: error is at most this share of the published bound
-TRANSIENT_SHARE = 0.1
-
 
 class AKF:
     """Augmented-state EKF (Alg. 1); with ``residual`` the GP-AKF (Alg. 2).
@@ -77,8 +78,11 @@ class AKF:
     ``residual``: optional :class:`~sea_daemon.core.estimators.base.Residual` (learned f(z)).
     ``bound``: optional ``bound(akf) -> Bound | None``, called once at the end of construction;
     the :class:`~sea_daemon.core.estimators.base.Bound` it returns (:attr:`bound`) fills
-    ``tau_h_act_bound`` at the end of every reset and filter step (e.g.
-    :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k).
+    ``tau_h_act_bound`` at the end of every reset and filter step from the step's :attr:`record`
+    (e.g. :func:`sea_daemon.core.bounds.akf_bound.theorem_bound`, the Theorem-1 ρ_k); then the
+    start-up gate (:attr:`gate`, a :class:`StartupGate`) sets ``valid``.  A
+    :class:`~sea_daemon.core.estimators.record.BoundConsumer` attached with :meth:`attach`
+    takes the records instead (the daemon's bound worker).
 
     Without a bound ``tau_h_act_bound`` is the KF's own ellipsoidal bound sqrt(s·P_ττ) with s
     the χ² quantile for 5n degrees of freedom at 1 − δ (eq:gaussianellipsoid): the confidence
@@ -97,14 +101,42 @@ class AKF:
         m = self.m = 4 * n
         self.dt = float(dt) if dt else cfg.dt
         est = cfg.estimator
-        # the arrays of the compiled step (akf_core.STEP_FIELDS) are views of one flat buffer:
-        # the step takes the buffer, the AKF reads and writes them by name
+        self._init_step_arrays()
+        self.R[:] = est.R
+        self._init_process_noise(est)
+        self._init_filter(est, residual)
+        self._init_input_history()
+        self._init_nominal()
+        # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
+        # the first loop cycle
+        warm_up()
+        # the start-up gate (Estimate.valid, :class:`StartupGate`)
+        t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit
+        self.tau_h_act_max = float(t_max)
+        self.gate = StartupGate(n, self.H, self.s, self.tau_h_act_max)
+        # what each step hands its bound (record.StepRecord): views of this filter's arrays, and
+        # x̂_{k−1}, P_{k−1} kept for it before each step
+        self.record = StepRecord(STEP, 0, self.dt, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), self.z,
+                                 self.A_k, self.F_k, self.Gamma_mu, self.K_k, self.P, self.mu, self.dmu_dz,
+                                 self.gate.b0)
+        # the bound component, and what takes the records in its place (:meth:`attach`)
+        self.consumer: BoundConsumer | None = None
+        self.bound: Bound | None = None
+        if bound is not None:
+            self.bound = bound(self)
+
+    def _init_step_arrays(self) -> None:
+        """The arrays of the compiled step (akf_core.STEP_FIELDS): views of one flat buffer; the
+        step takes the buffer, the AKF reads and writes them by name."""
+        d, m, n = self.d, self.m, self.n
         self._buf = np.zeros(akf_core.buffer_size(d, m, n))
-        (self.A_k, self.xdot_k, self.mu, self._dmu, self.dz_dx, self.sigma2, self.G_mu, self.Sigma_nom, self.R,
+        (self.A_k, self.xdot_k, self.mu, self.dmu_dz, self.dz_dx, self.sigma2, self.G_mu, self.Sigma_nom, self.R,
          self.y, self.x, self.P, self.F_k, self.Gamma_mu, self.Q_k, self.x_prior, self.P_prior, self.S_k, self.K_k,
          self.innovation, self._aug, self._E, self._Bx, self._L, self._rhs, self._IKH, self._work,
          self._KR) = akf_core.views(self._buf, d, m, n)
-        self.R[:] = est.R
+
+    def _init_process_noise(self, est) -> None:
+        """Σ_nom as configured, its per-step form (:meth:`fill_sigma_nom`) and the GP variance's scale."""
         # Σ_nom as configured; ``Sigma_nom`` is the per-step value the next step uses
         # (:meth:`fill_sigma_nom`, equal to the configured one unless Sigma_nom_dt / tau_m_noise)
         self.Sigma_nom_cfg = np.array(est.Sigma_nom, dtype=float)
@@ -122,6 +154,10 @@ class AKF:
         self._gp_var_scale = self._S_dt / self.dt if 0.0 < self.dt < 0.999 * self._S_dt else 1.0
         self._S_base_dt = -1.0                        # step length of the cached Σ_nom·dt/T
         self._S_base = self.Sigma_nom_cfg
+
+    def _init_filter(self, est, residual) -> None:
+        """P₀, δ and s, H, the residual, the differentiator, ∂z/∂x and the other per-step quantities."""
+        n, d, m = self.n, self.d, self.m
         # estimator.init_after_kinematics: samples left until the differentiator is full
         self._init_kin = bool(est.init_after_kinematics)
         self._filling = 0
@@ -135,7 +171,7 @@ class AKF:
         self.residual = residual
         # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
         self.G_mu[:] = self.model.I_mu @ self.model.Minv
-        kin = cfg.kinematics
+        kin = self.cfg.kinematics
         self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
         # ∂z/∂x for z = [q, q̇, q̈]: q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s; q̈ comes from the
         # differentiator (a measurement, not a state function), so ∂q̈/∂x = 0.
@@ -157,16 +193,19 @@ class AKF:
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
         # bounded P: caps of the variances of [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] (akf_core.cap_covariance)
-        lim = float(cfg.hardware.torque_limit)
-        self._P_max = np.repeat([P_CAP_ANGLE ** 2, P_CAP_ANGLE ** 2, P_CAP_VEL ** 2, P_CAP_VEL ** 2,
-                                 (P_CAP_TORQUE * lim) ** 2], n)
+        lim = float(self.cfg.hardware.torque_limit)
+        self.P_max = np.repeat([P_CAP_ANGLE ** 2, P_CAP_ANGLE ** 2, P_CAP_VEL ** 2, P_CAP_VEL ** 2,
+                                (P_CAP_TORQUE * lim) ** 2], n)
         self.n_capped = 0
         # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
         self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale)
-        # --- input history for the declared delay (τ_m(t − delay), linear interpolation
-        # of the sample sequence = the exact interval average of a zero-order-hold input)
+
+    def _init_input_history(self) -> None:
+        """The input history for the declared delay (τ_m(t − delay), linear interpolation of the
+        sample sequence = the exact interval average of a zero-order-hold input)."""
+        n = self.n
         self.delay = np.array(self.model.delay, dtype=float)
-        self._has_delay = bool(np.any(self.delay > 0))
+        self.has_delay = bool(np.any(self.delay > 0))
         cap = int(math.ceil(float(self.delay.max(initial=0.0)) / self.dt)) + 4
         self._hcap = cap
         self._ht = np.zeros(2 * cap)
@@ -174,16 +213,21 @@ class AKF:
         self._hhead = cap - 1
         self._t = 0.0
         self._ready = False
-        # --- specialised path for the plain nominal model (no declared effects): f_nom is
-        # affine in x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of
-        # F_nom and f_nom are built once here (same values as SEAModel.F_nom / f_nom).
+
+    def _init_nominal(self) -> None:
+        """The nominal model's F_nom / f_nom: constant blocks of the plain model, or the compiled
+        tables of one with declared effects."""
+        n, d = self.n, self.d
+        # specialised path for the plain nominal model (no declared effects): f_nom is affine in
+        # x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of F_nom and
+        # f_nom are built once here (same values as SEAModel.F_nom / f_nom).
         self._affine = not self.model.effects
         self._no_offsets = not (np.any(self.model.offset_load) or np.any(self.model.offset_motor))
         # declared effects: F_nom / f_nom compiled (model_core, through effects.evaluate; equal to
-        # SEAModel.F_nom / f_nom)
-        self._tables = None
+        # SEAModel.F_nom / f_nom); None where the model is affine or outside the compiled vocabulary
+        self.tables = None
         if not self._affine and ModelTables.supports(self.model):
-            self._tables = ModelTables(self.model)
+            self.tables = ModelTables(self.model)
         if self._affine:
             m_ = self.model
             # F_nom at q = 0 contains −M⁻¹ diag(g cos 0) in the θ̈_s rows; add it back
@@ -193,29 +237,55 @@ class AKF:
             A_lin[3 * n:4 * n, n:2 * n] += self._MinvG
             self._A_lin = A_lin
             self._B_lin = m_.B_nom()
-        # the compiled step (akf_core) is compiled or loaded from numba's cache now, not in
-        # the first loop cycle
-        warm_up()
-        # the start-up gate (Estimate.valid, :meth:`_gate`): the closed-loop map Φ of the error the
-        # filter started with, the box of that error, and the torque share it still has
-        self._Phi = np.eye(d)
-        self._I_d = np.eye(d)
-        self._Phi_w = np.zeros((d, d))
-        self._M = np.zeros((d, d))
-        self._absrow = np.zeros((n, d))
-        self._transient = np.zeros(n)
-        self._b0 = np.zeros(d)
-        t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit
-        self.tau_h_act_max = float(t_max)
-        self.converged = False
-        self.converged_at = -1               # step count k at which the gate opened (−1: not yet)
-        self.gate_starts = 0                 # how often the gate started (a deferred bound's copy follows it)
-        # the bound component and x̂_{k−1}, P_{k−1} kept for it before each step
-        self._x_prev = np.zeros(d)
-        self._P_prev = np.zeros((d, d))
-        self.bound: Bound | None = None
-        if bound is not None:
-            self.bound = bound(self)
+
+    @property
+    def ready(self) -> bool:
+        """Whether the filter was initialised from a sample (the next ``update`` steps it)."""
+        return self._ready
+
+    @property
+    def converged(self) -> bool:
+        """The start-up gate has opened since the last start (:class:`StartupGate`)."""
+        return self.gate.converged
+
+    @property
+    def converged_at(self) -> int:
+        """The step count k at which the start-up gate opened (−1: not yet)."""
+        return self.gate.converged_at
+
+    @property
+    def gate_starts(self) -> int:
+        """How often the start-up gate started."""
+        return self.gate.starts
+
+    # ------------------------------------------------------------------ the bound's seam
+
+    def attach(self, consumer: BoundConsumer) -> None:
+        """Hand every reset's and step's :class:`StepRecord` to ``consumer`` in place of the
+        in-step bound and start-up gate (the consumer fills ρ and ``valid``; e.g. the daemon's
+        bound worker, which runs :meth:`finish_step` on a copy of this filter)."""
+        self.consumer = consumer
+
+    def detach(self) -> BoundConsumer | None:
+        """The consumer attached (or None), detached: the bound runs in the step again."""
+        c, self.consumer = self.consumer, None
+        return c
+
+    def finish_step(self, e: Estimate, record: StepRecord) -> bool:
+        """The end of a reset or filter step on its record: the bound's reset or step (ρ_k into
+        ``e.tau_h_act_bound``), then, for a step, the start-up gate; returns whether the estimate
+        is valid.  What :meth:`step` does, and what a consumer runs on its copy of the filter."""
+        b = self.bound
+        gate = self.gate
+        if record.kind == RESET:
+            gate.stop()
+            if b is not None:
+                b.reset(e, record)
+            return False
+        if b is not None:
+            b.step(e, record)
+        gate.follow(record.gate_starts, record.gate_box)
+        return gate.check(record.K_k, record.F_k, e.tau_h_act_bound, e.k)
 
     # ------------------------------------------------------------------ measurement
 
@@ -274,10 +344,9 @@ class AKF:
         if q is None or theta_m is None:
             self._ready = False
             self.est.k = 0
-            if self.bound is not None:
-                self.bound.reset(self.est)
+            self._hand_reset(self.est)
             return self.est
-        self.kin._primed = False
+        self.kin.forget()
         tau_m = np.zeros(n) if tau_m is None else np.asarray(tau_m, dtype=float)
         y = self.measure(q, theta_m)
         self._check_finite(y, tau_m)
@@ -301,13 +370,12 @@ class AKF:
         self.u_applied[:] = tau_m
         self._ready = True
         self.est.k = 0
-        self.converged, self.converged_at = False, -1
+        self.gate.stop()
         if not self._filling:
-            self._start_gate()
+            self.gate.start(self.P)
         e = self._fill_estimate()
         e.valid = False                     # the first sample: no estimate of τ_h,act yet
-        if self.bound is not None:
-            self.bound.reset(e)
+        self._hand_reset(e)
         # while the differentiator fills, x̂ holds the angles and P = P₀: the bound of the reset holds
         self._bound0[:] = e.tau_h_act_bound
         return e
@@ -330,7 +398,7 @@ class AKF:
         np.add(x[:n], x[n:2 * n], out=self.z[:n])
         np.add(x[2 * n:3 * n], x[3 * n:4 * n], out=self.z[n:2 * n])
         self.z[2 * n:] = self._ddq
-        if self._has_delay:
+        if self.has_delay:
             u = self._delayed_input(self._t)
         else:
             u = self._hu[self._hhead]
@@ -362,7 +430,7 @@ class AKF:
         self.P[:] = self._P_init
         if not self._filling:
             x[:4 * n] = y
-            self._start_gate()
+            self.gate.start(self.P)
         self._t += dt
         self._push_input(np.asarray(tau_m, dtype=float))
         self.est.k += 1
@@ -431,19 +499,20 @@ class AKF:
         x = self.x
         if self._affine:
             self._nominal_affine(x, np.asarray(u, dtype=float))
-        elif self._tables is not None:
+        elif self.tables is not None:
             # Alg. 1 line 3 / eq:nonlindyn, eq:linearization with the declared effects (compiled)
-            self._tables.f_and_F(x, np.asarray(u, dtype=float), self.A_k, self.xdot_k)
+            self.tables.f_and_F(x, np.asarray(u, dtype=float), self.A_k, self.xdot_k)
         else:
             # Alg. 1 line 3 / eq:linearization: continuous Jacobian of f_nom at (x̂_{k−1}, u_{k−1})
             self.A_k[:] = self.model.F_nom(x, u)
             # eq:nonlindyn
             self.xdot_k[:] = self.model.f_nom(x, u)
         if self.bound is not None:
-            self._x_prev[:] = x
-            self._P_prev[:] = self.P
+            # x̂_{k−1}, P_{k−1} for the bound (StepRecord)
+            self.record.x_prev[:] = x
+            self.record.P_prev[:] = self.P
         use_gp = self.residual is not None
-        dmu = self._dmu
+        dmu = self.dmu_dz
         if use_gp:
             # Alg. 2 lines 4-6: μ, σ² = GP.PREDICT(ẑ_{k−1})
             mu, dmu_dz, var = self.residual.predict(self.z)
@@ -462,34 +531,38 @@ class AKF:
         # bounded P (akf_core.cap_covariance): no variance beyond its physical cap; a prior far
         # beyond the caps means the linearised model expands the covariance without bound: a
         # typed fault with the step and the reason, never an overflow later
-        pmax = float(np.max(np.diag(self.P_prior) / self._P_max))
+        pmax = float(np.max(np.diag(self.P_prior) / self.P_max))
         if not pmax < DIVERGED:
             self._diverged(pmax)
-        self.n_capped += akf_core.cap_covariance(self.P, self._P_max)
+        self.n_capped += akf_core.cap_covariance(self.P, self.P_max)
         # P symmetric positive definite, windowed NIS inside its divergence bound (health.py)
         self.health.check(nis, self.P, self.est.k + 1)
         self.est.k += 1
         return self._bound_and_gate(self._fill_estimate(), u, dt)
 
     def _bound_and_gate(self, e: Estimate, u: np.ndarray, dt: float) -> Estimate:
-        """The end of a filter step (this one and the GP-AKF's compiled one): the bound's step on
-        x̂_{k−1}, P_{k−1} and the input ``u`` over ``dt``, then ``e.valid`` from the start-up gate
-        (:meth:`gate`) — or, for a bound computed elsewhere (``deferred``), as that bound says."""
-        b = self.bound
-        if b is not None:
-            b.step(e, self._x_prev, self._P_prev, u, dt)
-            if getattr(b, "deferred", False):      # computed elsewhere: ρ and the gate come with it
-                e.valid = b.valid
-                return e
-        e.valid = self.gate(e)
+        """The end of a filter step (this one and the GP-AKF's compiled one): step k's
+        :class:`StepRecord` (x̂_{k−1}, P_{k−1} and the input ``u`` held over ``dt``) to the
+        consumer attached, else :meth:`finish_step` here (the bound's step, the start-up gate)."""
+        r = self.record
+        r.kind, r.k, r.dt, r.ready, r.gate_starts = STEP, e.k, dt, self._ready, self.gate.starts
+        r.u[:] = u
+        c = self.consumer
+        if c is not None:                  # computed elsewhere: ρ and the gate come with it
+            c.take(e, r)
+            return e
+        e.valid = self.finish_step(e, r)
         return e
 
-    def gate(self, e: Estimate) -> bool:
-        """Whether the estimate of this step is valid (the start-up gate, :meth:`_gate`), with
-        ``e.tau_h_act_bound`` the step's ρ_k: what :meth:`step` sets ``e.valid`` to.  For a bound
-        computed elsewhere (a :class:`~sea_daemon.core.estimators.base.Bound` with ``deferred``),
-        the copy of this AKF that computes it calls this after the bound's step."""
-        return self.converged or self._gate(e)
+    def _hand_reset(self, e: Estimate) -> None:
+        """The end of a reset: its record (kind RESET; ``P`` is P₀) to the consumer or the bound."""
+        r = self.record
+        r.kind, r.k, r.ready, r.gate_starts = RESET, e.k, self._ready, self.gate.starts
+        c = self.consumer
+        if c is not None:
+            c.take(e, r)
+        elif self.bound is not None:
+            self.bound.reset(e, r)
 
     def _step_failed(self, status: int, nis: float) -> None:
         """Raise the typed fault of a filter step that returned ``status`` (not OK)."""
@@ -509,43 +582,6 @@ class AKF:
         raise CovarianceDiverged(f"AKF step {self.est.k + 1}: the predicted covariance is {pmax:.3g} x its "
                                  f"physical cap (the linearised model diverges: check the model, R, "
                                  f"Sigma_nom, or a log that does not fit the model)")
-
-    # ------------------------------------------------------------------ start-up gate
-
-    def _start_gate(self) -> None:
-        """The filter starts from x̂₀ (a reset, or the end of the differentiator's window): its
-        initial error e₀ lies in the box b₀ — sqrt(s P₀,ii) for the measured components, and for
-        τ_h,act the larger of that and ``tau_h_act_max`` (the subject may push with up to that
-        torque when the filter starts; τ̂_h,act,0 = 0) — and the map of e₀ to the error is Φ = I."""
-        n = self.n
-        np.sqrt(self.s * np.maximum(np.diag(self.P), 0.0), out=self._b0)
-        np.maximum(self._b0[4 * n:], self.tau_h_act_max, out=self._b0[4 * n:])
-        self._Phi[:] = 0.0
-        np.fill_diagonal(self._Phi, 1.0)
-        self.converged, self.converged_at = False, -1
-        self.gate_starts += 1
-
-    def _gate(self, e: Estimate) -> bool:
-        """Whether the start-up transient has decayed (called after each filter step until it has).
-
-        The error of step k is Φ_k e₀ plus what the noise and the model error put in since the
-        start, with Φ_k = Π (I − K_i H) F_i the filter's closed-loop map.  The published bound
-        ρ_k (Theorem 1 with P_k; or sqrt(s P_ττ)) covers the second part; the first is at most
-        t_k = |Φ_k|_τ b₀ per joint (:meth:`_start_gate`).  The filter has converged once
-        t_k ≤ :data:`TRANSIENT_SHARE` ρ_k for every joint; from then on until the next reset the
-        estimate is valid (Φ_k only shrinks further, it is no longer tracked).  Allocation-free."""
-        n = self.n
-        M, W = self._M, self._Phi_w
-        np.dot(self.K_k, self.H, out=M)              # (I − K H) F Φ
-        np.subtract(self._I_d, M, out=M)
-        np.dot(M, self.F_k, out=W)
-        np.dot(W, self._Phi, out=M)
-        self._Phi[:] = M
-        np.abs(self._Phi[4 * n:], out=self._absrow)
-        np.dot(self._absrow, self._b0, out=self._transient)
-        if np.all(self._transient <= TRANSIENT_SHARE * e.tau_h_act_bound):
-            self.converged, self.converged_at = True, self.est.k
-        return self.converged
 
     def _fill_estimate(self) -> Estimate:
         e = self.est

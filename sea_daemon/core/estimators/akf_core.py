@@ -1,11 +1,14 @@
 """The compiled numerics of one AKF / GP-AKF step (Alg. 1, Alg. 2), called by :class:`AKF`.
 
 :func:`nominal_affine` — F_nom and f_nom of the plain nominal model (no declared effects)
-from its constant blocks; :func:`filter_step` — everything after the nominal Jacobian: the
+from its constant blocks, and :func:`residual_affine`, its training target, are the
+dynamics kernels :func:`sea_daemon.core.dynamics.nominal_affine` and
+:func:`~sea_daemon.core.dynamics.residual_affine` (imported here for the filter's step);
+:func:`filter_step` — everything after the nominal Jacobian: the
 GP terms, the local-linearisation discretisation (one matrix exponential), the covariance
 prediction, the Cholesky-based gain, NIS, the Joseph update, the symmetrisation and the
 finiteness check.  Models with declared effects compute F_nom / f_nom with
-:class:`~sea_daemon.core.model.SEAModel` (numpy) and share :func:`filter_step`.
+:class:`~sea_daemon.core.model_core.ModelTables` (the same kernels) and share :func:`filter_step`.
 
 All arrays are the AKF's own preallocated per-step attributes, written in place.  Errors are
 returned as a status code (the caller raises the project's exceptions with their messages):
@@ -18,40 +21,16 @@ import math
 
 import numpy as np
 
+from sea_daemon.core.dynamics import nominal_affine, residual_affine
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.linalg import cho_solve, cholesky, matmul, matmul_t, zoh
 
 OK, PRIOR_NONFINITE, S_NOT_PD, POSTERIOR_NONFINITE = 0, 1, 2, 3
 
-
-@njit
-def nominal_affine(x, u, A_lin, B_lin, MinvG, A, xdot):
-    """A = F_nom(x, u), xdot = f_nom(x, u) of the nominal model without declared effects.
-
-    f_nom(x, u) = A_lin x + B u − I_μ M⁻¹ g ⊙ sin q,  F_nom = A_lin − I_μ M⁻¹ diag(g cos q) ∂q/∂x,
-    q = θ_m + θ_s (eq:nonlindyn with C(q) = g ⊙ sin q; equal to SEAModel.f_nom / F_nom).
-    """
-    n = u.shape[0]
-    d = x.shape[0]
-    A[:, :] = A_lin
-    # eq:nonlindyn, affine part
-    for i in range(d):
-        s = 0.0
-        for j in range(d):
-            s += A_lin[i, j] * x[j]
-        for j in range(n):
-            s += B_lin[i, j] * u[j]
-        xdot[i] = s
-    for j in range(n):
-        q = x[j] + x[n + j]
-        c = math.cos(q)
-        sn = math.sin(q)
-        for i in range(n):
-            # ∂(−M⁻¹ C(q))/∂θ_m = ∂/∂θ_s = −M⁻¹ diag(g cos q)   (θ̈_s rows, eq:xsdd)
-            A[3 * n + i, j] -= MinvG[i, j] * c
-            A[3 * n + i, n + j] -= MinvG[i, j] * c
-            # −M⁻¹ C(q) in the θ̈_s rows (eq:xsdd)
-            xdot[3 * n + i] -= MinvG[i, j] * sn
+#: the dynamics kernels of the filter's step without declared effects (core.dynamics)
+__all__ = ["nominal_affine", "residual_affine", "buffer_size", "views", "filter_step", "fill_estimate",
+           "input_noise", "cap_covariance", "STEP_FIELDS", "OK", "PRIOR_NONFINITE", "S_NOT_PD",
+           "POSTERIOR_NONFINITE"]
 
 
 #: the arrays of one filter step, in the order :func:`views` lays them out in one flat float64
@@ -221,18 +200,6 @@ def filter_step(buf, d: int, m: int, n: int, use_gp: bool, dt: float):
 
 
 @njit
-def residual_affine(q, dq, ddq, dth, ddth, tau, M, gravity, J, D_m, f):
-    """f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m): eq:loadsidewmotor with ass:passive_human
-    (τ_h,act = 0) for the nominal model without declared effects (training target)."""
-    n = f.shape[0]
-    for i in range(n):
-        s = tau[i] - gravity[i] * math.sin(q[i])
-        for j in range(n):
-            s -= M[i, j] * ddq[j] + J[i, j] * ddth[j] + D_m[i, j] * dth[j]
-        f[i] = s
-
-
-@njit
 def fill_estimate(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound):
     """The published estimate: x̂, P, τ̂_h,act = x̂[4n:], σ = sqrt(P_ττ) and the bound
     ρ = sqrt(s P_ττ) (eq:gaussianellipsoid projected on each τ_h,act component)."""
@@ -296,14 +263,10 @@ def _warm() -> None:
     """Compile with the types the AKF passes (1 joint; shapes do not change the types)."""
     n, d, m = 1, 5, 4
     x = np.zeros(d)
-    A = np.zeros((d, d))
-    xdot = np.zeros(d)
-    nominal_affine(x, np.zeros(n), np.zeros((d, d)), np.zeros((d, n)), np.zeros((n, n)), A, xdot)
     buf = np.zeros(buffer_size(d, m, n))
     views(buf, d, m, n)
     filter_step(buf, d, m, n, True, 0.01)
     v = np.zeros(n)
-    residual_affine(v, v, v, v, v, v, np.eye(n), v, np.eye(n), np.eye(n), np.zeros(n))
     fill_estimate(x, np.eye(d), 1.0, np.zeros(d), np.zeros((d, d)), v, v.copy(), v.copy())
     input_noise(np.eye(d), np.ones((d, n)), 0.01, 1e-4, np.eye(d), np.zeros((d, n)), np.zeros((d, d)))
     cap_covariance(np.eye(d), np.ones(d))

@@ -17,7 +17,7 @@ class Estimate:
     covariance; ``k`` the step counter (0 after reset); ``valid`` whether this is an estimate of
     τ_h,act that users may act on, inside its published bound: False while the estimator starts
     (the reset sample, the differentiator's window) and until the filter's start-up transient
-    has decayed (the AKF's gate, :meth:`~sea_daemon.core.estimators.akf.AKF._gate`), and while
+    has decayed (the AKF's start-up gate, :class:`~sea_daemon.core.estimators.gate.StartupGate`), and while
     a GP-AKF learns (training phase, subject assumed passive); then True until the next reset.
     """
 
@@ -71,20 +71,18 @@ class Residual(Protocol):
 @runtime_checkable
 class Bound(Protocol):
     """The error bound an AKF publishes as ``tau_h_act_bound`` (eq:bounds), a component the
-    AKF calls at the end of its :meth:`reset` and of every filter step.
+    AKF calls at the end of its :meth:`reset` and of every filter step with the step's
+    :class:`~sea_daemon.core.estimators.record.StepRecord` (:meth:`AKF.finish_step`).
 
-    ``reset(est)``: the filter was (re)initialised (``est`` its estimate; the AKF's
-    ``_ready`` tells whether from a sample).  ``step(est, x_prev, P_prev, u, dt)``: the filter
-    stepped from (x̂_{k−1}, P_{k−1}) = (x_prev, P_prev) with the input u held over dt; the AKF's
-    per-step attributes hold step k.  Both overwrite ``est.tau_h_act_bound``.
-
-    A bound with ``deferred`` True is computed elsewhere (the daemon's bound worker,
-    :mod:`sea_daemon.runtime.bound_worker`): its ``step`` hands the step's inputs on and fills
-    ``est.tau_h_act_bound`` with the newest ρ it has, and the AKF takes ``valid`` from it (the
-    start-up gate runs where ρ_k is computed, :meth:`AKF.gate`).  Without the attribute the
-    bound is computed in the step.
+    ``reset(est, record)``: the filter was (re)initialised (``est`` its estimate; ``record.ready``
+    tells whether from a sample, ``record.P`` is P₀).  ``step(est, record)``: the filter stepped
+    from (x̂_{k−1}, P_{k−1}) = (``record.x_prev``, ``record.P_prev``) with the input ``record.u``
+    held over ``record.dt``; the record's other fields hold step k.  Both overwrite
+    ``est.tau_h_act_bound``.  A bound computed elsewhere takes the records through a
+    :class:`~sea_daemon.core.estimators.record.BoundConsumer` attached to the AKF
+    (:meth:`AKF.attach`; the daemon's bound worker, :mod:`sea_daemon.runtime.bound_worker`).
     """
 
-    def reset(self, est: Estimate) -> None: ...
+    def reset(self, est: Estimate, record) -> None: ...
 
-    def step(self, est: Estimate, x_prev: np.ndarray, P_prev: np.ndarray, u: np.ndarray, dt: float) -> None: ...
+    def step(self, est: Estimate, record) -> None: ...

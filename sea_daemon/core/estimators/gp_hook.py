@@ -4,7 +4,7 @@ With learning frozen, the hook's prediction — the GP input clipped into the tr
 joint the merged LoG-GP mean, its Jacobian and variance (:meth:`LoGGP.predict_grad_into`:
 routing, each leaf's compiled prediction, the merge in routing order) — runs as one compiled
 call, :func:`hook_predict`, over the LoG-GPs flattened by
-:class:`~sea_daemon.core.bounds.bound_core.GPPack` (the pack the Theorem-1 bound uses), with the
+:class:`~sea_daemon.core.gp.pack.GPPack` (the pack the Theorem-1 bound uses), with the
 same operations in the same order.  A GP that is learning stays on the Python path.
 """
 from __future__ import annotations
@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.gp.pack import GPPack, warm_up_loggp
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.gp.routing import _route
-from sea_daemon.core.estimators.health import _box_clip
+from sea_daemon.core.gp.routing import route
+from sea_daemon.core.estimators.health import box_clip
 
 
 @njit
@@ -45,11 +46,11 @@ def _leaf_grad(l, x, nn, row, apo, A, beta, alpha, ap, center, il2, sf2, lo, hi,
 def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, links, span, leaf_of, nn, row, apo,
                  A, X, beta, alpha, ap, center, il2, sf2, lo, hi, clip, r, sn2):
     """The GP-AKF's residual hook in one call (gpakf._ResidualHook.predict over frozen LoG-GPs):
-    z clipped into the input box (``zc``, ``clipped``; health._box_clip), per joint j the merged
+    z clipped into the input box (``zc``, ``clipped``; health.box_clip), per joint j the merged
     LoG-GP μ_j, ∂μ_j/∂z (row j of ``jac``) and σ_j² (+ Σ ω σ_on² with ``noise``) at the clipped
     input, as LoGGP.predict_grad_into, the same operations in the same order; the clipped
     coordinates get a zero Jacobian.  Returns whether any coordinate was clipped."""
-    any_clipped = _box_clip(z, box_lo, box_hi, zc, clipped)
+    any_clipped = box_clip(z, box_lo, box_hi, zc, clipped)
     d = zc.shape[0]
     Zr = zc.reshape((1, d))
     dm = np.empty(d)
@@ -57,7 +58,7 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
     xc = np.empty(d)
     acc = np.empty(d)
     for j in range(links.shape[0]):
-        _, nodes, ws, dws = _route(Zr, links[j], span[j], True)
+        _, nodes, ws, dws = route(Zr, links[j], span[j], True)
         k = nodes.shape[0]
         if k == 1:
             mu, var = _leaf_grad(leaf_of[j, nodes[0]], zc, nn, row, apo, A, beta, alpha, ap, center, il2, sf2, lo,
@@ -97,7 +98,6 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
 @warmer
 def _warm() -> None:
     """:func:`hook_predict` with the argument types the hook passes (one joint, z of 3)."""
-    from sea_daemon.core.bounds.bound_core import GPPack, warm_up_loggp
     pack = GPPack([warm_up_loggp()])
     for noise in (False, True):
         hook_predict(np.zeros(3), -np.ones(3), np.ones(3), np.zeros(3), np.zeros(3, np.bool_), noise, np.zeros(1),

@@ -31,6 +31,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.estimators import akf_core, gp_hook, gpakf_core
 from sea_daemon.core.gp.loggp import LoGGP
+from sea_daemon.core.gp.pack import GPPack
 from sea_daemon.core.estimators.akf import AKF, DIVERGED
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.estimators.health import InputBox, check_pd
@@ -57,30 +58,31 @@ class _ResidualHook:
         self.box = InputBox.of_residual(gp, margin)
         # the compiled path (freeze): LoG-GPs only
         self._loggp = all(type(g) is LoGGP for g in gp.gps)
-        self._key = self._pack_key = None
-        self._pack_args = ()
+        # the key the compiled path runs for (None: the Python path) and the pack's arrays
+        # (GPPack.args() and σ_on² per leaf: gp_hook.hook_predict's arguments)
+        self.key = self._pack_key = None
+        self.pack_args = ()
 
     def freeze(self, key) -> None:
         """``key``: None while the GP learns (the Python path), else a value that changes whenever
         the GP does (the GP-AKF's count of learned pairs): the prediction runs as one compiled
         call (:func:`gp_hook.hook_predict`) over a pack of the GPs made for that key."""
         if key is None or not self._loggp:
-            self._key = None
+            self.key = None
             return
         if key != self._pack_key:
-            from sea_daemon.core.bounds.bound_core import GPPack
             pack = GPPack(self.gp.gps)
-            self._pack_args = pack.args() + (pack.sn2,)
+            self.pack_args = pack.args() + (pack.sn2,)
             self._pack_key = key
-        self._key = key
+        self.key = key
 
     def predict(self, z):
-        if self._key is not None:
+        if self.key is not None:
             box = self.box
             if type(z) is not np.ndarray or z.dtype != np.float64 or not z.flags.c_contiguous:
                 z = np.ascontiguousarray(z, dtype=float)
-            any_clipped = gp_hook.hook_predict(z, box._lo, box._hi, box._z, box.clipped, self.noise_in_Q, self.mu,
-                                               self.jac, self.var, *self._pack_args)
+            any_clipped = gp_hook.hook_predict(z, box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
+                                               self.noise_in_Q, self.mu, self.jac, self.var, *self.pack_args)
             box.any_clipped = any_clipped
             if any_clipped:
                 box.n_clipped += 1
@@ -122,7 +124,7 @@ class GPAKF(AKF):
         self.z_train = np.zeros(3 * n)       # last training input z = [q, q̇, q̈]
         self.f_train = np.zeros(n)           # last training target f (eq:loadsidewmotor)
         self.n_learned = 0
-        self._since_reset = 0
+        self.since_reset = 0                 # samples since the last reset
         # one training pair per configuration step (estimator.Sigma_nom_dt, 10 ms): the LoG-GP
         # sees the data density it is configured for at any loop rate (every 10th sample at
         # 1 kHz; consecutive 1 ms pairs are nearly the same point, and ten times the pairs split
@@ -132,7 +134,7 @@ class GPAKF(AKF):
         self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
         # the frozen sample in one compiled call (gpakf_core) where it applies: no declared
         # effects, offsets, delay or motor-torque noise, and the hook of this class
-        self._fz_ok = (self._affine and self._no_offsets and not self._has_delay
+        self._fz_ok = (self._affine and self._no_offsets and not self.has_delay
                        and type(self.residual) is _ResidualHook)
         self._fz_args = ()
         self._fz_iout = np.zeros(6, dtype=np.int64)
@@ -140,7 +142,7 @@ class GPAKF(AKF):
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """As :meth:`AKF.reset`; the learned model is kept."""
-        self._since_reset = 0
+        self.since_reset = 0
         if tau_m is not None:
             self._tau_hist[:] = np.asarray(tau_m, dtype=float)
         return super().reset(q, theta_m, tau_m, x0, P0)
@@ -153,7 +155,7 @@ class GPAKF(AKF):
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
         if (self._fz_ok and was_ready and not self._filling and (dt is None or dt == self.dt)
-                and type(self.residual) is _ResidualHook and self.residual._key is not None and self.kin._primed):
+                and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin.primed):
             e = self._frozen_update(q, theta_m, tau_m)
         else:
             e = super().update(q, theta_m, tau_m, dt)
@@ -164,12 +166,12 @@ class GPAKF(AKF):
         if not was_ready:
             self._tau_hist[:] = np.asarray(tau_m, dtype=float)
             return e
-        self._since_reset += 1
+        self.since_reset += 1
         if self.tau_lag:
             self._tau_hist[1:] = self._tau_hist[:-1]
             self._tau_hist[0] = tau_m
-        if self.learning and self._since_reset >= self.kin.L and \
-                (self._since_reset - self.kin.L) % self.learn_every == 0:
+        if self.learning and self.since_reset >= self.kin.L and \
+                (self.since_reset - self.kin.L) % self.learn_every == 0:
             self._learn(tau_m)
         return e
 
@@ -181,7 +183,7 @@ class GPAKF(AKF):
         res = self.residual
         a = self._fz_args
         dt = self.dt
-        if not a or a[0] is not res._pack_args or a[3] is not self.bound or a[4] is not self._sigma_base(dt):
+        if not a or a[0] is not res.pack_args or a[3] is not self.bound or a[4] is not self._sigma_base(dt):
             a = self._fz_args = self._frozen_args(res)
         # float64 C-contiguous (n,) arrays as the loop's measurement is (others converted: the
         # compiled calls have one signature, made at construction)
@@ -193,10 +195,10 @@ class GPAKF(AKF):
             tau_m = np.ascontiguousarray(tau_m, dtype=float)
         iout, fout, kin = self._fz_iout, self._fz_fout, self.kin
         head = self._hhead
-        iout[gpakf_core.I_KIN_HEAD] = kin._head
+        iout[gpakf_core.I_KIN_HEAD] = kin.head
         iout[gpakf_core.I_HHEAD] = head
         gpakf_core.frozen_sample(q, theta_m, dt, *a[1])
-        kin._head = int(iout[gpakf_core.I_KIN_HEAD])
+        kin.head = int(iout[gpakf_core.I_KIN_HEAD])
         box = res.box
         box.any_clipped = bool(iout[gpakf_core.I_CLIPPED])
         if box.any_clipped:
@@ -225,17 +227,17 @@ class GPAKF(AKF):
         every sample; made again when the hook's pack changes)."""
         kin, box, e = self.kin, res.box, self.est
         self._sigma_base(self.dt)
-        pack = res._pack_args[:-1]
+        pack = res.pack_args[:-1]
         s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
-        sample = (self._buf, self.d, self.m, self.n, self._ang, kin._buf, kin.C, kin._out, self._ddq, self.z,
+        sample = (self._buf, self.d, self.m, self.n, self._ang, kin.buf, kin.C, kin.out, self._ddq, self.z,
                   self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
-                  self._MinvG, float(self._gp_var_scale), box._lo, box._hi, box._z, box.clipped, res.noise_in_Q,
-                  res.mu, res.jac, res.var, pack, res._pack_args[-1], self.bound is not None, self._x_prev,
-                  self._P_prev, self._P_max, DIVERGED, self._fz_iout, self._fz_fout)
+                  self._MinvG, float(self._gp_var_scale), box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
+                  res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None, self.record.x_prev,
+                  self.record.P_prev, self.P_max, DIVERGED, self._fz_iout, self._fz_fout)
         finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
-        return res._pack_args, sample, finish, self.bound, self._S_base
+        return res.pack_args, sample, finish, self.bound, self._S_base
 
-    def _training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
+    def training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
         """(z, f) of the current sample from the causal kinematics (eq:loadsidewmotor)."""
         n = self.n
         ang, vel, acc = self.kin_angle, self.kin_vel, self.kin_acc     # [q, θ_m] each
@@ -244,7 +246,7 @@ class GPAKF(AKF):
         z[n:2 * n] = vel[:n]
         z[2 * n:] = acc[:n]
         tau = self._tau_hist[self.tau_lag] if self.tau_lag else np.ascontiguousarray(tau_m, dtype=float)
-        if self._has_delay:
+        if self.has_delay:
             # a declared delay: the motor side felt τ_m(t − lag·dt − delay)
             tau = self._delayed_input(self._t - self.tau_lag * self.dt).copy()
         m = self.model
@@ -253,9 +255,9 @@ class GPAKF(AKF):
             # declared effects: f = τ_m − (M q̈ + g ⊙ sin q + J θ̈_m + D_m θ̇_m)
             akf_core.residual_affine(ang[:n], vel[:n], acc[:n], vel[n:], acc[n:], tau, m.M, m.gravity,
                                      m.J, m.D_m, self.f_train)
-        elif self._tables is not None:
+        elif self.tables is not None:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects (compiled)
-            self._tables.residual(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:],
+            self.tables.residual(ang[:n], vel[:n], acc[:n], ang[n:], vel[n:], acc[n:],
                                   np.ascontiguousarray(tau, dtype=float), self.f_train)
         else:
             # eq:loadsidewmotor with ass:passive_human (τ_h,act = 0), declared effects included
@@ -263,7 +265,7 @@ class GPAKF(AKF):
         return z, self.f_train
 
     def _learn(self, tau_m) -> None:
-        z, f = self._training_pair(tau_m)
+        z, f = self.training_pair(tau_m)
         self.residual.box.add(z)
         # one independent GP per joint (Sec. IV-A); the LoG-GP runs its bounded
         # hyperparameter slices inside update (learning.hyperopt)
@@ -284,7 +286,8 @@ def learn_from_log(est: GPAKF, log: MeasuredLog) -> GPAKF:
         for k in range(1, len(log)):
             est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
     except EstimatorFault as exc:
-        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}") from None
+        raise EstimatorFault(f"{log.path} (training): sample {k} (t = {log.t[k]:.6g} s): {exc}",
+                             fault=exc.fault) from None
     finally:
         est.bound = bound
     return est

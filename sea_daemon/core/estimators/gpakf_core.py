@@ -10,7 +10,7 @@ bit-identical to the Python path, ``tests/test_gpakf.py``):
 1. ẑ_{k−1} = [q̂, q̂̇, q̈] at the previous posterior (Alg. 2 line 5), the input u_{k−1} from the
    input history;
 2. the measurement y = [θ_m, θ_s, θ̇_m, θ̇_s] through the causal differentiator
-   (:func:`~sea_daemon.core.kinematics._fir_push`, :meth:`AKF.measure`), this step's Σ_nom
+   (:func:`~sea_daemon.core.kinematics.fir_push`, :meth:`AKF.measure`), this step's Σ_nom
    (:meth:`AKF.fill_sigma_nom`, :func:`~sea_daemon.core.estimators.akf_core.input_noise`);
 3. F_nom, f_nom (:func:`~sea_daemon.core.estimators.akf_core.nominal_affine`), x̂_{k−1} and
    P_{k−1} kept for the bound, the residual hook (:func:`~sea_daemon.core.estimators.gp_hook.hook_predict`)
@@ -30,9 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
+from sea_daemon.core.gp.pack import GPPack, warm_up_loggp
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.estimators.gp_hook import hook_predict
-from sea_daemon.core.kinematics import _fir_push
+from sea_daemon.core.kinematics import fir_push
 from sea_daemon.core.linalg import is_pd
 
 #: :func:`frozen_sample`'s integer outputs (``iout``): filter status, kinematics ring head,
@@ -63,7 +64,7 @@ def frozen_sample(q, theta_m, dt, buf, d, m, n, ang, kin_buf, kin_C, kin_out, dd
     for j in range(n):
         ang[j] = q[j]
         ang[n + j] = theta_m[j]
-    iout[I_KIN_HEAD] = _fir_push(kin_buf, iout[I_KIN_HEAD], kin_C, ang, kin_out)
+    iout[I_KIN_HEAD] = fir_push(kin_buf, iout[I_KIN_HEAD], kin_C, ang, kin_out)
     for j in range(n):
         y[j] = kin_out[0, n + j]
         # θ_s = q − θ_m (eq:spring_torque)
@@ -137,7 +138,6 @@ def frozen_finish(x, P, sqrt_s, x_hat, P_hat, tau_hat, tau_sigma, tau_bound, tau
 @warmer
 def _warm() -> None:
     """:func:`frozen_sample` with the argument types :class:`GPAKF` passes (one joint)."""
-    from sea_daemon.core.bounds.bound_core import GPPack, warm_up_loggp
     pack = GPPack([warm_up_loggp()])
     n, d, m = 1, 5, 4
     buf = np.zeros(akf_core.buffer_size(d, m, n))

@@ -173,6 +173,10 @@ class InputBox:
     ``min_margin`` (absolute, per coordinate, default 0) keeps a degenerate box (one point, a
     constant coordinate) from pinning the input exactly.  Without training data nothing is
     clipped (the GP returns its prior there anyway).
+
+    Learned: ``lo_``, ``hi_`` the box of the training inputs.  ``clip_lo``, ``clip_hi``: that box
+    widened, what an input is clipped into; ``clipped_z`` the last input clipped, ``clipped``
+    which of its coordinates were.
     """
 
     def __init__(self, dim: int, margin: float = 0.1, min_margin=0.0):
@@ -181,12 +185,12 @@ class InputBox:
         self.min_margin = np.broadcast_to(np.asarray(min_margin, dtype=float), (self.dim,)).copy()
         self.lo_ = np.full(self.dim, np.inf)
         self.hi_ = np.full(self.dim, -np.inf)
-        self._lo = np.full(self.dim, -np.inf)
-        self._hi = np.full(self.dim, np.inf)
+        self.clip_lo = np.full(self.dim, -np.inf)
+        self.clip_hi = np.full(self.dim, np.inf)
         self.clipped = np.zeros(self.dim, dtype=bool)
         self.any_clipped = False
         self.n_clipped = 0
-        self._z = np.zeros(self.dim)
+        self.clipped_z = np.zeros(self.dim)
 
     @classmethod
     def of_residual(cls, gp, margin: float = 0.1) -> "InputBox":
@@ -207,7 +211,7 @@ class InputBox:
     def add(self, z: np.ndarray) -> None:
         """Widen the box to contain the training input ``z`` (non-finite inputs are ignored)."""
         _box_add(np.ascontiguousarray(z, dtype=float), self.lo_, self.hi_, self.margin, self.min_margin,
-                 self._lo, self._hi)
+                 self.clip_lo, self.clip_hi)
 
     def add_many(self, Z: np.ndarray) -> None:
         Z = np.asarray(Z, dtype=float).reshape(-1, self.dim)
@@ -220,11 +224,11 @@ class InputBox:
         """``z`` clipped into the widened box (a work array, overwritten by the next call);
         :attr:`clipped` marks the coordinates that were clipped.  Non-finite inputs are
         clipped to the box too (NaN → the box centre), never passed to the GP."""
-        self.any_clipped = _box_clip(np.ascontiguousarray(z, dtype=float), self._lo, self._hi, self._z,
-                                     self.clipped)
+        self.any_clipped = box_clip(np.ascontiguousarray(z, dtype=float), self.clip_lo, self.clip_hi,
+                                    self.clipped_z, self.clipped)
         if self.any_clipped:
             self.n_clipped += 1
-        return self._z
+        return self.clipped_z
 
 
 @njit
@@ -244,7 +248,7 @@ def _box_add(z, lo_, hi_, margin, min_margin, lo, hi):
 
 
 @njit
-def _box_clip(z, lo, hi, out, clipped) -> bool:
+def box_clip(z, lo, hi, out, clipped) -> bool:
     """out ← z clipped into [lo, hi] (NaN → the box centre; an empty box: ±inf → ±1e6, NaN → 0);
     clipped[j] ← whether coordinate j changed.  Returns whether any did."""
     any_ = False

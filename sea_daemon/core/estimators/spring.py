@@ -48,7 +48,7 @@ class SpringTorqueEstimator:
 
     def reset(self, q=None, theta_m=None, tau_m=None) -> Estimate:
         """Restart the differentiator at this sample (``reset()``: at the next update)."""
-        self.kin._primed = False
+        self.kin.forget()
         if q is None or theta_m is None:
             self._ready = False
             self.est.k = 0

@@ -82,7 +82,7 @@ class WeightedResidual:
 
     def prior_variance(self, g, z) -> float:
         """σ_f² of the leaves z reaches, merged with the routing weights."""
-        nodes, ws, _ = g._route_one(np.ascontiguousarray(z, dtype=float), False)
+        nodes, ws, _ = g.route_one(np.ascontiguousarray(z, dtype=float), False)
         return float(sum(w * g.leaf(node).sigma_f ** 2 for node, w in zip(nodes, ws.tolist())))
 
     def predict(self, z):
@@ -96,7 +96,7 @@ class WeightedResidual:
                 var = g.predict(np.ascontiguousarray(np.clip(z, -1e6, 1e6), dtype=float))[1]
             # σ_f² (prior) and σ_on² of the leaves zc reaches, one routing for both
             s2 = sn2 = 0.0
-            nodes, ws, _ = g._route_one(zc, False)
+            nodes, ws, _ = g.route_one(zc, False)
             for node, wr in zip(nodes, ws.tolist()):
                 leaf = g.leaf(node)
                 s2 += wr * leaf.sigma_f * leaf.sigma_f

@@ -26,17 +26,18 @@ import numpy as np
 
 from sea_daemon.core.gp import gp_core
 from sea_daemon.core.jit import warmer
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import EstimatorFault, Fault, InputError
 
-_TRIL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+_PACKED_ORDER: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 _EMPTY = np.empty((0, 0))
 
 
-def _tril(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row-major lower-triangle indices of an n×n matrix (the packed order used here)."""
-    t = _TRIL_CACHE.get(n)
+def packed_order(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major lower-triangle indices of an n×n matrix: the order in which the factor ``L``
+    is packed (``L[packed_order(n)]`` is the packed factor, cached per n)."""
+    t = _PACKED_ORDER.get(n)
     if t is None:
-        t = _TRIL_CACHE[n] = np.tril_indices(n)
+        t = _PACKED_ORDER[n] = np.tril_indices(n)
     return t
 
 
@@ -71,9 +72,10 @@ def se_kernel(A, B, lengthscales, sigma_f: float) -> np.ndarray:
     return K
 
 
-def _kernel(X: np.ndarray, A: np.ndarray, n: int, c: np.ndarray, log_sf2: float) -> np.ndarray:
+def kernel_from_rows(X: np.ndarray, A: np.ndarray, n: int, c: np.ndarray, log_sf2: float) -> np.ndarray:
     """Noise-free kernel matrix of the first n rows of X (eq:SE), from the rows A of
-    :func:`gp_core.fill_rows`: the exponents compiled, the exponential by numpy."""
+    :func:`gp_core.fill_rows` (centre ``c``, ``log σ_f²``): the exponents compiled, the
+    exponential by numpy."""
     K = np.empty((n, n))
     gp_core.kernel_exponent(X, A, n, c, log_sf2, K)
     return np.exp(K, out=K)
@@ -165,6 +167,19 @@ class IncrementalGP:
         self._sn2 = self.sigma_n ** 2
 
     @property
+    def sf2(self) -> float:
+        """``σ_f²``, the prior variance of eq:SE (read-only)."""
+        return self._sf2
+
+    @property
+    def il2(self) -> np.ndarray:
+        """``1 / l_j²`` per input dimension, the inverse squared length scales of eq:SE
+        (a read-only view)."""
+        v = self._il2.view()
+        v.flags.writeable = False
+        return v
+
+    @property
     def log_theta(self) -> np.ndarray:
         """``[log σ_f, log l_1 … log l_ρ, log σ_on]``."""
         return np.concatenate(([math.log(self.sigma_f)], np.log(self.lengthscales),
@@ -184,8 +199,13 @@ class IncrementalGP:
     def _set_center(self, c) -> None:
         self.center_ = np.array(c, dtype=float)
 
-    def fit(self, X, y) -> "IncrementalGP":
-        """Replace the data by ``X`` (N, ρ), ``y`` (N,) and factorise (O(N³))."""
+    def fit(self, X, y, center=None) -> "IncrementalGP":
+        """Replace the data by ``X`` (N, ρ), ``y`` (N,) and factorise (O(N³)).
+
+        ``center``: the centre ``c`` of the stored inputs (default: the first point); a model
+        rebuilt from a snapshot passes the centre it was saved with, so that it predicts to
+        the last bit as the saved one.
+        """
         X = np.atleast_2d(np.asarray(X, dtype=float))
         y = np.asarray(y, dtype=float).ravel()
         if X.shape[1] != self.input_dim or X.shape[0] != y.shape[0]:
@@ -198,7 +218,9 @@ class IncrementalGP:
             self._alloc(n if self.max_capacity is None else max(n, min(self.max_capacity, n + 8)))
         self.n_ = n
         self.X_[:n], self.y_[:n] = X, y
-        if n:
+        if center is not None:
+            self._set_center(center)
+        elif n:
             self._set_center(X[0])
         self._rebuild()
         return self
@@ -211,7 +233,7 @@ class IncrementalGP:
         A = np.empty((m, self.input_dim + 2))
         gp_core.fill_rows(X, m, c, self._il2, self._log_sf2, A)
         # eq:SE expanded: k(x_a, x_b) = σ_f² exp(x̄_aᵀ diag(l⁻²) x̄_b − ½|x̄_a|²_l − ½|x̄_b|²_l)
-        return _kernel(X, A, m, c, self._log_sf2)
+        return kernel_from_rows(X, A, m, c, self._log_sf2)
 
     def spawn(self, X: np.ndarray, y: np.ndarray, K: np.ndarray | None = None,
               capacity: int | None = None) -> "IncrementalGP":
@@ -257,7 +279,7 @@ class IncrementalGP:
         gp_core.fill_rows(X, n, self.center_, self._il2, self._log_sf2, self.A_)
         if K is None:
             # eq:SE expanded: k(x_i, x_j) = exp(x̄_iᵀ diag(l⁻²) x̄_j + h_i + h_j − log σ_f²)
-            K = _kernel(X, self.A_, n, self.center_, self._log_sf2)
+            K = kernel_from_rows(X, self.A_, n, self.center_, self._log_sf2)
         else:
             K = np.ascontiguousarray(K)
         jit = self.jitter
@@ -268,7 +290,7 @@ class IncrementalGP:
             jit = max(10.0 * jit, 1e-10 * self._sf2)
         else:
             raise EstimatorFault(f"GP kernel matrix not positive definite with jitter {jit:g} "
-                                 f"(sigma_n = {self.sigma_n:g} must be > 0)")
+                                 f"(sigma_n = {self.sigma_n:g} must be > 0)", fault=Fault.COVARIANCE_NOT_PD)
         # β = L⁻¹ y, so that μ = (L⁻¹k)ᵀβ (eq:GPmean)
         self.beta_[:n] = self.y_[:n]
         gp_core.solve_lower(self.ap_, n, self.beta_)
@@ -315,7 +337,7 @@ class IncrementalGP:
         """Dense lower Cholesky factor of ``K + σ_on² I`` (a copy)."""
         n = self.n_
         L = np.zeros((n, n))
-        L[_tril(n)] = self.ap_[: n * (n + 1) // 2]
+        L[packed_order(n)] = self.ap_[: n * (n + 1) // 2]
         return L
 
     def predict(self, x) -> tuple[float, float]:
@@ -425,7 +447,7 @@ class IncrementalGP:
             return (0.0, np.zeros(self.input_dim + 2)) if grad else 0.0
         g = np.empty(self.input_dim + 2)
         # the oldest n points' factor is the leading block of the packed factor; eq:SE K_f
-        Kf = _kernel(self.X_, self.A_, n, self.center_, self._log_sf2) if grad else _EMPTY
+        Kf = kernel_from_rows(self.X_, self.A_, n, self.center_, self._log_sf2) if grad else _EMPTY
         lml = gp_core.lml_grad(self.X_[:n] - self.center_, self.y_, n, self._il2, self._sn2,
                                self.ap_, Kf, bool(grad), g)
         return (lml, g) if grad else lml
@@ -445,14 +467,7 @@ class IncrementalGP:
         n = len(d["y"])
         gp = cls(d["input_dim"], d["sigma_f"], d["lengthscales"], d["sigma_n"],
                  capacity=max(n, 1), max_capacity=d.get("max_capacity"), jitter=d["jitter"])
-        if d.get("center") is not None:
-            gp._set_center(d["center"])
-        if n:
-            gp.n_ = n
-            gp.X_[:n] = np.asarray(d["X"], dtype=float).reshape(n, -1)
-            gp.y_[:n] = d["y"]
-            gp._rebuild()
-        return gp
+        return gp.fit(np.asarray(d["X"], dtype=float).reshape(n, gp.input_dim), d["y"], d.get("center"))
 
 
 @warmer

@@ -33,9 +33,9 @@ from typing import Sequence
 import numpy as np
 
 from sea_daemon.core.jit import njit, warmer
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import EstimatorFault, Fault, InputError
 from sea_daemon.core.gp import gp_core
-from sea_daemon.core.gp.exact import IncrementalGP, _kernel, _tril
+from sea_daemon.core.gp.exact import IncrementalGP, kernel_from_rows, packed_order
 
 
 def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, *,
@@ -59,15 +59,15 @@ def log_marginal_likelihood(X, y, sigma_f: float, lengthscales, sigma_n: float, 
     log_sf2 = 2.0 * math.log(sigma_f)
     c = np.zeros(d)
     gp_core.fill_rows(Xb, n, c, il2, log_sf2, A)
-    K = _kernel(Xb, A, n, c, log_sf2)
+    K = kernel_from_rows(Xb, A, n, c, log_sf2)
     if L is None:
         # the packed factor of K_f + (σ_on² + jitter) I
         info = gp_core.cholesky_packed(K, n, sigma_n ** 2 + jitter, ap)
         if info != 0:
             raise EstimatorFault(f"K + σ_on² I is not positive definite (Cholesky pivot {info}); "
-                                 f"σ_on = {sigma_n} must be > 0")
+                                 f"σ_on = {sigma_n} must be > 0", fault=Fault.COVARIANCE_NOT_PD)
     else:
-        ap[:] = np.asarray(L, dtype=float)[_tril(n)]
+        ap[:] = np.asarray(L, dtype=float)[packed_order(n)]
     g = np.empty(d + 2)
     # R&W eq. 2.30 and 5.9 (gp_core.lml_grad)
     lml = gp_core.lml_grad(Xb, y, n, il2, float(sigma_n) ** 2, ap, K, bool(grad), g)
@@ -196,10 +196,7 @@ def adam_steps(request: dict, steps: int = 1, lr: float = 0.05, bounds: dict | N
     t = np.asarray(request["log_theta"], dtype=float)
     gp = IncrementalGP(d, math.exp(t[0]), np.exp(t[1:d + 1]), math.exp(t[d + 1]),
                        capacity=max(1, X.shape[0]), jitter=float(request.get("jitter", 1e-10)))
-    gp.fit(X, request["y"])
-    if request.get("center") is not None:
-        gp._set_center(request["center"])
-        gp._rebuild()
+    gp.fit(X, request["y"], request.get("center"))
     hyp = AdamHyper(d, lr=lr, bounds=bounds)
     st = hyp.new_state() if request.get("adam") is None else np.asarray(request["adam"], dtype=float)
     lmls = [hyp.step(gp, st) for _ in range(int(steps))]

@@ -59,7 +59,7 @@ from sea_daemon.errors import InputError
 from sea_daemon.core.gp.exact import IncrementalGP
 from sea_daemon.core.gp.hyper import AdamHyper
 from sea_daemon.core.gp.loggp_state import LoGGPState
-from sea_daemon.core.gp.routing import Tree, route
+from sea_daemon.core.gp.routing import Tree, TreeMirror, route
 
 
 
@@ -161,7 +161,7 @@ class LoGGP(LoGGPState):
         self.n_evicted = 0
         self.n_hyper_steps = 0
         self.last_leaf = 0
-        self._pending: tuple[int, np.ndarray] | None = None
+        self.hyper_proposal: tuple[int, np.ndarray] | None = None    # phase 1's (leaf, θ), for phase 2
         self._hyper_due = False
 
     def _new_leaf(self, log_theta: np.ndarray, capacity: int = 16) -> IncrementalGP:
@@ -226,10 +226,10 @@ class LoGGP(LoGGPState):
             # call without a split or an eviction
             if heavy:
                 return
-            if self._pending is not None:
+            if self.hyper_proposal is not None:
                 # phase 2 of a slice: swap the proposed hyperparameters in (rebuild)
-                pnode, theta = self._pending
-                self._pending = None
+                pnode, theta = self.hyper_proposal
+                self.hyper_proposal = None
                 g = self._gp[pnode]
                 if g is not None:              # (a leaf that split meanwhile keeps its values)
                     self.hyper.apply(g, theta)
@@ -311,7 +311,7 @@ class LoGGP(LoGGPState):
             st = self._adam[node] = self.hyper.new_state()
         lml, theta = self.hyper.propose(gp, st, self.hyper_points)
         if theta is not None:
-            self._pending = (node, theta)
+            self.hyper_proposal = (node, theta)
         self.n_hyper_steps += 1
         return lml
 
@@ -323,9 +323,9 @@ class LoGGP(LoGGPState):
         the two phases on consecutive calls instead).  Cost O(N̄³) with N̄ = ``max_points``,
         independent of the tree size.  Returns the leaf's LML before the step (None if skipped).
         """
-        if self._pending is not None:
-            pnode, theta = self._pending
-            self._pending = None
+        if self.hyper_proposal is not None:
+            pnode, theta = self.hyper_proposal
+            self.hyper_proposal = None
             if self._gp[pnode] is not None:
                 self.hyper.apply(self._gp[pnode], theta)
         node = self.last_leaf if leaf is None else leaf
@@ -381,19 +381,24 @@ class LoGGP(LoGGPState):
         """Leaves reached by ``x``: ``[(node, ω, ∂ω/∂x)]`` in routing order (∂ω/∂x zeros
         without ``grad``)."""
         x, _ = self._check_x(x)
-        nodes, ws, dws = self._route_one(x, grad)
+        nodes, ws, dws = self.route_one(x, grad)
         return list(zip(nodes, ws.tolist(), dws))
 
-    def _route_one(self, x: np.ndarray, grad: bool):
+    def route_one(self, x: np.ndarray, grad: bool = False):
         """Leaves reached by one input ``x`` (:func:`~sea_daemon.core.gp.routing.route`):
-        (nodes as a list, ω, ∂ω/∂x)."""
-        _, nodes, ws, dws = route(x.reshape(1, -1), self._tree_arrays(), grad)
+        ``(nodes as a list, ω, ∂ω/∂x)`` in routing order.  ``x`` must be a finite, C-contiguous
+        float array of shape (input_dim,); it is not checked here (:meth:`route` checks it)."""
+        t = self._tree_arrays()
+        _, nodes, ws, dws = route(x.reshape(1, -1), t.links, t.span, grad)
         return nodes.tolist(), ws, dws
+
+    # the method under its former private name, for callers not yet using ``route_one``
+    _route_one = route_one
 
     def predict(self, x) -> tuple[float, float]:
         """Merged posterior mean and variance at ``x`` (floats)."""
         x, _ = self._check_x(x)
-        nodes, ws, _ = self._route_one(x, False)
+        nodes, ws, _ = self.route_one(x, False)
         gps = self._gp
         if len(nodes) == 1:
             return gps[nodes[0]].predict(x)
@@ -415,7 +420,8 @@ class LoGGP(LoGGPState):
             raise InputError(f"Z must have shape (m, {self.input_dim}), got {Z.shape}")
         if not np.all(np.isfinite(Z)):
             raise InputError(f"Z must be finite, got {Z.tolist()}")
-        idx, nodes, ws, _ = route(Z, self._tree_arrays())
+        t = self._tree_arrays()
+        idx, nodes, ws, _ = route(Z, t.links, t.span, False)
         if len(idx) == len(Z) and nodes.min() == nodes.max():
             # every row reaches the same one leaf (the common case)
             m, v = self._gp[int(nodes[0])].predict_many(Z)
@@ -427,45 +433,20 @@ class LoGGP(LoGGPState):
         return idx, nodes, ws, m, v
 
     def _tree_arrays(self) -> Tree:
-        """The tree's parallel lists as arrays for the compiled routing.  Built from the lists
-        once per tree (a reset or a load replaces them), with room to grow (columns beyond the
-        node count are never reached: routing starts at the root and follows the links); a split
-        writes its three nodes into them (:meth:`_tree_written`), so no step copies the whole
-        tree (at 10⁶ points, 3·10⁴ nodes: ~8 ms)."""
-        cache = self.__dict__.get("_tree_cache")
-        if cache is None or cache[0] is not self._dim or cache[1] != len(self._dim):
-            n = len(self._dim)
-            links = np.full((3, max(64, 2 * n)), -1, dtype=np.int64)
-            span = np.zeros((2, links.shape[1]))
-            links[:, :n] = [self._dim, self._left, self._right]
-            span[:, :n] = [self._lo, self._hi]
-            cache = [self._dim, n, Tree(links, span)]
-            self._tree_cache = cache
-        return cache[2]
+        """The tree's parallel lists as arrays for the compiled routing (:class:`TreeMirror`:
+        built once per tree, a reset or a load replaces it; a split writes its three nodes,
+        :meth:`_tree_written`), so no step copies the whole tree."""
+        m = self.__dict__.get("_tree_cache")
+        if m is None or not m.mirrors(self._dim):
+            m = self._tree_cache = TreeMirror(self._dim, self._left, self._right, self._lo, self._hi)
+        return m.tree
 
     def _tree_written(self, nodes, added: int) -> None:
-        """After a split: write ``nodes`` of the lists (the split node and its ``added`` new
-        children) into the cached arrays, doubling them when full.  A cache that missed a
-        change is dropped (rebuilt from the lists when next needed)."""
-        cache = self.__dict__.get("_tree_cache")
-        if cache is None or cache[0] is not self._dim:
-            return
-        n = len(self._dim)
-        if cache[1] + added != n:
+        """After a split: write ``nodes`` (the split node and its ``added`` new children) into
+        the mirror; one that missed a change is dropped (rebuilt when next needed)."""
+        m = self.__dict__.get("_tree_cache")
+        if m is not None and m.lists[0] is self._dim and not m.written(nodes, added):
             self._tree_cache = None
-            return
-        t = cache[2]
-        if n > t.links.shape[1]:
-            m = t.links.shape[1]
-            links = np.full((3, 2 * n), -1, dtype=np.int64)
-            span = np.zeros((2, 2 * n))
-            links[:, :m] = t.links
-            span[:, :m] = t.span
-            t = cache[2] = Tree(links, span)
-        for i in nodes:
-            t.links[0, i], t.links[1, i], t.links[2, i] = self._dim[i], self._left[i], self._right[i]
-            t.span[0, i], t.span[1, i] = self._lo[i], self._hi[i]
-        cache[1] = n
 
     def predict_many(self, Z) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`predict` at every row of ``Z`` (m, input_dim): (μ (m,), σ² (m,)), the same
@@ -490,9 +471,9 @@ class LoGGP(LoGGPState):
         merged with the prediction weights as the local scale merges its terms."""
         Z = np.ascontiguousarray(Z, dtype=float)
         idx, nodes, w, _, _ = self.leaf_predictions(Z)
-        return self._extrapolation_rows(Z, idx, nodes, w)
+        return self.extrapolation_rows(Z, idx, nodes, w)
 
-    def _extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def extrapolation_rows(self, Z: np.ndarray, idx: np.ndarray, nodes: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Σ_i ω_i e_i(z) per row of ``Z`` from a routing (row index, node, ω) of
         :meth:`leaf_predictions`."""
         ex = np.empty(len(idx))
@@ -518,7 +499,7 @@ class LoGGP(LoGGPState):
         return r[0], r[1]
 
     def _predict_with_grad(self, x: np.ndarray, var_grad: bool, out, noise: bool = False):
-        nodes, ws, dws = self._route_one(x, True)
+        nodes, ws, dws = self.route_one(x, True)
         gps = self._gp
         if noise:
             # σ² + Σ ω_i σ_on,i² (noise_variance)
@@ -565,7 +546,7 @@ class LoGGP(LoGGPState):
         """
         x, _ = self._check_x(x)
         gps = self._gp
-        nodes, ws, _ = self._route_one(x, False)
+        nodes, ws, _ = self.route_one(x, False)
         return float(sum(w * gps[node].sigma_n ** 2 for node, w in zip(nodes, ws.tolist())))
 
     # ------------------------------------------------------------------ introspection
@@ -578,6 +559,23 @@ class LoGGP(LoGGPState):
         if g is None:
             raise InputError(f"node {node} is not a leaf")
         return g
+
+    @property
+    def n_nodes(self) -> int:
+        """Number of nodes of the tree (split nodes and leaves; node ids are 0 … n_nodes − 1)."""
+        return len(self._dim)
+
+    @property
+    def tree(self) -> Tree:
+        """The tree as arrays (:class:`~sea_daemon.core.gp.routing.Tree`), one column per node:
+        ``links`` (3, n_nodes) rows dim, left, right (a leaf: dim = left = right = −1) and
+        ``span`` (2, n_nodes) rows lo, hi of each split's overlap (0 at a leaf).  Read-only
+        views, valid until the next :meth:`update` that splits (or a reset or load)."""
+        t, n = self._tree_arrays(), len(self._dim)
+        links, span = t.links[:, :n], t.span[:, :n]
+        links.flags.writeable = False
+        span.flags.writeable = False
+        return Tree(links, span)
 
     @property
     def depth(self) -> int:

@@ -49,8 +49,8 @@ class LoGGPState:
                 "counters": {"n_points": self.n_points, "n_updates": self.n_updates,
                              "n_evicted": self.n_evicted, "n_hyper_steps": self.n_hyper_steps,
                              "last_leaf": self.last_leaf, "hyper_due": self._hyper_due},
-                "pending": None if self._pending is None else
-                [self._pending[0], self._pending[1].tolist()],
+                "pending": None if self.hyper_proposal is None else
+                [self.hyper_proposal[0], self.hyper_proposal[1].tolist()],
                 "rng_state": [state[0], list(state[1]), state[2]]}
 
     def to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict]:
@@ -148,7 +148,7 @@ class LoGGPState:
             self.last_leaf = int(c["last_leaf"])
             self._hyper_due = bool(c.get("hyper_due", False))
             pend = d.get("pending")
-            self._pending = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
+            self.hyper_proposal = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
             rs = d["rng_state"]
             self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))
             return self

@@ -21,10 +21,9 @@ Integration: classical RK4 on (q, θ_m, q̇, θ̇_m) at a fixed substep (default
 |torque| < F_c + F_s), large enough that RK4 stays stable at the substep; the
 constructor checks the substep against the stiffest friction/spring slope.
 
-For one joint the RK4 substeps are compiled (:func:`_rk4_1`, numba), with the effects'
-torques from their one definition (:func:`sea_daemon.core.effects.side_torque`); numpy's
-per-call overhead would dominate for n = 1.  ``tests/test_sim.py`` checks that it agrees with
-``SEAModel.accelerations``.
+For one joint the RK4 substeps are compiled (:func:`_rk4_1`, numba) around the one-joint
+dynamics kernel :func:`sea_daemon.core.dynamics.accel_1`; numpy's per-call overhead would
+dominate for n = 1.  ``tests/test_sim.py`` checks that it agrees with ``SEAModel.accelerations``.
 """
 from __future__ import annotations
 
@@ -35,7 +34,8 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.effects import MAX_PARAMS, Effect, Gravity, deadband, side_torque
+from sea_daemon.core.dynamics import accel_1, example
+from sea_daemon.core.effects import Effect
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
@@ -276,7 +276,7 @@ class Plant:
         if self._py_load:
             self._rk4_outside(y, u, th, dt / k, k)
         else:
-            _rk4_1(y, u, th, dt / k, k, self._s_c, *self._s_sides)
+            _rk4_1(y, u, th, dt / k, k, self.model.kernel)
         self._y = y.copy()
         self.t = self.t + dt
 
@@ -284,13 +284,13 @@ class Plant:
         """:func:`_rk4_1` with the load effects outside the compiled vocabulary evaluated in
         Python at every stage: their torque f enters eq:unknwn_load on the τ_h,act side,
         M q̈ = (τ_h,act − f) − Σ_compiled − τ_s (what ``SEAModel.accelerations`` sums)."""
-        c, sides, eff = self._s_c, self._s_sides, self._py_load
+        p, eff = self.model.kernel, self._py_load
 
         def acc(q, th, dq, dth):
             f = 0.0
             for e in eff:
                 f += e.evaluate(q, dq, 0.0)[0]
-            return _accel_1(q, th, dq, dth, u, tau_h - f, c, *sides)
+            return accel_1(p, q, th, dq, dth, u, tau_h - f)
 
         q, th, dq, dth = float(y[0]), float(y[1]), float(y[2]), float(y[3])
         h2 = 0.5 * h
@@ -343,35 +343,24 @@ class Plant:
         k4 = self._deriv(y + h * k3, u)
         return y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
-    # scalar (n = 1) path: the same equations compiled (:func:`_rk4_1`)
+    # scalar (n = 1) path: the same equations compiled (:func:`_rk4_1`, dynamics.accel_1)
     def _compile_scalar(self) -> None:
-        m = self.model
-        bl = m.backlash.get(0)
-        # [M, J, D_m, K_s, D_s, κ, backlash half-width] of the one joint
-        self._s_c = np.array([m.M[0, 0], m.J[0, 0], m.D_m[0, 0], m.K_s[0, 0], m.D_s[0, 0], m.kappa[0],
-                              0.5 * bl.width if bl is not None else 0.0])
-        # C(q) = gravity·sin(q) (eq:unknwn_load) is a gravity effect of the load side here
-        link = [Gravity("load", a=float(m.gravity[0]))] if m.gravity[0] else []
-        self._s_load = _side_arrays(link + [e for e in m.load_effects if all(e is not p for p in self._py_load)])
-        self._s_motor = _side_arrays(m.motor_effects)
-        self._s_spring = _side_arrays(m.spring_effects)
         self._s_y = np.zeros(4)
         self._s_u = np.zeros(1)
-        self._s_sides = (*self._s_load, *self._s_motor, *self._s_spring)
         # compiled (or loaded from numba's cache) now, at construction, not in the first step
-        _rk4_1(self._s_y.copy(), 0.0, 0.0, self.h_max, 0, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
+        _rk4_1(self._s_y.copy(), 0.0, 0.0, self.h_max, 0, self.model.kernel)
 
     def _deriv_scalar(self, q, th, dq, dth, u, tau_h) -> tuple[float, float]:
-        """(q̈, θ̈_m) of the one joint (:func:`_accel_1`, the load effects outside the compiled
-        vocabulary on the τ_h,act side as in :meth:`_rk4_outside`)."""
+        """(q̈, θ̈_m) of the one joint (:func:`~sea_daemon.core.dynamics.accel_1`, the load effects
+        outside the compiled vocabulary on the τ_h,act side as in :meth:`_rk4_outside`)."""
         f = sum(e.evaluate(q, dq, 0.0)[0] for e in self._py_load)
-        return _accel_1(q, th, dq, dth, u, tau_h - f, self._s_c, *self._s_load, *self._s_motor, *self._s_spring)
+        return accel_1(self.model.kernel, q, th, dq, dth, u, tau_h - f)
 
     def _integrate_scalar(self, t0: float, h: float, k: int) -> None:
         y = self._s_y
         y[:] = self._y
         tau_h = float(self._tau_h[0])
-        sides = (*self._s_load, *self._s_motor, *self._s_spring)
+        p = self.model.kernel
         if bool(self.model.delay[0]):
             for i in range(k):
                 # input held over the substep, evaluated at its midpoint for the delay lookup
@@ -379,11 +368,11 @@ class Plant:
                 if self._py_load:
                     self._rk4_outside(y, u, tau_h, h, 1)
                 else:
-                    _rk4_1(y, u, tau_h, h, 1, self._s_c, *sides)
+                    _rk4_1(y, u, tau_h, h, 1, p)
         elif self._py_load:
             self._rk4_outside(y, float(self._hist_u[-1][0]), tau_h, h, k)
         else:
-            _rk4_1(y, float(self._hist_u[-1][0]), tau_h, h, k, self._s_c, *sides)
+            _rk4_1(y, float(self._hist_u[-1][0]), tau_h, h, k, p)
         self._y = y.copy()
 
     # ------------------------------------------------------------------ checks
@@ -406,41 +395,20 @@ class Plant:
                              f"(|λ| ≈ {lam:.0f} 1/s); use substep_hz >= {lam / 2.5:.0f}")
 
 
-def _side_arrays(effects) -> tuple[np.ndarray, np.ndarray]:
-    """(codes, parameter vectors) of one side's additive effects for :func:`side_torque`."""
-    codes = np.array([e.code for e in effects], dtype=np.int64)
-    P = np.array([e.vector for e in effects], dtype=float).reshape(len(effects), MAX_PARAMS)
-    return codes, P
-
-
 @njit
-def _accel_1(q, th, dq, dth, u, tau_h, c, lc, lP, mc, mP, sc, sP):
-    """(q̈, θ̈_m) of one joint; c = [M, J, D_m, K_s, D_s, κ, backlash half-width]."""
-    ths = q - th
-    dths = dq - dth
-    g = ths if c[6] <= 0.0 else deadband(ths, c[6])[0]
-    # eq:spring_torque
-    tau_s = c[3] * g + c[4] * dths + side_torque(sc, sP, ths, 0.0)
-    # eq:thetadd
-    ddth = (c[5] * u + tau_s - c[2] * dth - side_torque(mc, mP, th, dth)) / c[1]
-    # eq:unknwn_load solved for q̈ (f_res = None)
-    ddq = (tau_h - side_torque(lc, lP, q, dq) - tau_s) / c[0]
-    return ddq, ddth
-
-
-@njit
-def _rk4_1(y, u, tau_h, h, k, c, lc, lP, mc, mP, sc, sP) -> None:
-    """k classical RK4 substeps of length h of y = [q, θ_m, q̇, θ̇_m] (one joint), u and τ_h,act held."""
+def _rk4_1(y, u, tau_h, h, k, p) -> None:
+    """k classical RK4 substeps of length h of y = [q, θ_m, q̇, θ̇_m] (one joint), u and τ_h,act
+    held; p the packed :class:`~sea_daemon.core.dynamics.Dynamics` of the plant."""
     q, th, dq, dth = y[0], y[1], y[2], y[3]
     h2 = 0.5 * h
     for _ in range(k):
-        a1q, a1t = _accel_1(q, th, dq, dth, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        a1q, a1t = accel_1(p, q, th, dq, dth, u, tau_h)
         v2q, v2t = dq + h2 * a1q, dth + h2 * a1t
-        a2q, a2t = _accel_1(q + h2 * dq, th + h2 * dth, v2q, v2t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        a2q, a2t = accel_1(p, q + h2 * dq, th + h2 * dth, v2q, v2t, u, tau_h)
         v3q, v3t = dq + h2 * a2q, dth + h2 * a2t
-        a3q, a3t = _accel_1(q + h2 * v2q, th + h2 * v2t, v3q, v3t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        a3q, a3t = accel_1(p, q + h2 * v2q, th + h2 * v2t, v3q, v3t, u, tau_h)
         v4q, v4t = dq + h * a3q, dth + h * a3t
-        a4q, a4t = _accel_1(q + h * v3q, th + h * v3t, v4q, v4t, u, tau_h, c, lc, lP, mc, mP, sc, sP)
+        a4q, a4t = accel_1(p, q + h * v3q, th + h * v3t, v4q, v4t, u, tau_h)
         q += h / 6.0 * (dq + 2.0 * v2q + 2.0 * v3q + v4q)
         th += h / 6.0 * (dth + 2.0 * v2t + 2.0 * v3t + v4t)
         dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
@@ -450,5 +418,4 @@ def _rk4_1(y, u, tau_h, h, k, c, lc, lP, mc, mP, sc, sP) -> None:
 
 @warmer
 def _warm() -> None:
-    codes, P = np.zeros(1, dtype=np.int64), np.zeros((1, MAX_PARAMS))
-    _rk4_1(np.zeros(4), 0.0, 0.0, 1e-3, 1, np.ones(7), codes, P, codes, P, codes, P)
+    _rk4_1(np.zeros(4), 0.0, 0.0, 1e-3, 1, example(1).packed())

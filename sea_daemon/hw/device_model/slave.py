@@ -106,18 +106,35 @@ class _Nmt(NmtSlave):
 
     def __init__(self, node_id: int, local_node):
         super().__init__(node_id, local_node)
+        self.node = local_node
         self._hb_stop: tuple[threading.Event, threading.Lock] | None = None
 
+    # canopen 2.4's NMT classes keep the numeric state in their private ``_state`` and offer
+    # only the name (``state``), whose setter sends an NMT command.  The device model needs
+    # the number (the heartbeat byte, the PDO gate) and must set it without a command (at
+    # boot and on a reset): this property is the one place that touches ``_state``.
+    # (:meth:`start_heartbeat` keeps NmtSlave's ``_heartbeat_time_ms`` as the method it
+    # replaces does.)
+    @property
+    def code(self) -> int:
+        """The NMT state as its number (0 INITIALISING, 4 STOPPED, 5 OPERATIONAL,
+        127 PRE-OPERATIONAL); setting it changes the state without a command."""
+        return self._state
+
+    @code.setter
+    def code(self, value: int) -> None:
+        self._state = value
+
     def on_command(self, can_id, data, timestamp):
-        old = self._state
+        old = self.code
         super().on_command(can_id, data, timestamp)
-        if self._state != old or self._state == 0:
-            self._local_node.on_nmt_state(old, self._state)
+        if self.code != old or self.code == 0:
+            self.node.on_nmt_state(old, self.code)
 
     def start_heartbeat(self, heartbeat_time_ms: int):
         self._heartbeat_time_ms = heartbeat_time_ms
         self.stop_heartbeat()
-        if heartbeat_time_ms <= 0 or self._local_node.heartbeat_suppressed:
+        if heartbeat_time_ms <= 0 or self.node.heartbeat_suppressed:
             return
         stop, sending = threading.Event(), threading.Lock()
         self._hb_stop = (stop, sending)
@@ -129,7 +146,7 @@ class _Nmt(NmtSlave):
                     if stop.is_set():
                         return
                     try:
-                        self.network.send_message(0x700 + self.id, [self._state])
+                        self.network.send_message(0x700 + self.id, [self.code])
                     except Exception:  # noqa: BLE001 - bus closed: the node is gone
                         return
         threading.Thread(target=produce, name=f"heartbeat-{self.id}", daemon=True).start()
@@ -154,6 +171,7 @@ class SlaveNode(canopen.LocalNode):
     def __init__(self, node_id: int, eds: str | Path | None = None):
         od = canopen.import_od(str(eds or EDS_DIR / self.EDS), node_id)
         super().__init__(node_id, od)
+        # LocalNode registers its own NmtSlave's callback and has no public way to remove it
         self._write_callbacks.remove(self.nmt.on_write)
         self.nmt = _Nmt(node_id, self)
         self.add_write_callback(self.nmt.on_write)
@@ -169,7 +187,7 @@ class SlaveNode(canopen.LocalNode):
     # ---------------------------------------------------------------- NMT
     def boot(self) -> None:
         """Power-up: boot-up message, PRE-OPERATIONAL, heartbeat from 0x1017."""
-        self.nmt._state = 0
+        self.nmt.code = 0
         self.nmt.send_command(0x80)     # INITIALISING -> PRE-OPERATIONAL (sends boot-up first)
 
     def on_nmt_state(self, old: int, new: int) -> None:
@@ -177,9 +195,9 @@ class SlaveNode(canopen.LocalNode):
             for index in list(self.data_store):
                 if 0x1000 <= index < 0x2000:
                     del self.data_store[index]
-            self.nmt._state = 0
+            self.nmt.code = 0
             self.network.send_message(0x700 + self.id, [0])
-            self.nmt._state = 127
+            self.nmt.code = 127
             self.nmt.start_heartbeat(self.sdo[0x1017].raw)
             self._stop_pdos()
             return
@@ -270,7 +288,7 @@ class SlaveNode(canopen.LocalNode):
             self._rpdo_pending = {}
 
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if self.muted or self.nmt._state != 5:
+        if self.muted or self.nmt.code != 5:
             return
         cfg = self.rpdos.get(can_id)
         if cfg is None or len(data) < cfg.length:
@@ -306,7 +324,7 @@ class SlaveNode(canopen.LocalNode):
 
     def transmit_sync_tpdos(self) -> None:
         """SYNC: build and send every synchronous TPDO that is due."""
-        if self.muted or self.nmt._state != 5:
+        if self.muted or self.nmt.code != 5:
             return
         with self._lock:
             for cfg in self.tpdos:

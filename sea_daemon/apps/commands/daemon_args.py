@@ -1,13 +1,19 @@
 """Arguments shared by ``sea-daemon run`` and ``sea-daemon calibrate``."""
 from __future__ import annotations
 
+import os
+import sys
 import time
 from pathlib import Path
 
+from sea_daemon.client import default_socket
 from sea_daemon.core.config import BusConfig
+from sea_daemon.core.rates import at_rate
+from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
 from sea_daemon.io.files import check_output_dir, check_outputs
-from sea_daemon.errors import InputError
+from sea_daemon.runtime.rig import bus_overrides
+from sea_daemon.runtime.safety import SafetySupervisor
 
 
 def add_common(p, *, cycles_help: str) -> None:
@@ -51,8 +57,6 @@ def load(args, outputs: list | tuple = ()):
 
     Before anything starts: ``outputs`` ((flag, path) pairs) can be written and are none of the
     inputs; the log and state directories exist (created) and can be written."""
-    from sea_daemon.runtime.rig import bus_overrides
-    from sea_daemon.core.rates import at_rate
     check_outputs(outputs, inputs=inputs(args))
     cfg = at_rate(bus_overrides(load_config(args.config), args.bus, args.channel), getattr(args, "rate", None))
     if args.cycles is not None and args.cycles < 1:
@@ -92,16 +96,11 @@ def log_name(log_dir: Path, prefix: str) -> Path:
 
 def supervisor(args):
     """The fault supervisor with the ``--overrun-streak`` limit."""
-    from sea_daemon.runtime.safety import SafetySupervisor
     return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62)
 
 
 def socket_path(args, state_dir: Path) -> Path | None:
     """The publication socket of ``--socket`` (None for ``none``; default STATE_DIR/sea-daemon.sock)."""
-    import os
-    import sys
-
-    from sea_daemon.client import default_socket
     if args.socket is None:
         path = default_socket(state_dir)
         if len(os.fsencode(str(path))) >= 108:         # a UNIX socket path holds at most 107 bytes

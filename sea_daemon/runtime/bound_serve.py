@@ -1,0 +1,188 @@
+"""The bound worker's process (:mod:`.bound_worker`): set-up and the loop that computes the bound.
+
+:func:`worker_main` runs in the forked process: it takes its scheduling (SCHED_FIFO at the
+priority asked, else SCHED_OTHER) and locks its memory where permitted, maps the shared memory
+(:mod:`.bound_slots`) and runs a :class:`Server`: every slot up to the newest head read from the
+worker's pipe, in order — the slot's :class:`~sea_daemon.core.estimators.record.StepRecord`
+copied into a record of its own, :meth:`AKF.finish_step` on the worker's copy of the filter (the
+bound's step or reset, the start-up gate), the result into the result slot — each sample's count
+written to the loop's pipe after its result (or, with total store order, stored in shared
+memory only); then it waits.  The memory order is :mod:`.bound_worker`'s docstring.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import select
+import signal
+import time
+from multiprocessing import shared_memory
+
+from sea_daemon.core.estimators.record import RESET as KIND_RESET
+from sea_daemon.core.estimators.record import STEP as KIND_STEP
+from sea_daemon.core.estimators.record import StepRecord
+from sea_daemon.errors import EstimatorFault
+from sea_daemon.runtime import bound_slots as bs
+from sea_daemon.runtime.counts import CountReader, write_count
+from sea_daemon.runtime.realtime import lock_memory
+
+
+def _pdeathsig() -> None:
+    """Linux: SIGKILL this process when its parent thread exits (best effort)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)          # PR_SET_PDEATHSIG
+    except Exception:  # noqa: BLE001 - other kernels: the parent id check below remains
+        pass
+
+
+def _schedule(rt_priority: int) -> int:
+    """SCHED_FIFO at ``rt_priority`` (> 0) where permitted, else SCHED_OTHER: the priority taken (0: other)."""
+    try:
+        if rt_priority > 0:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+            return rt_priority
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        try:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except (OSError, AttributeError):
+            pass
+    return 0
+
+
+def worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict, record: int,
+                heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
+                via_pipe: bool = True) -> None:
+    """The worker process: ``akf`` its copy of the loop's filter (with the bound), the shared
+    memory ``shm_name`` of ``cap`` slots, the pipes' ends ``heads`` (read) and ``counts``
+    (write); ``loop_ends`` the loop's ends, closed here."""
+    _pdeathsig()
+    for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    sched = _schedule(rt_priority)
+    if os.getppid() != parent_pid:
+        return
+    # a forked process inherits no memory locks: its own, in real-time pace
+    locked = rt_priority > 0 and lock_memory().startswith("locked")
+    shm = shared_memory.SharedMemory(name=shm_name)
+    views = None
+    try:
+        views = bs.map_shared(shm.buf, cap, width, rwidth, record)
+        views.hdr[bs.H_SCHED] = sched
+        views.hdr[bs.H_LOCKED] = 1 if locked else 0
+        Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe).serve()
+    finally:
+        del views
+        shm.close()
+
+
+class Server:
+    """The worker's loop over the ring (module docstring)."""
+
+    def __init__(self, akf, views: bs.Shared, record: int, lay: dict, heads: int, counts: int, parent_pid: int,
+                 via_pipe: bool = True):
+        self.akf = akf
+        self.e = akf.est
+        self.views = views
+        self.record = record
+        self.counts = counts
+        self.parent_pid = parent_pid
+        self.via_pipe = via_pipe
+        self.cap = views.ring.shape[0]
+        # the slot's record is copied into one of the worker's own (the bound's compiled call
+        # keeps its arrays from step to step)
+        self.rec = StepRecord.zeros(akf.n)
+        self.slot_arrays = [bs.slot_arrays(views.ring[i], lay) for i in range(self.cap)]
+        self.cpu_total = 0.0
+        self.reader = CountReader(heads)
+        self.out = bytearray(8)
+        self.head = self.done = 0
+        self.stop = self.unsent = False
+
+    def serve(self) -> None:
+        """Every slot published, in order, then wait for more; return when asked to stop, when
+        a pipe closes or the parent is gone."""
+        hdr, fhdr = self.views.hdr, self.views.fhdr
+        while True:
+            if self.done < self.head:
+                self.compute(self.done)
+                self.done += 1
+                self.unsent = True
+            if self.unsent:
+                if self.via_pipe:
+                    # the count after the result: the loop reads the result once it has read the count
+                    try:
+                        self.unsent = not write_count(self.counts, self.out, self.done)   # full: later
+                    except OSError:              # the loop's end closed: the parent is gone
+                        return
+                else:
+                    self.unsent = False          # total store order: the store below is the count
+                hdr[bs.H_DONE] = self.done       # after the write: the loop's hint to read the pipe (memory: the count)
+            if self.done < self.head:
+                continue
+            fhdr[bs.F_PROC] = time.process_time()
+            if self.stop or self.reader.eof or not self.wait():
+                return
+
+    def compute(self, i: int) -> None:
+        """Sample i: its record from the slot, the bound's step or reset and the gate on the
+        worker's filter, the result into its result slot."""
+        c0 = time.thread_time()
+        s = self.views.ring[i % self.cap]
+        r = self.views.res[i % self.cap]
+        rec, e = self.rec, self.e
+        for (_, view), (_, dst) in zip(self.slot_arrays[i % self.cap], rec.arrays()):
+            dst[...] = view
+        rec.kind = KIND_RESET if s[bs.I_KIND] == bs.RESET else KIND_STEP
+        rec.k = e.k = int(s[bs.I_K])
+        rec.dt = float(s[bs.I_DT])
+        rec.ready = bool(s[bs.I_READY])
+        rec.gate_starts = int(s[bs.I_GATES])
+        valid = 0.0
+        try:
+            # the same end of a step (or reset) as the loop's AKF.step / GPAKF._frozen_update would run
+            ok = self.akf.finish_step(e, rec)
+        except EstimatorFault:
+            status = bs.FAILED
+        except Exception:  # noqa: BLE001 - a reset's failure: a failed step of the loop's estimator
+            if rec.kind != KIND_RESET:
+                raise
+            status = bs.FAILED
+        else:
+            status = bs.NO_BOUND if rec.kind == KIND_RESET else bs.OK
+            valid = 1.0 if (ok and rec.kind != KIND_RESET) else 0.0
+        r[bs.R_SEQ] = i
+        r[bs.R_CYC] = s[bs.I_CYC]
+        r[bs.R_K] = s[bs.I_K]
+        r[bs.R_VALID] = valid
+        r[bs.R_STATUS] = status
+        r[bs.R_EPOCH] = s[bs.I_EPOCH]
+        r[bs.N_RES:bs.N_RES + self.akf.n] = e.tau_h_act_bound
+        spent = time.thread_time() - c0
+        r[bs.R_CPU] = spent
+        if self.record and i < self.record:
+            self.views.cpu[i] = spent
+        self.cpu_total += spent
+        self.views.fhdr[bs.F_STEPS] = self.cpu_total
+
+    def wait(self) -> bool:
+        """Wait up to a second for heads (or room for an unsent count); False when the worker
+        should exit (the pipe unreadable, the parent gone)."""
+        ready, _, _ = select.select([self.reader.fd], [self.counts] if self.unsent else [], [], 1.0)
+        if ready:
+            try:
+                got = self.reader.read()
+            except OSError:
+                return False
+            for j in range(got):
+                h = self.reader.value(j)
+                if h == bs.STOP:
+                    self.stop = True
+                elif h > self.head:
+                    self.head = h
+        return os.getppid() == self.parent_pid
