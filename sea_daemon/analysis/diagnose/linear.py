@@ -17,7 +17,7 @@ import numpy as np
 from sea_daemon.analysis.diagnose.candidates import Candidate
 from sea_daemon.analysis.diagnose.fitting import LinearFits
 from sea_daemon.analysis.diagnose.options import SelectOptions
-from sea_daemon.analysis.diagnose.records import CandidateFit, StepRecord
+from sea_daemon.analysis.diagnose.records import CandidateFit, SelectionStep
 from sea_daemon.analysis.diagnose.residuals import integrated_autocorr_time
 from sea_daemon.analysis.diagnose.samples import lstsq
 
@@ -32,7 +32,7 @@ class SelectionState:
     remaining: list[Candidate]          # candidates still to try
     n_par: int = 0                      # parameters of the chosen effects
     step: int = 0
-    steps: list[StepRecord] = field(default_factory=list)
+    steps: list[SelectionStep] = field(default_factory=list)
     alternatives: list[list[str]] = field(default_factory=list)    # per chosen effect
 
     def drop_same_kind(self, cand: Candidate) -> None:
@@ -49,6 +49,28 @@ class Baseline(NamedTuple):
     cv: float                           # blocked cross-validated mean square
     all: float                          # sum of squares over every sample of the fit block
     n_eff: float                        # effective sample size M / τ_int
+
+
+#: BIC values closer than this are a tie: alternatives that explain the residual equally (an
+#: encoder offset on the motor or, with the opposite sign, on the load) differ only by rounding
+BIC_TIE = 1e-6
+
+
+def tie_ordered(fits: list, order: list[str]) -> list:
+    """``fits`` best BIC first; within a tie (:data:`BIC_TIE`) the one with fewer parameters,
+    then the one declared first (``order``: candidate names), so that rounding — a shifted time
+    origin, another BLAS — never decides between equivalent explanations."""
+    fits = sorted(fits, key=lambda f: f.bic)
+    rank = {name: i for i, name in enumerate(order)}
+    out, i = [], 0
+    while i < len(fits):
+        j = i + 1
+        while j < len(fits) and fits[j].bic - fits[i].bic < BIC_TIE:
+            j += 1
+        out += sorted(fits[i:j], key=lambda f: (len(f.cand.linear) + bool(f.cand.nonlinear),
+                                                 rank.get(f.cand.name, len(rank))))
+        i = j
+    return out
 
 
 class LinearStage:
@@ -72,7 +94,7 @@ class LinearStage:
             cur = self.baseline(st)
             fits = self.ranked(st, cur)
             if not fits:
-                st.steps.append(StepRecord(st.step, [], None, "no candidate applicable"))
+                st.steps.append(SelectionStep(st.step, [], None, "no candidate applicable"))
                 break
             rows = [{"candidate": f.cand.name, "type": f.cand.type, "side": f.cand.side,
                      "params": {k: round(v, 6) for k, v in f.params.items()},
@@ -88,7 +110,7 @@ class LinearStage:
                 if not f.bic < cur.bic:
                     break
             if best is None:
-                st.steps.append(StepRecord(st.step, rows, None, "no candidate accepted — " + " | ".join(rejected[:3])))
+                st.steps.append(SelectionStep(st.step, rows, None, "no candidate accepted — " + " | ".join(rejected[:3])))
                 break
             self.take(best, fits, rows, rejected, st, cur)
             if not st.remaining:
@@ -121,8 +143,7 @@ class LinearStage:
             fit.bic = n_eff * math.log(max(fit.rss, 1e-300) / self.M) + k * math.log(n_eff) + look
             fits.append(fit)
         fits = [f for f in fits if np.isfinite(f.rss)]
-        fits.sort(key=lambda f: f.bic)
-        return fits
+        return tie_ordered(fits, [c.name for c in st.remaining])
 
     def reasons_against(self, f: CandidateFit, st: SelectionState, cur: Baseline) -> list[str]:
         """Why ``f`` is not accepted (empty: accepted): BIC does not fall, not physical, the
@@ -168,7 +189,7 @@ class LinearStage:
         alts = [f.cand.name for f in fits if f is not best and gain > 0 and (cur.rss - f.rss) >= o_cfg.ambiguity * gain
                 and f.bic - best.bic < o_cfg.ambiguity_bic and not self.fits.unphysical(f, st.chosen)]
         st.alternatives.append(alts)
-        st.steps.append(StepRecord(st.step, rows, best.cand.name,
+        st.steps.append(SelectionStep(st.step, rows, best.cand.name,
                                    f"{best.cand.name} explains {100 * frac:.1f} % of the initial mean square; "
                                    f"ΔBIC {best.bic - cur.bic:+.1f}; held-out mean square −{100 * (1 - best.cv / cur.cv):.1f} %"
                                    + (f"; nearly as good: {', '.join(alts)}" if alts else "")
