@@ -29,7 +29,7 @@ class CandidateFit:
 
 
 @dataclass
-class StepRecord:
+class SelectionStep:
     """The candidate table of one selection step and the decision taken."""
 
     step: int
@@ -46,7 +46,7 @@ class Selection:
     ci: list[dict]                                # per chosen: {param: (lo, hi)}
     explained: list[float]
     unexplained: float
-    steps: list[StepRecord]
+    steps: list[SelectionStep]
     alternatives: list[list[str]]
     tau_int: float
     structure: dict

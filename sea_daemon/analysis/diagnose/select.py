@@ -59,11 +59,11 @@ from sea_daemon.analysis.diagnose.fitting import LinearFits
 from sea_daemon.analysis.diagnose.linear import LinearStage, SelectionState
 from sea_daemon.analysis.diagnose.lowspeed import LowSpeedStage
 from sea_daemon.analysis.diagnose.options import SelectOptions, size_floor
-from sea_daemon.analysis.diagnose.records import CandidateFit, Selection, StepRecord
+from sea_daemon.analysis.diagnose.records import CandidateFit, Selection, SelectionStep
 from sea_daemon.analysis.diagnose.refine import Refinement
 from sea_daemon.analysis.diagnose.samples import FitSamples, fit_stride, lstsq
 
-__all__ = ["Selector", "SelectOptions", "Selection", "StepRecord", "CandidateFit", "size_floor"]
+__all__ = ["Selector", "SelectOptions", "Selection", "SelectionStep", "CandidateFit", "size_floor"]
 
 
 class Selector:
@@ -160,7 +160,7 @@ class Selector:
                                        all0, o_cfg.max_effects - len(st.chosen))
         for rows, name, reason in lsteps:
             st.step += 1
-            st.steps.append(StepRecord(st.step, rows, name, reason))
+            st.steps.append(SelectionStep(st.step, rows, name, reason))
         for (cand, p), alts in zip(new, lalts):
             st.chosen.append(CandidateFit(cand, p.get(cand.nonlinear) if cand.nonlinear else None,
                                           np.zeros(0), math.nan, None, np.zeros((self.samples.M, 0)),
