@@ -241,25 +241,9 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
         raise InputError(f"{log.path}: identify-noise needs more than {burn_in + 2 * lags + 1} samples "
                          f"(burn-in {burn_in} + 2 × {lags} lags), got {N}")
     akf = AKF(cfg, dt=log.dt)
-    model = akf.model
-    Y = np.empty((N, 4 * n))
-    X = np.empty((N, 5 * n))
-    U = np.empty((N, n))                      # input applied over step k → k+1
-    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-    Y[0], X[0] = akf.y, akf.x
-    for k in range(1, N):
-        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-        U[k - 1] = akf.u_applied if akf.has_delay else log.tau_m[k - 1]
-        Y[k], X[k] = akf.y, akf.x
-    U[N - 1] = log.tau_m[N - 1]
-    dt = float(np.median(np.diff(log.t)))
+    Y, X, U = _akf_run(akf, log)
     x_op, u_op = X.mean(axis=0), U.mean(axis=0)
-    A = model.F_nom(x_op, u_op)
-    # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
-    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
-    dx_op, G_u = Gam[:, 0], Gam[:, 1:]
-    # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
-    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    F, G_u, c = _linearised(akf.model, x_op, u_op, float(np.median(np.diff(log.t))))
     if channels not in ("angles", "all"):
         raise InputError(f"channels must be 'angles' or 'all', got {channels!r}")
     p = 2 * n if channels == "angles" else 4 * n
@@ -288,6 +272,35 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
         Rhat = encoder_R(th[0::2], th[1::2], akf.kin.C)
     return {"R": Rhat, "channels": channels, "encoder_variances": enc, "fir": np.asarray(akf.kin.C, float), "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
             "lags": lags, "spectral_radius": rad}
+
+
+def _akf_run(akf, log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1 of :func:`identify_noise`: the AKF over the log; per sample its measurement y (N, 4n),
+    its state x̂ (N, 5n) and the input u that acted over step k → k+1 (N, n)."""
+    n, N = akf.model.n, len(log)
+    Y = np.empty((N, 4 * n))
+    X = np.empty((N, 5 * n))
+    U = np.empty((N, n))
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    Y[0], X[0] = akf.y, akf.x
+    for k in range(1, N):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        U[k - 1] = akf.u_applied if akf.has_delay else log.tau_m[k - 1]
+        Y[k], X[k] = akf.y, akf.x
+    U[N - 1] = log.tau_m[N - 1]
+    return Y, X, U
+
+
+def _linearised(model, x_op: np.ndarray, u_op: np.ndarray, dt: float):
+    """Step 2 of :func:`identify_noise`: x⁺ ≈ F x + Γ_u u + c about the operating point."""
+    n = model.n
+    A = model.F_nom(x_op, u_op)
+    # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
+    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
+    dx_op, G_u = Gam[:, 0], Gam[:, 1:]
+    # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
+    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    return F, G_u, c
 
 
 def _fixed_gain(F: np.ndarray, H: np.ndarray, Q0: np.ndarray, R0: np.ndarray) -> np.ndarray:
