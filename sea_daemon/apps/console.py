@@ -90,20 +90,35 @@ class StderrHandler(logging.StreamHandler):
         pass
 
 
-def level_of(name: str | None, verbose: int = 0, quiet: int = 0) -> int:
-    """The level of ``--log-level NAME`` (wins), else INFO moved by ``-v`` (DEBUG) and ``-q``
-    (WARNING, ``-qq`` ERROR)."""
+def level_of(name: str | None, verbose: int = 0, quiet: int = 0) -> int | None:
+    """The level of ``--log-level NAME`` (wins), else DEBUG for ``-v``, WARNING for ``-q``, ERROR
+    for ``-qq``; None when none was given."""
     if name:
         return getattr(logging, name.upper())
     if verbose:
         return logging.DEBUG
-    return {0: logging.INFO, 1: logging.WARNING}.get(quiet, logging.ERROR)
+    if quiet:
+        return logging.WARNING if quiet == 1 else logging.ERROR
+    return None
 
 
-def setup(prog: str = "sea-daemon", level: int = logging.INFO) -> logging.Logger:
-    """The ``sea_daemon`` logger on stderr at ``level`` for the command ``prog`` (replaces the
-    handler an earlier call gave it; messages do not propagate to the root logger)."""
+def current() -> tuple[str, int] | None:
+    """(prog, level) of the handler :func:`setup` gave the logger, None before."""
     log = logging.getLogger(LOGGER)
+    for h in log.handlers:
+        if isinstance(h, StderrHandler):
+            return h.formatter.prog, log.level
+    return None
+
+
+def setup(prog: str = "sea-daemon", level: int | None = None) -> logging.Logger:
+    """The ``sea_daemon`` logger on stderr at ``level`` for the command ``prog`` (replaces the
+    handler an earlier call gave it; messages do not propagate to the root logger).  ``level``
+    None: the earlier call's (a command run by another one, e.g. the demo's steps), else INFO."""
+    log = logging.getLogger(LOGGER)
+    before = current()
+    if level is None:
+        level = before[1] if before else logging.INFO
     for h in list(log.handlers):
         if isinstance(h, StderrHandler):
             log.removeHandler(h)

@@ -194,9 +194,14 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    before = console.current()             # a command run by another one (demo) keeps its level
     console.setup(f"sea-daemon {args.command}", console.level_of(getattr(args, "log_level", None),
                                                                  getattr(args, "verbose", 0), getattr(args, "quiet", 0)))
-    return guarded(f"sea-daemon {args.command}", args.func, args)
+    try:
+        return guarded(f"sea-daemon {args.command}", args.func, args)
+    finally:
+        if before is not None:
+            console.setup(*before)
 
 
 def guarded(prog: str, run, args) -> int:

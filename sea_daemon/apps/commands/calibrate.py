@@ -26,6 +26,7 @@ or internal error.
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from sea_daemon.io.configfile import data_root
 from sea_daemon.runtime.service import StateFile
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.calibrate")
 
 
 def add_arguments(p) -> None:
@@ -61,10 +63,11 @@ def run(args) -> int:
             cfg, args.scenario, args.out, daemon_args.log_name(log_dir, "calibration"), state=state,
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
             rt_priority=args.rt_priority, supervisor=daemon_args.supervisor(args),
-            progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config),
+            progress=not args.no_progress and sys.stderr.isatty() and log.isEnabledFor(logging.INFO),
+            config_name=str(args.config),
             socket_path=daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
             config_path=args.config)
     print(json.dumps(summary))
     if code:
-        print(f"sea-daemon calibrate: {message}", file=sys.stderr)
+        log.error(message)
     return code

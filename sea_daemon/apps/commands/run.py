@@ -27,7 +27,7 @@ the measured log lost (``rows_lost`` in the summary; the LOG_FAILED fault while 
 from __future__ import annotations
 
 import json
-import sys
+import logging
 
 from sea_daemon.apps.calibration.modelio import estimator_from_model
 from sea_daemon.apps.commands import daemon_args
@@ -43,6 +43,7 @@ from sea_daemon.runtime.rig import make_rig
 from sea_daemon.runtime.service import StateFile, serve
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.run")
 
 
 def add_arguments(p) -> None:
@@ -101,10 +102,9 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                "publish": res.extra.get("publish"), "bound": res.extra.get("bound")}
     print(json.dumps(summary))
     if not sup.ok:
-        print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)
+        log.error(sup.status_line())
         return 1
     if res.log["error"]:
-        print(f"sea-daemon run: log incomplete, {res.log['rows_lost']} rows lost: {res.log['error']}",
-              file=sys.stderr)
+        log.error("log incomplete, %s rows lost: %s", res.log["rows_lost"], res.log["error"])
         return 1
     return 0
