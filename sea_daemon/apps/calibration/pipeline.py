@@ -394,7 +394,8 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
     step()
     if opts.diagnose:
-        cfg = _diagnosed(log, cfg, report)
+        cfg = _diagnosed(log, cfg, report, progress=None if progress is None else (
+            lambda done, total, what: progress(1, len(STEPS), f"{STEPS[1]}: {what}")))
     # 3. motor-torque noise
     step()
     if "tau_m_noise" not in given:
@@ -461,9 +462,9 @@ def _kinematics_and_R(log: MeasuredLog, cfg: ModelConfig, given: set[str], repor
     return cfg
 
 
-def _diagnosed(log: MeasuredLog, cfg: ModelConfig, report: dict) -> ModelConfig:
+def _diagnosed(log: MeasuredLog, cfg: ModelConfig, report: dict, progress: Callable | None = None) -> ModelConfig:
     """Step 2: the nominal model with the effects diagnose finds on the log (decimated)."""
-    dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False)
+    dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False, progress=progress)
     report["diagnose"] = {"effects_added": dg.result["effects_added"],
                           "residual_rms_before": dg.result["residual_rms_before"],
                           "residual_rms_after": dg.result["residual_rms_after"],

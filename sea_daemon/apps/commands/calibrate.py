@@ -18,8 +18,8 @@ MODEL.npz and the complete configuration to MODEL.yaml beside it.  A JSON summar
 progress bar to stderr.
 
 On the real bus the drives and encoder answer on ``hardware.bus``; ``--device-model`` starts the
-simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus remote``
-separately and point ``--bus remote --channel ws://…`` at it.
+simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus ipc
+--channel NAME`` separately and point ``--bus ipc --channel NAME`` at it (docs/can.md).
 Exit status: 0 model saved; 2 bad input; 1 fault, interruption (model not saved, log kept)
 or internal error.
 """
