@@ -128,6 +128,9 @@ class FaultRun:
         self.injections: list[Injection] = []
         self.false_alarms: list[tuple[int, str]] = []
         self.reset_failed: list[tuple[int, str]] = []     # an operator reset that did not take
+        # the drive's quick stop on the daemon's heartbeat missing while the loop itself stalled
+        # longer than the timeout (a loaded host): the watch doing its job, not a false alarm
+        self.host_stalls: list[tuple[int, str]] = []
         self.cur: Injection | None = None
         self.next_at = warmup + int(self.rng.integers(*gap))
         self.reset_at = -1
@@ -242,6 +245,17 @@ class FaultRun:
         inj.cond = k + OVERRUN_STREAK - 1
         inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
 
+    def _stalled_past_the_drives_watch(self, k: int, detail: str) -> bool:
+        """The latch is the drive's EMCY 0x8130 (its watch of the daemon's heartbeat, sent from
+        read()) and two read() starts within the last second of cycles lie further apart in wall
+        time than ``heartbeat_timeout_ms``: the loop did stall that long."""
+        if "EMCY 0x8130" not in detail:
+            return False
+        timeout = self.cfg.hardware.bus.heartbeat_timeout_ms / 1e3
+        t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
+        t = t[t > 0]
+        return len(t) > 1 and float(np.max(np.diff(t))) > timeout
+
     def _slow_cycle(self) -> None:
         """Injected slowness of this cycle (advances the loop's virtual clock)."""
         if self._slow:
@@ -287,6 +301,8 @@ class FaultRun:
                 rec = (k, f"{sup.latched.name}: {sup.latched_detail}")
                 if self.probe.reset_failures and self.probe.reset_failures[-1] in sup.latched_detail:
                     self.reset_failed.append(rec)
+                elif self._stalled_past_the_drives_watch(k, sup.latched_detail):
+                    self.host_stalls.append(rec)
                 else:
                     self.false_alarms.append(rec)
             if self.reset_at < 0:

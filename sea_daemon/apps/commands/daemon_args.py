@@ -76,7 +76,7 @@ def load(args, outputs: list | tuple = ()):
     if not simulated and cfg.hardware.bus.interface == "remote":
         log.warning("the remote bus (python-can-remote, %s) is for inspection and tools over a network, not "
                     "the real-time loop: its delays latch faults within a few dozen cycles; for separate "
-                    "processes on this machine without SocketCAN use --bus ipc (docs/can.md)",
+                    "processes on one machine without SocketCAN use --bus ipc (docs/can.md)",
                     cfg.hardware.bus.channel)
     return cfg, log_dir, state_dir, pace == "realtime"
 
