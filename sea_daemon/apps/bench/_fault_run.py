@@ -245,16 +245,22 @@ class FaultRun:
         inj.cond = k + OVERRUN_STREAK - 1
         inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
 
-    def _stalled_past_the_drives_watch(self, k: int, detail: str) -> bool:
-        """The latch is the drive's EMCY 0x8130 (its watch of the daemon's heartbeat, sent from
-        read()) and two read() starts within the last second of cycles lie further apart in wall
-        time than ``heartbeat_timeout_ms``: the loop did stall that long."""
-        if "EMCY 0x8130" not in detail:
-            return False
+    def _host_stall(self, k: int, fault: Fault, detail: str) -> bool:
+        """A latch without an injection that the heartbeat watches rightly raised because a
+        thread of this host stalled past ``heartbeat_timeout_ms``: the drive's EMCY 0x8130 (its
+        watch of the daemon's heartbeat, sent from read()) when two read() starts within the last
+        second of cycles lie further apart than the timeout; HEARTBEAT_LOST when the bus itself
+        (the sniffer) had no heartbeat of a device for longer than the timeout before this read()."""
         timeout = self.cfg.hardware.bus.heartbeat_timeout_ms / 1e3
-        t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
-        t = t[t > 0]
-        return len(t) > 1 and float(np.max(np.diff(t))) > timeout
+        if fault == Fault.EMCY and "EMCY 0x8130" in detail:
+            t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
+            t = t[t > 0]
+            return len(t) > 1 and float(np.max(np.diff(t))) > timeout
+        if fault == Fault.HEARTBEAT_LOST:
+            nodes = (self.rig.drive.id, self.rig.encoder.id)
+            return any(self.probe.read_t[k] - self.sniffer.hb_seen.get(n, self.probe.read_t[k]) > timeout
+                       for n in nodes)
+        return False
 
     def _slow_cycle(self) -> None:
         """Injected slowness of this cycle (advances the loop's virtual clock)."""
@@ -301,7 +307,7 @@ class FaultRun:
                 rec = (k, f"{sup.latched.name}: {sup.latched_detail}")
                 if self.probe.reset_failures and self.probe.reset_failures[-1] in sup.latched_detail:
                     self.reset_failed.append(rec)
-                elif self._stalled_past_the_drives_watch(k, sup.latched_detail):
+                elif self._host_stall(k, sup.latched, sup.latched_detail):
                     self.host_stalls.append(rec)
                 else:
                     self.false_alarms.append(rec)
