@@ -249,13 +249,15 @@ class FaultRun:
         """A latch without an injection that the heartbeat watches rightly raised because a
         thread of this host stalled past ``heartbeat_timeout_ms``: the drive's EMCY 0x8130 (its
         watch of the daemon's heartbeat, sent from read()) when two read() starts within the last
-        second of cycles lie further apart than the timeout; HEARTBEAT_LOST when the bus itself
-        (the sniffer) had no heartbeat of a device for longer than the timeout before this read()."""
+        second of cycles lie further apart than the timeout, or the bus (the sniffer) carried no
+        heartbeat of the daemon for longer since the previous latch; HEARTBEAT_LOST when the bus
+        had no heartbeat of a device for longer than the timeout before this read()."""
         timeout = self.cfg.hardware.bus.heartbeat_timeout_ms / 1e3
         if fault == Fault.EMCY and "EMCY 0x8130" in detail:
             t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
             t = t[t > 0]
-            return len(t) > 1 and float(np.max(np.diff(t))) > timeout
+            gap = self.sniffer.hb_gap_max.pop(self.cfg.hardware.bus.master_node, 0.0)
+            return gap > timeout or (len(t) > 1 and float(np.max(np.diff(t))) > timeout)
         if fault == Fault.HEARTBEAT_LOST:
             nodes = (self.rig.drive.id, self.rig.encoder.id)
             return any(self.probe.read_t[k] - self.sniffer.hb_seen.get(n, self.probe.read_t[k]) > timeout
@@ -296,6 +298,7 @@ class FaultRun:
                     self._restore()
                     self._restore = None
                 self.loop.request_reset()
+                self.sniffer.hb_gap_max.clear()      # stalls count from here
                 self.reset_at = -1
                 self.cur = None
                 self.next_at = k + 1 + int(self.rng.integers(*self.gap))
@@ -315,6 +318,7 @@ class FaultRun:
                 self.reset_at = k + HOLD
             if k >= self.reset_at:
                 self.loop.request_reset()
+                self.sniffer.hb_gap_max.clear()      # stalls count from here
                 self.reset_at = -1
             return
         if self.kind is not None and k >= self.next_at and k + self.max_wait + HOLD + 2 < self.cycles:
