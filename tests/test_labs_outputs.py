@@ -1,11 +1,12 @@
 """The estimate where labs look: ``run --lsl`` streams every cycle to a Lab Streaming Layer inlet
 in another process, ``run --mcap`` records it beside the CSV log; both carry the CSV log's values,
-row for row (docs/interfaces.md §9)."""
+row for row (docs/interfaces.md §7)."""
 import csv
 import json
 import subprocess
 import sys
 import uuid
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -14,12 +15,14 @@ import yaml
 from sea_daemon.apps.cli import main
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import DaemonLogLayout
-from sea_daemon.errors import ConfigError
+from sea_daemon.errors import ConfigError, InputError
 from sea_daemon.io.configfile import load_config
+from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.rig import make_rig
-from sea_daemon.runtime.sinks import JOINT_CHANNELS, ROW_CHANNELS, TOPIC
+from sea_daemon.runtime.sinks import JOINT_CHANNELS, OPEN, ROW_CHANNELS, TOPIC, McapSpec
 from _cli import refused, run as cli
+from _model import small_model
 from _paths import repo_root
 
 ROOT = repo_root()
@@ -36,7 +39,7 @@ t_start = pylsl.local_clock()
 found = pylsl.resolve_byprop("name", name, 1, 120)
 if not found:
     sys.exit("no stream named " + name)
-inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=False)
+inlet = pylsl.StreamInlet(found[0], max_buflen=60)
 info = inlet.info(30)
 inlet.open_stream(30)
 chans, ch = [], info.desc().child("channels").child("channel")
@@ -44,7 +47,7 @@ while not ch.empty():
     chans.append({k: ch.child_value(k) for k in ("label", "unit", "type")})
     ch = ch.next_sibling()
 samples, stamps, idle = [], [], 0
-while len(samples) < expected and idle < 60:
+while len(samples) < expected and idle < 30:
     try:
         data, ts = inlet.pull_chunk(timeout=1.0)
     except Exception as e:                      # pylsl's LostError: the outlet closed
@@ -63,15 +66,8 @@ print(json.dumps({"format": info.channel_format(), "double64": pylsl.cf_double64
 @pytest.fixture(scope="module")
 def model(tmp_path_factory):
     """A model file for the simulated exoskeleton: a small residual GP, no calibration run."""
-    from sea_daemon.core.learning import ResidualGP
-    from sea_daemon.io.gpmodel import save_gp_model
-    cfg = load_config(CFG)
-    res = ResidualGP(1, cfg.learning, hyperopt=False)
-    rng = np.random.default_rng(0)
-    for _ in range(30):
-        res.update(rng.uniform(-1, 1, 3), np.array([0.0]))
     p = tmp_path_factory.mktemp("model") / "m.npz"
-    save_gp_model(p, cfg, res, {"test": True})
+    small_model(load_config(CFG), p)
     return p
 
 
@@ -240,3 +236,56 @@ def test_the_loop_row_carries_the_assistance_and_the_cycle_start_for_the_sinks()
     assert np.all(rows[21:, L.tau_assist] == 0.0)
     # the cycle's start on the loop's clock: increasing, spaced by the period column
     np.testing.assert_allclose(np.diff(rows[:, L.cycle_start]), rows[1:, L.period], atol=1e-9)
+
+
+class _FullDisk:
+    """An output whose writes fail from the first (as a full disk would)."""
+
+    def __init__(self, board, slot):
+        self.board, self.slot = board, slot
+        board.set(slot, OPEN)
+
+    def write(self, block):
+        raise OSError(28, "No space left on device")
+
+    def close(self):
+        pass
+
+
+@dataclass(frozen=True)
+class _FullDiskSpec:
+    kind = "mcap"
+
+    def open(self, board, slot):
+        return _FullDisk(board, slot)
+
+    def describe(self):
+        return {"output": "full-disk"}
+
+
+def test_an_output_that_fails_stops_alone_and_the_csv_log_is_complete(tmp_path):
+    L = DaemonLogLayout.of(1)
+    w = LogWriter(tmp_path / "x.csv", list(L.columns), sink_columns=L.sink_columns, sinks=(_FullDiskSpec(),),
+                  flush_interval=0.04)
+    assert w.wait_sinks(60) == [OPEN]
+    row = np.zeros(L.width)
+    for k in range(500):
+        row[L.cycle] = k
+        assert w.append(row)
+    final = w.close()
+    assert final["rows_written"] == 500 and final["rows_lost"] == 0 and final["error"] is None
+    assert final["sinks"] == [{"output": "full-disk", "rows": 0, "error": "_FullDisk: [Errno 28] No space left on device"}]
+    _, rows = _csv(tmp_path / "x.csv")
+    assert [int(r[L.cycle]) for r in rows] == list(range(500))
+
+
+def test_an_output_that_cannot_open_stops_the_start_up_naming_it(tmp_path):
+    pytest.importorskip("mcap")
+    L = DaemonLogLayout.of(1)
+    spec = McapSpec(str(tmp_path / "missing" / "x.mcap"), 1, 100.0, str(tmp_path / "x.csv"))
+    w = LogWriter(tmp_path / "x.csv", list(L.columns), sink_columns=L.sink_columns, sinks=(spec,))
+    try:
+        with pytest.raises(InputError, match=r"mcap: cannot open: .*No such file or directory"):
+            w.wait_sinks(60)
+    finally:
+        w.close()

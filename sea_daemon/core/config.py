@@ -418,7 +418,7 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class PublishConfig:
-    """Where else ``sea-daemon run`` sends the estimate (``publish``; docs/interfaces.md §9): a Lab
+    """Where else ``sea-daemon run`` sends the estimate (``publish``; docs/interfaces.md §7): a Lab
     Streaming Layer outlet named ``lsl_name`` (``lsl``; the daemon waits up to ``lsl_wait_s`` for
     an inlet before its loop starts) and an MCAP recording beside the CSV log (``mcap``).  Both
     off unless asked (here or by ``run --lsl`` / ``--mcap``)."""

@@ -28,7 +28,7 @@ ESTIMATE = ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma")
 #: sample) and ``bound_cycle`` (the cycle whose sample the row's bound belongs to, −1: none)
 LOOP = ("valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle")
 #: the loop's row after the log's columns, not in the CSV, for the log writer's other outputs
-#: (the LSL stream and the MCAP recording, docs/interfaces.md §9): the loop's clock at the
+#: (the LSL stream and the MCAP recording, docs/interfaces.md §7): the loop's clock at the
 #: cycle's start [s], once per row, and the assistance τ_assist [N m] per joint (0 without an
 #: assist-as-needed controller and while a fault is latched)
 SINK_LOOP = ("cycle_start",)

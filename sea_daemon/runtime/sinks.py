@@ -13,7 +13,7 @@ assistance τ_assist (:data:`sea_daemon.core.log.SINK_LOOP`, :data:`~sea_daemon.
   sea-daemon[mcap]``): one JSON message a cycle on ``/sea_daemon/estimate`` with a JSON schema,
   log and publish time the cycle's start mapped to the system's wall clock [ns since the epoch].
 
-docs/interfaces.md §9 describes both.  The specs are what the loop's process gives the writer
+docs/interfaces.md §7 describes both.  The specs are what the loop's process gives the writer
 (picklable); the writer opens them (:func:`open_sinks`) and reports through a :class:`SinkBoard`
 in the shared block: each sink's state and rows delivered, and the first failure's text.  A
 sink that fails stops alone: the CSV log goes on.
@@ -44,6 +44,7 @@ EXTRAS = {"lsl": "pylsl", "mcap": "mcap"}
 # the board's states of a sink
 OPENING, OPEN, CONSUMER, FAILED = 0, 1, 2, -1
 MAX_SINKS = 4
+LSL_LINGER_S = 2.0          # s an LSL outlet stays open at the end while inlets are connected
 MSG_BYTES = 256
 
 
@@ -226,8 +227,11 @@ class LslSink:
         self.board.delivered(self.slot, block.shape[0])
 
     def close(self) -> None:
-        if self.outlet.have_consumers():
-            time.sleep(0.5)          # the last samples on their way to the inlets
+        """Close the outlet once its inlets went away, or after :data:`LSL_LINGER_S`: samples
+        still on their way when an outlet closes are lost to the inlets."""
+        end = time.monotonic() + LSL_LINGER_S
+        while self.outlet.have_consumers() and time.monotonic() < end:
+            time.sleep(0.05)
         self.outlet = None
 
 

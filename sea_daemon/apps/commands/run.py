@@ -14,7 +14,7 @@ Every cycle, right after the estimate, the daemon publishes it: the TPDOs of its
 (``--socket``) for ``sea-daemon watch`` and :mod:`sea_daemon.client`.  With ``--lsl`` (or
 ``publish.lsl``) the log writer also streams every row as a Lab Streaming Layer outlet, with
 ``--mcap`` (or ``publish.mcap``) it records them in ``DIR/run-<UTC time>.mcap`` beside the CSV
-(docs/interfaces.md §9; ``pip install sea-daemon[lsl]`` / ``[mcap]``).
+(docs/interfaces.md §7; ``pip install sea-daemon[lsl]`` / ``[mcap]``).
 
 The controller: with ``assist.enabled`` in the model YAML the assist-as-needed controller
 (docs/assist.md) — the exoskeleton's compensation plus assistance from the estimate, gated by
