@@ -55,6 +55,12 @@ Nothing is lost silently:
 every 0.2 s) returns one line naming what failed once any of these happened — the loop latches
 it as the LOG_FAILED fault (docs/safety.md) — and :meth:`LogWriter.close` reports
 ``rows_lost`` = rows offered by the loop − rows written.
+
+Other outputs (``sinks``: the LSL stream and the MCAP recording, :mod:`sea_daemon.runtime.sinks`)
+are fed by the writer process with every block of rows it copies out of the ring, after the
+tail went back and before the CSV's lines are written; the ring's rows then go on past the
+CSV's columns (``sink_columns``) with what only they carry.  A sink that fails stops alone (its
+state and the first failure's text in the shared header); the CSV log is not affected.
 """
 from __future__ import annotations
 
