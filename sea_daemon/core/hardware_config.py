@@ -138,8 +138,13 @@ class HardwareConfig:
     # joint, the motor encoder on the motor shaft (before the gear).  () = 2^encoder_bits.
     encoder_counts_load: tuple[int, ...] = ()
     encoder_counts_motor: tuple[int, ...] = ()
+    # who may subscribe to the local publication (the UNIX socket, docs/interfaces.md §6) besides
+    # the daemon's own user and root: user names or uids, group names or gids
+    local_readers_users: tuple[str | int, ...] = ()
+    local_readers_groups: tuple[str | int, ...] = ()
 
-    KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus"]
+    KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus", "local_readers"]
+    READER_KINDS = ("users", "groups")
     COUNT_SIDES = ("load", "motor")
 
     def encoder_resolution(self, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -169,8 +174,32 @@ class HardwareConfig:
         if "torque_noise" in d:
             out["torque_noise"] = validate.num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
         out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
+        if "local_readers" in d:
+            out.update(cls._readers(source, d["local_readers"]))
         return cls(**out)
 
+    @classmethod
+    def _readers(cls, source: str, v: Any) -> dict:
+        """``hardware.local_readers``: {users: [name or uid, ...], groups: [name or gid, ...]}."""
+        key = "hardware.local_readers"
+        if v is None:
+            return {}
+        if not isinstance(v, Mapping):
+            raise ConfigError(source, key, "must be a mapping like {users: [therapist], groups: [sea-daemon]} "
+                                           f"(who may subscribe besides the daemon's user and root), got {v!r}")
+        out = {}
+        for kind, names in v.items():
+            if kind not in cls.READER_KINDS:
+                raise ConfigError(source, f"{key}.{kind}", f"unknown key; allowed: {', '.join(cls.READER_KINDS)}")
+            vals = [] if names is None else list(names) if isinstance(names, (list, tuple)) else [names]
+            for x in vals:
+                ok_id = isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2 ** 32 - 1
+                ok_name = isinstance(x, str) and 0 < len(x) <= 64 and ":" not in x and "\n" not in x
+                if not (ok_id or ok_name):
+                    raise ConfigError(source, f"{key}.{kind}", f"must be a list of {kind[:-1]} names or ids "
+                                                               f"(0..4294967294), got {x!r}")
+            out[f"local_readers_{kind}"] = tuple(vals)
+        return out
     @classmethod
     def _counts(cls, source: str, ec: Any, n: int) -> dict:
         """``hardware.encoder_counts``: {load: C, motor: C}, C an integer (every joint) or a list of n."""
@@ -192,7 +221,8 @@ class HardwareConfig:
 
     def to_dict(self) -> dict:
         out = {k: v for k, v in dataclasses.asdict(self).items()
-               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor")}
+               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers_users",
+                            "local_readers_groups")}
         counts = {}
         for side in self.COUNT_SIDES:
             c = getattr(self, f"encoder_counts_{side}")
@@ -201,4 +231,7 @@ class HardwareConfig:
         if counts:
             out["encoder_counts"] = counts
         out["bus"] = self.bus.to_dict()
+        if self.local_readers_users or self.local_readers_groups:
+            out["local_readers"] = {"users": list(self.local_readers_users),
+                                    "groups": list(self.local_readers_groups)}
         return out
