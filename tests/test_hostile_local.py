@@ -154,6 +154,27 @@ def test_an_unknown_reader_in_the_configuration_is_refused_by_name():
         ReaderPolicy.from_config(users=["no-such-user-x"])
 
 
+@pytest.mark.parametrize("value,expect", [
+    ("{users: [[1]]}", r"hardware\.local_readers\.users: must be a list of user names or ids"),
+    ("{groups: [-1]}", r"hardware\.local_readers\.groups: must be a list of group names or ids"),
+    ("{others: [x]}", r"hardware\.local_readers\.others: unknown key; allowed: users, groups"),
+    ("everyone", r"hardware\.local_readers: must be a mapping like"),
+])
+def test_a_bad_local_readers_setting_is_refused_with_its_key(tmp_path, capsys, value, expect):
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(_with_readers(value))
+    log = passive_log(tmp_path / "log.csv")
+    code, _, err = run(["replay", log, "--config", cfg, "--estimator", "akf", "--out", tmp_path / "e.csv"], capsys)
+    refused(code, err, expect)
+
+
+def _with_readers(value: str) -> str:
+    import yaml
+    d = yaml.safe_load(open(CFG).read())
+    d.setdefault("hardware", {})["local_readers"] = yaml.safe_load(value)
+    return yaml.safe_dump(d)
+
+
 # ------------------------------------------------------------------ outputs
 def _device(path):
     """A character device like /dev/null (mknod, as root), else a FIFO."""

@@ -125,6 +125,15 @@ class BusConfig:
         return out
 
 
+def _keyed(source: str, key: str, v: Any, allowed: tuple[str, ...], example: str) -> None:
+    """``key`` must be a mapping whose keys are among ``allowed``; ConfigError naming it otherwise."""
+    if not isinstance(v, Mapping):
+        raise ConfigError(source, key, f"must be a mapping like {example}, got {v!r}")
+    for k in v:
+        if k not in allowed:
+            raise ConfigError(source, f"{key}.{k}", f"unknown key; allowed: {', '.join(allowed)}")
+
+
 @dataclass(frozen=True)
 class HardwareConfig:
     """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus."""
@@ -184,13 +193,10 @@ class HardwareConfig:
         key = "hardware.local_readers"
         if v is None:
             return {}
-        if not isinstance(v, Mapping):
-            raise ConfigError(source, key, "must be a mapping like {users: [therapist], groups: [sea-daemon]} "
-                                           f"(who may subscribe besides the daemon's user and root), got {v!r}")
+        _keyed(source, key, v, cls.READER_KINDS, "{users: [therapist], groups: [sea-daemon]} (who may "
+                                                 "subscribe besides the daemon's user and root)")
         out = {}
         for kind, names in v.items():
-            if kind not in cls.READER_KINDS:
-                raise ConfigError(source, f"{key}.{kind}", f"unknown key; allowed: {', '.join(cls.READER_KINDS)}")
             vals = [] if names is None else list(names) if isinstance(names, (list, tuple)) else [names]
             for x in vals:
                 ok_id = isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2 ** 32 - 1
@@ -200,17 +206,15 @@ class HardwareConfig:
                                                                f"(0..4294967294), got {x!r}")
             out[f"local_readers_{kind}"] = tuple(vals)
         return out
+
     @classmethod
     def _counts(cls, source: str, ec: Any, n: int) -> dict:
         """``hardware.encoder_counts``: {load: C, motor: C}, C an integer (every joint) or a list of n."""
         key = "hardware.encoder_counts"
-        if not isinstance(ec, Mapping):
-            raise ConfigError(source, key, "must be a mapping like {load: 8000, motor: 2000} (counts per "
-                                           f"revolution of the shaft each encoder reads), got {ec!r}")
+        _keyed(source, key, ec, cls.COUNT_SIDES, "{load: 8000, motor: 2000} (counts per revolution of the "
+                                                 "shaft each encoder reads)")
         out = {}
         for side, v in ec.items():
-            if side not in cls.COUNT_SIDES:
-                raise ConfigError(source, f"{key}.{side}", f"unknown side; allowed: {', '.join(cls.COUNT_SIDES)}")
             vals = list(v) if isinstance(v, (list, tuple)) else [v]
             if len(vals) not in (1, n) or any(isinstance(x, bool) or not isinstance(x, int) or not 4 <= x <= 2 ** 32
                                               for x in vals):
