@@ -125,6 +125,14 @@ class BusConfig:
         return out
 
 
+@dataclass(frozen=True)
+class LocalReaders:
+    """``hardware.local_readers``: user names or uids, group names or gids."""
+
+    users: tuple[str | int, ...] = ()
+    groups: tuple[str | int, ...] = ()
+
+
 def _keyed(source: str, key: str, v: Any, allowed: tuple[str, ...], example: str) -> None:
     """``key`` must be a mapping whose keys are among ``allowed``; ConfigError naming it otherwise."""
     if not isinstance(v, Mapping):
@@ -148,9 +156,8 @@ class HardwareConfig:
     encoder_counts_load: tuple[int, ...] = ()
     encoder_counts_motor: tuple[int, ...] = ()
     # who may subscribe to the local publication (the UNIX socket, docs/interfaces.md §6) besides
-    # the daemon's own user and root: user names or uids, group names or gids
-    local_readers_users: tuple[str | int, ...] = ()
-    local_readers_groups: tuple[str | int, ...] = ()
+    # the daemon's own user and root
+    local_readers: LocalReaders = field(default_factory=LocalReaders)
 
     KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus", "local_readers"]
     READER_KINDS = ("users", "groups")
@@ -204,8 +211,8 @@ class HardwareConfig:
                 if not (ok_id or ok_name):
                     raise ConfigError(source, f"{key}.{kind}", f"must be a list of {kind[:-1]} names or ids "
                                                                f"(0..4294967294), got {x!r}")
-            out[f"local_readers_{kind}"] = tuple(vals)
-        return out
+            out[kind] = tuple(vals)
+        return {"local_readers": LocalReaders(**out)}
 
     @classmethod
     def _counts(cls, source: str, ec: Any, n: int) -> dict:
@@ -225,8 +232,7 @@ class HardwareConfig:
 
     def to_dict(self) -> dict:
         out = {k: v for k, v in dataclasses.asdict(self).items()
-               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers_users",
-                            "local_readers_groups")}
+               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers")}
         counts = {}
         for side in self.COUNT_SIDES:
             c = getattr(self, f"encoder_counts_{side}")
@@ -235,7 +241,7 @@ class HardwareConfig:
         if counts:
             out["encoder_counts"] = counts
         out["bus"] = self.bus.to_dict()
-        if self.local_readers_users or self.local_readers_groups:
-            out["local_readers"] = {"users": list(self.local_readers_users),
-                                    "groups": list(self.local_readers_groups)}
+        r = self.local_readers
+        if r.users or r.groups:
+            out["local_readers"] = {"users": list(r.users), "groups": list(r.groups)}
         return out

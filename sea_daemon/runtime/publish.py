@@ -65,14 +65,14 @@ class ReaderPolicy:
 
     @classmethod
     def from_config(cls, users=(), groups=()) -> "ReaderPolicy":
-        """Names resolved on this machine (at start, not per request); InputError for an unknown one."""
+        """Names resolved on the host (at start, not per request); InputError for an unknown one."""
         key = "hardware.local_readers"
         uids, gids = set(), set()
         for u in users:
             try:
                 uids.add(u if isinstance(u, int) else pwd.getpwnam(u).pw_uid)
             except KeyError:
-                raise InputError(f"{key}.users: no user {u!r} on this machine") from None
+                raise InputError(f"{key}.users: no user {u!r} on the host") from None
         for g in groups:
             try:
                 entry = grp.getgrgid(g) if isinstance(g, int) else grp.getgrnam(g)
@@ -80,7 +80,7 @@ class ReaderPolicy:
                 if isinstance(g, int):
                     gids.add(g)
                     continue
-                raise InputError(f"{key}.groups: no group {g!r} on this machine") from None
+                raise InputError(f"{key}.groups: no group {g!r} on the host") from None
             gids.add(entry.gr_gid)
             for member in entry.gr_mem:
                 try:
@@ -326,9 +326,8 @@ def make_publisher(rig, cfg, controller, *, socket_path: str | os.PathLike | Non
         tpdo = TpdoPublisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
     local = None
     if socket_path is not None:
-        hw = cfg.hardware
-        local = LocalPublisher(socket_path, cfg.joints,
-                               readers=ReaderPolicy.from_config(hw.local_readers_users, hw.local_readers_groups))
+        r = cfg.hardware.local_readers
+        local = LocalPublisher(socket_path, cfg.joints, readers=ReaderPolicy.from_config(r.users, r.groups))
     if tpdo is None and local is None:
         return None
     return Publisher(cfg.joints, cfg.dt, tpdo=tpdo, local=local, controller=controller, has_estimator=has_estimator)
