@@ -4,7 +4,7 @@
 * ``socketcan`` — a real Linux CAN interface (``can0``) or a virtual one (``vcan0``);
 * ``remote`` — python-can-remote's websocket client (``ws://127.0.0.1:PORT/``), joining
   separate processes through ``python -m can_remote`` where the kernel has no SocketCAN;
-* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of this machine over UNIX
+* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of one machine over UNIX
   datagram sockets, one hop per frame (the 1 kHz benchmarks where the kernel has no SocketCAN).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import os
 import can
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.errors import ConfigError
+from sea_daemon.errors import ConfigError, InputError
 
 from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.hw.ipc_bus import IpcBus
@@ -49,7 +49,7 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
             return IpcBus(channel, receive_own_messages=receive_own_messages)
         return can.Bus(interface="remote", channel=channel, bitrate=cfg.bitrate,
                        receive_own_messages=receive_own_messages)
-    except DeviceMismatch:
+    except (DeviceMismatch, InputError):
         raise
     except (can.CanError, OSError, ValueError) as e:
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None

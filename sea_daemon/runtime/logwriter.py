@@ -69,7 +69,10 @@ import multiprocessing as mp
 import os
 import time
 import weakref
-from multiprocessing import reduction, shared_memory
+# multiprocessing.util registers its exit handler (which waits for the writer process) as it is
+# imported: before this module's own (atexit runs last in, first out), so that ours, run first,
+# ends the heads pipe that handler waits on
+from multiprocessing import reduction, util  # noqa: F401
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +80,7 @@ import numpy as np
 from sea_daemon.errors import InputError, shown
 from sea_daemon.io.logcsv import csv_header, csv_rows
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
+from sea_daemon.runtime.shared_block import SharedBlock
 from sea_daemon.runtime.sinks import MAX_SINKS, MSG_BYTES, SinkBoard, SinkSet, wait_open
 
 # header slots (int64) of the shared block, read without order (module docstring): the loop's
@@ -293,7 +297,7 @@ class _Drain:
         self.hdr = self.data = None
 
 
-def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
+def _writer_main(shm_fd, shm_size, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
                  heads_fd, tails_fd, sinks):
     """The writer process: drain the ring into the log's files (:class:`_Drain`) and the
     ``sinks`` (specs, :mod:`sea_daemon.runtime.sinks`) until the loop is done; any failure of
@@ -301,7 +305,7 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
     _leave_realtime()
     os.set_blocking(heads_fd, False)
     os.set_blocking(tails_fd, False)
-    shm = shared_memory.SharedMemory(name=shm_name)
+    shm = SharedBlock.attach(shm_fd, shm_size)
     hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
     data = drain = None
     try:
@@ -400,7 +404,7 @@ class LogWriter:
             os.close(_open_segment(self.path, csv_header(self.columns)))
         except OSError as e:
             raise InputError(f"log {shown(self.path)}: cannot write: {e.strerror or e}") from None
-        self._shm = shared_memory.SharedMemory(create=True, size=_NHDR * 8 + self.capacity * self.ncols * 8)
+        self._shm = SharedBlock.create(_NHDR * 8 + self.capacity * self.ncols * 8, "sea-daemon-log")
         self._hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=self._shm.buf)
         self._hdr[:] = 0
         self._hdr[_FILES] = 1
@@ -426,7 +430,8 @@ class LogWriter:
         self._tails = CountReader(self._tails_r)
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(target=_writer_main, name="sea-daemon-logwriter", daemon=False,
-                                 args=(self._shm.name, self.capacity, self.ncols, str(self.path), self.columns,
+                                 args=(_PassFd(self._shm.fd), self._shm.size, self.capacity, self.ncols,
+                                       str(self.path), self.columns,
                                        rotate_bytes, fmt, os.getpid(), min(0.02, flush_interval / 4),
                                        _PassFd(self._heads_r), _PassFd(self._tails_w), self.sinks))
         try:
@@ -568,7 +573,6 @@ class LogWriter:
             self._board.release()
             del self._hdr, self._data, self._board
             self._shm.close()
-            self._shm.unlink()
         return self._final
 
     def __enter__(self):

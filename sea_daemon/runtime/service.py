@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from sea_daemon.errors import InputError, shown
+from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.core.log import DaemonLogLayout
@@ -78,18 +79,28 @@ def bus_lock_path(interface: str, channel: str) -> Path:
 class _Flock:
     """An exclusive ``flock`` on a file, held until :meth:`release` or the process ends."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, private: bool = False):
         self.path = path
+        self.private = private                       # the state directory's: this user's or root's only
         self.fd: int | None = None
 
     def acquire(self, what: str) -> None:
         import fcntl
+        # never through a symbolic link (a link planted in a shared lock directory would have
+        # the lock's pid written over the file it points to)
         try:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        except PermissionError:
-            fd = os.open(self.path, os.O_RDONLY)     # another user's lock file: flock still works
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+            except PermissionError:
+                fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW)   # another user's lock file: flock still works
         except OSError as e:
             raise InputError(f"{what} lock {shown(self.path)}: cannot open: {e.strerror or e}") from None
+        if self.private:
+            try:
+                check_owned(f"{what} lock", self.path, st=os.fstat(fd))
+            except InputError:
+                os.close(fd)
+                raise
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -139,7 +150,7 @@ class StateFile:
         try:
             for path, what in [(self.lock_path, "state directory")] + (
                     [(bus_lock_path(*bus), f"bus {bus[0]} {bus[1]}")] if bus else []):
-                lk = _Flock(path)
+                lk = _Flock(path, private=path == self.lock_path)
                 lk.acquire(what)
                 self._locks.append(lk)
         except BaseException:
