@@ -125,8 +125,7 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
         return 1
     failed = [out for out in res.log.get("sinks", []) if out["error"]]
     for out in failed:
-        print(f"sea-daemon run: the {out['output']} output failed: {out['error']} (the CSV log is complete)",
-              file=sys.stderr)
+        log.error("the %s output failed: %s (the CSV log is complete)", out["output"], out["error"])
     return 1 if failed else 0
 
 
