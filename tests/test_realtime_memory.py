@@ -50,6 +50,9 @@ def resident_share(a: np.ndarray) -> float:
 
 
 def test_a_resident_buffer_takes_no_page_fault_where_a_fresh_one_does():
+    # an earlier test in this process may have locked its memory (a run's mlockall with
+    # MCL_FUTURE maps every new page at once): the control needs the kernel's default
+    ctypes.CDLL(None).munlockall()
     nbytes = 4 << 20
     # the control, whatever the host's page size and huge-page policy: a fresh mapping has no
     # page in memory and its first writes fault (one fault may map many pages: at least one)

@@ -256,7 +256,9 @@ class FaultRun:
         if fault == Fault.EMCY and "EMCY 0x8130" in detail:
             t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
             t = t[t > 0]
-            gap = self.sniffer.hb_gap_max.pop(self.cfg.hardware.bus.master_node, 0.0)
+            master = self.cfg.hardware.bus.master_node
+            gap = max(self.sniffer.hb_gap_max.pop(master, 0.0),
+                      self.probe.read_t[k] - self.sniffer.hb_seen.get(master, self.probe.read_t[k]))
             return gap > timeout or (len(t) > 1 and float(np.max(np.diff(t))) > timeout)
         if fault == Fault.HEARTBEAT_LOST:
             nodes = (self.rig.drive.id, self.rig.encoder.id)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import re
 import sys
@@ -188,18 +189,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the commands running in this process, outermost first (the demo runs others through main)
+_RUNNING: list[str] = []
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
-    before = console.current()             # a command run by another one (demo) keeps its level
-    console.setup(f"sea-daemon {args.command}", console.level_of(getattr(args, "log_level", None),
-                                                                 getattr(args, "verbose", 0), getattr(args, "quiet", 0)))
+    level = console.level_of(getattr(args, "log_level", None), getattr(args, "verbose", 0), getattr(args, "quiet", 0))
+    # a command run by another one (the demo's steps) keeps the caller's level; a command of its own INFO
+    before = console.current() if _RUNNING else None
+    console.setup(f"sea-daemon {args.command}", level if level is not None or _RUNNING else logging.INFO)
+    _RUNNING.append(args.command)
     try:
         return guarded(f"sea-daemon {args.command}", args.func, args)
     finally:
+        _RUNNING.pop()
         if before is not None:
             console.setup(*before)
 
