@@ -149,3 +149,71 @@ def test_a_size_setting_beyond_its_range_is_refused(tmp_path, capsys, section, e
     log = passive_log(tmp_path / "log.csv")
     code, _, err = run(["replay", log, "--config", cfg, "--estimator", "akf", "--out", tmp_path / "e.csv"], capsys)
     refused(code, err, expect)
+
+
+# ------------------------------------------------------------------ bench generalize's cache
+class _Plant:
+    """Unpickling this touches ``marker``: what a planted cache file could run."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        from pathlib import Path
+        return Path.touch, (Path(self.marker),)
+
+
+def _stub_sessions(monkeypatch):
+    """generalize's simulation replaced by a small log per session; the calls counted."""
+    from sea_daemon.apps.bench import generalize
+    from sea_daemon.core.log import MeasuredLog
+    calls = []
+
+    def session(true, duration_s, reference=None, hold_q=None, human=None, seed=0, **_):
+        calls.append(seed)
+        t = np.arange(50) * 0.01
+        x = np.sin(t + seed)[:, None]
+        return MeasuredLog(t, x, 0.9 * x, 0.1 * x, None, {"q_true": x[:, 0].copy()}, f"<session {seed}>")
+    monkeypatch.setattr(generalize, "run_session", session)
+    return generalize, calls
+
+
+def test_generalize_never_unpickles_what_is_in_its_cache(tmp_path, monkeypatch):
+    import pickle
+    generalize, calls = _stub_sessions(monkeypatch)
+    cache = tmp_path / "cache"
+    cache.mkdir(mode=0o700)
+    marker = tmp_path / "ran"
+    (cache / "plant_420_2.pkl").write_bytes(pickle.dumps(_Plant(marker)))
+    np.savez(cache / "plant_420_2.npz", __meta__=np.array([_Plant(marker)], dtype=object))
+    pd, cal, tests = generalize.plant_logs(420, 2.0, cache)
+    assert not marker.exists()
+    assert calls and len(cal) == 50 and set(tests) == {s.name for s in generalize.sessions(pd)}
+
+
+def test_generalize_reads_its_own_cache_back_and_only_for_its_key(tmp_path, monkeypatch):
+    generalize, calls = _stub_sessions(monkeypatch)
+    cache = tmp_path / "cache"
+    cache.mkdir(mode=0o700)
+    _, cal, tests = generalize.plant_logs(420, 2.0, cache)
+    n = len(calls)
+    _, cal2, tests2 = generalize.plant_logs(420, 2.0, cache)
+    assert len(calls) == n                                       # nothing simulated again
+    np.testing.assert_array_equal(cal2.q, cal.q)
+    assert list(tests2) == list(tests) and tests2["slow"].extra.keys() == tests["slow"].extra.keys()
+    np.testing.assert_array_equal(tests2["slow"].extra["q_true"], tests["slow"].extra["q_true"])
+    (cache / "plant_421_2.npz").write_bytes((cache / "plant_420_2.npz").read_bytes())
+    generalize.plant_logs(421, 2.0, cache)                       # another plant's entry: simulated
+    assert len(calls) > n
+
+
+def test_a_cache_directory_others_can_write_is_not_used(tmp_path):
+    from sea_daemon.apps.bench.logcache import private_dir
+    d = tmp_path / "cache"
+    d.mkdir(mode=0o700)
+    assert private_dir(d) is None
+    d.chmod(0o777)
+    assert "writable by group or others" in private_dir(d)
+    link = tmp_path / "link"
+    link.symlink_to(d)
+    assert private_dir(link) == "not a directory"
