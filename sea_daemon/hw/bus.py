@@ -17,6 +17,7 @@ from sea_daemon.core.config import BusConfig
 from sea_daemon.errors import ConfigError
 
 from sea_daemon.hw.errors import DeviceMismatch
+from sea_daemon.hw.ipc_bus import IpcBus
 
 INTERFACES = BusConfig.INTERFACES
 
@@ -45,7 +46,6 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
                 raise DeviceMismatch(None, f"socketcan {channel}", why)
             return can.Bus(interface="socketcan", channel=channel, receive_own_messages=receive_own_messages)
         if iface == "ipc":
-            from sea_daemon.hw.ipc_bus import IpcBus
             return IpcBus(channel, receive_own_messages=receive_own_messages)
         return can.Bus(interface="remote", channel=channel, bitrate=cfg.bitrate,
                        receive_own_messages=receive_own_messages)
@@ -61,7 +61,6 @@ def set_controller_filters(bus: can.BusABC, filters: list[dict]) -> bool:
     filter, the ``ipc`` bus (checked on the raw id, and published to the senders, which then
     send that member nothing it rejects).  Elsewhere (``virtual``, ``remote``) python-can's
     software filter would end a ``recv(0)`` at the first other frame: left unset, False."""
-    from sea_daemon.hw.ipc_bus import IpcBus
     if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
         bus.set_filters(filters)
         return True

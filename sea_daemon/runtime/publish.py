@@ -27,6 +27,7 @@ from typing import Any
 from sea_daemon.client import (FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER, JOINT,
                                LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
 from sea_daemon.errors import InputError
+from sea_daemon.hw.canopen_publish import TpdoPublisher
 
 INF = math.inf
 FLT_MAX = 3.4028234663852886e38
@@ -256,7 +257,6 @@ def make_publisher(rig, cfg, controller, *, socket_path: str | os.PathLike | Non
     ``hardware.bus.publish`` is on; the local socket when ``socket_path`` is given."""
     tpdo = None
     if cfg.hardware.bus.publish and hasattr(rig.hw, "network"):
-        from sea_daemon.hw.canopen_publish import TpdoPublisher
         tpdo = TpdoPublisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
     local = LocalPublisher(socket_path, cfg.joints) if socket_path is not None else None
     if tpdo is None and local is None:

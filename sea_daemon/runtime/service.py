@@ -30,6 +30,7 @@ from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.io.files import atomic_write_bytes
 
 if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
     from sea_daemon.core.estimators.base import Estimator
@@ -156,7 +157,6 @@ class StateFile:
         self.release()
 
     def write(self, **info) -> None:
-        from sea_daemon.io.files import atomic_write_bytes
         atomic_write_bytes(self.path, json.dumps({"pid": os.getpid(), "start_time": process_start_time(os.getpid()),
                                                   "started": time.time(), "lock": str(self.lock_path),
                                                   **info}).encode())
@@ -294,7 +294,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     ``publisher``: the loop's publication step (:func:`sea_daemon.runtime.publish.make_publisher`),
     closed (its socket removed) when the service stops; its counts go into ``extra["publish"]``."""
     # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
-    from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
+    # local import: numba's kernels load only where a daemon runs, not for `sea-daemon reset`
+    from sea_daemon.core.jit import warm_up
     warm_up()
     notifier = notifier or Notifier()
     if bound_in not in ("auto", "worker", "loop"):

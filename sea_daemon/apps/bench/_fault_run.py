@@ -30,6 +30,8 @@ from sea_daemon.core.log import log_columns
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.logcsv import read_log
 
 FAULTS = {
     "tpdo_missing": Fault.TPDO_MISSING,
@@ -102,7 +104,6 @@ class FaultRun:
         self.gap, self.max_wait = gap, max_wait
         cfg = bench_config(**BUS)
         self.cfg = cfg
-        from sea_daemon.core.estimators import make_estimator
         # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
         # process), and the drive watches the daemon's heartbeat from the rig's start on
         self.est = _Estimator(make_estimator("akf", cfg, bound=False))
@@ -319,7 +320,6 @@ class FaultRun:
         """The log has a row for every cycle (cycle column 0..N−1, time increasing), its fault
         column is non-zero exactly in the cycles the loop was latched, valid is 0 there, and the
         commanded torque of those rows is zero."""
-        from sea_daemon.io.logcsv import read_log
         log = read_log(self.log_path, n=1)
         ex = DaemonColumns.of(log)
         fault = ex.fault != 0

@@ -193,7 +193,3 @@ def _warm() -> None:
     tree = Tree.of([0, -1, -1], [-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [1, -1, -1], [2, -1, -1])
     for grad in (False, True):
         route(np.zeros((2, 1)), tree.links, tree.span, grad)
-
-
-# the kernel under its former private name, for modules not yet importing it as ``route``
-_route = route
