@@ -4,7 +4,7 @@
 * ``socketcan`` — a real Linux CAN interface (``can0``) or a virtual one (``vcan0``);
 * ``remote`` — python-can-remote's websocket client (``ws://127.0.0.1:PORT/``), joining
   separate processes through ``python -m can_remote`` where the kernel has no SocketCAN;
-* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of this machine over UNIX
+* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of one machine over UNIX
   datagram sockets, one hop per frame (the 1 kHz benchmarks where the kernel has no SocketCAN).
 """
 from __future__ import annotations

@@ -8,7 +8,7 @@ evaluates each :class:`Injection` against what the probe saw at the drive (the m
 described in :mod:`sea_daemon.apps.bench.faults`).
 
 The heartbeat timeout runs on the real clock, and a lock-step cycle otherwise takes whatever the
-machine gives it (0.5–4 ms on the 2-core test machine): while a heartbeat loss is pending the
+machine gives it (0.5–4 ms on a 2-vCPU virtual machine): while a heartbeat loss is pending the
 run paces its cycles to one period of wall time each (:meth:`FaultRun._pace`), as the loop runs
 in production, so the timeout is a number of cycles that does not depend on the machine's load.
 """

@@ -119,7 +119,7 @@ def add_arguments(p) -> None:
                         "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
     p.add_argument("--host-rounds", type=int, default=100,
                    help="rounds of the host's reference workload before and after the run (what starting a "
-                        "cycle cold costs on this machine; default 100; 0: not measured)")
+                        "cycle cold costs on the host; default 100; 0: not measured)")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")

@@ -14,7 +14,7 @@ cycle time (from the log's own ``period`` / ``compute`` columns); log rows appen
 and dropped, and the rows counted back in the rotated files.
 
 A latched fault would stop the estimator (the loop's policy) and is reported; the overrun
-streak that would trip it when this machine cannot hold the rate is configurable
+streak that would trip it when the host cannot hold the rate is configurable
 (``--overrun-streak``; 0 disables it for the soak, overruns are still counted).
 """
 from __future__ import annotations
