@@ -1,7 +1,8 @@
 """Model configuration (docs/interfaces.md §2) as validated, frozen dataclasses.
 
 The YAML has the contract's top level (``joints``, ``rate_hz``, ``model``) plus optional
-sections this project adds (``estimator``, ``kinematics``, ``learning``, ``hardware``).
+sections this project adds (``estimator``, ``kinematics``, ``learning``, ``hardware``, ``assist``,
+``calibration``, ``publish``).
 Every section is a frozen dataclass; unknown keys, missing keys and values out of range
 raise :class:`~sea_daemon.errors.ConfigError` naming the key and the allowed values.
 
@@ -26,7 +27,7 @@ from sea_daemon.errors import ConfigError
 MAX_SEED = 2 ** 32 - 1
 
 __all__ = ["SEAParams", "EstimatorConfig", "KinematicsConfig", "LearningConfig", "AssistConfig", "BusConfig",
-           "HardwareConfig", "ModelConfig"]
+           "HardwareConfig", "PublishConfig", "ModelConfig"]
 
 
 @dataclass(frozen=True)
@@ -427,6 +428,42 @@ class CalibrationConfig:
 
 
 @dataclass(frozen=True)
+class PublishConfig:
+    """Where else ``sea-daemon run`` sends the estimate (``publish``; docs/interfaces.md §7): a Lab
+    Streaming Layer outlet named ``lsl_name`` (``lsl``; the daemon waits up to ``lsl_wait_s`` for
+    an inlet before its loop starts) and an MCAP recording beside the CSV log (``mcap``).  Both
+    off unless asked (here or by ``run --lsl`` / ``--mcap``)."""
+
+    lsl: bool = False
+    lsl_name: str = "sea-daemon"
+    lsl_wait_s: float = 0.0
+    mcap: bool = False
+
+    KEYS = ["lsl", "lsl_name", "lsl_wait_s", "mcap"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "PublishConfig":
+        validate.check_keys(source, "publish.", d, cls.KEYS, [])
+        out: dict = {}
+        for key in ("lsl", "mcap"):
+            if key in d:
+                if not isinstance(d[key], bool):
+                    raise ConfigError(source, "publish." + key, f"must be true or false, got {d[key]!r}")
+                out[key] = d[key]
+        if "lsl_name" in d:
+            name = d["lsl_name"]
+            if not isinstance(name, str) or not 1 <= len(name) <= 64 or not name.isprintable():
+                raise ConfigError(source, "publish.lsl_name", f"must be 1 to 64 printable characters, got {name!r}")
+            out["lsl_name"] = name
+        if "lsl_wait_s" in d:
+            out["lsl_wait_s"] = validate.num(source, "publish.lsl_wait_s", d["lsl_wait_s"], lo=0.0, hi=3600.0)
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        return {key: getattr(self, key) for key in self.KEYS}
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """The whole YAML of docs/interfaces.md §2 (plus the optional sections)."""
 
@@ -440,9 +477,10 @@ class ModelConfig:
     source: str = "<memory>"
     assist: AssistConfig = field(default_factory=AssistConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    publish: PublishConfig = field(default_factory=PublishConfig)
 
     TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware", "assist",
-                "calibration"]
+                "calibration", "publish"]
 
     @property
     def dt(self) -> float:
@@ -466,6 +504,7 @@ class ModelConfig:
             source=source,
             assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
+            publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
         )
 
     def to_dict(self) -> dict:
@@ -474,6 +513,7 @@ class ModelConfig:
             "estimator": self.estimator.to_dict(), "kinematics": self.kinematics.to_dict(),
             "learning": self.learning.to_dict(), "hardware": self.hardware.to_dict(),
             "assist": self.assist.to_dict(), "calibration": self.calibration.to_dict(),
+            "publish": self.publish.to_dict(),
         }
 
     def with_effects(self, effects) -> "ModelConfig":

@@ -14,7 +14,7 @@ import os
 import can
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.errors import ConfigError
+from sea_daemon.errors import ConfigError, InputError
 
 from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.hw.ipc_bus import IpcBus
@@ -49,7 +49,7 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
             return IpcBus(channel, receive_own_messages=receive_own_messages)
         return can.Bus(interface="remote", channel=channel, bitrate=cfg.bitrate,
                        receive_own_messages=receive_own_messages)
-    except DeviceMismatch:
+    except (DeviceMismatch, InputError):
         raise
     except (can.CanError, OSError, ValueError) as e:
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None

@@ -12,6 +12,7 @@ from sea_daemon.core.rates import at_rate
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
 from sea_daemon.io.files import check_output_dir, check_outputs
+from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.rig import bus_overrides
 from sea_daemon.runtime.safety import SafetySupervisor
 
@@ -56,7 +57,8 @@ def load(args, outputs: list | tuple = ()):
     """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input.
 
     Before anything starts: ``outputs`` ((flag, path) pairs) can be written and are none of the
-    inputs; the log and state directories exist (created) and can be written."""
+    inputs; the log and state directories exist (created), can be written, and are this user's
+    (or root's) and nobody else may write them (:func:`sea_daemon.io.owned.check_owned`)."""
     check_outputs(outputs, inputs=inputs(args))
     cfg = at_rate(bus_overrides(load_config(args.config), args.bus, args.channel), getattr(args, "rate", None))
     if args.cycles is not None and args.cycles < 1:
@@ -67,6 +69,8 @@ def load(args, outputs: list | tuple = ()):
         raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
     log_dir = check_output_dir("--log-dir", args.log_dir, inputs(args))
     state_dir = check_output_dir("--state-dir", args.state_dir, inputs(args)) if args.state_dir else log_dir
+    check_owned("--log-dir", log_dir)
+    check_owned("--state-dir" if args.state_dir else "--log-dir", state_dir)
     simulated = bool(args.device_model or args.sim)
     pace = args.pace or ("lockstep" if simulated else "realtime")
     if pace == "lockstep" and not simulated:

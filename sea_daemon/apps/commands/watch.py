@@ -85,7 +85,7 @@ class View:
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
                   "on, engaged" if s.flags & FLAG_ASSIST_ENGAGED else "on, idle")
         head = (f"sea-daemon watch  {sock}   cycle {s.cycle}   t {s.t:.2f} s   fault: {fault}   "
-                f"assist: {assist}   received {sub.received}, missed {sub.missed}")
+                f"assist: {assist}   received {sub.received}, missed {sub.missed}, rejected {sub.rejected}")
         if silent > 1.0:
             head += f"   \x1b[33m(no data for {silent:.0f} s)\x1b[0m"
         return [head]
