@@ -22,6 +22,10 @@ from sea_daemon.core.effects import Effect, effect_from_dict
 from sea_daemon.core.hardware_config import BusConfig, HardwareConfig
 from sea_daemon.errors import ConfigError
 
+#: the largest seed of a random generator a configuration may give (numpy's and Python's take any
+#: integer; 32 bits are every seed anyone writes)
+MAX_SEED = 2 ** 32 - 1
+
 __all__ = ["SEAParams", "EstimatorConfig", "KinematicsConfig", "LearningConfig", "AssistConfig", "BusConfig",
            "HardwareConfig", "PublishConfig", "ModelConfig"]
 
@@ -268,6 +272,8 @@ class LearningConfig:
 
     KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
             "extrapolation_scale", "clip_leaf_mean", "split_in_lengthscales"]
+    #: integer settings' ranges: a leaf's factor holds N̄²/2 numbers and a split costs O(N̄³)
+    INT_RANGES = {"max_points": (2, 1000), "max_leaves": (2, 100_000), "seed": (0, MAX_SEED)}
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
@@ -276,9 +282,9 @@ class LearningConfig:
         for k in ("max_points", "max_leaves", "seed"):
             if k in d:
                 v = d[k]
-                lo = 0 if k == "seed" else 2
-                if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                    raise ConfigError(source, f"learning.{k}", f"must be an integer >= {lo}, got {v!r}")
+                lo, hi = cls.INT_RANGES[k]
+                if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                    raise ConfigError(source, f"learning.{k}", f"must be an integer in {lo}..{hi}, got {v!r}")
                 out[k] = v
         if "overlap" in d:
             out["overlap"] = validate.num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
@@ -383,6 +389,9 @@ class CalibrationConfig:
     seed: int = 0                        # of the excitation's random moves
 
     KEYS = ["q_min_deg", "q_max_deg", "v_max", "a_max", "duration_s", "human_band_hz", "human_torque_rms", "seed"]
+    #: the largest speed [rad/s], acceleration [rad/s²], duration [s] and RMS torque [N m]: the
+    #: calibration's moves are planned sample by sample over ``duration_s``
+    MAX = {"v_max": 100.0, "a_max": 1e4, "duration_s": 3600.0, "human_torque_rms": 1e3}
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "CalibrationConfig":
@@ -395,6 +404,8 @@ class CalibrationConfig:
         for key in ("v_max", "a_max", "duration_s", "human_torque_rms"):
             if key in d:
                 out[key] = validate.num(source, k + key, d[key], positive=True)
+                if out[key] > cls.MAX[key]:
+                    raise ConfigError(source, k + key, f"must be in (0, {cls.MAX[key]:g}], got {out[key]:g}")
         if "human_band_hz" in d:
             b = validate.vector(source, k + "human_band_hz", d["human_band_hz"], 2, positive=True)
             if not b[0] < b[1]:
@@ -402,8 +413,8 @@ class CalibrationConfig:
             out["human_band_hz"] = (float(b[0]), float(b[1]))
         if "seed" in d:
             v = d["seed"]
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ConfigError(source, k + "seed", f"must be an integer >= 0, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
+                raise ConfigError(source, k + "seed", f"must be an integer in 0..{MAX_SEED}, got {v!r}")
             out["seed"] = v
         if out.get("q_min_deg") is not None and out.get("q_max_deg") is not None \
                 and not out["q_min_deg"] < out["q_max_deg"]:

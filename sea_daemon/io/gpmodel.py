@@ -106,6 +106,10 @@ def load_gp_model(path: str | Path, cfg: ModelConfig) -> tuple[ResidualGP, dict]
         residual = ResidualGP.from_dict(_join(meta["residual"], arrays))
     except KeyError as e:
         raise ModelFileError(f"{p}: model file lacks {e}") from None
+    except ModelFileError as e:
+        if str(e).startswith(p):
+            raise
+        raise ModelFileError(f"{p}: {e}") from None
     if residual.n != cfg.joints:
         raise ModelFileError(f"{p}: {residual.n} joint(s), the configuration has {cfg.joints}")
     return residual, meta

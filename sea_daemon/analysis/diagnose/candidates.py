@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from sea_daemon.core.effects import EFFECT_TYPES, Effect, make_effect
+from sea_daemon.core.effects import EFFECT_TYPES, PARAM_RANGES, Effect, make_effect
 from sea_daemon.analysis.diagnose.context import Context
 
 __all__ = ["Context", "Candidate", "build_candidates"]
@@ -525,6 +525,10 @@ class BacklashC(Candidate):
         return a, "θ_s [rad]"
 
 
+#: the longest delay a configuration may declare (the effect's range, core.effects.PARAM_RANGES)
+_MAX_DELAY_S = PARAM_RANGES[("delay", "seconds")][1]
+
+
 class DelayC(Candidate):
     """Structural: Δr(d) = κ₀(τ_m(t) − τ_m(t − d)) on r_motor; no free coefficient."""
 
@@ -534,7 +538,7 @@ class DelayC(Candidate):
 
     def grid(self, ctx):
         dt = ctx.kin.dt
-        return list(np.linspace(dt / 8, 8 * dt, 40))
+        return list(np.linspace(dt / 8, min(8 * dt, _MAX_DELAY_S), 40))
 
     def design(self, ctx, theta):
         return self._unit(ctx, seconds=float(theta)), np.zeros((ctx.r0.size, 0))
@@ -543,7 +547,7 @@ class DelayC(Candidate):
         return {"seconds": float(theta)}
 
     def bounds(self, ctx):
-        return {"seconds": (0.0, 20 * ctx.kin.dt)}
+        return {"seconds": (0.0, min(20 * ctx.kin.dt, _MAX_DELAY_S))}
 
     def regressor(self, ctx, theta=None):
         k = ctx.kin
