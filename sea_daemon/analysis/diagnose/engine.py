@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 from scipy.signal import savgol_coeffs
@@ -224,21 +224,35 @@ def evaluate(w: Work, cfg: ModelConfig, opts: SelectOptions, fit: Fit, estimate:
     return Evaluation(blocks, block_note, val_models, est, gp, ablation)
 
 
+#: the steps of :func:`run_diagnosis`, as its progress callback names them
+STEPS = ("the log on a uniform grid", "selecting the effects", "validation and the AKF before and after",
+         "summary")
+
+
 def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | None = None,
-                  passive: bool | None = None, estimate: bool = True) -> Diagnosis:
+                  passive: bool | None = None, estimate: bool = True,
+                  progress: Callable | None = None) -> Diagnosis:
     """Run the whole diagnosis (no files).  ``passive``: ignore a tau_h_act column.
+    ``progress(done, total, what)``, when given, is called before each of its :data:`STEPS`.
 
     The log is put on a uniform grid (:func:`.prepare.prepare_log`), a long one cut to segments
     (:func:`.prepare.segment_log`); the selection runs on it (:class:`.select.Selector`), then the
     time-blocked validation, the AKF before and after and, when the AKF is worse after, which
     effect it cannot use."""
+    def step(k: int) -> None:
+        if progress is not None:
+            progress(k, len(STEPS), STEPS[k])
     check_log(log, cfg)
     opts = options or SelectOptions()
+    step(0)
     w = Work(log, cfg, opts)
     passive = bool(passive)
+    step(1)
     fit = select_effects(w, cfg, opts, passive)
+    step(2)
     ev = evaluate(w, cfg, opts, fit, estimate)
     w.notes += [ev.block_note] if ev.block_note else []
+    step(3)
     result = _result(w, opts, fit, ev, passive)
     return Diagnosis(result, fit.ctx, fit.sel, fit.selector, fit.cfg_after, fit.r_after, ev.est,
                      prep=w.prep, blocks=ev.blocks, work=w)

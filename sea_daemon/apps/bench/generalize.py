@@ -38,6 +38,7 @@ from sea_daemon.apps.bench import choose, machine
 from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench.logcache import load_logs, private_dir, save_logs
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.replay import replay
@@ -265,17 +266,21 @@ def run(args) -> int:
           f"estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
     jobs = [(s, args.cal_s, cache, est, args.bound) for s in seeds]
     rows = []
-    if args.jobs > 1:
-        with mp.get_context("fork").Pool(args.jobs) as pool:
-            for row in pool.imap_unordered(_job, jobs):
+    with Progress("bench generalize", total=len(jobs), unit="plants", interval=0.0) as progress:
+        progress(0, what="plants calibrated and tested")
+        if args.jobs > 1:
+            with mp.get_context("fork").Pool(args.jobs) as pool:
+                for row in pool.imap_unordered(_job, jobs):
+                    rows.append(row)
+                    _print_row(row)
+                    progress(len(rows), what="plants calibrated and tested")
+        else:
+            for j in jobs:
+                row = _job(j)
                 rows.append(row)
                 _print_row(row)
-    else:
-        for j in jobs:
-            row = _job(j)
-            rows.append(row)
-            _print_row(row)
-            atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
+                atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
+                progress(len(rows), what="plants calibrated and tested")
     rows.sort(key=lambda r: r["seed"])
     summary = summarize(rows)
     atomic_write_text(out / "results.json", json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))

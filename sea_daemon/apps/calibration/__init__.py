@@ -14,6 +14,7 @@ analysis layer (:mod:`sea_daemon.analysis.noise`, :mod:`sea_daemon.analysis.diag
 """
 from __future__ import annotations
 
+import logging
 import math
 import shutil
 import sys
@@ -24,6 +25,7 @@ from tqdm import tqdm
 
 from sea_daemon.apps.calibration.modelio import save_calibrated, summary as cal_summary
 from sea_daemon.apps.calibration.pipeline import calibrate_log
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.excitation import WorkingRange, excitation
@@ -38,6 +40,8 @@ from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.rig import make_rig
 from sea_daemon.runtime.service import StateFile, serve
+
+log = logging.getLogger("sea_daemon.calibrate")
 
 
 class _Progress:
@@ -150,13 +154,14 @@ def _fit(out, log_path: Path, cfg: ModelConfig, config_path, summary: dict, hard
          cycles: int) -> tuple[int, dict, str]:
     """The whole calibration on the session's log: ``out`` (model file) and ``out``.yaml."""
     raw = load_yaml(config_path) if config_path is not None else None
-    result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw)
+    with Progress("calibrate --fit") as progress:
+        result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw, progress=progress)
     yaml_path, npz_path = save_calibrated(Path(out).with_suffix(""), result,
                                           {"command": "calibrate --fit", "log": str(log_path),
                                            "hardware": hardware, "cycles": cycles})
     s = cal_summary(result)
     for line in s["text"]:
-        print(line, file=sys.stderr)
+        log.info(line)
     summary.update({"model": str(npz_path), "config_calibrated": str(yaml_path),
                     "calibration": {k: v for k, v in s.items() if k != "text"}})
     return 0, summary, ""

@@ -24,14 +24,15 @@ gives is kept, see :func:`given_keys`):
 6. the coverage of (q, q̇, q̈) by the log's data (:class:`~.excitation.Coverage`) and the
    expected accuracy (the synthetic replay's RMSE at the chosen q_τ, passive and active).
 
-Pure numerics and simulation: no files (the commands write them).
+Pure numerics and simulation: no files (the commands write them).  ``progress(done, total,
+what)``, when given, is called before each step (:class:`sea_daemon.apps.progress.Progress`).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -202,10 +203,11 @@ def _rmse(log: MeasuredLog, est) -> float:
 
 def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
                opts: CalibrationOptions, tune_eps: bool = True, gp=None,
-               v_gate: float = 0.0, var_ref: float = 0.0) -> tuple[float, float, dict]:
+               v_gate: float = 0.0, var_ref: float = 0.0, tick: Callable | None = None) -> tuple[float, float, dict]:
     """(q_τ [N² m²/s], sign_eps [rad/s], info): the τ_h,act random walk and the friction-sign
     smoothing of the estimator's model (the AKF on the identified model, or the GP-AKF with
-    ``gp``; health monitor off while scanning).  Each from the data that can speak for it:
+    ``gp``; health monitor off while scanning; ``tick(runs)`` after each filter run).  Each from
+    the data that can speak for it:
 
     * sign_eps, a property of the plant's friction, from the real passive log alone: the ε of
       :data:`EPS_GRID` with the smallest RMS of τ̂ there (τ_h,act = 0, so every τ̂ is the
@@ -230,7 +232,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     # the passive log's first 2 T seconds (the leakage of model error into τ̂)
     passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
     active, synth_note = _synthetic_logs(cfg, log, human, sigma_u, T, opts, gp, v_gate, var_ref)
-    scan = _WalkScan(cfg, gp, opts, tune_eps, v_gate, var_ref)
+    scan = _WalkScan(cfg, gp, opts, tune_eps, v_gate, var_ref, tick)
     q0 = declared_walk(human)
     eps = scan.best_eps(q0, passive)
     qt = scan.best_walk(eps, active, q0) if active else q0
@@ -268,9 +270,10 @@ class _WalkScan:
     (``table``; each filter run once), the AKF or, with ``gp``, the GP-AKF, health monitor off."""
 
     def __init__(self, cfg: ModelConfig, gp, opts: CalibrationOptions, tune_eps: bool, v_gate: float,
-                 var_ref: float):
+                 var_ref: float, tick: Callable | None = None):
         self.cfg, self.gp, self.opts = cfg, gp, opts
         self.tune_eps, self.v_gate, self.var_ref = tune_eps, v_gate, var_ref
+        self.tick, self.runs = tick, 0
         self.table: dict = {}
         self.has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
 
@@ -291,6 +294,9 @@ class _WalkScan:
                 row[name] = _rmse(lg, est)
             except EstimatorFault:
                 row[name] = math.inf
+            self.runs += 1
+            if self.tick is not None:
+                self.tick(self.runs)
         return row
 
     @staticmethod
@@ -360,9 +366,16 @@ EPS_GRID = (0.002, 0.003, 0.005, 0.01, 0.02)
 
 # ---------------------------------------------------------------------------- the whole flow
 
+#: the steps of :func:`calibrate`, as its progress callback names them
+STEPS = ("measurement noise", "physical effects (diagnose)", "motor-torque noise", "residual GP",
+         "active-torque random walk", "coverage")
+
+
 def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
-              opts: CalibrationOptions | None = None) -> CalibrationResult:
-    """The calibration of the module docstring on one passive log."""
+              opts: CalibrationOptions | None = None, progress: Callable | None = None) -> CalibrationResult:
+    """The calibration of the module docstring on one passive log; ``progress(done, total, what)``
+    before each of its :data:`STEPS`."""
+    step = _stepper(progress)
     opts = opts or CalibrationOptions()
     given = set() if given is None else set(given)
     if log.n != cfg.joints:
@@ -371,6 +384,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         raise InputError("calibrate: one joint for now")
     report: dict = {"log": log.path, "samples": len(log), "given": sorted(given)}
     # 1. kinematics and R
+    step()
     cfg = _kinematics_and_R(log, cfg, given, report)
     # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
     # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
@@ -378,9 +392,12 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     cfg = _replace_est(cfg, init_after_kinematics=True, gp_noise_in_Q=True,
                        nis_window=max(cfg.estimator.nis_window, int(round(cfg.rate_hz))))
     # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
+    step()
     if opts.diagnose:
-        cfg = _diagnosed(log, cfg, report)
+        cfg = _diagnosed(log, cfg, report, progress=None if progress is None else (
+            lambda done, total, what: progress(1, len(STEPS), f"{STEPS[1]}: {what}")))
     # 3. motor-torque noise
+    step()
     if "tau_m_noise" not in given:
         su, sinfo = motor_torque_noise(log, cfg)
         cfg = _replace_est(cfg, tau_m_noise=su)
@@ -388,6 +405,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     else:
         report["tau_m_noise"] = {"given": cfg.estimator.tau_m_noise}
     # 4. residual GP (before the process noise: the walk is chosen for the complete model)
+    step()
     Z, F = smooth_pairs(cfg, log)
     # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
     v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
@@ -398,7 +416,9 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
                             "dq": float(np.max(np.abs(Z[:, 1])))}
     cfg, gp = _residual_gp(cfg, Z, F, given, opts, report)
     # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
-    cfg = _walk(log, cfg, given, opts, gp, report)
+    step()
+    cfg = _walk(log, cfg, given, opts, gp, report, tick=None if progress is None else (
+        lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
     cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
     # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
     # (default 0: the chosen q_τ everywhere): on the development plants newrobot2 and newrobot3 and
@@ -406,12 +426,26 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # 0.023 → 0.025 N m; demo 0.0317 → 0.0334) and kept no fault away (docs/calibration.md)
     report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
     # 6. coverage
+    step()
     wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
                                             float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
     cov = Coverage(wr)
     cov.add(Z)
     report["coverage"] = cov.report()
+    step()
     return CalibrationResult(cfg, gp, cov, report, opts)
+
+
+def _stepper(progress: Callable | None) -> Callable[[], None]:
+    """A function that reports the next of :data:`STEPS` to ``progress`` at each call."""
+    done = [0]
+
+    def step() -> None:
+        k = done[0]
+        if progress is not None:
+            progress(k, len(STEPS), STEPS[k] if k < len(STEPS) else "done")
+        done[0] = k + 1
+    return step
 
 
 def _kinematics_and_R(log: MeasuredLog, cfg: ModelConfig, given: set[str], report: dict) -> ModelConfig:
@@ -428,9 +462,9 @@ def _kinematics_and_R(log: MeasuredLog, cfg: ModelConfig, given: set[str], repor
     return cfg
 
 
-def _diagnosed(log: MeasuredLog, cfg: ModelConfig, report: dict) -> ModelConfig:
+def _diagnosed(log: MeasuredLog, cfg: ModelConfig, report: dict, progress: Callable | None = None) -> ModelConfig:
     """Step 2: the nominal model with the effects diagnose finds on the log (decimated)."""
-    dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False)
+    dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False, progress=progress)
     report["diagnose"] = {"effects_added": dg.result["effects_added"],
                           "residual_rms_before": dg.result["residual_rms_before"],
                           "residual_rms_after": dg.result["residual_rms_after"],
@@ -471,13 +505,13 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
 
 
 def _walk(log: MeasuredLog, cfg: ModelConfig, given: set[str], opts: CalibrationOptions, gp,
-          report: dict) -> ModelConfig:
+          report: dict, tick: Callable | None = None) -> ModelConfig:
     """Step 5: the τ_h,act random walk and the friction smoothing (:func:`human_walk`), unless
     Sigma_nom is given."""
     if "Sigma_nom" not in given:
         qt, eps, qinfo = human_walk(cfg, log, opts.human, cfg.estimator.tau_m_noise or 0.0, opts,
                                     tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
-                                    var_ref=report["gp_var_ref"])
+                                    var_ref=report["gp_var_ref"], tick=tick)
         cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
         report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}
     else:
@@ -495,14 +529,15 @@ def options_from_config(cfg: ModelConfig, gp: str = "auto") -> CalibrationOption
                               gp=gp, seed=c.seed)
 
 
-def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto") -> CalibrationResult:
+def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto",
+                  progress: Callable | None = None) -> CalibrationResult:
     """The calibration of ``log`` with the configuration ``cfg`` whose YAML mapping is ``raw``
     (its given values kept, :func:`given_keys`; options from its ``calibration`` section)."""
-    return calibrate(log, cfg, given=given_keys(raw), opts=options_from_config(cfg, gp))
+    return calibrate(log, cfg, given=given_keys(raw), opts=options_from_config(cfg, gp), progress=progress)
 
 
-def calibrate_from_files(log_path, config_path, gp: str = "auto") -> CalibrationResult:
+def calibrate_from_files(log_path, config_path, gp: str = "auto", progress: Callable | None = None) -> CalibrationResult:
     """The calibration of the log file ``log_path`` with the configuration file ``config_path``."""
     cfg = load_config(config_path)
     log = read_log(log_path, n=cfg.joints, min_rows=2)
-    return calibrate_log(log, cfg, load_yaml(config_path), gp)
+    return calibrate_log(log, cfg, load_yaml(config_path), gp, progress)

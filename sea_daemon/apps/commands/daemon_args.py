@@ -1,8 +1,8 @@
 """Arguments shared by ``sea-daemon run`` and ``sea-daemon calibrate``."""
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -15,6 +15,8 @@ from sea_daemon.io.files import check_output_dir, check_outputs
 from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.rig import bus_overrides
 from sea_daemon.runtime.safety import SafetySupervisor
+
+log = logging.getLogger("sea_daemon")
 
 
 def add_common(p, *, cycles_help: str) -> None:
@@ -75,6 +77,11 @@ def load(args, outputs: list | tuple = ()):
     pace = args.pace or ("lockstep" if simulated else "realtime")
     if pace == "lockstep" and not simulated:
         raise InputError("--pace lockstep needs --device-model or --sim (real drives run in real time)")
+    if not simulated and cfg.hardware.bus.interface == "remote":
+        log.warning("the remote bus (python-can-remote, %s) is for inspection and tools over a network, not "
+                    "the real-time loop: its delays latch faults within a few dozen cycles; for separate "
+                    "processes on one machine without SocketCAN use --bus ipc (docs/can.md)",
+                    cfg.hardware.bus.channel)
     return cfg, log_dir, state_dir, pace == "realtime"
 
 
@@ -108,8 +115,7 @@ def socket_path(args, state_dir: Path) -> Path | None:
     if args.socket is None:
         path = default_socket(state_dir)
         if len(os.fsencode(str(path))) >= 108:         # a UNIX socket path holds at most 107 bytes
-            print(f"sea-daemon: warning: {path} is too long for a UNIX socket: no local publication "
-                  "(give --socket PATH)", file=sys.stderr)
+            log.warning("%s is too long for a UNIX socket: no local publication (give --socket PATH)", path)
             return None
         return path
     if args.socket.lower() == "none":

@@ -31,7 +31,7 @@ output asked for by ``--lsl`` / ``--mcap`` that failed (``outputs`` in the summa
 from __future__ import annotations
 
 import json
-import sys
+import logging
 
 from sea_daemon.apps.calibration.modelio import estimator_from_model
 from sea_daemon.apps.commands import daemon_args
@@ -48,6 +48,7 @@ from sea_daemon.runtime.service import StateFile, serve
 from sea_daemon.runtime.sinks import LslSpec, McapSpec, require
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.run")
 
 
 def add_arguments(p) -> None:
@@ -117,16 +118,14 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                "outputs": res.log.get("sinks", [])}
     print(json.dumps(summary))
     if not sup.ok:
-        print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)
+        log.error(sup.status_line())
         return 1
     if res.log["error"]:
-        print(f"sea-daemon run: log incomplete, {res.log['rows_lost']} rows lost: {res.log['error']}",
-              file=sys.stderr)
+        log.error("log incomplete, %s rows lost: %s", res.log["rows_lost"], res.log["error"])
         return 1
     failed = [out for out in res.log.get("sinks", []) if out["error"]]
     for out in failed:
-        print(f"sea-daemon run: the {out['output']} output failed: {out['error']} (the CSV log is complete)",
-              file=sys.stderr)
+        log.error("the %s output failed: %s (the CSV log is complete)", out["output"], out["error"])
     return 1 if failed else 0
 
 

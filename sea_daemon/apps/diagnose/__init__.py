@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Callable
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
@@ -20,7 +21,7 @@ from sea_daemon.errors import ConfigError, InputError, shown
 from sea_daemon.io.configfile import config_text, save_config
 from sea_daemon.io.files import atomic_write_text
 from sea_daemon.analysis.diagnose.apply import apply_model, claims
-from sea_daemon.analysis.diagnose.engine import Diagnosis, run_diagnosis
+from sea_daemon.analysis.diagnose.engine import STEPS, Diagnosis, run_diagnosis
 from sea_daemon.analysis.diagnose.select import SelectOptions
 from sea_daemon.analysis.diagnose.summary import clean
 from sea_daemon.apps.diagnose.report import write_report
@@ -30,20 +31,29 @@ __all__ = ["diagnose", "SelectOptions", "run_diagnosis", "Diagnosis"]
 
 def diagnose(log: MeasuredLog, cfg: ModelConfig, out_dir: str | Path | None = None,
              options: SelectOptions | None = None, passive: bool | None = None,
-             plots: bool = True, apply: list[MeasuredLog] | tuple = ()) -> dict:
+             plots: bool = True, apply: list[MeasuredLog] | tuple = (),
+             progress: Callable | None = None) -> dict:
     """Diagnose ``log`` against ``cfg``; return the docs/interfaces.md §4 dict.
 
     With ``out_dir``: write diagnosis.json, model_augmented.yaml, report.md and PNGs there.
     ``apply``: other logs (a person acting, no torque truth) to run the AKF on with the model
     before and after (:mod:`sea_daemon.analysis.diagnose.apply`); their summaries go to the
-    dict's ``applied``.
+    dict's ``applied``.  ``progress(done, total, what)``: called before each step.
     """
-    dg = run_diagnosis(log, cfg, options, passive)
+    total = len(STEPS) + 2
+
+    def report(done, _total=None, what=""):
+        if progress is not None:
+            progress(done, total, what)
+    dg = run_diagnosis(log, cfg, options, passive, progress=report)
     dg.applied = []
+    report(len(STEPS), what="the model on the other logs")
     if apply:
         _apply(dg, cfg, apply)
+    report(len(STEPS) + 1, what="writing the report and plots")
     if out_dir is not None:
         _write(dg, Path(out_dir), log, cfg, plots)
+    report(total, what="done")
     return dg.result
 
 
