@@ -5,7 +5,7 @@ estimator settings (paper R, Σ_nom, ``sign_eps``).  With Coulomb/Stribeck frict
 and the joint held still (active scenario) the smoothed friction is a very steep function
 of the estimated velocity, and the paper's large velocity process noise lets the filter
 explain torque changes by velocity/friction instead of τ_h,act: the oracle is then slower
-than the plain AKF (see the report of issue 2 for figures).
+than the plain AKF (docs/benchmarks.md, "GP-AKF accuracy").
 
 For each scenario (default ``configs/scenarios/passive.yaml`` and ``active.yaml``, Sec. V-B
 and V-C of the paper): simulate the training and estimation phases, run every estimator

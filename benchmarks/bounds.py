@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import add_settings_argument, apply_settings, choose, start_simulated, summarize
-from sea_daemon.core.als import config_with_R, floored_R, identify_noise
+from sea_daemon.analysis.als import config_with_R, floored_R, identify_noise
 from sea_daemon.core.bounds.akf_bound import AKFTheoremBound
 from sea_daemon.core.bounds.calibration import conformal_gp_constants, gp_constants, residual_gps
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import os
 import socket
+import stat
 import struct
 import time
 from dataclasses import dataclass
@@ -33,7 +34,7 @@ from typing import Iterator
 
 from sea_daemon.errors import Fault, InputError
 
-__all__ = ["Sample", "Subscriber", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids", "tpdo_cycles",
+__all__ = ["Sample", "Subscriber", "daemon_uid", "sender_uid", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids", "tpdo_cycles",
            "SOCKET_NAME", "FLAG_FAULT", "FLAG_ASSIST_ON", "FLAG_ASSIST_ENGAGED", "FLAG_ESTIMATOR",
            "TPDO_JOINT", "TPDO_STATUS"]
 
@@ -186,6 +187,44 @@ def decode(data: bytes) -> Sample:
                   tau_h_act_hat=cols[2], tau_h_act_bound=cols[3], tau_h_act_sigma=cols[4], tau_assist=cols[5])
 
 
+#: the kernel's credentials of a datagram's sender (SO_PASSCRED): pid, uid, gid
+CREDS = struct.Struct("3i")
+
+
+def sender_uid(ancdata) -> int | None:
+    """The uid the kernel attached to a datagram (``recvmsg`` ancillary data of a socket with
+    ``SO_PASSCRED``); None when there is none."""
+    for level, kind, data in ancdata:
+        if level == socket.SOL_SOCKET and kind == socket.SCM_CREDENTIALS and len(data) >= CREDS.size:
+            return CREDS.unpack_from(data)[1]
+    return None
+
+
+def daemon_uid(path: str) -> int:
+    """The owner of the daemon's socket ``path``, the only user whose datagrams a reader takes.
+
+    InputError when ``path`` is no socket, or when its directory lets others replace it
+    (writable by group or others without the sticky bit, or owned by a user who is neither the
+    socket's owner nor root)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(f"no sea-daemon publishes on {path} (it does not exist); "
+                         "give the socket of a running daemon (STATE_DIR/sea-daemon.sock)") from None
+    except OSError as e:
+        raise InputError(f"socket {path}: cannot read: {e.strerror or e}") from None
+    if not stat.S_ISSOCK(st.st_mode):
+        raise InputError(f"{path}: is not a socket (give the daemon's STATE_DIR/sea-daemon.sock)")
+    real = os.path.realpath(path)
+    d = os.path.dirname(real) or "."
+    dst = os.stat(d)
+    if dst.st_uid not in (st.st_uid, 0) or (dst.st_mode & 0o022 and not dst.st_mode & stat.S_ISVTX):
+        raise InputError(f"socket {path}: its directory {d} (owner uid {dst.st_uid}, mode "
+                         f"{stat.S_IMODE(dst.st_mode):04o}) lets others replace it; allowed: owned by the "
+                         "socket's owner or root and not writable by group or others")
+    return st.st_uid
+
+
 class Subscriber:
     """Receives the daemon's datagrams on a socket of its own (Linux abstract address).
 
@@ -194,34 +233,56 @@ class Subscriber:
     :meth:`receive`; a reader that stops reading is dropped by the daemon after 5 s.  Datagrams
     the reader was too slow for are dropped by the daemon (counted there): gaps in
     :attr:`Sample.cycle` show them, :attr:`missed` counts them here.
+
+    Only the daemon's datagrams are taken, as the kernel vouches: the reader's socket is
+    connected to the daemon's (the kernel refuses datagrams of any other socket), and every
+    datagram's sender, as the kernel reports it (``SO_PASSCRED``), must be the owner of the
+    daemon's socket (:func:`daemon_uid`, or ``uid``).  A datagram of anyone else, or one that is
+    no sample, is dropped and counted in :attr:`rejected`.
     """
 
-    def __init__(self, path: str | os.PathLike, *, buffer_bytes: int = 1 << 20):
+    def __init__(self, path: str | os.PathLike, *, buffer_bytes: int = 1 << 20, uid: int | None = None):
         self.path = str(path)
         if len(os.fsencode(self.path)) >= 108:
             raise InputError(f"socket path {self.path!r}: {len(os.fsencode(self.path))} bytes, a UNIX socket "
                              "path allows at most 107")
+        self._fixed_uid = uid
+        self.uid = uid if uid is not None else daemon_uid(self.path)
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, buffer_bytes)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_PASSCRED, 1)
             self.sock.bind("")                       # autobind: an abstract address of our own
         except OSError:
             self.sock.close()
             raise
         self._buf = bytearray(record_size(MAX_JOINTS) + 64)
+        self._anc = socket.CMSG_SPACE(CREDS.size)
         self._next_renew = 0.0
         self.received = 0
         self.missed = 0
+        self.rejected = 0                             # datagrams dropped: not the daemon's, or no sample
         self._last_cycle: int | None = None
-        self.subscribe()
+        try:
+            self.subscribe()
+        except BaseException:
+            self.sock.close()
+            raise
 
     def subscribe(self) -> None:
-        """(Re)new the subscription; InputError when no daemon listens at :attr:`path`."""
+        """(Re)new the subscription: connect to the daemon's socket (again: a restarted daemon
+        has a new one) and send the request; InputError when no daemon listens at :attr:`path`."""
         try:
-            self.sock.sendto(SUBSCRIBE.pack(SUB_MAGIC, VERSION, 0), self.path)
+            if self._fixed_uid is None:
+                self.uid = daemon_uid(self.path)
+            self.sock.connect(self.path)
+            self.sock.send(SUBSCRIBE.pack(SUB_MAGIC, VERSION, 0))
         except (FileNotFoundError, ConnectionRefusedError) as e:
             raise InputError(f"no sea-daemon publishes on {self.path} ({e.strerror or e}); "
                              "give the socket of a running daemon (STATE_DIR/sea-daemon.sock)") from None
+        except PermissionError as e:
+            raise InputError(f"socket {self.path}: {e.strerror or e} (the daemon's hardware.local_readers "
+                             "and the socket's permissions say who may read)") from None
         self._next_renew = time.monotonic() + RENEW_S
 
     def receive(self, timeout: float | None = 1.0) -> Sample | None:
@@ -235,13 +296,19 @@ class Subscriber:
         self.sock.settimeout(timeout)
         while True:
             try:
-                nbytes, _ = self.sock.recvfrom_into(self._buf)
+                nbytes, anc, _, _ = self.sock.recvmsg_into([self._buf], self._anc)
             except (socket.timeout, BlockingIOError):
                 return None
+            except ConnectionError:                     # the daemon went away (reported once)
+                continue
+            if sender_uid(anc) != self.uid:
+                self.rejected += 1                    # not the daemon: dropped, counted
+                continue
             try:
                 s = decode(bytes(self._buf[:nbytes]))
             except InputError:
-                continue                              # not ours: ignore
+                self.rejected += 1
+                continue
             if self._last_cycle is not None and s.cycle > self._last_cycle + 1:
                 self.missed += s.cycle - self._last_cycle - 1
             self._last_cycle = s.cycle
@@ -258,7 +325,7 @@ class Subscriber:
 
     def close(self) -> None:
         try:
-            self.sock.sendto(SUBSCRIBE.pack(UNSUB_MAGIC, VERSION, 0), self.path)
+            self.sock.send(SUBSCRIBE.pack(UNSUB_MAGIC, VERSION, 0))
         except OSError:
             pass
         self.sock.close()

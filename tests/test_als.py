@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from sea_daemon.core.als import identify, innovations, model_autocov, sample_autocov, stable_gain
+from sea_daemon.analysis.als import identify, innovations, model_autocov, sample_autocov, stable_gain
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.errors import InputError
 from sea_daemon.core.linalg import discretize

@@ -1,4 +1,4 @@
-"""``python -m benchmarks.bounds`` end to end on shortened scenarios (the figures are in docs/bounds.md)."""
+"""``python -m benchmarks.bounds`` end to end on shortened scenarios (the figures are in docs/benchmarks.md)."""
 import json
 
 import pytest

@@ -55,12 +55,18 @@ def _estimator(cfg):
 class _HW:
     actuation_delay = 0
 
-    def __init__(self, pause=0.0):
-        self.k, self.pause = TRAIN, pause
+    def __init__(self, pause=0.0, caught_up=None):
+        self.k, self.pause, self.caught_up = TRAIN, pause, caught_up
 
     def read(self):
         if self.pause:
             time.sleep(self.pause)
+        if self.caught_up is not None:
+            # the worker has finished every sample the loop gave it (however slowly a loaded host
+            # runs it; a generous deadline): each cycle's newest bound is at most a cycle old
+            end = time.monotonic() + 60
+            while not self.caught_up() and time.monotonic() < end:
+                time.sleep(0.0005)
         k = self.k
         self.k += 1
         return types.SimpleNamespace(t=k * 0.01, q=Q[k:k + 1].copy(), theta_m=TH[k:k + 1].copy())
@@ -84,14 +90,15 @@ def _run(cfg, cycles, worker=False, pause=0.0, kill_at=None, **kw):
     est = _estimator(cfg)
     log = ListLog()
     link = BoundWorker(est, capacity=1024, **kw).start() if worker else None
-    hw = _HW(pause)
+    hw = _HW(pause, (lambda: not link._proc.is_alive() or link._hdr[bs.H_DONE] >= link._head) if worker else None)
     if kill_at is not None:
         read = hw.read
 
         def read_and_kill():
             if hw.k - TRAIN == kill_at:
                 os.kill(link.pid, signal.SIGKILL)
-                time.sleep(0.3)                      # the loop sees a dead worker within 0.2 s
+                link._proc.join(60)                  # dead, however long a loaded host takes to end it
+                time.sleep(0.25)                     # the loop looks whether the worker lives every 0.2 s
             return read()
         hw.read = read_and_kill
     loop = FixedRateLoop(hw, est, _Zero(), n=1, period=0.01, log=log, realtime=False, bound_link=link)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from sea_daemon.apps import cli
-from sea_daemon.apps.calibration.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate, decimate, given_keys, with_R
 from sea_daemon.core.config import SEAParams
 from sea_daemon.core.effects import make_effect
@@ -100,7 +100,7 @@ def test_measured_velocity_noise_matches_the_error_against_the_truth(plant, cal_
     nom, _ = plant
     cfg = dataclasses.replace(nom, kinematics=choose_kinematics(nom.rate_hz))
     R, info = measurement_noise(cal_log, cfg)
-    from sea_daemon.apps.calibration.noise import causal_measurements
+    from sea_daemon.analysis.noise import causal_measurements
     y, _ = causal_measurements(cal_log, cfg)
     ex = cal_log.extra
     v_true = np.column_stack([ex["dtheta_m_true"], ex["dq_true"] - ex["dtheta_m_true"]])
@@ -149,7 +149,7 @@ def test_weighted_residual_trusts_the_mean_only_where_its_variance_is_below_the_
     """The weight's reference is the leftover's latent mean square s_0² (what predicting 0 costs
     on the calibration data), not σ_f² alone: a GP whose σ_f is inflated over a small, noisy
     leftover keeps its mean out; a GP that knows its well-sampled leftover keeps it in."""
-    from sea_daemon.apps.calibration.pipeline import leftover_latent_variance
+    from sea_daemon.apps.calibration.residual_gp import leftover_latent_variance
     from sea_daemon.core.config import LearningConfig
     from sea_daemon.core.estimators.weighted import WeightedResidual
     from sea_daemon.core.learning import ResidualGP
@@ -340,8 +340,8 @@ def test_the_summary_names_effects_the_log_cannot_tell_apart(calibrated):
 def test_the_gp_pairs_carry_the_load_sides_leftover_only(plant):
     """A motor-side torque the physics misses (cogging) stays out of the residual GP's targets:
     the filter applies f on the load side, where it would move τ̂_h,act by its size."""
-    from sea_daemon.apps.calibration.pipeline import smooth_pairs
-    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity
+    from sea_daemon.apps.calibration.residual_gp import smooth_pairs
+    from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity
     nom, true = plant
     cog = make_effect("cogging", "motor", A=0.08, periods=6.0, phi=0.3)
     aug = true                                                    # the model: the load side's physics complete

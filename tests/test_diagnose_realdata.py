@@ -20,8 +20,8 @@ import pytest
 
 from sea_daemon.apps.cli import main
 from sea_daemon.apps.diagnose import SelectOptions, diagnose
-from sea_daemon.apps.diagnose.candidates import TorqueScaleC
-from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residuals_for
+from sea_daemon.analysis.diagnose.candidates import TorqueScaleC
+from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, residuals_for
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.replay import replay
 from sea_daemon.io.configfile import load_config
@@ -86,7 +86,7 @@ def test_the_slow_torque_shortfall_is_not_taken_for_a_gain(head, diag):
     assert 0.8 <= g["kappa"] <= 1.3 and g["ci95_half_width"] < 0.1, g
     assert ("torque_scale", "motor") not in {(d["type"], d["side"]) for d in res["effects_added"]}
     log, cfg = head
-    from sea_daemon.apps.diagnose.candidates import Context
+    from sea_daemon.analysis.diagnose.context import Context
     ctx = Context(cfg, kinematics_from_log(log), None, v_stick=(0.033, 0.03))
     why = TorqueScaleC("motor").implausible(ctx, {"kappa": 0.55})
     assert why and "fast part" in why

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from sea_daemon.io.configfile import default_config_path, load_config
-from sea_daemon.apps.diagnose.candidates import Context, build_candidates
-from sea_daemon.apps.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels
+from sea_daemon.analysis.diagnose.candidates import build_candidates
+from sea_daemon.analysis.diagnose.context import Context
+from sea_daemon.analysis.diagnose.residuals import applied_torque, kinematics_from_log, residual_channels
 from sea_daemon.core.effects import EFFECT_TYPES, make_effect
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
@@ -169,7 +170,7 @@ def test_fast_command_gain_finds_the_drives_gain():
     """fast_command_gain on simulated logs: a drive delivering κ = 0.85 of the command, and one
     delivering all of it, are told apart from the fast part of the command alone."""
     from diagnose_sim import passive_log
-    from sea_daemon.apps.diagnose.residuals import fast_command_gain
+    from sea_daemon.analysis.diagnose.residuals import fast_command_gain
 
     for kappa in (0.85, 1.0):
         extra = [make_effect("torque_scale", "motor", kappa=kappa)] if kappa != 1.0 else []

@@ -11,7 +11,7 @@ import pytest
 
 from sea_daemon.apps.cli import main
 from sea_daemon.apps.diagnose import SelectOptions, diagnose
-from sea_daemon.apps.diagnose.prepare import MAX_GAP, encoder_quanta, observed_quantum, prepare_log, segment_log
+from sea_daemon.analysis.diagnose.prepare import MAX_GAP, encoder_quanta, observed_quantum, prepare_log, segment_log
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import LogFormatError
@@ -155,7 +155,7 @@ def test_long_log_is_diagnosed_on_segments(head):
     assert res["fit"]["samples_used"] < whole["fit"]["samples_used"]
     assert np.isfinite(res["estimate_rmse_before"]) and np.isfinite(res["residual_rms_before"])
     # away from the seams the segments' residual is the whole log's at the same samples
-    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residuals_for
+    from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, residuals_for
     seg = segment_log(dist, max_rows=2000)
     w = kinematics_from_log(dist).window
     r_seg = residuals_for(cfg, kinematics_from_log(seg.log))
@@ -170,7 +170,7 @@ def test_long_log_is_diagnosed_on_segments(head):
 
 
 def test_fit_stride_of_a_long_fit():
-    from sea_daemon.apps.diagnose.select import Selector
+    from sea_daemon.analysis.diagnose.select import Selector
     assert Selector.fit_stride(1000, 20000, 51) == 1
     assert Selector.fit_stride(80000, 20000, 51) == 4
     assert Selector.fit_stride(10**6, 20000, 51) == 25          # at most half a smoothing window

@@ -57,7 +57,7 @@ def test_bad_counts_are_config_errors(bad):
 
 def test_noise_floor_uses_the_counts():
     """identify-noise floors the encoder variances at each encoder's own Δ²/12."""
-    from sea_daemon.core.als import floored_R
+    from sea_daemon.analysis.als import floored_R
     from sea_daemon.core.kinematics import CausalDifferentiator
     c = _cfg({"gear_ratio": 16, "encoder_counts": {"load": 8000, "motor": 2000}})
     fir = CausalDifferentiator(c.dt, c.kinematics.window, 2, c.kinematics.method, c.kinematics.degree).C

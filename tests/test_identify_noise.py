@@ -69,7 +69,7 @@ def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
 def test_floor_is_each_encoders_own_quantisation():
     """The motor encoder sits before the 1:gear_ratio gear: its joint-side quantum is 2π/(2^bits·gear),
     so its floor is gear² below the load encoder's (2π/2^bits)²/12."""
-    from sea_daemon.core.als import floored_R
+    from sea_daemon.analysis.als import floored_R
     from sea_daemon.core.kinematics import CausalDifferentiator
     cfg = load_config(default_config_path())
     hw = cfg.hardware

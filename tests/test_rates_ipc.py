@@ -40,15 +40,11 @@ def test_at_rate_keeps_the_differentiators_span_and_the_information_per_second()
 
 
 def test_a_model_file_of_100_hz_loads_at_1_khz_and_a_changed_window_is_refused(tmp_path):
-    from sea_daemon.core.learning import ResidualGP
-    from sea_daemon.io.gpmodel import load_gp_model, save_gp_model
+    from sea_daemon.io.gpmodel import load_gp_model
+    from _model import small_model
     cfg = load_config(CFG)
-    res = ResidualGP(1, cfg.learning, hyperopt=False)
-    rng = np.random.default_rng(0)
-    for _ in range(30):
-        res.update(rng.uniform(-1, 1, 3), np.array([0.1]))
     p = tmp_path / "m.npz"
-    save_gp_model(p, cfg, res, {"test": True})
+    res = small_model(cfg, p, residual=0.1)
     r, _ = load_gp_model(p, at_rate(cfg, 1000))
     assert r.n_points == res.n_points
     wrong = dataclasses.replace(at_rate(cfg, 1000), kinematics=cfg.kinematics)     # W = 5 at 1 kHz

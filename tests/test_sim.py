@@ -16,6 +16,7 @@ from sea_daemon.core.effects import make_effect
 from sea_daemon.errors import ConfigError
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.core.sim.plant import Plant
+from sea_daemon.core.sim.session import run_session
 from sea_daemon.runtime.sim_runner import simulate
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.core.sim.sensors import Encoders, load_quantum, motor_quantum
@@ -559,3 +560,21 @@ def test_scenario_declares_the_human_torque_rate_to_the_bound():
     settings = load_config(ROOT / "configs" / "exo_1dof_sim.yaml")
     assert act.declared(settings).estimator.tau_h_act_rate == act.tau_h_act_rate
     assert pas.tau_h_act_rate is None and pas.declared(settings) is settings
+
+
+def test_simulate_and_run_session_are_the_same_samples():
+    """The daemon's loop over SimHardware (``simulate``) and the core's ``run_session`` run the
+    same per-sample steps: the passive scenario's training phase, as a session of its plant,
+    reference and gains, gives the same numbers."""
+    sc = load_scenario(repo_root() / "configs" / "scenarios" / "passive.yaml")
+    train = simulate(sc).training
+    tr = sc.controller.trajectory
+    ref = MinJerkTrajectory(math.radians(tr.q_start_deg), math.radians(tr.q_end_deg), tr.move_s, tr.moves,
+                            cyclic=True, hold_s=tr.hold_s)
+    log = run_session(sc.true_config(), len(train) * sc.nominal.dt, reference=ref, seed=sc.seed, gains=sc.controller,
+                      substep_hz=sc.plant.substep_hz, sign_eps=sc.plant.sign_eps, torque_noise=sc.plant.torque_noise)
+    assert len(log) == len(train)
+    for k in ("t", "q", "theta_m", "tau_m", "tau_h_act"):
+        assert np.array_equal(getattr(log, k), getattr(train, k)), k
+    for k, v in log.extra.items():
+        assert np.array_equal(v, train.extra[k]), k

@@ -1,7 +1,8 @@
 """Model configuration (docs/interfaces.md §2) as validated, frozen dataclasses.
 
 The YAML has the contract's top level (``joints``, ``rate_hz``, ``model``) plus optional
-sections this project adds (``estimator``, ``kinematics``, ``learning``, ``hardware``).
+sections this project adds (``estimator``, ``kinematics``, ``learning``, ``hardware``, ``assist``,
+``calibration``, ``publish``).
 Every section is a frozen dataclass; unknown keys, missing keys and values out of range
 raise :class:`~sea_daemon.errors.ConfigError` naming the key and the allowed values.
 
@@ -21,8 +22,12 @@ from sea_daemon.core.effects import Effect, effect_from_dict
 from sea_daemon.core.hardware_config import BusConfig, HardwareConfig
 from sea_daemon.errors import ConfigError
 
+#: the largest seed of a random generator a configuration may give (numpy's and Python's take any
+#: integer; 32 bits are every seed anyone writes)
+MAX_SEED = 2 ** 32 - 1
+
 __all__ = ["SEAParams", "EstimatorConfig", "KinematicsConfig", "LearningConfig", "AssistConfig", "BusConfig",
-           "HardwareConfig", "ModelConfig"]
+           "HardwareConfig", "PublishConfig", "ModelConfig"]
 
 
 @dataclass(frozen=True)
@@ -267,6 +272,8 @@ class LearningConfig:
 
     KEYS = ["max_points", "max_leaves", "overlap", "lengthscales", "sigma_f", "sigma_n", "hyperopt", "seed",
             "extrapolation_scale", "clip_leaf_mean", "split_in_lengthscales"]
+    #: integer settings' ranges: a leaf's factor holds N̄²/2 numbers and a split costs O(N̄³)
+    INT_RANGES = {"max_points": (2, 1000), "max_leaves": (2, 100_000), "seed": (0, MAX_SEED)}
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "LearningConfig":
@@ -275,9 +282,9 @@ class LearningConfig:
         for k in ("max_points", "max_leaves", "seed"):
             if k in d:
                 v = d[k]
-                lo = 0 if k == "seed" else 2
-                if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                    raise ConfigError(source, f"learning.{k}", f"must be an integer >= {lo}, got {v!r}")
+                lo, hi = cls.INT_RANGES[k]
+                if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                    raise ConfigError(source, f"learning.{k}", f"must be an integer in {lo}..{hi}, got {v!r}")
                 out[k] = v
         if "overlap" in d:
             out["overlap"] = validate.num(source, "learning.overlap", d["overlap"], lo=0.0, hi=0.9)
@@ -382,6 +389,9 @@ class CalibrationConfig:
     seed: int = 0                        # of the excitation's random moves
 
     KEYS = ["q_min_deg", "q_max_deg", "v_max", "a_max", "duration_s", "human_band_hz", "human_torque_rms", "seed"]
+    #: the largest speed [rad/s], acceleration [rad/s²], duration [s] and RMS torque [N m]: the
+    #: calibration's moves are planned sample by sample over ``duration_s``
+    MAX = {"v_max": 100.0, "a_max": 1e4, "duration_s": 3600.0, "human_torque_rms": 1e3}
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "CalibrationConfig":
@@ -394,6 +404,8 @@ class CalibrationConfig:
         for key in ("v_max", "a_max", "duration_s", "human_torque_rms"):
             if key in d:
                 out[key] = validate.num(source, k + key, d[key], positive=True)
+                if out[key] > cls.MAX[key]:
+                    raise ConfigError(source, k + key, f"must be in (0, {cls.MAX[key]:g}], got {out[key]:g}")
         if "human_band_hz" in d:
             b = validate.vector(source, k + "human_band_hz", d["human_band_hz"], 2, positive=True)
             if not b[0] < b[1]:
@@ -401,8 +413,8 @@ class CalibrationConfig:
             out["human_band_hz"] = (float(b[0]), float(b[1]))
         if "seed" in d:
             v = d["seed"]
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ConfigError(source, k + "seed", f"must be an integer >= 0, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
+                raise ConfigError(source, k + "seed", f"must be an integer in 0..{MAX_SEED}, got {v!r}")
             out["seed"] = v
         if out.get("q_min_deg") is not None and out.get("q_max_deg") is not None \
                 and not out["q_min_deg"] < out["q_max_deg"]:
@@ -413,6 +425,42 @@ class CalibrationConfig:
         d = dataclasses.asdict(self)
         d["human_band_hz"] = list(self.human_band_hz)
         return d
+
+
+@dataclass(frozen=True)
+class PublishConfig:
+    """Where else ``sea-daemon run`` sends the estimate (``publish``; docs/interfaces.md §7): a Lab
+    Streaming Layer outlet named ``lsl_name`` (``lsl``; the daemon waits up to ``lsl_wait_s`` for
+    an inlet before its loop starts) and an MCAP recording beside the CSV log (``mcap``).  Both
+    off unless asked (here or by ``run --lsl`` / ``--mcap``)."""
+
+    lsl: bool = False
+    lsl_name: str = "sea-daemon"
+    lsl_wait_s: float = 0.0
+    mcap: bool = False
+
+    KEYS = ["lsl", "lsl_name", "lsl_wait_s", "mcap"]
+
+    @classmethod
+    def from_dict(cls, d: Mapping, n: int, source: str) -> "PublishConfig":
+        validate.check_keys(source, "publish.", d, cls.KEYS, [])
+        out: dict = {}
+        for key in ("lsl", "mcap"):
+            if key in d:
+                if not isinstance(d[key], bool):
+                    raise ConfigError(source, "publish." + key, f"must be true or false, got {d[key]!r}")
+                out[key] = d[key]
+        if "lsl_name" in d:
+            name = d["lsl_name"]
+            if not isinstance(name, str) or not 1 <= len(name) <= 64 or not name.isprintable():
+                raise ConfigError(source, "publish.lsl_name", f"must be 1 to 64 printable characters, got {name!r}")
+            out["lsl_name"] = name
+        if "lsl_wait_s" in d:
+            out["lsl_wait_s"] = validate.num(source, "publish.lsl_wait_s", d["lsl_wait_s"], lo=0.0, hi=3600.0)
+        return cls(**out)
+
+    def to_dict(self) -> dict:
+        return {key: getattr(self, key) for key in self.KEYS}
 
 
 @dataclass(frozen=True)
@@ -429,9 +477,10 @@ class ModelConfig:
     source: str = "<memory>"
     assist: AssistConfig = field(default_factory=AssistConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    publish: PublishConfig = field(default_factory=PublishConfig)
 
     TOP_KEYS = ["joints", "rate_hz", "model", "estimator", "kinematics", "learning", "hardware", "assist",
-                "calibration"]
+                "calibration", "publish"]
 
     @property
     def dt(self) -> float:
@@ -455,6 +504,7 @@ class ModelConfig:
             source=source,
             assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
+            publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
         )
 
     def to_dict(self) -> dict:
@@ -463,6 +513,7 @@ class ModelConfig:
             "estimator": self.estimator.to_dict(), "kinematics": self.kinematics.to_dict(),
             "learning": self.learning.to_dict(), "hardware": self.hardware.to_dict(),
             "assist": self.assist.to_dict(), "calibration": self.calibration.to_dict(),
+            "publish": self.publish.to_dict(),
         }
 
     def with_effects(self, effects) -> "ModelConfig":

@@ -288,3 +288,64 @@ class OpenLoopTorque:
     def command(self, t: float, active: bool = True) -> np.ndarray:
         """Motor torque command [N m] at phase time t."""
         return self.tau_des(t, active) + np.asarray(self.tau_comp, dtype=float)
+
+
+class ReferenceTracker:
+    """The :class:`PID` tracking a reference from a bumpless start: ``update(t, q, θ_m)`` → τ_m [N m].
+
+    ``reference``: any object with ``reference(t) -> (q, q̇, q̈)``; a :class:`MinJerkTrajectory`
+    runs its reference and the PID step in one compiled call (:meth:`PID.track_into`), the same
+    numbers.  :meth:`start` presets the integrator so that the first command is ``u0`` (the
+    torque already holding the arm).  The command is within ±``torque_limit`` (the PID clips)
+    and is the PID's own array, overwritten by the next update.  After each update
+    :attr:`q_ref` [rad] holds the reference the command was computed for.
+    """
+
+    def __init__(self, gains: PIDGains, reference, dt: float, torque_limit: float):
+        self.pid = PID(gains.kp, gains.ki, gains.kd, dt, torque_limit, gains.velocity_filter_hz,
+                       derivative=gains.derivative)
+        self.reference = reference
+        self._track = reference.fields if isinstance(reference, MinJerkTrajectory) else None
+        self.q_ref = 0.0
+
+    def start(self, q, theta_m, u0) -> None:
+        """Start at rest from this measurement with the command ``u0``."""
+        self.pid.reset(q if self.pid.derivative == "load" else theta_m, u0)
+
+    def update(self, t: float, q, theta_m) -> np.ndarray:
+        if self._track is not None:
+            u = self.pid.track_into(self._track, t, q, theta_m)
+            self.q_ref = self.pid.ref.item(0)
+            return u
+        self.q_ref, dq_ref, _ = self.reference.reference(t)
+        return self.pid.step_into(self.q_ref, q, dq_ref, theta_m)
+
+
+class StillArm:
+    """The still-arm open loop (Sec. V-C): τ_m = clip(τ_comp + τ_des(t), ±torque_limit), and the
+    subject resists, τ_h,act = −τ_des, so that the arm stays at rest.
+
+    ``tau_comp``: the torque holding the arm at rest (n,) [N m]; ``tau_des``: t [s] → τ_des [N m].
+    After each update :attr:`tau_des` holds the desired torque of the command (the subject's
+    torque is its negative) and :attr:`q_ref` the angle the arm is held at.  The command is the
+    controller's own array, overwritten by the next update.
+    """
+
+    def __init__(self, tau_comp, tau_des, torque_limit: float, q_ref: float = 0.0):
+        self.tau_comp = np.asarray(tau_comp, dtype=float)
+        self.profile = tau_des
+        self.limit = float(torque_limit)
+        self.q_ref = q_ref
+        self.tau_des = 0.0
+        self._out = np.zeros(self.tau_comp.shape)
+
+    def update(self, t: float, q=None, theta_m=None) -> np.ndarray:
+        self.tau_des = self.profile(t)
+        # Sec. V-C: τ_m = τ_comp + τ_des
+        np.add(self.tau_comp, self.tau_des, out=self._out)
+        np.clip(self._out, -self.limit, self.limit, out=self._out)
+        return self._out
+
+    def subject(self, t: float = 0.0) -> float:
+        """The resisting subject's torque τ_h,act = −τ_des of the last update [N m]."""
+        return -self.tau_des

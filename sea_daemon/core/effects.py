@@ -320,9 +320,47 @@ EFFECT_TYPES: Mapping[str, type[Effect]] = {
     )
 }
 
-#: parameters that must be strictly positive, per type (others may take any finite value)
+#: the range of every effect parameter: ``(type, parameter) -> (lo, hi, unit)``; ``lo`` excluded
+#: where the parameter must be positive (:data:`_POSITIVE`).  Wide enough for any exoskeleton
+#: joint, narrow enough that no value makes a command allocate or compute without bound (a
+#: ``delay`` of d seconds keeps d·rate_hz past commands).  docs/interfaces.md §2 lists them.
+PARAM_RANGES: Mapping[tuple[str, str], tuple[float, float, str]] = {
+    ("coulomb", "F_c"): (0.0, 1e3, "N m"),
+    ("viscous", "b"): (-1e3, 1e3, "N m s/rad"),
+    ("stribeck", "F_s"): (0.0, 1e3, "N m"),
+    ("stribeck", "v_s"): (0.0, 100.0, "rad/s"),
+    ("inertia", "dI"): (-100.0, 100.0, "kg m²"),
+    ("gravity", "a"): (-1e3, 1e3, "N m"),
+    ("gravity", "phi"): (-100.0, 100.0, "rad"),
+    ("human_viscoelastic", "k_h"): (-1e4, 1e4, "N m/rad"),
+    ("human_viscoelastic", "q_h0"): (-100.0, 100.0, "rad"),
+    ("human_viscoelastic", "b_h"): (-1e3, 1e3, "N m s/rad"),
+    ("spring_cubic", "k3"): (-MAX_ABS, MAX_ABS, "N m/rad³"),
+    ("spring_backlash", "width"): (0.0, 1.0, "rad"),
+    ("torque_scale", "kappa"): (0.0, 10.0, ""),
+    ("encoder_offset", "delta"): (-100.0, 100.0, "rad"),
+    ("delay", "seconds"): (0.0, 1.0, "s"),
+    ("cogging", "A"): (-1e3, 1e3, "N m"),
+    ("cogging", "periods"): (0.0, 1e4, ""),
+    ("cogging", "phi"): (-100.0, 100.0, "rad"),
+    ("spring_saturation", "theta_max"): (0.0, 10.0, "rad"),
+    ("spring_saturation", "k_stop"): (0.0, MAX_ABS, "N m/rad"),
+    ("torque_offset", "tau_0"): (-1e3, 1e3, "N m"),
+}
+#: parameters that must be strictly positive (their range excludes its lower end)
 _POSITIVE = {"v_s", "periods", "theta_max", "k_stop", "kappa"}
-_NON_NEGATIVE = {"F_c", "F_s", "width", "seconds"}
+
+
+def param_range(typ: str, name: str) -> str:
+    """The allowed range of an effect parameter as text, e.g. ``[0, 1] s`` or ``(0, 10]``."""
+    lo, hi, unit = PARAM_RANGES[(typ, name)]
+    return f"{'(' if name in _POSITIVE else '['}{lo:g}, {hi:g}]" + (f" {unit}" if unit else "")
+
+
+def in_range(typ: str, name: str, v: float) -> bool:
+    """Whether ``v`` lies in the range of parameter ``name`` of effect type ``typ``."""
+    lo, hi, _ = PARAM_RANGES[(typ, name)]
+    return (lo < v if name in _POSITIVE else lo <= v) and v <= hi
 
 
 def effect_from_dict(d: Mapping, n_joints: int, source: str, where: str) -> Effect:
@@ -353,10 +391,8 @@ def effect_from_dict(d: Mapping, n_joints: int, source: str, where: str) -> Effe
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_number(v):
             raise ConfigError(source, f"{where}.{p}", f"must be a finite number within ±{MAX_ABS:g}, got {v!r}")
         v = float(v)
-        if p in _POSITIVE and v <= 0:
-            raise ConfigError(source, f"{where}.{p}", f"must be > 0, got {v}")
-        if p in _NON_NEGATIVE and v < 0:
-            raise ConfigError(source, f"{where}.{p}", f"must be >= 0, got {v}")
+        if not in_range(typ, p, v):
+            raise ConfigError(source, f"{where}.{p}", f"must be in {param_range(typ, p)}, got {v:g}")
         kwargs[p] = v
     return cls(side=side, joint=joint - 1, **kwargs)
 

@@ -126,6 +126,23 @@ class BusConfig:
 
 
 @dataclass(frozen=True)
+class LocalReaders:
+    """``hardware.local_readers``: user names or uids, group names or gids."""
+
+    users: tuple[str | int, ...] = ()
+    groups: tuple[str | int, ...] = ()
+
+
+def _keyed(source: str, key: str, v: Any, allowed: tuple[str, ...], example: str) -> None:
+    """``key`` must be a mapping whose keys are among ``allowed``; ConfigError naming it otherwise."""
+    if not isinstance(v, Mapping):
+        raise ConfigError(source, key, f"must be a mapping like {example}, got {v!r}")
+    for k in v:
+        if k not in allowed:
+            raise ConfigError(source, f"{key}.{k}", f"unknown key; allowed: {', '.join(allowed)}")
+
+
+@dataclass(frozen=True)
 class HardwareConfig:
     """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus."""
 
@@ -138,8 +155,12 @@ class HardwareConfig:
     # joint, the motor encoder on the motor shaft (before the gear).  () = 2^encoder_bits.
     encoder_counts_load: tuple[int, ...] = ()
     encoder_counts_motor: tuple[int, ...] = ()
+    # who may subscribe to the local publication (the UNIX socket, docs/interfaces.md §6) besides
+    # the daemon's own user and root
+    local_readers: LocalReaders = field(default_factory=LocalReaders)
 
-    KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus"]
+    KEYS = ["gear_ratio", "encoder_bits", "encoder_counts", "torque_limit", "torque_noise", "bus", "local_readers"]
+    READER_KINDS = ("users", "groups")
     COUNT_SIDES = ("load", "motor")
 
     def encoder_resolution(self, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -169,19 +190,38 @@ class HardwareConfig:
         if "torque_noise" in d:
             out["torque_noise"] = validate.num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
         out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
+        if "local_readers" in d:
+            out.update(cls._readers(source, d["local_readers"]))
         return cls(**out)
+
+    @classmethod
+    def _readers(cls, source: str, v: Any) -> dict:
+        """``hardware.local_readers``: {users: [name or uid, ...], groups: [name or gid, ...]}."""
+        key = "hardware.local_readers"
+        if v is None:
+            return {}
+        _keyed(source, key, v, cls.READER_KINDS, "{users: [therapist], groups: [sea-daemon]} (who may "
+                                                 "subscribe besides the daemon's user and root)")
+        out = {}
+        for kind, names in v.items():
+            vals = [] if names is None else list(names) if isinstance(names, (list, tuple)) else [names]
+            for x in vals:
+                ok_id = isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2 ** 32 - 1
+                ok_name = isinstance(x, str) and 0 < len(x) <= 64 and ":" not in x and "\n" not in x
+                if not (ok_id or ok_name):
+                    raise ConfigError(source, f"{key}.{kind}", f"must be a list of {kind[:-1]} names or ids "
+                                                               f"(0..4294967294), got {x!r}")
+            out[kind] = tuple(vals)
+        return {"local_readers": LocalReaders(**out)}
 
     @classmethod
     def _counts(cls, source: str, ec: Any, n: int) -> dict:
         """``hardware.encoder_counts``: {load: C, motor: C}, C an integer (every joint) or a list of n."""
         key = "hardware.encoder_counts"
-        if not isinstance(ec, Mapping):
-            raise ConfigError(source, key, "must be a mapping like {load: 8000, motor: 2000} (counts per "
-                                           f"revolution of the shaft each encoder reads), got {ec!r}")
+        _keyed(source, key, ec, cls.COUNT_SIDES, "{load: 8000, motor: 2000} (counts per revolution of the "
+                                                 "shaft each encoder reads)")
         out = {}
         for side, v in ec.items():
-            if side not in cls.COUNT_SIDES:
-                raise ConfigError(source, f"{key}.{side}", f"unknown side; allowed: {', '.join(cls.COUNT_SIDES)}")
             vals = list(v) if isinstance(v, (list, tuple)) else [v]
             if len(vals) not in (1, n) or any(isinstance(x, bool) or not isinstance(x, int) or not 4 <= x <= 2 ** 32
                                               for x in vals):
@@ -192,7 +232,7 @@ class HardwareConfig:
 
     def to_dict(self) -> dict:
         out = {k: v for k, v in dataclasses.asdict(self).items()
-               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor")}
+               if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers")}
         counts = {}
         for side in self.COUNT_SIDES:
             c = getattr(self, f"encoder_counts_{side}")
@@ -201,4 +241,7 @@ class HardwareConfig:
         if counts:
             out["encoder_counts"] = counts
         out["bus"] = self.bus.to_dict()
+        r = self.local_readers
+        if r.users or r.groups:
+            out["local_readers"] = {"users": list(r.users), "groups": list(r.groups)}
         return out

@@ -1,4 +1,4 @@
-"""Compilation of the hot numerics with numba (issue 3's latency target).
+"""Compilation of the hot numerics with numba (the filter step of the 1 kHz loop).
 
 :func:`njit` is ``numba.njit(cache=True)``: the machine code is cached next to the source
 (``__pycache__``) or, if that is not writable, in numba's user-wide cache directory

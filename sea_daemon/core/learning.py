@@ -21,6 +21,8 @@ import numpy as np
 from sea_daemon.core.config import LearningConfig, ModelConfig
 from sea_daemon.errors import InputError, ModelFileError
 from sea_daemon.core.gp.loggp import LoGGP
+from sea_daemon.core.config import KinematicsConfig
+from sea_daemon.core.kinematics import CausalDifferentiator, smooth_derivatives
 
 
 def _cols(name: str, a, N: int | None, n: int) -> np.ndarray:
@@ -64,8 +66,6 @@ def training_pairs_from_log(model, log, kinematics=None, causal: bool = True, sk
     kinematics in training and in estimation); ``False``: offline zero-phase smoothing.
     ``skip``: initial samples dropped while the causal filter fills (default: its length).
     """
-    from sea_daemon.core.config import KinematicsConfig
-    from sea_daemon.core.kinematics import CausalDifferentiator, smooth_derivatives
 
     kc = kinematics or KinematicsConfig()
     n = model.n

@@ -27,6 +27,12 @@ ESTIMATE = ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma")
 #: the read to the log row; read: ``hw.read()``), ``measured`` (1: the row holds this cycle's
 #: sample) and ``bound_cycle`` (the cycle whose sample the row's bound belongs to, −1: none)
 LOOP = ("valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle")
+#: the loop's row after the log's columns, not in the CSV, for the log writer's other outputs
+#: (the LSL stream and the MCAP recording, docs/interfaces.md §7): the loop's clock at the
+#: cycle's start [s], once per row, and the assistance τ_assist [N m] per joint (0 without an
+#: assist-as-needed controller and while a fault is latched)
+SINK_LOOP = ("cycle_start",)
+SINK_JOINT = ("tau_assist",)
 
 
 def column_names(base: str, n: int) -> list[str]:
@@ -37,9 +43,10 @@ def column_names(base: str, n: int) -> list[str]:
 @dataclass(frozen=True)
 class DaemonLogLayout:
     """The daemon log's row for ``n`` joints: ``t``, :data:`REQUIRED` and :data:`ESTIMATE` per
-    joint, then :data:`LOOP`.  Each per-joint quantity is a ``slice`` of the row, each loop
-    column an index, ``estimate`` the slice of all three estimate blocks:
-    ``row[layout.tau_m] = tau``."""
+    joint, then :data:`LOOP` (``columns``, the CSV's); the loop's row goes on with
+    :data:`SINK_LOOP` and :data:`SINK_JOINT` per joint (``sink_columns``; ``width`` values in
+    all).  Each per-joint quantity is a ``slice`` of the row, each loop column an index,
+    ``estimate`` the slice of all three estimate blocks: ``row[layout.tau_m] = tau``."""
 
     n: int
     columns: tuple[str, ...]
@@ -59,6 +66,14 @@ class DaemonLogLayout:
     read: int
     measured: int
     bound_cycle: int
+    sink_columns: tuple[str, ...]
+    cycle_start: int
+    tau_assist: slice
+
+    @property
+    def width(self) -> int:
+        """Values in the loop's row: the CSV's columns, then :attr:`sink_columns`."""
+        return len(self.columns) + len(self.sink_columns)
 
     @classmethod
     def of(cls, n: int) -> "DaemonLogLayout":
@@ -71,7 +86,11 @@ class DaemonLogLayout:
         for name in LOOP:
             at[name] = len(columns)
             columns.append(name)
-        return cls(n=n, columns=tuple(columns), **at)
+        sink = list(SINK_LOOP)
+        at["cycle_start"] = len(columns)
+        at["tau_assist"] = slice(len(columns) + len(sink), len(columns) + len(sink) + n)
+        sink += column_names(SINK_JOINT[0], n)
+        return cls(n=n, columns=tuple(columns), sink_columns=tuple(sink), **at)
 
 
 def log_columns(n: int) -> list[str]:

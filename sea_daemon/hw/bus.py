@@ -4,7 +4,7 @@
 * ``socketcan`` — a real Linux CAN interface (``can0``) or a virtual one (``vcan0``);
 * ``remote`` — python-can-remote's websocket client (``ws://127.0.0.1:PORT/``), joining
   separate processes through ``python -m can_remote`` where the kernel has no SocketCAN;
-* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of this machine over UNIX
+* ``ipc`` — :class:`sea_daemon.hw.ipc_bus.IpcBus`, separate processes of one machine over UNIX
   datagram sockets, one hop per frame (the 1 kHz benchmarks where the kernel has no SocketCAN).
 """
 from __future__ import annotations
@@ -14,9 +14,10 @@ import os
 import can
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.errors import ConfigError
+from sea_daemon.errors import ConfigError, InputError
 
 from sea_daemon.hw.errors import DeviceMismatch
+from sea_daemon.hw.ipc_bus import IpcBus
 
 INTERFACES = BusConfig.INTERFACES
 
@@ -45,11 +46,10 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
                 raise DeviceMismatch(None, f"socketcan {channel}", why)
             return can.Bus(interface="socketcan", channel=channel, receive_own_messages=receive_own_messages)
         if iface == "ipc":
-            from sea_daemon.hw.ipc_bus import IpcBus
             return IpcBus(channel, receive_own_messages=receive_own_messages)
         return can.Bus(interface="remote", channel=channel, bitrate=cfg.bitrate,
                        receive_own_messages=receive_own_messages)
-    except DeviceMismatch:
+    except (DeviceMismatch, InputError):
         raise
     except (can.CanError, OSError, ValueError) as e:
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None
@@ -61,7 +61,6 @@ def set_controller_filters(bus: can.BusABC, filters: list[dict]) -> bool:
     filter, the ``ipc`` bus (checked on the raw id, and published to the senders, which then
     send that member nothing it rejects).  Elsewhere (``virtual``, ``remote``) python-can's
     software filter would end a ``recv(0)`` at the first other frame: left unset, False."""
-    from sea_daemon.hw.ipc_bus import IpcBus
     if isinstance(bus, IpcBus) or type(bus).__name__ == "SocketcanBus":
         bus.set_filters(filters)
         return True

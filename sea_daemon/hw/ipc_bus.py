@@ -47,6 +47,9 @@ import time
 import can
 import numpy as np
 
+from sea_daemon.errors import InputError, shown
+from sea_daemon.io.owned import check_owned, make_private_dir, trusted_uids
+
 BASE_DIR = "/dev/shm/sea-can" if os.path.isdir("/dev/shm") else "/tmp/sea-can"
 _FRAME = struct.Struct("<IBB2x8sd")          # id, flags, dlc, data, timestamp: 24 bytes
 _TS = struct.Struct("<d")                    # the timestamp, at byte 16 of a frame
@@ -84,11 +87,16 @@ class _Members:
     def open_locked(cls, directory: str) -> "_Members":
         path = os.path.join(directory, MEMBERS_FILE)
         while True:
-            os.makedirs(directory, mode=0o770, exist_ok=True)
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o660)
+            private_channel_dir(directory)
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+            except OSError as e:
+                raise InputError(f"ipc bus {shown(path)}: cannot open: {e.strerror or e}") from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX)
                 st = os.fstat(fd)
+                if st.st_uid not in trusted_uids():    # in a directory of ours: only ours or root's
+                    check_owned("ipc bus count", path, st=st)
                 if st.st_nlink == 0:                 # removed by the last leaver meanwhile: anew
                     os.close(fd)
                     continue
@@ -142,6 +150,15 @@ def channel_dir(channel: str) -> str:
     return os.path.join(BASE_DIR, channel)
 
 
+def private_channel_dir(directory: str) -> None:
+    """Create the channel's directory (and :data:`BASE_DIR` for a named channel) with mode 0700
+    where missing and refuse one another user owns or others may write (InputError): whoever
+    owned it would own the bus."""
+    if os.path.dirname(directory) == BASE_DIR:
+        make_private_dir("ipc bus directory", BASE_DIR)
+    make_private_dir("ipc bus channel", directory)
+
+
 class IpcBus(can.BusABC):
     """One member of an ``ipc`` bus (see the module docstring)."""
 
@@ -150,7 +167,7 @@ class IpcBus(can.BusABC):
         self.channel = str(channel)
         self.channel_info = f"ipc bus {self.channel}"
         self._dir = channel_dir(self.channel)
-        os.makedirs(self._dir, mode=0o770, exist_ok=True)
+        private_channel_dir(self._dir)
         self._own = receive_own_messages
         self._pending: list[can.Message] = []
         self.overruns = 0                       # frames a full member queue lost (all members)

@@ -3,7 +3,8 @@
 Same timing as the CANopen hardware against the lock-step device model (see
 :mod:`sea_daemon.hw.interface`): ``read()`` of cycle k first steps the plant over [t_k-1, t_k] with
 the torque in force, then samples the encoders at t_k (the simulator's quantised
-``measure()`` when the plant has one); a torque given to ``write()`` in cycle k is in force
+``measure()`` when the plant has one): the one sample step of every simulated run,
+:class:`sea_daemon.core.sim.sampling.SampledPlant`.  A torque given to ``write()`` in cycle k is in force
 over [t_k+d, t_k+d+1], d = ``actuation_delay`` (default 0: the simulator's zero-order hold;
 1: like a synchronous RPDO).  A read → update → write loop thus runs the plant in lock-step,
 as fast as the caller goes.  No faults happen here except the ones a plant raises.
@@ -15,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from sea_daemon.core.sim.sampling import SampledPlant
 from sea_daemon.hw.interface import HardwareInterface, Measurement
 
 
@@ -30,8 +32,10 @@ class SimHardware(HardwareInterface):
         if actuation_delay not in (0, 1):
             raise ValueError(f"actuation_delay must be 0 or 1, got {actuation_delay!r}")
         self.plant = plant
-        self.n = int(np.atleast_1d(plant.q).shape[0])
-        self.period = float(period)
+        #: the plant stepped and read per sample (its ``k`` is the cycle, ``t`` the sample time)
+        self.sampled = SampledPlant(plant, period)
+        self.n = self.sampled.n
+        self.period = self.sampled.period
         self.torque_limit = float(torque_limit)
         self.actuation_delay = int(actuation_delay)
         self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
@@ -39,7 +43,6 @@ class SimHardware(HardwareInterface):
         self._tau = np.zeros(self.n)          # in force over the current interval
         self._pending = np.zeros(self.n)      # written, in force from the next SYNC (delay 1)
         self._written = np.zeros(self.n)      # last write()
-        self._cycle = -1
         self._stopped = False
         self.running = False
 
@@ -52,20 +55,17 @@ class SimHardware(HardwareInterface):
 
     def read(self) -> Measurement:
         m = self.meas
-        if self._cycle >= 0:
+        sp = self.sampled
+        if sp.k >= 0:
             # the interval [t_k-1, t_k] with the torque in force (delay 0: written in cycle k-1)
             self._tau[:] = self._pending if self.actuation_delay else self._written
             if self._stopped:
                 self._tau[:] = 0.0
-            self.plant.step(self._tau.copy(), self.period, self.tau_h_act(self.plant.t))
-        self._pending[:] = self._written      # delay 1: actuated at this SYNC
-        self._cycle += 1
-        m.cycle, m.t, m.t_mono = self._cycle, self._cycle * self.period, float(self.plant.t)
-        measure = getattr(self.plant, "measure", None)
-        if measure is not None:
-            q, th = measure()
+            q, th = sp.read(self._tau, self.tau_h_act(self.plant.t))
         else:
-            q, th = self.plant.q, self.plant.theta_m
+            q, th = sp.read()
+        self._pending[:] = self._written      # delay 1: actuated at this SYNC
+        m.cycle, m.t, m.t_mono = sp.k, sp.t, float(self.plant.t)
         m.q[:] = q
         m.theta_m[:] = th
         m.tau_m_applied[:] = self._tau                 # the torque over [t_k-1, t_k]

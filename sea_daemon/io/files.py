@@ -9,12 +9,23 @@ replaces one of the command's own inputs.
   leaves the old file or the new one, never a torn or empty one.
 * :func:`check_outputs` — before any long work: every output path is writable (its directory
   exists, it is not a directory) and is none of the inputs.
+
+Outputs only ever replace regular files: a device, a FIFO, a socket or a directory at the
+output's path (or at the end of the symbolic link there) is refused with an InputError, before
+any work and again by the writer.  A symbolic link to a regular file (or to nothing) is
+replaced by the new file; the file it pointed to stays as it was.  The temporary files of a write
+that was killed (``.NAME.XXXXXXXX.tmp`` beside ``NAME``) are removed by the next command that
+writes ``NAME`` — only files of that pattern, regular, owned by this user and older than this
+process.
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import re
+import stat
 import tempfile
+import time
 from pathlib import Path
 from typing import BinaryIO, Iterable, Iterator
 
@@ -50,6 +61,65 @@ def read_text(path: str | Path, max_bytes: int = MAX_CONFIG_BYTES, what: str = "
     return decode_utf8(data, p)
 
 
+def _process_start() -> float:
+    """This process's start as a ``time.time()`` value (/proc/self/stat; now, where unreadable)."""
+    now = time.time()
+    try:
+        raw = Path("/proc/self/stat").read_bytes()
+        ticks = int(raw[raw.rindex(b")") + 2:].split()[19])
+        return now - (time.clock_gettime(time.CLOCK_BOOTTIME) - ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return now
+
+
+PROCESS_START = _process_start()
+#: the names :func:`atomic_file` gives its temporary files (``tempfile.mkstemp``'s 8 characters)
+_TEMP_NAME = r"\.{}\.[a-z0-9_]{{8}}\.tmp"
+
+_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
+
+
+def check_replaceable(flag: str, path: str | Path) -> None:
+    """InputError unless ``path`` is absent, a regular file, or a symbolic link to a regular
+    file or to nothing: an output never replaces a device, a FIFO, a socket or a directory."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return                                   # absent, or a link to nothing: a new file
+    if stat.S_ISREG(st.st_mode):
+        return
+    what = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+    via = " (through its symbolic link)" if os.path.islink(path) else ""
+    raise InputError(f"{flag} {shown(path)}: is {what}{via}; an output replaces only a regular file "
+                     "(give a file path)")
+
+
+def remove_stale_temps(path: str | Path) -> list[Path]:
+    """Remove the temporary files an interrupted write of ``path`` left beside it (module
+    docstring); returns those removed."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    pattern = re.compile(_TEMP_NAME.format(re.escape(path.name)))
+    removed = []
+    try:
+        names = [e.name for e in os.scandir(directory) if e.name.startswith(f".{path.name}.")]
+    except OSError:
+        return removed
+    for name in names:
+        if not pattern.fullmatch(name):
+            continue
+        p = directory / name
+        try:
+            st = os.lstat(p)
+            if stat.S_ISREG(st.st_mode) and st.st_uid == os.geteuid() and st.st_mtime < PROCESS_START:
+                os.unlink(p)
+                removed.append(p)
+        except OSError:
+            pass
+    return removed
+
+
 def _fsync_dir(directory: Path) -> None:
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -72,6 +142,8 @@ def atomic_file(path: str | Path) -> Iterator[BinaryIO]:
     likewise leaves the target untouched."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
+    check_replaceable("output", path)
+    remove_stale_temps(path)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     except OSError as e:
@@ -81,6 +153,7 @@ def atomic_file(path: str | Path) -> Iterator[BinaryIO]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+        check_replaceable("output", path)           # not swapped for a device meanwhile
         os.replace(tmp, path)
     except BaseException as e:
         try:
@@ -143,10 +216,12 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
         seen.append((flag, o))
         if o.is_dir():
             raise InputError(f"{flag} {shown(o)}: is a directory, expected a file path")
+        check_replaceable(flag, o)
         d = o.parent if str(o.parent) else Path(".")
         if not d.is_dir():
             raise InputError(f"{flag} {shown(o)}: directory {shown(d)} does not exist")
         _probe(flag, o, d)
+        remove_stale_temps(o)
 
 
 def check_output_dir(flag: str, directory: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:

@@ -27,6 +27,8 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import ModelFileError
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.io.modelfile import load_model, save_model
+from sea_daemon.core.config import KinematicsConfig
+from sea_daemon.core.rates import window_at
 
 KIND = "gp-akf-residual"
 #: configuration sections a model file must agree on (see module docstring)
@@ -84,8 +86,6 @@ def _compat(path: str, saved: dict, cfg: ModelConfig) -> None:
 def _same_in_time(saved: dict, cfg: ModelConfig) -> bool:
     """The saved kinematics brought to the configuration's rate are the configuration's
     (:func:`sea_daemon.core.rates.same_in_time`)."""
-    from sea_daemon.core.config import KinematicsConfig
-    from sea_daemon.core.rates import window_at
     try:
         rate = float(saved["rate_hz"])
         kin = KinematicsConfig.from_dict(saved["kinematics"], cfg.joints, "model file")
@@ -106,6 +106,10 @@ def load_gp_model(path: str | Path, cfg: ModelConfig) -> tuple[ResidualGP, dict]
         residual = ResidualGP.from_dict(_join(meta["residual"], arrays))
     except KeyError as e:
         raise ModelFileError(f"{p}: model file lacks {e}") from None
+    except ModelFileError as e:
+        if str(e).startswith(p):
+            raise
+        raise ModelFileError(f"{p}: {e}") from None
     if residual.n != cfg.joints:
         raise ModelFileError(f"{p}: {residual.n} joint(s), the configuration has {cfg.joints}")
     return residual, meta

@@ -17,7 +17,6 @@ import os
 import select
 import signal
 import time
-from multiprocessing import shared_memory
 
 from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.core.estimators.record import STEP as KIND_STEP
@@ -52,11 +51,12 @@ def _schedule(rt_priority: int) -> int:
     return 0
 
 
-def worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict, record: int,
+def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: int,
                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
                 via_pipe: bool = True) -> None:
     """The worker process: ``akf`` its copy of the loop's filter (with the bound), the shared
-    memory ``shm_name`` of ``cap`` slots, the pipes' ends ``heads`` (read) and ``counts``
+    memory ``shm`` (a :class:`~sea_daemon.runtime.shared_block.SharedBlock` inherited from the
+    loop's process) of ``cap`` slots, the pipes' ends ``heads`` (read) and ``counts``
     (write); ``loop_ends`` the loop's ends, closed here."""
     _pdeathsig()
     for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
@@ -69,7 +69,6 @@ def worker_main(akf, shm_name: str, cap: int, width: int, rwidth: int, lay: dict
         return
     # a forked process inherits no memory locks: its own, in real-time pace
     locked = rt_priority > 0 and lock_memory().startswith("locked")
-    shm = shared_memory.SharedMemory(name=shm_name)
     views = None
     try:
         views = bs.map_shared(shm.buf, cap, width, rwidth, record)

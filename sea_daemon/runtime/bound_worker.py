@@ -76,7 +76,6 @@ import multiprocessing as mp
 import os
 import platform
 import time
-from multiprocessing import shared_memory
 
 import numpy as np
 
@@ -85,6 +84,7 @@ from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime.bound_serve import worker_main
+from sea_daemon.runtime.shared_block import SharedBlock
 from sea_daemon.runtime.bound_slots import FAILED, OK, STOP
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
 
@@ -195,7 +195,7 @@ class BoundWorker:
         self._lay, w = bs.layout(akf.record)
         self._width = w
         self._rwidth = rw = bs.N_RES + n
-        self._shm = shared_memory.SharedMemory(create=True, size=bs.shared_size(cap, w, rw, self.record))
+        self._shm = SharedBlock.create(bs.shared_size(cap, w, rw, self.record), "sea-daemon-bound")
         v = bs.map_shared(self._shm.buf, cap, w, rw, self.record)
         self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec = v
         self._hdr[:] = 0
@@ -216,7 +216,7 @@ class BoundWorker:
         and memory (not from inside a running loop: locking may take a second or more)."""
         ctx = mp.get_context("fork")
         self._proc = ctx.Process(target=worker_main, name="sea-daemon-bound", daemon=True,
-                                 args=(self.akf, self._shm.name, self.capacity, self._width, self._rwidth,
+                                 args=(self.akf, self._shm, self.capacity, self._width, self._rwidth,
                                        self._lay, self.record, self._heads_r, self._counts_w,
                                        (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
                                        self.counts_via == "pipe"))
@@ -262,7 +262,6 @@ class BoundWorker:
         self._close_fds("_heads_r", "_heads_w", "_counts_r", "_counts_w")
         del self._hdr, self._fhdr, self._ring, self._res, self._cpu_rec, self._slots, self._results
         self._shm.close()
-        self._shm.unlink()
 
     def _close_fds(self, *names: str) -> None:
         close_fds(self, names)

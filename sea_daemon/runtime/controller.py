@@ -17,7 +17,7 @@ import numpy as np
 
 from sea_daemon.core.assist import AssistLaw
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque
+from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm
 from sea_daemon.core.model import SEAModel
 from sea_daemon.io.scenario import PIDSpec, Scenario
 
@@ -69,7 +69,9 @@ class ScenarioController:
         self._started = False
         self.spec = sc.controller
         self.pid: PID | None = None
+        self.tracker: ReferenceTracker | None = None
         self.ol: OpenLoopTorque | None = None     # built at the start (τ_comp)
+        self.still: StillArm | None = None        # the open loop on τ_comp, built at the start
         if isinstance(self.spec, PIDSpec):
             tr = self.spec.trajectory
             # ``reference``: another trajectory with reference(t) -> (q, q̇, q̈) tracked by the
@@ -77,10 +79,9 @@ class ScenarioController:
             self.traj = reference if reference is not None else MinJerkTrajectory(
                 np.radians(tr.q_start_deg), np.radians(tr.q_end_deg), tr.move_s, tr.moves, cyclic=True,
                 hold_s=tr.hold_s)
-            self.pid = PID(self.spec.kp, self.spec.ki, self.spec.kd, cfg.dt, self.limit, self.spec.velocity_filter_hz,
-                           derivative=self.spec.derivative)
-        # minimum-jerk moves: the reference and the PID step in one compiled call (PID.track_into)
-        self._track = self.traj.fields if self.pid is not None and isinstance(self.traj, MinJerkTrajectory) else None
+            # the scenario's PID gains (PIDSpec is a PIDGains) on the trajectory
+            self.tracker = ReferenceTracker(self.spec, self.traj, cfg.dt, self.limit)
+            self.pid = self.tracker.pid
         self.q_ref = self.spec.q0
         self.tau_des = 0.0
 
@@ -95,34 +96,34 @@ class ScenarioController:
         """Start bumplessly from this measurement: the first command is the holding torque."""
         self._started = True
         u0 = self._hold(q)
-        if self.pid is not None:
-            self.pid.reset(q if self.pid.derivative == "load" else theta_m, u0)
+        if self.tracker is not None:
+            self.tracker.start(q, theta_m, u0)
         else:
             c = self.spec
             self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
                                      offset=c.offset)
+            self.still = StillArm(self.ol.tau_comp, self._tau_des, self.limit, self.spec.q0)
+
+    def _tau_des(self, t: float) -> float:
+        """τ_des of the interval the command acts over: 0 before the estimation phase, else the
+        cosine at the phase time (class docstring)."""
+        k = round(t / self.dt)                    # t is k whole periods (class docstring)
+        k0 = self.estimation_from
+        active = k0 is not None and k + self.delay >= k0
+        tp = (k - k0) * self.dt + self.delay * self.dt if active else t
+        return self.ol.tau_des(tp, active=active)
 
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
         if not self._started:
             self.start(q, theta_m)
-        if self._track is not None:
+        if self.tracker is not None:
             # the PID's command is already within ±limit (the same limit): no clip needed
-            self._out[:] = self.pid.track_into(self._track, t, q, theta_m)
-            self.q_ref = self.pid.ref.item(0)
-            return self._out
-        if self.pid is not None:
-            self.q_ref, dq_ref, _ = self.traj.reference(t)
-            # the PID's command is already within ±limit (the same limit): no clip needed
-            self._out[:] = self.pid.step_into(self.q_ref, q, dq_ref, theta_m)
-            return self._out
+            self._out[:] = self.tracker.update(t, q, theta_m)
+            self.q_ref = self.tracker.q_ref
         else:
-            k = round(t / self.dt)                    # t is k whole periods (class docstring)
-            k0 = self.estimation_from
-            active = k0 is not None and k + self.delay >= k0
-            tp = (k - k0) * self.dt + self.delay * self.dt if active else t
-            self.tau_des = self.ol.tau_des(tp, active=active)
-            self._out[:] = self.ol.command(tp, active=active)
-        np.clip(self._out, -self.limit, self.limit, out=self._out)
+            # Sec. V-C: τ_comp + τ_des, clipped
+            self._out[:] = self.still.update(t)
+            self.tau_des = self.still.tau_des
         return self._out
 
 

@@ -26,7 +26,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.io.scenario import human_torque, make_plant
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.loop import FixedRateLoop
-from sea_daemon.runtime.recorder import PhaseRecorder
+from sea_daemon.core.sim.sampling import SampleRecorder
 from sea_daemon.runtime.rig import device_model_rig, on_fresh_virtual_channel
 
 ESTIMATE = ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma")
@@ -62,7 +62,7 @@ def run_scenario(sc, *, bus_cfg=None, estimator=None, seed: int | None = None, s
     rows = n_train + (sc.estimation_samples if estimation_samples is None else estimation_samples)
     rig = device_model_rig(cfg, plant, tau_h_act=tau_h, initial_torque=plant.hold_torque)
     hw = rig.hw
-    rec = PhaseRecorder(rows, n, ("tau_m_applied",) + (ESTIMATE if estimator is not None else ()))
+    rec = SampleRecorder(rows, n, ("tau_m_applied",) + (ESTIMATE if estimator is not None else ()))
     c = rec.cols
     cycle_s = np.zeros(rows)
     loop = None

@@ -55,6 +55,12 @@ Nothing is lost silently:
 every 0.2 s) returns one line naming what failed once any of these happened — the loop latches
 it as the LOG_FAILED fault (docs/safety.md) — and :meth:`LogWriter.close` reports
 ``rows_lost`` = rows offered by the loop − rows written.
+
+Other outputs (``sinks``: the LSL stream and the MCAP recording, :mod:`sea_daemon.runtime.sinks`)
+are fed by the writer process with every block of rows it copies out of the ring, after the
+tail went back and before the CSV's lines are written; the ring's rows then go on past the
+CSV's columns (``sink_columns``) with what only they carry.  A sink that fails stops alone (its
+state and the first failure's text in the shared header); the CSV log is not affected.
 """
 from __future__ import annotations
 
@@ -63,7 +69,10 @@ import multiprocessing as mp
 import os
 import time
 import weakref
-from multiprocessing import reduction, shared_memory
+# multiprocessing.util registers its exit handler (which waits for the writer process) as it is
+# imported: before this module's own (atexit runs last in, first out), so that ours, run first,
+# ends the heads pipe that handler waits on
+from multiprocessing import reduction, util  # noqa: F401
 from pathlib import Path
 
 import numpy as np
@@ -71,11 +80,17 @@ import numpy as np
 from sea_daemon.errors import InputError, shown
 from sea_daemon.io.logcsv import csv_header, csv_rows
 from sea_daemon.runtime.counts import CountReader, close_fds, write_count
+from sea_daemon.runtime.shared_block import SharedBlock
+from sea_daemon.runtime.sinks import MAX_SINKS, MSG_BYTES, SinkBoard, SinkSet, wait_open
 
 # header slots (int64) of the shared block, read without order (module docstring): the loop's
 # head (read by the writer only after the loop's end of the heads pipe closed), the writer's
-# counts of rows written and lost, files and errno
-_HEAD, _WRITTEN, _FILES, _ERRNO, _LOST, _NHDR = 0, 1, 2, 3, 4, 8
+# counts of rows written and lost, files and errno; then the sinks' board (runtime/sinks.py):
+# two slots a sink, the first failure's text
+_HEAD, _WRITTEN, _FILES, _ERRNO, _LOST = 0, 1, 2, 3, 4
+_BOARD = 8
+_MSG = _BOARD + 2 * MAX_SINKS
+_NHDR = _MSG + MSG_BYTES // 8
 _UNKNOWN = -1                        # _ERRNO of a failure that was not an OSError
 _TAIL_EVERY = 256                    # the loop reads the writer's tails every this many rows
 _PUBLISH_ROWS = 32                   # the loop writes its head to the pipe every this many rows …
@@ -158,8 +173,9 @@ class _Drain:
     from then on are counted lost); ``good``: bytes of whole lines in the current file."""
 
     def __init__(self, hdr: np.ndarray, data: np.ndarray, path: Path, header: bytes, rotate_bytes: int,
-                 fmt: str, heads_fd: int, tails_fd: int):
+                 fmt: str, heads_fd: int, tails_fd: int, ncsv: int):
         self.hdr, self.data, self.capacity = hdr, data, data.shape[0]
+        self.ncsv, self.sinks = ncsv, None     # the CSV's columns (the first ncsv of a row); the SinkSet
         self.path, self.header, self.rotate_bytes, self.fmt = path, header, rotate_bytes, fmt
         self.heads, self.tails_fd, self.out = CountReader(heads_fd), tails_fd, bytearray(8)
         self.head = self.tail = 0     # rows published (read from the loop's pipe), rows copied out
@@ -216,6 +232,8 @@ class _Drain:
         self.tail += n
         # the tail after the copy: the loop reuses the slots once it has read it
         self.unsent = _send_tail(self.tails_fd, self.out, self.tail)
+        if self.sinks is not None:
+            self.sinks.write(block)
         if self.failed:
             self.hdr[_LOST] += n
             return
@@ -223,7 +241,7 @@ class _Drain:
         try:
             if self.rotate_bytes and self.good >= self.rotate_bytes:   # rotate before writing: no empty files
                 self._rotate()
-            text = csv_rows(block, self.fmt)
+            text = csv_rows(block[:, :self.ncsv], self.fmt)
             _write_all(self.fd, text)
             self.good += len(text)
             self.hdr[_WRITTEN] += n
@@ -279,21 +297,25 @@ class _Drain:
         self.hdr = self.data = None
 
 
-def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
-                 heads_fd, tails_fd):
-    """The writer process: drain the ring into the log's files (:class:`_Drain`) until the loop
-    is done; any failure leaves its errno (or :data:`_UNKNOWN`) in the shared header."""
+def _writer_main(shm_fd, shm_size, capacity, ncols, path, columns, rotate_bytes, fmt, parent_pid, poll,
+                 heads_fd, tails_fd, sinks):
+    """The writer process: drain the ring into the log's files (:class:`_Drain`) and the
+    ``sinks`` (specs, :mod:`sea_daemon.runtime.sinks`) until the loop is done; any failure of
+    the log leaves its errno (or :data:`_UNKNOWN`) in the shared header."""
     _leave_realtime()
     os.set_blocking(heads_fd, False)
     os.set_blocking(tails_fd, False)
-    shm = shared_memory.SharedMemory(name=shm_name)
+    shm = SharedBlock.attach(shm_fd, shm_size)
     hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=shm.buf)
     data = drain = None
     try:
         data = np.ndarray((capacity, ncols), dtype=np.float64, buffer=shm.buf, offset=_NHDR * 8)
         float(data.sum())        # map every page of the ring now (steady memory from the start)
-        drain = _Drain(hdr, data, Path(path), csv_header(columns), rotate_bytes, fmt, heads_fd, tails_fd)
+        drain = _Drain(hdr, data, Path(path), csv_header(columns), rotate_bytes, fmt, heads_fd, tails_fd,
+                       len(columns))
         data = None
+        if sinks:
+            drain.sinks = SinkSet(sinks, _board(hdr, shm))
         drain.run(parent_pid, poll)
         drain.sync()
     except BaseException:
@@ -302,6 +324,8 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
         raise
     finally:
         if drain is not None:
+            if drain.sinks is not None:
+                drain.sinks.close()
             drain.close()
         for f in (heads_fd, tails_fd):
             try:
@@ -310,6 +334,10 @@ def _writer_main(shm_name, capacity, ncols, path, columns, rotate_bytes, fmt, pa
                 pass
         del hdr, data, drain     # the views of the shared block go before it closes
         shm.close()
+
+
+def _board(hdr: np.ndarray, shm) -> SinkBoard:
+    return SinkBoard(hdr[_BOARD:_MSG], shm.buf[_MSG * 8:_NHDR * 8])
 
 
 class _PassFd:
@@ -352,23 +380,31 @@ class LogWriter:
 
     ``flush_interval``: the longest a row waits in the ring before the writer writes it
     (the writer polls the ring at least this often; its writes go straight to the file).
+    ``sink_columns``: values of a row after the CSV's ``columns``, not written to the CSV (the
+    loop's row: :class:`~sea_daemon.core.log.DaemonLogLayout`); ``sinks``: the specs of the
+    other outputs the writer feeds with every row (:mod:`sea_daemon.runtime.sinks`;
+    :meth:`wait_sinks`, ``sinks`` in :meth:`close`'s counts).
     """
 
     def __init__(self, path: str | Path, columns: list[str], capacity: int = 1 << 16,
-                 flush_interval: float = 0.5, rotate_bytes: int = 256 << 20, fmt: str = "%.10g"):
+                 flush_interval: float = 0.5, rotate_bytes: int = 256 << 20, fmt: str = "%.10g",
+                 sink_columns=(), sinks=()):
         if flush_interval > 1.0:
             raise ValueError(f"flush_interval {flush_interval} s: must be <= 1 s (logs are flushed at least once a second)")
         self.path = Path(path)
         self.columns = list(columns)
         self.capacity = int(capacity)
-        self.ncols = len(self.columns)
+        self.ncols = len(self.columns) + len(sink_columns)     # values a row appended has
+        self.sinks = tuple(sinks)
+        if len(self.sinks) > MAX_SINKS:
+            raise ValueError(f"{len(self.sinks)} sinks: at most {MAX_SINKS}")
         self._closed = True                      # until the writer runs
         # the first file and its header now: a log that cannot be written stops the start-up
         try:
             os.close(_open_segment(self.path, csv_header(self.columns)))
         except OSError as e:
             raise InputError(f"log {shown(self.path)}: cannot write: {e.strerror or e}") from None
-        self._shm = shared_memory.SharedMemory(create=True, size=_NHDR * 8 + self.capacity * self.ncols * 8)
+        self._shm = SharedBlock.create(_NHDR * 8 + self.capacity * self.ncols * 8, "sea-daemon-log")
         self._hdr = np.ndarray((_NHDR,), dtype=np.int64, buffer=self._shm.buf)
         self._hdr[:] = 0
         self._hdr[_FILES] = 1
@@ -394,15 +430,26 @@ class LogWriter:
         self._tails = CountReader(self._tails_r)
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(target=_writer_main, name="sea-daemon-logwriter", daemon=False,
-                                 args=(self._shm.name, self.capacity, self.ncols, str(self.path), self.columns,
+                                 args=(_PassFd(self._shm.fd), self._shm.size, self.capacity, self.ncols,
+                                       str(self.path), self.columns,
                                        rotate_bytes, fmt, os.getpid(), min(0.02, flush_interval / 4),
-                                       _PassFd(self._heads_r), _PassFd(self._tails_w)))
+                                       _PassFd(self._heads_r), _PassFd(self._tails_w), self.sinks))
         try:
             self._proc.start()
         finally:
             self._close_fds("_heads_r", "_tails_w")      # the writer's ends
+        self._board = _board(self._hdr, self._shm)
         _LIVE.add(self)
         self._closed = False
+
+    def wait_sinks(self, timeout: float) -> list[int]:
+        """Wait until the writer has opened every sink (an LSL sink with ``wait_s``: and waited
+        for a consumer) or ``timeout`` s passed; the sinks' states (:func:`~sea_daemon.runtime.sinks.wait_open`).
+        InputError naming what failed when a sink could not open or the writer is gone."""
+        try:
+            return wait_open(self._board, len(self.sinks), self._proc, timeout)
+        except InputError as e:
+            raise InputError(f"log {shown(self.path)}: {e}") from None
 
     def _close_fds(self, *names: str) -> None:
         close_fds(self, names or ("_heads_w", "_tails_r"))
@@ -520,12 +567,12 @@ class LogWriter:
                 err = f"log {shown(self.path)}: the writer stopped with {lost} rows not written"
             self._final = {"rows_appended": self.appended, "rows_written": written,
                            "rows_dropped": self.dropped, "rows_lost": lost, "error": err,
-                           "files": [str(f) for f in files]}
+                           "files": [str(f) for f in files], "sinks": self._board.report(self.sinks)}
             self._closed = True
             self._close_fds("_tails_r")
-            del self._hdr, self._data
+            self._board.release()
+            del self._hdr, self._data, self._board
             self._shm.close()
-            self._shm.unlink()
         return self._final
 
     def __enter__(self):

@@ -177,7 +177,10 @@ class FixedRateLoop:
         self.stats = LoopStats()
         #: the log row's columns, each quantity's index or slice (docs/interfaces.md §1)
         self.layout = DaemonLogLayout.of(n)
-        self._row = np.zeros(len(self.layout.columns))
+        self._row = np.zeros(self.layout.width)
+        # what the log takes: the whole row for a writer with the sinks' columns, else the CSV's part
+        self._log_row = self._row[:getattr(log, "ncols", len(self.layout.columns))]
+        self._assist = getattr(controller, "tau_assist", None)     # (n,) updated in place, or None
         self._zero = np.zeros(n)
         self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
         self._act_prev = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
@@ -385,7 +388,7 @@ class FixedRateLoop:
         if self.log is None:
             return
         self._fill_row(c, link, done)
-        self.log.append(self._row)
+        self.log.append(self._log_row)
         lost = self.log.fault()
         if lost is not None and (self.supervisor.ok or not self._log_fault_seen):
             self._log_fault_seen = True
@@ -422,6 +425,12 @@ class FixedRateLoop:
         row[L.measured] = 1.0 if c.measured else 0.0
         # the cycle of the sample the published ρ belongs to (the worker's bound lags)
         row[L.bound_cycle] = -1.0 if est is None else (c.k if link is None else link.bound_cycle)
+        # beyond the CSV's columns, for the log writer's sinks (the LSL stream, the MCAP file)
+        row[L.cycle_start] = c.start
+        if self._assist is not None and self.supervisor.ok:
+            row[L.tau_assist] = self._assist
+        else:
+            row[L.tau_assist] = 0.0
 
     def _keep_alive(self, c: CycleState, link, cpu0: float) -> None:
         """The cycle's sample to the bound worker (it computes while the loop sleeps; a worker

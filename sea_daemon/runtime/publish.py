@@ -16,17 +16,20 @@ frames and the value rows are preallocated and packed in place.
 """
 from __future__ import annotations
 
+import grp
 import math
 import os
+import pwd
 import select
 import socket
 import time
 from pathlib import Path
 from typing import Any
 
-from sea_daemon.client import (FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER, JOINT,
-                               LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
+from sea_daemon.client import (CREDS, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER,
+                               JOINT, LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
 from sea_daemon.errors import InputError
+from sea_daemon.hw.canopen_publish import TpdoPublisher
 
 INF = math.inf
 FLT_MAX = 3.4028234663852886e38
@@ -41,17 +44,65 @@ def _real32(x: float, bound: bool) -> float:
     return x
 
 
+class ReaderPolicy:
+    """Who may subscribe to the local publication: root, the daemon's own user, and the users and
+    groups of ``hardware.local_readers`` — checked on the sender's credentials as the kernel
+    reports them (``SO_PASSCRED``): its uid, its gid, or a uid among a listed group's members."""
+
+    def __init__(self, uids=(), gids=()):
+        self.uids = frozenset({0, os.geteuid(), *uids})
+        self.gids = frozenset(gids)
+
+    def allows(self, uid: int, gid: int) -> bool:
+        return uid in self.uids or gid in self.gids
+
+    @property
+    def socket_mode(self) -> int:
+        """The socket file's mode: only the daemon's user (0600) unless others are listed — a
+        group (0660, the file's group), users (0666: the credentials are the gate then)."""
+        others = self.uids - {0, os.geteuid()}
+        return 0o666 if others else 0o660 if self.gids else 0o600
+
+    @classmethod
+    def from_config(cls, users=(), groups=()) -> "ReaderPolicy":
+        """Names resolved on the host (at start, not per request); InputError for an unknown one."""
+        key = "hardware.local_readers"
+        uids, gids = set(), set()
+        for u in users:
+            try:
+                uids.add(u if isinstance(u, int) else pwd.getpwnam(u).pw_uid)
+            except KeyError:
+                raise InputError(f"{key}.users: no user {u!r} on the host") from None
+        for g in groups:
+            try:
+                entry = grp.getgrgid(g) if isinstance(g, int) else grp.getgrnam(g)
+            except KeyError:
+                if isinstance(g, int):
+                    gids.add(g)
+                    continue
+                raise InputError(f"{key}.groups: no group {g!r} on the host") from None
+            gids.add(entry.gr_gid)
+            for member in entry.gr_mem:
+                try:
+                    uids.add(pwd.getpwnam(member).pw_uid)
+                except KeyError:
+                    pass
+        return cls(uids, gids)
+
+
 class LocalPublisher:
     """Datagrams to subscribed readers on the UNIX socket ``path`` (see :mod:`sea_daemon.client`).
 
     A reader subscribes by sending a subscription datagram from its own (bound) socket and
     renews it at least every :data:`~sea_daemon.client.LEASE_S` seconds; at most ``max_readers``
-    at a time (more are refused, counted in :attr:`refused`).  A stale socket file (no daemon
-    behind it) is replaced; a live one — another daemon publishing there — is an InputError.
+    at a time (more are refused, counted in :attr:`refused`).  Only senders ``readers`` allows
+    (:class:`ReaderPolicy`; default: root and the daemon's user) are subscribed, by the kernel's
+    credentials of the request; others are counted in :attr:`foreign`.  A stale socket file (no
+    daemon behind it) is replaced; a live one — another daemon publishing there — is an InputError.
     """
 
-    def __init__(self, path: str | os.PathLike, n: int, *, max_readers: int = 8, mode: int = 0o660,
-                 clock=time.monotonic):
+    def __init__(self, path: str | os.PathLike, n: int, *, max_readers: int = 8, mode: int | None = None,
+                 readers: ReaderPolicy | None = None, clock=time.monotonic):
         self.path = Path(path)
         if len(os.fsencode(str(self.path))) >= 108:
             raise InputError(f"--socket {self.path}: {len(os.fsencode(str(self.path)))} bytes, a UNIX socket "
@@ -59,11 +110,13 @@ class LocalPublisher:
         self.n = n
         self.clock = clock
         self.max_readers = int(max_readers)
+        self.policy = readers if readers is not None else ReaderPolicy()
         self._probe_stale()
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_PASSCRED, 1)
             self.sock.bind(str(self.path))
-            os.chmod(self.path, mode)
+            os.chmod(self.path, self.policy.socket_mode if mode is None else mode)
             self.sock.setblocking(False)
             self._rpoll = select.poll()               # a request waiting? (no exception per empty read)
             self._rpoll.register(self.sock.fileno(), select.POLLIN)
@@ -72,6 +125,7 @@ class LocalPublisher:
             raise InputError(f"--socket {self.path}: cannot bind: {e.strerror or e}") from None
         self.buf = bytearray(record_size(n))
         self._req = bytearray(64)
+        self._anc = socket.CMSG_SPACE(CREDS.size)
         self.poll_s = 0.02                            # subscription requests are taken every 20 ms
         self._next_poll = 0.0
         self._readers: dict[Any, float] = {}          # address -> lease end (clock)
@@ -79,6 +133,7 @@ class LocalPublisher:
         self.dropped = 0                              # datagrams a reader's full buffer refused
         self.gone = 0                                 # readers dropped because their socket went away
         self.refused = 0                              # subscriptions refused (too many readers)
+        self.foreign = 0                              # requests of senders the policy does not allow
         self.errors = 0
         self._closed = False
 
@@ -114,7 +169,7 @@ class LocalPublisher:
         sock = self.sock
         for _ in range(16 if self._rpoll.poll(0) else 0):
             try:
-                nbytes, addr = sock.recvfrom_into(self._req)
+                nbytes, anc, _, addr = sock.recvmsg_into([self._req], self._anc)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:
@@ -122,6 +177,9 @@ class LocalPublisher:
                 break
             if nbytes != SUBSCRIBE.size or not addr:
                 continue                              # not a request (a probe, junk, an unbound sender)
+            if not self._allowed(anc):
+                self.foreign += 1                     # a sender the policy does not allow: refused
+                continue
             magic, version, _ = SUBSCRIBE.unpack_from(self._req, 0)
             if magic == SUB_MAGIC and version == VERSION:
                 if addr in self._readers or len(self._readers) < self.max_readers:
@@ -134,6 +192,13 @@ class LocalPublisher:
             for addr in [a for a, end in self._readers.items() if end < now]:
                 del self._readers[addr]
 
+    def _allowed(self, anc) -> bool:
+        for level, kind, data in anc:
+            if level == socket.SOL_SOCKET and kind == socket.SCM_CREDENTIALS and len(data) >= CREDS.size:
+                _, uid, gid = CREDS.unpack_from(data)
+                return self.policy.allows(uid, gid)
+        return False
+
     def send(self) -> None:
         """Send :attr:`buf` (packed by :class:`Publisher`) to every reader."""
         for addr in self._readers:
@@ -142,8 +207,9 @@ class LocalPublisher:
                 self.sent += 1
             except (BlockingIOError, InterruptedError):
                 self.dropped += 1
-            except (ConnectionRefusedError, FileNotFoundError):
-                self._readers[addr] = -math.inf       # gone: expired at the next poll
+            except (ConnectionRefusedError, FileNotFoundError, PermissionError):
+                # gone, or connected to a former daemon's socket (it subscribes anew): expired at the next poll
+                self._readers[addr] = -math.inf
                 self.gone += 1
             except OSError:
                 self.errors += 1
@@ -243,7 +309,8 @@ class Publisher:
         if self.local is not None:
             out["local"] = {"socket": str(self.local.path), "datagrams_sent": self.local.sent,
                             "dropped_full": self.local.dropped, "readers_gone": self.local.gone,
-                            "refused": self.local.refused, "errors": self.local.errors}
+                            "refused": self.local.refused, "foreign_refused": self.local.foreign,
+                            "errors": self.local.errors}
         return out
 
     def close(self) -> None:
@@ -256,9 +323,11 @@ def make_publisher(rig, cfg, controller, *, socket_path: str | os.PathLike | Non
     ``hardware.bus.publish`` is on; the local socket when ``socket_path`` is given."""
     tpdo = None
     if cfg.hardware.bus.publish and hasattr(rig.hw, "network"):
-        from sea_daemon.hw.canopen_publish import TpdoPublisher
         tpdo = TpdoPublisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
-    local = LocalPublisher(socket_path, cfg.joints) if socket_path is not None else None
+    local = None
+    if socket_path is not None:
+        r = cfg.hardware.local_readers
+        local = LocalPublisher(socket_path, cfg.joints, readers=ReaderPolicy.from_config(r.users, r.groups))
     if tpdo is None and local is None:
         return None
     return Publisher(cfg.joints, cfg.dt, tpdo=tpdo, local=local, controller=controller, has_estimator=has_estimator)

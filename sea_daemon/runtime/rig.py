@@ -23,6 +23,10 @@ from sea_daemon.hw.interface import HardwareInterface
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, human_torque, load_scenario, make_plant, task_plant
+from sea_daemon.hw.bus import make_bus
+from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.hw.device_model import DeviceModel
+from sea_daemon.hw.sim_hw import SimHardware
 
 
 @dataclass
@@ -112,9 +116,6 @@ def device_model_rig(cfg: ModelConfig, plant, *, tau_h_act: Callable[[float], np
     """``plant`` behind the device model (``tau_h_act``, ``position_preset``, ``lock_step``: see
     :class:`sea_daemon.hw.device_model.DeviceModel`) and :class:`sea_daemon.hw.canopen_hw.CanopenHardware`,
     on two handles of the bus of ``cfg``; nothing started yet.  ``initial_torque``: default zero."""
-    from sea_daemon.hw.bus import make_bus
-    from sea_daemon.hw.canopen_hw import CanopenHardware
-    from sea_daemon.hw.device_model import DeviceModel
     n, b = cfg.joints, cfg.hardware.bus
     dev_bus = make_bus(b)
     try:
@@ -138,7 +139,6 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
         raise InputError("--sim and --device-model exclude each other")
     scen = sim or device_model
     if not scen:
-        from sea_daemon.hw.canopen_hw import CanopenHardware
         b = cfg.hardware.bus
         return Rig(CanopenHardware(cfg), f"CAN {b.interface} {b.channel}", np.zeros(n), cfg=cfg)
     sc = load_scenario(scen)
@@ -152,7 +152,6 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
         tau_h = subject_torque(sc, phase)
     hold = np.array(plant.hold_torque, dtype=float).reshape(n)
     if sim:
-        from sea_daemon.hw.sim_hw import SimHardware
         hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=tau_h)
         return Rig(hw, f"simulator ({scen}), no CAN", hold, hold, tau_h, plant=plant, cfg=cfg)
     cfg = on_fresh_virtual_channel(cfg, "sea-daemon")

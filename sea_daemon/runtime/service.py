@@ -23,13 +23,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from sea_daemon.errors import InputError, shown
+from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
-from sea_daemon.core.log import log_columns
+from sea_daemon.core.log import DaemonLogLayout
 from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.io.files import atomic_write_bytes
 
 if TYPE_CHECKING:                     # a Rig's module loads the scenario and simulator modules
     from sea_daemon.core.estimators.base import Estimator
@@ -39,6 +41,8 @@ PID_FILE = "sea-daemon.pid"
 #: the bound worker's SCHED_FIFO priority: this far below the loop's (``rt_priority``)
 WORKER_PRIORITY_BELOW = 20
 LOCK_FILE = "sea-daemon.lock"
+#: s the log writer's process may take to open its sinks (its start and the libraries' imports)
+_SINKS_OPEN_S = 60.0
 
 
 # ---------------------------------------------------------------------------- state file
@@ -75,18 +79,28 @@ def bus_lock_path(interface: str, channel: str) -> Path:
 class _Flock:
     """An exclusive ``flock`` on a file, held until :meth:`release` or the process ends."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, private: bool = False):
         self.path = path
+        self.private = private                       # the state directory's: this user's or root's only
         self.fd: int | None = None
 
     def acquire(self, what: str) -> None:
         import fcntl
+        # never through a symbolic link (a link planted in a shared lock directory would have
+        # the lock's pid written over the file it points to)
         try:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        except PermissionError:
-            fd = os.open(self.path, os.O_RDONLY)     # another user's lock file: flock still works
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+            except PermissionError:
+                fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW)   # another user's lock file: flock still works
         except OSError as e:
             raise InputError(f"{what} lock {shown(self.path)}: cannot open: {e.strerror or e}") from None
+        if self.private:
+            try:
+                check_owned(f"{what} lock", self.path, st=os.fstat(fd))
+            except InputError:
+                os.close(fd)
+                raise
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -136,7 +150,7 @@ class StateFile:
         try:
             for path, what in [(self.lock_path, "state directory")] + (
                     [(bus_lock_path(*bus), f"bus {bus[0]} {bus[1]}")] if bus else []):
-                lk = _Flock(path)
+                lk = _Flock(path, private=path == self.lock_path)
                 lk.acquire(what)
                 self._locks.append(lk)
         except BaseException:
@@ -156,7 +170,6 @@ class StateFile:
         self.release()
 
     def write(self, **info) -> None:
-        from sea_daemon.io.files import atomic_write_bytes
         atomic_write_bytes(self.path, json.dumps({"pid": os.getpid(), "start_time": process_start_time(os.getpid()),
                                                   "started": time.time(), "lock": str(self.lock_path),
                                                   **info}).encode())
@@ -280,7 +293,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
           supervisor: SafetySupervisor | None = None, publisher=None, bound_in: str = "auto",
-          bound_max_age: int = 3, bound_record: int = 0) -> ServeResult:
+          bound_max_age: int = 3, bound_record: int = 0, sinks=(), sinks_wait: float = 0.0) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal.
 
     ``bound_in`` (``estimator.bound_in``): where the estimator's Theorem-1 bound is computed —
@@ -292,15 +305,24 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     that many steps' bound age and CPU time (``bench loop``).  ``extra["bound"]`` says where it ran.
 
     ``publisher``: the loop's publication step (:func:`sea_daemon.runtime.publish.make_publisher`),
-    closed (its socket removed) when the service stops; its counts go into ``extra["publish"]``."""
+    closed (its socket removed) when the service stops; its counts go into ``extra["publish"]``.
+
+    ``sinks``: the log writer's other outputs (:mod:`sea_daemon.runtime.sinks`: the LSL outlet,
+    the MCAP recording), fed by its process with every row; the loop starts once they are open
+    (and an LSL outlet has waited its ``wait_s`` for an inlet; ``sinks_wait``: that longest wait),
+    what they did is ``log["sinks"]``."""
     # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
-    from sea_daemon.core.jit import warm_up        # numba: imported here, not by `sea-daemon reset`
+    # local import: numba's kernels load only where a daemon runs, not for `sea-daemon reset`
+    from sea_daemon.core.jit import warm_up
     warm_up()
     notifier = notifier or Notifier()
     if bound_in not in ("auto", "worker", "loop"):
         raise ValueError(f"bound_in must be auto, worker or loop, got {bound_in!r}")
-    log = LogWriter(log_path, log_columns(n))           # before SCHED_FIFO: the writer stays SCHED_OTHER
+    layout = DaemonLogLayout.of(n)
+    # before SCHED_FIFO: the writer stays SCHED_OTHER
+    log = LogWriter(log_path, list(layout.columns), sink_columns=layout.sink_columns if sinks else (), sinks=sinks)
     try:
+        log.wait_sinks(sinks_wait + _SINKS_OPEN_S)
         link, where = _bound_link(estimator, bound_in, realtime, rt_priority, bound_max_age, bound_record)
     except BaseException:
         log.close()

@@ -9,8 +9,15 @@ runs the :class:`~sea_daemon.runtime.controller.ScenarioController` over
    and the subject's torque, then reads the encoders (19-bit quantisation, offsets);
 2. the controller computes τ_m from the *measured* angles (PID) or from time (open loop);
 3. ``write()``: τ_m is held over [t_k, t_k+1];
-4. the row (t_k, q, θ_m, τ_m commanded, τ_h,act over [t_k, t_k+1], debug extras) is recorded;
-   the applied torque of the interval (``tau_m_applied``) comes with the next cycle's step.
+4. the row (t_k, q, θ_m, τ_m commanded, debug extras) is recorded; what acted over
+   [t_k, t_k+1] — τ_h,act and the applied torque (``tau_m_applied``) — comes with the next
+   cycle's step.
+
+These are the steps of every simulated run (:mod:`sea_daemon.core.sim.sampling`): SimHardware
+reads through its :class:`~sea_daemon.core.sim.sampling.SampledPlant`, the rows go into a
+:class:`~sea_daemon.core.sim.sampling.SampleRecorder`, and the scenario's controller runs the
+core's :class:`~sea_daemon.core.control.ReferenceTracker` / :class:`~sea_daemon.core.control.StillArm`,
+as :func:`sea_daemon.core.sim.session.run_session` does without the daemon's loop.
 
 The training phase is followed seamlessly by the estimation phase (same plant, same
 controller state; time keeps running, so the estimation log starts at t = N_train·dt).
@@ -27,11 +34,11 @@ import numpy as np
 
 from sea_daemon.hw.sim_hw import SimHardware
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.sim.sampling import SampleRecorder
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, make_plant
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.loop import FixedRateLoop
-from sea_daemon.runtime.recorder import PhaseRecorder
 
 #: debug extras of the simulator's logs (the readers of docs/interfaces.md §1 ignore them)
 EXTRA = ("q_ref", "tau_des", "q_true", "theta_m_true", "dq_true", "dtheta_m_true", "tau_s_true", "tau_m_applied")
@@ -63,26 +70,12 @@ def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
         return -ctl.tau_des if resist else 0.0
 
     hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=subject)
-    rec = PhaseRecorder(rows, cfg.joints, EXTRA)
-    c = rec.cols
+    rec = SampleRecorder(rows, cfg.joints, EXTRA)
 
     def record(k, m, est, tau) -> None:
-        if k:
-            c["tau_m_applied"][k - 1] = plant.applied_torque   # this cycle's read stepped [t_k-1, t_k]
-        if k == rows:
-            return                                            # the read that only steps the last row's interval
-        c["t"][k] = m.t
-        c["q"][k] = m.q
-        c["theta_m"][k] = m.theta_m
-        c["tau_m"][k] = tau
-        c["tau_h_act"][k] = subject(m.t)
-        c["q_ref"][k] = ctl.q_ref
-        c["tau_des"][k] = ctl.tau_des
-        c["q_true"][k] = plant.q
-        c["theta_m_true"][k] = plant.theta_m
-        c["dq_true"][k] = plant.dq
-        c["dtheta_m_true"][k] = plant.dtheta_m
-        c["tau_s_true"][k] = plant.tau_s
+        rec.acted(hw.sampled)                                 # this cycle's read stepped [t_k-1, t_k]
+        if k < rows:                                          # the last read only steps the last row's interval
+            rec.sample(k, m.t, m.q, m.theta_m, tau, hw.sampled, ctl)
 
     loop = FixedRateLoop(hw, None, ctl, cfg.joints, cfg.dt, realtime=False, on_cycle=record, fail_fast=True)
     hw.start(initial_torque=plant.hold_torque)

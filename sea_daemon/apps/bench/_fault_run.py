@@ -8,7 +8,7 @@ evaluates each :class:`Injection` against what the probe saw at the drive (the m
 described in :mod:`sea_daemon.apps.bench.faults`).
 
 The heartbeat timeout runs on the real clock, and a lock-step cycle otherwise takes whatever the
-machine gives it (0.5–4 ms on the 2-core test machine): while a heartbeat loss is pending the
+machine gives it (0.5–4 ms on a 2-vCPU virtual machine): while a heartbeat loss is pending the
 run paces its cycles to one period of wall time each (:meth:`FaultRun._pace`), as the loop runs
 in production, so the timeout is a number of cycles that does not depend on the machine's load.
 """
@@ -30,6 +30,8 @@ from sea_daemon.core.log import log_columns
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.apps.bench._rig import DriveProbe, HeartbeatSniffer, SineTracker, VirtualClock, bench_config, bench_rig
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.logcsv import read_log
 
 FAULTS = {
     "tpdo_missing": Fault.TPDO_MISSING,
@@ -102,7 +104,6 @@ class FaultRun:
         self.gap, self.max_wait = gap, max_wait
         cfg = bench_config(**BUS)
         self.cfg = cfg
-        from sea_daemon.core.estimators import make_estimator
         # the estimator first: its construction loads the compiled kernels (~0.6 s in a fresh
         # process), and the drive watches the daemon's heartbeat from the rig's start on
         self.est = _Estimator(make_estimator("akf", cfg, bound=False))
@@ -127,6 +128,9 @@ class FaultRun:
         self.injections: list[Injection] = []
         self.false_alarms: list[tuple[int, str]] = []
         self.reset_failed: list[tuple[int, str]] = []     # an operator reset that did not take
+        # the drive's quick stop on the daemon's heartbeat missing while the loop itself stalled
+        # longer than the timeout (a loaded host): the watch doing its job, not a false alarm
+        self.host_stalls: list[tuple[int, str]] = []
         self.cur: Injection | None = None
         self.next_at = warmup + int(self.rng.integers(*gap))
         self.reset_at = -1
@@ -241,6 +245,27 @@ class FaultRun:
         inj.cond = k + OVERRUN_STREAK - 1
         inj.note = f"{m} cycles of {min(slow) * 1e3:.0f}-{max(slow) * 1e3:.0f} ms"
 
+    def _host_stall(self, k: int, fault: Fault, detail: str) -> bool:
+        """A latch without an injection that the heartbeat watches rightly raised because a
+        thread of this host stalled past ``heartbeat_timeout_ms``: the drive's EMCY 0x8130 (its
+        watch of the daemon's heartbeat, sent from read()) when two read() starts within the last
+        second of cycles lie further apart than the timeout, or the bus (the sniffer) carried no
+        heartbeat of the daemon for longer since the previous latch; HEARTBEAT_LOST when the bus
+        had no heartbeat of a device for longer than the timeout before this read()."""
+        timeout = self.cfg.hardware.bus.heartbeat_timeout_ms / 1e3
+        if fault == Fault.EMCY and "EMCY 0x8130" in detail:
+            t = self.probe.read_t[max(0, k - int(round(1.0 / self.cfg.dt))):k + 1]
+            t = t[t > 0]
+            master = self.cfg.hardware.bus.master_node
+            gap = max(self.sniffer.hb_gap_max.pop(master, 0.0),
+                      self.probe.read_t[k] - self.sniffer.hb_seen.get(master, self.probe.read_t[k]))
+            return gap > timeout or (len(t) > 1 and float(np.max(np.diff(t))) > timeout)
+        if fault == Fault.HEARTBEAT_LOST:
+            nodes = (self.rig.drive.id, self.rig.encoder.id)
+            return any(self.probe.read_t[k] - self.sniffer.hb_seen.get(n, self.probe.read_t[k]) > timeout
+                       for n in nodes)
+        return False
+
     def _slow_cycle(self) -> None:
         """Injected slowness of this cycle (advances the loop's virtual clock)."""
         if self._slow:
@@ -275,6 +300,7 @@ class FaultRun:
                     self._restore()
                     self._restore = None
                 self.loop.request_reset()
+                self.sniffer.hb_gap_max.clear()      # stalls count from here
                 self.reset_at = -1
                 self.cur = None
                 self.next_at = k + 1 + int(self.rng.integers(*self.gap))
@@ -286,12 +312,15 @@ class FaultRun:
                 rec = (k, f"{sup.latched.name}: {sup.latched_detail}")
                 if self.probe.reset_failures and self.probe.reset_failures[-1] in sup.latched_detail:
                     self.reset_failed.append(rec)
+                elif self._host_stall(k, sup.latched, sup.latched_detail):
+                    self.host_stalls.append(rec)
                 else:
                     self.false_alarms.append(rec)
             if self.reset_at < 0:
                 self.reset_at = k + HOLD
             if k >= self.reset_at:
                 self.loop.request_reset()
+                self.sniffer.hb_gap_max.clear()      # stalls count from here
                 self.reset_at = -1
             return
         if self.kind is not None and k >= self.next_at and k + self.max_wait + HOLD + 2 < self.cycles:
@@ -319,7 +348,6 @@ class FaultRun:
         """The log has a row for every cycle (cycle column 0..N−1, time increasing), its fault
         column is non-zero exactly in the cycles the loop was latched, valid is 0 there, and the
         commanded torque of those rows is zero."""
-        from sea_daemon.io.logcsv import read_log
         log = read_log(self.log_path, n=1)
         ex = DaemonColumns.of(log)
         fault = ex.fault != 0

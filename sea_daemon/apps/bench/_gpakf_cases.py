@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from sea_daemon.apps.calibration.pipeline import fit_gp_hyper
+from sea_daemon.apps.calibration.residual_gp import fit_gp_hyper
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.estimators.calibrated import make_calibrated
 from sea_daemon.core.excitation import Coverage, WorkingRange

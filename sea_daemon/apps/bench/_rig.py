@@ -95,15 +95,22 @@ class _BusListener:
 
 class HeartbeatSniffer(_BusListener):
     """The monotonic time each node's heartbeat last arrived on the bus: ``hb_seen[node]``
-    (dated by the frame's timestamp, as the driver dates it: :func:`sea_daemon.hw.canopen_rx.arrival`)."""
+    (dated by the frame's timestamp, as the driver dates it: :func:`sea_daemon.hw.canopen_rx.arrival`),
+    and the longest time between two of its heartbeats since the caller last cleared it:
+    ``hb_gap_max[node]``."""
 
     def __init__(self, bus: can.BusABC):
         self.hb_seen: dict[int, float] = {}
+        self.hb_gap_max: dict[int, float] = {}
         super().__init__(bus)
 
     def _on_frame(self, msg: can.Message) -> None:
         if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_error_frame:
-            self.hb_seen[msg.arbitration_id - 0x700] = arrival(time.monotonic(), msg.timestamp)
+            node = msg.arbitration_id - 0x700
+            t = arrival(time.monotonic(), msg.timestamp)
+            if node in self.hb_seen:
+                self.hb_gap_max[node] = max(self.hb_gap_max.get(node, 0.0), t - self.hb_seen[node])
+            self.hb_seen[node] = t
 
 
 class FrameCounter(_BusListener):

@@ -70,7 +70,7 @@ def run_suite(cycles: int = 10000, seed: int = 0, fault_free_cycles: int = 10000
             r = FaultRun(None, fault_free_cycles, seed + 99991, gap, max_wait, warmup,
                          log_path=Path(logs.name) / "fault_free.csv").run()
             out["fault_free"] = {"cycles": fault_free_cycles, "false_alarms": r.false_alarms,
-                                 "reset_failed": r.reset_failed, "log": r.log_check,
+                                 "reset_failed": r.reset_failed, "host_stalls": r.host_stalls, "log": r.log_check,
                                  "barrier_misses": r.probe.barrier_misses, "wall_s": time.monotonic() - t0}
     finally:
         logs.cleanup()
@@ -93,6 +93,7 @@ def _run_kinds(out, kinds, cycles, seed, gap, max_wait, warmup, progress, log_di
             "held": sum(x.held for x in inj),
             "false_alarms": r.false_alarms,
             "reset_failed": r.reset_failed,
+            "host_stalls": r.host_stalls,
             "barrier_misses": r.probe.barrier_misses,
             "log": r.log_check,
             "wall_s": time.monotonic() - t0,

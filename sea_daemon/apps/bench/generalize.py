@@ -28,7 +28,6 @@ import dataclasses
 import json
 import multiprocessing as mp
 import os
-import pickle
 import time
 import traceback
 from pathlib import Path
@@ -37,9 +36,10 @@ import numpy as np
 
 from sea_daemon.apps.bench import choose, machine
 from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
+from sea_daemon.apps.bench.logcache import load_logs, private_dir, save_logs
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
-from sea_daemon.core.config import CalibrationConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import run_session
@@ -80,26 +80,23 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def plant_logs(seed: int, cal_s: float, cache: Path | None):
-    """(plant, calibration log, {session: log}) of plant ``seed``, simulated or from the cache."""
-    p = None if cache is None else cache / f"plant_{seed}_{int(cal_s)}.pkl"
-    if p is not None and p.exists():
-        with open(p, "rb") as fh:
-            out = pickle.load(fh)
-        for c in (out[0].nominal, out[0].true):        # caches written before the calibration section
-            if "calibration" not in c.__dict__:
-                object.__setattr__(c, "calibration", CalibrationConfig())
-        return out
+    """(plant, calibration log, {session: log}) of plant ``seed``, simulated or from the cache
+    (:mod:`.logcache`: numbers only; the plant is drawn again from its seed)."""
     pd = draw_plant(seed)
+    p = None if cache is None else cache / f"plant_{seed}_{int(cal_s)}.npz"
+    key = {"seed": seed, "cal_s": cal_s, "sessions": [s.name for s in sessions(pd)]}
+    logs = None if p is None else load_logs(p, key)
+    if logs is not None and "calibration" in logs:
+        cal = logs.pop("calibration")
+        return pd, cal, logs
     cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
     tests = {}
     for i, s in enumerate(sessions(pd)):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
                                     seed=2000 + 100 * seed + i)
-    out = (pd, cal, tests)
     if p is not None:
-        with open(p, "wb") as fh:
-            pickle.dump(out, fh)
-    return out
+        save_logs(p, key, {"calibration": cal, **tests})
+    return pd, cal, tests
 
 
 def _run(log, est, bound: bool = False) -> dict:
@@ -259,23 +256,31 @@ def run(args) -> int:
     out = check_output_dir("--out", args.out)
     cache = None if args.no_cache else out / "cache"
     if cache is not None:
-        cache.mkdir(exist_ok=True)
+        cache.mkdir(mode=0o700, exist_ok=True)
+        why = private_dir(cache)
+        if why is not None:
+            print(f"bench generalize: note: cache {cache} not used: {why}", flush=True)
+            cache = None
     est = choose(args.estimators, ESTIMATORS, "--estimators")
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), calibration {args.cal_s:g} s, "
           f"estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
     jobs = [(s, args.cal_s, cache, est, args.bound) for s in seeds]
     rows = []
-    if args.jobs > 1:
-        with mp.get_context("fork").Pool(args.jobs) as pool:
-            for row in pool.imap_unordered(_job, jobs):
+    with Progress("bench generalize", total=len(jobs), unit="plants", interval=0.0) as progress:
+        progress(0, what="plants calibrated and tested")
+        if args.jobs > 1:
+            with mp.get_context("fork").Pool(args.jobs) as pool:
+                for row in pool.imap_unordered(_job, jobs):
+                    rows.append(row)
+                    _print_row(row)
+                    progress(len(rows), what="plants calibrated and tested")
+        else:
+            for j in jobs:
+                row = _job(j)
                 rows.append(row)
                 _print_row(row)
-    else:
-        for j in jobs:
-            row = _job(j)
-            rows.append(row)
-            _print_row(row)
-            atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
+                atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
+                progress(len(rows), what="plants calibrated and tested")
     rows.sort(key=lambda r: r["seed"])
     summary = summarize(rows)
     atomic_write_text(out / "results.json", json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))

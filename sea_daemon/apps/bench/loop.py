@@ -65,6 +65,23 @@ from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wa
 from sea_daemon.apps.bench.can_cycle import remote_relay
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.runtime.loop import Series
+from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.io.configfile import import_root, save_config
+from sea_daemon.runtime.rig import Rig
+from sea_daemon.io.configfile import load_config, data_root
+from sea_daemon.core.rates import at_rate
+from sea_daemon.apps.calibration import calibrate
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.gpmodel import load_gp_model
+from sea_daemon.runtime.rig import make_rig
+from sea_daemon.core.buffers import resident_zeros
+from sea_daemon.hw.device_model.model import thread_page_faults
+from sea_daemon.io.logcsv import read_log
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.controller import ScenarioController
+from sea_daemon.runtime.publish import make_publisher
+from sea_daemon.runtime.safety import SafetySupervisor
+from sea_daemon.runtime.service import serve
 
 NAME = "loop"
 HELP = "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"
@@ -102,7 +119,7 @@ def add_arguments(p) -> None:
                         "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
     p.add_argument("--host-rounds", type=int, default=100,
                    help="rounds of the host's reference workload before and after the run (what starting a "
-                        "cycle cold costs on this machine; default 100; 0: not measured)")
+                        "cycle cold costs on the host; default 100; 0: not measured)")
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
@@ -134,9 +151,6 @@ def _wait_line(proc, text: str, timeout: float) -> str:
 def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
     """``sea-daemon device-model`` in its own process on ``cfg``'s bus (``--stats``, SCHED_FIFO
     ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
-    from sea_daemon.hw.canopen_hw import CanopenHardware
-    from sea_daemon.io.configfile import import_root, save_config
-    from sea_daemon.runtime.rig import Rig
     path = Path(tmp) / "device-model.yaml"
     save_config(cfg, path)
     b = cfg.hardware.bus
@@ -241,8 +255,6 @@ def _bad_args(args) -> str | None:
 
 
 def run(args) -> int:
-    from sea_daemon.io.configfile import load_config, data_root
-    from sea_daemon.core.rates import at_rate
 
     save = json_output(args)
     problem = _bad_args(args)
@@ -275,10 +287,6 @@ def run(args) -> int:
 def _calibrated_estimator(args, cfg_model, cfg, scen: str, tmp: Path):
     """The residual learned by the calibration at --model-rate (lock-step, not timed) and the
     estimator of the run on it; None (after one line on stderr) when the calibration failed."""
-    from sea_daemon.apps.calibration import calibrate
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.configfile import save_config
-    from sea_daemon.io.gpmodel import load_gp_model
     cfg_path = tmp / "config.yaml"
     save_config(cfg_model, cfg_path)
     rc, summary, message = calibrate(cfg_model, scen, tmp / "model.npz", tmp / "calibration.csv",
@@ -299,8 +307,6 @@ def _calibrated_estimator(args, cfg_model, cfg, scen: str, tmp: Path):
 def _bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
     """The rig of --bus: the device model in this process (virtual) or in its own process
     (ipc, remote: appended to ``procs`` with the relay); (rig, device model process or None)."""
-    from sea_daemon.hw.canopen_hw import CanopenHardware
-    from sea_daemon.runtime.rig import make_rig
     deadline_ms = args.tpdo_deadline * cfg.dt * 1e3
     if args.bus == "virtual":
         rig = make_rig(cfg, device_model=scen, phase="estimation")
@@ -341,14 +347,6 @@ def _stop_procs(procs: list, dev) -> dict | None:
 def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     """The service on the bench rig for --cycles + 1 cycles, with the receive threads' CPU and
     the loop thread's page faults probed from its progress callback, and the log read back."""
-    from sea_daemon.core.buffers import resident_zeros
-    from sea_daemon.hw.device_model.model import thread_page_faults
-    from sea_daemon.io.logcsv import read_log
-    from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.runtime.controller import ScenarioController
-    from sea_daemon.runtime.publish import make_publisher
-    from sea_daemon.runtime.safety import SafetySupervisor
-    from sea_daemon.runtime.service import serve
     procs: list = []
     rig, dev = _bench_rig(args, cfg, scen, tmp, procs)
     controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,

@@ -1,6 +1,6 @@
 """``sea-daemon bench newrobot``: one plant, calibrated once, estimated on sessions unlike it.
 
-The table of issue 12 re-run as a user would: a plant written down in a directory of scenario
+A new robot's table, run as a user would: a plant written down in a directory of scenario
 files (``configs/scenarios/newrobot/``: ``robot.yaml`` the nominal robot model and its
 ``calibration`` section, the scenarios sharing one hidden plant, ``table.yaml`` naming the
 calibration scenario and the estimation sessions)::
@@ -17,7 +17,7 @@ with ``robot.yaml`` — what ``sea-daemon replay LOG --train CAL.csv --config ro
 --estimator gp-akf`` runs: the nominal robot model and the log are its only inputs.  Per session
 (:func:`.generalize.run_sessions`): the GP-AKF on the calibrated model, the AKF on the nominal
 robot, the AKF on the augmented model (diagnose's effects), the oracle AKF (the true plant),
-RMSE of τ̂_h,act against the truth; the target of issue 12: passive ≤ 0.05 N m, active ≤ 0.1.
+RMSE of τ̂_h,act against the truth; the targets: passive ≤ 0.05 N m, active ≤ 0.1.
 
 ``--calibration excitation`` calibrates instead on the calibration excitation over
 ``robot.yaml``'s ``calibration`` section (what ``sea-daemon calibrate --excitation`` drives), on
@@ -48,7 +48,7 @@ from sea_daemon.io.scenario import PIDSpec, load_scenario
 from sea_daemon.runtime.sim_runner import simulate
 
 DESCRIPTION = __doc__
-#: issue 12's targets [N m]: passive sessions (τ_h,act = 0) and active subjects
+#: the targets [N m]: passive sessions (τ_h,act = 0) and active subjects
 TARGET = {"passive": 0.05, "active": 0.1}
 
 

@@ -39,6 +39,15 @@ import numpy as np
 
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.io.configfile import load_config, data_root
+from sea_daemon.runtime import service
+from sea_daemon.runtime.controller import ScenarioController
+from sea_daemon.io.scenario import load_scenario
+from sea_daemon.runtime.rig import make_rig
+from sea_daemon.io.logcsv import read_log
+from sea_daemon.errors import Fault
+from sea_daemon.errors import InputError
 
 NAME = "record"
 HELP = "the measured log through faults: device model stopped, disk full, service killed and restarted"
@@ -68,12 +77,6 @@ class _Status:
 
 def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=None):
     """The service against the device model for ``cycles`` cycles; ``action(rig)`` in cycle ``at``."""
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.io.configfile import load_config, data_root
-    from sea_daemon.runtime import service
-    from sea_daemon.runtime.controller import ScenarioController
-    from sea_daemon.io.scenario import load_scenario
-    from sea_daemon.runtime.rig import make_rig
 
     root = data_root()
     cfg = load_config(root / "configs" / "exo_1dof_sim.yaml")
@@ -115,7 +118,6 @@ def _lines_whole(path: Path) -> bool:
 
 
 def attack_device_model_stopped(tmp: Path, cycles: int, rng) -> dict:
-    from sea_daemon.io.logcsv import read_log
     at = int(rng.integers(cycles // 4, 3 * cycles // 4))
     res, path, note = serve_with_action(tmp, cycles, at, lambda rig: rig.device_model.stop())
     log = read_log(path, n=1)
@@ -157,8 +159,6 @@ def _small_disk(base: Path, size: int):
 def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
     import resource
 
-    from sea_daemon.errors import Fault
-    from sea_daemon.io.logcsv import read_log
     # fills after 25..75 % of the run (a row is about 150 bytes), in whole pages
     size = max(2, int(rng.uniform(0.25, 0.75) * cycles * ROW_BYTES) // 4096) * 4096
     with _small_disk(tmp, size) as (d, mounted):
@@ -184,8 +184,6 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
 
 
 def attack_restart(tmp: Path, cycles: int, rng) -> dict:
-    from sea_daemon.io.configfile import data_root
-    from sea_daemon.io.logcsv import read_log
     root = data_root()
     cfg = root / "configs" / "exo_1dof_sim.yaml"
     scen = root / "configs" / "scenarios" / "passive.yaml"
@@ -265,7 +263,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from sea_daemon.errors import InputError
     if args.rounds < 1 or args.cycles < 200:
         raise InputError(f"--rounds {args.rounds} (>= 1), --cycles {args.cycles} (>= 200)")
     attacks, save = choose(args.attacks, ATTACKS, "--attacks"), json_output(args)

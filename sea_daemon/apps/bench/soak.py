@@ -14,7 +14,7 @@ cycle time (from the log's own ``period`` / ``compute`` columns); log rows appen
 and dropped, and the rows counted back in the rotated files.
 
 A latched fault would stop the estimator (the loop's policy) and is reported; the overrun
-streak that would trip it when this machine cannot hold the rate is configurable
+streak that would trip it when the host cannot hold the rate is configurable
 (``--overrun-streak``; 0 disables it for the soak, overruns are still counted).
 """
 from __future__ import annotations
@@ -36,6 +36,14 @@ from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.realtime import try_realtime
 from sea_daemon.apps.bench import add_json_argument, json_output, machine, summarize
 from sea_daemon.apps.bench._rig import SineTracker, bench_config, bench_rig, vm_rss_kb
+from sea_daemon.apps.bench.loop import device_model_process
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.rates import at_rate
+from sea_daemon.errors import InputError
+from sea_daemon.io.files import check_output_dir
+from sea_daemon.core.bounds.akf_bound import theorem_bound
+from sea_daemon.runtime.bound_worker import BoundWorker
+from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
 
 NAME = "soak"
 HELP = "long run: loop + CAN + device model + GP-AKF learning online + log writer; memory, overruns, rows"
@@ -120,13 +128,10 @@ class _SoakProbe:
         est.learning = False                  # the model frozen from here on (the daemon's run)
         if not self.bound:
             return
-        from sea_daemon.core.bounds.akf_bound import theorem_bound
         est.bound = theorem_bound(est)
         est.bound.reset(est.est, est.record)  # the set of means starts at a point here
         if self.bound_in == "worker":
             # the GP is frozen now: the worker's copy of it stays the loop's
-            from sea_daemon.runtime.bound_worker import BoundWorker
-            from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
             prio = 80 - WORKER_PRIORITY_BELOW if self.rt.get("sched", "").startswith("fifo") else 0
             # started from inside the running loop: not waiting for the worker's set-up
             self.loop.bound_link = self.links["worker"] = BoundWorker(est, rt_priority=prio).start(wait=False)
@@ -137,7 +142,6 @@ def _soak_rig(cfg, bus: str, out_dir: Path, rate: float, max_missed: int):
     device model process or None, what real-time set-up applied)."""
     if bus != "ipc":
         return cfg, bench_rig(cfg), None, {"sched": "other (not asked)"}
-    from sea_daemon.apps.bench.loop import device_model_process
     # the TPDO deadline inside the period; a late answer is held for 3 cycles (counted)
     b = dataclasses.replace(cfg.hardware.bus, interface="ipc", channel=f"soak-{os.getpid()}",
                             pdo_timeout_ms=0.6e3 / rate, max_missed_cycles=max_missed)
@@ -153,8 +157,6 @@ def _soak_rig(cfg, bus: str, out_dir: Path, rate: float, max_missed: int):
 def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_streak: int, rotate_bytes: int,
          out_dir: Path, samples: int = 20, progress=None, bus: str = "virtual", learn_cycles: int | None = None,
          bound: bool = False, max_missed: int = 3, bound_in: str = "worker") -> dict:
-    from sea_daemon.core.estimators import make_estimator
-    from sea_daemon.core.rates import at_rate
     cfg = bench_config(pdo_timeout_ms=200.0, heartbeat_ms=50, heartbeat_timeout_ms=1000, sdo_timeout_ms=1000)
     cfg = at_rate(cfg, float(rate))
     if max_leaves:
@@ -221,8 +223,6 @@ def _soak_summary(cfg, rig, est, sup, st, probe: _SoakProbe, rss: dict, rt: dict
 
 
 def run(args) -> int:
-    from sea_daemon.errors import InputError
-    from sea_daemon.io.files import check_output_dir
     save = json_output(args)
     if args.cycles < 100 or args.rate <= 0:
         raise InputError(f"--cycles {args.cycles} (>= 100), --rate {args.rate} (> 0)")

@@ -8,25 +8,40 @@ the model file is saved; with ``fit`` the whole calibration of :mod:`.pipeline` 
 session's log instead and the model file is the calibrated model (:mod:`.modelio`).
 
 :mod:`.pipeline` — one calibration from a passive log and the nominal model (noise, diagnose's
-physics, residual GP, process noise); :mod:`.noise` — its noise identification; :mod:`.modelio`
-— the calibrated model on disk (docs/calibration.md).
+physics, residual GP, process noise), with its noise identification and diagnose from the
+analysis layer (:mod:`sea_daemon.analysis.noise`, :mod:`sea_daemon.analysis.diagnose`);
+:mod:`.modelio` — the calibrated model on disk (docs/calibration.md).
 """
 from __future__ import annotations
 
+import logging
+import math
+import shutil
 import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
+from sea_daemon.apps.calibration.modelio import save_calibrated, summary as cal_summary
+from sea_daemon.apps.calibration.pipeline import calibrate_log
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.excitation import WorkingRange, excitation
 from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import load_yaml
 from sea_daemon.io.gpmodel import save_gp_model
+from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.notify import Notifier
+from sea_daemon.runtime.publish import make_publisher
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.rig import make_rig
 from sea_daemon.runtime.service import StateFile, serve
+
+log = logging.getLogger("sea_daemon.calibrate")
 
 
 class _Progress:
@@ -36,8 +51,6 @@ class _Progress:
         self.est = estimator
         self.bar = None
         if enabled:
-            from tqdm import tqdm
-            import shutil
             # a terminal that reports a size of 0 x 0 would hide the bar (tqdm): fall back to 100 x 20
             size = shutil.get_terminal_size((100, 20))
             self.bar = tqdm(total=total, unit="cycle", desc="calibrate", file=sys.stderr, mininterval=0.25,
@@ -96,7 +109,6 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     controller = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay, estimation_from=None,
                                     reference=reference)
     bar = _Progress(cycles, progress, estimator)
-    from sea_daemon.runtime.publish import make_publisher
     publisher = make_publisher(rig, cfg, controller, socket_path=socket_path)
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
@@ -132,9 +144,6 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
 def excitation_reference(cfg: ModelConfig, q0: float):
     """The calibration excitation (:func:`~sea_daemon.core.excitation.excitation`) over the
     configuration's ``calibration`` working range, from ``q0``; without one declared, 10°–90°."""
-    import math
-
-    from sea_daemon.core.excitation import WorkingRange, excitation
     c = cfg.calibration
     lo = math.radians(c.q_min_deg if c.q_min_deg is not None else 10.0)
     hi = math.radians(c.q_max_deg if c.q_max_deg is not None else 90.0)
@@ -144,18 +153,15 @@ def excitation_reference(cfg: ModelConfig, q0: float):
 def _fit(out, log_path: Path, cfg: ModelConfig, config_path, summary: dict, hardware: str,
          cycles: int) -> tuple[int, dict, str]:
     """The whole calibration on the session's log: ``out`` (model file) and ``out``.yaml."""
-    from sea_daemon.apps.calibration.modelio import save_calibrated, summary as cal_summary
-    from sea_daemon.apps.calibration.pipeline import calibrate_log
-    from sea_daemon.io.configfile import load_yaml
-    from sea_daemon.io.logcsv import read_log
     raw = load_yaml(config_path) if config_path is not None else None
-    result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw)
+    with Progress("calibrate --fit") as progress:
+        result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw, progress=progress)
     yaml_path, npz_path = save_calibrated(Path(out).with_suffix(""), result,
                                           {"command": "calibrate --fit", "log": str(log_path),
                                            "hardware": hardware, "cycles": cycles})
     s = cal_summary(result)
     for line in s["text"]:
-        print(line, file=sys.stderr)
+        log.info(line)
     summary.update({"model": str(npz_path), "config_calibrated": str(yaml_path),
                     "calibration": {k: v for k, v in s.items() if k != "text"}})
     return 0, summary, ""

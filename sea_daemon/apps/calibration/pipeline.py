@@ -7,12 +7,12 @@
 In this order (each step uses what the previous ones identified; a value the configuration
 gives is kept, see :func:`given_keys`):
 
-1. kinematics (:func:`~.noise.choose_kinematics`) and measurement noise R
-   (:func:`~.noise.measurement_noise`: ALS on the encoder angles, made robust, plus the
+1. kinematics (:func:`~sea_daemon.analysis.noise.choose_kinematics`) and measurement noise R
+   (:func:`~sea_daemon.analysis.noise.measurement_noise`: ALS on the encoder angles, made robust, plus the
    differentiator's velocity error measured on the log);
 2. the physical model: ``diagnose`` on the log → the nominal model with the effects it finds
    (the augmented model, ``model_augmented.yaml``);
-3. the motor-torque noise σ_u (:func:`~.noise.motor_torque_noise`) on the augmented model;
+3. the motor-torque noise σ_u (:func:`~sea_daemon.analysis.noise.motor_torque_noise`) on the augmented model;
 4. the τ_h,act random walk q_τ (:func:`human_walk`): the identified model replayed with
    synthetic human torques of the declared band and size; the friction-sign smoothing on the
    real passive log;
@@ -24,26 +24,37 @@ gives is kept, see :func:`given_keys`):
 6. the coverage of (q, q̇, q̈) by the log's data (:class:`~.excitation.Coverage`) and the
    expected accuracy (the synthetic replay's RMSE at the chosen q_τ, passive and active).
 
-Pure numerics and simulation: no files (the commands write them).
+Pure numerics and simulation: no files (the commands write them).  ``progress(done, total,
+what)``, when given, is called before each step (:class:`sea_daemon.apps.progress.Progress`).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
-from sea_daemon.apps.calibration.noise import choose_kinematics, measurement_noise, motor_torque_noise
-from sea_daemon.core.config import LearningConfig, ModelConfig
+from sea_daemon.analysis.als import config_with_R
+from sea_daemon.analysis.diagnose.engine import run_diagnosis
+from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
 from sea_daemon.core.estimators.health import NISMonitor
 from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import Coverage, WorkingRange
+from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.replay import replay
+from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
+                                                     leftover_latent_variance, offline_gp, smooth_pairs,
+                                                     stick_velocity_of)
+from sea_daemon.io.configfile import load_config, load_yaml
+from sea_daemon.io.logcsv import read_log
 
 #: estimator keys whose presence in the YAML means "given, keep it"
 ESTIMATOR_KEYS = ("R", "Sigma_nom", "tau_m_noise", "sign_eps")
@@ -137,7 +148,6 @@ def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
 
 def with_R(cfg: ModelConfig, R: np.ndarray) -> ModelConfig:
     """R and P0's measurement block = R (Sec. V-B)."""
-    from sea_daemon.core.als import config_with_R
     return config_with_R(cfg, R)
 
 
@@ -152,8 +162,6 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     the estimator believes in too (its variance-weighted mean, as ``extra_load_torque``, held over
     each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
     and the plant's compiled integration)."""
-    from sea_daemon.core.sim.session import BandLimitedTorque, run_session
-    from sea_daemon.core.kinematics import smooth_derivatives
     n = cfg.joints
     if n != 1:
         raise InputError("the synthetic replay supports one joint for now")
@@ -187,7 +195,6 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
 
 
 def _rmse(log: MeasuredLog, est) -> float:
-    from sea_daemon.core.replay import replay
     res = replay(log, est)
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(res.tau_h_act_hat)
     e = res.tau_h_act_hat - truth
@@ -196,10 +203,11 @@ def _rmse(log: MeasuredLog, est) -> float:
 
 def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
                opts: CalibrationOptions, tune_eps: bool = True, gp=None,
-               v_gate: float = 0.0, var_ref: float = 0.0) -> tuple[float, float, dict]:
+               v_gate: float = 0.0, var_ref: float = 0.0, tick: Callable | None = None) -> tuple[float, float, dict]:
     """(q_τ [N² m²/s], sign_eps [rad/s], info): the τ_h,act random walk and the friction-sign
     smoothing of the estimator's model (the AKF on the identified model, or the GP-AKF with
-    ``gp``; health monitor off while scanning).  Each from the data that can speak for it:
+    ``gp``; health monitor off while scanning; ``tick(runs)`` after each filter run).  Each from
+    the data that can speak for it:
 
     * sign_eps, a property of the plant's friction, from the real passive log alone: the ε of
       :data:`EPS_GRID` with the smallest RMS of τ̂ there (τ_h,act = 0, so every τ̂ is the
@@ -223,21 +231,56 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
     # the passive log's first 2 T seconds (the leakage of model error into τ̂)
     passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
+    active, synth_note = _synthetic_logs(cfg, log, human, sigma_u, T, opts, gp, v_gate, var_ref)
+    scan = _WalkScan(cfg, gp, opts, tune_eps, v_gate, var_ref, tick)
+    q0 = declared_walk(human)
+    eps = scan.best_eps(q0, passive)
+    qt = scan.best_walk(eps, active, q0) if active else q0
+    eps = scan.best_eps(qt, passive)
+    logs = {**active, **passive}
+    best = scan.evaluate(qt, eps, logs)
+    best["objective"] = scan.objective(best, logs)
+    # the NIS monitor's scale: what the chosen filter shows on these logs (its windowed mean NIS at
+    # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
+    # torque is not divergence
+    scale = _nis_scale(cfg, gp, logs, best, opts, v_gate, var_ref)
+    grid_rows = sorted(scan.table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
+    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
+    if synth_note:
+        info["note"] = synth_note
+    return qt, eps, info
+
+
+def _synthetic_logs(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float, T: float,
+                    opts: CalibrationOptions, gp, v_gate: float, var_ref: float) -> tuple[dict, str | None]:
+    """The synthetic active sessions of :func:`human_walk` ({name: log}, empty when the
+    identified model cannot be simulated) and, then, why."""
     try:
         synth = synthetic_sessions(cfg, log, human, sigma_u, T, opts.seed, gp=gp, power=opts.weight_power,
                                    v_gate=v_gate, var_ref=var_ref)
-        active = {"synthetic_moving": synth[0], "synthetic_still": synth[1]}
-        synth_note = None
+        return {"synthetic_moving": synth[0], "synthetic_still": synth[1]}, None
     except (RuntimeError, ValueError, ArithmeticError, InputError) as e:
         # the identified model cannot be simulated (e.g. no static equilibrium found for its
         # spring): q_τ from the declared torque alone, the friction smoothing from the passive log
-        active = {}
-        synth_note = f"synthetic replay failed ({type(e).__name__}: {e}); q_tau from the declared torque"
-    table: dict = {}
-    has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
+        return {}, f"synthetic replay failed ({type(e).__name__}: {e}); q_tau from the declared torque"
 
-    def evaluate(q, eps, logs):
-        row = table.setdefault((float(q), float(eps)), {"q_tau": float(q), "sign_eps": float(eps)})
+
+class _WalkScan:
+    """The scan of :func:`human_walk`: the RMS of τ̂ per log for each (q_τ, sign_eps) tried
+    (``table``; each filter run once), the AKF or, with ``gp``, the GP-AKF, health monitor off."""
+
+    def __init__(self, cfg: ModelConfig, gp, opts: CalibrationOptions, tune_eps: bool, v_gate: float,
+                 var_ref: float, tick: Callable | None = None):
+        self.cfg, self.gp, self.opts = cfg, gp, opts
+        self.tune_eps, self.v_gate, self.var_ref = tune_eps, v_gate, var_ref
+        self.tick, self.runs = tick, 0
+        self.table: dict = {}
+        self.has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
+
+    def evaluate(self, q, eps, logs) -> dict:
+        """The table's row of (q, eps), with the RMS of τ̂ on each of ``logs`` (inf: faulted)."""
+        cfg, gp, opts = self.cfg, self.gp, self.opts
+        row = self.table.setdefault((float(q), float(eps)), {"q_tau": float(q), "sign_eps": float(eps)})
         c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, float(q)))
         for name, lg in logs.items():
             if name in row:
@@ -246,51 +289,47 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
                 if gp is None:
                     est = AKF(c, dt=lg.dt)
                 else:
-                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=v_gate, var_ref=var_ref)
+                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=self.v_gate,
+                                          var_ref=self.var_ref)
                 row[name] = _rmse(lg, est)
             except EstimatorFault:
                 row[name] = math.inf
+            self.runs += 1
+            if self.tick is not None:
+                self.tick(self.runs)
         return row
 
-    def objective(row, logs):
+    @staticmethod
+    def objective(row: dict, logs) -> float:
+        """RMS over ``logs`` of the row's RMS values."""
         return float(np.sqrt(np.mean([row[k] ** 2 for k in logs])))
 
-    def best_eps(q):
-        if not (tune_eps and has_friction):
-            return float(cfg.estimator.sign_eps)
-        return min(EPS_GRID, key=lambda e: objective(evaluate(q, e, passive), passive))
+    def best_eps(self, q, passive: dict) -> float:
+        """The sign_eps of :data:`EPS_GRID` with the smallest RMS of τ̂ on the passive log at
+        q_τ = q (the configured one without friction or tuning)."""
+        if not (self.tune_eps and self.has_friction):
+            return float(self.cfg.estimator.sign_eps)
+        return min(EPS_GRID, key=lambda e: self.objective(self.evaluate(q, e, passive), passive))
 
-    q0 = declared_walk(human)
-    eps = best_eps(q0)
-    if active:
-        grid = np.asarray(opts.q_tau_grid, dtype=float)
+    def best_walk(self, eps: float, active: dict, q0: float) -> float:
+        """q_τ on the synthetic sessions at ``eps``: decades of the grid, then the half-decades
+        around the best; the smallest within 2 % of the best RMS (``q0`` when every replay
+        faulted)."""
+        grid = np.asarray(self.opts.q_tau_grid, dtype=float)
         for q in grid[::2]:
-            evaluate(q, eps, active)
-        on = lambda: [r for (q, e), r in table.items() if e == eps and all(k in r for k in active)]
-        b = min(on(), key=lambda r: objective(r, active))
+            self.evaluate(q, eps, active)
+
+        def on():
+            return [r for (q, e), r in self.table.items() if e == eps and all(k in r for k in active)]
+        b = min(on(), key=lambda r: self.objective(r, active))
         i = int(np.argmin(np.abs(grid - b["q_tau"])))
         for j in (i - 1, i + 1):
             if 0 <= j < len(grid):
-                evaluate(grid[j], eps, active)
+                self.evaluate(grid[j], eps, active)
         rows = on()
-        f_best = min(objective(r, active) for r in rows)
+        f_best = min(self.objective(r, active) for r in rows)
         # every synthetic replay faulted: the declared walk
-        qt = min(r["q_tau"] for r in rows if objective(r, active) <= 1.02 * f_best) if math.isfinite(f_best) else q0
-    else:
-        qt = q0
-    eps = best_eps(qt)
-    logs = {**active, **passive}
-    best = evaluate(qt, eps, logs)
-    best["objective"] = objective(best, logs)
-    # the NIS monitor's scale: what the chosen filter shows on these logs (its windowed mean NIS at
-    # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
-    # torque is not divergence
-    scale = _nis_scale(cfg, gp, logs, best, opts, v_gate, var_ref)
-    grid_rows = sorted(table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
-    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
-    if synth_note:
-        info["note"] = synth_note
-    return qt, eps, info
+        return min(r["q_tau"] for r in rows if self.objective(r, active) <= 1.02 * f_best) if math.isfinite(f_best) else q0
 
 
 def declared_walk(human: HumanSpec) -> float:
@@ -325,125 +364,18 @@ EPS_GRID = (0.002, 0.003, 0.005, 0.01, 0.02)
 
 # ---------------------------------------------------------------------------- residual GP
 
-def _training_pairs(cfg: ModelConfig, log: MeasuredLog):
-    """Causal training pairs exactly as the GP-AKF forms them online (for comparison)."""
-    from sea_daemon.core.learning import training_pairs_from_log
-    from sea_daemon.core.model import SEAModel
-    return training_pairs_from_log(SEAModel.from_config(cfg), log, cfg.kinematics, causal=True)
-
-
-#: floors of the data spans the GP's length-scale bounds are taken from [rad, rad/s, rad/s²]
-SPAN_Q_MIN, SPAN_DQ_MIN, SPAN_DDQ_MIN = 0.4, 0.5, 10.0
-#: [rad/s] no GP training pairs below this speed (nor below 3 × sign_eps): the sticking phases
-V_EXCLUDE = 0.03
-#: fewer moving pairs than this: the log is a still-arm log, all its pairs are used
-MIN_MOVING_PAIRS = 200
-
-
-def stick_velocity_of(cfg: ModelConfig) -> float:
-    from sea_daemon.apps.diagnose.residuals import stick_velocity
-    return stick_velocity(cfg)
-
-
-def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
-    """Training pairs for the offline calibration: z = [q, q̇, q̈] and the load side's leftover
-    f = r_load of the augmented model (eq:unknwn_load with τ_h,act = 0: the term the filter's
-    load-side dynamics carry), both from the zero-phase kinematics of ``diagnose``
-    (:func:`~sea_daemon.diagnose.residuals.residual_channels`: one smoother over the whole
-    balance, static friction set-valued while the joint sticks).
-
-    Why not r_load + r_motor (eq:loadsidewmotor, what the GP-AKF learns online): the filter
-    applies f on the load side, so a motor-side leftover (cogging, a drive's friction or torque
-    constant the physics missed) learned into f moves τ̂_h,act by its own size — the filter
-    sees the motor side through θ_m and absorbs it there.  With the calibration's physics the
-    two sides are measured apart (the spring's deflection gives τ_s), and each goes where it acts.
-
-    Why not the causal pairs the GP-AKF learns online: their q̈ carries the differentiator's
-    encoder noise both in the input and, times M, in the target — errors in variables: the GP
-    then learns a spurious slope in q̈ (on 16-bit encoders at 100 Hz: ~0.2 N m of M q̈ noise) and
-    its confident mean is wrong on any other session.  Decimated to ``rate_hz`` (neighbouring
-    smoothed samples carry no new information)."""
-    from sea_daemon.apps.diagnose.residuals import kinematics_from_log, residual_channels, stick_velocity, window_samples
-    from sea_daemon.core.model import SEAModel
-    model = SEAModel.from_config(cfg)
-    kin = kinematics_from_log(log)
-    r = residual_channels(model, kin, passive=True, v_stick=stick_velocity(cfg))
-    n = cfg.joints
-    # eq:unknwn_load: the load side's leftover (r_motor stays with the motor side, see above)
-    F = r[:, :n]
-    q, _ = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
-    Z = np.hstack([q, kin.dq, kin.ddq])
-    edge = window_samples(log.t)
-    step = max(1, int(round(1.0 / (rate_hz * log.dt))))
-    sl = slice(edge, len(log) - edge, step)
-    Z, F = Z[sl], F[sl]
-    # no pairs while the joint sticks (|q̇| < v_stick): static friction is set-valued there, the
-    # torque it takes depends on how the joint came to rest (the controller's history), not on z;
-    # learned, it would be a confident offset on every still arm (the physics' convention,
-    # friction 0 at rest, is what the filter can hold)
-    moving = np.all(np.abs(Z[:, n:2 * n]) >= max(stick_velocity(cfg), V_EXCLUDE), axis=1)
-    if np.sum(moving) < MIN_MOVING_PAIRS:
-        # a log that (almost) never moves (the paper's still-arm training, Sec. V-C): the static
-        # balance at rest is all there is to learn, and friction holds nothing there
-        return Z, F
-    return Z[moving], F[moving]
-
-
-def fit_gp_hyper(Z: np.ndarray, F: np.ndarray, points: int, seed: int, min_ls_dq: float = 0.1,
-                 ls_ddq: float | None = None) -> dict:
-    """Maximum-likelihood hyperparameters (eq:SE, σ_on) on a subsample of the pairs, with the
-    physics-first priors: l_q̇ ≥ ``min_ls_dq`` (the GP may not be sharper in q̇ than the filter
-    knows the velocity near standstill: static friction is set-valued there, the physical model
-    holds its smoothed sign), l_q̈ fixed long (default 2 × the pairs' q̈ range: inertia is the
-    physical model's, diagnose fits it; the residual has no business keying on q̈)."""
-    from sea_daemon.core.gp.hyper import fit_hyperparameters
-    rng = np.random.default_rng(seed)
-    idx = np.sort(rng.choice(len(Z), size=min(points, len(Z)), replace=False))
-    X, y = Z[idx], F[idx, 0]
-    # floors of the spans: a still-arm log spans a few encoder counts, and a length scale of that
-    # size would make the GP forget its data at the first drift of the arm
-    span = np.maximum(np.ptp(Z, axis=0), [SPAN_Q_MIN, SPAN_DQ_MIN, SPAN_DDQ_MIN])
-    s = max(float(np.sqrt(np.mean(F[:, 0] ** 2))), 1e-4)
-    l_dd = 2.0 * span[2] if ls_ddq is None else ls_ddq
-    ls0 = np.array([0.2 * span[0], max(0.2 * span[1], 2 * min_ls_dq), l_dd])
-    # σ_f at most twice the leftover's RMS and length scales at most half the data's span: a
-    # local model that returns to zero (the physics) off its data — an ML fit left free drifts to
-    # σ_f → ∞ with long length scales (a global trend that extrapolates, and whose variance never
-    # grows towards σ_f², so the variance weighting could not switch it off)
-    bounds = [(math.log(1e-4), math.log(2.0 * s)),
-              (math.log(0.05 * span[0]), math.log(0.5 * span[0])),
-              (math.log(min_ls_dq), math.log(max(0.5 * span[1], 1.0001 * min_ls_dq))),
-              (math.log(l_dd), math.log(l_dd * 1.0000001)),
-              (math.log(1e-4), math.log(2.0 * s))]
-    sf, ls, sn = fit_hyperparameters(X, y, sigma_f=s, lengthscales=ls0, sigma_n=0.3 * s, bounds=bounds)
-    return {"sigma_f": float(sf), "lengthscales": [float(v) for v in np.atleast_1d(ls)], "sigma_n": float(sn)}
-
-
-def gp_cross_validation(Z: np.ndarray, F: np.ndarray, lc: LearningConfig, folds: int = 5) -> dict:
-    """Blocked K-fold: a LoG-GP (learning config ``lc``, no online hyperparameters) trained on
-    K−1 contiguous blocks predicts the held-out one; MSE against predicting 0 (the physics)."""
-    from sea_daemon.core.learning import ResidualGP
-    N = len(Z)
-    edges = np.linspace(0, N, folds + 1).astype(int)
-    mse_gp = mse_0 = 0.0
-    lc0 = dataclasses.replace(lc, hyperopt=False)
-    for k in range(folds):
-        test = np.arange(edges[k], edges[k + 1])
-        train = np.setdiff1d(np.arange(N), test)
-        gp = ResidualGP(1, lc0)
-        gp.train(Z[train], F[train])
-        mu, _ = gp.gps[0].predict_many(Z[test])
-        mse_gp += float(np.sum((F[test, 0] - mu) ** 2))
-        mse_0 += float(np.sum(F[test, 0] ** 2))
-    return {"mse_gp": mse_gp / N, "mse_zero": mse_0 / N, "gain": 1.0 - mse_gp / max(mse_0, 1e-300)}
-
-
 # ---------------------------------------------------------------------------- the whole flow
 
+#: the steps of :func:`calibrate`, as its progress callback names them
+STEPS = ("measurement noise", "physical effects (diagnose)", "motor-torque noise", "residual GP",
+         "active-torque random walk", "coverage")
+
+
 def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
-              opts: CalibrationOptions | None = None) -> CalibrationResult:
-    """The calibration of the module docstring on one passive log."""
-    from sea_daemon.apps.diagnose import run_diagnosis
+              opts: CalibrationOptions | None = None, progress: Callable | None = None) -> CalibrationResult:
+    """The calibration of the module docstring on one passive log; ``progress(done, total, what)``
+    before each of its :data:`STEPS`."""
+    step = _stepper(progress)
     opts = opts or CalibrationOptions()
     given = set() if given is None else set(given)
     if log.n != cfg.joints:
@@ -452,6 +384,72 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         raise InputError("calibrate: one joint for now")
     report: dict = {"log": log.path, "samples": len(log), "given": sorted(given)}
     # 1. kinematics and R
+    step()
+    cfg = _kinematics_and_R(log, cfg, given, report)
+    # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
+    # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
+    # on it at 1 kHz)
+    cfg = _replace_est(cfg, init_after_kinematics=True, gp_noise_in_Q=True,
+                       nis_window=max(cfg.estimator.nis_window, int(round(cfg.rate_hz))))
+    # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
+    step()
+    if opts.diagnose:
+        cfg = _diagnosed(log, cfg, report, progress=None if progress is None else (
+            lambda done, total, what: progress(1, len(STEPS), f"{STEPS[1]}: {what}")))
+    # 3. motor-torque noise
+    step()
+    if "tau_m_noise" not in given:
+        su, sinfo = motor_torque_noise(log, cfg)
+        cfg = _replace_est(cfg, tau_m_noise=su)
+        report["tau_m_noise"] = {"identified": su, **sinfo}
+    else:
+        report["tau_m_noise"] = {"given": cfg.estimator.tau_m_noise}
+    # 4. residual GP (before the process noise: the walk is chosen for the complete model)
+    step()
+    Z, F = smooth_pairs(cfg, log)
+    # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
+    v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
+    report["gp_v_gate"] = v_gate
+    report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
+    # the angles and speeds the log's moving data span [rad, rad/s]
+    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
+                            "dq": float(np.max(np.abs(Z[:, 1])))}
+    cfg, gp = _residual_gp(cfg, Z, F, given, opts, report)
+    # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
+    step()
+    cfg = _walk(log, cfg, given, opts, gp, report, tick=None if progress is None else (
+        lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
+    cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
+    # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
+    # (default 0: the chosen q_τ everywhere): on the development plants newrobot2 and newrobot3 and
+    # the demo the declared walk there made the passive estimates worse (to 95°: 0.024 → 0.031,
+    # 0.023 → 0.025 N m; demo 0.0317 → 0.0334) and kept no fault away (docs/calibration.md)
+    report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
+    # 6. coverage
+    step()
+    wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
+                                            float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
+    cov = Coverage(wr)
+    cov.add(Z)
+    report["coverage"] = cov.report()
+    step()
+    return CalibrationResult(cfg, gp, cov, report, opts)
+
+
+def _stepper(progress: Callable | None) -> Callable[[], None]:
+    """A function that reports the next of :data:`STEPS` to ``progress`` at each call."""
+    done = [0]
+
+    def step() -> None:
+        k = done[0]
+        if progress is not None:
+            progress(k, len(STEPS), STEPS[k] if k < len(STEPS) else "done")
+        done[0] = k + 1
+    return step
+
+
+def _kinematics_and_R(log: MeasuredLog, cfg: ModelConfig, given: set[str], report: dict) -> ModelConfig:
+    """Step 1: the kinematics for the rate and the measurement noise R (unless given)."""
     if "kinematics" not in given:
         cfg = dataclasses.replace(cfg, kinematics=choose_kinematics(cfg.rate_hz))
     report["kinematics"] = dataclasses.asdict(cfg.kinematics)
@@ -461,39 +459,27 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         report["R"] = {"identified": np.diag(R).tolist(), **rinfo}
     else:
         report["R"] = {"given": np.diag(cfg.estimator.R).tolist()}
-    # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
-    # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
-    # on it at 1 kHz)
-    cfg = _replace_est(cfg, init_after_kinematics=True, gp_noise_in_Q=True,
-                       nis_window=max(cfg.estimator.nis_window, int(round(cfg.rate_hz))))
-    # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
-    if opts.diagnose:
-        dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False)
-        report["diagnose"] = {"effects_added": dg.result["effects_added"],
-                              "residual_rms_before": dg.result["residual_rms_before"],
-                              "residual_rms_after": dg.result["residual_rms_after"],
-                              "unexplained_fraction": dg.result["unexplained_fraction"],
-                              "statements": dg.result["statements"],
-                              # effects the log cannot tell apart: one kept, the other dropped
-                              "correlated_pairs": [{k: c[k] for k in ("kept", "dropped", "correlation")}
-                                                   for c in dg.result.get("correlated_pairs", [])]}
-        cfg = dg.cfg_after
-    # 3. motor-torque noise
-    if "tau_m_noise" not in given:
-        su, sinfo = motor_torque_noise(log, cfg)
-        cfg = _replace_est(cfg, tau_m_noise=su)
-        report["tau_m_noise"] = {"identified": su, **sinfo}
-    else:
-        report["tau_m_noise"] = {"given": cfg.estimator.tau_m_noise}
-    # 4. residual GP (before the process noise: the walk is chosen for the complete model)
-    Z, F = smooth_pairs(cfg, log)
-    # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
-    v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
-    report["gp_v_gate"] = v_gate
-    report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
-    # the angles and speeds the log's moving data span [rad, rad/s]
-    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
-                            "dq": float(np.max(np.abs(Z[:, 1])))}
+    return cfg
+
+
+def _diagnosed(log: MeasuredLog, cfg: ModelConfig, report: dict, progress: Callable | None = None) -> ModelConfig:
+    """Step 2: the nominal model with the effects diagnose finds on the log (decimated)."""
+    dg = run_diagnosis(decimate(log), cfg, passive=True, estimate=False, progress=progress)
+    report["diagnose"] = {"effects_added": dg.result["effects_added"],
+                          "residual_rms_before": dg.result["residual_rms_before"],
+                          "residual_rms_after": dg.result["residual_rms_after"],
+                          "unexplained_fraction": dg.result["unexplained_fraction"],
+                          "statements": dg.result["statements"],
+                          # effects the log cannot tell apart: one kept, the other dropped
+                          "correlated_pairs": [{k: c[k] for k in ("kept", "dropped", "correlation")}
+                                               for c in dg.result.get("correlated_pairs", [])]}
+    return dg.cfg_after
+
+
+def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str], opts: CalibrationOptions,
+                 report: dict) -> tuple[ModelConfig, object]:
+    """Step 4: the residual GP's hyperparameters (unless given) and the GP on the leftover
+    pairs, when kept (``opts.gp``: 'on', 'off', or 'auto' by blocked cross-validation)."""
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
         # the tree splits in length scales: in raw units q̈ (span ~10–30 rad/s², length scale twice
@@ -510,48 +496,27 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
         keep = cv["gain"] >= opts.gp_cv_gain
     if keep:
         # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
-        gp = _offline_gp(cfg, Z, F)
+        gp = offline_gp(cfg, Z, F)
     report["gp_kept"] = gp is not None
     # the weight's reference (core/estimators/weighted.py): what the physics alone costs on these
     # pairs, the leftover's mean square less the GP's noise variance σ_on² (its latent part)
     report["gp_var_ref"] = leftover_latent_variance(F, cfg.learning.sigma_n)
-    # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
+    return cfg, gp
+
+
+def _walk(log: MeasuredLog, cfg: ModelConfig, given: set[str], opts: CalibrationOptions, gp,
+          report: dict, tick: Callable | None = None) -> ModelConfig:
+    """Step 5: the τ_h,act random walk and the friction smoothing (:func:`human_walk`), unless
+    Sigma_nom is given."""
     if "Sigma_nom" not in given:
         qt, eps, qinfo = human_walk(cfg, log, opts.human, cfg.estimator.tau_m_noise or 0.0, opts,
                                     tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
-                                    var_ref=report["gp_var_ref"])
+                                    var_ref=report["gp_var_ref"], tick=tick)
         cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
         report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}
     else:
         report["tau_h_act_walk"] = {"given": np.diag(cfg.estimator.Sigma_nom).tolist()}
-    cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
-    # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
-    # (default 0: the chosen q_τ everywhere): on the development plants newrobot2 and newrobot3 and
-    # the demo the declared walk there made the passive estimates worse (to 95°: 0.024 → 0.031,
-    # 0.023 → 0.025 N m; demo 0.0317 → 0.0334) and kept no fault away (docs/calibration.md)
-    report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
-    # 6. coverage
-    wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
-                                            float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
-    cov = Coverage(wr)
-    cov.add(Z)
-    report["coverage"] = cov.report()
-    return CalibrationResult(cfg, gp, cov, report, opts)
-
-
-def leftover_latent_variance(F: np.ndarray, sigma_n: float) -> float:
-    """s_0² [N² m²] of the weighted hook (:class:`~sea_daemon.core.estimators.weighted.WeightedResidual`):
-    the mean square of the leftover ``F`` less the noise variance σ_on², at least 1e-12 (a leftover
-    that is all noise: the GP's mean never enters)."""
-    return float(max(np.mean(np.asarray(F, float) ** 2) - float(sigma_n) ** 2, 1e-12))
-
-
-def _offline_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray):
-    """The residual GP trained on the pairs directly (when the online training faulted)."""
-    from sea_daemon.core.learning import ResidualGP
-    gp = ResidualGP.from_config(cfg)
-    gp.train(Z, F)
-    return gp
+    return cfg
 
 
 def options_from_config(cfg: ModelConfig, gp: str = "auto") -> CalibrationOptions:
@@ -564,16 +529,15 @@ def options_from_config(cfg: ModelConfig, gp: str = "auto") -> CalibrationOption
                               gp=gp, seed=c.seed)
 
 
-def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto") -> CalibrationResult:
+def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto",
+                  progress: Callable | None = None) -> CalibrationResult:
     """The calibration of ``log`` with the configuration ``cfg`` whose YAML mapping is ``raw``
     (its given values kept, :func:`given_keys`; options from its ``calibration`` section)."""
-    return calibrate(log, cfg, given=given_keys(raw), opts=options_from_config(cfg, gp))
+    return calibrate(log, cfg, given=given_keys(raw), opts=options_from_config(cfg, gp), progress=progress)
 
 
-def calibrate_from_files(log_path, config_path, gp: str = "auto") -> CalibrationResult:
+def calibrate_from_files(log_path, config_path, gp: str = "auto", progress: Callable | None = None) -> CalibrationResult:
     """The calibration of the log file ``log_path`` with the configuration file ``config_path``."""
-    from sea_daemon.io.configfile import load_config, load_yaml
-    from sea_daemon.io.logcsv import read_log
     cfg = load_config(config_path)
     log = read_log(log_path, n=cfg.joints, min_rows=2)
-    return calibrate_log(log, cfg, load_yaml(config_path), gp)
+    return calibrate_log(log, cfg, load_yaml(config_path), gp, progress)

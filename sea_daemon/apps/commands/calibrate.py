@@ -18,14 +18,15 @@ MODEL.npz and the complete configuration to MODEL.yaml beside it.  A JSON summar
 progress bar to stderr.
 
 On the real bus the drives and encoder answer on ``hardware.bus``; ``--device-model`` starts the
-simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus remote``
-separately and point ``--bus remote --channel ws://…`` at it.
+simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus ipc
+--channel NAME`` separately and point ``--bus ipc --channel NAME`` at it (docs/can.md).
 Exit status: 0 model saved; 2 bad input; 1 fault, interruption (model not saved, log kept)
 or internal error.
 """
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from sea_daemon.io.configfile import data_root
 from sea_daemon.runtime.service import StateFile
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.calibrate")
 
 
 def add_arguments(p) -> None:
@@ -61,10 +63,11 @@ def run(args) -> int:
             cfg, args.scenario, args.out, daemon_args.log_name(log_dir, "calibration"), state=state,
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
             rt_priority=args.rt_priority, supervisor=daemon_args.supervisor(args),
-            progress=not args.no_progress and sys.stderr.isatty(), config_name=str(args.config),
+            progress=not args.no_progress and sys.stderr.isatty() and log.isEnabledFor(logging.INFO),
+            config_name=str(args.config),
             socket_path=daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
             config_path=args.config)
     print(json.dumps(summary))
     if code:
-        print(f"sea-daemon calibrate: {message}", file=sys.stderr)
+        log.error(message)
     return code

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
+import logging
 
 import numpy as np
-from tqdm import tqdm
 
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.calibration import conformal_gp_constants
 from sea_daemon.core.bounds.torque_beta import torque_calibrated_beta, torque_coverage
 from sea_daemon.core.estimators import make_estimator
@@ -76,7 +76,7 @@ def run(args) -> int:
             out["warning"] = ("learning.extrapolation_scale is 0: the bound has no term for inputs off the GP's "
                               "data, and a beta calibrated on the torque error does not cover them "
                               "(docs/bounds.md 2d)")
-            print(f"calibrate-bound: warning: {out['warning']}", file=sys.stderr)
+            logging.getLogger("sea_daemon.calibrate_bound").warning(out["warning"])
     else:
         try:
             consts, _, scores = conformal_gp_constants(est, log, delta_gp)
@@ -104,11 +104,13 @@ def run(args) -> int:
 
 
 def _torque_beta(est, log, delta: float, path) -> dict:
-    """:func:`~sea_daemon.core.bounds.torque_beta.torque_calibrated_beta` with a progress bar on stderr."""
-    with tqdm(desc="calibrate-bound (torque): replays", unit="beta", file=sys.stderr, leave=False) as bar:
+    """:func:`~sea_daemon.core.bounds.torque_beta.torque_calibrated_beta` with its progress on stderr."""
+    with Progress("calibrate-bound (torque): replays", unit="beta") as bar:
+        tried = [0]
+
         def progress(b, c):
-            bar.set_postfix_str(f"beta {b:.3g}: coverage {c:.3f}")
-            bar.update()
+            tried[0] += 1
+            bar(tried[0], None, f"beta {b:.3g}: coverage {c:.3f}")
         try:
             return torque_calibrated_beta(est, log, delta, truth=log.tau_h_act, progress=progress)
         except ValueError as e:

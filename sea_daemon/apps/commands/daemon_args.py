@@ -1,8 +1,8 @@
 """Arguments shared by ``sea-daemon run`` and ``sea-daemon calibrate``."""
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -12,8 +12,11 @@ from sea_daemon.core.rates import at_rate
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
 from sea_daemon.io.files import check_output_dir, check_outputs
+from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.rig import bus_overrides
 from sea_daemon.runtime.safety import SafetySupervisor
+
+log = logging.getLogger("sea_daemon")
 
 
 def add_common(p, *, cycles_help: str) -> None:
@@ -56,7 +59,8 @@ def load(args, outputs: list | tuple = ()):
     """(cfg, log_dir, state_dir, realtime) from the parsed arguments; InputError on bad input.
 
     Before anything starts: ``outputs`` ((flag, path) pairs) can be written and are none of the
-    inputs; the log and state directories exist (created) and can be written."""
+    inputs; the log and state directories exist (created), can be written, and are this user's
+    (or root's) and nobody else may write them (:func:`sea_daemon.io.owned.check_owned`)."""
     check_outputs(outputs, inputs=inputs(args))
     cfg = at_rate(bus_overrides(load_config(args.config), args.bus, args.channel), getattr(args, "rate", None))
     if args.cycles is not None and args.cycles < 1:
@@ -67,10 +71,17 @@ def load(args, outputs: list | tuple = ()):
         raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
     log_dir = check_output_dir("--log-dir", args.log_dir, inputs(args))
     state_dir = check_output_dir("--state-dir", args.state_dir, inputs(args)) if args.state_dir else log_dir
+    check_owned("--log-dir", log_dir)
+    check_owned("--state-dir" if args.state_dir else "--log-dir", state_dir)
     simulated = bool(args.device_model or args.sim)
     pace = args.pace or ("lockstep" if simulated else "realtime")
     if pace == "lockstep" and not simulated:
         raise InputError("--pace lockstep needs --device-model or --sim (real drives run in real time)")
+    if not simulated and cfg.hardware.bus.interface == "remote":
+        log.warning("the remote bus (python-can-remote, %s) is for inspection and tools over a network, not "
+                    "the real-time loop: its delays latch faults within a few dozen cycles; for separate "
+                    "processes on one machine without SocketCAN use --bus ipc (docs/can.md)",
+                    cfg.hardware.bus.channel)
     return cfg, log_dir, state_dir, pace == "realtime"
 
 
@@ -104,8 +115,7 @@ def socket_path(args, state_dir: Path) -> Path | None:
     if args.socket is None:
         path = default_socket(state_dir)
         if len(os.fsencode(str(path))) >= 108:         # a UNIX socket path holds at most 107 bytes
-            print(f"sea-daemon: warning: {path} is too long for a UNIX socket: no local publication "
-                  "(give --socket PATH)", file=sys.stderr)
+            log.warning("%s is too long for a UNIX socket: no local publication (give --socket PATH)", path)
             return None
         return path
     if args.socket.lower() == "none":

@@ -36,6 +36,7 @@ import contextlib
 import dataclasses
 import io
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -55,6 +56,7 @@ from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.rig import subject_torque
 
 DESCRIPTION = __doc__
+logger = logging.getLogger("sea_daemon.demo")
 
 SCENARIOS = ("passive", "active")
 ESTIMATORS = ("spring", "akf", "gp-akf")
@@ -253,6 +255,7 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
         return ["--config", str(config), "--device-model", str(scenario), "--log-dir", str(log_dir),
                 "--pace", args.pace, "--scenario", str(scenario), *rate_args]
     t0 = time.perf_counter()
+    logger.info("demo %s: the calibration phase on the device model, then the calibration of its log …", name)
     if args.online_gp:
         cal, bound, run_cfg = _online_gp(out, name, sc, sc_path, cfg, cfg_path, model, common, logs, n_tr, per)
     else:
@@ -265,6 +268,7 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
         run_cfg = Path(cal["config_calibrated"])
         bound = {"lederer": True}
     t1 = time.perf_counter()
+    logger.info("demo %s: the estimation phase (sea-daemon run, %d cycles) …", name, n_est)
     est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
     t2 = time.perf_counter()
     # the device model's subject: passive in calibration, the scenario's in estimation
@@ -282,6 +286,7 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
                    "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
                    "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
                    "estimators": {}}
+    logger.info("demo %s: scoring the estimators and plotting …", name)
     rows = _score(out, name, est_log, cfg_rate, n, entry["estimators"])
     return entry, rows
 

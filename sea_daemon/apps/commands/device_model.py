@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import signal
-import sys
 import threading
 
 from sea_daemon.core.config import BusConfig
@@ -95,7 +95,7 @@ def run(args) -> int:
               flush=True)
         stop.wait(args.duration)
         if model.error is not None:
-            print(f"device-model: error in the SYNC handler: {model.error}", file=sys.stderr)
+            logging.getLogger("sea_daemon.device_model").error("the SYNC handler failed: %s", model.error)
             return 1
     finally:
         model.stop()

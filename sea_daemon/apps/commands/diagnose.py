@@ -5,6 +5,7 @@ from pathlib import Path
 
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.diagnose import SelectOptions, diagnose
+from sea_daemon.apps.progress import Progress
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
 from sea_daemon.io.files import check_output_dir, check_outputs
@@ -70,7 +71,9 @@ def run(args) -> int:
             raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
         opts.max_rows = args.max_rows or None
     others = [read_log(p, n=cfg.joints) for p in args.apply]
-    res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others)
+    with Progress("diagnose") as progress:
+        res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others,
+                       progress=progress)
     print(f"diagnose {log.path}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
           f"{res['residual_rms_after']:.4g} N m")
     if res["effects_added"]:

@@ -8,20 +8,23 @@ physics leaves, the active-torque random walk for the declared human torque
 (docs/calibration.md).  Writes ``PREFIX.yaml`` (the complete configuration), ``PREFIX.npz``
 (the model file for ``run --model`` / ``replay --model``) and ``PREFIX.report.json``; prints
 what was identified and the expected accuracy in plain words (stderr) and a JSON summary
-(stdout).  Exit 2 on bad input.
+(stdout); while it works (a few minutes), its step on stderr (``-q``: none).  Exit 2 on bad
+input.
 """
 from __future__ import annotations
 
 import json
-import sys
+import logging
 from pathlib import Path
 
 from sea_daemon.apps.calibration.modelio import save_calibrated, summary
 from sea_daemon.apps.calibration.pipeline import calibrate_from_files
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.apps.progress import Progress
 from sea_daemon.io.files import atomic_write_text, check_outputs
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.fit")
 
 
 def add_arguments(p) -> None:
@@ -41,7 +44,8 @@ def outputs(prefix) -> list[tuple[str, Path]]:
 def run(args) -> int:
     outs = outputs(args.out)
     check_outputs(outs, inputs=[args.log, args.config])
-    result = calibrate_from_files(args.log, args.config, args.gp)
+    with Progress("fit") as progress:
+        result = calibrate_from_files(args.log, args.config, args.gp, progress=progress)
     yaml_path, npz_path = save_calibrated(args.out, result, {"command": "fit", "log": str(args.log),
                                                              "config": str(args.config)})
     rep_path = outs[2][1]
@@ -49,7 +53,7 @@ def run(args) -> int:
                                            default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
     s = summary(result)
     for line in s["text"]:
-        print(line, file=sys.stderr)
+        log.info(line)
     print(json.dumps({"config": str(yaml_path), "model": str(npz_path), "report": str(rep_path), **s},
                      default=float))
     return 0

@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 
-from sea_daemon.core.als import R_FLOOR, config_with_R, floored_R, identify_noise
+from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.errors import InputError
 from sea_daemon.io.files import check_outputs

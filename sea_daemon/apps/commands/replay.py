@@ -10,13 +10,14 @@ its settings) is exit 2 with the sample and the reason.
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
 
 from sea_daemon.apps.calibration.modelio import estimator_from_model
 from sea_daemon.apps.calibration.modelio import summary as cal_summary
-from sea_daemon.apps.calibration.pipeline import calibrate_log
+from sea_daemon.apps.calibration.pipeline import STEPS, calibrate_log
 from sea_daemon.apps.commands import add_log_and_config
+from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.estimators.factory import RATE_TOLERANCE
@@ -48,10 +49,11 @@ def add_arguments(p) -> None:
                    help="a calibrated model file (sea-daemon fit / calibrate) instead of --train (gp-akf)")
 
 
-def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=None):
+def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=None, progress=None):
     """(estimator, calibration result or None).  gp-akf: with ``model_path`` the calibrated model
     file; with ``train`` the whole calibration on it (:func:`~sea_daemon.apps.calibration.pipeline.calibrate_log`,
-    the values the configuration's YAML ``raw`` gives kept); the Theorem-1 bound on both."""
+    the values the configuration's YAML ``raw`` gives kept; ``progress`` its progress callback);
+    the Theorem-1 bound on both."""
     if name == "gp-akf" and model_path is not None:
         residual, meta = load_gp_model(model_path, cfg)
         est = estimator_from_model(cfg, residual, meta, dt=dt, bound=theorem_bound)
@@ -63,7 +65,7 @@ def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=
             # the calibration identifies the differentiator's noise and the process noise at the log's rate
             raise InputError(f"--train {shown(train.path)}: sample period {train.dt:.6g} s, the log's is {dt:.6g} s; "
                              f"allowed within {100 * RATE_TOLERANCE:g} % (record both at one rate)")
-        result = calibrate_log(train, cfg, raw)
+        result = calibrate_log(train, cfg, raw, progress=progress)
         return result.estimator(dt=dt, bound=theorem_bound), result
     return make_estimator(name, cfg, dt=dt), None
 
@@ -74,16 +76,19 @@ def run(args) -> int:
     log = read_log(args.log, n=cfg.joints, min_rows=2)
     train = read_log(args.train, n=cfg.joints, min_rows=2) if args.train else None
     if train is not None and args.estimator != "gp-akf":
-        print(f"sea-daemon replay: note: --train is used only by gp-akf; ignored for {args.estimator}",
-              file=sys.stderr)
+        logging.getLogger("sea_daemon.replay").warning("--train is used only by gp-akf; ignored for %s",
+                                                       args.estimator)
     if args.estimator == "gp-akf" and train is None and args.model is None:
         raise InputError("--estimator gp-akf needs --train TRAIN.csv (a log with a passive subject "
                          "to calibrate on) or --model MODEL.npz (a calibrated model, sea-daemon fit)")
     if args.estimator == "gp-akf" and train is not None and args.model is not None:
         raise InputError("--train and --model: give one (--train calibrates, --model loads a calibration)")
     # eq:bounds: tau_h_act_bound = the Theorem-1 ρ_k (gp-akf: GP error constants from the calibrated LoG-GPs)
-    est, cal = build_estimator(args.estimator, cfg, log.dt, train, load_yaml(args.config), args.model)
-    res = replay(log, est, clock=time.perf_counter)
+    with Progress("replay") as progress:
+        est, cal = build_estimator(args.estimator, cfg, log.dt, train, load_yaml(args.config), args.model,
+                                   progress=progress.part(0, len(STEPS) + 1, "calibration on --train: "))
+        progress(len(STEPS), len(STEPS) + 1, "the estimator over the log")
+        res = replay(log, est, clock=time.perf_counter)
     res.estimator = args.estimator
     try:
         write_columns(args.out, est_columns(res))

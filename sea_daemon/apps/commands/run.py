@@ -11,7 +11,10 @@ The measured log (docs/interfaces.md §1 plus estimate, bound, validity and loop
 
 Every cycle, right after the estimate, the daemon publishes it: the TPDOs of its own CAN node
 (``hardware.bus.master_node``; docs/can.md) and datagrams on ``STATE_DIR/sea-daemon.sock``
-(``--socket``) for ``sea-daemon watch`` and :mod:`sea_daemon.client`.
+(``--socket``) for ``sea-daemon watch`` and :mod:`sea_daemon.client`.  With ``--lsl`` (or
+``publish.lsl``) the log writer also streams every row as a Lab Streaming Layer outlet, with
+``--mcap`` (or ``publish.mcap``) it records them in ``DIR/run-<UTC time>.mcap`` beside the CSV
+(docs/interfaces.md §7; ``pip install sea-daemon[lsl]`` / ``[mcap]``).
 
 The controller: with ``assist.enabled`` in the model YAML the assist-as-needed controller
 (docs/assist.md) — the exoskeleton's compensation plus assistance from the estimate, gated by
@@ -21,13 +24,14 @@ otherwise the scenario's controller, or zero torque (estimation only).
 
 Exit status: 0 stopped cleanly; 2 bad configuration, model file or arguments (a log
 directory that cannot be written, another instance on the bus or state directory); 1 hardware
-start-up failure, internal error, a fault still latched when the service stopped, or rows of
-the measured log lost (``rows_lost`` in the summary; the LOG_FAILED fault while it runs).
+start-up failure, internal error, a fault still latched when the service stopped, rows of
+the measured log lost (``rows_lost`` in the summary; the LOG_FAILED fault while it runs), or an
+output asked for by ``--lsl`` / ``--mcap`` that failed (``outputs`` in the summary).
 """
 from __future__ import annotations
 
 import json
-import sys
+import logging
 
 from sea_daemon.apps.calibration.modelio import estimator_from_model
 from sea_daemon.apps.commands import daemon_args
@@ -41,8 +45,10 @@ from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.publish import make_publisher
 from sea_daemon.runtime.rig import make_rig
 from sea_daemon.runtime.service import StateFile, serve
+from sea_daemon.runtime.sinks import LslSpec, McapSpec, require
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.run")
 
 
 def add_arguments(p) -> None:
@@ -51,10 +57,18 @@ def add_arguments(p) -> None:
     p.add_argument("--scenario", metavar="SCENARIO.yaml", default=None,
                    help="run this scenario's controller (estimation phase); default: the --device-model / "
                         "--sim scenario's, zero torque otherwise (estimation only)")
+    p.add_argument("--lsl", action="store_true", default=None,
+                   help="stream the estimate as a Lab Streaming Layer outlet (publish.lsl; pip install sea-daemon[lsl])")
+    p.add_argument("--mcap", action="store_true", default=None,
+                   help="record the run in DIR/run-<UTC time>.mcap beside the CSV log (publish.mcap; "
+                        "pip install sea-daemon[mcap])")
 
 
 def run(args) -> int:
     cfg, log_dir, state_dir, realtime = daemon_args.load(args)
+    for output in ("lsl", "mcap"):
+        if getattr(args, output) or getattr(cfg.publish, output):
+            require(output)                                    # exit 2: pip install sea-daemon[...]
     # one instance per state directory and bus, before the drives are touched
     with StateFile(state_dir).claim(daemon_args.bus_key(args, cfg)) as state:
         return _run(args, cfg, log_dir, state_dir, state, realtime)
@@ -85,10 +99,12 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
         controller, kind = ZeroTorque(cfg.joints), "zero"
     log_path = daemon_args.log_name(log_dir, "run")
     publisher = make_publisher(rig, cfg, controller, socket_path=daemon_args.socket_path(args, state_dir))
+    sinks = _sinks(args, cfg, log_path)
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
                 notifier=Notifier(), state=state, rt_priority=args.rt_priority,
                 supervisor=daemon_args.supervisor(args), label="run", publisher=publisher,
-                bound_in=cfg.estimator.bound_in, bound_max_age=cfg.estimator.bound_max_age)
+                bound_in=cfg.estimator.bound_in, bound_max_age=cfg.estimator.bound_max_age,
+                sinks=sinks, sinks_wait=cfg.publish.lsl_wait_s)
     st, sup = res.stats, res.supervisor
     summary = {"log": str(log_path), "model": str(args.model), "hardware": rig.description,
                "cycles": st.cycles, "overruns": st.overruns, "skipped": st.skipped,
@@ -98,13 +114,26 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                "fault": sup.latched.name, "faults_latched": st.faults, "realtime": res.realtime,
                "pace": "realtime" if realtime else "lockstep", "wall_s": round(res.wall_s, 3),
                "stopped_by_signal": res.stopped_by_signal, "controller": kind,
-               "publish": res.extra.get("publish"), "bound": res.extra.get("bound")}
+               "publish": res.extra.get("publish"), "bound": res.extra.get("bound"),
+               "outputs": res.log.get("sinks", [])}
     print(json.dumps(summary))
     if not sup.ok:
-        print(f"sea-daemon run: {sup.status_line()}", file=sys.stderr)
+        log.error(sup.status_line())
         return 1
     if res.log["error"]:
-        print(f"sea-daemon run: log incomplete, {res.log['rows_lost']} rows lost: {res.log['error']}",
-              file=sys.stderr)
+        log.error("log incomplete, %s rows lost: %s", res.log["rows_lost"], res.log["error"])
         return 1
-    return 0
+    failed = [out for out in res.log.get("sinks", []) if out["error"]]
+    for out in failed:
+        log.error("the %s output failed: %s (the CSV log is complete)", out["output"], out["error"])
+    return 1 if failed else 0
+
+
+def _sinks(args, cfg, log_path) -> tuple:
+    """The log writer's other outputs asked for by ``--lsl`` / ``--mcap`` or the ``publish`` section."""
+    p, out = cfg.publish, []
+    if args.lsl or p.lsl:
+        out.append(LslSpec(p.lsl_name, cfg.joints, cfg.rate_hz, p.lsl_wait_s))
+    if args.mcap or p.mcap:
+        out.append(McapSpec(str(log_path.with_suffix(".mcap")), cfg.joints, cfg.rate_hz, str(log_path)))
+    return tuple(out)

@@ -5,13 +5,19 @@ Subscribes to the running daemon's publication (:mod:`sea_daemon.client`; the so
 ``--window`` seconds of the estimated active human torque τ̂_h,act with its band τ̂ ± ρ_k, the
 assistance the assist controller adds, and marks where the estimate was not valid; above the
 plot the current values, the validity, the latched fault (in red) and the assist state.
-``--plain`` prints one line per refresh instead (logs, serial consoles, tests).  Runs until
-Ctrl-C, or ``--frames`` refreshes; while the daemon is silent it says so and keeps waiting.
+``--plain`` prints one line per refresh instead (logs, serial consoles, tests).
+
+Started before the daemon, it waits for one to publish in the state directory (or on
+``--socket``), says so on stderr, and shows the run as soon as it starts; ``--timeout`` bounds
+that wait (exit 2 when no daemon came).  While the daemon is silent or restarting it says so and
+keeps waiting.  Runs until Ctrl-C (exit 0), or ``--frames`` refreshes.
 """
 from __future__ import annotations
 
 import json
+import logging
 import math
+import os
 import shutil
 import sys
 import time
@@ -22,6 +28,9 @@ from sea_daemon.client import FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, Subscriber, d
 from sea_daemon.errors import InputError
 
 DESCRIPTION = __doc__
+log = logging.getLogger("sea_daemon.watch")
+#: seconds between two looks for a daemon that has not started yet
+POLL_S = 0.2
 
 BAND, EST, ASSIST, INVALID, AXIS = "░", "●", "a", "×", "─"
 
@@ -38,24 +47,67 @@ def add_arguments(p) -> None:
     p.add_argument("--height", type=int, default=11, help="plot rows per joint (default 11)")
     p.add_argument("--frames", type=int, default=None, help="stop after this many refreshes")
     p.add_argument("--plain", action="store_true", help="one text line per refresh, no terminal drawing")
+    p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+                   help="wait at most this long for a daemon to start publishing (default: until Ctrl-C)")
 
 
-def find_socket(args) -> Path:
+def socket_of(args) -> Path:
+    """The socket to subscribe to: ``--socket``, else the one the state directory's pid file
+    names, else ``DIR/sea-daemon.sock``."""
     if args.socket:
         return Path(args.socket)
     d = Path(args.state_dir or ".")
-    pid = d / "sea-daemon.pid"
     try:
-        info = json.loads(pid.read_text())
+        info = json.loads((d / "sea-daemon.pid").read_text())
         if info.get("socket"):
             return Path(info["socket"])
     except (OSError, ValueError, AttributeError):
         pass
-    sock = default_socket(d)
+    return default_socket(d)
+
+
+def find_socket(args, waited: float | None = None) -> Path:
+    """The socket of a daemon that publishes now; InputError when there is none (``waited``:
+    the seconds of ``--timeout`` waited for one, said in the message)."""
+    sock = socket_of(args)
     if not sock.exists():
-        raise InputError(f"no sea-daemon publishes in {d}: neither {pid} nor {sock} "
+        d = Path(args.state_dir or ".")
+        where = f"on {sock}" if args.socket else f"in {d}"
+        after = "" if waited is None else f" within --timeout {waited:g} s"
+        what = "" if args.socket else f": neither {d / 'sea-daemon.pid'} nor {sock}"
+        raise InputError(f"no sea-daemon publishes {where}{after}{what} "
                          "(give the --state-dir / --log-dir the daemon runs with, or --socket)")
     return sock
+
+
+def wait_for_daemon(args, timeout: float | None, poll: float = POLL_S) -> tuple[Path, Subscriber]:
+    """The socket and a subscription to it, once a daemon publishes there; until then one
+    message on stderr and a look every ``poll`` seconds.  InputError after ``timeout`` seconds
+    without one (None: no limit)."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    said = False
+    while True:
+        last = deadline is not None and time.monotonic() >= deadline
+        sock = find_socket(args, timeout if last else None) if last else socket_of(args)
+        if len(os.fsencode(str(sock))) >= 108:
+            return sock, Subscriber(sock)                # refused with its own one-line reason
+        try:
+            sub = Subscriber(sock)
+        except InputError:                                # no socket, or nobody listens on it (yet, any more)
+            if last:
+                raise InputError(f"no sea-daemon publishes on {sock} within --timeout {timeout:g} s (a socket "
+                                 "file, no daemon behind it; give the --state-dir / --log-dir of a running "
+                                 "daemon, or --socket)") from None
+        else:
+            if said:
+                log.info("sea-daemon watch: a daemon publishes on %s", sock)
+            return sock, sub
+        if not said:
+            where = args.socket or (args.state_dir or ".")
+            log.info("sea-daemon watch: waiting for a daemon in %s … (%s; Ctrl-C to stop)", where,
+                     "no limit" if timeout is None else f"at most {timeout:g} s")
+            said = True
+        time.sleep(poll if deadline is None else max(0.0, min(poll, deadline - time.monotonic())))
 
 
 class View:
@@ -85,7 +137,7 @@ class View:
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
                   "on, engaged" if s.flags & FLAG_ASSIST_ENGAGED else "on, idle")
         head = (f"sea-daemon watch  {sock}   cycle {s.cycle}   t {s.t:.2f} s   fault: {fault}   "
-                f"assist: {assist}   received {sub.received}, missed {sub.missed}")
+                f"assist: {assist}   received {sub.received}, missed {sub.missed}, rejected {sub.rejected}")
         if silent > 1.0:
             head += f"   \x1b[33m(no data for {silent:.0f} s)\x1b[0m"
         return [head]
@@ -166,11 +218,21 @@ def run(args) -> int:
         raise InputError(f"--frames {args.frames}: allowed >= 1")
     if args.y_range is not None and not args.y_range > 0:
         raise InputError(f"--range {args.y_range}: allowed > 0 N m")
-    sock = find_socket(args)
+    if args.timeout is not None and not 0 <= args.timeout < math.inf:
+        raise InputError(f"--timeout {args.timeout}: allowed a finite number of seconds >= 0")
+    try:
+        sock, sub = wait_for_daemon(args, args.timeout)
+        return show(args, sock, sub)
+    except KeyboardInterrupt:             # Ctrl-C: the person is done watching
+        return 0
+
+
+def show(args, sock: Path, sub: Subscriber) -> int:
+    """Draw (or print, ``--plain``) what ``sub`` receives until ``--frames`` refreshes or Ctrl-C."""
     view = View(args.window, args.height, args.y_range)
     tty = sys.stdout.isatty() and not args.plain
     frames = 0
-    with Subscriber(sock) as sub:
+    with sub:
         if tty:
             sys.stdout.write("\x1b[?25l\x1b[2J")               # hide the cursor, clear
         try:

@@ -1,4 +1,8 @@
-"""report.md and PNG plots of a diagnosis (issue 6, item 4)."""
+"""report.md and PNG plots of a diagnosis (:class:`sea_daemon.analysis.diagnose.engine.Diagnosis`).
+
+matplotlib is imported inside each plotting function: it is heavy and needed only when plots
+are drawn (``--no-plots`` runs without it).
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,7 +33,7 @@ def _shade_holdout(ax, dg, t) -> None:
 
 
 def plot_residuals(dg, path: Path) -> None:
-    import matplotlib
+    import matplotlib          # heavy, only when plotting (module docstring)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -61,7 +65,7 @@ def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
     b, a = dg.est.get("before_series"), dg.est.get("after_series")
     if b is None and a is None:
         return False
-    import matplotlib
+    import matplotlib          # heavy, only when plotting (module docstring)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -89,7 +93,7 @@ def plot_estimates(dg, log: MeasuredLog, path: Path) -> bool:
 
 def plot_effect(dg, k: int, path: Path) -> None:
     """Partial residual (after + this effect's share) against the effect's regressor."""
-    import matplotlib
+    import matplotlib          # heavy, only when plotting (module docstring)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -120,7 +124,7 @@ def plot_effect(dg, k: int, path: Path) -> None:
 
 def plot_structure(dg, path: Path) -> None:
     """Leftover residual against q and q̇ (what no candidate took)."""
-    import matplotlib
+    import matplotlib          # heavy, only when plotting (module docstring)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -144,9 +148,53 @@ def plot_structure(dg, path: Path) -> None:
     plt.close(fig)
 
 
+def plot_applied(res: dict, path: Path, title: str) -> None:
+    import matplotlib          # heavy, only when plotting (module docstring)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = res["t"]
+    n = res["tau_s"].shape[1]
+    fig, axes = plt.subplots(n + 1, 1, figsize=(10, 3.6 * n + 2.4), sharex=True, squeeze=False,
+                             gridspec_kw={"height_ratios": [3] * n + [1.4]})
+    for j in range(n):
+        ax = axes[j, 0]
+        ax.plot(t, res["tau_s"][:, j], color="k", lw=1.0, label="spring torque K_s θ_s")
+        for key, col, lab in (("before", "tab:red", "AKF, model before"), ("after", "tab:blue", "AKF, model after")):
+            h, b = res[key]["hat"][:, j], res[key]["bound"][:, j]
+            ax.fill_between(t, h - b, h + b, color=col, alpha=0.15, lw=0)
+            ax.plot(t, h, color=col, lw=0.8, label=f"{lab} (± bound)")
+        if res["truth"] is not None:
+            ax.plot(t, res["truth"][:, j], "k:", lw=1.2, label="truth")
+        ax.axhline(0, color="k", lw=0.4)
+        ax.set_ylabel(f"τ̂_h,act{'' if n == 1 else f'[{j + 1}]'} [N m]")
+        ax.legend(loc="upper right", fontsize=8)
+    ax = axes[n, 0]
+    ax.plot(t, res["q"], lw=0.9)
+    ax.set_ylabel("q [rad]")
+    ax.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool = True) -> None:
+    """report.md (and, with ``plots``, its PNGs) of the diagnosis ``dg`` into ``out``."""
     res = dg.result
-    sel = dg.sel
+    lines = _result_lines(res, log, cfg) + _effects_lines(res)
+    v = res.get("validation")
+    if v:
+        lines += _validation_lines(v)
+    lines += _candidate_lines(dg) + _method_lines(res["fit"])
+    lines += _applied_lines(dg, out, plots)
+    if plots:
+        lines += _plot_lines(dg, out, log)
+    (out / "report.md").write_text("\n".join(lines))
+
+
+def _result_lines(res: dict, log: MeasuredLog, cfg: ModelConfig) -> list[str]:
+    """The title, the statements and the before/after table."""
     lines = [f"# Model diagnosis of `{Path(log.path).name}`", "",
              f"Model: `{cfg.source}`; log: `{log.path}`, {res['samples']} samples at "
              f"{1.0 / log.dt:.4g} Hz; truth for the estimate: {res['fit']['truth']}.", ""]
@@ -162,38 +210,47 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
               f"structured but matching no candidate: {_fmt(res['unexplained_structure']['fraction'])}"
               + (f" (follows {', '.join(res['unexplained_structure']['follows'])}, {res['unexplained_structure']['channel']} side)"
                  if res['unexplained_structure']['follows'] else "") + ".", ""]
-    if res["effects_added"]:
-        lines += ["## Effects added to `model_augmented.yaml`", "",
-                  "| # | type | side | parameters (95 % CI) | share of mean square | confidence |",
-                  "|---|---|---|---|---|---|"]
-        for i, d in enumerate(res["effects_added"], 1):
-            ps = "; ".join((f"{p} ≥ {_fmt(v)} (the sticking phases bound it from below only)"
-                            if p in d.get("lower_bound_only", ()) else
-                            f"{p} = {_fmt(v)} [{_fmt(d['ci95'].get(p, [None, None])[0])}, "
-                            f"{_fmt(d['ci95'].get(p, [None, None])[1])}]")
-                           for p, v in d["params"].items())
-            side = d["side"] + (f"[{d['joint']}]" if "joint" in d else "")
-            lines.append(f"| {i} | {d['type']} | {side} | {ps} | {100 * d['explained_fraction']:.1f} % | {d['confidence']} |")
-        lines.append("")
-    v = res.get("validation")
-    if v:
-        lines += _validation_lines(v)
-    lines += ["## Candidates tried", "",
-              "Every type of the effect vocabulary on every side it may sit on.  At each step all "
-              "remaining candidates are fitted jointly with the effects already chosen (nonlinear "
-              "parameter on a grid, linear ones by least squares); the best by BIC that passes every test is "
-              "accepted: BIC falls (effective sample size from the residual's autocorrelation, plus a look-elsewhere "
-              "penalty for grid-searched parameters), the blocked cross-validated mean square on held-out "
-              "time segments falls by at least "
-              f"{100 * dg.selector.opts.min_cv_gain:.0f} %, it explains at least {100 * dg.selector.opts.min_fraction:.0f} % "
-              f"of the initial mean square or {100 * dg.selector.opts.min_fraction_current:.0f} % of what is left, and its "
-              f"share is at least {dg.selector.opts.min_effect_rms:.3g} N m RMS over the log.  Of two that fit about equally "
-              "well, BIC prefers the one with fewer parameters; near-ties are reported as alternatives.  Shares of "
-              "the mean square are counted over the whole log, as Shapley values (each effect's decrease of the "
-              "sum of squares averaged over every order of adding them), at the final parameters (refined "
-              "jointly by nonlinear least squares on the exact residual); the 95 % intervals "
-              "come from the Gauss–Newton covariance widened by the residual's autocorrelation time.", ""]
-    for st in sel.steps:
+    return lines
+
+
+def _effects_lines(res: dict) -> list[str]:
+    """The table of the effects added, if any."""
+    if not res["effects_added"]:
+        return []
+    lines = ["## Effects added to `model_augmented.yaml`", "",
+             "| # | type | side | parameters (95 % CI) | share of mean square | confidence |",
+             "|---|---|---|---|---|---|"]
+    for i, d in enumerate(res["effects_added"], 1):
+        ps = "; ".join((f"{p} ≥ {_fmt(v)} (the sticking phases bound it from below only)"
+                        if p in d.get("lower_bound_only", ()) else
+                        f"{p} = {_fmt(v)} [{_fmt(d['ci95'].get(p, [None, None])[0])}, "
+                        f"{_fmt(d['ci95'].get(p, [None, None])[1])}]")
+                       for p, v in d["params"].items())
+        side = d["side"] + (f"[{d['joint']}]" if "joint" in d else "")
+        lines.append(f"| {i} | {d['type']} | {side} | {ps} | {100 * d['explained_fraction']:.1f} % | {d['confidence']} |")
+    lines.append("")
+    return lines
+
+
+def _candidate_lines(dg) -> list[str]:
+    """How the candidates are judged, and each selection step's table."""
+    opts = dg.selector.opts
+    lines = ["## Candidates tried", "",
+             "Every type of the effect vocabulary on every side it may sit on.  At each step all "
+             "remaining candidates are fitted jointly with the effects already chosen (nonlinear "
+             "parameter on a grid, linear ones by least squares); the best by BIC that passes every test is "
+             "accepted: BIC falls (effective sample size from the residual's autocorrelation, plus a look-elsewhere "
+             "penalty for grid-searched parameters), the blocked cross-validated mean square on held-out "
+             "time segments falls by at least "
+             f"{100 * opts.min_cv_gain:.0f} %, it explains at least {100 * opts.min_fraction:.0f} % "
+             f"of the initial mean square or {100 * opts.min_fraction_current:.0f} % of what is left, and its "
+             f"share is at least {opts.min_effect_rms:.3g} N m RMS over the log.  Of two that fit about equally "
+             "well, BIC prefers the one with fewer parameters; near-ties are reported as alternatives.  Shares of "
+             "the mean square are counted over the whole log, as Shapley values (each effect's decrease of the "
+             "sum of squares averaged over every order of adding them), at the final parameters (refined "
+             "jointly by nonlinear least squares on the exact residual); the 95 % intervals "
+             "come from the Gauss–Newton covariance widened by the residual's autocorrelation time.", ""]
+    for st in dg.sel.steps:
         lines += [f"### Step {st.step}: {st.reason}", "",
                   "| candidate | parameters at best fit | explains (of the initial MS of the fitted samples) | ΔBIC |", "|---|---|---|---|"]
         for r in sorted(st.rows, key=lambda r: r["delta_bic"]):
@@ -201,20 +258,29 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
             mark = " **(chosen)**" if r["candidate"] == st.chosen else ""
             lines.append(f"| {r['candidate']}{mark} | {ps} | {100 * r['explains']:.2f} % | {r['delta_bic']:+.1f} |")
         lines.append("")
-    f = res["fit"]
-    lines += ["## Method and settings", "",
-              "Residuals: load side r_load = τ_h,act − (M q̈ + C(q) + declared load effects + τ_s) "
-              "(eq:unknwn_load), motor side r_motor = κ τ_m − (J θ̈_m + D_m θ̇_m + declared motor effects − τ_s) "
-              "(eq:motorside); a spring effect appears in both with opposite sign, a load effect only in the "
-              "first, a motor effect only in the second.  Each balance is formed per sample (second "
-              "differences for accelerations, short-window velocities) and then smoothed with one zero-phase "
-              "Savitzky–Golay filter so that every term sees the same filter.", "",
-              f"- smoothing window: {f['smoothing_window_samples']} samples; samples used in the fit: {f['samples_used']} "
-              f"(left out: {100 * f['low_velocity_share_left_out']:.1f} %, the filter's edges and near-zero velocities where "
-              "the smoothed sign of friction models cannot follow sticking)",
-              f"- residual autocorrelation time: {_fmt(f['autocorrelation_time_samples'])} samples (widens the CIs and "
-              "shrinks the effective sample size of BIC)",
-              f"- candidates: {f['candidates']}", ""]
+    return lines
+
+
+def _method_lines(f: dict) -> list[str]:
+    """The residuals' definition and the fit's settings (the result's ``fit`` section)."""
+    return ["## Method and settings", "",
+            "Residuals: load side r_load = τ_h,act − (M q̈ + C(q) + declared load effects + τ_s) "
+            "(eq:unknwn_load), motor side r_motor = κ τ_m − (J θ̈_m + D_m θ̇_m + declared motor effects − τ_s) "
+            "(eq:motorside); a spring effect appears in both with opposite sign, a load effect only in the "
+            "first, a motor effect only in the second.  Each balance is formed per sample (second "
+            "differences for accelerations, short-window velocities) and then smoothed with one zero-phase "
+            "Savitzky–Golay filter so that every term sees the same filter.", "",
+            f"- smoothing window: {f['smoothing_window_samples']} samples; samples used in the fit: {f['samples_used']} "
+            f"(left out: {100 * f['low_velocity_share_left_out']:.1f} %, the filter's edges and near-zero velocities where "
+            "the smoothed sign of friction models cannot follow sticking)",
+            f"- residual autocorrelation time: {_fmt(f['autocorrelation_time_samples'])} samples (widens the CIs and "
+            "shrinks the effective sample size of BIC)",
+            f"- candidates: {f['candidates']}", ""]
+
+
+def _applied_lines(dg, out: Path, plots: bool) -> list[str]:
+    """One section per other log the model was run on (``--apply``), with its plot."""
+    lines = []
     for k, ap in enumerate(getattr(dg, "applied", []) or [], 1):
         name = f"apply_{k}_{Path(ap['log']).stem}.png"
         sm = ap["summary"]
@@ -234,22 +300,26 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
             lines.append(f"| τ̂_h,act RMSE [N m] | {_fmt(sm['before']['rmse'])} | {_fmt(sm['after']['rmse'])} |")
         lines += [""] + ap["claims"] + [""]
         if plots:
-            from sea_daemon.apps.diagnose.apply import plot_applied
             plot_applied(ap, out / name, f"{Path(ap['log']).name}: estimated human torque before and after the diagnosis")
             lines += ["", f"![{name}]({name})", ""]
-    if plots:
-        plot_residuals(dg, out / "residuals.png")
-        lines += ["## Plots", "", "![residuals before and after](residuals.png)", ""]
-        if plot_estimates(dg, log, out / "estimate.png"):
-            lines += ["![AKF estimate before and after](estimate.png)", ""]
-        for k, (cand, _) in enumerate(sel.chosen):
-            name = f"effect_{k + 1}_{cand.type}_{cand.side}.png"
-            plot_effect(dg, k, out / name)
-            lines += [f"![{cand.type} {cand.side}]({name})", ""]
-        if not sel.chosen or res["unexplained_structure"]["matches_no_candidate"]:
-            plot_structure(dg, out / "leftover.png")
-            lines += ["![leftover residual against the state](leftover.png)", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    return lines
+
+
+def _plot_lines(dg, out: Path, log: MeasuredLog) -> list[str]:
+    """The residual, estimate, per-effect and leftover plots, drawn into ``out``."""
+    sel, res = dg.sel, dg.result
+    plot_residuals(dg, out / "residuals.png")
+    lines = ["## Plots", "", "![residuals before and after](residuals.png)", ""]
+    if plot_estimates(dg, log, out / "estimate.png"):
+        lines += ["![AKF estimate before and after](estimate.png)", ""]
+    for k, (cand, _) in enumerate(sel.chosen):
+        name = f"effect_{k + 1}_{cand.type}_{cand.side}.png"
+        plot_effect(dg, k, out / name)
+        lines += [f"![{cand.type} {cand.side}]({name})", ""]
+    if not sel.chosen or res["unexplained_structure"]["matches_no_candidate"]:
+        plot_structure(dg, out / "leftover.png")
+        lines += ["![leftover residual against the state](leftover.png)", ""]
+    return lines
 
 
 def _theorem1_cell(s: dict) -> str:

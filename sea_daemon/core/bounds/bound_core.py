@@ -1,7 +1,7 @@
 """The Theorem-1 bound's step compiled in one call (:class:`~sea_daemon.core.bounds.akf_bound.AKFTheoremBound`).
 
 :meth:`AKFTheoremBound.step` is a few dozen small numpy operations per step (≈ 0.7 ms at
-100 Hz and 1 kHz alike on the 2-core test machine, several times the filter step).  For the
+100 Hz and 1 kHz alike on a 2-vCPU virtual machine, several times the filter step).  For the
 configuration the daemon runs — nominal model without declared effects (the gravity term
 bounded analytically), zonotope set of means, the ``scalar`` projection, a plain AKF or a
 GP-AKF whose LoG-GPs are frozen (learning off) — this module does the same step in one

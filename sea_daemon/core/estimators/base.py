@@ -59,7 +59,7 @@ class Estimator(Protocol):
 
 @runtime_checkable
 class Residual(Protocol):
-    """A learned load-side residual f(z) (eq:unknwn_load), e.g. the LoG-GP of issue 3.
+    """A learned load-side residual f(z) (eq:unknwn_load), e.g. the LoG-GP (:mod:`sea_daemon.core.learning`).
 
     ``predict(z)`` with z = [q, q̇, q̈] (3n,) returns ``(mu (n,), dmu_dz (n, 3n), var (n,))``:
     the mean μ(z) [N m], its Jacobian (eq:moejac) and the posterior variance σ²(z) [N² m²].

@@ -59,7 +59,7 @@ class WeightedResidual:
         if not (math.isfinite(var_ref) and var_ref >= 0.0):
             raise ValueError(f"var_ref {var_ref}: expected a finite value >= 0")
         self.var_ref = float(var_ref)
-        # the GP's data exclude the sticking phases (|q̇| < v_gate, sea_daemon.apps.calibration.pipeline.smooth_pairs):
+        # the GP's data exclude the sticking phases (|q̇| < v_gate, sea_daemon.apps.calibration.residual_gp.smooth_pairs):
         # below v_gate/2 it has nothing to say, so its weight ramps to 0 there (the physics holds)
         self.v_gate = float(v_gate)
         self.noise_in_Q = bool(noise_in_Q)

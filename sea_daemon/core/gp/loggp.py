@@ -392,9 +392,6 @@ class LoGGP(LoGGPState):
         _, nodes, ws, dws = route(x.reshape(1, -1), t.links, t.span, grad)
         return nodes.tolist(), ws, dws
 
-    # the method under its former private name, for callers not yet using ``route_one``
-    _route_one = route_one
-
     def predict(self, x) -> tuple[float, float]:
         """Merged posterior mean and variance at ``x`` (floats)."""
         x, _ = self._check_x(x)

@@ -3,7 +3,10 @@ JSON-able dict or as numeric arrays plus JSON metadata (no numpy objects, no pic
 
 The factors are not stored: every leaf's Cholesky factor is rebuilt from its data on load, so
 a loaded model predicts exactly as the saved one (tests/test_loggp.py).  Malformed input raises
-:class:`~sea_daemon.errors.ModelFileError`.
+:class:`~sea_daemon.errors.ModelFileError`: a loaded tree is checked before any use
+(:func:`check_tree`: a proper binary tree on its nodes, so every walk from the root ends within
+``n_nodes`` steps), and so are the leaves (one per leaf node, data of the tree's input size,
+within ``max_points``).
 """
 from __future__ import annotations
 
@@ -16,6 +19,65 @@ from sea_daemon.errors import InputError, ModelFileError
 
 _FORMAT = "sea-daemon-loggp"
 _VERSION = 1
+#: the most points a loaded leaf may hold and the most leaves a loaded tree may have (the upper
+#: ends of ``learning.max_points`` and ``learning.max_leaves``, core.config.LearningConfig): a
+#: leaf's factor is rebuilt on load in O(N̄³)
+MAX_LEAF_POINTS = 1000
+MAX_LEAVES = 100_000
+
+
+def _index(v) -> int:
+    """``v`` as a node index or split dimension: an integer (not a bool); ValueError otherwise."""
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+        raise ValueError(f"{v!r} is not an integer")
+    return int(v)
+
+
+def check_tree(dim: list, lo: list, hi: list, left: list, right: list, input_dim: int) -> list:
+    """Check a loaded LoG-GP tree (node 0 the root; a leaf has ``dim = left = right = −1``) and
+    return its leaf nodes; raise ModelFileError naming the first fault.
+
+    A split node's ``dim`` lies in 0 … input_dim − 1, its overlap ``lo <= hi`` is finite and its
+    two children are other nodes in 1 … n_nodes − 1; walking from the root reaches every node
+    exactly once (no loop, no shared child, no unreachable node).  So the tree is acyclic, its
+    depth is below n_nodes, and every routing walk ends within n_nodes steps.
+    """
+    n = len(dim)
+    if n < 1 or any(len(a) != n for a in (lo, hi, left, right)):
+        raise ModelFileError(f"LoG-GP tree: lists of unequal or zero length "
+                             f"({[len(a) for a in (dim, lo, hi, left, right)]})")
+    seen = bytearray(n)
+    seen[0] = 1
+    stack, leaves = [0], []
+    while stack:
+        i = stack.pop()
+        try:
+            d, a, b = _index(dim[i]), _index(left[i]), _index(right[i])
+            span = (float(lo[i]), float(hi[i]))
+        except (TypeError, ValueError, OverflowError) as e:
+            raise ModelFileError(f"LoG-GP tree: node {i}: {e}") from None
+        if d == -1:
+            if a != -1 or b != -1:
+                raise ModelFileError(f"LoG-GP tree: leaf node {i} has children {a}, {b} (allowed: -1, -1)")
+            leaves.append(i)
+            continue
+        if not 0 <= d < input_dim:
+            raise ModelFileError(f"LoG-GP tree: node {i} splits dimension {d}; allowed -1 (a leaf) or "
+                                 f"0..{input_dim - 1}")
+        if not (math.isfinite(span[0]) and math.isfinite(span[1]) and span[0] <= span[1]):
+            raise ModelFileError(f"LoG-GP tree: node {i} has the overlap [{span[0]}, {span[1]}]; "
+                                 "allowed finite lo <= hi")
+        for c in (a, b):
+            if not 1 <= c < n:
+                raise ModelFileError(f"LoG-GP tree: node {i} has child {c}; allowed 1..{n - 1}")
+            if seen[c]:
+                raise ModelFileError(f"LoG-GP tree: node {c} is reached twice (a loop or a shared child, "
+                                     f"at node {i})")
+            seen[c] = 1
+            stack.append(c)
+    if not all(seen):
+        raise ModelFileError(f"LoG-GP tree: node {seen.index(0)} is not reachable from the root")
+    return leaves
 
 
 class LoGGPState:
@@ -120,40 +182,74 @@ class LoGGPState:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LoGGPState":
-        """Inverse of :meth:`to_dict` (raises ModelFileError on a malformed dict)."""
+        """Inverse of :meth:`to_dict` (raises ModelFileError on a malformed dict: a tree that is
+        not a proper tree (:func:`check_tree`), leaves that do not match it, values that are not
+        finite)."""
         try:
             if d.get("format") != _FORMAT or d.get("version") != _VERSION:
                 raise ModelFileError(f"not a LoG-GP model of version {_VERSION}: "
                                      f"format {d.get('format')!r}, version {d.get('version')!r}")
             self = cls(**d["options"])
-            t = d["tree"]
-            self._dim, self._lo, self._hi = list(t["dim"]), list(t["lo"]), list(t["hi"])
-            self._left, self._right = list(t["left"]), list(t["right"])
-            self._gp = [None] * len(self._dim)
-            self._adam = {}
-            for leaf in d["leaves"]:
-                node = int(leaf["node"])
-                g = IncrementalGP.from_dict(leaf["gp"])
-                g.max_capacity = self.max_points
-                g.clip_mean = self.clip_leaf_mean
-                self._gp[node] = g
-                if leaf.get("adam") is not None:
-                    self._adam[node] = self.hyper.state_from_dict(leaf["adam"])
-            if any((self._dim[i] < 0) != (self._gp[i] is not None) for i in range(len(self._dim))):
-                raise ModelFileError("LoG-GP model: leaves and tree do not match")
-            self.n_leaves = len(d["leaves"])
-            c = d["counters"]
-            self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
-            self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
-            self.last_leaf = int(c["last_leaf"])
-            self._hyper_due = bool(c.get("hyper_due", False))
-            pend = d.get("pending")
-            self.hyper_proposal = None if pend is None else (int(pend[0]), np.asarray(pend[1], dtype=float))
-            rs = d["rng_state"]
-            self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))
+            tree_leaves = self._restore_tree(d["tree"])
+            self._restore_leaves(d["leaves"], tree_leaves)
+            self._restore_counters(d, tree_leaves)
             return self
         except ModelFileError:
             raise
-        except (KeyError, TypeError, ValueError, IndexError, InputError) as e:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError, InputError) as e:
             raise ModelFileError(f"LoG-GP model is malformed: {e}") from None
 
+    def _restore_tree(self, t: dict) -> set:
+        """The tree's lists from ``t``, checked (:func:`check_tree`); the set of its leaf nodes."""
+        lists = [list(t[k]) for k in ("dim", "lo", "hi", "left", "right")]
+        if len(lists[0]) > 2 * MAX_LEAVES:
+            raise ModelFileError(f"LoG-GP model: {len(lists[0])} tree nodes, allowed <= {2 * MAX_LEAVES}")
+        tree_leaves = set(check_tree(*lists, self.input_dim))
+        most = min(MAX_LEAVES, self.max_leaves or MAX_LEAVES)
+        if len(tree_leaves) > most:
+            raise ModelFileError(f"LoG-GP model: {len(tree_leaves)} leaves, allowed <= {most}")
+        self._dim, self._left, self._right = ([int(v) for v in lists[k]] for k in (0, 3, 4))
+        self._lo, self._hi = ([float(v) for v in lists[k]] for k in (1, 2))
+        return tree_leaves
+
+    def _restore_leaves(self, leaves: list, tree_leaves: set) -> None:
+        """Every leaf's GP (one per leaf node of the tree, finite data within ``max_points``)."""
+        self._gp = [None] * len(self._dim)
+        self._adam = {}
+        for leaf in leaves:
+            node = _index(leaf["node"])
+            if node not in tree_leaves or self._gp[node] is not None:
+                raise ModelFileError(f"LoG-GP model: leaf data for node {node}, which is not a leaf "
+                                     "of the tree or has data twice")
+            most, n = min(self.max_points, MAX_LEAF_POINTS), len(leaf["gp"]["y"])
+            if n > most or leaf["gp"]["input_dim"] != self.input_dim:      # before its O(N³) factor
+                raise ModelFileError(f"LoG-GP model: leaf {node} holds {n} points of {leaf['gp']['input_dim']!r} "
+                                     f"inputs; allowed <= {most} points of {self.input_dim}")
+            g = IncrementalGP.from_dict(leaf["gp"])
+            if not (np.all(np.isfinite(g.X_[:g.n_])) and np.all(np.isfinite(g.y_[:g.n_]))):
+                raise ModelFileError(f"LoG-GP model: leaf {node} holds a value that is not finite")
+            g.max_capacity = self.max_points
+            g.clip_mean = self.clip_leaf_mean
+            self._gp[node] = g
+            if leaf.get("adam") is not None:
+                self._adam[node] = self.hyper.state_from_dict(leaf["adam"])
+        if len(leaves) != len(tree_leaves):
+            raise ModelFileError(f"LoG-GP model: {len(leaves)} leaves of data, the tree has {len(tree_leaves)}")
+        self.n_leaves = len(leaves)
+
+    def _restore_counters(self, d: dict, tree_leaves: set) -> None:
+        """Counters, the pending hyperparameter step and the random state."""
+        c = d["counters"]
+        self.n_points, self.n_updates = int(c["n_points"]), int(c["n_updates"])
+        self.n_evicted, self.n_hyper_steps = int(c["n_evicted"]), int(c["n_hyper_steps"])
+        self.last_leaf = _index(c["last_leaf"])
+        if self.last_leaf not in tree_leaves:
+            self.last_leaf = min(tree_leaves)
+        self._hyper_due = bool(c.get("hyper_due", False))
+        pend = d.get("pending")
+        self.hyper_proposal = None if pend is None else (_index(pend[0]), np.asarray(pend[1], dtype=float))
+        if pend is not None and (self.hyper_proposal[0] not in tree_leaves
+                                 or self.hyper_proposal[1].shape != self._theta0.shape):
+            raise ModelFileError("LoG-GP model: the pending hyperparameter step names no leaf of the tree")
+        rs = d["rng_state"]
+        self._rng.setstate((rs[0], tuple(rs[1]), rs[2]))

@@ -82,9 +82,15 @@ def route(Z, links, span, grad):
     """Leaves reached by every row of ``Z`` (m, ρ) in the tree ``links``, ``span`` (the fields
     of a :class:`Tree`): ``(row, node, ω, ∂ω/∂x)``, arrays of equal length (∂ω/∂x of shape
     (·, ρ), zeros without ``grad``), rows in order, each row's leaves in depth-first order,
-    left first.  Compiled; callable from other compiled code."""
+    left first.  Compiled; callable from other compiled code.
+
+    Every walk is bounded by the node count: a row that visits more nodes than the tree has,
+    or a link outside it, raises ValueError (a tree with a loop or a stray link; a loaded tree
+    is checked before use, :func:`~sea_daemon.core.gp.loggp_state.check_tree`), so no tree
+    can keep it running."""
     dim, left, right = links[0], links[1], links[2]
     lo, hi = span[0], span[1]
+    n_nodes = dim.shape[0]
     rho = Z.shape[1]
     cap = 2 * Z.shape[0] + 8
     idx = np.empty(cap, dtype=np.int64)
@@ -97,7 +103,11 @@ def route(Z, links, span, grad):
     k = 0
     for i in range(Z.shape[0]):
         node = 0
+        steps = 0
         while True:                                  # fast path: no overlap on the way
+            if node < 0 or node >= n_nodes or steps > n_nodes:
+                raise ValueError("LoG-GP tree: a walk leaves the tree or outlasts its node count")
+            steps += 1
             j = dim[node]
             if j < 0:
                 break
@@ -115,6 +125,9 @@ def route(Z, links, span, grad):
         while top > 0:
             top -= 1
             node = st_node[top]
+            if node < 0 or node >= n_nodes or steps > 2 * n_nodes:
+                raise ValueError("LoG-GP tree: a walk leaves the tree or outlasts its node count")
+            steps += 1
             w = st_w[top]
             j = dim[node]
             if j < 0:
@@ -180,7 +193,3 @@ def _warm() -> None:
     tree = Tree.of([0, -1, -1], [-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [1, -1, -1], [2, -1, -1])
     for grad in (False, True):
         route(np.zeros((2, 1)), tree.links, tree.span, grad)
-
-
-# the kernel under its former private name, for modules not yet importing it as ``route``
-_route = route

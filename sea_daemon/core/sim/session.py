@@ -1,20 +1,24 @@
 """One simulated session of a plant: a reference tracked by PID (or the arm held still), a
 subject that is passive or applies a torque, sampled like the hardware.
 
-Used by the generalisation benchmark and the calibration tests: unlike :mod:`sea_daemon.runtime.sim_runner` (a
-scenario file's two fixed phases) a session is built from parts —
+Used by the generalisation and new-robot benchmarks and the calibration (its synthetic
+sessions and tests): unlike :mod:`sea_daemon.runtime.sim_runner` (a scenario file's two fixed
+phases through the daemon's loop) a session is built from parts —
 
 * ``reference``: any object with ``reference(t) -> (q, q̇, q̈)`` (a
   :class:`~sea_daemon.core.excitation.MoveSequence`, :class:`SineReference`, ...),
-  tracked by the PID of :mod:`sea_daemon.core.control` from rest at ``reference(0)``;
+  tracked from rest at ``reference(0)`` by :class:`~sea_daemon.core.control.ReferenceTracker`
+  (the PID the scenario's controller runs too);
   or ``None`` with ``hold_q``: the Sec. V-C still-arm session — open loop
   τ_m = τ_comp + τ_des(t), τ_comp the true plant's holding torque, and the subject resists:
-  τ_h,act = −τ_des (the arm stays at rest);
+  τ_h,act = −τ_des (the arm stays at rest; :class:`~sea_daemon.core.control.StillArm`);
 * ``human``: a function t -> τ_h,act (n,) (``None``: passive, τ_h,act = 0); in the still-arm
   session it is τ_des's negative, i.e. what the subject applies.
 
-Per sample (period 1/rate_hz): read the encoders, compute τ_m, log (t, q, θ_m, τ_m, τ_h,act),
-advance the plant with τ_m (+ noise) and τ_h,act held.
+Per sample k (period 1/rate_hz, t_k = k/rate_hz) the steps of every simulated run
+(:mod:`sea_daemon.core.sim.sampling`): the plant stepped over [t_k−1, t_k] with τ_m (+ noise)
+and τ_h,act of sample k−1 held, the encoders read, τ_m computed, τ_h,act(t_k), the row logged
+(t, q, θ_m, τ_m, τ_h,act).
 """
 from __future__ import annotations
 
@@ -24,9 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID, PIDGains
+from sea_daemon.core.control import PIDGains, ReferenceTracker, StillArm
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.sim.plant import Plant
+from sea_daemon.core.sim.sampling import SampledPlant, SampleRecorder
 
 
 @dataclass(frozen=True)
@@ -85,13 +90,17 @@ class BandLimitedTorque:
 SESSION_GAINS = PIDGains(40.0, 80.0, 2.0, velocity_filter_hz=30.0)
 
 
+#: the extras of a session's log (joint 0)
+SESSION_EXTRA = ("q_true", "dq_true", "q_ref", "theta_m_true", "dtheta_m_true")
+
+
 def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hold_q: float | None = None,
                 human=None, seed: int = 0, gains: PIDGains = SESSION_GAINS, substep_hz: float | None = None,
                 sign_eps: float = 3e-3, torque_noise: float | None = None, t0: float = 0.0,
                 extra_load_torque=None, extra_held: bool = False) -> MeasuredLog:
     """Simulate one session of the plant ``true_cfg`` (nominal model + hidden effects); see the
     module docstring (``extra_load_torque``, ``extra_held``: as :class:`~sea_daemon.core.sim.plant.Plant`).  Returns the measured log with the truth ``tau_h_act`` and, in ``extra``,
-    ``q_true``, ``dq_true``, ``q_ref``."""
+    ``q_true``, ``dq_true``, ``q_ref``, ``theta_m_true``, ``dtheta_m_true``."""
     rate = float(true_cfg.rate_hz)
     dt = 1.0 / rate
     N = int(round(duration_s * rate))
@@ -102,37 +111,30 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
     plant = Plant(true_cfg, q0=q0, seed=seed, substep_hz=sub, sign_eps=sign_eps, torque_noise=torque_noise,
                   extra_load_torque=extra_load_torque, extra_held=extra_held)
     limit = true_cfg.hardware.torque_limit
-    pid = None
     if reference is not None:
-        pid = PID(gains.kp, gains.ki, gains.kd, dt, limit, gains.velocity_filter_hz, derivative=gains.derivative)
-        q_m, th_m = plant.measure()
-        pid.reset(q_m if gains.derivative == "load" else th_m, plant.hold_torque)
-    hold = plant.hold_torque.copy()
-    cols = {k: np.empty(N) for k in ("t", "q", "theta_m", "tau_m", "tau_h_act", "q_true", "dq_true", "q_ref",
-                                     "theta_m_true", "dtheta_m_true")}
-    for k in range(N):
-        t = k * dt
-        q_m, th_m = plant.measure()
-        tau_h = 0.0 if human is None else float(human(t))
-        if pid is not None:
-            q_ref, dq_ref, _ = reference.reference(t)
-            u = pid.step(q_ref, q_m, dq_ref, th_m)
-        else:
-            q_ref = hold_q
-            # Sec. V-C: τ_m = τ_comp + τ_des, the subject resists: τ_h,act = −τ_des
-            u = np.clip(hold - tau_h, -limit, limit)
-        cols["t"][k] = t0 + t
-        cols["q"][k] = q_m[0]
-        cols["theta_m"][k] = th_m[0]
-        cols["tau_m"][k] = u[0]
-        cols["tau_h_act"][k] = tau_h
-        cols["q_true"][k] = plant.q[0]
-        cols["dq_true"][k] = plant.dq[0]
-        cols["q_ref"][k] = q_ref
-        cols["theta_m_true"][k] = plant.theta_m[0]
-        cols["dtheta_m_true"][k] = plant.dtheta_m[0]
-        plant.step(u, dt, tau_h)
-    base = ("t", "q", "theta_m", "tau_m", "tau_h_act")
-    return MeasuredLog(t=cols["t"], q=cols["q"][:, None], theta_m=cols["theta_m"][:, None],
-                       tau_m=cols["tau_m"][:, None], tau_h_act=cols["tau_h_act"][:, None],
-                       extra={k: v for k, v in cols.items() if k not in base})
+        ctl = ReferenceTracker(gains, reference, dt, limit)
+        ctl.start(*plant.measure(), plant.hold_torque)    # bumpless: the first command holds the arm
+        subject = (lambda t: 0.0) if human is None else (lambda t: float(human(t)))
+    else:
+        # Sec. V-C: τ_m = τ_comp + τ_des, the subject resists: τ_h,act = −τ_des (``human``)
+        ctl = StillArm(plant.hold_torque.copy(), (lambda t: -0.0) if human is None else (lambda t: -float(human(t))),
+                       limit, float(hold_q))
+        subject = ctl.subject
+    return _sample(SampledPlant(plant, dt), ctl, subject, N, t0)
+
+
+def _sample(sp: SampledPlant, ctl, subject, rows: int, t0: float) -> MeasuredLog:
+    """The session's samples (:mod:`sea_daemon.core.sim.sampling`): per sample k the plant
+    stepped and read, the command, the subject's torque, the row; then the read that steps the
+    last row's interval."""
+    rec = SampleRecorder(rows, sp.n, SESSION_EXTRA)
+    u, tau_h = None, 0.0
+    for k in range(rows + 1):
+        q_m, th_m = sp.read(u, tau_h)
+        rec.acted(sp)
+        if k == rows:
+            break
+        u = ctl.update(sp.t, q_m, th_m)
+        tau_h = subject(sp.t)
+        rec.sample(k, t0 + sp.t, q_m, th_m, u, sp, ctl)
+    return rec.log(slice(0, rows))

@@ -1,4 +1,4 @@
-"""The two model residuals of a measured log (issue 6, item 1).
+"""The two model residuals of a measured log.
 
 From the log's encoder angles and motor torque, with zero-phase smoothed derivatives (an
 offline log allows a non-causal filter), and the configured model:
@@ -93,6 +93,21 @@ class Kinematics:
             self._sg = savgol_coeffs(w, min(self.degree, w - 1))
         return correlate1d(np.asarray(x, dtype=float), self._sg, axis=0, mode="nearest")
 
+    def shifted_command(self, shift: float, delay: np.ndarray) -> np.ndarray:
+        """τ_m(t − shift − d_j) per joint j [N m], linearly interpolated on the log's times
+        (cached per shift and delays, up to 256 of them)."""
+        key = (shift, *np.round(delay, 12).tolist())
+        sm = self._tau_cache.get(key)
+        if sm is None:
+            tau = np.empty_like(self.tau_m)
+            for j in range(self.n):
+                tq = self.t - shift - delay[j]
+                tau[:, j] = np.interp(tq, self.t, self.tau_m[:, j])
+            sm = tau
+            if len(self._tau_cache) < 256:
+                self._tau_cache[key] = sm
+        return sm
+
 
 Z95 = 1.959963984540054
 
@@ -162,17 +177,7 @@ def _effect_sum(effects, n, angle, vel, acc) -> np.ndarray:
 def applied_torque(model: SEAModel, kin: Kinematics, zoh: bool = True) -> np.ndarray:
     """κ τ_m(t − d) (eq:motorside), ZOH-centred (t − dt/2); not yet smoothed."""
     shift = 0.5 * kin.dt if zoh else 0.0
-    key = (shift, *np.round(model.delay, 12).tolist())
-    sm = kin._tau_cache.get(key)
-    if sm is None:
-        tau = np.empty_like(kin.tau_m)
-        for j in range(kin.n):
-            tq = kin.t - shift - model.delay[j]
-            tau[:, j] = np.interp(tq, kin.t, kin.tau_m[:, j])
-        sm = tau
-        if len(kin._tau_cache) < 256:
-            kin._tau_cache[key] = sm
-    return model.kappa[None, :] * sm
+    return model.kappa[None, :] * kin.shifted_command(shift, model.delay)
 
 
 def spring_torque(model: SEAModel, theta_s: np.ndarray, dtheta_s: np.ndarray) -> np.ndarray:
@@ -296,8 +301,6 @@ def fast_command_gain(model: SEAModel, kin: Kinematics, v_moving: float, zoh: bo
     static friction), d' a small undeclared delay.  The command is known exactly (no
     errors-in-variables bias); the 95 % half-width is inflated by the autocorrelation time.
     """
-    from scipy.ndimage import correlate1d
-
     n = kin.n
     q, th = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
     dq, dth = kin.dq, kin.dtheta_m

@@ -31,8 +31,11 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from sea_daemon.core.effects import Effect
-from sea_daemon.apps.diagnose.candidates import Candidate
-from sea_daemon.apps.diagnose.residuals import integrated_autocorr_time
+from sea_daemon.analysis.diagnose.candidates import Candidate
+from sea_daemon.analysis.diagnose.context import Context
+from sea_daemon.analysis.diagnose.options import SelectOptions
+from sea_daemon.analysis.diagnose.residuals import integrated_autocorr_time
+from sea_daemon.analysis.diagnose.samples import FitSamples
 
 #: friction types this stage tries
 FRICTION = ("coulomb", "stribeck")
@@ -41,11 +44,12 @@ FRICTION = ("coulomb", "stribeck")
 class LowSpeedStage:
     """Forward selection of friction on every sample of the fit block (see module docstring)."""
 
-    def __init__(self, selector):
-        self.sel = selector
-        self.ctx = selector.ctx
-        self.opts = selector.opts
-        self.t_idx = np.flatnonzero(selector.all_t)
+    def __init__(self, ctx: Context, opts: SelectOptions, samples: FitSamples):
+        self.ctx = ctx
+        self.opts = opts
+        #: [rad/s] (load, motor) stick speeds
+        self.v_min = samples.v_min
+        self.t_idx = np.flatnonzero(samples.all_t)
         K = max(2, self.opts.folds)
         edges = np.linspace(0, self.t_idx.size, K + 1).astype(int)
         self.fold = np.zeros(self.t_idx.size, dtype=int)
@@ -80,9 +84,9 @@ class LowSpeedStage:
 
     def v_grid(self, cand: Candidate) -> list[float]:
         """Stribeck speeds: from the stick speed of that side to twice its 99th-percentile speed."""
-        _, v, _ = cand._side_signals(self.ctx)
+        _, v, _ = cand.side_signals(self.ctx)
         vmax = max(float(np.percentile(np.abs(v[self.t_idx]), 99)), 1e-3)
-        lo = max(self.sel.v_min[0 if cand.side == "load" else 1] / 3.0, 1e-3)
+        lo = max(self.v_min[0 if cand.side == "load" else 1] / 3.0, 1e-3)
         return list(np.geomspace(lo, max(2.0 * vmax, 2 * lo), 24))
 
     def fit(self, cand: Candidate, base: list[Effect], r_cur: np.ndarray, where=None,

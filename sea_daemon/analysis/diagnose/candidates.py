@@ -1,4 +1,4 @@
-"""Candidate effects for tracing the residuals (issue 6, item 2).
+"""Candidate effects for tracing the residuals.
 
 Every type of the effect vocabulary (docs/interfaces.md §2, plus the ``spring_saturation`` extension)
 on every side it may sit on, for every joint.  A candidate explains a part of the stacked
@@ -24,125 +24,14 @@ afterwards (:mod:`.select`).
 """
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck, make_effect
-from sea_daemon.core.model import SEAModel
-from sea_daemon.apps.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
+from sea_daemon.core.effects import EFFECT_TYPES, PARAM_RANGES, Effect, make_effect
+from sea_daemon.analysis.diagnose.context import Context
 
-
-@dataclass
-class Context:
-    """What the candidates need: the log's kinematics, the configured model, its residual."""
-
-    cfg: ModelConfig
-    kin: Kinematics
-    r0: np.ndarray                      # (N, 2n) residual of cfg
-    passive: bool = False
-    zoh: bool = True
-    #: speed [rad/s] below which a side counts as sticking, per side (load, motor); None: 3 ε
-    v_stick: tuple[float, float] | None = None
-    _model: SEAModel | None = field(default=None, repr=False)
-    _fast: FastGain | None = field(default=None, repr=False)
-
-    @property
-    def fast_gain(self) -> FastGain:
-        """The drive's gain from the fast part of the command (:func:`.residuals.fast_command_gain`),
-        over the samples where the motor moves faster than its stick speed."""
-        if self._fast is None:
-            v = self.v_stick[1] if self.v_stick is not None else stick_velocity(self.cfg)
-            self._fast = fast_command_gain(self.model, self.kin, v, self.zoh)
-        return self._fast
-
-    def largest_torque(self, side: str, j: int) -> float:
-        """The largest torque [N m] the log's balance puts on ``side`` of joint ``j``: the sum of
-        the largest spring torque, inertial torque (smoothed acceleration), gravity, commanded
-        torque (motor) and human torque (load, when the log has it).  A friction that held more
-        than this at rest would never have let that side move as the log shows."""
-        kin, m = self.kin, self.model
-        q, th = self.angles()
-        tau_s = float(np.max(np.abs((q - th) @ m.K_s.T)[:, j]))
-        if side == "load":
-            out = tau_s + float(np.max(np.abs(kin.ddq @ m.M.T)[:, j])) + float(np.max(np.abs(m.C(q))[:, j]))
-            if kin.tau_h_act is not None and not self.passive:
-                out += float(np.max(np.abs(kin.tau_h_act[:, j])))
-            return out
-        return (tau_s + float(np.max(np.abs(kin.ddtheta_m @ m.J.T)[:, j]))
-                + float(m.kappa[j]) * float(np.max(np.abs(kin.tau_m[:, j]))))
-
-    def stick_speed(self, side: str) -> float:
-        """The speed [rad/s] below which ``side`` counts as sticking (3 ε without encoder data)."""
-        if self.v_stick is None:
-            return stick_velocity(self.cfg)
-        return float(self.v_stick[0 if side == "load" else 1])
-
-    @property
-    def model(self) -> SEAModel:
-        if self._model is None:
-            self._model = SEAModel.from_config(self.cfg)
-        return self._model
-
-    @property
-    def n(self) -> int:
-        return self.kin.n
-
-    def residual(self, effects=()) -> np.ndarray:
-        kw = {} if self.v_stick is None else {"v_stick": self.v_stick}
-        return residuals_for(self.cfg, self.kin, effects, zoh=self.zoh, passive=self.passive, **kw)
-
-    def delta_r(self, effects) -> np.ndarray:
-        """Δr = r(cfg) − r(cfg + effects), flattened (N·2n,)."""
-        if len(effects) == 1:
-            d = self._additive_delta(effects[0])
-            if d is not None:
-                return d.reshape(-1)
-        return (self.r0 - self.residual(effects)).reshape(-1)
-
-    def _additive_delta(self, e: Effect) -> np.ndarray | None:
-        """Δr of one additive effect without recomputing the model (None for structural ones).
-
-        The balances of :func:`.residuals.residual_channels` are linear in an added torque:
-        a load-side e adds S(e) to r_load's explained part, a motor-side one S(e) to r_motor's,
-        a spring one S(e) and −S(e); an inertia dI·(second difference) likewise.
-        ``tests/test_diagnose_residuals.py`` checks this against the full recomputation.  (The
-        one difference: while a side sticks inside its declared static-friction band the full
-        residual takes up the added torque there; the fit leaves those samples out.)
-        """
-        if not e.additive or isinstance(e, (Coulomb, Stribeck)):
-            return None      # structural, or friction (set-valued while sticking): recompute
-        kin = self.kin
-        n = self.n
-        j = e.joint
-        q, th = self.angles()
-        if isinstance(e, Inertia):
-            col = e.dI * (kin.d2q if e.side == "load" else kin.d2theta_m)[:, j]
-        else:
-            if hasattr(e, "eps"):  # declared friction uses the estimator's sign smoothing (SEAModel)
-                e = dataclasses.replace(e, eps=self.cfg.estimator.sign_eps)
-            if e.side == "load":
-                a, v = q[:, j], kin.dq[:, j]
-            elif e.side == "motor":
-                a, v = th[:, j], kin.dtheta_m[:, j]
-            else:
-                a, v = q[:, j] - th[:, j], np.zeros(kin.N)
-            col = e.torque_array(a, v, np.zeros(kin.N))
-        out = np.zeros((kin.N, 2 * n))
-        if e.side in ("load", "spring"):
-            out[:, j] = col
-        if e.side == "motor":
-            out[:, n + j] = col
-        if e.side == "spring":
-            out[:, n + j] = -col
-        return kin.smooth(out)
-
-    # signals with the declared offsets removed
-    def angles(self):
-        return self.model.correct_measurement(self.kin.q, self.kin.theta_m)
+__all__ = ["Context", "Candidate", "build_candidates"]
 
 
 class Candidate:
@@ -157,13 +46,15 @@ class Candidate:
     #: linear coefficients that the vocabulary requires to be >= 0 (docs/interfaces.md §2 validation)
     nonneg: tuple[int, ...] = ()
 
-    def __init__(self, side: str, joint: int = 0):
+    def __init__(self, side: str, joint: int = 0, joints: int = 1):
         self.side = side
         self.joint = joint
+        #: number of joints of the model (the name carries the joint when there are several)
+        self.joints = joints
 
     @property
     def name(self) -> str:
-        j = f"[{self.joint + 1}]" if getattr(self, "_n", 1) > 1 else ""
+        j = f"[{self.joint + 1}]" if self.joints > 1 else ""
         return f"{self.type}/{self.side}{j}"
 
     # --- search
@@ -209,7 +100,7 @@ class Candidate:
     def _unit(self, ctx: Context, **params) -> np.ndarray:
         return ctx.delta_r([self.effect(params)])
 
-    def _side_signals(self, ctx: Context):
+    def side_signals(self, ctx: Context):
         """(angle, vel, acc) of this side and joint (offsets removed)."""
         q, th = ctx.angles()
         k = ctx.kin
@@ -234,7 +125,7 @@ class Candidate:
 
     def regressor(self, ctx: Context, theta=None) -> tuple[np.ndarray, str]:
         """The signal to plot the residual against, and its label."""
-        a, v, _ = self._side_signals(ctx)
+        a, v, _ = self.side_signals(ctx)
         return v, {"load": "q̇", "motor": "θ̇_m", "spring": "θ̇_s"}[self.side] + " [rad/s]"
 
 
@@ -298,7 +189,7 @@ class InertiaC(Candidate):
         return {"dI": float(beta[0])}
 
     def regressor(self, ctx, theta=None):
-        _, _, acc = self._side_signals(ctx)
+        _, _, acc = self.side_signals(ctx)
         return acc, ("q̈" if self.side == "load" else "θ̈_m") + " [rad/s²]"
 
 
@@ -326,7 +217,7 @@ class GravityC(Candidate):
         return {"a": (0.0, np.inf), "phi": (-2 * math.pi, 2 * math.pi)}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return a, "q [rad]"
 
 
@@ -347,7 +238,7 @@ class HumanViscoelasticC(Candidate):
         return {"k_h": k, "q_h0": q0, "b_h": float(beta[2])}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return a, "q [rad]"
 
 
@@ -358,7 +249,7 @@ class SpringCubicC(Candidate):
 
     def implausible(self, ctx, params):
         # the spring must stay a spring: K_s + 3 k3 θ_s² > 0 over the deflections of the log
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         K = float(ctx.model.K_s[self.joint, self.joint])
         th = float(np.max(np.abs(a)))
         if K + 3.0 * params["k3"] * th**2 <= 0.1 * K:
@@ -372,7 +263,7 @@ class SpringCubicC(Candidate):
         return {"k3": float(beta[0])}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return a, "θ_s [rad]"
 
 
@@ -481,7 +372,7 @@ class StribeckC(Candidate):
     size_param = "F_s"
 
     def grid(self, ctx):
-        _, v, _ = self._side_signals(ctx)
+        _, v, _ = self.side_signals(ctx)
         vmax = max(float(np.percentile(np.abs(v), 99)), 1e-3)
         return list(np.geomspace(0.005, 2.0 * vmax, 28))
 
@@ -511,7 +402,7 @@ class CoggingC(Candidate):
     MIN_PERIODS = 2.0
 
     def implausible(self, ctx, params):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         n_per = params["periods"] * float(np.ptp(a)) / (2 * math.pi)
         if n_per < self.MIN_PERIODS:
             return (f"{params['periods']:.3g} periods per radian repeat only {n_per:.2g} times over the log's travel "
@@ -521,7 +412,7 @@ class CoggingC(Candidate):
     size_param = "A"
 
     def grid(self, ctx):
-        a, v, _ = self._side_signals(ctx)
+        a, v, _ = self.side_signals(ctx)
         # resolvable at the sample rate: P |θ̇_m| dt < π/2 for most samples
         vmax = max(float(np.percentile(np.abs(v), 90)), 1e-6)
         pmax = min(0.5 * math.pi / (vmax * ctx.kin.dt), 2000.0)
@@ -540,7 +431,7 @@ class CoggingC(Candidate):
 
     def fast_design(self, ctx, theta):
         """The same columns, unsmoothed, from the effect's torque alone (cogging is additive)."""
-        a, v, c = self._side_signals(ctx)
+        a, v, c = self.side_signals(ctx)
         return tuple(self._on_side(ctx, self.effect({"A": 1.0, "periods": float(theta), "phi": phi}).torque_array(a, v, c))
                      for phi in (0.0, math.pi / 2))
 
@@ -552,7 +443,7 @@ class CoggingC(Candidate):
         return {"A": (0.0, np.inf), "periods": (1e-3, np.inf), "phi": (-2 * math.pi, 2 * math.pi)}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         if theta:
             return np.mod(theta * a, 2 * math.pi), "P·θ_m mod 2π [rad]"
         return a, "θ_m [rad]"
@@ -565,7 +456,7 @@ class SpringSaturationC(Candidate):
     size_param = "k_stop"
 
     def grid(self, ctx):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         qs = np.percentile(np.abs(a), [40, 97])
         return list(np.linspace(max(qs[0], 1e-4), max(qs[1], 2e-4), 20))
 
@@ -576,11 +467,11 @@ class SpringSaturationC(Candidate):
         return {"theta_max": float(theta), "k_stop": float(beta[0])}
 
     def bounds(self, ctx):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return {"theta_max": (1e-5, float(np.max(np.abs(a)))), "k_stop": (1e-6, np.inf)}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return a, "θ_s [rad]"
 
 
@@ -597,7 +488,7 @@ class BacklashC(Candidate):
     def implausible(self, ctx, params):
         # a dead band that holds most deflections of the log leaves the spring carrying no
         # torque most of the time: that is not play, it is the model switching the spring off
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         inside = float(np.mean(np.abs(a) < 0.5 * params["width"]))
         if inside > 0.5:
             return (f"a dead band of {params['width']:.4g} rad holds {100 * inside:.0f} % of the log's spring "
@@ -611,7 +502,7 @@ class BacklashC(Candidate):
         With a deflection of one sign only, a dead band is an exactly constant spring-torque
         offset, indistinguishable from an encoder offset: no evidence of backlash, no width.
         """
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         # up to a dead band that holds half the deflections (wider is not play: see implausible)
         wmax = 2.0 * float(np.median(np.abs(a)))
         ws = np.linspace(wmax / 30, wmax, 30)
@@ -626,12 +517,16 @@ class BacklashC(Candidate):
 
     def bounds(self, ctx):
         # up to a dead band that holds half the log's deflections (see implausible)
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return {"width": (0.0, 2.0 * float(np.median(np.abs(a))))}
 
     def regressor(self, ctx, theta=None):
-        a, _, _ = self._side_signals(ctx)
+        a, _, _ = self.side_signals(ctx)
         return a, "θ_s [rad]"
+
+
+#: the longest delay a configuration may declare (the effect's range, core.effects.PARAM_RANGES)
+_MAX_DELAY_S = PARAM_RANGES[("delay", "seconds")][1]
 
 
 class DelayC(Candidate):
@@ -643,7 +538,7 @@ class DelayC(Candidate):
 
     def grid(self, ctx):
         dt = ctx.kin.dt
-        return list(np.linspace(dt / 8, 8 * dt, 40))
+        return list(np.linspace(dt / 8, min(8 * dt, _MAX_DELAY_S), 40))
 
     def design(self, ctx, theta):
         return self._unit(ctx, seconds=float(theta)), np.zeros((ctx.r0.size, 0))
@@ -652,7 +547,7 @@ class DelayC(Candidate):
         return {"seconds": float(theta)}
 
     def bounds(self, ctx):
-        return {"seconds": (0.0, 20 * ctx.kin.dt)}
+        return {"seconds": (0.0, min(20 * ctx.kin.dt, _MAX_DELAY_S))}
 
     def regressor(self, ctx, theta=None):
         k = ctx.kin
@@ -691,7 +586,6 @@ _CLASSES = {
 
 def build_candidates(ctx: Context, types=None) -> list[Candidate]:
     """Every vocabulary type × every side it may sit on × every joint (``types`` to restrict)."""
-    from sea_daemon.core.effects import EFFECT_TYPES
     out = []
     for typ, eff_cls in EFFECT_TYPES.items():
         if types is not None and typ not in types:
@@ -699,7 +593,5 @@ def build_candidates(ctx: Context, types=None) -> list[Candidate]:
         cls = _CLASSES[typ]
         for side in eff_cls.sides:
             for j in range(ctx.n):
-                c = cls(side, j)
-                c._n = ctx.n
-                out.append(c)
+                out.append(cls(side, j, ctx.n))
     return out

@@ -26,10 +26,14 @@ mapped back.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from scipy.optimize import nnls
 
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.linalg import discretize
 from sea_daemon.errors import InputError
 
 
@@ -231,34 +235,15 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     Returns a dict with R, Q (G = I, the AKF's Σ_nom convention), the operating point,
     the number of innovations used and the spectral radius of A − A L C.
     """
-    from sea_daemon.core.estimators.akf import AKF
-    from sea_daemon.core.linalg import discretize
-
     n = cfg.joints
     N = len(log)
     if N <= burn_in + 2 * lags + 1:
         raise InputError(f"{log.path}: identify-noise needs more than {burn_in + 2 * lags + 1} samples "
                          f"(burn-in {burn_in} + 2 × {lags} lags), got {N}")
     akf = AKF(cfg, dt=log.dt)
-    model = akf.model
-    Y = np.empty((N, 4 * n))
-    X = np.empty((N, 5 * n))
-    U = np.empty((N, n))                      # input applied over step k → k+1
-    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
-    Y[0], X[0] = akf.y, akf.x
-    for k in range(1, N):
-        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
-        U[k - 1] = akf.u_applied if akf.has_delay else log.tau_m[k - 1]
-        Y[k], X[k] = akf.y, akf.x
-    U[N - 1] = log.tau_m[N - 1]
-    dt = float(np.median(np.diff(log.t)))
+    Y, X, U = _akf_run(akf, log)
     x_op, u_op = X.mean(axis=0), U.mean(axis=0)
-    A = model.F_nom(x_op, u_op)
-    # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
-    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
-    dx_op, G_u = Gam[:, 0], Gam[:, 1:]
-    # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
-    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    F, G_u, c = _linearised(akf.model, x_op, u_op, float(np.median(np.diff(log.t))))
     if channels not in ("angles", "all"):
         raise InputError(f"channels must be 'angles' or 'all', got {channels!r}")
     p = 2 * n if channels == "angles" else 4 * n
@@ -266,23 +251,9 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     Y = Y[:, :p]
     R0 = np.array(cfg.estimator.R, dtype=float)[:p, :p]
     Q0 = np.array(cfg.estimator.Sigma_nom, dtype=float)
-    try:
-        L = stable_gain(F, H, Q0 + 1e-12 * np.eye(5 * n), R0 + 1e-12 * np.eye(p))
-    except (np.linalg.LinAlgError, ValueError) as e:
-        raise InputError(f"identify-noise: no stabilising filter gain for the linearised model ({e}); "
-                         f"check estimator.R and estimator.Sigma_nom") from None
+    L = _fixed_gain(F, H, Q0, R0)
     e = innovations(F, H, L, Y, x0=X[0], Bu=U @ G_u.T + c)
-    basis = None
-    if channels == "angles":
-        # y_angles = [θ_m, θ_s] = T_e [θ_m,enc, q_enc] + noise of two independent encoders per joint:
-        # θ_m sees ν_m, θ_s = q − θ_m sees ν_q − ν_m  ⇒  R = Σ_j σ²_m,j B_m,j + σ²_q,j B_q,j
-        basis = []
-        for j in range(n):
-            t_m = np.zeros(2 * n)
-            t_m[j], t_m[n + j] = 1.0, -1.0
-            t_q = np.zeros(2 * n)
-            t_q[n + j] = 1.0
-            basis += [np.outer(t_m, t_m), np.outer(t_q, t_q)]
+    basis = _encoder_basis(n) if channels == "angles" else None
     # process noise enters through the velocity and τ_h,act states only (G = [0; I_3n]):
     # angles integrate the velocities, so their own per-step noise is not identifiable from
     # measurement noise on them and is physically negligible
@@ -301,6 +272,60 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
         Rhat = encoder_R(th[0::2], th[1::2], akf.kin.C)
     return {"R": Rhat, "channels": channels, "encoder_variances": enc, "fir": np.asarray(akf.kin.C, float), "Q": Qhat, "x_op": x_op, "u_op": u_op, "innovations": int(N - burn_in),
             "lags": lags, "spectral_radius": rad}
+
+
+def _akf_run(akf, log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1 of :func:`identify_noise`: the AKF over the log; per sample its measurement y (N, 4n),
+    its state x̂ (N, 5n) and the input u that acted over step k → k+1 (N, n)."""
+    n, N = akf.model.n, len(log)
+    Y = np.empty((N, 4 * n))
+    X = np.empty((N, 5 * n))
+    U = np.empty((N, n))
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    Y[0], X[0] = akf.y, akf.x
+    for k in range(1, N):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        U[k - 1] = akf.u_applied if akf.has_delay else log.tau_m[k - 1]
+        Y[k], X[k] = akf.y, akf.x
+    U[N - 1] = log.tau_m[N - 1]
+    return Y, X, U
+
+
+def _linearised(model, x_op: np.ndarray, u_op: np.ndarray, dt: float):
+    """Step 2 of :func:`identify_noise`: x⁺ ≈ F x + Γ_u u + c about the operating point."""
+    n = model.n
+    A = model.F_nom(x_op, u_op)
+    # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
+    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
+    dx_op, G_u = Gam[:, 0], Gam[:, 1:]
+    # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
+    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    return F, G_u, c
+
+
+def _fixed_gain(F: np.ndarray, H: np.ndarray, Q0: np.ndarray, R0: np.ndarray) -> np.ndarray:
+    """The stable fixed gain of :func:`identify_noise` (DARE with the configured Σ_nom, R), or
+    InputError."""
+    try:
+        return stable_gain(F, H, Q0 + 1e-12 * np.eye(F.shape[0]), R0 + 1e-12 * np.eye(H.shape[0]))
+    except (np.linalg.LinAlgError, ValueError) as e:
+        raise InputError(f"identify-noise: no stabilising filter gain for the linearised model ({e}); "
+                         f"check estimator.R and estimator.Sigma_nom") from None
+
+
+def _encoder_basis(n: int) -> list[np.ndarray]:
+    """R of y_angles as Σ_j σ²_m,j B_m,j + σ²_q,j B_q,j: the matrices B (m, q per joint).
+
+    y_angles = [θ_m, θ_s] = T_e [θ_m,enc, q_enc] + noise of two independent encoders per joint:
+    θ_m sees ν_m, θ_s = q − θ_m sees ν_q − ν_m."""
+    basis = []
+    for j in range(n):
+        t_m = np.zeros(2 * n)
+        t_m[j], t_m[n + j] = 1.0, -1.0
+        t_q = np.zeros(2 * n)
+        t_q[n + j] = 1.0
+        basis += [np.outer(t_m, t_m), np.outer(t_q, t_q)]
+    return basis
 
 
 #: floor for identified variances of the "all"-channel mode, so a configuration stays valid
@@ -333,7 +358,6 @@ def floored_R(cfg, res: dict) -> tuple[np.ndarray, dict | None, list]:
 def config_with_R(cfg, R: np.ndarray, Q: np.ndarray | None = None):
     """``cfg`` with estimator.R = R and P0's measurement block = R (Sec. V-B: P0 set to R);
     with ``Q`` also Sigma_nom = Q."""
-    import dataclasses
     n = cfg.joints
     est = cfg.estimator
     P0 = np.array(est.P0, dtype=float)

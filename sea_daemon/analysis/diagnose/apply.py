@@ -5,8 +5,8 @@ load, τ_h,act = 0).  The point of the model is the logs where the truth is *not
 person pushes the load and there is no torque sensor.  :func:`apply_model` runs the AKF
 (Alg. 1) over such a log with the model before and after the diagnosis and returns τ̂_h,act
 with its bound, next to the spring torque τ_s = K_s θ_s that a plain SEA torque readout
-would show; :func:`plot_applied` draws them; :func:`claims` says what can and cannot be
-concluded from them without a torque sensor.
+would show; :func:`claims` says what can and cannot be concluded from them without a torque
+sensor (the report draws them: :func:`sea_daemon.apps.diagnose.report.plot_applied`).
 
 The bound drawn is the filter's own confidence interval, √(χ²_{5n}(1−δ) P_ττ) (the
 Theorem-1 set of the KF with a point set of means, docs/estimators.md): it holds under the
@@ -14,16 +14,14 @@ filter's noise model and says nothing about model errors the diagnosis did not f
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
 from sea_daemon.errors import EstimatorFault
-from sea_daemon.apps.diagnose.evaluate import akf_run
-from sea_daemon.apps.diagnose.prepare import prepare_log
+from sea_daemon.analysis.diagnose.evaluate import akf_run
+from sea_daemon.analysis.diagnose.prepare import prepare_log
 
 
 def apply_model(log: MeasuredLog, cfg_before: ModelConfig, cfg_after: ModelConfig) -> dict:
@@ -67,37 +65,6 @@ def theorem1_summary(log: MeasuredLog, cfg: ModelConfig, scale: float) -> dict:
     rho = np.where(np.isfinite(rho), rho, np.inf)
     return {"diverged": False, "median": float(np.median(rho)), "max": float(np.max(rho)),
             "share_vacuous": float(np.mean(rho > scale))}
-
-
-def plot_applied(res: dict, path: Path, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = res["t"]
-    n = res["tau_s"].shape[1]
-    fig, axes = plt.subplots(n + 1, 1, figsize=(10, 3.6 * n + 2.4), sharex=True, squeeze=False,
-                             gridspec_kw={"height_ratios": [3] * n + [1.4]})
-    for j in range(n):
-        ax = axes[j, 0]
-        ax.plot(t, res["tau_s"][:, j], color="k", lw=1.0, label="spring torque K_s θ_s")
-        for key, col, lab in (("before", "tab:red", "AKF, model before"), ("after", "tab:blue", "AKF, model after")):
-            h, b = res[key]["hat"][:, j], res[key]["bound"][:, j]
-            ax.fill_between(t, h - b, h + b, color=col, alpha=0.15, lw=0)
-            ax.plot(t, h, color=col, lw=0.8, label=f"{lab} (± bound)")
-        if res["truth"] is not None:
-            ax.plot(t, res["truth"][:, j], "k:", lw=1.2, label="truth")
-        ax.axhline(0, color="k", lw=0.4)
-        ax.set_ylabel(f"τ̂_h,act{'' if n == 1 else f'[{j + 1}]'} [N m]")
-        ax.legend(loc="upper right", fontsize=8)
-    ax = axes[n, 0]
-    ax.plot(t, res["q"], lw=0.9)
-    ax.set_ylabel("q [rad]")
-    ax.set_xlabel("t [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def claims(summary: dict, reference: dict) -> list[str]:

@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from sea_daemon.analysis.als import encoder_R, identify_noise
 from sea_daemon.core.config import KinematicsConfig, ModelConfig
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.core.kinematics import CausalDifferentiator, smooth_derivatives
@@ -115,7 +116,6 @@ def causal_measurements(log: MeasuredLog, cfg: ModelConfig) -> tuple[np.ndarray,
 
 def measurement_noise(log: MeasuredLog, cfg: ModelConfig, als: bool = True) -> tuple[np.ndarray, dict]:
     """R (4n×4n, diagonal) and what it rests on (module docstring)."""
-    from sea_daemon.core.als import encoder_R, identify_noise
     n = cfg.joints
     vq, vm = _quantisation(cfg)
     enc_q, enc_m = np.full(n, vq), np.full(n, vm)
