@@ -25,6 +25,8 @@ kernel=$(ls -1 /boot/vmlinuz-*-amd64 | sort -V | tail -n 1)
 
 # numba's cache entries are per CPU: the guest runs on QEMU's CPU and loads the entries compiled
 # for the generic x86-64 one, compiled here natively beside the host's (no recompilation in the VM)
+# (of this checkout's package, whichever one is installed)
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 NUMBA_CPU_NAME=generic python .ci/compile.py 0 2 & first=$!
 NUMBA_CPU_NAME=generic python .ci/compile.py 1 2
 wait "$first"
