@@ -3,12 +3,14 @@
 Bus kinds: ``virtual`` (python-can, in-process), ``ipc`` (:mod:`sea_daemon.hw.ipc_bus`, UNIX datagram
 sockets), ``remote`` (python-can-remote: a
 ``python -m can_remote`` server subprocess, both sides join over websockets) and ``socketcan``
-(``vcan0``, skipped with the reason when the kernel has none).  The device model's physics is
+(``vcan0``, skipped with the reason when the kernel has none; marked ``socketcan``, and with
+``SEA_DAEMON_REQUIRE_SOCKETCAN=1`` a missing ``vcan0`` fails instead of skipping).  The device model's physics is
 the simulator's true plant (:class:`sea_daemon.core.sim.plant.Plant`), recording its steps.
 """
 from __future__ import annotations
 
 import dataclasses
+import os
 import socket
 import subprocess
 import sys
@@ -25,6 +27,21 @@ from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
 from sea_daemon.runtime.rig import Rig, device_model_rig
 
 BUS_KINDS = ["virtual", "ipc", "remote", "socketcan"]
+
+#: set to 1 where a SocketCAN ``vcan0`` must exist (the virtual machine of ``.ci/vcan.sh``):
+#: its absence then fails the socketcan tests instead of skipping them
+REQUIRE_SOCKETCAN = "SEA_DAEMON_REQUIRE_SOCKETCAN"
+
+
+def need_socketcan(channel: str = "vcan0") -> None:
+    """Skip the calling test, with the reason, when ``channel`` is no SocketCAN interface here;
+    fail it instead when ``SEA_DAEMON_REQUIRE_SOCKETCAN=1``."""
+    ok, why = socketcan_available(channel)
+    if ok:
+        return
+    if os.environ.get(REQUIRE_SOCKETCAN, "") == "1":
+        pytest.fail(f"socketcan: {why} ({REQUIRE_SOCKETCAN}=1)", pytrace=False)
+    pytest.skip(f"socketcan: {why}")
 
 
 class RecordingPlant(Plant):
@@ -117,13 +134,11 @@ def remote_url():
         server.close()
 
 
-@pytest.fixture(params=BUS_KINDS)
+@pytest.fixture(params=[pytest.param(k, marks=pytest.mark.socketcan) if k == "socketcan" else k for k in BUS_KINDS])
 def bus_kind(request):
     kind = request.param
     if kind == "socketcan":
-        ok, why = socketcan_available("vcan0")
-        if not ok:
-            pytest.skip(f"socketcan: {why}")
+        need_socketcan("vcan0")
     return kind
 
 

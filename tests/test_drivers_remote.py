@@ -35,17 +35,18 @@ pytestmark = pytest.mark.skipif(not _have_simulator(),
 
 
 class DeviceProcess:
-    """``python -m sea_daemon device-model`` in a child process; bounded start and clean-up."""
+    """``python -m sea_daemon device-model`` in a child process on ``bus`` (remote by default) and
+    ``channel``; bounded start and clean-up."""
 
-    def __init__(self, url: str, *args: str):
+    def __init__(self, channel: str, *args: str, bus: str = "remote", duration: float = 120.0, ready_s: float = 30.0):
         env = dict(os.environ, PYTHONPATH=str(repo_root()) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", "remote",
-                                      "--channel", url, "--duration", "120", *args],
+        self.proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", bus,
+                                      "--channel", channel, "--duration", str(duration), *args],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         lines: queue.Queue = queue.Queue()
         threading.Thread(target=lambda: [lines.put(x) for x in self.proc.stdout], daemon=True).start()
         try:
-            line = lines.get(timeout=30)
+            line = lines.get(timeout=ready_s)
         except queue.Empty:
             line = ""
         if "device-model ready" not in line:

@@ -147,11 +147,11 @@ def test_client_and_watch_against_a_run(model, tmp_path):
 
 
 class CanListener:
-    """Frames of the daemon's node on the remote bus, received in this process."""
+    """Frames of the daemon's node on a bus (the remote one by default), received in this process."""
 
-    def __init__(self, url: str, ids):
+    def __init__(self, url: str, ids, interface: str = "remote"):
         import can
-        self.bus = can.Bus(interface="remote", channel=url)
+        self.bus = can.Bus(interface=interface, channel=url)
         self.ids = set(ids)
         self.frames: list = []
         self._stop = threading.Event()
