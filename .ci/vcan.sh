@@ -43,7 +43,7 @@ echo "vcan: ${expected} socketcan tests; booting $(basename "$kernel") under QEM
 accel=(--disable-kvm)
 [ "${VCAN_KVM:-0}" = 1 ] && accel=()
 # through a pipe: QEMU opens its standard output anew, which would truncate a log file
-{ rc=0; timeout 3600 "$vng" --run "$kernel" "${accel[@]}" --memory 4G --cpus 2 --rw --cwd "$PWD" \
+{ rc=0; timeout 2400 "$vng" --run "$kernel" "${accel[@]}" --memory 4G --cpus 2 --rw --cwd "$PWD" \
     --exec "sh .ci/vcan-guest.sh '$py' '$out'" || rc=$?; echo "$rc" > "$out/vng_rc"; } 2>&1 | cat
 rc=$(cat "$out/vng_rc")
 t2=$(date +%s)

@@ -200,7 +200,7 @@ def test_generalize_reads_its_own_cache_back_and_only_for_its_key(tmp_path, monk
 
 
 def test_a_cache_directory_others_can_write_is_not_used(tmp_path):
-    from sea_daemon.apps.bench.logcache import private_dir
+    from sea_daemon.apps.bench._logcache import private_dir
     d = tmp_path / "cache"
     d.mkdir(mode=0o700)
     assert private_dir(d) is None

@@ -65,7 +65,10 @@ def test_watch_started_before_run_shows_the_run_and_ctrl_c_exits_0(tmp_path):
     out_path, err_path = tmp_path / "watch.out", tmp_path / "watch.err"
     with open(out_path, "w") as out, open(err_path, "w") as err:
         watch = subprocess.Popen([sys.executable, "-m", "sea_daemon", "watch", "--state-dir", str(d), "--plain",
-                                  "--refresh", "0.2"], stdout=out, stderr=err, env=ENV)
+                                  "--refresh", "0.2"], stdout=out, stderr=err, env=ENV,
+                                 # as at a terminal: a suite started in the background (nohup, &)
+                                 # passes SIGINT on ignored, and Python then keeps it ignored
+                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # the watcher is up and says it waits (it would have exit 2 before any daemon without waiting)
         wait_for(lambda: "waiting for a daemon" in err_path.read_text(), 60, "watch's waiting message", watch)

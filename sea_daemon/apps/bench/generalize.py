@@ -36,7 +36,7 @@ import numpy as np
 
 from sea_daemon.apps.bench import choose, machine
 from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
-from sea_daemon.apps.bench.logcache import load_logs, private_dir, save_logs
+from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
@@ -81,7 +81,7 @@ def parse_seeds(text: str) -> list[int]:
 
 def plant_logs(seed: int, cal_s: float, cache: Path | None):
     """(plant, calibration log, {session: log}) of plant ``seed``, simulated or from the cache
-    (:mod:`.logcache`: numbers only; the plant is drawn again from its seed)."""
+    (:mod:`._logcache`: numbers only; the plant is drawn again from its seed)."""
     pd = draw_plant(seed)
     p = None if cache is None else cache / f"plant_{seed}_{int(cal_s)}.npz"
     key = {"seed": seed, "cal_s": cal_s, "sessions": [s.name for s in sessions(pd)]}
