@@ -34,7 +34,6 @@ class ModelTables:
         self.params = model.dynamics
         #: the same in the packed form the kernels take
         self.dynamics = model.kernel
-        self._args = (self.dynamics,)
 
     @staticmethod
     def supports(model) -> bool:

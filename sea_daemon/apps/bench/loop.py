@@ -83,8 +83,6 @@ from sea_daemon.runtime.publish import make_publisher
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.service import serve
 
-NAME = "loop"
-HELP = "fixed-rate loop: jitter, overruns, CPU per cycle, device answer latency, CAN bus load (100 Hz / 1 kHz)"
 
 
 def add_arguments(p) -> None:

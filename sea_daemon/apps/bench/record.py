@@ -49,8 +49,6 @@ from sea_daemon.io.logcsv import read_log
 from sea_daemon.errors import Fault
 from sea_daemon.errors import InputError
 
-NAME = "record"
-HELP = "the measured log through faults: device model stopped, disk full, service killed and restarted"
 DESCRIPTION = __doc__
 ATTACKS = ("device_model_stopped", "disk_full", "restart")
 ROW_BYTES = 150                 # about one row of the daemon's log, one joint

@@ -45,8 +45,6 @@ from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.runtime.bound_worker import BoundWorker
 from sea_daemon.runtime.service import WORKER_PRIORITY_BELOW
 
-NAME = "soak"
-HELP = "long run: loop + CAN + device model + GP-AKF learning online + log writer; memory, overruns, rows"
 DESCRIPTION = __doc__
 
 
