@@ -120,7 +120,7 @@ def test_dry_run_commands_no_assistance_but_logs_and_publishes_it():
     # the same controller without the dry run commands it
     ctl2 = AssistController(cfg, dry_run=False)
     _, written2 = loop_run(cfg, Scripted(), ctl2)
-    assert written2[-1] == pytest.approx(comp[-1] + 1.7, abs=1e-3)
+    assert written2[-1] == pytest.approx(ctl2.tau_comp[0] + 1.7, abs=1e-9)
 
 
 def test_the_log_has_a_tau_assist_column_after_the_loop_columns():

@@ -30,6 +30,7 @@ error; pushes against the subject while the estimate was not valid; ``faults``.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import tempfile
@@ -72,6 +73,8 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=36.0, help="task duration [s] per run (default 36: four cycles)")
     p.add_argument("--cal-s", type=float, default=60.0, help="calibration excitation [s] (default 60)")
     p.add_argument("--out", default=None, help="directory for the model files and arrays (default: a temp dir)")
+    p.add_argument("--reuse-calibration", action="store_true",
+                   help="use again the model files a calibration of the same plant left in --out (development)")
     add_json_argument(p, "the per-plant figures")
 
 
@@ -93,26 +96,33 @@ def _check(args) -> list[int]:
 
 # ---------------------------------------------------------------------------- the README flow
 def save_yaml(d: dict, path: Path) -> None:
+    """``d`` as YAML to ``path`` (atomically)."""
     atomic_write_text(path, yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
 
 
 def robot_file(pd, cal_s: float) -> dict:
     """What the user writes for plant ``pd`` (docs/setup.md §2): the nominal robot, its hardware,
-    the rate and the ``calibration`` section (working range, excitation length, declared wearer)."""
+    the rate and the ``calibration`` section — the plant's working range and the excitation's
+    length; the wearer as the README's example and the defaults declare it (0.1–1 Hz, 1.5 N m RMS:
+    a task of moves of seconds, as the tracking task is)."""
     wr = pd.working_range
     cal = CalibrationConfig(q_min_deg=math.degrees(wr.q_min), q_max_deg=math.degrees(wr.q_max), v_max=wr.v_max,
-                            a_max=wr.a_max, duration_s=cal_s, human_band_hz=tuple(pd.human_band_hz),
-                            human_torque_rms=pd.human_rms, seed=0)
+                            a_max=wr.a_max, duration_s=cal_s, seed=0)
     d = dataclasses.replace(pd.nominal, calibration=cal).to_dict()
     return {k: d[k] for k in ("joints", "rate_hz", "model", "hardware", "calibration")}
 
 
-def calibrated_files(seed: int, rate: float, cal_s: float, out: Path):
+def calibrated_files(seed: int, rate: float, cal_s: float, out: Path, reuse: bool = False):
     """``calibrate --excitation --fit`` on plant ``seed``, then ``assist.enabled: true`` in the
-    model YAML: (plant, path of the assist YAML, path of the model file, calibration figures)."""
+    model YAML: (plant, path of the assist YAML, path of the model file, calibration figures).
+    ``reuse``: the files a calibration of the same robot file left in ``out`` are used again."""
     pd = draw_plant(seed, rate_hz=rate)
     out.mkdir(parents=True, exist_ok=True)
-    save_yaml(robot_file(pd, cal_s), out / "robot.yaml")
+    robot = yaml.safe_dump(robot_file(pd, cal_s), sort_keys=False, default_flow_style=None)
+    kept = out / "model_assist.yaml", out / "model.npz", out / "calibration.json"
+    if reuse and all(f.is_file() for f in kept) and (out / "robot.yaml").read_text() == robot:
+        return pd, kept[0], kept[1], {**json.loads(kept[2].read_text()), "reused": True}
+    atomic_write_text(out / "robot.yaml", robot)
     cfg = load_config(out / "robot.yaml")
     t0 = time.perf_counter()
     log = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
@@ -125,25 +135,29 @@ def calibrated_files(seed: int, rate: float, cal_s: float, out: Path):
     info = {"calibration_s": round(time.perf_counter() - t0, 1), "gp_kept": bool(rep.get("gp_kept")),
             "effects": [f"{e['type']}({e['side']})" for e in rep.get("diagnose", {}).get("effects_added", [])],
             "q_tau": rep.get("tau_h_act_walk", {}).get("q_tau")}
+    atomic_write_text(kept[2], json.dumps(info))
     return pd, out / "model_assist.yaml", npz_path, info
 
 
 # ---------------------------------------------------------------------------- one task run
-def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None, seed: int) -> dict:
+def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None, seed: int,
+             compensation=None) -> dict:
     """The tracking task on plant ``pd`` in the daemon's loop over the simulated rig, with the
-    estimator and controller ``run`` builds from ``cfg`` and ``model_path`` (``gain`` 0: the
-    exoskeleton only compensates itself).  The recorded arrays, the fault and the controller's summary."""
+    estimator and controller ``run`` builds from ``cfg`` and ``model_path`` (``gain`` 0: no
+    assistance; ``compensation``: the configuration whose model the compensation uses, default
+    ``cfg``).  The recorded arrays, the fault and the controller's summary."""
     n, dt = cfg.joints, cfg.dt
+    ccfg = cfg if compensation is None else dataclasses.replace(cfg, model=compensation.model)
     q0 = np.full(n, math.radians(task.q_deg[0]))
     z = np.zeros(n)
-    comp = SEAModel.from_config(cfg).load_torque(q0, z, z)
+    comp = SEAModel.from_config(ccfg).load_torque(q0, z, z)
     kw = dict(seed=seed, substep_hz=max(1000.0, cfg.rate_hz), sign_eps=3e-3)
     tau0 = Plant(pd.true, q0=q0, **kw).hold_torque - comp        # the subject holds what compensation does not
     plant = Plant(pd.true, q0=q0, tau_h_act0=tau0, **kw)
     subject = TrackingSubject(task, plant, dt, tau0=tau0)
     hw = SimHardware(plant, dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=subject)
     est = run_estimator(cfg, model_path)
-    ctl = AssistController(cfg, gain=gain, subject=subject.tau)
+    ctl = AssistController(ccfg, gain=gain, subject=subject.tau)
     N = int(round(seconds * cfg.rate_hz))
     rec = {k: np.zeros(N) for k in ("t", "q", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "state")}
     box = {}
@@ -185,6 +199,8 @@ def run_metrics(r: dict, dt: float) -> dict:
     while the assistance acts, pushes against the subject (while valid and while not)."""
     m = r["t"] >= SKIP_S
     tau_h, ta, valid = r["tau_h_act"][m], r["tau_assist"][m], r["valid"][m] > 0
+    # the controller of cycle k acts on the estimate of cycle k - 1
+    used = np.concatenate([[False], r["valid"][:-1] > 0])[m]
     err = r["hat"][m] - tau_h
     acts = valid & (ta != 0.0)
     against = (ta * tau_h < 0.0) & (np.abs(ta) > 0.05) & (np.abs(tau_h) > 0.05)
@@ -200,8 +216,8 @@ def run_metrics(r: dict, dt: float) -> dict:
             "rho_mean_acting": float(np.mean(r["rho"][m][acts])) if acts.any() else None,
             "track_rms_deg": _rms(np.degrees(r["q"][m] - r["q_target"][m])),
             "against_share": float(np.mean(against)),
-            "pushes_while_invalid": int(np.sum((~valid) & (ta != 0.0))),
-            "pushes_against_while_invalid": int(np.sum((~valid) & against)),
+            "pushes_while_invalid": int(np.sum((~used) & (ta != 0.0))),
+            "pushes_against_while_invalid": int(np.sum((~used) & (ta * tau_h < 0.0))),
             "fault": r["fault"], "fault_cycle": r["fault_cycle"], "wall_s": round(r["wall_s"], 1)}
 
 
@@ -209,16 +225,18 @@ def run_plant(seed: int, args, task, out: Path) -> dict:
     """The README flow and the two task runs on plant ``seed``: its row of the JSON."""
     row: dict = {"seed": seed, "rate_hz": args.rate, "effort_reduction": None, "engaged_share": None, "faults": []}
     try:
-        pd, yaml_path, npz_path, info = calibrated_files(seed, args.rate, args.cal_s, out / f"plant_{seed}")
+        pd, yaml_path, npz_path, info = calibrated_files(seed, args.rate, args.cal_s, out / f"plant_{seed}",
+                                                         reuse=args.reuse_calibration)
     except Exception as e:        # a calibration that refuses or fails is this plant's result
         row.update(calibration_error=f"{type(e).__name__}: {e}"[:400], faults=["calibration: refused or failed"])
         return row
     row.update(plant=pd.summary, calibration=info)
     cfg = load_config(yaml_path)
+    robot = load_config(yaml_path.parent / "robot.yaml")
     runs = {}
-    for name, gain in (("reference", 0.0), ("assisted", None)):
+    for name, gain, comp in (("reference", 0.0, None), ("assisted", None, None), ("robot_only", 0.0, robot)):
         try:
-            r = task_run(pd, cfg, npz_path, task, args.seconds, gain, seed=3000 + seed)
+            r = task_run(pd, cfg, npz_path, task, args.seconds, gain, seed=3000 + seed, compensation=comp)
         except Exception as e:    # an internal error of a run is a benchmark result, with its trace
             row["faults"].append(f"{name}: internal error {type(e).__name__}: {e}"[:300])
             row.setdefault("traceback", traceback.format_exc()[-1500:])
@@ -228,9 +246,10 @@ def run_plant(seed: int, args, task, out: Path) -> dict:
             row["faults"].append(f"{name}: {r['fault']} at cycle {r['fault_cycle']}: {r['detail']}"[:300])
         if args.out:
             np.savez(out / f"plant_{seed}" / f"{name}.npz", **{k: v for k, v in r.items() if isinstance(v, np.ndarray)})
-    ref, ass = runs["reference"], runs["assisted"]
+    ref, ass, rob = runs["reference"], runs["assisted"], runs["robot_only"]
     s = ass["controller"]
     row.update(effort_reduction=1.0 - ass["tau_h_rms"] / ref["tau_h_rms"] if ref["tau_h_rms"] > 0 else None,
+               effort_reduction_vs_robot_only=1.0 - ass["tau_h_rms"] / rob["tau_h_rms"] if rob["tau_h_rms"] > 0 else None,
                engaged_share=s["engaged_share"], not_engaged=s["not_engaged"], rho_avg_mean=s["rho_avg_mean"],
                coverage_acting=ass["coverage_acting"], pushes_against_while_invalid=ass["pushes_against_while_invalid"],
                runs=runs)
@@ -281,20 +300,25 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
+def _f3(x) -> str:
+    return "n/a" if x is None else f"{x:.3f}"
+
+
 def describe_row(row: dict) -> str:
     if "runs" not in row:
         return f"plant {row['seed']}: " + "; ".join(row["faults"])
-    a = row["runs"]["assisted"]
+    a, ref = row["runs"]["assisted"], row["runs"]["reference"]
     ne = ", ".join(f"{k} {v}" for k, v in row["not_engaged"].items() if v) or "none"
-    cov = "n/a" if a["coverage_acting"] is None else f"{a['coverage_acting']:.3f}"
     return (f"plant {row['seed']}: effort reduction {_pct(row['effort_reduction'])}, engaged {_pct(row['engaged_share'])} "
-            f"(not engaged, cycles: {ne}); while assisting: coverage {cov}, RMSE {a['est_rmse_acting']}, mean rho "
-            f"{a['rho_mean_acting']}; reference RMSE {row['runs']['reference']['est_rmse_valid']}; pushes against the "
-            f"subject while invalid {a['pushes_against_while_invalid']}; faults: {'; '.join(row['faults']) or 'none'}")
+            f"(not engaged, cycles: {ne}; mean averaged bound {_f3(row['rho_avg_mean'])} N m); while assisting: "
+            f"coverage {_f3(a['coverage_acting'])}, RMSE {_f3(a['est_rmse_acting'])}, mean rho {_f3(a['rho_mean_acting'])} "
+            f"N m; reference run: RMSE {_f3(ref['est_rmse_valid'])}, coverage {_f3(ref['coverage_valid'])}; pushes "
+            f"against the subject while invalid {a['pushes_against_while_invalid']}; faults: "
+            f"{'; '.join(row['faults']) or 'none'}")
 
 
 def describe_summary(s: dict) -> str:
     return (f"{s['plants']} plant(s): effort reduction min {_pct(s['effort_reduction_min'])}, engaged share min "
-            f"{_pct(s['engaged_share_min'])}, coverage while assisting min {s['coverage_acting_min']}, plants with "
+            f"{_pct(s['engaged_share_min'])}, coverage while assisting min {_f3(s['coverage_acting_min'])}, plants with "
             f"faults {s['plants_with_faults']}, pushes against the subject while invalid "
             f"{s['pushes_against_while_invalid']}")
