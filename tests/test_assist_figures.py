@@ -169,23 +169,22 @@ def test_effort_reduction_where_the_subjects_torque_is_known():
 # ---------------------------------------------------------------------------- run and bench, end to end
 @pytest.mark.slow
 def test_run_assist_dry_run_summary_and_log(tmp_path, capsys):
+    from _model import small_model
     from _paths import repo_root
-    from sea_daemon.core.learning import ResidualGP
     from sea_daemon.io.configfile import load_config, save_config
-    from sea_daemon.io.gpmodel import save_gp_model
     from sea_daemon.io.logcsv import read_log
 
     root = repo_root()
     cfg = load_config(root / "configs" / "exo_1dof_assist.yaml")
     cfg = dataclasses.replace(cfg, assist=dataclasses.replace(cfg.assist, enabled=True))
     save_config(cfg, tmp_path / "assist.yaml")
-    save_gp_model(tmp_path / "m.npz", cfg, ResidualGP.from_config(cfg), {"command": "test"})
+    small_model(cfg, tmp_path / "m.npz")
     track = str(root / "configs" / "scenarios" / "assist_track.yaml")
     rc = main(["run", "--config", str(tmp_path / "assist.yaml"), "--model", str(tmp_path / "m.npz"), "--sim", track,
                "--log-dir", str(tmp_path), "--cycles", "300", "--assist-dry-run", "--socket", "none"])
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     summary = json.loads([ln for ln in out.splitlines() if ln.startswith("{")][-1])
-    assert rc == 0 and summary["controller"] == "assist-dry-run"
+    assert rc == 0 and summary["controller"] == "assist-dry-run", (summary["fault"], err[-500:])
     a = summary["assist"]
     assert a["mode"] == "dry_run" and set(a["not_engaged"]) == {"fault", "invalid", "rho_above_max", "below_bound"}
     assert sum(a["not_engaged"].values()) + round(a["engaged_share"] * a["joint_cycles"]) == 300
