@@ -36,6 +36,7 @@ from sea_daemon.errors import Fault, InputError
 
 __all__ = ["Sample", "Subscriber", "daemon_uid", "sender_uid", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids", "tpdo_cycles",
            "SOCKET_NAME", "FLAG_FAULT", "FLAG_ASSIST_ON", "FLAG_ASSIST_ENGAGED", "FLAG_ESTIMATOR",
+           "FLAG_ASSIST_DRY_RUN",
            "TPDO_JOINT", "TPDO_STATUS"]
 
 #: the daemon's socket in its state directory
@@ -53,6 +54,7 @@ FLAG_FAULT = 1 << 0            # a fault is latched (zero torque)
 FLAG_ASSIST_ON = 1 << 1        # the assist controller runs
 FLAG_ASSIST_ENGAGED = 1 << 2   # it commands assistance (τ_assist ≠ 0 on some joint)
 FLAG_ESTIMATOR = 1 << 3        # an estimator runs
+FLAG_ASSIST_DRY_RUN = 1 << 4   # dry run: τ_assist computed and published, not commanded
 
 # subscription requests (client -> daemon)
 SUBSCRIBE = struct.Struct("<4sHH")

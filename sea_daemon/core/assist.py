@@ -18,7 +18,11 @@ no larger (|τ_cert| ≤ |τ̄_h,act|).  The assistance is
     τ_assist → τ_target at most ``max_rate`` per second,
 
 and 0 *in the same step* when the estimate is not valid (start-up, a latched fault: the loop
-then gives no estimate) — the averages restart from the next valid estimate.  So the
+then gives no estimate) — the averages restart from the next valid estimate.  Each step
+records per joint why the assistance is what it is (:attr:`AssistLaw.state`, counted in
+:attr:`AssistLaw.counts`): :data:`ENGAGED` (τ_target ≠ 0), :data:`INVALID` (no valid estimate),
+:data:`RHO_ABOVE_MAX` (ρ̄ > ρ_max), :data:`BELOW_BOUND` (|τ̄̂| ≤ ρ̄ + τ_db: the bound certifies
+no effort of the subject).  So the
 assistance points where the subject pushes, is at most α times the certified part of its
 effort, and shrinks continuously when the bound grows (no switching).  α < 1 would never give
 more than the subject does; α = 2 (the default) gives twice the certified part, so at rest the
@@ -39,6 +43,13 @@ import math
 import numpy as np
 
 from sea_daemon.errors import EstimatorFault, Fault
+
+
+#: why a joint's assistance is what it is in a step (:attr:`AssistLaw.state`), in the order of
+#: :data:`STATES`: engaged (τ_target ≠ 0); no valid estimate; ρ̄ above ρ_max; the bound certifies
+#: no effort (|τ̄̂| ≤ ρ̄ + deadband)
+ENGAGED, INVALID, RHO_ABOVE_MAX, BELOW_BOUND = range(4)
+STATES = ("engaged", "invalid", "rho_above_max", "below_bound")
 
 
 class InnovationOutlier(EstimatorFault):
@@ -72,6 +83,14 @@ class AssistLaw:
         self.tau_hat_avg = np.zeros(self.n)  # τ̄̂: the estimate averaged over smoothing_s
         self.rho_avg = np.zeros(self.n)      # ρ̄: the bound averaged the same way
         self._fresh = np.ones(self.n, dtype=bool)
+        self.state = np.full(self.n, INVALID, dtype=np.int64)
+        self.counts = np.zeros((self.n, len(STATES)), dtype=np.int64)
+        self.rho_sum = np.zeros(self.n)
+
+    def clear_counts(self) -> None:
+        """Start counting the states afresh."""
+        self.counts[:] = 0
+        self.rho_sum[:] = 0.0
 
     def reset(self) -> None:
         """No assistance (start, fault, operator reset); the averages restart."""
@@ -83,6 +102,7 @@ class AssistLaw:
     def step(self, tau_hat, rho, valid: bool) -> np.ndarray:
         """One control step with the last estimate; ``valid`` False (or a non-finite value) gives 0 at once."""
         out, tgt, trust, tbar, rbar = self.tau, self.target, self.trust, self.tau_hat_avg, self.rho_avg
+        state, counts = self.state, self.counts
         b = self.beta
         for j in range(self.n):
             th = float(tau_hat[j]) if valid else 0.0
@@ -90,6 +110,8 @@ class AssistLaw:
             if not (valid and math.isfinite(th) and math.isfinite(r) and r >= 0.0):
                 out[j] = tgt[j] = trust[j] = 0.0
                 self._fresh[j] = True
+                state[j] = INVALID
+                counts[j, INVALID] += 1
                 continue
             if self._fresh[j]:
                 tbar[j], rbar[j] = th, r
@@ -99,13 +121,22 @@ class AssistLaw:
                 rbar[j] += b * (r - rbar[j])
             mag = abs(tbar[j])
             cert = mag - rbar[j] - self.deadband
-            if cert > 0.0 and rbar[j] <= self.rho_max:
+            self.rho_sum[j] += rbar[j]
+            if rbar[j] > self.rho_max:
+                st = RHO_ABOVE_MAX
+            elif cert > 0.0:
+                st = ENGAGED
+            else:
+                st = BELOW_BOUND
+            if st == ENGAGED:
                 trust[j] = cert / mag
                 g = min(self.gain * cert, self.max_torque)
                 t = g if tbar[j] > 0.0 else -g
             else:
                 trust[j] = 0.0
                 t = 0.0
+            state[j] = st
+            counts[j, st] += 1
             tgt[j] = t
             out[j] += max(-self.max_step, min(self.max_step, t - out[j]))
         return out

@@ -335,9 +335,10 @@ class AssistConfig:
     smoothing_s: float = 0.6       # [s] time constant over which τ̂ and ρ are averaged before the gate (0: none)
     innovation_max: float = 1.0e4  # a step whose normalised innovation νᵀS⁻¹ν exceeds this is a fault
     compensation: str = "nominal"  # nominal: + the nominal model's static load torque; none: τ_assist alone
+    dry_run: bool = False          # τ_assist computed, logged and published, not commanded
 
     KEYS = ["enabled", "gain", "deadband", "rho_max", "max_torque", "max_rate", "smoothing_s", "innovation_max",
-            "compensation"]
+            "compensation", "dry_run"]
     COMPENSATIONS = ("nominal", "none")
 
     @classmethod
@@ -347,6 +348,9 @@ class AssistConfig:
         enabled = d.get("enabled", False)
         if not isinstance(enabled, bool):
             raise ConfigError(source, k + "enabled", f"must be true or false, got {enabled!r}")
+        dry_run = d.get("dry_run", False)
+        if not isinstance(dry_run, bool):
+            raise ConfigError(source, k + "dry_run", f"must be true or false, got {dry_run!r}")
         comp = d.get("compensation", "nominal")
         if comp not in cls.COMPENSATIONS:
             raise ConfigError(source, k + "compensation",
@@ -366,7 +370,7 @@ class AssistConfig:
             smoothing_s=validate.num(source, k + "smoothing_s", d.get("smoothing_s", cls.smoothing_s), lo=0.0, hi=10.0),
             innovation_max=validate.num(source, k + "innovation_max", d.get("innovation_max", cls.innovation_max),
                                         positive=True),
-            compensation=comp)
+            compensation=comp, dry_run=dry_run)
 
     def to_dict(self) -> dict:
         return {key: getattr(self, key) for key in self.KEYS}

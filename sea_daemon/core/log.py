@@ -29,9 +29,11 @@ ESTIMATE = ("tau_h_act_hat", "tau_h_act_bound", "tau_h_act_sigma")
 LOOP = ("valid", "fault", "cycle", "period", "compute", "read", "measured", "bound_cycle")
 #: the loop's row after the log's columns, not in the CSV, for the log writer's other outputs
 #: (the LSL stream and the MCAP recording, docs/interfaces.md §7): the loop's clock at the
-#: cycle's start [s], once per row, and the assistance τ_assist [N m] per joint (0 without an
-#: assist-as-needed controller and while a fault is latched)
+#: cycle's start [s], once per row
 SINK_LOOP = ("cycle_start",)
+#: the daemon log's last per-joint column, after :data:`LOOP`, in the CSV and the other outputs:
+#: the assistance τ_assist [N m] (the assist-as-needed controller's, computed and not commanded
+#: in a dry run; 0 without one and while a fault is latched)
 SINK_JOINT = ("tau_assist",)
 
 
@@ -43,9 +45,8 @@ def column_names(base: str, n: int) -> list[str]:
 @dataclass(frozen=True)
 class DaemonLogLayout:
     """The daemon log's row for ``n`` joints: ``t``, :data:`REQUIRED` and :data:`ESTIMATE` per
-    joint, then :data:`LOOP` (``columns``, the CSV's); the loop's row goes on with
-    :data:`SINK_LOOP` and :data:`SINK_JOINT` per joint (``sink_columns``; ``width`` values in
-    all).  Each per-joint quantity is a ``slice`` of the row, each loop column an index,
+    joint, then :data:`LOOP` and :data:`SINK_JOINT` per joint (``columns``, the CSV's); the
+    loop's row goes on with :data:`SINK_LOOP` (``sink_columns``; ``width`` values in all).  Each per-joint quantity is a ``slice`` of the row, each loop column an index,
     ``estimate`` the slice of all three estimate blocks: ``row[layout.tau_m] = tau``."""
 
     n: int
@@ -86,10 +87,10 @@ class DaemonLogLayout:
         for name in LOOP:
             at[name] = len(columns)
             columns.append(name)
+        at["tau_assist"] = slice(len(columns), len(columns) + n)
+        columns += column_names(SINK_JOINT[0], n)
         sink = list(SINK_LOOP)
         at["cycle_start"] = len(columns)
-        at["tau_assist"] = slice(len(columns) + len(sink), len(columns) + len(sink) + n)
-        sink += column_names(SINK_JOINT[0], n)
         return cls(n=n, columns=tuple(columns), sink_columns=tuple(sink), **at)
 
 

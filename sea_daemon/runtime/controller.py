@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from sea_daemon.core.assist import AssistLaw
+from sea_daemon.core.assist import STATES, AssistLaw
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm
 from sea_daemon.core.model import SEAModel
@@ -136,16 +136,24 @@ class AssistController:
     of the last estimate the loop passes — τ̂_h,act and its bound ρ_k — and zero while there is
     none (start-up, a latched fault) or it is not valid.  ``gain`` overrides ``assist.gain``
     (0: the exoskeleton only compensates itself, the "transparent" baseline of a task).
+    ``dry_run`` overrides ``assist.dry_run``: τ_assist is computed (logged and published by the
+    loop) but not commanded — the motor torque is the compensation alone.
 
     After each update :attr:`tau_assist` (n,) [N m], :attr:`trust` (n,) and :attr:`tau_comp`
-    (n,) [N m] hold what the command was made of.
+    (n,) [N m] hold what the command was made of.  ``subject``: where a simulated subject's
+    active torque τ_h,act (n,) is read (an array updated in place, e.g. the tracking subject's
+    ``tau``): the effort figures of :meth:`summary` need it.
     """
 
-    def __init__(self, cfg: ModelConfig, *, gain: float | None = None):
+    def __init__(self, cfg: ModelConfig, *, gain: float | None = None, dry_run: bool | None = None,
+                 subject: np.ndarray | None = None):
         self.n = cfg.joints
         self.limit = cfg.hardware.torque_limit
         a = cfg.assist if gain is None else dataclasses.replace(cfg.assist, gain=float(gain))
+        if dry_run is not None:
+            a = dataclasses.replace(a, dry_run=bool(dry_run))
         self.cfg = a
+        self.dry_run = a.dry_run
         self.law = AssistLaw(a, self.n, cfg.dt)
         self._model = SEAModel.from_config(cfg) if a.compensation == "nominal" else None
         self._z = np.zeros(self.n)
@@ -153,6 +161,9 @@ class AssistController:
         self.tau_comp = np.zeros(self.n)
         self.tau_assist = self.law.tau
         self.trust = self.law.trust
+        self.subject = subject
+        self.steps = 0                              # updates since the start (the cycles it ran)
+        self._effort = np.zeros(2)                  # Σ|τ_h,act|², Σ|τ_h,act + τ_assist|² (with a subject)
 
     @property
     def gain(self) -> float:
@@ -165,6 +176,65 @@ class AssistController:
             self.law.step(self._z, self._z, False)
         else:
             self.law.step(estimate.tau_h_act_hat, estimate.tau_h_act_bound, bool(estimate.valid))
-        np.add(self.tau_comp, self.law.tau, out=self._out)
+        self.steps += 1
+        if self.subject is not None:
+            h = self.subject
+            a = self.law.tau
+            for j in range(self.n):
+                self._effort[0] += h[j] * h[j]
+                self._effort[1] += (h[j] + a[j]) * (h[j] + a[j])
+        if self.dry_run:
+            self._out[:] = self.tau_comp
+        else:
+            np.add(self.tau_comp, self.law.tau, out=self._out)
         np.clip(self._out, -self.limit, self.limit, out=self._out)
         return self._out
+
+    def summary(self, cycles: int) -> dict:
+        """The run's assistance figures over ``cycles`` loop cycles (docs/assist.md, "The run's
+        figures"): the share of joint-cycles the assistance was engaged and, for the others, why
+        not — ``fault`` (the controller did not run: a latched fault, no sample), ``invalid``
+        (no valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
+        bound; the effort reduction where the subject's torque is known (None otherwise, with
+        the reason)."""
+        c = self.law.counts.sum(axis=0)
+        total = max(int(cycles), self.steps) * self.n
+        ran = int(c.sum())
+        counts = {name: int(c[i]) for i, name in enumerate(STATES)}
+        valid = ran - counts["invalid"]
+        out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
+               "gain": self.gain, "rho_max": self.law.rho_max, "joint_cycles": total,
+               "engaged_share": counts["engaged"] / total if total else 0.0,
+               "not_engaged": {"fault": total - ran, "invalid": counts["invalid"],
+                               "rho_above_max": counts["rho_above_max"], "below_bound": counts["below_bound"]},
+               "rho_avg_mean": float(self.law.rho_sum.sum() / valid) if valid else None}
+        out["effort_reduction"], out["effort_note"] = self._effort_reduction()
+        return out
+
+    def _effort_reduction(self) -> tuple[float | None, str]:
+        """1 − RMS(τ_h,act) / RMS(τ_h,act + τ_assist): the share of the active torque the task took
+        that the assistance gave, where the subject's torque is known."""
+        if self.subject is None:
+            return None, "not measurable in this run: the subject's torque is not known (sea-daemon bench assist measures it)"
+        if self.dry_run:
+            return None, "dry run: no assistance commanded"
+        h, both = self._effort
+        if not both > 0.0:
+            return None, "not measurable in this run: no active torque"
+        return float(1.0 - np.sqrt(h / both)), "1 - RMS(tau_h_act) / RMS(tau_h_act + tau_assist), simulated subject"
+
+
+def describe_assist(a: dict) -> str:
+    """One line of :meth:`AssistController.summary`: the engaged share and why it was not engaged."""
+    ne = a["not_engaged"]
+    why = {"rho_above_max": "the averaged bound above assist.rho_max", "invalid": "no valid estimate",
+           "fault": "a fault latched or no sample", "below_bound": "the bound certified no effort"}
+    parts = [f"{why[k]} {v} cycle(s)" for k, v in sorted(ne.items(), key=lambda kv: -kv[1]) if v]
+    rho = a["rho_avg_mean"]
+    line = (f"assistance ({a['mode']}, gain {a['gain']:g}) engaged {100 * a['engaged_share']:.1f} % of "
+            f"{a['joint_cycles']} joint-cycles; not engaged: " + ("; ".join(parts) if parts else "never"))
+    if rho is not None:
+        line += f"; mean averaged bound {rho:.3g} N m (rho_max {a['rho_max']:g})"
+    if a["effort_reduction"] is not None:
+        line += f"; effort reduction {100 * a['effort_reduction']:.1f} %"
+    return line

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea_daemon.client import (CREDS, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER,
+from sea_daemon.client import (CREDS, FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER,
                                JOINT, LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
 from sea_daemon.errors import InputError
 from sea_daemon.hw.canopen_publish import TpdoPublisher
@@ -241,6 +241,8 @@ class Publisher:
         self.clock = clock
         self.assist = getattr(controller, "tau_assist", None)
         self.assist_on = self.assist is not None and getattr(controller, "gain", 0.0) > 0.0
+        # a dry run: the assistance is computed and published, the motor does not get it
+        self.dry_run = FLAG_ASSIST_DRY_RUN if (self.assist_on and getattr(controller, "dry_run", False)) else 0
         self.has_estimator = has_estimator
         self.hat = [0.0] * self.n
         self.bound = [INF] * self.n
@@ -281,7 +283,8 @@ class Publisher:
                 if self.assist[j] != 0.0:
                     engaged = True
         flags = ((FLAG_FAULT if fault else 0) | (FLAG_ASSIST_ON if self.assist_on else 0)
-                 | (FLAG_ASSIST_ENGAGED if engaged and not fault else 0) | (FLAG_ESTIMATOR if self.has_estimator else 0))
+                 | (FLAG_ASSIST_ENGAGED if engaged and not fault else 0) | (FLAG_ESTIMATOR if self.has_estimator else 0)
+                 | self.dry_run)
         if self.tpdo is not None:
             self.tpdo.send(k, hat, bound, vmask, fault, flags)
         loc = self.local

@@ -6,6 +6,8 @@ from sea_daemon.apps.commands import Command, add_commands
 #: the benchmarks, one module each in :mod:`sea_daemon.apps.bench`, in the order ``sea-daemon bench
 #: --help`` lists them; only the chosen one's module is imported
 BENCHMARKS = (
+    Command("assist", "assist",
+            "assistance on plants of the generalisation family by the README flow alone: effort, engaged share, faults"),
     Command("can-cycle", "can_cycle", "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"),
     Command("faults", "faults",
             "fault injection over the device model: detection, cycles to zero torque, false alarms"),

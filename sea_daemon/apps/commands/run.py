@@ -40,7 +40,8 @@ from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.gpmodel import load_gp_model
 from sea_daemon.io.scenario import load_scenario
-from sea_daemon.runtime.controller import AssistController, ScenarioController, ZeroTorque
+from sea_daemon.errors import InputError
+from sea_daemon.runtime.controller import AssistController, ScenarioController, ZeroTorque, describe_assist
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.publish import make_publisher
 from sea_daemon.runtime.rig import make_rig
@@ -59,6 +60,9 @@ def add_arguments(p) -> None:
                         "--sim scenario's, zero torque otherwise (estimation only)")
     p.add_argument("--lsl", action="store_true", default=None,
                    help="stream the estimate as a Lab Streaming Layer outlet (publish.lsl; pip install sea-daemon[lsl])")
+    p.add_argument("--assist-dry-run", action="store_true",
+                   help="with assist.enabled: compute, log and publish the assistance without commanding it "
+                        "(assist.dry_run; the motor torque is the compensation alone)")
     p.add_argument("--mcap", action="store_true", default=None,
                    help="record the run in DIR/run-<UTC time>.mcap beside the CSV log (publish.mcap; "
                         "pip install sea-daemon[mcap])")
@@ -66,6 +70,9 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     cfg, log_dir, state_dir, realtime = daemon_args.load(args)
+    if args.assist_dry_run and not cfg.assist.enabled:
+        raise InputError(f"--assist-dry-run: {args.config} has assist.enabled: false; set it true to compute the "
+                         "assistance")
     for output in ("lsl", "mcap"):
         if getattr(args, output) or getattr(cfg.publish, output):
             require(output)                                    # exit 2: pip install sea-daemon[...]
@@ -74,24 +81,35 @@ def run(args) -> int:
         return _run(args, cfg, log_dir, state_dir, state, realtime)
 
 
-def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
-    residual, meta = load_gp_model(args.model, cfg)             # ModelFileError → exit 2, one line
+def run_estimator(cfg, model_path):
+    """The estimator ``run`` runs for ``cfg`` and the model file ``model_path``: a calibrated model
+    (sea-daemon fit, calibrate --fit) gives the GP-AKF on the augmented model with the
+    variance-weighted residual (the AKF when the calibration kept no GP), any other the GP-AKF
+    with the file's residual, learning off; with ``assist.enabled`` behind the innovation check."""
+    residual, meta = load_gp_model(model_path, cfg)             # ModelFileError → exit 2, one line
     # the Theorem-1 bound ρ_k is what the log's tau_h_act_bound publishes (docs/bounds.md);
     # its GP constants (estimator.gp_beta) are those of the loaded model, computed at the first reset
-    # a calibrated model (sea-daemon fit, calibrate --fit): the GP-AKF on the augmented model with
-    # the variance-weighted residual (the AKF when the calibration kept no GP)
     estimator = estimator_from_model(cfg, residual, meta, dt=cfg.dt, bound=theorem_bound)
     if estimator is None:
         estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, residual=residual, learning=False)
+    if cfg.assist.enabled:
+        # a filter step whose innovation is an outlier is a fault: zero torque in that cycle
+        estimator = InnovationGuard(estimator, cfg.assist.innovation_max)
+    return estimator
+
+
+def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
+    estimator = run_estimator(cfg, args.model)
     rig = make_rig(cfg, sim=args.sim, device_model=args.device_model, phase="estimation")
     scen = args.scenario or args.device_model or args.sim
     sc = load_scenario(scen) if scen else None
+    # the simulated tracking subject's torque, for the summary's effort figures
+    subject = getattr(rig.tau_h_act, "tau", None)
     if cfg.assist.enabled:
-        controller, kind = AssistController(cfg), "assist"
-        # a filter step whose innovation is an outlier is a fault: zero torque in that cycle
-        estimator = InnovationGuard(estimator, cfg.assist.innovation_max)
+        controller = AssistController(cfg, dry_run=True if args.assist_dry_run else None, subject=subject)
+        kind = "assist-dry-run" if controller.dry_run else "assist"
     elif sc is not None and sc.human == "track":
-        controller, kind = AssistController(cfg, gain=0.0), "transparent"
+        controller, kind = AssistController(cfg, gain=0.0, subject=subject), "transparent"
     elif sc is not None:
         controller, kind = ScenarioController(sc, cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
                                               estimation_from=0), "scenario"
@@ -116,6 +134,9 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
                "stopped_by_signal": res.stopped_by_signal, "controller": kind,
                "publish": res.extra.get("publish"), "bound": res.extra.get("bound"),
                "outputs": res.log.get("sinks", [])}
+    if isinstance(controller, AssistController):
+        summary["assist"] = controller.summary(st.cycles)
+        log.info(describe_assist(summary["assist"]))
     print(json.dumps(summary))
     if not sup.ok:
         log.error(sup.status_line())

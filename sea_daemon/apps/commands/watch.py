@@ -24,7 +24,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from sea_daemon.client import FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, Subscriber, default_socket
+from sea_daemon.client import FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, Subscriber, default_socket
 from sea_daemon.errors import InputError
 
 DESCRIPTION = __doc__
@@ -135,7 +135,8 @@ class View:
         silent = time.monotonic() - self.last_wall
         fault = "none" if not s.fault else f"\x1b[1;31m{s.fault_name} — torque zero, reset needed\x1b[0m"
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
-                  "on, engaged" if s.flags & FLAG_ASSIST_ENGAGED else "on, idle")
+                  ("dry run (not commanded)" if s.flags & FLAG_ASSIST_DRY_RUN else "on")
+                  + (", engaged" if s.flags & FLAG_ASSIST_ENGAGED else ", idle"))
         head = (f"sea-daemon watch  {sock}   cycle {s.cycle}   t {s.t:.2f} s   fault: {fault}   "
                 f"assist: {assist}   received {sub.received}, missed {sub.missed}, rejected {sub.rejected}")
         if silent > 1.0:
