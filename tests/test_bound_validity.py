@@ -59,7 +59,7 @@ def test_a_bound_at_the_covariance_cap_is_never_valid(passive):
     """A GP error bound far beyond anything physical (configured β 1e5) drives the set of means to
     the caps of bounded P, where it is held (no longer an outer set): never valid, reason
     covariance_cap (the start-up gate alone would open at once, ρ being far above its transient)."""
-    cfg = _cfg(gp_beta=1e5, bound_limit=1e6)
+    cfg = _cfg(gp_beta=1e5)
     est = make_estimator("gp-akf", cfg, dt=cfg.dt, train=passive.training.slice(0, 600))
     log = passive.estimation.slice(0, 300)
     res = replay(log, est)
@@ -128,8 +128,9 @@ def test_the_gp_error_is_held_as_long_in_seconds_at_every_rate():
     Sigma_nom_dt says (a calibration at 1 kHz writes 1 ms): per second the filter believes the GP
     as much at 1 kHz as at 100 Hz (per cycle it believed it ten times more there, and at the
     standstills the set of means ran away to the caps)."""
-    from sea_daemon.core.estimators.akf import AKF, GP_HOLD_S
+    from sea_daemon.core.estimators.akf import AKF
     from sea_daemon.core.rates import at_rate
+    GP_HOLD_S = 0.01
     cfg = _cfg(Sigma_nom_dt=0.001)
     per_second = {}
     for rate in (100.0, 1000.0):
