@@ -419,16 +419,20 @@ def test_init_after_kinematics_starts_with_the_measured_velocity():
 
 def test_an_estimate_is_valid_only_once_the_filter_runs():
     """Estimate.valid: False at the reset sample, while the differentiator's window fills
-    (init_after_kinematics) and until the start-up gate opens, then True; the spring estimate
-    once its velocity is a velocity."""
+    (init_after_kinematics) and until the start-up gate opens, then True — for an AKF whose
+    bound has a model-error term (a declared estimator.model_error); without one never, nor the
+    spring estimate (docs/estimators.md, "Validity")."""
+    import dataclasses
+    from sea_daemon.core.bounds.akf_bound import theorem_bound
     from sea_daemon.core.estimators.spring import SpringTorqueEstimator
     cfg = load_config(default_config_path())
-    for est in (AKF(cfg), SpringTorqueEstimator(cfg)):
+    declared = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, model_error=0.5))
+    for est in (AKF(declared, bound=theorem_bound), AKF(cfg), AKF(declared), SpringTorqueEstimator(cfg)):
         flags = [est.reset(np.array([0.1]), np.array([0.1]), np.array([0.0])).valid]
         for k in range(1, 200):
             flags.append(est.update(np.array([0.1 + 0.001 * k]), np.array([0.1]), np.array([0.0])).valid)
-        if isinstance(est, SpringTorqueEstimator):
-            first = est.kin.L - 1
+        if isinstance(est, SpringTorqueEstimator) or est.bound is None:
+            first = len(flags)     # no term for the model error in the bound: never valid
         else:   # the filter runs from sample L on, valid once its start-up transient decayed (the gate)
             first = est.converged_at
             assert first >= est.kin.L

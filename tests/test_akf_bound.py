@@ -400,7 +400,8 @@ def test_the_extrapolation_term_is_added_to_eta_unscaled_by_beta():
     assert etas[1e-4] >= x0[0] - 1e-12 and etas[1.0] > etas[1e-4]
 
 
-@pytest.mark.parametrize("case", ["akf", "lederer", "local", "local+rate", "gp-friction"])
+@pytest.mark.parametrize("case", ["akf", "akf+model_error", "akf+model_error+rate", "lederer", "local", "local+rate",
+                                  "gp-friction"])
 def test_compiled_step_gives_the_python_steps_rho(case):
     """bound_core.bound_step (the daemon's compiled step) against the Python step it replaces:
     the same ρ_k, GP error, linearisation error, box violations and choices of the range form,
@@ -414,6 +415,9 @@ def test_compiled_step_gives_the_python_steps_rho(case):
     if case.startswith("local"):
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(
             cfg.estimator, gp_beta=1.5, tau_h_act_rate=4.0 if case == "local+rate" else 0.0))
+    if case.startswith("akf+"):         # a plain AKF's declared model error (and rate): [Γ_μ e | Γ_τ r]
+        cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(
+            cfg.estimator, model_error=0.3, tau_h_act_rate=4.0 if case.endswith("rate") else 0.0))
     if case == "gp-friction":
         true = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, effects=tuple(cfg.model.effects) + (
             make_effect("coulomb", "load", F_c=0.5, eps=0.003),)))
@@ -426,7 +430,7 @@ def test_compiled_step_gives_the_python_steps_rho(case):
         log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8, tau_h=lambda t: np.array([0.5 * np.sin(4 * t)]))
     outs, bounds = [], []
     for compiled in (False, True):
-        if case == "akf":
+        if case.startswith("akf"):
             est = make_estimator("akf", cfg)
         else:
             est = make_estimator("gp-akf", cfg, train=train)
@@ -443,6 +447,8 @@ def test_compiled_step_gives_the_python_steps_rho(case):
         assert bounds[0].range_steps_ > 0
         assert np.mean(np.abs(outs[0][1:, 0] - log.tau_h_act[1:, 0]) <= outs[0][1:, 1]) >= 0.95
     np.testing.assert_allclose(bounds[1].sm.G_, bounds[0].sm.G_, rtol=1e-10, atol=1e-14)
+    if case.startswith("akf+"):
+        assert bounds[0].model_error_term and outs[0][-1, 1] > 0.2   # the term is in ρ_k (e = 0.3 N m)
 
 
 def test_compiled_step_is_skipped_while_the_gp_learns():

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.estimators.validity import ABOVE_LIMIT, COVARIANCE_CAP
 from sea_daemon.io.configfile import load_config
 from _paths import repo_root
 from sea_daemon.io.scenario import load_scenario
@@ -28,15 +29,27 @@ def test_a_reset_while_the_subject_pushes_is_invalid_until_the_error_is_inside_t
         assert log.tau_h_act[start, 0] < -3.9
         e = est.reset(log.q[start], log.theta_m[start], log.tau_m[start])
         valid, inside = [e.valid], [abs(e.tau_h_act_hat[0] - log.tau_h_act[start, 0]) <= e.tau_h_act_bound[0]]
+        rho = [e.tau_h_act_bound[0]]
         for k in range(start + 1, start + 200):
             e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
             valid.append(e.valid)
             inside.append(abs(e.tau_h_act_hat[0] - log.tau_h_act[k, 0]) <= e.tau_h_act_bound[0])
-        valid, inside = np.array(valid), np.array(inside)
+            rho.append(e.tau_h_act_bound[0])
+        valid, inside, rho = np.array(valid), np.array(inside), np.array(rho)
+        if config == "exo_1dof.yaml":
+            # the paper's R (θ_m std 0.2 rad): the set of means is held at the angle caps and ρ_k
+            # ≈ 30 N m, above the torque limit: never a real estimate (docs/estimators.md, "Validity")
+            assert not valid.any() and e.invalid_reason in (COVARIANCE_CAP, ABOVE_LIMIT)
+            assert e.tau_h_act_bound[0] > cfg.hardware.torque_limit
+            continue
         first = int(np.argmax(valid))
-        assert est.converged_at == first and 0 < first <= 30 and valid[first:].all()     # measured 7 / 8
+        assert est.converged_at == first and 0 < first <= 30                            # measured 7 / 8
+        # from then on valid while ρ_k is a useful bound (≤ hardware.torque_limit; the 600 training
+        # samples do not cover the whole session, ρ_k reaches 17-20 N m where z leaves them)
+        useful = rho[first:] <= cfg.hardware.torque_limit
+        assert np.array_equal(valid[first:], useful) and useful[:20].all()
         assert not inside[:first].all()               # the transient is outside the bound ...
-        assert inside[first:].all()                   # ... and every valid estimate inside it
+        assert inside[valid].all()                    # ... and every valid estimate inside it
 
 
 def test_the_gate_opens_only_once_the_initial_error_has_decayed():
@@ -52,7 +65,7 @@ def test_the_gate_opens_only_once_the_initial_error_has_decayed():
         e = akf.update(q, th, np.zeros(1))
         if e.k >= akf.kin.L:
             t.append(akf.gate.transient[0])
-            assert e.valid == (t[-1] <= 0.1 * e.tau_h_act_bound[0])
+            assert akf.converged == (t[-1] <= 0.1 * e.tau_h_act_bound[0])   # the gate (the AKF: no model-error term)
         assert e.k < 500
     assert t[0] > t[-1] and t[-1] <= 0.1 * e.tau_h_act_bound[0]
     # a larger declared torque at the start takes longer to decay

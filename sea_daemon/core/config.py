@@ -121,10 +121,18 @@ class EstimatorConfig:
     # the oldest bound the loop publishes, in cycles behind the estimate (worker only); older:
     # the estimate is not valid in that cycle
     bound_max_age: int = 3
+    # the usefulness limit of the published bound (Estimate.valid): a ρ_k above this [N m] is not a
+    # valid estimate; None: tau_h_act_max (hardware.torque_limit), a wider bound says less than the limit
+    bound_limit: float | None = None
+    # a plain AKF's declared bound on its model's load-side torque error [N m] (|f_true − f_model|,
+    # the term the Theorem-1 bound needs for its estimate to be valid; a GP-AKF's GP error takes its
+    # place); 0: none declared, and the AKF's estimate is never valid
+    model_error: float = 0.0
 
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
             "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
-            "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside", "bound_in", "bound_max_age"]
+            "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside", "bound_in", "bound_max_age",
+            "bound_limit", "model_error"]
     BOUND_IN = ("auto", "worker", "loop")
 
     @classmethod
@@ -181,6 +189,10 @@ class EstimatorConfig:
         t_max = d.get("tau_h_act_max")
         if t_max is not None:
             t_max = validate.num(source, "estimator.tau_h_act_max", t_max, positive=True)
+        b_lim = d.get("bound_limit")
+        if b_lim is not None:
+            b_lim = validate.num(source, "estimator.bound_limit", b_lim, positive=True, hi=1e6)
+        model_error = validate.num(source, "estimator.model_error", d.get("model_error", 0.0), lo=0.0, hi=1e6)
         def _bool(key):
             v = d.get(key, True)
             if not isinstance(v, bool):
@@ -198,7 +210,8 @@ class EstimatorConfig:
                    Sigma_nom_dt=S_dt, tau_m_noise=tau_m_noise, gp_noise_in_Q=gp_noise,
                    init_after_kinematics=init_kin, tau_h_act_rate=rate, tau_h_act_max=t_max,
                    tau_h_act_walk_outside=walk_out,
-                   bound_in=bound_in, bound_max_age=_int("bound_max_age", 3, 1, 100000))
+                   bound_in=bound_in, bound_max_age=_int("bound_max_age", 3, 1, 100000),
+                   bound_limit=b_lim, model_error=model_error)
 
     def to_dict(self) -> dict:
         def dg(a):
@@ -213,7 +226,9 @@ class EstimatorConfig:
                 **({"tau_h_act_walk_outside": self.tau_h_act_walk_outside} if self.tau_h_act_walk_outside else {}),
                 **({} if self.tau_h_act_max is None else {"tau_h_act_max": self.tau_h_act_max}),
                 **({} if self.bound_in == "auto" else {"bound_in": self.bound_in}),
-                **({} if self.bound_max_age == 3 else {"bound_max_age": self.bound_max_age})}
+                **({} if self.bound_max_age == 3 else {"bound_max_age": self.bound_max_age}),
+                **({} if self.bound_limit is None else {"bound_limit": self.bound_limit}),
+                **({"model_error": self.model_error} if self.model_error else {})}
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ import numpy as np
 
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.log import MeasuredLog, column_names
+from sea_daemon.core.estimators.validity import REASONS, reason_counts
 
 STATE_NAMES = ("theta_m_hat", "theta_s_hat", "dtheta_m_hat", "dtheta_s_hat")
 
@@ -35,6 +36,8 @@ class ReplayResult:
     #: (N,) the sample whose ρ row k publishes (−1: none); None: each row's own (a bound computed
     #: in the step).  A daemon log of a bound worker: the log's ``bound_cycle`` as a sample index.
     bound_of: np.ndarray | None = None
+    #: (N,) Estimate.invalid_reason per sample (0 where valid; validity.REASONS), or None
+    reason: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -53,12 +56,13 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
     bnd = np.zeros((N, n))
     xs = np.zeros((N, 5 * n))
     ok = np.zeros(N, dtype=bool)
+    why = np.zeros(N, dtype=np.int64)
     times = np.zeros(max(N - 1, 0)) if clock is not None else None
     k = 0
     try:
         e = estimator.reset(log.q[0], log.theta_m[0], log.tau_m[0])
         hat[0], sig[0], bnd[0], xs[0] = e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound, e.x_hat
-        ok[0] = e.valid
+        ok[0], why[0] = e.valid, getattr(e, "invalid_reason", 0)
         for k in range(1, N):
             dt = log.t[k] - log.t[k - 1]
             if clock is not None:
@@ -68,7 +72,7 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
             else:
                 e = estimator.update(log.q[k], log.theta_m[k], log.tau_m[k], dt)
             hat[k], sig[k], bnd[k], xs[k] = e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound, e.x_hat
-            ok[k] = e.valid
+            ok[k], why[k] = e.valid, getattr(e, "invalid_reason", 0)
     except EstimatorFault as exc:
         raise EstimatorFault(f"{log.path}: sample {k} (t = {log.t[k]:.6g} s): {exc}", fault=exc.fault) from None
     except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError, OverflowError) as exc:
@@ -78,7 +82,7 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
     return ReplayResult(t=log.t.copy(), tau_h_act_hat=hat, tau_h_act_sigma=sig, tau_h_act_bound=bnd,
                         x_hat=xs, tau_h_act=None if log.tau_h_act is None else log.tau_h_act.copy(),
                         step_time_s=times, estimator=getattr(estimator, "name", type(estimator).__name__),
-                        valid=ok)
+                        valid=ok, reason=np.where(ok, 0, why))
 
 
 def bound_rows(cycle: np.ndarray, bound_cycle: np.ndarray) -> np.ndarray:
@@ -120,6 +124,11 @@ def summarize(res: ReplayResult, **extra) -> dict:
     if res.valid is not None:
         out["valid_samples"] = int(res.valid.sum())
         out["first_valid"] = int(np.argmax(res.valid)) if res.valid.any() else None
+        if res.reason is not None:
+            # why the other samples are not valid (docs/estimators.md, "Validity")
+            out["invalid_reasons"] = reason_counts(np.bincount(res.reason, minlength=len(REASONS)))["invalid"]
+        if res.valid.any():
+            out["mean_bound_valid"] = float(np.mean(res.tau_h_act_bound[res.valid]))
     out["mean_bound"] = float(np.mean(res.tau_h_act_bound))
     out["mean_sigma"] = float(np.mean(res.tau_h_act_sigma))
     if res.step_time_s is not None and res.step_time_s.size:

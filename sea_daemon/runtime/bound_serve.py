@@ -21,6 +21,7 @@ import time
 from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.core.estimators.record import STEP as KIND_STEP
 from sea_daemon.core.estimators.record import StepRecord
+from sea_daemon.core.estimators.validity import STARTUP
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime.counts import CountReader, write_count
@@ -159,6 +160,7 @@ class Server:
         r[bs.R_CYC] = s[bs.I_CYC]
         r[bs.R_K] = s[bs.I_K]
         r[bs.R_VALID] = valid
+        r[bs.R_REASON] = 0.0 if valid else (e.invalid_reason or STARTUP)
         r[bs.R_STATUS] = status
         r[bs.R_EPOCH] = s[bs.I_EPOCH]
         r[bs.N_RES:bs.N_RES + self.akf.n] = e.tau_h_act_bound

@@ -10,7 +10,7 @@ An input slot holds a filter step's :class:`~sea_daemon.core.estimators.record.S
 scalars at the indices ``I_*`` (kind, the loop's cycle, k, dt, ready, gate starts, the chain's
 epoch) and then its arrays, in :attr:`StepRecord.ARRAYS` order (:func:`layout`).  A result slot
 holds the sample's sequence number, cycle, k, validity, status, epoch, the worker's CPU time
-for it, then ρ (n).
+for it, why the estimate is not valid (``Estimate.invalid_reason``), then ρ (n).
 """
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ F_STEPS, F_PROC, N_FHDR = 0, 1, 4
 I_KIND, I_CYC, I_K, I_DT, I_READY, I_GATES, I_EPOCH, N_IN = 0, 1, 2, 3, 4, 5, 6, 8
 #: I_KIND: a filter step / a reset
 STEP, RESET = 1.0, 2.0
-# result slot: seq, cycle, k, valid, status, epoch, cpu, then ρ (n)
-R_SEQ, R_CYC, R_K, R_VALID, R_STATUS, R_EPOCH, R_CPU, N_RES = 0, 1, 2, 3, 4, 5, 6, 8
+# result slot: seq, cycle, k, valid, status, epoch, cpu, why not valid (Estimate.invalid_reason), then ρ (n)
+R_SEQ, R_CYC, R_K, R_VALID, R_STATUS, R_EPOCH, R_CPU, R_REASON, N_RES = 0, 1, 2, 3, 4, 5, 6, 7, 8
 #: R_STATUS: the bound computed / the bound diverged (EstimatorFault) / a reset (no bound)
 OK, FAILED, NO_BOUND = 0.0, 1.0, 2.0
 #: the head that asks the worker to stop (after the samples published before it)

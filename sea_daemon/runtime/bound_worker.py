@@ -81,6 +81,7 @@ import numpy as np
 
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.record import RESET as KIND_RESET
+from sea_daemon.core.estimators.validity import BOUND_STALE, STARTUP
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime.bound_serve import worker_main
@@ -173,6 +174,8 @@ class BoundWorker:
         self._next_alive = 0.0
         self._newest_cycle = -1
         self._newest_valid = False
+        self._newest_reason = STARTUP
+        self.invalid_reason = STARTUP            # why the estimate of this cycle is not valid (0: it is)
         self._newest_epoch = -1
         self._rho = np.zeros(n)
         self._rho_in = np.zeros(n)
@@ -308,11 +311,13 @@ class BoundWorker:
                 self._write(slot, bs.STEP, est, record)
         self._collect(est)
         est.valid = self.valid
+        est.invalid_reason = self.invalid_reason
 
     def _reset(self, est, record) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""
         self._epoch += 1
         self.valid = False
+        self.invalid_reason = STARTUP
         self.bound_cycle = -1
         self.broken = False
         slot = self._slot()
@@ -358,6 +363,7 @@ class BoundWorker:
             # not overwritten while read: that needs a sample the loop publishes after this
             r, rho = self._results[(done - 1) % self.capacity]
             status, epoch, cyc, ok = r[bs.R_STATUS], r[bs.R_EPOCH], r[bs.R_CYC], r[bs.R_VALID] != 0.0
+            reason = int(r[bs.R_REASON])
             self._rho_in[:] = rho
             if r[bs.R_SEQ] != done - 1:
                 epoch = -1.0                         # not that sample's (the ring's order rules it out)
@@ -369,6 +375,7 @@ class BoundWorker:
                 if status == OK:
                     self._newest_cycle = int(cyc)
                     self._newest_valid = ok
+                    self._newest_reason = reason
                     self._rho[:] = self._rho_in
                 else:
                     self._newest_cycle = -1
@@ -384,10 +391,12 @@ class BoundWorker:
             est.tau_h_act_bound[:] = self._rho
             self.bound_cycle = c
             self.valid = self._newest_valid
+            self.invalid_reason = self._newest_reason
         else:
             self.stale += 1
             self.bound_cycle = -1
             self.valid = False
+            self.invalid_reason = BOUND_STALE
 
     def fault(self) -> str | None:
         """None while the bound can come; else one line saying why not (a dead worker: the same

@@ -55,6 +55,7 @@ import numpy as np
 from sea_daemon.hw.interface import HardwareInterface, Measurement
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.core.log import DaemonLogLayout
+from sea_daemon.core.estimators.validity import FAULT, NO_SAMPLE, REASONS, STARTUP, VALID
 from sea_daemon.errors import Fault, fault_of
 from sea_daemon.runtime.safety import SafetySupervisor
 
@@ -110,6 +111,8 @@ class LoopStats:
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
     extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
+    # cycles per Estimate.invalid_reason code (validity.REASONS: valid, or why not; reason_counts)
+    validity: np.ndarray = field(default_factory=lambda: np.zeros(len(REASONS), dtype=np.int64))
 
 
 class CycleState:
@@ -384,6 +387,11 @@ class FixedRateLoop:
         that cannot be written latches LOG_FAILED (once, again after a reset)."""
         if self.on_cycle is not None:
             self.on_cycle(c.k, c.meas, c.est, self._tau)
+        if self.estimator is not None:
+            # the cycle's validity, or why not (the run summary's counts)
+            why = (VALID if c.valid else FAULT if not self.supervisor.ok else NO_SAMPLE if c.est is None
+                   else getattr(c.est, "invalid_reason", STARTUP))
+            self.stats.validity[why] += 1
         done = self.clock()
         if self.log is None:
             return

@@ -27,6 +27,7 @@ from sea_daemon.io.owned import check_owned
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.core.log import DaemonLogLayout
+from sea_daemon.core.estimators.validity import reason_counts
 from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
 from sea_daemon.runtime.realtime import try_realtime
@@ -452,7 +453,8 @@ def _result(loop: FixedRateLoop, stats, final: dict, rt: dict, wall_s: float, st
     notifier.status(f"{label}: stopped after {stats.cycles} cycles, {stats.overruns} overruns, "
                     f"{sup.status_line()}{lost}")
     extra = {"publish": publisher.stats()} if publisher is not None else {}
-    extra["bound"] = where
+    # how many cycles were valid, and why the others were not (docs/interfaces.md §3)
+    extra["bound"] = {**where, "validity": reason_counts(stats.validity)}
     if link is not None:
         extra["bound_link"] = link
     return ServeResult(stats, sup, final, rt, wall_s, stopped, extra)

@@ -498,6 +498,11 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
         # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
         gp = offline_gp(cfg, Z, F)
     report["gp_kept"] = gp is not None
+    if gp is None and not cfg.estimator.model_error and len(F):
+        # the AKF's bound needs a term for the model error it makes (docs/bounds.md §7): the largest
+        # leftover torque of this log, +25 % (a GP-AKF's GP error takes its place)
+        cfg = _replace_est(cfg, model_error=1.25 * float(np.max(np.abs(F))))
+        report["model_error"] = cfg.estimator.model_error
     # the weight's reference (core/estimators/weighted.py): what the physics alone costs on these
     # pairs, the leftover's mean square less the GP's noise variance σ_on² (its latent part)
     report["gp_var_ref"] = leftover_latent_variance(F, cfg.learning.sigma_n)

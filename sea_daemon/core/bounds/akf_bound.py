@@ -43,12 +43,11 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
   friction, a stiction leaf's for the GP) times the set's q̇ extent is what the range form avoids.
 
-Without a residual (plain AKF) there is no GP term and the whole δ goes to the Gaussian part.
-With one, δ_GP (default δ/2) is the failure probability the caller used for the GP
-constants (:func:`~sea_daemon.core.bounds.calibration.gp_constants`); ρ then holds with
-probability ≥ 1 − δ.
-States whose z leaves the GP constants' input box have no GP guarantee: such steps are
-counted in ``bound.gp_box_violations_`` (and ρ is still published).
+Without a residual (plain AKF) there is no GP term, the whole δ goes to the Gaussian part, and
+a declared ``estimator.model_error`` e enters as Γ_μ box(e).  With one, δ_GP (default δ/2) is
+the failure probability of the GP constants (:func:`~sea_daemon.core.bounds.calibration.gp_constants`);
+ρ then holds with probability ≥ 1 − δ.  Steps whose z leaves the GP constants' input box (no GP
+guarantee) are counted in ``bound.gp_box_violations_`` (ρ is still published).
 """
 from __future__ import annotations
 
@@ -101,6 +100,7 @@ class AKFTheoremBound:
             delta_gp = 0.5 * delta if has_gp else 0.0
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
+        self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
@@ -110,7 +110,8 @@ class AKFTheoremBound:
         self.gp_box_violations_ = 0
         self._rho = np.zeros(n)
         self._b = np.zeros(d)
-        self._Gam_tau_c = np.zeros((d, n))               # Γ_τ, contiguous, for the compiled step
+        # the compiled step's other bounded inputs, contiguous: Γ_τ, or [Γ_μ e | Γ_τ r] (those declared)
+        self._Gam_tau_c = np.zeros((d, n * (int(self._me_on) + int(self.tau_h_act_rate > 0))))
         self._empty = empty_pack()
         self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
                        and (not has_gp or residual_gps(akf) is not None))
@@ -137,6 +138,15 @@ class AKFTheoremBound:
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
+
+    def _init_model_error(self, est_cfg, has_gp: bool) -> None:
+        """A plain AKF's declared model error ``estimator.model_error`` [N m], Γ_μ box(e) (docs/bounds.md
+        §7); ``model_error_term``: whether this bound holds the estimator's model error (Estimate.valid)."""
+        e = 0.0 if has_gp else float(getattr(est_cfg, "model_error", 0.0) or 0.0)
+        self.model_error = np.full(self.akf.n, e)
+        self._me_on = e > 0
+        self.model_error_term = has_gp or self._me_on
+        self.at_cap_ = False                # this step held the set of means at the caps (_saturate)
 
     def _init_gp_constants(self, gp_constants, has_gp: bool) -> None:
         """The GP constants: a list, or 'auto' (computed from the residual's LoG-GPs)."""
@@ -214,6 +224,7 @@ class AKFTheoremBound:
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
+        self.at_cap_ = False
         if record.ready:
             est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
@@ -363,9 +374,15 @@ class AKFTheoremBound:
         sm = self.sm
         n = akf.n
         has_gp = akf.residual is not None
+        self.at_cap_ = False
+        if self._me_on:                    # Γ_μ e: the declared model error (rate 1 in RateTerm)
+            np.multiply(record.Gamma_mu, self.model_error, out=self._Gam_tau_c[:, :n])
         if self.tau_h_act_rate > 0:
             zoh(record.A_k, self._E_tau, float(record.dt), self._aug_tau, self._Ezoh_tau)
-            self._Gam_tau_c[:] = self._Gam_tau
+            if self._me_on:
+                np.multiply(self._Gam_tau, self.tau_h_act_rate, out=self._Gam_tau_c[:, n:])
+            else:
+                self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
         try:
@@ -405,7 +422,8 @@ class AKFTheoremBound:
             gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
                                      self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
                                      lo, hi, box is not None)
-            rt = bound_core.RateTerm(self._Gam_tau_c, self.tau_h_act_rate, self.tau_h_act_rate > 0)
+            rt = bound_core.RateTerm(self._Gam_tau_c, 1.0 if self._me_on else self.tau_h_act_rate,
+                                     self._me_on or self.tau_h_act_rate > 0)
             out = bound_core.BoundOutputs(self._rho, self.eta_, self.gp_lin_err_, self._b)
             a = self._args = (gp, box, self.eta_, self.gp_lin_err_, rec,
                               (st, c, gpt, rt, gp if has_gp else self._empty, out))
@@ -445,7 +463,7 @@ class AKFTheoremBound:
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
-        eta = None
+        eta = self.model_error if self._me_on else None   # a plain AKF's declared model error, through Γ_μ
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
             self.gp_box_violations_ += int(out)
@@ -560,7 +578,8 @@ class AKFTheoremBound:
         e.g. a steep friction at standstill): it is held at the caps — finite, counted in
         :attr:`saturated_` — instead of growing to overflow."""
         caps = getattr(self.akf, "P_max", None)
-        if caps is not None and self.sm.saturate(np.sqrt(caps)):
+        self.at_cap_ = caps is not None and self.sm.saturate(np.sqrt(caps))
+        if self.at_cap_:
             self.saturated_ += 1
             est.tau_h_act_bound[:] = self.sm.rho(P)
 

@@ -97,7 +97,9 @@ class GPTerms(NamedTuple):
 
 
 class RateTerm(NamedTuple):
-    """The declared human-torque rate r (docs/bounds.md §6): Γ_τ (d, n) of the step and r."""
+    """The bounded inputs besides the GP: the declared human-torque rate r (docs/bounds.md §6),
+    Γ_τ (d, n) of the step and r; with a plain AKF's declared model error e (§7) the columns
+    [Γ_μ e | Γ_τ r] already scaled and ``rate`` 1."""
 
     Gam_tau: np.ndarray
     rate: float
@@ -239,7 +241,7 @@ def _prior_stage(G, max_gen, st, c, rt, has_gp, eta, eta_b, JT, b):
     d = F.shape[0]
     n = Gam_mu.shape[1]
     ng = n if has_gp else 0
-    nt = n if rt.has_rate else 0
+    nt = rt.Gam_tau.shape[1] if rt.has_rate else 0
     Gam = np.empty((d, ng + nt))
     et = np.empty(ng + nt)
     for i in range(d):

@@ -51,6 +51,7 @@ from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
 from sea_daemon.core.estimators.gate import StartupGate
+from sea_daemon.core.estimators.validity import STARTUP, BoundValidity
 from sea_daemon.core.estimators.record import RESET, STEP, BoundConsumer, StepRecord
 from sea_daemon.core.estimators.health import CovarianceDiverged, CovarianceNotPD, EstimatorHealth, EstimatorNonFinite
 from sea_daemon.errors import EstimatorFault
@@ -68,6 +69,8 @@ class SampleGap(EstimatorFault):
 P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE = 1.0, 50.0, 10.0
 #: a predicted variance beyond this many times its cap is divergence (the typed fault)
 DIVERGED = 1e12
+#: [s] the GP-AKF's residual error enters Q as held over this long (at least one step; eq:GPvarfwd)
+GP_HOLD_S = 0.01
 
 
 class AKF:
@@ -114,6 +117,9 @@ class AKF:
         t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit
         self.tau_h_act_max = float(t_max)
         self.gate = StartupGate(n, self.H, self.s, self.tau_h_act_max)
+        # after the gate, whether ρ_k is a real estimate (validity.BoundValidity)
+        self.validity = BoundValidity(n, self.H, self.s, self.P_max, False,
+                                      self.tau_h_act_max if est.bound_limit is None else est.bound_limit)
         # what each step hands its bound (record.StepRecord): views of this filter's arrays, and
         # x̂_{k−1}, P_{k−1} kept for it before each step
         self.record = StepRecord(STEP, 0, self.dt, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), self.z,
@@ -145,13 +151,11 @@ class AKF:
         self._tau_m_var = float(est.tau_m_noise) ** 2
         self._S_varies = self._S_dt > 0 or self._tau_m_var > 0
         # GP-AKF: the residual's predictive variance enters Q as a torque error held over the
-        # step (eq:GPvarfwd).  Its error is a smooth function of z, correlated over far more than
-        # one cycle: taken as held over Sigma_nom_dt (the configuration's step) it keeps its effect
-        # per second at a faster loop — σ²·T/dt per step of dt < T (×10 at 1 kHz, 1 at 100 Hz).
-        # Per cycle, the 1 kHz filter would believe the GP ten times better per second and
-        # contract the Theorem-1 set of means ten times less, while the set's inputs stay the
-        # same per second: on the passive scenario's standstill ρ_k ran away (docs/daemon.md, rates).
-        self._gp_var_scale = self._S_dt / self.dt if 0.0 < self.dt < 0.999 * self._S_dt else 1.0
+        # step (eq:GPvarfwd), a smooth function of z correlated over far more than one cycle: held
+        # over GP_HOLD_S (σ²·T/dt per step of dt < T; ×10 at 1 kHz), not one cycle, else the 1 kHz
+        # filter believes the GP ten times better per second and the set of means runs away at
+        # standstills (docs/bounds.md §8).
+        self._gp_var_scale = max(1.0, GP_HOLD_S / self.dt)
         self._S_base_dt = -1.0                        # step length of the cached Σ_nom·dt/T
         self._S_base = self.Sigma_nom_cfg
 
@@ -277,15 +281,19 @@ class AKF:
         is valid.  What :meth:`step` does, and what a consumer runs on its copy of the filter."""
         b = self.bound
         gate = self.gate
+        e.invalid_reason = STARTUP
         if record.kind == RESET:
             gate.stop()
+            self.validity.stop()
             if b is not None:
                 b.reset(e, record)
             return False
         if b is not None:
             b.step(e, record)
         gate.follow(record.gate_starts, record.gate_box)
-        return gate.check(record.K_k, record.F_k, e.tau_h_act_bound, e.k)
+        if not gate.check(record.K_k, record.F_k, e.tau_h_act_bound, e.k):
+            return False
+        return self.validity.judge(e, record, self.residual is not None, b)
 
     # ------------------------------------------------------------------ measurement
 
@@ -374,7 +382,7 @@ class AKF:
         if not self._filling:
             self.gate.start(self.P)
         e = self._fill_estimate()
-        e.valid = False                     # the first sample: no estimate of τ_h,act yet
+        e.valid, e.invalid_reason = False, STARTUP     # the first sample: no estimate of τ_h,act yet
         self._hand_reset(e)
         # while the differentiator fills, x̂ holds the angles and P = P₀: the bound of the reset holds
         self._bound0[:] = e.tau_h_act_bound
@@ -436,7 +444,7 @@ class AKF:
         self.est.k += 1
         e = self._fill_estimate()
         e.tau_h_act_bound[:] = self._bound0
-        e.valid = False                     # the differentiator is still filling
+        e.valid, e.invalid_reason = False, STARTUP     # the differentiator is still filling
         return e
 
     def _check_finite(self, y, tau_m) -> None:

@@ -6,6 +6,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from sea_daemon.core.estimators.validity import STARTUP
+
 
 @dataclass
 class Estimate:
@@ -18,7 +20,9 @@ class Estimate:
     τ_h,act that users may act on, inside its published bound: False while the estimator starts
     (the reset sample, the differentiator's window) and until the filter's start-up transient
     has decayed (the AKF's start-up gate, :class:`~sea_daemon.core.estimators.gate.StartupGate`), and while
-    a GP-AKF learns (training phase, subject assumed passive); then True until the next reset.
+    a GP-AKF learns (training phase, subject assumed passive), and while the bound is no real
+    estimate (:mod:`~sea_daemon.core.estimators.validity`); ``invalid_reason`` says why not
+    (0 when valid; a code of :data:`~sea_daemon.core.estimators.validity.REASONS`).
     """
 
     tau_h_act_hat: np.ndarray
@@ -28,6 +32,7 @@ class Estimate:
     P: np.ndarray
     k: int = 0
     valid: bool = False
+    invalid_reason: int = STARTUP
 
     @classmethod
     def zeros(cls, n: int) -> "Estimate":
@@ -35,7 +40,7 @@ class Estimate:
 
     def copy(self) -> "Estimate":
         return Estimate(self.tau_h_act_hat.copy(), self.tau_h_act_sigma.copy(), self.tau_h_act_bound.copy(),
-                        self.x_hat.copy(), self.P.copy(), self.k, self.valid)
+                        self.x_hat.copy(), self.P.copy(), self.k, self.valid, self.invalid_reason)
 
 
 @runtime_checkable

@@ -53,6 +53,11 @@ class StartupGate:
         np.maximum(self.b0[4 * n:], self.tau_h_act_max, out=self.b0[4 * n:])
         self._restart()
 
+    def start_box(self, b0: np.ndarray) -> None:
+        """Start from the error box ``b0`` (d,) (e.g. what a covariance cap cut off); Φ = I."""
+        self.b0[:] = b0
+        self._restart()
+
     def follow(self, starts: int, b0: np.ndarray) -> None:
         """A copy of the filter's gate: start from the box ``b0`` when the filter's gate has started
         since (``starts`` differs from this gate's count)."""

@@ -35,6 +35,7 @@ from sea_daemon.core.gp.pack import GPPack
 from sea_daemon.core.estimators.akf import AKF, DIVERGED
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.estimators.health import InputBox, check_pd
+from sea_daemon.core.estimators.validity import LEARNING
 
 
 class _ResidualHook:
@@ -162,7 +163,7 @@ class GPAKF(AKF):
         if self.learning:
             # learning assumes a passive subject (τ_h,act = 0): τ̂_h,act holds the residual not
             # learned yet, no estimate of the subject's torque (the training phase publishes none)
-            e.valid = False
+            e.valid, e.invalid_reason = False, LEARNING
         if not was_ready:
             self._tau_hist[:] = np.asarray(tau_m, dtype=float)
             return e

@@ -21,6 +21,7 @@ from sea_daemon.core.jit import warm_up
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.estimators.validity import NO_MODEL_ERROR_TERM, STARTUP
 from sea_daemon.core.estimators.base import Estimate
 
 
@@ -87,6 +88,8 @@ class SpringTorqueEstimator:
         e.P[:4 * n, :4 * n] = self.R
         e.P[4 * n:, 4 * n:] = cov
         e.k += 1
-        # valid once the differentiator's window is full (its θ̇_s before that is not a velocity)
-        e.valid = e.k >= self.kin.L - 1
+        # never valid: τ_s is the spring torque, and its bound (the sensors' noise through the spring)
+        # has no term for everything else that acts on the load (friction, gravity, inertia)
+        e.valid = False
+        e.invalid_reason = STARTUP if e.k < self.kin.L - 1 else NO_MODEL_ERROR_TERM
         return e
