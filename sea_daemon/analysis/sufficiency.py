@@ -248,7 +248,7 @@ def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> dict:
                   "motor_speed_up": _snr(mup, sm * g1), "motor_speed_down": _snr(mdown, sm * g1),
                   "deflection": _snr(float(np.std(defl)), math.hypot(sq, sm))})
     f["torque_limit_share"] = float(np.mean(np.abs(u) >= 0.999 * cfg.hardware.torque_limit))
-    f["spring_slope"] = _spring_slope(u, defl, float(np.atleast_1d(cfg.model.K_s)[0]))
+    f["spring_slope"] = _spring_slope(u, defl, float(np.ravel(cfg.model.K_s)[0]))
     return f
 
 
