@@ -56,6 +56,9 @@ def test_a_log_moving_both_ways_identifies_everything(robot):
     assert s.refusal is None and s.figures["strokes_up"] == 3 and s.figures["strokes_down"] == 3
     assert all(s.verdicts[k].status == "identify" for k in ("R", "effects", "tau_m_noise", "sign_eps"))
     assert s.figures["snr"]["speed_down"] > 100 and s.figures["spring_slope"]["slope"] == pytest.approx(1, abs=0.05)
+    # 10-75 deg of the declared 0-100 deg: the report says the model is extrapolated beyond
+    assert s.figures["working_range_share"]["angle"] == pytest.approx(0.65, abs=0.02)
+    assert any("65 % of the declared working range" in line and "--excitation" in line for line in s.lines())
 
 
 def test_a_still_arm_keeps_the_nominal_physics_and_says_so(robot):

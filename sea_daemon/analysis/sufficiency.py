@@ -60,6 +60,7 @@ class Limits:
     saturated_refuse: float = 0.2     # ... and that is refused
     rate_tolerance: float = 0.01      # sample period within this share of the configuration's
     smooth_s: float = 0.1             # the zero-phase smoother of the regressors
+    min_range_share: float = 0.8      # of the declared working range's angles and speed, else a note
 
 
 @dataclass(frozen=True)
@@ -317,6 +318,24 @@ def _physics(f: dict, lim: Limits) -> Verdict:
     return Verdict("effects", "identify", "motion both ways over the range")
 
 
+def _working_range_note(f: dict, cfg: ModelConfig, lim: Limits) -> str | None:
+    """Against the declared working range (``calibration.q_min_deg``, ``q_max_deg``, ``v_max``):
+    the share of its angles and of its speed the log reaches (into ``f``), and a sentence when
+    it reaches less than ``lim.min_range_share`` of either (the model is extrapolated beyond)."""
+    c = cfg.calibration
+    if c.q_min_deg is None or c.q_max_deg is None or "q_range_deg" not in f or c.q_max_deg <= c.q_min_deg:
+        return None
+    lo, hi = f["q_range_deg"]
+    share = max(0.0, min(hi, c.q_max_deg) - max(lo, c.q_min_deg)) / (c.q_max_deg - c.q_min_deg)
+    speed = min(1.0, f["dq_max"] / c.v_max)
+    f["working_range_share"] = {"angle": share, "speed": speed}
+    if f["still"] or (share >= lim.min_range_share and speed >= lim.min_range_share):
+        return None
+    return (f"The log spans {lo:.0f}-{hi:.0f} deg at up to {f['dq_max']:.2g} rad/s: {100 * share:.0f} % of the "
+            f"declared working range's angles ({c.q_min_deg:g}-{c.q_max_deg:g} deg) and {100 * speed:.0f} % of its "
+            "speed (calibration.v_max); beyond, the model is extrapolated. To cover it, " + RECORD + ".")
+
+
 def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> Sufficiency:
     """The figures of ``log`` (one joint, at the configuration's rate: :func:`at_config_rate`)
     and a verdict per quantity of :data:`QUANTITIES`; ``refusal`` the one line when the log
@@ -343,6 +362,9 @@ def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> Suffic
     if lim.saturated_flag <= share < lim.saturated_refuse:
         s.notes.append(f"The motor torque is at the hardware limit in {100 * share:.0f} % of the log: the joint may "
                        "not have followed the calibration's moves there.")
+    cover = _working_range_note(f, cfg, lim)
+    if cover and s.refusal is None:
+        s.notes.append(cover)
     sp = f.get("spring_slope") or {}
     if sp.get("slope") is not None and (sp.get("explained") or 0.0) >= 0.5 and not 0.5 <= sp["slope"] <= 2.0 \
             and s.refusal is None:
