@@ -110,9 +110,15 @@ def test_the_expected_accuracy_is_filled_when_the_walk_is_given(sim):
     from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate
     log = read_log(sim / "passive.train.csv", n=1)
     cfg = load_config(ROOT / "configs" / "exo_1dof_sim.yaml")
-    res = calibrate(log, cfg, given={"R", "Sigma_nom"}, opts=CalibrationOptions(gp="off", synth_s=10.0))
+    res = calibrate(log, cfg, given={"R", "Sigma_nom"},
+                    opts=CalibrationOptions(gp="off", synth_s=10.0, diagnose=False))
     s = summary(res)
-    assert all(v is not None and math.isfinite(v) for v in s["expected_rmse"].values()), s["expected_rmse"]
+    e = s["expected_rmse"]
+    assert math.isfinite(e["passive_log"]) and math.isfinite(e["synthetic_still"]), e
+    # the configured walk (5e-5 N^2 m^2 per step) is too slow for the declared 1.5 N m subject: the
+    # filter's fault on it is said, not a number
+    moving = s["expected_accuracy"]["active_moving"]
+    assert (moving["rmse"] is not None and math.isfinite(moving["rmse"])) or "fault" in moving["why"], moving
     line = next(t for t in s["text"] if t.startswith("Expected accuracy"))
     assert not NAN.search(line)
 

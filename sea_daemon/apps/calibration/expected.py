@@ -33,17 +33,27 @@ from sea_daemon.errors import EstimatorFault
 FOLDS = 4
 #: the keys of the synthetic figures, as the walk's scan names them
 SYNTHETIC = ("synthetic_moving", "synthetic_still")
+#: why a synthetic figure is missing
+NO_SYNTHETIC = ("not measurable from this log: the identified model could not be simulated, or the filter faulted "
+                "on the synthetic subject")
 
 
 def rmse_of(log: MeasuredLog, est) -> float | None:
     """RMSE of τ̂_h,act against the log's truth (0 without one); None when the filter faulted
     or its estimate is not finite."""
+    return scored(log, est)[0]
+
+
+def scored(log: MeasuredLog, est) -> tuple[float | None, str | None]:
+    """(:func:`rmse_of`, why it is None: the filter's fault in plain words)."""
     try:
         res = replay(log, est)
-    except EstimatorFault:
-        return None
+    except EstimatorFault as e:
+        what = str(e).split(": ", 1)[-1].split(":")[0]
+        return None, f"the estimator stops with a fault there ({what})"
     truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(res.tau_h_act_hat)
-    return finite(np.sqrt(np.mean((res.tau_h_act_hat - truth) ** 2)))
+    r = finite(np.sqrt(np.mean((res.tau_h_act_hat - truth) ** 2)))
+    return r, None if r is not None else "the estimate is not finite there"
 
 
 def _blocked_passive(result, log: MeasuredLog) -> float | None:
@@ -84,6 +94,15 @@ def _gp_without(cfg, pairs, t0: float, t1: float):
     return offline_gp(cfg, Z[keep], F[keep])
 
 
+def _missing(synth: dict, key: str) -> str:
+    """Why the synthetic figure ``key`` is missing, for the report."""
+    why = synth.get(f"{key}_why")
+    if why:
+        return (f"not measurable: on a synthetic subject of the declared band and size {why}; a τ_h,act random "
+                "walk chosen by the calibration (leave estimator.Sigma_nom out) follows such a subject")
+    return NO_SYNTHETIC
+
+
 def _quad(a: float | None, b: float | None) -> float | None:
     return None if a is None or b is None else finite(math.hypot(a, b))
 
@@ -95,7 +114,8 @@ def expected_accuracy(result, log: MeasuredLog, suff: Sufficiency, synth: dict) 
     in_sample = rmse_of(log, result.estimator(dt=log.dt))
     blocked = _blocked_passive(result, log) if result.gp is not None else in_sample
     model = blocked if blocked is not None else in_sample
-    out: dict = {"raw": {"passive_log": in_sample, "passive_blocked": blocked, **synth}}
+    out: dict = {"raw": {"passive_log": in_sample, "passive_blocked": blocked,
+                         **{k: synth.get(k) for k in SYNTHETIC}}}
     out["passive"] = {"rmse": model, "why": "the calibration log, the residual GP scored on blocks it was not "
                       "trained on" if result.gp is not None else "the calibration log (physics only)"}
     if model is None:
@@ -106,11 +126,11 @@ def expected_accuracy(result, log: MeasuredLog, suff: Sufficiency, synth: dict) 
         out["active_moving"] = {"rmse": None, "why": "not measurable from this log: the arm held still, nothing in "
                                                      "it says how the model holds in motion"}
     elif moving is None:
-        out["active_moving"]["why"] = "not measurable from this log: the identified model could not be simulated"
+        out["active_moving"]["why"] = _missing(synth, "synthetic_moving")
     still = _quad(synth["synthetic_still"], model)
     out["active_still"] = {"rmse": still, "why": "synthetic subjects with the arm held still, plus the passive "
                                                  "model error" if still is not None else
-                           "not measurable from this log: the identified model could not be simulated"}
+                           _missing(synth, "synthetic_still")}
     return out
 
 

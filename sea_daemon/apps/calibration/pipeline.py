@@ -51,7 +51,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
-from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, rmse_of
+from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -448,8 +448,8 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
 
 def synthetic_figures(result: CalibrationResult, log: MeasuredLog) -> dict:
     """The synthetic subjects' RMSE of the calibrated filter (:data:`.expected.SYNTHETIC` → float or
-    None): the walk's scan's when it ran, else the calibrated estimator on freshly simulated
-    sessions (Sigma_nom given)."""
+    None, and ``KEY_why`` when it faulted there): the walk's scan's when it ran, else the
+    calibrated estimator, its health monitor on, on freshly simulated sessions (Sigma_nom given)."""
     chosen = (result.report.get("tau_h_act_walk") or {}).get("chosen") or {}
     if all(k in chosen for k in SYNTHETIC):
         return {k: finite(chosen[k]) for k in SYNTHETIC}
@@ -457,7 +457,12 @@ def synthetic_figures(result: CalibrationResult, log: MeasuredLog) -> dict:
     T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
     active, _ = _synthetic_logs(result.cfg, log, opts.human, result.cfg.estimator.tau_m_noise or 0.0, T, opts,
                                 result.gp, rep.get("gp_v_gate", 0.0), rep.get("gp_var_ref", 0.0))
-    return {k: rmse_of(active[k], result.estimator(dt=active[k].dt)) if k in active else None for k in SYNTHETIC}
+    out: dict = {}
+    for k in SYNTHETIC:
+        out[k], why = scored(active[k], result.estimator(dt=active[k].dt)) if k in active else (None, None)
+        if why:
+            out[f"{k}_why"] = why
+    return out
 
 
 def data_working_range(Z: np.ndarray, span_floor: float = math.radians(2.0)) -> WorkingRange:

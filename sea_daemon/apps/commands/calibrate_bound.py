@@ -17,6 +17,7 @@ import logging
 
 import numpy as np
 
+from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.calibration import conformal_gp_constants
@@ -104,7 +105,7 @@ def run(args) -> int:
         except OSError as e:
             raise InputError(f"--write {args.write}: cannot write: {e.strerror or e}") from None
         out["written"] = str(args.write)
-    print(json.dumps(out))
+    print(json.dumps(jsonable(out), allow_nan=False))
     return 0
 
 

@@ -116,6 +116,6 @@ def run(args) -> int:
         # samples whose z = [q, q̇, q̈] left the region the calibration data covered
         extra["outside_covered_share"] = est.n_outside / max(len(log) - 1, 1)
     summary = summarize(res, log=str(args.log), config=str(args.config), out=str(args.out), **extra)
-    print(json.dumps(summary))
+    print(json.dumps(jsonable(summary), allow_nan=False))
     return 0
 
