@@ -38,6 +38,7 @@ import numpy as np
 
 from sea_daemon.analysis.als import config_with_R
 from sea_daemon.analysis.diagnose.engine import run_diagnosis
+from sea_daemon.analysis.diagnose.prepare import prepare_log
 from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.analysis.sufficiency import Sufficiency, assess, at_config_rate, decimate_by, finite
 from sea_daemon.core.config import ModelConfig
@@ -373,6 +374,8 @@ def sufficient_log(log: MeasuredLog, cfg: ModelConfig) -> tuple[MeasuredLog, Suf
         raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
     if cfg.joints != 1:
         raise InputError("calibrate: one joint for now")
+    # a gap or a duplicated sample is refused at its line (diagnose's time base), before any figure
+    prepare_log(log)
     log, note = at_config_rate(log, cfg)
     suff = assess(log, cfg)
     if suff.refusal:
