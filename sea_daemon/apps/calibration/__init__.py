@@ -23,7 +23,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from sea_daemon.apps.calibration.modelio import save_calibrated, summary as cal_summary
+from sea_daemon.apps.calibration.modelio import jsonable, save_calibrated, summary as cal_summary
 from sea_daemon.apps.calibration.pipeline import calibrate_log
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.config import ModelConfig
@@ -98,11 +98,8 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     sc = load_scenario(scenario)
     if sc.nominal.joints != cfg.joints:
         raise InputError(f"--scenario {scenario}: {sc.nominal.joints} joint(s), the configuration has {cfg.joints}")
-    cycles = cycles or sc.training_samples
-    reference = None
-    if excitation:
-        reference = excitation_reference(cfg, sc.controller.q0)
-        cycles = cycles if cycles != sc.training_samples else int(round(reference.duration / cfg.dt))
+    reference = excitation_reference(cfg, sc.controller.q0) if excitation else None
+    cycles = cycles or session_cycles(cfg, sc, reference)
     # the training phase (ass:passive_human): learning on in every cycle
     estimator = make_estimator("gp-akf", cfg, dt=cfg.dt, learning=True, bound=False)
     rig = make_rig(cfg, sim=sim, device_model=device_model, phase="training")
@@ -141,6 +138,14 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     return 0, summary, ""
 
 
+def session_cycles(cfg: ModelConfig, sc, reference=None) -> int:
+    """The calibration session's cycles at the configuration's rate: the excitation's duration,
+    or the scenario's training phase in seconds (its samples at the scenario model's rate), so
+    that a session lasts as long at 1 kHz as at 100 Hz."""
+    seconds = reference.duration if reference is not None else sc.training_samples * sc.nominal.dt
+    return max(1, int(round(seconds * cfg.rate_hz)))
+
+
 def excitation_reference(cfg: ModelConfig, q0: float):
     """The calibration excitation (:func:`~sea_daemon.core.excitation.excitation`) over the
     configuration's ``calibration`` working range, from ``q0``; without one declared, 10°–90°."""
@@ -154,8 +159,13 @@ def _fit(out, log_path: Path, cfg: ModelConfig, config_path, summary: dict, hard
          cycles: int) -> tuple[int, dict, str]:
     """The whole calibration on the session's log: ``out`` (model file) and ``out``.yaml."""
     raw = load_yaml(config_path) if config_path is not None else None
-    with Progress("calibrate --fit") as progress:
-        result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw, progress=progress)
+    try:
+        with Progress("calibrate --fit") as progress:
+            result = calibrate_log(read_log(log_path, n=cfg.joints, min_rows=2), cfg, raw, progress=progress)
+    except InputError as e:
+        # the session's log cannot be calibrated on (analysis.sufficiency): exit 2, the log kept
+        summary["refused"] = str(e)
+        return 2, summary, f"{e}; model not saved, log kept: {log_path}"
     yaml_path, npz_path = save_calibrated(Path(out).with_suffix(""), result,
                                           {"command": "calibrate --fit", "log": str(log_path),
                                            "hardware": hardware, "cycles": cycles})
@@ -163,5 +173,5 @@ def _fit(out, log_path: Path, cfg: ModelConfig, config_path, summary: dict, hard
     for line in s["text"]:
         log.info(line)
     summary.update({"model": str(npz_path), "config_calibrated": str(yaml_path),
-                    "calibration": {k: v for k, v in s.items() if k != "text"}})
+                    "calibration": jsonable({k: v for k, v in s.items() if k != "text"})})
     return 0, summary, ""

@@ -10,12 +10,13 @@ OUT.npz`` and ``replay`` load both.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from sea_daemon.analysis.sufficiency import RECORD, Sufficiency
+from sea_daemon.apps.calibration.expected import expected_lines, with_figures
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.calibrated import CalibratedAKF, CalibratedGPAKF
 from sea_daemon.core.excitation import Coverage
@@ -25,8 +26,26 @@ from sea_daemon.io.gpmodel import save_gp_model
 from sea_daemon.errors import ModelFileError, shown
 
 
-def _jsonable(x):
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else float(o)))
+def jsonable(x):
+    """``x`` as plain JSON values: arrays as lists, numbers as floats, every non-finite number
+    None (a figure the log could not measure; JSON has no nan or inf)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if x is None or isinstance(x, (bool, str)):
+        return x
+    if isinstance(x, (int, np.integer)) and not isinstance(x, np.bool_):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    return v if math.isfinite(v) else None
 
 
 def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) -> tuple[Path, Path]:
@@ -45,7 +64,7 @@ def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) 
             "calibration": {"gp_used": result.gp is not None, "coverage": result.coverage.to_dict(),
                             "gp_v_gate": float(result.report.get("gp_v_gate", 0.0)),
                             "gp_var_ref": float(result.report.get("gp_var_ref", 0.0)),
-                            "summary": _jsonable(summary(result))}}
+                            "summary": jsonable(summary(result))}}
     save_gp_model(npz_path, result.cfg, gp, prov)
     return yaml_path, npz_path
 
@@ -78,13 +97,17 @@ def summary(result) -> dict:
     walk = rep.get("tau_h_act_walk", {})
     chosen = walk.get("chosen") or {}
     cov = rep.get("coverage", {})
-    lines = []
+    lines = Sufficiency.lines_of(rep["sufficiency"]) if rep.get("sufficiency") else []
     lines.append(f"Measurement noise R: {'given' if 'R' in rep.get('given', []) else 'identified'} "
                  f"(velocity std {np.sqrt(np.diag(cfg.estimator.R))[2 * n:].round(4).tolist()} rad/s).")
+    skipped = rep.get("diagnose", {}).get("skipped")
     if eff:
         names = ", ".join(f"{d['type']} ({d['side']})" for d in eff)
         lines.append(f"Physical effects found by diagnose and added to the model: {names}; the residual fell "
                      f"from {rep['diagnose']['residual_rms_before']:.3g} to {rep['diagnose']['residual_rms_after']:.3g} N m RMS.")
+    elif skipped:
+        lines.append(f"diagnose was not run: {skipped}. The configured physical model is kept; to identify the "
+                     f"effects, {RECORD}.")
     else:
         lines.append("diagnose found no effect to add: the configured model explains the log.")
     pairs = rep.get("diagnose", {}).get("correlated_pairs", [])
@@ -108,11 +131,11 @@ def summary(result) -> dict:
                  + (f" and lets the active-torque estimate move faster there (random walk at least "
                     f"{cfg.estimator.tau_h_act_walk_outside:.3g} N^2 m^2/s: the model is extrapolated)."
                     if cfg.estimator.tau_h_act_walk_outside else "."))
-    if chosen:
-        lines.append(f"Expected accuracy (the identified model replayed with synthetic subjects): RMSE "
-                     f"{chosen.get('synthetic_moving', float('nan')):.3g} N m with an active subject while moving, "
-                     f"{chosen.get('synthetic_still', float('nan')):.3g} N m with the arm held still, "
-                     f"{chosen.get('passive_log', float('nan')):.3g} N m on this passive log.")
+    exp = rep.get("expected_accuracy")
+    if exp:
+        lines += expected_lines(exp)
     return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff], "ambiguous": pairs,
             "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
-            "coverage": cov, "expected_rmse": {k: chosen.get(k) for k in ("synthetic_moving", "synthetic_still", "passive_log")}}
+            "coverage": cov, "expected_rmse": with_figures(chosen, exp),
+            "expected_accuracy": {k: v for k, v in (exp or {}).items() if k != "raw"},
+            "sufficiency": rep.get("sufficiency")}

@@ -38,7 +38,9 @@ import numpy as np
 
 from sea_daemon.analysis.als import config_with_R
 from sea_daemon.analysis.diagnose.engine import run_diagnosis
+from sea_daemon.analysis.diagnose.prepare import prepare_log
 from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
+from sea_daemon.analysis.sufficiency import Sufficiency, assess, at_config_rate, decimate_by, finite
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
@@ -50,6 +52,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -119,18 +122,10 @@ def given_keys(raw: Mapping | None) -> set[str]:
 
 
 def decimate(log: MeasuredLog, max_rate_hz: float = 250.0) -> MeasuredLog:
-    """The log at ≤ ``max_rate_hz``: angles sampled every m-th sample, the motor torque
-    averaged over the m commands it replaces (the torque held over the longer interval that
-    moves the plant the same to first order, eq:motorside).  Unchanged when already slow."""
-    m = int(math.ceil(1.0 / (max_rate_hz * log.dt) - 1e-9))
-    if m <= 1:
-        return log
-    N = (len(log) - 1) // m * m + 1
-    idx = np.arange(0, N, m)
-    tau = np.asarray(log.tau_m[:N - 1], float).reshape(-1, m, log.n).mean(axis=1)
-    tau = np.vstack([tau, log.tau_m[N - 1:N]])
-    return MeasuredLog(t=log.t[idx], q=log.q[idx], theta_m=log.theta_m[idx], tau_m=tau,
-                       tau_h_act=None if log.tau_h_act is None else log.tau_h_act[idx], path=log.path)
+    """The log at ≤ ``max_rate_hz`` (:func:`~sea_daemon.analysis.sufficiency.decimate_by`: angles
+    sampled every m-th sample, the motor torque averaged over the m commands it replaces).
+    Unchanged when already slow."""
+    return decimate_by(log, int(math.ceil(1.0 / (max_rate_hz * log.dt) - 1e-9)))
 
 
 def _replace_est(cfg: ModelConfig, **kw) -> ModelConfig:
@@ -368,21 +363,38 @@ EPS_GRID = (0.002, 0.003, 0.005, 0.01, 0.02)
 
 #: the steps of :func:`calibrate`, as its progress callback names them
 STEPS = ("measurement noise", "physical effects (diagnose)", "motor-torque noise", "residual GP",
-         "active-torque random walk", "coverage")
+         "active-torque random walk", "coverage", "expected accuracy")
+
+
+def sufficient_log(log: MeasuredLog, cfg: ModelConfig) -> tuple[MeasuredLog, Sufficiency]:
+    """The log at the configuration's rate (decimated from a whole multiple of it) and what it
+    can identify (:mod:`sea_daemon.analysis.sufficiency`); InputError, one line saying what to
+    record instead, when it cannot be calibrated on."""
+    if log.n != cfg.joints:
+        raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
+    if cfg.joints != 1:
+        raise InputError("calibrate: one joint for now")
+    # a gap or a duplicated sample is refused at its line (diagnose's time base), before any figure
+    prepare_log(log)
+    log, note = at_config_rate(log, cfg)
+    suff = assess(log, cfg)
+    if suff.refusal:
+        raise InputError(suff.refusal)
+    if note:
+        suff.notes.insert(0, note[0].upper() + note[1:] + ".")
+    return log, suff
 
 
 def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
               opts: CalibrationOptions | None = None, progress: Callable | None = None) -> CalibrationResult:
     """The calibration of the module docstring on one passive log; ``progress(done, total, what)``
-    before each of its :data:`STEPS`."""
+    before each of its :data:`STEPS`.  What the log cannot identify is not identified
+    (:func:`sufficient_log`): refused, or the configured value kept and the report says so."""
     step = _stepper(progress)
     opts = opts or CalibrationOptions()
     given = set() if given is None else set(given)
-    if log.n != cfg.joints:
-        raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
-    if cfg.joints != 1:
-        raise InputError("calibrate: one joint for now")
-    report: dict = {"log": log.path, "samples": len(log), "given": sorted(given)}
+    log, suff = sufficient_log(log, cfg)
+    report: dict = {"log": log.path, "samples": len(log), "given": sorted(given), "sufficiency": suff.to_dict()}
     # 1. kinematics and R
     step()
     cfg = _kinematics_and_R(log, cfg, given, report)
@@ -391,11 +403,16 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # on it at 1 kHz)
     cfg = _replace_est(cfg, init_after_kinematics=True, gp_noise_in_Q=True,
                        nis_window=max(cfg.estimator.nis_window, int(round(cfg.rate_hz))))
-    # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s)
+    # 2. physics: diagnose (on the log decimated to ≤ 250 Hz: its smoother spans 0.25 s), only on a
+    # log that can identify it (a still arm: the nominal model, its static torque left to the GP)
     step()
-    if opts.diagnose:
+    if opts.diagnose and suff.identifies("effects"):
         cfg = _diagnosed(log, cfg, report, progress=None if progress is None else (
             lambda done, total, what: progress(1, len(STEPS), f"{STEPS[1]}: {what}")))
+    else:
+        v = suff.verdicts["effects"]
+        report["diagnose"] = {"effects_added": [], "skipped": v.why if v.status != "identify" else "not asked",
+                              "correlated_pairs": []}
     # 3. motor-torque noise
     step()
     if "tau_m_noise" not in given:
@@ -407,18 +424,12 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # 4. residual GP (before the process noise: the walk is chosen for the complete model)
     step()
     Z, F = smooth_pairs(cfg, log)
-    # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
-    v_gate = max(stick_velocity_of(cfg), V_EXCLUDE) if np.all(np.abs(Z[:, 1]) >= max(stick_velocity_of(cfg), V_EXCLUDE) - 1e-12) else 0.0
-    report["gp_v_gate"] = v_gate
-    report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
-    # the angles and speeds the log's moving data span [rad, rad/s]
-    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
-                            "dq": float(np.max(np.abs(Z[:, 1])))}
     cfg, gp = _residual_gp(cfg, Z, F, given, opts, report)
     # 5. τ_h,act random walk and friction smoothing, for the complete model (physics + GP)
     step()
-    cfg = _walk(log, cfg, given, opts, gp, report, tick=None if progress is None else (
-        lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
+    cfg = _walk(log, cfg, given, opts, gp, report, tune_eps=suff.identifies("sign_eps"),
+                tick=None if progress is None else (
+                    lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
     cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
     # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
     # (default 0: the chosen q_τ everywhere): on the development plants newrobot2 and newrobot3 and
@@ -427,13 +438,43 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
     # 6. coverage
     step()
-    wr = opts.working_range or WorkingRange(float(np.min(Z[:, 0])), float(np.max(Z[:, 0])),
-                                            float(np.max(np.abs(Z[:, 1]))), float(np.max(np.abs(Z[:, 2]))))
-    cov = Coverage(wr)
+    cov = Coverage(opts.working_range or data_working_range(Z))
     cov.add(Z)
     report["coverage"] = cov.report()
+    result = CalibrationResult(cfg, gp, cov, report, opts)
+    # 7. what the calibration can promise
     step()
-    return CalibrationResult(cfg, gp, cov, report, opts)
+    report["expected_accuracy"] = expected_accuracy(result, log, suff, synthetic_figures(result, log))
+    step()
+    return result
+
+
+def synthetic_figures(result: CalibrationResult, log: MeasuredLog) -> dict:
+    """The synthetic subjects' RMSE of the calibrated filter (:data:`.expected.SYNTHETIC` → float or
+    None, and ``KEY_why`` when it faulted there): the walk's scan's when it ran, else the
+    calibrated estimator, its health monitor on, on freshly simulated sessions (Sigma_nom given)."""
+    chosen = (result.report.get("tau_h_act_walk") or {}).get("chosen") or {}
+    if all(k in chosen for k in SYNTHETIC):
+        return {k: finite(chosen[k]) for k in SYNTHETIC}
+    opts, rep = result.options, result.report
+    T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
+    active, _ = _synthetic_logs(result.cfg, log, opts.human, result.cfg.estimator.tau_m_noise or 0.0, T, opts,
+                                result.gp, rep.get("gp_v_gate", 0.0), rep.get("gp_var_ref", 0.0))
+    out: dict = {}
+    for k in SYNTHETIC:
+        out[k], why = scored(active[k], result.estimator(dt=active[k].dt)) if k in active else (None, None)
+        if why:
+            out[f"{k}_why"] = why
+    return out
+
+
+def data_working_range(Z: np.ndarray, span_floor: float = math.radians(2.0)) -> WorkingRange:
+    """The working range the pairs ``Z`` span, at least ``span_floor`` [rad] wide, 0.1 rad/s and
+    1 rad/s² (a still arm spans a few encoder counts: a box that narrow has no cells to cover)."""
+    lo, hi = float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))
+    pad = max(0.0, 0.5 * (span_floor - (hi - lo)))
+    return WorkingRange(lo - pad, hi + pad, max(float(np.max(np.abs(Z[:, 1]))), 0.1),
+                        max(float(np.max(np.abs(Z[:, 2]))), 1.0))
 
 
 def _stepper(progress: Callable | None) -> Callable[[], None]:
@@ -480,6 +521,13 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
                  report: dict) -> tuple[ModelConfig, object]:
     """Step 4: the residual GP's hyperparameters (unless given) and the GP on the leftover
     pairs, when kept (``opts.gp``: 'on', 'off', or 'auto' by blocked cross-validation)."""
+    # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
+    v_stick = max(stick_velocity_of(cfg), V_EXCLUDE)
+    report["gp_v_gate"] = v_stick if np.all(np.abs(Z[:, 1]) >= v_stick - 1e-12) else 0.0
+    report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
+    # the angles and speeds the log's moving data span [rad, rad/s]
+    report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
+                            "dq": float(np.max(np.abs(Z[:, 1])))}
     if "learning" not in given:
         hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
         # the tree splits in length scales: in raw units q̈ (span ~10–30 rad/s², length scale twice
@@ -510,12 +558,12 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
 
 
 def _walk(log: MeasuredLog, cfg: ModelConfig, given: set[str], opts: CalibrationOptions, gp,
-          report: dict, tick: Callable | None = None) -> ModelConfig:
-    """Step 5: the τ_h,act random walk and the friction smoothing (:func:`human_walk`), unless
-    Sigma_nom is given."""
+          report: dict, tune_eps: bool = True, tick: Callable | None = None) -> ModelConfig:
+    """Step 5: the τ_h,act random walk and the friction smoothing (:func:`human_walk`; the
+    smoothing only with ``tune_eps``, a log with turning points), unless Sigma_nom is given."""
     if "Sigma_nom" not in given:
         qt, eps, qinfo = human_walk(cfg, log, opts.human, cfg.estimator.tau_m_noise or 0.0, opts,
-                                    tune_eps="sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
+                                    tune_eps=tune_eps and "sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
                                     var_ref=report["gp_var_ref"], tick=tick)
         cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
         report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}

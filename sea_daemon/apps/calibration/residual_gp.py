@@ -34,7 +34,13 @@ def stick_velocity_of(cfg: ModelConfig) -> float:
 
 
 def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
-    """Training pairs for the offline calibration: z = [q, q̇, q̈] and the load side's leftover
+    """(Z, F) of :func:`timed_pairs`."""
+    Z, F, _ = timed_pairs(cfg, log, rate_hz)
+    return Z, F
+
+
+def timed_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
+    """Training pairs and their sample times (Z, F, t) for the offline calibration: z = [q, q̇, q̈] and the load side's leftover
     f = r_load of the augmented model (eq:unknwn_load with τ_h,act = 0: the term the filter's
     load-side dynamics carry), both from the zero-phase kinematics of ``diagnose``
     (:func:`~sea_daemon.analysis.diagnose.residuals.residual_channels`: one smoother over the whole
@@ -62,7 +68,7 @@ def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
     edge = window_samples(log.t)
     step = max(1, int(round(1.0 / (rate_hz * log.dt))))
     sl = slice(edge, len(log) - edge, step)
-    Z, F = Z[sl], F[sl]
+    Z, F, t = Z[sl], F[sl], np.asarray(log.t, float)[sl]
     # no pairs while the joint sticks (|q̇| < v_stick): static friction is set-valued there, the
     # torque it takes depends on how the joint came to rest (the controller's history), not on z;
     # learned, it would be a confident offset on every still arm (the physics' convention,
@@ -71,8 +77,8 @@ def smooth_pairs(cfg: ModelConfig, log: MeasuredLog, rate_hz: float = 100.0):
     if np.sum(moving) < MIN_MOVING_PAIRS:
         # a log that (almost) never moves (the paper's still-arm training, Sec. V-C): the static
         # balance at rest is all there is to learn, and friction holds nothing there
-        return Z, F
-    return Z[moving], F[moving]
+        return Z, F, t
+    return Z[moving], F[moving], t[moving]
 
 
 def fit_gp_hyper(Z: np.ndarray, F: np.ndarray, points: int, seed: int, min_ls_dq: float = 0.1,

@@ -14,13 +14,16 @@ configuration it writes (``model_augmented.yaml``) calibrates the same way.
 (``calibration`` section: moves spread over angles, speeds and accelerations) instead of the
 scenario's moves; ``--fit`` runs the whole calibration on the session's log (docs/calibration.md:
 noise, diagnose's physics, residual GP, process noise) and writes the calibrated model to
-MODEL.npz and the complete configuration to MODEL.yaml beside it.  A JSON summary goes to stdout, the
+MODEL.npz and the complete configuration to MODEL.yaml beside it; a log that cannot be
+calibrated on is exit 2 with the line saying what to record instead (the log kept).  The session
+lasts the scenario's training phase or the excitation's ``calibration.duration_s`` in seconds at
+any ``--rate``; ``--duration SECONDS`` or ``--cycles`` set it.  A JSON summary goes to stdout, the
 progress bar to stderr.
 
 On the real bus the drives and encoder answer on ``hardware.bus``; ``--device-model`` starts the
 simulated ones in this process (virtual bus), or run ``sea-daemon device-model --bus ipc
 --channel NAME`` separately and point ``--bus ipc --channel NAME`` at it (docs/can.md).
-Exit status: 0 model saved; 2 bad input; 1 fault, interruption (model not saved, log kept)
+Exit status: 0 model saved; 2 bad input or a log the calibration refuses; 1 fault, interruption (model not saved, log kept)
 or internal error.
 """
 from __future__ import annotations
@@ -31,6 +34,7 @@ import sys
 from pathlib import Path
 
 from sea_daemon.apps.calibration import calibrate
+from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import daemon_args
 from sea_daemon.io.configfile import data_root
 from sea_daemon.runtime.service import StateFile
@@ -44,7 +48,8 @@ def add_arguments(p) -> None:
                    default=str(data_root() / "configs" / "scenarios" / "passive.yaml"),
                    help="trajectory and controller gains (default: configs/scenarios/passive.yaml)")
     p.add_argument("--out", metavar="MODEL.npz", required=True, help="model file to write (atomically)")
-    daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training samples)")
+    daemon_args.add_common(p, cycles_help="training cycles (default: the scenario's training phase, or the excitation's "
+                                          "calibration.duration_s, in seconds at the configured rate)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--excitation", action="store_true",
                    help="drive the calibration excitation over the configuration's calibration section "
@@ -67,7 +72,7 @@ def run(args) -> int:
             config_name=str(args.config),
             socket_path=daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,
             config_path=args.config)
-    print(json.dumps(summary))
+    print(json.dumps(jsonable(summary), allow_nan=False))
     if code:
         log.error(message)
     return code

@@ -17,6 +17,7 @@ import logging
 
 import numpy as np
 
+from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.calibration import conformal_gp_constants
@@ -62,6 +63,11 @@ def run(args) -> int:
     rate = round(1.0 / log.dt, 6)
     cfg = at_rate(cfg_file, rate if abs(rate - cfg_file.rate_hz) > 1e-6 * cfg_file.rate_hz else None)
     residual, _ = load_gp_model(args.model, cfg)                # ModelFileError → exit 2, one line
+    if all(g.n_points == 0 for g in residual.gps):
+        # a calibration that kept no GP (physics alone): no GP error for β to scale
+        raise InputError(f"--model {args.model}: holds no residual GP (its calibration kept the physics alone, or "
+                         "it learned nothing): there is no GP error for beta to bound and estimator.gp_beta has no "
+                         "effect with it; replay or run the model as it is")
     est = make_estimator("gp-akf", cfg, dt=log.dt, residual=residual, learning=False, bound=False)
     delta_gp = 0.5 * cfg.estimator.delta                         # the adapter's default split
     out = {"log": str(args.log), "model": str(args.model), "config": str(args.config), "target": args.target,
@@ -99,7 +105,7 @@ def run(args) -> int:
         except OSError as e:
             raise InputError(f"--write {args.write}: cannot write: {e.strerror or e}") from None
         out["written"] = str(args.write)
-    print(json.dumps(out))
+    print(json.dumps(jsonable(out), allow_nan=False))
     return 0
 
 

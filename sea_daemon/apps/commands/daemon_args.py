@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from pathlib import Path
@@ -27,6 +28,8 @@ def add_common(p, *, cycles_help: str) -> None:
     p.add_argument("--bus", choices=BusConfig.INTERFACES, default=None, help="override hardware.bus.interface")
     p.add_argument("--channel", default=None, help="override hardware.bus.channel (can0, vcan0, ws://HOST:PORT/ ...)")
     p.add_argument("--cycles", type=int, default=None, help=cycles_help)
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                   help="instead of --cycles: the session's length in seconds, the same at every rate")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
                    help="loop rate [Hz] instead of the configuration's rate_hz: the same configuration and model "
                         "file at another rate (the differentiator window keeps its span in time; "
@@ -65,6 +68,14 @@ def load(args, outputs: list | tuple = ()):
     cfg = at_rate(bus_overrides(load_config(args.config), args.bus, args.channel), getattr(args, "rate", None))
     if args.cycles is not None and args.cycles < 1:
         raise InputError(f"--cycles {args.cycles}: allowed >= 1")
+    duration = getattr(args, "duration", None)
+    if duration is not None:
+        if args.cycles is not None:
+            raise InputError("--cycles and --duration: give one (--duration is in seconds, --cycles in cycles)")
+        if not (math.isfinite(duration) and 0 < duration <= 1e7):
+            raise InputError(f"--duration {duration:g}: allowed 0 < SECONDS <= 1e7")
+        # the loop's cycles at the configuration's rate (after --rate): the same seconds at every rate
+        args.cycles = max(1, int(round(duration * cfg.rate_hz)))
     if args.overrun_streak < 0:
         raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
     if not 0 <= args.rt_priority <= 99:

@@ -37,12 +37,14 @@ import dataclasses
 import io
 import json
 import logging
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import main
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.log import MeasuredLog
@@ -77,6 +79,9 @@ def add_arguments(p) -> None:
     p.add_argument("--samples", type=int, default=None,
                    help="shorten both phases to this many samples each (quick look; the calibration's diagnose "
                         "needs four smoothing windows of the session, --online-gp does not)")
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                   help="shorten both phases to this many seconds each, the same at every --rate (quick look; "
+                        "the passive calibration needs 10 s with moves both ways)")
     p.add_argument("--sync-rpdo", action="store_true",
                    help="torque RPDO actuated at the next SYNC (one cycle more delay) instead of on reception")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
@@ -215,7 +220,7 @@ def run(args) -> int:
         summary["scenarios"][name], scenario_rows = _scenario(args, name, out, cfg, cfg_path, cfg_rate)
         rows += scenario_rows
     summary["wall_s"] = round(time.perf_counter() - t_all, 2)
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
+    atomic_write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2, allow_nan=False))
     _print_summary(out, summary, rows)
     return 0
 
@@ -225,6 +230,11 @@ def _prepare(args):
     (out directory, configuration, its copy's path, the configuration at ``--rate``)."""
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
+    if args.duration is not None:
+        if args.samples is not None:
+            raise InputError("--samples and --duration: give one (--duration is in seconds)")
+        if not (math.isfinite(args.duration) and 0.1 <= args.duration <= 3600.0):
+            raise InputError(f"--duration {args.duration:g}: allowed 0.1..3600 s")
     out = check_output_dir("--out", args.out, [args.config])
     cfg = load_config(args.config)
     if args.sync_rpdo:
@@ -248,6 +258,9 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
     sc = load_scenario(sc_path)
     n_tr = args.samples or int(round(sc.training_samples * per))
     n_est = args.samples or int(round(sc.estimation_samples * per))
+    if args.duration is not None:
+        # seconds at the loop's rate: the same session at 100 Hz and 1 kHz
+        n_tr = n_est = max(10, int(round(args.duration * cfg_rate.rate_hz)))
     logs = out / name
     model = out / f"{name}_model.npz"
 
@@ -325,11 +338,16 @@ def _score(out: Path, name: str, est_log, cfg_rate, n: int, summaries: dict) -> 
     return rows
 
 
+def _fig(v, spec: str) -> str:
+    """A table figure; "-" for one that is not measurable (None, nan or inf)."""
+    return format(v, spec) if v is not None and math.isfinite(v) else "-"
+
+
 def _print_summary(out: Path, summary: dict, rows: list) -> None:
     """The RMSE table and one line per scenario on stdout."""
     print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
     for name, est_name, rmse, cov, bound in rows:
-        print(f"{name:<9} {est_name:<8} {rmse:>10.4f} {cov if cov is not None else float('nan'):>9.3f} {bound:>11.3f}")
+        print(f"{name:<9} {est_name:<8} {_fig(rmse, '.4f'):>10} {_fig(cov, '.3f'):>9} {_fig(bound, '.3f'):>11}")
     for name, e in summary["scenarios"].items():
         print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
               f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "

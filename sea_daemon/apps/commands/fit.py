@@ -8,7 +8,13 @@ physics leaves, the active-torque random walk for the declared human torque
 (docs/calibration.md).  Writes ``PREFIX.yaml`` (the complete configuration), ``PREFIX.npz``
 (the model file for ``run --model`` / ``replay --model``) and ``PREFIX.report.json``; prints
 what was identified and the expected accuracy in plain words (stderr) and a JSON summary
-(stdout); while it works (a few minutes), its step on stderr (``-q``: none).  Exit 2 on bad
+(stdout); while it works (a few minutes), its step on stderr (``-q``: none).
+
+First, what the log can identify (:mod:`sea_daemon.analysis.sufficiency`): a log recorded at a
+whole multiple of the configuration's rate is decimated to it; a log that cannot be calibrated on
+(too short, moving one way only, swapped columns, constant angles, at the torque limit, another
+rate) is exit 2 with one line saying what to record instead; from a still arm the physical
+effects are not identified (the configured model kept, and the report says so).  Exit 2 on bad
 input.
 """
 from __future__ import annotations
@@ -17,7 +23,7 @@ import json
 import logging
 from pathlib import Path
 
-from sea_daemon.apps.calibration.modelio import save_calibrated, summary
+from sea_daemon.apps.calibration.modelio import jsonable, save_calibrated, summary
 from sea_daemon.apps.calibration.pipeline import calibrate_from_files
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.progress import Progress
@@ -49,11 +55,10 @@ def run(args) -> int:
     yaml_path, npz_path = save_calibrated(args.out, result, {"command": "fit", "log": str(args.log),
                                                              "config": str(args.config)})
     rep_path = outs[2][1]
-    atomic_write_text(rep_path, json.dumps(result.report, indent=1,
-                                           default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    atomic_write_text(rep_path, json.dumps(jsonable(result.report), indent=1, allow_nan=False))
     s = summary(result)
     for line in s["text"]:
         log.info(line)
-    print(json.dumps({"config": str(yaml_path), "model": str(npz_path), "report": str(rep_path), **s},
-                     default=float))
+    print(json.dumps(jsonable({"config": str(yaml_path), "model": str(npz_path), "report": str(rep_path), **s}),
+                     allow_nan=False))
     return 0

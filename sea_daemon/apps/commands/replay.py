@@ -4,7 +4,9 @@ Runs an estimator over a measured log (docs/interfaces.md §1, §3), writes EST.
 summary on stdout (``rmse`` when the log has ``tau_h_act``).  gp-akf with ``--train`` runs the
 whole calibration on TRAIN.csv first (docs/calibration.md: noise, diagnose's physics, residual
 GP, process noise; the values the configuration gives are kept), with ``--model`` it loads a
-calibrated model (``sea-daemon fit``).  An estimator fault (a log that does not fit the model or
+calibrated model (``sea-daemon fit``).  A log at another rate than the configuration's runs the
+configuration at the log's rate (:func:`sea_daemon.core.rates.at_rate`, as ``run --rate`` does);
+``--train`` must be at the log's rate.  An estimator fault (a log that does not fit the model or
 its settings) is exit 2 with the sample and the reason.
 """
 from __future__ import annotations
@@ -13,7 +15,7 @@ import json
 import logging
 import time
 
-from sea_daemon.apps.calibration.modelio import estimator_from_model
+from sea_daemon.apps.calibration.modelio import estimator_from_model, jsonable
 from sea_daemon.apps.calibration.modelio import summary as cal_summary
 from sea_daemon.apps.calibration.pipeline import STEPS, calibrate_log
 from sea_daemon.apps.commands import add_log_and_config
@@ -21,6 +23,7 @@ from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.estimators.factory import RATE_TOLERANCE
+from sea_daemon.core.rates import at_rate
 from sea_daemon.core.replay import est_columns, replay, summarize
 from sea_daemon.errors import InputError, shown
 from sea_daemon.io.configfile import load_config, load_yaml
@@ -70,10 +73,20 @@ def build_estimator(name: str, cfg, dt: float, train=None, raw=None, model_path=
     return make_estimator(name, cfg, dt=dt), None
 
 
+def log_rate(log, cfg) -> float | None:
+    """The log's rate [Hz] when it differs from the configuration's by more than
+    :data:`RATE_TOLERANCE`, else None."""
+    rate = 1.0 / log.dt
+    return round(rate, 6) if abs(rate - cfg.rate_hz) > RATE_TOLERANCE * cfg.rate_hz else None
+
+
 def run(args) -> int:
     check_outputs([("--out", args.out)], inputs=[args.log, args.config, args.train, args.model])
-    cfg = load_config(args.config)
-    log = read_log(args.log, n=cfg.joints, min_rows=2)
+    cfg_file = load_config(args.config)
+    log = read_log(args.log, n=cfg_file.joints, min_rows=2)
+    # the configuration at the log's rate (sea_daemon.core.rates: the differentiator's span in time
+    # kept), as the daemon's --rate runs it: a 1 kHz log with a 100 Hz configuration
+    cfg = at_rate(cfg_file, log_rate(log, cfg_file))
     train = read_log(args.train, n=cfg.joints, min_rows=2) if args.train else None
     if train is not None and args.estimator != "gp-akf":
         logging.getLogger("sea_daemon.replay").warning("--train is used only by gp-akf; ignored for %s",
@@ -97,15 +110,12 @@ def run(args) -> int:
     extra = {}
     if cal is not None:
         # what the calibration on --train identified, in numbers and plain words
-        extra["calibration"] = _jsonable(cal_summary(cal))
+        extra["calibration"] = jsonable(cal_summary(cal))
         extra["train"] = {"log": str(args.train)}
     if hasattr(est, "n_outside"):
         # samples whose z = [q, q̇, q̈] left the region the calibration data covered
         extra["outside_covered_share"] = est.n_outside / max(len(log) - 1, 1)
     summary = summarize(res, log=str(args.log), config=str(args.config), out=str(args.out), **extra)
-    print(json.dumps(summary))
+    print(json.dumps(jsonable(summary), allow_nan=False))
     return 0
 
-
-def _jsonable(x):
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else float(o)))
