@@ -57,3 +57,6 @@ class SelectOptions:
     validate_selection: bool = True
     #: the validation also scores the GP-AKF (learned on the fit block; slower)
     validate_gp_akf: bool = False
+    #: contiguous time blocks of the cross-validation that decides which effects are kept
+    #: (:mod:`.crossval`); < 2: no cross-validation, every effect found is kept
+    cv_blocks: int = 4
