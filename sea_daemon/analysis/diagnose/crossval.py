@@ -31,6 +31,10 @@ from sea_daemon.analysis.diagnose.select import Selector
 WARM_S = 1.0
 
 
+def _g(v: float) -> str:
+    return f"{v:.4g} N m" if math.isfinite(v) else "not measurable (the filter failed)"
+
+
 def time_blocks(score: np.ndarray, k: int, need: int) -> list[np.ndarray]:
     """Up to ``k`` contiguous blocks (N,) bool of the samples of ``score``, each of at least
     ``need`` of them; [] when fewer than two such blocks fit."""
@@ -157,8 +161,11 @@ class CrossValidation:
         return self._cache[key]
 
     def score(self, pairs: list, subset: tuple) -> BlockFigures:
-        """Held-out figures of the effects ``pairs[i]`` for i in ``subset``, refitted per fold."""
-        return self.figures(self.fold_fits(pairs, subset))
+        """Held-out figures of the effects ``pairs[i]`` for i in ``subset``, refitted per fold (cached)."""
+        key = ("figures",) + tuple(sorted(subset))
+        if key not in self._cache:
+            self._cache[key] = self.figures(self.fold_fits(pairs, subset))
+        return self._cache[key]
 
     def _pooled(self, f: BlockFigures) -> float:
         b, a = f.criterion()
@@ -169,22 +176,18 @@ class CrossValidation:
     def prune(self, pairs: list) -> tuple[list[int], list[dict]]:
         """Indices of ``pairs`` kept, and why each other one left (see the module docstring).
 
-        Backward elimination: the set is refitted per fold; each effect is then left out of each
-        fold's fit in turn (the others at the values fitted with it), and the one whose absence
-        the held-out blocks miss least leaves when they do not miss it at all, or when the set
-        errs more than the input model on a held-out block; the rest is refitted and judged again."""
+        Backward elimination: the set is refitted per fold, and so is the set without each effect
+        in turn; the effect whose absence the held-out blocks miss least leaves when they do not
+        miss it at all, or when the set errs more than the input model on a held-out block; the
+        rest is judged again."""
         S = list(range(len(pairs)))
         dropped = []
         base = self.score(pairs, ())
         what = "the AKF's τ̂_h,act error" if base.criterion()[0] is base.estimate_before else "the residual"
         while S:
-            key = tuple(S)
-            fits = self.fold_fits(pairs, key)
-            cur = self.figures(fits)
+            cur = self.score(pairs, tuple(S))
             p_cur = self._pooled(cur)
-            trials = {}
-            for pos, i in enumerate(key):
-                trials[i] = self.figures([f[:pos] + f[pos + 1:] for f in fits])
+            trials = {i: self.score(pairs, tuple(x for x in S if x != i)) for i in S}
             # the effect the held-out blocks gain least from (its removal helps most)
             i_min = min(S, key=lambda i: self._pooled(trials[i]) - p_cur)
             p_wo = self._pooled(trials[i_min])
@@ -212,7 +215,7 @@ class CrossValidation:
     @staticmethod
     def _why(cand, what: str, with_: float, wo: float, reason: str) -> dict:
         return {"type": cand.type, "side": cand.side, "joint": cand.joint + 1,
-                "reason": f"{reason} ({what} over the held-out blocks: {with_:.4g} N m with it, {wo:.4g} without)"}
+                "reason": f"{reason} ({what} over the held-out blocks: {_g(with_)} with it, {_g(wo)} without)"}
 
 
 def kept_selection(ctx, cfg: ModelConfig, cands: list, opts, fit_t: np.ndarray, blocks: list[np.ndarray],

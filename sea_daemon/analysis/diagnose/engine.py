@@ -259,7 +259,7 @@ def _inner(w: Work) -> np.ndarray:
 
 def cross_validate(w: Work, cfg: ModelConfig, opts: SelectOptions, fit: Fit, estimate: bool) -> tuple[Fit, CV]:
     """Keep only the effects that help blocks of the log their fit did not see
-    (:class:`.crossval.CrossValidation`); with ``opts.validate_selection`` and ``estimate``, the
+    (:class:`.crossval.CrossValidation`); with ``opts.cv_repeat_selection`` and ``estimate``, the
     whole selection repeated without each block and scored on it."""
     need = max(4 * w.kin.window, 50)
     inner = _inner(w)
@@ -283,7 +283,7 @@ def cross_validate(w: Work, cfg: ModelConfig, opts: SelectOptions, fit: Fit, est
         fit = _fit(cfg, fit.ctx, fit.cands, fit.selector, fit.selector.restrict(fit.sel, keep))
     kept = cv.score(pairs, tuple(keep))
     repeated = []
-    if opts.validate_selection and estimate:
+    if opts.cv_repeat_selection and estimate:
         def cands_for(mask):
             return identifiable(build_candidates(fit.ctx), excitation(w, fit.ctx, mask))[0]
         repeated = repeated_per_block(fit.ctx, cfg, cands_for, opts, w.score, blocks, guard, inner, scorer, w.v_stick)
@@ -342,6 +342,9 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
     result = _result(w, opts, fit, ev, passive)
     result["cross_validation"] = cv_summary(cv, w.log.t)
     result["statements"] += cv_statements(result["cross_validation"], cv.note)
+    if not result["effects_added"] and cv.dropped:
+        result["statements"][0] = ("No effect added: what the selection found does not help the blocks of the log "
+                                   "its fit did not see (cross-validation, below).")
     return Diagnosis(result, fit.ctx, fit.sel, fit.selector, fit.cfg_after, fit.r_after, ev.est,
                      prep=w.prep, blocks=ev.blocks, work=w)
 

@@ -36,6 +36,9 @@ def add_arguments(p) -> None:
     p.add_argument("--cv-blocks", type=int, default=None, metavar="K",
                    help="contiguous time blocks of the cross-validation that decides which effects are kept "
                         "(each fitted on the others, scored on itself; default 4, 0: none, every effect found is kept)")
+    p.add_argument("--cv-selection", action="store_true",
+                   help="the cross-validation also repeats the whole selection without each block and scores "
+                        "it there, in and out of sample (slower)")
     p.add_argument("--gp-akf", action="store_true",
                    help="the validation also scores the GP-AKF, learned on the fit block (slower)")
     p.add_argument("--apply", action="append", default=[], metavar="OTHER.csv",
@@ -74,6 +77,7 @@ def run(args) -> int:
             raise InputError(f"--cv-blocks: must be 0 (none) or between 2 and 20, got {args.cv_blocks}")
         opts.cv_blocks = args.cv_blocks
     opts.validate_gp_akf = bool(args.gp_akf)
+    opts.cv_repeat_selection = bool(args.cv_selection)
     if args.max_rows is not None:
         if args.max_rows < 0:
             raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
