@@ -17,8 +17,7 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.model import SEAModel
 from sea_daemon.errors import InputError
-from sea_daemon.analysis.diagnose.residuals import (Z95, Kinematics, applied_torque, integrated_autocorr_time,
-                                                    spring_torque)
+from sea_daemon.analysis.diagnose.residuals import Z95, Kinematics, applied_torque, inflated_lstsq, spring_torque
 
 #: the spring term of the motor balance must reach at least this RMS [N m] for the check to
 #: decide (below it the spring carries nothing the log can weigh)
@@ -43,14 +42,8 @@ def motor_balance_gain(cfg: ModelConfig, kin: Kinematics) -> list[tuple[float, f
         if xs.size < 10 or float(np.std(xs)) < MIN_SPRING_RMS:
             out.append((math.nan, math.nan))
             continue
-        A = np.column_stack([xs, np.ones_like(xs), sg[e:N - e, j]])
-        ys = y[e:N - e, j]
-        beta, *_ = np.linalg.lstsq(A, ys, rcond=None)
-        r = ys - A @ beta
-        tau = integrated_autocorr_time(r[:, None])
-        try:
-            cov = np.linalg.pinv(A.T @ A) * float(np.mean(r ** 2)) * tau
-        except np.linalg.LinAlgError:
+        beta, cov = inflated_lstsq(np.column_stack([xs, np.ones_like(xs), sg[e:N - e, j]]), y[e:N - e, j])
+        if cov is None:
             out.append((math.nan, math.nan))
             continue
         out.append((float(beta[0]), Z95 * math.sqrt(max(float(cov[0, 0]), 0.0))))

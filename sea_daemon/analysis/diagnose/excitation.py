@@ -161,13 +161,9 @@ def _viscous(jm: JointMotion, side: str) -> str | None:
 
 def _inertia(jm: JointMotion, side: str) -> str | None:
     m = getattr(jm, side)
-    why = _moves(m, side)
-    if why:
-        return why
-    if m.acc_snr < MIN_ACC_SNR:
-        return (f"the accelerations of {_sname(side)} are {m.acc_snr:.2g}× their quantisation noise "
-                f"(needs {MIN_ACC_SNR:g}×)")
-    return None
+    return _moves(m, side) or (
+        f"the accelerations of {_sname(side)} are {m.acc_snr:.2g}× their quantisation noise (needs {MIN_ACC_SNR:g}×)"
+        if m.acc_snr < MIN_ACC_SNR else None)
 
 
 def _load_range(jm: JointMotion, side: str) -> str | None:
@@ -186,13 +182,10 @@ def _torque_offset(jm: JointMotion, side: str) -> str | None:
 
 
 def _command(jm: JointMotion, side: str) -> str | None:
-    why = _moves(jm.motor, "motor")
-    if why:
-        return why
-    if jm.command_variation < MIN_COMMAND_VARIATION:
-        return (f"the torque command hardly varies (standard deviation {100 * jm.command_variation:.0f} % of its "
-                f"RMS; needs {100 * MIN_COMMAND_VARIATION:.0f} %): a gain or a delay of a constant command is an offset")
-    return None
+    return _moves(jm.motor, "motor") or (
+        f"the torque command hardly varies (standard deviation {100 * jm.command_variation:.0f} % of its RMS; needs "
+        f"{100 * MIN_COMMAND_VARIATION:.0f} %): a gain or a delay of a constant command is an offset"
+        if jm.command_variation < MIN_COMMAND_VARIATION else None)
 
 
 def _cogging(jm: JointMotion, side: str) -> str | None:
