@@ -34,6 +34,9 @@ WARM_S = 1.0
 #: little (chosen on the development logs: the passive scenario's spring stop, which acts in
 #: two of four blocks and leaves the others within 3 %)
 WORSE_TOL = 0.05
+#: iterations of a fold's refit (it starts from the whole log's values, a few Gauss–Newton
+#: steps away; the whole log's own refinement allows 60 per parameter)
+REFIT_STEPS = 6
 
 
 def _g(v: float) -> str:
@@ -140,7 +143,7 @@ class CrossValidation:
 
     def models(self, pairs: list) -> list[list]:
         """The effects of ``pairs`` refitted per fold: one list of (candidate, params) per block."""
-        return [sel.refit(list(pairs)) for sel in self.selectors]
+        return [sel.refit(list(pairs), REFIT_STEPS) for sel in self.selectors]
 
     def figures(self, per_fold: list[list]) -> BlockFigures:
         """Held-out errors of one model per fold (``per_fold[k]``: its (candidate, params))."""

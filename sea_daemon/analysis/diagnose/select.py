@@ -244,8 +244,8 @@ class Selector:
         out.dropped, out.correlated = sel.dropped, sel.correlated
         return out
 
-    def refit(self, pairs: list[tuple[Candidate, dict]]) -> list[tuple[Candidate, dict]]:
+    def refit(self, pairs: list[tuple[Candidate, dict]], steps: int | None = None) -> list[tuple[Candidate, dict]]:
         """The given effects' parameters refitted jointly (nonlinear least squares on the exact
-        residual) over this selector's samples, from the given values: the same model
-        structure fitted to another part of the log."""
-        return self.refinement.refit(pairs)
+        residual; at most ``steps`` iterations, default 60 per parameter) over this selector's
+        samples, from the given values: the same model structure fitted to another part of the log."""
+        return self.refinement.refit(pairs, steps)
