@@ -32,7 +32,7 @@ WARM_S = 1.0
 #: a held-out block counts as worse with the effects when its error rises by more than this
 #: share: an effect that does not act in a block still shifts the others' refitted values a
 #: little (chosen on the development logs: the passive scenario's spring stop, which acts in
-#: two of four blocks and leaves the others within 3 %)
+#: two of four blocks and leaves the others within 1 %)
 WORSE_TOL = 0.05
 #: iterations of a fold's refit (it starts from the whole log's values, a few Gauss–Newton
 #: steps away; the whole log's own refinement allows 60 per parameter)
