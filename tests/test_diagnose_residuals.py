@@ -155,6 +155,8 @@ def test_two_joints_run_end_to_end(tmp_path):
     base["learning"] = {"lengthscales": [0.5, 0.5, 1.0, 1.0, 10.0, 10.0]}   # 3n (the default is for n = 1)
     cfg = ModelConfig.from_dict(base, "<two joints>")
     one = _log(N=500)
+    # the motor winds the spring the way it pushes (θ_m − q in phase with τ_m): a consistent log
+    one.theta_m = 2.0 * one.q - one.theta_m
     two = MeasuredLog(t=one.t, q=np.hstack([one.q, 0.8 * one.q]), theta_m=np.hstack([one.theta_m, 0.8 * one.theta_m]),
                       tau_m=np.hstack([one.tau_m, 0.8 * one.tau_m]))
     res = diagnose(two, cfg, tmp_path, plots=False)

@@ -28,13 +28,17 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import InputError, LogFormatError
 from sea_daemon.analysis.diagnose.candidates import Candidate, build_candidates
+from sea_daemon.analysis.diagnose.consistency import check_motor_balance
 from sea_daemon.analysis.diagnose.context import Context
+from sea_daemon.analysis.diagnose.crossval import (BlockScorer, CrossValidation, repeated_per_block, time_blocks,
+                                                   without)
+from sea_daemon.analysis.diagnose.excitation import Excitation, measure
 from sea_daemon.analysis.diagnose.evaluate import estimate_rmse, gpakf_rmse
 from sea_daemon.analysis.diagnose.prepare import Prepared, encoder_quanta, prepare_log, segment_log
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, rms, window_samples
 from sea_daemon.analysis.diagnose.select import SelectOptions, Selection, Selector
-from sea_daemon.analysis.diagnose.summary import (ablation_statements, effects_json, num, statements,
-                                                  validation_summary)
+from sea_daemon.analysis.diagnose.summary import (ablation_statements, cv_statements, cv_summary, effects_json,
+                                                  missing_statements, num, statements, validation_summary)
 
 
 def check_log(log: MeasuredLog, cfg: ModelConfig) -> None:
@@ -98,12 +102,17 @@ class Work:
         self.log = self.seg.log if self.seg is not None else self.prep.log
         check_log(self.log, cfg)
         self.kin = kinematics_from_log(self.log)
+        #: the motor balance's gain on the spring torque (a swapped log is refused here)
+        self.balance = check_motor_balance(cfg, self.kin, log.path)
         self.v_stick = stick_speeds(self.kin, self.quanta, cfg)
         # the samples scored and fitted: all, or those away from the seams of a segmented log
         self.score = (self.seg.away_from_seams(self.kin.window) if self.seg is not None
                       else np.ones(len(self.log), dtype=bool))
         self.spans = self.seg.spans if self.seg is not None else None
         self.notes = list(self.prep.notes)
+        #: the log's motion (:mod:`.excitation`) and the candidates it cannot reveal (select_effects)
+        self.excitation: Excitation | None = None
+        self.not_identifiable: list[dict] = []
         if self.seg is not None:
             a = [round(float(self.prep.log.t[i]), 3) for i, _ in self.seg.source_spans]
             self.notes.append(f"The log has {self.seg.original_rows} rows: diagnose works on {len(self.log)} of them, "
@@ -192,17 +201,93 @@ class Diagnosis:
     applied: list = field(default_factory=list)
 
 
+def excitation(w: Work, ctx: Context, mask: np.ndarray | None = None) -> Excitation:
+    """The motion of the log over ``mask`` (default the samples scored) (:mod:`.excitation`)."""
+    q, th = ctx.angles()
+    steps = {side: [e["used"] for e in w.quanta[side]] for side in ("load", "motor")}
+    return measure(w.kin, q, th, w.v_stick, steps, w.score if mask is None else mask)
+
+
+def identifiable(cands: list[Candidate], exc: Excitation) -> tuple[list[Candidate], list[dict]]:
+    """The candidates whose motion the log holds, and for the others what motion is missing."""
+    keep, missing = [], []
+    for c in cands:
+        why = exc.missing(c.type, c.side, c.joint)
+        if why is None:
+            keep.append(c)
+        else:
+            missing.append({"type": c.type, "side": c.side, "joint": c.joint + 1, "missing": why})
+    return keep, missing
+
+
 def select_effects(w: Work, cfg: ModelConfig, opts: SelectOptions, passive: bool) -> Fit:
-    """The selection on every sample of the log (away from the seams of a segmented one)."""
+    """The selection on every sample of the log (away from the seams of a segmented one), over
+    the candidates whose motion the log holds (:mod:`.excitation`)."""
     ctx = Context(cfg, w.kin, None, passive=passive, v_stick=w.v_stick)
     ctx.r0 = ctx.residual()
-    cands = build_candidates(ctx)
+    w.excitation = excitation(w, ctx)
+    cands, w.not_identifiable = identifiable(build_candidates(ctx), w.excitation)
     selector = Selector(ctx, cands, opts, fit_t=w.score, v_min=w.v_stick)
     sel = selector.run()
+    return _fit(cfg, ctx, cands, selector, sel)
+
+
+def _fit(cfg: ModelConfig, ctx: Context, cands, selector: Selector, sel: Selection) -> Fit:
     effects = [c.effect(p) for c, p in sel.chosen]
     cfg_after = cfg.with_effects(list(cfg.model.effects) + effects)
     r_after = ctx.residual(effects)
     return Fit(ctx, cands, selector, sel, effects, cfg_after, r_after)
+
+
+class CV(NamedTuple):
+    """The cross-validation over time blocks (:mod:`.crossval`)."""
+
+    blocks: list                    # (N,) masks of the held-out blocks
+    dropped: list[dict]             # effects the selection found that do not help out of sample
+    kept: dict | None               # per block held-out figures of the effects kept, refitted per fold
+    repeated: list[dict]            # per block: the whole selection repeated without it
+    note: str | None                # why there is no cross-validation
+
+
+def _inner(w: Work) -> np.ndarray:
+    """The samples scored, away from the smoother's ends."""
+    N, e = len(w.log), w.kin.window
+    m = np.zeros(N, dtype=bool)
+    m[e:N - e] = True
+    return m & w.score
+
+
+def cross_validate(w: Work, cfg: ModelConfig, opts: SelectOptions, fit: Fit, estimate: bool) -> tuple[Fit, CV]:
+    """Keep only the effects that help blocks of the log their fit did not see
+    (:class:`.crossval.CrossValidation`); with ``opts.cv_repeat_selection`` and ``estimate``, the
+    whole selection repeated without each block and scored on it."""
+    need = max(4 * w.kin.window, 50)
+    inner = _inner(w)
+    blocks = time_blocks(inner, opts.cv_blocks, need) if opts.cv_blocks >= 2 else []
+    if not blocks:
+        if not fit.sel.chosen:
+            return fit, CV([], [], None, [], None)
+        why = (f"The log is too short to check an effect on time its fit did not see (two blocks of at least "
+               f"{need} samples): nothing added." if opts.cv_blocks >= 2 else None)
+        if why is None:
+            return fit, CV([], [], None, [], "Cross-validation switched off: the effects are not checked out of sample.")
+        sel = fit.selector.restrict(fit.sel, [])
+        return _fit(cfg, fit.ctx, fit.cands, fit.selector, sel), CV([], [], None, [], why)
+    guard = w.kin.window // 2
+    scorer = BlockScorer(w.log, w.spans) if estimate else None
+    sels = [Selector(fit.ctx, fit.cands, opts, fit_t=without(w.score, b, guard), v_min=w.v_stick) for b in blocks]
+    cv = CrossValidation(fit.ctx, cfg, blocks, sels, inner, scorer)
+    pairs = list(fit.sel.chosen)
+    keep, dropped = cv.prune(pairs) if pairs else ([], [])
+    if len(keep) < len(pairs):
+        fit = _fit(cfg, fit.ctx, fit.cands, fit.selector, fit.selector.restrict(fit.sel, keep))
+    kept = cv.score(pairs, tuple(keep))
+    repeated = []
+    if opts.cv_repeat_selection and estimate:
+        def cands_for(mask):
+            return identifiable(build_candidates(fit.ctx), excitation(w, fit.ctx, mask))[0]
+        repeated = repeated_per_block(fit.ctx, cfg, cands_for, opts, w.score, blocks, guard, inner, scorer, w.v_stick)
+    return fit, CV(blocks, dropped, {"figures": kept, "sizes": cv.sizes}, repeated, None)
 
 
 def evaluate(w: Work, cfg: ModelConfig, opts: SelectOptions, fit: Fit, estimate: bool) -> Evaluation:
@@ -250,10 +335,16 @@ def run_diagnosis(log: MeasuredLog, cfg: ModelConfig, options: SelectOptions | N
     step(1)
     fit = select_effects(w, cfg, opts, passive)
     step(2)
+    fit, cv = cross_validate(w, cfg, opts, fit, estimate)
     ev = evaluate(w, cfg, opts, fit, estimate)
     w.notes += [ev.block_note] if ev.block_note else []
     step(3)
     result = _result(w, opts, fit, ev, passive)
+    result["cross_validation"] = cv_summary(cv, w.log.t)
+    result["statements"] += cv_statements(result["cross_validation"], cv.note)
+    if not result["effects_added"] and cv.dropped:
+        result["statements"][0] = ("No effect added: what the selection found does not help the blocks of the log "
+                                   "its fit did not see (cross-validation, below).")
     return Diagnosis(result, fit.ctx, fit.sel, fit.selector, fit.cfg_after, fit.r_after, ev.est,
                      prep=w.prep, blocks=ev.blocks, work=w)
 
@@ -264,7 +355,8 @@ def _result(w: Work, opts: SelectOptions, fit: Fit, ev: Evaluation, passive: boo
     log, kin, score, n = w.log, w.kin, w.score, ctx.cfg.joints
     warn = bool(sel.structure.get("warn"))
     added = effects_json(sel, n, warn)
-    says = statements(sel, added, warn, kin) + w.notes + ablation_statements(ev.ablation, est)
+    says = (statements(sel, added, warn, kin) + missing_statements(w.not_identifiable) + w.notes
+            + ablation_statements(ev.ablation, est))
     validation = None
     if blocks:
         val_r = {k: ctx.residual([c.effect(p) for c, p in pairs]) for k, pairs in ev.val_models.items()}
@@ -302,6 +394,8 @@ def _result(w: Work, opts: SelectOptions, fit: Fit, ev: Evaluation, passive: boo
         "correlated_pairs": [{k: (num(v) if isinstance(v, float) else v) for k, v in c.items()}
                              for c in sel.correlated],
     }
+    result["not_identifiable"] = w.not_identifiable
+    result["excitation"] = w.excitation.to_json() if w.excitation is not None else []
     if ev.ablation:
         result["estimate_ablation"] = ev.ablation
     if validation:

@@ -57,3 +57,9 @@ class SelectOptions:
     validate_selection: bool = True
     #: the validation also scores the GP-AKF (learned on the fit block; slower)
     validate_gp_akf: bool = False
+    #: contiguous time blocks of the cross-validation that decides which effects are kept
+    #: (:mod:`.crossval`); < 2: no cross-validation, every effect found is kept
+    cv_blocks: int = 4
+    #: the cross-validation also repeats the whole selection (candidates, selection, refinement,
+    #: pruning over the remaining blocks) without each block and scores it there (slower)
+    cv_repeat_selection: bool = False

@@ -29,10 +29,10 @@ class Refinement:
         self.ctx = fits.ctx
         self.opts = opts
 
-    def refit(self, pairs: list[tuple[Candidate, dict]]) -> list[tuple[Candidate, dict]]:
+    def refit(self, pairs: list[tuple[Candidate, dict]], steps: int | None = None) -> list[tuple[Candidate, dict]]:
         """The given effects' parameters refitted jointly (nonlinear least squares on the exact
-        residual) over this selector's samples, from the given values: the same model
-        structure fitted to another part of the log."""
+        residual; at most ``steps`` iterations, default 60 per parameter) over this selector's
+        samples, from the given values: the same model structure fitted to another part of the log."""
         if not pairs:
             return []
         stubs = [CandidateFit(c, None, np.zeros(0), math.nan, None, np.zeros((0, 0))) for c, _ in pairs]
@@ -43,7 +43,7 @@ class Refinement:
             return self.resid(eff)
         try:
             sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=np.maximum(np.abs(x0), 1e-3), diff_step=1e-4,
-                                max_nfev=60 * len(x0))
+                                max_nfev=steps or 60 * len(x0))
             x = sol.x if float(sol.fun @ sol.fun) <= float(fun(x0) @ fun(x0)) else x0
         except (ValueError, np.linalg.LinAlgError):
             x = x0

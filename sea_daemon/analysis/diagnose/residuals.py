@@ -328,20 +328,26 @@ def fast_command_gain(model: SEAModel, kin: Kinematics, v_moving: float, zoh: bo
         out.samples[j] = int(use.sum())
         if use.sum() < 50:
             continue
-        A = np.column_stack([uf[use, j], duf[use, j]])
-        y = bf[use, j]
-        beta, *_ = np.linalg.lstsq(A, y, rcond=None)
-        e = y - A @ beta
-        tau = integrated_autocorr_time(e[:, None])
-        try:
-            cov = np.linalg.inv(A.T @ A) * float(np.mean(e ** 2)) * tau
-        except np.linalg.LinAlgError:
+        beta, cov = inflated_lstsq(np.column_stack([uf[use, j], duf[use, j]]), bf[use, j])
+        if cov is None:
             continue
         k0 = float(model.kappa[j])
         # b = κ_rel u: the drive's κ = κ_rel κ₀
         out.kappa[j] = float(beta[0]) * k0
         out.half_width[j] = Z95 * math.sqrt(max(cov[0, 0], 0.0)) * k0
     return out
+
+
+def inflated_lstsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Least squares of y on the columns of A and the coefficients' covariance s² (AᵀA)⁻¹
+    inflated by the residual's autocorrelation time (None when AᵀA is singular)."""
+    beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+    e = y - A @ beta
+    tau = integrated_autocorr_time(e[:, None])
+    try:
+        return beta, np.linalg.inv(A.T @ A) * float(np.mean(e ** 2)) * tau
+    except np.linalg.LinAlgError:
+        return beta, None
 
 
 def residuals_for(cfg: ModelConfig, kin: Kinematics, effects=(), **kw) -> np.ndarray:

@@ -89,6 +89,7 @@ class Selector:
         self.refinement = Refinement(self.fits, self.opts)
         #: the natural parameters of the last selection's effects before the joint refinement
         self.stepwise: list[dict] = []
+        self.final = None
 
     # ---------------------------------------------------------------- the samples
     @property
@@ -230,10 +231,21 @@ class Selector:
             alternatives = [alternatives[k] for k in keep]
             sel = self.refinement.finish(chosen, init, st.steps, alternatives, rss0)
         sel.dropped = dropped
+        #: what :meth:`restrict` refines again: the fits, alternatives and record of ``sel``
+        self.final = (chosen, alternatives, st.steps, rss0)
         return sel
 
-    def refit(self, pairs: list[tuple[Candidate, dict]]) -> list[tuple[Candidate, dict]]:
+    def restrict(self, sel: Selection, keep: list[int]) -> Selection:
+        """``sel`` (the last :meth:`run`'s) with only its effects ``keep`` (indices), refined
+        jointly again: parameters, intervals and shares of the effects kept."""
+        chosen, alternatives, steps, rss0 = self.final
+        out = self.refinement.finish([chosen[k] for k in keep], [sel.chosen[k][1] for k in keep], steps,
+                                     [alternatives[k] for k in keep], rss0)
+        out.dropped, out.correlated = sel.dropped, sel.correlated
+        return out
+
+    def refit(self, pairs: list[tuple[Candidate, dict]], steps: int | None = None) -> list[tuple[Candidate, dict]]:
         """The given effects' parameters refitted jointly (nonlinear least squares on the exact
-        residual) over this selector's samples, from the given values: the same model
-        structure fitted to another part of the log."""
-        return self.refinement.refit(pairs)
+        residual; at most ``steps`` iterations, default 60 per parameter) over this selector's
+        samples, from the given values: the same model structure fitted to another part of the log."""
+        return self.refinement.refit(pairs, steps)

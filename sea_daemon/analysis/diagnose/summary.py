@@ -18,6 +18,16 @@ def num(v):
     return v if math.isfinite(v) else None
 
 
+#: what a figure the log cannot give is printed as (never nan or inf)
+NOT_MEASURABLE = "not measurable from this log"
+
+
+def fmt(v, spec: str = ".3g") -> str:
+    """A figure for text: ``v`` formatted, or :data:`NOT_MEASURABLE` when missing or not finite."""
+    v = num(v)
+    return NOT_MEASURABLE if v is None else format(v, spec)
+
+
 def clean(d):
     """JSON-safe copy: non-finite numbers as None."""
     if isinstance(d, dict):
@@ -38,13 +48,22 @@ def effects_json(sel: Selection, n: int, warn: bool) -> list[dict]:
         rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()
                if p not in ("phi", "q_h0") and math.isfinite(hi)]
         lower_only = [p for p, (lo, hi) in ci.items() if hi == math.inf]
-        confident = (not warn) and (not alts) and sel.unexplained < 0.5 and all(r < 0.2 for r in rel)
+        # an interval of zero width (or none at all) is not a precise value: the log did not
+        # measure the parameter's uncertainty, so nothing about it is "high" confidence
+        measured = bool(ci) and all(p in ci and math.isfinite(ci[p][0]) and math.isfinite(ci[p][1])
+                                    and ci[p][1] > ci[p][0] for p in params if p not in lower_only)
+        confident = (measured and (not warn) and (not alts) and sel.unexplained < 0.5
+                     and all(r < 0.2 for r in rel))
         d = {"type": cand.type, "side": cand.side}
         if n > 1:
             d["joint"] = cand.joint + 1
         d["params"] = {p: num(v) for p, v in params.items()}
         d["explained_fraction"] = num(frac)
         d["ci95"] = {p: [num(lo), num(hi)] for p, (lo, hi) in ci.items()}
+        if not measured:
+            d["ci95_not_measurable"] = [p for p in params if p not in lower_only
+                                        and not (p in ci and math.isfinite(ci[p][0]) and math.isfinite(ci[p][1])
+                                                 and ci[p][1] > ci[p][0])]
         d["confidence"] = "high" if confident else "low"
         if alts:
             d["alternatives"] = alts
@@ -62,11 +81,11 @@ def ablation_statements(ablation: list[dict], est: dict) -> list[str]:
         return []
     worst = min((d for d in ablation if d["estimate_rmse_without"] is not None),
                 key=lambda d: d["estimate_rmse_without"], default=None)
-    msg = (f"The AKF estimates worse with the effects found than without them ({est['before']:.3g} → "
-           f"{est['after']:.3g} N m RMS). ")
+    msg = (f"The AKF estimates worse with the effects found than without them ({fmt(est['before'])} → "
+           f"{fmt(est['after'])} N m RMS). ")
     if worst is not None:
         msg += (f"Left out in turn, {worst['type']} ({worst['side']}) costs the most: without it "
-                f"{worst['estimate_rmse_without']:.3g} N m. ")
+                f"{fmt(worst['estimate_rmse_without'])} N m. ")
     msg += ("An effect can be real (it lowers the residual) and still not help the filter: friction that "
             "changes within the filter's velocity uncertainty of zero speed is evaluated on the wrong side "
             "of its steep part (docs/diagnose.md, Limits).  model_augmented.yaml holds every effect found; "
@@ -158,7 +177,7 @@ def statements(sel: Selection, added: list[dict], warn: bool, kin: Kinematics) -
                    "of the vocabulary: the model lacks an effect diagnose cannot name"
                    + ("; the effects above are at best a partial explanation." if added else "."))
     for name, params, ci in sel.dropped:
-        ps = ", ".join(f"{k}={v:.4g} [{ci[k][0]:.3g}, {ci[k][1]:.3g}]" for k, v in params.items() if k in ci)
+        ps = ", ".join(f"{k}={fmt(v, '.4g')} [{fmt(ci[k][0])}, {fmt(ci[k][1])}]" for k, v in params.items() if k in ci)
         out.append(f"{name} would explain part of the residual, but this log does not determine its parameters "
                    f"(95 % intervals wider than the values: {ps}); not added.")
     for c in sel.correlated:
@@ -178,3 +197,77 @@ def statements(sel: Selection, added: list[dict], warn: bool, kin: Kinematics) -
                 msg += " (a dead band is only visible when the spring deflection changes sign)"
             out.append(msg + ".")
     return out
+
+
+def missing_statements(missing: list[dict]) -> list[str]:
+    """"Not identifiable from this log" for the candidates whose motion the log lacks, one line
+    per missing motion (:mod:`.excitation`)."""
+    by: dict[str, list[str]] = {}
+    for d in missing:
+        j = f"[{d['joint']}]" if any(m["joint"] > 1 for m in missing) else ""
+        by.setdefault(d["missing"], []).append(f"{d['type']} ({d['side']}{j})")
+    return [f"Not identifiable from this log: {', '.join(names)} — {why}." for why, names in by.items()]
+
+
+def _block_rows(blocks: list, t, figures, sizes) -> list[dict]:
+    out = []
+    for k, b in enumerate(blocks):
+        idx = np.flatnonzero(b)
+        row = {"t_s": [num(t[idx[0]]), num(t[idx[-1]])], "samples": int(sizes[k]),
+               "residual_rms_before": num(figures.residual_before[k]),
+               "residual_rms_after": num(figures.residual_after[k])}
+        if figures.estimate_after is not None:
+            row["estimate_rmse_before"] = num(figures.estimate_before[k])
+            row["estimate_rmse_after"] = num(figures.estimate_after[k])
+        out.append(row)
+    return out
+
+
+def _improves(before, after) -> bool | None:
+    if before is None or after is None:
+        return None
+    return bool(after <= before)
+
+
+def cv_summary(cv, t) -> dict:
+    """The result's ``cross_validation`` section (docs/diagnose.md): the blocks, the effects
+    kept with their held-out figures refitted per fold, the effects dropped and why, and the
+    whole selection repeated without each block (in and out of sample)."""
+    if not cv.blocks:
+        return {"blocks": [], "note": cv.note}
+    f = cv.kept["figures"]
+    rows = _block_rows(cv.blocks, t, f, cv.kept["sizes"])
+    key = "estimate_rmse" if f.estimate_after is not None else "residual_rms"
+    out = {"criterion": key, "blocks": rows, "dropped": cv.dropped,
+           "kept_improves_every_block": all(_improves(r.get(f"{key}_before"), r.get(f"{key}_after")) is not False
+                                            for r in rows)}
+    if cv.repeated:
+        rep = []
+        for r, row in zip(cv.repeated, rows):
+            rep.append({"t_s": row["t_s"], "effects": r["effects"], "dropped": r["dropped"],
+                        "in_sample": {k: num(v) for k, v in r["in_sample"].items()},
+                        "out_of_sample": {k: num(v) for k, v in r["out_of_sample"].items()}})
+        out["selection_repeated"] = rep
+        out["selection_repeated_improves_every_block"] = all(
+            _improves(r["out_of_sample"].get(f"{key}_before"), r["out_of_sample"].get(f"{key}_after")) is not False
+            for r in rep)
+    return out
+
+
+def cv_statements(cvs: dict, note: str | None) -> list[str]:
+    """The cross-validation in words."""
+    if not cvs.get("blocks"):
+        return [note] if note else []
+    key = cvs["criterion"]
+    what = "the AKF's τ̂_h,act error" if key == "estimate_rmse" else "the residual RMS"
+    out = []
+    for d in cvs["dropped"]:
+        out.append(f"{d['type']} ({d['side']}) found but not kept: {d['reason']}.")
+    per = ", ".join(f"{fmt(r.get(key + '_before'))} → {fmt(r.get(key + '_after'))}" for r in cvs["blocks"])
+    msg = (f"Cross-validation over {len(cvs['blocks'])} time blocks (each fitted on the others alone): "
+           f"{what} per held-out block {per} N m")
+    if "selection_repeated" in cvs:
+        rep = ", ".join(f"{fmt(r['out_of_sample'].get(key + '_before'))} → {fmt(r['out_of_sample'].get(key + '_after'))}"
+                        for r in cvs["selection_repeated"])
+        msg += f"; with the whole selection repeated without each block: {rep} N m"
+    return [msg + "."]

@@ -5,6 +5,7 @@ from pathlib import Path
 
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.diagnose import SelectOptions, diagnose
+from sea_daemon.analysis.diagnose.summary import fmt
 from sea_daemon.apps.progress import Progress
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
@@ -32,6 +33,12 @@ def add_arguments(p) -> None:
     p.add_argument("--holdout", type=float, default=None, metavar="F",
                    help="share of the log at its end kept back and scored separately (time-blocked "
                         "validation; default 0.25, 0: none)")
+    p.add_argument("--cv-blocks", type=int, default=None, metavar="K",
+                   help="contiguous time blocks of the cross-validation that decides which effects are kept "
+                        "(each fitted on the others, scored on itself; default 4, 0: none, every effect found is kept)")
+    p.add_argument("--cv-selection", action="store_true",
+                   help="the cross-validation also repeats the whole selection without each block and scores "
+                        "it there, in and out of sample (slower)")
     p.add_argument("--gp-akf", action="store_true",
                    help="the validation also scores the GP-AKF, learned on the fit block (slower)")
     p.add_argument("--apply", action="append", default=[], metavar="OTHER.csv",
@@ -65,7 +72,12 @@ def run(args) -> int:
         if not (0.0 <= args.holdout <= 0.5):
             raise InputError(f"--holdout: must be in [0, 0.5] (a share of the log), got {args.holdout}")
         opts.holdout = args.holdout
+    if args.cv_blocks is not None:
+        if not (args.cv_blocks == 0 or 2 <= args.cv_blocks <= 20):
+            raise InputError(f"--cv-blocks: must be 0 (none) or between 2 and 20, got {args.cv_blocks}")
+        opts.cv_blocks = args.cv_blocks
     opts.validate_gp_akf = bool(args.gp_akf)
+    opts.cv_repeat_selection = bool(args.cv_selection)
     if args.max_rows is not None:
         if args.max_rows < 0:
             raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
@@ -74,19 +86,19 @@ def run(args) -> int:
     with Progress("diagnose") as progress:
         res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others,
                        progress=progress)
-    print(f"diagnose {log.path}: {res['samples']} samples, residual RMS {res['residual_rms_before']:.4g} -> "
-          f"{res['residual_rms_after']:.4g} N m")
+    print(f"diagnose {log.path}: {res['samples']} samples, residual RMS {fmt(res['residual_rms_before'], '.4g')} -> "
+          f"{fmt(res['residual_rms_after'], '.4g')} N m")
     if res["effects_added"]:
         for d in res["effects_added"]:
-            ps = ", ".join(f"{k}={v:.4g}" for k, v in d["params"].items())
-            print(f"  + {d['type']} ({d['side']}): {ps}  explains {100 * d['explained_fraction']:.1f} %  "
-                  f"[{d['confidence']} confidence]")
+            ps = ", ".join(f"{k}={fmt(v, '.4g')}" for k, v in d["params"].items())
+            share = d["explained_fraction"]
+            print(f"  + {d['type']} ({d['side']}): {ps}  explains "
+                  f"{fmt(None if share is None else 100 * share, '.1f')} %  [{d['confidence']} confidence]")
     else:
         print("  no undeclared effect found")
     for s in res["statements"][1:]:
         print(f"  ! {s}")
     eb, ea = res["estimate_rmse_before"], res["estimate_rmse_after"]
-    if eb is not None and ea is not None:
-        print(f"  AKF estimation RMSE {eb:.4g} -> {ea:.4g} N m")
+    print(f"  AKF estimation RMSE {fmt(eb, '.4g')} -> {fmt(ea, '.4g')} N m")
     print(f"  wrote {out}/diagnosis.json, model_augmented.yaml, report.md")
     return 0

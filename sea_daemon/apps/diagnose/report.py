@@ -5,22 +5,37 @@ are drawn (``--no-plots`` runs without it).
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.analysis.diagnose.summary import NOT_MEASURABLE
 
 
 def _fmt(v, nd=4):
     if v is None:
         return "—"
+    if isinstance(v, float) and not math.isfinite(v):
+        return NOT_MEASURABLE
     if isinstance(v, float):
         if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e5):
             return f"{v:.3e}"
         return f"{v:.{nd}g}"
     return str(v)
+
+
+def _pct(v, nd: int = 1) -> str:
+    """A share as a percentage, or what the log cannot give."""
+    if v is None or not math.isfinite(float(v)):
+        return NOT_MEASURABLE
+    return f"{100 * float(v):.{nd}f} %"
+
+
+def _signed(v) -> str:
+    return f"{float(v):+.1f}" if v is not None and math.isfinite(float(v)) else NOT_MEASURABLE
 
 
 def _shade_holdout(ax, dg, t) -> None:
@@ -186,6 +201,7 @@ def write_report(dg, out: Path, log: MeasuredLog, cfg: ModelConfig, plots: bool 
     v = res.get("validation")
     if v:
         lines += _validation_lines(v)
+    lines += _cv_lines(res.get("cross_validation") or {})
     lines += _candidate_lines(dg) + _method_lines(res["fit"])
     lines += _applied_lines(dg, out, plots)
     if plots:
@@ -227,7 +243,7 @@ def _effects_lines(res: dict) -> list[str]:
                         f"{_fmt(d['ci95'].get(p, [None, None])[1])}]")
                        for p, v in d["params"].items())
         side = d["side"] + (f"[{d['joint']}]" if "joint" in d else "")
-        lines.append(f"| {i} | {d['type']} | {side} | {ps} | {100 * d['explained_fraction']:.1f} % | {d['confidence']} |")
+        lines.append(f"| {i} | {d['type']} | {side} | {ps} | {_pct(d['explained_fraction'], 1)} | {d['confidence']} |")
     lines.append("")
     return lines
 
@@ -256,7 +272,7 @@ def _candidate_lines(dg) -> list[str]:
         for r in sorted(st.rows, key=lambda r: r["delta_bic"]):
             ps = ", ".join(f"{k}={_fmt(v)}" for k, v in r["params"].items())
             mark = " **(chosen)**" if r["candidate"] == st.chosen else ""
-            lines.append(f"| {r['candidate']}{mark} | {ps} | {100 * r['explains']:.2f} % | {r['delta_bic']:+.1f} |")
+            lines.append(f"| {r['candidate']}{mark} | {ps} | {_pct(r['explains'], 2)} | {_signed(r['delta_bic'])} |")
         lines.append("")
     return lines
 
@@ -362,5 +378,43 @@ def _validation_lines(v: dict) -> list[str]:
             g = d["gp_akf"]
             lines.append(f"  GP-AKF learned on the fitted block: held-out RMSE {_fmt(g['held_out_block']['estimate_rmse_before'])} "
                          f"→ {_fmt(g['held_out_block']['estimate_rmse_after'])} N m ({_fmt(g['improvement_held_out'], 3)}×).")
+    lines.append("")
+    return lines
+
+
+def _cv_lines(cv: dict) -> list[str]:
+    """The cross-validation over time blocks: per block, the effects kept refitted on the other
+    blocks and the whole selection repeated without it, in and out of sample."""
+    if not cv.get("blocks"):
+        return []
+    key = cv["criterion"]
+    what = "AKF τ̂_h,act RMSE" if key == "estimate_rmse" else "residual RMS"
+    lines = ["## Cross-validation over time blocks", "",
+             f"The log is cut into {len(cv['blocks'])} contiguous time blocks; each is held out in turn, the effects "
+             "fitted on the other blocks alone (half a smoothing window either side of it belongs to neither) and "
+             f"scored on it.  An effect is kept only if it lowers the {what} over the held-out blocks, and only a set "
+             "that errs no more than the input model on every held-out block.", "",
+             "| block | t [s] | residual RMS before → after [N m] | AKF τ̂_h,act RMSE before → after [N m] |",
+             "|---|---|---|---|"]
+    for k, r in enumerate(cv["blocks"], 1):
+        lines.append(f"| {k} | {_fmt(r['t_s'][0])}–{_fmt(r['t_s'][1])} | {_fmt(r['residual_rms_before'])} → "
+                     f"{_fmt(r['residual_rms_after'])} | {_fmt(r.get('estimate_rmse_before'))} → "
+                     f"{_fmt(r.get('estimate_rmse_after'))} |")
+    lines.append("")
+    for d in cv.get("dropped", []):
+        lines.append(f"- {d['type']} ({d['side']}) not kept: {d['reason']}.")
+    rep = cv.get("selection_repeated")
+    if rep:
+        lines += ["", "The whole selection (candidates, selection, refinement and this pruning over the remaining "
+                  "blocks) repeated without each block:", "",
+                  "| block | effects kept | in sample: residual, AKF before → after [N m] | "
+                  "out of sample: residual, AKF before → after [N m] |", "|---|---|---|---|"]
+        for k, r in enumerate(rep, 1):
+            names = ", ".join(f"{e['type']} ({e['side']})" for e in r["effects"]) or "none"
+            i, o = r["in_sample"], r["out_of_sample"]
+            lines.append(f"| {k} | {names} | {_fmt(i['residual_rms_before'])} → {_fmt(i['residual_rms_after'])}, "
+                         f"{_fmt(i.get('estimate_rmse_before'))} → {_fmt(i.get('estimate_rmse_after'))} | "
+                         f"{_fmt(o['residual_rms_before'])} → {_fmt(o['residual_rms_after'])}, "
+                         f"{_fmt(o.get('estimate_rmse_before'))} → {_fmt(o.get('estimate_rmse_after'))} |")
     lines.append("")
     return lines
