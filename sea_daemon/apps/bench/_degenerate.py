@@ -188,6 +188,8 @@ def run_fit(dl: DegenerateLog, workdir: Path, timeout_s: float = FIT_TIMEOUT_S) 
     except subprocess.TimeoutExpired as e:
         rc, out, err = None, _text(e.stdout), _text(e.stderr)
     row = {"command": " ".join(cmd), "exit": rc, "fit_s": time.perf_counter() - t0, "prefix": str(prefix)}
+    (workdir / "fit.stdout.txt").write_text(out)
+    (workdir / "fit.stderr.txt").write_text(err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     written = "".join(_read(p) for p in (prefix.with_suffix(".yaml"), Path(str(prefix) + ".report.json")))
     row["nonfinite"] = nonfinite_tokens(out + "\n" + err + "\n" + written)

@@ -17,10 +17,16 @@ while moving, still-arm active sessions).  Per session:
 
 RMSE of τ̂_h,act, faults (typed EstimatorFault), non-finite outputs, and — with ``--bound`` —
 the Theorem-1 bound ρ_k of the GP-AKF with the guaranteed (Lederer et al. 2019) β: coverage
-and mean ρ / mean |error|.
+of all samples and of the samples marked valid, the share valid, mean ρ / mean |error|.  Per
+rate (:func:`by_rate`): GP-AKF / oracle median and 90th percentile, each session's coverage and
+the smallest, the bound's size against :data:`TIGHT`, each target of :data:`TARGETS` met or not.
+
+``--rates``: each plant drawn at each rate given (default the seed's own).  ``--degenerate``:
+each plant calibrated instead on degenerate logs by ``sea-daemon fit`` (:mod:`._degenerate`).
 
 Seeds: ``--seeds`` (default ``420-439``).  The seeds that chose any setting of the calibration
-are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use other seeds.
+are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use
+other seeds, and the output names each seed development or held out.
 """
 from __future__ import annotations
 
@@ -53,7 +59,8 @@ ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
 #: 1 kHz, active subject 0.5–3 Hz, inspected; the others' figures looked at); 201 and 209 (inspected
 #: after a run of 200–219: the GP's target, and the GP's mean on 209's still_band session);
 #: 400–419 (a run whose plants 402 and 403 showed that diagnose must not refuse a spring term
-#: whose gain shows on one balance only)
+#: whose gain shows on one balance only); the degenerate calibrations (``--degenerate``) were built and
+#: first run on 400 and 401
 DEVELOPMENT_SEEDS = tuple(range(6)) + tuple(range(100, 120)) + (201, 209) + tuple(range(400, 420))
 #: the held-out sessions of every plant (:func:`._family.sessions`)
 SESSION_NAMES = tuple(sp.name for sp in sessions(draw_plant(0)))
