@@ -137,6 +137,9 @@ def test_run_fit_reads_the_exit_status_and_what_was_printed(tmp_path, monkeypatc
     assert (tmp_path / "still" / "calibration.csv").is_file() and (tmp_path / "still" / "robot.yaml").is_file()
     header = (tmp_path / "still" / "calibration.csv").read_text().splitlines()[0]
     assert "tau_h_act" not in header and "q_true" not in header        # the user's columns only
+    import yaml
+    user = yaml.safe_load((tmp_path / "still" / "robot.yaml").read_text())
+    assert set(user) == {"joints", "rate_hz", "model", "hardware", "calibration"}   # nothing "given" to fit
     if outcome == "refused":
         assert row["line"].startswith("sea-daemon fit: error: the arm never moves") and not row["nonfinite"]
     if outcome == "calibrated":

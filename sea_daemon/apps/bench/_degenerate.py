@@ -36,6 +36,7 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from sea_daemon.apps.bench._family import (
     DEGENERATE,
@@ -48,7 +49,8 @@ from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 from sea_daemon.errors import EstimatorFault, InputError
-from sea_daemon.io.configfile import import_root, load_config, save_config
+from sea_daemon.io.configfile import config_text, import_root, load_config
+from sea_daemon.io.files import atomic_write_text
 from sea_daemon.io.logcsv import write_log
 
 #: the coverage the bound must reach over the valid samples of every held-out session
@@ -161,6 +163,20 @@ def robot_akf_runs(pd, tests: dict) -> dict:
 # --------------------------------------------------------------- the user's calibration: sea-daemon fit
 
 
+#: the hardware keys a user's file gives (the drive and the encoders); the rest is simulation
+USER_HARDWARE = ("gear_ratio", "encoder_bits", "torque_limit")
+
+
+def user_yaml(cfg) -> dict:
+    """The model configuration a user writes for a robot (as ``configs/scenarios/newrobot/
+    robot.yaml``): joints, rate, the nominal robot model, the drive's gear, encoder resolution
+    and torque limit, the ``calibration`` section — nothing the calibration identifies (a key
+    the file gives is kept as given)."""
+    d = yaml.safe_load(config_text(cfg, "<user>"))
+    return {"joints": d["joints"], "rate_hz": d["rate_hz"], "model": d["model"],
+            "hardware": {k: d["hardware"][k] for k in USER_HARDWARE}, "calibration": d["calibration"]}
+
+
 def fit_command(log_path: Path, config_path: Path, prefix: Path) -> list[str]:
     """The command line of the calibration (this Python, this ``sea_daemon``)."""
     return [sys.executable, "-m", "sea_daemon", "fit", str(log_path), "--config", str(config_path),
@@ -175,7 +191,8 @@ def run_fit(dl: DegenerateLog, workdir: Path, timeout_s: float = FIT_TIMEOUT_S) 
     workdir.mkdir(parents=True, exist_ok=True)
     log_path, cfg_path, prefix = workdir / "calibration.csv", workdir / "robot.yaml", workdir / "fit"
     write_log(log_path, dataclasses.replace(dl.log, tau_h_act=None, extra={}))
-    save_config(dl.config, cfg_path, header=f"bench generalize --degenerate: {dl.case}: {dl.what}")
+    atomic_write_text(cfg_path, f"# bench generalize --degenerate: {dl.case}: {dl.what}\n"
+                      + yaml.safe_dump(user_yaml(dl.config), sort_keys=False))
     for old in (prefix.with_suffix(".yaml"), prefix.with_suffix(".npz"), Path(str(prefix) + ".report.json")):
         old.unlink(missing_ok=True)          # a previous run's files are not this one's
     cmd = fit_command(log_path, cfg_path, prefix)
