@@ -330,10 +330,16 @@ def test_diagnose_bad_config(tmp_path, capsys, case):
 # ------------------------------------------------------------------ calibrate / run / reset
 @pytest.fixture(scope="module")
 def model_file(tmp_path_factory):
+    """A model file to corrupt (what it holds does not matter here), calibrated with the bus
+    timeouts of tests/_hil.py: a heartbeat the loaded host delivers late must not fail it."""
+    from _hil import hil_config
+    from sea_daemon.io.configfile import save_config
     d = tmp_path_factory.mktemp("cal")
-    code = main(["calibrate", "--config", CFG, "--log-dir", str(d / "L"), "--out", str(d / "m.npz"),
-                 "--device-model", SCEN, "--cycles", "120", "--no-progress"])
-    assert code == 0
+    save_config(hil_config(), d / "c.yaml")
+    r = subprocess.run([sys.executable, "-m", "sea_daemon", "calibrate", "--config", str(d / "c.yaml"),
+                        "--log-dir", str(d / "L"), "--out", str(d / "m.npz"), "--device-model", SCEN,
+                        "--cycles", "120", "--no-progress"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
     return d / "m.npz"
 
 

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sea_daemon.apps.cli import main
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.log import DaemonLogLayout
 from sea_daemon.errors import ConfigError, InputError

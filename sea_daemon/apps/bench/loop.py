@@ -523,7 +523,7 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
 def _report_cpu(out: dict, res) -> None:
     worker = out["bound_worker"]
     dc, lc, xc = out["daemon_cpu_us"], out["loop_thread_cpu_us"], out["rx_thread_cpu_us"]
-    print(f"daemon CPU per cycle (loop thread + CAN receive thread"
+    print("daemon CPU per cycle (loop thread + CAN receive thread"
           + ("; the bound worker's process is not included, see below" if worker is not None else "")
           + f"): median {dc['median']:.0f} us, p99 "
           f"{dc['p99']:.0f} us, max {dc['max']:.0f} us  (loop thread median {lc['median']:.0f} / p99 {lc['p99']:.0f}; "
