@@ -450,7 +450,7 @@ def _print_degenerate(d: dict, cases) -> None:
 def _print_targets(label: str, rate: str, d: dict) -> None:
     yes = {True: "yes", False: "NO", None: "not measured"}
     g, c, h = d["gp_over_oracle"], d["coverage"], d["held"]
-    f = lambda x: "-" if x is None else f"{x:.3g}"
+    f = lambda x: "-" if x is None else f"{x:.3f}"
     print(f"{rate} Hz, {label} {d['plants']}: GP-AKF / oracle median {f(g['median'])} "
           f"(<= {TARGETS['gp_over_oracle_median']:g}: {yes[h['median']]}), p90 {f(g['p90'])} "
           f"(<= {TARGETS['gp_over_oracle_p90']:g}: {yes[h['p90']]}); coverage of the valid samples: smallest "
