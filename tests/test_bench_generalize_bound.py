@@ -1,7 +1,7 @@
-"""bench generalize scores the Theorem-1 bound of the estimator it is given (sea_daemon.apps.bench.generalize._run)."""
+"""bench generalize scores the Theorem-1 bound of the estimator it is given (sea_daemon.apps.bench.generalize.score_replay)."""
 import numpy as np
 
-from sea_daemon.apps.bench.generalize import _run
+from sea_daemon.apps.bench.generalize import score_replay as _run
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import AKF

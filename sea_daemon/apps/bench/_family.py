@@ -16,6 +16,10 @@
 :func:`sessions` lists the test sessions of a plant, unlike its calibration: slower and faster
 moves, a wider range, other shapes, active subjects at several bandwidths (0.1–3 Hz) while
 moving, and still-arm active sessions (Sec. V-C protocol).
+
+:func:`degenerate_calibration` builds the calibration logs a user may record by mistake
+(:data:`DEGENERATE`): the arm holding still, a short log, motion in one direction only, the
+motor torque at its limit for part of the log, a log at another rate than the configuration's.
 """
 from __future__ import annotations
 
@@ -27,10 +31,11 @@ from typing import ClassVar
 import numpy as np
 
 from sea_daemon.core.excitation import MoveSequence, WorkingRange, excitation, paper_moves
-from sea_daemon.core.config import HardwareConfig, ModelConfig
+from sea_daemon.core.config import CalibrationConfig, HardwareConfig, ModelConfig
 from sea_daemon.core.effects import Effect, make_effect
+from sea_daemon.core.log import MeasuredLog
 from sea_daemon.io.configfile import load_config, data_root
-from sea_daemon.core.sim.session import BandLimitedTorque, SineReference
+from sea_daemon.core.sim.session import BandLimitedTorque, SineReference, run_session
 
 # --------------------------------------------------------------- effects outside the vocabulary
 
@@ -297,3 +302,99 @@ def sessions(pd: PlantDraw, duration_s: float | None = None) -> list[SessionSpec
 
 def hardware_of(pd: PlantDraw) -> HardwareConfig:
     return pd.nominal.hardware
+
+
+def user_config(pd: PlantDraw) -> ModelConfig:
+    """The configuration the user gives ``sea-daemon fit``: the nominal robot, its declared
+    working range and subject torque (the ``calibration`` section)."""
+    wr = pd.working_range
+    cal = CalibrationConfig(q_min_deg=math.degrees(wr.q_min), q_max_deg=math.degrees(wr.q_max), v_max=wr.v_max,
+                            a_max=wr.a_max, human_band_hz=tuple(pd.human_band_hz), human_torque_rms=pd.human_rms)
+    return dataclasses.replace(pd.nominal, calibration=cal)
+
+
+# --------------------------------------------------------------- degenerate calibrations
+
+#: the degenerate calibration logs, in the order the benchmark runs them
+DEGENERATE = ("still", "short", "one_direction", "saturated", "wrong_rate")
+#: the calibration the degenerate ones are compared with (chosen with ``--cases``): the calibration
+#: excitation over the working range, as the README's flow records it
+REFERENCE = "full"
+#: lengths [s] of the still, short and one-direction logs
+STILL_S, SHORT_S, ONE_DIRECTION_S = 6.0, 3.0, 10.0
+#: the share of the saturated log's samples whose motor torque sits at the limit
+SATURATED_SHARE = 0.15
+
+
+@dataclass(frozen=True)
+class DegenerateLog:
+    """One degenerate calibration: the simulated log (with the truth in ``extra``), the
+    configuration the user gives with it, and what it is, in one line."""
+
+    case: str
+    log: MeasuredLog
+    config: ModelConfig
+    what: str
+
+
+def one_direction_motion(wr: WorkingRange, duration_s: float) -> MoveSequence:
+    """Minimum-jerk moves from q_min to q_max in four steps of a quarter of the range each, at
+    different speeds, with dwells between them: the arm never goes back."""
+    weights = (1.0, 0.5, 1.6, 0.8)
+    dwell = 0.1 * duration_s / len(weights)
+    moving = duration_s - dwell * len(weights)
+    step = wr.width / len(weights)
+    targets = tuple(wr.q_min + step * (i + 1) for i in range(len(weights)))
+    durations = tuple(moving * w / sum(weights) for w in weights)
+    return MoveSequence(wr.q_min, targets, durations, (dwell,) * len(weights))
+
+
+def other_rate(rate_hz: float) -> float:
+    """The rate a wrong-rate log is recorded at: 1 kHz for a 100 Hz configuration, else 100 Hz."""
+    return 1000.0 if rate_hz <= 200.0 else 100.0
+
+
+def degenerate_calibration(pd: PlantDraw, case: str, cal_s: float = 60.0) -> DegenerateLog:
+    """The degenerate calibration log ``case`` (one of :data:`DEGENERATE`) of plant ``pd``,
+    passive (τ_h,act = 0), seeded by the plant's seed:
+
+    * ``still``: the arm held still at mid-range by the PID for :data:`STILL_S` s;
+    * ``short``: the calibration excitation for :data:`SHORT_S` s;
+    * ``one_direction``: :func:`one_direction_motion` over :data:`ONE_DIRECTION_S` s;
+    * ``saturated``: the calibration excitation for ``cal_s`` s, its logged motor torque at
+      ±L for :data:`SATURATED_SHARE` of the samples (the drive reporting its limit while the
+      plant received more), the configuration's ``hardware.torque_limit`` L;
+    * ``wrong_rate``: the calibration excitation for ``cal_s`` s recorded at
+      :func:`other_rate` while the configuration keeps its own rate;
+    * ``full`` (:data:`REFERENCE`, not degenerate): the calibration excitation for ``cal_s`` s."""
+    cfg = user_config(pd)
+    wr = pd.working_range
+    seed = 5000 + pd.seed
+    if case == "still":
+        mid = 0.5 * (wr.q_min + wr.q_max)
+        log = run_session(pd.true, STILL_S, reference=SineReference(mid, (), (), ()), seed=seed)
+        return DegenerateLog(case, log, cfg, f"the arm held still at {math.degrees(mid):.0f} deg for {STILL_S:g} s")
+    if case == REFERENCE:
+        log = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=pd.seed), seed=seed)
+        return DegenerateLog(case, log, cfg, f"the calibration excitation for {cal_s:g} s (not degenerate)")
+    if case == "short":
+        log = run_session(pd.true, SHORT_S, reference=calibration_motion(pd, SHORT_S, seed=pd.seed), seed=seed)
+        return DegenerateLog(case, log, cfg, f"the calibration excitation for {SHORT_S:g} s")
+    if case == "one_direction":
+        log = run_session(pd.true, ONE_DIRECTION_S, reference=one_direction_motion(wr, ONE_DIRECTION_S), seed=seed)
+        return DegenerateLog(case, log, cfg, f"{math.degrees(wr.q_min):.0f} to {math.degrees(wr.q_max):.0f} deg in "
+                                             f"four moves, never back, {ONE_DIRECTION_S:g} s")
+    if case == "saturated":
+        log = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=pd.seed), seed=seed)
+        lim = float(np.quantile(np.abs(log.tau_m), 1.0 - SATURATED_SHARE))
+        log = dataclasses.replace(log, tau_m=np.clip(log.tau_m, -lim, lim))
+        cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, torque_limit=lim))
+        return DegenerateLog(case, log, cfg, f"the calibration excitation for {cal_s:g} s, the motor torque at its "
+                                             f"limit {lim:.3g} N m for {100 * SATURATED_SHARE:g} % of the samples")
+    if case == "wrong_rate":
+        rate = other_rate(cfg.rate_hz)
+        log = run_session(dataclasses.replace(pd.true, rate_hz=rate), cal_s,
+                          reference=calibration_motion(pd, cal_s, seed=pd.seed), seed=seed)
+        return DegenerateLog(case, log, cfg, f"the calibration excitation for {cal_s:g} s recorded at {rate:g} Hz, "
+                                             f"the configuration at {cfg.rate_hz:g} Hz")
+    raise ValueError(f"degenerate_calibration: unknown case {case!r}; one of {', '.join(DEGENERATE + (REFERENCE,))}")

@@ -17,10 +17,16 @@ while moving, still-arm active sessions).  Per session:
 
 RMSE of τ̂_h,act, faults (typed EstimatorFault), non-finite outputs, and — with ``--bound`` —
 the Theorem-1 bound ρ_k of the GP-AKF with the guaranteed (Lederer et al. 2019) β: coverage
-and mean ρ / mean |error|.
+of all samples and of the samples marked valid, the share valid, mean ρ / mean |error|.  Per
+rate (:func:`by_rate`): GP-AKF / oracle median and 90th percentile, each session's coverage and
+the smallest, the bound's size against :data:`TIGHT`, each target of :data:`TARGETS` met or not.
+
+``--rates``: each plant drawn at each rate given (default the seed's own).  ``--degenerate``:
+each plant calibrated instead on degenerate logs by ``sea-daemon fit`` (:mod:`._degenerate`).
 
 Seeds: ``--seeds`` (default ``420-439``).  The seeds that chose any setting of the calibration
-are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use other seeds.
+are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use
+other seeds, and the output names each seed development or held out.
 """
 from __future__ import annotations
 
@@ -35,15 +41,16 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import choose, machine
-from sea_daemon.apps.bench._family import calibration_motion, draw_plant, sessions
+from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant, score_replay,
+                                                summarize_degenerate)
+from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
-from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import run_session
-from sea_daemon.errors import EstimatorFault, InputError
+from sea_daemon.errors import InputError
 from sea_daemon.io.files import atomic_write_text, check_output_dir
 
 ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
@@ -52,8 +59,18 @@ ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
 #: 1 kHz, active subject 0.5–3 Hz, inspected; the others' figures looked at); 201 and 209 (inspected
 #: after a run of 200–219: the GP's target, and the GP's mean on 209's still_band session);
 #: 400–419 (a run whose plants 402 and 403 showed that diagnose must not refuse a spring term
-#: whose gain shows on one balance only)
+#: whose gain shows on one balance only); the degenerate calibrations (``--degenerate``) were built and
+#: first run on 400 and 401
 DEVELOPMENT_SEEDS = tuple(range(6)) + tuple(range(100, 120)) + (201, 209) + tuple(range(400, 420))
+#: the held-out sessions of every plant (:func:`._family.sessions`)
+SESSION_NAMES = tuple(sp.name for sp in sessions(draw_plant(0)))
+#: what the held-out seeds must show, per rate: GP-AKF / oracle AKF median and 90th percentile
+#: at most; in every session, the bound's coverage of the valid samples and the share valid at least
+TARGETS = {"gp_over_oracle_median": 1.5, "gp_over_oracle_p90": 3.0, "coverage": 0.95, "valid_share": 0.95}
+#: the largest mean bound over the valid samples [N m] of a passive and of an active session at
+#: 100 Hz (rates up to 200 Hz) and at 1 kHz (above); at 1 kHz an active session's is 3 × its RMSE
+TIGHT = {("passive", 100): 0.3, ("active", 100): 0.3, ("passive", 1000): 0.1}
+TIGHT_RMSE_FACTOR = 3.0
 
 
 def add_arguments(p) -> None:
@@ -65,6 +82,18 @@ def add_arguments(p) -> None:
     p.add_argument("--estimators", default=",".join(ESTIMATORS), help="comma list of " + ", ".join(ESTIMATORS))
     p.add_argument("--jobs", type=int, default=1, help="plants in parallel (processes)")
     p.add_argument("--no-cache", action="store_true", help="re-simulate even if the cache has the logs")
+    p.add_argument("--rates", default=None,
+                   help="comma list of rates [Hz] each plant is drawn at (default: the seed's own, 1 kHz for "
+                        "seeds = 2 mod 3, else 100 Hz)")
+    p.add_argument("--sessions", default=None, help="comma list of the held-out sessions to run (default all: "
+                                                    + ", ".join(SESSION_NAMES) + ")")
+    p.add_argument("--degenerate", action="store_true",
+                   help="calibrate each plant instead on degenerate logs (" + ", ".join(DEGENERATE)
+                        + ") with sea-daemon fit, as a user does: refused, or the held-out error and coverage "
+                          "next to the AKF on the robot-only model, and the verdict")
+    p.add_argument("--cases", default=None,
+                   help="with --degenerate: comma list of " + ", ".join(DEGENERATE) + " (default all of them) and "
+                        + REFERENCE + " (the calibration excitation for --cal-s s, for comparison)")
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -79,57 +108,45 @@ def parse_seeds(text: str) -> list[int]:
     return out
 
 
-def plant_logs(seed: int, cal_s: float, cache: Path | None):
-    """(plant, calibration log, {session: log}) of plant ``seed``, simulated or from the cache
-    (:mod:`._logcache`: numbers only; the plant is drawn again from its seed)."""
-    pd = draw_plant(seed)
-    p = None if cache is None else cache / f"plant_{seed}_{int(cal_s)}.npz"
-    key = {"seed": seed, "cal_s": cal_s, "sessions": [s.name for s in sessions(pd)]}
+def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | None = None,
+               calibration: bool = True):
+    """(plant, calibration log, {session: log}) of plant ``seed`` (at ``rate_hz``, default the
+    seed's own rate), simulated or from the cache (:mod:`._logcache`: numbers only; the plant
+    is drawn again from its seed); ``calibration=False``: the held-out sessions only (the
+    calibration log None)."""
+    pd = draw_plant(seed, rate_hz)
+    name = f"plant_{seed}_{int(cal_s)}" if calibration else f"sessions_{seed}"
+    if rate_hz is not None:
+        name += f"_{rate_hz:g}hz"
+    p = None if cache is None else cache / f"{name}.npz"
+    key = {"seed": seed, "cal_s": cal_s if calibration else None, "sessions": [s.name for s in sessions(pd)]}
+    if rate_hz is not None:
+        key["rate_hz"] = float(rate_hz)
     logs = None if p is None else load_logs(p, key)
-    if logs is not None and "calibration" in logs:
-        cal = logs.pop("calibration")
+    if logs is not None and ("calibration" in logs or not calibration):
+        cal = logs.pop("calibration", None)
         return pd, cal, logs
-    cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
+    cal = None
+    if calibration:
+        cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
     tests = {}
     for i, s in enumerate(sessions(pd)):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
                                     seed=2000 + 100 * seed + i)
     if p is not None:
-        save_logs(p, key, {"calibration": cal, **tests})
+        save_logs(p, key, ({"calibration": cal} if calibration else {}) | tests)
     return pd, cal, tests
 
 
-def _run(log, est, bound: bool = False) -> dict:
-    """Replay ``est`` over ``log``; ``bound``: the estimator carries the Theorem-1 bound (built with
-    ``bound=theorem_bound``) and its ρ_k is scored."""
-    try:
-        t0 = time.perf_counter()
-        r = replay(log, est)
-        wall = time.perf_counter() - t0
-    except EstimatorFault as e:
-        return {"fault": str(e)[:300]}
-    hat = r.tau_h_act_hat
-    fin = bool(np.all(np.isfinite(hat)) and np.all(np.isfinite(r.x_hat)) and np.all(np.isfinite(r.tau_h_act_bound)))
-    e = hat - log.tau_h_act
-    out = {"rmse": float(np.sqrt(np.mean(e ** 2))), "mean_abs": float(np.mean(np.abs(e))),
-           "max_abs": float(np.max(np.abs(e))), "finite": fin, "us_per_step": 1e6 * wall / len(log)}
-    if hasattr(est, "n_outside"):
-        out["outside_share"] = est.n_outside / max(len(log) - 1, 1)
-    if bound:
-        rho = r.tau_h_act_bound
-        out["bound"] = {"coverage": float(np.mean(np.abs(e) <= rho)), "mean_rho": float(np.mean(rho)),
-                        "ratio": float(np.mean(rho) / max(np.mean(np.abs(e)), 1e-12)),
-                        "gp_box_violations": int(getattr(est.bound, "gp_box_violations_", 0)),
-                        "saturated_share": int(getattr(est.bound, "saturated_", 0)) / len(log)}
-    return out
-
-
-def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str) -> dict:
-    """Calibrate plant ``seed`` once and run every estimator on every test session."""
+def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
+              rate_hz: float | None = None) -> dict:
+    """Calibrate plant ``seed`` (at ``rate_hz``, default its own) once and run every estimator
+    on every test session."""
     t0 = time.perf_counter()
-    pd, cal, tests = plant_logs(seed, cal_s, cache)
+    pd, cal, tests = plant_logs(seed, cal_s, cache, rate_hz)
     t_sim = time.perf_counter() - t0
-    row: dict = {"seed": seed, "plant": pd.summary}
+    row: dict = {"seed": seed, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
+                 "session_kinds": {sp.name: sp.kind for sp in sessions(pd)}}
     try:
         t0 = time.perf_counter()
         res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
@@ -174,14 +191,14 @@ def run_sessions(res, nominal, true, tests: dict, estimators, do_bound: bool = F
         for lab in estimators:
             try:
                 if lab == "gp-akf":
-                    r[lab] = _run(log, res.estimator(dt=log.dt, bound=theorem_bound if do_bound else None),
+                    r[lab] = score_replay(log, res.estimator(dt=log.dt, bound=theorem_bound if do_bound else None),
                                   bound=do_bound)
                 elif lab == "akf-aug":
-                    r[lab] = _run(log, res.estimator(dt=log.dt, kind="akf"))
+                    r[lab] = score_replay(log, res.estimator(dt=log.dt, kind="akf"))
                 elif lab == "akf-robot":
-                    r[lab] = _run(log, AKF(robot, dt=log.dt))
+                    r[lab] = score_replay(log, AKF(robot, dt=log.dt))
                 else:
-                    r[lab] = _run(log, AKF(oracle, dt=log.dt))
+                    r[lab] = score_replay(log, AKF(oracle, dt=log.dt))
             except Exception as e:
                 r[lab] = {"internal_error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-1500:]}
         out[name] = r
@@ -237,9 +254,93 @@ def summarize(rows: list[dict]) -> dict:
     }
 
 
+def seed_roles(seeds) -> dict:
+    """The seeds of a run named: development (they chose settings) and held out."""
+    dev = sorted(set(seeds) & set(DEVELOPMENT_SEEDS))
+    return {"development": dev, "held_out": sorted(set(seeds) - set(dev))}
+
+
+def _session_bound(g: dict, kind: str, rate: float):
+    """(coverage, mean bound, its limit) of a GP-AKF session over its valid samples (all when
+    none is marked valid); the limit of :data:`TIGHT`, None where it does not apply."""
+    b = g["bound"]
+    cov = b.get("coverage_valid") if b.get("coverage_valid") is not None else b["coverage"]
+    rho = b.get("mean_rho_valid") if b.get("mean_rho_valid") is not None else b["mean_rho"]
+    band = 100 if rate <= 200 else 1000
+    kind = "passive" if kind == "passive" else "active"
+    lim = TIGHT.get((kind, band))
+    if lim is None and b.get("rmse_valid") is not None:
+        lim = TIGHT_RMSE_FACTOR * b["rmse_valid"]
+    return cov, rho, lim
+
+
+def by_rate(rows: list[dict]) -> dict:
+    """Per rate: GP-AKF / oracle AKF median and p90, the bound's coverage per session (of the
+    valid samples) and the smallest, the sessions whose mean bound is above :data:`TIGHT`, and
+    whether each target of :data:`TARGETS` holds."""
+    out: dict = {}
+    for row in rows:
+        rate = float(row.get("rate_hz", row["plant"]["rate_hz"]))
+        d = out.setdefault(f"{rate:g}", {"plants": [], "ratios": [], "coverage": [], "loose": [], "bounded": 0,
+                                         "no_estimate": []})
+        d["plants"].append(row["seed"])
+        for name, r in row.get("sessions", {}).items():
+            g, o = r.get("gp-akf", {}), r.get("oracle", {})
+            if "rmse" in g and "rmse" in o:
+                d["ratios"].append(g["rmse"] / o["rmse"])
+            if "gp-akf" in r and "rmse" not in g:
+                d["no_estimate"].append([row["seed"], name, "fault" if "fault" in g else "internal error"])
+            if "bound" in g:
+                cov, rho, lim = _session_bound(g, row.get("session_kinds", {}).get(name, "active"), rate)
+                d["bounded"] += 1
+                d["coverage"].append([row["seed"], name, cov, g["bound"].get("valid_share", 1.0)])
+                if lim is not None and rho > lim:
+                    d["loose"].append([row["seed"], name, rho, lim])
+    for d in out.values():
+        ratios, covs = d.pop("ratios"), d.pop("coverage")
+        med, p90 = (float(np.percentile(ratios, 50)), float(np.percentile(ratios, 90))) if ratios else (None, None)
+        low = min(covs, key=lambda c: c[2]) if covs else None
+        d.update(sessions=len(ratios), gp_over_oracle={"median": med, "p90": p90},
+                 coverage={"per_session": covs, "min": None if low is None else low[2],
+                           "min_at": None if low is None else f"plant {low[0]} {low[1]}",
+                           "below": [c for c in covs if c[2] < TARGETS["coverage"]]},
+                 held={"median": None if med is None else med <= TARGETS["gp_over_oracle_median"],
+                       "p90": None if p90 is None else p90 <= TARGETS["gp_over_oracle_p90"],
+                       "coverage": None if not covs else (all(c[2] >= TARGETS["coverage"] for c in covs)
+                                                          and not d["no_estimate"]),
+                       "valid": None if not covs else all(c[3] >= TARGETS["valid_share"] for c in covs),
+                       "tight": None if not d["bounded"] else not d["loose"]})
+    return out
+
+
 def _job(args):
-    seed, cal_s, cache, est, bound = args
-    return run_plant(seed, cal_s, cache, est, bound)
+    seed, cal_s, cache, est, bound, rate, names = args
+    row = run_plant(seed, cal_s, cache, est, bound, rate)
+    if names is not None and "sessions" in row:
+        row["sessions"] = {k: v for k, v in row["sessions"].items() if k in names}
+    return row
+
+
+def _degenerate_job(args):
+    seed, rate, cal_s, cache, names, cases, work, verbose = args
+    pd, _, tests = plant_logs(seed, cal_s, cache, rate, calibration=False)
+    tests = {k: v for k, v in tests.items() if names is None or k in names}
+    return run_degenerate_plant(pd, tests, work / f"plant_{seed}_{pd.nominal.rate_hz:g}hz", cases, cal_s,
+                                on_case=print_case if verbose else None)
+
+
+def parse_rates(text: str | None) -> list[float | None]:
+    """``--rates``: [None] (each seed's own rate) or the rates [Hz], each in 1..100000."""
+    if not text:
+        return [None]
+    try:
+        rates = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--rates {text}: expected a comma list of rates in Hz, e.g. 100,1000") from None
+    bad = [r for r in rates if not 1.0 <= r <= 100000.0]
+    if bad or not rates:
+        raise InputError(f"--rates {text}: each rate must be in 1..100000 Hz")
+    return rates
 
 
 def run(args) -> int:
@@ -249,9 +350,11 @@ def run(args) -> int:
         raise InputError(f"--seeds {args.seeds}: expected 'a-b' or a comma list of integers") from None
     if not seeds:
         raise InputError(f"--seeds {args.seeds}: no seed")
-    used = sorted(set(seeds) & set(DEVELOPMENT_SEEDS))
-    if used:
-        print(f"bench generalize: note: seeds {used} were used to choose the calibration's settings", flush=True)
+    rates = parse_rates(args.rates)
+    names = None if not args.sessions else choose(args.sessions, SESSION_NAMES, "--sessions")
+    roles = seed_roles(seeds)
+    print(f"bench generalize: seeds held out {roles['held_out'] or 'none'}; development seeds (they chose the "
+          f"calibration's settings) {roles['development'] or 'none'}", flush=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
     out = check_output_dir("--out", args.out)
     cache = None if args.no_cache else out / "cache"
@@ -261,32 +364,101 @@ def run(args) -> int:
         if why is not None:
             print(f"bench generalize: note: cache {cache} not used: {why}", flush=True)
             cache = None
+    if args.degenerate:
+        return run_degenerate(args, seeds, rates, names, out, cache)
     est = choose(args.estimators, ESTIMATORS, "--estimators")
-    print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), calibration {args.cal_s:g} s, "
-          f"estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
-    jobs = [(s, args.cal_s, cache, est, args.bound) for s in seeds]
-    rows = []
-    with Progress("bench generalize", total=len(jobs), unit="plants", interval=0.0) as progress:
-        progress(0, what="plants calibrated and tested")
-        if args.jobs > 1:
-            with mp.get_context("fork").Pool(args.jobs) as pool:
-                for row in pool.imap_unordered(_job, jobs):
-                    rows.append(row)
-                    _print_row(row)
-                    progress(len(rows), what="plants calibrated and tested")
-        else:
-            for j in jobs:
-                row = _job(j)
-                rows.append(row)
-                _print_row(row)
-                atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
-                progress(len(rows), what="plants calibrated and tested")
-    rows.sort(key=lambda r: r["seed"])
+    print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), rates "
+          f"{args.rates or 'of the seeds'}, calibration {args.cal_s:g} s, estimators {', '.join(est)}, "
+          f"bound {args.bound}; {machine()}", flush=True)
+    jobs = [(s, args.cal_s, cache, est, args.bound, r, names) for s in seeds for r in rates]
+    rows = _pool(jobs, _job, args.jobs, _print_row, out, "plants calibrated and tested")
+    rows.sort(key=lambda r: (r["seed"], r.get("rate_hz", 0.0)))
     summary = summarize(rows)
+    summary["seeds"] = roles
+    summary["by_rate"] = by_rate([r for r in rows if r["seed"] not in DEVELOPMENT_SEEDS])
+    if roles["development"]:
+        summary["by_rate_development"] = by_rate([r for r in rows if r["seed"] in DEVELOPMENT_SEEDS])
     atomic_write_text(out / "results.json", json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))
-    print(json.dumps(summary, indent=1, default=float))
+    print(json.dumps({k: v for k, v in summary.items() if not k.startswith("by_rate")}, indent=1, default=float))
+    for label, key in (("held-out seeds", "by_rate"), ("development seeds", "by_rate_development")):
+        for rate, d in summary.get(key, {}).items():
+            _print_targets(label, rate, d)
     print(f"results: {out / 'results.json'}  (load average {os.getloadavg()[0]:.2f})")
     return 0
+
+
+def _pool(jobs, fn, n_jobs: int, show, out: Path, what: str) -> list[dict]:
+    """``fn`` over ``jobs`` (``n_jobs`` processes), each row shown as it comes and the rows so
+    far kept in ``out/results.json``."""
+    rows = []
+    with Progress("bench generalize", total=len(jobs), unit="plants", interval=0.0) as progress:
+        progress(0, what=what)
+        if n_jobs > 1:
+            with mp.get_context("fork").Pool(n_jobs) as pool:
+                for row in pool.imap_unordered(fn, jobs):
+                    rows.append(row)
+                    show(row)
+                    progress(len(rows), what=what)
+        else:
+            for j in jobs:
+                rows.append(fn(j))
+                show(rows[-1])
+                atomic_write_text(out / "results.json", json.dumps({"rows": rows}, indent=1, default=float))
+                progress(len(rows), what=what)
+    return rows
+
+
+def run_degenerate(args, seeds, rates, names, out: Path, cache) -> int:
+    """``--degenerate``: every degenerate calibration of every plant and rate, its verdict."""
+    cases = choose(args.cases or ",".join(DEGENERATE), DEGENERATE + (REFERENCE,), "--cases")
+    print(f"bench generalize --degenerate: {len(seeds)} plants (seeds {args.seeds}), rates "
+          f"{args.rates or 'of the seeds'}, cases {', '.join(cases)}, the calibration by sea-daemon fit, "
+          f"held-out sessions {', '.join(names or SESSION_NAMES)}; {machine()}", flush=True)
+    work = out / "degenerate"
+    verbose = args.jobs <= 1
+    jobs = [(s, r, args.cal_s, cache, names, cases, work, verbose) for s in seeds for r in rates]
+
+    def show(row):
+        if not verbose:
+            for c in row["cases"].values():
+                print_case(draw_plant(row["seed"], row["rate_hz"]), c)
+    rows = _pool(jobs, _degenerate_job, args.jobs, show, out, "plants calibrated on degenerate logs")
+    rows.sort(key=lambda r: (r["seed"], r["rate_hz"]))
+    summary = {"seeds": seed_roles(seeds), "degenerate": summarize_degenerate(rows)}
+    atomic_write_text(out / "results.json", json.dumps({"summary": summary, "degenerate": rows}, indent=1,
+                                                       default=float))
+    _print_degenerate(summary["degenerate"], cases)
+    print(f"results: {out / 'results.json'}, logs and models: {work}  (load average {os.getloadavg()[0]:.2f})")
+    return 0
+
+
+def _print_degenerate(d: dict, cases) -> None:
+    rates = sorted(d["by_rate"], key=float)
+    print("\nverdicts of the degenerate calibrations (plants by seed):")
+    print("| case | " + " | ".join(f"{r} Hz" for r in rates) + " |")
+    for case in cases:
+        cells = []
+        for r in rates:
+            c = d["by_rate"][r].get(case, {})
+            cells.append("; ".join(f"{k} {', '.join(map(str, v))}" for k, v in c.items() if v) or "-")
+        print(f"| {case} | " + " | ".join(cells) + " |")
+    print(f"{d['ok']} of {d['cases']} as the rule asks ({d['refused']} refused, {d['held']} held, {d['failed']} "
+          f"failed); invented effects {d['invented_effects']}, nan/inf printed or written {d['nonfinite_printed']}, "
+          f"internal errors {d['internal_errors']}", flush=True)
+
+
+def _print_targets(label: str, rate: str, d: dict) -> None:
+    yes = {True: "yes", False: "NO", None: "not measured"}
+    g, c, h = d["gp_over_oracle"], d["coverage"], d["held"]
+    f = lambda x: "-" if x is None else f"{x:.3f}"
+    print(f"{rate} Hz, {label} {d['plants']}: GP-AKF / oracle median {f(g['median'])} "
+          f"(<= {TARGETS['gp_over_oracle_median']:g}: {yes[h['median']]}), p90 {f(g['p90'])} "
+          f"(<= {TARGETS['gp_over_oracle_p90']:g}: {yes[h['p90']]}); coverage of the valid samples: smallest "
+          f"{f(c['min'])} ({c['min_at'] or '-'}) over {d['bounded']} sessions, >= {TARGETS['coverage']:g} in every "
+          f"session: {yes[h['coverage']]}; >= {100 * TARGETS['valid_share']:g} % valid in every session: "
+          f"{yes[h['valid']]}; mean bound within the limits: {yes[h['tight']]}"
+          + (f" ({len(d['loose'])} sessions above)" if d["loose"] else "")
+          + (f"; no estimate in {len(d['no_estimate'])} sessions" if d["no_estimate"] else ""), flush=True)
 
 
 def _print_row(row: dict) -> None:
@@ -294,7 +466,8 @@ def _print_row(row: dict) -> None:
         print(f"plant {row['seed']}: CALIBRATION ERROR {row['calibration_error']}", flush=True)
         return
     c = row["calibration"]
-    print(f"plant {row['seed']} ({row['plant']['rate_hz']:g} Hz, {row['plant']['encoder_bits']} bit, outside "
+    print(f"plant {row['seed']} ({'development' if row['seed'] in DEVELOPMENT_SEEDS else 'held out'}, "
+          f"{row['plant']['rate_hz']:g} Hz, {row['plant']['encoder_bits']} bit, outside "
           f"{row['plant']['outside_vocabulary']}): q_tau {c['q_tau']:.3g}, gp {'kept' if c['gp_kept'] else 'off'}, "
           f"calibration {row['calibration_s']:.0f} s", flush=True)
     for name, r in row["sessions"].items():
@@ -305,5 +478,7 @@ def _print_row(row: dict) -> None:
                                                                                ("ERROR" if "internal_error" in v else "-"))))
         b = r.get("gp-akf", {}).get("bound")
         if b:
-            cells.append(f"bound cov {b['coverage']:.2f} ratio {b['ratio']:.1f}")
+            cv = b.get("coverage_valid")
+            cells.append(f"bound cov {b['coverage']:.3f}" + ("" if cv is None else f", of the valid {cv:.3f}")
+                         + f" ({100 * b.get('valid_share', 1.0):.0f} % valid) ratio {b['ratio']:.1f}")
         print(f"  {name:12s} " + "  ".join(cells), flush=True)
