@@ -19,6 +19,7 @@ import pytest
 from _cli import refused, run
 from _paths import repo_root
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.io.logcsv import read_log, write_log
 
@@ -142,3 +143,15 @@ def test_calibrate_fit_on_a_session_too_short_refuses_and_keeps_the_log(tmp_path
     assert code == 2 and s["cycles"] == 300 and "each way" in s["refused"] and "--excitation" in s["refused"]
     assert "log kept" in err and not (tmp_path / "m.npz").exists()
     assert read_log(s["log"], n=1).t.size == 300 and not NAN.search(out + err)
+
+
+def test_a_model_that_cannot_be_simulated_writes_no_nan_in_its_note(monkeypatch):
+    """The synthetic sessions of an identified model that runs away (a saturated log's spring):
+    the calibration goes on without them and says so, without the runaway state's nan."""
+    from sea_daemon.apps.calibration import pipeline
+
+    def runaway(*a, **k):
+        raise InputError("x must be finite, got [nan, nan, 0.0]")
+    monkeypatch.setattr(pipeline, "synthetic_sessions", runaway)
+    logs, note = pipeline._synthetic_logs(None, None, None, 0.0, 1.0, pipeline.CalibrationOptions(), None, 0.0, 0.0)
+    assert logs == {} and "synthetic replay failed" in note and not NAN.search(note), note

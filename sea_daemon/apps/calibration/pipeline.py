@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
@@ -257,7 +258,8 @@ def _synthetic_logs(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_
     except (RuntimeError, ValueError, ArithmeticError, InputError) as e:
         # the identified model cannot be simulated (e.g. no static equilibrium found for its
         # spring): q_τ from the declared torque alone, the friction smoothing from the passive log
-        return {}, f"synthetic replay failed ({type(e).__name__}: {e}); q_tau from the declared torque"
+        why = str(e) if not re.search(r"\b(nan|inf)\b", str(e), re.I) else "the simulated state ran away"
+        return {}, f"synthetic replay failed ({type(e).__name__}: {why}); q_tau from the declared torque"
 
 
 class _WalkScan:
