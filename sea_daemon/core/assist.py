@@ -42,6 +42,7 @@ import math
 
 import numpy as np
 
+from sea_daemon.core.estimators.validity import LEARNING, STARTUP
 from sea_daemon.errors import EstimatorFault, Fault
 
 
@@ -146,8 +147,8 @@ class InnovationGuard:
     """An estimator whose steps are refused when the normalised innovation is an outlier.
 
     Wraps an AKF / GP-AKF (anything with ``update`` and a per-step ``nis``): :meth:`update` runs
-    the filter step and raises :class:`InnovationOutlier` when the step was a filter step (the
-    estimate valid) with ``nis > nis_max``.  Every other attribute is the estimator's.
+    the filter step and raises :class:`InnovationOutlier` when the step was a filter step (past
+    the start-up transient, not learning) with ``nis > nis_max``.  Every other attribute is the estimator's.
     """
 
     def __init__(self, estimator, nis_max: float):
@@ -167,7 +168,9 @@ class InnovationGuard:
     def update(self, q, theta_m, tau_m, dt: float | None = None):
         est = self.estimator.update(q, theta_m, tau_m, dt)
         nis = float(getattr(self.estimator, "nis", 0.0))
-        if est.valid:
+        # a filter step: past the start-up transient and not learning, whether or not its bound
+        # is published as valid (an AKF without a model-error term, a bound above its limit)
+        if est.valid or getattr(est, "invalid_reason", STARTUP) not in (STARTUP, LEARNING):
             if not nis <= self.nis_max:
                 raise InnovationOutlier(
                     f"innovation outlier at step {est.k}: normalised innovation {nis:.4g} above "
