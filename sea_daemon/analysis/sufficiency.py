@@ -57,7 +57,7 @@ class Limits:
     still_span_deg: float = 1.0       # the load angle spans less: a still-arm log
     min_snr: float = 10.0             # signal over noise of each regressor the physics needs
     saturated_flag: float = 0.02      # share of samples at the torque limit that is reported ...
-    saturated_refuse: float = 0.2     # ... and that is refused
+    saturated_refuse: float = 0.05    # ... and that is refused (bench generalize --degenerate)
     rate_tolerance: float = 0.01      # sample period within this share of the configuration's
     smooth_s: float = 0.1             # the zero-phase smoother of the regressors
     min_range_share: float = 0.8      # of the declared working range's angles and speed, else a note
