@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sea_daemon.analysis.sufficiency import finite
+
 #: [rad] smallest range of an angle (joint side) that counts as motion: below it the joint
 #: "hardly moves" (the statement of :func:`.summary.statements`), every effect of that angle
 #: looks like a constant torque
@@ -64,15 +66,10 @@ class SideMotion:
         return self.up + self.down
 
     def to_json(self) -> dict:
-        return {"span_rad": _finite(self.span), "moving_share": _finite(self.moving),
-                "positive_share": _finite(self.up), "negative_share": _finite(self.down),
-                "reversals": int(self.reversals), "speed_ratio": _finite(self.speed_ratio),
-                "acceleration_snr": _finite(self.acc_snr)}
-
-
-def _finite(v: float) -> float | None:
-    v = float(v)
-    return v if math.isfinite(v) else None
+        return {"span_rad": finite(self.span), "moving_share": finite(self.moving),
+                "positive_share": finite(self.up), "negative_share": finite(self.down),
+                "reversals": int(self.reversals), "speed_ratio": finite(self.speed_ratio),
+                "acceleration_snr": finite(self.acc_snr)}
 
 
 @dataclass
@@ -89,10 +86,10 @@ class JointMotion:
 
     def to_json(self) -> dict:
         return {"load": self.load.to_json(), "motor": self.motor.to_json(),
-                "spring_span_rad": _finite(self.spring_span),
-                "spring_span_steps": _finite(self.spring_span / self.spring_step) if self.spring_step > 0 else None,
+                "spring_span_rad": finite(self.spring_span),
+                "spring_span_steps": finite(self.spring_span / self.spring_step) if self.spring_step > 0 else None,
                 "spring_both_signs": bool(self.spring_both_signs),
-                "command_variation": _finite(self.command_variation)}
+                "command_variation": finite(self.command_variation)}
 
 
 class Excitation:
