@@ -118,7 +118,11 @@ def _cycle(rig, cycles, starts):
     (the caller expects one to raise)."""
     for _ in range(cycles):
         starts.append(time.monotonic())
-        rig.hw.read()
+        try:
+            rig.hw.read()
+        except Exception:
+            starts.append(time.monotonic())            # when the raising read() returned
+            raise
         rig.hw.write(np.zeros(1))
         time.sleep(0.005)
 
@@ -129,8 +133,10 @@ def test_heartbeat_loss_detected_at_the_first_cycle_past_the_timeout(make_rig):
     starts = []
     with pytest.raises(HeartbeatLost, match=r"node 2: heartbeat \(0x702\): no heartbeat for \d+ ms, allowed <= 250 ms"):
         _cycle(rig, 200, starts)
-    last_hb = rig.hw._hb_last[rig.encoder.id]
-    assert starts[-2] - last_hb <= 0.25 < starts[-1] - last_hb + 1e-3     # the cycle before was still in time
+    last_hb = rig.hw.heartbeat_arrival(rig.encoder.id)
+    # the raising read() started no later than the timeout after the last heartbeat plus one cycle
+    # (the cycle before did not raise, so it checked in time) and returned past the timeout
+    assert starts[-3] - last_hb <= 0.25 < starts[-1] - last_hb
 
 
 def test_heartbeat_timeout_runs_from_the_last_heartbeats_arrival_not_from_when_it_was_taken(make_rig):
@@ -152,7 +158,7 @@ def test_heartbeat_timeout_runs_from_the_last_heartbeats_arrival_not_from_when_i
         last = sniffer.hb_seen[rig.encoder.id]        # the encoder's last heartbeat on the bus
     finally:
         sniffer.close()
-    assert len(starts) >= 2 and starts[-2] <= last + 0.5
+    assert len(starts) >= 3 and starts[-3] <= last + 0.5       # the cycle before the raising one started in time
 
 
 def test_device_bus_off_is_seen_as_missing_frames(make_rig):
