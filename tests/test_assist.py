@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sea_daemon.core.assist import AssistLaw, InnovationGuard, InnovationOutlier
+from sea_daemon.core.assist import ENGAGED, RESTART_RATIO, RHO_ABOVE_MAX, AssistLaw, InnovationGuard, InnovationOutlier
 from sea_daemon.core.config import AssistConfig, ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.errors import ConfigError, Fault
@@ -109,14 +109,33 @@ def test_smoothing_delays_and_keeps_the_bound():
     tau = 1.5 * np.sin(np.arange(3000) * dt * 1.3) + 0.3 * rng.standard_normal(3000).cumsum() * 0.05
     tau_avg = tau[0]
     for k in range(3000):
-        rho = 0.2 + 0.5 * rng.random()
+        # bursts of a wide bound (a standstill) now and then: the averages restart after them
+        rho = 0.2 + 0.5 * rng.random() if k % 500 > 100 else 5.0 + 5.0 * rng.random()
         hat = tau[k] + rho * (2 * rng.random() - 1)                  # the bound holds
+        restart = RESTART_RATIO * rho < a.rho_avg[0]
         a.step([hat], [rho], True)
         if k:
-            tau_avg += beta * (tau[k] - tau_avg)
+            tau_avg = tau[k] if restart else tau_avg + beta * (tau[k] - tau_avg)
         t = a.target[0]
         assert abs(t) <= 2.0 * abs(tau_avg) + 1e-9
         assert t == 0.0 or np.sign(t) == np.sign(tau_avg)
+
+
+def test_the_averages_restart_when_the_bound_falls_after_a_standstill():
+    """A standstill's wide bound (10 N m for 2 s) does not hold the assistance off once the bound
+    is tight again: the averages restart from the first estimate whose bound is below half of
+    theirs, so the subject's 1.5 N m is certified in the next step, not after the low-pass has
+    forgotten the standstill (1.3 s at smoothing_s 0.6)."""
+    a = law(smoothing_s=0.6, dt=0.01)
+    for _ in range(200):
+        a.step([1.5], [10.0], True)
+    assert a.state[0] == RHO_ABOVE_MAX and a.target[0] == 0.0
+    a.step([1.5], [0.3], True)
+    assert a.rho_avg[0] == pytest.approx(0.3) and a.tau_hat_avg[0] == pytest.approx(1.5)
+    assert a.state[0] == ENGAGED and a.target[0] == pytest.approx(2.0 * (1.5 - 0.3 - 0.05))
+    # a bound that grows is averaged in as before (no restart): the average follows it with the low-pass
+    a.step([1.5], [0.5], True)
+    assert 0.3 < a.rho_avg[0] < 0.31
 
 
 # ---------------------------------------------------------------------------- innovation check

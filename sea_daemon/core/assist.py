@@ -18,7 +18,11 @@ no larger (|τ_cert| ≤ |τ̄_h,act|).  The assistance is
     τ_assist → τ_target at most ``max_rate`` per second,
 
 and 0 *in the same step* when the estimate is not valid (start-up, a latched fault: the loop
-then gives no estimate) — the averages restart from the next valid estimate.  Each step
+then gives no estimate) — the averages restart from the next valid estimate.  They restart too
+when the estimate's bound falls below 1/:data:`RESTART_RATIO` of the averaged one (the end of a
+standstill where the bound was wide): any average with non-negative weights summing to one keeps
+the guarantee, and one that still carries the wide bounds of the past certifies nothing of what
+the subject does now.  Each step
 records per joint why the assistance is what it is (:attr:`AssistLaw.state`, counted in
 :attr:`AssistLaw.counts`): :data:`ENGAGED` (τ_target ≠ 0), :data:`INVALID` (no valid estimate),
 :data:`RHO_ABOVE_MAX` (ρ̄ > ρ_max), :data:`BELOW_BOUND` (|τ̄̂| ≤ ρ̄ + τ_db: the bound certifies
@@ -51,6 +55,8 @@ from sea_daemon.errors import EstimatorFault, Fault
 #: no effort (|τ̄̂| ≤ ρ̄ + deadband)
 ENGAGED, INVALID, RHO_ABOVE_MAX, BELOW_BOUND = range(4)
 STATES = ("engaged", "invalid", "rho_above_max", "below_bound")
+#: the averages restart from the current estimate when its bound is below 1/RESTART_RATIO of ρ̄
+RESTART_RATIO = 2.0
 
 
 class InnovationOutlier(EstimatorFault):
@@ -114,7 +120,7 @@ class AssistLaw:
                 state[j] = INVALID
                 counts[j, INVALID] += 1
                 continue
-            if self._fresh[j]:
+            if self._fresh[j] or RESTART_RATIO * r < rbar[j]:
                 tbar[j], rbar[j] = th, r
                 self._fresh[j] = False
             else:
