@@ -304,7 +304,7 @@ def _still_over_range(f: dict, cfg: ModelConfig, path: str) -> str | None:
     lo, hi = f.get("q_range_deg", [float("nan")] * 2)
     at = f"at {0.5 * (lo + hi):.0f} deg " if math.isfinite(lo) and math.isfinite(hi) else ""
     return (f"{path}: the arm held still {at}(the load angle spans {f.get('q_span_deg', 0.0):.2f} deg) and the "
-            f"configuration declares the working range {c.q_min_deg:g}-{c.q_max_deg:g} deg "
+            f"configuration declares the working range {c.q_min_deg:.4g}-{c.q_max_deg:.4g} deg "
             "(calibration.q_min_deg, q_max_deg): a still arm shows the sensors' noise alone, not the arm's weight, "
             f"the elbow, friction or inertia over that range; {RECORD}")
 
