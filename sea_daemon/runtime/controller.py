@@ -193,8 +193,9 @@ class AssistController:
     def summary(self, cycles: int) -> dict:
         """The run's assistance figures over ``cycles`` loop cycles (docs/assist.md, "The run's
         figures"): the share of joint-cycles the assistance was engaged, the share it was
-        available (the gate open: engaged or ``below_bound``) and, for the others, why not — ``fault`` (the controller did not run: a latched fault, no sample), ``invalid``
-        (no valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
+        available (the gate open: engaged or ``below_bound``) and, for the others, why not —
+        ``fault`` (the controller did not run: a latched fault, no sample), ``invalid`` (no
+        valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
         bound; the effort reduction where the subject's torque is known (None otherwise, with
         the reason)."""
         c = self.law.counts.sum(axis=0)
