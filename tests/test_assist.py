@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sea_daemon.core.assist import ENGAGED, RESTART_RATIO, RHO_ABOVE_MAX, AssistLaw, InnovationGuard, InnovationOutlier
+from sea_daemon.core.assist import BELOW_BOUND, ENGAGED, RESTART_RATIO, RHO_ABOVE_MAX, AssistLaw, InnovationGuard, InnovationOutlier
 from sea_daemon.core.config import AssistConfig, ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.errors import ConfigError, Fault
@@ -136,6 +136,20 @@ def test_the_averages_restart_when_the_bound_falls_after_a_standstill():
     # a bound that grows is averaged in as before (no restart): the average follows it with the low-pass
     a.step([1.5], [0.5], True)
     assert 0.3 < a.rho_avg[0] < 0.31
+
+
+def test_the_subject_reversing_stops_the_assistance_at_once():
+    """The averaged estimate still says +1 N m when the subject has turned to -1 N m (the braking
+    half of a move): the current estimate certifies the other direction, so the target is 0 in
+    that step, not after the low-pass has followed; while both agree, the smaller certified part."""
+    a = law(smoothing_s=0.6, dt=0.01)
+    for _ in range(300):
+        a.step([1.0], [0.2], True)
+    assert a.target[0] == pytest.approx(2.0 * (1.0 - 0.2 - 0.05))
+    a.step([0.5], [0.2], True)                  # weaker now: the current estimate certifies 0.25
+    assert a.tau_hat_avg[0] > 0.9 and a.target[0] == pytest.approx(2.0 * (0.5 - 0.2 - 0.05))
+    a.step([-1.0], [0.2], True)                 # reversed: the average is still positive
+    assert a.tau_hat_avg[0] > 0.8 and a.target[0] == 0.0 and a.state[0] == BELOW_BOUND
 
 
 # ---------------------------------------------------------------------------- innovation check

@@ -12,7 +12,11 @@ only
     τ_cert = sign(τ̄̂) · max(|τ̄̂| − ρ̄ − τ_db, 0)
 
 is certified: it has the sign of what the subject did over the last ``smoothing_s`` and is
-no larger (|τ_cert| ≤ |τ̄_h,act|).  The assistance is
+no larger (|τ_cert| ≤ |τ̄_h,act|).  Of that, only as much as the current estimate certifies in
+the same direction is used, min(|τ_cert|, |τ̂| − ρ − τ_db), and nothing when τ̂ points the
+other way: wherever the bounds hold, the target also has the sign of what the subject does
+now and is no larger than gain times it, so a subject that reverses (the braking half of a move) is not pushed on
+by the average of its past effort.  The assistance is
 
     τ_target = clip(α · τ_cert, ±τ_max)          (0 while ρ̄ > ρ_max)
     τ_assist → τ_target at most ``max_rate`` per second,
@@ -128,6 +132,9 @@ class AssistLaw:
                 rbar[j] += b * (r - rbar[j])
             mag = abs(tbar[j])
             cert = mag - rbar[j] - self.deadband
+            # and no more than the current estimate certifies in the same direction (0 when it
+            # points the other way): the subject's reversal stops the assistance at once
+            cert = min(cert, abs(th) - r - self.deadband) if th * tbar[j] > 0.0 else min(cert, 0.0)
             self.rho_sum[j] += rbar[j]
             if rbar[j] > self.rho_max:
                 st = RHO_ABOVE_MAX
