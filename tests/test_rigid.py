@@ -125,3 +125,16 @@ def test_scaling_refuses_unknown_links_and_bad_factors(arm):
         scaled_urdf(arm.urdf, mass={"hand": 2.0})
     with pytest.raises(ConfigError, match="factor > 0"):
         scaled_urdf(arm.urdf, length={"upper": -1.0})
+
+
+def test_armature_adds_to_the_diagonal_and_copies_rebuild(arm):
+    import copy
+    import pickle
+    q, dq, tau = np.array([0.3, 0.8]), np.array([0.1, 0.2]), np.array([1.0, -1.0])
+    heavy = arm.with_armature([0.05, 0.0])
+    np.testing.assert_allclose(heavy.mass_matrix(q), arm.mass_matrix(q) + np.diag([0.05, 0.0]), rtol=1e-12)
+    np.testing.assert_allclose(heavy.forward(q, dq, tau),
+                               np.linalg.solve(heavy.mass_matrix(q), tau - heavy.bias(q, dq)), rtol=1e-10)
+    for twin in (pickle.loads(pickle.dumps(heavy)), copy.deepcopy(heavy)):
+        assert twin.data is not heavy.data
+        np.testing.assert_array_equal(twin.forward(q, dq, tau), heavy.forward(q, dq, tau))

@@ -58,7 +58,8 @@ class RigidBody:
     """The rigid multibody of a URDF: M(q), b(q, q̇) = C(q, q̇) q̇ + g(q), ABA and its derivatives.
 
     ``urdf``: the URDF's text; ``source``: the file it came from (named in errors); ``gravity``:
-    the gravity vector [m/s²] in the base frame (default (0, 0, −9.81)).  Raises
+    the gravity vector [m/s²] in the base frame (default (0, 0, −9.81)); ``armature``: (n,) inertia
+    [kg m² or kg] added on the diagonal of M(q) (a declared ``inertia`` effect on the load side).  Raises
     :class:`~sea_daemon.errors.ConfigError` (key ``model.urdf``) for text that is not a URDF, for
     a description without movable joints or with a joint that is not ``revolute``/``prismatic``,
     and for one whose M(q) is singular at q = 0 (a joint that moves no mass).
@@ -67,7 +68,7 @@ class RigidBody:
     methods return new arrays (Pinocchio's workspace is reused between calls).
     """
 
-    def __init__(self, urdf: str, *, source: str = "model.urdf", gravity=None):
+    def __init__(self, urdf: str, *, source: str = "model.urdf", gravity=None, armature=None):
         self.source = source
         self.urdf = urdf
         check_joints(urdf, source)
@@ -82,6 +83,11 @@ class RigidBody:
             if not np.all(np.isfinite(g)):
                 raise ConfigError(source, "gravity", f"must be 3 finite numbers, got {gravity!r}")
             model.gravity.linear = g
+        if armature is not None:
+            arm = np.asarray(armature, dtype=float).reshape(-1)
+            if arm.shape != (model.nv,) or not np.all(np.isfinite(arm)):
+                raise ConfigError(source, "armature", f"must be {model.nv} finite numbers, got {armature!r}")
+            model.armature = np.array(model.armature) + arm
         self.model = model
         self.data = model.createData()
         #: number of joints n
@@ -97,6 +103,13 @@ class RigidBody:
             raise ConfigError(source, "model.urdf",
                               f"the inertia matrix M(q) is singular at q = 0: joint(s) {', '.join(weak)} move no mass "
                               "(every movable joint needs a link with mass and inertia beyond it)")
+
+    def __getstate__(self) -> dict:
+        """Pickled (and copied) as its description: the copy builds its own Pinocchio model and workspace."""
+        return {"urdf": self.urdf, "source": self.source, "gravity": self.gravity_vector, "armature": self.armature}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["urdf"], source=state["source"], gravity=state["gravity"], armature=state["armature"])
 
     def _q(self, q) -> np.ndarray:
         return np.asarray(q, dtype=float).reshape(self.n)
@@ -150,8 +163,23 @@ class RigidBody:
 
     def scaled(self, mass: Mapping[str, float] | None = None, length: Mapping[str, float] | None = None) -> "RigidBody":
         """The same body with link masses and lengths scaled (:func:`scaled_urdf`), same gravity."""
-        g = np.array(self.model.gravity.linear)
-        return RigidBody(scaled_urdf(self.urdf, mass, length), source=self.source, gravity=g)
+        return RigidBody(scaled_urdf(self.urdf, mass, length), source=self.source, gravity=self.gravity_vector,
+                         armature=self.armature)
+
+    @property
+    def gravity_vector(self) -> np.ndarray:
+        """The gravity vector [m/s²] in the base frame."""
+        return np.array(self.model.gravity.linear)
+
+    @property
+    def armature(self) -> np.ndarray:
+        """(n,) the inertia added on the diagonal of M(q) (zeros unless given)."""
+        return np.array(self.model.armature)
+
+    def with_armature(self, armature) -> "RigidBody":
+        """The same body with ``armature`` (n,) added on the diagonal of M(q)."""
+        return RigidBody(self.urdf, source=self.source, gravity=self.gravity_vector,
+                         armature=self.armature + np.asarray(armature, dtype=float).reshape(self.n))
 
 
 # ------------------------------------------------------------------ the URDF's text
