@@ -117,7 +117,7 @@ class AKFTheoremBound:
                        and (not has_gp or residual_gps(akf) is not None))
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
-        self.friction = FrictionRange(akf.model, akf.tables, sets)
+        self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets)
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
@@ -167,8 +167,9 @@ class AKFTheoremBound:
         n, d = self.akf.n, self.akf.d
         m = self.akf.model
         self._I = np.eye(d)
-        # only gravity is non-linear in a nominal model without declared effects
-        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # only gravity is non-linear in a nominal model without declared effects (and no URDF body)
+        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash
+                          or m.rigid is not None)
         # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
         # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
         # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
