@@ -97,6 +97,11 @@ class RigidBody:
         #: position limits [rad or m] of the URDF (±inf where it gives none)
         self.q_min = np.array(model.lowerPositionLimit, dtype=float)
         self.q_max = np.array(model.upperPositionLimit, dtype=float)
+        # whether this Pinocchio's bindings return M and M⁻¹ whole (else only their upper triangles)
+        probe = np.linspace(0.3, 0.9, self.n)
+        Mp = np.array(pinocchio.crba(model, self.data, probe))
+        Mi = np.array(pinocchio.computeABADerivatives(model, self.data, probe, probe, probe)[2])
+        self._whole = bool(np.array_equal(Mp, Mp.T) and np.array_equal(Mi, Mi.T))
         M0 = self.mass_matrix(np.zeros(self.n))
         if not np.all(np.isfinite(M0)) or np.min(np.linalg.eigvalsh(M0)) <= 1e-12 * max(1.0, np.max(np.abs(M0))):
             weak = [self.joint_names[j] for j in range(self.n) if M0[j, j] <= 0.0] or list(self.joint_names)
@@ -112,13 +117,19 @@ class RigidBody:
         self.__init__(state["urdf"], source=state["source"], gravity=state["gravity"], armature=state["armature"])
 
     def _q(self, q) -> np.ndarray:
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.n,):
+            return q
         return np.asarray(q, dtype=float).reshape(self.n)
+
+    def _sym(self, A) -> np.ndarray:
+        """A copy of M or M⁻¹ from Pinocchio, whole (:func:`_symmetric` where the bindings give a triangle)."""
+        return np.array(A) if self._whole else _symmetric(np.array(A))
 
     # ------------------------------------------------------------------ the terms of eq:loadside
 
     def mass_matrix(self, q) -> np.ndarray:
         """M(q) (n, n), symmetric positive definite (CRBA; eq:loadside)."""
-        return _symmetric(pinocchio.crba(self.model, self.data, self._q(q)))
+        return self._sym(pinocchio.crba(self.model, self.data, self._q(q)))
 
     def bias(self, q, dq) -> np.ndarray:
         """b(q, q̇) = C(q, q̇) q̇ + g(q) (n,): Coriolis, centrifugal and gravity torques (eq:loadside)."""
@@ -147,7 +158,7 @@ class RigidBody:
         """
         q, dq, tau = self._q(q), self._q(dq), self._q(tau)
         ddq_dq, ddq_dv, Minv = pinocchio.computeABADerivatives(self.model, self.data, q, dq, tau)
-        return (np.array(self.data.ddq), np.array(ddq_dq), np.array(ddq_dv), _symmetric(np.array(Minv)))
+        return np.array(self.data.ddq), np.array(ddq_dq), np.array(ddq_dv), self._sym(Minv)
 
     def bias_derivatives(self, q, dq):
         """(∂b/∂q, ∂b/∂q̇), each (n, n), of :meth:`bias` (RNEA derivatives at q̈ = 0)."""
