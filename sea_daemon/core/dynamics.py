@@ -11,15 +11,21 @@ q = θ_m + θ_s, input u = τ_m ∈ R^n:
 :func:`sea_daemon.core.effects.evaluate`), g the backlash dead band (identity without one), κ
 the torque scale, f(z) a residual load torque (the GP's, or a torque outside the effect
 vocabulary; zero in the nominal model).  The load side's inertia and bias enter through
-:func:`inertia` (M(q), M(q)⁻¹) and :func:`rigid_bias` (C(q, q̇) and its partials): today a
-constant M and the link's gravity C = gravity ⊙ sin q; a model of n coupled joints replaces
-these two functions (and adds −M⁻¹ (∂M/∂q) q̈ to the q̈ rows of :func:`load_accel_jac`).
+:func:`inertia` (M(q), M(q)⁻¹) and :func:`rigid_bias` (C(q, q̇) and its partials): a constant
+M and the link's gravity C = gravity ⊙ sin q.  A model of n coupled joints from a URDF
+(:class:`~sea_daemon.core.rigid.RigidBody`, Pinocchio, which numba cannot call) takes its
+rigid body's part from Pinocchio and the SEA's from here: :func:`load_side_torque` gives the
+torque on the body besides its own bias, the body's forward dynamics (ABA) and its derivatives
+give q̈, ∂q̈/∂q (with −M⁻¹ (∂M/∂q) q̈), ∂q̈/∂q̇ and M⁻¹, and :func:`rigid_state` assembles f_nom
+and F_nom from them (the same :func:`state_rates` and :func:`state_jacobian` as
+:func:`f_nom` / :func:`F_nom`); :func:`load_torque_given` and :func:`residual_given` take the
+body's inverse dynamics (RNEA).
 
 The kernels take the parameters as one :class:`Dynamics` in its packed form
 (:meth:`Dynamics.packed`, a plain tuple: numba types it at C speed; a NamedTuple argument costs
 ~5 µs per call) and unpack it by name.  Callers: :class:`~sea_daemon.core.model.SEAModel` (the
 model's methods), :class:`~sea_daemon.core.model_core.ModelTables` (the filter with declared
-effects), the simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
+effects) and :class:`~sea_daemon.core.model_core.RigidTables` (the filter with a URDF), the simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
 (:func:`spring_torque_many`).
 
 Two forms keep their own floating-point order (they are what the filter and the simulator

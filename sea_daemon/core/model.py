@@ -8,7 +8,9 @@ Load side    M q̈ + C(q) + Σ_load e(q, q̇, q̈) + f(z) + τ_s = τ_h,act     
 Motor side   J θ̈_m + D_m θ̇_m + Σ_motor e(θ_m, θ̇_m, θ̈_m) − τ_s = κ τ_m      eq:motorside
 Spring       τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s),  θ_s = q − θ_m     eq:spring_torque
 
-with C(q) = gravity ⊙ sin(q), g the backlash dead band (identity when none is declared),
+with C(q) = gravity ⊙ sin(q) and a constant M — or, with ``model.urdf``, M(q) and the bias
+C(q, q̇) q̇ + g(q) in place of C(q), of the URDF's rigid body (:class:`~sea_daemon.core.rigid.RigidBody`,
+Pinocchio; eq:loadside) — g the backlash dead band (identity when none is declared),
 κ the declared torque scale (1 when none), and the declared effects of docs/interfaces.md §2.
 Inertia effects are folded into M and J (they are linear in the acceleration).
 

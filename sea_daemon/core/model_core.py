@@ -91,22 +91,26 @@ class RigidTables:
         m.M[:] = m.rigid.mass_matrix(q)
 
     def lin_error_box(self, X, u, x0, A0) -> np.ndarray:
-        """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state (the rounding
-        floor of :func:`lin_error_boxes`)."""
-        f_nom = self.model.f_nom
-        f0 = f_nom(x0, u)
-        b = np.zeros(x0.shape[0])
-        for x in np.asarray(X, dtype=float):
-            fx = f_nom(x, u)
-            lin = A0 @ (x - x0)
-            r = np.abs(fx - f0 - lin)
-            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
-            np.maximum(b, r, out=b)
-        return b
+        """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state (:func:`sampled_box`)."""
+        return sampled_box(self.model.f_nom, X, u, x0, A0)
 
     def residual(self, q, dq, ddq, th, dth, ddth, tau, out) -> None:
         """out = f of eq:loadsidewmotor (τ_h,act = 0) with the rigid body's inverse dynamics."""
         out[:] = self.model.residual_from_kinematics(q, dq, ddq, th, dth, ddth, tau)
+
+
+def sampled_box(f_nom, X, u, x0, A0) -> np.ndarray:
+    """max over the rows x of X of |f_nom(x, u) − f_nom(x0, u) − A0 (x − x0)| per state, for an
+    f_nom in Python (the rounding floor of :func:`lin_error_boxes`: an exactly linear drift gives 0)."""
+    f0 = f_nom(x0, u)
+    b = np.zeros(x0.shape[0])
+    for x in np.asarray(X, dtype=float):
+        fx = f_nom(x, u)
+        lin = A0 @ (x - x0)
+        r = np.abs(fx - f0 - lin)
+        r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
+        np.maximum(b, r, out=b)
+    return b
 
 
 @njit

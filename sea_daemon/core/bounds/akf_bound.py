@@ -57,6 +57,7 @@ import numpy as np
 
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
+from sea_daemon.core.model_core import sampled_box
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
@@ -261,17 +262,7 @@ class AKFTheoremBound:
         if tables is not None:
             # the same, compiled over all the points at once (model_core)
             return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
-        f_nom = self.akf.model.f_nom
-        f0 = f_nom(x0, u)
-        b = np.zeros(self.akf.d)
-        for x in self.sm.sample_points(C):
-            fx = f_nom(x, u)
-            lin = A_nom @ (x - x0)
-            r = np.abs(fx - f0 - lin)
-            # rounding floor, so an exactly linear drift gives exactly 0
-            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
-            np.maximum(b, r, out=b)
-        return b
+        return sampled_box(self.akf.model.f_nom, self.sm.sample_points(C), u, x0, A_nom)
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
