@@ -151,3 +151,24 @@ def test_gpakf_estimates_the_human_torque_on_both_joints(cfg):
     assert np.all(r_gp < 0.6 * r_akf), (r_gp, r_akf)
     covered = np.mean(np.abs(E_gp[skip:] - truth) <= B_gp[skip:], axis=0)
     assert np.all(covered >= 0.95), covered
+
+
+def test_linearisation_error_box_of_the_urdf_model(cfg):
+    """The bound's sampled box |f_nom(x) − f_nom(x0) − A0 (x − x0)| of the URDF model (one ABA per
+    point, the rest compiled) equals the plain evaluation with the model's f_nom, and is 0 for an
+    exactly linear drift (points along which nothing non-linear moves)."""
+    model = SEAModel(cfg.model.with_effects(effects(cfg, HIDDEN)), sign_eps=0.5)
+    tables = RigidTables(model, np.zeros((10, 2)))
+    rng = np.random.default_rng(5)
+    x0 = np.array([0.6, 1.1, 0.02, -0.01, 0.8, -0.5, 0.05, 0.02, 1.5, -0.7])
+    u = np.array([12.0, 3.0])
+    A0, xdot = np.empty((10, 10)), np.empty(10)
+    tables.f_and_F(x0, u, A0, xdot)
+    X = x0 + 0.05 * rng.normal(size=(30, 10))
+    plain = np.zeros(10)
+    for x in X:
+        plain = np.maximum(plain, np.abs(model.f_nom(x, u) - model.f_nom(x0, u) - A0 @ (x - x0)))
+    np.testing.assert_allclose(tables.lin_error_box(X, u, x0, A0), plain, rtol=1e-9, atol=1e-12)
+    assert np.all(plain[6:8] > 1e-4)                # the θ̈_s rows: M(q), C(q, q̇) are not linear
+    along_tau = x0 + np.outer(np.linspace(-1, 1, 5), np.eye(10)[8])   # τ_h,act enters linearly
+    assert not np.any(tables.lin_error_box(along_tau, u, x0, A0))

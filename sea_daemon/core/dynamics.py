@@ -306,6 +306,38 @@ def f_nom(p, x, u, f, xdot) -> None:
 
 
 @njit
+def load_side_torques(p, X, out) -> None:
+    """out[k] = :func:`load_side_torque` at the row k of X (f = 0): the rigid body's torques at many states."""
+    f = np.zeros(out.shape[1])
+    for k in range(X.shape[0]):
+        out[k] = load_side_torque(p, X[k], f)
+
+
+@njit
+def rigid_lin_error_box(p, X, u, A0, DDQ, b) -> None:
+    """b = max over the rows x of X[1:] of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state, x0 = X[0],
+    for a model with a rigid body whose q̈ at the rows are DDQ (:func:`rigid_state`; the rounding
+    floor of :func:`~sea_daemon.core.model_core.lin_error_boxes`: an exactly linear drift gives 0)."""
+    d = X.shape[1]
+    none = np.zeros((0, 0))
+    f0 = np.empty(d)
+    fx = np.empty(d)
+    v = np.zeros(0)
+    rigid_state(p, X[0], u, DDQ[0], none, none, none, v, v, none, f0, False)
+    for r in range(1, X.shape[0]):
+        rigid_state(p, X[r], u, DDQ[r], none, none, none, v, v, none, fx, False)
+        for i in range(d):
+            lin = 0.0
+            for k in range(d):
+                lin += A0[i, k] * (X[r, k] - X[0, k])
+            e = abs(fx[i] - f0[i] - lin)
+            if e <= 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin)):
+                e = 0.0
+            if e > b[i]:
+                b[i] = e
+
+
+@njit
 def state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot) -> None:
     """xdot = [θ̇_m, θ̇_s, θ̈_m, q̈ − θ̈_m, 0] (eq:xsdd; a zero-order model of τ_h,act)."""
     for j in range(n):
@@ -501,6 +533,8 @@ def _warm() -> None:
     residual(p, v, v, v, v, v, v, v, np.zeros(n))
     residual_given(p, v, v, v, v, v, v, v, np.zeros(n))
     load_side_torque(p, np.zeros(d), v)
+    load_side_torques(p, np.zeros((2, d)), np.zeros((2, n)))
+    rigid_lin_error_box(p, np.zeros((2, d)), v, np.zeros((d, d)), np.zeros((2, n)), np.zeros(d))
     rigid_state(p, np.zeros(d), v, v, np.eye(n), np.eye(n), np.eye(n), v, v, A, xdot, True)
     load_torque(p, v, v, v)
     load_torque_given(p, v, v, v)

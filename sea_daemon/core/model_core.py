@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea_daemon.core.dynamics import example, nominal, residual
+from sea_daemon.core.dynamics import example, load_side_torques, nominal, residual, rigid_lin_error_box
 from sea_daemon.core.effects import MAX_PARAMS, Effect, evaluate
 from sea_daemon.core.jit import njit, warmer
 
@@ -91,8 +91,20 @@ class RigidTables:
         m.M[:] = m.rigid.mass_matrix(q)
 
     def lin_error_box(self, X, u, x0, A0) -> np.ndarray:
-        """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state (:func:`sampled_box`)."""
-        return sampled_box(self.model.f_nom, X, u, x0, A0)
+        """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state: one ABA per
+        point, the rest compiled (:func:`~sea_daemon.core.dynamics.rigid_lin_error_box`; with effects
+        outside the vocabulary :func:`sampled_box`)."""
+        m, n = self.model, self.n
+        if m.outside_effects:
+            return sampled_box(m.f_nom, X, u, x0, A0)
+        Xa = np.vstack([np.asarray(x0, dtype=float).reshape(1, -1), np.asarray(X, dtype=float)])
+        tau = np.empty((Xa.shape[0], n))
+        load_side_torques(m.kernel, Xa, tau)
+        ddq = m.rigid.forward_many(Xa[:, :n] + Xa[:, n:2 * n], Xa[:, 2 * n:3 * n] + Xa[:, 3 * n:4 * n], tau)
+        b = np.zeros(Xa.shape[1])
+        rigid_lin_error_box(m.kernel, Xa, np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(A0, dtype=float),
+                            ddq, b)
+        return b
 
     def residual(self, q, dq, ddq, th, dth, ddth, tau, out) -> None:
         """out = f of eq:loadsidewmotor (τ_h,act = 0) with the rigid body's inverse dynamics."""

@@ -147,6 +147,15 @@ class RigidBody:
         """q̈ = M(q)⁻¹ (τ − b(q, q̇)) (n,) (ABA; eq:loadside solved for q̈, τ the other load-side torques)."""
         return np.array(pinocchio.aba(self.model, self.data, self._q(q), self._q(dq), self._q(tau)))
 
+    def forward_many(self, Q, DQ, TAU) -> np.ndarray:
+        """:meth:`forward` at each row of the (N, n) arrays Q, DQ, TAU: q̈ (N, n)."""
+        Q, DQ, TAU = (np.ascontiguousarray(a, dtype=float).reshape(-1, self.n) for a in (Q, DQ, TAU))
+        out = np.empty_like(Q)
+        model, data = self.model, self.data
+        for i in range(Q.shape[0]):
+            out[i] = pinocchio.aba(model, data, Q[i], DQ[i], TAU[i])
+        return out
+
     # ------------------------------------------------------------------ derivatives
 
     def forward_derivatives(self, q, dq, tau):
