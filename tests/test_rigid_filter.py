@@ -172,3 +172,15 @@ def test_linearisation_error_box_of_the_urdf_model(cfg):
     assert np.all(plain[6:8] > 1e-4)                # the θ̈_s rows: M(q), C(q, q̇) are not linear
     along_tau = x0 + np.outer(np.linspace(-1, 1, 5), np.eye(10)[8])   # τ_h,act enters linearly
     assert not np.any(tables.lin_error_box(along_tau, u, x0, A0))
+
+
+def test_a_session_of_the_two_joint_arm(cfg):
+    """core.sim.session for n joints: a per-joint reference tracked by the session's PID, the
+    subject's (2,) torque logged per joint at the sample times."""
+    from sea_daemon.core.sim.session import PerJoint, SineReference, run_session
+    ref = PerJoint((SineReference(0.6, (0.4,), (0.3,), (0.0,)), SineReference(0.8, (0.4,), (0.4,), (0.0,))))
+    log = run_session(cfg, 6.0, reference=ref, human=human, seed=1)
+    assert log.q.shape == (600, 2) and log.tau_h_act.shape == (600, 2)
+    np.testing.assert_allclose(log.tau_h_act[:-1], [human(t) for t in log.t[:-1]], rtol=1e-12)
+    q_ref = np.array([ref.reference(t)[0] for t in log.t])
+    assert np.max(np.abs(log.q[200:] - q_ref[200:])) < 0.15      # tracked (the human pushes, the PID holds)
