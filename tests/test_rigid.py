@@ -3,7 +3,7 @@ planar arm and finite differences; scaled descriptions; refused descriptions."""
 import numpy as np
 import pytest
 
-from sea_daemon.core.rigid import RigidBody, link_masses, scaled_urdf
+from sea_daemon.core.rigid import RigidBody, link_masses, random_factors, scaled_urdf
 from sea_daemon.errors import ConfigError
 
 G = 9.81
@@ -138,3 +138,13 @@ def test_armature_adds_to_the_diagonal_and_copies_rebuild(arm):
     for twin in (pickle.loads(pickle.dumps(heavy)), copy.deepcopy(heavy)):
         assert twin.data is not heavy.data
         np.testing.assert_array_equal(twin.forward(q, dq, tau), heavy.forward(q, dq, tau))
+
+
+def test_random_factors_scale_every_body_within_the_spread(arm):
+    mass, length = random_factors(arm.urdf, np.random.default_rng(7), spread=0.3)
+    assert set(mass) == set(length) == {"upper", "fore"}
+    assert all(0.7 <= v <= 1.3 for v in (*mass.values(), *length.values()))
+    assert mass != random_factors(arm.urdf, np.random.default_rng(8), spread=0.3)[0]
+    assert random_factors(arm.urdf, np.random.default_rng(7), spread=0.3) == (mass, length)
+    plant = arm.scaled(mass, length)
+    assert link_masses(plant.urdf)["upper"] == pytest.approx(m1 * mass["upper"])

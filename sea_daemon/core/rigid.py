@@ -25,7 +25,8 @@ or ``prismatic``; ``fixed`` joints merge their child link into the parent, so a 
 a link — the human's upper arm on the exoskeleton's — is a link on a fixed joint); ``continuous``
 and ``floating`` joints are refused (their configuration is not one angle).  Gravity is −9.81 m/s²
 along the URDF's z axis unless given.  :func:`scaled_urdf` gives the same description with link
-masses and lengths scaled (a plant that differs from the nominal model; a corrected body).
+masses and lengths scaled (a plant that differs from the nominal model; a corrected body), and
+:func:`random_factors` draws such factors.
 
 Pure numerics: no I/O, no clock, no threads.  Each call costs a few µs in Pinocchio plus the
 Python call (``sea-daemon bench latency`` measures the filter step that uses them).
@@ -279,6 +280,19 @@ def scaled_urdf(urdf: str, mass: Mapping[str, float] | None = None, length: Mapp
             if parent is not None and parent.get("link") == name:
                 _scale_xyz(j.find("origin"), float(s))
     return ET.tostring(root, encoding="unicode")
+
+
+def random_factors(urdf: str, rng: np.random.Generator, spread: float = 0.3,
+                   source: str = "model.urdf") -> tuple[dict[str, float], dict[str, float]]:
+    """(mass, length) factors, uniform in [1 − spread, 1 + spread], one each for every link with a
+    mass (document order, two draws per link from ``rng``): a random plant around the description
+    for :func:`scaled_urdf` / :meth:`RigidBody.scaled` (e.g. link lengths and masses ±30 %)."""
+    if not 0.0 <= spread < 1.0:
+        raise ValueError(f"spread must be in [0, 1), got {spread!r}")
+    mass, length = {}, {}
+    for name in link_masses(urdf, source):
+        mass[name], length[name] = (float(v) for v in rng.uniform(1.0 - spread, 1.0 + spread, 2))
+    return mass, length
 
 
 def _scale_inertia(el: ET.Element | None, s: float) -> None:
