@@ -184,3 +184,18 @@ def test_a_session_of_the_two_joint_arm(cfg):
     np.testing.assert_allclose(log.tau_h_act[:-1], [human(t) for t in log.t[:-1]], rtol=1e-12)
     q_ref = np.array([ref.reference(t)[0] for t in log.t])
     assert np.max(np.abs(log.q[200:] - q_ref[200:])) < 0.15      # tracked (the human pushes, the PID holds)
+
+
+def test_the_bound_takes_m_at_its_own_step(cfg):
+    """The Theorem-1 bound of a URDF model reads M(q̂_{k−1}) of the record it gets, not what the
+    model last held (a bound worker's copy of the filter never runs the filter's step)."""
+    est = make_estimator("akf", cfg, bound=True)
+    data = session(cfg, SEAModel.from_config(cfg), 0.5, None, 3)
+    q, th, u, _ = data
+    est.reset(q[0], th[0], u[0])
+    for k in range(1, 20):
+        est.update(q[k], th[k], u[k], 1.0 / RATE)
+    x_prev = est.record.x_prev.copy()
+    est.model.M[:] = np.eye(2)                      # stale, as in a copy that did not step
+    est.bound.step(est.est, est.record)
+    np.testing.assert_allclose(est.model.M, est.model.rigid.mass_matrix(x_prev[:2] + x_prev[2:4]), rtol=1e-12)

@@ -214,6 +214,14 @@ class SEAModel:
         dynamics.F_nom(self.kernel, x, _vec(u), f_q, f_v, A)
         return A
 
+    def at(self, x) -> None:
+        """M and M⁻¹ (:attr:`M`, :attr:`Minv`, in place) at the state x (5n,): a rigid body's M(q),
+        q = θ_m + θ_s; a constant M stays as it is."""
+        if self.rigid is not None:
+            n = self.n
+            self.M[:] = self.rigid.mass_matrix(np.asarray(x[:n], dtype=float) + x[n:2 * n])
+            self.Minv[:] = np.linalg.inv(self.M)
+
     def rigid_f_and_F(self, x, u, f, f_q, f_v, A, xdot) -> np.ndarray:
         """xdot = f_nom(x, u) − I_μ M⁻¹(q) f and, with ``A`` (f_q, f_v the partials of f), A = F_nom
         of the model with a rigid body (:func:`dynamics.rigid_state` around one ABA or ABA-derivatives

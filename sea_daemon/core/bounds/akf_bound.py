@@ -432,6 +432,7 @@ class AKFTheoremBound:
             return
         akf = self.akf
         x0, P0, u, dt = record.x_prev, record.P_prev, record.u, record.dt
+        akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
         sm = self.sm
         fric = gp_range = None
