@@ -12,9 +12,10 @@ parameter vector); :class:`ModelTables` hands that to the kernels of
 
 and :func:`lin_error_boxes` samples the linearisation error of f_nom for the bound.
 :class:`RigidTables` does the same for a model whose load side is a rigid body of n coupled
-joints (a URDF), with G_μ = I_μ M(q)⁻¹ of each step.  Encoder offsets (measurement) and the delay (input history) stay with the AKF; inertia effects are
-folded into M and J by SEAModel.  Effects that evaluate themselves in Python (outside the
-vocabulary) are not supported here (:meth:`ModelTables.supports`).
+joints (a URDF), with G_μ = I_μ M(q)⁻¹ of each step.  Encoder offsets (measurement) and the
+delay (input history) stay with the AKF; inertia effects are folded into M and J by SEAModel
+(into the body's armature with a URDF).  Effects that evaluate themselves in Python (outside
+the vocabulary) are not supported by :class:`ModelTables` (:meth:`ModelTables.supports`).
 
 Pure numerics: no I/O, no clock, no threads.
 """
