@@ -42,7 +42,7 @@ def fd_jacobian(f, x, h=1e-6):
 @pytest.mark.parametrize("declared", [[], HIDDEN + [{"type": "viscous", "side": "motor", "b": 0.1, "joint": 2}]])
 def test_filter_dynamics_of_the_urdf_model(cfg, declared):
     """The filter's tables: f_nom, F_nom (vs central differences, the ∂M/∂q term included) and
-    G_μ = I_μ M(q)⁻¹ at the linearisation point, the model's M and M⁻¹ updated with it."""
+    G_μ = I_μ M(q)⁻¹ at the linearisation point; the model's M and M⁻¹ at a state (SEAModel.at)."""
     model = SEAModel(cfg.model.with_effects(effects(cfg, declared)), sign_eps=0.5)
     n, d = 2, 10
     G_mu = np.zeros((d, n))
@@ -58,7 +58,9 @@ def test_filter_dynamics_of_the_urdf_model(cfg, declared):
     M = model.rigid.mass_matrix(q)
     np.testing.assert_allclose(G_mu[3 * n:4 * n], np.linalg.inv(M), rtol=1e-10)
     assert not np.any(G_mu[:3 * n]) and not np.any(G_mu[4 * n:])
+    model.at(x)
     np.testing.assert_allclose(model.M, M, rtol=1e-12)
+    np.testing.assert_allclose(model.Minv, np.linalg.inv(M), rtol=1e-10)
     # θ̈_s = q̈ − θ̈_m with q̈ from eq:unknwn_load: M(q) q̈ = τ_h,act − C(q, q̇) q̇ − g(q) − Σ_load e − τ_s
     ddth_m, ddq = model.accelerations(x, u)
     tau_s = model.spring_torque(x[n:2 * n], x[3 * n:4 * n])

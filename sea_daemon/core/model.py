@@ -56,8 +56,7 @@ class SEAModel:
                 if isinstance(e, Inertia) and e.side == "load":
                     dI[e.joint] += e.dI
             self.rigid = params.rigid.with_armature(dI)
-        # with a rigid body, M and M⁻¹ are M(q) at the filter's last linearisation point (M(0) at first;
-        # updated in place by :class:`~sea_daemon.core.model_core.RigidTables`)
+        # with a rigid body, M and M⁻¹ are M(q) at the state last given to :meth:`at` (M(0) at first)
         self.M, self.J = M, J
         self.Minv = np.linalg.inv(M)
         self.Jinv = np.linalg.inv(J)
