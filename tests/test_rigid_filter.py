@@ -179,7 +179,8 @@ def test_linearisation_error_box_of_the_urdf_model(cfg):
 def test_a_session_of_the_two_joint_arm(cfg):
     """core.sim.session for n joints: a per-joint reference tracked by the session's PID, the
     subject's (2,) torque logged per joint at the sample times."""
-    from sea_daemon.core.sim.session import PerJoint, SineReference, run_session
+    from sea_daemon.core.excitation import PerJoint
+    from sea_daemon.core.sim.session import SineReference, run_session
     ref = PerJoint((SineReference(0.6, (0.4,), (0.3,), (0.0,)), SineReference(0.8, (0.4,), (0.4,), (0.0,))))
     log = run_session(cfg, 6.0, reference=ref, human=human, seed=1)
     assert log.q.shape == (600, 2) and log.tau_h_act.shape == (600, 2)
@@ -201,3 +202,22 @@ def test_the_bound_takes_m_at_its_own_step(cfg):
     est.model.M[:] = np.eye(2)                      # stale, as in a copy that did not step
     est.bound.step(est.est, est.record)
     np.testing.assert_allclose(est.model.M, est.model.rigid.mass_matrix(x_prev[:2] + x_prev[2:4]), rtol=1e-12)
+
+
+def test_the_multi_joint_excitation_covers_the_combinations_of_the_working_ranges():
+    """Each joint within its working range, speed and acceleration limits; the (q₁, q₂) pairs over
+    the whole 4 × 4 grid of the two ranges (the coupled terms need the combinations); seeded."""
+    from sea_daemon.core.excitation import WorkingRange, excitation_joints
+    ranges = (WorkingRange(-0.3, 1.6, v_max=1.5, a_max=10.0), WorkingRange(0.1, 2.0, v_max=2.0, a_max=12.0))
+    ref = excitation_joints(ranges, 90.0, seed=4)
+    assert ref.duration >= 90.0
+    t = np.arange(0.0, ref.duration, 0.01)
+    Q, V, A = (np.array(c) for c in zip(*(ref.reference(s) for s in t)))
+    for j, wr in enumerate(ranges):
+        assert wr.q_min - 1e-9 <= Q[:, j].min() and Q[:, j].max() <= wr.q_max + 1e-9
+        assert np.abs(V[:, j]).max() <= wr.v_max + 1e-9 and np.abs(A[:, j]).max() <= wr.a_max + 1e-6
+    cells = {(int(4 * (q1 + 0.3) / 1.9 - 1e-9), int(4 * (q2 - 0.1) / 1.9 - 1e-9)) for q1, q2 in Q}
+    assert len(cells) == 16
+    again = excitation_joints(ranges, 90.0, seed=4).reference(37.3)
+    np.testing.assert_array_equal(again[0], ref.reference(37.3)[0])
+    assert not np.array_equal(excitation_joints(ranges, 90.0, seed=5).reference(37.3)[0], again[0])
