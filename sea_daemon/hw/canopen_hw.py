@@ -85,10 +85,14 @@ class CanopenHardware(HardwareInterface):
     IDLE_CYCLE = 0.25
 
     def __init__(self, cfg: ModelConfig, bus: can.BusABC | None = None, *, period: float | None = None,
-                 pdo_timeout: float | None = None, clock=time.monotonic):
-        hw, b = cfg.hardware, cfg.hardware.bus
+                 pdo_timeout: float | None = None, clock=time.monotonic, bus_cfg=None):
+        """``bus_cfg``: one bus of ``cfg.hardware.bus`` (:meth:`BusConfig.for_joints`) for a driver
+        of those joints alone (:class:`sea_daemon.hw.canopen_buses.CanopenBuses`); default all of it."""
+        hw, b = cfg.hardware, (bus_cfg or cfg.hardware.bus)
         self.cfg, self.bus_cfg = cfg, b
-        self.n = cfg.joints
+        self.n = len(b.drive_node)
+        #: called by keepalive(): the other buses' drivers of a CanopenBuses (their heartbeats)
+        self.peer_keepalive = None
         self.period = float(period or cfg.dt)
         self.gear = hw.gear_ratio
         self.res = 1 << hw.encoder_bits
@@ -259,6 +263,12 @@ class CanopenHardware(HardwareInterface):
         """Between cycles (SDO sequences, a caller that waits): keep the drives' watch of our
         heartbeat happy (once it runs), and take the devices' heartbeats and EMCY off the loop
         thread's handle (its queue would fill while no ``read()`` takes it)."""
+        self.keepalive_own()
+        if self.peer_keepalive is not None:
+            self.peer_keepalive(self)
+
+    def keepalive_own(self) -> None:
+        """:meth:`keepalive` of this bus alone (not its peers)."""
         if self._hb_on:
             self._send_master_heartbeat()
         self.receive_pending()
@@ -294,6 +304,8 @@ class CanopenHardware(HardwareInterface):
                 if self.clock() > deadline:
                     raise HeartbeatLost(node.id, self.hb_timeout, self.hb_timeout, self._hb_state[node.id])
                 time.sleep(0.001)
+                if self.peer_keepalive is not None:
+                    self.peer_keepalive(self)
 
     def _prime(self) -> None:
         """First cycle (at the initial torque): sets the unwrapping reference."""
@@ -377,6 +389,12 @@ class CanopenHardware(HardwareInterface):
 
     def read(self) -> Measurement:
         """SYNC → this cycle's TPDOs → joint-side measurement (reused object)."""
+        t_sync = self.begin_read()
+        return self.end_read(t_sync)
+
+    def begin_read(self) -> float:
+        """The first half of :meth:`read`: late frames, SYNC, heartbeats, EMCY, bus-off and the
+        daemon's heartbeat; the SYNC's time (a driver of several buses sends every SYNC first)."""
         if self.network is None:
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
@@ -403,6 +421,13 @@ class CanopenHardware(HardwareInterface):
             tap.take()
         self._check_async()
         self._send_master_heartbeat()
+        return t_sync
+
+    def end_read(self, t_sync: float) -> Measurement:
+        """The second half of :meth:`read`: this cycle's TPDOs until ``pdo_timeout`` after
+        ``t_sync``, checked and decoded."""
+        m = self.meas
+        tap = self._emcy_tap
         self._rx.collect(t_sync + self.pdo_timeout, self.clock)
         self._cycle += 1
         if tap is not None:
