@@ -140,6 +140,8 @@ class CanopenHardware(HardwareInterface):
         self._initial_torque = np.zeros(n)   # commanded by the priming cycle (start())
         self._primed = False
         self._cycle = -1
+        self._cycle_decoded = -1        # the cycle of the last decoded sample and its SYNC's time
+        self._t_decoded = 0.0
         self._started = False
         self.missed_cycles = 0          # cycles with a TPDO missing at the deadline (held or faulted)
         self.late_cycles = 0            # cycles that found frames of an earlier cycle (FRAME_LATE)
@@ -485,6 +487,10 @@ class CanopenHardware(HardwareInterface):
 
     def _decode(self, m: Measurement) -> None:
         n = self.n
+        # periods since the sample before: cycles held in between, or a stall of the loop that
+        # sent no SYNC (the arm moved for that long: the jump check allows for it)
+        periods = max(self._cycle - self._cycle_decoded, (m.t_mono - self._t_decoded) / self.period)
+        self._cycle_decoded, self._t_decoded = self._cycle, m.t_mono
         for j in range(n):
             ds, es = self._rx.slots[2 * j], self._rx.slots[2 * j + 1]
             sw, torque, pos = DRIVE_TPDO.unpack_from(ds.snap, 0)
@@ -500,7 +506,7 @@ class CanopenHardware(HardwareInterface):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")
                 # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
             if self._primed:
-                self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle)
+                self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle, periods)
             else:
                 self.positions.reference(m, j, qc, pos)
         self._primed = True

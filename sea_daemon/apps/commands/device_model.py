@@ -24,13 +24,15 @@ from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.io.scenario import human_torque, load_scenario, make_plant, task_plant
 from sea_daemon.runtime.realtime import try_realtime
+from sea_daemon.runtime.rig import bus_overrides
 
 DESCRIPTION = __doc__
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bus", choices=BusConfig.INTERFACES, help="bus interface (default: hardware.bus.interface)")
-    p.add_argument("--channel", help="virtual: a name; socketcan: can0 / vcan0; remote: ws://127.0.0.1:PORT/")
+    p.add_argument("--channel", help="virtual: a name; socketcan: can0 / vcan0; remote: ws://127.0.0.1:PORT/; "
+                   "a comma-separated name per joint: a bus per joint (joints of one name share its bus)")
     p.add_argument("--config", default=None, help="true model configuration YAML (default: configs/exo_1dof.yaml)")
     p.add_argument("--scenario", default=None, help="simulator scenario YAML (true plant with hidden effects; "
                    "human: track starts the task's subject at rest at its first target)")
@@ -65,19 +67,22 @@ def _plant(args, cfg):
 def run(args) -> int:
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]
-    b = cfg.hardware.bus
-    b = dataclasses.replace(b, interface=args.bus or b.interface, channel=args.channel or b.channel)
-    if b.interface == "remote" and not b.channel.startswith(("ws://", "wss://")):
-        raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
+    b = bus_overrides(cfg, args.bus, args.channel).hardware.bus
     plant, cfg, tau_h_act = _plant(args, cfg)
-    b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel)
+    b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel, joint_channel=b.joint_channel)
+    buses = b.buses()
+    handles = []
     try:
-        bus = make_bus(b)
+        for c, _ in buses:
+            handles.append(make_bus(dataclasses.replace(b, channel=c)))
     except DeviceMismatch as e:
+        for h in handles:
+            h.shutdown()
         raise InputError(str(e)) from None
-    model = DeviceModel(bus, plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
+    index = {c: i for i, (c, _) in enumerate(buses)}
+    model = DeviceModel(handles, plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
                         lock_step=not args.free_running, position_preset=args.position_preset, owns_bus=True,
-                        tau_h_act=tau_h_act)
+                        tau_h_act=tau_h_act, joint_bus=[index[c] for c in b.channels()])
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -90,7 +95,7 @@ def run(args) -> int:
     try:
         for f in faults:
             model.schedule(f)
-        print(f"device-model ready on {b.interface} {b.channel}: drives {list(b.drive_node)}, "
+        print(f"device-model ready on {b.interface} {','.join(c for c, _ in buses)}: drives {list(b.drive_node)}, "
               f"encoders {list(b.encoder_node)}, {'free-running' if args.free_running else 'lock-step'}; sched {rt}",
               flush=True)
         stop.wait(args.duration)
