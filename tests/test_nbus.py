@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from _hil import recording_plant
+from test_loop import ListLog
 from sea_daemon.client import decode_tpdo
 from sea_daemon.core.config import BusConfig, ModelConfig
 from sea_daemon.core.log import log_columns
@@ -42,18 +43,6 @@ class Opposite:
 
     def update(self, t, q, theta_m, est):
         return np.array([1.0, -1.0])
-
-
-class ListLog:
-    def __init__(self):
-        self.rows = []
-
-    def append(self, row):
-        self.rows.append(row.copy())
-        return True
-
-    def fault(self):
-        return None
 
 
 @pytest.fixture(params=list(LAYOUTS))

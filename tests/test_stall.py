@@ -11,6 +11,7 @@ import time
 import uuid
 
 import numpy as np
+import pytest
 
 from _hil import true_config
 from sea_daemon.core.config import ModelConfig
@@ -67,31 +68,23 @@ class Hold:
         return np.zeros(1)
 
 
-def test_held_cycles_within_the_tolerance_do_not_latch_a_jump_at_the_next_sample():
-    # lock-step: the arm moves 6 mrad per SYNC; the encoder's TPDO missing for 2 cycles (held,
-    # tolerance 3): the next sample is 18 mrad on, more than one period allows (10 mrad + 2 quanta)
-    rig = device_model_rig(stall_config(3), RampPlant())
+@pytest.mark.parametrize("tolerance", [3, 1])
+def test_held_cycles_within_the_tolerance_do_not_latch_a_jump_at_the_next_sample(tolerance):
+    # lock-step: the arm moves 6 mrad per SYNC; the encoder's TPDO missing for 2 cycles (held
+    # within a tolerance of 3): the next sample is 18 mrad on, more than one period allows (10
+    # mrad + 2 quanta); beyond a tolerance of 1 the missing TPDO itself latches
+    rig = device_model_rig(stall_config(tolerance), RampPlant())
     try:
         rig.start()
         loop = FixedRateLoop(rig.hw, None, Hold(), n=1, period=0.01, realtime=False)
         loop.run(20)
         rig.device_model.schedule(parse_fault("drop:target=encoder,count=2"))
         loop.run(20)
-        assert loop.supervisor.ok, loop.supervisor.status_line()
-        assert rig.hw.missed_cycles == 2 and loop.stats.extrapolated == 2
-    finally:
-        rig.stop()
-
-
-def test_held_cycles_beyond_the_tolerance_latch_tpdo_missing_not_a_jump():
-    rig = device_model_rig(stall_config(1), RampPlant())
-    try:
-        rig.start()
-        loop = FixedRateLoop(rig.hw, None, Hold(), n=1, period=0.01, realtime=False)
-        loop.run(20)
-        rig.device_model.schedule(parse_fault("drop:target=encoder,count=2"))
-        loop.run(20)
-        assert loop.supervisor.latched == Fault.TPDO_MISSING
+        if tolerance >= 2:
+            assert loop.supervisor.ok, loop.supervisor.status_line()
+            assert rig.hw.missed_cycles == 2 and loop.stats.extrapolated == 2
+        else:
+            assert loop.supervisor.latched == Fault.TPDO_MISSING, loop.supervisor.status_line()
     finally:
         rig.stop()
 

@@ -32,7 +32,9 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.hw.busload import bus_loads
-from sea_daemon.io.configfile import data_root, load_yaml
+from sea_daemon.core.rates import at_rate
+from sea_daemon.hw.device_model.split_plant import SplitPlant
+from sea_daemon.io.configfile import data_root, load_config, load_yaml
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.rig import device_model_rig, on_fresh_virtual_channel
 
@@ -54,6 +56,17 @@ def joints_config(n: int, one_bus: bool = False) -> ModelConfig:
     name = bus.get("channel", "sea-daemon")
     bus["channel"] = name if one_bus else [f"{name}-j{j + 1}" for j in range(n)]
     return ModelConfig.from_dict(raw, f"exo_1dof_sim.yaml for {n} joints")
+
+
+def one_joint_config(rate: float) -> ModelConfig:
+    """The simulated exoskeleton's one-joint configuration at ``rate``."""
+    return at_rate(load_config(data_root() / "configs" / "exo_1dof_sim.yaml"), rate)
+
+
+def split_plant(n: int, rate: float) -> SplitPlant:
+    """The device model's plant for ``n`` joints: ``n`` one-joint plants at :data:`Q0` (as
+    ``sea-daemon device-model --joints n``)."""
+    return SplitPlant([Plant(one_joint_config(rate), q0=Q0) for _ in range(n)])
 
 
 class SwayController:
@@ -166,11 +179,12 @@ def _wait_line(proc, text: str, timeout: float) -> str:
     raise RuntimeError(f"no {text!r} within {timeout} s")
 
 
-def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
+def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70, dev_cfg=None):
     """``sea-daemon device-model`` in its own process on ``cfg``'s bus or buses (``--stats``,
-    SCHED_FIFO ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
+    SCHED_FIFO ``rt_priority``; ``extra``: its plant arguments; ``dev_cfg``: its --config, default
+    ``cfg``), and the driver's :class:`Rig` for it."""
     path = Path(tmp) / "device-model.yaml"
-    save_config(cfg, path)
+    save_config(dev_cfg or cfg, path)
     b = cfg.hardware.bus
     channels = ",".join(b.channels()) if b.joint_channel else b.channel
     proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
@@ -198,7 +212,7 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
             rig = make_rig(cfg, device_model=scen, phase="estimation")
         else:
             c = on_fresh_virtual_channel(cfg, "bench")
-            plant = Plant(c, q0=Q0)
+            plant = split_plant(cfg.joints, cfg.rate_hz)
             rig = device_model_rig(c, plant, initial_torque=plant.hold_torque)
         b = dataclasses.replace(rig.cfg.hardware.bus, **timing)
         rig.cfg = dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware, bus=b))
@@ -216,8 +230,14 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
             cfg_r.hardware, bus=dataclasses.replace(cfg_r.hardware.bus, channel=url)))
     else:
         cfg_r = fresh_channels(cfg, "ipc", **timing, **slow)
-    dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen] if cfg.joints == 1 else ["--q0", str(Q0)],
-                                    args.device_rt_priority)
+    if cfg.joints == 1:
+        dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
+    else:
+        one = one_joint_config(cfg.rate_hz)
+        b1 = dataclasses.replace(cfg_r.hardware.bus.for_joints((0,), cfg_r.hardware.bus.channel))
+        one = dataclasses.replace(one, hardware=dataclasses.replace(one.hardware, bus=b1))
+        dev, rig = device_model_process(cfg_r, tmp, ["--joints", str(cfg.joints), "--q0", str(Q0)],
+                                        args.device_rt_priority, dev_cfg=one)
     procs.append(dev)
     return rig, dev
 

@@ -61,10 +61,9 @@ import numpy as np
 
 from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
 from sea_daemon.apps.bench._loop_rig import (
-    Q0, SwayController, bench_rig, describe_bus_load, device_model_process, joints_config, per_bus_load, stop_procs,
-    trained_estimator)
+    SwayController, bench_rig, describe_bus_load, device_model_process, joints_config, per_bus_load, stop_procs,
+    split_plant, trained_estimator)
 from sea_daemon.core.log import DaemonColumns
-from sea_daemon.core.sim.plant import Plant
 from sea_daemon.runtime.loop import Series
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
@@ -290,7 +289,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
         controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
                                         estimation_from=0)
     else:
-        hold = Plant(cfg, q0=Q0).hold_torque
+        hold = split_plant(cfg.joints, cfg.rate_hz).hold_torque
         rig.initial_torque = hold
         controller = SwayController(cfg.joints, hold)
     n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0

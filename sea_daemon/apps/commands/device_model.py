@@ -20,6 +20,7 @@ from sea_daemon.core.sim.plant import Plant
 from sea_daemon.errors import InputError
 from sea_daemon.hw.bus import make_bus
 from sea_daemon.hw.device_model import DeviceModel, parse_fault
+from sea_daemon.hw.device_model.split_plant import SplitPlant
 from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.io.scenario import human_torque, load_scenario, make_plant, task_plant
@@ -36,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="true model configuration YAML (default: configs/exo_1dof.yaml)")
     p.add_argument("--scenario", default=None, help="simulator scenario YAML (true plant with hidden effects; "
                    "human: track starts the task's subject at rest at its first target)")
+    p.add_argument("--joints", type=int, default=1,
+                   help="N joints as N uncoupled copies of the one-joint --config's plant, a drive and a load "
+                        "encoder each (node ids 2j-1, 2j; without --scenario; default 1)")
     p.add_argument("--q0", type=float, default=0.3, help="initial link angle [rad] without --scenario (default 0.3)")
     p.add_argument("--seed", type=int, default=None, help="seed of the plant's torque noise")
     p.add_argument("--fault", action="append", default=[], metavar="KIND[:k=v,...]",
@@ -54,6 +58,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _plant(args, cfg):
+    if args.joints > 1:
+        plant = SplitPlant([Plant(cfg, q0=args.q0, seed=None if args.seed is None else args.seed + j)
+                            for j in range(args.joints)])
+        bus = {k: v for k, v in cfg.hardware.bus.to_dict().items()
+               if k not in ("drive_node", "encoder_node", "q_offset", "theta_m_offset", "channel")}
+        b = BusConfig.from_dict(bus, args.joints, "--joints")
+        return plant, dataclasses.replace(cfg, joints=args.joints, hardware=dataclasses.replace(
+            cfg.hardware, bus=b)), None
     if args.scenario:
         sc = load_scenario(args.scenario)
         if sc.human == "track":
@@ -67,9 +79,15 @@ def _plant(args, cfg):
 def run(args) -> int:
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]
-    b = bus_overrides(cfg, args.bus, args.channel).hardware.bus
+    if not 1 <= args.joints <= 16 or (args.joints > 1 and (args.scenario or cfg.joints != 1)):
+        raise InputError(f"--joints {args.joints}: allowed 1..16; more than 1 copies a one-joint --config's "
+                         f"plant (its configuration has {cfg.joints}), without --scenario")
+    b = bus_overrides(cfg, args.bus, None if args.joints > 1 else args.channel).hardware.bus
     plant, cfg, tau_h_act = _plant(args, cfg)
-    b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel, joint_channel=b.joint_channel)
+    b = dataclasses.replace(cfg.hardware.bus, interface=b.interface, channel=b.channel,
+                            joint_channel=b.joint_channel if args.joints == 1 else ())
+    if args.joints > 1 and args.channel:
+        b = b.with_channel(args.channel)
     buses = b.buses()
     handles = []
     try:
