@@ -7,6 +7,7 @@ on joint 2 commands zero torque on every joint within its cycle and is logged.
 """
 from __future__ import annotations
 
+import dataclasses
 import uuid
 
 import can
@@ -162,3 +163,30 @@ def test_bus_load_arithmetic():
     per_joint = bus_loads(BusConfig.from_dict({"channel": ["a", "b"]}, 2, "x"), 1000)
     assert [x.load_worst for x in per_joint] == [one.load_worst] * 2
     assert bus_load(2, 1000, publish=False).load_worst > 0.70     # not even without the publication
+
+
+def test_the_coupled_two_joint_plant_behind_a_bus_per_joint():
+    # the 2-DoF shoulder-elbow example (URDF: M(q), Coriolis, gravity coupled): a torque step on
+    # the shoulder alone moves the elbow too, and each bus brings back its joint's angle
+    from sea_daemon.core.sim.plant import Plant
+    from sea_daemon.io.configfile import data_root, load_config
+    t = uuid.uuid4().hex[:6]
+    cfg = load_config(data_root() / "configs" / "exo_2dof.yaml")
+    b = dataclasses.replace(cfg.hardware.bus, heartbeat_ms=20, pdo_timeout_ms=500.0, heartbeat_timeout_ms=2000,
+                            sdo_timeout_ms=3000).with_channel(f"c1-{t},c2-{t}")
+    cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
+    plant = Plant(cfg, q0=[0.3, 0.5], seed=0, torque_noise=0.0)
+    r = device_model_rig(cfg, plant, initial_torque=plant.hold_torque)
+    try:
+        r.start()
+        tau = plant.hold_torque + [2.0, 0.0]
+        for _ in range(30):
+            m = r.hw.read()
+            r.hw.write(tau)
+        quantum = 2 * np.pi / 2 ** 19
+        assert np.all(np.abs(m.q - plant.q) < 2 * quantum)
+        assert m.q[0] > 0.35 and m.q[1] < 0.45     # the elbow moved with the shoulder (at rest without the step)
+        assert [d.target_permille for d in r.device_model.drives] == \
+            [round(x / r.hw.subs[0].nm_per_permille) for x in tau]
+    finally:
+        r.stop()

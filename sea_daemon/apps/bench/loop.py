@@ -416,7 +416,7 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
         "max_late_us": st.max_late_s * 1e6,
         "compute_us": _pcts(m.compute), "read_us": _pcts(m.read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
-        "joints": cfg.joints, "bus_load_per_bus": per_bus_load(cfg, args.rate, m.dev_stats, m.publisher),
+        "joints": cfg.joints, "bus_load_per_bus": per_bus_load(m.rig.cfg or cfg, args.rate, m.dev_stats, m.publisher),
         "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
         "loop_thread_page_faults": ({"cycles": n_cycles - 1 - k_faults,
                                      "minor": probe[n_cycles - 1][0] - probe[k_faults][0],
@@ -505,12 +505,14 @@ def _report_bus(cfg, m: _Measured, out: dict) -> None:
           f"samples the loop extrapolated over them: {out['extrapolated_samples']}")
     fpc, load_typ, load_worst = out["frames_per_cycle"], out["bus_load_1mbit_typical"], out["bus_load_1mbit_worst_stuffing"]
     buses = out["bus_load_per_bus"]
-    print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
-          f"and the daemon's published TPDOs{', all buses' if len(buses) > 1 else ''}); "
-          f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
-          f"worst-case stuffing")
     if len(buses) > 1:
-        print("per bus (at its bitrate): " + "; ".join(describe_bus_load(buses)))
+        print(f"CAN frames per cycle, every frame the device model sent or received (start-up included) and the "
+              f"daemon's published TPDOs, {fpc:.2f} on {len(buses)} buses; per bus: " + "; ".join(describe_bus_load(buses)))
+    else:
+        print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
+              f"and the daemon's published TPDOs); "
+              f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
+              f"worst-case stuffing")
     pub = out["publish"] or {}
     can_pub = pub.get("can") or {}
     print(f"published every cycle: {pub.get('published', 0)} cycles; TPDOs of node {cfg.hardware.bus.master_node} "
