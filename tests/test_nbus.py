@@ -46,6 +46,12 @@ class Opposite:
         return np.array([1.0, -1.0])
 
 
+@pytest.fixture(scope="module", autouse=True)
+def compiled_plant():
+    """The two-joint plant's kernels compiled before a device model steps it in a SYNC handler."""
+    recording_plant(0.2, joints=2).step(np.zeros(2), 0.01, np.zeros(2))
+
+
 @pytest.fixture(params=list(LAYOUTS))
 def rig(request):
     cfg = two_joint_config(LAYOUTS[request.param](uuid.uuid4().hex[:6]))
