@@ -1,5 +1,8 @@
 """``sea-daemon bench loop --rate 100|1000 --cycles N --bus virtual|ipc|remote``: the daemon's loop against the device model.
 
+``--joints N`` (2 or 3) runs N joints, a bus per joint (``--one-bus``: one bus), and prints the
+load of each bus (:mod:`sea_daemon.apps.bench._loop_rig`); what follows describes one joint.
+
 What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.serve`): the GP-AKF
 with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
 at ``--model-rate`` (default 100 Hz: the model file of the 100 Hz daemon, run at ``--rate``
