@@ -196,3 +196,20 @@ def test_the_coupled_two_joint_plant_behind_a_bus_per_joint():
             [round(x / r.hw.subs[0].nm_per_permille) for x in tau]
     finally:
         r.stop()
+
+
+def test_an_instance_owns_every_one_of_its_buses(tmp_path, monkeypatch):
+    import types
+
+    from sea_daemon.apps.commands.daemon_args import bus_key
+    from sea_daemon.errors import InputError
+    from sea_daemon.runtime.service import StateFile
+    monkeypatch.setenv("SEA_DAEMON_LOCK_DIR", str(tmp_path))
+    cfg = two_joint_config(["can7", "can8"], interface="socketcan")
+    key = bus_key(types.SimpleNamespace(device_model=None, sim=None), cfg)
+    assert key == [("socketcan", "can7"), ("socketcan", "can8")]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    with StateFile(tmp_path / "a").claim(key):
+        with pytest.raises(InputError, match="bus socketcan can8"):
+            StateFile(tmp_path / "b").claim(("socketcan", "can8"))
