@@ -119,6 +119,7 @@ class AKFTheoremBound:
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
         self.friction = FrictionRange(akf.model, akf.tables, sets)
+        self.friction.choose_every = self.sm.reduce_every      # its slope rule chosen every 50 ms
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
@@ -242,6 +243,7 @@ class AKFTheoremBound:
             # 'auto': the constants of the GP as trained when estimation starts
             self.refresh_gp_constants()
         self.sm.reset()
+        self.friction.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
@@ -483,8 +485,9 @@ class AKFTheoremBound:
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
             if self.friction.groups:
+                loop = (record.F_k, self._I - record.K_k @ akf.H)
                 fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
-                                               record.Gamma_mu, sm, self._phi)
+                                               record.Gamma_mu, sm, self._phi, loop)
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
