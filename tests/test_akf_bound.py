@@ -619,3 +619,38 @@ def test_declared_rate_replaces_the_random_walk_in_the_gaussian_part():
     assert tb.own_gaussian
     plain = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_h_act_rate=0.0))
     assert not with_bound(AKF(plain)).own_gaussian
+
+
+def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():
+    """The range form keeps a slope κ of the friction in its transition F − Φc (s − κ) ℓᵀ, chosen
+    every 50 ms by the steady τ_h,act half-width it builds (FrictionRange._choose): at
+    standstill the slope kept gives a contracting closed loop (I − KH) F_B when κ = 0 does not
+    contract faster, and the candidate's F_B − F is the rule's (s − κ) term."""
+    from sea_daemon.core.bounds.friction_range import SLOPE_RULES
+    cfg = _friction_cfg()
+    model = SEAModel.from_config(cfg)
+    log = simulate(model, T=1.0, seed=2)
+    akf = AKF(cfg)
+    tb = with_bound(akf)
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for k in range(1, 40):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    assert tb.friction.choose_every == 5                     # 50 ms at 100 Hz
+    x0, P0, u = akf.record.x_prev.copy(), akf.record.P_prev.copy(), np.asarray(log.tau_m[39], float)
+    x0[2:4] = 0.0
+    C = tb.sm.confidence_set(x0, P0)
+    IKH = np.eye(5) - akf.K_k @ akf.H
+    fr = tb.friction
+    fr.reset()
+    dF, GamF, w, *_ = fr.candidate(x0, u, P0, tb.sm.sample_points(C), akf.A_k.copy(), 0.01, akf.A_k,
+                                   akf.Gamma_mu, tb.sm, tb._phi, (akf.F_k, IKH))
+    _, ell, _, effs = fr.groups[0]
+    from sea_daemon.core.effects import evaluate
+    s_g = sum(evaluate(code, p, 0.0, 0.0, 0.0)[2] for code, p in effs)
+    kap = fr.kappa_[0]
+    assert 0.0 <= kap <= s_g
+    np.testing.assert_allclose(dF, -(s_g - kap) * np.outer(GamF[:, 0], ell), rtol=1e-12, atol=1e-15)
+    radius = lambda k: max(abs(np.linalg.eigvals(IKH @ (akf.F_k - (s_g - k) * np.outer(GamF[:, 0], ell)))))
+    assert radius(kap) < 1.0
+    assert radius(kap) <= max(radius(0.0), radius(s_g)) + 1e-12
+    assert SLOPE_RULES[fr.rule_] != 0.0 or radius(0.0) <= radius(s_g)
