@@ -23,6 +23,12 @@ PIECES = 16
 #: the slopes κ_g the range form may keep in its transition: 0 (the range alone), the secant's over
 #: the interval, or this share of the filter's slope s_g (:meth:`FrictionRange.candidate`)
 SLOPE_RULES = (0.0, "secant", 1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
+#: steps of the fixed point r = r_g + L_v w(r) of :meth:`FrictionRange._choose` (not settled: no fixed point)
+FIXED_POINT_STEPS = 6
+#: a rule is chosen again at once when a width w_g grew by this factor since it was chosen
+REGROW = 1.5
+#: the slowest time constant [s] of the set's transition a rule may give (:meth:`FrictionRange._choose`)
+SETTLE_S = 0.1
 #: the horizon [s] of the ℓ1 norm of a friction-torque pulse's τ_h,act response that rates a rule
 HORIZON_S = 0.5
 
@@ -48,6 +54,7 @@ class FrictionRange:
         self.choose_every = 1             # steps between two choices of the slope rule (_choose)
         self.rule_ = 1                    # index into SLOPE_RULES of the rule in use
         self._steps = 0
+        self._w_chosen = np.zeros(0)      # the widths w_g when the rule was chosen
         if sets != "zonotope" or tables is None:
             return
         n, d = model.n, 5 * model.n
@@ -71,6 +78,7 @@ class FrictionRange:
                 c[3 * n:4 * n] = model.Jinv[:, j]
             out.append((side, ell, c, effs))
         self.kappa_ = np.zeros(len(out))
+        self._w_chosen = np.full(len(out), np.inf)
         # the same as arrays for model_core.lin_error_boxes (one f_nom per point for both boxes)
         self.arrays = (np.array([g[1] for g in out]), np.array([g[2] for g in out]),
                        np.array([i for i, g in enumerate(out) for _ in g[3]], dtype=np.int64),
@@ -142,6 +150,14 @@ class FrictionRange:
         self._steps = 0
         self.rule_ = 1
 
+    def _widths(self, par, rule: int, w: np.ndarray) -> None:
+        """w_g of every group under ``rule`` into ``w``, its κ_g into :attr:`kappa_`."""
+        for i, (side, ell, c, effs) in enumerate(self.groups):
+            v0, t0, sl, r, rg = par[i]
+            kap = self._slope(rule, effs, v0, r, sl)
+            w[i] = self.deviation(effs, v0, r, t0, kap) + abs(sl - kap) * rg
+            self.kappa_[i] = kap
+
     @classmethod
     def _slope(cls, rule, effs, v0: float, r: float, sl: float) -> float:
         """κ_g of ``SLOPE_RULES[rule]`` for a group at v̂ = ``v0`` with half-width ``r`` and the filter's slope ``sl``."""
@@ -182,23 +198,29 @@ class FrictionRange:
             if not np.all(np.isfinite(V)) or np.max(np.abs(V)) > 1e12:
                 lt[:] = np.where(np.isfinite(lt), lt, np.inf)
                 break
-        best, best_cost = 0, np.inf
+        # a loop slower than SETTLE_S is left out: its response outlasts the horizon (ℓ1 too small)
+        slow = np.max(np.abs(np.linalg.eigvals(Ms)), axis=1) > math.exp(-dt / SETTLE_S)
+        best, best_cost = len(SLOPE_RULES) - 1, np.inf       # the filter's own slope if none settles
         for k in range(nr):
+            if slow[k]:
+                continue
             cost = 0.0
             for i, (side, ell, c, effs) in enumerate(self.groups):
                 v0, t0, sl, r, rg = par[i]
                 if not (np.isfinite(lt[k, i]) and np.isfinite(lv[k, i])):
                     cost = np.inf
                     break
-                rr = r
-                for _ in range(6):
+                rr, w = r, np.inf
+                for _ in range(FIXED_POINT_STEPS):
                     kap = self._slope(k, effs, v0, rr, sl)
                     w = self.deviation(effs, v0, rr, t0, kap) + abs(sl - kap) * rg
                     rr_new = rg + lv[k, i] * w
-                    if rr_new > 1e3:
-                        w = np.inf
-                        break
+                    settled = abs(rr_new - rr) <= 1e-3 * rr_new
                     rr = rr_new
+                    if settled:
+                        break
+                else:
+                    w = np.inf                 # still moving: r grows with w (no fixed point)
                 cost += lt[k, i] * w
             if cost < best_cost:
                 best, best_cost = k, cost
@@ -263,14 +285,17 @@ class FrictionRange:
                     Phi_full = discretize(A_k, np.eye(d), dt)[1]
                 GamF[:, i] = Phi_full @ c
             slopes[i] = sl
-        if loop is not None and self._steps % self.choose_every == 0:
+        self._widths(par, self.rule_, w)
+        # the rule chosen every 50 ms, and at once when its widths grew by half since (its
+        # error grows with the set, κ r for a steep κ: the set would run away before the next choice)
+        if loop is not None and (self._steps % self.choose_every == 0 or np.any(w > REGROW * self._w_chosen + 1e-6)):
             self.rule_ = self._choose(par, GamF, loop, dt)
+            self._widths(par, self.rule_, w)
+            self._w_chosen = w.copy()
         self._steps += 1
         for i, (side, ell, c, effs) in enumerate(self.groups):
-            v0, t0, sl, r, rg = par[i]
-            kap = self._slope(self.rule_, effs, v0, r, sl)
-            w[i] = self.deviation(effs, v0, r, t0, kap) + abs(sl - kap) * rg
-            self.kappa_[i] = kap
+            kap = self.kappa_[i]
+            sl = par[i][2]
             # F_B = F − Φc (s_g − κ_g) ℓᵀ; A_smooth = A_nom − c s_g ℓᵀ
             dF -= (sl - kap) * np.outer(GamF[:, i], ell)
         # both sampled boxes in one pass: the filter-slope form's b (f_nom with A_nom) and
