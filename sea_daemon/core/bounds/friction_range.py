@@ -23,11 +23,10 @@ PIECES = 16
 #: the slopes κ_g the range form may keep in its transition: 0 (the range alone), the secant's over
 #: the interval, or this share of the filter's slope s_g (:meth:`FrictionRange.candidate`)
 SLOPE_RULES = (0.0, "secant", 1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
-#: steps of the fixed point r = r_g + L_v w(r) of :meth:`FrictionRange._choose` (not settled: no fixed point)
+#: steps of the fixed point r = r_g + L_v w(r) of :meth:`FrictionRange._choose`
 FIXED_POINT_STEPS = 6
 #: a velocity half-width [rad/s] beyond which the fixed point counts as none (:meth:`FrictionRange._choose`)
 R_RUNAWAY = 1e3
-STRICT = False
 #: a rule is chosen again at once when a width w_g grew by this factor since it was chosen
 REGROW = 1.5
 #: the slowest time constant [s] of the set's transition a rule may give (:meth:`FrictionRange._choose`)
@@ -220,7 +219,7 @@ class FrictionRange:
                     rr = rr_new
                     if settled or rr > R_RUNAWAY:
                         break
-                if rr > R_RUNAWAY or (STRICT and not settled):
+                if rr > R_RUNAWAY:
                     w = np.inf                 # r grows with w: no fixed point
                 cost += lt[k, i] * w
             costs[k] = cost
