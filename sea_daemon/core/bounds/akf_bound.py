@@ -72,7 +72,7 @@ class AKFTheoremBound:
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
                  gp_beta: str | float | None = None, tau_h_act_rate: float | None = None,
-                 compiled: bool = True):
+                 compiled: bool = True, gaussian_walk: bool | None = None):
         self.akf = akf
         # the compiled step (bound_core.bound_step) where it applies, else the Python step below
         self.compiled = bool(compiled)
@@ -97,9 +97,9 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
-        # the Gaussian part's covariance P_g (gaussian_part: without the GP's variance and, with a
-        # declared rate, without the τ_h,act walk; the filter's P otherwise)
-        self.gauss = GaussianPart(akf, has_gp or self.tau_h_act_rate > 0, self.tau_h_act_rate > 0)
+        # P_g (gaussian_part): no GP variance; no τ_h,act walk with a declared rate (or gaussian_walk False)
+        drop = self.tau_h_act_rate > 0 if gaussian_walk is None else not gaussian_walk
+        self.gauss = GaussianPart(akf, has_gp or drop, drop)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
