@@ -656,10 +656,10 @@ def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():
     assert SLOPE_RULES[fr.rule_] != 0.0 or radius(0.0) <= radius(s_g)
 
 
-def test_torque_calibrated_beta_replays_with_the_gaussian_part_estimation_uses(monkeypatch):
-    """calibrate-bound --target torque replays a passive session without a rate term, but with the
-    Gaussian part estimation will use: without the τ_h,act walk when the configuration declares a
-    rate (its β is calibrated against that part, not against a walk estimation leaves out)."""
+def test_a_configured_beta_keeps_the_walk_in_the_gaussian_part(monkeypatch):
+    """With a declared rate the guaranteed β's bound leaves the τ_h,act walk out of its Gaussian
+    part; a configured β (what calibrate-bound calibrates, replaying with the walk in) keeps it,
+    in the replays that calibrate it and in estimation alike."""
     import dataclasses
     from sea_daemon.core.bounds import torque_beta
     seen = []
@@ -667,11 +667,12 @@ def test_torque_calibrated_beta_replays_with_the_gaussian_part_estimation_uses(m
     class Spy(AKFTheoremBound):
         def __init__(self, *a, **kw):
             super().__init__(*a, **kw)
-            seen.append((self.tau_h_act_rate, self.gauss.drop_tau))
+            seen.append(self.gauss.drop_tau)
 
     monkeypatch.setattr(torque_beta, "AKFTheoremBound", Spy)
     est, cal = _passive_gp_akf(seed=8)
-    torque_beta.torque_coverage(est, cal, 1.0)
     est.cfg = dataclasses.replace(est.cfg, estimator=dataclasses.replace(est.cfg.estimator, tau_h_act_rate=2.0))
     torque_beta.torque_coverage(est, cal, 1.0)
-    assert seen == [(0.0, False), (0.0, True)]
+    assert seen == [False]
+    assert AKFTheoremBound(est, gp_constants="auto", gp_beta="lederer").gauss.drop_tau
+    assert not AKFTheoremBound(est, gp_constants="auto", gp_beta=1.5).gauss.drop_tau

@@ -97,8 +97,9 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
-        # P_g (gaussian_part): no GP variance; no τ_h,act walk with a declared rate (or gaussian_walk False)
-        drop = self.tau_h_act_rate > 0 if gaussian_walk is None else not gaussian_walk
+        # P_g: no GP variance; no τ_h,act walk with a rate and the guaranteed β (docs/bounds.md §3)
+        drop = not gaussian_walk if gaussian_walk is not None else (
+            self.tau_h_act_rate > 0 and (not has_gp or self.gp_beta == "lederer"))
         self.gauss = GaussianPart(akf, has_gp or drop, drop)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
@@ -204,8 +205,7 @@ class AKFTheoremBound:
             self._scales = [LocalScale(g) for g in gps]
 
     def _n_learned(self) -> int:
-        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
-        else the points held by the LoG-GPs."""
+        """Training pairs learned so far (the GP-AKF's counter, else the LoG-GPs' points)."""
         n = getattr(self.akf, "n_learned", None)
         if n is not None:
             return int(n)
