@@ -656,10 +656,10 @@ def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():
     assert SLOPE_RULES[fr.rule_] != 0.0 or radius(0.0) <= radius(s_g)
 
 
-def test_a_configured_beta_keeps_the_walk_in_the_gaussian_part(monkeypatch):
-    """With a declared rate the guaranteed β's bound leaves the τ_h,act walk out of its Gaussian
-    part; a configured β (what calibrate-bound calibrates, replaying with the walk in) keeps it,
-    in the replays that calibrate it and in estimation alike."""
+def test_a_configured_beta_keeps_the_filters_covariance_as_the_gaussian_part(monkeypatch):
+    """The guaranteed β's bound propagates its own Gaussian part (no GP variance; with a declared
+    rate no τ_h,act walk); a configured β (what calibrate-bound calibrates, replaying with the
+    filter's P) keeps the filter's P, in the replays that calibrate it and in estimation alike."""
     import dataclasses
     from sea_daemon.core.bounds import torque_beta
     seen = []
@@ -667,12 +667,13 @@ def test_a_configured_beta_keeps_the_walk_in_the_gaussian_part(monkeypatch):
     class Spy(AKFTheoremBound):
         def __init__(self, *a, **kw):
             super().__init__(*a, **kw)
-            seen.append(self.gauss.drop_tau)
+            seen.append((self.gauss.own, self.gauss.drop_tau))
 
     monkeypatch.setattr(torque_beta, "AKFTheoremBound", Spy)
     est, cal = _passive_gp_akf(seed=8)
     est.cfg = dataclasses.replace(est.cfg, estimator=dataclasses.replace(est.cfg.estimator, tau_h_act_rate=2.0))
     torque_beta.torque_coverage(est, cal, 1.0)
-    assert seen == [False]
-    assert AKFTheoremBound(est, gp_constants="auto", gp_beta="lederer").gauss.drop_tau
-    assert not AKFTheoremBound(est, gp_constants="auto", gp_beta=1.5).gauss.drop_tau
+    assert seen == [(False, False)]
+    g = AKFTheoremBound(est, gp_constants="auto", gp_beta="lederer").gauss
+    assert g.own and g.drop_tau
+    assert not AKFTheoremBound(est, gp_constants="auto", gp_beta=1.5).gauss.own
