@@ -41,8 +41,13 @@ class SEAParams:
     D_s: np.ndarray        # spring damping [N m s/rad]            eq:spring_torque
     gravity: np.ndarray    # m g l per joint: C(q) = gravity*sin(q) [N m]
     effects: tuple[Effect, ...] = ()
+    # model.urdf: the robot description's path as the YAML gives it (relative to the YAML); its
+    # rigid body (core.rigid.RigidBody) gives M(q) and C(q, q̇) q̇ + g(q) in place of M and
+    # gravity (then M holds M(0) and gravity zeros)
+    urdf: str | None = None
+    rigid: Any = None
 
-    KEYS = ["M", "J", "D_m", "K_s", "D_s", "gravity", "effects"]
+    KEYS = ["M", "J", "D_m", "K_s", "D_s", "gravity", "effects", "urdf"]
     REQUIRED = ["M", "J", "D_m", "K_s", "D_s"]
 
     @property
@@ -53,31 +58,63 @@ class SEAParams:
         return dataclasses.replace(self, effects=tuple(effects))
 
     @classmethod
-    def from_dict(cls, d: Mapping, n: int, source: str) -> "SEAParams":
-        validate.check_keys(source, "model.", d, cls.KEYS, cls.REQUIRED)
+    def from_dict(cls, d: Mapping, n: int, source: str, urdf_text: str | None = None) -> "SEAParams":
+        """``urdf_text``: the text of the file ``model.urdf`` names (the io layer reads it)."""
+        has_urdf = isinstance(d, Mapping) and "urdf" in d
+        validate.check_keys(source, "model.", d, cls.KEYS, cls.REQUIRED[1:] if has_urdf else cls.REQUIRED)
         eff = d.get("effects") or []
         if not isinstance(eff, list):
             raise ConfigError(source, "model.effects", f"must be a list of effect mappings, got {eff!r}")
+        rigid = rigid_body(d, n, source, urdf_text) if has_urdf else None
         return cls(
-            M=validate.matrix(source, "model.M", d["M"], n, positive_definite=True),
+            M=(rigid.mass_matrix(np.zeros(n)) if rigid is not None
+               else validate.matrix(source, "model.M", d["M"], n, positive_definite=True)),
             J=validate.matrix(source, "model.J", d["J"], n, positive_definite=True),
             D_m=validate.matrix(source, "model.D_m", d["D_m"], n, non_negative=True),
             K_s=validate.matrix(source, "model.K_s", d["K_s"], n, positive_definite=True),
             D_s=validate.matrix(source, "model.D_s", d["D_s"], n, non_negative=True),
             gravity=validate.vector(source, "model.gravity", d.get("gravity", 0.0), n),
             effects=tuple(effect_from_dict(e, n, source, f"model.effects[{i}]") for i, e in enumerate(eff)),
+            urdf=d["urdf"] if has_urdf else None, rigid=rigid,
         )
+
+    def with_rigid(self, rigid) -> "SEAParams":
+        """The same SEA part with another rigid body (e.g. a plant's, :meth:`RigidBody.scaled`)."""
+        return dataclasses.replace(self, rigid=rigid, M=rigid.mass_matrix(np.zeros(self.n)))
 
     def to_dict(self) -> dict:
         def m(a):
             if self.n == 1:
                 return float(a[0, 0])
             return a.tolist()
-        return {
-            "M": m(self.M), "J": m(self.J), "D_m": m(self.D_m), "K_s": m(self.K_s), "D_s": m(self.D_s),
-            "gravity": float(self.gravity[0]) if self.n == 1 else self.gravity.tolist(),
-            "effects": [e.to_dict(self.n) for e in self.effects],
-        }
+        out = {"urdf": self.urdf} if self.rigid is not None else {"M": m(self.M)}
+        out.update({"J": m(self.J), "D_m": m(self.D_m), "K_s": m(self.K_s), "D_s": m(self.D_s)})
+        if self.rigid is None:
+            out["gravity"] = float(self.gravity[0]) if self.n == 1 else self.gravity.tolist()
+        out["effects"] = [e.to_dict(self.n) for e in self.effects]
+        return out
+
+
+def rigid_body(d: Mapping, n: int, source: str, urdf_text: str | None):
+    """The :class:`~sea_daemon.core.rigid.RigidBody` of ``model.urdf`` (its text read by the io
+    layer); the URDF gives the load side's inertia and gravity, so ``M`` and ``gravity`` are refused
+    beside it, and its movable joints must be the ``joints`` of the configuration."""
+    # local import: Pinocchio takes 0.3 s to load; only a model with a URDF needs it
+    from sea_daemon.core.rigid import RigidBody
+    path = d["urdf"]
+    if not isinstance(path, str) or not path.strip():
+        raise ConfigError(source, "model.urdf", f"must be the path of a URDF file (relative to this file), got {path!r}")
+    for key in ("M", "gravity"):
+        if key in d:
+            raise ConfigError(source, f"model.{key}",
+                              "not allowed with model.urdf (the URDF gives the load side's inertia and gravity)")
+    if urdf_text is None:
+        raise ConfigError(source, "model.urdf", f"{path!r} was not read (load the configuration from its file)")
+    rigid = RigidBody(urdf_text, source=f"{source}: {path}")
+    if rigid.n != n:
+        raise ConfigError(source, "model.urdf", f"{path!r} has {rigid.n} movable joint(s) "
+                                                f"({', '.join(rigid.joint_names)}); joints is {n}")
+    return rigid
 
 
 @dataclass(frozen=True)
@@ -506,7 +543,9 @@ class ModelConfig:
         return 1.0 / self.rate_hz
 
     @classmethod
-    def from_dict(cls, d: Any, source: str = "<memory>") -> "ModelConfig":
+    def from_dict(cls, d: Any, source: str = "<memory>", urdf_text: str | None = None) -> "ModelConfig":
+        """``urdf_text``: the text of the file ``model.urdf`` names, if it names one (the io layer
+        reads it: :func:`sea_daemon.io.configfile.load_config`)."""
         validate.check_keys(source, "", d, cls.TOP_KEYS, ["joints", "rate_hz", "model"])
         n = d["joints"]
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 16:
@@ -515,7 +554,7 @@ class ModelConfig:
         hardware = HardwareConfig.from_dict(d.get("hardware") or {}, n, source)
         return cls(
             joints=n, rate_hz=rate,
-            model=SEAParams.from_dict(d["model"], n, source),
+            model=SEAParams.from_dict(d["model"], n, source, urdf_text),
             estimator=EstimatorConfig.from_dict(d.get("estimator") or {}, n, source),
             kinematics=KinematicsConfig.from_dict(d.get("kinematics") or {}, n, source),
             learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),

@@ -11,15 +11,22 @@ q = θ_m + θ_s, input u = τ_m ∈ R^n:
 :func:`sea_daemon.core.effects.evaluate`), g the backlash dead band (identity without one), κ
 the torque scale, f(z) a residual load torque (the GP's, or a torque outside the effect
 vocabulary; zero in the nominal model).  The load side's inertia and bias enter through
-:func:`inertia` (M(q), M(q)⁻¹) and :func:`rigid_bias` (C(q, q̇) and its partials): today a
-constant M and the link's gravity C = gravity ⊙ sin q; a model of n coupled joints replaces
-these two functions (and adds −M⁻¹ (∂M/∂q) q̈ to the q̈ rows of :func:`load_accel_jac`).
+:func:`inertia` (M(q), M(q)⁻¹) and :func:`rigid_bias` (C(q, q̇) and its partials): a constant
+M and the link's gravity C = gravity ⊙ sin q.  A model of n coupled joints from a URDF
+(:class:`~sea_daemon.core.rigid.RigidBody`, Pinocchio, which numba cannot call) takes its
+rigid body's part from Pinocchio and the SEA's from here: :func:`load_side_torque` gives the
+torque on the body besides its own bias, the body's forward dynamics (ABA) and its derivatives
+give q̈, ∂q̈/∂q (with −M⁻¹ (∂M/∂q) q̈), ∂q̈/∂q̇ and M⁻¹, and :func:`rigid_state` assembles f_nom
+and F_nom from them (the same :func:`state_rates` and :func:`state_jacobian` as
+:func:`f_nom` / :func:`F_nom`); :func:`load_torque_given` and :func:`residual_given` take the
+body's inverse dynamics (RNEA).
 
 The kernels take the parameters as one :class:`Dynamics` in its packed form
 (:meth:`Dynamics.packed`, a plain tuple: numba types it at C speed; a NamedTuple argument costs
 ~5 µs per call) and unpack it by name.  Callers: :class:`~sea_daemon.core.model.SEAModel` (the
 model's methods), :class:`~sea_daemon.core.model_core.ModelTables` (the filter with declared
-effects), the simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
+effects) and :class:`~sea_daemon.core.model_core.RigidTables` (the filter with a URDF), the
+simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
 (:func:`spring_torque_many`).
 
 Two forms keep their own floating-point order (they are what the filter and the simulator
@@ -254,9 +261,29 @@ def load_accel_jac(p, q, dq, dts, f_q, f_v):
 def load_torque(p, q, dq, ddq):
     """τ_l(z) = M q̈ + C(q, q̇) plus the declared load effects (eq:loadsidewmotor)."""
     M, Minv = inertia(p, q)
+    return load_torque_given(p, q, dq, M @ ddq + rigid_bias(p, q, dq))
+
+
+@njit
+def load_torque_given(p, q, dq, tau_rigid):
+    """τ_l(z) = τ_rigid plus the declared load effects, τ_rigid = M(q) q̈ + C(q, q̇) the rigid
+    body's inverse dynamics (eq:loadsidewmotor; a rigid body from a URDF gives it by RNEA)."""
     _, _, _, _, _, _, _, _, _, _, load, _, _ = p
     lo, _, _ = side_torques(load, q, dq)
-    return M @ ddq + rigid_bias(p, q, dq) + lo
+    return tau_rigid + lo
+
+
+@njit
+def load_side_torque(p, x, f):
+    """τ_h,act − Σ_load e − τ_s − f (n,) at the state x: the torque on the rigid body besides its own
+    bias, so that q̈ = M(q)⁻¹ (τ − C(q, q̇)) (eq:unknwn_load; a URDF's forward dynamics takes it)."""
+    n = f.shape[0]
+    _, _, _, _, _, _, _, _, _, _, load, _, _ = p
+    q = x[:n] + x[n:2 * n]
+    dq = x[2 * n:3 * n] + x[3 * n:4 * n]
+    tau_s = spring_torque(p, x[n:2 * n], x[3 * n:4 * n])
+    lo, _, _ = side_torques(load, q, dq)
+    return x[4 * n:5 * n] - lo - tau_s - f
 
 
 # ------------------------------------------------------------------ state space
@@ -276,6 +303,44 @@ def f_nom(p, x, u, f, xdot) -> None:
     tau_s = spring_torque(p, th_s, dth_s)
     ddth_m = motor_accel(p, th_m, dth_m, u, tau_s)
     ddq = load_accel(p, q, dq, tau_h, tau_s, f)
+    state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot)
+
+
+@njit
+def load_side_torques(p, X, out) -> None:
+    """out[k] = :func:`load_side_torque` at the row k of X (f = 0): the rigid body's torques at many states."""
+    f = np.zeros(out.shape[1])
+    for k in range(X.shape[0]):
+        out[k] = load_side_torque(p, X[k], f)
+
+
+@njit
+def rigid_lin_error_box(p, X, u, A0, DDQ, b) -> None:
+    """b = max over the rows x of X[1:] of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state, x0 = X[0],
+    for a model with a rigid body whose q̈ at the rows are DDQ (:func:`rigid_state`; the rounding
+    floor of :func:`~sea_daemon.core.model_core.lin_error_boxes`: an exactly linear drift gives 0)."""
+    d = X.shape[1]
+    none = np.zeros((0, 0))
+    f0 = np.empty(d)
+    fx = np.empty(d)
+    v = np.zeros(0)
+    rigid_state(p, X[0], u, DDQ[0], none, none, none, v, v, none, f0, False)
+    for r in range(1, X.shape[0]):
+        rigid_state(p, X[r], u, DDQ[r], none, none, none, v, v, none, fx, False)
+        for i in range(d):
+            lin = 0.0
+            for k in range(d):
+                lin += A0[i, k] * (X[r, k] - X[0, k])
+            e = abs(fx[i] - f0[i] - lin)
+            if e <= 1e-12 * (abs(fx[i]) + abs(f0[i]) + abs(lin)):
+                e = 0.0
+            if e > b[i]:
+                b[i] = e
+
+
+@njit
+def state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot) -> None:
+    """xdot = [θ̇_m, θ̇_s, θ̈_m, q̈ − θ̈_m, 0] (eq:xsdd; a zero-order model of τ_h,act)."""
     for j in range(n):
         xdot[j] = dth_m[j]
         xdot[n + j] = dth_s[j]
@@ -298,6 +363,13 @@ def F_nom(p, x, u, f_q, f_v, A) -> None:
     dts = spring_torque_jac(p, th_s)
     am0, am1, am2, am3 = motor_accel_jac(p, th_m, dth_m, dts)
     aq0, aq1, aq2, aq3, aq4 = load_accel_jac(p, q, dq, dts, f_q, f_v)
+    state_jacobian(n, am0, am1, am2, am3, aq0, aq1, aq2, aq3, aq4, A)
+
+
+@njit
+def state_jacobian(n, am0, am1, am2, am3, aq0, aq1, aq2, aq3, aq4, A) -> None:
+    """A = ∂f_nom/∂x from the (n, n) blocks ∂θ̈_m/∂(θ_m, θ_s, θ̇_m, θ̇_s) and ∂q̈/∂(θ_m, θ_s, θ̇_m,
+    θ̇_s, τ_h,act) (eq:xsdd: the θ̈_s rows are their difference)."""
     A[:] = 0.0
     for j in range(n):
         A[j, 2 * n + j] = 1.0
@@ -317,6 +389,35 @@ def F_nom(p, x, u, f_q, f_v, A) -> None:
 
 
 @njit
+def rigid_state(p, x, u, ddq, ddq_dq, ddq_dv, Minv, f_q, f_v, A, xdot, jacobian: bool) -> None:
+    """xdot = f_nom(x, u) and, with ``jacobian``, A = F_nom(x, u) of a model whose load side is a
+    rigid body of n coupled joints (a URDF): its forward dynamics q̈ = M(q)⁻¹ (τ − C(q, q̇)) at
+    τ = :func:`load_side_torque` comes in with ∂q̈/∂q, ∂q̈/∂q̇ at fixed τ and M(q)⁻¹ = ∂q̈/∂τ
+    (:meth:`~sea_daemon.core.rigid.RigidBody.forward_derivatives`); the chain rule through τ
+    (Σ_load e, τ_s, the residual f with partials f_q, f_v) is added here (eq:unknwn_load,
+    eq:linearization; the −M⁻¹ (∂M/∂q) q̈ term of a configuration-dependent M is in ∂q̈/∂q)."""
+    n = u.shape[0]
+    M, Minv0, J, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, load, motor, spring = p
+    th_m = x[:n]
+    th_s = x[n:2 * n]
+    dth_m = x[2 * n:3 * n]
+    dth_s = x[3 * n:4 * n]
+    tau_s = spring_torque(p, th_s, dth_s)
+    ddth_m = motor_accel(p, th_m, dth_m, u, tau_s)
+    state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot)
+    if not jacobian:
+        return
+    dts = spring_torque_jac(p, th_s)
+    am0, am1, am2, am3 = motor_accel_jac(p, th_m, dth_m, dts)
+    _, dlo_a, dlo_v = side_torques(load, th_m + th_s, dth_m + dth_s)
+    # q̈ = ABA(q, q̇, τ), τ = τ_h,act − Σ_load e(q, q̇) − τ_s(θ_s, θ̇_s) − f: ∂q̈/∂x = ∂q̈/∂q ∂q/∂x
+    # + ∂q̈/∂q̇ ∂q̇/∂x + M⁻¹ ∂τ/∂x (q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s)
+    Lq = ddq_dq - Minv @ np.diag(dlo_a + f_q)
+    Lv = ddq_dv - Minv @ np.diag(dlo_v + f_v)
+    state_jacobian(n, am0, am1, am2, am3, Lq, Lq - Minv @ dts, Lv, Lv - Minv @ D_s, Minv, A)
+
+
+@njit
 def nominal(p, x, u, A, xdot, jacobian: bool) -> None:
     """xdot = f_nom(x, u) and, with ``jacobian``, A = F_nom(x, u) of the nominal model (f = 0)."""
     z = np.zeros(u.shape[0])
@@ -328,10 +429,17 @@ def nominal(p, x, u, A, xdot, jacobian: bool) -> None:
 @njit
 def residual(p, q, dq, ddq, th, dth, ddth, tau, out) -> None:
     """out = f(z) of eq:loadsidewmotor with ass:passive_human (τ_h,act = 0)."""
+    M, Minv = inertia(p, q)
+    residual_given(p, q, dq, M @ ddq + rigid_bias(p, q, dq), th, dth, ddth, tau, out)
+
+
+@njit
+def residual_given(p, q, dq, tau_rigid, th, dth, ddth, tau, out) -> None:
+    """:func:`residual` with the rigid body's inverse dynamics τ_rigid = M(q) q̈ + C(q, q̇) given."""
     M, Minv, J, Jinv, D_m, K_s, D_s, gravity, kappa, half_band, load, motor, spring = p
     mo, _, _ = side_torques(motor, th, dth)
     # eq:loadsidewmotor: f = κ τ_m − (τ_l(z) + J θ̈_m + D_m θ̇_m + Σ_motor e),  τ_l = M q̈ + C + Σ_load e
-    r = kappa * tau - (load_torque(p, q, dq, ddq) + J @ ddth + D_m @ dth + mo)
+    r = kappa * tau - (load_torque_given(p, q, dq, tau_rigid) + J @ ddth + D_m @ dth + mo)
     for j in range(q.shape[0]):
         out[j] = r[j]
 
@@ -424,7 +532,13 @@ def _warm() -> None:
     f_nom(p, np.zeros(d), v, v, xdot)
     F_nom(p, np.zeros(d), v, v, v, A)
     residual(p, v, v, v, v, v, v, v, np.zeros(n))
+    residual_given(p, v, v, v, v, v, v, v, np.zeros(n))
+    load_side_torque(p, np.zeros(d), v)
+    load_side_torques(p, np.zeros((2, d)), np.zeros((2, n)))
+    rigid_lin_error_box(p, np.zeros((2, d)), v, np.zeros((d, d)), np.zeros((2, n)), np.zeros(d))
+    rigid_state(p, np.zeros(d), v, v, np.eye(n), np.eye(n), np.eye(n), v, v, A, xdot, True)
     load_torque(p, v, v, v)
+    load_torque_given(p, v, v, v)
     load_accel(p, v, v, v, v, v)
     motor_accel(p, v, v, v, v)
     spring_torque(p, v, v)

@@ -5,6 +5,9 @@
 :func:`excitation` — the calibration motion of ``sea-daemon calibrate``: moves whose
 amplitudes, durations (hence speeds and accelerations) and dwell positions are spread over the
 joint's declared working range, drawn from a seeded generator (not one repeated move).
+:class:`PerJoint` and :func:`excitation_joints` — the same for n joints: one reference per
+joint, each joint's moves drawn on its own, so that their combinations spread over the box of
+the joints' working ranges.
 :class:`Coverage` — an occupancy grid of the (q, q̇, q̈) box of the working range: what share
 of it a log's data visit, and, at estimation time, whether a sample's z lies in a visited
 cell (or its neighbours).
@@ -124,6 +127,36 @@ def excitation(wr: WorkingRange, duration_s: float, seed: int = 0, dwell_share: 
         t += T + dw
         q = tgt
     return MoveSequence(q0, tuple(targets), tuple(durs), tuple(dwells), cyclic=False)
+
+
+@dataclass(frozen=True)
+class PerJoint:
+    """The reference of n joints from one reference per joint: ``reference(t) -> (q, q̇, q̈)``, each (n,)."""
+
+    joints: tuple
+
+    @property
+    def duration(self) -> float:
+        return max(float(getattr(j, "duration", 0.0)) for j in self.joints)
+
+    def reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r = [j.reference(t) for j in self.joints]
+        return tuple(np.array([v[i] for v in r]) for i in range(3))
+
+
+def excitation_joints(ranges, duration_s: float, seed: int = 0, dwell_share: float = 0.15,
+                      v_min_share: float = 0.25, q0=None) -> PerJoint:
+    """The calibration motion of n joints: :func:`excitation` for each joint's
+    :class:`WorkingRange` in ``ranges``, each from its own random stream of ``seed``
+    (numpy's SeedSequence spawned per joint), so the joints move and dwell at different times
+    and their angles, speeds and accelerations meet in combinations over the whole box of the
+    ranges (what couples them: M(q), C(q, q̇) of a URDF).  ``q0``: (n,) start angles (default
+    mid-range).  Seeded: the same seed, the same motion."""
+    n = len(ranges)
+    starts = [None] * n if q0 is None else [float(v) for v in np.broadcast_to(np.asarray(q0, dtype=float), (n,))]
+    streams = np.random.SeedSequence(seed).spawn(n)
+    return PerJoint(tuple(excitation(wr, duration_s, seed=int(ss.generate_state(1)[0]), dwell_share=dwell_share,
+                                     v_min_share=v_min_share, q0=q) for wr, ss, q in zip(ranges, streams, starts)))
 
 
 class Coverage:

@@ -8,7 +8,9 @@ Load side    M q̈ + C(q) + Σ_load e(q, q̇, q̈) + f(z) + τ_s = τ_h,act     
 Motor side   J θ̈_m + D_m θ̇_m + Σ_motor e(θ_m, θ̇_m, θ̈_m) − τ_s = κ τ_m      eq:motorside
 Spring       τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s),  θ_s = q − θ_m     eq:spring_torque
 
-with C(q) = gravity ⊙ sin(q), g the backlash dead band (identity when none is declared),
+with C(q) = gravity ⊙ sin(q) and a constant M — or, with ``model.urdf``, M(q) and the bias
+C(q, q̇) q̇ + g(q) in place of C(q), of the URDF's rigid body (:class:`~sea_daemon.core.rigid.RigidBody`,
+Pinocchio; eq:loadside) — g the backlash dead band (identity when none is declared),
 κ the declared torque scale (1 when none), and the declared effects of docs/interfaces.md §2.
 Inertia effects are folded into M and J (they are linear in the acceleration).
 
@@ -45,6 +47,16 @@ class SEAModel:
         for e in eff:
             if isinstance(e, Inertia):
                 (M if e.side == "load" else J)[e.joint, e.joint] += e.dI
+        #: the rigid body of ``model.urdf`` (:class:`~sea_daemon.core.rigid.RigidBody`; its own copy,
+        #: declared load inertia added as armature) or None: then M and C(q) = gravity ⊙ sin q
+        self.rigid = None
+        if params.rigid is not None:
+            dI = np.zeros(n)
+            for e in eff:
+                if isinstance(e, Inertia) and e.side == "load":
+                    dI[e.joint] += e.dI
+            self.rigid = params.rigid.with_armature(dI)
+        # with a rigid body, M and M⁻¹ are M(q) at the state last given to :meth:`at` (M(0) at first)
         self.M, self.J = M, J
         self.Minv = np.linalg.inv(M)
         self.Jinv = np.linalg.inv(J)
@@ -93,7 +105,10 @@ class SEAModel:
     # ------------------------------------------------------------------ pieces
 
     def C(self, q: np.ndarray) -> np.ndarray:
-        """Gravity term of the loaded link, C(q) = gravity ⊙ sin q."""
+        """Gravity term of the loaded link, C(q) = gravity ⊙ sin q (a rigid body's g(q), q one
+        configuration)."""
+        if self.rigid is not None:
+            return self.rigid.gravity(q)
         return self.gravity * np.sin(q)
 
     def dC(self, q: np.ndarray) -> np.ndarray:
@@ -112,7 +127,7 @@ class SEAModel:
             d_vel[j] += pv
         return tau, d_ang, d_vel
 
-    def _outside(self, q, dq):
+    def outside_torque(self, q, dq):
         """(f, ∂f/∂q, ∂f/∂q̇) of the load effects outside the vocabulary (Python ``evaluate``):
         the kernels take them as a residual load torque f (eq:unknwn_load)."""
         z = np.zeros(self.n)
@@ -132,7 +147,7 @@ class SEAModel:
         t = dynamics.side_torques(self.kernel[10], q, dq)
         if not self.outside_effects:
             return t
-        return tuple(a + b for a, b in zip(t, self._outside(q, dq)))
+        return tuple(a + b for a, b in zip(t, self.outside_torque(q, dq)))
 
     def motor_effects_torque(self, theta_m, dtheta_m):
         """(Σ τ, ∂/∂θ_m, ∂/∂θ̇_m) of the declared motor effects."""
@@ -152,7 +167,7 @@ class SEAModel:
         """The residual load torque the kernels take: f_res plus the effects outside the vocabulary."""
         f = np.zeros(self.n) if f_res is None else _vec(f_res)
         if self.outside_effects:
-            f = f + self._outside(q, dq)[0]
+            f = f + self.outside_torque(q, dq)[0]
         return f
 
     def accelerations(self, x: np.ndarray, u: np.ndarray, f_res: np.ndarray | None = None):
@@ -164,7 +179,11 @@ class SEAModel:
         p = self.kernel
         tau_s = dynamics.spring_torque(p, th_s, dth_s)
         ddth_m = dynamics.motor_accel(p, th_m, dth_m, _vec(u), tau_s)
-        ddq = dynamics.load_accel(p, q, dq, tau_h, tau_s, self._f(q, dq, f_res))
+        if self.rigid is not None:
+            # eq:unknwn_load by the rigid body's forward dynamics (ABA)
+            ddq = self.rigid.forward(q, dq, dynamics.load_side_torque(p, x, self._f(q, dq, f_res)))
+        else:
+            ddq = dynamics.load_accel(p, q, dq, tau_h, tau_s, self._f(q, dq, f_res))
         return ddth_m, ddq
 
     def f_nom(self, x: np.ndarray, u: np.ndarray, f_res: np.ndarray | None = None) -> np.ndarray:
@@ -172,8 +191,11 @@ class SEAModel:
         x = _vec(x)
         n = self.n
         xd = np.empty(5 * n)
-        dynamics.f_nom(self.kernel, x, _vec(u), self._f(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n], f_res),
-                       xd)
+        f = self._f(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n], f_res)
+        if self.rigid is not None:
+            self.rigid_f_and_F(x, _vec(u), f, None, None, None, xd)
+            return xd
+        dynamics.f_nom(self.kernel, x, _vec(u), f, xd)
         return xd
 
     def F_nom(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -182,11 +204,39 @@ class SEAModel:
         n = self.n
         A = np.empty((5 * n, 5 * n))
         if self.outside_effects:
-            _, f_q, f_v = self._outside(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n])
+            f, f_q, f_v = self.outside_torque(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n])
         else:
-            f_q = f_v = np.zeros(n)
+            f = f_q = f_v = np.zeros(n)
+        if self.rigid is not None:
+            self.rigid_f_and_F(x, _vec(u), f, f_q, f_v, A, np.empty(5 * n))
+            return A
         dynamics.F_nom(self.kernel, x, _vec(u), f_q, f_v, A)
         return A
+
+    def at(self, x) -> None:
+        """M and M⁻¹ (:attr:`M`, :attr:`Minv`, in place) at the state x (5n,): a rigid body's M(q),
+        q = θ_m + θ_s; a constant M stays as it is."""
+        if self.rigid is not None:
+            n = self.n
+            self.M[:] = self.rigid.mass_matrix(np.asarray(x[:n], dtype=float) + x[n:2 * n])
+            self.Minv[:] = np.linalg.inv(self.M)
+
+    def rigid_f_and_F(self, x, u, f, f_q, f_v, A, xdot) -> np.ndarray:
+        """xdot = f_nom(x, u) − I_μ M⁻¹(q) f and, with ``A`` (f_q, f_v the partials of f), A = F_nom
+        of the model with a rigid body (:func:`dynamics.rigid_state` around one ABA or ABA-derivatives
+        call, eq:unknwn_load); returns M(q)⁻¹ (n, n)."""
+        n = self.n
+        p = self.kernel
+        q = x[:n] + x[n:2 * n]
+        dq = x[2 * n:3 * n] + x[3 * n:4 * n]
+        tau = dynamics.load_side_torque(p, x, f)
+        if A is None:
+            ddq = self.rigid.forward(q, dq, tau)
+            dynamics.rigid_state(p, x, u, ddq, _NONE, _NONE, _NONE, f, f, _NONE, xdot, False)
+            return _NONE
+        ddq, ddq_dq, ddq_dv, Minv = self.rigid.forward_derivatives(q, dq, tau)
+        dynamics.rigid_state(p, x, u, ddq, ddq_dq, ddq_dv, Minv, f_q, f_v, A, xdot, True)
+        return Minv
 
     def B_nom(self) -> np.ndarray:
         """∂f_nom/∂u (5n×n)."""
@@ -200,10 +250,14 @@ class SEAModel:
     # ------------------------------------------------------------------ inverse dynamics
 
     def load_torque(self, q, dq, ddq) -> np.ndarray:
-        """τ_l(z) = M q̈ + C(q) plus the declared load effects (eq:loadsidewmotor)."""
+        """τ_l(z) = M q̈ + C(q) plus the declared load effects (eq:loadsidewmotor); a rigid body's
+        M(q) q̈ + C(q, q̇) q̇ + g(q) by RNEA."""
         q, dq = _vec(q), _vec(dq)
-        t = dynamics.load_torque(self.kernel, q, dq, _vec(ddq))
-        return t + self._outside(q, dq)[0] if self.outside_effects else t
+        if self.rigid is not None:
+            t = dynamics.load_torque_given(self.kernel, q, dq, self.rigid.inverse(q, dq, ddq))
+        else:
+            t = dynamics.load_torque(self.kernel, q, dq, _vec(ddq))
+        return t + self.outside_torque(q, dq)[0] if self.outside_effects else t
 
     def residual_from_kinematics(self, q, dq, ddq, th_m, dth_m, ddth_m, tau_m, tau_h_act=None) -> np.ndarray:
         """f(z) = τ_h,act + κτ_m − (τ_l(z) + J θ̈_m + D_m θ̇_m + motor effects)   (eq:loadsidewmotor).
@@ -212,9 +266,13 @@ class SEAModel:
         """
         q, dq = _vec(q), _vec(dq)
         f = np.empty(self.n)
-        dynamics.residual(self.kernel, q, dq, _vec(ddq), _vec(th_m), _vec(dth_m), _vec(ddth_m), _vec(tau_m), f)
+        if self.rigid is not None:
+            dynamics.residual_given(self.kernel, q, dq, self.rigid.inverse(q, dq, ddq), _vec(th_m), _vec(dth_m),
+                                    _vec(ddth_m), _vec(tau_m), f)
+        else:
+            dynamics.residual(self.kernel, q, dq, _vec(ddq), _vec(th_m), _vec(dth_m), _vec(ddth_m), _vec(tau_m), f)
         if self.outside_effects:
-            f = f - self._outside(q, dq)[0]
+            f = f - self.outside_torque(q, dq)[0]
         if tau_h_act is not None:
             f = f + tau_h_act
         return f
@@ -222,6 +280,10 @@ class SEAModel:
     def correct_measurement(self, q_meas: np.ndarray, th_m_meas: np.ndarray):
         """Remove declared encoder offsets: the encoders read angle + δ (docs/interfaces.md §2)."""
         return q_meas - self.offset_load, th_m_meas - self.offset_motor
+
+
+#: a placeholder (0, 0) array for the arguments :func:`dynamics.rigid_state` does not read
+_NONE = np.zeros((0, 0))
 
 
 def _vec(a) -> np.ndarray:

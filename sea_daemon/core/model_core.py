@@ -10,10 +10,12 @@ parameter vector); :class:`ModelTables` hands that to the kernels of
     eq:unknwn_load q̈ = M⁻¹ (τ_h,act − C(q) − Σ_load e − τ_s),   θ̈_s = q̈ − θ̈_m   (eq:xsdd)
     eq:spring_torque τ_s = K_s g(θ_s) + D_s θ̇_s + Σ_spring e(θ_s)
 
-and :func:`lin_error_boxes` samples the linearisation error of f_nom for the bound.  Encoder
-offsets (measurement) and the delay (input history) stay with the AKF; inertia effects are
-folded into M and J by SEAModel.  Effects that evaluate themselves in Python (outside the
-vocabulary) are not supported here (:meth:`ModelTables.supports`).
+and :func:`lin_error_boxes` samples the linearisation error of f_nom for the bound.
+:class:`RigidTables` does the same for a model whose load side is a rigid body of n coupled
+joints (a URDF), with G_μ = I_μ M(q)⁻¹ of each step.  Encoder offsets (measurement) and the
+delay (input history) stay with the AKF; inertia effects are folded into M and J by SEAModel
+(into the body's armature with a URDF).  Effects that evaluate themselves in Python (outside
+the vocabulary) are not supported by :class:`ModelTables` (:meth:`ModelTables.supports`).
 
 Pure numerics: no I/O, no clock, no threads.
 """
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea_daemon.core.dynamics import example, nominal, residual
+from sea_daemon.core.dynamics import example, load_side_torques, nominal, residual, rigid_lin_error_box
 from sea_daemon.core.effects import MAX_PARAMS, Effect, evaluate
 from sea_daemon.core.jit import njit, warmer
 
@@ -56,6 +58,68 @@ class ModelTables:
     def residual(self, q, dq, ddq, th, dth, ddth, tau, out) -> None:
         """out = f of eq:loadsidewmotor (τ_h,act = 0) with the declared effects."""
         residual(self.dynamics, q, dq, ddq, th, dth, ddth, tau, out)
+
+
+class RigidTables:
+    """The filter's f_nom, F_nom and G_μ = I_μ M⁻¹(q) of a model whose load side is a rigid body of n
+    coupled joints (``model.urdf``; :class:`~sea_daemon.core.model.SEAModel` with ``rigid``).
+
+    Per step one call of Pinocchio's ABA derivatives (q̈, ∂q̈/∂q, ∂q̈/∂q̇, M⁻¹ at x̂_{k−1}), around the compiled SEA kernels (:func:`~sea_daemon.core.dynamics.rigid_state`):
+    :meth:`f_and_F` writes A = F_nom, ẋ = f_nom and the θ̈_s rows of ``G_mu`` (the filter's
+    I_μ M⁻¹) in place; the bound sets the model's ``M``, ``Minv`` at its step's x̂_{k−1}
+    (:meth:`~sea_daemon.core.model.SEAModel.at`).  Same interface as :class:`ModelTables`;
+    effects outside the vocabulary are included (their Python ``evaluate`` per step).
+    """
+
+    def __init__(self, model, G_mu: np.ndarray):
+        self.model = model
+        self.G_mu = G_mu
+        n = self.n = model.n
+        self._zero = np.zeros(n)
+
+    def f_and_F(self, x, u, A, xdot) -> None:
+        """A = F_nom(x, u), xdot = f_nom(x, u), G_μ = I_μ M(q)⁻¹ (in place)."""
+        m, n = self.model, self.n
+        q = x[:n] + x[n:2 * n]
+        if m.outside_effects:
+            f, f_q, f_v = m.outside_torque(q, x[2 * n:3 * n] + x[3 * n:4 * n])
+        else:
+            f = f_q = f_v = self._zero
+        self.G_mu[3 * n:4 * n] = m.rigid_f_and_F(x, u, f, f_q, f_v, A, xdot)
+
+    def lin_error_box(self, X, u, x0, A0) -> np.ndarray:
+        """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state: one ABA per
+        point, the rest compiled (:func:`~sea_daemon.core.dynamics.rigid_lin_error_box`; with effects
+        outside the vocabulary :func:`sampled_box`)."""
+        m, n = self.model, self.n
+        if m.outside_effects:
+            return sampled_box(m.f_nom, X, u, x0, A0)
+        Xa = np.vstack([np.asarray(x0, dtype=float).reshape(1, -1), np.asarray(X, dtype=float)])
+        tau = np.empty((Xa.shape[0], n))
+        load_side_torques(m.kernel, Xa, tau)
+        ddq = m.rigid.forward_many(Xa[:, :n] + Xa[:, n:2 * n], Xa[:, 2 * n:3 * n] + Xa[:, 3 * n:4 * n], tau)
+        b = np.zeros(Xa.shape[1])
+        rigid_lin_error_box(m.kernel, Xa, np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(A0, dtype=float),
+                            ddq, b)
+        return b
+
+    def residual(self, q, dq, ddq, th, dth, ddth, tau, out) -> None:
+        """out = f of eq:loadsidewmotor (τ_h,act = 0) with the rigid body's inverse dynamics."""
+        out[:] = self.model.residual_from_kinematics(q, dq, ddq, th, dth, ddth, tau)
+
+
+def sampled_box(f_nom, X, u, x0, A0) -> np.ndarray:
+    """max over the rows x of X of |f_nom(x, u) − f_nom(x0, u) − A0 (x − x0)| per state, for an
+    f_nom in Python (the rounding floor of :func:`lin_error_boxes`: an exactly linear drift gives 0)."""
+    f0 = f_nom(x0, u)
+    b = np.zeros(x0.shape[0])
+    for x in np.asarray(X, dtype=float):
+        fx = f_nom(x, u)
+        lin = A0 @ (x - x0)
+        r = np.abs(fx - f0 - lin)
+        r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
+        np.maximum(b, r, out=b)
+    return b
 
 
 @njit

@@ -5,6 +5,7 @@ The configuration itself is the validated, frozen dataclasses of
 """
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -115,19 +116,44 @@ def load_yaml(path: str | Path) -> Any:
 
 
 def load_config(path: str | Path) -> ModelConfig:
-    """Load and validate a model configuration (docs/interfaces.md §2)."""
-    return ModelConfig.from_dict(load_yaml(path), source=str(path))
+    """Load and validate a model configuration (docs/interfaces.md §2); a ``model.urdf`` it names
+    is read relative to the YAML's folder (at most :data:`~sea_daemon.io.files.MAX_CONFIG_BYTES`)."""
+    d = load_yaml(path)
+    return ModelConfig.from_dict(d, source=str(path), urdf_text=read_urdf(d, path))
+
+
+def read_urdf(d: Any, path: str | Path) -> str | None:
+    """The text of the URDF that ``model.urdf`` of the YAML mapping ``d`` names (relative to the
+    folder of ``path``), or None where it names none (the validation of the key is the config's)."""
+    model = d.get("model") if isinstance(d, dict) else None
+    rel = model.get("urdf") if isinstance(model, dict) else None
+    if not isinstance(rel, str) or not rel.strip():
+        return None
+    return read_text(urdf_path(path, rel), what="URDF file (model.urdf)")
+
+
+def urdf_path(yaml_path: str | Path, rel: str) -> Path:
+    """The file a ``model.urdf`` value names: relative to the YAML's folder (absolute as given)."""
+    return Path(yaml_path).parent / rel
 
 
 def config_text(cfg: ModelConfig, source: str | Path) -> str:
     """``cfg`` as the YAML text :func:`save_config` writes, after reading that text back the way
     :func:`load_config` does: a configuration the loader would refuse (an effect parameter out
     of its range, a value beyond ±1e9, ...) is the loader's :class:`ConfigError`, naming
-    ``source`` and the key, and nothing is written."""
-    text = yaml.safe_dump(cfg.to_dict(), sort_keys=False, default_flow_style=None)
+    ``source`` and the key, and nothing is written.  A ``model.urdf`` is written relative to
+    ``source``'s folder (the same file as the configuration's own names)."""
+    d = cfg.to_dict()
+    urdf = None
+    if cfg.model.rigid is not None:
+        urdf = cfg.model.rigid.urdf
+        here = urdf_path(cfg.source, cfg.model.urdf)
+        if Path(cfg.source).parent.resolve() != Path(source).parent.resolve() and not Path(cfg.model.urdf).is_absolute():
+            d["model"]["urdf"] = os.path.relpath(here.resolve(), Path(source).parent.resolve())
+    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=None)
     loader = _BoundedLoader(text, str(source))
     try:
-        ModelConfig.from_dict(loader.get_single_data(), source=str(source))
+        ModelConfig.from_dict(loader.get_single_data(), source=str(source), urdf_text=urdf)
     finally:
         loader.dispose()
     return text

@@ -52,6 +52,7 @@ import numpy as np
 
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
+from sea_daemon.core.model_core import sampled_box
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
@@ -117,7 +118,7 @@ class AKFTheoremBound:
                        and (not has_gp or residual_gps(akf) is not None))
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
-        self.friction = FrictionRange(akf.model, akf.tables, sets)
+        self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets)
         self.friction.choose_every = self.sm.reduce_every      # its slope rule chosen every 50 ms
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
@@ -168,8 +169,9 @@ class AKFTheoremBound:
         n, d = self.akf.n, self.akf.d
         m = self.akf.model
         self._I = np.eye(d)
-        # only gravity is non-linear in a nominal model without declared effects
-        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # only gravity is non-linear in a nominal model without declared effects (and no URDF body)
+        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash
+                          or m.rigid is not None)
         # the linearisation and GP errors need x_{k−1} in the set only in the coordinates they depend
         # on: without declared effects q and (q, q̇) = T x, so s_z = χ²_m (m = n or 2n), not χ²_5n
         # (docs/bounds.md §4, "Which set"); with declared effects f_nom depends on all of x: s_d.
@@ -254,17 +256,7 @@ class AKFTheoremBound:
         if tables is not None:
             # the same, compiled over all the points at once (model_core)
             return tables.lin_error_box(self.sm.sample_points(C), u, x0, A_nom)
-        f_nom = self.akf.model.f_nom
-        f0 = f_nom(x0, u)
-        b = np.zeros(self.akf.d)
-        for x in self.sm.sample_points(C):
-            fx = f_nom(x, u)
-            lin = A_nom @ (x - x0)
-            r = np.abs(fx - f0 - lin)
-            # rounding floor, so an exactly linear drift gives exactly 0
-            r[r <= 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))] = 0.0
-            np.maximum(b, r, out=b)
-        return b
+        return sampled_box(self.akf.model.f_nom, self.sm.sample_points(C), u, x0, A_nom)
 
     def _gp_box(self, zhat: np.ndarray, x0: np.ndarray, P0: np.ndarray):
         """GP part, per point of the projection of C on (q, q̇) — the GP input z = [q, q̇, q̈]
@@ -437,8 +429,8 @@ class AKFTheoremBound:
             return
         akf = self.akf
         P0, P = self.gauss.step(record)
-        x0, u, dt = record.x_prev, record.u, record.dt
-        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
+        x0, u, dt, zhat = record.x_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
+        akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
         gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):

@@ -46,7 +46,7 @@ from sea_daemon.core.jit import warm_up
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.kinematics import CausalDifferentiator
 from sea_daemon.core.model import SEAModel
-from sea_daemon.core.model_core import ModelTables
+from sea_daemon.core.model_core import ModelTables, RigidTables
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.estimators.base import Bound, Estimate, Residual
@@ -219,18 +219,19 @@ class AKF:
         self._ready = False
 
     def _init_nominal(self) -> None:
-        """The nominal model's F_nom / f_nom: constant blocks of the plain model, or the compiled
-        tables of one with declared effects."""
+        """F_nom / f_nom: constant blocks of the plain model, else the tables of one with declared
+        effects or a rigid body of n coupled joints (a URDF: M(q), C(q, q̇) by Pinocchio, G_μ per step)."""
         n, d = self.n, self.d
-        # specialised path for the plain nominal model (no declared effects): f_nom is affine in
-        # x except for the gravity term C(q) = g ⊙ sin q, so the constant blocks of F_nom and
-        # f_nom are built once here (same values as SEAModel.F_nom / f_nom).
-        self._affine = not self.model.effects
+        # the plain nominal model (no declared effects): f_nom is affine in x but for C(q) = g ⊙ sin q,
+        # so the constant blocks of F_nom and f_nom are built once here (= SEAModel.F_nom / f_nom)
+        self._affine = not self.model.effects and self.model.rigid is None
         self._no_offsets = not (np.any(self.model.offset_load) or np.any(self.model.offset_motor))
         # declared effects: F_nom / f_nom compiled (model_core, through effects.evaluate; equal to
         # SEAModel.F_nom / f_nom); None where the model is affine or outside the compiled vocabulary
         self.tables = None
-        if not self._affine and ModelTables.supports(self.model):
+        if self.model.rigid is not None:
+            self.tables = RigidTables(self.model, self.G_mu)
+        elif not self._affine and ModelTables.supports(self.model):
             self.tables = ModelTables(self.model)
         if self._affine:
             m_ = self.model

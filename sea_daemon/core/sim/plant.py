@@ -21,6 +21,12 @@ Integration: classical RK4 on (q, θ_m, q̇, θ̇_m) at a fixed substep (default
 |torque| < F_c + F_s), large enough that RK4 stays stable at the substep; the
 constructor checks the substep against the stiffest friction/spring slope.
 
+A model with ``model.urdf`` (n coupled joints) integrates on the generic path, its load side
+by the rigid body's forward dynamics (ABA, :meth:`SEAModel.accelerations`); a true plant that
+differs from the nominal model in its links takes a scaled description
+(:meth:`~sea_daemon.core.rigid.RigidBody.scaled`, :meth:`SEAParams.with_rigid`) and its
+hidden effects per joint.
+
 For one joint the RK4 substeps are compiled (:func:`_rk4_1`, numba) around the one-joint
 dynamics kernel :func:`sea_daemon.core.dynamics.accel_1`; numpy's per-call overhead would
 dominate for n = 1.  ``tests/test_sim.py`` checks that it agrees with ``SEAModel.accelerations``.

@@ -13,7 +13,9 @@ phases through the daemon's loop) a session is built from parts —
   τ_m = τ_comp + τ_des(t), τ_comp the true plant's holding torque, and the subject resists:
   τ_h,act = −τ_des (the arm stays at rest; :class:`~sea_daemon.core.control.StillArm`);
 * ``human``: a function t -> τ_h,act (n,) (``None``: passive, τ_h,act = 0); in the still-arm
-  session it is τ_des's negative, i.e. what the subject applies.
+  session it is τ_des's negative, i.e. what the subject applies.  For n joints (a ``model.urdf``)
+  the reference gives (n,) arrays (:class:`~sea_daemon.core.excitation.PerJoint`) and ``human``
+  an (n,) torque.
 
 Per sample k (period 1/rate_hz, t_k = k/rate_hz) the steps of every simulated run
 (:mod:`sea_daemon.core.sim.sampling`): the plant stepped over [t_k−1, t_k] with τ_m (+ noise)
@@ -114,7 +116,12 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
     if reference is not None:
         ctl = ReferenceTracker(gains, reference, dt, limit)
         ctl.start(*plant.measure(), plant.hold_torque)    # bumpless: the first command holds the arm
-        subject = (lambda t: 0.0) if human is None else (lambda t: float(human(t)))
+        n = plant.n
+
+        def subject(t):             # τ_h,act: a number for one joint, (n,) for n
+            if human is None:
+                return 0.0
+            return float(human(t)) if n == 1 else np.asarray(human(t), dtype=float).reshape(n)
     else:
         # Sec. V-C: τ_m = τ_comp + τ_des, the subject resists: τ_h,act = −τ_des (``human``)
         ctl = StillArm(plant.hold_torque.copy(), (lambda t: -0.0) if human is None else (lambda t: -float(human(t))),
