@@ -40,7 +40,7 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.dynamics import accel_1, example
+from sea_daemon.core.dynamics import accel_1, example, motor_accel, side_torques, spring_torque
 from sea_daemon.core.effects import Effect
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
@@ -120,6 +120,11 @@ class Plant:
             all(type(e).evaluate is Effect.evaluate for e in (*m.motor_effects, *m.spring_effects))
         if self._scalar:
             self._compile_scalar()
+        #: a rigid body (URDF) without torques outside the compiled vocabulary: each RK4 stage is
+        #: one compiled call (:func:`_rigid_stage`) and one Pinocchio ABA call (:meth:`_rk4_rigid`)
+        self._rigid = m.rigid is not None and self.extra_load_torque is None and not m.outside_effects
+        if self._rigid:
+            self._compile_rigid()
 
     # ------------------------------------------------------------------ state
 
@@ -247,11 +252,12 @@ class Plant:
             self._integrate_scalar(t0, h, k)
         else:
             y = self._y
+            rk4 = self._rk4_rigid if self._rigid else self._rk4
             for i in range(k):
                 ts = t0 + i * h
                 # input held over the substep (evaluated at its midpoint for the delay lookup)
                 ui = self._delayed_input(ts + 0.5 * h)
-                y = self._rk4(y, h, ui)
+                y = rk4(y, h, ui)
             self._y = y
         self.t = t0 + dt
         self._prune_history()
@@ -349,6 +355,30 @@ class Plant:
         k4 = self._deriv(y + h * k3, u)
         return y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
+    # rigid-body (URDF) path: the same equations, one compiled call and one ABA per stage
+    def _compile_rigid(self) -> None:
+        n = self.n
+        self._r_k = np.zeros((4, 4 * n))              # the four stages' derivatives
+        self._r_ys = np.zeros(4 * n)                  # the state a stage evaluates at
+        self._r_q, self._r_dq, self._r_tau = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._r_u = np.zeros(n)
+        # compiled (or loaded from numba's cache) now, at construction, not in the first step
+        self._rk4_rigid(self._y.copy(), self.h_max, np.zeros(n))
+
+    def _rk4_rigid(self, y: np.ndarray, h: float, u: np.ndarray) -> np.ndarray:
+        """:meth:`_rk4` of a rigid body: per stage, :func:`_rigid_stage` gives q, q̇, the torque on
+        the rigid body besides its bias and θ̈_m; Pinocchio's ABA gives q̈ (eq:unknwn_load)."""
+        n, p, body = self.n, self.model.kernel, self.model.rigid
+        model, data, aba = body.model, body.data, pinocchio_aba()
+        K, ys, q, dq, tau = self._r_k, self._r_ys, self._r_q, self._r_dq, self._r_tau
+        ua = self._r_u
+        ua[:] = u
+        tau_h = self._tau_h
+        for i, c in enumerate((0.0, 0.5 * h, 0.5 * h, h)):
+            _rigid_stage(p, y, K[i - 1], c, ua, tau_h, ys, K[i], q, dq, tau)
+            K[i, 2 * n:3 * n] = aba(model, data, q, dq, tau)
+        return _rk4_sum(y, h, K)
+
     # scalar (n = 1) path: the same equations compiled (:func:`_rk4_1`, dynamics.accel_1)
     def _compile_scalar(self) -> None:
         self._s_y = np.zeros(4)
@@ -420,6 +450,40 @@ def _rk4_1(y, u, tau_h, h, k, p) -> None:
         dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
         dth += h / 6.0 * (a1t + 2.0 * a2t + 2.0 * a3t + a4t)
     y[0], y[1], y[2], y[3] = q, th, dq, dth
+
+
+def pinocchio_aba():
+    """Pinocchio's ``aba(model, data, q, dq, tau)`` (imported where a rigid body exists)."""
+    import pinocchio  # local import: only a plant with a URDF needs it
+    return pinocchio.aba
+
+
+@njit
+def _rigid_stage(p, y, k_prev, c, u, tau_h, ys, k, q, dq, tau) -> None:
+    """One RK4 stage of a rigid body's plant, y = [q, θ_m, q̇, θ̇_m] (4n): ys = y + c k_prev; k gets
+    [q̇, θ̇_m, ·, θ̈_m] at ys (q̈ left to the rigid body's ABA); q, dq, tau the ABA's inputs, tau =
+    τ_h,act − Σ_load e − τ_s (eq:unknwn_load, eq:thetadd, eq:spring_torque)."""
+    n = q.shape[0]
+    for i in range(4 * n):
+        ys[i] = y[i] + c * k_prev[i] if c != 0.0 else y[i]
+    th_m, dth_m = ys[n:2 * n], ys[3 * n:]
+    for j in range(n):
+        q[j] = ys[j]
+        dq[j] = ys[2 * n + j]
+    tau_s = spring_torque(p, q - th_m, dq - dth_m)
+    lo, _, _ = side_torques(p[10], q, dq)
+    ddth = motor_accel(p, th_m, dth_m, u, tau_s)
+    for j in range(n):
+        tau[j] = tau_h[j] - lo[j] - tau_s[j]
+        k[j] = dq[j]
+        k[n + j] = dth_m[j]
+        k[3 * n + j] = ddth[j]
+
+
+@njit
+def _rk4_sum(y, h, K):
+    """y + h/6 (k1 + 2 k2 + 2 k3 + k4), a new array."""
+    return y + h / 6.0 * (K[0] + 2.0 * K[1] + 2.0 * K[2] + K[3])
 
 
 @warmer
