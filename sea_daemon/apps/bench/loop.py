@@ -145,19 +145,21 @@ def _pcts(a) -> dict:
             "max": float(a.max() * 1e6)}
 
 
-class _ThreadCpu:
-    """CPU clocks of the driver's CAN receive threads (python-can Notifier threads)."""
+class ReceiveThreadsCpu:
+    """CPU clocks of the driver's CAN receive threads (python-can Notifier threads) on every bus
+    (a driver of several buses: each one's)."""
 
     def __init__(self, hw):
         self.clocks = []
-        notifier = getattr(getattr(hw, "network", None), "notifier", None)
-        for t in getattr(notifier, "_readers", []) or []:
-            ident = getattr(t, "ident", None)
-            if ident:
-                try:
-                    self.clocks.append(time.pthread_getcpuclockid(ident))
-                except (OSError, AttributeError):
-                    pass
+        for sub in getattr(hw, "subs", None) or [hw]:
+            notifier = getattr(getattr(sub, "network", None), "notifier", None)
+            for t in getattr(notifier, "_readers", []) or []:
+                ident = getattr(t, "ident", None)
+                if ident:
+                    try:
+                        self.clocks.append(time.pthread_getcpuclockid(ident))
+                    except (OSError, AttributeError):
+                        pass
 
     def now(self) -> float:
         return sum(time.clock_gettime(c) for c in self.clocks)
@@ -305,7 +307,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
 
     def progress(k, est):
         if k == 0:
-            probe["rx"] = _ThreadCpu(rig.hw)
+            probe["rx"] = ReceiveThreadsCpu(rig.hw)
         if k < n_cycles:
             rx_cpu[k] = probe["rx"].now()
         if k == k_faults or k == n_cycles - 1:
