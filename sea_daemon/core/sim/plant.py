@@ -233,6 +233,9 @@ class Plant:
         if self._scalar and not self.model.delay[0]:
             self._step_scalar(tau_m, dt, tau_h_act)
             return
+        if self._rigid and not self._delayed:
+            self._step_rigid(tau_m, dt, tau_h_act)
+            return
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         n = self.n
@@ -290,6 +293,32 @@ class Plant:
         else:
             _rk4_1(y, u, th, dt / k, k, self.model.kernel)
         self._y = y.copy()
+        self.t = self.t + dt
+
+    def _step_rigid(self, tau_m, dt: float, tau_h_act) -> None:
+        """:meth:`step` of a rigid body without an input delay (the device model's plant of a
+        URDF, once per SYNC): the same numbers into preallocated arrays, the history kept only at
+        its end (as :meth:`_step_scalar`; no delay reads it elsewhere)."""
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        n, u, th = self.n, self._r_u, self._r_tau_h
+        u[:] = tau_m
+        th[:] = tau_h_act
+        if not (np.isfinite(u).all() and np.isfinite(th).all()):
+            raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
+        np.clip(u, -self.torque_limit, self.torque_limit, out=u)
+        if self.noise_std > 0:
+            u += self.rng.normal(0.0, self.noise_std, n)          # torque_noise
+        self._u_applied = u.copy()
+        self._tau_h = th.copy()
+        self._hist_t[-1] = self.t
+        self._hist_u[-1] = self._u_applied
+        k = max(1, int(math.ceil(dt / self.h_max - 1e-9)))
+        h = dt / k
+        y = self._y
+        for _ in range(k):
+            y = self._rk4_rigid(y, h, self._u_applied)
+        self._y = y
         self.t = self.t + dt
 
     def _rk4_outside(self, y, u: float, tau_h: float, h: float, k: int) -> None:
@@ -361,7 +390,8 @@ class Plant:
         self._r_k = np.zeros((4, 4 * n))              # the four stages' derivatives
         self._r_ys = np.zeros(4 * n)                  # the state a stage evaluates at
         self._r_q, self._r_dq, self._r_tau = np.zeros(n), np.zeros(n), np.zeros(n)
-        self._r_u = np.zeros(n)
+        self._r_u, self._r_tau_h, self._r_uh = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._delayed = bool(np.any(self.model.delay))
         # compiled (or loaded from numba's cache) now, at construction, not in the first step
         self._rk4_rigid(self._y.copy(), self.h_max, np.zeros(n))
 
@@ -371,7 +401,7 @@ class Plant:
         n, p, body = self.n, self.model.kernel, self.model.rigid
         model, data, aba = body.model, body.data, pinocchio_aba()
         K, ys, q, dq, tau = self._r_k, self._r_ys, self._r_q, self._r_dq, self._r_tau
-        ua = self._r_u
+        ua = self._r_uh
         ua[:] = u
         tau_h = self._tau_h
         for i, c in enumerate((0.0, 0.5 * h, 0.5 * h, h)):
