@@ -52,3 +52,29 @@ def test_rigid_path_one_aba_per_stage(cfg, monkeypatch):
     monkeypatch.setattr(plant.model, "accelerations", generic)
     plant.step(plant.hold_torque, 5e-3)
     assert len(calls) == 4 * 5              # 5 substeps of 1 ms, four stages each
+
+
+def test_device_model_samples_the_coupled_plant_per_joint_offsets(cfg, monkeypatch):
+    """The device model's encoders and drives sample the coupled plant's state with an offset per
+    joint: the counts of the plant's encoders (Encoders.counts), taken from its state vector
+    without building arrays per SYNC."""
+    import can
+    from sea_daemon.hw.device_model import DeviceModel
+    plant = Plant(cfg, q0=[0.3, 0.6], seed=2)
+    plant.step(plant.hold_torque + 1.0, 1e-3)
+    plant.encoders.offset_load = np.array([0.011, -0.027])
+    plant.encoders.offset_motor = np.array([-0.003, 0.005])
+    cl, cm = plant.encoders.counts(plant.q, plant.theta_m)
+    bus = can.Bus(interface="virtual", channel="test-plant-rigid-offsets")
+    try:
+        dm = DeviceModel(bus, plant, drive_nodes=(1, 3), encoder_nodes=(2, 4))
+
+        def no_arrays(*a):
+            raise AssertionError("sampled through Encoders.counts (arrays per SYNC)")
+        monkeypatch.setattr(plant.encoders, "counts", no_arrays)
+        dm._sample()
+        for j in range(2):
+            assert dm.encoders[j].position == int(cl[j]) % dm.encoders[j].range
+            assert dm.drives[j].position == int(cm[j]) + dm.drives[j].position_preset
+    finally:
+        bus.shutdown()
