@@ -66,7 +66,7 @@ from sea_daemon.core.bounds.setmember import (
 from sea_daemon.core.bounds import bound_core
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
-from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
+from sea_daemon.core.bounds.bound_core import gaussian_part, generators_check, gravity_remainder
 
 
 class AKFTheoremBound:
@@ -102,6 +102,7 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
+        self._init_gaussian_part(has_gp)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
@@ -119,6 +120,7 @@ class AKFTheoremBound:
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
         self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets)
+        self.friction.choose_every = self.sm.reduce_every      # its slope rule chosen every 50 ms
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
@@ -139,6 +141,26 @@ class AKFTheoremBound:
         self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
+
+    def _init_gaussian_part(self, has_gp: bool) -> None:
+        """The Gaussian part's covariance P_g (docs/bounds.md §3, "The Gaussian part"): the filter's
+        P when its process noise is all Gaussian, else propagated here without what the set of
+        means already holds (the GP's variance in Q; the τ_h,act walk when a rate is declared)."""
+        d = self.akf.d
+        self.own_gaussian = bool(has_gp or self.tau_h_act_rate > 0)
+        self._drop_tau = self.tau_h_act_rate > 0
+        self._Pg = np.zeros((d, d))              # P_g,k
+        self._Pg_prev = np.zeros((d, d))         # P_g,k−1
+
+    def gaussian_covariances(self, record) -> tuple[np.ndarray, np.ndarray]:
+        """(P_g,k−1, P_g,k) of the step ``record``: the Gaussian part before and after it (the
+        filter's P_{k−1}, P_k unless :attr:`own_gaussian`, then propagated by :func:`gaussian_part`)."""
+        if not self.own_gaussian:
+            return record.P_prev, record.P
+        self._Pg_prev[:] = self._Pg
+        gaussian_part(record.F_k, record.K_k, self.akf.H, self.akf.R, record.Sigma_nom, 4 * self.akf.n,
+                      self._drop_tau, self._Pg_prev, self._Pg)
+        return self._Pg_prev, self._Pg
 
     def _init_model_error(self, est_cfg, has_gp: bool) -> None:
         """A plain AKF's declared model error ``estimator.model_error`` [N m], Γ_μ box(e) (docs/bounds.md
@@ -223,10 +245,12 @@ class AKFTheoremBound:
             # 'auto': the constants of the GP as trained when estimation starts
             self.refresh_gp_constants()
         self.sm.reset()
+        self.friction.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
         self.at_cap_ = False
+        self._Pg[:] = record.P
         if record.ready:
             est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
@@ -377,6 +401,7 @@ class AKFTheoremBound:
                 self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
+        _, P = self.gaussian_covariances(record)
         try:
             G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
@@ -398,7 +423,7 @@ class AKFTheoremBound:
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         if check:                          # a half-width at its cap: the exact test, maybe saturation
-            self._saturate(est, record.P)
+            self._saturate(est, P)
 
     def _call_compiled(self, rec, sm, n, has_gp, box, lo, hi, gp):
         """:func:`bound_core.bound_step` with this bound's arrays (its named arguments that stay the
@@ -407,8 +432,9 @@ class AKFTheoremBound:
         a = self._args
         if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
                 or a[4] is not rec):
-            st = bound_core.FilterStep(rec.x_prev, rec.P_prev, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
-                                       rec.Gamma_mu, rec.P)
+            P0, P = (self._Pg_prev, self._Pg) if self.own_gaussian else (rec.P_prev, rec.P)
+            st = bound_core.FilterStep(rec.x_prev, P0, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
+                                       rec.Gamma_mu, P)
             c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
                                         self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau)
             gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
@@ -431,7 +457,9 @@ class AKFTheoremBound:
             self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        x0, P0, u, dt, zhat = record.x_prev, record.P_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
+        P0, P = self.gaussian_covariances(record)
+        x0, u, dt = record.x_prev, record.u, record.dt
+        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
         akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
         fric = gp_range = None
@@ -450,8 +478,9 @@ class AKFTheoremBound:
                 _, J, _ = akf.residual.predict(zhat)
                 A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
             if self.friction.groups:
+                loop = (record.F_k, self._I - record.K_k @ akf.H)
                 fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
-                                               record.Gamma_mu, sm, self._phi)
+                                               record.Gamma_mu, sm, self._phi, loop)
                 b = fric[5]
             else:
                 b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
@@ -500,8 +529,8 @@ class AKFTheoremBound:
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
-        est.tau_h_act_bound[:] = sm.rho(record.P)
-        self._saturate(est, record.P)
+        est.tau_h_act_bound[:] = sm.rho(P)
+        self._saturate(est, P)
 
     def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray, Gamma_mu: np.ndarray):
         """The GP part of the range form: the GP mean linearised at zero slope.

@@ -321,6 +321,29 @@ def bound_step(G, max_gen, st, c, gpt, rt, pack, out):
 
 
 @njit
+def gaussian_part(F, K, H, R, S, tau0, drop_tau, P_prev, out):
+    """The Gaussian part of the next step into ``out`` (docs/bounds.md §3, "The Gaussian part"):
+    P_g,k = (I − KH)(F P_g,k−1 Fᵀ + Q_g)(I − KH)ᵀ + K R Kᵀ with the filter's F, K, H, R and
+    Q_g = Σ_nom,k (``S``), its τ_h,act rows and columns (from ``tau0`` on) zero when ``drop_tau``
+    (the declared rate holds the human torque's change)."""
+    d = F.shape[0]
+    Q = S.copy()
+    if drop_tau:
+        for i in range(d):
+            for j in range(tau0, d):
+                Q[i, j] = 0.0
+                Q[j, i] = 0.0
+    Pp = F @ P_prev @ F.T + Q
+    IKH = -(K @ H)
+    for i in range(d):
+        IKH[i, i] += 1.0
+    Pn = IKH @ Pp @ IKH.T + K @ R @ K.T
+    for i in range(d):
+        for j in range(d):
+            out[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+
+
+@njit
 def gravity_remainder(qh, r, g, grid, grid_step, v):
     """v_j = g_j max_{|Δ| ≤ r_j} |sin(q̂_j + Δ) − sin q̂_j − cos q̂_j Δ| (AKFTheoremBound._gravity_box)."""
     for j in range(qh.shape[0]):
@@ -382,4 +405,6 @@ def _warm() -> None:
         bound_step(np.zeros((d, 2)), 40, st, c, gpt, rt, pack.arrays() if has_gp else empty_pack(), out)
     # the Python step's calls (AKFTheoremBound._gravity_box, the check after the compiled step)
     gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    gaussian_part(np.eye(d), np.zeros((d, 4)), np.zeros((4, d)), np.eye(4), np.eye(d), 4, True, np.eye(d),
+                  np.empty((d, d)))
     generators_check(np.zeros((5, 3)), np.ones(5))
