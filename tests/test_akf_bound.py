@@ -602,7 +602,7 @@ def test_declared_rate_replaces_the_random_walk_in_the_gaussian_part():
         err.append(abs(e.tau_h_act_hat[0] - log.tau_h_act[k, 0]))
         r = akf.record
         recs.append((r.F_k.copy(), r.K_k.copy(), np.array(getattr(r, "Sigma_nom", akf.Sigma_nom)),
-                     np.array(getattr(tb, "_Pg", np.zeros((5, 5))))))
+                     np.array(tb.gauss.P) if hasattr(tb, "gauss") else np.zeros((5, 5))))
     rho, kf, err = np.array(rho), np.array(kf), np.array(err)
     assert np.all(err <= rho)
     assert np.mean(rho[50:]) < 0.75 * np.mean(kf[50:])
@@ -616,9 +616,9 @@ def test_declared_rate_replaces_the_random_walk_in_the_gaussian_part():
         Pg = IKH @ (F @ Pg @ F.T + Q) @ IKH.T + K @ akf.R @ K.T
         np.testing.assert_allclose(Pg_bound, Pg, rtol=1e-9, atol=1e-18)
     # without a declared rate the walk is the only term for the subject's change: P_g = P
-    assert tb.own_gaussian
+    assert tb.gauss.own
     plain = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_h_act_rate=0.0))
-    assert not with_bound(AKF(plain)).own_gaussian
+    assert not with_bound(AKF(plain)).gauss.own
 
 
 def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():

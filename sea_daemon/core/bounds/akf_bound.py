@@ -6,10 +6,8 @@ residual), given at its construction (``AKF(cfg, bound=theorem_bound)``; :func:`
 is the default the estimator factory uses).  The AKF hands it every filter step's
 :class:`~sea_daemon.core.estimators.record.StepRecord`: it propagates the set of means with
 :class:`SetMembershipBound`, using the record's x̂_{k−1}, P_{k−1}, u, ẑ_{k−1}, μ(ẑ), ∂μ/∂z,
-``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``
-and ``P``, and the filter's constants (``H``, the model, δ), and overwrites
-``est.tau_h_act_bound`` with ρ_k.  The calibration of
-its GP constants is :mod:`sea_daemon.core.bounds.calibration`.
+``A_k``, ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``, ``P``, ``Sigma_nom`` and the filter's
+constants (``H``, R, the model, δ), and overwrites ``est.tau_h_act_bound`` with ρ_k.
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 * C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
@@ -29,25 +27,22 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   ``estimator.gp_beta``): 'lederer' or a number
 * without declared effects ε and η depend on x only through q and (q, q̇): the set they are
   bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
-* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6): τ_h,act
-  may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
-  bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
+* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6),
+  |dτ_h,act/dt| ≤ r: one more bounded input, Γ_τ box(r), Γ_τ = ∫₀^dt e^{As} ds E_τ
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 * the range form (zonotope sets): the declared Coulomb/Stribeck friction and the GP mean
   linearised at zero slope instead of the filter's — the set propagated with the filter's
   transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
   range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
-  plus the slope times the Gaussian part's extent (:meth:`FrictionRange.candidate <sea_daemon.core.bounds.friction_range.FrictionRange.candidate>`,
-  :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
-  the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
-  the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
-  friction, a stiction leaf's for the GP) times the set's q̇ extent is what the range form avoids.
+  plus the slope times the Gaussian part's extent (:mod:`.friction_range`, which also keeps a
+  share of the friction's slope where that damps the set, and :meth:`_gp_range_candidate`);
+  per step the form with the narrower τ_h,act half-width after (I − KH) is kept.
+* the Gaussian part: P_g (:mod:`.gaussian_part`), the filter's P without the GP's variance and
+  a declared rate's walk, for C_{k−1} and ρ_k.
 
-Without a residual (plain AKF) there is no GP term, the whole δ goes to the Gaussian part, and
-a declared ``estimator.model_error`` e enters as Γ_μ box(e).  With one, δ_GP (default δ/2) is
-the failure probability of the GP constants (:func:`~sea_daemon.core.bounds.calibration.gp_constants`);
-ρ then holds with probability ≥ 1 − δ.  Steps whose z leaves the GP constants' input box (no GP
-guarantee) are counted in ``bound.gp_box_violations_`` (ρ is still published).
+Plain AKF: no GP term, δ_N = δ, a declared ``estimator.model_error`` e enters as Γ_μ box(e).
+GP-AKF: δ_GP (default δ/2) for the GP constants (:func:`~.calibration.gp_constants`), ρ holding
+with probability ≥ 1 − δ; steps whose z leaves their input box: ``gp_box_violations_``.
 """
 from __future__ import annotations
 
@@ -66,7 +61,8 @@ from sea_daemon.core.bounds.setmember import (
 from sea_daemon.core.bounds import bound_core
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
-from sea_daemon.core.bounds.bound_core import gaussian_part, generators_check, gravity_remainder
+from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
+from sea_daemon.core.bounds.gaussian_part import GaussianPart
 
 
 class AKFTheoremBound:
@@ -102,7 +98,9 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
-        self._init_gaussian_part(has_gp)
+        # the Gaussian part's covariance P_g (gaussian_part: without the GP's variance and, with a
+        # declared rate, without the τ_h,act walk; the filter's P otherwise)
+        self.gauss = GaussianPart(akf, has_gp or self.tau_h_act_rate > 0, self.tau_h_act_rate > 0)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
@@ -142,26 +140,6 @@ class AKFTheoremBound:
         self._eta_all = np.zeros(2 * n)                  # [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
 
-    def _init_gaussian_part(self, has_gp: bool) -> None:
-        """The Gaussian part's covariance P_g (docs/bounds.md §3, "The Gaussian part"): the filter's
-        P when its process noise is all Gaussian, else propagated here without what the set of
-        means already holds (the GP's variance in Q; the τ_h,act walk when a rate is declared)."""
-        d = self.akf.d
-        self.own_gaussian = bool(has_gp or self.tau_h_act_rate > 0)
-        self._drop_tau = self.tau_h_act_rate > 0
-        self._Pg = np.zeros((d, d))              # P_g,k
-        self._Pg_prev = np.zeros((d, d))         # P_g,k−1
-
-    def gaussian_covariances(self, record) -> tuple[np.ndarray, np.ndarray]:
-        """(P_g,k−1, P_g,k) of the step ``record``: the Gaussian part before and after it (the
-        filter's P_{k−1}, P_k unless :attr:`own_gaussian`, then propagated by :func:`gaussian_part`)."""
-        if not self.own_gaussian:
-            return record.P_prev, record.P
-        self._Pg_prev[:] = self._Pg
-        gaussian_part(record.F_k, record.K_k, self.akf.H, self.akf.R, record.Sigma_nom, 4 * self.akf.n,
-                      self._drop_tau, self._Pg_prev, self._Pg)
-        return self._Pg_prev, self._Pg
-
     def _init_model_error(self, est_cfg, has_gp: bool) -> None:
         """A plain AKF's declared model error ``estimator.model_error`` [N m], Γ_μ box(e) (docs/bounds.md
         §7); ``model_error_term``: whether this bound holds the estimator's model error (Estimate.valid)."""
@@ -193,11 +171,9 @@ class AKFTheoremBound:
         # only gravity is non-linear in a nominal model without declared effects (and no URDF body)
         self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash
                           or m.rigid is not None)
-        # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
-        # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
-        # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
-        # for g ~ N(0, P), m = n or 2n, so the Gaussian part of that set is s_z = χ²_m, not χ²_d
-        # (d = 5n).  With declared effects f_nom depends on all of x: s_d.
+        # the linearisation and GP errors need x_{k−1} in the set only in the coordinates they depend
+        # on: without declared effects q and (q, q̇) = T x, so s_z = χ²_m (m = n or 2n), not χ²_5n
+        # (docs/bounds.md §4, "Which set"); with declared effects f_nom depends on all of x: s_d.
         self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
                      else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
@@ -213,8 +189,7 @@ class AKFTheoremBound:
     # ------------------------------------------------------------------ hooks
 
     def refresh_gp_constants(self) -> None:
-        """Recompute the GP constants and input box from the residual's current leaves
-        (``gp_constants='auto'``; call after the GP learned more data)."""
+        """The GP constants and input box of the residual's current leaves (after it learned more)."""
         gps = residual_gps(self.akf)
         self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
@@ -250,22 +225,17 @@ class AKFTheoremBound:
         self.saturated_ = 0
         self.range_steps_ = 0
         self.at_cap_ = False
-        self._Pg[:] = record.P
+        self.gauss.reset(record.P)
         if record.ready:
             est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
     # ------------------------------------------------------------------ linearisation error
 
     def _gravity_box(self, x0: np.ndarray, P0: np.ndarray) -> np.ndarray:
-        """Rigorous bound of the gravity term's linearisation error (no sampling).
-
-        C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
-        ±r_j of q̂_j (r_j = half-width along e_θm,j + e_θs,j of X̂ ⊕ E(0, s_z P), s_z = χ²_m of the
-        coordinates the error depends on, see __init__), the scalar error
-        h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
-        the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
-        the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
-        """
+        """Rigorous bound of the gravity term's linearisation error (no sampling): C(q) = g ⊙ sin q
+        enters θ̈_s as −M⁻¹ C(q); with |q_j − q̂_j| ≤ r_j (the half-width along e_θm,j + e_θs,j of
+        X̂ ⊕ E(0, s_z P)), max |sin(q̂+Δ) − sin q̂ − cos q̂ Δ| over |Δ| ≤ r_j (bound_core.gravity_remainder)
+        times |M⁻¹| (elementwise) in the θ̈_s rows."""
         akf = self.akf
         n = akf.n
         model = akf.model
@@ -401,7 +371,7 @@ class AKFTheoremBound:
                 self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
-        _, P = self.gaussian_covariances(record)
+        _, P = self.gauss.step(record)
         try:
             G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
@@ -432,7 +402,8 @@ class AKFTheoremBound:
         a = self._args
         if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
                 or a[4] is not rec):
-            P0, P = (self._Pg_prev, self._Pg) if self.own_gaussian else (rec.P_prev, rec.P)
+            g = self.gauss
+            P0, P = (g.P_prev, g.P) if g.own else (rec.P_prev, rec.P)
             st = bound_core.FilterStep(rec.x_prev, P0, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
                                        rec.Gamma_mu, P)
             c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
@@ -457,33 +428,19 @@ class AKFTheoremBound:
             self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        P0, P = self.gaussian_covariances(record)
+        P0, P = self.gauss.step(record)
         x0, u, dt = record.x_prev, record.u, record.dt
         zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
         akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
-        fric = gp_range = None
+        gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
-        if self._fast:
-            b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
-        else:
-            C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
-            A_nom = record.A_k.copy()
-            if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
-                _, J, _ = akf.residual.predict(zhat)
-                A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            if self.friction.groups:
-                loop = (record.F_k, self._I - record.K_k @ akf.H)
-                fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
-                                               record.Gamma_mu, sm, self._phi, loop)
-                b = fric[5]
-            else:
-                b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+        b, fric = self._nominal_error(record, P0)
         eta = self.model_error if self._me_on else None   # a plain AKF's declared model error, through Γ_μ
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
@@ -532,6 +489,26 @@ class AKFTheoremBound:
         est.tau_h_act_bound[:] = sm.rho(P)
         self._saturate(est, P)
 
+    def _nominal_error(self, record, P0: np.ndarray):
+        """(b, the friction's range candidate or None): the nominal model's linearisation-error
+        box over C_{k−1} — gravity analytically, declared effects sampled (with declared
+        friction, both forms of :meth:`FrictionRange.candidate` from one pass)."""
+        akf, sm = self.akf, self.sm
+        x0, u, dt = record.x_prev, record.u, record.dt
+        if self._fast:
+            return self._gravity_box(x0, P0), None    # analytic, rigorous (exact half-width of C_{k−1})
+        C = sm.confidence_set(x0, P0)                  # C_{k−1} (outer ellipsoid, for the point set)
+        A_nom = record.A_k.copy()
+        if akf.residual is not None:                   # undo −I_μ M⁻¹ F_GP to get F_nom
+            _, J, _ = akf.residual.predict(record.z)
+            A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
+        if self.friction.groups:
+            loop = (record.F_k, self._I - record.K_k @ akf.H)
+            fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
+                                           record.Gamma_mu, sm, self._phi, loop)
+            return fric[5], fric
+        return (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom), None
+
     def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray, Gamma_mu: np.ndarray):
         """The GP part of the range form: the GP mean linearised at zero slope.
 
@@ -553,11 +530,9 @@ class AKFTheoremBound:
         return Gamma_mu @ JT, eta_b
 
     def _predict_best_of_two(self, rec, Gam, eta, b, Phi, fric, gp_range) -> None:
-        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
-        friction of :meth:`FrictionRange.candidate` and the GP mean of :meth:`_gp_range_candidate`
-        linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
-        filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
-        assumptions, so the choice keeps the guarantee whatever the rule."""
+        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (FrictionRange.candidate,
+        :meth:`_gp_range_candidate`), whichever has the narrower τ_h,act half-width after (I − KH);
+        both contain the set of means, so the choice keeps the guarantee whatever the rule."""
         sm = self.sm
         n = self.akf.n
         limit = sm.generator_limit()

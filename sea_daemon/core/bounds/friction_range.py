@@ -226,6 +226,35 @@ class FrictionRange:
                 best, best_cost = k, cost
         return best
 
+    def _groups_at(self, x0, P0, sm, GamF: np.ndarray, slopes: np.ndarray, Gamma_mu, A_k, dt: float) -> list:
+        """Per group (v̂, τ_g(v̂), s_g, r, r_g) — r the half-width of C_{k−1} along ℓ_g, r_g its
+        Gaussian part's — with Φc_g into the columns of ``GamF`` and s_g into ``slopes``."""
+        d = x0.shape[0]
+        n = d // 5
+        s_set = sm.s_state
+        Phi_full = None
+        par = []
+        for i, (side, ell, c, effs) in enumerate(self.groups):
+            v0 = float(ell @ x0)
+            t0 = sl = 0.0
+            for code, p in effs:
+                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
+                t0 += t_
+                sl += dv
+            r = float(sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
+            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
+            par.append((v0, t0, sl, r, rg))
+            if side == "load":
+                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
+                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
+                GamF[:, i] = -Gamma_mu[:, j]
+            else:
+                if Phi_full is None:
+                    Phi_full = discretize(A_k, np.eye(d), dt)[1]
+                GamF[:, i] = Phi_full @ c
+            slopes[i] = sl
+        return par
+
     def candidate(self, x0, u, P0, pts: np.ndarray, A_nom: np.ndarray, dt: float, A_k: np.ndarray,
                   Gamma_mu: np.ndarray, sm, phi, loop=None):
         """The set of means' step with the friction linearised at zero slope (module docstring).
@@ -257,34 +286,12 @@ class FrictionRange:
         None: the rule in use).  Returns (F_B − F, Γ columns Φc (d, groups), w, b_smooth,
         Φ of b_smooth, b) with b the filter-slope form's sampled box (both from one pass)."""
         d = x0.shape[0]
-        n = d // 5
         nf = len(self.groups)
         dF = np.zeros((d, d))
         GamF = np.empty((d, nf))
         w = np.empty(nf)
         slopes = np.empty(nf)
-        Phi_full = None
-        s_set = sm.s_state
-        par = []                           # per group: (v̂, τ_g(v̂), s_g, r, r_g)
-        for i, (side, ell, c, effs) in enumerate(self.groups):
-            v0 = float(ell @ x0)
-            t0 = sl = 0.0
-            for code, p in effs:
-                t_, _, dv, _ = effect_torque(code, p, 0.0, v0, 0.0)
-                t0 += t_
-                sl += dv
-            r = float(sm.half_widths(ell[None, :], P0, s=s_set)[0])   # |v − v̂| ≤ r on C_{k−1}
-            rg = math.sqrt(max(s_set * float(ell @ P0 @ ell), 0.0))         # |ℓᵀg| on E(0, s P)
-            par.append((v0, t0, sl, r, rg))
-            if side == "load":
-                # Φ's θ̈_s columns are Γ_μ M (Γ_μ = Φ I_μ M⁻¹): Φ c = −Γ_μ e_j
-                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
-                GamF[:, i] = -Gamma_mu[:, j]
-            else:
-                if Phi_full is None:
-                    Phi_full = discretize(A_k, np.eye(d), dt)[1]
-                GamF[:, i] = Phi_full @ c
-            slopes[i] = sl
+        par = self._groups_at(x0, P0, sm, GamF, slopes, Gamma_mu, A_k, dt)
         self._widths(par, self.rule_, w)
         # the rule chosen every 50 ms, and at once when its widths grew by half since (its
         # error grows with the set, κ r for a steep κ: the set would run away before the next choice)
