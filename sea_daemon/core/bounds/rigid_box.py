@@ -25,7 +25,8 @@ import numpy as np
 
 from sea_daemon.core.jit import njit
 from sea_daemon.core.dynamics import load_side_torque
-from sea_daemon.core.bounds.setmember import points_of_ellipsoid
+from sea_daemon.core.bounds.ellipsoid import chi2_quantile
+from sea_daemon.core.bounds.setmember import points_of_ellipsoid, unit_directions
 from sea_daemon.core.bounds.zonotope import outer_ellipsoid_shape
 
 
@@ -85,16 +86,27 @@ def rigid_error_box(Wp, ddq, D, margin, b):
 class RigidBox:
     """The box of one model (module docstring): W, the point directions, work arrays."""
 
-    def __init__(self, model, U: np.ndarray, margin: float):
+    def __init__(self, model, U: np.ndarray, margin: float, s_z: float = 0.0):
         self.model = model
         self.n = model.n
         self.W = rigid_map(model)
         self.U = np.ascontiguousarray(U, dtype=float)
         self.margin = float(margin)
+        self.s_z = float(s_z)          # χ²_3n(1 − δ_N): the Gaussian part's quantile of W·C
         self._D = np.empty((self.n, 3 * self.n))
 
-    def box(self, x0, G, P0, s: float, b: np.ndarray) -> None:
-        """The θ̈_s rows of ``b`` (5n,) over the set x̂ + Z(G) ⊕ E(0, s P_{k−1}) projected by W."""
+    @classmethod
+    def of(cls, model, sm, n_dirs: int, seed: int) -> "RigidBox | None":
+        """The box of ``model`` for a :class:`~sea_daemon.core.bounds.setmember.SetMembershipBound`
+        ``sm`` (zonotope sets), or None where it does not apply (:func:`applies`)."""
+        if not (applies(model) and sm.sets == "zonotope"):
+            return None
+        n = model.n
+        return cls(model, unit_directions(3 * n, n_dirs, seed), sm.margin,
+                   chi2_quantile(1.0 - sm.delta_noise, 3 * n))
+
+    def box(self, x0, G, P0, s: float, b: np.ndarray) -> np.ndarray:
+        """The θ̈_s rows of ``b`` (5n,) over the set x̂ + Z(G) ⊕ E(0, s P_{k−1}) projected by W; returns b."""
         n = self.n
         Wp = rigid_points(np.ascontiguousarray(G), x0, np.ascontiguousarray(P0), self.W, float(s), self.U)
         ddq = self.model.rigid.forward_many(Wp[:, :n], Wp[:, n:2 * n], Wp[:, 2 * n:])
@@ -104,3 +116,10 @@ class RigidBox:
         D[:, n:2 * n] = dq_v
         D[:, 2 * n:] = Minv
         rigid_error_box(Wp, ddq, D, self.margin, b)
+        return b
+
+    def at(self, x0, G, P0, b: np.ndarray) -> None:
+        """The model's M(q̂), M⁻¹ at x̂_{k−1} (:meth:`~sea_daemon.core.model.SEAModel.at`) and :meth:`box`
+        with s = :attr:`s_z` into ``b``: what the compiled bound step needs of the rigid body."""
+        self.model.at(x0)
+        self.box(x0, G, P0, self.s_z, b)
