@@ -654,3 +654,26 @@ def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():
     assert radius(kap) < 1.0
     assert radius(kap) <= max(radius(0.0), radius(s_g)) + 1e-12
     assert SLOPE_RULES[fr.rule_] != 0.0 or radius(0.0) <= radius(s_g)
+
+
+def test_a_configured_beta_keeps_the_filters_covariance_as_the_gaussian_part(monkeypatch):
+    """The guaranteed β's bound propagates its own Gaussian part (no GP variance; with a declared
+    rate no τ_h,act walk); a configured β (what calibrate-bound calibrates, replaying with the
+    filter's P) keeps the filter's P, in the replays that calibrate it and in estimation alike."""
+    import dataclasses
+    from sea_daemon.core.bounds import torque_beta
+    seen = []
+
+    class Spy(AKFTheoremBound):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            seen.append((self.gauss.own, self.gauss.drop_tau))
+
+    monkeypatch.setattr(torque_beta, "AKFTheoremBound", Spy)
+    est, cal = _passive_gp_akf(seed=8)
+    est.cfg = dataclasses.replace(est.cfg, estimator=dataclasses.replace(est.cfg.estimator, tau_h_act_rate=2.0))
+    torque_beta.torque_coverage(est, cal, 1.0)
+    assert seen == [(False, False)]
+    g = AKFTheoremBound(est, gp_constants="auto", gp_beta="lederer").gauss
+    assert g.own and g.drop_tau
+    assert not AKFTheoremBound(est, gp_constants="auto", gp_beta=1.5).gauss.own

@@ -73,7 +73,7 @@ class AKFTheoremBound:
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
                  gp_beta: str | float | None = None, tau_h_act_rate: float | None = None,
-                 compiled: bool = True):
+                 compiled: bool = True, filter_gaussian: bool | None = None):
         self.akf = akf
         # the compiled step (bound_core.bound_step) where it applies, else the Python step below
         self.compiled = bool(compiled)
@@ -98,9 +98,10 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
-        # the Gaussian part's covariance P_g (gaussian_part: without the GP's variance and, with a
-        # declared rate, without the τ_h,act walk; the filter's P otherwise)
-        self.gauss = GaussianPart(akf, has_gp or self.tau_h_act_rate > 0, self.tau_h_act_rate > 0)
+        # P_g (docs/bounds.md §3): no GP variance, no walk with a rate; the filter's P with a configured β
+        filt = (has_gp and self.gp_beta != "lederer") if filter_gaussian is None else filter_gaussian
+        drop = not filt and self.tau_h_act_rate > 0
+        self.gauss = GaussianPart(akf, not filt and (has_gp or drop), drop)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
@@ -208,8 +209,7 @@ class AKFTheoremBound:
             self._scales = [LocalScale(g) for g in gps]
 
     def _n_learned(self) -> int:
-        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
-        else the points held by the LoG-GPs."""
+        """Training pairs learned so far (the GP-AKF's counter, else the LoG-GPs' points)."""
         n = getattr(self.akf, "n_learned", None)
         if n is not None:
             return int(n)

@@ -23,8 +23,10 @@ PIECES = 16
 #: the slopes κ_g the range form may keep in its transition: 0 (the range alone), the secant's over
 #: the interval, or this share of the filter's slope s_g (:meth:`FrictionRange.candidate`)
 SLOPE_RULES = (0.0, "secant", 1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
-#: steps of the fixed point r = r_g + L_v w(r) of :meth:`FrictionRange._choose` (not settled: no fixed point)
+#: steps of the fixed point r = r_g + L_v w(r) of :meth:`FrictionRange._choose`
 FIXED_POINT_STEPS = 6
+#: a velocity half-width [rad/s] beyond which the fixed point counts as none (:meth:`FrictionRange._choose`)
+R_RUNAWAY = 1e3
 #: a rule is chosen again at once when a width w_g grew by this factor since it was chosen
 REGROW = 1.5
 #: the slowest time constant [s] of the set's transition a rule may give (:meth:`FrictionRange._choose`)
@@ -198,12 +200,10 @@ class FrictionRange:
             if not np.all(np.isfinite(V)) or np.max(np.abs(V)) > 1e12:
                 lt[:] = np.where(np.isfinite(lt), lt, np.inf)
                 break
-        # a loop slower than SETTLE_S is left out: its response outlasts the horizon (ℓ1 too small)
+        # a loop slower than SETTLE_S only if no other settles: its response outlasts the horizon
         slow = np.max(np.abs(np.linalg.eigvals(Ms)), axis=1) > math.exp(-dt / SETTLE_S)
-        best, best_cost = len(SLOPE_RULES) - 1, np.inf       # the filter's own slope if none settles
+        costs = np.full(nr, np.inf)
         for k in range(nr):
-            if slow[k]:
-                continue
             cost = 0.0
             for i, (side, ell, c, effs) in enumerate(self.groups):
                 v0, t0, sl, r, rg = par[i]
@@ -217,14 +217,18 @@ class FrictionRange:
                     rr_new = rg + lv[k, i] * w
                     settled = abs(rr_new - rr) <= 1e-3 * rr_new
                     rr = rr_new
-                    if settled:
+                    if settled or rr > R_RUNAWAY:
                         break
-                else:
-                    w = np.inf                 # still moving: r grows with w (no fixed point)
+                if rr > R_RUNAWAY:
+                    w = np.inf                 # r grows with w: no fixed point
                 cost += lt[k, i] * w
-            if cost < best_cost:
-                best, best_cost = k, cost
-        return best
+            costs[k] = cost
+        # the cheapest loop that settles within SETTLE_S; if none does, the cheapest; if no rule
+        # has a fixed point, the rule in use
+        for c in (np.where(slow, np.inf, costs), costs):
+            if np.isfinite(c).any():
+                return int(np.argmin(c))
+        return self.rule_
 
     def _groups_at(self, x0, P0, sm, GamF: np.ndarray, slopes: np.ndarray, Gamma_mu, A_k, dt: float) -> list:
         """Per group (v̂, τ_g(v̂), s_g, r, r_g) — r the half-width of C_{k−1} along ℓ_g, r_g its
