@@ -12,7 +12,7 @@ from sea_daemon.core.model import SEAModel
 from sea_daemon.core.model_core import RigidTables
 from sea_daemon.io.configfile import load_config
 from tests._paths import repo_root
-from tests.test_rigid_filter import estimate, human, session
+from tests.test_rigid_filter import estimate, trained_gp
 
 
 @pytest.fixture(scope="module")
@@ -58,17 +58,12 @@ def test_compiled_bound_step_of_a_urdf_model_is_the_python_step(cfg):
     rounding), the box and the GP error included."""
     rigid = cfg.model.rigid.scaled(mass={"human_upper_arm": 1.25})
     true_cfg = dataclasses.replace(cfg, model=cfg.model.with_rigid(rigid))
-    nominal = SEAModel.from_config(cfg)
-    train = session(true_cfg, nominal, 4.0, None, 1)
-    test = session(true_cfg, nominal, 1.5, human, 2)
-    gp = make_estimator("gp-akf", cfg, bound=False)
-    estimate(gp, train)
-    gp.learning = False
+    gp, test = trained_gp(cfg, true_cfg, 4.0, 1.5)
     out = {}
     for compiled in (True, False):
         est = make_estimator("gp-akf", cfg, residual=gp.gp, learning=False)
         est.bound.compiled = compiled
-        E, B = estimate(est, test)
+        _, B = estimate(est, test)
         if compiled:
             assert est.bound._compiled_pack() is not None           # the compiled path ran
         out[compiled] = (B, est.bound.lin_err_.copy(), est.bound.eta_.copy())

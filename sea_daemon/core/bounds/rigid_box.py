@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea_daemon.core.jit import njit
-from sea_daemon.core.dynamics import load_side_torque
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.bounds.setmember import points_of_ellipsoid, unit_directions
 from sea_daemon.core.bounds.zonotope import outer_ellipsoid_shape
+from sea_daemon.core.dynamics import load_side_torque
+from sea_daemon.core.jit import njit
 
 
 def applies(model) -> bool:
@@ -77,8 +77,7 @@ def rigid_error_box(Wp, ddq, D, margin, b):
             # the rounding floor: an exactly linear φ gives 0
             if e <= 1e-12 * (abs(ddq[p, j]) + abs(ddq[0, j])):
                 e = 0.0
-            if e > b[3 * n + j]:
-                b[3 * n + j] = e
+            b[3 * n + j] = max(b[3 * n + j], e)
     for j in range(n):
         b[3 * n + j] *= 1.0 + margin
 
@@ -96,7 +95,7 @@ class RigidBox:
         self._D = np.empty((self.n, 3 * self.n))
 
     @classmethod
-    def of(cls, model, sm, n_dirs: int, seed: int) -> "RigidBox | None":
+    def of(cls, model, sm, n_dirs: int, seed: int) -> RigidBox | None:
         """The box of ``model`` for a :class:`~sea_daemon.core.bounds.setmember.SetMembershipBound`
         ``sm`` (zonotope sets), or None where it does not apply (:func:`applies`)."""
         if not (applies(model) and sm.sets == "zonotope"):
