@@ -71,3 +71,16 @@ def test_compiled_bound_step_of_a_urdf_model_is_the_python_step(cfg):
     np.testing.assert_allclose(out[True][1], out[False][1], rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(out[True][2], out[False][2], rtol=1e-7)
     assert np.all(out[True][1][6:8] > 0) and np.all(out[True][0][50:] > 0)
+
+
+def test_bench_latency_times_the_two_joint_gpakf_and_its_bound(capsys):
+    """`bench latency --config configs/exo_2dof.yaml` times the 2-joint GP-AKF with frozen LoG-GPs
+    without and with its Theorem-1 bound (the compiled step of a URDF model)."""
+    from sea_daemon.apps import cli
+    code = cli.main(["bench", "latency", "--config", str(repo_root() / "configs" / "exo_2dof.yaml"), "--seconds", "1.5",
+                     "--repeat", "1", "--estimators", "gp-akf-frozen,gp-akf-bound"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "2 joint(s)" in out
+    assert "gp-akf-frozen: per step median" in out and "gp-akf-bound: per step median" in out
+    assert "Theorem-1 bound on" in out
