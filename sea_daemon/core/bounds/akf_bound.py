@@ -434,8 +434,7 @@ class AKFTheoremBound:
             return
         akf = self.akf
         P0, P = self.gauss.step(record)
-        x0, u, dt = record.x_prev, record.u, record.dt
-        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
+        x0, u, dt, zhat = record.x_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
         akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
         gp_range = None
