@@ -8,6 +8,9 @@ joint's declared working range, drawn from a seeded generator (not one repeated 
 :class:`Coverage` — an occupancy grid of the (q, q̇, q̈) box of the working range: what share
 of it a log's data visit, and, at estimation time, whether a sample's z lies in a visited
 cell (or its neighbours).
+:func:`joint_excitation` and :class:`JointsCoverage` — the same for n joints: one excitation
+per joint, each with its own moves, speeds and dwells (so the joints' angles and speeds meet in
+ever new combinations), and one occupancy grid per joint.
 
 Pure: no I/O, no clock.
 """
@@ -126,6 +129,34 @@ def excitation(wr: WorkingRange, duration_s: float, seed: int = 0, dwell_share: 
     return MoveSequence(q0, tuple(targets), tuple(durs), tuple(dwells), cyclic=False)
 
 
+@dataclass(frozen=True)
+class JointMotion:
+    """The motion of n joints, one reference per joint: ``reference(t) -> (q, q̇, q̈)``, each (n,)."""
+
+    joints: tuple
+
+    @property
+    def duration(self) -> float:
+        return max(float(getattr(j, "duration", 0.0)) for j in self.joints)
+
+    def reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r = [j.reference(t) for j in self.joints]
+        return tuple(np.array([v[i] for v in r]) for i in range(3))
+
+
+def joint_excitation(wrs, duration_s: float, seed: int = 0, q0=None, **kw) -> JointMotion:
+    """The calibration motion of n joints: :func:`excitation` over each joint's working range
+    ``wrs[j]`` for ``duration_s`` seconds, each joint with its own seeded generator (seed
+    ``seed + 7919 j``), so the joints move at their own times, speeds and dwells and their
+    angles and speeds meet in ever new combinations (the coupled inertia, Coriolis and gravity
+    terms are seen over the working range of each joint and of their combinations, not along
+    one path).  ``q0``: the n start angles (default mid-range); ``kw`` as :func:`excitation`."""
+    n = len(wrs)
+    starts = [None] * n if q0 is None else [float(v) for v in np.ravel(q0)]
+    return JointMotion(tuple(excitation(wr, duration_s, seed=seed + 7919 * j, q0=starts[j], **kw)
+                             for j, wr in enumerate(wrs)))
+
+
 class Coverage:
     """Occupancy grid of z = [q, q̇, q̈] over the box of a working range (one joint).
 
@@ -207,3 +238,52 @@ def _edge_mask(shape, axis: int, shift: int) -> np.ndarray:
     sl[axis] = 0 if shift > 0 else -1
     m[tuple(sl)] = False
     return m
+
+
+class JointsCoverage:
+    """:class:`Coverage` of n joints: one grid per joint over its own (q_j, q̇_j, q̈_j) box.
+
+    ``add(Z)`` takes the pairs z = [q, q̇, q̈] (N, 3n); :meth:`covered` is true when every
+    joint's (q_j, q̇_j, q̈_j) lies in a visited cell or next to one; :meth:`report` gives each
+    joint's shares (``joints``) and the smallest of them at the top level."""
+
+    def __init__(self, wrs, bins: int = 10, min_count: int = 3):
+        self.per_joint = [Coverage(wr, bins, min_count) for wr in wrs]
+        self.n = len(self.per_joint)
+        self._zj = np.zeros(3)
+
+    def _cols(self, j: int) -> list[int]:
+        return [j, self.n + j, 2 * self.n + j]
+
+    def add(self, Z: np.ndarray) -> None:
+        Z = np.atleast_2d(Z)
+        for j, c in enumerate(self.per_joint):
+            c.add(Z[:, self._cols(j)])
+
+    def covered(self, z) -> bool:
+        zj = self._zj
+        for j, c in enumerate(self.per_joint):
+            zj[0], zj[1], zj[2] = z[j], z[self.n + j], z[2 * self.n + j]
+            if not c.covered(zj):
+                return False
+        return True
+
+    def report(self) -> dict:
+        per = [c.report() for c in self.per_joint]
+        out = {k: min(p[k] for p in per) for k in ("box_share", "q_qdot_share", "q_share")}
+        return {**out, "bins": per[0]["bins"], "joints": per}
+
+    def to_dict(self) -> dict:
+        return {"joints": [c.to_dict() for c in self.per_joint]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "JointsCoverage":
+        per = [Coverage.from_dict(x) for x in d["joints"]]
+        out = cls([c.wr for c in per], per[0].bins, per[0].min_count)
+        out.per_joint = per
+        return out
+
+
+def coverage_from_dict(d: dict):
+    """:class:`Coverage` or, for n joints (a ``joints`` list), :class:`JointsCoverage` from its ``to_dict``."""
+    return JointsCoverage.from_dict(d) if "joints" in d else Coverage.from_dict(d)

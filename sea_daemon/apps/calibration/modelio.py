@@ -19,7 +19,7 @@ from sea_daemon.analysis.sufficiency import RECORD, Sufficiency
 from sea_daemon.apps.calibration.expected import expected_lines, with_figures
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.calibrated import CalibratedAKF, CalibratedGPAKF
-from sea_daemon.core.excitation import Coverage
+from sea_daemon.core.excitation import coverage_from_dict
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.gpmodel import save_gp_model
@@ -77,7 +77,7 @@ def estimator_from_model(cfg: ModelConfig, residual, meta: dict, dt: float | Non
     if not cal:
         return None
     try:        # a model file is user data: a field that does not fit is a typed refusal
-        cov = Coverage.from_dict(cal["coverage"])
+        cov = coverage_from_dict(cal["coverage"])
         v_gate, var_ref = float(cal.get("gp_v_gate", 0.0)), float(cal.get("gp_var_ref", 0.0))
         if not (math.isfinite(v_gate) and v_gate >= 0.0 and math.isfinite(var_ref) and var_ref >= 0.0):
             raise ValueError(f"gp_v_gate {v_gate}, gp_var_ref {var_ref}: expected finite values >= 0")
