@@ -61,6 +61,9 @@ class JointsSufficiency(Sufficiency):
         figures = {"joints": [s.figures for s in joints], "still": all(s.still for s in joints)}
         for k in ("samples", "duration_s", "rate_hz", "config_rate_hz"):
             figures[k] = joints[0].figures.get(k)
+        # the least any joint shows (the one-joint report's sentence reads these)
+        for k in ("strokes_up", "strokes_down", "q_span_deg"):
+            figures[k] = min(s.figures.get(k, 0) for s in joints)
         super().__init__(figures)
         for q in joints[0].verdicts:
             vs = [s.verdicts[q] for s in joints]
@@ -88,14 +91,24 @@ def joint_names(cfg: ModelConfig) -> list[str]:
 
 
 def assess_joints(log: MeasuredLog, cfg: ModelConfig) -> JointsSufficiency:
-    """Each joint of ``log`` assessed on its own; ``refusal`` the first joint's refusal, naming it."""
+    """Each joint of ``log`` assessed on its own; ``refusal`` the first joint's refusal, naming it.
+    A joint that moved, but too little to identify its physics, keeps the nominal model when
+    another joint identifies its own (refused when none does, as one joint's log is)."""
     names = joint_names(cfg)
     per = [assess(log, cfg, joint=j) for j in range(cfg.joints)]
+    physics_only = [p.refusal is not None and p.verdicts["effects"].status == "refuse"
+                    and p.verdicts["effects"].why != "see the refusal" for p in per]
+    refusals = [f"{n}: {p.refusal}" for n, p, only in zip(names, per, physics_only) if p.refusal]
+    if any(p.refusal is None and p.identifies("effects") for p in per):
+        # another joint identifies the physics: a joint that moved too little for its own keeps
+        # the nominal model (a log that cannot be calibrated on at all is still refused)
+        refusals = [f"{n}: {p.refusal}" for n, p, only in zip(names, per, physics_only) if p.refusal and not only]
+        for p, only in zip(per, physics_only):
+            if only:
+                p.verdicts["effects"] = Verdict("effects", "nominal", p.verdicts["effects"].why)
+                p.refusal = None
     s = JointsSufficiency(per, names)
-    for n, p in zip(names, per):
-        if p.refusal:
-            s.refusal = f"{n}: {p.refusal}"
-            break
+    s.refusal = refusals[0] if refusals else None
     return s
 
 
@@ -166,12 +179,14 @@ def data_working_range(Z: np.ndarray, span_floor: float = math.radians(2.0)) -> 
 
 def pairs_report(Z: np.ndarray, F: np.ndarray) -> dict:
     """The report's ``leftover`` and ``data_range`` of n joints' pairs: the leftover's RMS over all and
-    per joint, each joint's angles [rad] and largest speed [rad/s]."""
+    per joint; the angles [rad] and the largest speed [rad/s] over all joints and per joint."""
     n = F.shape[1]
     return {"leftover": {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z)),
                          "rms_per_joint": np.sqrt(np.mean(F ** 2, axis=0)).tolist()},
-            "data_range": {"q": [[float(np.min(Z[:, j])), float(np.max(Z[:, j]))] for j in range(n)],
-                           "dq": np.max(np.abs(Z[:, n:2 * n]), axis=0).tolist()}}
+            "data_range": {"q": [float(np.min(Z[:, :n])), float(np.max(Z[:, :n]))],
+                           "dq": float(np.max(np.abs(Z[:, n:2 * n]))),
+                           "per_joint": {"q": [[float(np.min(Z[:, j])), float(np.max(Z[:, j]))] for j in range(n)],
+                                         "dq": np.max(np.abs(Z[:, n:2 * n]), axis=0).tolist()}}}
 
 
 def data_working_ranges(Z: np.ndarray, span_floor: float = math.radians(2.0)) -> list[WorkingRange]:
@@ -184,6 +199,24 @@ def data_working_ranges(Z: np.ndarray, span_floor: float = math.radians(2.0)) ->
         pad = max(0.0, 0.5 * (span_floor - (hi - lo)))
         out.append(WorkingRange(lo - pad, hi + pad, max(float(np.max(np.abs(dq))), 0.1),
                                 max(float(np.max(np.abs(ddq))), 1.0)))
+    return out
+
+
+def declared_working_ranges(cfg: ModelConfig) -> list[WorkingRange]:
+    """Each joint's working range for the calibration excitation: the ``calibration`` section's angles
+    (the same for every joint) when declared, else the URDF's joint limits where it gives them, else
+    10°–90°; the section's v_max and a_max."""
+    c = cfg.calibration
+    rigid = cfg.model.rigid
+    out = []
+    for j in range(cfg.joints):
+        lo, hi = math.radians(10.0), math.radians(90.0)
+        if c.q_min_deg is not None and c.q_max_deg is not None:
+            lo, hi = math.radians(c.q_min_deg), math.radians(c.q_max_deg)
+        elif rigid is not None and np.isfinite(rigid.q_min[j]) and np.isfinite(rigid.q_max[j]) \
+                and rigid.q_max[j] > rigid.q_min[j]:
+            lo, hi = float(rigid.q_min[j]), float(rigid.q_max[j])
+        out.append(WorkingRange(lo, hi, c.v_max, c.a_max))
     return out
 
 
