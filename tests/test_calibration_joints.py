@@ -13,7 +13,7 @@ from sea_daemon.apps.calibration.modelio import estimator_from_model, save_calib
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sufficient_log
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.akf import AKF
-from sea_daemon.core.excitation import JointMotion, JointsCoverage, WorkingRange, excitation, joint_excitation
+from sea_daemon.core.excitation import PerJoint, JointsCoverage, WorkingRange, excitation, excitation_joints
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import InputError
@@ -50,7 +50,7 @@ class _Hold:
 def test_sufficiency_per_joint_and_the_nominal_model_where_a_joint_held_still(cfg, true):
     """Shoulder moving, elbow held: the shoulder identifies the effects, the elbow keeps the nominal
     model — an effect found there is dropped and the report names the joint and why."""
-    ref = JointMotion((excitation(WRS[0], 14.0, seed=1), _Hold(1.0)))
+    ref = PerJoint((excitation(WRS[0], 14.0, seed=1), _Hold(1.0)))
     log = run_session(true, 14.0, reference=ref, seed=2, substep_hz=plant_substep(true, 3e-3, 100))
     s = assess_joints(log, cfg)
     assert s.refusal is None
@@ -93,14 +93,14 @@ def test_calibration_of_two_joints_end_to_end(cfg, true, tmp_path):
     (a torque on both joints while moving) the calibrated GP-AKF beats the AKF on the nominal
     model on each joint, and the saved model file gives the same estimator back."""
     sub = plant_substep(true, 3e-3, 100)
-    log = run_session(true, 18.0, reference=joint_excitation(WRS, 18.0, seed=4), seed=5, substep_hz=sub)
+    log = run_session(true, 18.0, reference=excitation_joints(WRS, 18.0, seed=4), seed=5, substep_hz=sub)
     res = calibrate(log, cfg, given={"Sigma_nom"}, opts=CalibrationOptions(working_range=WRS, diagnose=False,
                                                                            gp="on", synth_s=8.0))
     assert res.gp is not None and res.gp.n == 2 and len(res.cfg.learning.lengthscales) == 6
     assert isinstance(res.coverage, JointsCoverage) and len(res.report["coverage"]["joints"]) == 2
     assert set(res.report["sufficiency"]["per_joint"]) == {"joint 1 (shoulder)", "joint 2 (elbow)"}
     hs = [BandLimitedTorque(1.2, 0.1, 1.0, seed=7), BandLimitedTorque(0.8, 0.1, 1.0, seed=8)]
-    test = run_session(true, 8.0, reference=joint_excitation(WRS, 8.0, seed=9),
+    test = run_session(true, 8.0, reference=excitation_joints(WRS, 8.0, seed=9),
                        human=lambda t: np.array([hs[0](t), hs[1](t)]), seed=6, substep_hz=sub)
 
     def rmse(est):

@@ -3,7 +3,7 @@ planar arm and finite differences; scaled descriptions; refused descriptions."""
 import numpy as np
 import pytest
 
-from sea_daemon.core.rigid import RigidBody, link_masses, random_factors, scaled_urdf
+from sea_daemon.core.rigid import RigidBody, fit_factors, link_masses, random_factors, scaled_urdf
 from sea_daemon.errors import ConfigError
 
 G = 9.81
@@ -148,3 +148,21 @@ def test_random_factors_scale_every_body_within_the_spread(arm):
     assert random_factors(arm.urdf, np.random.default_rng(7), spread=0.3) == (mass, length)
     plant = arm.scaled(mass, length)
     assert link_masses(plant.urdf)["upper"] == pytest.approx(m1 * mass["upper"])
+
+
+def test_fit_factors_recovers_a_corrected_body(arm):
+    """Torques of a body whose forearm is 30 % heavier and 15 % longer and whose upper arm is 20 %
+    lighter: the fit of the declared (nominal) body finds those factors and explains the torques."""
+    true = arm.scaled(mass={"fore": 1.3, "upper": 0.8}, length={"fore": 1.15})
+    rng = np.random.default_rng(11)
+    Q = rng.uniform(-1.0, 2.0, (120, 2))
+    DQ = rng.normal(0, 1.5, (120, 2))
+    DDQ = rng.normal(0, 8.0, (120, 2))
+    TAU = np.array([true.inverse(q, v, a) for q, v, a in zip(Q, DQ, DDQ)])
+    fit = fit_factors(arm, ["upper", "fore"], Q, DQ, DDQ, TAU)
+    assert fit.mass == pytest.approx({"upper": 0.8, "fore": 1.3}, rel=1e-5)
+    assert fit.length == pytest.approx({"upper": 1.0, "fore": 1.15}, rel=1e-5)
+    assert np.all(fit.rms_before > 0.1) and np.all(fit.rms_after < 1e-6)
+    np.testing.assert_allclose(fit.body.mass_matrix(Q[0]), true.mass_matrix(Q[0]), rtol=1e-5)
+    with pytest.raises(ValueError, match="no mass to correct"):
+        fit_factors(arm, ["base"], Q, DQ, DDQ, TAU)

@@ -42,7 +42,7 @@ def fd_jacobian(f, x, h=1e-6):
 @pytest.mark.parametrize("declared", [[], HIDDEN + [{"type": "viscous", "side": "motor", "b": 0.1, "joint": 2}]])
 def test_filter_dynamics_of_the_urdf_model(cfg, declared):
     """The filter's tables: f_nom, F_nom (vs central differences, the ∂M/∂q term included) and
-    G_μ = I_μ M(q)⁻¹ at the linearisation point, the model's M and M⁻¹ updated with it."""
+    G_μ = I_μ M(q)⁻¹ at the linearisation point; the model's M and M⁻¹ at a state (SEAModel.at)."""
     model = SEAModel(cfg.model.with_effects(effects(cfg, declared)), sign_eps=0.5)
     n, d = 2, 10
     G_mu = np.zeros((d, n))
@@ -58,7 +58,9 @@ def test_filter_dynamics_of_the_urdf_model(cfg, declared):
     M = model.rigid.mass_matrix(q)
     np.testing.assert_allclose(G_mu[3 * n:4 * n], np.linalg.inv(M), rtol=1e-10)
     assert not np.any(G_mu[:3 * n]) and not np.any(G_mu[4 * n:])
+    model.at(x)
     np.testing.assert_allclose(model.M, M, rtol=1e-12)
+    np.testing.assert_allclose(model.Minv, np.linalg.inv(M), rtol=1e-10)
     # θ̈_s = q̈ − θ̈_m with q̈ from eq:unknwn_load: M(q) q̈ = τ_h,act − C(q, q̇) q̇ − g(q) − Σ_load e − τ_s
     ddth_m, ddq = model.accelerations(x, u)
     tau_s = model.spring_torque(x[n:2 * n], x[3 * n:4 * n])
@@ -177,10 +179,45 @@ def test_linearisation_error_box_of_the_urdf_model(cfg):
 def test_a_session_of_the_two_joint_arm(cfg):
     """core.sim.session for n joints: a per-joint reference tracked by the session's PID, the
     subject's (2,) torque logged per joint at the sample times."""
-    from sea_daemon.core.sim.session import PerJoint, SineReference, run_session
+    from sea_daemon.core.excitation import PerJoint
+    from sea_daemon.core.sim.session import SineReference, run_session
     ref = PerJoint((SineReference(0.6, (0.4,), (0.3,), (0.0,)), SineReference(0.8, (0.4,), (0.4,), (0.0,))))
     log = run_session(cfg, 6.0, reference=ref, human=human, seed=1)
     assert log.q.shape == (600, 2) and log.tau_h_act.shape == (600, 2)
     np.testing.assert_allclose(log.tau_h_act[:-1], [human(t) for t in log.t[:-1]], rtol=1e-12)
     q_ref = np.array([ref.reference(t)[0] for t in log.t])
     assert np.max(np.abs(log.q[200:] - q_ref[200:])) < 0.15      # tracked (the human pushes, the PID holds)
+
+
+def test_the_bound_takes_m_at_its_own_step(cfg):
+    """The Theorem-1 bound of a URDF model reads M(q̂_{k−1}) of the record it gets, not what the
+    model last held (a bound worker's copy of the filter never runs the filter's step)."""
+    est = make_estimator("akf", cfg, bound=True)
+    data = session(cfg, SEAModel.from_config(cfg), 0.5, None, 3)
+    q, th, u, _ = data
+    est.reset(q[0], th[0], u[0])
+    for k in range(1, 20):
+        est.update(q[k], th[k], u[k], 1.0 / RATE)
+    x_prev = est.record.x_prev.copy()
+    est.model.M[:] = np.eye(2)                      # stale, as in a copy that did not step
+    est.bound.step(est.est, est.record)
+    np.testing.assert_allclose(est.model.M, est.model.rigid.mass_matrix(x_prev[:2] + x_prev[2:4]), rtol=1e-12)
+
+
+def test_the_multi_joint_excitation_covers_the_combinations_of_the_working_ranges():
+    """Each joint within its working range, speed and acceleration limits; the (q₁, q₂) pairs over
+    the whole 4 × 4 grid of the two ranges (the coupled terms need the combinations); seeded."""
+    from sea_daemon.core.excitation import WorkingRange, excitation_joints
+    ranges = (WorkingRange(-0.3, 1.6, v_max=1.5, a_max=10.0), WorkingRange(0.1, 2.0, v_max=2.0, a_max=12.0))
+    ref = excitation_joints(ranges, 90.0, seed=4)
+    assert ref.duration >= 90.0
+    t = np.arange(0.0, ref.duration, 0.01)
+    Q, V, A = (np.array(c) for c in zip(*(ref.reference(s) for s in t)))
+    for j, wr in enumerate(ranges):
+        assert wr.q_min - 1e-9 <= Q[:, j].min() and Q[:, j].max() <= wr.q_max + 1e-9
+        assert np.abs(V[:, j]).max() <= wr.v_max + 1e-9 and np.abs(A[:, j]).max() <= wr.a_max + 1e-6
+    cells = {(int(4 * (q1 + 0.3) / 1.9 - 1e-9), int(4 * (q2 - 0.1) / 1.9 - 1e-9)) for q1, q2 in Q}
+    assert len(cells) == 16
+    again = excitation_joints(ranges, 90.0, seed=4).reference(37.3)
+    np.testing.assert_array_equal(again[0], ref.reference(37.3)[0])
+    assert not np.array_equal(excitation_joints(ranges, 90.0, seed=5).reference(37.3)[0], again[0])

@@ -1,6 +1,6 @@
 """Scenario files of the two-joint example (configs/scenarios/two_joint_*.yaml): per-joint values,
-the true arm's links, the simulated logs with n joints, the multi-joint excitation and the
-coverage per joint; every bad value a one-line ConfigError naming the key."""
+the true arm's links, the simulated logs with n joints, and the coverage per joint; every bad
+value a one-line ConfigError naming the key."""
 import dataclasses
 import math
 
@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sea_daemon.core.excitation import (Coverage, JointsCoverage, WorkingRange, coverage_from_dict,
-                                        joint_excitation)
+from sea_daemon.core.excitation import Coverage, JointsCoverage, WorkingRange, coverage_from_dict
 from sea_daemon.errors import ConfigError
 from sea_daemon.io.logcsv import read_log, write_log
 from sea_daemon.io.scenario import Scenario, load_scenario
@@ -90,25 +89,6 @@ def test_links_need_a_urdf_model(tmp_path):
         d["plant"]["links"] = {"mass": {"forearm": 1.2}}
     with pytest.raises(ConfigError, match="plant.links.*model.urdf"):
         load_with(tmp_path, mutate, "passive.yaml")
-
-
-def test_joint_excitation_covers_each_joint_and_their_combinations():
-    """Each joint's moves reach both ends of its range within its speed and acceleration limits, and
-    the joints' angles meet in most cells of the (q_1, q_2) grid (not along one path)."""
-    wrs = [WorkingRange(0.2, 1.4, 1.5, 10.0), WorkingRange(0.3, 1.8, 2.0, 15.0)]
-    ex = joint_excitation(wrs, 120.0, seed=3)
-    t = np.arange(0.0, 120.0, 0.01)
-    R = [ex.reference(x) for x in t]
-    Q, V, A = (np.array([r[i] for r in R]) for i in range(3))
-    cells = np.zeros((5, 5), bool)
-    for j, wr in enumerate(wrs):
-        assert np.min(Q[:, j]) == pytest.approx(wr.q_min, abs=1e-9) and np.max(Q[:, j]) == pytest.approx(wr.q_max)
-        assert np.max(np.abs(V[:, j])) <= wr.v_max * 1.001 and np.max(np.abs(A[:, j])) <= wr.a_max * 1.001
-    u = [(Q[:, j] - w.q_min) / w.width for j, w in enumerate(wrs)]
-    cells[np.minimum((u[0] * 5).astype(int), 4), np.minimum((u[1] * 5).astype(int), 4)] = True
-    assert cells.mean() >= 0.8
-    # the joints move at their own times: not one path
-    assert abs(np.corrcoef(V[:, 0], V[:, 1])[0, 1]) < 0.3
 
 
 def test_coverage_per_joint():

@@ -25,7 +25,8 @@ The kernels take the parameters as one :class:`Dynamics` in its packed form
 (:meth:`Dynamics.packed`, a plain tuple: numba types it at C speed; a NamedTuple argument costs
 ~5 µs per call) and unpack it by name.  Callers: :class:`~sea_daemon.core.model.SEAModel` (the
 model's methods), :class:`~sea_daemon.core.model_core.ModelTables` (the filter with declared
-effects) and :class:`~sea_daemon.core.model_core.RigidTables` (the filter with a URDF), the simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
+effects) and :class:`~sea_daemon.core.model_core.RigidTables` (the filter with a URDF), the
+simulator's true plant (:func:`accel_1`), diagnose's spring torque over a log
 (:func:`spring_torque_many`).
 
 Two forms keep their own floating-point order (they are what the filter and the simulator

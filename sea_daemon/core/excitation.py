@@ -5,12 +5,13 @@
 :func:`excitation` — the calibration motion of ``sea-daemon calibrate``: moves whose
 amplitudes, durations (hence speeds and accelerations) and dwell positions are spread over the
 joint's declared working range, drawn from a seeded generator (not one repeated move).
+:class:`PerJoint` and :func:`excitation_joints` — the same for n joints: one reference per
+joint, each joint's moves drawn on its own, so that their combinations spread over the box of
+the joints' working ranges.
 :class:`Coverage` — an occupancy grid of the (q, q̇, q̈) box of the working range: what share
 of it a log's data visit, and, at estimation time, whether a sample's z lies in a visited
 cell (or its neighbours).
-:func:`joint_excitation` and :class:`JointsCoverage` — the same for n joints: one excitation
-per joint, each with its own moves, speeds and dwells (so the joints' angles and speeds meet in
-ever new combinations), and one occupancy grid per joint.
+:class:`JointsCoverage` — the coverage of n joints: one occupancy grid per joint.
 
 Pure: no I/O, no clock.
 """
@@ -130,8 +131,8 @@ def excitation(wr: WorkingRange, duration_s: float, seed: int = 0, dwell_share: 
 
 
 @dataclass(frozen=True)
-class JointMotion:
-    """The motion of n joints, one reference per joint: ``reference(t) -> (q, q̇, q̈)``, each (n,)."""
+class PerJoint:
+    """The reference of n joints from one reference per joint: ``reference(t) -> (q, q̇, q̈)``, each (n,)."""
 
     joints: tuple
 
@@ -144,17 +145,19 @@ class JointMotion:
         return tuple(np.array([v[i] for v in r]) for i in range(3))
 
 
-def joint_excitation(wrs, duration_s: float, seed: int = 0, q0=None, **kw) -> JointMotion:
-    """The calibration motion of n joints: :func:`excitation` over each joint's working range
-    ``wrs[j]`` for ``duration_s`` seconds, each joint with its own seeded generator (seed
-    ``seed + 7919 j``), so the joints move at their own times, speeds and dwells and their
-    angles and speeds meet in ever new combinations (the coupled inertia, Coriolis and gravity
-    terms are seen over the working range of each joint and of their combinations, not along
-    one path).  ``q0``: the n start angles (default mid-range); ``kw`` as :func:`excitation`."""
-    n = len(wrs)
-    starts = [None] * n if q0 is None else [float(v) for v in np.ravel(q0)]
-    return JointMotion(tuple(excitation(wr, duration_s, seed=seed + 7919 * j, q0=starts[j], **kw)
-                             for j, wr in enumerate(wrs)))
+def excitation_joints(ranges, duration_s: float, seed: int = 0, dwell_share: float = 0.15,
+                      v_min_share: float = 0.25, q0=None) -> PerJoint:
+    """The calibration motion of n joints: :func:`excitation` for each joint's
+    :class:`WorkingRange` in ``ranges``, each from its own random stream of ``seed``
+    (numpy's SeedSequence spawned per joint), so the joints move and dwell at different times
+    and their angles, speeds and accelerations meet in combinations over the whole box of the
+    ranges (what couples them: M(q), C(q, q̇) of a URDF).  ``q0``: (n,) start angles (default
+    mid-range).  Seeded: the same seed, the same motion."""
+    n = len(ranges)
+    starts = [None] * n if q0 is None else [float(v) for v in np.broadcast_to(np.asarray(q0, dtype=float), (n,))]
+    streams = np.random.SeedSequence(seed).spawn(n)
+    return PerJoint(tuple(excitation(wr, duration_s, seed=int(ss.generate_state(1)[0]), dwell_share=dwell_share,
+                                     v_min_share=v_min_share, q0=q) for wr, ss, q in zip(ranges, streams, starts)))
 
 
 class Coverage:

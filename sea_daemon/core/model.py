@@ -56,8 +56,7 @@ class SEAModel:
                 if isinstance(e, Inertia) and e.side == "load":
                     dI[e.joint] += e.dI
             self.rigid = params.rigid.with_armature(dI)
-        # with a rigid body, M and M⁻¹ are M(q) at the filter's last linearisation point (M(0) at first;
-        # updated in place by :class:`~sea_daemon.core.model_core.RigidTables`)
+        # with a rigid body, M and M⁻¹ are M(q) at the state last given to :meth:`at` (M(0) at first)
         self.M, self.J = M, J
         self.Minv = np.linalg.inv(M)
         self.Jinv = np.linalg.inv(J)
@@ -213,6 +212,14 @@ class SEAModel:
             return A
         dynamics.F_nom(self.kernel, x, _vec(u), f_q, f_v, A)
         return A
+
+    def at(self, x) -> None:
+        """M and M⁻¹ (:attr:`M`, :attr:`Minv`, in place) at the state x (5n,): a rigid body's M(q),
+        q = θ_m + θ_s; a constant M stays as it is."""
+        if self.rigid is not None:
+            n = self.n
+            self.M[:] = self.rigid.mass_matrix(np.asarray(x[:n], dtype=float) + x[n:2 * n])
+            self.Minv[:] = np.linalg.inv(self.M)
 
     def rigid_f_and_F(self, x, u, f, f_q, f_v, A, xdot) -> np.ndarray:
         """xdot = f_nom(x, u) − I_μ M⁻¹(q) f and, with ``A`` (f_q, f_v the partials of f), A = F_nom

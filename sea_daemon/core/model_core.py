@@ -12,9 +12,10 @@ parameter vector); :class:`ModelTables` hands that to the kernels of
 
 and :func:`lin_error_boxes` samples the linearisation error of f_nom for the bound.
 :class:`RigidTables` does the same for a model whose load side is a rigid body of n coupled
-joints (a URDF), with G_μ = I_μ M(q)⁻¹ of each step.  Encoder offsets (measurement) and the delay (input history) stay with the AKF; inertia effects are
-folded into M and J by SEAModel.  Effects that evaluate themselves in Python (outside the
-vocabulary) are not supported here (:meth:`ModelTables.supports`).
+joints (a URDF), with G_μ = I_μ M(q)⁻¹ of each step.  Encoder offsets (measurement) and the
+delay (input history) stay with the AKF; inertia effects are folded into M and J by SEAModel
+(into the body's armature with a URDF).  Effects that evaluate themselves in Python (outside
+the vocabulary) are not supported by :class:`ModelTables` (:meth:`ModelTables.supports`).
 
 Pure numerics: no I/O, no clock, no threads.
 """
@@ -63,12 +64,11 @@ class RigidTables:
     """The filter's f_nom, F_nom and G_μ = I_μ M⁻¹(q) of a model whose load side is a rigid body of n
     coupled joints (``model.urdf``; :class:`~sea_daemon.core.model.SEAModel` with ``rigid``).
 
-    Per step one call of Pinocchio's ABA derivatives (q̈, ∂q̈/∂q, ∂q̈/∂q̇, M⁻¹ at x̂_{k−1}) and one
-    CRBA (M(q)), around the compiled SEA kernels (:func:`~sea_daemon.core.dynamics.rigid_state`):
-    :meth:`f_and_F` writes A = F_nom, ẋ = f_nom, the θ̈_s rows of ``G_mu`` (the filter's I_μ M⁻¹)
-    and the model's ``M``, ``Minv`` (what the bound reads: M(q) at the linearisation point), in
-    place.  Same interface as :class:`ModelTables`; effects outside the vocabulary are included
-    (their Python ``evaluate`` per step).
+    Per step one call of Pinocchio's ABA derivatives (q̈, ∂q̈/∂q, ∂q̈/∂q̇, M⁻¹ at x̂_{k−1}), around the compiled SEA kernels (:func:`~sea_daemon.core.dynamics.rigid_state`):
+    :meth:`f_and_F` writes A = F_nom, ẋ = f_nom and the θ̈_s rows of ``G_mu`` (the filter's
+    I_μ M⁻¹) in place; the bound sets the model's ``M``, ``Minv`` at its step's x̂_{k−1}
+    (:meth:`~sea_daemon.core.model.SEAModel.at`).  Same interface as :class:`ModelTables`;
+    effects outside the vocabulary are included (their Python ``evaluate`` per step).
     """
 
     def __init__(self, model, G_mu: np.ndarray):
@@ -78,17 +78,14 @@ class RigidTables:
         self._zero = np.zeros(n)
 
     def f_and_F(self, x, u, A, xdot) -> None:
-        """A = F_nom(x, u), xdot = f_nom(x, u), G_μ = I_μ M(q)⁻¹, model.M = M(q), model.Minv (in place)."""
+        """A = F_nom(x, u), xdot = f_nom(x, u), G_μ = I_μ M(q)⁻¹ (in place)."""
         m, n = self.model, self.n
         q = x[:n] + x[n:2 * n]
         if m.outside_effects:
             f, f_q, f_v = m.outside_torque(q, x[2 * n:3 * n] + x[3 * n:4 * n])
         else:
             f = f_q = f_v = self._zero
-        Minv = m.rigid_f_and_F(x, u, f, f_q, f_v, A, xdot)
-        self.G_mu[3 * n:4 * n] = Minv
-        m.Minv[:] = Minv
-        m.M[:] = m.rigid.mass_matrix(q)
+        self.G_mu[3 * n:4 * n] = m.rigid_f_and_F(x, u, f, f_q, f_v, A, xdot)
 
     def lin_error_box(self, X, u, x0, A0) -> np.ndarray:
         """max over the rows x of X of |f_nom(x) − f_nom(x0) − A0 (x − x0)| per state: one ABA per

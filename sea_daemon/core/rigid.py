@@ -25,8 +25,9 @@ or ``prismatic``; ``fixed`` joints merge their child link into the parent, so a 
 a link — the human's upper arm on the exoskeleton's — is a link on a fixed joint); ``continuous``
 and ``floating`` joints are refused (their configuration is not one angle).  Gravity is −9.81 m/s²
 along the URDF's z axis unless given.  :func:`scaled_urdf` gives the same description with link
-masses and lengths scaled (a plant that differs from the nominal model; a corrected body), and
-:func:`random_factors` draws such factors.
+masses and lengths scaled (a plant that differs from the nominal model; a corrected body),
+:func:`random_factors` draws such factors and :func:`fit_factors` finds the factors of declared
+bodies (the wearer's arm from anthropometric tables) that explain measured torques.
 
 Pure numerics: no I/O, no clock, no threads.  Each call costs a few µs in Pinocchio plus the
 Python call (``sea-daemon bench latency`` measures the filter step that uses them).
@@ -35,7 +36,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 import numpy as np
 import pinocchio
@@ -293,6 +294,63 @@ def random_factors(urdf: str, rng: np.random.Generator, spread: float = 0.3,
     for name in link_masses(urdf, source):
         mass[name], length[name] = (float(v) for v in rng.uniform(1.0 - spread, 1.0 + spread, 2))
     return mass, length
+
+
+class BodyFit(NamedTuple):
+    """What :func:`fit_factors` found: the factors per link, the RMS torque error [N m] per joint
+    of the description as given and of the corrected one, and the corrected body."""
+
+    mass: dict[str, float]
+    length: dict[str, float]
+    rms_before: np.ndarray
+    rms_after: np.ndarray
+    body: "RigidBody"
+
+
+def fit_factors(body: RigidBody, links, Q, DQ, DDQ, TAU, *, lengths: bool = True,
+                limits: tuple[float, float] = (0.5, 2.0)) -> BodyFit:
+    """Correct a declared body from data: the mass (and, with ``lengths``, length) factors of
+    :func:`scaled_urdf` for the named ``links`` that best explain the torques on the rigid body,
+    least squares over the samples of τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (eq:loadside; RNEA).
+
+    ``Q, DQ, DDQ, TAU``: (N, n) joint angles, velocities, accelerations and the torque on the rigid
+    body at each sample (e.g. eq:loadsidewmotor's τ_l from the motor side with a passive subject).
+    Each factor stays within ``limits``; a mass and length of one link are told apart by its
+    gravity (∝ m l) and inertia (∝ m l²), so the data must move the link with some acceleration;
+    links on one moving body (fixed to each other: the wearer's forearm on the exoskeleton's) act
+    as one, so name one of them.
+    Raises ValueError for a link without a mass or data of the wrong shape.
+    """
+    # local import: scipy.optimize loads in 0.2 s; only a correction of the body needs it
+    from scipy.optimize import least_squares
+    masses = link_masses(body.urdf, body.source)
+    for name in links:
+        if name not in masses:
+            raise ValueError(f"link {name!r} has no mass to correct; links with one: {', '.join(masses)}")
+    Q, DQ, DDQ, TAU = (np.ascontiguousarray(a, dtype=float).reshape(-1, body.n) for a in (Q, DQ, DDQ, TAU))
+    if not (Q.shape == DQ.shape == DDQ.shape == TAU.shape) or not np.all(np.isfinite([Q, DQ, DDQ, TAU])):
+        raise ValueError(f"Q, DQ, DDQ, TAU must be finite (N, {body.n}) arrays of one N")
+    links = list(links)
+    k = len(links)
+
+    def scaled(p):
+        f = np.exp(p)
+        return body.scaled(dict(zip(links, f[:k])), dict(zip(links, f[k:])) if lengths else None)
+
+    def residual(p):
+        b = scaled(p)
+        return np.concatenate([b.inverse(Q[i], DQ[i], DDQ[i]) - TAU[i] for i in range(Q.shape[0])])
+
+    lo, hi = np.log(limits[0]), np.log(limits[1])
+    m = 2 * k if lengths else k
+    sol = least_squares(residual, np.zeros(m), bounds=(np.full(m, lo), np.full(m, hi)), x_scale=1.0)
+    f = np.exp(sol.x)
+    fitted = scaled(sol.x)
+
+    def rms(r):
+        return np.sqrt(np.mean(r.reshape(-1, body.n) ** 2, axis=0))
+    return BodyFit(dict(zip(links, map(float, f[:k]))), dict(zip(links, map(float, f[k:]))) if lengths else {},
+                   rms(residual(np.zeros(m))), rms(sol.fun), fitted)
 
 
 def _scale_inertia(el: ET.Element | None, s: float) -> None:

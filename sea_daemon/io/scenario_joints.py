@@ -37,7 +37,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from sea_daemon.core.control import PIDGains, cosine_torque
-from sea_daemon.core.excitation import JointMotion, MoveSequence
+from sea_daemon.core.excitation import PerJoint, MoveSequence
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.rigid import link_masses
 from sea_daemon.core.sim.session import run_session
@@ -90,14 +90,14 @@ class JointsPID:
     def q0(self) -> np.ndarray:
         return np.radians(self.q_start_deg)
 
-    def reference(self) -> JointMotion:
+    def reference(self) -> PerJoint:
         """Each joint's minimum-jerk moves, cyclic (:class:`~sea_daemon.core.excitation.MoveSequence`)."""
         parts = []
         for a, b, T, h in zip(np.radians(self.q_start_deg), np.radians(self.q_end_deg), self.move_s, self.hold_s):
             k = 2 * max(1, self.moves // 2)
             targets = tuple(float(b) if i % 2 == 0 else float(a) for i in range(k))
             parts.append(MoveSequence(float(a), targets, (float(T),) * k, (float(h),) * k, cyclic=True))
-        return JointMotion(tuple(parts))
+        return PerJoint(tuple(parts))
 
 
 @dataclass(frozen=True)

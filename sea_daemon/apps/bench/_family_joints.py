@@ -28,7 +28,7 @@ import numpy as np
 from sea_daemon.apps.bench._family import SessionSpec
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import make_effect
-from sea_daemon.core.excitation import JointMotion, WorkingRange, joint_excitation, paper_moves
+from sea_daemon.core.excitation import PerJoint, WorkingRange, excitation_joints, paper_moves
 from sea_daemon.core.rigid import random_factors
 from sea_daemon.core.sim.session import BandLimitedTorque, SineReference
 from sea_daemon.io.configfile import data_root, load_config
@@ -101,9 +101,9 @@ def draw_plant_joints(seed: int, rate_hz: float | None = None) -> JointsPlantDra
     return JointsPlantDraw(seed, nominal, true, wrs, (0.1, 3.0), 1.5, tn, summary)
 
 
-def calibration_motion_joints(pd: JointsPlantDraw, duration_s: float = 60.0, seed: int = 0) -> JointMotion:
-    """The calibration excitation over each joint's declared working range (:func:`joint_excitation`)."""
-    return joint_excitation(pd.working_range, duration_s, seed=seed)
+def calibration_motion_joints(pd: JointsPlantDraw, duration_s: float = 60.0, seed: int = 0) -> PerJoint:
+    """The calibration excitation over each joint's declared working range (:func:`excitation_joints`)."""
+    return excitation_joints(pd.working_range, duration_s, seed=seed)
 
 
 class _Torques:
@@ -140,7 +140,7 @@ def sessions_joints(pd: JointsPlantDraw, duration_s: float | None = None) -> lis
             if accel is not None:
                 mv = max(mv, math.sqrt(5.774 * (b - a) / (accel * w.a_max)))
             parts.append(paper_moves(a, b, max(mv, 2.0) if accel is None else mv, 100))
-        return JointMotion(tuple(parts))
+        return PerJoint(tuple(parts))
     out = [SessionSpec("slow", T, moves(0.3, 0.1, 0.25), None, None, "passive"),
            SessionSpec("fast", T, moves(1.1, 0.15, 0.1, accel=1.2), None, None, "passive"),
            SessionSpec("wide", T, moves(0.6, 0.0, 0.0, widen=d(8)), None, None, "passive")]
@@ -150,8 +150,8 @@ def sessions_joints(pd: JointsPlantDraw, duration_s: float | None = None) -> lis
         f1 = 0.6 * w.v_max / (2 * math.pi * amp)
         sines.append(SineReference(mid[j], (amp, 0.25 * amp), (f1, 2.7 * f1),
                                    (float(rng.uniform(0, 6.28)), float(rng.uniform(0, 6.28)))))
-    out.append(SessionSpec("sines", T, JointMotion(tuple(sines)), None, None, "passive"))
-    slow = JointMotion(tuple(SineReference(mid[j], (0.25 * w.width,), (0.12 + 0.03 * j,), (0.0,))
+    out.append(SessionSpec("sines", T, PerJoint(tuple(sines)), None, None, "passive"))
+    slow = PerJoint(tuple(SineReference(mid[j], (0.25 * w.width,), (0.12 + 0.03 * j,), (0.0,))
                              for j, w in enumerate(wrs)))
     s = pd.seed * 10
     out.append(SessionSpec("active_low", T, slow, None, _Torques(

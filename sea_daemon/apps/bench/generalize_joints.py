@@ -4,7 +4,7 @@ The one-joint benchmark (:mod:`.generalize`) over the two-joint family (:mod:`._
 the shoulder–elbow example with every link's mass and length ±30 %, hidden effects per joint,
 the SEA part ±30 %): each plant calibrated ONCE on a passive session of the multi-joint
 calibration excitation over its declared working ranges
-(:func:`~sea_daemon.core.excitation.joint_excitation`) with the whole calibration
+(:func:`~sea_daemon.core.excitation.excitation_joints`) with the whole calibration
 (:func:`~sea_daemon.apps.calibration.pipeline.calibrate`), then the same estimators on the
 same kinds of held-out sessions, on both joints at once.  Every figure is taken per joint
 (``joints`` of each result: RMSE, bound, coverage of that joint's τ̂_h,act), and the summary is

@@ -13,6 +13,8 @@ joints lives here:
 * the GP's blocked cross-validation over all joints (:func:`gp_cross_validation_joints`);
 * the working range per joint (:func:`data_working_ranges`) and the coverage per joint
   (:class:`~sea_daemon.core.excitation.JointsCoverage`);
+* the wearer's arm, a declared body of the URDF, corrected first (:func:`correct_body`: its
+  links' mass and length factors, which show on every joint);
 * the synthetic subjects of the τ_h,act walk (:func:`synthetic_sessions_joints`): a torque of
   the declared band and size on every joint, its own per joint, moving (the log's own motion)
   and with the arm held still.
@@ -27,13 +29,16 @@ import math
 import numpy as np
 
 from sea_daemon.analysis.sufficiency import Sufficiency, Verdict, assess
-from sea_daemon.apps.calibration.residual_gp import fit_gp_hyper
+from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, spring_torque, window_samples
+from sea_daemon.apps.calibration.residual_gp import V_EXCLUDE, fit_gp_hyper
 from sea_daemon.core.config import LearningConfig, ModelConfig
 from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import WorkingRange
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.model import SEAModel
+from sea_daemon.core.rigid import fit_factors, link_masses
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import InputError
@@ -295,3 +300,50 @@ def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: Mea
                         extra_load_torque=extra, extra_held=True, substep_hz=sub),
             run_session(plant_cfg, t[-1], hold_q=np.median(log.q[:N], axis=0), human=subject(seed + 2),
                         seed=seed + 12, extra_load_torque=extra, extra_held=True, substep_hz=sub)]
+
+
+#: prefix of the URDF links that make up the wearer's arm, the declared body the calibration corrects
+HUMAN_PREFIX = "human_"
+#: the correction is kept when it lowers the RMS torque error of the rigid body by at least this share
+BODY_GAIN = 0.1
+
+
+def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: dict, points: int = 600) -> ModelConfig:
+    """The wearer's arm of a ``model.urdf`` corrected from the passive log: the mass and length
+    factors of its links (the URDF's links named ``human_…``; :func:`sea_daemon.core.rigid.fit_factors`,
+    least squares over RNEA) that best explain the load side's torque −τ_s − Σ declared load effects
+    (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves.  A wrong
+    link mass or length shows on every joint it loads (M(q), C(q, q̇), g(q)), so one factor
+    explains it on all of them — the per-joint effects of diagnose could only imitate it.  Kept
+    when it lowers the RMS torque error by :data:`BODY_GAIN` or more; the report's ``body`` says
+    what was fitted and whether it was kept.  Unchanged without a URDF or a log that identifies
+    the physics (``suff``)."""
+    rigid = cfg.model.rigid
+    if rigid is None or not suff.identifies("effects"):
+        return cfg
+    links = [k for k in link_masses(rigid.urdf, rigid.source) if k.startswith(HUMAN_PREFIX)]
+    if not links:
+        report["body"] = {"skipped": f"no link named {HUMAN_PREFIX}… in model.urdf (the wearer's arm)"}
+        return cfg
+    model = SEAModel.from_config(cfg)
+    kin = kinematics_from_log(log)
+    q, th = model.correct_measurement(kin.q_raw, kin.theta_m_raw)
+    tau = -spring_torque(model, q - th, kin.dq - kin.dtheta_m)
+    for e in model.load_effects:
+        tau[:, e.joint] -= np.array([e.evaluate(a, b, c)[0] for a, b, c in
+                                     zip(q[:, e.joint], kin.dq[:, e.joint], kin.ddq[:, e.joint])])
+    edge = window_samples(log.t)
+    idx = np.arange(edge, len(log) - edge)
+    idx = idx[np.all(np.abs(kin.dq[idx]) >= V_EXCLUDE, axis=1)]
+    if len(idx) < 50:
+        report["body"] = {"skipped": "fewer than 50 samples with every joint moving"}
+        return cfg
+    idx = idx[np.linspace(0, len(idx) - 1, min(points, len(idx))).astype(int)]
+    fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx])
+    before, after = float(np.sqrt(np.mean(fit.rms_before ** 2))), float(np.sqrt(np.mean(fit.rms_after ** 2)))
+    keep = after <= (1.0 - BODY_GAIN) * before
+    report["body"] = {"links": links, "mass": fit.mass, "length": fit.length, "kept": bool(keep),
+                      "rms_before": fit.rms_before.tolist(), "rms_after": fit.rms_after.tolist(), "samples": int(len(idx))}
+    if not keep:
+        return cfg
+    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body))

@@ -54,7 +54,7 @@ from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
-from sea_daemon.apps.calibration.joints import (assess_joints, data_working_range, data_working_ranges, fit_gp_hyper_joints,
+from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, data_working_range, data_working_ranges, fit_gp_hyper_joints,
                                                 gp_cross_validation_joints, nominal_where_unidentified, pairs_report,
                                                 synthetic_sessions_joints, working_ranges)
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
@@ -401,6 +401,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # 1. kinematics and R
     step()
     cfg = _kinematics_and_R(log, cfg, given, report)
+    cfg = correct_body(log, cfg, suff, report)          # the wearer's arm of a URDF model
     # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
     # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
     # on it at 1 kHz)
@@ -529,8 +530,7 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
     # the angles and speeds the log's moving data span [rad, rad/s]
     report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
                             "dq": float(np.max(np.abs(Z[:, 1])))}
-    if n > 1:
-        report.update(pairs_report(Z, F))
+    report.update(pairs_report(Z, F) if n > 1 else {})
     if "learning" not in given:
         hyp = (fit_gp_hyper(Z, F, opts.hyper_points, opts.seed) if n == 1 else
                fit_gp_hyper_joints(Z, F, opts.hyper_points, opts.seed))

@@ -431,8 +431,8 @@ class AKFTheoremBound:
             self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        x0, P0, u, dt = record.x_prev, record.P_prev, record.u, record.dt
-        zhat = record.z                           # ẑ_{k−1}, where the AKF evaluated the GP
+        x0, P0, u, dt, zhat = record.x_prev, record.P_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
+        akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
         fric = gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):

@@ -14,8 +14,8 @@ phases through the daemon's loop) a session is built from parts —
   τ_h,act = −τ_des (the arm stays at rest; :class:`~sea_daemon.core.control.StillArm`);
 * ``human``: a function t -> τ_h,act (n,) (``None``: passive, τ_h,act = 0); in the still-arm
   session it is τ_des's negative, i.e. what the subject applies.  For n joints (a ``model.urdf``)
-  the reference gives (n,) arrays (:class:`PerJoint`), ``hold_q`` the n angles and ``human`` an
-  (n,) torque.
+  the reference gives (n,) arrays (:class:`~sea_daemon.core.excitation.PerJoint`), ``hold_q``
+  the n angles and ``human`` an (n,) torque.
 
 Per sample k (period 1/rate_hz, t_k = k/rate_hz) the steps of every simulated run
 (:mod:`sea_daemon.core.sim.sampling`): the plant stepped over [t_k−1, t_k] with τ_m (+ noise)
@@ -54,17 +54,6 @@ class SineReference:
             dq += ramp * a * w * math.cos(w * t + p)
             ddq -= ramp * a * w * w * math.sin(w * t + p)
         return q, dq, ddq
-
-
-@dataclass(frozen=True)
-class PerJoint:
-    """The reference of n joints from one reference per joint: ``reference(t) -> (q, q̇, q̈)``, each (n,)."""
-
-    joints: tuple
-
-    def reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        r = [j.reference(t) for j in self.joints]
-        return tuple(np.array([v[i] for v in r]) for i in range(3))
 
 
 @dataclass(frozen=True)
