@@ -1,5 +1,6 @@
 """The offline calibration of two coupled joints (configs/exo_2dof.yaml): sufficiency per joint, the
-nominal model kept on a joint whose data cannot tell, a refusal naming the joint, the LoG-GP per
+nominal model kept on a joint whose data cannot tell, a refusal naming the joint, the wearer's arm
+corrected (its links' masses and lengths, on every joint), the LoG-GP per
 joint on z ∈ R⁶ with each joint's length scales, the coverage per joint, and the calibrated model
 saved and read back (replay --model)."""
 import dataclasses
@@ -89,7 +90,8 @@ def test_gp_hyperparameters_per_joint():
 
 def test_calibration_of_two_joints_end_to_end(cfg, true, tmp_path):
     """The calibration on an 18 s passive excitation of both joints (diagnose and the walk's scan off:
-    kept short): one LoG-GP per joint on z ∈ R⁶, the coverage per joint; on an active session
+    kept short): the wearer's arm corrected (link masses and lengths), one LoG-GP per joint on
+    z ∈ R⁶, the coverage per joint; on an active session
     (a torque on both joints while moving) the calibrated GP-AKF beats the AKF on the nominal
     model on each joint, and the saved model file gives the same estimator back."""
     sub = plant_substep(true, 3e-3, 100)
@@ -97,6 +99,11 @@ def test_calibration_of_two_joints_end_to_end(cfg, true, tmp_path):
     res = calibrate(log, cfg, given={"Sigma_nom"}, opts=CalibrationOptions(working_range=WRS, diagnose=False,
                                                                            gp="on", synth_s=8.0))
     assert res.gp is not None and res.gp.n == 2 and len(res.cfg.learning.lengthscales) == 6
+    # the wearer's arm corrected: its gravity torques closer to the true arm's than the tables' on both joints
+    assert res.report["body"]["kept"] and res.report["body"]["links"] == ["human_upper_arm", "human_forearm_hand"]
+    q = np.array([0.8, 1.0])
+    g_true, g_nom, g_cal = (c.model.rigid.gravity(q) for c in (true, cfg, res.cfg))
+    assert np.all(np.abs(g_cal - g_true) < 0.5 * np.abs(g_nom - g_true))
     assert isinstance(res.coverage, JointsCoverage) and len(res.report["coverage"]["joints"]) == 2
     assert set(res.report["sufficiency"]["per_joint"]) == {"joint 1 (shoulder)", "joint 2 (elbow)"}
     hs = [BandLimitedTorque(1.2, 0.1, 1.0, seed=7), BandLimitedTorque(0.8, 0.1, 1.0, seed=8)]
@@ -111,6 +118,7 @@ def test_calibration_of_two_joints_end_to_end(cfg, true, tmp_path):
                           dt=test.dt))
     assert np.all(r_gp < r_robot), (r_gp, r_robot)
     _, npz = save_calibrated(tmp_path / "cal", res)
+    assert (tmp_path / "cal.urdf").read_text() == res.cfg.model.rigid.urdf
     loaded_cfg = load_config(tmp_path / "cal.yaml")
     residual, meta = load_gp_model(npz, loaded_cfg)
     est = estimator_from_model(loaded_cfg, residual, meta, dt=test.dt)

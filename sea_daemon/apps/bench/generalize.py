@@ -24,6 +24,9 @@ the smallest, the bound's size against :data:`TIGHT`, each target of :data:`TARG
 ``--rates``: each plant drawn at each rate given (default the seed's own).  ``--degenerate``:
 each plant calibrated instead on degenerate logs by ``sea-daemon fit`` (:mod:`._degenerate`).
 
+``--joints 2``: the two-joint shoulder–elbow family instead (:mod:`.generalize_joints`: the same
+options and summary, the figures per joint).
+
 Seeds: ``--seeds`` (default ``420-439``).  The seeds that chose any setting of the calibration
 are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use
 other seeds, and the output names each seed development or held out.
