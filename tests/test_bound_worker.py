@@ -162,7 +162,9 @@ def test_the_daemon_log_has_the_bound_cycle_column(tmp_path, cfg):
     log = LogWriter(tmp_path / "run.csv", COLS)
     link = BoundWorker(est, max_age=10 ** 6).start()
     try:
-        FixedRateLoop(_HW(0.002), est, _Zero(), n=1, period=0.01, log=log, realtime=False, bound_link=link).run(150)
+        # each cycle waits until the worker has caught up (a loaded host may take seconds to start it)
+        hw = _HW(0.002, lambda: not link._proc.is_alive() or link._hdr[bs.H_DONE] >= link._head)
+        FixedRateLoop(hw, est, _Zero(), n=1, period=0.01, log=log, realtime=False, bound_link=link).run(150)
     finally:
         link.close()
         log.close()

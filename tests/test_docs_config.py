@@ -68,7 +68,7 @@ def test_every_dataclass_field_is_reachable_through_a_documented_key():
     for name, cls in SECTIONS.items():
         fields = {f.name for f in dataclasses.fields(cls)}
         via = {"encoder_counts_load": "encoder_counts", "encoder_counts_motor": "encoder_counts",
-               "P0": "P0", "rigid": "urdf"}
+               "P0": "P0", "joint_channel": "channel", "rigid": "urdf"}
         for f in fields:
             assert via.get(f, f) in set(cls.KEYS), f"{name}.{f} is a field the YAML cannot set"
     assert "P0_tau" in keys["estimator"] and "q_min_deg" in keys["calibration"]

@@ -22,6 +22,19 @@ def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
     return tuple(vals)
 
 
+def _channels(source: str, key: str, v: Any, n: int) -> tuple[str, tuple[str, ...]]:
+    """``hardware.bus.channel``: one name (every joint on that bus) or a list of n names, the bus
+    of each joint (joints of one name share it); (the first joint's, the list or ())."""
+    if isinstance(v, (list, tuple)):
+        if len(v) != n or any(not isinstance(c, str) or not c for c in v):
+            raise ConfigError(source, key, f"must be a non-empty string or a list of {n} (one per joint), "
+                                           f"got {v!r}")
+        return v[0], (tuple(v) if len(set(v)) > 1 else ())
+    if not isinstance(v, str) or not v:
+        raise ConfigError(source, key, f"must be a non-empty string, got {v!r}")
+    return v, ()
+
+
 @dataclass(frozen=True)
 class BusConfig:
     """The CAN bus and the CANopen devices on it (``sea_daemon.hw``).
@@ -33,6 +46,7 @@ class BusConfig:
 
     interface: str = "virtual"            # virtual | socketcan | remote
     channel: str = "sea-daemon"           # virtual: any name; socketcan: can0/vcan0; remote: ws://host:port/
+    #                                       (the first joint's bus when joint_channel names several)
     bitrate: int = 1000000                # [bit/s]
     drive_node: tuple[int, ...] = (1,)    # CiA 402 drive node id per joint
     encoder_node: tuple[int, ...] = (2,)  # CiA 406 load encoder node id per joint
@@ -53,6 +67,8 @@ class BusConfig:
     #                                       (0x1016, heartbeat_timeout_ms; reaction 0x6007 = quick stop)
     publish: bool = True                  # the daemon's node sends its TPDOs every cycle (estimate, bound,
     #                                       status; configs/eds/sea_daemon.eds, docs/can.md); joints <= 3
+    joint_channel: tuple[str, ...] = ()   # the bus of each joint (YAML: channel as a list of n names;
+    #                                       joints of one name share its bus); (): every joint on channel
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
             "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
@@ -73,11 +89,10 @@ class BusConfig:
         iface = d.get("interface", "virtual")
         if iface not in cls.INTERFACES:
             raise ConfigError(source, k + "interface", f"must be one of {', '.join(cls.INTERFACES)}, got {iface!r}")
-        channel = d.get("channel", "sea-daemon")
-        if not isinstance(channel, str) or not channel:
-            raise ConfigError(source, k + "channel", f"must be a non-empty string, got {channel!r}")
-        if iface == "remote" and not channel.startswith(("ws://", "wss://")):
-            raise ConfigError(source, k + "channel", f"remote bus needs ws://HOST:PORT/, got {channel!r}")
+        channel, joint_channel = _channels(source, k + "channel", d.get("channel", "sea-daemon"), n)
+        for c in joint_channel or (channel,):
+            if iface == "remote" and not c.startswith(("ws://", "wss://")):
+                raise ConfigError(source, k + "channel", f"remote bus needs ws://HOST:PORT/, got {c!r}")
         ints = {}
         for key, lo, hi, default in (("bitrate", 10000, 1000000, 1000000), ("heartbeat_ms", 1, 65535, 50),
                                      ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, 0),
@@ -107,7 +122,7 @@ class BusConfig:
                               f"the daemon's node publishes joints 1..{cls.PUBLISH_JOINTS} (TPDO1, TPDO3, TPDO4), "
                               f"the model has {n}; allowed: false (the local interface carries every joint)")
         return cls(
-            interface=iface, channel=channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
+            interface=iface, channel=channel, joint_channel=joint_channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
             publish=publish,
             pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
             rated_torque=validate.num(source, k + "rated_torque", d.get("rated_torque", 100.0), positive=True),
@@ -117,8 +132,35 @@ class BusConfig:
             stuck_motion=validate.num(source, k + "stuck_motion", d.get("stuck_motion", 0.05), positive=True),
         )
 
+    def channels(self) -> tuple[str, ...]:
+        """The bus channel of each joint (``len(drive_node)`` of them)."""
+        return self.joint_channel or (self.channel,) * len(self.drive_node)
+
+    def buses(self) -> list[tuple[str, tuple[int, ...]]]:
+        """The buses in the order of their first joint: (channel, the joints on it, 0-based)."""
+        out: dict[str, list[int]] = {}
+        for j, c in enumerate(self.channels()):
+            out.setdefault(c, []).append(j)
+        return [(c, tuple(js)) for c, js in out.items()]
+
+    def for_joints(self, joints, channel: str) -> "BusConfig":
+        """The configuration of one bus: ``channel`` with the devices of ``joints`` (0-based)."""
+        pick = lambda v: tuple(v[j] for j in joints)  # noqa: E731
+        return dataclasses.replace(self, channel=channel, joint_channel=(), drive_node=pick(self.drive_node),
+                                   encoder_node=pick(self.encoder_node), q_offset=pick(self.q_offset),
+                                   theta_m_offset=pick(self.theta_m_offset))
+
+    def with_channel(self, text: str) -> "BusConfig":
+        """``--channel``: one name (every joint on it) or a comma-separated name per joint."""
+        channel, joint_channel = _channels("--channel", "", text.split(",") if "," in text else text,
+                                           len(self.drive_node))
+        return dataclasses.replace(self, channel=channel, joint_channel=joint_channel)
+
     def to_dict(self) -> dict:
         out = dataclasses.asdict(self)
+        joint_channel = out.pop("joint_channel")
+        if joint_channel:
+            out["channel"] = list(joint_channel)
         for key in ("drive_node", "encoder_node", "q_offset", "theta_m_offset"):
             v = list(out[key])
             out[key] = v[0] if len(v) == 1 else v

@@ -85,10 +85,14 @@ class CanopenHardware(HardwareInterface):
     IDLE_CYCLE = 0.25
 
     def __init__(self, cfg: ModelConfig, bus: can.BusABC | None = None, *, period: float | None = None,
-                 pdo_timeout: float | None = None, clock=time.monotonic):
-        hw, b = cfg.hardware, cfg.hardware.bus
+                 pdo_timeout: float | None = None, clock=time.monotonic, bus_cfg=None):
+        """``bus_cfg``: one bus of ``cfg.hardware.bus`` (:meth:`BusConfig.for_joints`) for a driver
+        of those joints alone (:class:`sea_daemon.hw.canopen_buses.CanopenBuses`); default all of it."""
+        hw, b = cfg.hardware, (bus_cfg or cfg.hardware.bus)
         self.cfg, self.bus_cfg = cfg, b
-        self.n = cfg.joints
+        self.n = len(b.drive_node)
+        #: called by keepalive(): the other buses' drivers of a CanopenBuses (their heartbeats)
+        self.peer_keepalive = None
         self.period = float(period or cfg.dt)
         self.gear = hw.gear_ratio
         self.res = 1 << hw.encoder_bits
@@ -136,6 +140,8 @@ class CanopenHardware(HardwareInterface):
         self._initial_torque = np.zeros(n)   # commanded by the priming cycle (start())
         self._primed = False
         self._cycle = -1
+        self._cycle_decoded = -1        # the cycle of the last decoded sample and its SYNC's time
+        self._t_decoded = 0.0
         self._started = False
         self.missed_cycles = 0          # cycles with a TPDO missing at the deadline (held or faulted)
         self.late_cycles = 0            # cycles that found frames of an earlier cycle (FRAME_LATE)
@@ -259,6 +265,12 @@ class CanopenHardware(HardwareInterface):
         """Between cycles (SDO sequences, a caller that waits): keep the drives' watch of our
         heartbeat happy (once it runs), and take the devices' heartbeats and EMCY off the loop
         thread's handle (its queue would fill while no ``read()`` takes it)."""
+        self.keepalive_own()
+        if self.peer_keepalive is not None:
+            self.peer_keepalive(self)
+
+    def keepalive_own(self) -> None:
+        """:meth:`keepalive` of this bus alone (not its peers)."""
         if self._hb_on:
             self._send_master_heartbeat()
         self.receive_pending()
@@ -294,6 +306,8 @@ class CanopenHardware(HardwareInterface):
                 if self.clock() > deadline:
                     raise HeartbeatLost(node.id, self.hb_timeout, self.hb_timeout, self._hb_state[node.id])
                 time.sleep(0.001)
+                if self.peer_keepalive is not None:
+                    self.peer_keepalive(self)
 
     def _prime(self) -> None:
         """First cycle (at the initial torque): sets the unwrapping reference."""
@@ -377,6 +391,12 @@ class CanopenHardware(HardwareInterface):
 
     def read(self) -> Measurement:
         """SYNC → this cycle's TPDOs → joint-side measurement (reused object)."""
+        t_sync = self.begin_read()
+        return self.end_read(t_sync)
+
+    def begin_read(self) -> float:
+        """The first half of :meth:`read`: late frames, SYNC, heartbeats, EMCY, bus-off and the
+        daemon's heartbeat; the SYNC's time (a driver of several buses sends every SYNC first)."""
         if self.network is None:
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         m = self.meas
@@ -403,6 +423,13 @@ class CanopenHardware(HardwareInterface):
             tap.take()
         self._check_async()
         self._send_master_heartbeat()
+        return t_sync
+
+    def end_read(self, t_sync: float) -> Measurement:
+        """The second half of :meth:`read`: this cycle's TPDOs until ``pdo_timeout`` after
+        ``t_sync``, checked and decoded."""
+        m = self.meas
+        tap = self._emcy_tap
         self._rx.collect(t_sync + self.pdo_timeout, self.clock)
         self._cycle += 1
         if tap is not None:
@@ -460,6 +487,10 @@ class CanopenHardware(HardwareInterface):
 
     def _decode(self, m: Measurement) -> None:
         n = self.n
+        # periods since the sample before: cycles held in between, or a stall of the loop that
+        # sent no SYNC (the arm moved for that long: the jump check allows for it)
+        periods = max(self._cycle - self._cycle_decoded, (m.t_mono - self._t_decoded) / self.period)
+        self._cycle_decoded, self._t_decoded = self._cycle, m.t_mono
         for j in range(n):
             ds, es = self._rx.slots[2 * j], self._rx.slots[2 * j + 1]
             sw, torque, pos = DRIVE_TPDO.unpack_from(ds.snap, 0)
@@ -475,7 +506,7 @@ class CanopenHardware(HardwareInterface):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")
                 # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
             if self._primed:
-                self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle)
+                self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle, periods)
             else:
                 self.positions.reference(m, j, qc, pos)
         self._primed = True

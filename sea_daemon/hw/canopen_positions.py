@@ -35,8 +35,9 @@ class Positions:
         # conversions (joint side)                     counts → rad
         self.k_q = 2 * math.pi / res                                       # load encoder
         self.k_m = 2 * math.pi / (res * gear)                              # motor encoder through the gear
-        self.allowed_q = bus_cfg.max_joint_speed * period + 2 * self.k_q   # largest step in a period [rad]
-        self.allowed_m = bus_cfg.max_joint_speed * period + 2 * self.k_m
+        self.step_max = bus_cfg.max_joint_speed * period                  # largest motion in a period [rad]
+        self.allowed_q = self.step_max + 2 * self.k_q                      # largest step in a period [rad]
+        self.allowed_m = self.step_max + 2 * self.k_m
         self.q_offset = np.array(bus_cfg.q_offset, dtype=float)
         self.theta_m_offset = np.array(bus_cfg.theta_m_offset, dtype=float)
         self.enc_range = [res] * n     # counts the load encoder's position value spans (from start-up)
@@ -61,16 +62,21 @@ class Positions:
         self._stuck_m[j][:] = [0, m.q[j]]
         self._prev_q[j], self._prev_m[j] = int(qc), int(pos)
 
-    def update(self, m: Measurement, j: int, qc: int, pos: int, enc_node: int, drive_node: int, cycle: int) -> None:
-        """A later sample: unwrap, check for jumps, set ``m.q[j]`` / ``m.theta_m[j]``, check for a stuck encoder."""
+    def update(self, m: Measurement, j: int, qc: int, pos: int, enc_node: int, drive_node: int, cycle: int,
+               periods: float = 1.0) -> None:
+        """A later sample, ``periods`` periods after the one before (more than 1 after held
+        cycles or a stall of the loop): unwrap, check for jumps (``max_joint_speed`` over that
+        time), set ``m.q[j]`` / ``m.theta_m[j]``, check for a stuck encoder."""
         dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
         dm = _wrap(pos - self._raw_m[j], 1 << 32)
-        if abs(dq * self.k_q) > self.allowed_q:
+        more = self.step_max * (periods - 1.0) if periods > 1.0 else 0.0
+        if abs(dq * self.k_q) > self.allowed_q + more:
             m.faults |= Fault.ENCODER_JUMP.bit
-            raise EncoderJump(enc_node, "0x6004 load position value", dq * self.k_q, self.allowed_q, cycle)
-        if abs(dm * self.k_m) > self.allowed_m:
+            raise EncoderJump(enc_node, "0x6004 load position value", dq * self.k_q, self.allowed_q + more, cycle)
+        if abs(dm * self.k_m) > self.allowed_m + more:
             m.faults |= Fault.ENCODER_JUMP.bit
-            raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m, cycle)
+            raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m + more,
+                              cycle)
         self._u_q[j] += dq
         self._u_m[j] += dm
         q, th = self._angles(m, j, qc, pos)

@@ -29,7 +29,7 @@ from typing import Any
 from sea_daemon.client import (CREDS, FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER,
                                JOINT, LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
 from sea_daemon.errors import InputError
-from sea_daemon.hw.canopen_publish import TpdoPublisher
+from sea_daemon.hw.canopen_publish import make_tpdo_publisher
 
 INF = math.inf
 FLT_MAX = 3.4028234663852886e38
@@ -326,7 +326,7 @@ def make_publisher(rig, cfg, controller, *, socket_path: str | os.PathLike | Non
     ``hardware.bus.publish`` is on; the local socket when ``socket_path`` is given."""
     tpdo = None
     if cfg.hardware.bus.publish and hasattr(rig.hw, "network"):
-        tpdo = TpdoPublisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
+        tpdo = make_tpdo_publisher(rig.hw, cfg.hardware.bus.master_node, cfg.joints)
     local = None
     if socket_path is not None:
         r = cfg.hardware.local_readers

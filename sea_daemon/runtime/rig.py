@@ -24,7 +24,7 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, human_torque, load_scenario, make_plant, task_plant
 from sea_daemon.hw.bus import make_bus
-from sea_daemon.hw.canopen_hw import CanopenHardware
+from sea_daemon.hw.canopen_buses import make_canopen_hardware
 from sea_daemon.hw.device_model import DeviceModel
 from sea_daemon.hw.sim_hw import SimHardware
 
@@ -48,6 +48,7 @@ class Rig:
     cfg: ModelConfig | None = None                # the configuration the hardware runs with
     dev_bus: Any = None                           # the device model's bus handle
     drv_bus: Any = None                           # the driver's bus handle
+    more_buses: list = dataclasses.field(default_factory=list)   # the handles of the other buses
 
     def start_device_model(self) -> None:
         """Boot the device model's nodes (when there is one and it is not running yet)."""
@@ -66,10 +67,11 @@ class Rig:
                 if self.device_model is not None:
                     self.device_model.stop()
             finally:
-                for bus in (self.drv_bus, self.dev_bus):
+                for bus in (self.drv_bus, self.dev_bus, *self.more_buses):
                     if bus is not None:
                         bus.shutdown()
                 self.drv_bus = self.dev_bus = None
+                self.more_buses = []
 
     @property
     def drive(self):
@@ -85,17 +87,24 @@ class Rig:
 def bus_overrides(cfg: ModelConfig, bus: str | None, channel: str | None) -> ModelConfig:
     """``cfg`` with ``--bus`` / ``--channel`` (None: the configuration's)."""
     b = cfg.hardware.bus
-    b = dataclasses.replace(b, interface=bus or b.interface, channel=channel or b.channel)
-    if b.interface == "remote" and not str(b.channel).startswith(("ws://", "wss://")):
-        raise InputError(f"--channel {b.channel!r}: the remote bus needs ws://HOST:PORT/")
+    b = dataclasses.replace(b, interface=bus or b.interface)
+    if channel:
+        b = b.with_channel(channel)
+    for c in b.channels():
+        if b.interface == "remote" and not str(c).startswith(("ws://", "wss://")):
+            raise InputError(f"--channel {c!r}: the remote bus needs ws://HOST:PORT/")
     return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
 
 
 def on_fresh_virtual_channel(cfg: ModelConfig, prefix: str) -> ModelConfig:
-    """``cfg`` on a new python-can virtual channel ``PREFIX-<random>``, with PDO, heartbeat and
-    SDO timeouts fit for a loaded machine (the device model shares the process)."""
-    b = dataclasses.replace(cfg.hardware.bus, interface="virtual", channel=f"{prefix}-{uuid.uuid4().hex[:8]}",
-                            pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)
+    """``cfg`` on a new python-can virtual channel ``PREFIX-<random>`` (one per bus of the
+    configuration), with PDO, heartbeat and SDO timeouts fit for a loaded machine (the device
+    model shares the process)."""
+    b = cfg.hardware.bus
+    tag = uuid.uuid4().hex[:8]
+    names = {c: f"{prefix}-{tag}" + (f"-{i + 1}" if i else "") for i, (c, _) in enumerate(b.buses())}
+    b = dataclasses.replace(b, interface="virtual", pdo_timeout_ms=1000.0, heartbeat_timeout_ms=2000,
+                            sdo_timeout_ms=3000).with_channel(",".join(names[c] for c in b.channels()))
     return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
 
 
@@ -114,21 +123,31 @@ def device_model_rig(cfg: ModelConfig, plant, *, tau_h_act: Callable[[float], np
                      initial_torque: np.ndarray | None = None, position_preset: int = 0, lock_step: bool = True,
                      description: str | None = None) -> Rig:
     """``plant`` behind the device model (``tau_h_act``, ``position_preset``, ``lock_step``: see
-    :class:`sea_daemon.hw.device_model.DeviceModel`) and :class:`sea_daemon.hw.canopen_hw.CanopenHardware`,
-    on two handles of the bus of ``cfg``; nothing started yet.  ``initial_torque``: default zero."""
+    :class:`sea_daemon.hw.device_model.DeviceModel`) and the CANopen driver
+    (:func:`sea_daemon.hw.canopen_buses.make_canopen_hardware`), on two handles of each bus of
+    ``cfg``; nothing started yet.  ``initial_torque``: default zero."""
     n, b = cfg.joints, cfg.hardware.bus
-    dev_bus = make_bus(b)
+    buses = b.buses()
+    handles: list = []
     try:
-        drv_bus = make_bus(b)
+        for c, _ in buses:
+            handles.append(make_bus(dataclasses.replace(b, channel=c)))
+            handles.append(make_bus(dataclasses.replace(b, channel=c)))
     except BaseException:
-        dev_bus.shutdown()
+        for h in handles:
+            h.shutdown()
         raise
-    model = DeviceModel(dev_bus, plant, drive_nodes=b.drive_node, encoder_nodes=b.encoder_node,
-                        position_preset=position_preset, lock_step=lock_step, tau_h_act=tau_h_act)
+    dev, drv = handles[0::2], handles[1::2]
+    index = {c: i for i, (c, _) in enumerate(buses)}
+    model = DeviceModel(dev if len(dev) > 1 else dev[0], plant, drive_nodes=b.drive_node,
+                        encoder_nodes=b.encoder_node, position_preset=position_preset, lock_step=lock_step,
+                        tau_h_act=tau_h_act, joint_bus=[index[c] for c in b.channels()])
     init = np.zeros(n) if initial_torque is None else np.array(initial_torque, dtype=float).reshape(n)
-    return Rig(CanopenHardware(cfg, drv_bus), description or f"device model on {b.interface} {b.channel}", init,
+    hw = make_canopen_hardware(cfg, {c: h for (c, _), h in zip(buses, drv)})
+    where = ", ".join(c for c, _ in buses)
+    return Rig(hw, description or f"device model on {b.interface} {where}", init,
                np.array(plant.hold_torque, dtype=float).reshape(n), tau_h_act, plant=plant, device_model=model,
-               cfg=cfg, dev_bus=dev_bus, drv_bus=drv_bus)
+               cfg=cfg, dev_bus=dev[0], drv_bus=drv[0], more_buses=dev[1:] + drv[1:])
 
 
 def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | None = None,
@@ -140,7 +159,8 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
     scen = sim or device_model
     if not scen:
         b = cfg.hardware.bus
-        return Rig(CanopenHardware(cfg), f"CAN {b.interface} {b.channel}", np.zeros(n), cfg=cfg)
+        return Rig(make_canopen_hardware(cfg), f"CAN {b.interface} {', '.join(c for c, _ in b.buses())}",
+                   np.zeros(n), cfg=cfg)
     sc = load_scenario(scen)
     if sc.nominal.joints != n:
         raise InputError(f"scenario {scen}: {sc.nominal.joints} joint(s), the configuration has {n}")

@@ -144,13 +144,14 @@ class StateFile:
         self.lock_path = Path(directory) / LOCK_FILE
         self._locks: list[_Flock] = []
 
-    def claim(self, bus: tuple[str, str] | None = None) -> "StateFile":
-        """Take the state directory's lock and, with ``bus`` = (interface, channel), the bus's;
-        InputError naming the holder when another instance has either.  Returns self (a context
-        manager that releases them)."""
+    def claim(self, bus: tuple[str, str] | list[tuple[str, str]] | None = None) -> "StateFile":
+        """Take the state directory's lock and, with ``bus`` = (interface, channel) or a list of
+        them (a bus per joint), each bus's; InputError naming the holder when another instance
+        has any.  Returns self (a context manager that releases them)."""
+        buses = [bus] if isinstance(bus, tuple) else list(bus or [])
         try:
-            for path, what in [(self.lock_path, "state directory")] + (
-                    [(bus_lock_path(*bus), f"bus {bus[0]} {bus[1]}")] if bus else []):
+            for path, what in [(self.lock_path, "state directory")] + [
+                    (bus_lock_path(*b), f"bus {b[0]} {b[1]}") for b in buses]:
                 lk = _Flock(path, private=path == self.lock_path)
                 lk.acquire(what)
                 self._locks.append(lk)

@@ -1,5 +1,8 @@
 """``sea-daemon bench loop --rate 100|1000 --cycles N --bus virtual|ipc|remote``: the daemon's loop against the device model.
 
+``--joints N`` (2 or 3) runs N joints, a bus per joint (``--one-bus``: one bus), and prints the
+load of each bus (:mod:`sea_daemon.apps.bench._loop_rig`); what follows describes one joint.
+
 What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.serve`): the GP-AKF
 with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
 at ``--model-rate`` (default 100 Hz: the model file of the 100 Hz daemon, run at ``--rate``
@@ -51,29 +54,26 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
-import uuid
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
-from sea_daemon.apps.bench.can_cycle import remote_relay
+from sea_daemon.apps.bench._loop_rig import (
+    SwayController, bench_rig, describe_bus_load, device_model_process, joints_config, per_bus_load, stop_procs,
+    split_plant, trained_estimator)
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.runtime.loop import Series
-from sea_daemon.hw.canopen_hw import CanopenHardware
-from sea_daemon.io.configfile import import_root, save_config
-from sea_daemon.runtime.rig import Rig
+from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.rates import at_rate
 from sea_daemon.apps.calibration import calibrate
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.gpmodel import load_gp_model
-from sea_daemon.runtime.rig import make_rig
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.hw.device_model.model import thread_page_faults
 from sea_daemon.io.logcsv import read_log
@@ -121,7 +121,15 @@ def add_arguments(p) -> None:
     p.add_argument("--overrun-fault", action="store_true",
                    help="keep the OVERRUN_STREAK fault (default: off, so that every measured cycle does the full "
                         "work -- a latched fault would stop the estimator and command zero torque)")
+    p.add_argument("--joints", type=int, default=1,
+                   help="joints (1..3; default 1): more than one runs the simulated exoskeleton with that many "
+                        "joints, a bus per joint, a PD per joint around slow sines")
+    p.add_argument("--one-bus", action="store_true",
+                   help="with --joints > 1: every joint on one bus (default: a bus per joint)")
     add_json_argument(p)
+
+
+__all__ = ["add_arguments", "run", "device_model_process"]
 
 
 def _loadavg() -> str:
@@ -129,40 +137,6 @@ def _loadavg() -> str:
         return " ".join(f"{x:.2f}" for x in os.getloadavg())
     except OSError:
         return "n/a"
-
-
-def _wait_line(proc, text: str, timeout: float) -> str:
-    import selectors
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if proc.poll() is not None:
-            raise RuntimeError(f"process exited with {proc.returncode} before printing {text!r}")
-        if sel.select(0.2):
-            line = proc.stdout.readline()
-            if text in line:
-                return line
-    raise RuntimeError(f"no {text!r} within {timeout} s")
-
-
-def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70):
-    """``sea-daemon device-model`` in its own process on ``cfg``'s bus (``--stats``, SCHED_FIFO
-    ``rt_priority``; ``extra``: its plant arguments), and the driver's :class:`Rig` for it."""
-    path = Path(tmp) / "device-model.yaml"
-    save_config(cfg, path)
-    b = cfg.hardware.bus
-    proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
-                             b.channel, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                            env=dict(os.environ, PYTHONPATH=str(import_root())))
-    try:
-        ready = _wait_line(proc, "device-model ready", 120)
-    except BaseException:
-        proc.kill()
-        raise
-    return proc, Rig(CanopenHardware(cfg), f"device model process on {b.interface} {b.channel} "
-                     f"({ready.split(';')[-1].strip()})", np.zeros(cfg.joints), cfg=cfg)
 
 
 def _pcts(a) -> dict:
@@ -240,6 +214,7 @@ class _Measured:
     max_age: int                   # the worker's oldest bound [cycles]
     compute: np.ndarray            # the log's compute column [s]
     read_s: np.ndarray             # the log's read column [s]
+    publisher: Any = None          # the run's publisher (its TPDOs per bus)
 
 
 def _bad_args(args) -> str | None:
@@ -249,6 +224,10 @@ def _bad_args(args) -> str | None:
         return "--tpdo-deadline must be in 0.05..50 (fraction of the period)"
     if args.host_rounds < 0:
         return "--host-rounds must be >= 0"
+    if not 1 <= args.joints <= 3:
+        return f"--joints must be in 1..3, got {args.joints}"
+    if args.joints > 1 and args.bus == "remote":
+        return "--joints > 1 runs on --bus virtual or ipc (a bus per joint)"
     return None
 
 
@@ -261,14 +240,16 @@ def run(args) -> int:
         return 2
     root = data_root()
     scen = str(root / "configs" / "scenarios" / "passive.yaml")
-    base = load_config(root / "configs" / "exo_1dof_sim.yaml")
+    base = (load_config(root / "configs" / "exo_1dof_sim.yaml") if args.joints == 1 else
+            joints_config(args.joints, args.one_bus))
     cfg_model = at_rate(base, args.model_rate)
     cfg = at_rate(base, args.rate)
     load_before = _loadavg()
     wake_before = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
         tmp = Path(tmp)
-        calibrated = _calibrated_estimator(args, cfg_model, cfg, scen, tmp)
+        calibrated = (_calibrated_estimator(args, cfg_model, cfg, scen, tmp) if args.joints == 1 else
+                      trained_estimator(cfg_model, cfg, args.train, args.estimator, not args.no_bound))
         if calibrated is None:
             return 1
         estimator, residual = calibrated
@@ -302,53 +283,18 @@ def _calibrated_estimator(args, cfg_model, cfg, scen: str, tmp: Path):
     return estimator, residual
 
 
-def _bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
-    """The rig of --bus: the device model in this process (virtual) or in its own process
-    (ipc, remote: appended to ``procs`` with the relay); (rig, device model process or None)."""
-    deadline_ms = args.tpdo_deadline * cfg.dt * 1e3
-    if args.bus == "virtual":
-        rig = make_rig(cfg, device_model=scen, phase="estimation")
-        b = dataclasses.replace(rig.cfg.hardware.bus, pdo_timeout_ms=deadline_ms,
-                                max_missed_cycles=args.max_missed)
-        rig.hw = CanopenHardware(dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware,
-                                                                                             bus=b)), rig.drv_bus)
-        return rig, None
-    if args.bus == "remote":
-        server, url = remote_relay()
-        procs.append(server)
-    else:
-        url = f"bench-{uuid.uuid4().hex[:8]}"
-    cfg_r = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=dataclasses.replace(
-        cfg.hardware.bus, interface=args.bus, channel=url, pdo_timeout_ms=deadline_ms,
-        max_missed_cycles=args.max_missed, heartbeat_timeout_ms=2000, sdo_timeout_ms=3000)))
-    dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
-    procs.append(dev)
-    return rig, dev
-
-
-def _stop_procs(procs: list, dev) -> dict | None:
-    """Stop the helper processes; the device model's statistics line, when it printed one."""
-    dev_stats = None
-    for p in reversed(procs):
-        p.terminate()
-        try:
-            out_text, _ = p.communicate(timeout=20)
-            if p is dev:
-                for line in (out_text or "").splitlines():
-                    if line.startswith("device-model stats "):
-                        dev_stats = json.loads(line[len("device-model stats "):])
-        except subprocess.TimeoutExpired:
-            p.kill()
-    return dev_stats
-
-
 def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     """The service on the bench rig for --cycles + 1 cycles, with the receive threads' CPU and
     the loop thread's page faults probed from its progress callback, and the log read back."""
     procs: list = []
-    rig, dev = _bench_rig(args, cfg, scen, tmp, procs)
-    controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
-                                    estimation_from=0)
+    rig, dev = bench_rig(args, cfg, scen, tmp, procs)
+    if cfg.joints == 1:
+        controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
+                                        estimation_from=0)
+    else:
+        hold = split_plant(cfg.joints, cfg.rate_hz).hold_torque
+        rig.initial_torque = hold
+        controller = SwayController(cfg.joints, hold)
     n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
     # the receive threads' CPU clock at each cycle's end (resident: no page first written in the loop)
     rx_cpu = resident_zeros(n_cycles)
@@ -380,11 +326,11 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
         if rig.device_model is not None:
             dev_stats = rig.device_model.answer_stats()
     finally:
-        dev_stats = _stop_procs(procs, dev) or dev_stats
+        dev_stats = stop_procs(procs, dev) or dev_stats
     log = read_log(tmp / "run.csv", n=cfg.joints)
     cols = DaemonColumns.of(log)
     return _Measured(res, rig, n_cycles, k_faults, rx_cpu, probe, dev_stats, stages, max_age,
-                     cols.compute, cols.read)
+                     cols.compute, cols.read, publisher)
 
 
 def _stage_timers(n_cycles: int, rig, controller, estimator, publisher, in_worker: bool) -> "_Stages":
@@ -473,6 +419,7 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
         "max_late_us": st.max_late_s * 1e6,
         "compute_us": _pcts(m.compute), "read_us": _pcts(m.read_s),
         "frames_per_cycle": fpc, "bus_load_1mbit_typical": load_typ, "bus_load_1mbit_worst_stuffing": load_worst,
+        "joints": cfg.joints, "bus_load_per_bus": per_bus_load(m.rig.cfg or cfg, args.rate, m.dev_stats, m.publisher),
         "log_rows_dropped": res.log["rows_dropped"], "publish": res.extra.get("publish"),
         "loop_thread_page_faults": ({"cycles": n_cycles - 1 - k_faults,
                                      "minor": probe[n_cycles - 1][0] - probe[k_faults][0],
@@ -494,7 +441,7 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
         print(f"host: a fixed reference workload (not the daemon's code) costs, in thread CPU, before the run "
               f"{describe_host_wake(out['host_wake_before'])}; after the run "
               f"{describe_host_wake(out['host_wake_after'])} -- a cycle starts after such a sleep")
-    what = (f"GP-AKF ({residual.n_points} GP points, learned by calibrate at {args.model_rate} Hz, {args.train} "
+    what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
              f"{'locked' if worker and worker.get('memory_locked') else 'not locked'}, its counts of samples "
@@ -503,8 +450,9 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
              f"sample's cycle, at most {m.max_age} cycles old"
              if worker is not None else "computed in the loop's estimator step"
              + (f" ({bound_where['why_not_worker']})" if bound_where.get("why_not_worker") else ""))
+    ctl = "passive-scenario PID" if cfg.joints == 1 else f"{cfg.joints} joints, a PD per joint"
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
-          f"{out['bound']} every cycle, {where}; passive-scenario PID; real-time pace; {res.realtime}")
+          f"{out['bound']} every cycle, {where}; {ctl}; real-time pace; {res.realtime}")
     print(f"measured {n_cycles} cycles ({out['cycles_measured']} periods), TPDO deadline "
           f"{out['tpdo_deadline_us']:.0f} us after SYNC, "
           f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
@@ -559,10 +507,15 @@ def _report_bus(cfg, m: _Measured, out: dict) -> None:
     print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}; "
           f"samples the loop extrapolated over them: {out['extrapolated_samples']}")
     fpc, load_typ, load_worst = out["frames_per_cycle"], out["bus_load_1mbit_typical"], out["bus_load_1mbit_worst_stuffing"]
-    print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
-          f"and the daemon's published TPDOs); "
-          f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
-          f"worst-case stuffing")
+    buses = out["bus_load_per_bus"]
+    if len(buses) > 1:
+        print(f"CAN frames per cycle, every frame the device model sent or received (start-up included) and the "
+              f"daemon's published TPDOs, {fpc:.2f} on {len(buses)} buses; per bus: " + "; ".join(describe_bus_load(buses)))
+    else:
+        print(f"CAN frames per cycle {fpc:.2f} (every frame the device model sent or received, start-up included, "
+              f"and the daemon's published TPDOs); "
+              f"at 1 Mbit/s: bus load {load_typ * 100:.2f} % without stuffing, {load_worst * 100:.2f} % with "
+              f"worst-case stuffing")
     pub = out["publish"] or {}
     can_pub = pub.get("can") or {}
     print(f"published every cycle: {pub.get('published', 0)} cycles; TPDOs of node {cfg.hardware.bus.master_node} "

@@ -96,13 +96,15 @@ def load(args, outputs: list | tuple = ()):
     return cfg, log_dir, state_dir, pace == "realtime"
 
 
-def bus_key(args, cfg) -> tuple[str, str] | None:
-    """(interface, channel) of the bus the daemon will own, None for a private simulated one
-    (``--device-model`` runs on a fresh virtual channel of its own, ``--sim`` has no bus)."""
+def bus_key(args, cfg) -> tuple[str, str] | list[tuple[str, str]] | None:
+    """(interface, channel) of the bus the daemon will own (a list of them with a bus per joint),
+    None for a private simulated one (``--device-model`` runs on a fresh virtual channel of its
+    own, ``--sim`` has no bus)."""
     if args.device_model or args.sim:
         return None
     b = cfg.hardware.bus
-    return b.interface, b.channel
+    buses = [(b.interface, c) for c, _ in b.buses()]
+    return buses[0] if len(buses) == 1 else buses
 
 
 def log_name(log_dir: Path, prefix: str) -> Path:

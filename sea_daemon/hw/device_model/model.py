@@ -1,7 +1,8 @@
 """The device model: the exoskeleton's CANopen devices around the simulator's true plant.
 
 One :class:`DeviceModel` holds, per joint, a CiA 402 drive (:class:`DriveNode`) and a CiA 406
-load encoder (:class:`EncoderNode`) on one canopen Network, and a plant with the API of
+load encoder (:class:`EncoderNode`) on one canopen Network per bus (one bus, or a bus per joint
+or per limb: ``joint_bus``), and a plant with the API of
 :class:`sea_daemon.core.sim.plant.Plant` (``step(tau_m, dt, tau_h_act)``, ``t, q, theta_m, dq,
 dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
 
@@ -12,7 +13,9 @@ dtheta_m``).  On every SYNC it (CiA 301 synchronous semantics):
 2. writes the buffered synchronous RPDOs into the dictionaries (controlword, target torque);
 3. samples the encoders at the plant's state and sends the synchronous TPDOs.
 
-So the TPDOs of SYNC k show the state at t_k; a torque written after SYNC k acts over
+With several buses the plant steps once per cycle, at the first of the cycle's SYNCs on any bus
+(the k-th SYNC of each bus is cycle k), and each bus's SYNC samples its joints and sends their
+TPDOs.  So the TPDOs of SYNC k show the state at t_k; a torque written after SYNC k acts over
 [t_k+1, t_k+2] with a synchronous RPDO and over [t_k, t_k+1] with an asynchronous one.  In
 **free-running** mode a thread steps the plant in real time with the set-point in force, and
 SYNC only samples.
@@ -53,22 +56,39 @@ class DeviceModel:
 
     def __init__(self, bus, plant, *, drive_nodes: Sequence[int] = (1,), encoder_nodes: Sequence[int] = (2,),
                  tau_h_act: Callable[[float], np.ndarray] | None = None, lock_step: bool = True,
-                 position_preset: int = 0, owns_bus: bool = False):
+                 position_preset: int = 0, owns_bus: bool = False, joint_bus: Sequence[int] | None = None):
+        """``bus``: one bus handle, or a list of them with ``joint_bus`` the index of each
+        joint's bus in it (default: every joint on the first)."""
         if len(drive_nodes) != len(encoder_nodes):
             raise ValueError(f"one load encoder per drive: got {len(drive_nodes)} drives, "
                              f"{len(encoder_nodes)} encoders")
-        self.bus, self.plant, self.owns_bus = bus, plant, owns_bus
+        self.buses = list(bus) if isinstance(bus, (list, tuple)) else [bus]
+        self.bus, self.plant, self.owns_bus = self.buses[0], plant, owns_bus
         self.n = len(drive_nodes)
+        self.joint_bus = tuple(joint_bus) if joint_bus is not None else (0,) * self.n
+        if len(self.joint_bus) != self.n or not all(0 <= i < len(self.buses) for i in self.joint_bus):
+            raise ValueError(f"joint_bus {self.joint_bus}: one index in 0..{len(self.buses) - 1} per joint")
         self.lock_step = lock_step
         self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
-        self.network = DeviceNetwork(bus)
-        self.network.NOTIFIER_CYCLE = 0.05       # bounded shutdown
+        self.networks = [DeviceNetwork(b) for b in self.buses]
+        self.network = self.networks[0]
         self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
         self.encoders = [EncoderNode(i) for i in encoder_nodes]
-        for node in self.drives + self.encoders:
-            self.network.add_node(node)
-        self.network.gate = self._gate
-        self.network.subscribe(0x80, self._on_sync)
+        #: the nodes on each bus, and each node's network
+        self.bus_nodes = [[] for _ in self.buses]
+        self._net_of: dict[int, DeviceNetwork] = {}
+        for j in range(self.n):
+            for node in (self.drives[j], self.encoders[j]):
+                self.networks[self.joint_bus[j]].add_node(node)
+                self.bus_nodes[self.joint_bus[j]].append(node)
+                self._net_of[node.id] = self.networks[self.joint_bus[j]]
+        for i, net in enumerate(self.networks):
+            net.NOTIFIER_CYCLE = 0.05            # bounded shutdown
+            net.gate = self._gate
+            net.subscribe(0x80, lambda can_id, data, timestamp, _i=i: self._on_sync(can_id, data, timestamp, _i))
+        self._bus_syncs = [0] * len(self.buses)  # SYNCs seen on each bus (the k-th of each: cycle k)
+        self._steps = 0                          # plant steps (lock-step: one per cycle)
+        self.handled = 0                         # SYNCs handled on all buses
         self._lock = threading.RLock()
         self._tau = np.zeros(self.n)
         self._scheduled: list[FaultSpec] = []
@@ -92,12 +112,13 @@ class DeviceModel:
         self._faults_final: dict | None = None    # handler_page_faults() when stopped (the thread ends)
 
     # ------------------------------------------------------------------ life cycle
-    def acceptance_filters(self) -> list[dict]:
-        """What the devices' CAN controllers accept (python-can ``can_filters``): NMT, SYNC,
-        their own RPDOs and SDO requests, heartbeats (the master's, watched by the drives).
-        Other nodes' PDOs — the daemon's published TPDOs among them — never reach the model."""
+    def acceptance_filters(self, bus: int = 0) -> list[dict]:
+        """What the CAN controllers of the devices on ``bus`` (an index) accept (python-can
+        ``can_filters``): NMT, SYNC, their own RPDOs and SDO requests, heartbeats (the master's,
+        watched by the drives).  Other nodes' PDOs — the daemon's published TPDOs among them —
+        never reach the model."""
         ids = [0x000, 0x080]
-        for node in self.drives + self.encoders:
+        for node in self.bus_nodes[bus]:
             ids += [f + node.id for f in (0x200, 0x300, 0x400, 0x500, 0x600)]
         out = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids]
         out.append({"can_id": 0x700, "can_mask": 0x780, "extended": False})
@@ -105,8 +126,9 @@ class DeviceModel:
 
     def start(self) -> "DeviceModel":
         # the controllers' acceptance filter where the bus applies one below python-can
-        set_controller_filters(self.bus, self.acceptance_filters())
-        self.network.connect()
+        for i, (bus, net) in enumerate(zip(self.buses, self.networks)):
+            set_controller_filters(bus, self.acceptance_filters(i))
+            net.connect()
         self._sample()
         for node in self.drives + self.encoders:
             node.boot()
@@ -134,10 +156,12 @@ class DeviceModel:
             t.cancel()
         for node in self.drives + self.encoders:
             node.nmt.stop_heartbeat()
-        if self.network.notifier is not None:
-            self.network.notifier.stop(2.0)
+        for net in self.networks:
+            if net.notifier is not None:
+                net.notifier.stop(2.0)
         if self.owns_bus:
-            self.bus.shutdown()
+            for bus in self.buses:
+                bus.shutdown()
 
     def __enter__(self):
         return self.start()
@@ -197,24 +221,28 @@ class DeviceModel:
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
         handler's CPU time, median / p99 / max in µs; the handler's page faults
         (:meth:`handler_page_faults`)."""
-        k = min(self.syncs, self.STATS_CAP)
-        out = {"syncs": int(self.syncs), "frames": int(self.network.frames),
-               "data_bytes": int(self.network.data_bytes), "handler_page_faults": self.handler_page_faults()}
+        k = min(self.handled, self.STATS_CAP)
+        out = {"syncs": int(self._bus_syncs[0]), "frames": int(sum(n.frames for n in self.networks)),
+               "data_bytes": int(sum(n.data_bytes for n in self.networks)),
+               "handler_page_faults": self.handler_page_faults()}
+        if len(self.networks) > 1:
+            out["buses"] = [{"syncs": int(c), "frames": int(n.frames), "data_bytes": int(n.data_bytes)}
+                            for c, n in zip(self._bus_syncs, self.networks)]
         for key, a in (("answer_us", self.answer_s[:k]), ("handler_cpu_us", self.handler_cpu_s[:k])):
             a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
             out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
                          "max": float(a.max() * 1e6)} if a.size else None)
         return out
 
-    def _on_sync(self, can_id, data, timestamp) -> None:
+    def _on_sync(self, can_id, data, timestamp, bus: int = 0) -> None:
         c0 = time.thread_time()
         try:
-            self._sync(timestamp)
+            self._sync(timestamp, bus)
         finally:
-            i = (self.syncs - 1) % self.STATS_CAP
+            i = (self.handled - 1) % self.STATS_CAP
             self.answer_s[i] = time.time() - timestamp if timestamp else 0.0
             self.handler_cpu_s[i] = time.thread_time() - c0
-            if self.syncs == _FAULTS_FROM_SYNC:
+            if self.handled == _FAULTS_FROM_SYNC:
                 self._faults0 = (threading.get_native_id(), thread_page_faults())
 
     def handler_page_faults(self) -> dict | None:
@@ -232,21 +260,27 @@ class DeviceModel:
         r = s[s.rindex(")") + 2:].split()              # fields from 3 on: minflt is 10, majflt 12
         return {"minor": int(r[7]) - mi0, "major": int(r[9]) - ma0}
 
-    def _sync(self, timestamp) -> None:
+    def _sync(self, timestamp, bus: int = 0) -> None:
         try:
             with self._lock:
-                self.syncs += 1
-                self._run_scheduled()
-                if self.lock_step and self._synced:
+                self.handled += 1
+                self._bus_syncs[bus] += 1
+                cycle = self._bus_syncs[bus]
+                if cycle > self.syncs:                  # the first SYNC of a cycle on any bus
+                    self.syncs = cycle
+                    self._run_scheduled()
+                while self.lock_step and self._steps < cycle - 1:
                     # the interval since the last SYNC, with the set-point in force now: a synchronous
                     # RPDO was actuated at that SYNC, an asynchronous one when it arrived
                     self._latch_torque()                # 0x6077 = the torque over [t_k-1, t_k]
                     self._step(self.period)
+                    self._steps += 1
                 self._synced = True
-                for node in self.drives + self.encoders:
+                nodes = self.bus_nodes[bus]
+                for node in nodes:
                     node.apply_pending_rpdos()          # synchronous RPDOs take effect now
                 self._sample()
-                for node in self.drives + self.encoders:
+                for node in nodes:
                     node.transmit_sync_tpdos()
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
             self.error = e
@@ -333,7 +367,7 @@ class DeviceModel:
             count, seconds = self._delay.get(node, (0, 0.0))
             if count:
                 self._delay[node] = (count - 1, seconds)
-                t = threading.Timer(seconds, self.network.send_now, args=(can_id, data))
+                t = threading.Timer(seconds, self._net_of[node].send_now, args=(can_id, data))
                 t.daemon = True
                 self._timers.append(t)
                 t.start()

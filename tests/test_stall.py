@@ -1,0 +1,103 @@
+"""A stall of the host survived as the missed-cycle tolerance allows, not latched on its first cycle.
+
+The arm keeps moving while no sample is taken — cycles whose TPDOs were held
+(``max_missed_cycles``), or a loop that stalled and sent no SYNC — so the first sample after them
+is further away than one period's motion: the encoder-jump check allows ``max_joint_speed`` over
+the time since the sample before, not over one period.
+"""
+from __future__ import annotations
+
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from _hil import true_config
+from sea_daemon.core.config import ModelConfig
+from sea_daemon.errors import Fault
+from sea_daemon.hw.device_model import parse_fault
+from sea_daemon.io.configfile import default_config_path, load_yaml
+from sea_daemon.runtime.loop import FixedRateLoop
+from sea_daemon.runtime.rig import device_model_rig
+
+SPEED = 0.4            # the arm's speed [rad/s]: at most 2 steps of its 100 Hz physics per period (free-running)
+MAX_SPEED = 1.0        # hardware.bus.max_joint_speed: one period's step allows 0.01 rad at 100 Hz
+
+
+class RampPlant:
+    """An arm moving at :data:`SPEED` whatever the torque (the plant API the device model uses)."""
+
+    def __init__(self, q0: float = 0.1):
+        self.t, self.q0 = 0.0, q0
+        self.hold_torque = np.zeros(1)
+        self.dtheta_m = np.full(1, SPEED)
+
+    @property
+    def q(self):
+        return np.array([self.q0 + SPEED * self.t])
+
+    @property
+    def theta_m(self):
+        return self.q
+
+    def step(self, tau_m, dt, tau_h_act=None):
+        self.t += dt
+
+
+def stall_config(max_missed: int) -> ModelConfig:
+    raw = load_yaml(default_config_path())
+    raw["hardware"]["bus"] = {"channel": f"stall-{uuid.uuid4().hex[:6]}", "heartbeat_ms": 20,
+                              "heartbeat_timeout_ms": 2000, "sdo_timeout_ms": 3000, "pdo_timeout_ms": 6.0,
+                              "max_missed_cycles": max_missed, "max_joint_speed": MAX_SPEED}
+    cfg = ModelConfig.from_dict(raw, "stall.yaml")
+    assert cfg.dt == 0.01 and true_config().dt == cfg.dt
+    return cfg
+
+
+class Hold:
+    """Zero torque; sleeps ``stall`` seconds in cycle ``at`` (the loop's thread stalls)."""
+
+    def __init__(self, at: int | None = None, stall: float = 0.0):
+        self.k, self.at, self.stall = 0, at, stall
+
+    def update(self, t, q, theta_m, est):
+        if self.k == self.at:
+            time.sleep(self.stall)
+        self.k += 1
+        return np.zeros(1)
+
+
+@pytest.mark.parametrize("tolerance", [3, 1])
+def test_held_cycles_within_the_tolerance_do_not_latch_a_jump_at_the_next_sample(tolerance):
+    # lock-step: the arm moves 4 mrad per SYNC; the encoder's TPDO missing for 2 cycles (held
+    # within a tolerance of 3): the next sample is 12 mrad on, more than one period allows (10
+    # mrad + 2 quanta); beyond a tolerance of 1 the missing TPDO itself latches
+    rig = device_model_rig(stall_config(tolerance), RampPlant())
+    try:
+        rig.start()
+        loop = FixedRateLoop(rig.hw, None, Hold(), n=1, period=0.01, realtime=False)
+        loop.run(20)
+        rig.device_model.schedule(parse_fault("drop:target=encoder,count=2"))
+        loop.run(20)
+        if tolerance >= 2:
+            assert loop.supervisor.ok, loop.supervisor.status_line()
+            assert rig.hw.missed_cycles == 2 and loop.stats.extrapolated == 2
+        else:
+            assert loop.supervisor.latched == Fault.TPDO_MISSING, loop.supervisor.status_line()
+    finally:
+        rig.stop()
+
+
+def test_a_stalled_loop_goes_on_after_the_stall():
+    # real time: the device model's arm moves in real time (free-running) while the loop's thread
+    # stalls for 60 ms (6 periods at 100 Hz); the first sample after it is about 24 mrad on
+    rig = device_model_rig(stall_config(8), RampPlant(), lock_step=False)
+    try:
+        rig.start()
+        loop = FixedRateLoop(rig.hw, None, Hold(at=20, stall=0.06), n=1, period=0.01, realtime=True)
+        loop.run(40)
+        assert loop.stats.skipped >= 3, loop.supervisor.status_line()     # the stall happened
+        assert loop.supervisor.ok, loop.supervisor.status_line()
+    finally:
+        rig.stop()
