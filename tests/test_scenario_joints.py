@@ -107,3 +107,22 @@ def test_coverage_per_joint():
     one = Coverage(wrs[0])
     assert isinstance(coverage_from_dict(one.to_dict()), Coverage)
     assert math.isclose(cov.report()["joints"][1]["q_share"], 1.0)
+
+
+def test_scenario_controller_runs_the_moves_of_every_joint():
+    """The daemon's scenario controller (calibrate on the bus, --excitation or the scenario's moves)
+    tracks each joint's reference with its per-joint gains: a (2,) command, the bumpless start."""
+    from sea_daemon.core.excitation import excitation_joints
+    from sea_daemon.runtime.controller import ScenarioController
+    sc = load_scenario(SCEN / "two_joint_passive.yaml")
+    hold = np.array([10.0, 3.0])
+    ctl = ScenarioController(sc, sc.nominal, hold, estimation_from=None)
+    q0 = np.radians([20.0, 30.0])
+    u = ctl.update(0.0, q0, q0 + 0.01, None)
+    np.testing.assert_allclose(u, hold)
+    u = ctl.update(1.0, q0, q0 + 0.01, None)
+    assert u.shape == (2,) and np.all(u > hold)            # both references moved up, both joints pushed
+    ref = excitation_joints([WorkingRange(0.3, 1.2), WorkingRange(0.5, 1.5)], 10.0, seed=1, q0=q0)
+    ctl = ScenarioController(sc, sc.nominal, hold, estimation_from=None, reference=ref)
+    ctl.update(0.0, q0, q0, None)
+    assert ctl.update(2.0, q0, q0, None).shape == (2,)
