@@ -21,12 +21,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from sea_daemon.apps.bench._family import SessionSpec
-from sea_daemon.core.config import ModelConfig
+from sea_daemon.apps.bench._family import PlantDraw, SessionSpec
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.excitation import PerJoint, WorkingRange, excitation_joints, paper_moves
 from sea_daemon.core.rigid import random_factors
@@ -37,26 +35,13 @@ from sea_daemon.io.configfile import data_root, load_config
 RANGE_DEG = ((10.0, 80.0), (20.0, 110.0))
 
 
-@dataclass
-class JointsPlantDraw:
-    """One drawn plant of n joints: the user's configuration, the true plant, what is declared."""
-
-    seed: int
-    nominal: ModelConfig             # the user's configuration: the declared robot only
-    true: ModelConfig                # the plant: scaled links + hidden effects (the oracle's model)
-    working_range: list              # one WorkingRange per joint
-    human_band_hz: tuple[float, float]
-    human_rms: float
-    torque_noise: float
-    summary: dict
-
-
 def _u(rng, lo, hi):
     return float(rng.uniform(lo, hi))
 
 
-def draw_plant_joints(seed: int, rate_hz: float | None = None) -> JointsPlantDraw:
-    """Draw two-joint plant ``seed`` (deterministic; 100 Hz unless ``rate_hz``)."""
+def draw_plant_joints(seed: int, rate_hz: float | None = None) -> PlantDraw:
+    """Draw two-joint plant ``seed`` (deterministic; 100 Hz unless ``rate_hz``); its
+    ``working_range`` is one :class:`WorkingRange` per joint."""
     rng = np.random.default_rng(30_000 + seed)
     base = load_config(data_root() / "configs" / "exo_2dof.yaml")
     rate_hz = 100.0 if rate_hz is None else float(rate_hz)
@@ -98,10 +83,10 @@ def draw_plant_joints(seed: int, rate_hz: float | None = None) -> JointsPlantDra
                "effects": [f"{e.type}({e.side})[{e.joint + 1}]" for e in eff], "outside_vocabulary": [],
                "range_deg": [[round(math.degrees(w.q_min), 1), round(math.degrees(w.q_max), 1)] for w in wrs],
                "v_max": [round(w.v_max, 2) for w in wrs]}
-    return JointsPlantDraw(seed, nominal, true, wrs, (0.1, 3.0), 1.5, tn, summary)
+    return PlantDraw(seed, nominal, true, wrs, (0.1, 3.0), 1.5, tn, summary)
 
 
-def calibration_motion_joints(pd: JointsPlantDraw, duration_s: float = 60.0, seed: int = 0) -> PerJoint:
+def calibration_motion_joints(pd: PlantDraw, duration_s: float = 60.0, seed: int = 0) -> PerJoint:
     """The calibration excitation over each joint's declared working range (:func:`excitation_joints`)."""
     return excitation_joints(pd.working_range, duration_s, seed=seed)
 
@@ -124,7 +109,7 @@ def _cosine(t: float) -> float:
     return -(-2.0 * math.cos(2 * math.pi * 0.1 * t) + 2.0)
 
 
-def sessions_joints(pd: JointsPlantDraw, duration_s: float | None = None) -> list[SessionSpec]:
+def sessions_joints(pd: PlantDraw, duration_s: float | None = None) -> list[SessionSpec]:
     """The test sessions of a two-joint plant (seeded by the plant's seed): none repeats the calibration."""
     rng = np.random.default_rng(40_000 + pd.seed)
     wrs = pd.working_range

@@ -48,8 +48,7 @@ from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant,
                                                 summarize_degenerate)
 from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
-from sea_daemon.apps.bench.generalize_joints import run_joints, seed_roles_joints
-from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
+from sea_daemon.apps.bench.generalize_joints import calibrate_plant, run_joints, seed_roles_joints
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
@@ -154,14 +153,9 @@ def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mod
     t_sim = time.perf_counter() - t0
     row: dict = {"seed": seed, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
                  "session_kinds": {sp.name: sp.kind for sp in sessions(pd)}}
-    try:
-        t0 = time.perf_counter()
-        res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
-                                                                 working_range=pd.working_range))
-        row["calibration_s"] = time.perf_counter() - t0
-    except Exception as e:        # an internal error of the calibration is a benchmark result
-        row["calibration_error"] = f"{type(e).__name__}: {e}"
-        row["traceback"] = traceback.format_exc()[-2000:]
+    t0 = time.perf_counter()
+    res = calibrate_plant(cal, pd, row)
+    if res is None:
         return row
     row["calibration"] = calibration_row(res.report)
     do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)

@@ -108,6 +108,22 @@ def score_joints(log, est, bound: bool = False) -> dict:
             "joints": [_joint_stats(e[:, j], r.tau_h_act_bound[:, j], v, bound) for j in range(e.shape[1])]}
 
 
+def calibrate_plant(cal, pd, row: dict):
+    """The calibration of plant ``pd`` on its log ``cal`` (its declared subject and working range);
+    ``row["calibration_s"]`` its time, or, for an internal error (a benchmark result), None and
+    ``row["calibration_error"]``."""
+    try:
+        t0 = time.perf_counter()
+        res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
+                                                                 working_range=pd.working_range))
+        row["calibration_s"] = time.perf_counter() - t0
+        return res
+    except Exception as e:        # an internal error of the calibration is a benchmark result
+        row["calibration_error"] = f"{type(e).__name__}: {e}"
+        row["traceback"] = traceback.format_exc()[-2000:]
+        return None
+
+
 def run_plant_joints(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
                      rate_hz: float | None = None, names=None) -> dict:
     """Calibrate two-joint plant ``seed`` once and run every estimator on every test session."""
@@ -117,14 +133,9 @@ def run_plant_joints(seed: int, cal_s: float, cache: Path | None, estimators, bo
         tests = {k: v for k, v in tests.items() if k in names}
     row: dict = {"seed": seed, "joints": 2, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
                  "session_kinds": {sp.name: sp.kind for sp in sessions_joints(pd)}, "simulation_s": time.perf_counter() - t0}
-    try:
-        t0 = time.perf_counter()
-        res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
-                                                                 working_range=pd.working_range))
-        row["calibration_s"] = time.perf_counter() - t0
-    except Exception as e:        # an internal error of the calibration is a benchmark result
-        row["calibration_error"] = f"{type(e).__name__}: {e}"
-        row["traceback"] = traceback.format_exc()[-2000:]
+    t0 = time.perf_counter()
+    res = calibrate_plant(cal, pd, row)
+    if res is None:
         return row
     rep = res.report
     row["calibration"] = {"effects": [f"{d['type']}({d['side']})[{d.get('joint', 1)}]"
