@@ -491,7 +491,7 @@ def test_friction_range_contains_the_friction_torque_over_the_interval():
 @pytest.mark.parametrize("side", ["load", "motor"])
 def test_friction_range_step_is_the_filter_step_rewritten(side):
     """The identity behind the range candidate: for x = x̂ + a + g,
-    F a + Φ ε(x) = F_B a + Φ ε_smooth(x) + Σ Φc [τ_g(v) − τ_g(v̂) − s_g ℓᵀg] (ε the filter's
+    F a + Φ ε(x) = F_B a + Φ ε_smooth(x) + Σ Φc [τ_g(v) − τ_g(v̂) − κ_g ℓᵀa − s_g ℓᵀg] (ε the filter's
     linearisation error, ε_smooth the model's without friction), and the bracket lies in ±w_g
     for a in the set of means and g on the χ² set of P."""
     from sea_daemon.core.linalg import discretize
@@ -540,7 +540,8 @@ def test_friction_range_step_is_the_filter_step_rewritten(side):
         x = x0 + a + g
         eps = model.f_nom(x, u) - model.f_nom(x0, u) - akf.A_k @ (x - x0)
         lhs = akf.F_k @ a + Phi @ eps
-        bracket = tau_g(float(ell @ x)) - tau_g(float(ell @ x0)) - s_g * float(ell @ g)
+        kap = tb.friction.kappa_[0]         # the slope the range form kept in F_B
+        bracket = tau_g(float(ell @ x)) - tau_g(float(ell @ x0)) - kap * float(ell @ a) - s_g * float(ell @ g)
         eps_s = smooth(x) - smooth(x0) - A_s @ (x - x0)
         rhs = FB @ a + Phi @ eps_s + GamF[:, 0] * bracket
         assert np.allclose(lhs, rhs, rtol=1e-9, atol=1e-12 * (1 + np.abs(lhs).max()))
@@ -575,3 +576,104 @@ def test_friction_range_keeps_the_bound_valid_and_finite_at_standstill():
     assert np.all(np.isfinite(rho))
     assert np.mean(e <= rho) >= 0.95
     assert rho.max() < 0.5 * res[False][0].max()
+
+
+def test_declared_rate_replaces_the_random_walk_in_the_gaussian_part():
+    # a filter tuned with a wide τ_h,act random walk (q_τ = 1e-2 per step: it tracks fast subjects)
+    # and a subject within the declared rate: the set of means holds the subject's change
+    # (Γ_τ box(r)), so the bound's Gaussian part is propagated without the walk — the filter's
+    # gain, its measurement noise and the rest of Σ_nom, Joseph form — and ρ is far below the
+    # filter's own √(χ²₁ P_ττ) while it still covers every step
+    import dataclasses
+    cfg = ModelConfig.from_dict({"joints": 1, "rate_hz": 100, "model": {
+        "M": 0.12, "J": 0.08, "D_m": 0.6, "K_s": 110.0, "D_s": 0.25, "gravity": 0.0},
+        "estimator": {"R": [1e-7, 1e-7, 1e-3, 1e-3], "Sigma_nom": [1e-10, 1e-10, 1e-6, 1e-6, 1e-2], "P0_tau": 1e-2,
+                      "init_after_kinematics": False, "tau_h_act_rate": 3.2}})
+    log = simulate(SEAModel.from_config(cfg), T=3.0, tau_h=lambda t: np.array([0.5 * np.sin(2 * np.pi * t)]), seed=3)
+    s1 = chi2_quantile(1 - cfg.estimator.delta, 1)
+    akf = AKF(cfg)
+    tb = with_bound(akf)
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    rho, kf, err, recs = [], [], [], []
+    for k in range(1, len(log)):
+        e = akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+        rho.append(e.tau_h_act_bound[0])
+        kf.append(np.sqrt(s1 * e.P[4, 4]))
+        err.append(abs(e.tau_h_act_hat[0] - log.tau_h_act[k, 0]))
+        r = akf.record
+        recs.append((r.F_k.copy(), r.K_k.copy(), np.array(getattr(r, "Sigma_nom", akf.Sigma_nom)),
+                     np.array(tb.gauss.P) if hasattr(tb, "gauss") else np.zeros((5, 5))))
+    rho, kf, err = np.array(rho), np.array(kf), np.array(err)
+    assert np.all(err <= rho)
+    assert np.mean(rho[50:]) < 0.75 * np.mean(kf[50:])
+    # P_g: the Joseph form with the filter's F, K, R and Σ_nom without its τ_h,act row and column
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    Pg = akf.P.copy()
+    for F, K, S, Pg_bound in recs:
+        Q = S.copy()
+        Q[4, :] = Q[:, 4] = 0.0
+        IKH = np.eye(5) - K @ akf.H
+        Pg = IKH @ (F @ Pg @ F.T + Q) @ IKH.T + K @ akf.R @ K.T
+        np.testing.assert_allclose(Pg_bound, Pg, rtol=1e-9, atol=1e-18)
+    # without a declared rate the walk is the only term for the subject's change: P_g = P
+    assert tb.gauss.own
+    plain = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, tau_h_act_rate=0.0))
+    assert not with_bound(AKF(plain)).gauss.own
+
+
+def test_friction_range_keeps_a_slope_that_damps_the_set_of_means():
+    """The range form keeps a slope κ of the friction in its transition F − Φc (s − κ) ℓᵀ, chosen
+    every 50 ms by the steady τ_h,act half-width it builds (FrictionRange._choose): at
+    standstill the slope kept gives a contracting closed loop (I − KH) F_B when κ = 0 does not
+    contract faster, and the candidate's F_B − F is the rule's (s − κ) term."""
+    from sea_daemon.core.bounds.friction_range import SLOPE_RULES
+    cfg = _friction_cfg()
+    model = SEAModel.from_config(cfg)
+    log = simulate(model, T=1.0, seed=2)
+    akf = AKF(cfg)
+    tb = with_bound(akf)
+    akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for k in range(1, 40):
+        akf.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    assert tb.friction.choose_every == 5                     # 50 ms at 100 Hz
+    x0, P0, u = akf.record.x_prev.copy(), akf.record.P_prev.copy(), np.asarray(log.tau_m[39], float)
+    x0[2:4] = 0.0
+    C = tb.sm.confidence_set(x0, P0)
+    IKH = np.eye(5) - akf.K_k @ akf.H
+    fr = tb.friction
+    fr.reset()
+    dF, GamF, w, *_ = fr.candidate(x0, u, P0, tb.sm.sample_points(C), akf.A_k.copy(), 0.01, akf.A_k,
+                                   akf.Gamma_mu, tb.sm, tb._phi, (akf.F_k, IKH))
+    _, ell, _, effs = fr.groups[0]
+    from sea_daemon.core.effects import evaluate
+    s_g = sum(evaluate(code, p, 0.0, 0.0, 0.0)[2] for code, p in effs)
+    kap = fr.kappa_[0]
+    assert 0.0 <= kap <= s_g
+    np.testing.assert_allclose(dF, -(s_g - kap) * np.outer(GamF[:, 0], ell), rtol=1e-12, atol=1e-15)
+    radius = lambda k: max(abs(np.linalg.eigvals(IKH @ (akf.F_k - (s_g - k) * np.outer(GamF[:, 0], ell)))))
+    assert radius(kap) < 1.0
+    assert radius(kap) <= max(radius(0.0), radius(s_g)) + 1e-12
+    assert SLOPE_RULES[fr.rule_] != 0.0 or radius(0.0) <= radius(s_g)
+
+
+def test_a_configured_beta_keeps_the_filters_covariance_as_the_gaussian_part(monkeypatch):
+    """The guaranteed β's bound propagates its own Gaussian part (no GP variance; with a declared
+    rate no τ_h,act walk); a configured β (what calibrate-bound calibrates, replaying with the
+    filter's P) keeps the filter's P, in the replays that calibrate it and in estimation alike."""
+    import dataclasses
+    from sea_daemon.core.bounds import torque_beta
+    seen = []
+
+    class Spy(AKFTheoremBound):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            seen.append((self.gauss.own, self.gauss.drop_tau))
+
+    monkeypatch.setattr(torque_beta, "AKFTheoremBound", Spy)
+    est, cal = _passive_gp_akf(seed=8)
+    est.cfg = dataclasses.replace(est.cfg, estimator=dataclasses.replace(est.cfg.estimator, tau_h_act_rate=2.0))
+    torque_beta.torque_coverage(est, cal, 1.0)
+    assert seen == [(False, False)]
+    g = AKFTheoremBound(est, gp_constants="auto", gp_beta="lederer").gauss
+    assert g.own and g.drop_tau
+    assert not AKFTheoremBound(est, gp_constants="auto", gp_beta=1.5).gauss.own

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sea_daemon.core.assist import AssistLaw, InnovationGuard, InnovationOutlier
+from sea_daemon.core.assist import BELOW_BOUND, ENGAGED, RESTART_RATIO, RHO_ABOVE_MAX, AssistLaw, InnovationGuard, InnovationOutlier
 from sea_daemon.core.config import AssistConfig, ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.errors import ConfigError, Fault
@@ -104,19 +104,58 @@ def test_smoothing_delays_and_keeps_the_bound():
     the target never exceeds gain × the subject's averaged torque and has its sign."""
     rng = np.random.default_rng(4)
     dt, T = 0.01, 0.5
-    a = law(smoothing_s=T, dt=dt, max_torque=100.0, rho_max=100.0)
+    a = law(smoothing_s=T, dt=dt, max_torque=100.0, rho_max=3.0)
     beta = 1 - math.exp(-dt / T)
     tau = 1.5 * np.sin(np.arange(3000) * dt * 1.3) + 0.3 * rng.standard_normal(3000).cumsum() * 0.05
     tau_avg = tau[0]
     for k in range(3000):
-        rho = 0.2 + 0.5 * rng.random()
+        # bursts of a wide bound (a standstill) now and then: the averages restart after them
+        rho = 0.2 + 0.5 * rng.random() if k % 500 > 100 else 5.0 + 5.0 * rng.random()
         hat = tau[k] + rho * (2 * rng.random() - 1)                  # the bound holds
+        restart = a.rho_avg[0] > a.rho_max and RESTART_RATIO * rho < a.rho_avg[0]
         a.step([hat], [rho], True)
         if k:
-            tau_avg += beta * (tau[k] - tau_avg)
+            tau_avg = tau[k] if restart else tau_avg + beta * (tau[k] - tau_avg)
         t = a.target[0]
         assert abs(t) <= 2.0 * abs(tau_avg) + 1e-9
         assert t == 0.0 or np.sign(t) == np.sign(tau_avg)
+
+
+def test_the_averages_restart_when_the_bound_falls_after_a_standstill():
+    """A standstill's wide bound (10 N m for 2 s) does not hold the assistance off once the bound
+    is tight again: with ρ̄ above rho_max the averages restart from the first estimate whose bound
+    is below half of theirs, so the subject's 1.5 N m is certified in the next step, not after the
+    low-pass has forgotten the standstill (1.3 s at smoothing_s 0.6).  Within rho_max they never
+    restart (the bound's ordinary ups and downs are averaged)."""
+    a = law(smoothing_s=0.6, dt=0.01)
+    for _ in range(200):
+        a.step([1.5], [10.0], True)
+    assert a.state[0] == RHO_ABOVE_MAX and a.target[0] == 0.0
+    a.step([1.5], [0.3], True)
+    assert a.rho_avg[0] == pytest.approx(0.3) and a.tau_hat_avg[0] == pytest.approx(1.5)
+    assert a.state[0] == ENGAGED and a.target[0] == pytest.approx(2.0 * (1.5 - 0.3 - 0.05))
+    # a bound that grows is averaged in as before (no restart): the average follows it with the low-pass
+    a.step([1.5], [0.5], True)
+    assert 0.3 < a.rho_avg[0] < 0.31
+    for _ in range(300):
+        a.step([1.5], [1.2], True)              # ρ̄ → 1.2, within rho_max 1.5
+    a.step([1.5], [0.3], True)                  # a quarter of it: no restart within rho_max
+    assert a.rho_avg[0] > 1.1
+
+
+def test_the_subject_reversing_stops_the_assistance_at_once():
+    """The averaged estimate still says +1 N m when the subject has turned to -1 N m (the braking
+    half of a move): the current estimate certifies the other direction, so the target is 0 in
+    that step, not after the low-pass has followed; a current estimate that certifies nothing
+    (a burst of its bound) leaves the averaged assistance as it is."""
+    a = law(smoothing_s=0.6, dt=0.01)
+    for _ in range(300):
+        a.step([1.0], [0.2], True)
+    assert a.target[0] == pytest.approx(2.0 * (1.0 - 0.2 - 0.05))
+    a.step([-0.1], [0.8], True)                 # uncertain, not reversed: the average decides
+    assert a.target[0] > 1.0
+    a.step([-1.0], [0.2], True)                 # reversed: the average is still positive
+    assert a.tau_hat_avg[0] > 0.8 and a.target[0] == 0.0 and a.state[0] == BELOW_BOUND
 
 
 # ---------------------------------------------------------------------------- innovation check

@@ -144,9 +144,11 @@ def test_summary_gives_engaged_share_and_the_reasons_with_counts():
     assert ne["fault"] + ne["invalid"] + ne["rho_above_max"] + ne["below_bound"] + round(
         s["engaged_share"] * s["joint_cycles"]) == 40
     assert s["engaged_share"] == pytest.approx((40 - 10 - 10 - ne["invalid"] - ne["fault"]) / 40)
+    # available: the gate open (a valid estimate, ρ̄ within rho_max), whether or not effort was certified
+    assert s["available_share"] == pytest.approx((40 - 10 - ne["invalid"] - ne["fault"]) / 40)
     assert s["mode"] == "assist" and s["effort_reduction"] is None and "not known" in s["effort_note"]
     line = describe_assist(s)
-    assert "rho_max" in line and "10 cycle(s)" in line
+    assert "rho_max" in line and "10 cycle(s)" in line and f"available {100 * s['available_share']:.1f} %" in line
     json.dumps(s, allow_nan=False)                              # no nan/inf in the summary
 
 
@@ -215,7 +217,7 @@ def test_bench_assist_json_schema(tmp_path, capsys):
     for key in ("effort_reduction", "engaged_share"):
         assert p[key] is None or 0.0 <= p[key] <= 1.0 or key == "effort_reduction"
     if not p["faults"]:
-        assert 0.0 <= p["engaged_share"] <= 1.0 and p["effort_reduction"] < 1.0
+        assert 0.0 <= p["engaged_share"] <= p["available_share"] <= 1.0 and p["effort_reduction"] < 1.0
         assert set(p["not_engaged"]) == {"fault", "invalid", "rho_above_max", "below_bound"}
     json.dumps(d, allow_nan=False)
 

@@ -79,9 +79,14 @@ def test_fit_refuses_a_log_at_the_torque_limit(sim, tmp_path, capsys):
 
 
 def test_fit_on_a_still_arm_keeps_the_nominal_physics_and_prints_no_nan(sim, tmp_path, capsys):
-    """The active scenario's calibration phase holds the arm still: no effect is invented, the
-    printed and written figures are finite or "not measurable from this log"."""
-    code, out, err = run(["fit", sim / "active.train.csv", "--config", ROBOT, "--out", tmp_path / "m"], capsys)
+    """The active scenario's calibration phase holds the arm still (the still-arm protocol: no
+    working range declared): no effect is invented, the printed and written figures are finite
+    or "not measurable from this log"."""
+    cfg = load_config(ROBOT)
+    save_config(dataclasses.replace(cfg, calibration=dataclasses.replace(cfg.calibration, q_min_deg=None,
+                                                                         q_max_deg=None)), tmp_path / "robot.yaml")
+    code, out, err = run(["fit", sim / "active.train.csv", "--config", tmp_path / "robot.yaml", "--out",
+                          tmp_path / "m"], capsys)
     assert code == 0, err
     assert not NAN.search(out + err), [ln for ln in (out + err).splitlines() if NAN.search(ln)]
     s = json.loads(out)
@@ -92,6 +97,14 @@ def test_fit_on_a_still_arm_keeps_the_nominal_physics_and_prints_no_nan(sim, tmp
     rep = json.loads((tmp_path / "m.report.json").read_text(), parse_constant=lambda c: pytest.fail(c))
     assert rep["sufficiency"]["verdicts"]["effects"]["status"] == "nominal"
     assert "Expected accuracy" in err and "not measurable from this log" in err
+
+
+def test_fit_refuses_a_still_arm_for_a_declared_working_range(sim, tmp_path, capsys):
+    """The same still log with the robot's declared working range (0-100 deg): refused in one
+    line naming the range and what to record, no model written."""
+    code, out, err = run(["fit", sim / "active.train.csv", "--config", ROBOT, "--out", tmp_path / "m"], capsys)
+    refused(code, err, r"held still at \d+ deg .*working range 0-100 deg", "calibrate --excitation --fit")
+    assert not NAN.search(out + err) and not (tmp_path / "m.npz").exists()
 
 
 def test_calibrate_bound_on_a_model_without_a_gp_is_one_clear_line(sim, tmp_path, capsys):

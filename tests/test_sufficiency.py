@@ -5,6 +5,7 @@ ways, still, one way, short, swapped, constant, at the torque limit, at another 
 lengths in seconds at every rate.  The commands on degenerate logs: test_calibration_degenerate.py.
 """
 import argparse
+import dataclasses
 import math
 import re
 
@@ -56,12 +57,26 @@ def test_a_log_moving_both_ways_identifies_everything(robot):
 
 
 def test_a_still_arm_keeps_the_nominal_physics_and_says_so(robot):
+    # no working range declared: the still-arm protocol (the estimate at the held angle)
+    free = dataclasses.replace(robot, calibration=dataclasses.replace(robot.calibration, q_min_deg=None,
+                                                                      q_max_deg=None))
     t = np.arange(0, 6, 0.01)
-    s = assess(_log(t, np.full(len(t), 0.17)), robot)
+    s = assess(_log(t, np.full(len(t), 0.17)), free)
     assert s.refusal is None and s.still
     assert s.verdicts["effects"].status == "nominal" and s.verdicts["sign_eps"].status == "nominal"
     assert s.verdicts["R"].status == "identify"
     assert any("configured value kept: effects" in line for line in s.lines())
+
+
+def test_a_still_arm_is_refused_where_the_configuration_declares_a_working_range(robot):
+    # a still arm shows nothing of the load side over the declared 0-100 deg: refused, not calibrated
+    # on (the nominal physics with the noise of a still log was worse than the nominal robot alone
+    # on held-out still-arm sessions of bench generalize --degenerate)
+    t = np.arange(0, 6, 0.01)
+    s = assess(_log(t, np.full(len(t), 0.17)), robot)
+    assert s.still and s.refusal is not None
+    assert re.search(r"held still at 10 deg .*working range 0-100 deg .*calibrate --excitation", s.refusal)
+    assert not NAN.search(s.refusal)
 
 
 @pytest.mark.parametrize("case, pattern", [

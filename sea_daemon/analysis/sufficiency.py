@@ -291,6 +291,24 @@ def _refusal(f: dict, lim: Limits, path: str) -> str | None:
     return None
 
 
+def _still_over_range(f: dict, cfg: ModelConfig, path: str) -> str | None:
+    """The one line refusing a still-arm log when the configuration declares a working range
+    (``calibration.q_min_deg`` and ``q_max_deg``: the model must hold over it), or None.  A
+    still arm shows the sensors' noise and the static torque at the held angle alone; the arm's
+    weight, the elbow, friction and inertia over the range show only in motion.  Without a
+    declared range a still log is the still-arm protocol (Sec. V-C: the estimate at the held
+    angle) and is calibrated at that angle."""
+    c = cfg.calibration
+    if not f.get("still") or c.q_min_deg is None or c.q_max_deg is None:
+        return None
+    lo, hi = f.get("q_range_deg", [float("nan")] * 2)
+    at = f"at {0.5 * (lo + hi):.0f} deg " if math.isfinite(lo) and math.isfinite(hi) else ""
+    return (f"{path}: the arm held still {at}(the load angle spans {f.get('q_span_deg', 0.0):.2f} deg) and the "
+            f"configuration declares the working range {c.q_min_deg:.4g}-{c.q_max_deg:.4g} deg "
+            "(calibration.q_min_deg, q_max_deg): a still arm shows the sensors' noise alone, not the arm's weight, "
+            f"the elbow, friction or inertia over that range; {RECORD}")
+
+
 def _physics(f: dict, lim: Limits) -> Verdict:
     """Whether the log can identify the physical effects: identify, nominal (a still arm) or
     refuse (it moves, but not enough to tell friction, the arm's weight and inertia apart)."""
@@ -344,7 +362,7 @@ def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: in
         raise InputError(f"{log.path}: {log.n} joints; the calibration's sufficiency check is for one joint")
     f = measure(log, cfg, lim, joint or 0)
     s = Sufficiency(f)
-    s.refusal = _refusal(f, lim, log.path)
+    s.refusal = _refusal(f, lim, log.path) or _still_over_range(f, cfg, log.path)
     phys = _physics(f, lim) if s.refusal is None else Verdict("effects", "refuse", "see the refusal")
     if s.refusal is None and phys.status == "refuse":
         s.refusal = f"{log.path}: cannot identify the physical effects: {phys.why}; {RECORD}"

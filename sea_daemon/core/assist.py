@@ -12,13 +12,20 @@ only
     τ_cert = sign(τ̄̂) · max(|τ̄̂| − ρ̄ − τ_db, 0)
 
 is certified: it has the sign of what the subject did over the last ``smoothing_s`` and is
-no larger (|τ_cert| ≤ |τ̄_h,act|).  The assistance is
+no larger (|τ_cert| ≤ |τ̄_h,act|).  It is 0 while the current estimate certifies the other
+direction (τ̂ τ̄̂ < 0 and |τ̂| > ρ + τ_db): a subject that reverses (the braking half of a move)
+is not pushed on by the average of its past effort; a current estimate that certifies nothing
+(its bound wider than it) leaves the averaged assistance as it is.  The assistance is
 
     τ_target = clip(α · τ_cert, ±τ_max)          (0 while ρ̄ > ρ_max)
     τ_assist → τ_target at most ``max_rate`` per second,
 
 and 0 *in the same step* when the estimate is not valid (start-up, a latched fault: the loop
-then gives no estimate) — the averages restart from the next valid estimate.  Each step
+then gives no estimate) — the averages restart from the next valid estimate.  They restart too
+when ρ̄ is above ρ_max and the estimate's bound falls below 1/:data:`RESTART_RATIO` of it (the
+end of a standstill where the bound was wide): any average with non-negative weights summing to
+one keeps the guarantee, and one that still carries the wide bounds of the past certifies
+nothing of what the subject does now.  Each step
 records per joint why the assistance is what it is (:attr:`AssistLaw.state`, counted in
 :attr:`AssistLaw.counts`): :data:`ENGAGED` (τ_target ≠ 0), :data:`INVALID` (no valid estimate),
 :data:`RHO_ABOVE_MAX` (ρ̄ > ρ_max), :data:`BELOW_BOUND` (|τ̄̂| ≤ ρ̄ + τ_db: the bound certifies
@@ -51,6 +58,8 @@ from sea_daemon.errors import EstimatorFault, Fault
 #: no effort (|τ̄̂| ≤ ρ̄ + deadband)
 ENGAGED, INVALID, RHO_ABOVE_MAX, BELOW_BOUND = range(4)
 STATES = ("engaged", "invalid", "rho_above_max", "below_bound")
+#: with ρ̄ above ρ_max the averages restart from the current estimate when its bound is below 1/RESTART_RATIO of ρ̄
+RESTART_RATIO = 2.0
 
 
 class InnovationOutlier(EstimatorFault):
@@ -114,7 +123,7 @@ class AssistLaw:
                 state[j] = INVALID
                 counts[j, INVALID] += 1
                 continue
-            if self._fresh[j]:
+            if self._fresh[j] or (rbar[j] > self.rho_max and RESTART_RATIO * r < rbar[j]):
                 tbar[j], rbar[j] = th, r
                 self._fresh[j] = False
             else:
@@ -122,6 +131,10 @@ class AssistLaw:
                 rbar[j] += b * (r - rbar[j])
             mag = abs(tbar[j])
             cert = mag - rbar[j] - self.deadband
+            # nothing while the current estimate certifies the other direction: the subject's
+            # reversal stops the assistance at once
+            if th * tbar[j] < 0.0 and abs(th) - r - self.deadband > 0.0:
+                cert = min(cert, 0.0)
             self.rho_sum[j] += rbar[j]
             if rbar[j] > self.rho_max:
                 st = RHO_ABOVE_MAX

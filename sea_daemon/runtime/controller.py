@@ -198,9 +198,10 @@ class AssistController:
 
     def summary(self, cycles: int) -> dict:
         """The run's assistance figures over ``cycles`` loop cycles (docs/assist.md, "The run's
-        figures"): the share of joint-cycles the assistance was engaged and, for the others, why
-        not — ``fault`` (the controller did not run: a latched fault, no sample), ``invalid``
-        (no valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
+        figures"): the share of joint-cycles the assistance was engaged, the share it was
+        available (the gate open: engaged or ``below_bound``) and, for the others, why not —
+        ``fault`` (the controller did not run: a latched fault, no sample), ``invalid`` (no
+        valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
         bound; the effort reduction where the subject's torque is known (None otherwise, with
         the reason)."""
         c = self.law.counts.sum(axis=0)
@@ -211,6 +212,8 @@ class AssistController:
         out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
                "gain": self.gain, "rho_max": self.law.rho_max, "joint_cycles": total,
                "engaged_share": counts["engaged"] / total if total else 0.0,
+               # the gate open: a valid estimate with ρ̄ within rho_max (engaged, or nothing certified)
+               "available_share": (counts["engaged"] + counts["below_bound"]) / total if total else 0.0,
                "not_engaged": {"fault": total - ran, "invalid": counts["invalid"],
                                "rho_above_max": counts["rho_above_max"], "below_bound": counts["below_bound"]},
                "rho_avg_mean": float(self.law.rho_sum.sum() / valid) if valid else None}
@@ -238,7 +241,8 @@ def describe_assist(a: dict) -> str:
     parts = [f"{why[k]} {v} cycle(s)" for k, v in sorted(ne.items(), key=lambda kv: -kv[1]) if v]
     rho = a["rho_avg_mean"]
     line = (f"assistance ({a['mode']}, gain {a['gain']:g}) engaged {100 * a['engaged_share']:.1f} % of "
-            f"{a['joint_cycles']} joint-cycles; not engaged: " + ("; ".join(parts) if parts else "never"))
+            f"{a['joint_cycles']} joint-cycles, available {100 * a['available_share']:.1f} %; not engaged: "
+            + ("; ".join(parts) if parts else "never"))
     if rho is not None:
         line += f"; mean averaged bound {rho:.3g} N m (rho_max {a['rho_max']:g})"
     if a["effort_reduction"] is not None:

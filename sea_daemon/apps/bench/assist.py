@@ -255,7 +255,8 @@ def run_plant(seed: int, args, task, out: Path) -> dict:
     s = ass["controller"]
     row.update(effort_reduction=1.0 - ass["tau_h_rms"] / rob["tau_h_rms"] if rob["tau_h_rms"] > 0 else None,
                effort_reduction_gated=1.0 - ass["tau_h_rms"] / ref["tau_h_rms"] if ref["tau_h_rms"] > 0 else None,
-               engaged_share=s["engaged_share"], not_engaged=s["not_engaged"], rho_avg_mean=s["rho_avg_mean"],
+               engaged_share=s["engaged_share"], available_share=s["available_share"], not_engaged=s["not_engaged"],
+               rho_avg_mean=s["rho_avg_mean"],
                coverage_acting=ass["coverage_acting"], pushes_against_while_invalid=ass["pushes_against_while_invalid"],
                runs=runs)
     return row
@@ -291,10 +292,12 @@ def _report(args, rows: list[dict]) -> dict:
     red = [r["effort_reduction"] for r in rows if r["effort_reduction"] is not None]
     gated = [r["effort_reduction_gated"] for r in rows if r.get("effort_reduction_gated") is not None]
     eng = [r["engaged_share"] for r in rows if r["engaged_share"] is not None]
+    avail = [r["available_share"] for r in rows if r.get("available_share") is not None]
     cov = [r["coverage_acting"] for r in rows if r.get("coverage_acting") is not None]
     summary = {"plants": len(rows), "effort_reduction_min": min(red) if red else None,
                "effort_reduction_gated_min": min(gated) if gated else None,
-               "engaged_share_min": min(eng) if eng else None, "coverage_acting_min": min(cov) if cov else None,
+               "engaged_share_min": min(eng) if eng else None, "available_share_min": min(avail) if avail else None,
+               "coverage_acting_min": min(cov) if cov else None,
                "plants_with_faults": sum(1 for r in rows if r["faults"]),
                "pushes_against_while_invalid": sum(r.get("pushes_against_while_invalid", 0) for r in rows)}
     return {"benchmark": "assist", "rate_hz": args.rate, "seconds": args.seconds, "cal_s": args.cal_s,
@@ -317,8 +320,9 @@ def describe_row(row: dict) -> str:
     a, ref = row["runs"]["assisted"], row["runs"]["reference"]
     ne = ", ".join(f"{k} {v}" for k, v in row["not_engaged"].items() if v) or "none"
     return (f"plant {row['seed']}: effort reduction {_pct(row['effort_reduction'])} (the gated assistance's part "
-            f"{_pct(row['effort_reduction_gated'])}), engaged {_pct(row['engaged_share'])} "
-            f"(not engaged, cycles: {ne}; mean averaged bound {_f3(row['rho_avg_mean'])} N m); while assisting: "
+            f"{_pct(row['effort_reduction_gated'])}), engaged {_pct(row['engaged_share'])}, available "
+            f"{_pct(row['available_share'])} (not engaged, cycles: {ne}; mean averaged bound "
+            f"{_f3(row['rho_avg_mean'])} N m); while assisting: "
             f"coverage {_f3(a['coverage_acting'])}, RMSE {_f3(a['est_rmse_acting'])}, mean rho {_f3(a['rho_mean_acting'])} "
             f"N m; reference run: RMSE {_f3(ref['est_rmse_valid'])}, coverage {_f3(ref['coverage_valid'])}; pushes "
             f"against the subject while invalid {a['pushes_against_while_invalid']}; faults: "
@@ -328,6 +332,7 @@ def describe_row(row: dict) -> str:
 def describe_summary(s: dict) -> str:
     return (f"{s['plants']} plant(s): effort reduction min {_pct(s['effort_reduction_min'])} (the gated assistance's "
             f"part min {_pct(s['effort_reduction_gated_min'])}), engaged share min "
-            f"{_pct(s['engaged_share_min'])}, coverage while assisting min {_f3(s['coverage_acting_min'])}, plants with "
+            f"{_pct(s['engaged_share_min'])}, available share min {_pct(s.get('available_share_min'))}, coverage while "
+            f"assisting min {_f3(s['coverage_acting_min'])}, plants with "
             f"faults {s['plants_with_faults']}, pushes against the subject while invalid "
             f"{s['pushes_against_while_invalid']}")

@@ -6,10 +6,8 @@ residual), given at its construction (``AKF(cfg, bound=theorem_bound)``; :func:`
 is the default the estimator factory uses).  The AKF hands it every filter step's
 :class:`~sea_daemon.core.estimators.record.StepRecord`: it propagates the set of means with
 :class:`SetMembershipBound`, using the record's x̂_{k−1}, P_{k−1}, u, ẑ_{k−1}, μ(ẑ), ∂μ/∂z,
-``A_k`` (continuous Jacobian at x̂_{k−1}), ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``
-and ``P``, and the filter's constants (``H``, the model, δ), and overwrites
-``est.tau_h_act_bound`` with ρ_k.  The calibration of
-its GP constants is :mod:`sea_daemon.core.bounds.calibration`.
+``A_k``, ``F_k``, ``Gamma_mu`` (∫e^{As}ds I_μ M⁻¹), ``K_k``, ``P``, ``Sigma_nom`` and the filter's
+constants (``H``, R, the model, δ), and overwrites ``est.tau_h_act_bound`` with ρ_k.
 
 Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 * C_{k−1} = E(x̂_{k−1}, X̂_{k−1}) ⊕ E(0, s_d P_{k−1})   (outer ellipsoid, trace-minimal)
@@ -29,25 +27,22 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   ``estimator.gp_beta``): 'lederer' or a number
 * without declared effects ε and η depend on x only through q and (q, q̇): the set they are
   bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
-* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6): τ_h,act
-  may change by more than Σ_nom's random walk, |dτ_h,act/dt| ≤ r; that change is one more
-  bounded input, Γ_τ box(r) with Γ_τ = ∫₀^dt e^{As} ds E_τ (held over the step)
+* declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6),
+  |dτ_h,act/dt| ≤ r: one more bounded input, Γ_τ box(r), Γ_τ = ∫₀^dt e^{As} ds E_τ
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 * the range form (zonotope sets): the declared Coulomb/Stribeck friction and the GP mean
   linearised at zero slope instead of the filter's — the set propagated with the filter's
   transition minus their slopes, F_B = F − Σ Φc s_g ℓᵀ + Γ_μ J T, their errors bounded by the
   range over the set (friction: interval arithmetic; GP mean: max |μ(z) − μ(ẑ)| at the points)
-  plus the slope times the Gaussian part's extent (:meth:`FrictionRange.candidate <sea_daemon.core.bounds.friction_range.FrictionRange.candidate>`,
-  :meth:`AKFTheoremBound._gp_range_candidate`).  Both forms contain the set of means; per step
-  the one with the narrower τ_h,act half-width after (I − KH) is kept (``range_steps_`` counts
-  the range form).  Where the set spans q̇ = 0 the filter's slope there ((F_c + F_s)/ε for the
-  friction, a stiction leaf's for the GP) times the set's q̇ extent is what the range form avoids.
+  plus the slope times the Gaussian part's extent (:mod:`.friction_range`, which also keeps a
+  share of the friction's slope where that damps the set, and :meth:`_gp_range_candidate`);
+  per step the form with the narrower τ_h,act half-width after (I − KH) is kept.
+* the Gaussian part: P_g (:mod:`.gaussian_part`), the filter's P without the GP's variance and
+  a declared rate's walk, for C_{k−1} and ρ_k.
 
-Without a residual (plain AKF) there is no GP term, the whole δ goes to the Gaussian part, and
-a declared ``estimator.model_error`` e enters as Γ_μ box(e).  With one, δ_GP (default δ/2) is
-the failure probability of the GP constants (:func:`~sea_daemon.core.bounds.calibration.gp_constants`);
-ρ then holds with probability ≥ 1 − δ.  Steps whose z leaves the GP constants' input box (no GP
-guarantee) are counted in ``bound.gp_box_violations_`` (ρ is still published).
+Plain AKF: no GP term, δ_N = δ, a declared ``estimator.model_error`` e enters as Γ_μ box(e).
+GP-AKF: δ_GP (default δ/2) for the GP constants (:func:`~.calibration.gp_constants`), ρ holding
+with probability ≥ 1 − δ; steps whose z leaves their input box: ``gp_box_violations_``.
 """
 from __future__ import annotations
 
@@ -63,10 +58,11 @@ from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
-from sea_daemon.core.bounds import bound_core
+from sea_daemon.core.bounds import bound_core, rigid_box
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
 from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
+from sea_daemon.core.bounds.gaussian_part import GaussianPart
 
 
 class AKFTheoremBound:
@@ -77,7 +73,7 @@ class AKFTheoremBound:
                  delta_gp: float | None = None, n_dirs: int = 2, margin: float = 0.25,
                  projection: str = "scalar", sets: str = "zonotope", seed: int = 0,
                  gp_beta: str | float | None = None, tau_h_act_rate: float | None = None,
-                 compiled: bool = True):
+                 compiled: bool = True, filter_gaussian: bool | None = None):
         self.akf = akf
         # the compiled step (bound_core.bound_step) where it applies, else the Python step below
         self.compiled = bool(compiled)
@@ -102,6 +98,10 @@ class AKFTheoremBound:
         self._init_gp_constants(gp_constants, has_gp)
         self.gp_box = gp_box
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
+        # P_g (docs/bounds.md §3): no GP variance, no walk with a rate; the filter's P with a configured β
+        filt = (has_gp and self.gp_beta != "lederer") if filter_gaussian is None else filter_gaussian
+        drop = not filt and self.tau_h_act_rate > 0
+        self.gauss = GaussianPart(akf, not filt and (has_gp or drop), drop)
         self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
                                      sets=sets)
@@ -114,11 +114,12 @@ class AKFTheoremBound:
         # the compiled step's other bounded inputs, contiguous: Γ_τ, or [Γ_μ e | Γ_τ r] (those declared)
         self._Gam_tau_c = np.zeros((d, n * (int(self._me_on) + int(self.tau_h_act_rate > 0))))
         self._empty = empty_pack()
-        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+        self._cfast = ((self._fast or self._rigid) and sets == "zonotope" and projection == "scalar"
                        and (not has_gp or residual_gps(akf) is not None))
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
         self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets)
+        self.friction.choose_every = self.sm.reduce_every      # its slope rule chosen every 50 ms
         self.range_steps_ = 0           # steps whose set of means took the range candidate
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
@@ -169,30 +170,29 @@ class AKFTheoremBound:
         m = self.akf.model
         self._I = np.eye(d)
         # only gravity is non-linear in a nominal model without declared effects (and no URDF body)
-        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash
-                          or m.rigid is not None)
-        # The linearisation error (and the GP error) need a set that holds x_{k−1} with probability
-        # ≥ 1 − δ_N only in the coordinates they depend on.  Without declared effects these are
-        # q (gravity) and, with a GP, (q, q̇) = T x: Pr(T g ∈ E(0, χ²_m(1 − δ_N) T P Tᵀ)) = 1 − δ_N
-        # for g ~ N(0, P), m = n or 2n, so the Gaussian part of that set is s_z = χ²_m, not χ²_d
-        # (d = 5n).  With declared effects f_nom depends on all of x: s_d.
+        self._fast = m.rigid is None and not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
+        # the linearisation and GP errors need x_{k−1} in the set only in the coordinates they depend
+        # on: without declared effects q and (q, q̇) = T x, so s_z = χ²_m (m = n or 2n), not χ²_5n
+        # (docs/bounds.md §4, "Which set"); with declared effects f_nom depends on all of x: s_d.
+        # (a URDF's rigid body without declared effects: both over W·C, W x = (q, q̇, τ), χ²_3n; rigid_box)
+        self._rbox = rigid_box.RigidBox.of(m, self.sm, n_dirs, seed)
+        self._rigid = self._rbox is not None
         self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
-                     else self.sm.s_state)
+                     else self._rbox.s_z if self._rigid else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
         self._T = np.asarray(self.akf.dz_dx, dtype=float)[:2 * n]
         self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
         self._Uz = unit_directions(2 * n, n_dirs, seed)
-        self._minv = np.ascontiguousarray(m.Minv, dtype=float)
-        self._M = np.ascontiguousarray(m.M, dtype=float)
+        self._M, self._minv = ((m.M, m.Minv) if self._rigid    # a rigid body's: set in place per step (SEAModel.at)
+                               else (np.ascontiguousarray(m.M, dtype=float), np.ascontiguousarray(m.Minv, dtype=float)))
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
 
     # ------------------------------------------------------------------ hooks
 
     def refresh_gp_constants(self) -> None:
-        """Recompute the GP constants and input box from the residual's current leaves
-        (``gp_constants='auto'``; call after the GP learned more data)."""
+        """The GP constants and input box of the residual's current leaves (after it learned more)."""
         gps = residual_gps(self.akf)
         self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
         self._learned_at = self._n_learned()
@@ -209,8 +209,7 @@ class AKFTheoremBound:
             self._scales = [LocalScale(g) for g in gps]
 
     def _n_learned(self) -> int:
-        """Training pairs learned so far: the GP-AKF's monotone counter when it has one,
-        else the points held by the LoG-GPs."""
+        """Training pairs learned so far (the GP-AKF's counter, else the LoG-GPs' points)."""
         n = getattr(self.akf, "n_learned", None)
         if n is not None:
             return int(n)
@@ -223,25 +222,22 @@ class AKFTheoremBound:
             # 'auto': the constants of the GP as trained when estimation starts
             self.refresh_gp_constants()
         self.sm.reset()
+        self.friction.reset()
         self.gp_box_violations_ = 0
         self.saturated_ = 0
         self.range_steps_ = 0
         self.at_cap_ = False
+        self.gauss.reset(record.P)
         if record.ready:
             est.tau_h_act_bound[:] = self.sm.rho(record.P)
 
     # ------------------------------------------------------------------ linearisation error
 
     def _gravity_box(self, x0: np.ndarray, P0: np.ndarray) -> np.ndarray:
-        """Rigorous bound of the gravity term's linearisation error (no sampling).
-
-        C(q) = g ⊙ sin q enters q̈ (and so θ̈_s) as −M⁻¹ C(q).  With q_j = θ_m,j + θ_s,j within
-        ±r_j of q̂_j (r_j = half-width along e_θm,j + e_θs,j of X̂ ⊕ E(0, s_z P), s_z = χ²_m of the
-        coordinates the error depends on, see __init__), the scalar error
-        h(Δ) = sin(q̂+Δ) − sin q̂ − cos q̂ Δ is maximised over |Δ| ≤ r_j on a 65-point grid plus
-        the grid gap times its Lipschitz constant min(2, r_j) (rigorous; ≈ exact), capped by
-        the Taylor bound r_j²/2; the θ̈_s rows are bounded by |M⁻¹| (elementwise) times it.
-        """
+        """Rigorous bound of the gravity term's linearisation error (no sampling): C(q) = g ⊙ sin q
+        enters θ̈_s as −M⁻¹ C(q); with |q_j − q̂_j| ≤ r_j (the half-width along e_θm,j + e_θs,j of
+        X̂ ⊕ E(0, s_z P)), max |sin(q̂+Δ) − sin q̂ − cos q̂ Δ| over |Δ| ≤ r_j (bound_core.gravity_remainder)
+        times |M⁻¹| (elementwise) in the θ̈_s rows."""
         akf = self.akf
         n = akf.n
         model = akf.model
@@ -377,6 +373,9 @@ class AKFTheoremBound:
                 self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
+        P0, P = self.gauss.step(record)
+        if self._rigid:                    # M(q̂_{k−1}) and the rigid body's box, before the compiled step
+            self._rbox.at(record.x_prev, sm.G_, P0, self._b)
         try:
             G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
@@ -398,7 +397,7 @@ class AKFTheoremBound:
         self.lin_err_ = self._b
         est.tau_h_act_bound[:] = self._rho
         if check:                          # a half-width at its cap: the exact test, maybe saturation
-            self._saturate(est, record.P)
+            self._saturate(est, P)
 
     def _call_compiled(self, rec, sm, n, has_gp, box, lo, hi, gp):
         """:func:`bound_core.bound_step` with this bound's arrays (its named arguments that stay the
@@ -407,10 +406,13 @@ class AKFTheoremBound:
         a = self._args
         if (a is None or a[0] is not gp or a[1] is not box or a[2] is not self.eta_ or a[3] is not self.gp_lin_err_
                 or a[4] is not rec):
-            st = bound_core.FilterStep(rec.x_prev, rec.P_prev, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
-                                       rec.Gamma_mu, rec.P)
+            g = self.gauss
+            P0, P = (g.P_prev, g.P) if g.own else (rec.P_prev, rec.P)
+            st = bound_core.FilterStep(rec.x_prev, P0, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
+                                       rec.Gamma_mu, P)
             c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
-                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau)
+                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau,
+                                        self._rigid)
             gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
                                      self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
                                      lo, hi, box is not None)
@@ -431,30 +433,18 @@ class AKFTheoremBound:
             self._step_compiled(est, record, gp)
             return
         akf = self.akf
-        x0, P0, u, dt, zhat = record.x_prev, record.P_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
+        P0, P = self.gauss.step(record)
+        x0, u, dt, zhat = record.x_prev, record.u, record.dt, record.z   # ẑ_{k−1}: the GP's input
         akf.model.at(x0)                          # a URDF model's M(q̂_{k−1}) (Γ_μ = Φ I_μ M⁻¹)
         sm = self.sm
-        fric = gp_range = None
+        gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
         if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
-        if self._fast:
-            b = self._gravity_box(x0, P0)         # analytic, rigorous (exact half-width of C_{k−1})
-        else:
-            C = sm.confidence_set(x0, P0)         # C_{k−1} (outer ellipsoid, for the point set)
-            A_nom = record.A_k.copy()
-            if akf.residual is not None:          # undo −I_μ M⁻¹ F_GP to get F_nom
-                _, J, _ = akf.residual.predict(zhat)
-                A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
-            if self.friction.groups:
-                fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
-                                               record.Gamma_mu, sm, self._phi)
-                b = fric[5]
-            else:
-                b = (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom)
+        b, fric = self._nominal_error(record, P0)
         eta = self.model_error if self._me_on else None   # a plain AKF's declared model error, through Γ_μ
         if akf.residual is not None:
             E, S, X, out = self._gp_box(zhat, x0, P0)
@@ -500,8 +490,30 @@ class AKFTheoremBound:
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "
                                  f"error {np.max(b):.3g}); the model's non-linearity is too strong for "
                                  f"the confidence set")
-        est.tau_h_act_bound[:] = sm.rho(record.P)
-        self._saturate(est, record.P)
+        est.tau_h_act_bound[:] = sm.rho(P)
+        self._saturate(est, P)
+
+    def _nominal_error(self, record, P0: np.ndarray):
+        """(b, the friction's range candidate or None): the nominal model's linearisation-error
+        box over C_{k−1} — gravity analytically, declared effects sampled (with declared
+        friction, both forms of :meth:`FrictionRange.candidate` from one pass)."""
+        akf, sm = self.akf, self.sm
+        x0, u, dt = record.x_prev, record.u, record.dt
+        if self._fast:
+            return self._gravity_box(x0, P0), None    # analytic, rigorous (exact half-width of C_{k−1})
+        if self._rigid:                                # the rigid body's box over W·C_{k−1} (rigid_box)
+            return self._rbox.box(x0, sm.G_, P0, self._s_z, np.zeros(akf.d)), None
+        C = sm.confidence_set(x0, P0)                  # C_{k−1} (outer ellipsoid, for the point set)
+        A_nom = record.A_k.copy()
+        if akf.residual is not None:                   # undo −I_μ M⁻¹ F_GP to get F_nom
+            _, J, _ = akf.residual.predict(record.z)
+            A_nom += akf.G_mu @ (np.asarray(J, float) @ akf.dz_dx)
+        if self.friction.groups:
+            loop = (record.F_k, self._I - record.K_k @ akf.H)
+            fric = self.friction.candidate(x0, u, P0, sm.sample_points(C), A_nom, dt, record.A_k,
+                                           record.Gamma_mu, sm, self._phi, loop)
+            return fric[5], fric
+        return (1.0 + sm.margin) * self._sampled_nominal_box(x0, u, C, A_nom), None
 
     def _gp_range_candidate(self, H: np.ndarray, P0: np.ndarray, Gamma_mu: np.ndarray):
         """The GP part of the range form: the GP mean linearised at zero slope.
@@ -524,11 +536,9 @@ class AKFTheoremBound:
         return Gamma_mu @ JT, eta_b
 
     def _predict_best_of_two(self, rec, Gam, eta, b, Phi, fric, gp_range) -> None:
-        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (the declared
-        friction of :meth:`FrictionRange.candidate` and the GP mean of :meth:`_gp_range_candidate`
-        linearised at zero slope), whichever gives the narrower τ_h,act half-width after the
-        filter step (I − KH).  Both contain the propagated set of means under Theorem 1's
-        assumptions, so the choice keeps the guarantee whatever the rule."""
+        """X⁻ from the filter-slope step (F, Γ box(η), Φ box(b)) or the range form (FrictionRange.candidate,
+        :meth:`_gp_range_candidate`), whichever has the narrower τ_h,act half-width after (I − KH);
+        both contain the set of means, so the choice keeps the guarantee whatever the rule."""
         sm = self.sm
         n = self.akf.n
         limit = sm.generator_limit()

@@ -80,6 +80,7 @@ class SetConstants(NamedTuple):
     Uz: np.ndarray
     delta_tau: float
     z_tau: float
+    box_given: bool = False    # the linearisation-error box is the caller's (a rigid body's, rigid_box)
 
 
 class GPTerms(NamedTuple):
@@ -299,8 +300,9 @@ def bound_step(G, max_gen, st, c, gpt, rt, pack, out):
     generators, GP box left, whether the range form was taken)."""
     n = out.rho.shape[0]
     b = out.lin_err_box
-    # 1. eq:linerrsetdx / eq:linearerrellipsoid, gravity (analytic)
-    _gravity_stage(G, st, c, b)
+    # 1. eq:linerrsetdx / eq:linearerrellipsoid, gravity (analytic), unless the caller gave b
+    if not c.box_given:
+        _gravity_stage(G, st, c, b)
     out_of_box = False
     eta = np.zeros(0)
     eta_b = np.zeros(0)
@@ -318,6 +320,29 @@ def bound_step(G, max_gen, st, c, gpt, rt, pack, out):
         sd[j] = math.sqrt(max(st.P[4 * n + j, 4 * n + j], 0.0))
     shifted_halfwidth_into(h, sd, c.delta_tau, c.z_tau, 8, out.rho)
     return Gn, out_of_box, took_range
+
+
+@njit
+def gaussian_part(F, K, H, R, S, tau0, drop_tau, P_prev, out):
+    """The Gaussian part of the next step into ``out`` (docs/bounds.md §3, "The Gaussian part"):
+    P_g,k = (I − KH)(F P_g,k−1 Fᵀ + Q_g)(I − KH)ᵀ + K R Kᵀ with the filter's F, K, H, R and
+    Q_g = Σ_nom,k (``S``), its τ_h,act rows and columns (from ``tau0`` on) zero when ``drop_tau``
+    (the declared rate holds the human torque's change)."""
+    d = F.shape[0]
+    Q = S.copy()
+    if drop_tau:
+        for i in range(d):
+            for j in range(tau0, d):
+                Q[i, j] = 0.0
+                Q[j, i] = 0.0
+    Pp = F @ P_prev @ F.T + Q
+    IKH = -(K @ H)
+    for i in range(d):
+        IKH[i, i] += 1.0
+    Pn = IKH @ Pp @ IKH.T + K @ R @ K.T
+    for i in range(d):
+        for j in range(d):
+            out[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
 
 
 @njit
@@ -382,4 +407,6 @@ def _warm() -> None:
         bound_step(np.zeros((d, 2)), 40, st, c, gpt, rt, pack.arrays() if has_gp else empty_pack(), out)
     # the Python step's calls (AKFTheoremBound._gravity_box, the check after the compiled step)
     gravity_remainder(np.zeros(1), np.ones(1), np.ones(1), np.linspace(-1.0, 1.0, 5), 0.5, np.empty(1))
+    gaussian_part(np.eye(d), np.zeros((d, 4)), np.zeros((4, d)), np.eye(4), np.eye(d), 4, True, np.eye(d),
+                  np.empty((d, d)))
     generators_check(np.zeros((5, 3)), np.ones(5))

@@ -20,7 +20,8 @@ def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> t
     """Fraction of the steps of ``log`` where the Theorem-1 ρ_k with η = β s(z) (local scale,
     :func:`~sea_daemon.core.bounds.gp_bound.fixed_constants`) covers the τ̂_h,act error of the frozen
     GP-AKF ``est``; ``truth`` τ_h,act per sample (default 0: a passive subject,
-    ass:passive_human).  No human-torque rate: the subject is passive.  ``est`` must have no
+    ass:passive_human).  No human-torque rate: the subject is passive; the Gaussian part is the
+    filter's P, as in estimation with a configured β.  ``est`` must have no
     bound component; it is left as it was (learning restored, no bound).  Returns (coverage, steps)."""
     if est.bound is not None:
         raise ValueError("torque_coverage needs a GP-AKF without a bound component")
@@ -32,7 +33,8 @@ def torque_coverage(est, log, beta: float, truth: np.ndarray | None = None) -> t
     _, box = gp_constants(gps, 0.5 * est.delta, beta=1.0)
     consts = [fixed_constants(float(beta), 0.5 * est.delta / n) for _ in range(n)]
     learning, est.learning = est.learning, False
-    est.bound = AKFTheoremBound(est, gp_constants=consts, gp_box=box, tau_h_act_rate=0.0)
+    # the Gaussian part a configured β is used with: the filter's P (docs/bounds.md §3)
+    est.bound = AKFTheoremBound(est, gp_constants=consts, gp_box=box, tau_h_act_rate=0.0, filter_gaussian=True)
     covered = steps = 0
     try:
         e = est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
