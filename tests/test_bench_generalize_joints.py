@@ -8,7 +8,7 @@ import numpy as np
 
 from sea_daemon.apps.bench._family_joints import draw_plant_joints, sessions_joints
 from sea_daemon.apps.bench.generalize import by_rate, summarize
-from sea_daemon.apps.bench.generalize_joints import (DEVELOPMENT_SEEDS, _joint_stats, joint_view,
+from sea_daemon.apps.bench._generalize_joints import (DEVELOPMENT_SEEDS, _joint_stats, joint_view,
                                                      summarize_joints)
 from tests._paths import repo_root
 

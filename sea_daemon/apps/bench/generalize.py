@@ -24,7 +24,7 @@ the smallest, the bound's size against :data:`TIGHT`, each target of :data:`TARG
 ``--rates``: each plant drawn at each rate given (default the seed's own).  ``--degenerate``:
 each plant calibrated instead on degenerate logs by ``sea-daemon fit`` (:mod:`._degenerate`).
 
-``--joints 2``: the two-joint shoulder–elbow family instead (:mod:`.generalize_joints`: the same
+``--joints 2``: the two-joint shoulder–elbow family instead (:mod:`._generalize_joints`: the same
 options and summary, the figures per joint).
 
 Seeds: ``--seeds`` (default ``420-439``).  The seeds that chose any setting of the calibration
@@ -48,7 +48,7 @@ from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant,
                                                 summarize_degenerate)
 from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
-from sea_daemon.apps.bench.generalize_joints import calibrate_plant, run_joints, seed_roles_joints
+from sea_daemon.apps.bench._generalize_joints import calibrate_plant, run_joints, seed_roles_joints
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF

@@ -27,7 +27,7 @@ from sea_daemon.core.bounds.ellipsoid import chi2_quantile
 from sea_daemon.core.bounds.setmember import points_of_ellipsoid, unit_directions
 from sea_daemon.core.bounds.zonotope import outer_ellipsoid_shape
 from sea_daemon.core.dynamics import load_side_torque
-from sea_daemon.core.jit import njit
+from sea_daemon.core.jit import njit, warmer
 
 
 def applies(model) -> bool:
@@ -122,3 +122,13 @@ class RigidBox:
         with s = :attr:`s_z` into ``b``: what the compiled bound step needs of the rigid body."""
         self.model.at(x0)
         self.box(x0, G, P0, self.s_z, b)
+
+
+@warmer
+def _warm() -> None:
+    """The kernels with the types :meth:`RigidBox.box` passes (2 joints: d = 10, W·x ∈ R⁶)."""
+    n, d = 2, 10
+    W = np.zeros((3 * n, d))
+    W[:, :3 * n] = np.eye(3 * n)
+    Wp = rigid_points(np.eye(d)[:, :3].copy(), np.zeros(d), np.eye(d), W, 1.0, unit_directions(3 * n, 4, 0))
+    rigid_error_box(Wp, np.zeros((Wp.shape[0], n)), np.zeros((n, 3 * n)), 0.1, np.zeros(5 * n))
