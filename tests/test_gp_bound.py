@@ -220,3 +220,26 @@ def test_local_scale_is_the_leaf_residual_rms():
     # s(z) ≥ σ(z), and the right end (noisier data) has the larger local scale
     z0, z1 = np.array([0.2]), np.array([2.8])
     assert sc(z0, 0.01) >= 0.1 and sc.local(z1) > sc.local(z0)
+
+
+def test_posterior_sigma_modulus_is_sigma_f_tau_and_chooses_a_larger_tau():
+    """ω_σ(τ) = σ_f τ (normalised coordinates) holds for the posterior σ of a GP with little noise,
+    where LUH19's √(2τL_k(1 + N‖(K + σ_n²I)⁻¹‖σ_f²)) is orders larger: the bound takes it, picks a
+    larger τ and a smaller √β than with LUH19's modulus (19 → 14 on a 6-D LoG-GP of a 2-DoF arm)."""
+    rng = np.random.default_rng(11)
+    sf, ls, sn = 1.3, np.array([0.4, 0.7, 1.1]), 0.01
+    X = rng.uniform(-1, 1, (60, 3))
+    y = np.sin(3 * X[:, 0]) * X[:, 1] + 0.2 * X[:, 2]
+    Xg = rng.uniform(-1, 1, (400, 3))
+    Xp = Xg + rng.standard_normal((400, 3)) * 0.02
+    allX = np.vstack([X, Xg, Xp])
+    _, sd = _gp_posterior(allX, np.arange(60), y, sf, ls, sn)
+    d = np.linalg.norm((Xg - Xp) / ls, axis=1)
+    assert np.all(np.abs(sd[60:460] - sd[460:]) <= sf * d * (1 + 1e-9) + 1e-12)
+    leaf = LeafGP.from_data(X, y, sf, ls, sn)
+    c = error_bound([leaf], [-1, -1, -1], [1, 1, 1], 0.05, delta_lipschitz=0.005)
+    assert c.omega_sigma <= sf * c.tau * (1 + 1e-12)
+    Kn = leaf.Kinv_norm
+    luh = math.sqrt(2.0 * se_lipschitz(sf) * (1.0 + leaf.N * Kn * sf ** 2) * c.tau)
+    assert c.omega_sigma < 1e-2 * luh
+    assert c.tau >= 1e-8 and c.sqrt_beta < 10.0

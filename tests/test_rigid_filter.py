@@ -124,6 +124,18 @@ def estimate(est, data):
     return E, B
 
 
+def trained_gp(cfg, true_cfg, train_s, test_s):
+    """A GP-AKF of ``cfg`` trained on a passive session of ``true_cfg`` (seed 1, ``train_s`` seconds),
+    learning then off, and a session with :func:`human` (seed 2, ``test_s`` seconds)."""
+    nominal = SEAModel.from_config(cfg)
+    train = session(true_cfg, nominal, train_s, None, 1)
+    test = session(true_cfg, nominal, test_s, human, 2)
+    gp = make_estimator("gp-akf", cfg, bound=False)
+    estimate(gp, train)
+    gp.learning = False
+    return gp, test
+
+
 def test_gpakf_estimates_the_human_torque_on_both_joints(cfg):
     """The true arm: the wearer's upper arm 25 % heavier, forearm 20 % lighter and 10 % longer, the
     exoskeleton's forearm 10 % heavier, viscous and Coulomb friction on both joints — none of it in
@@ -134,12 +146,7 @@ def test_gpakf_estimates_the_human_torque_on_both_joints(cfg):
     rigid = cfg.model.rigid.scaled(mass={"human_upper_arm": 1.25, "human_forearm_hand": 0.8, "exo_forearm": 1.1},
                                    length={"human_forearm_hand": 1.1})
     true_cfg = dataclasses.replace(cfg, model=cfg.model.with_rigid(rigid).with_effects(effects(cfg, HIDDEN)))
-    nominal = SEAModel.from_config(cfg)
-    train = session(true_cfg, nominal, 20.0, None, 1)
-    test = session(true_cfg, nominal, 12.0, human, 2)
-    gp = make_estimator("gp-akf", cfg, bound=False)
-    estimate(gp, train)
-    gp.learning = False
+    gp, test = trained_gp(cfg, true_cfg, 20.0, 12.0)
     assert gp.n_learned > 1500
     skip = int(2 * RATE)
     truth = test[3][skip:]

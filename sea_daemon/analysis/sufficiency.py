@@ -213,11 +213,11 @@ def _kinematics(t: np.ndarray, x: np.ndarray, dt: float, lim: Limits):
             savgol_filter(x, deriv=2, **kw) if deg >= 2 else np.zeros_like(x), g1, g2)
 
 
-def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> dict:
-    """The figures of one joint's log (finite numbers or None)."""
+def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: int = 0) -> dict:
+    """The figures of one joint's log, joint ``joint`` (0-based) of an n-joint log (finite numbers or None)."""
     dt = log.dt
-    q, th, u = (np.asarray(a, float)[:, 0] for a in (log.q, log.theta_m, log.tau_m))
-    dq_quant, dm_quant = (float(a[0]) for a in cfg.hardware.encoder_resolution(cfg.joints))
+    q, th, u = (np.asarray(a, float)[:, joint] for a in (log.q, log.theta_m, log.tau_m))
+    dq_quant, dm_quant = (float(a[joint]) for a in cfg.hardware.encoder_resolution(cfg.joints))
     duration = float(log.t[-1] - log.t[0]) if len(log) > 1 else 0.0
     f: dict = {"samples": int(len(log)), "duration_s": finite(duration) or 0.0, "rate_hz": finite(1.0 / dt),
                "config_rate_hz": float(cfg.rate_hz),
@@ -249,7 +249,7 @@ def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> dict:
                   "motor_speed_up": _snr(mup, sm * g1), "motor_speed_down": _snr(mdown, sm * g1),
                   "deflection": _snr(float(np.std(defl)), math.hypot(sq, sm))})
     f["torque_limit_share"] = float(np.mean(np.abs(u) >= 0.999 * cfg.hardware.torque_limit))
-    f["spring_slope"] = _spring_slope(u, defl, float(np.ravel(cfg.model.K_s)[0]))
+    f["spring_slope"] = _spring_slope(u, defl, float(np.diag(np.atleast_2d(cfg.model.K_s))[joint]))
     return f
 
 
@@ -354,13 +354,13 @@ def _working_range_note(f: dict, cfg: ModelConfig, lim: Limits) -> str | None:
             "speed (calibration.v_max); beyond, the model is extrapolated. To cover it, " + RECORD + ".")
 
 
-def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits()) -> Sufficiency:
+def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: int | None = None) -> Sufficiency:
     """The figures of ``log`` (one joint, at the configuration's rate: :func:`at_config_rate`)
     and a verdict per quantity of :data:`QUANTITIES`; ``refusal`` the one line when the log
-    cannot be calibrated on."""
-    if log.n != 1:
+    cannot be calibrated on.  ``joint``: the joint (0-based) of an n-joint log to assess."""
+    if log.n != 1 and joint is None:
         raise InputError(f"{log.path}: {log.n} joints; the calibration's sufficiency check is for one joint")
-    f = measure(log, cfg, lim)
+    f = measure(log, cfg, lim, joint or 0)
     s = Sufficiency(f)
     s.refusal = _refusal(f, lim, log.path) or _still_over_range(f, cfg, log.path)
     phys = _physics(f, lim) if s.refusal is None else Verdict("effects", "refuse", "see the refusal")

@@ -11,6 +11,7 @@ the joints' working ranges.
 :class:`Coverage` — an occupancy grid of the (q, q̇, q̈) box of the working range: what share
 of it a log's data visit, and, at estimation time, whether a sample's z lies in a visited
 cell (or its neighbours).
+:class:`JointsCoverage` — the coverage of n joints: one occupancy grid per joint.
 
 Pure: no I/O, no clock.
 """
@@ -240,3 +241,52 @@ def _edge_mask(shape, axis: int, shift: int) -> np.ndarray:
     sl[axis] = 0 if shift > 0 else -1
     m[tuple(sl)] = False
     return m
+
+
+class JointsCoverage:
+    """:class:`Coverage` of n joints: one grid per joint over its own (q_j, q̇_j, q̈_j) box.
+
+    ``add(Z)`` takes the pairs z = [q, q̇, q̈] (N, 3n); :meth:`covered` is true when every
+    joint's (q_j, q̇_j, q̈_j) lies in a visited cell or next to one; :meth:`report` gives each
+    joint's shares (``joints``) and the smallest of them at the top level."""
+
+    def __init__(self, wrs, bins: int = 10, min_count: int = 3):
+        self.per_joint = [Coverage(wr, bins, min_count) for wr in wrs]
+        self.n = len(self.per_joint)
+        self._zj = np.zeros(3)
+
+    def _cols(self, j: int) -> list[int]:
+        return [j, self.n + j, 2 * self.n + j]
+
+    def add(self, Z: np.ndarray) -> None:
+        Z = np.atleast_2d(Z)
+        for j, c in enumerate(self.per_joint):
+            c.add(Z[:, self._cols(j)])
+
+    def covered(self, z) -> bool:
+        zj = self._zj
+        for j, c in enumerate(self.per_joint):
+            zj[0], zj[1], zj[2] = z[j], z[self.n + j], z[2 * self.n + j]
+            if not c.covered(zj):
+                return False
+        return True
+
+    def report(self) -> dict:
+        per = [c.report() for c in self.per_joint]
+        out = {k: min(p[k] for p in per) for k in ("box_share", "q_qdot_share", "q_share")}
+        return {**out, "bins": per[0]["bins"], "joints": per}
+
+    def to_dict(self) -> dict:
+        return {"joints": [c.to_dict() for c in self.per_joint]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "JointsCoverage":
+        per = [Coverage.from_dict(x) for x in d["joints"]]
+        out = cls([c.wr for c in per], per[0].bins, per[0].min_count)
+        out.per_joint = per
+        return out
+
+
+def coverage_from_dict(d: dict):
+    """:class:`Coverage` or, for n joints (a ``joints`` list), :class:`JointsCoverage` from its ``to_dict``."""
+    return JointsCoverage.from_dict(d) if "joints" in d else Coverage.from_dict(d)

@@ -12,9 +12,14 @@ retuned by hand:
   delay (W − 1)/2 samples stays 20 ms at W = 5, 100 Hz → W = 41 at 1 kHz), W·dt for ``ma`` — so
   the velocities of y and the GP input z = [q, q̇, q̈] have the same delay and, for white angle
   noise, a smaller noise gain (q̈'s noise would otherwise grow as 1/dt²: ×100 at 1 kHz with
-  W = 5).  The measurement noise R is left as identified: on the simulated sensors its velocity
-  entries are set by the differentiator's lag during motion (6e-6 (rad/s)² measured against
-  1.5e-7 from the angle quantum through the W = 5 differentiator), which the kept span keeps.
+  W = 5);
+* the measurement noise R is scaled by the rate ratio (×10 from 100 Hz to 1 kHz): the same
+  information per second.  Its velocity entries are set by the differentiator's lag during motion
+  (6e-6 (rad/s)² measured against 1.5e-7 from the angle quantum through the W = 5
+  differentiator), an error the kept span keeps and that is correlated over that span, so ten
+  samples in its place do not tell the filter ten times as much; with R as identified the filter
+  would weigh them as independent.  The cost: at 1 kHz the filter's velocity posterior, and
+  with it the Theorem-1 bound's Gaussian part, is wider than the lag alone would make it.
 
 :func:`same_in_time` is the model file's compatibility rule (:mod:`sea_daemon.io.gpmodel`): a
 residual learned at one rate is valid at another when the kinematics are the same in time.

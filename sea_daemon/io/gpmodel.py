@@ -16,6 +16,7 @@ estimator noise (``estimator``) and ``hardware`` may differ.
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -66,13 +67,30 @@ def save_gp_model(path: str | Path, cfg: ModelConfig, residual: ResidualGP, prov
     d, arrays = _split(residual)
     meta = {"kind": KIND, "config": json.loads(json.dumps(cfg.to_dict())), "residual": d,
             "created_unix": time.time(), "provenance": provenance}
+    if cfg.model.rigid is not None:
+        # the URDF's path is relative to the YAML that names it: the description itself is compared
+        meta["config"]["model"]["urdf_sha256"] = _urdf_hash(cfg)
     save_model(path, arrays, meta)
+
+
+def _urdf_hash(cfg: ModelConfig) -> str | None:
+    return None if cfg.model.rigid is None else hashlib.sha256(cfg.model.rigid.urdf.encode()).hexdigest()
+
+
+def _same_model(saved: dict, cfg: ModelConfig, now: dict) -> bool:
+    """The model sections agree, a URDF compared by its text (saved as ``urdf_sha256``), not its path."""
+    a, b = dict(saved.get("model") or {}), dict(now.get("model") or {})
+    if "urdf" not in a or "urdf" not in b:
+        return a == b
+    h = a.pop("urdf_sha256", None)
+    a.pop("urdf"), b.pop("urdf")
+    return a == b and (h is None or h == _urdf_hash(cfg))
 
 
 def _compat(path: str, saved: dict, cfg: ModelConfig) -> None:
     now = json.loads(json.dumps(cfg.to_dict()))
     for key in COMPAT_KEYS:
-        if saved.get(key) == now.get(key):
+        if saved.get(key) == now.get(key) or (key == "model" and _same_model(saved, cfg, now)):
             continue
         if key in ("rate_hz", "kinematics") and _same_in_time(saved, cfg):
             continue                      # another loop rate, the same differentiator in time

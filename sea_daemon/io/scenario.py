@@ -56,6 +56,8 @@ from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.core.sim.subject import TrackingSubject, TrackingTask
 from sea_daemon.errors import ConfigError, InputError
+from sea_daemon.io.scenario_joints import check_human, links_from_dict
+from sea_daemon.io.scenario_joints import controller_from_dict as joints_controller
 
 HUMAN_MODES = ("passive", "resist", "track")
 CONTROLLER_TYPES = ("pid", "open_loop")
@@ -82,11 +84,13 @@ class PlantSpec:
     substep_hz: float = 1000.0
     sign_eps: float = 3e-3
     torque_noise: float | None = None
+    link_mass: tuple = ()           # ((URDF link, mass factor), ...) of the true arm (model.urdf)
+    link_length: tuple = ()         # ((URDF link, length factor), ...)
 
-    KEYS = ["effects", "substep_hz", "sign_eps", "torque_noise"]
+    KEYS = ["effects", "substep_hz", "sign_eps", "torque_noise", "links"]
 
     @classmethod
-    def from_dict(cls, d: Mapping, n: int, source: str) -> "PlantSpec":
+    def from_dict(cls, d: Mapping, n: int, source: str, urdf: str | None = None) -> "PlantSpec":
         _check_keys(source, "plant.", d, cls.KEYS, ["effects"])
         eff = d["effects"]
         if eff is None:
@@ -99,6 +103,8 @@ class PlantSpec:
             sign_eps=_num(source, "plant.sign_eps", d.get("sign_eps", 3e-3), positive=True),
             torque_noise=(None if d.get("torque_noise") is None else
                           _num(source, "plant.torque_noise", d["torque_noise"], non_negative=True)),
+            **({} if "links" not in d else dict(zip(("link_mass", "link_length"),
+                                                    links_from_dict(d["links"], urdf, source)))),
         )
 
 
@@ -229,8 +235,13 @@ class Scenario:
     REQUIRED = ["model", "human", "plant", "controller", "phases"]
 
     def true_config(self) -> ModelConfig:
-        """Nominal model + hidden effects: the configuration of the true plant."""
-        return self.nominal.with_effects(tuple(self.nominal.model.effects) + tuple(self.plant.effects))
+        """Nominal model + hidden effects (and, for a ``model.urdf``, the links' masses and lengths
+        scaled by ``plant.links``): the configuration of the true plant."""
+        cfg = self.nominal.with_effects(tuple(self.nominal.model.effects) + tuple(self.plant.effects))
+        if self.plant.link_mass or self.plant.link_length:
+            rigid = cfg.model.rigid.scaled(mass=dict(self.plant.link_mass), length=dict(self.plant.link_length))
+            cfg = dataclasses.replace(cfg, model=cfg.model.with_rigid(rigid))
+        return cfg
 
     def declared(self, cfg: ModelConfig) -> ModelConfig:
         """``cfg`` with what the scenario declares to the estimator: ``estimator.tau_h_act_rate``
@@ -257,14 +268,21 @@ class Scenario:
         if not isinstance(ctrl, Mapping):
             raise ConfigError(source, "controller", f"must be a mapping with a type ({', '.join(CONTROLLER_TYPES)})")
         typ = ctrl.get("type")
-        if typ == "pid":
+        if nominal.joints > 1:        # per-joint values (io.scenario_joints)
+            controller = joints_controller(ctrl, nominal.joints, source)
+            check_human(source, human, controller)
+            if "task" in d:
+                raise ConfigError(source, "task", "is only allowed with human: track (one joint)")
+        elif typ == "pid":
             controller: PIDSpec | OpenLoopSpec = PIDSpec.from_dict(ctrl, source)
         elif typ == "open_loop":
             controller = OpenLoopSpec.from_dict(ctrl, source)
         else:
             raise ConfigError(source, "controller.type", f"unknown controller type {typ!r}; "
                                                          f"allowed: {', '.join(CONTROLLER_TYPES)}")
-        if human == "resist" and typ != "open_loop":
+        if nominal.joints > 1:
+            pass
+        elif human == "resist" and typ != "open_loop":
             raise ConfigError(source, "human", "'resist' (τ_h,act = −τ_des) needs controller.type open_loop; "
                                                "allowed with pid: passive, track")
         if human == "track" and typ != "pid":
@@ -275,8 +293,6 @@ class Scenario:
             task = task_from_dict(d.get("task", {}), source)
         elif "task" in d:
             raise ConfigError(source, "task", f"is only allowed with human: track, got human: {human}")
-        if nominal.joints != 1:
-            raise ConfigError(source, "model", f"scenarios support 1 joint for now, the model has {nominal.joints}")
         ph = d["phases"]
         _check_keys(source, "phases.", ph, ["training", "estimation"], ["training", "estimation"])
         samples = {}
@@ -291,7 +307,8 @@ class Scenario:
         if rate is not None:
             rate = _num(source, "tau_h_act_rate", rate, non_negative=True)
         return cls(source=source, model_path=model_path, nominal=nominal,
-                   plant=PlantSpec.from_dict(d["plant"], nominal.joints, source),
+                   plant=PlantSpec.from_dict(d["plant"], nominal.joints, source,
+                                             None if nominal.model.rigid is None else nominal.model.rigid.urdf),
                    human=human, controller=controller, training_samples=samples["training"],
                    estimation_samples=samples["estimation"], seed=seed, description=desc,
                    tau_h_act_rate=rate, task=task)

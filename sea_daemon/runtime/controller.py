@@ -20,6 +20,7 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm
 from sea_daemon.core.model import SEAModel
 from sea_daemon.io.scenario import PIDSpec, Scenario
+from sea_daemon.io.scenario_joints import JointsPID
 
 
 class ZeroTorque:
@@ -72,7 +73,12 @@ class ScenarioController:
         self.tracker: ReferenceTracker | None = None
         self.ol: OpenLoopTorque | None = None     # built at the start (τ_comp)
         self.still: StillArm | None = None        # the open loop on τ_comp, built at the start
-        if isinstance(self.spec, PIDSpec):
+        if isinstance(self.spec, JointsPID):
+            # n joints (io.scenario_joints): each joint's moves, or ``reference``, with the per-joint gains
+            self.traj = reference if reference is not None else self.spec.reference()
+            self.tracker = ReferenceTracker(self.spec.gains, self.traj, cfg.dt, self.limit)
+            self.pid = self.tracker.pid
+        elif isinstance(self.spec, PIDSpec):
             tr = self.spec.trajectory
             # ``reference``: another trajectory with reference(t) -> (q, q̇, q̈) tracked by the
             # scenario's PID instead of its moves (the calibration excitation, calibrate --excitation)

@@ -37,6 +37,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.sim.sampling import SampleRecorder
 from sea_daemon.errors import InputError
 from sea_daemon.io.scenario import Scenario, make_plant
+from sea_daemon.io.scenario_joints import simulate_joints
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.loop import FixedRateLoop
 
@@ -58,6 +59,9 @@ def simulate(sc: Scenario, seed: int | None = None) -> SimResult:
     if sc.human == "track":
         raise InputError(f"scenario {sc.source}: human 'track' (a subject that reacts to the exoskeleton) runs "
                          "with the assist controller: sea-daemon run --device-model / --sim (docs/assist.md)")
+    if sc.nominal.joints > 1:         # n joints: the session of io.scenario_joints
+        training, estimation = simulate_joints(sc, seed)
+        return SimResult(training=training, estimation=estimation)
     plant = make_plant(sc, seed)
     cfg = sc.nominal
     n_train = sc.training_samples

@@ -15,7 +15,8 @@ import numpy as np
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.effects import Coulomb, Effect, Inertia, Stribeck
 from sea_daemon.core.model import SEAModel
-from sea_daemon.analysis.diagnose.residuals import FastGain, Kinematics, fast_command_gain, residuals_for, stick_velocity
+from sea_daemon.analysis.diagnose.residuals import (FastGain, Kinematics, fast_command_gain, inertia_and_bias,
+                                                    residuals_for, stick_velocity)
 
 
 @dataclass
@@ -50,7 +51,10 @@ class Context:
         q, th = self.angles()
         tau_s = float(np.max(np.abs((q - th) @ m.K_s.T)[:, j]))
         if side == "load":
-            out = tau_s + float(np.max(np.abs(kin.ddq @ m.M.T)[:, j])) + float(np.max(np.abs(m.C(q))[:, j]))
+            if m.rigid is None:
+                out = tau_s + float(np.max(np.abs(kin.ddq @ m.M.T)[:, j])) + float(np.max(np.abs(m.C(q))[:, j]))
+            else:
+                out = tau_s + float(np.max(np.abs(inertia_and_bias(m, q, kin.dq, kin.ddq))[:, j]))
             if kin.tau_h_act is not None and not self.passive:
                 out += float(np.max(np.abs(kin.tau_h_act[:, j])))
             return out

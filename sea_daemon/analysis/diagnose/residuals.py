@@ -203,6 +203,29 @@ def _deadzone(x: np.ndarray, F: float) -> np.ndarray:
     return x - np.clip(x, -F, F)
 
 
+def inertia_and_bias(model: SEAModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N, n) the load side's rigid-body torque per sample: M q̈ + C(q) of a constant-inertia model, and
+    M(q) q̈ + C(q, q̇) q̇ + g(q) of a ``model.urdf`` (one RNEA per sample)."""
+    if model.rigid is None:
+        return ddq @ model.M.T + model.C(q)
+    # diagnose evaluates thousands of candidate balances on the same kinematics: the rigid body's
+    # part is the same in all of them (the effects are summed apart), so it is kept per input
+    rb = model.rigid
+    key = (rb.urdf, rb.armature.tobytes(), rb.gravity_vector.tobytes(), q.tobytes(), dq.tobytes(), ddq.tobytes())
+    hit = _RIGID_CACHE.get(key)
+    if hit is not None:
+        return hit
+    out = np.array([rb.inverse(a, b, c) for a, b, c in zip(q, dq, ddq)]).reshape(q.shape)
+    if len(_RIGID_CACHE) >= 8:
+        _RIGID_CACHE.pop(next(iter(_RIGID_CACHE)))
+    _RIGID_CACHE[key] = out
+    return out
+
+
+#: the last rigid-body torques of :func:`inertia_and_bias`, keyed by the body and its inputs
+_RIGID_CACHE: dict = {}
+
+
 def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
                       passive: bool = False, v_stick: float | tuple[float, float] = 0.0) -> np.ndarray:
     """(N, 2n) array [r_load, r_motor] of the model on the log (see module docstring).
@@ -225,7 +248,7 @@ def residual_channels(model: SEAModel, kin: Kinematics, zoh: bool = True,
     fric_m = [e for e in model.motor_effects if isinstance(e, (Coulomb, Stribeck))]
     # load side: M q̈ + C(q) + Σ_load e + τ_s − τ_h,act   (eq:unknwn_load)
     fr_l = _effect_sum(fric, n, q, dq, kin.ddq)
-    lo = (kin.d2q @ model.M.T + model.C(q) + fr_l
+    lo = (inertia_and_bias(model, q, dq, kin.d2q) + fr_l
           + _effect_sum([e for e in model.load_effects if e not in fric], n, q, dq, kin.ddq) + tau_s)
     if kin.tau_h_act is not None and not passive:
         lo = lo - kin.tau_h_act

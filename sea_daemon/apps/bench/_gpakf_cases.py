@@ -17,6 +17,11 @@ timed steps.  Pre-fill time is printed (about 50-100 µs per point on the 2-core
 behind the variance weighting, learning off (the calibration trains the GP offline), and the
 coverage flag.  Its GP holds the log's training pairs (one leaf's worth is what a calibration
 keeps per region), with the calibration's own hyperparameter fit on them.
+
+``gp-akf-frozen`` and ``gp-akf-bound``: the daemon's GP-AKF with the LoG-GPs it learned online
+over one pass of the log, frozen (learning off), without and with its Theorem-1 bound ρ_k
+(:mod:`~sea_daemon.core.bounds.akf_bound`, the compiled step where it applies, a URDF model's
+included); the bound's own cost per step is the difference of the two.
 """
 from __future__ import annotations
 
@@ -96,6 +101,25 @@ def calibrated_gpakf(cfg, dt, log, verbose: bool = True):
     return est
 
 
+FROZEN, BOUND = "gp-akf-frozen", "gp-akf-bound"
+
+
+def frozen_gpakf(cfg, dt, log, bound: bool, verbose: bool = True):
+    """A GP-AKF whose LoG-GPs learned online over one pass of ``log``, then frozen; with ``bound``
+    its Theorem-1 bound (see the module docstring)."""
+    learner = make_estimator("gp-akf", cfg, dt=dt, bound=False)
+    learner.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+    for k in range(1, len(log)):
+        learner.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+    est = make_estimator("gp-akf", cfg, dt=dt, residual=learner.gp, learning=False, bound=bound)
+    if verbose:
+        g0 = learner.gp.gps[0]
+        print(f"{BOUND if bound else FROZEN:>12s}: LoG-GP per joint learned online over the log "
+              f"({g0.n_points} points, {g0.n_leaves} leaves), learning off, Theorem-1 bound "
+              f"{'on' if bound else 'off'}", flush=True)
+    return est
+
+
 def register(register_fn, max_points: int = SIZES[-1], hyper_every: int | None = None) -> list[str]:
     """Register ``gp-akf-1eK`` cases up to ``max_points`` and ``gp-akf-calibrated`` with
     ``register_fn(label, builder)`` (``hyper_every``: updates between hyperparameter slices of
@@ -107,4 +131,6 @@ def register(register_fn, max_points: int = SIZES[-1], hyper_every: int | None =
         register_fn(label(n), lambda cfg, dt, log, n=n: prefilled_gpakf(cfg, dt, log, n, hyper_every=hyper_every))
         labels.append(label(n))
     register_fn(CALIBRATED, lambda cfg, dt, log: calibrated_gpakf(cfg, dt, log))
-    return labels + [CALIBRATED]
+    register_fn(FROZEN, lambda cfg, dt, log: frozen_gpakf(cfg, dt, log, False))
+    register_fn(BOUND, lambda cfg, dt, log: frozen_gpakf(cfg, dt, log, True))
+    return labels + [CALIBRATED, FROZEN, BOUND]

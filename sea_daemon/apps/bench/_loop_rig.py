@@ -2,11 +2,14 @@
 for ``--joints N`` (N > 1) the configuration, the controller, the GP's training and the bus
 load per bus.
 
-The configuration is the simulated exoskeleton's (``configs/exo_1dof_sim.yaml``) for N joints
-(its per-joint estimator noise repeated per joint) with a bus per joint (``hardware.bus.channel``
-a list, docs/can.md "Bus load"; ``--one-bus``: every joint on one bus).  The device model's plant
-is that configuration's (N joints, no subject); the controller a PD per joint around slow sines
-from the holding torque; the GP-AKF's residual is learned by a lock-step run of the same
+The configuration for two joints is the shoulder–elbow exoskeleton of a URDF
+(``configs/exo_2dof.yaml``: its joints coupled through M(q) and the bias, the device model's plant
+the coupled one), otherwise (or ``--uncoupled``) the simulated exoskeleton's
+(``configs/exo_1dof_sim.yaml``) for N joints (its per-joint estimator noise repeated per joint);
+a bus per joint (``hardware.bus.channel`` a list, docs/can.md "Bus load"; ``--one-bus``: every
+joint on one bus).  The device model's plant is that configuration's (N joints, no subject;
+uncoupled joints as one-joint plants on their compiled path); the controller a PD per joint
+around slow sines from the holding torque; the GP-AKF's residual is learned by a lock-step run of the same
 controller against the device model in this process (``--train`` cycles at ``--model-rate``,
 the Theorem-1 bound off while it learns), then frozen.
 """
@@ -34,7 +37,7 @@ from sea_daemon.core.sim.plant import Plant
 from sea_daemon.hw.busload import bus_loads
 from sea_daemon.core.rates import at_rate
 from sea_daemon.hw.device_model.split_plant import SplitPlant
-from sea_daemon.io.configfile import data_root, load_config, load_yaml
+from sea_daemon.io.configfile import data_root, load_config, load_yaml, read_urdf
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.rig import device_model_rig, on_fresh_virtual_channel
 
@@ -44,23 +47,38 @@ _PER_JOINT = ("R", "Sigma_nom")
 Q0 = 0.3
 
 
-def joints_config(n: int, one_bus: bool = False) -> ModelConfig:
-    """The simulated exoskeleton with ``n`` joints, a bus per joint (or one bus)."""
-    raw = load_yaml(data_root() / "configs" / "exo_1dof_sim.yaml")
-    raw["joints"] = n
-    est = raw.setdefault("estimator", {})
-    for key in _PER_JOINT:
-        if key in est:
-            est[key] = np.repeat(np.asarray(est[key], dtype=float), n).tolist()
+def joints_config(n: int, one_bus: bool = False, uncoupled: bool = False) -> ModelConfig:
+    """The exoskeleton with ``n`` joints, a bus per joint (or one bus): for two joints the
+    shoulder–elbow exoskeleton of a URDF (``configs/exo_2dof.yaml``, coupled through M(q) and the
+    bias); otherwise, or ``uncoupled``, the simulated one-joint exoskeleton ``n`` times."""
+    coupled = n == 2 and not uncoupled
+    name = "exo_2dof.yaml" if coupled else "exo_1dof_sim.yaml"
+    raw = load_yaml(data_root() / "configs" / name)
+    if not coupled:
+        raw["joints"] = n
+        est = raw.setdefault("estimator", {})
+        for key in _PER_JOINT:
+            if key in est:
+                est[key] = np.repeat(np.asarray(est[key], dtype=float), n).tolist()
     bus = raw.setdefault("hardware", {}).setdefault("bus", {})
-    name = bus.get("channel", "sea-daemon")
-    bus["channel"] = name if one_bus else [f"{name}-j{j + 1}" for j in range(n)]
-    return ModelConfig.from_dict(raw, f"exo_1dof_sim.yaml for {n} joints")
+    channel = bus.get("channel", "sea-daemon")
+    bus["channel"] = channel if one_bus else [f"{channel}-j{j + 1}" for j in range(n)]
+    path = data_root() / "configs" / name
+    # the file's path as the source: its model.urdf is relative to it (save_config rewrites it)
+    return ModelConfig.from_dict(raw, str(path), urdf_text=read_urdf(raw, path))
 
 
 def one_joint_config(rate: float) -> ModelConfig:
     """The simulated exoskeleton's one-joint configuration at ``rate``."""
     return at_rate(load_config(data_root() / "configs" / "exo_1dof_sim.yaml"), rate)
+
+
+def joints_plant(cfg: ModelConfig, seed: int | None = None):
+    """The device model's plant of ``cfg`` at :data:`Q0`: the coupled plant of its URDF, or
+    :func:`split_plant` (one-joint plants side by side)."""
+    if cfg.model.urdf:
+        return Plant(cfg, q0=Q0, seed=seed)
+    return split_plant(cfg.joints, cfg.rate_hz)
 
 
 def split_plant(n: int, rate: float) -> SplitPlant:
@@ -212,7 +230,7 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
             rig = make_rig(cfg, device_model=scen, phase="estimation")
         else:
             c = on_fresh_virtual_channel(cfg, "bench")
-            plant = split_plant(cfg.joints, cfg.rate_hz)
+            plant = joints_plant(c)
             rig = device_model_rig(c, plant, initial_torque=plant.hold_torque)
         b = dataclasses.replace(rig.cfg.hardware.bus, **timing)
         rig.cfg = dataclasses.replace(rig.cfg, hardware=dataclasses.replace(rig.cfg.hardware, bus=b))
@@ -232,6 +250,9 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
         cfg_r = fresh_channels(cfg, "ipc", **timing, **slow)
     if cfg.joints == 1:
         dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
+    elif cfg.model.urdf:
+        # the coupled plant of the URDF behind a drive and an encoder per joint
+        dev, rig = device_model_process(cfg_r, tmp, ["--q0", str(Q0)], args.device_rt_priority)
     else:
         one = one_joint_config(cfg.rate_hz)
         b1 = dataclasses.replace(cfg_r.hardware.bus.for_joints((0,), cfg_r.hardware.bus.channel))

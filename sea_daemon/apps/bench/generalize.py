@@ -24,6 +24,9 @@ the smallest, the bound's size against :data:`TIGHT`, each target of :data:`TARG
 ``--rates``: each plant drawn at each rate given (default the seed's own).  ``--degenerate``:
 each plant calibrated instead on degenerate logs by ``sea-daemon fit`` (:mod:`._degenerate`).
 
+``--joints 2``: the two-joint shoulder–elbow family instead (:mod:`._generalize_joints`: the same
+options and summary, the figures per joint).
+
 Seeds: ``--seeds`` (default ``420-439``).  The seeds that chose any setting of the calibration
 are 0–5, 100–119, 201, 209 and 400–419 (:data:`DEVELOPMENT_SEEDS`); the headline figures use
 other seeds, and the output names each seed development or held out.
@@ -45,7 +48,7 @@ from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant,
                                                 summarize_degenerate)
 from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
-from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
+from sea_daemon.apps.bench._generalize_joints import calibrate_plant, run_joints, seed_roles_joints
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
@@ -91,6 +94,9 @@ def add_arguments(p) -> None:
                    help="calibrate each plant instead on degenerate logs (" + ", ".join(DEGENERATE)
                         + ") with sea-daemon fit, as a user does: refused, or the held-out error and coverage "
                           "next to the AKF on the robot-only model, and the verdict")
+    p.add_argument("--joints", type=int, default=1,
+                   help="1 (the one-joint family) or 2 (the two-joint shoulder-elbow family, "
+                        "sea_daemon.apps.bench._family_joints; ratios per joint); default 1")
     p.add_argument("--cases", default=None,
                    help="with --degenerate: comma list of " + ", ".join(DEGENERATE) + " (default all of them) and "
                         + REFERENCE + " (the calibration excitation for --cal-s s, for comparison)")
@@ -147,14 +153,9 @@ def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mod
     t_sim = time.perf_counter() - t0
     row: dict = {"seed": seed, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
                  "session_kinds": {sp.name: sp.kind for sp in sessions(pd)}}
-    try:
-        t0 = time.perf_counter()
-        res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
-                                                                 working_range=pd.working_range))
-        row["calibration_s"] = time.perf_counter() - t0
-    except Exception as e:        # an internal error of the calibration is a benchmark result
-        row["calibration_error"] = f"{type(e).__name__}: {e}"
-        row["traceback"] = traceback.format_exc()[-2000:]
+    t0 = time.perf_counter()
+    res = calibrate_plant(cal, pd, row)
+    if res is None:
         return row
     row["calibration"] = calibration_row(res.report)
     do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
@@ -352,7 +353,11 @@ def run(args) -> int:
         raise InputError(f"--seeds {args.seeds}: no seed")
     rates = parse_rates(args.rates)
     names = None if not args.sessions else choose(args.sessions, SESSION_NAMES, "--sessions")
-    roles = seed_roles(seeds)
+    if args.joints not in (1, 2):
+        raise InputError(f"--joints {args.joints}: allowed 1 or 2")
+    if args.joints != 1 and args.degenerate:
+        raise InputError("--degenerate: one joint only (allowed with --joints 1)")
+    roles = seed_roles(seeds) if args.joints == 1 else seed_roles_joints(seeds)
     print(f"bench generalize: seeds held out {roles['held_out'] or 'none'}; development seeds (they chose the "
           f"calibration's settings) {roles['development'] or 'none'}", flush=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -367,6 +372,8 @@ def run(args) -> int:
     if args.degenerate:
         return run_degenerate(args, seeds, rates, names, out, cache)
     est = choose(args.estimators, ESTIMATORS, "--estimators")
+    if args.joints != 1:
+        return run_joints(args, seeds, rates, names, est, out, cache, summarize, by_rate)
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), rates "
           f"{args.rates or 'of the seeds'}, calibration {args.cal_s:g} s, estimators {', '.join(est)}, "
           f"bound {args.bound}; {machine()}", flush=True)

@@ -1,7 +1,8 @@
 """``sea-daemon bench loop --rate 100|1000 --cycles N --bus virtual|ipc|remote``: the daemon's loop against the device model.
 
 ``--joints N`` (2 or 3) runs N joints, a bus per joint (``--one-bus``: one bus), and prints the
-load of each bus (:mod:`sea_daemon.apps.bench._loop_rig`); what follows describes one joint.
+load of each bus; two joints are the coupled shoulder–elbow exoskeleton of a URDF
+(``configs/exo_2dof.yaml``; ``--uncoupled``: two copies of the one-joint exoskeleton) (:mod:`sea_daemon.apps.bench._loop_rig`); what follows describes one joint.
 
 What runs is ``sea-daemon run``'s service (:func:`sea_daemon.runtime.service.serve`): the GP-AKF
 with a residual learned by ``sea-daemon calibrate`` (lock-step on the device model, not timed)
@@ -65,7 +66,7 @@ import numpy as np
 from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wake, json_output, machine
 from sea_daemon.apps.bench._loop_rig import (
     SwayController, bench_rig, describe_bus_load, device_model_process, joints_config, per_bus_load, stop_procs,
-    split_plant, trained_estimator)
+    joints_plant, trained_estimator)
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.runtime.loop import Series
 from sea_daemon.io.configfile import save_config
@@ -126,6 +127,9 @@ def add_arguments(p) -> None:
                         "joints, a bus per joint, a PD per joint around slow sines")
     p.add_argument("--one-bus", action="store_true",
                    help="with --joints > 1: every joint on one bus (default: a bus per joint)")
+    p.add_argument("--uncoupled", action="store_true",
+                   help="with --joints 2: two copies of the one-joint exoskeleton (default: the shoulder-elbow "
+                        "exoskeleton of configs/exo_2dof.yaml, its joints coupled through the URDF's rigid body)")
     add_json_argument(p)
 
 
@@ -145,19 +149,21 @@ def _pcts(a) -> dict:
             "max": float(a.max() * 1e6)}
 
 
-class _ThreadCpu:
-    """CPU clocks of the driver's CAN receive threads (python-can Notifier threads)."""
+class ReceiveThreadsCpu:
+    """CPU clocks of the driver's CAN receive threads (python-can Notifier threads) on every bus
+    (a driver of several buses: each one's)."""
 
     def __init__(self, hw):
         self.clocks = []
-        notifier = getattr(getattr(hw, "network", None), "notifier", None)
-        for t in getattr(notifier, "_readers", []) or []:
-            ident = getattr(t, "ident", None)
-            if ident:
-                try:
-                    self.clocks.append(time.pthread_getcpuclockid(ident))
-                except (OSError, AttributeError):
-                    pass
+        for sub in getattr(hw, "subs", None) or [hw]:
+            notifier = getattr(getattr(sub, "network", None), "notifier", None)
+            for t in getattr(notifier, "_readers", []) or []:
+                ident = getattr(t, "ident", None)
+                if ident:
+                    try:
+                        self.clocks.append(time.pthread_getcpuclockid(ident))
+                    except (OSError, AttributeError):
+                        pass
 
     def now(self) -> float:
         return sum(time.clock_gettime(c) for c in self.clocks)
@@ -241,7 +247,7 @@ def run(args) -> int:
     root = data_root()
     scen = str(root / "configs" / "scenarios" / "passive.yaml")
     base = (load_config(root / "configs" / "exo_1dof_sim.yaml") if args.joints == 1 else
-            joints_config(args.joints, args.one_bus))
+            joints_config(args.joints, args.one_bus, args.uncoupled))
     cfg_model = at_rate(base, args.model_rate)
     cfg = at_rate(base, args.rate)
     load_before = _loadavg()
@@ -292,7 +298,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
         controller = ScenarioController(load_scenario(scen), cfg, rig.hold_torque, delay=rig.hw.actuation_delay,
                                         estimation_from=0)
     else:
-        hold = split_plant(cfg.joints, cfg.rate_hz).hold_torque
+        hold = joints_plant(cfg).hold_torque
         rig.initial_torque = hold
         controller = SwayController(cfg.joints, hold)
     n_cycles = args.cycles + 1                         # one more: the first period starts at cycle 0
@@ -305,7 +311,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
 
     def progress(k, est):
         if k == 0:
-            probe["rx"] = _ThreadCpu(rig.hw)
+            probe["rx"] = ReceiveThreadsCpu(rig.hw)
         if k < n_cycles:
             rx_cpu[k] = probe["rx"].now()
         if k == k_faults or k == n_cycles - 1:

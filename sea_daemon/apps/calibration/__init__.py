@@ -23,12 +23,13 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from sea_daemon.apps.calibration.joints import declared_working_ranges
 from sea_daemon.apps.calibration.modelio import jsonable, save_calibrated, summary as cal_summary
 from sea_daemon.apps.calibration.pipeline import calibrate_log
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import make_estimator
-from sea_daemon.core.excitation import WorkingRange, excitation
+from sea_daemon.core.excitation import WorkingRange, excitation, excitation_joints
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_yaml
 from sea_daemon.io.gpmodel import save_gp_model
@@ -148,8 +149,12 @@ def session_cycles(cfg: ModelConfig, sc, reference=None) -> int:
 
 def excitation_reference(cfg: ModelConfig, q0: float):
     """The calibration excitation (:func:`~sea_daemon.core.excitation.excitation`) over the
-    configuration's ``calibration`` working range, from ``q0``; without one declared, 10°–90°."""
+    configuration's ``calibration`` working range, from ``q0``; without one declared, 10°–90°.
+    n joints: :func:`~sea_daemon.core.excitation.excitation_joints` over each joint's range
+    (:func:`.joints.declared_working_ranges`), from the n angles ``q0``."""
     c = cfg.calibration
+    if cfg.joints > 1:       # each joint over its own range, their combinations (core.excitation.excitation_joints)
+        return excitation_joints(declared_working_ranges(cfg), c.duration_s, seed=c.seed, q0=q0)
     lo = math.radians(c.q_min_deg if c.q_min_deg is not None else 10.0)
     hi = math.radians(c.q_max_deg if c.q_max_deg is not None else 90.0)
     return excitation(WorkingRange(lo, hi, c.v_max, c.a_max), c.duration_s, seed=c.seed, q0=float(q0))

@@ -10,6 +10,7 @@ OUT.npz`` and ``replay`` load both.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -19,9 +20,10 @@ from sea_daemon.analysis.sufficiency import RECORD, Sufficiency
 from sea_daemon.apps.calibration.expected import expected_lines, with_figures
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.calibrated import CalibratedAKF, CalibratedGPAKF
-from sea_daemon.core.excitation import Coverage
+from sea_daemon.core.excitation import coverage_from_dict
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.io.configfile import save_config
+from sea_daemon.io.files import atomic_write_text
 from sea_daemon.io.gpmodel import save_gp_model
 from sea_daemon.errors import ModelFileError, shown
 
@@ -49,7 +51,8 @@ def jsonable(x):
 
 
 def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) -> tuple[Path, Path]:
-    """Write ``prefix.yaml`` and ``prefix.npz``; returns their paths."""
+    """Write ``prefix.yaml`` and ``prefix.npz`` (and ``prefix.urdf``, the wearer's arm as the
+    calibration corrected it, when it did); returns the paths of the first two."""
     prefix = Path(prefix)
     yaml_path, npz_path = prefix.with_suffix(".yaml"), prefix.with_suffix(".npz")
     rep = result.report
@@ -58,7 +61,14 @@ def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) 
                                          if k not in rep.get("given", []))]
     if rep.get("given"):
         header.append("kept as given: " + ", ".join(rep["given"]))
-    save_config(result.cfg, yaml_path, header="\n".join(header))
+    cfg = result.cfg
+    if (rep.get("body") or {}).get("kept"):
+        # the corrected wearer's arm: its URDF beside the configuration (prefix.urdf), which names it
+        urdf = prefix.with_suffix(".urdf")
+        atomic_write_text(urdf, cfg.model.rigid.urdf)
+        cfg = dataclasses.replace(cfg, source=str(yaml_path), model=dataclasses.replace(cfg.model, urdf=urdf.name))
+        header.append(f"the wearer's arm corrected by the calibration: {urdf.name}")
+    save_config(cfg, yaml_path, header="\n".join(header))
     gp = result.gp if result.gp is not None else ResidualGP.from_config(result.cfg)
     prov = {"command": "calibration", **(provenance or {}),
             "calibration": {"gp_used": result.gp is not None, "coverage": result.coverage.to_dict(),
@@ -77,7 +87,7 @@ def estimator_from_model(cfg: ModelConfig, residual, meta: dict, dt: float | Non
     if not cal:
         return None
     try:        # a model file is user data: a field that does not fit is a typed refusal
-        cov = Coverage.from_dict(cal["coverage"])
+        cov = coverage_from_dict(cal["coverage"])
         v_gate, var_ref = float(cal.get("gp_v_gate", 0.0)), float(cal.get("gp_var_ref", 0.0))
         if not (math.isfinite(v_gate) and v_gate >= 0.0 and math.isfinite(var_ref) and var_ref >= 0.0):
             raise ValueError(f"gp_v_gate {v_gate}, gp_var_ref {var_ref}: expected finite values >= 0")

@@ -47,13 +47,16 @@ from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
 from sea_daemon.core.estimators.health import NISMonitor
 from sea_daemon.core.estimators.weighted import WeightedResidual
-from sea_daemon.core.excitation import Coverage, WorkingRange
+from sea_daemon.core.excitation import Coverage, JointsCoverage, WorkingRange
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
+from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, data_working_range, data_working_ranges, fit_gp_hyper_joints,
+                                                gp_cross_validation_joints, nominal_where_unidentified, pairs_report,
+                                                synthetic_sessions_joints, working_ranges)
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -158,11 +161,11 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     the estimator believes in too (its variance-weighted mean, as ``extra_load_torque``, held over
     each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
     and the plant's compiled integration)."""
-    n = cfg.joints
-    if n != 1:
-        raise InputError("the synthetic replay supports one joint for now")
     plant_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, torque_noise=float(sigma_u),
                                                                       torque_limit=max(cfg.hardware.torque_limit, 25.0)))
+    if cfg.joints > 1:
+        return synthetic_sessions_joints(cfg, plant_cfg, log, human, duration_s, seed, gp=gp, power=power,
+                                         v_gate=v_gate, var_ref=var_ref)
     extra = None
     if gp is not None:
         # the residual the estimator believes in, as a load-side torque of the plant: its
@@ -374,12 +377,10 @@ def sufficient_log(log: MeasuredLog, cfg: ModelConfig) -> tuple[MeasuredLog, Suf
     record instead, when it cannot be calibrated on."""
     if log.n != cfg.joints:
         raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
-    if cfg.joints != 1:
-        raise InputError("calibrate: one joint for now")
     # a gap or a duplicated sample is refused at its line (diagnose's time base), before any figure
     prepare_log(log)
     log, note = at_config_rate(log, cfg)
-    suff = assess(log, cfg)
+    suff = assess(log, cfg) if cfg.joints == 1 else assess_joints(log, cfg)
     if suff.refusal:
         raise InputError(suff.refusal)
     if note:
@@ -400,6 +401,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # 1. kinematics and R
     step()
     cfg = _kinematics_and_R(log, cfg, given, report)
+    cfg = correct_body(log, cfg, suff, report)          # the wearer's arm of a URDF model
     # the filter starts on measured velocities; the NIS monitor's window is 1 s (a transient of
     # 50 samples is 0.5 s at 100 Hz but 50 ms at 1 kHz: the same monitor in samples would trip
     # on it at 1 kHz)
@@ -409,8 +411,11 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     # log that can identify it (a still arm: the nominal model, its static torque left to the GP)
     step()
     if opts.diagnose and suff.identifies("effects"):
+        nominal = cfg
         cfg = _diagnosed(log, cfg, report, progress=None if progress is None else (
             lambda done, total, what: progress(1, len(STEPS), f"{STEPS[1]}: {what}")))
+        if cfg.joints > 1:            # a joint whose data cannot tell keeps the nominal model
+            cfg = nominal_where_unidentified(nominal, cfg, suff, report)
     else:
         v = suff.verdicts["effects"]
         report["diagnose"] = {"effects_added": [], "skipped": v.why if v.status != "identify" else "not asked",
@@ -440,7 +445,10 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
     # 6. coverage
     step()
-    cov = Coverage(opts.working_range or data_working_range(Z))
+    if cfg.joints == 1:
+        cov = Coverage(opts.working_range or data_working_range(Z))
+    else:
+        cov = JointsCoverage(working_ranges(opts.working_range, cfg.joints) or data_working_ranges(Z))
     cov.add(Z)
     report["coverage"] = cov.report()
     result = CalibrationResult(cfg, gp, cov, report, opts)
@@ -468,15 +476,6 @@ def synthetic_figures(result: CalibrationResult, log: MeasuredLog) -> dict:
         if why:
             out[f"{k}_why"] = why
     return out
-
-
-def data_working_range(Z: np.ndarray, span_floor: float = math.radians(2.0)) -> WorkingRange:
-    """The working range the pairs ``Z`` span, at least ``span_floor`` [rad] wide, 0.1 rad/s and
-    1 rad/s² (a still arm spans a few encoder counts: a box that narrow has no cells to cover)."""
-    lo, hi = float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))
-    pad = max(0.0, 0.5 * (span_floor - (hi - lo)))
-    return WorkingRange(lo - pad, hi + pad, max(float(np.max(np.abs(Z[:, 1]))), 0.1),
-                        max(float(np.max(np.abs(Z[:, 2]))), 1.0))
 
 
 def _stepper(progress: Callable | None) -> Callable[[], None]:
@@ -525,13 +524,16 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
     pairs, when kept (``opts.gp``: 'on', 'off', or 'auto' by blocked cross-validation)."""
     # the speed below which the GP has no pairs (0: a still-arm log, every pair kept)
     v_stick = max(stick_velocity_of(cfg), V_EXCLUDE)
-    report["gp_v_gate"] = v_stick if np.all(np.abs(Z[:, 1]) >= v_stick - 1e-12) else 0.0
+    n = cfg.joints
+    report["gp_v_gate"] = v_stick if np.all(np.abs(Z[:, n:2 * n]) >= v_stick - 1e-12) else 0.0
     report["leftover"] = {"rms": float(np.sqrt(np.mean(F ** 2))), "pairs": int(len(Z))}
     # the angles and speeds the log's moving data span [rad, rad/s]
     report["data_range"] = {"q": [float(np.min(Z[:, 0])), float(np.max(Z[:, 0]))],
                             "dq": float(np.max(np.abs(Z[:, 1])))}
+    report.update(pairs_report(Z, F) if n > 1 else {})
     if "learning" not in given:
-        hyp = fit_gp_hyper(Z, F, opts.hyper_points, opts.seed)
+        hyp = (fit_gp_hyper(Z, F, opts.hyper_points, opts.seed) if n == 1 else
+               fit_gp_hyper_joints(Z, F, opts.hyper_points, opts.seed))
         # the tree splits in length scales: in raw units q̈ (span ~10–30 rad/s², length scale twice
         # that) would take every split and the routing would key the mean on q̈
         lc = dataclasses.replace(cfg.learning, sigma_f=hyp["sigma_f"], lengthscales=tuple(hyp["lengthscales"]),
@@ -541,7 +543,7 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
     gp = None
     keep = opts.gp == "on"
     if opts.gp == "auto":
-        cv = gp_cross_validation(Z, F, cfg.learning)
+        cv = gp_cross_validation(Z, F, cfg.learning) if n == 1 else gp_cross_validation_joints(Z, F, cfg.learning)
         report["gp_cv"] = cv
         keep = cv["gain"] >= opts.gp_cv_gain
     if keep:

@@ -58,7 +58,7 @@ from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
-from sea_daemon.core.bounds import bound_core
+from sea_daemon.core.bounds import bound_core, rigid_box
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
 from sea_daemon.core.bounds.bound_core import generators_check, gravity_remainder
@@ -114,7 +114,7 @@ class AKFTheoremBound:
         # the compiled step's other bounded inputs, contiguous: Γ_τ, or [Γ_μ e | Γ_τ r] (those declared)
         self._Gam_tau_c = np.zeros((d, n * (int(self._me_on) + int(self.tau_h_act_rate > 0))))
         self._empty = empty_pack()
-        self._cfast = (self._fast and sets == "zonotope" and projection == "scalar"
+        self._cfast = ((self._fast or self._rigid) and sets == "zonotope" and projection == "scalar"
                        and (not has_gp or residual_gps(akf) is not None))
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
@@ -170,21 +170,23 @@ class AKFTheoremBound:
         m = self.akf.model
         self._I = np.eye(d)
         # only gravity is non-linear in a nominal model without declared effects (and no URDF body)
-        self._fast = not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash
-                          or m.rigid is not None)
+        self._fast = m.rigid is None and not (m.load_effects or m.motor_effects or m.spring_effects or m.backlash)
         # the linearisation and GP errors need x_{k−1} in the set only in the coordinates they depend
         # on: without declared effects q and (q, q̇) = T x, so s_z = χ²_m (m = n or 2n), not χ²_5n
         # (docs/bounds.md §4, "Which set"); with declared effects f_nom depends on all of x: s_d.
+        # (a URDF's rigid body without declared effects: both over W·C, W x = (q, q̇, τ), χ²_3n; rigid_box)
+        self._rbox = rigid_box.RigidBox.of(m, self.sm, n_dirs, seed)
+        self._rigid = self._rbox is not None
         self._s_z = (chi2_quantile(1.0 - self.sm.delta_noise, 2 * n if has_gp else n) if self._fast
-                     else self.sm.s_state)
+                     else self._rbox.s_z if self._rigid else self.sm.s_state)
         # (q, q̇) = T x: the part of the GP input z = [q, q̇, q̈] that depends on the state
         self._T = np.asarray(self.akf.dz_dx, dtype=float)[:2 * n]
         self._E_q = np.hstack([np.eye(n), np.eye(n), np.zeros((n, d - 2 * n))])   # q = θ_m + θ_s
         self._grid = np.linspace(-1.0, 1.0, 65)
         self._grid_step = 2.0 / 64
         self._Uz = unit_directions(2 * n, n_dirs, seed)
-        self._minv = np.ascontiguousarray(m.Minv, dtype=float)
-        self._M = np.ascontiguousarray(m.M, dtype=float)
+        self._M, self._minv = ((m.M, m.Minv) if self._rigid    # a rigid body's: set in place per step (SEAModel.at)
+                               else (np.ascontiguousarray(m.M, dtype=float), np.ascontiguousarray(m.Minv, dtype=float)))
         self._g = np.abs(np.asarray(m.gravity, dtype=float)) * np.ones(n)
 
     # ------------------------------------------------------------------ hooks
@@ -371,7 +373,9 @@ class AKFTheoremBound:
                 self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
         lo, hi = (box if box is not None else (self._g, self._g))
-        _, P = self.gauss.step(record)
+        P0, P = self.gauss.step(record)
+        if self._rigid:                    # M(q̂_{k−1}) and the rigid body's box, before the compiled step
+            self._rbox.at(record.x_prev, sm.G_, P0, self._b)
         try:
             G, out, took_range = self._call_compiled(record, sm, n, has_gp, box, lo, hi, gp)
         except (np.linalg.LinAlgError, ZeroDivisionError, ValueError) as e:
@@ -407,7 +411,8 @@ class AKFTheoremBound:
             st = bound_core.FilterStep(rec.x_prev, P0, rec.z, rec.mu, rec.dmu_dz, rec.F_k, rec.K_k,
                                        rec.Gamma_mu, P)
             c = bound_core.SetConstants(self.akf.H, self._M, self._minv, self._g, self._s_z, sm.margin, self._T,
-                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau)
+                                        self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau,
+                                        self._rigid)
             gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
                                      self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
                                      lo, hi, box is not None)
@@ -496,6 +501,8 @@ class AKFTheoremBound:
         x0, u, dt = record.x_prev, record.u, record.dt
         if self._fast:
             return self._gravity_box(x0, P0), None    # analytic, rigorous (exact half-width of C_{k−1})
+        if self._rigid:                                # the rigid body's box over W·C_{k−1} (rigid_box)
+            return self._rbox.box(x0, sm.G_, P0, self._s_z, np.zeros(akf.d)), None
         C = sm.confidence_set(x0, P0)                  # C_{k−1} (outer ellipsoid, for the point set)
         A_nom = record.A_k.copy()
         if akf.residual is not None:                   # undo −I_μ M⁻¹ F_GP to get F_nom

@@ -80,6 +80,7 @@ class SetConstants(NamedTuple):
     Uz: np.ndarray
     delta_tau: float
     z_tau: float
+    box_given: bool = False    # the linearisation-error box is the caller's (a rigid body's, rigid_box)
 
 
 class GPTerms(NamedTuple):
@@ -299,8 +300,9 @@ def bound_step(G, max_gen, st, c, gpt, rt, pack, out):
     generators, GP box left, whether the range form was taken)."""
     n = out.rho.shape[0]
     b = out.lin_err_box
-    # 1. eq:linerrsetdx / eq:linearerrellipsoid, gravity (analytic)
-    _gravity_stage(G, st, c, b)
+    # 1. eq:linerrsetdx / eq:linearerrellipsoid, gravity (analytic), unless the caller gave b
+    if not c.box_given:
+        _gravity_stage(G, st, c, b)
     out_of_box = False
     eta = np.zeros(0)
     eta_b = np.zeros(0)

@@ -8,6 +8,11 @@ L_f, N noisy observations (noise N(0, σ_n²)).  Then μ_N is Lipschitz with
     L_μ ≤ L_k √N ‖(K + σ_n² I)⁻¹ y‖      (we use the tighter L_k ‖α‖₁ ≤ L_k √N ‖α‖₂),
 σ_N has modulus of continuity
     ω_σ(τ) ≤ sqrt(2 τ L_k (1 + N ‖(K + σ_n² I)⁻¹‖ max_{x,x'} k(x, x'))),
+and we take ω_σ(τ) = min(that, σ_f τ) (the SE kernel in normalised coordinates): with
+e(x) = f(x) − μ_N(x) under the posterior, σ_N(x) = ‖e(x)‖ in L², so by the triangle inequality
+|σ_N(x) − σ_N(x')| ≤ ‖e(x) − e(x')‖ = √Var_post(f(x) − f(x')) ≤ √Var_prior(f(x) − f(x'))
+= σ_f √(2 − 2 e^{−‖x̃ − x̃'‖²/2}) ≤ σ_f ‖x̃ − x̃'‖ (conditioning on Gaussian data never raises
+a variance).  It does not grow with N/σ_n² as LUH19's does, so a larger τ (a smaller β) pays;
 and for δ ∈ (0, 1), τ > 0, with β(τ) = 2 log(M(τ, X)/δ) (M = τ-covering number of X) and
 γ(τ) = (L_μ + L_f) τ + √β(τ) ω_σ(τ):
     P(|f(x) − μ_N(x)| ≤ √β(τ) σ_N(x) + γ(τ)  ∀x ∈ X) ≥ 1 − δ.
@@ -275,8 +280,14 @@ def fixed_constants(beta: float, delta: float) -> BoundConstants:
 def _leaf_terms(leaf: LeafGP, L_k: float):
     L_mu = L_k * float(np.sum(np.abs(leaf.alpha)))                      # LUH19 Thm 3.1, ‖α‖₁ form
     Kn = leaf.Kinv_norm if leaf.Kinv_norm is not None else 1.0 / leaf.sigma_n ** 2
-    c_sigma = 2.0 * L_k * (1.0 + leaf.N * Kn * leaf.sigma_f ** 2)        # ω_σ(τ)² = c_sigma τ
+    c_sigma = 2.0 * L_k * (1.0 + leaf.N * Kn * leaf.sigma_f ** 2)        # LUH19: ω_σ(τ)² = c_sigma τ
     return L_mu, c_sigma
+
+
+def omega_sigma(c_sigma: float, sigma_f: float, tau: float) -> float:
+    """ω_σ(τ) = min(√(c_sigma τ), σ_f τ): LUH19's modulus of continuity of σ_N and the posterior
+    standard deviation's Lipschitz constant σ_f in normalised coordinates (module docstring)."""
+    return min(math.sqrt(c_sigma * tau), sigma_f * tau)
 
 
 def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta: float, *,
@@ -320,17 +331,17 @@ def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta:
             # |f(x) − f(x')| ≤ Σ|∂_i f||Δx_i| = Σ (l_i |∂_i f|)|Δx̃_i| ≤ ‖l ⊙ ∂f‖₂ ‖Δx̃‖₂
             Lf = float(np.linalg.norm(ls * Lv)) if Lv.size == ls.size else float(Lv[0] * ls.max())
         L_mu, c_sig = _leaf_terms(lf, se_lipschitz(float(lf.sigma_f)))
-        per.append((widths, Lf, L_mu, c_sig))
+        per.append((widths, Lf, L_mu, c_sig, float(lf.sigma_f)))
     s_ref = sigma_ref if sigma_ref is not None else min(lf.sigma_n for lf in leaves)
     G = len(tau_grid)
     best = None
     for tau in tau_grid:
         sb_max = g_max = 0.0
-        for widths, Lf, L_mu, c_sig in per:
+        for widths, Lf, L_mu, c_sig, s_f in per:
             # β(τ) = 2 log(M(τ, X) / δ_i), δ_i = δ_GP / (L · G): union over leaves and the τ grid
             sb = math.sqrt(2.0 * (log_covering_number(widths, tau) + math.log(L * G / d_gp)))
             # γ(τ) = (L_μ + L_f) τ + √β ω_σ(τ)
-            g = (L_mu + Lf) * tau + sb * math.sqrt(c_sig * tau)
+            g = (L_mu + Lf) * tau + sb * omega_sigma(c_sig, s_f, tau)
             sb_max, g_max = max(sb_max, sb), max(g_max, g)
         # merged bound: √β_max Σ w σ_i + max γ_i  (module docstring)
         val = sb_max * s_ref + g_max
@@ -338,7 +349,7 @@ def error_bound(leaves: Sequence[LeafGP], lo: np.ndarray, hi: np.ndarray, delta:
             best = (val, float(tau), sb_max, g_max)
     _, tau, sb, g = best
     return BoundConstants(float(sb), float(g), tau, float(max(p[1] for p in per)),
-                          float(max(p[2] for p in per)), float(max(math.sqrt(p[3] * tau) for p in per)),
+                          float(max(p[2] for p in per)), float(max(omega_sigma(p[3], p[4], tau) for p in per)),
                           float(delta), L)
 
 

@@ -40,7 +40,7 @@ class _CoverageFlag:
         self.coverage = coverage
         self.z_outside = False
         self.n_outside = 0
-        self._zc = np.zeros(3)
+        self._zc = np.zeros(3 * self.n)
         # [N² m²/s] the τ_h,act walk off the covered region (0: none); Σ_nom is then filled every step
         self._q_out = float(self.cfg.estimator.tau_h_act_walk_outside) if coverage is not None else 0.0
         if self._q_out > 0:
@@ -60,9 +60,11 @@ class _CoverageFlag:
             return
         n = self.n
         # z of this sample from the state estimate and the measured q̈ (as the GP sees it)
-        self._zc[0] = self.x[0] + self.x[n]
-        self._zc[1] = self.x[2 * n] + self.x[3 * n]
-        self._zc[2] = self._ddq[0]
+        # (per joint j: z_j, n + j, 2n + j; a one-joint coverage reads the first three)
+        for j in range(n):
+            self._zc[j] = self.x[j] + self.x[n + j]
+            self._zc[n + j] = self.x[2 * n + j] + self.x[3 * n + j]
+            self._zc[2 * n + j] = self._ddq[j]
         self.z_outside = not self.coverage.covered(self._zc)
         self.n_outside += int(self.z_outside)
 

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.optimize import brentq, root
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.dynamics import accel_1, example
+from sea_daemon.core.dynamics import accel_1, example, motor_accel, side_torques, spring_torque
 from sea_daemon.core.effects import Effect
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
@@ -120,6 +120,11 @@ class Plant:
             all(type(e).evaluate is Effect.evaluate for e in (*m.motor_effects, *m.spring_effects))
         if self._scalar:
             self._compile_scalar()
+        #: a rigid body (URDF) without torques outside the compiled vocabulary: each RK4 stage is
+        #: one compiled call (:func:`_rigid_stage`) and one Pinocchio ABA call (:meth:`_rk4_rigid`)
+        self._rigid = m.rigid is not None and self.extra_load_torque is None and not m.outside_effects
+        if self._rigid:
+            self._compile_rigid()
 
     # ------------------------------------------------------------------ state
 
@@ -228,6 +233,9 @@ class Plant:
         if self._scalar and not self.model.delay[0]:
             self._step_scalar(tau_m, dt, tau_h_act)
             return
+        if self._rigid and not self._delayed:
+            self._step_rigid(tau_m, dt, tau_h_act)
+            return
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         n = self.n
@@ -247,11 +255,12 @@ class Plant:
             self._integrate_scalar(t0, h, k)
         else:
             y = self._y
+            rk4 = self._rk4_rigid if self._rigid else self._rk4
             for i in range(k):
                 ts = t0 + i * h
                 # input held over the substep (evaluated at its midpoint for the delay lookup)
                 ui = self._delayed_input(ts + 0.5 * h)
-                y = self._rk4(y, h, ui)
+                y = rk4(y, h, ui)
             self._y = y
         self.t = t0 + dt
         self._prune_history()
@@ -284,6 +293,32 @@ class Plant:
         else:
             _rk4_1(y, u, th, dt / k, k, self.model.kernel)
         self._y = y.copy()
+        self.t = self.t + dt
+
+    def _step_rigid(self, tau_m, dt: float, tau_h_act) -> None:
+        """:meth:`step` of a rigid body without an input delay (the device model's plant of a
+        URDF, once per SYNC): the same numbers into preallocated arrays, the history kept only at
+        its end (as :meth:`_step_scalar`; no delay reads it elsewhere)."""
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        n, u, th = self.n, self._r_u, self._r_tau_h
+        u[:] = tau_m
+        th[:] = tau_h_act
+        if not (np.isfinite(u).all() and np.isfinite(th).all()):
+            raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
+        np.clip(u, -self.torque_limit, self.torque_limit, out=u)
+        if self.noise_std > 0:
+            u += self.rng.normal(0.0, self.noise_std, n)          # torque_noise
+        self._u_applied = u.copy()
+        self._tau_h = th.copy()
+        self._hist_t[-1] = self.t
+        self._hist_u[-1] = self._u_applied
+        k = max(1, int(math.ceil(dt / self.h_max - 1e-9)))
+        h = dt / k
+        y = self._y
+        for _ in range(k):
+            y = self._rk4_rigid(y, h, self._u_applied)
+        self._y = y
         self.t = self.t + dt
 
     def _rk4_outside(self, y, u: float, tau_h: float, h: float, k: int) -> None:
@@ -348,6 +383,31 @@ class Plant:
         k3 = self._deriv(y + 0.5 * h * k2, u)
         k4 = self._deriv(y + h * k3, u)
         return y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+    # rigid-body (URDF) path: the same equations, one compiled call and one ABA per stage
+    def _compile_rigid(self) -> None:
+        n = self.n
+        self._r_k = np.zeros((4, 4 * n))              # the four stages' derivatives
+        self._r_ys = np.zeros(4 * n)                  # the state a stage evaluates at
+        self._r_q, self._r_dq, self._r_tau = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._r_u, self._r_tau_h, self._r_uh = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._delayed = bool(np.any(self.model.delay))
+        # compiled (or loaded from numba's cache) now, at construction, not in the first step
+        self._rk4_rigid(self._y.copy(), self.h_max, np.zeros(n))
+
+    def _rk4_rigid(self, y: np.ndarray, h: float, u: np.ndarray) -> np.ndarray:
+        """:meth:`_rk4` of a rigid body: per stage, :func:`_rigid_stage` gives q, q̇, the torque on
+        the rigid body besides its bias and θ̈_m; Pinocchio's ABA gives q̈ (eq:unknwn_load)."""
+        n, p, body = self.n, self.model.kernel, self.model.rigid
+        model, data, aba = body.model, body.data, pinocchio_aba()
+        K, ys, q, dq, tau = self._r_k, self._r_ys, self._r_q, self._r_dq, self._r_tau
+        ua = self._r_uh
+        ua[:] = u
+        tau_h = self._tau_h
+        for i, c in enumerate((0.0, 0.5 * h, 0.5 * h, h)):
+            _rigid_stage(p, y, K[i - 1], c, ua, tau_h, ys, K[i], q, dq, tau)
+            K[i, 2 * n:3 * n] = aba(model, data, q, dq, tau)
+        return _rk4_sum(y, h, K)
 
     # scalar (n = 1) path: the same equations compiled (:func:`_rk4_1`, dynamics.accel_1)
     def _compile_scalar(self) -> None:
@@ -420,6 +480,40 @@ def _rk4_1(y, u, tau_h, h, k, p) -> None:
         dq += h / 6.0 * (a1q + 2.0 * a2q + 2.0 * a3q + a4q)
         dth += h / 6.0 * (a1t + 2.0 * a2t + 2.0 * a3t + a4t)
     y[0], y[1], y[2], y[3] = q, th, dq, dth
+
+
+def pinocchio_aba():
+    """Pinocchio's ``aba(model, data, q, dq, tau)`` (imported where a rigid body exists)."""
+    import pinocchio  # local import: only a plant with a URDF needs it
+    return pinocchio.aba
+
+
+@njit
+def _rigid_stage(p, y, k_prev, c, u, tau_h, ys, k, q, dq, tau) -> None:
+    """One RK4 stage of a rigid body's plant, y = [q, θ_m, q̇, θ̇_m] (4n): ys = y + c k_prev; k gets
+    [q̇, θ̇_m, ·, θ̈_m] at ys (q̈ left to the rigid body's ABA); q, dq, tau the ABA's inputs, tau =
+    τ_h,act − Σ_load e − τ_s (eq:unknwn_load, eq:thetadd, eq:spring_torque)."""
+    n = q.shape[0]
+    for i in range(4 * n):
+        ys[i] = y[i] + c * k_prev[i] if c != 0.0 else y[i]
+    th_m, dth_m = ys[n:2 * n], ys[3 * n:]
+    for j in range(n):
+        q[j] = ys[j]
+        dq[j] = ys[2 * n + j]
+    tau_s = spring_torque(p, q - th_m, dq - dth_m)
+    lo, _, _ = side_torques(p[10], q, dq)
+    ddth = motor_accel(p, th_m, dth_m, u, tau_s)
+    for j in range(n):
+        tau[j] = tau_h[j] - lo[j] - tau_s[j]
+        k[j] = dq[j]
+        k[n + j] = dth_m[j]
+        k[3 * n + j] = ddth[j]
+
+
+@njit
+def _rk4_sum(y, h, K):
+    """y + h/6 (k1 + 2 k2 + 2 k3 + k4), a new array."""
+    return y + h / 6.0 * (K[0] + 2.0 * K[1] + 2.0 * K[2] + K[3])
 
 
 @warmer

@@ -14,8 +14,8 @@ phases through the daemon's loop) a session is built from parts —
   τ_h,act = −τ_des (the arm stays at rest; :class:`~sea_daemon.core.control.StillArm`);
 * ``human``: a function t -> τ_h,act (n,) (``None``: passive, τ_h,act = 0); in the still-arm
   session it is τ_des's negative, i.e. what the subject applies.  For n joints (a ``model.urdf``)
-  the reference gives (n,) arrays (:class:`~sea_daemon.core.excitation.PerJoint`) and ``human``
-  an (n,) torque.
+  the reference gives (n,) arrays (:class:`~sea_daemon.core.excitation.PerJoint`), ``hold_q``
+  the n angles and ``human`` an (n,) torque.
 
 Per sample k (period 1/rate_hz, t_k = k/rate_hz) the steps of every simulated run
 (:mod:`sea_daemon.core.sim.sampling`): the plant stepped over [t_k−1, t_k] with τ_m (+ noise)
@@ -109,7 +109,9 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
     sub = substep_hz if substep_hz is not None else max(1000.0, rate)
     if reference is None and hold_q is None:
         raise ValueError("run_session needs a reference or hold_q")
-    q0 = reference.reference(0.0)[0] if reference is not None else float(hold_q)
+    # hold_q: one angle, or the n joints' angles (a ``model.urdf``)
+    q0 = reference.reference(0.0)[0] if reference is not None else (
+        float(hold_q) if np.ndim(hold_q) == 0 else np.asarray(hold_q, dtype=float))
     plant = Plant(true_cfg, q0=q0, seed=seed, substep_hz=sub, sign_eps=sign_eps, torque_noise=torque_noise,
                   extra_load_torque=extra_load_torque, extra_held=extra_held)
     limit = true_cfg.hardware.torque_limit
@@ -124,8 +126,13 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
             return float(human(t)) if n == 1 else np.asarray(human(t), dtype=float).reshape(n)
     else:
         # Sec. V-C: τ_m = τ_comp + τ_des, the subject resists: τ_h,act = −τ_des (``human``)
-        ctl = StillArm(plant.hold_torque.copy(), (lambda t: -0.0) if human is None else (lambda t: -float(human(t))),
-                       limit, float(hold_q))
+        if human is None:
+            des = (lambda t: -0.0)
+        elif plant.n == 1:
+            des = (lambda t: -float(human(t)))
+        else:                         # n joints: τ_des (n,), the subject's torque on every joint
+            des = (lambda t: -np.asarray(human(t), dtype=float).reshape(plant.n))
+        ctl = StillArm(plant.hold_torque.copy(), des, limit, float(np.ravel(q0)[0]))
         subject = ctl.subject
     return _sample(SampledPlant(plant, dt), ctl, subject, N, t0)
 

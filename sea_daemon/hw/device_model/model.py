@@ -91,6 +91,7 @@ class DeviceModel:
         self.handled = 0                         # SYNCs handled on all buses
         self._lock = threading.RLock()
         self._tau = np.zeros(self.n)
+        self._offsets = None                     # the plant's encoder offsets as floats (_sample)
         self._scheduled: list[FaultSpec] = []
         self._drop: dict[int, int] = {}          # node id -> TPDO frames still to drop
         self._delay: dict[int, tuple[int, float]] = {}
@@ -192,14 +193,19 @@ class DeviceModel:
         p = self.plant
         enc = getattr(p, "encoders", None)
         y = getattr(p, "_y", None)
-        if enc is not None and y is not None and enc.offset_load.ndim == 0 and enc.offset_motor.ndim == 0:
+        if enc is not None and y is not None:
             # the simulator's encoders (Encoders.counts: floor((angle + offset) / quantum)) on
-            # its state vector [q, θ_m, q̇, θ̇_m], in float arithmetic: the same counts
+            # its state vector [q, θ_m, q̇, θ̇_m], in float arithmetic: the same counts (the
+            # offsets, one or one per joint, as floats once)
             n, ql, qm = self.n, enc.q_load, enc.q_motor
-            ol, om = float(enc.offset_load), float(enc.offset_motor)
+            off = self._offsets
+            if off is None or off[0] is not enc:
+                off = self._offsets = (enc, np.broadcast_to(enc.offset_load, (n,)).tolist(),
+                                       np.broadcast_to(enc.offset_motor, (n,)).tolist())
+            _, ol, om = off
             for j in range(n):
-                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om) / qm), float(y[3 * n + j]))
-                self.encoders[j].set_counts(math.floor((float(y[j]) + ol) / ql))
+                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om[j]) / qm), float(y[3 * n + j]))
+                self.encoders[j].set_counts(math.floor((float(y[j]) + ol[j]) / ql))
             return
         cq, cm = self._counts()
         dth = np.atleast_1d(self.plant.dtheta_m)

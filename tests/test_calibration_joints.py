@@ -1,0 +1,126 @@
+"""The offline calibration of two coupled joints (configs/exo_2dof.yaml): sufficiency per joint, the
+nominal model kept on a joint whose data cannot tell, a refusal naming the joint, the wearer's arm
+corrected (its links' masses and lengths, on every joint), the LoG-GP per
+joint on z ∈ R⁶ with each joint's length scales, the coverage per joint, and the calibrated model
+saved and read back (replay --model)."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sea_daemon.apps.calibration.joints import (assess_joints, fit_gp_hyper_joints, nominal_where_unidentified,
+                                                plant_substep)
+from sea_daemon.apps.calibration.modelio import estimator_from_model, save_calibrated
+from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sufficient_log
+from sea_daemon.core.effects import make_effect
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.excitation import PerJoint, JointsCoverage, WorkingRange, excitation, excitation_joints
+from sea_daemon.core.replay import replay
+from sea_daemon.core.sim.session import BandLimitedTorque, run_session
+from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import load_config
+from sea_daemon.io.gpmodel import load_gp_model
+from tests._paths import repo_root
+
+WRS = [WorkingRange(0.3, 1.3, 1.2, 8.0), WorkingRange(0.4, 1.6, 1.5, 10.0)]
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config(repo_root() / "configs" / "exo_2dof.yaml")
+
+
+@pytest.fixture(scope="module")
+def true(cfg):
+    """The arm the nominal model does not know: heavier upper arm, lighter longer forearm, friction per joint."""
+    eff = (make_effect("viscous", "load", joint=0, b=0.3), make_effect("coulomb", "load", joint=0, F_c=0.25),
+           make_effect("viscous", "load", joint=1, b=0.15), make_effect("coulomb", "load", joint=1, F_c=0.15))
+    rigid = cfg.model.rigid.scaled(mass={"human_upper_arm": 1.2, "human_forearm_hand": 0.85},
+                                   length={"human_forearm_hand": 1.08})
+    return dataclasses.replace(cfg, model=cfg.model.with_rigid(rigid).with_effects(eff))
+
+
+class _Hold:
+    def __init__(self, q):
+        self.q = q
+
+    def reference(self, t):
+        return self.q, 0.0, 0.0
+
+
+def test_sufficiency_per_joint_and_the_nominal_model_where_a_joint_held_still(cfg, true):
+    """Shoulder moving, elbow held: the shoulder identifies the effects, the elbow keeps the nominal
+    model — an effect found there is dropped and the report names the joint and why."""
+    ref = PerJoint((excitation(WRS[0], 14.0, seed=1), _Hold(1.0)))
+    log = run_session(true, 14.0, reference=ref, seed=2, substep_hz=plant_substep(true, 3e-3, 100))
+    s = assess_joints(log, cfg)
+    assert s.refusal is None
+    assert s.joints[0].identifies("effects") and not s.joints[1].identifies("effects")
+    assert s.identifies("effects") and "elbow" in s.verdicts["sign_eps"].why
+    assert s.joints[1].verdicts["effects"].status == "nominal"
+    found = cfg.with_effects((make_effect("viscous", "load", joint=0, b=0.3),
+                              make_effect("viscous", "load", joint=1, b=0.2)))
+    report = {"diagnose": {"effects_added": [{"type": "viscous", "side": "load", "joint": 1},
+                                             {"type": "viscous", "side": "load", "joint": 2}]}}
+    out = nominal_where_unidentified(cfg, found, s, report)
+    assert [e.joint for e in out.model.effects] == [0]
+    assert report["diagnose"]["nominal_joints"] == ["joint 2 (elbow)"]
+    assert [d["joint"] for d in report["diagnose"]["effects_added"]] == [1]
+    assert "nominal model kept" in report["diagnose"]["statements"][-1]
+    # an encoder that reports nothing on the elbow: refused in one line naming the joint
+    dead = dataclasses.replace(log, q=log.q.copy(), theta_m=log.theta_m.copy())
+    dead.q[:, 1], dead.theta_m[:, 1] = dead.q[0, 1], dead.theta_m[0, 1]
+    with pytest.raises(InputError) as e:
+        sufficient_log(dead, cfg)
+    assert str(e.value).startswith("joint 2") and "\n" not in str(e.value)
+
+
+def test_gp_hyperparameters_per_joint():
+    """Each joint's length scales of (q_j, q̇_j, q̈_j) from its own leftover; σ_f the larger of the two."""
+    rng = np.random.default_rng(0)
+    Z = np.column_stack([rng.uniform(0, 1, (600, 2)), rng.uniform(-1, 1, (600, 2)), rng.uniform(-5, 5, (600, 2))])
+    F = np.column_stack([0.3 * np.sin(6 * Z[:, 0]), 0.05 * np.sin(1.5 * Z[:, 1])]) + 0.01 * rng.normal(size=(600, 2))
+    h = fit_gp_hyper_joints(Z, F, 300, 0)
+    ls = np.array(h["lengthscales"]).reshape(3, 2)       # [q_1, q_2], [q̇_1, q̇_2], [q̈_1, q̈_2]
+    assert ls[0, 0] == pytest.approx(h["per_joint"][0]["lengthscales"][0])
+    assert ls[0, 1] == pytest.approx(h["per_joint"][1]["lengthscales"][0])
+    assert ls[0, 0] < ls[0, 1]                           # joint 1's leftover varies faster in its angle
+    assert h["sigma_f"] == max(p["sigma_f"] for p in h["per_joint"])
+
+
+def test_calibration_of_two_joints_end_to_end(cfg, true, tmp_path):
+    """The calibration on an 18 s passive excitation of both joints (diagnose and the walk's scan off:
+    kept short): the wearer's arm corrected (link masses and lengths), one LoG-GP per joint on
+    z ∈ R⁶, the coverage per joint; on an active session
+    (a torque on both joints while moving) the calibrated GP-AKF beats the AKF on the nominal
+    model on each joint, and the saved model file gives the same estimator back."""
+    sub = plant_substep(true, 3e-3, 100)
+    log = run_session(true, 18.0, reference=excitation_joints(WRS, 18.0, seed=4), seed=5, substep_hz=sub)
+    res = calibrate(log, cfg, given={"Sigma_nom"}, opts=CalibrationOptions(working_range=WRS, diagnose=False,
+                                                                           gp="on", synth_s=8.0))
+    assert res.gp is not None and res.gp.n == 2 and len(res.cfg.learning.lengthscales) == 6
+    # the wearer's arm corrected: its gravity torques closer to the true arm's than the tables' on both joints
+    assert res.report["body"]["kept"] and res.report["body"]["links"] == ["human_upper_arm", "human_forearm_hand"]
+    q = np.array([0.8, 1.0])
+    g_true, g_nom, g_cal = (c.model.rigid.gravity(q) for c in (true, cfg, res.cfg))
+    assert np.all(np.abs(g_cal - g_true) < 0.5 * np.abs(g_nom - g_true))
+    assert isinstance(res.coverage, JointsCoverage) and len(res.report["coverage"]["joints"]) == 2
+    assert set(res.report["sufficiency"]["per_joint"]) == {"joint 1 (shoulder)", "joint 2 (elbow)"}
+    hs = [BandLimitedTorque(1.2, 0.1, 1.0, seed=7), BandLimitedTorque(0.8, 0.1, 1.0, seed=8)]
+    test = run_session(true, 8.0, reference=excitation_joints(WRS, 8.0, seed=9),
+                       human=lambda t: np.array([hs[0](t), hs[1](t)]), seed=6, substep_hz=sub)
+
+    def rmse(est):
+        r = replay(test, est)
+        return np.sqrt(np.mean((r.tau_h_act_hat[200:] - test.tau_h_act[200:]) ** 2, axis=0)), r
+    r_gp, out = rmse(res.estimator(dt=test.dt))
+    r_robot, _ = rmse(AKF(dataclasses.replace(cfg, estimator=res.cfg.estimator, kinematics=res.cfg.kinematics),
+                          dt=test.dt))
+    assert np.all(r_gp < r_robot), (r_gp, r_robot)
+    _, npz = save_calibrated(tmp_path / "cal", res)
+    assert (tmp_path / "cal.urdf").read_text() == res.cfg.model.rigid.urdf
+    loaded_cfg = load_config(tmp_path / "cal.yaml")
+    residual, meta = load_gp_model(npz, loaded_cfg)
+    est = estimator_from_model(loaded_cfg, residual, meta, dt=test.dt)
+    again = replay(test, est)
+    np.testing.assert_allclose(again.tau_h_act_hat, out.tau_h_act_hat, atol=1e-9)
