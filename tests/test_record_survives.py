@@ -56,7 +56,13 @@ def test_full_disk_during_a_run_latches_log_failed_and_counts_the_rows_lost(tmp_
     def keep(w):
         fill_disk.writer = w
 
-    res, path, note = _serve(tmp_path, 400, 50, fill_disk, writer_hook=keep)
+    def caught_up(rig):        # the unpaced loop waits for the writer (a loaded host lags it): the
+        w = fill_disk.writer   # failure then comes while the run goes on, not after its last cycle
+        end = time.monotonic() + 60
+        while w.fault() is None and w.rows_written < w.appended and time.monotonic() < end:
+            time.sleep(0.002)
+
+    res, path, note = _serve(tmp_path, 400, 50, fill_disk, writer_hook=keep, after=caught_up)
     assert res.supervisor.latched == Fault.LOG_FAILED
     assert "File too large" in res.supervisor.latched_detail
     fin = res.log

@@ -73,8 +73,9 @@ class _Status:
         pass
 
 
-def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=None):
-    """The service against the device model for ``cycles`` cycles; ``action(rig)`` in cycle ``at``."""
+def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=None, after=None):
+    """The service against the device model for ``cycles`` cycles; ``action(rig)`` in cycle ``at``,
+    then ``after(rig)`` in every later cycle (e.g. to wait for the log writer)."""
 
     root = data_root()
     cfg = load_config(root / "configs" / "exo_1dof_sim.yaml")
@@ -87,6 +88,8 @@ def serve_with_action(log_dir: Path, cycles: int, at: int, action, writer_hook=N
         if k == at and not done:
             done.append(k)
             action(rig)
+        elif done and after is not None:
+            after(rig)
 
     note = _Status()
     real = service.LogWriter
