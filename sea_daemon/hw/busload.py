@@ -63,6 +63,18 @@ def bus_loads(b: BusConfig, rate_hz: float) -> list[BusLoad]:
                      channel=c, joint_ids=js) for c, js in b.buses()]
 
 
+def measured_load(frames: float, data_bytes: float, syncs: int, rate_hz: float,
+                  bitrate: float = 1e6) -> tuple[float, float, float]:
+    """Frames per cycle and the load (fraction of ``bitrate``) without and with worst-case
+    stuffing of ``frames`` frames carrying ``data_bytes`` data bytes in all, counted over
+    ``syncs`` cycles at ``rate_hz``: :func:`~sea_daemon.hw.bus.frame_bits` is affine in the data
+    length (47 + 8·DLC bits, 55 + 10·DLC with worst-case stuffing), so the totals suffice."""
+    per_cycle = rate_hz / syncs / bitrate
+    loads = [(frames * frame_bits(0, s) + data_bytes * (frame_bits(1, s) - frame_bits(0, s))) * per_cycle
+             for s in ("none", "worst")]
+    return frames / syncs, loads[0], loads[1]
+
+
 def describe(loads: list[BusLoad]) -> str:
     """One line: per bus its joints, frames per cycle and load with worst-case stuffing."""
     return "; ".join(f"bus {x.channel} (joint{'s' if len(x.joints) > 1 else ''} "

@@ -34,7 +34,7 @@ from sea_daemon.runtime.rig import Rig, make_rig
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.sim.plant import Plant
-from sea_daemon.hw.busload import bus_loads
+from sea_daemon.hw.busload import bus_loads, measured_load
 from sea_daemon.core.rates import at_rate
 from sea_daemon.hw.device_model.split_plant import SplitPlant
 from sea_daemon.io.configfile import data_root, load_config, load_yaml, read_urdf
@@ -140,7 +140,7 @@ def trained_estimator(cfg_model: ModelConfig, cfg: ModelConfig, train: int, esti
 def per_bus_load(cfg: ModelConfig, rate: float, dev_stats: dict | None, publisher) -> list[dict]:
     """Per bus: the frames per cycle measured (the device model's frames on that bus and the
     daemon's TPDOs sent on it, over its SYNCs) and their load at the bus's bitrate without and
-    with worst-case stuffing (47 + 8·DLC, 55 + 10·DLC bits), beside the arithmetic of
+    with worst-case stuffing (:func:`~sea_daemon.hw.busload.measured_load`), beside the arithmetic of
     :func:`sea_daemon.hw.busload.bus_loads`."""
     b = cfg.hardware.bus
     planned = bus_loads(b, rate)
@@ -154,9 +154,9 @@ def per_bus_load(cfg: ModelConfig, rate: float, dev_stats: dict | None, publishe
         if d and d.get("syncs"):
             sent = parts[i].sent if i < len(parts) else 0
             sent_bytes = parts[i].sent_bytes if i < len(parts) else 0
-            F, B, syncs = d["frames"] + sent, d["data_bytes"] + sent_bytes, d["syncs"]
-            row["measured"] = {"frames_per_cycle": F / syncs, "load": (47 * F + 8 * B) / syncs * rate / b.bitrate,
-                               "load_worst_stuffing": (55 * F + 10 * B) / syncs * rate / b.bitrate}
+            fpc, load, worst = measured_load(d["frames"] + sent, d["data_bytes"] + sent_bytes, d["syncs"], rate,
+                                             b.bitrate)
+            row["measured"] = {"frames_per_cycle": fpc, "load": load, "load_worst_stuffing": worst}
         out.append(row)
     return out
 

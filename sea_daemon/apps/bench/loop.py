@@ -67,6 +67,7 @@ from sea_daemon.apps.bench import add_json_argument, describe_host_wake, host_wa
 from sea_daemon.apps.bench._loop_rig import (
     SwayController, bench_rig, describe_bus_load, device_model_process, joints_config, per_bus_load, stop_procs,
     joints_plant, trained_estimator)
+from sea_daemon.hw.busload import measured_load
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.runtime.loop import Series
 from sea_daemon.io.configfile import save_config
@@ -357,12 +358,8 @@ def _bus_load(args, dev_stats: dict | None, pub_can: dict) -> tuple[float, float
     which the devices' acceptance filter keeps out of the model."""
     if not (dev_stats and dev_stats.get("syncs")):
         return float("nan"), float("nan"), float("nan")
-    F = dev_stats["frames"] + pub_can.get("frames_sent", 0)
-    B = dev_stats["data_bytes"] + pub_can.get("bytes_sent", 0)
-    fpc = F / dev_stats["syncs"]
-    load_typ = (47 * F + 8 * B) / dev_stats["syncs"] * args.rate / 1e6
-    load_worst = (55 * F + 10 * B) / dev_stats["syncs"] * args.rate / 1e6
-    return fpc, load_typ, load_worst
+    return measured_load(dev_stats["frames"] + pub_can.get("frames_sent", 0),
+                         dev_stats["data_bytes"] + pub_can.get("bytes_sent", 0), dev_stats["syncs"], args.rate)
 
 
 def _worker_figures(res, n_cycles: int) -> dict | None:
