@@ -106,6 +106,21 @@ def nonfinite_tokens(text: str) -> list[str]:
 # --------------------------------------------------------------- scoring an estimator on a log
 
 
+def timed_replay(log: MeasuredLog, est):
+    """Replay ``est`` over ``log``: (the result, ``{"finite": every estimate, state and bound
+    finite, "us_per_step": wall time per sample}``), or (None, ``{"fault": ...}``) when the
+    estimator stops on a typed fault."""
+    try:
+        t0 = time.perf_counter()
+        r = replay(log, est)
+        wall = time.perf_counter() - t0
+    except EstimatorFault as e:
+        return None, {"fault": str(e)[:300]}
+    fin = bool(np.all(np.isfinite(r.tau_h_act_hat)) and np.all(np.isfinite(r.x_hat))
+               and np.all(np.isfinite(r.tau_h_act_bound)))
+    return r, {"finite": fin, "us_per_step": 1e6 * wall / len(log)}
+
+
 def score_replay(log: MeasuredLog, est, bound: bool = False) -> dict:
     """Replay ``est`` over ``log`` (which has the truth ``tau_h_act``): RMSE, mean and largest
     |error|, whether every output is finite, µs per step, the share outside the calibration's
@@ -113,17 +128,13 @@ def score_replay(log: MeasuredLog, est, bound: bool = False) -> dict:
     ``bound=theorem_bound``), its coverage over all samples and over the samples it marks
     valid, the valid share, mean ρ over all and over the valid samples, mean ρ / mean |error|.
     ``{"fault": ...}`` when the estimator stops on a typed fault."""
-    try:
-        t0 = time.perf_counter()
-        r = replay(log, est)
-        wall = time.perf_counter() - t0
-    except EstimatorFault as e:
-        return {"fault": str(e)[:300]}
+    r, base = timed_replay(log, est)
+    if r is None:
+        return base
     hat = r.tau_h_act_hat
-    fin = bool(np.all(np.isfinite(hat)) and np.all(np.isfinite(r.x_hat)) and np.all(np.isfinite(r.tau_h_act_bound)))
     e = hat - log.tau_h_act
     out = {"rmse": float(np.sqrt(np.mean(e ** 2))), "mean_abs": float(np.mean(np.abs(e))),
-           "max_abs": float(np.max(np.abs(e))), "finite": fin, "us_per_step": 1e6 * wall / len(log)}
+           "max_abs": float(np.max(np.abs(e))), **base}
     if hasattr(est, "n_outside"):
         out["outside_share"] = est.n_outside / max(len(log) - 1, 1)
     if bound:

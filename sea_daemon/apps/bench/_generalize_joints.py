@@ -30,14 +30,13 @@ import numpy as np
 
 from sea_daemon.apps.bench import machine
 from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints, sessions_joints
+from sea_daemon.apps.bench._degenerate import timed_replay
 from sea_daemon.apps.bench._logcache import load_logs, save_logs
 from sea_daemon.apps.calibration.joints import plant_substep
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
-from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import run_session
-from sea_daemon.errors import EstimatorFault
 from sea_daemon.io.files import atomic_write_text
 
 #: the two-joint plant seeds used while building the two-joint calibration (not for headline figures):
@@ -94,17 +93,12 @@ def score_joints(log, est, bound: bool = False) -> dict:
     """Replay ``est`` over ``log``: the RMSE over all joints, whether every output is finite, µs per
     step, and per joint (``joints``) its own figures (:func:`_joint_stats`); ``{"fault": ...}``
     when the estimator stops on a typed fault."""
-    try:
-        t0 = time.perf_counter()
-        r = replay(log, est)
-        wall = time.perf_counter() - t0
-    except EstimatorFault as e:
-        return {"fault": str(e)[:300]}
+    r, base = timed_replay(log, est)
+    if r is None:
+        return base
     e = r.tau_h_act_hat - log.tau_h_act
-    fin = bool(np.all(np.isfinite(r.tau_h_act_hat)) and np.all(np.isfinite(r.x_hat))
-               and np.all(np.isfinite(r.tau_h_act_bound)))
     v = r.valid if r.valid is not None else np.ones(len(log), dtype=bool)
-    return {"rmse": float(np.sqrt(np.mean(e ** 2))), "finite": fin, "us_per_step": 1e6 * wall / len(log),
+    return {"rmse": float(np.sqrt(np.mean(e ** 2))), **base,
             "joints": [_joint_stats(e[:, j], r.tau_h_act_bound[:, j], v, bound) for j in range(e.shape[1])]}
 
 
