@@ -83,7 +83,7 @@ def load_inputs(log_path: str, config_path: str, folds: int) -> tuple[MeasuredLo
                          "torque truth; give a log with tau_h_act (0 where nobody touches the load)")
     log, _ = at_config_rate(log, cfg)
     duration = len(log) * log.dt
-    most = min(MAX_FOLDS, int(duration // MIN_BLOCK_S))
+    most = min(MAX_FOLDS, int(duration / MIN_BLOCK_S + 1e-6))
     if not 2 <= folds <= most:
         raise InputError(f"--folds {folds}: allowed 2-{most} for this {duration:.3g} s log (blocks of at least "
                          f"{MIN_BLOCK_S:g} s, at most {MAX_FOLDS} blocks)" if most >= 2 else
