@@ -62,7 +62,7 @@ def test_fit_on_the_bench_head_names_the_motion_to_record():
     s = assess(read_log(DATA / "reference_head.csv", n=1), cfg)
     assert s.refusal and "1 move(s) up and 1 down" in s.refusal, s.refusal
     assert "record at least 10 s moving at least 2 times each way over at least 5 deg" in s.refusal
-    assert "s of data" not in s.refusal and not NAN.search(s.refusal)
+    assert "s long" not in s.refusal and not NAN.search(s.refusal)
 
 
 def test_gp_akf_calibrated_per_block_of_the_bench(tmp_path, capsys):
@@ -77,7 +77,7 @@ def test_gp_akf_calibrated_per_block_of_the_bench(tmp_path, capsys):
     assert [f["block"] for f in folds] == [1, 2]
     for f, moves in zip(folds, ("1 move(s) up and 0 down", "0 move(s) up and 1 down")):
         # a 5 s block moving one way: refused, naming what it lacks and what to record
-        assert moves in f["fit"] and "5 s of data (at least 10 s)" in f["fit"], f["fit"]
+        assert moves in f["fit"] and "5.0 s long (at least 10 s)" in f["fit"], f["fit"]
         assert "record at least 10 s" in f["fit"]
         # calibrated anyway: the configured physics kept, nothing invented
         assert f["calibration"]["physics"].startswith("configured") and f["calibration"]["effects"] == []
