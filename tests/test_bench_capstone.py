@@ -33,6 +33,8 @@ NAN = re.compile(r"\b(nan|inf|infinity)\b", re.IGNORECASE)
     (["--folds", "1"], r"--folds 1: allowed 2-5"),
     (["--log", str(DATA / "disturbance.csv")], r"no tau_h_act column"),
     (["--checks", "gp"], r"--checks"),
+    (["--calibrate-on", "8-12"], r"--calibrate-on 8-12: allowed A-B seconds within the log's 0-10 s"),
+    (["--calibrate-on", "2-3"], r"at least 2 s long"),
 ])
 def test_bad_options_exit_2_with_one_line(argv, pattern, capsys):
     rc = main(["bench", "capstone", *argv])
@@ -90,4 +92,4 @@ def test_gp_akf_calibrated_per_block_of_the_bench(tmp_path, capsys):
         assert row["gp_over_akf"] == pytest.approx(g["rmse"] / row["akf_input"])
         assert set(row["met"]) == {"gp_over_akf", "coverage", "bound_over_rmse", "valid_share"}
     assert set(res["gp_akf_met"]) == set(res["targets"])
-    assert "| block 1 | 5.00-9.99 |" in printed and "fit refuses it" in printed
+    assert "| 0.00-5.00 | 5.00-9.99 |" in printed and "fit refuses it" in printed

@@ -66,6 +66,9 @@ def add_arguments(p) -> None:
     p.add_argument("--folds", type=int, default=2,
                    help=f"contiguous time blocks of equal length, 2-{MAX_FOLDS}, each at least {MIN_BLOCK_S:g} s "
                         "(default 2)")
+    p.add_argument("--calibrate-on", default=None, metavar="A-B",
+                   help="gp-akf: calibrate once on the samples from A to B seconds of the log and score on every "
+                        "block outside it (default: on each block in turn)")
     add_choice_argument(p, "--checks", CHECKS)
     add_json_argument(p)
 
@@ -91,6 +94,23 @@ def load_inputs(log_path: str, config_path: str, folds: int) -> tuple[MeasuredLo
                          f"{MIN_BLOCK_S:g} s")
     edges = np.linspace(0, len(log), folds + 1).astype(int)
     return log, cfg, load_yaml(config_path), [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def calibration_window(text: str | None, log: MeasuredLog) -> list | None:
+    """``--calibrate-on A-B`` [s] as [(start, stop)] rows of ``log`` (None without it); InputError
+    for a malformed window, one outside the log or shorter than :data:`MIN_BLOCK_S`."""
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split("-", 1))
+    except ValueError:
+        lo = hi = float("nan")
+    t0, t1 = float(log.t[0]), float(log.t[-1]) + log.dt
+    if not (t0 <= lo and hi <= t1 + 1e-9 and hi - lo >= MIN_BLOCK_S):
+        raise InputError(f"--calibrate-on {text}: allowed A-B seconds within the log's {t0:.6g}-{t1:.6g} s, "
+                         f"at least {MIN_BLOCK_S:g} s long")
+    a, b = np.searchsorted(log.t, [lo - 1e-9, hi - 1e-9])
+    return [(int(a), int(b))]
 
 
 def block_span(log: MeasuredLog, a: int, b: int) -> list[float]:
@@ -163,12 +183,13 @@ def calibration_summary(report: dict) -> dict:
     return {**calibration_row(report), "physics": "identified" if skipped is None else f"configured ({skipped})"}
 
 
-def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list) -> list[dict]:
-    """Per block: what fit says, the calibration on it (its refusal set aside), the GP-AKF with its
-    Theorem-1 bound and the AKF with the input model scored on every other block."""
+def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, windows: list | None = None) -> list[dict]:
+    """Per calibration window (default: each block): what fit says, the calibration on it (its
+    refusal set aside), the GP-AKF with its Theorem-1 bound and the AKF with the input model
+    scored on every block outside the window."""
     akf = BlockScorer(log)
     folds = []
-    for k, (a, b) in enumerate(blocks):
+    for k, (a, b) in enumerate(windows or blocks):
         block = log.slice(a, b)
         refusal = fit_verdict(block, cfg)
         opts = options_from_config(cfg)
@@ -178,7 +199,7 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list) -> 
         fold = {"block": k + 1, "t_s": block_span(log, a, b), "fit": "accepted" if refusal is None else refusal,
                 "calibration": calibration_summary(res.report), "calibration_s": time.perf_counter() - t0, "scored": []}
         for j, (c, d) in enumerate(blocks):
-            if j == k:
+            if c < b and a < d:          # overlaps the calibration
                 continue
             mask = np.zeros(len(log), bool)
             mask[c:d] = True
@@ -189,7 +210,7 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list) -> 
             row["met"] = targets_met(row)
             fold["scored"].append(row)
         folds.append(fold)
-        print(f"  calibrated on block {k + 1} in {fold['calibration_s']:.0f} s", flush=True)
+        print(f"  calibrated on {_span(fold['t_s'])} s in {fold['calibration_s']:.0f} s", flush=True)
     return folds
 
 
@@ -222,6 +243,10 @@ def print_selection(sel: dict) -> None:
           f"{_yes(sel['repeated_improves_every_block'])} (none worse: {_yes(sel['repeated_never_worse'])})")
 
 
+def _span(t_s) -> str:
+    return f"{t_s[0]:.2f}-{t_s[1]:.2f}"
+
+
 def _yes(v: bool) -> str:
     return "yes" if v else "NO"
 
@@ -232,19 +257,19 @@ def print_gpakf(folds: list[dict]) -> None:
           f"coverage >= {t['coverage']:g} of the valid samples, valid >= {t['valid_share']:g}, mean bound / RMSE "
           f"<= {t['bound_over_rmse']:g})")
     for f in folds:
-        print(f"calibrated on block {f['block']} ({f['t_s'][0]:.2f}-{f['t_s'][1]:.2f} s): fit "
+        print(f"calibrated on {_span(f['t_s'])} s: fit "
               + ("accepts it" if f["fit"] == "accepted" else f"refuses it: {f['fit']}"))
         c = f["calibration"]
         print(f"  calibration (refusal set aside): physics {c['physics']}; effects {', '.join(c['effects']) or 'none'};"
               f" GP {'kept' if c['gp_kept'] else 'not kept'}; q_tau {_f(c['q_tau'], '.3g')}")
-    print("| calibrated on | scored on [s] | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
+    print("| calibrated on [s] | scored on [s] | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
           "(valid) | valid | mean bound | bound / RMSE | met |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for f in folds:
         for r in f["scored"]:
             g = r["gp_akf"]
             met = "all" if all(r["met"].values()) else "NO: " + ", ".join(k for k, v in r["met"].items() if not v)
-            print(f"| block {f['block']} | {r['t_s'][0]:.2f}-{r['t_s'][1]:.2f} | "
+            print(f"| {_span(f['t_s'])} | {_span(r['t_s'])} | "
                   + (f"fault: {g['fault'][:60]}" if "fault" in g else _f(g.get("rmse")))
                   + f" | {_f(r['akf_input'])} | {_f(r['gp_over_akf'], '.2f')} | {_f(r['akf_calibrated'])} | "
                   f"{_f(g.get('coverage'), '.3f')} | {_f(g.get('valid_share'), '.3f')} | {_f(g.get('mean_bound'), '.3g')} | "
@@ -265,7 +290,7 @@ def run(args) -> int:
         out["selection"] = selection_check(log, cfg, args.folds)
         print_selection(out["selection"])
     if "gp-akf" in checks:
-        out["gp_akf_per_block"] = gpakf_check(log, cfg, raw, blocks)
+        out["gp_akf_per_block"] = gpakf_check(log, cfg, raw, blocks, calibration_window(args.calibrate_on, log))
         print_gpakf(out["gp_akf_per_block"])
         rows = [r for f in out["gp_akf_per_block"] for r in f["scored"]]
         out["gp_akf_met"] = {k: all(r["met"][k] for r in rows) for k in TARGETS}
