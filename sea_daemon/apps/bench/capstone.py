@@ -39,6 +39,7 @@ from sea_daemon.analysis.diagnose.select import SelectOptions
 from sea_daemon.analysis.sufficiency import assess, at_config_rate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.estimators.validity import REASONS, reason_counts
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.replay import replay
 from sea_daemon.errors import EstimatorFault, InputError
@@ -128,9 +129,12 @@ def selection_check(log: MeasuredLog, cfg: ModelConfig, folds: int) -> dict:
     res = run_diagnosis(log, cfg, opts).result
     cv = res["cross_validation"]
     rows = []
-    for b, r in zip(cv.get("blocks", []), cv.get("selection_repeated", [])):
+    spans = [(log.t >= b["t_s"][0]) & (log.t <= b["t_s"][1]) for b in cv.get("blocks", [])]
+    for k, (b, r) in enumerate(zip(cv.get("blocks", []), cv.get("selection_repeated", []))):
         o = r["out_of_sample"]
-        rows.append({"t_s": b["t_s"], "akf_input": b["estimate_rmse_before"], "kept": b["estimate_rmse_after"],
+        others = np.any([m for j, m in enumerate(spans) if j != k], axis=0)
+        rows.append({"t_s": b["t_s"], "q_unvisited": unvisited_share(log, cfg, others, spans[k]),
+                     "akf_input": b["estimate_rmse_before"], "kept": b["estimate_rmse_after"],
                      "repeated": o["estimate_rmse_after"],
                      "repeated_effects": [f"{e['type']}/{e['side']}" for e in r["effects"]]})
 
@@ -146,6 +150,16 @@ def selection_check(log: MeasuredLog, cfg: ModelConfig, folds: int) -> dict:
 
 
 # ---------------------------------------------------------------------------- GP-AKF per block
+
+def unvisited_share(log: MeasuredLog, cfg: ModelConfig, seen: np.ndarray, scored_rows: np.ndarray) -> float:
+    """The share of the ``scored_rows`` whose load angle lies outside the range of the ``seen``
+    rows (± one load encoder step): where what was fitted on those is extrapolated in q."""
+    q = np.asarray(log.q, float)[:, 0]
+    step = float(cfg.hardware.encoder_resolution(cfg.joints)[0][0])
+    lo, hi = np.min(q[seen]) - step, np.max(q[seen]) + step
+    qs = q[scored_rows]
+    return float(np.mean((qs < lo) | (qs > hi))) if qs.size else 0.0
+
 
 def fit_verdict(block: MeasuredLog, cfg: ModelConfig) -> str | None:
     """What ``sea-daemon fit`` says of ``block``: None (accepted) or its one-line refusal."""
@@ -169,6 +183,9 @@ def scored(log: MeasuredLog, est, a: int, b: int) -> dict:
     if np.any(rho > 0):
         v = np.ones(len(e), bool) if r.valid is None else np.asarray(r.valid[a - lo:], bool)
         out["valid_share"] = float(np.mean(v))
+        if r.reason is not None and not v.all():
+            why = np.bincount(np.asarray(r.reason[a - lo:], int), minlength=len(REASONS))
+            out["invalid_reasons"] = reason_counts(why)["invalid"]
         if v.any():
             rmse_v = float(np.sqrt(np.mean(e[v] ** 2)))
             out.update(coverage=float(np.mean(np.abs(e[v]) <= rho[v])), mean_bound=float(np.mean(rho[v])),
@@ -204,7 +221,10 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, win
             mask = np.zeros(len(log), bool)
             mask[c:d] = True
             g = scored(log, res.estimator(dt=log.dt, bound=theorem_bound), c, d)
-            row = {"block": j + 1, "t_s": block_span(log, c, d), "gp_akf": g, "akf_input": akf.rmse(cfg, mask),
+            seen = np.zeros(len(log), bool)
+            seen[a:b] = True
+            row = {"block": j + 1, "t_s": block_span(log, c, d), "q_unvisited": unvisited_share(log, cfg, seen, mask),
+                   "gp_akf": g, "akf_input": akf.rmse(cfg, mask),
                    "akf_calibrated": scored(log, res.estimator(dt=log.dt, kind="akf"), c, d).get("rmse")}
             row["gp_over_akf"] = (g["rmse"] / row["akf_input"] if "rmse" in g and row["akf_input"] else None)
             row["met"] = targets_met(row)
@@ -232,11 +252,11 @@ def _f(v, fmt: str = ".4f") -> str:
 def print_selection(sel: dict) -> None:
     print(f"\nselection repeated per fold (AKF tau_h_act_hat RMSE on the held-out block [N m]); effects kept on the "
           f"whole log: {', '.join(sel['effects_kept']) or 'none'}")
-    print("| held-out block [s] | AKF, input model | effects kept, refitted without the block | whole selection "
-          "repeated without the block (effects) |")
-    print("|---|---|---|---|")
+    print("| held-out block [s] | its q outside the other blocks' | AKF, input model | effects kept, refitted without "
+          "the block | whole selection repeated without the block (effects) |")
+    print("|---|---|---|---|---|")
     for r in sel["blocks"]:
-        print(f"| {r['t_s'][0]:.2f}-{r['t_s'][1]:.2f} | {_f(r['akf_input'])} | {_f(r['kept'])} | {_f(r['repeated'])} "
+        print(f"| {_span(r['t_s'])} | {100 * r['q_unvisited']:.0f} % | {_f(r['akf_input'])} | {_f(r['kept'])} | {_f(r['repeated'])} "
               f"({', '.join(r['repeated_effects']) or 'none found'}) |")
     print(f"effects kept: every held-out block improves: {_yes(sel['kept_improves_every_block'])} (none worse: "
           f"{_yes(sel['kept_never_worse'])}); selection repeated: every block improves: "
@@ -262,14 +282,14 @@ def print_gpakf(folds: list[dict]) -> None:
         c = f["calibration"]
         print(f"  calibration (refusal set aside): physics {c['physics']}; effects {', '.join(c['effects']) or 'none'};"
               f" GP {'kept' if c['gp_kept'] else 'not kept'}; q_tau {_f(c['q_tau'], '.3g')}")
-    print("| calibrated on [s] | scored on [s] | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
+    print("| calibrated on [s] | scored on [s] | q unvisited | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
           "(valid) | valid | mean bound | bound / RMSE | met |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for f in folds:
         for r in f["scored"]:
             g = r["gp_akf"]
             met = "all" if all(r["met"].values()) else "NO: " + ", ".join(k for k, v in r["met"].items() if not v)
-            print(f"| {_span(f['t_s'])} | {_span(r['t_s'])} | "
+            print(f"| {_span(f['t_s'])} | {_span(r['t_s'])} | {100 * r['q_unvisited']:.0f} % | "
                   + (f"fault: {g['fault'][:60]}" if "fault" in g else _f(g.get("rmse")))
                   + f" | {_f(r['akf_input'])} | {_f(r['gp_over_akf'], '.2f')} | {_f(r['akf_calibrated'])} | "
                   f"{_f(g.get('coverage'), '.3f')} | {_f(g.get('valid_share'), '.3f')} | {_f(g.get('mean_bound'), '.3g')} | "
