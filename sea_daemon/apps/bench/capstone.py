@@ -24,6 +24,7 @@ figures.  The blocks, not the targets, are the only setting: nothing of the log 
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -36,7 +37,7 @@ from sea_daemon.apps.calibration.pipeline import calibrate, given_keys, options_
 from sea_daemon.analysis.diagnose.crossval import WARM_S, BlockScorer
 from sea_daemon.analysis.diagnose.engine import run_diagnosis
 from sea_daemon.analysis.diagnose.select import SelectOptions
-from sea_daemon.analysis.sufficiency import assess, at_config_rate
+from sea_daemon.analysis.sufficiency import Limits, assess, at_config_rate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.validity import REASONS, reason_counts
@@ -153,9 +154,10 @@ def selection_check(log: MeasuredLog, cfg: ModelConfig, folds: int) -> dict:
 
 def unvisited_share(log: MeasuredLog, cfg: ModelConfig, seen: np.ndarray, scored_rows: np.ndarray) -> float:
     """The share of the ``scored_rows`` whose load angle lies outside the range of the ``seen``
-    rows (± one load encoder step): where what was fitted on those is extrapolated in q."""
+    rows, widened by the span of a still arm (:class:`Limits` ``still_span_deg``) or one load
+    encoder step, whichever is larger: where what was fitted on those is extrapolated in q."""
     q = np.asarray(log.q, float)[:, 0]
-    step = float(cfg.hardware.encoder_resolution(cfg.joints)[0][0])
+    step = max(float(cfg.hardware.encoder_resolution(cfg.joints)[0][0]), math.radians(Limits.still_span_deg))
     lo, hi = np.min(q[seen]) - step, np.max(q[seen]) + step
     qs = q[scored_rows]
     return float(np.mean((qs < lo) | (qs > hi))) if qs.size else 0.0
@@ -252,7 +254,7 @@ def _f(v, fmt: str = ".4f") -> str:
 def print_selection(sel: dict) -> None:
     print(f"\nselection repeated per fold (AKF tau_h_act_hat RMSE on the held-out block [N m]); effects kept on the "
           f"whole log: {', '.join(sel['effects_kept']) or 'none'}")
-    print("| held-out block [s] | its q outside the other blocks' | AKF, input model | effects kept, refitted without "
+    print("| held-out block [s] | its q beyond the other blocks' (±1 deg) | AKF, input model | effects kept, refitted without "
           "the block | whole selection repeated without the block (effects) |")
     print("|---|---|---|---|---|")
     for r in sel["blocks"]:
@@ -282,7 +284,7 @@ def print_gpakf(folds: list[dict]) -> None:
         c = f["calibration"]
         print(f"  calibration (refusal set aside): physics {c['physics']}; effects {', '.join(c['effects']) or 'none'};"
               f" GP {'kept' if c['gp_kept'] else 'not kept'}; q_tau {_f(c['q_tau'], '.3g')}")
-    print("| calibrated on [s] | scored on [s] | q unvisited | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
+    print("| calibrated on [s] | scored on [s] | q beyond the calibration's (±1 deg) | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
           "(valid) | valid | mean bound | bound / RMSE | met |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for f in folds:
