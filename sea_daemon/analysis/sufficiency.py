@@ -328,9 +328,9 @@ def _physics(f: dict, lim: Limits) -> Verdict:
     missing = []
     if f["duration_s"] < lim.min_physics_s:
         # rounded down: a log short of the limit never reads as long as it
-        missing.append(f"{math.floor(10 * f['duration_s'] + 1e-6) / 10:.1f} s long (at least {lim.min_physics_s:g} s)")
+        missing.append(f"is {math.floor(10 * f['duration_s'] + 1e-6) / 10:.1f} s long (at least {lim.min_physics_s:g} s)")
     if min(f["strokes_up"], f["strokes_down"]) < lim.min_strokes:
-        missing.append(f"{f['strokes_up']} move(s) up and {f['strokes_down']} down of at least "
+        missing.append(f"has {f['strokes_up']} move(s) up and {f['strokes_down']} down of at least "
                        f"{lim.min_stroke_deg:g} deg (at least {lim.min_strokes} each way: friction's sign shows "
                        "only where the joint turns)")
     snr = f.get("snr", {})
@@ -338,10 +338,10 @@ def _physics(f: dict, lim: Limits) -> Verdict:
                       ("speed_down", "the speed moving down")):
         v = snr.get(key)
         if v is None or v < lim.min_snr:
-            missing.append(f"{what} {'not measurable' if v is None else f'{v:.1f}'} x its noise "
+            missing.append(f"has {what} {'not measurable' if v is None else f'{v:.1f}'} x its noise "
                            f"(at least {lim.min_snr:g})")
     if missing:
-        return Verdict("effects", "refuse", "the log is " + "; ".join(missing))
+        return Verdict("effects", "refuse", "the log " + "; ".join(missing))
     return Verdict("effects", "identify", "motion both ways over the range")
 
 
