@@ -93,3 +93,19 @@ def test_gp_akf_calibrated_per_block_of_the_bench(tmp_path, capsys):
         assert set(row["met"]) == {"gp_over_akf", "coverage", "bound_over_rmse", "valid_share"}
     assert set(res["gp_akf_met"]) == set(res["targets"])
     assert "| 0.00-5.00 | 5.00-9.99 |" in printed and "fit refuses it" in printed
+
+
+def test_the_bench_declares_its_subject_from_the_push_it_measured():
+    """configs/capstone_sea.yaml declares the person of disturbance.csv (not the exoskeleton's
+    1.5 N m default, above the drive's torque limit): a declared torque rate at least the spring
+    torque's rate measured there (99th percentile over 0.25 s) and a size below the torque limit."""
+    from sea_daemon.apps.calibration.pipeline import options_from_config
+    cfg = load_config(CONFIG)
+    human = options_from_config(cfg).human
+    assert human.rms < cfg.hardware.torque_limit
+    log = read_log(DATA / "disturbance.csv", n=1)
+    tau_s = cfg.model.K_s[0, 0] * (log.theta_m[:, 0] - log.q[:, 0])
+    w = int(round(0.25 / log.dt))
+    rate = np.abs(tau_s[w:] - tau_s[:-w]) / (w * log.dt)
+    assert human.rate >= np.percentile(rate, 99), (human.rate, np.percentile(rate, 99))
+    assert human.rate <= 3 * np.percentile(rate, 99)
