@@ -549,7 +549,7 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
     if keep:
         # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
         gp = offline_gp(cfg, Z, F)
-    report["gp_kept"] = gp is not None
+    report["gp_kept"], report["gp_directions"] = gp is not None, gp.directions_record() if gp is not None else None
     if gp is None and not cfg.estimator.model_error and len(F):
         # the AKF's bound needs a term for the model error it makes (docs/bounds.md §7): the largest
         # leftover torque of this log, +25 % (a GP-AKF's GP error takes its place)
