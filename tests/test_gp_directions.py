@@ -74,7 +74,7 @@ def test_plain_hook_gates_on_both_paths_and_online_learning_covers_the_direction
     rng = np.random.default_rng(3)
     for _ in range(DIRECTION_MIN_PAIRS):
         gp.update(np.array([rng.uniform(0.2, 1.2), -rng.uniform(0.05, 0.8), 0.0]), np.array([0.02]))
-    assert gp.all_covered and not gp.off_direction(z_down)
+    assert not gp.gated and not gp.off_direction(z_down)
     hook.freeze(None)
     assert hook.predict(z_down)[0][0] != 0.0
 
@@ -101,4 +101,16 @@ def test_calibration_output_says_which_direction_the_gp_lacks():
     lines = directions_lines(gp.directions_record())
     assert len(lines) == 1 and "up only" in lines[0] and "Moving down" in lines[0] and "physical model alone" in lines[0]
     both = {"speed": 0.03, "min_pairs": 50, "pairs_down_up": [[60, 70]], "covered_down_up": [[True, True]]}
-    assert directions_lines(both) == [] and directions_lines(None) == []
+    still = {"speed": 0.03, "min_pairs": 50, "pairs_down_up": [[0, 0]], "covered_down_up": [[False, False]]}
+    assert directions_lines(both) == directions_lines(still) == directions_lines(None) == []
+
+
+def test_a_gp_learned_at_rest_only_is_not_gated():
+    """Pairs at rest only (a still-arm calibration) carry no sign of friction: no direction gate,
+    the GP stays as its variance weights it."""
+    rng = np.random.default_rng(2)
+    Z = np.column_stack([rng.uniform(0.5, 0.52, 100), rng.uniform(-0.01, 0.01, 100), np.zeros(100)])
+    gp = ResidualGP(1, LearningConfig(sigma_f=0.05, lengthscales=(0.5, 0.3, 50.0), sigma_n=0.002, hyperopt=False))
+    gp.train(Z, np.full((100, 1), 0.01))
+    assert gp.directions.tolist() == [[0, 0]] and not gp.gated
+    assert not gp.off_direction(np.array([0.5, 0.3, 0.0])) and not gp.off_direction(np.array([0.5, -0.3, 0.0]))

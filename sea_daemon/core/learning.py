@@ -114,9 +114,11 @@ class ResidualGP:
     :meth:`update` and :meth:`note_direction`; None for a model saved without the record (it
     counts nothing and :meth:`off_direction` is always False).  A direction is covered with at
     least :data:`DIRECTION_MIN_PAIRS` pairs: friction changes sign with q̇, and a GP that
-    learned one way only would carry that friction across q̇ = 0 with the wrong sign, so the
-    GP-AKF's hooks use its mean only where every joint moves a covered way (or slower than
-    :data:`DIRECTION_SPEED`) and the physical model alone elsewhere.
+    learned one way only would carry that friction across q̇ = 0 with the wrong sign, so where
+    a joint moves the way its pairs did not cover while they covered the other
+    (:meth:`off_direction`), the GP-AKF's hooks use the physical model alone.  A joint covered
+    neither way (pairs at rest only) learned no sign of friction: its GP stays as weighted
+    by its variance.
     """
 
     def __init__(self, n: int, learning: LearningConfig | None = None, **overrides):
@@ -142,10 +144,17 @@ class ResidualGP:
         self.direction_speed = speed
         self.direction_min_pairs = least
         self._covered = np.ones((self.n, 2), dtype=bool)
-        self.all_covered = True
+        self._gated = np.zeros((self.n, 2), dtype=bool)
+        self.gated = False
         if counts is not None:
-            self._covered[:] = counts >= self.direction_min_pairs
-            self.all_covered = bool(self._covered.all())
+            self._judge()
+
+    def _judge(self) -> None:
+        """Covered: at least ``direction_min_pairs`` pairs; gated: not covered while the other way
+        is (the GP learned one way only: what it learned has the sign of that way)."""
+        self._covered[:] = self.directions >= self.direction_min_pairs
+        self._gated[:] = ~self._covered & self._covered[:, ::-1]
+        self.gated = bool(self._gated.any())
 
     def note_direction(self, z) -> None:
         """Count the training pair at ``z`` in :attr:`directions` (nothing without the record)."""
@@ -157,23 +166,23 @@ class ResidualGP:
             v = z[n + j]
             if v > s:
                 c[j, 1] += 1
+                if c[j, 1] == self.direction_min_pairs:
+                    self._judge()
             elif v < -s:
                 c[j, 0] += 1
-            else:
-                continue
-            if not self.all_covered:
-                self._covered[j] = c[j] >= self.direction_min_pairs
-                self.all_covered = bool(self._covered.all())
+                if c[j, 0] == self.direction_min_pairs:
+                    self._judge()
 
     def off_direction(self, z) -> bool:
         """Whether some joint moves at ``z`` (q̇ beyond :data:`DIRECTION_SPEED`) in a direction
-        the training pairs did not cover (allocation-free; False without the record)."""
-        if self.all_covered:
+        the training pairs did not cover while they covered the other (allocation-free; False
+        without the record)."""
+        if not self.gated:
             return False
-        n, s, cov = self.n, self.direction_speed, self._covered
+        n, s, g = self.n, self.direction_speed, self._gated
         for j in range(n):
             v = z[n + j]
-            if (v > s and not cov[j, 1]) or (v < -s and not cov[j, 0]):
+            if (v > s and g[j, 1]) or (v < -s and g[j, 0]):
                 return True
         return False
 

@@ -154,16 +154,15 @@ def summary(result) -> dict:
 
 def directions_lines(rec: dict | None) -> list[str]:
     """The residual GP's directions of motion (:meth:`~sea_daemon.core.learning.ResidualGP.directions_record`)
-    in plain words: one line per joint that its pairs covered one way only (none when every
-    direction is covered, or without the record)."""
+    in plain words: one line per joint that its pairs covered one way only (none for a joint
+    covered both ways or neither, or without the record)."""
     if not rec:
         return []
     out = []
     for j, ((down, up), (c_down, c_up)) in enumerate(zip(rec["pairs_down_up"], rec["covered_down_up"])):
-        if c_down and c_up:
+        if c_down == c_up:
             continue
-        learned = "up only" if c_up else ("down only" if c_down else "neither way")
-        missing = " or ".join(w for w, c in (("up", c_up), ("down", c_down)) if not c)
+        learned, missing = ("up only", "down") if c_up else ("down only", "up")
         out.append(f"Residual GP, joint {j + 1}: learned moving {learned} ({up} pairs up, {down} down above "
                    f"{rec['speed']:g} rad/s; {rec['min_pairs']} needed each way). Moving {missing}, the GP-AKF "
                    f"uses the physical model alone (GP mean 0; its bound carries the GP's error there) until it "

@@ -61,6 +61,7 @@ class _ResidualHook:
         # (ResidualGP.off_direction): mean and Jacobian 0 there, the physical model alone
         self.n_off_direction = 0
         self.off = False
+        self._off_direction = getattr(gp, "off_direction", None)     # a residual of one's own may lack it
         # the compiled path (freeze): LoG-GPs only
         self._loggp = all(type(g) is LoGGP for g in gp.gps)
         # the key the compiled path runs for (None: the Python path) and the pack's arrays
@@ -106,7 +107,7 @@ class _ResidualHook:
     def _gate(self, z):
         """The direction gate: μ and ∂μ/∂z set to 0 where some joint moves at ``z`` in a
         direction the GP's training pairs did not cover (σ² kept: Q still has the GP's variance)."""
-        off = self.off = self.gp.off_direction(z)
+        off = self.off = self._off_direction is not None and self._off_direction(z)
         if off:
             self.n_off_direction += 1
             self.mu[:] = 0.0
@@ -169,8 +170,8 @@ class GPAKF(AKF):
         freeze = getattr(self.residual, "freeze", None)       # a residual of one's own has none
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
-        # the one-call frozen sample has no direction gate: only for a GP that covered every direction
-        if (self._fz_ok and was_ready and self.gp.all_covered and not self._filling and (dt is None or dt == self.dt)
+        # the one-call frozen sample has no direction gate: only for a GP without one
+        if (self._fz_ok and was_ready and not getattr(self.gp, "gated", False) and not self._filling and (dt is None or dt == self.dt)
                 and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin.primed):
             e = self._frozen_update(q, theta_m, tau_m)
         else:
@@ -288,7 +289,9 @@ class GPAKF(AKF):
         for i, g in enumerate(self.gp.gps):
             g.update(z, f[i])
         # the directions of motion learned: a direction with enough pairs becomes covered
-        self.gp.note_direction(z)
+        note = getattr(self.gp, "note_direction", None)
+        if note is not None:
+            note(z)
         self.n_learned += 1
 
 
