@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
-from pathlib import Path
+import os
 from typing import Callable
 
 import numba
@@ -76,14 +76,22 @@ def sources_digest() -> str:
     taken once per process."""
     names = tuple(KERNEL_MODULES)
     if names not in _digest:
-        root = Path(__file__).resolve().parents[2]      # the directory holding sea_daemon/
-        h = hashlib.sha256(Path(__file__).read_bytes())
+        # the directory holding sea_daemon/
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        h = hashlib.sha256(_read(__file__))
         for name in names:
-            path = root.joinpath(*name.split(".")).with_suffix(".py")
             h.update(name.encode() + b"\0")
-            h.update(path.read_bytes() if path.is_file() else b"<missing>")
+            h.update(_read(os.path.join(root, *name.split(".")) + ".py"))
         _digest[names] = h.hexdigest()
     return _digest[names]
+
+
+def _read(path: str) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError:
+        return b"<missing>"
 
 
 class _SourcesStamp:
