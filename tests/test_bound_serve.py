@@ -91,18 +91,20 @@ def _server(monkeypatch, cost, last: int, rt_priority: int = 60, permitted=lambd
     return server, calls, views, fds
 
 
-def _close(fds):
-    for fd in fds:
-        os.close(fd)
+def _serve(monkeypatch, cost, last: int, **kw):
+    """The worker's loop run to its stop on the fake loop: (server, scheduling calls, views)."""
+    server, calls, views, fds = _server(monkeypatch, cost, last, **kw)
+    try:
+        server.serve()
+    finally:
+        for fd in fds:
+            os.close(fd)
+    return server, calls, views
 
 
 def test_a_worker_behind_gives_up_sched_fifo_and_takes_it_again_once_caught_up(monkeypatch):
     # 2 periods a sample for the first 40 samples (always behind), then half a period
-    server, calls, views, fds = _server(monkeypatch, lambda i: 2.0 if i < 40 else 0.5, last=400)
-    try:
-        server.serve()
-    finally:
-        _close(fds)
+    server, calls, views = _serve(monkeypatch, lambda i: 2.0 if i < 40 else 0.5, last=400)
     assert server.done == server.head == 400 and server.stop
     assert calls == [(os.SCHED_OTHER, 0, 16), (os.SCHED_FIFO, 60, 1)]
     assert views.hdr[bs.H_YIELDS] == 1 and views.hdr[bs.H_YIELDED] == 0 and views.hdr[bs.H_SCHED] == 60
@@ -110,41 +112,25 @@ def test_a_worker_behind_gives_up_sched_fifo_and_takes_it_again_once_caught_up(m
 
 def test_a_worker_that_keeps_up_keeps_sched_fifo(monkeypatch):
     # 3 samples of 2 periods, then half a period: never more than YIELD_BEHIND behind
-    server, calls, views, fds = _server(monkeypatch, lambda i: 2.0 if i < 3 else 0.5, last=100)
-    try:
-        server.serve()
-    finally:
-        _close(fds)
+    server, calls, views = _serve(monkeypatch, lambda i: 2.0 if i < 3 else 0.5, last=100)
     assert server.done == 100
     assert calls == [] and views.hdr[bs.H_YIELDS] == 0
 
 
 def test_a_worker_always_behind_stays_sched_other(monkeypatch):
-    server, calls, views, fds = _server(monkeypatch, lambda i: 1.5, last=300)
-    try:
-        server.serve()
-    finally:
-        _close(fds)
+    server, calls, views = _serve(monkeypatch, lambda i: 1.5, last=300)
     assert calls == [(os.SCHED_OTHER, 0, 9)]
     assert views.hdr[bs.H_YIELDS] == 1 and views.hdr[bs.H_YIELDED] == 1
 
 
 def test_a_worker_not_permitted_sched_fifo_again_stays_sched_other(monkeypatch):
-    server, calls, views, fds = _server(monkeypatch, lambda i: 2.0 if i < 40 else 0.5, last=400,
-                                        permitted=lambda policy: policy != os.SCHED_FIFO)
-    try:
-        server.serve()
-    finally:
-        _close(fds)
+    server, calls, views = _serve(monkeypatch, lambda i: 2.0 if i < 40 else 0.5, last=400,
+                                  permitted=lambda policy: policy != os.SCHED_FIFO)
     assert [c[:2] for c in calls] == [(os.SCHED_OTHER, 0), (os.SCHED_FIFO, 60), (os.SCHED_OTHER, 0)]
     assert views.hdr[bs.H_SCHED] == 0 and views.hdr[bs.H_YIELDED] == 0
 
 
 @pytest.mark.parametrize("cost", [0.5, 3.0])
 def test_a_worker_at_sched_other_never_changes_its_scheduling(monkeypatch, cost):
-    server, calls, views, fds = _server(monkeypatch, lambda i: cost, last=200, rt_priority=0)
-    try:
-        server.serve()
-    finally:
-        _close(fds)
+    server, calls, views = _serve(monkeypatch, lambda i: cost, last=200, rt_priority=0)
     assert server.done == 200 and calls == []
