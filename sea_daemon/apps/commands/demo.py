@@ -73,9 +73,14 @@ def add_arguments(p) -> None:
                         "the calibration (calibrate --fit from the nominal robot)")
     p.add_argument("--scenario", action="append", choices=SCENARIOS, default=None,
                    help="run only this embedded scenario (repeatable; default: both)")
-    p.add_argument("--config", default=str(data_root() / "configs" / "exo_1dof_sim.yaml"),
+    p.add_argument("--config", default=None,
                    help="daemon configuration (default: configs/exo_1dof_sim.yaml, the estimator settings "
                         "for the simulated sensors)")
+    p.add_argument("--robot", default=None, metavar="MODEL.yaml",
+                   help="a robot of n coupled joints (a model YAML with model.urdf, e.g. configs/exo_2dof.yaml): its "
+                        "two-joint scenarios (configs/scenarios/two_joint_passive.yaml, two_joint_active.yaml) on "
+                        "it, with the oracle AKF (the true plant's model) among the estimators, a table and a "
+                        "plot per joint; instead of --config")
     p.add_argument("--samples", type=int, default=None,
                    help="shorten both phases to this many samples each (quick look; the calibration's diagnose "
                         "needs four smoothing windows of the session, --online-gp does not)")
@@ -93,6 +98,12 @@ def add_arguments(p) -> None:
 
 
 def _plot(path: Path, name: str, est_log, results: dict) -> None:
+    plot_joint(path, name, est_log, results, 0)
+
+
+def plot_joint(path: Path, title: str, est_log, results: dict, j: int) -> None:
+    """The plot of joint ``j`` (0-based): the true and estimated τ_h,act with each bounded
+    estimator's band ±ρ_k, and the joint's load and motor angles."""
     # local: matplotlib takes ~0.5 s to import and its backend is a process-wide choice, made here
     import matplotlib
     matplotlib.use("Agg")
@@ -100,18 +111,18 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
 
     t = est_log.t - est_log.t[0]
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    truth = est_log.tau_h_act[:, 0]
+    truth = est_log.tau_h_act[:, j]
     ax[0].plot(t, truth, "k", lw=2, label="true τ_h,act")
     for key, res in results.items():
-        line, = ax[0].plot(t, res.tau_h_act_hat[:, 0], lw=1, label=key)
+        line, = ax[0].plot(t, res.tau_h_act_hat[:, j], lw=1, label=key)
         if key != "spring":
-            ax[0].fill_between(t, res.tau_h_act_hat[:, 0] - res.tau_h_act_bound[:, 0],
-                               res.tau_h_act_hat[:, 0] + res.tau_h_act_bound[:, 0], color=line.get_color(), alpha=0.12)
+            ax[0].fill_between(t, res.tau_h_act_hat[:, j] - res.tau_h_act_bound[:, j],
+                               res.tau_h_act_hat[:, j] + res.tau_h_act_bound[:, j], color=line.get_color(), alpha=0.12)
     ax[0].set_ylabel("τ_h,act [N m]")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[0].set_title(f"{name}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the Theorem-1 bound ρ_k)")
-    ax[1].plot(t, np.degrees(est_log.q[:, 0]), label="q (load encoder)")
-    ax[1].plot(t, np.degrees(est_log.theta_m[:, 0]), "--", label="θ_m (motor encoder / gear)")
+    ax[0].set_title(f"{title}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the Theorem-1 bound ρ_k)")
+    ax[1].plot(t, np.degrees(est_log.q[:, j]), label="q (load encoder)")
+    ax[1].plot(t, np.degrees(est_log.theta_m[:, j]), "--", label="θ_m (motor encoder / gear)")
     ax[1].set_ylabel("angle [deg]")
     ax[1].set_xlabel("t [s]")
     ax[1].legend(loc="upper right", fontsize=8)
@@ -120,7 +131,7 @@ def _plot(path: Path, name: str, est_log, results: dict) -> None:
     plt.close(fig)
 
 
-def _daemon(argv: list[str]) -> dict:
+def daemon(argv: list[str]) -> dict:
     """Run a daemon command in this process; its JSON summary (stdout) is returned."""
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
@@ -136,13 +147,16 @@ def _daemon(argv: list[str]) -> dict:
     return summary
 
 
+_daemon = daemon
+
+
 def _online_gp(out: Path, name: str, sc, sc_path: str, cfg, cfg_path: Path, model: Path, common, logs: Path,
                n_tr: int, per: float):
     """``--online-gp``: calibrate (the GP learned online), calibrate-bound on a held-out session,
     the run's configuration.  Returns (calibrate's JSON, calibrate-bound's JSON, run config)."""
-    cal = _daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
+    cal = daemon(["calibrate", *common(cfg_path, sc_path, logs), "--out", str(model), "--cycles", str(n_tr)])
     held = _held_out_scenario(sc_path, out / f"{name}_heldout.yaml")
-    hcal = _daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
+    hcal = daemon(["calibrate", *common(cfg_path, held, logs / "heldout"),
                     "--out", str(out / f"{name}_heldout_model.npz"), "--cycles", str(max(n_tr, int(HELD_OUT_MIN * per)))])
     run_cfg = out / f"{name}_config.yaml"
     base_cfg = cfg_path
@@ -152,21 +166,24 @@ def _online_gp(out: Path, name: str, sc, sc_path: str, cfg, cfg_path: Path, mode
         save_config(sc.declared(cfg), base_cfg, header=f"sea-daemon demo: {cfg_path} with what {name} declares")
     if isinstance(cfg.estimator.gp_beta, float):
         # the configured β: the held-out session checks it, the run uses it
-        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
+        bound = daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model)])
         run_cfg = base_cfg
     else:
-        bound = _daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
+        bound = daemon(["calibrate-bound", hcal["log"], "--config", str(base_cfg), "--model", str(model),
                          "--target", "torque", "--write", str(run_cfg)])
     return cal, bound, run_cfg
 
 
-def _robot_config(cfg, sc, path: Path) -> None:
+def _robot_config(cfg, sc, path: Path, learning: dict | None = None) -> None:
     """The nominal robot a user starts from: the configuration's model and hardware, no
     estimator, kinematics or learning settings (the calibration identifies them), and the
-    scenario's declared human-torque rate when it declares one."""
+    scenario's declared human-torque rate when it declares one.  ``learning``: the learning
+    settings of the calibration session's online GP (the model file ``--fit`` writes replaces it)."""
     d = cfg.to_dict()
     for key in ("estimator", "kinematics", "learning"):
         d.pop(key, None)
+    if learning:
+        d["learning"] = dict(learning)
     if sc.tau_h_act_rate is not None:
         d["estimator"] = {"tau_h_act_rate": float(sc.tau_h_act_rate)}
     atomic_write_text(path, "# sea-daemon demo: the nominal robot the calibration starts from\n"
@@ -210,7 +227,14 @@ def _with_truth(log_path: str, tau_h, n: int):
 
 
 def run(args) -> int:
-    out, cfg, cfg_path, cfg_rate = _prepare(args)
+    if args.robot is not None:
+        if args.config is not None:
+            raise InputError("--robot and --config: give one (--robot: a robot of n joints, --config: one joint)")
+        # local import: the robot's flow (n joints) is loaded only when asked for
+        from sea_daemon.apps.commands import demo_robot
+        return demo_robot.run(args)
+    args.config = args.config or str(data_root() / "configs" / "exo_1dof_sim.yaml")
+    out, cfg, cfg_path, cfg_rate = prepare(args, args.config)
     summary: dict = {"bus": "virtual", "sync_rpdo": bool(args.sync_rpdo), "config": str(args.config),
                      "pace": args.pace, "rate_hz": cfg_rate.rate_hz,
                      "kinematics_window": cfg_rate.kinematics.window, "scenarios": {}}
@@ -225,9 +249,9 @@ def run(args) -> int:
     return 0
 
 
-def _prepare(args):
-    """The arguments checked, ``--out`` created and the configuration used written there:
-    (out directory, configuration, its copy's path, the configuration at ``--rate``)."""
+def prepare(args, config: str):
+    """The arguments checked, ``--out`` created and the configuration ``config`` used written
+    there: (out directory, configuration, its copy's path, the configuration at ``--rate``)."""
     if args.samples is not None and args.samples < 10:
         raise InputError(f"--samples {args.samples}: allowed >= 10")
     if args.duration is not None:
@@ -235,8 +259,8 @@ def _prepare(args):
             raise InputError("--samples and --duration: give one (--duration is in seconds)")
         if not (math.isfinite(args.duration) and 0.1 <= args.duration <= 3600.0):
             raise InputError(f"--duration {args.duration:g}: allowed 0.1..3600 s")
-    out = check_output_dir("--out", args.out, [args.config])
-    cfg = load_config(args.config)
+    out = check_output_dir("--out", args.out, [config])
+    cfg = load_config(config)
     if args.sync_rpdo:
         cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(
             cfg.hardware, bus=dataclasses.replace(cfg.hardware.bus, sync_rpdo=True)))
@@ -251,10 +275,23 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
     """One embedded scenario: calibration and estimation by the daemon on the virtual bus, its
     logs with the subject's true torque, the estimators scored on the estimation log.
     Returns (its entry of summary.json, its rows of the table)."""
+    sc_path = str(data_root() / "configs" / "scenarios" / f"{name}.yaml")
+    entry, est_log, _ = session(args, name, sc_path, out, cfg, cfg_path, cfg_rate)
+    logger.info("demo %s: scoring the estimators and plotting …", name)
+    rows = _score(out, name, est_log, cfg_rate, cfg.joints, entry["estimators"])
+    return entry, rows
+
+
+def session(args, name: str, sc_path: str, out: Path, cfg, cfg_path: Path, cfg_rate,
+            learning: dict | None = None) -> tuple[dict, MeasuredLog, object]:
+    """The scenario ``sc_path`` by the daemon on the virtual bus: calibration (``calibrate
+    --fit`` from the nominal robot, ``learning`` the session's online GP settings; or
+    ``--online-gp``), the
+    estimation phase (``run``), both logs with the subject's true torque written to ``out``.
+    Returns (its entry of summary.json, estimators still empty; the estimation log; the scenario)."""
     n = cfg.joints
     per = cfg_rate.rate_hz / cfg.rate_hz                # samples per scenario sample
     rate_args = ["--rate", f"{cfg_rate.rate_hz:g}"] if args.rate is not None else []
-    sc_path = str(data_root() / "configs" / "scenarios" / f"{name}.yaml")
     sc = load_scenario(sc_path)
     n_tr = args.samples or int(round(sc.training_samples * per))
     n_est = args.samples or int(round(sc.estimation_samples * per))
@@ -275,14 +312,14 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
         # the calibration from the nominal robot alone: calibrate --fit writes the model file
         # and the complete configuration beside it
         robot_cfg = out / f"{name}_robot.yaml"
-        _robot_config(cfg, sc, robot_cfg)
-        cal = _daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
+        _robot_config(cfg, sc, robot_cfg, learning)
+        cal = daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
                        "--fit", "--no-progress"])
         run_cfg = Path(cal["config_calibrated"])
         bound = {"lederer": True}
     t1 = time.perf_counter()
     logger.info("demo %s: the estimation phase (sea-daemon run, %d cycles) …", name, n_est)
-    est = _daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
+    est = daemon(["run", *common(run_cfg, sc_path, logs), "--model", str(model), "--cycles", str(n_est)])
     t2 = time.perf_counter()
     # the device model's subject: passive in calibration, the scenario's in estimation
     train_log = _with_truth(cal["log"], subject_torque(sc, "training"), n)
@@ -299,13 +336,11 @@ def _scenario(args, name: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tupl
                    "cycle_compute_us_median": round(float(np.median(x["compute"])) * 1e6, 1),
                    "cycle_compute_us_p99": round(float(np.percentile(x["compute"], 99)) * 1e6, 1),
                    "estimators": {}}
-    logger.info("demo %s: scoring the estimators and plotting …", name)
-    rows = _score(out, name, est_log, cfg_rate, n, entry["estimators"])
-    return entry, rows
+    return entry, est_log, sc
 
 
-def _online_result(est_log, n: int) -> ReplayResult:
-    """The GP-AKF's own online estimate, read from the daemon's estimation log."""
+def online_result(est_log, n: int) -> ReplayResult:
+    """The GP-AKF's own online estimate of ``n`` joints, read from the daemon's estimation log."""
     x = est_log.extra
     return ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
                         tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
@@ -319,7 +354,7 @@ def _score(out: Path, name: str, est_log, cfg_rate, n: int, summaries: dict) -> 
     """The estimators on the estimation log of ``n`` joints (the GP-AKF's online estimate, the
     others replayed at ``cfg_rate``): their EST.csv files, their summaries into ``summaries``,
     the plot; the table's rows."""
-    gp = _online_result(est_log, n)
+    gp = online_result(est_log, n)
     results, rows = {}, []
     for est_name in ESTIMATORS:
         if est_name == "gp-akf":
@@ -338,7 +373,7 @@ def _score(out: Path, name: str, est_log, cfg_rate, n: int, summaries: dict) -> 
     return rows
 
 
-def _fig(v, spec: str) -> str:
+def fig(v, spec: str) -> str:
     """A table figure; "-" for one that is not measurable (None, nan or inf)."""
     return format(v, spec) if v is not None and math.isfinite(v) else "-"
 
@@ -347,7 +382,12 @@ def _print_summary(out: Path, summary: dict, rows: list) -> None:
     """The RMSE table and one line per scenario on stdout."""
     print(f"{'scenario':<9} {'estimator':<8} {'RMSE [N m]':>10} {'coverage':>9} {'mean bound':>11}")
     for name, est_name, rmse, cov, bound in rows:
-        print(f"{name:<9} {est_name:<8} {_fig(rmse, '.4f'):>10} {_fig(cov, '.3f'):>9} {_fig(bound, '.3f'):>11}")
+        print(f"{name:<9} {est_name:<8} {fig(rmse, '.4f'):>10} {fig(cov, '.3f'):>9} {fig(bound, '.3f'):>11}")
+    print_scenarios(out, summary)
+
+
+def print_scenarios(out: Path, summary: dict) -> None:
+    """One line per scenario (cycles, time, compute, the bound's β) and the files written."""
     for name, e in summary["scenarios"].items():
         print(f"{name}: {e['cycles']} CAN cycles in {e['wall_s']} s (calibrate {e['calibrate']['cycles']} cycles, "
               f"GP {e['calibrate']['gp_points']} points; run {e['run']['cycles']} cycles; cycle compute median "
