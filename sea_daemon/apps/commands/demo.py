@@ -24,6 +24,9 @@ Then the daemon's measured log of the estimation phase, with the subject's true 
 (known from the device model), is replayed with the AKF and the spring-torque estimate, and the
 GP-AKF's own online estimate from the log is scored with them: RMSE table, plots.
 
+``--robot MODEL.yaml`` runs this flow on a robot of n coupled joints (``configs/exo_2dof.yaml``)
+with its two-joint scenarios, the oracle AKF, a table and a plot per joint (:mod:`.demo_robot`).
+
 Writes, in ``--out``: ``config.yaml`` (the configuration used), per scenario
 ``<name>/`` (the daemon's logs: calibration-*.csv, run-*.csv), ``<name>_model.npz``,
 ``<name>_train.csv`` / ``<name>_est.csv`` (docs/interfaces.md §1, with the truth), ``<name>_<estimator>.csv``
@@ -47,11 +50,11 @@ import yaml
 from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import main
 from sea_daemon.core.estimators import make_estimator
-from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.log import MeasuredLog, column_names
 from sea_daemon.core.rates import at_rate
 from sea_daemon.core.replay import ReplayResult, bound_rows, est_columns, replay, summarize
 from sea_daemon.errors import InputError, RunFault
-from sea_daemon.io.configfile import data_root, load_config, load_yaml, save_config
+from sea_daemon.io.configfile import data_root, load_config, load_yaml, save_config, urdf_path
 from sea_daemon.io.files import atomic_write_text, check_output_dir
 from sea_daemon.io.logcsv import read_log, write_columns, write_log
 from sea_daemon.io.scenario import load_scenario
@@ -182,6 +185,8 @@ def _robot_config(cfg, sc, path: Path, learning: dict | None = None) -> None:
     d = cfg.to_dict()
     for key in ("estimator", "kinematics", "learning"):
         d.pop(key, None)
+    if cfg.model.rigid is not None:           # the robot description where the configuration's names it
+        d["model"]["urdf"] = str(urdf_path(cfg.source, cfg.model.urdf).resolve())
     if learning:
         d["learning"] = dict(learning)
     if sc.tau_h_act_rate is not None:
@@ -342,9 +347,11 @@ def session(args, name: str, sc_path: str, out: Path, cfg, cfg_path: Path, cfg_r
 def online_result(est_log, n: int) -> ReplayResult:
     """The GP-AKF's own online estimate of ``n`` joints, read from the daemon's estimation log."""
     x = est_log.extra
-    return ReplayResult(t=est_log.t, tau_h_act_hat=x["tau_h_act_hat"].reshape(-1, n),
-                        tau_h_act_sigma=x["tau_h_act_sigma"].reshape(-1, n),
-                        tau_h_act_bound=x["tau_h_act_bound"].reshape(-1, n),
+
+    def per_joint(base):            # the log's column of each joint (docs/interfaces.md §1)
+        return np.stack([x[c] for c in column_names(base, n)], axis=1)
+    return ReplayResult(t=est_log.t, tau_h_act_hat=per_joint("tau_h_act_hat"),
+                        tau_h_act_sigma=per_joint("tau_h_act_sigma"), tau_h_act_bound=per_joint("tau_h_act_bound"),
                         x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
                         step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
                         bound_of=bound_rows(x["cycle"], x["bound_cycle"]))
