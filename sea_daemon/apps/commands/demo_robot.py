@@ -7,7 +7,7 @@ moves, passive subject; ``two_joint_active.yaml``: the arm held open loop, the s
 a cosine torque on each joint), each with its model set to the robot: the true plant is the
 robot with the scenario's heavier, lighter or longer links and its hidden friction per joint,
 behind a CANopen drive and load encoder per joint on the virtual CAN bus (a bus per joint when
-the configuration names one).  As for one joint (:mod:`.demo`): ``calibrate --fit`` from the
+the configuration names one).  As for one joint (:mod:`.demo`, the flow of :mod:`.demo_flow`): ``calibrate --fit`` from the
 nominal robot (the session's online GP learns with fixed hyperparameters, :data:`SESSION_GP`),
 ``run`` with the calibrated GP-AKF and its Theorem-1 bound, then the estimation log
 with the subject's true torque scored: the GP-AKF's own online estimate, the AKF on the
@@ -32,7 +32,7 @@ import yaml
 
 from sea_daemon.apps.calibration.joints import joint_names
 from sea_daemon.apps.calibration.modelio import jsonable
-from sea_daemon.apps.commands.demo import fig, online_result, plot_joint, prepare, print_scenarios, session
+from sea_daemon.apps.commands.demo_flow import fig, online_result, plot_joint, prepare, print_scenarios, session
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.rates import at_rate
 from sea_daemon.core.replay import ReplayResult, est_columns, replay, summarize
