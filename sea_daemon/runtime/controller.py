@@ -65,7 +65,7 @@ class ScenarioController:
         self.dt = cfg.dt
         self.delay = int(delay)
         self.estimation_from = estimation_from
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         self.hold = None if hold is None else np.asarray(hold, dtype=float).reshape(self.n)
         self._model = SEAModel.from_config(cfg)
         self._out = np.zeros(self.n)
@@ -168,7 +168,7 @@ class AssistController:
     def __init__(self, cfg: ModelConfig, *, gain: float | None = None, dry_run: bool | None = None,
                  subject: np.ndarray | None = None):
         self.n = cfg.joints
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         a = cfg.assist if gain is None else dataclasses.replace(cfg.assist, gain=float(gain))
         if dry_run is not None:
             a = dataclasses.replace(a, dry_run=bool(dry_run))

@@ -36,9 +36,11 @@ logger = logging.getLogger("sea_daemon.demo")
 HELD_OUT_MIN = 120
 
 
-def plot_joint(path: Path, title: str, est_log, results: dict, j: int) -> None:
+def plot_joint(path: Path, title: str, est_log, results: dict, j: int, zoom: tuple = ()) -> None:
     """The plot of joint ``j`` (0-based): the true and estimated τ_h,act with each bounded
-    estimator's band ±ρ_k, and the joint's load and motor angles."""
+    estimator's band ±ρ_k, and the joint's load and motor angles.  ``zoom``: the estimators whose
+    estimates (with the truth, not the bands) set the torque axis's range; () the matplotlib
+    default (every line and band)."""
     # local: matplotlib takes ~0.5 s to import and its backend is a process-wide choice, made here
     import matplotlib
     matplotlib.use("Agg")
@@ -55,7 +57,18 @@ def plot_joint(path: Path, title: str, est_log, results: dict, j: int) -> None:
                                res.tau_h_act_hat[:, j] + res.tau_h_act_bound[:, j], color=line.get_color(), alpha=0.12)
     ax[0].set_ylabel("τ_h,act [N m]")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[0].set_title(f"{title}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the Theorem-1 bound ρ_k)")
+    if zoom:
+        shown = np.concatenate([truth] + [results[k].tau_h_act_hat[:, j] for k in zoom if k in results])
+        shown = shown[np.isfinite(shown)]
+        lo, hi = float(np.min(shown)), float(np.max(shown))
+        pad = max(0.5, 0.25 * (hi - lo))
+        ax[0].set_ylim(lo - pad, hi + pad)
+        title = f"{title} (axis: the truth and {', '.join(zoom)}; wider lines and bands cut)"
+        ax[0].set_title(f"{title}\nestimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, "
+                        "the Theorem-1 bound ρ_k)", fontsize=10)
+    else:
+        ax[0].set_title(f"{title}: estimation phase, daemon on the virtual CAN bus (bands: ±tau_h_act_bound, the "
+                        "Theorem-1 bound ρ_k)")
     ax[1].plot(t, np.degrees(est_log.q[:, j]), label="q (load encoder)")
     ax[1].plot(t, np.degrees(est_log.theta_m[:, j]), "--", label="θ_m (motor encoder / gear)")
     ax[1].set_ylabel("angle [deg]")

@@ -50,6 +50,9 @@ SCENARIOS = {"passive": "two_joint_passive.yaml", "active": "two_joint_active.ya
 #: friction, steep at rest) the GP's slope ∂μ/∂q̇ reached −60 N m s/rad and the learning filter's
 #: covariance diverged in the passive session (COVARIANCE_NOT_PD, the session stopped)
 SESSION_GP = {"hyperopt": False}
+#: the estimates that set a joint plot's torque axis (the spring torque, off by the arm's weight, and
+#: the bands of a bound far wider than the estimate's error would hide the others)
+ZOOM = ("akf", "oracle", "gp-akf")
 #: the estimators scored, in the table's order: the one-joint demo's and the oracle AKF
 ROBOT_ESTIMATORS = ("spring", "akf", "oracle", "gp-akf")
 
@@ -136,7 +139,7 @@ def score_joints(out: Path, name: str, est_log, cfg_rate, oracle_cfg, names: lis
         for est_name in ROBOT_ESTIMATORS:
             s = summaries[est_name]["joints"][jn]
             rows.append((name, jn, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
-        plot_joint(out / f"{name}_{files[j]}.png", f"{name}, {jn}", est_log, results, j)
+        plot_joint(out / f"{name}_{files[j]}.png", f"{name}, {jn}", est_log, results, j, zoom=ZOOM)
     return rows
 
 

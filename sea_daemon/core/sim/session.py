@@ -114,7 +114,7 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
         float(hold_q) if np.ndim(hold_q) == 0 else np.asarray(hold_q, dtype=float))
     plant = Plant(true_cfg, q0=q0, seed=seed, substep_hz=sub, sign_eps=sign_eps, torque_noise=torque_noise,
                   extra_load_torque=extra_load_torque, extra_held=extra_held)
-    limit = true_cfg.hardware.torque_limit
+    limit = true_cfg.hardware.torque_limits(true_cfg.joints)      # each joint's
     if reference is not None:
         ctl = ReferenceTracker(gains, reference, dt, limit)
         ctl.start(*plant.measure(), plant.hold_torque)    # bumpless: the first command holds the arm
