@@ -128,3 +128,33 @@ def test_scoring_gives_a_row_and_a_plot_per_joint_and_estimator(tmp_path, active
     for f in ("active_shoulder.png", "active_elbow.png", "active_oracle.csv", "active_gp-akf.csv"):
         assert (tmp_path / f).stat().st_size > 0
     assert all(math.isfinite(r[3]) for r in rows)
+
+
+def test_run_sim_with_the_two_joint_open_loop_scenario(tmp_path, capsys):
+    """`sea-daemon run --sim two_joint_active.yaml`: the scenario's open loop per joint in the
+    daemon's loop — each joint's command is its holding torque plus its own cosine τ_des."""
+    import json
+
+    from sea_daemon.core.learning import ResidualGP
+    from sea_daemon.io.configfile import load_config
+    from sea_daemon.io.gpmodel import save_gp_model
+    from sea_daemon.io.logcsv import read_log
+
+    cfg = load_config(ROBOT)
+    res = ResidualGP(2, cfg.learning, hyperopt=False)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        res.update(rng.uniform(-1, 1, 6), np.zeros(2))
+    save_gp_model(tmp_path / "m.npz", cfg, res, {"test": True})
+    scen = str(SCEN / "two_joint_active.yaml")
+    rc = main(["run", "--config", str(ROBOT), "--model", str(tmp_path / "m.npz"), "--sim", scen, "--scenario", scen,
+               "--log-dir", str(tmp_path), "--cycles", "150", "--socket", "none", "--pace", "lockstep"])
+    out, err = capsys.readouterr()
+    summary = json.loads([ln for ln in out.splitlines() if ln.startswith("{")][-1])
+    assert rc == 0 and summary["fault"] == "NONE", err[-800:]
+    log = read_log(summary["log"], n=2)
+    k = np.arange(len(log))
+    des = np.stack([[cosine_torque(i * cfg.dt, 2.0, 0.1, 2.0) for i in k],
+                    [cosine_torque(i * cfg.dt, 1.0, 0.15, 1.0) for i in k]], axis=1)
+    assert np.allclose(log.tau_m - log.tau_m[0], des - des[0], atol=1e-7)      # the log's 9 digits
+    assert np.all(np.abs(des[-1]) > 0.01)
