@@ -42,13 +42,10 @@ from pathlib import Path
 
 from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import main
-from sea_daemon.apps.commands.demo_flow import daemon, fig, online_result, plot_joint, prepare, print_scenarios, session
-from sea_daemon.core.estimators import make_estimator
-from sea_daemon.core.replay import est_columns, replay, summarize
+from sea_daemon.apps.commands.demo_flow import daemon, fig, plot_joint, prepare, print_scenarios, scored, session
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import data_root
 from sea_daemon.io.files import atomic_write_text
-from sea_daemon.io.logcsv import write_columns
 
 DESCRIPTION = __doc__
 logger = logging.getLogger("sea_daemon.demo")
@@ -137,22 +134,12 @@ def _score(out: Path, name: str, est_log, cfg_rate, n: int, summaries: dict) -> 
     """The estimators on the estimation log of ``n`` joints (the GP-AKF's online estimate, the
     others replayed at ``cfg_rate``): their EST.csv files, their summaries into ``summaries``,
     the plot; the table's rows."""
-    gp = online_result(est_log, n)
-    results, rows = {}, []
-    for est_name in ESTIMATORS:
-        if est_name == "gp-akf":
-            res = gp                                  # the daemon's own online estimate
-        else:
-            res = replay(est_log, make_estimator(est_name, cfg_rate, dt=cfg_rate.dt), clock=time.perf_counter)
-            res.estimator = est_name
-        results[est_name] = res
-        write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
-        s = summarize(res)
-        if est_name == "gp-akf":
-            s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
+    done = scored(out, name, est_log, n, {e: None if e == "gp-akf" else (e, cfg_rate) for e in ESTIMATORS})
+    rows = []
+    for est_name, (_, s) in done.items():
         summaries[est_name] = s
         rows.append((name, est_name, s["rmse"], s.get("coverage"), s["mean_bound"]))
-    _plot(out / f"{name}.png", name, est_log, results)
+    _plot(out / f"{name}.png", name, est_log, {k: r for k, (r, _) in done.items()})
     return rows
 
 

@@ -22,11 +22,12 @@ import yaml
 from sea_daemon.apps.commands import main
 from sea_daemon.core.log import MeasuredLog, column_names
 from sea_daemon.core.rates import at_rate
-from sea_daemon.core.replay import ReplayResult, bound_rows
+from sea_daemon.core.estimators import make_estimator
+from sea_daemon.core.replay import ReplayResult, bound_rows, est_columns, replay, summarize
 from sea_daemon.errors import InputError, RunFault
 from sea_daemon.io.configfile import load_config, load_yaml, save_config, urdf_path
 from sea_daemon.io.files import atomic_write_text, check_output_dir
-from sea_daemon.io.logcsv import read_log, write_log
+from sea_daemon.io.logcsv import read_log, write_columns, write_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.rig import subject_torque
 
@@ -264,6 +265,27 @@ def online_result(est_log, n: int) -> ReplayResult:
                         x_hat=np.zeros((len(est_log), 5 * n)), tau_h_act=est_log.tau_h_act,
                         step_time_s=x["compute"], estimator="gp-akf", valid=x["valid"] > 0.5,
                         bound_of=bound_rows(x["cycle"], x["bound_cycle"]))
+
+
+def scored(out: Path, name: str, est_log, n: int, estimators: dict) -> dict:
+    """The estimators on the estimation log of ``n`` joints, in the order of ``estimators`` (its
+    name → (estimator kind, configuration) replayed on the log, or None: the GP-AKF's own online
+    estimate from the log): each one's EST.csv ``<name>_<estimator>.csv``; {estimator:
+    (ReplayResult, its summary)}."""
+    done = {}
+    for est_name, spec in estimators.items():
+        if spec is None:
+            res = online_result(est_log, n)           # the daemon's own online estimate
+        else:
+            kind, cfg = spec
+            res = replay(est_log, make_estimator(kind, cfg, dt=cfg.dt), clock=time.perf_counter)
+            res.estimator = est_name
+        write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
+        s = summarize(res)
+        if spec is None:
+            s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
+        done[est_name] = (res, s)
+    return done
 
 
 def fig(v, spec: str) -> str:

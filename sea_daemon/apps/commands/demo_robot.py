@@ -32,14 +32,12 @@ import yaml
 
 from sea_daemon.apps.calibration.joints import joint_names
 from sea_daemon.apps.calibration.modelio import jsonable
-from sea_daemon.apps.commands.demo_flow import fig, online_result, plot_joint, prepare, print_scenarios, session
-from sea_daemon.core.estimators import make_estimator
+from sea_daemon.apps.commands.demo_flow import fig, plot_joint, prepare, print_scenarios, scored, session
 from sea_daemon.core.rates import at_rate
-from sea_daemon.core.replay import ReplayResult, est_columns, replay, summarize
+from sea_daemon.core.replay import ReplayResult, summarize
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import data_root, load_yaml
 from sea_daemon.io.files import atomic_write_text
-from sea_daemon.io.logcsv import write_columns
 
 logger = logging.getLogger("sea_daemon.demo")
 
@@ -115,25 +113,15 @@ def score_joints(out: Path, name: str, est_log, cfg_rate, oracle_cfg, names: lis
     summaries (with ``joints``, one per joint by its name in ``names``) into ``summaries``, a plot
     per joint (``<name>_<files[j]>.png``); the table's rows (scenario, joint, estimator, RMSE,
     coverage, mean bound)."""
-    n = len(names)
+    specs = {"spring": ("spring", cfg_rate), "akf": ("akf", cfg_rate), "oracle": ("akf", oracle_cfg), "gp-akf": None}
+    done = scored(out, name, est_log, len(names), {e: specs[e] for e in ROBOT_ESTIMATORS})
     results = {}
-    for est_name in ROBOT_ESTIMATORS:
-        if est_name == "gp-akf":
-            res = online_result(est_log, n)
-        else:
-            cfg = oracle_cfg if est_name == "oracle" else cfg_rate
-            res = replay(est_log, make_estimator("akf" if est_name == "oracle" else est_name, cfg, dt=cfg.dt),
-                         clock=time.perf_counter)
-            res.estimator = est_name
-        results[est_name] = res
-        write_columns(out / f"{name}_{est_name}.csv", est_columns(res))
-        s = summarize(res)
-        if est_name == "gp-akf":
-            s["source"] = "online, in the daemon's loop (step_time_us: whole cycle compute)"
+    for est_name, (res, s) in done.items():
         if est_name == "oracle":
             s["source"] = "AKF on the true plant's model (links and hidden effects), the configuration's estimator"
         s["joints"] = {jn: summarize(joint_result(res, j)) for j, jn in enumerate(names)}
         summaries[est_name] = s
+        results[est_name] = res
     rows = []
     for j, jn in enumerate(names):
         for est_name in ROBOT_ESTIMATORS:
