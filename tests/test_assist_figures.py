@@ -10,17 +10,19 @@ import pytest
 
 from sea_daemon.apps.cli import main
 from sea_daemon.client import FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED
-from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.config import AssistConfig, ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.log import log_columns
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.errors import ConfigError
 from sea_daemon.hw.sim_hw import SimHardware
-from sea_daemon.io.configfile import default_config_path, load_yaml
+from sea_daemon.io.configfile import default_config_path, load_config, load_yaml
 from sea_daemon.runtime.controller import AssistController, describe_assist
 from sea_daemon.runtime.loop import FixedRateLoop
 from sea_daemon.runtime.publish import Publisher
+
+from _paths import repo_root
 
 
 def cfg_with(assist: dict) -> ModelConfig:
@@ -166,6 +168,37 @@ def test_effort_reduction_where_the_subjects_torque_is_known():
     # τ_h = 1, τ_assist = 1.7: the assistance gave 1.7 / 2.7 of the task's torque
     assert s["effort_reduction"] == pytest.approx(1 - 1 / 2.7)
     assert s["engaged_share"] == 1.0
+
+
+def test_summary_per_joint_gives_each_joints_gate_and_effort():
+    cfg = load_config(repo_root() / "configs" / "exo_2dof.yaml")
+    cfg = dataclasses.replace(cfg, assist=AssistConfig(enabled=True, gain=2.0, smoothing_s=0.0, max_rate=1e6,
+                                                       rho_max=1.5))
+    subject = np.array([1.0, 0.5])
+    ctl = AssistController(cfg, subject=subject)
+    e = Estimate.zeros(2)
+    e.valid = True
+    e.tau_h_act_hat[:] = [1.0, 0.5]
+    q = np.array([0.3, 0.6])
+    for k in range(20):
+        # joint 1: certified from the start; joint 2: its bound above rho_max for 5 steps, then nothing certified
+        e.tau_h_act_bound[:] = [0.1, 3.0 if k < 5 else 0.6]
+        ctl.update(0.0, q, q, e)
+    s = ctl.summary(20)
+    j1, j2 = s["joints"]
+    assert (j1["joint"], j2["joint"]) == (1, 2) and j1["joint_cycles"] == j2["joint_cycles"] == 20
+    assert j1["engaged_share"] == 1.0 and j1["not_engaged"]["rho_above_max"] == 0
+    assert j2["engaged_share"] == 0.0 and j2["available_share"] == 0.75
+    assert j2["not_engaged"]["rho_above_max"] == 5 and j2["not_engaged"]["below_bound"] == 15
+    # τ_h = 1 with τ_assist = 1.7 on joint 1; nothing given on joint 2
+    assert j1["effort_reduction"] == pytest.approx(1 - 1 / 2.7) and j2["effort_reduction"] == 0.0
+    assert j2["rho_avg_mean"] == pytest.approx((5 * 3.0 + 15 * 0.6) / 20)
+    # the totals are over both joints' cycles
+    assert s["joint_cycles"] == 40 and s["engaged_share"] == 0.5 and s["not_engaged"]["rho_above_max"] == 5
+    line = describe_assist(s)
+    assert "joint 1 engaged 100.0 %" in line and "joint 2 engaged 0.0 %, available 75.0 %" in line
+    assert "mostly the bound certified no effort" in line
+    json.dumps(s, allow_nan=False)
 
 
 # ---------------------------------------------------------------------------- run and bench, end to end
