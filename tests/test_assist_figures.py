@@ -11,6 +11,7 @@ import pytest
 from sea_daemon.apps.cli import main
 from sea_daemon.client import FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED
 from sea_daemon.core.config import AssistConfig, ModelConfig
+from sea_daemon.core.effects import effect_from_dict
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.log import log_columns
 from sea_daemon.core.model import SEAModel
@@ -258,3 +259,25 @@ def test_bench_assist_json_schema(tmp_path, capsys):
 def test_bench_assist_refuses_bad_values(tmp_path, capsys):
     rc = main(["bench", "assist", "--seeds", "600", "--rate", "5"])
     assert rc == 2 and "--rate" in capsys.readouterr().err
+
+
+def test_bench_assist_says_where_the_engaged_time_goes_holds_and_moves():
+    from sea_daemon.apps.bench.assist import SKIP_S, friction_at_rest, phase_metrics
+    from sea_daemon.core.assist import BELOW_BOUND, ENGAGED, RHO_ABOVE_MAX
+    t = np.arange(0.0, 6.0, 0.01)
+    hold = (t % 3.0 < 1.0).astype(float)                   # scored (t ≥ 2 s): holds 3-4 s, moves 2-3 and 4-6 s
+    state = np.where(hold > 0, RHO_ABOVE_MAX, ENGAGED).astype(float)
+    state[(hold == 0) & (t % 3.0 > 2.5)] = BELOW_BOUND      # 2.5-3 and 5.5-6 s: nothing certified
+    r = {"t": t, "hold": hold, "state": state, "valid": np.ones_like(t), "rho": np.where(hold > 0, 4.0, 0.3),
+         "tau_h_act": np.where(hold > 0, 0.2, 1.0)}
+    scored = t >= SKIP_S
+    h, m = phase_metrics(r, scored & (hold > 0)), phase_metrics(r, scored & (hold == 0))
+    assert h["share"] + m["share"] == pytest.approx(1.0) and h["share"] == pytest.approx(0.25, abs=0.01)
+    assert h["engaged_share"] == 0.0 and h["available_share"] == 0.0 and h["states"]["rho_above_max"] > 0
+    assert m["engaged_share"] == pytest.approx(2 / 3, abs=0.01) and m["available_share"] == 1.0
+    assert h["rho_median"] == 4.0 and m["tau_h_rms"] == pytest.approx(1.0)
+    cfg = cfg_with({})
+    cfg = cfg.with_effects([effect_from_dict(e, 1, "test", "e") for e in (
+        {"type": "coulomb", "side": "load", "F_c": 0.3}, {"type": "stribeck", "side": "load", "F_s": 0.2, "v_s": 0.05},
+        {"type": "viscous", "side": "load", "b": 0.1}, {"type": "coulomb", "side": "motor", "F_c": 0.4})])
+    assert friction_at_rest(cfg) == pytest.approx(0.5)       # load side only: the motor's is behind the spring

@@ -52,7 +52,9 @@ from sea_daemon.apps.bench.generalize import parse_seeds
 from sea_daemon.apps.calibration.modelio import save_calibrated
 from sea_daemon.apps.calibration.pipeline import calibrate_log
 from sea_daemon.apps.commands.run import run_estimator
+from sea_daemon.core.assist import BELOW_BOUND, ENGAGED, STATES
 from sea_daemon.core.config import CalibrationConfig
+from sea_daemon.core.effects import COULOMB, STRIBECK
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.core.sim.session import run_session
@@ -164,7 +166,8 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
     est = run_estimator(cfg, model_path)
     ctl = AssistController(ccfg, gain=gain, subject=subject.tau)
     N = int(round(seconds * cfg.rate_hz))
-    rec = {k: np.zeros(N) for k in ("t", "q", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "state")}
+    rec = {k: np.zeros(N) for k in ("t", "q", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "state",
+                                     "hold")}
     box = {}
 
     def on(k, m, e, tau):
@@ -175,6 +178,7 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
         rec["q"][k] = m.q[0] if m is not None else np.nan
         rec["tau_h_act"][k] = subject(t)[0]          # what the subject applies over [t_k, t_k+1]
         rec["q_target"][k] = subject.q_target[0]
+        rec["hold"][k] = float(task.target(t)[1] == 0.0)    # the task holds its target (else a move)
         ok = e is not None and bool(e.valid) and box["loop"].supervisor.ok
         rec["valid"][k] = float(ok)
         rec["hat"][k] = e.tau_h_act_hat[0] if ok else 0.0
@@ -223,7 +227,31 @@ def run_metrics(r: dict, dt: float) -> dict:
             "against_share": float(np.mean(against)),
             "pushes_while_invalid": int(np.sum((~used) & (ta != 0.0))),
             "pushes_against_while_invalid": int(np.sum((~used) & (ta * tau_h < 0.0))),
+            "by_phase": {name: phase_metrics(r, m & (r["hold"] == flag)) for name, flag in (("hold", 1.0), ("move", 0.0))},
             "fault": r["fault"], "fault_cycle": r["fault_cycle"], "wall_s": round(r["wall_s"], 1)}
+
+
+def phase_metrics(r: dict, mask) -> dict:
+    """The controller's states (:data:`~sea_daemon.core.assist.STATES`) over the scored cycles of one
+    phase of the task (``mask``: its holds or its moves), the published bound's median there (valid
+    rows) and the subject's torque there: where the engaged time is lost, and against what."""
+    n = int(mask.sum())
+    if not n:
+        return {"share": 0.0}
+    st = np.bincount(r["state"][mask].astype(np.int64), minlength=len(STATES))
+    ok = mask & (r["valid"] > 0)
+    return {"share": n / float(np.sum(r["t"] >= SKIP_S)),
+            "engaged_share": float(st[ENGAGED] / n), "available_share": float((st[ENGAGED] + st[BELOW_BOUND]) / n),
+            "states": {name: int(st[i]) for i, name in enumerate(STATES)},
+            "rho_median": float(np.median(r["rho"][ok])) if ok.any() else None,
+            "tau_h_rms": _rms(r["tau_h_act"][mask])}
+
+
+def friction_at_rest(cfg) -> float:
+    """The declared load-side friction's magnitude at rest on joint 1 (Coulomb F_c plus Stribeck F_s)
+    [N m]: at standstill the subject's torque is known only up to it, whatever the estimator."""
+    return float(sum(abs(e.vector[0]) for e in cfg.model.effects
+                     if e.side == "load" and e.joint == 0 and e.code in (COULOMB, STRIBECK)))
 
 
 def run_plant(seed: int, args, task, out: Path) -> dict:
@@ -258,7 +286,7 @@ def run_plant(seed: int, args, task, out: Path) -> dict:
                engaged_share=s["engaged_share"], available_share=s["available_share"], not_engaged=s["not_engaged"],
                rho_avg_mean=s["rho_avg_mean"],
                coverage_acting=ass["coverage_acting"], pushes_against_while_invalid=ass["pushes_against_while_invalid"],
-               runs=runs)
+               by_phase=ass["by_phase"], friction_at_rest=friction_at_rest(cfg), runs=runs)
     return row
 
 
@@ -326,7 +354,21 @@ def describe_row(row: dict) -> str:
             f"coverage {_f3(a['coverage_acting'])}, RMSE {_f3(a['est_rmse_acting'])}, mean rho {_f3(a['rho_mean_acting'])} "
             f"N m; reference run: RMSE {_f3(ref['est_rmse_valid'])}, coverage {_f3(ref['coverage_valid'])}; pushes "
             f"against the subject while invalid {a['pushes_against_while_invalid']}; faults: "
-            f"{'; '.join(row['faults']) or 'none'}")
+            f"{'; '.join(row['faults']) or 'none'}" + describe_phases(row))
+
+
+def describe_phases(row: dict) -> str:
+    """The holds' and the moves' part of :func:`describe_row`: where the engaged time went."""
+    parts = []
+    for name, label in (("hold", "holds"), ("move", "moves")):
+        p = row.get("by_phase", {}).get(name, {})
+        if p.get("share"):
+            parts.append(f"{label} ({_pct(p['share'])} of the task): engaged {_pct(p['engaged_share'])}, available "
+                         f"{_pct(p['available_share'])}, median rho {_f3(p['rho_median'])} N m, the subject's torque "
+                         f"{_f3(p['tau_h_rms'])} N m RMS")
+    if not parts:
+        return ""
+    return f"\n  {'; '.join(parts)}; declared load friction at rest {_f3(row.get('friction_at_rest'))} N m"
 
 
 def describe_summary(s: dict) -> str:
