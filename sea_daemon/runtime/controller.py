@@ -173,7 +173,8 @@ class AssistController:
 
     @property
     def gain(self) -> float:
-        return self.law.gain
+        """The assistance's gain: the largest of the joints' (0: no joint is assisted)."""
+        return float(self.law.gains.max())
 
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
         if self._model is not None:
@@ -206,11 +207,12 @@ class AssistController:
         the reason).  Over all joints, and the same figures per joint in ``joints``."""
         per = max(int(cycles), self.steps)
         c = self.law.counts
+        law = self.law
         out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
-               "gain": self.gain, "rho_max": self.law.rho_max,
-               **self._figures(c.sum(axis=0), per * self.n, float(self.law.rho_sum.sum()), self._effort.sum(axis=0))}
-        out["joints"] = [{"joint": j + 1, **self._figures(c[j], per, float(self.law.rho_sum[j]), self._effort[j])}
-                         for j in range(self.n)]
+               "gain": _one_or_each(law.gains), "rho_max": _one_or_each(law.rho_maxes),
+               **self._figures(c.sum(axis=0), per * self.n, float(law.rho_sum.sum()), self._effort.sum(axis=0))}
+        out["joints"] = [{"joint": j + 1, "gain": float(law.gains[j]), "rho_max": float(law.rho_maxes[j]),
+                          **self._figures(c[j], per, float(law.rho_sum[j]), self._effort[j])} for j in range(self.n)]
         return out
 
     def _figures(self, c, total: int, rho_sum: float, effort) -> dict:
@@ -242,6 +244,16 @@ class AssistController:
         return float(1.0 - np.sqrt(h / both)), "1 - RMS(tau_h_act) / RMS(tau_h_act + tau_assist), simulated subject"
 
 
+def _one_or_each(v: np.ndarray):
+    """A per-joint setting for the summary: one number when every joint has it, else the list."""
+    return float(v[0]) if np.all(v == v[0]) else [float(x) for x in v]
+
+
+def _g(v) -> str:
+    """A summary's setting (a number or one per joint) for a line."""
+    return f"{v:g}" if not isinstance(v, list) else "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
 def describe_assist(a: dict) -> str:
     """One line of :meth:`AssistController.summary`: the engaged share and why it was not engaged."""
     ne = a["not_engaged"]
@@ -249,11 +261,11 @@ def describe_assist(a: dict) -> str:
            "fault": "a fault latched or no sample", "below_bound": "the bound certified no effort"}
     parts = [f"{why[k]} {v} cycle(s)" for k, v in sorted(ne.items(), key=lambda kv: -kv[1]) if v]
     rho = a["rho_avg_mean"]
-    line = (f"assistance ({a['mode']}, gain {a['gain']:g}) engaged {100 * a['engaged_share']:.1f} % of "
+    line = (f"assistance ({a['mode']}, gain {_g(a['gain'])}) engaged {100 * a['engaged_share']:.1f} % of "
             f"{a['joint_cycles']} joint-cycles, available {100 * a['available_share']:.1f} %; not engaged: "
             + ("; ".join(parts) if parts else "never"))
     if rho is not None:
-        line += f"; mean averaged bound {rho:.3g} N m (rho_max {a['rho_max']:g})"
+        line += f"; mean averaged bound {rho:.3g} N m (rho_max {_g(a['rho_max'])})"
     if a["effort_reduction"] is not None:
         line += f"; effort reduction {100 * a['effort_reduction']:.1f} %"
     joints = a.get("joints", [])
