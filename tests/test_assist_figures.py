@@ -281,3 +281,50 @@ def test_bench_assist_says_where_the_engaged_time_goes_holds_and_moves():
         {"type": "coulomb", "side": "load", "F_c": 0.3}, {"type": "stribeck", "side": "load", "F_s": 0.2, "v_s": 0.05},
         {"type": "viscous", "side": "load", "b": 0.1}, {"type": "coulomb", "side": "motor", "F_c": 0.4})])
     assert friction_at_rest(cfg) == pytest.approx(0.5)       # load side only: the motor's is behind the spring
+
+
+class ScriptedJoints(Scripted):
+    """Two joints: τ̂ = 1 N m on both, ρ = 0.1 on joint 1 and 3 N m (above rho_max) on joint 2."""
+
+    n = 2
+
+    def __init__(self):
+        super().__init__()
+        self.est = Estimate.zeros(2)
+
+    def update(self, q, theta_m, tau_m, dt=None):
+        k = self.est.k
+        self.est.k += 1
+        self.est.valid = k >= self.valid_from
+        self.est.tau_h_act_hat[:] = 1.0
+        self.est.tau_h_act_bound[:] = [0.1, 3.0]
+        return self.est
+
+
+def test_two_joints_in_the_loop_each_with_its_own_gate_column_and_figures():
+    cfg = load_config(repo_root() / "configs" / "exo_2dof.yaml")
+    cfg = dataclasses.replace(cfg, assist=AssistConfig(enabled=True, gain=2.0, smoothing_s=0.0, max_rate=1e6))
+    q0 = np.array([0.3, 0.6])
+    plant = Plant(cfg, q0=q0, seed=0, torque_noise=0.0)
+    hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit)
+    written = []
+    hw_write = hw.write
+    hw.write = lambda tau: (written.append(np.array(tau, dtype=float)), hw_write(tau))[1]
+    ctl = AssistController(cfg)
+    log = ListLog()
+    log.ncols = len(log_columns(2))
+    loop = FixedRateLoop(hw, ScriptedJoints(), ctl, 2, cfg.dt, realtime=False, log=log)
+    hw.start(plant.hold_torque)
+    loop.run(20)
+    cols = log_columns(2)
+    last = log.rows[-1]
+    assert last[cols.index("tau_assist_1")] == pytest.approx(2.0 * (1.0 - 0.1 - 0.05))
+    assert last[cols.index("tau_assist_2")] == 0.0
+    # joint 2's motor torque is its compensation alone (the coupled arm's gravity at the measured angles)
+    assert written[-1][1] == pytest.approx(ctl.tau_comp[1], abs=1e-12)
+    assert written[-1][0] == pytest.approx(ctl.tau_comp[0] + 1.7, abs=1e-9)
+    assert abs(ctl.tau_comp[0]) > 0.1 and abs(ctl.tau_comp[1]) > 0.1
+    j1, j2 = ctl.summary(loop.stats.cycles)["joints"]
+    assert j1["engaged_share"] > 0.5 and j2["engaged_share"] == 0.0
+    assert j2["not_engaged"]["rho_above_max"] == j1["not_engaged"]["rho_above_max"] + round(
+        j1["engaged_share"] * j1["joint_cycles"])
