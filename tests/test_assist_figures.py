@@ -253,6 +253,8 @@ def test_bench_assist_json_schema(tmp_path, capsys):
     if not p["faults"]:
         assert 0.0 <= p["engaged_share"] <= p["available_share"] <= 1.0 and p["effort_reduction"] < 1.0
         assert set(p["not_engaged"]) == {"fault", "invalid", "rho_above_max", "below_bound"}
+        ph = p["by_phase"]
+        assert ph["hold"]["share"] + ph["move"]["share"] == pytest.approx(1.0) and p["friction_at_rest"] >= 0.0
     json.dumps(d, allow_nan=False)
 
 
