@@ -381,11 +381,11 @@ class AssistConfig:
     """
 
     enabled: bool = False          # off unless asked
-    gain: float = 2.0              # α: assistance per N m of certified active torque [-]
-    deadband: float = 0.05         # [N m] taken off |τ̂| together with ρ_k
-    rho_max: float = 1.5           # [N m] no assistance while the averaged ρ_k is above this
-    max_torque: float = 3.0        # [N m] |τ_assist| limit
-    max_rate: float = 10.0         # [N m/s] |dτ_assist/dt| limit (an invalid estimate or a fault: 0 at once)
+    gain: float | tuple = 2.0  # α: assistance per N m of certified active torque [-]
+    deadband: float | tuple = 0.05  # [N m] taken off |τ̂| together with ρ_k
+    rho_max: float | tuple = 1.5  # [N m] no assistance while the averaged ρ_k is above this
+    max_torque: float | tuple = 3.0  # [N m] |τ_assist| limit
+    max_rate: float | tuple = 10.0  # [N m/s] |dτ_assist/dt| limit (an invalid estimate or a fault: 0 at once)
     smoothing_s: float = 0.6       # [s] time constant over which τ̂ and ρ are averaged before the gate (0: none)
     innovation_max: float = 1.0e4  # a step whose normalised innovation νᵀS⁻¹ν exceeds this is a fault
     compensation: str = "nominal"  # nominal: + the nominal model's static load torque; none: τ_assist alone
