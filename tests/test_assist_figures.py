@@ -330,3 +330,14 @@ def test_two_joints_in_the_loop_each_with_its_own_gate_column_and_figures():
     assert j1["engaged_share"] > 0.5 and j2["engaged_share"] == 0.0
     assert j2["not_engaged"]["rho_above_max"] == j1["not_engaged"]["rho_above_max"] + round(
         j1["engaged_share"] * j1["joint_cycles"])
+
+
+def test_bench_assist_joints_refused_beyond_two_and_figures_per_joint(capsys):
+    from sea_daemon.apps.bench.assist import _least, joint_row
+    rc = main(["bench", "assist", "--seeds", "2", "--joints", "3"])
+    assert rc == 2 and "--joints 3: must be 1 or 2" in capsys.readouterr().err
+    m = lambda h, cov: {"tau_h_rms": h, "coverage_acting": cov, "pushes_against_while_invalid": 0, "by_phase": {}}
+    jr = joint_row(m(0.5, 1.0), m(0.8, 0.99), m(1.0, None), 0.3)
+    assert jr["effort_reduction"] == pytest.approx(0.5) and jr["effort_reduction_gated"] == pytest.approx(0.375)
+    assert jr["friction_at_rest"] == 0.3 and jr["coverage_acting"] == 1.0
+    assert _least([None, 0.4, 0.2]) == 0.2 and _least([None]) is None
