@@ -286,3 +286,22 @@ def test_corrupted_estimate_zero_torque_in_that_cycle(kind):
         assert tau == 0.0
     assert assisted[29][2] > 1.0                      # it was assisting until then
     assert written[-1] == 0.0
+
+
+def test_each_joints_max_torque_within_its_own_torque_limit(tmp_path):
+    import shutil
+    import yaml
+    from _paths import repo_root
+    from sea_daemon.io.configfile import load_config
+    configs = repo_root() / "configs"
+    shutil.copy(configs / "exo_2dof_arm.urdf", tmp_path / "exo_2dof_arm.urdf")
+    raw = load_yaml(configs / "exo_2dof.yaml")
+    raw["hardware"]["torque_limit"] = [40.0, 2.0]
+    raw["assist"] = {"enabled": True}
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(raw))
+    assert load_config(tmp_path / "arm.yaml").assist.max_torque == (3.0, 2.0)   # min(3, each joint's limit)
+    raw["assist"] = {"enabled": True, "max_torque": 2.5}
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError) as e:
+        load_config(tmp_path / "arm.yaml")
+    assert "assist.max_torque" in str(e.value) and "torque_limit = 2] N m (joint 2)" in str(e.value)

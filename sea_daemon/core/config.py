@@ -582,7 +582,7 @@ class ModelConfig:
             hardware=hardware,
             source=source,
             # the assistance of every joint within the smallest joint's torque limit
-            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, float(np.min(hardware.torque_limit))),
+            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limits(n)),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
             publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
         )
