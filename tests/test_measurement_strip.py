@@ -34,6 +34,12 @@ def test_the_cut_zonotope_holds_every_point_of_the_zonotope_inside_the_strips():
             assert res.status == 0
             checked += 1
     assert checked > 100
+    # a cut that would widen the rows of ``keep`` is left out: their half-width never grows
+    for _ in range(60):
+        G = rng.normal(size=(5, 12)) * rng.uniform(0.01, 3.0, size=(5, 1))
+        keep = rng.normal(size=(1, 5))
+        c = np.sum(np.abs(H @ G), axis=1) * rng.uniform(0.05, 1.0, size=4)
+        assert np.abs(keep @ cut_generators(G, H, c, keep)).sum() <= np.abs(keep @ G).sum() * (1 + 1e-12)
     G = rng.normal(size=(5, 6))
     assert cut_generators(G, H, np.full(4, 1e9)) is G
 

@@ -30,15 +30,24 @@ from __future__ import annotations
 import numpy as np
 
 
-def cut_generators(G: np.ndarray, H: np.ndarray, c: np.ndarray) -> np.ndarray:
+def cut_generators(G: np.ndarray, H: np.ndarray, c: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
     """Generators of a zonotope that holds ⟨0, G⟩ ∩ {a : |H_i a| ≤ c_i for every row i} (module
-    docstring); ``G`` itself when no strip cuts it."""
+    docstring); ``G`` itself when no strip cuts it.  ``keep`` (rows e): a strip's cut is kept only
+    if the half-width Σ|eᵀG| summed over these rows does not grow (any λ holds the intersection,
+    λ = 0 included)."""
+    width = None if keep is None else float(np.abs(keep @ G).sum())
     for i in range(H.shape[0]):
         hg = H[i] @ G
         if not np.isfinite(c[i]) or np.sum(np.abs(hg)) <= c[i]:
             continue                                   # the strip holds the whole zonotope
         lam = (G @ hg) / (hg @ hg + c[i] * c[i])      # the F-radius-minimal λ
-        G = np.hstack([G - np.outer(lam, hg), (c[i] * lam)[:, None]])
+        G2 = np.hstack([G - np.outer(lam, hg), (c[i] * lam)[:, None]])
+        if keep is not None:
+            w2 = float(np.abs(keep @ G2).sum())
+            if w2 > width:
+                continue
+            width = w2
+        G = G2
     return G
 
 
