@@ -159,15 +159,19 @@ class FrictionRange:
         """With declared friction, the prior set of means ``sm.Gprior_`` cut by the step's
         measurement strips |h_iᵀa⁻| ≤ |e_i| + z √S_ii, z = z_{1−δ_N/(2m)}
         (:mod:`.measurement_strip`): the measured velocities hold the set's velocity extent where
-        the filter's gain leaves it to the friction's slope (docs/bounds.md §4).  A strip whose cut
-        would widen the τ_h,act half-width after (I − KH) is left out."""
+        the filter's gain leaves it to the friction's slope (docs/bounds.md §4).  The angles' strips
+        always; a velocity's strip only if its cut does not widen the τ_h,act half-width after
+        (I − KH)."""
         if not self.groups or sm.sets != "zonotope":
             return
         m = H.shape[0]
         z = float(ndtri(1.0 - sm.delta_noise / (2 * m)))
-        keep = -(record.K_k[sm.tau_idx] @ H)           # the τ_h,act rows of I − KH: a cut that widens them is left
+        keep = -(record.K_k[sm.tau_idx] @ H)           # the τ_h,act rows of I − KH
         keep[np.arange(sm.tau_idx.size), sm.tau_idx] += 1.0
-        sm.Gprior_ = cut_generators(sm.Gprior_, H, strip_halfwidths(record.innovation, record.S_k, z), keep)
+        c = strip_halfwidths(record.innovation, record.S_k, z)
+        a = m // 2                                     # the angles' channels, then the velocities'
+        G = cut_generators(sm.Gprior_, H[:a], c[:a])
+        sm.Gprior_ = cut_generators(G, H[a:], c[a:], keep)
 
     def _widths(self, par, rule: int, w: np.ndarray) -> None:
         """w_g of every group under ``rule`` into ``w``, its κ_g into :attr:`kappa_`."""
