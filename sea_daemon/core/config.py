@@ -560,7 +560,8 @@ class ModelConfig:
             learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),
             hardware=hardware,
             source=source,
-            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
+            # the assistance of every joint within the smallest joint's torque limit
+            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, float(np.min(hardware.torque_limit))),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
             publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
         )

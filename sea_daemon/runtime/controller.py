@@ -17,10 +17,10 @@ import numpy as np
 
 from sea_daemon.core.assist import STATES, AssistLaw
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm
+from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm, cosine_torque
 from sea_daemon.core.model import SEAModel
 from sea_daemon.io.scenario import PIDSpec, Scenario
-from sea_daemon.io.scenario_joints import JointsPID
+from sea_daemon.io.scenario_joints import JointsOpenLoop, JointsPID
 
 
 class ZeroTorque:
@@ -44,7 +44,9 @@ class ScenarioController:
       long as the run goes, with the configuration's torque limit.
     * Open loop (``open_loop``): τ_comp + τ_des in the estimation phase, τ_comp alone before.
       τ_des is that of the interval the command acts over (``delay``: the hardware's actuation
-      delay in periods) at the phase time (k + delay − ``estimation_from``)·dt.
+      delay in periods) at the phase time (k + delay − ``estimation_from``)·dt.  With n joints
+      (:class:`~sea_daemon.io.scenario_joints.JointsOpenLoop`) each joint has its own τ_comp and
+      its own cosine τ_des; :attr:`tau_des` is then the (n,) array of the last command.
 
     ``estimation_from``: the sample k at which the estimation phase starts — 0 for a run of the
     estimation phase, the training length for a run of both phases, None for a training run.
@@ -63,7 +65,7 @@ class ScenarioController:
         self.dt = cfg.dt
         self.delay = int(delay)
         self.estimation_from = estimation_from
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         self.hold = None if hold is None else np.asarray(hold, dtype=float).reshape(self.n)
         self._model = SEAModel.from_config(cfg)
         self._out = np.zeros(self.n)
@@ -89,7 +91,10 @@ class ScenarioController:
             self.tracker = ReferenceTracker(self.spec, self.traj, cfg.dt, self.limit)
             self.pid = self.tracker.pid
         self.q_ref = self.spec.q0
-        self.tau_des = 0.0
+        # n joints open loop: τ_des per joint, written in place (no allocation per cycle)
+        self._joints_ol = isinstance(self.spec, JointsOpenLoop)
+        self._td = np.zeros(self.n)
+        self.tau_des = self._td if self._joints_ol else 0.0
 
     def _hold(self, q) -> np.ndarray:
         if self.hold is not None:
@@ -106,17 +111,26 @@ class ScenarioController:
             self.tracker.start(q, theta_m, u0)
         else:
             c = self.spec
-            self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
-                                     offset=c.offset)
+            if self._joints_ol:
+                # each joint's cosine (io.scenario_joints.JointsOpenLoop), τ_des of every joint in _tau_des
+                self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=0.0, offset=0.0)
+            else:
+                self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
+                                         offset=c.offset)
             self.still = StillArm(self.ol.tau_comp, self._tau_des, self.limit, self.spec.q0)
 
-    def _tau_des(self, t: float) -> float:
+    def _tau_des(self, t: float) -> float | np.ndarray:
         """τ_des of the interval the command acts over: 0 before the estimation phase, else the
         cosine at the phase time (class docstring)."""
         k = round(t / self.dt)                    # t is k whole periods (class docstring)
         k0 = self.estimation_from
         active = k0 is not None and k + self.delay >= k0
         tp = (k - k0) * self.dt + self.delay * self.dt if active else t
+        if self._joints_ol:
+            c = self.spec
+            for j in range(self.n):
+                self._td[j] = cosine_torque(tp, c.amplitude[j], c.frequency_hz[j], c.offset[j]) if active else 0.0
+            return self._td
         return self.ol.tau_des(tp, active=active)
 
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
@@ -154,7 +168,7 @@ class AssistController:
     def __init__(self, cfg: ModelConfig, *, gain: float | None = None, dry_run: bool | None = None,
                  subject: np.ndarray | None = None):
         self.n = cfg.joints
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         a = cfg.assist if gain is None else dataclasses.replace(cfg.assist, gain=float(gain))
         if dry_run is not None:
             a = dataclasses.replace(a, dry_run=bool(dry_run))
