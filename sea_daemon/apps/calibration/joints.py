@@ -13,8 +13,9 @@ joints lives here:
 * the GP's blocked cross-validation over all joints (:func:`gp_cross_validation_joints`);
 * the working range per joint (:func:`data_working_ranges`) and the coverage per joint
   (:class:`~sea_daemon.core.excitation.JointsCoverage`);
-* the wearer's arm, a declared body of the URDF, corrected first (:func:`correct_body`: its
-  links' mass and length factors, which show on every joint);
+* the rigid body of the URDF (the exoskeleton's links and the wearer's arm, a declared body),
+  corrected first (:func:`correct_body`: its links' mass and length factors, which show on
+  every joint, fitted beside each joint's load friction);
 * the synthetic subjects of the τ_h,act walk (:func:`synthetic_sessions_joints`): a torque of
   the declared band and size on every joint, its own per joint, moving (the log's own motion)
   and with the arm held still.
@@ -302,28 +303,40 @@ def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: Mea
                         seed=seed + 12, extra_load_torque=extra, extra_held=True, substep_hz=sub)]
 
 
-#: prefix of the URDF links that make up the wearer's arm, the declared body the calibration corrects
-HUMAN_PREFIX = "human_"
 #: the correction is kept when it lowers the RMS torque error of the rigid body by at least this share
 BODY_GAIN = 0.1
 
 
+def friction_regressors(dq: np.ndarray) -> np.ndarray:
+    """(N, n, 2n) regressors of each joint's viscous and Coulomb load friction: ``q̇_j`` and
+    ``sign(q̇_j)`` in joint j's row (the torques :func:`correct_body` fits beside the body)."""
+    N, n = dq.shape
+    X = np.zeros((N, n, 2 * n))
+    for j in range(n):
+        X[:, j, j], X[:, j, n + j] = dq[:, j], np.sign(dq[:, j])
+    return X
+
+
 def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: dict, points: int = 600) -> ModelConfig:
-    """The wearer's arm of a ``model.urdf`` corrected from the passive log: the mass and length
-    factors of its links (the URDF's links named ``human_…``; :func:`sea_daemon.core.rigid.fit_factors`,
-    least squares over RNEA) that best explain the load side's torque −τ_s − Σ declared load effects
-    (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves.  A wrong
-    link mass or length shows on every joint it loads (M(q), C(q, q̇), g(q)), so one factor
-    explains it on all of them — the per-joint effects of diagnose could only imitate it.  Kept
-    when it lowers the RMS torque error by :data:`BODY_GAIN` or more; the report's ``body`` says
-    what was fitted and whether it was kept.  Unchanged without a URDF or a log that identifies
-    the physics (``suff``)."""
+    """The rigid body of a ``model.urdf`` corrected from the passive log: the mass and length
+    factors of every link with a mass — the exoskeleton's links (a length moves the joints the
+    link carries: an elbow set for another wearer) and the wearer's arm (the links named
+    ``human_…``) — that best explain the load side's torque −τ_s − Σ declared load effects
+    (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves
+    (:func:`sea_daemon.core.rigid.fit_factors`, least squares over RNEA).  Each joint's viscous
+    and Coulomb load friction is fitted beside them (:func:`friction_regressors`), so that
+    friction the model does not declare yet does not bend the factors; it is not added to the
+    model (diagnose finds the effects next).  A wrong link mass or length shows on every joint it
+    loads (M(q), C(q, q̇), g(q)), so one factor explains it on all of them — the per-joint effects
+    of diagnose could only imitate it.  Kept when it lowers the RMS torque error by
+    :data:`BODY_GAIN` or more; the report's ``body`` says what was fitted and whether it was kept.
+    Unchanged without a URDF or a log that identifies the physics (``suff``)."""
     rigid = cfg.model.rigid
     if rigid is None or not suff.identifies("effects"):
         return cfg
-    links = [k for k in link_masses(rigid.urdf, rigid.source) if k.startswith(HUMAN_PREFIX)]
+    links = list(link_masses(rigid.urdf, rigid.source))
     if not links:
-        report["body"] = {"skipped": f"no link named {HUMAN_PREFIX}… in model.urdf (the wearer's arm)"}
+        report["body"] = {"skipped": "no link with a mass in model.urdf"}
         return cfg
     model = SEAModel.from_config(cfg)
     kin = kinematics_from_log(log)
@@ -339,10 +352,13 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
         report["body"] = {"skipped": "fewer than 50 samples with every joint moving"}
         return cfg
     idx = idx[np.linspace(0, len(idx) - 1, min(points, len(idx))).astype(int)]
-    fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx])
+    fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx],
+                      nuisance=friction_regressors(kin.dq[idx]))
     before, after = float(np.sqrt(np.mean(fit.rms_before ** 2))), float(np.sqrt(np.mean(fit.rms_after ** 2)))
     keep = after <= (1.0 - BODY_GAIN) * before
+    n = cfg.joints
     report["body"] = {"links": links, "mass": fit.mass, "length": fit.length, "kept": bool(keep),
+                      "friction_beside": {"viscous": fit.coefficients[:n].tolist(), "coulomb": fit.coefficients[n:].tolist()},
                       "rms_before": fit.rms_before.tolist(), "rms_after": fit.rms_after.tolist(), "samples": int(len(idx))}
     if not keep:
         return cfg
