@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, fit_gp_hyper_joints, nominal_where_unidentified,
+from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, walk_per_joint, fit_gp_hyper_joints, nominal_where_unidentified,
                                                 plant_substep)
 from sea_daemon.apps.calibration.modelio import estimator_from_model, save_calibrated
-from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sufficient_log
+from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sigma_nom_for, sufficient_log
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.excitation import PerJoint, JointsCoverage, WorkingRange, excitation, excitation_joints
@@ -148,3 +148,20 @@ def test_the_body_correction_moves_the_elbow_and_ignores_the_friction(cfg):
     assert np.all(err(fixed.model.rigid) < 0.1), err(fixed.model.rigid)
     assert report["body"]["kept"] and "exo_upper_arm" in report["body"]["links"]
     assert report["body"]["length"]["exo_upper_arm"] == pytest.approx(1.25, rel=0.05)
+
+
+def test_each_joint_gets_the_walk_of_its_own_errors(cfg):
+    """The walk scan's rows (q_τ: the RMS of τ̂ of each joint on each synthetic session): a joint
+    whose error is least at a slow walk gets the slow walk, its neighbour the fast one — the
+    smallest q_τ within 2 % of each joint's own best — and Σ_nom carries each joint's q_τ."""
+    active = ("synthetic_moving", "synthetic_still")
+    err = {0.1: [0.40, 0.30], 0.3: [0.30, 0.25], 1.0: [0.35, 0.20], 3.0: [0.50, 0.199]}
+    table = {(q, 0.003): {"q_tau": q, "sign_eps": 0.003, "per_joint": {k: e for k in active}}
+             for q, e in err.items()}
+    table[(10.0, 0.003)] = {"q_tau": 10.0, "sign_eps": 0.003, "synthetic_moving": float("inf")}   # faulted
+    table[(0.3, 0.01)] = {"q_tau": 0.3, "sign_eps": 0.01, "per_joint": {k: [0.01, 0.01] for k in active}}
+    assert walk_per_joint(table, 0.003, active, 1.0, 2) == [0.3, 1.0]
+    assert walk_per_joint({}, 0.003, active, 1.0, 2) == [1.0, 1.0]
+    S = sigma_nom_for(cfg, [0.3, 1.0])["Sigma_nom"]
+    np.testing.assert_allclose(np.diag(S)[8:], np.array([0.3, 1.0]) * cfg.dt)
+    np.testing.assert_allclose(np.diag(sigma_nom_for(cfg, 2.0)["Sigma_nom"])[8:], 2.0 * cfg.dt)
