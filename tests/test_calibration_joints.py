@@ -130,7 +130,8 @@ def test_the_body_correction_moves_the_elbow_and_ignores_the_friction(cfg):
     """A plant whose exoskeleton upper arm is 25 % longer (the elbow set for a taller wearer) with
     viscous and Coulomb friction on both joints: the corrected body's torques on another motion are
     within 0.1 N m RMS of the plant's body on each joint (the tables' body is ~1 N m off), the
-    exoskeleton's link among those corrected and its length found within 5 %."""
+    exoskeleton's link among those corrected and its length found within 5 %, and each joint's
+    friction in the model within 25 %."""
     eff = (make_effect("viscous", "load", joint=0, b=0.3), make_effect("coulomb", "load", joint=0, F_c=0.3),
            make_effect("viscous", "load", joint=1, b=0.3), make_effect("coulomb", "load", joint=1, F_c=0.3))
     rigid = cfg.model.rigid.scaled(mass={"human_forearm_hand": 1.2}, length={"exo_upper_arm": 1.25})
@@ -148,6 +149,11 @@ def test_the_body_correction_moves_the_elbow_and_ignores_the_friction(cfg):
     assert np.all(err(fixed.model.rigid) < 0.1), err(fixed.model.rigid)
     assert report["body"]["kept"] and "exo_upper_arm" in report["body"]["links"]
     assert report["body"]["length"]["exo_upper_arm"] == pytest.approx(1.25, rel=0.05)
+    # the friction fitted beside the body is the model's friction
+    found = {(e.type, e.joint): e for e in fixed.model.effects}
+    assert set(found) == {("viscous", 0), ("viscous", 1), ("coulomb", 0), ("coulomb", 1)}
+    for (kind, j), e in found.items():
+        assert (e.b if kind == "viscous" else e.F_c) == pytest.approx(0.3, rel=0.25), (kind, j)
 
 
 def test_each_joint_gets_the_walk_of_its_own_errors(cfg):

@@ -33,6 +33,7 @@ from sea_daemon.analysis.sufficiency import Sufficiency, Verdict, assess
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, spring_torque, window_samples
 from sea_daemon.apps.calibration.residual_gp import V_EXCLUDE, fit_gp_hyper
 from sea_daemon.core.config import LearningConfig, ModelConfig
+from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import WorkingRange
 from sea_daemon.core.kinematics import smooth_derivatives
@@ -333,13 +334,15 @@ def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: Mea
 BODY_GAIN = 0.1
 
 
-def friction_regressors(dq: np.ndarray) -> np.ndarray:
-    """(N, n, 2n) regressors of each joint's viscous and Coulomb load friction: ``q̇_j`` and
-    ``sign(q̇_j)`` in joint j's row (the torques :func:`correct_body` fits beside the body)."""
+def load_regressors(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """(N, n, 4n) regressors of the load-side torques :func:`correct_body` fits beside the body, in
+    joint j's row: its viscous and Coulomb friction ``q̇_j``, ``sign(q̇_j)``, and a stiffness about
+    a rest angle (the wearer's tissue) ``q_j``, ``1``; coefficients [b (n), F_c (n), k (n), c (n)]."""
     N, n = dq.shape
-    X = np.zeros((N, n, 2 * n))
+    X = np.zeros((N, n, 4 * n))
     for j in range(n):
         X[:, j, j], X[:, j, n + j] = dq[:, j], np.sign(dq[:, j])
+        X[:, j, 2 * n + j], X[:, j, 3 * n + j] = q[:, j], 1.0
     return X
 
 
@@ -350,9 +353,11 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
     ``human_…``) — that best explain the load side's torque −τ_s − Σ declared load effects
     (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves
     (:func:`sea_daemon.core.rigid.fit_factors`, least squares over RNEA).  Each joint's viscous
-    and Coulomb load friction is fitted beside them (:func:`friction_regressors`), so that
-    friction the model does not declare yet does not bend the factors; it is not added to the
-    model (diagnose finds the effects next).  A wrong link mass or length shows on every joint it
+    and Coulomb load friction and a linear stiffness about a rest angle (the wearer's tissue) are
+    fitted beside them (:func:`load_regressors`), so that torques the model does not declare yet
+    do not bend the factors; the friction is added to the model where its coefficient is positive
+    (a friction that opposes the motion), the stiffness is left to diagnose, which then adds what
+    the log shows beyond the corrected body and friction.  A wrong link mass or length shows on every joint it
     loads (M(q), C(q, q̇), g(q)), so one factor explains it on all of them — the per-joint effects
     of diagnose could only imitate it.  Kept when it lowers the RMS torque error by
     :data:`BODY_GAIN` or more; the report's ``body`` says what was fitted and whether it was kept.
@@ -379,13 +384,17 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
         return cfg
     idx = idx[np.linspace(0, len(idx) - 1, min(points, len(idx))).astype(int)]
     fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx],
-                      nuisance=friction_regressors(kin.dq[idx]))
+                      nuisance=load_regressors(q[idx], kin.dq[idx]))
     before, after = float(np.sqrt(np.mean(fit.rms_before ** 2))), float(np.sqrt(np.mean(fit.rms_after ** 2)))
     keep = after <= (1.0 - BODY_GAIN) * before
     n = cfg.joints
     report["body"] = {"links": links, "mass": fit.mass, "length": fit.length, "kept": bool(keep),
-                      "friction_beside": {"viscous": fit.coefficients[:n].tolist(), "coulomb": fit.coefficients[n:].tolist()},
+                      "beside": dict(zip(("viscous", "coulomb", "stiffness", "offset"), fit.coefficients.reshape(4, n).tolist())),
                       "rms_before": fit.rms_before.tolist(), "rms_after": fit.rms_after.tolist(), "samples": int(len(idx))}
     if not keep:
         return cfg
-    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body))
+    friction = [make_effect(kind, "load", joint=j, **{key: float(c)})
+                for kind, key, cs in (("viscous", "b", fit.coefficients[:n]), ("coulomb", "F_c", fit.coefficients[n:2 * n]))
+                for j, c in enumerate(cs) if c > 0.0]
+    report["body"]["friction_added"] = [f"{e.type}(load)[{e.joint + 1}]" for e in friction]
+    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body).with_effects((*cfg.model.effects, *friction)))
