@@ -355,9 +355,8 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
     (:func:`sea_daemon.core.rigid.fit_factors`, least squares over RNEA).  Each joint's viscous
     and Coulomb load friction and a linear stiffness about a rest angle (the wearer's tissue) are
     fitted beside them (:func:`load_regressors`), so that torques the model does not declare yet
-    do not bend the factors; the friction is added to the model where its coefficient is positive
-    (a friction that opposes the motion), the stiffness is left to diagnose, which then adds what
-    the log shows beyond the corrected body and friction.  A wrong link mass or length shows on every joint it
+    do not bend the factors; those that hold are added to the model (:func:`beside_effects`),
+    and diagnose then adds what the log shows beyond them.  A wrong link mass or length shows on every joint it
     loads (M(q), C(q, q̇), g(q)), so one factor explains it on all of them — the per-joint effects
     of diagnose could only imitate it.  Kept when it lowers the RMS torque error by
     :data:`BODY_GAIN` or more; the report's ``body`` says what was fitted and whether it was kept.
@@ -393,8 +392,25 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
                       "rms_before": fit.rms_before.tolist(), "rms_after": fit.rms_after.tolist(), "samples": int(len(idx))}
     if not keep:
         return cfg
-    friction = [make_effect(kind, "load", joint=j, **{key: float(c)})
-                for kind, key, cs in (("viscous", "b", fit.coefficients[:n]), ("coulomb", "F_c", fit.coefficients[n:2 * n]))
-                for j, c in enumerate(cs) if c > 0.0]
-    report["body"]["friction_added"] = [f"{e.type}(load)[{e.joint + 1}]" for e in friction]
-    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body).with_effects((*cfg.model.effects, *friction)))
+    added = beside_effects(fit.coefficients.reshape(4, n), q[idx], kin.dq[idx], fit.rms_after)
+    report["body"]["effects_added"] = [f"{e.type}(load)[{e.joint + 1}]" for e in added]
+    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body).with_effects((*cfg.model.effects, *added)))
+
+
+def beside_effects(coef: np.ndarray, q: np.ndarray, dq: np.ndarray, rms: np.ndarray) -> list:
+    """The load effects of the torques fitted beside the body (``coef`` rows b, F_c, k, c of
+    :func:`load_regressors`, per joint) that hold: viscous and Coulomb friction and the tissue's
+    stiffness (``human_viscoelastic``, k (q − q_0), q_0 = −c/k) where the coefficient is positive
+    (a friction that opposes the motion, a stiffness that pulls back) and the term's largest torque
+    over the samples exceeds the RMS error the fit leaves on that joint (``rms``)."""
+    out = []
+    for j in range(q.shape[1]):
+        b, F_c, k, c = (float(v) for v in coef[:, j])
+        span = float(np.max(q[:, j]) - np.min(q[:, j]))
+        if b > 0.0 and b * float(np.max(np.abs(dq[:, j]))) > rms[j]:
+            out.append(make_effect("viscous", "load", joint=j, b=b))
+        if F_c > rms[j]:
+            out.append(make_effect("coulomb", "load", joint=j, F_c=F_c))
+        if k > 0.0 and k * span > rms[j]:
+            out.append(make_effect("human_viscoelastic", "load", joint=j, k_h=k, q_h0=-c / k, b_h=0.0))
+    return out
