@@ -92,6 +92,7 @@ class CalibrationOptions:
     weight_power: float = 2.0
     hyper_points: int = 400                        # subsample for the ML hyperparameters
     diagnose: bool = True
+    refuse: bool = True          # False: a log fit refuses is calibrated with the configured physics (benchmarks)
 
 
 @dataclass
@@ -163,7 +164,7 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
     and the plant's compiled integration)."""
     plant_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, torque_noise=float(sigma_u),
-                                                                      torque_limit=max(cfg.hardware.torque_limit, 25.0)))
+                                                                      torque_limit=max(cfg.hardware.torque_limit_max, 25.0)))
     if cfg.joints > 1:
         return synthetic_sessions_joints(cfg, plant_cfg, log, human, duration_s, seed, gp=gp, power=power,
                                          v_gate=v_gate, var_ref=var_ref)
@@ -368,17 +369,18 @@ STEPS = ("measurement noise", "physical effects (diagnose)", "motor-torque noise
          "active-torque random walk", "coverage", "expected accuracy")
 
 
-def sufficient_log(log: MeasuredLog, cfg: ModelConfig) -> tuple[MeasuredLog, Sufficiency]:
+def sufficient_log(log: MeasuredLog, cfg: ModelConfig, refuse: bool = True) -> tuple[MeasuredLog, Sufficiency]:
     """The log at the configuration's rate (decimated from a whole multiple of it) and what it
     can identify (:mod:`sea_daemon.analysis.sufficiency`); InputError, one line saying what to
-    record instead, when it cannot be calibrated on."""
+    record instead, when it cannot be calibrated on (``refuse`` False: the refusal stays in the
+    returned verdicts, and what they do not identify keeps its configured value)."""
     if log.n != cfg.joints:
         raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
     # a gap or a duplicated sample is refused at its line (diagnose's time base), before any figure
     prepare_log(log)
     log, note = at_config_rate(log, cfg)
     suff = assess(log, cfg) if cfg.joints == 1 else assess_joints(log, cfg)
-    if suff.refusal:
+    if suff.refusal and refuse:
         raise InputError(suff.refusal)
     if note:
         suff.notes.insert(0, note[0].upper() + note[1:] + ".")
@@ -393,7 +395,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     step = _stepper(progress)
     opts = opts or CalibrationOptions()
     given = set() if given is None else set(given)
-    log, suff = sufficient_log(log, cfg)
+    log, suff = sufficient_log(log, cfg, opts.refuse)
     report: dict = {"log": log.path, "samples": len(log), "given": sorted(given), "sufficiency": suff.to_dict()}
     # 1. kinematics and R
     step()
