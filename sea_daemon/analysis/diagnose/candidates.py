@@ -93,6 +93,10 @@ class Candidate:
         """Why these parameters are not physical for this hardware, or None."""
         return None
 
+    def unidentified(self, ctx: Context, params: dict) -> str | None:
+        """Why the log's motion does not identify these parameters, or None."""
+        return None
+
     def describe(self, params: dict) -> str:
         return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
 
@@ -391,7 +395,27 @@ class StribeckC(Candidate):
         if params["v_s"] < v0:
             return (f"v_s = {params['v_s']:.3g} rad/s: a hump below a third of the {self.side} side's stick speed "
                     f"({3 * v0:.3g} rad/s) acts only where the encoders cannot tell motion from standing still")
-        return _static_friction_implausible(ctx, self, params["F_s"])
+        return self.unidentified(ctx, params) or _static_friction_implausible(ctx, self, params["F_s"])
+
+    #: the hump's reach in units of v_s: beyond HUMP_REACH · v_s it is below e^-4 ≈ 2 % of F_s
+    HUMP_REACH = 2.0
+
+    def unidentified(self, ctx, params) -> str | None:
+        """Why the log does not identify the hump, or None.  Only samples that move (faster than
+        the stick speed: below it friction is set-valued) and are slower than :attr:`HUMP_REACH`
+        v_s see the hump's shape; with fewer of them than the hump has parameters (F_s, v_s) its
+        least-squares fit is underdetermined: F_s then only raises the static limit of the
+        sticking samples, which Coulomb friction and the sticking phases already bound."""
+        _, v, _ = self.side_signals(ctx)
+        a = np.abs(v)
+        v0 = ctx.stick_speed(self.side)
+        reach = self.HUMP_REACH * params["v_s"]
+        seen = int(np.count_nonzero((a > v0) & (a < reach)))
+        if seen >= len(self.params):
+            return None
+        return (f"v_s = {params['v_s']:.3g} rad/s: {seen} samples move between the {self.side} side's stick speed "
+                f"({v0:.3g} rad/s) and {self.HUMP_REACH:g} v_s ({reach:.3g} rad/s), where the hump acts (needs "
+                f"{len(self.params)}, one per parameter): F_s is not identified by this log, only a static limit")
 
 
 class CoggingC(Candidate):

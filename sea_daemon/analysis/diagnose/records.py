@@ -53,7 +53,7 @@ class Selection:
     rss0: float
     rss_final: float
     r_final: np.ndarray
-    dropped: list = field(default_factory=list)   # (candidate name, params, CI) not determined
+    dropped: list = field(default_factory=list)   # (candidate name, params, CI, why or None) not determined
     corr: np.ndarray | None = None                # correlation of the refined parameters
     param_index: list = field(default_factory=list)   # (effect index, name) per row of corr
     correlated: list = field(default_factory=list)    # pairs resolved (see :func:`.conflict.find_conflict`)

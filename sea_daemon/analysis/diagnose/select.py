@@ -220,11 +220,14 @@ class Selector:
             # (angles and rest positions — phi, q_h0 — may rightly be near 0: not judged this way)
             # (a friction amplitude with a profile interval — asymmetric, or bounded from below
             # only — is undetermined when that interval reaches 0)
-            bad = [i for i in range(len(sel.chosen)) if undetermined(sel, i)]
+            # (and one whose refined parameters the log's motion does not reach: Candidate.unidentified)
+            why = [undetermined(sel, i) or c.unidentified(self.ctx, p) for i, (c, p) in enumerate(sel.chosen)]
+            bad = [i for i, w in enumerate(why) if w]
             if not bad:
                 break
             i = bad[0]
-            dropped.append((sel.chosen[i][0].name, sel.chosen[i][1], sel.ci[i]))
+            dropped.append((sel.chosen[i][0].name, sel.chosen[i][1], sel.ci[i],
+                            why[i] if isinstance(why[i], str) else None))
             keep = [k for k in range(len(chosen)) if k != i]
             chosen = [chosen[k] for k in keep]
             init = [sel.chosen[k][1] for k in keep]

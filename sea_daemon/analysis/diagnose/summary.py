@@ -176,10 +176,11 @@ def statements(sel: Selection, added: list[dict], warn: bool, kin: Kinematics) -
                    f"{st['channel']} side) follows {', '.join(st['signals'])} but matches no candidate "
                    "of the vocabulary: the model lacks an effect diagnose cannot name"
                    + ("; the effects above are at best a partial explanation." if added else "."))
-    for name, params, ci in sel.dropped:
+    for name, params, ci, why in sel.dropped:
         ps = ", ".join(f"{k}={fmt(v, '.4g')} [{fmt(ci[k][0])}, {fmt(ci[k][1])}]" for k, v in params.items() if k in ci)
         out.append(f"{name} would explain part of the residual, but this log does not determine its parameters "
-                   f"(95 % intervals wider than the values: {ps}); not added.")
+                   + (f"({why}; 95 % intervals: {ps})" if why else f"(95 % intervals wider than the values: {ps})")
+                   + "; not added.")
     for c in sel.correlated:
         out.append(f"{c['kept']} and {c['dropped']} trade against each other on this log (parameter correlation "
                    f"{c['correlation']:+.2f}; {c['reason']}): kept {c['kept']}, the physically sensible one, "
