@@ -1,26 +1,24 @@
 """Candidate effects for tracing the residuals.
 
-Every type of the effect vocabulary (docs/interfaces.md §2, plus the ``spring_saturation`` extension)
-on every side it may sit on, for every joint.  A candidate explains a part of the stacked
-residual r = [r_load, r_motor] (N × 2n, flattened) of the form
+Every type of the effect vocabulary (docs/interfaces.md §2, plus the ``spring_saturation`` extension) on every side
+it may sit on, for every joint. A candidate explains a part of the stacked residual r = [r_load, r_motor] (N × 2n,
+flattened) of the form
 
     Δr(θ, β) = o(θ) + X(θ) β,
 
-θ its nonlinear parameter (one at most: Stribeck's v_s, cogging's periods, the backlash
-width, the saturation's theta_max, the delay), β its linear coefficients.  Δr is *what the
-effect removes from the residual*: Δr = r(model) − r(model + effect).  It is computed from
-the model itself (:func:`.residuals.residual_channels` with the effect added), so the signs
-and the coupling through the spring are those of eq:unknwn_load / eq:motorside:
+θ its nonlinear parameter (one at most: Stribeck's v_s, cogging's periods, the backlash width, the saturation's
+theta_max, the delay), β its linear coefficients. Δr is *what the effect removes from the residual*: Δr = r(model) −
+r(model + effect). It is computed from the model itself (:func:`.residuals.residual_channels` with the effect
+added), so the signs and the coupling through the spring are those of eq:unknwn_load / eq:motorside:
 
 * a load-side torque e appears as +e in r_load, a motor-side one as +e in r_motor,
 * a spring-torque change Δτ_s as +Δτ_s in r_load and −Δτ_s in r_motor,
 * torque_scale κ as (1 − κ)·κ₀τ_m in r_motor, a delay as κ₀(τ_m(t) − τ_m(t − d)),
 * an encoder offset through every term that uses that angle (C(q), τ_s, declared effects).
 
-Linear coefficients map to the effect's parameters by :meth:`Candidate.natural`; the
-structural effects (backlash, delay) have no free coefficient (their Δr is o(θ)); the
-encoder offset is linearised at δ = 0 for the search (X = ∂Δr/∂δ) and refined exactly
-afterwards (:mod:`.select`).
+Linear coefficients map to the effect's parameters by :meth:`Candidate.natural`; the structural effects (backlash,
+delay) have no free coefficient (their Δr is o(θ)); the encoder offset is linearised at δ = 0 for the search (X =
+∂Δr/∂δ) and refined exactly afterwards (:mod:`.select`).
 """
 from __future__ import annotations
 
@@ -30,6 +28,7 @@ import numpy as np
 
 from sea_daemon.core.effects import EFFECT_TYPES, PARAM_RANGES, Effect, make_effect
 from sea_daemon.analysis.diagnose.context import Context
+from sea_daemon.analysis.diagnose.excitation import hump_unseen
 
 __all__ = ["Context", "Candidate", "build_candidates"]
 
@@ -93,8 +92,7 @@ class Candidate:
         """Why these parameters are not physical for this hardware, or None."""
         return None
 
-    def unidentified(self, ctx: Context, params: dict) -> str | None:
-        """Why the log's motion does not identify these parameters, or None."""
+    def unidentified(self, ctx: Context, params: dict) -> str | None:  # why the log's motion cannot identify them
         return None
 
     def describe(self, params: dict) -> str:
@@ -397,25 +395,9 @@ class StribeckC(Candidate):
                     f"({3 * v0:.3g} rad/s) acts only where the encoders cannot tell motion from standing still")
         return self.unidentified(ctx, params) or _static_friction_implausible(ctx, self, params["F_s"])
 
-    #: the hump's reach in units of v_s: beyond HUMP_REACH · v_s it is below e^-4 ≈ 2 % of F_s
-    HUMP_REACH = 2.0
-
     def unidentified(self, ctx, params) -> str | None:
-        """Why the log does not identify the hump, or None.  Only samples that move (faster than
-        the stick speed: below it friction is set-valued) and are slower than :attr:`HUMP_REACH`
-        v_s see the hump's shape; with fewer of them than the hump has parameters (F_s, v_s) its
-        least-squares fit is underdetermined: F_s then only raises the static limit of the
-        sticking samples, which Coulomb friction and the sticking phases already bound."""
         _, v, _ = self.side_signals(ctx)
-        a = np.abs(v)
-        v0 = ctx.stick_speed(self.side)
-        reach = self.HUMP_REACH * params["v_s"]
-        seen = int(np.count_nonzero((a > v0) & (a < reach)))
-        if seen >= len(self.params):
-            return None
-        return (f"v_s = {params['v_s']:.3g} rad/s: {seen} samples move between the {self.side} side's stick speed "
-                f"({v0:.3g} rad/s) and {self.HUMP_REACH:g} v_s ({reach:.3g} rad/s), where the hump acts (needs "
-                f"{len(self.params)}, one per parameter): F_s is not identified by this log, only a static limit")
+        return hump_unseen(v, ctx.stick_speed(self.side), params["v_s"], len(self.params), self.side)
 
 
 class CoggingC(Candidate):
@@ -579,8 +561,8 @@ class DelayC(Candidate):
 
 
 def _static_friction_implausible(ctx: Context, cand: Candidate, amplitude: float) -> str | None:
-    """Why a friction amplitude is not physical: above the largest torque the log puts on that
-    side (:meth:`Context.largest_torque`), it would have held the side still for good."""
+    """Why a friction amplitude is not physical: above the largest torque the log puts on that side
+    (:meth:`Context.largest_torque`), it would have held the side still for good."""
     top = ctx.largest_torque(cand.side, cand.joint)
     if amplitude > top:
         return (f"{cand.size_param} = {amplitude:.4g} N m exceeds every torque on the {cand.side} side in this log "
@@ -599,13 +581,10 @@ def _declared_damping(ctx: Context, side: str, j: int) -> float:
     return d
 
 
-_CLASSES = {
-    "coulomb": CoulombC, "viscous": ViscousC, "stribeck": StribeckC, "inertia": InertiaC,
-    "gravity": GravityC, "human_viscoelastic": HumanViscoelasticC, "spring_cubic": SpringCubicC,
-    "spring_backlash": BacklashC, "torque_scale": TorqueScaleC, "encoder_offset": EncoderOffsetC,
-    "delay": DelayC, "cogging": CoggingC, "spring_saturation": SpringSaturationC,
-    "torque_offset": TorqueOffsetC,
-}
+_CLASSES = {"coulomb": CoulombC, "viscous": ViscousC, "stribeck": StribeckC, "inertia": InertiaC, "gravity": GravityC,
+            "human_viscoelastic": HumanViscoelasticC, "spring_cubic": SpringCubicC, "spring_backlash": BacklashC,
+            "torque_scale": TorqueScaleC, "encoder_offset": EncoderOffsetC, "delay": DelayC, "cogging": CoggingC,
+            "spring_saturation": SpringSaturationC, "torque_offset": TorqueOffsetC}
 
 
 def build_candidates(ctx: Context, types=None) -> list[Candidate]:

@@ -142,6 +142,27 @@ def _speed_range(m: SideMotion, side: str) -> str | None:
     return None
 
 
+#: a Stribeck hump's reach in units of v_s: beyond it the hump is below e^-4 ≈ 2 % of F_s
+HUMP_REACH = 2.0
+
+
+def hump_unseen(vel: np.ndarray, v_stick: float, v_s: float, n_params: int, side: str) -> str | None:
+    """Why a Stribeck hump of speed ``v_s`` is not identified by a side moving at ``vel``, or None.
+
+    Only samples that move (faster than ``v_stick``: below it friction is set-valued) and are
+    slower than :data:`HUMP_REACH` v_s see the hump's shape; with fewer of them than the hump has
+    parameters (``n_params``: F_s, v_s) its least-squares fit is underdetermined, and F_s only
+    raises the static limit of the sticking samples."""
+    a = np.abs(np.asarray(vel, dtype=float))
+    reach = HUMP_REACH * v_s
+    seen = int(np.count_nonzero((a > v_stick) & (a < reach)))
+    if seen >= n_params:
+        return None
+    return (f"v_s = {v_s:.3g} rad/s: {seen} samples move between the {side} side's stick speed ({v_stick:.3g} rad/s) "
+            f"and {HUMP_REACH:g} v_s ({reach:.3g} rad/s), where the hump acts (needs {n_params}, one per parameter): "
+            "F_s is not identified by this log, only a static limit")
+
+
 def _coulomb(jm: JointMotion, side: str) -> str | None:
     return _both_ways(getattr(jm, side), side)
 
