@@ -13,7 +13,12 @@ import pytest
 
 from sea_daemon.analysis.diagnose.candidates import StribeckC
 from sea_daemon.analysis.diagnose.context import Context
+from sea_daemon.analysis.diagnose.engine import run_diagnosis
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log
+from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints
+from sea_daemon.apps.calibration.joints import correct_body, plant_substep
+from sea_daemon.apps.calibration.pipeline import decimate, sufficient_log
+from sea_daemon.core.sim.session import run_session
 
 from diagnose_sim import passive_log
 
@@ -48,23 +53,14 @@ def test_hump_the_log_reaches_is_kept(ctx, side):
 @pytest.mark.slow
 def test_two_joint_calibration_adds_no_unidentified_hump():
     """Two-joint plant 3's 40 s calibration log (``bench generalize --joints 2``), diagnosed as the
-    calibration does with the model after its body correction (saved: the correction takes
-    minutes): the load Stribeck hump on the elbow (F_s 12 N m at v_s 0.013 rad/s, no moving
-    sample below 2 v_s) is not added, and the statements say why."""
-    from pathlib import Path
-
-    from sea_daemon.analysis.diagnose.engine import run_diagnosis
-    from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints
-    from sea_daemon.apps.calibration.joints import plant_substep
-    from sea_daemon.apps.calibration.pipeline import decimate, sufficient_log
-    from sea_daemon.core.sim.session import run_session
-    from sea_daemon.io.configfile import load_config
-
+    calibration does, on the model after its body correction: the load Stribeck hump on the
+    elbow (F_s 12 N m at v_s 0.013 rad/s, no moving sample below 2 v_s) is not added, and the
+    statements say why."""
     pd = draw_plant_joints(3)
     cal = run_session(pd.true, 40.0, reference=calibration_motion_joints(pd, 40.0, seed=3), seed=1003,
                       substep_hz=plant_substep(pd.true, 3e-3, pd.nominal.rate_hz))
-    log, _ = sufficient_log(cal, pd.nominal, True)
-    cfg = load_config(Path(__file__).parent / "data" / "diagnose" / "joints2_plant3_body_corrected.yaml")
+    log, suff = sufficient_log(cal, pd.nominal, True)
+    cfg = correct_body(log, pd.nominal, suff, {})
     res = run_diagnosis(decimate(log), cfg, passive=True, estimate=False).result
     added = [(d["type"], d["side"], d["joint"]) for d in res["effects_added"]]
     assert ("stribeck", "load", 2) not in added, res["effects_added"]
