@@ -365,3 +365,41 @@ def test_frozen_sample_in_one_compiled_call_equals_the_python_step(passive, trai
     (a, xa, Pa, Ga, ca), (b, xb, Pb, Gb, cb) = runs
     assert np.array_equal(a, b) and np.array_equal(xa, xb) and np.array_equal(Pa, Pb) and np.array_equal(Ga, Gb)
     assert ca == cb and a[-1, 3] == 1.0 and np.all(np.isfinite(a[1:, 1]))
+
+
+def _disagreeing_experts(overlap: float):
+    """A one-joint residual GP of two leaves split at q̇ = 0 that disagree there: +1 N m below,
+    −1 N m above (seeded points, q̇ spanning ±0.2 rad/s: the split's ramp is 0.4·overlap wide)."""
+    from sea_daemon.core.config import LearningConfig
+    from sea_daemon.core.learning import ResidualGP
+    rng = np.random.default_rng(3)
+    res = ResidualGP(1, LearningConfig(max_points=20, overlap=overlap, sigma_f=1.0, lengthscales=(1.0, 1.0, 10.0),
+                                       sigma_n=0.05, hyperopt=False))
+    for i in range(21):
+        v = (-1.0 if i % 2 else 1.0) * (0.2 if i < 2 else rng.uniform(0.01, 0.2))
+        res.update(np.array([rng.uniform(0.45, 0.55), v, rng.uniform(-0.1, 0.1)]), [-np.sign(v)])
+    return res
+
+
+@pytest.mark.parametrize("overlap", [0.01, 0.1])
+def test_the_routing_ramp_between_disagreeing_leaves_stays_out_of_the_linearisation(overlap):
+    """eq:linearization takes the experts' Jacobian Σ ω_i ∂μ_i/∂z (eq:moejac per leaf), not the
+    ramp μ_i ∂ω_i/∂z of the split between them: on a still arm in the overlap of two leaves
+    2 N m apart (the merged mean falls 2 N m over 0.4·overlap rad/s: ∂μ/∂q̇ ≈ −5/overlap
+    N m s/rad, anti-damping) the filter runs, its covariance within its caps."""
+    res = _disagreeing_experts(overlap)
+    g = res.gps[0]
+    z = np.array([0.5, 0.0, 0.0])
+    nodes = g.route(z, True)
+    assert len(nodes) == 2 and g.predict_with_grad(z)[2][1] < -4.0 / overlap      # the merged mean's ramp
+    cfg = load_config(SETTINGS)
+    est = GPAKF(cfg, residual=res, learning=False)
+    q = np.array([0.5])
+    est.reset(q, q, np.zeros(1))
+    for _ in range(100):
+        e = est.update(q, q, np.zeros(1))
+    experts = np.zeros(3)
+    g.predict_grad_into(est.residual.box.clip(est.z), experts, False, False)
+    assert np.allclose(est.residual.jac[0], experts, rtol=0, atol=1e-12)
+    assert abs(experts[1]) < 1.0
+    assert np.all(np.isfinite(est.P)) and np.all(np.diag(est.P) <= est.P_max) and np.isfinite(e.tau_h_act_hat).all()
