@@ -123,22 +123,31 @@ def _step_at(est, log, k):
 
 
 def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passive, trained):
-    """eq:linearization: A_k = ∂/∂x [f_nom(x, u) − I_μ M⁻¹ μ(z(x))] at x̂_{k−1}."""
+    """eq:linearization: A_k = ∂/∂x [f_nom(x, u) − I_μ M⁻¹ μ(z(x))] at x̂_{k−1}, μ's Jacobian the
+    experts' Σ ω_i ∂μ_i/∂z (the routing weights held at ẑ: the split ramps' ∂ω/∂z left out)."""
     cfg, _, log = passive
     est = trained
     model = SEAModel.from_config(cfg)
     G = model.I_mu @ model.Minv
     gp = est.gp
+    g = gp.gps[0]
+    in_overlap = 0
     for k in (150, 333, 520):                      # moving, in the learned region
         x0, _, u, z0 = _step_at(est, log, k)
         ddq = z0[2:]
+        routed = g.route(est.residual.box.clip(z0))
+        in_overlap += len(routed) > 1
 
-        def f(x):
+        def f(x, experts=True):
             z = np.concatenate([x[:1] + x[1:2], x[2:3] + x[3:4], ddq])
-            mu, _, _ = gp.predict(z)
+            if experts:         # the leaves' means with the weights of ẑ
+                mu = np.array([sum(w * g.leaf(node).predict(z)[0] for node, w, _ in routed)])
+            else:
+                mu, _, _ = gp.predict(z)
             # eq:fwdynwtorqueresidual1
             return model.f_nom(x, u) - G @ mu
 
+        assert np.allclose(f(x0, False), est.xdot_k, rtol=1e-10, atol=1e-10)
         assert np.allclose(f(x0), est.xdot_k, rtol=1e-10, atol=1e-10)
         h = np.array([1e-6, 1e-6, 1e-5, 1e-5, 1e-4])
         A_fd = np.column_stack([(f(x0 + h[i] * e) - f(x0 - h[i] * e)) / (2 * h[i]) for i, e in enumerate(np.eye(5))])
@@ -146,6 +155,7 @@ def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passi
         assert np.allclose(est.A_k, A_fd, rtol=1e-5, atol=1e-6 * scale), (k, est.A_k - A_fd)
         # the GP part is really there (F_GP ≠ 0 in the θ̈_s row)
         assert np.abs(est.A_k - model.F_nom(x0, u)).max() > 1e-3
+    assert in_overlap                              # k = 333 lies in a split's overlap
 
 
 def test_process_noise_includes_the_gp_variance_exactly(passive, trained):
