@@ -166,3 +166,23 @@ def test_fit_factors_recovers_a_corrected_body(arm):
     np.testing.assert_allclose(fit.body.mass_matrix(Q[0]), true.mass_matrix(Q[0]), rtol=1e-5)
     with pytest.raises(ValueError, match="no mass to correct"):
         fit_factors(arm, ["base"], Q, DQ, DDQ, TAU)
+
+
+def test_fit_factors_fits_nuisance_torques_beside_the_factors(arm):
+    """Torques of a scaled body plus viscous friction on each joint: with the friction's regressors
+    as nuisance the factors and the friction coefficients are found and the error before is the
+    description's with its best friction."""
+    true = arm.scaled(mass={"fore": 1.3}, length={"upper": 1.2})
+    rng = np.random.default_rng(12)
+    Q, DQ, DDQ = rng.uniform(-1.0, 2.0, (120, 2)), rng.normal(0, 1.5, (120, 2)), rng.normal(0, 8.0, (120, 2))
+    b = np.array([0.3, 0.2])
+    TAU = np.array([true.inverse(q, v, a) for q, v, a in zip(Q, DQ, DDQ)]) + b * DQ
+    X = np.zeros((120, 2, 2))
+    X[:, 0, 0], X[:, 1, 1] = DQ[:, 0], DQ[:, 1]
+    fit = fit_factors(arm, ["upper", "fore"], Q, DQ, DDQ, TAU, nuisance=X)
+    assert fit.mass == pytest.approx({"upper": 1.0, "fore": 1.3}, rel=1e-4)
+    assert fit.length == pytest.approx({"upper": 1.2, "fore": 1.0}, rel=1e-4)
+    np.testing.assert_allclose(fit.coefficients, b, rtol=1e-4)
+    assert np.all(fit.rms_before > 0.05) and np.all(fit.rms_after < 1e-6)
+    with pytest.raises(ValueError, match="nuisance"):
+        fit_factors(arm, ["upper"], Q, DQ, DDQ, TAU, nuisance=X[:10])

@@ -102,15 +102,20 @@ class _SourcesStamp:
         return (super().get_source_stamp(), sources_digest())
 
 
-class _UserProvided(_SourcesStamp, caching.UserProvidedCacheLocator):
+def _locator(name: str) -> type:
+    """numba's cache locator ``name`` (numba before 0.61 spells it with a leading underscore)."""
+    return getattr(caching, name, None) or getattr(caching, "_" + name)
+
+
+class _UserProvided(_SourcesStamp, _locator("UserProvidedCacheLocator")):
     pass
 
 
-class _InTree(_SourcesStamp, caching.InTreeCacheLocator):
+class _InTree(_SourcesStamp, _locator("InTreeCacheLocator")):
     pass
 
 
-class _UserWide(_SourcesStamp, caching.UserWideCacheLocator):
+class _UserWide(_SourcesStamp, _locator("UserWideCacheLocator")):
     pass
 
 

@@ -10,7 +10,8 @@
   smoothing, and a declared torque delay applied.
 * :class:`ResidualGP` — one LoG-GP per joint (an independent GP per target dimension, Sec.
   IV-A), exposing the GP-AKF's residual hook ``predict(z) -> (μ (n,), ∂μ/∂z (n, 3n), σ² (n,))``
-  (``alg:torqueresidualAKF`` line 5, ``eq:moejac``) and ``update(z, f)``.
+  (``alg:torqueresidualAKF`` line 5, ``eq:moejac``) and ``update(z, f)``; it records which
+  directions of motion its training pairs covered (:attr:`ResidualGP.directions`).
 
 Pure: no I/O, no clock, no threads.
 """
@@ -95,12 +96,29 @@ def training_pairs_from_log(model, log, kinematics=None, causal: bool = True, sk
     return Z[skip:], F[skip:]
 
 
+#: [rad/s] a training pair moves joint j up (down) when q̇_j > DIRECTION_SPEED (< −DIRECTION_SPEED)
+DIRECTION_SPEED = 0.03
+#: training pairs moving one way a direction needs to count as covered (0.5 s of pairs at 100 Hz)
+DIRECTION_MIN_PAIRS = 50
+
+
 class ResidualGP:
     """One :class:`LoGGP` per joint on the common input ``z = [q, q̇, q̈]`` (3n).
 
     ``ResidualGP(n, learning)`` with a :class:`~sea_daemon.core.config.LearningConfig`; keyword
     ``overrides`` are passed to every :class:`LoGGP` (e.g. ``hyper_every``).  Joint ``i`` uses
     seed ``learning.seed + i``.
+
+    ``directions`` (n, 2) int: per joint, the training pairs moving down (q̇_j < −
+    :data:`DIRECTION_SPEED`) and up (q̇_j > :data:`DIRECTION_SPEED`), counted by every
+    :meth:`update` and :meth:`note_direction`; None for a model saved without the record (it
+    counts nothing and :meth:`off_direction` is always False).  A direction is covered with at
+    least :data:`DIRECTION_MIN_PAIRS` pairs: friction changes sign with q̇, and a GP that
+    learned one way only would carry that friction across q̇ = 0 with the wrong sign, so where
+    a joint moves the way its pairs did not cover while they covered the other
+    (:meth:`off_direction`), the GP-AKF's hooks use the physical model alone.  A joint covered
+    neither way (pairs at rest only) learned no sign of friction: its GP stays as weighted
+    by its variance.
     """
 
     def __init__(self, n: int, learning: LearningConfig | None = None, **overrides):
@@ -119,6 +137,74 @@ class ResidualGP:
                     clip_leaf_mean=lc.clip_leaf_mean, split_in_lengthscales=lc.split_in_lengthscales)
         opts.update(overrides)
         self.gps = [LoGGP(3 * self.n, seed=lc.seed + i, **opts) for i in range(self.n)]
+        self._init_directions(np.zeros((self.n, 2), dtype=np.int64))
+
+    def _init_directions(self, counts, speed: float = DIRECTION_SPEED, least: int = DIRECTION_MIN_PAIRS) -> None:
+        self.directions = counts
+        self.direction_speed = speed
+        self.direction_min_pairs = least
+        self._covered = np.ones((self.n, 2), dtype=bool)
+        self._gated = np.zeros((self.n, 2), dtype=bool)
+        self.gated = False
+        if counts is not None:
+            self._judge()
+
+    def _judge(self) -> None:
+        """Covered: at least ``direction_min_pairs`` pairs; gated: not covered while the other way
+        is (the GP learned one way only: what it learned has the sign of that way)."""
+        self._covered[:] = self.directions >= self.direction_min_pairs
+        self._gated[:] = ~self._covered & self._covered[:, ::-1]
+        self.gated = bool(self._gated.any())
+
+    def note_direction(self, z) -> None:
+        """Count the training pair at ``z`` in :attr:`directions` (nothing without the record)."""
+        c = self.directions
+        if c is None:
+            return
+        n, s = self.n, self.direction_speed
+        for j in range(n):
+            v = z[n + j]
+            if v > s:
+                c[j, 1] += 1
+                if c[j, 1] == self.direction_min_pairs:
+                    self._judge()
+            elif v < -s:
+                c[j, 0] += 1
+                if c[j, 0] == self.direction_min_pairs:
+                    self._judge()
+
+    def off_direction(self, z) -> bool:
+        """Whether some joint moves at ``z`` (q̇ beyond :data:`DIRECTION_SPEED`) in a direction
+        the training pairs did not cover while they covered the other (allocation-free; False
+        without the record)."""
+        if not self.gated:
+            return False
+        n, s, g = self.n, self.direction_speed, self._gated
+        for j in range(n):
+            v = z[n + j]
+            if (v > s and g[j, 1]) or (v < -s and g[j, 0]):
+                return True
+        return False
+
+    def directions_record(self) -> dict | None:
+        """The record as plain values (the model file's ``directions``; None without it)."""
+        if self.directions is None:
+            return None
+        return {"speed": float(self.direction_speed), "min_pairs": int(self.direction_min_pairs),
+                "pairs_down_up": self.directions.tolist(), "covered_down_up": self._covered.tolist()}
+
+    def _load_directions(self, rec) -> None:
+        """:meth:`directions_record` back (None: a model saved without it, no record)."""
+        if rec is None:
+            self._init_directions(None)
+            return
+        c = np.asarray(rec["pairs_down_up"], dtype=np.int64)
+        if c.shape != (self.n, 2) or np.any(c < 0):
+            raise ValueError(f"directions: pairs_down_up must be ({self.n}, 2) counts >= 0, got {c.tolist()}")
+        speed, least = float(rec["speed"]), int(rec["min_pairs"])
+        if not (np.isfinite(speed) and speed >= 0.0 and least >= 1):
+            raise ValueError(f"directions: speed {speed} (>= 0) and min_pairs {least} (>= 1) expected")
+        self._init_directions(c, speed, least)
 
     @classmethod
     def from_config(cls, cfg: ModelConfig, **overrides) -> "ResidualGP":
@@ -150,6 +236,7 @@ class ResidualGP:
             raise InputError(f"f must have shape ({self.n},), got {f.shape}")
         for i, gp in enumerate(self.gps):
             gp.update(z, f[i])
+        self.note_direction(z)
 
     def train(self, Z, F) -> None:
         """Stream a batch of pairs ``Z`` (N, 3n), ``F`` (N, n) through :meth:`update`."""
@@ -164,8 +251,11 @@ class ResidualGP:
 
     def to_dict(self) -> dict:
         """JSON-serialisable state (no numpy, no pickle)."""
-        return {"format": "sea-daemon-residual-gp", "version": 1, "joints": self.n,
-                "gps": [gp.to_dict() for gp in self.gps]}
+        d = {"format": "sea-daemon-residual-gp", "version": 1, "joints": self.n,
+             "gps": [gp.to_dict() for gp in self.gps]}
+        if self.directions is not None:
+            d["directions"] = self.directions_record()
+        return d
 
     def to_arrays(self) -> tuple[dict[str, np.ndarray], dict]:
         """``(arrays, meta)`` for :func:`sea_daemon.io.modelfile.save_model` (joint i's arrays are
@@ -175,8 +265,10 @@ class ResidualGP:
             a, m = gp.to_arrays(prefix=f"gp{i}_")
             arrays.update(a)
             metas.append(m)
-        return arrays, {"residual_gp": {"format": "sea-daemon-residual-gp", "version": 1,
-                                        "joints": self.n, "gps": metas}}
+        meta = {"format": "sea-daemon-residual-gp", "version": 1, "joints": self.n, "gps": metas}
+        if self.directions is not None:
+            meta["directions"] = self.directions_record()
+        return arrays, {"residual_gp": meta}
 
     @classmethod
     def from_arrays(cls, arrays: dict, meta: dict) -> "ResidualGP":
@@ -187,6 +279,7 @@ class ResidualGP:
             self = cls.__new__(cls)
             self.n = int(m["joints"])
             self.gps = [LoGGP.from_arrays(arrays, g, prefix=f"gp{i}_") for i, g in enumerate(m["gps"])]
+            self._load_directions(m.get("directions"))
         except (KeyError, TypeError, ValueError) as e:
             raise ModelFileError(f"residual-GP model is malformed: {e}") from None
         if len(self.gps) != self.n or any(g.input_dim != 3 * self.n for g in self.gps):
@@ -201,6 +294,7 @@ class ResidualGP:
             self = cls.__new__(cls)
             self.n = int(d["joints"])
             self.gps = [LoGGP.from_dict(g) for g in d["gps"]]
+            self._load_directions(d.get("directions"))
             if len(self.gps) != self.n or any(g.input_dim != 3 * self.n for g in self.gps):
                 raise ModelFileError("residual-GP model: number or input size of the GPs does not match joints")
             return self

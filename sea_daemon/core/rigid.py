@@ -316,10 +316,12 @@ class BodyFit(NamedTuple):
     rms_before: np.ndarray
     rms_after: np.ndarray
     body: "RigidBody"
+    #: the coefficients of the ``nuisance`` regressors fitted with the factors (empty without)
+    coefficients: np.ndarray = np.zeros(0)
 
 
 def fit_factors(body: RigidBody, links, Q, DQ, DDQ, TAU, *, lengths: bool = True,
-                limits: tuple[float, float] = (0.5, 2.0)) -> BodyFit:
+                limits: tuple[float, float] = (0.5, 2.0), nuisance: np.ndarray | None = None) -> BodyFit:
     """Correct a declared body from data: the mass (and, with ``lengths``, length) factors of
     :func:`scaled_urdf` for the named ``links`` that best explain the torques on the rigid body,
     least squares over the samples of τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (eq:loadside; RNEA).
@@ -330,6 +332,10 @@ def fit_factors(body: RigidBody, links, Q, DQ, DDQ, TAU, *, lengths: bool = True
     gravity (∝ m l) and inertia (∝ m l²), so the data must move the link with some acceleration;
     links on one moving body (fixed to each other: the wearer's forearm on the exoskeleton's) act
     as one, so name one of them.
+    ``nuisance``: (N, n, p) regressors of torques the body does not hold (e.g. each joint's
+    viscous and Coulomb friction, ``q̇_j`` and ``sign(q̇_j)`` in joint j's row), their p
+    coefficients fitted with the factors (linear, unbounded), so that they do not bend the
+    factors; the RMS errors before and after both include them at their best coefficients.
     Raises ValueError for a link without a mass or data of the wrong shape.
     """
     # local import: scipy.optimize loads in 0.2 s; only a correction of the body needs it
@@ -343,25 +349,35 @@ def fit_factors(body: RigidBody, links, Q, DQ, DDQ, TAU, *, lengths: bool = True
         raise ValueError(f"Q, DQ, DDQ, TAU must be finite (N, {body.n}) arrays of one N")
     links = list(links)
     k = len(links)
+    m = 2 * k if lengths else k
+    X = np.zeros((*Q.shape, 0)) if nuisance is None else np.asarray(nuisance, dtype=float)
+    if X.ndim != 3 or X.shape[:2] != Q.shape or not np.all(np.isfinite(X)):
+        raise ValueError(f"nuisance must be a finite (N, {body.n}, p) array of the samples' N = {Q.shape[0]}")
+    X = X.reshape(Q.size, -1)
 
     def scaled(p):
-        f = np.exp(p)
-        return body.scaled(dict(zip(links, f[:k])), dict(zip(links, f[k:])) if lengths else None)
+        f = np.exp(p[:m])
+        return body.scaled(dict(zip(links, f[:k])), dict(zip(links, f[k:m])) if lengths else None)
 
     def residual(p):
         b = scaled(p)
-        return np.concatenate([b.inverse(Q[i], DQ[i], DDQ[i]) - TAU[i] for i in range(Q.shape[0])])
+        r = np.concatenate([b.inverse(Q[i], DQ[i], DDQ[i]) - TAU[i] for i in range(Q.shape[0])])
+        return r + X @ p[m:]
 
     lo, hi = np.log(limits[0]), np.log(limits[1])
-    m = 2 * k if lengths else k
-    sol = least_squares(residual, np.zeros(m), bounds=(np.full(m, lo), np.full(m, hi)), x_scale=1.0)
-    f = np.exp(sol.x)
+    p0 = np.zeros(m + X.shape[1])
+    if X.shape[1]:
+        # the nuisance's best coefficients for the description as given: the error before
+        p0[m:] = np.linalg.lstsq(X, -residual(p0), rcond=None)[0]
+    bounds = (np.r_[np.full(m, lo), np.full(X.shape[1], -np.inf)], np.r_[np.full(m, hi), np.full(X.shape[1], np.inf)])
+    sol = least_squares(residual, p0, bounds=bounds, x_scale=1.0)
+    f = np.exp(sol.x[:m])
     fitted = scaled(sol.x)
 
     def rms(r):
         return np.sqrt(np.mean(r.reshape(-1, body.n) ** 2, axis=0))
     return BodyFit(dict(zip(links, map(float, f[:k]))), dict(zip(links, map(float, f[k:]))) if lengths else {},
-                   rms(residual(np.zeros(m))), rms(sol.fun), fitted)
+                   rms(residual(p0)), rms(sol.fun), fitted, sol.x[m:].copy())
 
 
 def _scale_inertia(el: ET.Element | None, s: float) -> None:

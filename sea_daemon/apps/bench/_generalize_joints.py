@@ -41,7 +41,9 @@ from sea_daemon.io.files import atomic_write_text
 
 #: the two-joint plant seeds used while building the two-joint calibration (not for headline figures):
 #: 2–4, whose first run (diagnose's per-joint stand-ins for wrong link masses, passive sessions up to
-#: 1.8 N m) led to correcting the wearer's arm before diagnose
+#: 1.8 N m) led to correcting the wearer's arm before diagnose, and whose second (an exoskeleton link's
+#: length, undeclared friction and tissue bending the arm's factors; one walk for both joints) to
+#: correcting every link with the friction and a stiffness fitted beside, and a walk per joint
 DEVELOPMENT_SEEDS = (2, 3, 4)
 #: what the held-out seeds must show per joint: GP-AKF / oracle AKF median and p90 at most, the
 #: largest passive RMSE [N m], the bound's coverage of every session at least, and its mean at

@@ -16,7 +16,9 @@ Two checks (``--checks``), each per fold:
   figures show what the refusal protects from — scored on every other block: the GP-AKF's RMSE
   against the AKF's with the input model (target :data:`TARGETS` ``gp_over_akf``), the
   Theorem-1 bound's coverage of the samples marked valid (``coverage``), the share valid, and
-  the mean bound over the valid samples over their RMSE (``bound_over_rmse``).
+  the mean bound over the valid samples over their RMSE (``bound_over_rmse``), and the share of
+  the block's samples moving a way the calibration's GP has no data for (``gp_off_direction``:
+  there the GP-AKF uses the physical model alone, :meth:`ResidualGP.off_direction`).
 
 Every estimator is run from :data:`WARM_S` before the block it is scored on (a filter needs its
 history; the truth is only scored).  Prints a table per check and, with ``--json``, writes the
@@ -33,9 +35,11 @@ import numpy as np
 
 from sea_daemon.apps.bench import add_choice_argument, add_json_argument, choose, json_output, machine
 from sea_daemon.apps.bench.generalize import calibration_row
+from sea_daemon.apps.calibration.modelio import directions_lines
 from sea_daemon.apps.calibration.pipeline import calibrate, given_keys, options_from_config
 from sea_daemon.analysis.diagnose.crossval import WARM_S, BlockScorer
 from sea_daemon.analysis.diagnose.engine import run_diagnosis
+from sea_daemon.analysis.diagnose.residuals import kinematics_from_log
 from sea_daemon.analysis.diagnose.select import SelectOptions
 from sea_daemon.analysis.sufficiency import Limits, assess, at_config_rate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
@@ -199,7 +203,18 @@ def calibration_summary(report: dict) -> dict:
     """What the calibration identified (:func:`.generalize.calibration_row`) and whether it
     identified the physics or kept the configured model (and why)."""
     skipped = (report.get("diagnose") or {}).get("skipped")
-    return {**calibration_row(report), "physics": "identified" if skipped is None else f"configured ({skipped})"}
+    return {**calibration_row(report), "physics": "identified" if skipped is None else f"configured ({skipped})",
+            "gp_directions": report.get("gp_directions")}
+
+
+def off_direction_share(log: MeasuredLog, gp, a: int, b: int) -> float | None:
+    """The share of rows a..b−1 whose (smoothed) q̇ moves a way ``gp`` has no data for (None
+    without a GP)."""
+    if gp is None:
+        return None
+    kin = kinematics_from_log(log)
+    z = np.hstack([np.asarray(kin.q, float), np.asarray(kin.dq, float), np.asarray(kin.ddq, float)])
+    return float(np.mean([gp.off_direction(z[k]) for k in range(a, b)])) if b > a else 0.0
 
 
 def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, windows: list | None = None) -> list[dict]:
@@ -227,7 +242,8 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, win
             seen[a:b] = True
             row = {"block": j + 1, "t_s": block_span(log, c, d), "q_unvisited": unvisited_share(log, cfg, seen, mask),
                    "gp_akf": g, "akf_input": akf.rmse(cfg, mask),
-                   "akf_calibrated": scored(log, res.estimator(dt=log.dt, kind="akf"), c, d).get("rmse")}
+                   "akf_calibrated": scored(log, res.estimator(dt=log.dt, kind="akf"), c, d).get("rmse"),
+                   "gp_off_direction": off_direction_share(log, res.gp, c, d)}
             row["gp_over_akf"] = (g["rmse"] / row["akf_input"] if "rmse" in g and row["akf_input"] else None)
             row["met"] = targets_met(row)
             fold["scored"].append(row)
@@ -284,14 +300,18 @@ def print_gpakf(folds: list[dict]) -> None:
         c = f["calibration"]
         print(f"  calibration (refusal set aside): physics {c['physics']}; effects {', '.join(c['effects']) or 'none'};"
               f" GP {'kept' if c['gp_kept'] else 'not kept'}; q_tau {_f(c['q_tau'], '.3g')}")
-    print("| calibrated on [s] | scored on [s] | q beyond the calibration's (±1 deg) | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
+        for line in directions_lines(c.get("gp_directions")):
+            print("  " + line)
+    print("| calibrated on [s] | scored on [s] | q beyond the calibration's (±1 deg) | moving a way the GP has no data for | GP-AKF RMSE | AKF input model | GP-AKF / AKF | AKF calibrated | coverage "
           "(valid) | valid | mean bound | bound / RMSE | met |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for f in folds:
         for r in f["scored"]:
             g = r["gp_akf"]
             met = "all" if all(r["met"].values()) else "NO: " + ", ".join(k for k, v in r["met"].items() if not v)
+            off = r.get("gp_off_direction")
             print(f"| {_span(f['t_s'])} | {_span(r['t_s'])} | {100 * r['q_unvisited']:.0f} % | "
+                  f"{'-' if off is None else f'{100 * off:.0f} %'} | "
                   + (f"fault: {g['fault'][:60]}" if "fault" in g else _f(g.get("rmse")))
                   + f" | {_f(r['akf_input'])} | {_f(r['gp_over_akf'], '.2f')} | {_f(r['akf_calibrated'])} | "
                   f"{_f(g.get('coverage'), '.3f')} | {_f(g.get('valid_share'), '.3f')} | {_f(g.get('mean_bound'), '.3g')} | "

@@ -13,8 +13,9 @@ joints lives here:
 * the GP's blocked cross-validation over all joints (:func:`gp_cross_validation_joints`);
 * the working range per joint (:func:`data_working_ranges`) and the coverage per joint
   (:class:`~sea_daemon.core.excitation.JointsCoverage`);
-* the wearer's arm, a declared body of the URDF, corrected first (:func:`correct_body`: its
-  links' mass and length factors, which show on every joint);
+* the rigid body of the URDF (the exoskeleton's links and the wearer's arm, a declared body),
+  corrected first (:func:`correct_body`: its links' mass and length factors, which show on
+  every joint, fitted beside each joint's load friction);
 * the synthetic subjects of the τ_h,act walk (:func:`synthetic_sessions_joints`): a torque of
   the declared band and size on every joint, its own per joint, moving (the log's own motion)
   and with the arm held still.
@@ -32,12 +33,14 @@ from sea_daemon.analysis.sufficiency import Sufficiency, Verdict, assess
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, spring_torque, window_samples
 from sea_daemon.apps.calibration.residual_gp import V_EXCLUDE, fit_gp_hyper
 from sea_daemon.core.config import LearningConfig, ModelConfig
+from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import WorkingRange
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.learning import ResidualGP
 from sea_daemon.core.log import MeasuredLog
 from sea_daemon.core.model import SEAModel
+from sea_daemon.core.replay import replay
 from sea_daemon.core.rigid import fit_factors, link_masses
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
@@ -252,6 +255,31 @@ def plant_substep(cfg: ModelConfig, sign_eps: float, rate_hz: float) -> float:
     return sub
 
 
+def rmse_per_joint(log: MeasuredLog, est) -> np.ndarray:
+    """The RMSE of ``est``'s τ̂_h,act over ``log`` per joint (against τ_h,act = 0 when the log has no truth)."""
+    res = replay(log, est)
+    truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(res.tau_h_act_hat)
+    return np.sqrt(np.mean((res.tau_h_act_hat - truth) ** 2, axis=0))
+
+
+def walk_per_joint(table: dict, eps: float, active, common: float, n: int) -> list[float]:
+    """Each joint's τ_h,act random walk q_τ,j from the common scan's ``table`` at ``eps``: the
+    smallest q_τ of the scan within 2 % of the best RMS of that joint's own τ̂ over the synthetic
+    sessions ``active`` (the rule of the common walk, per joint), for the ``n`` joints.  A joint
+    whose inertia makes its τ̂ noisier is best served by a slower walk than its neighbour; the
+    common scan's ``common`` q_τ where no row has every session's figures."""
+    rows = [r for (q, e), r in table.items()
+            if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r.get("per_joint", {}) for k in active)]
+    if not rows:
+        return [float(common)] * n
+    out = []
+    for j in range(n):
+        obj = {id(r): math.sqrt(float(np.mean([r["per_joint"][k][j] ** 2 for k in active]))) for r in rows}
+        best = min(obj.values())
+        out.append(min(float(r["q_tau"]) for r in rows if obj[id(r)] <= 1.02 * best))
+    return out
+
+
 class _Interp:
     """The log's smoothed angles replayed as the reference of n joints (velocity and acceleration 0:
     the session's PID tracks the angle, as the one-joint synthetic session does)."""
@@ -302,28 +330,43 @@ def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: Mea
                         seed=seed + 12, extra_load_torque=extra, extra_held=True, substep_hz=sub)]
 
 
-#: prefix of the URDF links that make up the wearer's arm, the declared body the calibration corrects
-HUMAN_PREFIX = "human_"
 #: the correction is kept when it lowers the RMS torque error of the rigid body by at least this share
 BODY_GAIN = 0.1
 
 
+def load_regressors(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """(N, n, 4n) regressors of the load-side torques :func:`correct_body` fits beside the body, in
+    joint j's row: its viscous and Coulomb friction ``q̇_j``, ``sign(q̇_j)``, and a stiffness about
+    a rest angle (the wearer's tissue) ``q_j``, ``1``; coefficients [b (n), F_c (n), k (n), c (n)]."""
+    N, n = dq.shape
+    X = np.zeros((N, n, 4 * n))
+    for j in range(n):
+        X[:, j, j], X[:, j, n + j] = dq[:, j], np.sign(dq[:, j])
+        X[:, j, 2 * n + j], X[:, j, 3 * n + j] = q[:, j], 1.0
+    return X
+
+
 def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: dict, points: int = 600) -> ModelConfig:
-    """The wearer's arm of a ``model.urdf`` corrected from the passive log: the mass and length
-    factors of its links (the URDF's links named ``human_…``; :func:`sea_daemon.core.rigid.fit_factors`,
-    least squares over RNEA) that best explain the load side's torque −τ_s − Σ declared load effects
-    (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves.  A wrong
-    link mass or length shows on every joint it loads (M(q), C(q, q̇), g(q)), so one factor
-    explains it on all of them — the per-joint effects of diagnose could only imitate it.  Kept
-    when it lowers the RMS torque error by :data:`BODY_GAIN` or more; the report's ``body`` says
-    what was fitted and whether it was kept.  Unchanged without a URDF or a log that identifies
-    the physics (``suff``)."""
+    """The rigid body of a ``model.urdf`` corrected from the passive log: the mass and length
+    factors of every link with a mass — the exoskeleton's links (a length moves the joints the
+    link carries: an elbow set for another wearer) and the wearer's arm (the links named
+    ``human_…``) — that best explain the load side's torque −τ_s − Σ declared load effects
+    (eq:loadside with τ_h,act = 0) on up to ``points`` samples where every joint moves
+    (:func:`sea_daemon.core.rigid.fit_factors`, least squares over RNEA).  Each joint's viscous
+    and Coulomb load friction and a linear stiffness about a rest angle (the wearer's tissue) are
+    fitted beside them (:func:`load_regressors`), so that torques the model does not declare yet
+    do not bend the factors; those that hold are added to the model (:func:`beside_effects`),
+    and diagnose then adds what the log shows beyond them.  A wrong link mass or length shows on every joint it
+    loads (M(q), C(q, q̇), g(q)), so one factor explains it on all of them — the per-joint effects
+    of diagnose could only imitate it.  Kept when it lowers the RMS torque error by
+    :data:`BODY_GAIN` or more; the report's ``body`` says what was fitted and whether it was kept.
+    Unchanged without a URDF or a log that identifies the physics (``suff``)."""
     rigid = cfg.model.rigid
     if rigid is None or not suff.identifies("effects"):
         return cfg
-    links = [k for k in link_masses(rigid.urdf, rigid.source) if k.startswith(HUMAN_PREFIX)]
+    links = list(link_masses(rigid.urdf, rigid.source))
     if not links:
-        report["body"] = {"skipped": f"no link named {HUMAN_PREFIX}… in model.urdf (the wearer's arm)"}
+        report["body"] = {"skipped": "no link with a mass in model.urdf"}
         return cfg
     model = SEAModel.from_config(cfg)
     kin = kinematics_from_log(log)
@@ -339,11 +382,35 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
         report["body"] = {"skipped": "fewer than 50 samples with every joint moving"}
         return cfg
     idx = idx[np.linspace(0, len(idx) - 1, min(points, len(idx))).astype(int)]
-    fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx])
+    fit = fit_factors(rigid, links, q[idx], kin.dq[idx], kin.ddq[idx], tau[idx],
+                      nuisance=load_regressors(q[idx], kin.dq[idx]))
     before, after = float(np.sqrt(np.mean(fit.rms_before ** 2))), float(np.sqrt(np.mean(fit.rms_after ** 2)))
     keep = after <= (1.0 - BODY_GAIN) * before
+    n = cfg.joints
     report["body"] = {"links": links, "mass": fit.mass, "length": fit.length, "kept": bool(keep),
+                      "beside": dict(zip(("viscous", "coulomb", "stiffness", "offset"), fit.coefficients.reshape(4, n).tolist())),
                       "rms_before": fit.rms_before.tolist(), "rms_after": fit.rms_after.tolist(), "samples": int(len(idx))}
     if not keep:
         return cfg
-    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body))
+    added = beside_effects(fit.coefficients.reshape(4, n), q[idx], kin.dq[idx], fit.rms_after)
+    report["body"]["effects_added"] = [f"{e.type}(load)[{e.joint + 1}]" for e in added]
+    return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body).with_effects((*cfg.model.effects, *added)))
+
+
+def beside_effects(coef: np.ndarray, q: np.ndarray, dq: np.ndarray, rms: np.ndarray) -> list:
+    """The load effects of the torques fitted beside the body (``coef`` rows b, F_c, k, c of
+    :func:`load_regressors`, per joint) that hold: viscous and Coulomb friction and the tissue's
+    stiffness (``human_viscoelastic``, k (q − q_0), q_0 = −c/k) where the coefficient is positive
+    (a friction that opposes the motion, a stiffness that pulls back) and the term's largest torque
+    over the samples exceeds the RMS error the fit leaves on that joint (``rms``)."""
+    out = []
+    for j in range(q.shape[1]):
+        b, F_c, k, c = (float(v) for v in coef[:, j])
+        span = float(np.max(q[:, j]) - np.min(q[:, j]))
+        if b > 0.0 and b * float(np.max(np.abs(dq[:, j]))) > rms[j]:
+            out.append(make_effect("viscous", "load", joint=j, b=b))
+        if F_c > rms[j]:
+            out.append(make_effect("coulomb", "load", joint=j, F_c=F_c))
+        if k > 0.0 and k * span > rms[j]:
+            out.append(make_effect("human_viscoelastic", "load", joint=j, k_h=k, q_h0=-c / k, b_h=0.0))
+    return out

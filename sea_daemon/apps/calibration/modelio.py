@@ -132,10 +132,12 @@ def summary(result) -> dict:
     lines.append(f"Motor-torque noise: {cfg.estimator.tau_m_noise:.3g} N m.")
     if "q_tau" in walk:
         h = walk["human"]
-        lines.append(f"Active-torque random walk {walk['q_tau']:.3g} N^2 m^2/s, chosen for a subject torque of "
+        q = ", ".join(f"{v:.3g}" for v in walk.get("q_tau_per_joint", [walk["q_tau"]]))
+        lines.append(f"Active-torque random walk {q} N^2 m^2/s{' (per joint)' if ', ' in q else ''}, chosen for a subject torque of "
                      f"{h['band_hz'][0]:g}-{h['band_hz'][1]:g} Hz at {h['rms']:g} N m RMS.")
     lines.append(f"What the physical model leaves: {rep['leftover']['rms']:.3g} N m RMS; residual GP "
                  f"{'kept' if rep.get('gp_kept') else 'not used (it did not predict the leftover better than zero on held-out parts of the log)'}.")
+    lines += directions_lines(rep.get("gp_directions"))
     lines.append(f"The log covers {100 * cov.get('q_qdot_share', 0):.0f} % of the (angle, speed) box of the working range "
                  f"({100 * cov.get('box_share', 0):.0f} % of (angle, speed, acceleration)); estimation flags samples outside it"
                  + (f" and lets the active-torque estimate move faster there (random walk at least "
@@ -145,7 +147,25 @@ def summary(result) -> dict:
     if exp:
         lines += expected_lines(exp)
     return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff], "ambiguous": pairs,
-            "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
+            "gp_directions": rep.get("gp_directions"), "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
             "coverage": cov, "expected_rmse": with_figures(chosen, exp),
             "expected_accuracy": {k: v for k, v in (exp or {}).items() if k != "raw"},
             "sufficiency": rep.get("sufficiency")}
+
+
+def directions_lines(rec: dict | None) -> list[str]:
+    """The residual GP's directions of motion (:meth:`~sea_daemon.core.learning.ResidualGP.directions_record`)
+    in plain words: one line per joint that its pairs covered one way only (none for a joint
+    covered both ways or neither, or without the record)."""
+    if not rec:
+        return []
+    out = []
+    for j, ((down, up), (c_down, c_up)) in enumerate(zip(rec["pairs_down_up"], rec["covered_down_up"])):
+        if c_down == c_up:
+            continue
+        learned, missing = ("up only", "down") if c_up else ("down only", "up")
+        out.append(f"Residual GP, joint {j + 1}: learned moving {learned} ({up} pairs up, {down} down above "
+                   f"{rec['speed']:g} rad/s; {rec['min_pairs']} needed each way). Moving {missing}, the GP-AKF "
+                   f"uses the physical model alone (GP mean 0; its bound carries the GP's error there) until it "
+                   f"learns that direction online; to calibrate it, {RECORD}.")
+    return out

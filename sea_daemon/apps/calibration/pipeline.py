@@ -50,13 +50,13 @@ from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import Coverage, JointsCoverage, WorkingRange
 from sea_daemon.core.kinematics import smooth_derivatives
 from sea_daemon.core.log import MeasuredLog
-from sea_daemon.core.replay import replay
 from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
 from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, data_working_range, data_working_ranges, fit_gp_hyper_joints,
                                                 gp_cross_validation_joints, nominal_where_unidentified, pairs_report,
-                                                synthetic_sessions_joints, working_ranges)
+                                                rmse_per_joint, synthetic_sessions_joints, walk_per_joint,
+                                                working_ranges)
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -139,10 +139,11 @@ def _replace_est(cfg: ModelConfig, **kw) -> ModelConfig:
 
 def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
     """Estimator keys of the process noise: angles 1e-16 per step (conditioning), velocities
-    through the motor-torque noise only, τ_h,act random walk q_τ [N² m²/s] × dt."""
+    through the motor-torque noise only, τ_h,act random walk q_τ [N² m²/s] × dt (one q_τ, or one per joint)."""
     n = cfg.joints
     dt = cfg.dt
-    S = np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n), np.full(n, q_tau * dt)]))
+    S = np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n),
+                                np.broadcast_to(np.asarray(q_tau, dtype=float) * dt, (n,))]))
     return {"Sigma_nom": S, "Sigma_nom_dt": dt}
 
 
@@ -194,13 +195,6 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     return out
 
 
-def _rmse(log: MeasuredLog, est) -> float:
-    res = replay(log, est)
-    truth = log.tau_h_act if log.tau_h_act is not None else np.zeros_like(res.tau_h_act_hat)
-    e = res.tau_h_act_hat - truth
-    return float(np.sqrt(np.mean(e ** 2)))
-
-
 def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: float,
                opts: CalibrationOptions, tune_eps: bool = True, gp=None,
                v_gate: float = 0.0, var_ref: float = 0.0, tick: Callable | None = None) -> tuple[float, float, dict]:
@@ -236,6 +230,8 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     q0 = declared_walk(human)
     eps = scan.best_eps(q0, passive)
     qt = scan.best_walk(eps, active, q0) if active else q0
+    if cfg.joints > 1 and active:           # each joint's walk from its own errors
+        qt = walk_per_joint(scan.table, eps, active, qt, cfg.joints)
     eps = scan.best_eps(qt, passive)
     logs = {**active, **passive}
     best = scan.evaluate(qt, eps, logs)
@@ -244,7 +240,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     # most 1/3 of the divergence threshold; at least the configured 10): a declared subject's
     # torque is not divergence
     scale = _nis_scale(cfg, gp, logs, best, opts, v_gate, var_ref)
-    grid_rows = sorted(scan.table.values(), key=lambda r: (r["sign_eps"], r["q_tau"]))
+    grid_rows = sorted(scan.table.values(), key=lambda r: (r["sign_eps"], float(np.max(r["q_tau"]))))
     info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
     if synth_note:
         info["note"] = synth_note
@@ -281,8 +277,9 @@ class _WalkScan:
     def evaluate(self, q, eps, logs) -> dict:
         """The table's row of (q, eps), with the RMS of τ̂ on each of ``logs`` (inf: faulted)."""
         cfg, gp, opts = self.cfg, self.gp, self.opts
-        row = self.table.setdefault((float(q), float(eps)), {"q_tau": float(q), "sign_eps": float(eps)})
-        c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, float(q)))
+        qk = float(q) if np.ndim(q) == 0 else tuple(map(float, q))
+        row = self.table.setdefault((qk, float(eps)), {"q_tau": qk if np.ndim(q) == 0 else list(qk), "sign_eps": float(eps)})
+        c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, row["q_tau"]))
         for name, lg in logs.items():
             if name in row:
                 continue
@@ -292,7 +289,9 @@ class _WalkScan:
                 else:
                     est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=self.v_gate,
                                           var_ref=self.var_ref)
-                row[name] = _rmse(lg, est)
+                e = rmse_per_joint(lg, est)
+                row[name] = float(np.sqrt(np.mean(e ** 2)))
+                row.setdefault("per_joint", {})[name] = e.tolist()
             except EstimatorFault:
                 row[name] = math.inf
             self.runs += 1
@@ -549,7 +548,7 @@ def _residual_gp(cfg: ModelConfig, Z: np.ndarray, F: np.ndarray, given: set[str]
     if keep:
         # the load side's leftover pairs, trained directly: no filter in the loop (nothing to diverge)
         gp = offline_gp(cfg, Z, F)
-    report["gp_kept"] = gp is not None
+    report["gp_kept"], report["gp_directions"] = gp is not None, gp.directions_record() if gp is not None else None
     if gp is None and not cfg.estimator.model_error and len(F):
         # the AKF's bound needs a term for the model error it makes (docs/bounds.md §7): the largest
         # leftover torque of this log, +25 % (a GP-AKF's GP error takes its place)
@@ -570,7 +569,8 @@ def _walk(log: MeasuredLog, cfg: ModelConfig, given: set[str], opts: Calibration
                                     tune_eps=tune_eps and "sign_eps" not in given, gp=gp, v_gate=report["gp_v_gate"],
                                     var_ref=report["gp_var_ref"], tick=tick)
         cfg = _replace_est(cfg, sign_eps=eps, nis_scale=qinfo["nis_scale"], **sigma_nom_for(cfg, qt))
-        report["tau_h_act_walk"] = {"q_tau": qt, "sign_eps": eps, "human": dataclasses.asdict(opts.human), **qinfo}
+        report["tau_h_act_walk"] = {"q_tau": float(np.max(qt)), "sign_eps": eps,
+                                    **({"q_tau_per_joint": list(qt)} if np.ndim(qt) else {}), "human": dataclasses.asdict(opts.human), **qinfo}
     else:
         report["tau_h_act_walk"] = {"given": np.diag(cfg.estimator.Sigma_nom).tolist()}
     return cfg

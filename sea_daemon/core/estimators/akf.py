@@ -124,7 +124,7 @@ class AKF:
         # x̂_{k−1}, P_{k−1} kept for it before each step
         self.record = StepRecord(STEP, 0, self.dt, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), self.z,
                                  self.A_k, self.F_k, self.Gamma_mu, self.K_k, self.P, self.mu, self.dmu_dz,
-                                 self.gate.b0, self.Sigma_nom)
+                                 self.gate.b0, self.Sigma_nom, self.innovation, self.S_k)
         # the bound component, and what takes the records in its place (:meth:`attach`)
         self.consumer: BoundConsumer | None = None
         self.bound: Bound | None = None

@@ -57,6 +57,11 @@ class _ResidualHook:
         # bounded GP inputs (health.InputBox): the box of the training inputs, from the data a
         # loaded model already holds, widened by ``margin`` of its width on each side
         self.box = InputBox.of_residual(gp, margin)
+        # calls where some joint moved in a direction the GP has no data for
+        # (ResidualGP.off_direction): mean and Jacobian 0 there, the physical model alone
+        self.n_off_direction = 0
+        self.off = False
+        self._off_direction = getattr(gp, "off_direction", None)     # a residual of one's own may lack it
         # the compiled path (freeze): LoG-GPs only
         self._loggp = all(type(g) is LoGGP for g in gp.gps)
         # the key the compiled path runs for (None: the Python path) and the pack's arrays
@@ -87,7 +92,7 @@ class _ResidualHook:
             box.any_clipped = any_clipped
             if any_clipped:
                 box.n_clipped += 1
-            return self.mu, self.jac, self.var
+            return self._gate(z)
         # z clipped to the training box ± margin; the clipped coordinates get a zero Jacobian
         zc = self.box.clip(z)
         for i, g in enumerate(self.gp.gps):
@@ -98,6 +103,16 @@ class _ResidualHook:
             self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i], self.noise_in_Q, False)
         if self.box.any_clipped:
             self.jac[:, self.box.clipped] = 0.0
+        return self._gate(z)
+
+    def _gate(self, z):
+        """The direction gate: μ and ∂μ/∂z set to 0 where some joint moves at ``z`` in a
+        direction the GP's training pairs did not cover (σ² kept: Q still has the GP's variance)."""
+        off = self.off = self._off_direction is not None and self._off_direction(z)
+        if off:
+            self.n_off_direction += 1
+            self.mu[:] = 0.0
+            self.jac[:] = 0.0
         return self.mu, self.jac, self.var
 
 
@@ -156,7 +171,8 @@ class GPAKF(AKF):
         freeze = getattr(self.residual, "freeze", None)       # a residual of one's own has none
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
-        if (self._fz_ok and was_ready and not self._filling and (dt is None or dt == self.dt)
+        # the one-call frozen sample has no direction gate: only for a GP without one
+        if (self._fz_ok and was_ready and not getattr(self.gp, "gated", False) and not self._filling and (dt is None or dt == self.dt)
                 and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin.primed):
             e = self._frozen_update(q, theta_m, tau_m)
         else:
@@ -273,6 +289,10 @@ class GPAKF(AKF):
         # hyperparameter slices inside update (learning.hyperopt)
         for i, g in enumerate(self.gp.gps):
             g.update(z, f[i])
+        # the directions of motion learned: a direction with enough pairs becomes covered
+        note = getattr(self.gp, "note_direction", None)
+        if note is not None:
+            note(z)
         self.n_learned += 1
 
 

@@ -33,6 +33,14 @@ Velocity gate: when the calibration kept no standstill pairs (|q̇| < v_gate, st
 set-valued there), the weight ramps to 0 below v_gate/2 — the GP's interpolation across q̇ = 0
 (and its slope there) stays out of a still arm's filter.
 
+Direction gate: where a joint moves in a direction the GP's training pairs did not cover while
+they covered the other (:meth:`~sea_daemon.core.learning.ResidualGP.off_direction`: friction
+changes sign with q̇, and a GP that learned one way would carry its friction across q̇ = 0 with
+the wrong sign), the weight
+is 0 for every joint: the physical model alone, its variance still in Q.  ``n_off_direction``
+counts those calls.  The Theorem-1 bound samples the GP's own mean at the set's points, so there
+it carries |μ(z)| + √β σ(z) as the model error of predicting 0 (docs/bounds.md).
+
 Inputs are clipped to the training box ± margin as the plain hook does
 (:class:`~sea_daemon.core.estimators.health.InputBox`).
 """
@@ -70,6 +78,10 @@ class WeightedResidual:
         self.var = np.zeros(n)
         self.w = np.ones(n)
         self.box = InputBox.of_residual(gp, margin)
+        # calls where some joint moved in a direction the GP has no data for (direction gate)
+        self.n_off_direction = 0
+        self.off = False
+        self._off_direction = getattr(gp, "off_direction", None)     # a residual of one's own may lack it
         self._cap = None
         if M is not None and dt is not None:
             m = np.abs(np.diag(np.asarray(M, dtype=float)))
@@ -86,6 +98,9 @@ class WeightedResidual:
         return float(sum(w * g.leaf(node).sigma_f ** 2 for node, w in zip(nodes, ws.tolist())))
 
     def predict(self, z):
+        # direction gate (module docstring): at the UNCLIPPED q̇, the way the joint really moves
+        off = self.off = self._off_direction is not None and self._off_direction(z)
+        self.n_off_direction += off
         zc = self.box.clip(z)
         clipped = self.box.any_clipped
         for i, g in enumerate(self.gp.gps):
@@ -105,7 +120,7 @@ class WeightedResidual:
                 # the reference: what predicting 0 (the physics) costs on the calibration data
                 s2 = self.var_ref
             r = 1.0 - var / s2 if s2 > 0 else 0.0
-            w = min(max(r, 0.0), 1.0) ** self.power
+            w = 0.0 if off else min(max(r, 0.0), 1.0) ** self.power
             if self.v_gate > 0.0:
                 # velocity gate: 0 at |q̇| ≤ v_gate/2, 1 at |q̇| ≥ v_gate (the GP has no standstill data)
                 v = abs(float(zc[self.n + i]))
