@@ -195,6 +195,9 @@ def test_other_commands_bad_arguments(capsys, argv, expect):
     ("bounds", ["--gp-beta", "lederer,huge"], r"--gp-beta huge"),
     ("bounds", ["--gp-beta", "-1"], r"--gp-beta -1"),
     ("accuracy", ["--bound", "tight"], r"invalid choice: 'tight'"),
+    ("rt_budget", ["--duty", "3"], r"--duty must be in 0\.\.1, got 3\.0"),
+    ("rt_budget", ["--seconds", "0"], r"--seconds must be in \(0, 60\], got 0\.0"),
+    ("bound_stages", ["--rate", "5"], r"--rate must be in 10\.\.10000 Hz, got 5\.0"),
 ])
 def test_research_benchmarks_bad_arguments(capsys, name, argv, expect):
     import importlib

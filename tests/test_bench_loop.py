@@ -83,6 +83,15 @@ def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp
     assert "bound" not in data["stages_cpu_us"]
     assert data["stages_cpu_us"]["estimator (filter, bound handed to the worker)"]["calls"] >= 99
     assert "the bound worker's process is not included" in out and "bound age" in out
+    # its share of one CPU at the loop's rate (mean CPU per sample ÷ period), beside the kernel's
+    # budget for real-time tasks (a worker busy past it stops every real-time task on its CPU)
+    assert 0 < w["cpu_share"] <= w["cpu_per_sample_us"]["max"] * 1e-6 / 0.01
+    budget = data["rt_budget"]
+    with open("/proc/sys/kernel/sched_rt_runtime_us") as f:
+        assert budget["runtime_us"] == int(f.read())
+    if budget["runtime_us"] > 0:
+        assert f"the kernel lets real-time tasks use {budget['runtime_us']} us of every" in out
+        assert f"bound worker's share of one CPU at this rate: {w['cpu_share'] * 100:.0f} %" in out
     # how its counts reach the loop: shared memory on x86-64, the pipe elsewhere (and said so)
     from sea_daemon.runtime.bound_worker import counts_path
     assert w["counts"] == counts_path()

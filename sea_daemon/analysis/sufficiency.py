@@ -218,7 +218,8 @@ def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: i
     dt = log.dt
     q, th, u = (np.asarray(a, float)[:, joint] for a in (log.q, log.theta_m, log.tau_m))
     dq_quant, dm_quant = (float(a[joint]) for a in cfg.hardware.encoder_resolution(cfg.joints))
-    duration = float(log.t[-1] - log.t[0]) if len(log) > 1 else 0.0
+    # the time the log covers: its N samples of one period each (2000 rows at 200 Hz are 10 s)
+    duration = float(log.t[-1] - log.t[0]) + dt if len(log) > 1 else 0.0
     f: dict = {"samples": int(len(log)), "duration_s": finite(duration) or 0.0, "rate_hz": finite(1.0 / dt),
                "config_rate_hz": float(cfg.rate_hz),
                "constant_angles": bool(np.ptp(q) == 0.0 and np.ptp(th) == 0.0)}
@@ -309,6 +310,13 @@ def _still_over_range(f: dict, cfg: ModelConfig, path: str) -> str | None:
             f"the elbow, friction or inertia over that range; {RECORD}")
 
 
+def record_motion(lim: Limits = Limits()) -> str:
+    """What to record instead of a log that moves too little: the motion the physical effects
+    need, in seconds and degrees, and the command that records it."""
+    return (f"record at least {lim.min_physics_s:g} s moving at least {lim.min_strokes} times each way over "
+            f"at least {lim.min_stroke_deg:g} deg: sea-daemon calibrate --excitation --fit")
+
+
 def _physics(f: dict, lim: Limits) -> Verdict:
     """Whether the log can identify the physical effects: identify, nominal (a still arm) or
     refuse (it moves, but not enough to tell friction, the arm's weight and inertia apart)."""
@@ -319,9 +327,10 @@ def _physics(f: dict, lim: Limits) -> Verdict:
                        "left to the residual GP")
     missing = []
     if f["duration_s"] < lim.min_physics_s:
-        missing.append(f"{f['duration_s']:.1f} s long (at least {lim.min_physics_s:g} s)")
+        # rounded down: a log short of the limit never reads as long as it
+        missing.append(f"is {math.floor(10 * f['duration_s'] + 1e-6) / 10:.1f} s long (at least {lim.min_physics_s:g} s)")
     if min(f["strokes_up"], f["strokes_down"]) < lim.min_strokes:
-        missing.append(f"{f['strokes_up']} move(s) up and {f['strokes_down']} down of at least "
+        missing.append(f"has {f['strokes_up']} move(s) up and {f['strokes_down']} down of at least "
                        f"{lim.min_stroke_deg:g} deg (at least {lim.min_strokes} each way: friction's sign shows "
                        "only where the joint turns)")
     snr = f.get("snr", {})
@@ -329,10 +338,10 @@ def _physics(f: dict, lim: Limits) -> Verdict:
                       ("speed_down", "the speed moving down")):
         v = snr.get(key)
         if v is None or v < lim.min_snr:
-            missing.append(f"{what} {'not measurable' if v is None else f'{v:.1f}'} x its noise "
+            missing.append(f"has {what} {'not measurable' if v is None else f'{v:.1f}'} x its noise "
                            f"(at least {lim.min_snr:g})")
     if missing:
-        return Verdict("effects", "refuse", "the log is " + "; ".join(missing))
+        return Verdict("effects", "refuse", "the log " + "; ".join(missing))
     return Verdict("effects", "identify", "motion both ways over the range")
 
 
@@ -365,7 +374,7 @@ def assess(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: in
     s.refusal = _refusal(f, lim, log.path) or _still_over_range(f, cfg, log.path)
     phys = _physics(f, lim) if s.refusal is None else Verdict("effects", "refuse", "see the refusal")
     if s.refusal is None and phys.status == "refuse":
-        s.refusal = f"{log.path}: cannot identify the physical effects: {phys.why}; {RECORD}"
+        s.refusal = f"{log.path}: cannot identify the physical effects: {phys.why}; {record_motion(lim)}"
     noise = Verdict("R", "identify", f"{f['duration_s']:.1f} s of data")
     s.verdicts = {
         "R": noise,

@@ -92,6 +92,7 @@ class RigidBody:
             model.armature = np.array(model.armature) + arm
         self.model = model
         self.data = model.createData()
+        self._pool = None                  # the batched ABA's model and data (forward_columns), made at first use
         #: number of joints n
         self.n = int(model.nv)
         #: the joints' names in the order of the joint vectors
@@ -156,6 +157,16 @@ class RigidBody:
         model, data = self.model, self.data
         for i in range(Q.shape[0]):
             out[i] = pinocchio.aba(model, data, Q[i], DQ[i], TAU[i])
+        return out
+
+    def forward_columns(self, Q, DQ, TAU, out: np.ndarray) -> np.ndarray:
+        """:meth:`forward` at every column of the (n, N) arrays Q, DQ, TAU in one call, into ``out``
+        ((n, N), Fortran order: its transpose is q̈ (N, n)); returns ``out``.  Pinocchio's batched
+        ABA (``abaInParallel`` on one thread, no thread started): one Python call instead of N,
+        in Pinocchio's WORLD convention, equal to :meth:`forward` to rounding."""
+        if self._pool is None:
+            self._pool = pinocchio.ModelPool(self.model, 1)
+        pinocchio.abaInParallel(1, self._pool, Q, DQ, TAU, out)
         return out
 
     # ------------------------------------------------------------------ derivatives

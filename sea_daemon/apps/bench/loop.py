@@ -362,8 +362,24 @@ def _bus_load(args, dev_stats: dict | None, pub_can: dict) -> tuple[float, float
                          dev_stats["data_bytes"] + pub_can.get("bytes_sent", 0), dev_stats["syncs"], args.rate)
 
 
-def _worker_figures(res, n_cycles: int) -> dict | None:
-    """The bound worker's figures (None: the bound ran in the loop)."""
+def rt_budget() -> dict | None:
+    """The kernel's budget for real-time tasks: ``sched_rt_runtime_us`` of every
+    ``sched_rt_period_us`` on each CPU ({"runtime_us", "period_us"}; None where /proc does not
+    tell, runtime −1: no limit).  A SCHED_FIFO task that keeps a CPU busy past it has every
+    real-time task on that CPU stopped for the rest of the period (≈ 50 ms a second), so that the
+    other tasks run."""
+    try:
+        with open("/proc/sys/kernel/sched_rt_runtime_us") as f:
+            runtime = int(f.read())
+        with open("/proc/sys/kernel/sched_rt_period_us") as f:
+            period = int(f.read())
+    except (OSError, ValueError):
+        return None
+    return {"runtime_us": runtime, "period_us": period}
+
+
+def _worker_figures(res, n_cycles: int, dt: float) -> dict | None:
+    """The bound worker's figures at the period ``dt`` (None: the bound ran in the loop)."""
     bound_where = res.extra.get("bound") or {}
     link = res.extra.get("bound_link")
     if link is None:
@@ -384,6 +400,8 @@ def _worker_figures(res, n_cycles: int) -> dict | None:
         "age_cycles": ({"median": float(np.median(have)), "p99": float(np.percentile(have, 99)),
                         "max": int(have.max())} if have.size else None),
         "cpu_per_sample_us": _pcts(wcpu) if wcpu.size else None,
+        # the share of one CPU the worker's samples take at this rate (mean CPU per sample ÷ period)
+        "cpu_share": float(np.mean(wcpu) / dt) if wcpu.size else None,
         "process_cpu_s": bound_where.get("worker_cpu_process_s"),
         "process_cpu_per_cycle_us": (bound_where.get("worker_cpu_process_s") or 0.0) / n_cycles * 1e6,
     }
@@ -405,7 +423,7 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
         "fault": res.supervisor.latched.name,
         "bound": "theorem-1 rho_k" if not args.no_bound else "filter's own", "model_rate_hz": args.model_rate,
         "bound_in": (res.extra.get("bound") or {}).get("where", "loop"),
-        "bound_worker": _worker_figures(res, n_cycles),
+        "bound_worker": _worker_figures(res, n_cycles, dt), "rt_budget": rt_budget(),
         "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": args.tpdo_deadline * dt * 1e3 * 1e3,
         **host,
         "jitter_us": _pcts(np.abs(periods - dt)),
@@ -489,6 +507,12 @@ def _report_cpu(out: dict, res) -> None:
             print(f"bound worker CPU per sample (its bound step and start-up gate, thread CPU): median "
                   f"{wc['median']:.0f} us, p99 {wc['p99']:.0f} us, max {wc['max']:.0f} us; its whole process "
                   f"{worker['process_cpu_per_cycle_us']:.0f} us per cycle ({worker['samples_done']} samples)")
+        budget = out.get("rt_budget")
+        if wc is not None and worker.get("cpu_share") is not None and budget and budget["runtime_us"] > 0:
+            print(f"bound worker's share of one CPU at this rate: {worker['cpu_share'] * 100:.0f} % (mean CPU per "
+                  f"sample / period); the kernel lets real-time tasks use {budget['runtime_us']} us of every "
+                  f"{budget['period_us']} us of a CPU: a worker that keeps its CPU busy past that has every "
+                  f"real-time task on that CPU (the loop's, the device model's) stopped for the rest of the period")
         if ag is not None:
             print(f"bound age (cycle of the estimate - cycle of the bound's sample): median {ag['median']:.0f}, "
                   f"p99 {ag['p99']:.0f}, max {ag['max']} cycles; filter steps with no bound within "

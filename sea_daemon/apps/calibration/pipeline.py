@@ -92,6 +92,7 @@ class CalibrationOptions:
     weight_power: float = 2.0
     hyper_points: int = 400                        # subsample for the ML hyperparameters
     diagnose: bool = True
+    refuse: bool = True          # False: a log fit refuses is calibrated with the configured physics (benchmarks)
 
 
 @dataclass
@@ -362,8 +363,6 @@ def _nis_scale(cfg, gp, logs, best, opts, v_gate: float = 0.0, var_ref: float = 
 EPS_GRID = (0.002, 0.003, 0.005, 0.01, 0.02)
 
 
-# ---------------------------------------------------------------------------- residual GP
-
 # ---------------------------------------------------------------------------- the whole flow
 
 #: the steps of :func:`calibrate`, as its progress callback names them
@@ -371,17 +370,18 @@ STEPS = ("measurement noise", "physical effects (diagnose)", "motor-torque noise
          "active-torque random walk", "coverage", "expected accuracy")
 
 
-def sufficient_log(log: MeasuredLog, cfg: ModelConfig) -> tuple[MeasuredLog, Sufficiency]:
+def sufficient_log(log: MeasuredLog, cfg: ModelConfig, refuse: bool = True) -> tuple[MeasuredLog, Sufficiency]:
     """The log at the configuration's rate (decimated from a whole multiple of it) and what it
     can identify (:mod:`sea_daemon.analysis.sufficiency`); InputError, one line saying what to
-    record instead, when it cannot be calibrated on."""
+    record instead, when it cannot be calibrated on (``refuse`` False: the refusal stays in the
+    returned verdicts, and what they do not identify keeps its configured value)."""
     if log.n != cfg.joints:
         raise InputError(f"{log.path}: {log.n} joint(s), the configuration has {cfg.joints}")
     # a gap or a duplicated sample is refused at its line (diagnose's time base), before any figure
     prepare_log(log)
     log, note = at_config_rate(log, cfg)
     suff = assess(log, cfg) if cfg.joints == 1 else assess_joints(log, cfg)
-    if suff.refusal:
+    if suff.refusal and refuse:
         raise InputError(suff.refusal)
     if note:
         suff.notes.insert(0, note[0].upper() + note[1:] + ".")
@@ -396,7 +396,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     step = _stepper(progress)
     opts = opts or CalibrationOptions()
     given = set() if given is None else set(given)
-    log, suff = sufficient_log(log, cfg)
+    log, suff = sufficient_log(log, cfg, opts.refuse)
     report: dict = {"log": log.path, "samples": len(log), "given": sorted(given), "sufficiency": suff.to_dict()}
     # 1. kinematics and R
     step()

@@ -8,6 +8,9 @@ from sea_daemon.apps.commands import Command, add_commands
 BENCHMARKS = (
     Command("assist", "assist",
             "assistance on plants of the generalisation family by the README flow alone: effort, engaged share, faults"),
+    Command("capstone", "capstone",
+            "a measured log with torque truth (the real SEA bench) fold by fold: diagnose's effects and the "
+            "GP-AKF calibrated on one block, scored on the others"),
     Command("can-cycle", "can_cycle", "CANopen cycle round trip (RPDO + SYNC + TPDOs) against the device model"),
     Command("faults", "faults",
             "fault injection over the device model: detection, cycles to zero torque, false alarms"),

@@ -13,9 +13,10 @@ compiled call, :func:`bound_step`, with the same formulas in the same order:
    ⊕ E(0, s_z T P Tᵀ)), its deterministic points (ellipsoid_points), at each point the merged
    LoG-GP prediction (routing, leaf means with ``clip_mean``, variance, local scale and
    extrapolation term, as :class:`~sea_daemon.core.bounds.gp_bound.LocalScale` or
-   :meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_many`), the GP mean's linearisation error
-   against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the sum
-   (:func:`_gp_stage`);
+   :meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_many`; each leaf's predictions for all the
+   points that reach it at once, :func:`~sea_daemon.core.gp.pack.gp_points`), the GP mean's
+   linearisation error against the filter's own μ(ẑ), ∂μ/∂z, and η = max over the points of the
+   sum (:func:`_gp_stage`);
 3. X⁻ = F X̂ Fᵀ ⊕ Γ box(η) ⊕ Φ box(b) (predict_generators, order reduction) and, with a GP, the
    range form (F + Γ_μ J T) X̂ ⊕ Γ box(η_B) ⊕ Φ box(b) (AKFTheoremBound._gp_range_candidate);
    the one with the narrower τ_h,act half-width after (I − KH) is kept; X̂ = (I − KH) X⁻

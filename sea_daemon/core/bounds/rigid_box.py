@@ -15,7 +15,7 @@ input (q, q̇) = T x (a part of w), instead of the 5n-dimensional χ²_5n set.
 trace-minimal outer ellipsoid of the zonotope ⊕ the Gaussian part, as
 :meth:`~sea_daemon.core.bounds.setmember.SetMembershipBound.confidence_set`, and its
 :func:`~sea_daemon.core.bounds.setmember.points_of_ellipsoid`); Pinocchio's ABA at all of them
-(:meth:`~sea_daemon.core.rigid.RigidBody.forward_many`); :func:`rigid_error_box` the maximum
+(:meth:`~sea_daemon.core.rigid.RigidBody.forward_columns`, one call for all of them); :func:`rigid_error_box` the maximum
 |ε| over them, (1 + margin) times, into the θ̈_s rows.  Sampled, so approximate in the same sense
 as the sampled box of declared effects (docs/bounds.md §4).
 """
@@ -93,6 +93,7 @@ class RigidBox:
         self.margin = float(margin)
         self.s_z = float(s_z)          # χ²_3n(1 − δ_N): the Gaussian part's quantile of W·C
         self._D = np.empty((self.n, 3 * self.n))
+        self._ddq = None                   # q̈ at the points, (n, points) in Fortran order
 
     @classmethod
     def of(cls, model, sm, n_dirs: int, seed: int) -> RigidBox | None:
@@ -108,7 +109,11 @@ class RigidBox:
         """The θ̈_s rows of ``b`` (5n,) over the set x̂ + Z(G) ⊕ E(0, s P_{k−1}) projected by W; returns b."""
         n = self.n
         Wp = rigid_points(np.ascontiguousarray(G), x0, np.ascontiguousarray(P0), self.W, float(s), self.U)
-        ddq = self.model.rigid.forward_many(Wp[:, :n], Wp[:, n:2 * n], Wp[:, 2 * n:])
+        out = self._ddq
+        if out is None or out.shape[1] != Wp.shape[0]:
+            out = self._ddq = np.empty((n, Wp.shape[0]), order="F")
+        WT = Wp.T                          # (3n, points): the points as columns, one batched ABA
+        ddq = self.model.rigid.forward_columns(WT[:n], WT[n:2 * n], WT[2 * n:], out).T
         _, dq_q, dq_v, Minv = self.model.rigid.forward_derivatives(Wp[0, :n], Wp[0, n:2 * n], Wp[0, 2 * n:])
         D = self._D
         D[:, :n] = dq_q

@@ -150,38 +150,6 @@ def empty_pack() -> PackArrays:
 
 
 @njit
-def _leaf_predict(l, x, p, xc, a, kv):
-    """(μ, σ²) of leaf l of pack ``p`` at x (IncrementalGP.predict_many's row, with clip_mean):
-    σ² = k(x,x) − ‖L⁻¹k‖² (eq:GPvariance, one O(N²) solve), μ = kᵀα (eq:GPmean with α = L⁻ᵀβ,
-    O(N); at the clipped input with clip_mean outside the leaf's box)."""
-    m = p.nn[l]
-    if m == 0:
-        return 0.0, p.sf2[l]
-    r0, p0 = p.row[l], p.apo[l]
-    Al = p.A[r0:r0 + m]
-    al = p.alpha[r0:r0 + m]
-    gp_core.query(x, p.center[l], p.il2[l], a)
-    gp_core.kernel_vector(Al, m, a, kv)
-    mu = 0.0
-    for i in range(m):
-        mu += kv[i] * al[i]
-    gp_core.solve_lower(p.ap[p0:p0 + m * (m + 1) // 2], m, kv)
-    vv = 0.0
-    for i in range(m):
-        vv += kv[i] * kv[i]
-    var = p.sf2[l] - vv
-    if var < 0.0:
-        var = 0.0
-    if p.clip[l] and gp_core.clip_into(x, p.lo[l], p.hi[l], xc):
-        gp_core.query(xc, p.center[l], p.il2[l], a)
-        gp_core.kernel_vector(Al, m, a, kv)
-        mu = 0.0
-        for i in range(m):
-            mu += kv[i] * al[i]
-    return mu, var
-
-
-@njit
 def _leaf_extrapolation(l, x, p, e1, xq):
     """e(x) of leaf l of pack ``p`` (IncrementalGP.extrapolation_many's row)."""
     m = p.nn[l]
@@ -194,30 +162,121 @@ def _leaf_extrapolation(l, x, p, e1, xq):
     return e1[0]
 
 
+@njit(fast=True)
+def _solve_lower_many(ap, n, B, k):
+    """B[c, :n] ← L⁻¹ B[c, :n] for c < k (forward substitution, L packed row by row, as
+    :func:`~sea_daemon.core.gp.gp_core.solve_lower`), four right-hand sides at a time: one pass
+    over L for four of them, their substitutions side by side (independent, so they overlap in
+    the CPU instead of each waiting for its own chain of divisions)."""
+    c0 = 0
+    while c0 + 4 <= k:
+        b0, b1, b2, b3 = B[c0], B[c0 + 1], B[c0 + 2], B[c0 + 3]
+        for i in range(n):
+            off = i * (i + 1) // 2
+            s0, s1, s2, s3 = b0[i], b1[i], b2[i], b3[i]
+            for c in range(i):
+                lic = ap[off + c]
+                s0 -= lic * b0[c]
+                s1 -= lic * b1[c]
+                s2 -= lic * b2[c]
+                s3 -= lic * b3[c]
+            dii = ap[off + i]
+            b0[i] = s0 / dii
+            b1[i] = s1 / dii
+            b2[i] = s2 / dii
+            b3[i] = s3 / dii
+        c0 += 4
+    for c in range(c0, k):
+        gp_core.solve_lower(ap, n, B[c])
+
+
+@njit
+def _leaf_predict_many(l, Z, idx, cols, k, p, xc, a, kv, B, lm, lv):
+    """(μ, σ²) of leaf l of pack ``p`` at the rows ``idx[cols[c]]`` of ``Z``, c < k, into
+    ``lm[cols[c]]``, ``lv[cols[c]]`` (IncrementalGP.predict_many's rows, with clip_mean):
+    σ² = k(x,x) − ‖L⁻¹k‖² (eq:GPvariance, the O(N²) solves of the rows together,
+    :func:`_solve_lower_many`), μ = kᵀα (eq:GPmean with α = L⁻ᵀβ, O(N); at the clipped input with
+    clip_mean outside the leaf's box)."""
+    m = p.nn[l]
+    if m == 0:
+        for c in range(k):
+            lm[cols[c]] = 0.0
+            lv[cols[c]] = p.sf2[l]
+        return
+    r0, p0 = p.row[l], p.apo[l]
+    Al = p.A[r0:r0 + m]
+    al = p.alpha[r0:r0 + m]
+    for c in range(k):
+        x = Z[idx[cols[c]]]
+        gp_core.query(x, p.center[l], p.il2[l], a)
+        gp_core.kernel_vector(Al, m, a, kv)
+        mu = 0.0
+        for i in range(m):
+            mu += kv[i] * al[i]
+            B[c, i] = kv[i]
+        if p.clip[l] and gp_core.clip_into(x, p.lo[l], p.hi[l], xc):
+            gp_core.query(xc, p.center[l], p.il2[l], a)
+            gp_core.kernel_vector(Al, m, a, kv)
+            mu = 0.0
+            for i in range(m):
+                mu += kv[i] * al[i]
+        lm[cols[c]] = mu
+    _solve_lower_many(p.ap[p0:p0 + m * (m + 1) // 2], m, B, k)
+    for c in range(k):
+        vv = 0.0
+        for i in range(m):
+            vv += B[c, i] * B[c, i]
+        var = p.sf2[l] - vv
+        lv[cols[c]] = var if var > 0.0 else 0.0
+
+
 @njit
 def gp_points(Z, local, c_ext, p, MU, S, XT):
     """Merged LoG-GP prediction of pack ``p`` per row of ``Z`` and joint j into MU[:, j], S[:, j],
     XT[:, j]: with ``local`` the mean, the scale √(σ̃² + s_loc²) and the extrapolation term
     c e(z) (LocalScale.predict_many_ext), else the mean and σ̃ (LoGGP.predict_many, XT zero).
-    The leaves and weights of each row are the LoG-GP's own routing (:func:`routing.route`)."""
+    The leaves and weights of each row are the LoG-GP's own routing (:func:`routing.route`).
+    The leaves' predictions are made leaf by leaf, for all the rows that reach a leaf at once
+    (:func:`_leaf_predict_many`), then merged row by row in the routing's order."""
     P, dz = Z.shape
     xc = np.empty(dz)
     xq = np.empty((1, dz))
     e1 = np.empty(1)
     a = np.empty(dz + 2)
-    kv = np.empty(max(1, np.max(p.nn)) if p.nn.shape[0] else 1)
+    nmax = max(1, np.max(p.nn)) if p.nn.shape[0] else 1
+    kv = np.empty(nmax)
+    B = np.empty((P, nmax))
     for j in range(p.links.shape[0]):
         idx, nodes, ws, _ = route(Z, p.links[j], p.span[j], False)
+        ne = idx.shape[0]
+        lm = np.empty(ne)
+        lv = np.empty(ne)
+        leaf = np.empty(ne, dtype=np.int64)
+        for i in range(ne):
+            leaf[i] = p.leaf_of[j, nodes[i]]
+        taken = np.zeros(ne, dtype=np.bool_)
+        cols = np.empty(ne, dtype=np.int64)
+        for i0 in range(ne):                      # each leaf once, with every row that reaches it
+            if taken[i0]:
+                continue
+            l = leaf[i0]
+            k = 0
+            for i in range(i0, ne):
+                if not taken[i] and leaf[i] == l:
+                    taken[i] = True
+                    cols[k] = i
+                    k += 1
+            _leaf_predict_many(l, Z, idx, cols, k, p, xc, a, kv, B, lm, lv)
         i = 0
         for q in range(P):
             x = Z[q]
             mu = m2 = sl = ex = 0.0
             count = 0
             m_one = v_one = 0.0
-            while i < idx.shape[0] and idx[i] == q:           # row q's leaves, in routing order
-                l = p.leaf_of[j, nodes[i]]
+            while i < ne and idx[i] == q:            # row q's leaves, in routing order
+                l = leaf[i]
                 w = ws[i]
-                m, v = _leaf_predict(l, x, p, xc, a, kv)
+                m, v = lm[i], lv[i]
                 mu += w * m
                 m2 += w * (v + m * m)
                 if local:
