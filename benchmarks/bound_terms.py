@@ -20,11 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sea_daemon.apps.bench import choose
 from sea_daemon.apps.bench.generalize import SESSION_NAMES, plant_logs
 from sea_daemon.apps.bench._family import sessions
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate, sigma_nom_for
 from sea_daemon.core.bounds.terms import TERMS, TermsRecorder
 from sea_daemon.core.replay import replay
+from sea_daemon.errors import InputError
 
 NAME = "bound_terms"
 HELP = "the Theorem-1 bound's terms per session on a bench generalize plant"
@@ -59,7 +61,13 @@ def session_terms(res, log) -> dict:
 
 
 def run(args) -> int:
-    names = [s for s in args.sessions.split(",") if s]
+    names = choose(args.sessions, SESSION_NAMES, "--sessions")
+    if args.rate is not None and not 1.0 <= args.rate <= 100000.0:
+        raise InputError(f"--rate {args.rate:g}: allowed 1..100000 Hz")
+    if not 1.0 <= args.cal_s <= 3600.0:
+        raise InputError(f"--cal-s {args.cal_s:g}: allowed 1..3600 s")
+    if args.q_tau is not None and not 0.0 < args.q_tau <= 1e6:
+        raise InputError(f"--q-tau {args.q_tau:g}: allowed > 0 and <= 1e6 N^2 m^2/s")
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     pd, cal, tests = plant_logs(args.seed, args.cal_s, cache, args.rate)

@@ -65,3 +65,15 @@ def test_terms_with_the_order_reduction_stay_near_the_bound():
     cols = TermsRecorder.COLUMNS
     s = R[:, [cols.index(t) for t in TERMS]].sum(axis=1)
     assert abs(s.mean() / R[:, 1].mean() - 1.0) < 0.1
+
+
+def test_bound_terms_benchmark_refuses_bad_options(tmp_path, capsys):
+    """Exit 2 with one line naming the option, the value and what is allowed, before any simulation."""
+    import benchmarks.bound_terms as bt
+    from benchmarks._cli import main
+    for argv, flag in ((["--sessions", "bogus"], "--sessions bogus"), (["--rate", "0"], "--rate 0"),
+                       (["--cal-s", "-1"], "--cal-s -1"), (["--q-tau", "0"], "--q-tau 0")):
+        assert main(bt, argv + ["--cache", str(tmp_path)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and flag in err[0] and "allowed" in err[0]
+    assert not any(tmp_path.iterdir())
