@@ -81,7 +81,7 @@ def run(args) -> int:
     q_tau = args.q_tau if args.q_tau is not None else res.report["tau_h_act_walk"].get("q_tau")
     print(f"plant {args.seed} at {pd.nominal.rate_hz:g} Hz: declared rate {est.tau_h_act_rate:.3g} N m/s, "
           f"q_tau {q_tau:.3g} N^2 m^2/s, GP kept {res.report['gp_kept']}")
-    cols = ("rmse_valid", "coverage_valid", "rho", "h") + TERMS + ("gaussian", "sigma_g")
+    cols = ("rmse_valid", "coverage_valid", "rho", "h") + TERMS + ("cut", "gaussian", "sigma_g")
     print(f"{'session':<13}{'kind':<8}" + "".join(f"{c[:10]:>11}" for c in cols))
     table = {}
     for name in names:

@@ -53,6 +53,36 @@ def test_bad_assist_settings_name_key_and_range(assist, key, words):
     assert key in str(e.value) and words in str(e.value)
 
 
+def test_per_joint_settings_are_read_checked_and_written_back():
+    read = lambda d: AssistConfig.from_dict(d, 2, "test.yaml", 10.0)
+    c = read({"enabled": True, "rho_max": [1.5, 0.8], "max_torque": [3.0, 1.0], "gain": 2.0})
+    assert c.rho_max == (1.5, 0.8) and c.max_torque == (3.0, 1.0) and c.gain == 2.0
+    assert list(c.per_joint("gain", 2)) == [2.0, 2.0] and list(c.per_joint("rho_max", 2)) == [1.5, 0.8]
+    back = c.to_dict()
+    assert back["rho_max"] == [1.5, 0.8] and back["gain"] == 2.0
+    assert read(back) == c
+    # a torque limit per joint bounds each joint's max_torque (and its default)
+    assert AssistConfig.from_dict({}, 2, "test.yaml", [40.0, 2.0]).max_torque == (3.0, 2.0)
+    for bad, words in (({"rho_max": [1.5]}, "list of 2"), ({"rho_max": [1.5, -1]}, "assist.rho_max[2]"),
+                       ({"max_torque": [3.0, 12.0]}, "(joint 2)"), ({"gain": [2, "x"]}, "assist.gain[2]")):
+        with pytest.raises(ConfigError) as e:
+            read({"enabled": True, **bad})
+        assert words in str(e.value)
+
+
+def test_each_joint_gated_and_limited_by_its_own_settings():
+    cfg = AssistConfig(enabled=True, gain=(2.0, 1.0), deadband=0.05, rho_max=(1.5, 0.5), max_torque=(3.0, 0.2),
+                       max_rate=1e9, smoothing_s=0.0)
+    lw = AssistLaw(cfg, 2, 0.01)
+    # the same estimate and bound on both joints: joint 2's bound is above its own rho_max
+    tau = lw.step(np.array([1.0, 1.0]), np.array([0.8, 0.8]), True)
+    assert tau[0] == pytest.approx(2.0 * (1.0 - 0.8 - 0.05)) and tau[1] == 0.0
+    assert list(lw.state) == [ENGAGED, RHO_ABOVE_MAX]
+    # within joint 2's rho_max: its own gain, clipped at its own max_torque
+    tau = lw.step(np.array([1.0, 1.0]), np.array([0.1, 0.1]), True)
+    assert tau[0] == pytest.approx(2.0 * 0.85) and tau[1] == pytest.approx(0.2)
+
+
 # ---------------------------------------------------------------------------- the gate
 def law(dt=0.01, **kw) -> AssistLaw:
     base = dict(enabled=True, gain=2.0, deadband=0.05, rho_max=1.5, max_torque=3.0, max_rate=1e9, smoothing_s=0.0)
@@ -112,7 +142,7 @@ def test_smoothing_delays_and_keeps_the_bound():
         # bursts of a wide bound (a standstill) now and then: the averages restart after them
         rho = 0.2 + 0.5 * rng.random() if k % 500 > 100 else 5.0 + 5.0 * rng.random()
         hat = tau[k] + rho * (2 * rng.random() - 1)                  # the bound holds
-        restart = a.rho_avg[0] > a.rho_max and RESTART_RATIO * rho < a.rho_avg[0]
+        restart = a.rho_avg[0] > a.rho_maxes[0] and RESTART_RATIO * rho < a.rho_avg[0]
         a.step([hat], [rho], True)
         if k:
             tau_avg = tau[k] if restart else tau_avg + beta * (tau[k] - tau_avg)
@@ -256,3 +286,22 @@ def test_corrupted_estimate_zero_torque_in_that_cycle(kind):
         assert tau == 0.0
     assert assisted[29][2] > 1.0                      # it was assisting until then
     assert written[-1] == 0.0
+
+
+def test_each_joints_max_torque_within_its_own_torque_limit(tmp_path):
+    import shutil
+    import yaml
+    from _paths import repo_root
+    from sea_daemon.io.configfile import load_config
+    configs = repo_root() / "configs"
+    shutil.copy(configs / "exo_2dof_arm.urdf", tmp_path / "exo_2dof_arm.urdf")
+    raw = load_yaml(configs / "exo_2dof.yaml")
+    raw["hardware"]["torque_limit"] = [40.0, 2.0]
+    raw["assist"] = {"enabled": True}
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(raw))
+    assert load_config(tmp_path / "arm.yaml").assist.max_torque == (3.0, 2.0)   # min(3, each joint's limit)
+    raw["assist"] = {"enabled": True, "max_torque": 2.5}
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError) as e:
+        load_config(tmp_path / "arm.yaml")
+    assert "assist.max_torque" in str(e.value) and "torque_limit = 2] N m (joint 2)" in str(e.value)

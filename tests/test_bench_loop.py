@@ -92,6 +92,8 @@ def test_bench_loop_with_the_bound_worker_reports_its_cpu_and_the_bounds_age(tmp
     if budget["runtime_us"] > 0:
         assert f"the kernel lets real-time tasks use {budget['runtime_us']} us of every" in out
         assert f"bound worker's share of one CPU at this rate: {w['cpu_share'] * 100:.0f} %" in out
+        assert f"the worker gave SCHED_FIFO up for being behind {w['rt_yields']} times" in out
+    assert w["rt_yields"] >= 0
     # how its counts reach the loop: shared memory on x86-64, the pipe elsewhere (and said so)
     from sea_daemon.runtime.bound_worker import counts_path
     assert w["counts"] == counts_path()

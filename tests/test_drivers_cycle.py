@@ -103,7 +103,7 @@ def test_torque_permille_round_trip_and_limit(make_rig):
         assert plant.steps[-1][1][0] == pytest.approx(expect, abs=1e-12)
         assert m.tau_m_applied[0] == pytest.approx(expect, abs=1e-12)      # 0x6077
         assert hw.actuated(np.array([tau]))[0] == pytest.approx(expect, abs=1e-12)
-    assert hw.nm_per_permille == pytest.approx(100 / 1e6 * 100)
+    assert hw.nm_per_permille == pytest.approx([100 / 1e6 * 100])
 
 
 def test_interpolation_period_encoding():

@@ -70,7 +70,7 @@ def test_demo_refuses_a_calibration_session_too_short_for_diagnose(tmp_path, cap
     from sea_daemon.apps.cli import main
     assert main(["demo", "--out", str(tmp_path), "--scenario", "active", "--samples", "40"]) == 2
     err = capsys.readouterr().err
-    assert "0.39 s of data; the calibration needs at least 2 s" in err and "--excitation" in err
+    assert "0.40 s of data; the calibration needs at least 2 s" in err and "--excitation" in err
     assert "sea-daemon demo: error: sea-daemon calibrate refused its input" in err and "internal error" not in err
 
 

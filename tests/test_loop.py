@@ -425,3 +425,22 @@ def test_cycle_keeps_no_allocation():
     finally:
         gc.enable()
     assert grown < 200, grown               # less than one block per 50 cycles: none per cycle
+
+
+@pytest.mark.parametrize("record", [False, True])
+def test_the_threads_cpu_clock_is_read_once_a_cycle_and_only_when_recorded(record):
+    """The thread's CPU clock is a system call: none per cycle unless the CPU is recorded, then
+    one, each cycle's CPU running from the end of the cycle before (the pacing included)."""
+    reads = []
+
+    def cpu_clock():
+        reads.append(None)
+        return 0.25 * len(reads) ** 2               # distinct steps: each cycle's share is known
+
+    loop = make(FakeHW(), ConstEstimator(), cpu_clock=cpu_clock, record_periods=record)
+    loop.run(5)
+    if not record:
+        assert reads == []
+        return
+    assert len(reads) == 6                          # the start, then one per cycle
+    assert list(np.asarray(loop.stats.cpu)) == [0.25 * ((i + 1) ** 2 - i ** 2) for i in range(1, 6)]

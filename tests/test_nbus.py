@@ -193,7 +193,7 @@ def test_the_coupled_two_joint_plant_behind_a_bus_per_joint():
         assert np.all(np.abs(m.q - plant.q) < 2 * quantum)
         assert m.q[0] > 0.35 and m.q[1] < 0.45     # the elbow moved with the shoulder (at rest without the step)
         assert [d.target_permille for d in r.device_model.drives] == \
-            [round(x / r.hw.subs[0].nm_per_permille) for x in tau]
+            [round(x / r.hw.subs[0].nm_per_permille[0]) for x in tau]
     finally:
         r.stop()
 

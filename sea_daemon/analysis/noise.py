@@ -25,7 +25,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -85,10 +84,9 @@ def select_kinematics(log: MeasuredLog, cfg: ModelConfig, max_span_s: float = 0.
     return KinematicsConfig(window=best["window"], method="savgol", degree=2), {"scan": rows, "window": best["window"]}
 
 
-def _quantisation(cfg: ModelConfig) -> tuple[float, float]:
-    """Δ²/12 of the load and the motor encoder (joint side)."""
-    dq = 2 * math.pi / 2 ** cfg.hardware.encoder_bits
-    dm = dq / float(cfg.hardware.gear_ratio)
+def _quantisation(cfg: ModelConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Δ²/12 of the load and the motor encoder (joint side) of each joint."""
+    dq, dm = cfg.hardware.encoder_resolution(cfg.joints)
     return dq * dq / 12.0, dm * dm / 12.0
 
 
@@ -117,16 +115,17 @@ def causal_measurements(log: MeasuredLog, cfg: ModelConfig) -> tuple[np.ndarray,
 def measurement_noise(log: MeasuredLog, cfg: ModelConfig, als: bool = True) -> tuple[np.ndarray, dict]:
     """R (4n×4n, diagonal) and what it rests on (module docstring)."""
     n = cfg.joints
-    vq, vm = _quantisation(cfg)
-    enc_q, enc_m = np.full(n, vq), np.full(n, vm)
-    info: dict = {"quantisation": {"q": vq, "theta_m": vm}, "als": None}
+    enc_q, enc_m = _quantisation(cfg)
+    same = n == 1 or (np.all(enc_q == enc_q[0]) and np.all(enc_m == enc_m[0]))
+    info: dict = {"quantisation": {"q": float(enc_q[0]) if same else enc_q.tolist(),
+                                   "theta_m": float(enc_m[0]) if same else enc_m.tolist()}, "als": None}
     if als:
         try:
             safe = dataclasses.replace(cfg, estimator=dataclasses.replace(
                 cfg.estimator, nis_scale=1e12,
                 Sigma_nom=np.diag(np.concatenate([np.full(2 * n, 1e-12), np.full(2 * n, 1e-4), np.full(n, 1e-2)])),
                 Sigma_nom_dt=0.0, tau_m_noise=0.0,
-                R=np.diag(np.concatenate([np.full(n, vm), np.full(n, vq + vm), np.full(2 * n, 1e-4)]))))
+                R=np.diag(np.concatenate([enc_m, enc_q + enc_m, np.full(2 * n, 1e-4)]))))
             res = identify_noise(safe, log)
             ev = res["encoder_variances"]
             enc_q = np.maximum(enc_q, np.asarray(ev["q"], float))

@@ -249,7 +249,7 @@ def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: i
                   "speed_down": _snr(down, sq * g1), "acceleration": _snr(float(np.sqrt(np.mean(ddqs ** 2))), sq * g2),
                   "motor_speed_up": _snr(mup, sm * g1), "motor_speed_down": _snr(mdown, sm * g1),
                   "deflection": _snr(float(np.std(defl)), math.hypot(sq, sm))})
-    f["torque_limit_share"] = float(np.mean(np.abs(u) >= 0.999 * cfg.hardware.torque_limit))
+    f["torque_limit_share"] = float(np.mean(np.abs(u) >= 0.999 * cfg.hardware.torque_limits(cfg.joints)[joint]))
     f["spring_slope"] = _spring_slope(u, defl, float(np.diag(np.atleast_2d(cfg.model.K_s))[joint]))
     return f
 

@@ -81,11 +81,12 @@ class AssistLaw:
         if not dt > 0:
             raise ValueError(f"assist step dt must be > 0 s, got {dt!r}")
         self.cfg, self.n, self.dt = cfg, int(n), float(dt)
-        self.gain = float(cfg.gain)
-        self.deadband = float(cfg.deadband)
-        self.rho_max = float(cfg.rho_max)
-        self.max_torque = float(cfg.max_torque)
-        self.max_step = float(cfg.max_rate) * self.dt                # |Δτ_assist| per step
+        # each joint's own settings (one number in the configuration: the same for every joint)
+        self.gains = cfg.per_joint("gain", self.n)
+        self.deadbands = cfg.per_joint("deadband", self.n)
+        self.rho_maxes = cfg.per_joint("rho_max", self.n)
+        self.max_torques = cfg.per_joint("max_torque", self.n)
+        self.max_steps = cfg.per_joint("max_rate", self.n) * self.dt     # |Δτ_assist| per step
         self.beta = 1.0 - math.exp(-self.dt / cfg.smoothing_s) if cfg.smoothing_s > 0 else 1.0
         self.tau = np.zeros(self.n)          # τ_assist
         self.target = np.zeros(self.n)       # τ_target
@@ -123,20 +124,21 @@ class AssistLaw:
                 state[j] = INVALID
                 counts[j, INVALID] += 1
                 continue
-            if self._fresh[j] or (rbar[j] > self.rho_max and RESTART_RATIO * r < rbar[j]):
+            rho_max, deadband = self.rho_maxes[j], self.deadbands[j]
+            if self._fresh[j] or (rbar[j] > rho_max and RESTART_RATIO * r < rbar[j]):
                 tbar[j], rbar[j] = th, r
                 self._fresh[j] = False
             else:
                 tbar[j] += b * (th - tbar[j])
                 rbar[j] += b * (r - rbar[j])
             mag = abs(tbar[j])
-            cert = mag - rbar[j] - self.deadband
+            cert = mag - rbar[j] - deadband
             # nothing while the current estimate certifies the other direction: the subject's
             # reversal stops the assistance at once
-            if th * tbar[j] < 0.0 and abs(th) - r - self.deadband > 0.0:
+            if th * tbar[j] < 0.0 and abs(th) - r - deadband > 0.0:
                 cert = min(cert, 0.0)
             self.rho_sum[j] += rbar[j]
-            if rbar[j] > self.rho_max:
+            if rbar[j] > rho_max:
                 st = RHO_ABOVE_MAX
             elif cert > 0.0:
                 st = ENGAGED
@@ -144,7 +146,7 @@ class AssistLaw:
                 st = BELOW_BOUND
             if st == ENGAGED:
                 trust[j] = cert / mag
-                g = min(self.gain * cert, self.max_torque)
+                g = min(self.gains[j] * cert, self.max_torques[j])
                 t = g if tbar[j] > 0.0 else -g
             else:
                 trust[j] = 0.0
@@ -152,7 +154,8 @@ class AssistLaw:
             state[j] = st
             counts[j, st] += 1
             tgt[j] = t
-            out[j] += max(-self.max_step, min(self.max_step, t - out[j]))
+            step = self.max_steps[j]
+            out[j] += max(-step, min(step, t - out[j]))
         return out
 
 

@@ -376,14 +376,16 @@ class AssistConfig:
 
     and the motor torque is the compensation (the nominal model's static load torque at the
     measured angle, ``compensation: nominal``) plus τ_assist.  Off unless ``enabled: true``.
+    ``gain``, ``deadband``, ``rho_max``, ``max_torque`` and ``max_rate`` are one number for every
+    joint or a tuple of one per joint (``assist.rho_max: [1.5, 0.8]``; :meth:`per_joint`).
     """
 
     enabled: bool = False          # off unless asked
-    gain: float = 2.0              # α: assistance per N m of certified active torque [-]
-    deadband: float = 0.05         # [N m] taken off |τ̂| together with ρ_k
-    rho_max: float = 1.5           # [N m] no assistance while the averaged ρ_k is above this
-    max_torque: float = 3.0        # [N m] |τ_assist| limit
-    max_rate: float = 10.0         # [N m/s] |dτ_assist/dt| limit (an invalid estimate or a fault: 0 at once)
+    gain: float | tuple = 2.0  # α: assistance per N m of certified active torque [-]
+    deadband: float | tuple = 0.05  # [N m] taken off |τ̂| together with ρ_k
+    rho_max: float | tuple = 1.5  # [N m] no assistance while the averaged ρ_k is above this
+    max_torque: float | tuple = 3.0  # [N m] |τ_assist| limit
+    max_rate: float | tuple = 10.0  # [N m/s] |dτ_assist/dt| limit (an invalid estimate or a fault: 0 at once)
     smoothing_s: float = 0.6       # [s] time constant over which τ̂ and ρ are averaged before the gate (0: none)
     innovation_max: float = 1.0e4  # a step whose normalised innovation νᵀS⁻¹ν exceeds this is a fault
     compensation: str = "nominal"  # nominal: + the nominal model's static load torque; none: τ_assist alone
@@ -407,25 +409,44 @@ class AssistConfig:
         if comp not in cls.COMPENSATIONS:
             raise ConfigError(source, k + "compensation",
                               f"must be one of {', '.join(cls.COMPENSATIONS)}, got {comp!r}")
-        max_torque = validate.num(source, k + "max_torque", d.get("max_torque", min(cls.max_torque, torque_limit)),
-                                  positive=True)
-        if max_torque > torque_limit:
-            raise ConfigError(source, k + "max_torque",
-                              f"must be in (0, hardware.torque_limit = {torque_limit:g}] N m, got {max_torque:g}")
+        limits = np.broadcast_to(np.asarray(torque_limit, dtype=float), (n,))
+        default_max = [min(cls.max_torque, float(x)) for x in limits]
+        default_max = default_max[0] if len(set(default_max)) == 1 else default_max
+        max_torque = cls._per_joint(source, "max_torque", d.get("max_torque", default_max), n, positive=True)
+        for j, (m, lim) in enumerate(zip(np.broadcast_to(max_torque, (n,)), limits)):
+            if m > lim:
+                joint = f" (joint {j + 1})" if n > 1 else ""
+                raise ConfigError(source, k + "max_torque",
+                                  f"must be in (0, hardware.torque_limit = {lim:g}] N m{joint}, got {m:g}")
         return cls(
             enabled=enabled,
-            gain=validate.num(source, k + "gain", d.get("gain", cls.gain), lo=0.0, hi=10.0),
-            deadband=validate.num(source, k + "deadband", d.get("deadband", cls.deadband), lo=0.0, hi=100.0),
-            rho_max=validate.num(source, k + "rho_max", d.get("rho_max", cls.rho_max), positive=True),
+            gain=cls._per_joint(source, "gain", d.get("gain", cls.gain), n, lo=0.0, hi=10.0),
+            deadband=cls._per_joint(source, "deadband", d.get("deadband", cls.deadband), n, lo=0.0, hi=100.0),
+            rho_max=cls._per_joint(source, "rho_max", d.get("rho_max", cls.rho_max), n, positive=True),
             max_torque=max_torque,
-            max_rate=validate.num(source, k + "max_rate", d.get("max_rate", cls.max_rate), positive=True),
+            max_rate=cls._per_joint(source, "max_rate", d.get("max_rate", cls.max_rate), n, positive=True),
             smoothing_s=validate.num(source, k + "smoothing_s", d.get("smoothing_s", cls.smoothing_s), lo=0.0, hi=10.0),
             innovation_max=validate.num(source, k + "innovation_max", d.get("innovation_max", cls.innovation_max),
                                         positive=True),
             compensation=comp, dry_run=dry_run)
 
+    @staticmethod
+    def _per_joint(source: str, name: str, v, n: int, **check):
+        """``assist.NAME``: one number for every joint, or a list of ``n`` (one per joint), each
+        checked as :func:`~sea_daemon.core.validate.num` checks it: a float, or a tuple of ``n``."""
+        key = "assist." + name
+        if not isinstance(v, (list, tuple)):
+            return validate.num(source, key, v, **check)
+        if len(v) != n:
+            raise ConfigError(source, key, f"must be a number or a list of {n} (one per joint), got {v!r}")
+        return tuple(validate.num(source, f"{key}[{j + 1}]", x, **check) for j, x in enumerate(v))
+
+    def per_joint(self, name: str, n: int) -> np.ndarray:
+        """Setting ``name`` as an array of ``n`` values, one per joint."""
+        return np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (n,)).copy()
+
     def to_dict(self) -> dict:
-        return {key: getattr(self, key) for key in self.KEYS}
+        return {key: list(v) if isinstance(v, tuple) else v for key, v in ((key, getattr(self, key)) for key in self.KEYS)}
 
 
 @dataclass(frozen=True)
@@ -560,7 +581,8 @@ class ModelConfig:
             learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),
             hardware=hardware,
             source=source,
-            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limit),
+            # the assistance of every joint within the smallest joint's torque limit
+            assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limits(n)),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
             publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
         )

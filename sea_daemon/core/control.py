@@ -106,22 +106,23 @@ class PID:
       1991; a D term on q̇ through the spring excites the spring mode at usable gains).
       v is the backward difference of the measured angle through a first-order low-pass of
       cut-off ``velocity_filter_hz`` (quantisation noise).
-    * Output clipped to ±``torque_limit``; anti-windup by conditional integration (the
-      integral freezes while the output saturates in the error's direction) and a clamp
-      |K_i ∫e| ≤ torque_limit.
+    * Output clipped to ±``torque_limit`` (one, or each joint's); anti-windup by conditional
+      integration (the integral freezes while the output saturates in the error's direction)
+      and a clamp |K_i ∫e| ≤ torque_limit.
     * ``reset(q, u0)`` starts bumplessly: the integrator is preset so that the first output
       equals u0 (e.g. the torque already holding the arm).
 
     Vectorised over joints: gains may be scalars or arrays of n.
     """
 
-    def __init__(self, kp, ki, kd, dt: float, torque_limit: float, velocity_filter_hz: float = 20.0,
+    def __init__(self, kp, ki, kd, dt: float, torque_limit, velocity_filter_hz: float = 20.0,
                  derivative: str = "motor"):
         self.kp = np.asarray(kp, dtype=float)
         self.ki = np.asarray(ki, dtype=float)
         self.kd = np.asarray(kd, dtype=float)
         self.dt = float(dt)
-        self.limit = float(torque_limit)
+        self.limit = np.asarray(torque_limit, dtype=float)
+        self._limits = np.array(np.atleast_1d(self.limit))          # per joint, the compiled step's
         if derivative not in ("load", "motor"):
             raise ValueError(f"derivative must be 'load' or 'motor', got {derivative!r}")
         self.derivative = derivative
@@ -168,7 +169,7 @@ class PID:
             ref = self._ref
             ref[0] = q_ref
             ref[1] = dq_ref
-            _pid_step(ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev,
+            _pid_step(ref, q_meas, v, self._gains, self.alpha, self.dt, self._limits, self._dq, self._q_prev,
                       self.integral, u)
             return u
         q = np.atleast_1d(np.asarray(q_meas, dtype=float))
@@ -187,10 +188,11 @@ class PID:
             self.integral = np.array(np.broadcast_to(self.integral, (n,)), dtype=float)
             self._ref = np.zeros((2, n))
             self._u = np.zeros(n)
+            self._limits = np.array(np.broadcast_to(self.limit, (n,)))
         ref = self._ref
         ref[0] = q_ref
         ref[1] = dq_ref
-        _pid_step(ref, q, v, self._gains, self.alpha, self.dt, self.limit, self._dq, self._q_prev, self.integral,
+        _pid_step(ref, q, v, self._gains, self.alpha, self.dt, self._limits, self._dq, self._q_prev, self.integral,
                   self._u)
         self._u_fast = self._u
         return self._u
@@ -202,8 +204,8 @@ class PID:
         v = self._fast_v(q_meas, theta_m_meas)
         if v is not None:
             u = self._u_fast
-            _track_step(float(t), traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self.limit, self._dq,
-                        self._q_prev, self.integral, u)
+            _track_step(float(t), traj, self._ref, q_meas, v, self._gains, self.alpha, self.dt, self._limits,
+                        self._dq, self._q_prev, self.integral, u)
             return u
         q_ref, dq_ref, _ = min_jerk_reference(float(t), traj[0], traj[1], traj[2], traj[3], int(traj[4]),
                                               traj[5] != 0.0)
@@ -216,24 +218,26 @@ class PID:
 
 
 @njit
-def _track_step(t, traj, ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
+def _track_step(t, traj, ref, q, v, gains, alpha, dt, limits, dq, q_prev, integral, out):
     """:meth:`PID.track_into`: the reference of :func:`min_jerk_reference` at t into ``ref``,
     then :func:`_pid_step`."""
     q_ref, dq_ref, _ = min_jerk_reference(t, traj[0], traj[1], traj[2], traj[3], int(traj[4]), traj[5] != 0.0)
     for j in range(ref.shape[1]):
         ref[0, j] = q_ref
         ref[1, j] = dq_ref
-    _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out)
+    _pid_step(ref, q, v, gains, alpha, dt, limits, dq, q_prev, integral, out)
 
 
 @njit
-def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
+def _pid_step(ref, q, v, gains, alpha, dt, limits, dq, q_prev, integral, out):
     """:meth:`PID.step` per joint, the same operations in the same order as its numpy form
     (no fast-math: the same numbers): low-passed backward difference, P + D, conditional
     integration, integral clamp, output clip.  ``ref`` rows q_ref, q̇_ref; ``gains`` rows
-    kp, ki, kd; ``dq``, ``q_prev``, ``integral`` updated in place; the command into ``out``."""
+    kp, ki, kd; ``limits`` each joint's torque limit; ``dq``, ``q_prev``, ``integral`` updated in
+    place; the command into ``out``."""
     for j in range(q.shape[0]):
         kp, ki, kd = gains[0, j], gains[1, j], gains[2, j]
+        limit = limits[j]
         dq[j] = dq[j] + alpha * ((v[j] - q_prev[j]) / dt - dq[j])
         q_prev[j] = v[j]
         e = ref[0, j] - q[j]
@@ -253,12 +257,12 @@ def _pid_step(ref, q, v, gains, alpha, dt, limit, dq, q_prev, integral, out):
 @warmer
 def _warm() -> None:
     """The PID's compiled step, and with the minimum-jerk reference, with the argument types :class:`PID` passes."""
-    _pid_step(np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, 10.0, np.zeros(1),
+    _pid_step(np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, np.full(1, 10.0), np.zeros(1),
               np.zeros(1), np.zeros(1), np.zeros(1))
     traj = MinJerkTrajectory(0.1, 1.0, 3.5, 6, cyclic=True)
     traj.reference(1.0)
-    _track_step(1.0, traj.fields, np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01, 10.0,
-                np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
+    _track_step(1.0, traj.fields, np.zeros((2, 1)), np.zeros(1), np.zeros(1), np.ones((3, 1)), 0.5, 0.01,
+                np.full(1, 10.0), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1))
     min_jerk(0.5)
 
 
@@ -301,7 +305,7 @@ class ReferenceTracker:
     :attr:`q_ref` [rad] holds the reference the command was computed for.
     """
 
-    def __init__(self, gains: PIDGains, reference, dt: float, torque_limit: float):
+    def __init__(self, gains: PIDGains, reference, dt: float, torque_limit):
         self.pid = PID(gains.kp, gains.ki, gains.kd, dt, torque_limit, gains.velocity_filter_hz,
                        derivative=gains.derivative)
         self.reference = reference
@@ -331,10 +335,10 @@ class StillArm:
     controller's own array, overwritten by the next update.
     """
 
-    def __init__(self, tau_comp, tau_des, torque_limit: float, q_ref: float = 0.0):
+    def __init__(self, tau_comp, tau_des, torque_limit, q_ref: float = 0.0):
         self.tau_comp = np.asarray(tau_comp, dtype=float)
         self.profile = tau_des
-        self.limit = float(torque_limit)
+        self.limit = np.asarray(torque_limit, dtype=float)        # one, or each joint's
         self.q_ref = q_ref
         self.tau_des = 0.0
         self._out = np.zeros(self.tau_comp.shape)

@@ -22,6 +22,18 @@ def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
     return tuple(vals)
 
 
+def per_joint(source: str, key: str, v: Any, n: int) -> float | tuple[float, ...]:
+    """A positive value of every joint (a number) or of each joint (a list of n numbers, n > 1)."""
+    if isinstance(v, (list, tuple)) and n > 1:
+        return tuple(float(x) for x in validate.vector(source, key, list(v), n, positive=True))
+    return validate.num(source, key, v, positive=True)
+
+
+def joint_values(v: float | tuple[float, ...], n: int) -> np.ndarray:
+    """A :func:`per_joint` value as an array of the n joints' values."""
+    return np.array(np.broadcast_to(np.asarray(v, dtype=float), (n,)))
+
+
 def _channels(source: str, key: str, v: Any, n: int) -> tuple[str, tuple[str, ...]]:
     """``hardware.bus.channel``: one name (every joint on that bus) or a list of n names, the bus
     of each joint (joints of one name share it); (the first joint's, the list or ())."""
@@ -40,8 +52,8 @@ class BusConfig:
     """The CAN bus and the CANopen devices on it (``sea_daemon.hw``).
 
     Angles and speeds are joint side [rad, rad/s]; ``rated_torque`` is the drive's 0x6076 on the
-    MOTOR side in mN m, so one per mille of 0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m
-    on the joint side.
+    MOTOR side in mN m (every drive's, or a tuple of each joint's drive), so one per mille of
+    0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m on the joint side.
     """
 
     interface: str = "virtual"            # virtual | socketcan | remote
@@ -54,7 +66,7 @@ class BusConfig:
     heartbeat_timeout_ms: int = 200       # consumer: a node is lost after this long without heartbeat
     pdo_timeout_ms: float = 8.0           # wait for a cycle's TPDOs after SYNC [ms]
     max_missed_cycles: int = 0            # consecutive cycles with missing TPDOs tolerated (0: first raises)
-    rated_torque: float = 100.0           # expected 0x6076, motor side [mN m]
+    rated_torque: float | tuple[float, ...] = 100.0   # expected 0x6076, motor side [mN m] (per joint: a tuple)
     q_offset: tuple[float, ...] = (0.0,)        # load encoder zero: q = angle(counts) - q_offset [rad]
     theta_m_offset: tuple[float, ...] = (0.0,)  # motor encoder zero, joint side [rad]
     max_joint_speed: float = 20.0         # encoder jump: |dq| > max_joint_speed*dt + 2 quanta [rad/s]
@@ -125,7 +137,7 @@ class BusConfig:
             interface=iface, channel=channel, joint_channel=joint_channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
             publish=publish,
             pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
-            rated_torque=validate.num(source, k + "rated_torque", d.get("rated_torque", 100.0), positive=True),
+            rated_torque=per_joint(source, k + "rated_torque", d.get("rated_torque", 100.0), n),
             q_offset=tuple(float(x) for x in validate.vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),
             theta_m_offset=tuple(float(x) for x in validate.vector(source, k + "theta_m_offset", d.get("theta_m_offset", 0.0), n)),
             max_joint_speed=validate.num(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), positive=True),
@@ -146,9 +158,10 @@ class BusConfig:
     def for_joints(self, joints, channel: str) -> "BusConfig":
         """The configuration of one bus: ``channel`` with the devices of ``joints`` (0-based)."""
         pick = lambda v: tuple(v[j] for j in joints)  # noqa: E731
+        rated = self.rated_torque if isinstance(self.rated_torque, float) else pick(self.rated_torque)
         return dataclasses.replace(self, channel=channel, joint_channel=(), drive_node=pick(self.drive_node),
                                    encoder_node=pick(self.encoder_node), q_offset=pick(self.q_offset),
-                                   theta_m_offset=pick(self.theta_m_offset))
+                                   theta_m_offset=pick(self.theta_m_offset), rated_torque=rated)
 
     def with_channel(self, text: str) -> "BusConfig":
         """``--channel``: one name (every joint on it) or a comma-separated name per joint."""
@@ -164,6 +177,8 @@ class BusConfig:
         for key in ("drive_node", "encoder_node", "q_offset", "theta_m_offset"):
             v = list(out[key])
             out[key] = v[0] if len(v) == 1 else v
+        if isinstance(self.rated_torque, tuple):
+            out["rated_torque"] = list(self.rated_torque)
         return out
 
 
@@ -186,11 +201,16 @@ def _keyed(source: str, key: str, v: Any, allowed: tuple[str, ...], example: str
 
 @dataclass(frozen=True)
 class HardwareConfig:
-    """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus."""
+    """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus.
 
-    gear_ratio: float = 100.0        # motor turns per joint turn
+    ``gear_ratio`` and ``torque_limit`` are every joint's (a number) or each joint's (a tuple of
+    n, from a list in the YAML): :meth:`gear_ratios` and :meth:`torque_limits` give the n
+    joints' values.
+    """
+
+    gear_ratio: float | tuple[float, ...] = 100.0     # motor turns per joint turn
     encoder_bits: int = 19           # both absolute encoders
-    torque_limit: float = 10.0       # |τ_m| limit, joint side [N m]
+    torque_limit: float | tuple[float, ...] = 10.0    # |τ_m| limit, joint side [N m]
     torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
     bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (sea_daemon.hw)
     # counts per revolution of the shaft each encoder reads, per joint: the load encoder on the
@@ -205,21 +225,39 @@ class HardwareConfig:
     READER_KINDS = ("users", "groups")
     COUNT_SIDES = ("load", "motor")
 
+    def gear_ratios(self, n: int) -> np.ndarray:
+        """Each of the n joints' gear ratio (motor turns per joint turn)."""
+        return joint_values(self.gear_ratio, n)
+
+    def torque_limits(self, n: int) -> np.ndarray:
+        """Each of the n joints' motor-torque limit, joint side [N m]."""
+        return joint_values(self.torque_limit, n)
+
+    @property
+    def torque_limit_max(self) -> float:
+        """The largest joint's motor-torque limit [N m] (a scale: every joint's torque is within it)."""
+        return float(np.max(self.torque_limit))
+
+    def encoder_counts(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Counts per revolution of (the load encoder's joint, the motor encoder's shaft) per
+        joint: ``encoder_counts``, else 2^``encoder_bits``."""
+        def counts(c):
+            return np.asarray(c if c else (2 ** self.encoder_bits,), dtype=np.int64) * np.ones(n, dtype=np.int64)
+        return counts(self.encoder_counts_load), counts(self.encoder_counts_motor)
+
     def encoder_resolution(self, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Joint-side angle quanta (Δq, Δθ_m) [rad] per joint: 2π/counts for the load encoder,
         2π/(counts · gear_ratio) for the motor encoder (it turns gear_ratio times per joint turn).
         A side without ``encoder_counts`` has 2^``encoder_bits`` counts."""
-        def counts(c):
-            return np.asarray(c if c else (2 ** self.encoder_bits,), dtype=float) * np.ones(n)
-        return (2 * np.pi / counts(self.encoder_counts_load),
-                2 * np.pi / (counts(self.encoder_counts_motor) * float(self.gear_ratio)))
+        load, motor = self.encoder_counts(n)
+        return 2 * np.pi / load.astype(float), 2 * np.pi / (motor.astype(float) * self.gear_ratios(n))
 
     @classmethod
     def from_dict(cls, d: Mapping, n: int, source: str) -> "HardwareConfig":
         validate.check_keys(source, "hardware.", d, cls.KEYS, [])
         out = {}
         if "gear_ratio" in d:
-            out["gear_ratio"] = validate.num(source, "hardware.gear_ratio", d["gear_ratio"], positive=True)
+            out["gear_ratio"] = per_joint(source, "hardware.gear_ratio", d["gear_ratio"], n)
         if "encoder_bits" in d:
             b = d["encoder_bits"]
             if isinstance(b, bool) or not isinstance(b, int) or not 8 <= b <= 32:
@@ -228,7 +266,7 @@ class HardwareConfig:
         if "encoder_counts" in d:
             out.update(cls._counts(source, d["encoder_counts"], n))
         if "torque_limit" in d:
-            out["torque_limit"] = validate.num(source, "hardware.torque_limit", d["torque_limit"], positive=True)
+            out["torque_limit"] = per_joint(source, "hardware.torque_limit", d["torque_limit"], n)
         if "torque_noise" in d:
             out["torque_noise"] = validate.num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
         out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
@@ -275,6 +313,9 @@ class HardwareConfig:
     def to_dict(self) -> dict:
         out = {k: v for k, v in dataclasses.asdict(self).items()
                if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers")}
+        for key in ("gear_ratio", "torque_limit"):
+            if isinstance(out[key], tuple):
+                out[key] = list(out[key])
         counts = {}
         for side in self.COUNT_SIDES:
             c = getattr(self, f"encoder_counts_{side}")

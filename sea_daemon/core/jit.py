@@ -6,6 +6,15 @@
 function is compiled in memory instead (numba raises ``RuntimeError`` at decoration then);
 the code runs the same, only each new process compiles again.
 
+A kernel's machine code includes the kernels it calls from other modules (e.g. the bound's
+``bound_core`` compiles ``gp.pack.gp_points`` into itself), so its cache is valid only while
+every one of those sources is unchanged.  numba alone checks the function's own file; here the
+cache's source stamp is that file's *and* a SHA-256 over the sources of every module of
+:data:`KERNEL_MODULES` and of this module: a change to any of them (an edit, an upgrade of the
+package) makes every cached kernel stale, so each is compiled again on first use and its
+cache rewritten.  The digest is taken once per process, from the files as they are when the
+first kernel is decorated.
+
 Compilation is lazy (first call); :func:`warm_up` is the one place that triggers it ahead of
 use: it imports every module of :data:`KERNEL_MODULES` and runs each module's example calls
 (registered with :func:`warmer`: the kernels with the argument types the estimators pass)
@@ -15,10 +24,13 @@ cycle.  Numba uses no threads here (no ``parallel=True``).
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
+import os
 from typing import Callable
 
 import numba
+from numba.core import caching
 
 #: every module with compiled kernels, imported by :func:`warm_up` by name (they import this
 #: module for :func:`njit`)
@@ -55,15 +67,80 @@ _n_warm = 0          # warmers already run
 FAST = frozenset({"reassoc", "contract"})
 
 
+_digest: dict[tuple[str, ...], str] = {}     # KERNEL_MODULES -> digest of their sources
+
+
+def sources_digest() -> str:
+    """SHA-256 (hex) over the sources of this module and of every module of
+    :data:`KERNEL_MODULES` (by path under the package; a missing file counts as missing),
+    taken once per process."""
+    names = tuple(KERNEL_MODULES)
+    if names not in _digest:
+        # the directory holding sea_daemon/
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        h = hashlib.sha256(_read(__file__))
+        for name in names:
+            h.update(name.encode() + b"\0")
+            h.update(_read(os.path.join(root, *name.split(".")) + ".py"))
+        _digest[names] = h.hexdigest()
+    return _digest[names]
+
+
+def _read(path: str) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError:
+        return b"<missing>"
+
+
+class _SourcesStamp:
+    """A numba cache locator's source stamp extended by :func:`sources_digest`: an index
+    written under other kernel sources no longer matches, so numba compiles again."""
+
+    def get_source_stamp(self):
+        return (super().get_source_stamp(), sources_digest())
+
+
+def _locator(name: str) -> type:
+    """numba's cache locator ``name`` (numba before 0.61 spells it with a leading underscore)."""
+    return getattr(caching, name, None) or getattr(caching, "_" + name)
+
+
+class _UserProvided(_SourcesStamp, _locator("UserProvidedCacheLocator")):
+    pass
+
+
+class _InTree(_SourcesStamp, _locator("InTreeCacheLocator")):
+    pass
+
+
+class _UserWide(_SourcesStamp, _locator("UserWideCacheLocator")):
+    pass
+
+
+class _KernelCacheImpl(caching.CompileResultCacheImpl):
+    _locator_classes = [_UserProvided, _InTree, _UserWide]
+
+
+class _KernelCache(caching.FunctionCache):
+    """numba's per-function cache with the stamp of :class:`_SourcesStamp`."""
+    _impl_class = _KernelCacheImpl
+
+
 def njit(fn: Callable | None = None, *, fast: bool = False) -> Callable:
-    """``numba.njit(cache=True)`` (``fast``: with the :data:`FAST` math flags); in-memory
-    compilation when no cache directory is writable."""
+    """``numba.njit(cache=True)`` (``fast``: with the :data:`FAST` math flags) with the cache
+    keyed on every kernel module's source (see the module docstring); in-memory compilation
+    when no cache directory is writable."""
     def wrap(f: Callable) -> Callable:
         opts = {"fastmath": set(FAST)} if fast else {}
+        dispatcher = numba.njit(**opts)(f)
         try:
-            return numba.njit(cache=True, **opts)(f)
+            # what numba.njit(cache=True) does (Dispatcher.enable_caching), with this stamp
+            dispatcher._cache = _KernelCache(f)
         except RuntimeError:          # "cannot cache function ...: no locator available"
-            return numba.njit(cache=False, **opts)(f)
+            pass                      # numba's NullCache: compiled in memory
+        return dispatcher
     return wrap if fn is None else wrap(fn)
 
 

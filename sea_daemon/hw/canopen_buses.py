@@ -32,7 +32,7 @@ class CanopenBuses(HardwareInterface):
         self.n = cfg.joints
         self.joints = [js for _, js in b.buses()]
         self.subs = [CanopenHardware(cfg, (buses or {}).get(c), period=period, pdo_timeout=pdo_timeout,
-                                     clock=clock, bus_cfg=b.for_joints(js, c)) for c, js in b.buses()]
+                                     clock=clock, bus_cfg=b.for_joints(js, c), joints=js) for c, js in b.buses()]
         for s in self.subs:
             s.peer_keepalive = self._peers
         first = self.subs[0]

@@ -59,6 +59,7 @@ import numpy as np
 from canopen.emcy import EmcyError
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.hardware_config import joint_values
 
 from sea_daemon.hw import cia402
 from sea_daemon.hw.canopen_positions import Positions
@@ -85,18 +86,25 @@ class CanopenHardware(HardwareInterface):
     IDLE_CYCLE = 0.25
 
     def __init__(self, cfg: ModelConfig, bus: can.BusABC | None = None, *, period: float | None = None,
-                 pdo_timeout: float | None = None, clock=time.monotonic, bus_cfg=None):
+                 pdo_timeout: float | None = None, clock=time.monotonic, bus_cfg=None, joints=None):
         """``bus_cfg``: one bus of ``cfg.hardware.bus`` (:meth:`BusConfig.for_joints`) for a driver
-        of those joints alone (:class:`sea_daemon.hw.canopen_buses.CanopenBuses`); default all of it."""
+        of those joints alone (:class:`sea_daemon.hw.canopen_buses.CanopenBuses`), ``joints`` their
+        0-based indices in the model (the hardware's per-joint values); default all of it."""
         hw, b = cfg.hardware, (bus_cfg or cfg.hardware.bus)
         self.cfg, self.bus_cfg = cfg, b
         self.n = len(b.drive_node)
+        js = list(range(self.n)) if joints is None else list(joints)
+        if len(js) != self.n:
+            raise ValueError(f"joints {js}: one per drive of the bus ({self.n})")
         #: called by keepalive(): the other buses' drivers of a CanopenBuses (their heartbeats)
         self.peer_keepalive = None
         self.period = float(period or cfg.dt)
-        self.gear = hw.gear_ratio
-        self.res = 1 << hw.encoder_bits
-        self.torque_limit = hw.torque_limit
+        # per joint of this bus: gear ratio, the encoders' counts per turn, torque limit [N m]
+        self.gear = [float(hw.gear_ratios(cfg.joints)[j]) for j in js]
+        counts_load, counts_motor = hw.encoder_counts(cfg.joints)
+        self.res_load = [int(counts_load[j]) for j in js]
+        self.res_motor = [int(counts_motor[j]) for j in js]
+        self.torque_limit = [float(hw.torque_limits(cfg.joints)[j]) for j in js]
         self.pdo_timeout = pdo_timeout if pdo_timeout is not None else b.pdo_timeout_ms / 1e3
         #: cycles between write() and the interval the torque acts over (see sea_daemon.hw.interface)
         self.actuation_delay = 1 if b.sync_rpdo else 0
@@ -112,11 +120,15 @@ class CanopenHardware(HardwareInterface):
         self.drives: list = []
         self.encoders: list = []
         n = self.n
-        self.nm_per_permille = b.rated_torque / 1e6 * self.gear            # 1 ‰ of 0x6076 on the joint side
-        self.max_permille = min(32767, int(math.ceil(self.torque_limit / self.nm_per_permille)))
-        self.setup = NodeSetup(b, res=self.res, gear=self.gear, period=self.period, max_permille=self.max_permille,
+        rated = joint_values(b.rated_torque, n)
+        # 1 ‰ of 0x6076 on the joint side, and the max torque 0x6072 [‰], per joint
+        self.nm_per_permille = [float(rated[j]) / 1e6 * self.gear[j] for j in range(n)]
+        self.max_permille = [min(32767, int(math.ceil(self.torque_limit[j] / self.nm_per_permille[j])))
+                             for j in range(n)]
+        self.setup = NodeSetup(b, res_load=self.res_load, res_motor=self.res_motor, gear=self.gear,
+                               period=self.period, max_permille=self.max_permille,
                                keepalive=self.keepalive)
-        self.positions = Positions(n, self.res, self.gear, b, self.period)
+        self.positions = Positions(n, self.res_load, self.res_motor, self.gear, b, self.period)
         # cycle state
         self.meas = Measurement(n)
         self._act = np.zeros(n)             # actuated()'s result
@@ -186,10 +198,10 @@ class CanopenHardware(HardwareInterface):
         net.nmt.state = "PRE-OPERATIONAL"                                 # broadcast
         setup = self.setup
         for j in range(self.n):
-            setup.check_drive(self.drives[j])
-            self.positions.enc_range[j] = setup.check_encoder(self.encoders[j])
+            setup.check_drive(self.drives[j], j)
+            self.positions.enc_range[j] = setup.check_encoder(self.encoders[j], j)
         for j in range(self.n):
-            self._configure_drive(self.drives[j])
+            self._configure_drive(self.drives[j], j)
             self._configure_encoder(self.encoders[j])
         self._rx.bind(self._tpdo_bus)
         for node in self.drives + self.encoders:
@@ -286,8 +298,8 @@ class CanopenHardware(HardwareInterface):
         return self._errors.bus_off
 
     # ---------------------------------------------------------------- PDOs of the cycle
-    def _configure_drive(self, d) -> None:
-        self.setup.configure_drive(self.network, d)
+    def _configure_drive(self, d, j: int) -> None:
+        self.setup.configure_drive(self.network, d, j)
         self._rx.add(d.id, 0x180 + d.id, DRIVE_TPDO.size)
         self._rpdo_msgs.append(can.Message(arbitration_id=0x200 + d.id, data=bytearray(DRIVE_RPDO.size),
                                            is_extended_id=False))
@@ -320,15 +332,16 @@ class CanopenHardware(HardwareInterface):
         (the array is reused by the next call)."""
         out = self._act
         for j in range(self.n):
-            out[j] = self._permille(float(tau_m[j])) * self.nm_per_permille
+            out[j] = self._permille(float(tau_m[j]), j) * self.nm_per_permille[j]
         return out
 
-    def _permille(self, t: float) -> int:
-        """Joint-side torque [N m] → ‰ of 0x6076 as the drive gets it (non-finite → 0, clipped)."""
+    def _permille(self, t: float, j: int) -> int:
+        """Joint ``j``'s torque [N m] → ‰ of its 0x6076 as the drive gets it (non-finite → 0, clipped)."""
         if not math.isfinite(t):
             return 0
-        pm = round(t / self.nm_per_permille)
-        return -self.max_permille if pm < -self.max_permille else (self.max_permille if pm > self.max_permille else pm)
+        pm = round(t / self.nm_per_permille[j])
+        mx = self.max_permille[j]
+        return -mx if pm < -mx else (mx if pm > mx else pm)
 
     # ================================================================== rx callbacks (heartbeat, EMCY)
     def _on_heartbeat(self, can_id, data, timestamp) -> None:
@@ -368,7 +381,7 @@ class CanopenHardware(HardwareInterface):
         if self.network is None:
             raise RuntimeError("CanopenHardware: call start() before read() / write()")
         for j, msg in enumerate(self._rpdo_msgs):
-            DRIVE_RPDO.pack_into(msg.data, 0, self._cw, self._permille(float(tau_m[j])))
+            DRIVE_RPDO.pack_into(msg.data, 0, self._cw, self._permille(float(tau_m[j]), j))
             self._send(msg, "RPDO1 (controlword, target torque)")
 
     def _send_master_heartbeat(self, force: bool = False) -> None:
@@ -498,7 +511,7 @@ class CanopenHardware(HardwareInterface):
             m.statusword[j] = sw
             m.q_counts[j] = qc
             m.theta_m_counts[j] = pos
-            m.tau_m_applied[j] = torque * self.nm_per_permille
+            m.tau_m_applied[j] = torque * self.nm_per_permille[j]
             if sw & 0x6F != _OPERATION_ENABLED and self._primed:
                 m.faults |= Fault.DEVICE_FAULT.bit
                 st = cia402.state_of(sw)

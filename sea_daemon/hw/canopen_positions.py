@@ -28,19 +28,20 @@ def _wrap(delta: int, span: int) -> int:
 
 
 class Positions:
-    """Counts → angles of ``n`` joints (``res`` counts per turn, ``gear`` motor turns per joint turn)."""
+    """Counts → angles of ``n`` joints, per joint: ``res_load`` / ``res_motor`` counts per turn of
+    the load encoder's joint and the motor encoder's shaft, ``gear`` motor turns per joint turn."""
 
-    def __init__(self, n: int, res: int, gear: float, bus_cfg: BusConfig, period: float):
+    def __init__(self, n: int, res_load, res_motor, gear, bus_cfg: BusConfig, period: float):
         self.bus_cfg = bus_cfg
-        # conversions (joint side)                     counts → rad
-        self.k_q = 2 * math.pi / res                                       # load encoder
-        self.k_m = 2 * math.pi / (res * gear)                              # motor encoder through the gear
+        # conversions (joint side) per joint            counts → rad
+        self.k_q = [2 * math.pi / res_load[j] for j in range(n)]                  # load encoder
+        self.k_m = [2 * math.pi / (res_motor[j] * gear[j]) for j in range(n)]     # motor encoder through the gear
         self.step_max = bus_cfg.max_joint_speed * period                  # largest motion in a period [rad]
-        self.allowed_q = self.step_max + 2 * self.k_q                      # largest step in a period [rad]
-        self.allowed_m = self.step_max + 2 * self.k_m
+        self.allowed_q = [self.step_max + 2 * k for k in self.k_q]         # largest step in a period [rad]
+        self.allowed_m = [self.step_max + 2 * k for k in self.k_m]
         self.q_offset = np.array(bus_cfg.q_offset, dtype=float)
         self.theta_m_offset = np.array(bus_cfg.theta_m_offset, dtype=float)
-        self.enc_range = [res] * n     # counts the load encoder's position value spans (from start-up)
+        self.enc_range = list(res_load)   # counts the load encoder's position value spans (from start-up)
         self._u_q = [0] * n            # unwrapped load counts
         self._u_m = [0] * n            # unwrapped motor counts (int32 wraps undone)
         self._raw_q = [0] * n
@@ -70,12 +71,13 @@ class Positions:
         dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
         dm = _wrap(pos - self._raw_m[j], 1 << 32)
         more = self.step_max * (periods - 1.0) if periods > 1.0 else 0.0
-        if abs(dq * self.k_q) > self.allowed_q + more:
+        k_q, k_m = self.k_q[j], self.k_m[j]
+        if abs(dq * k_q) > self.allowed_q[j] + more:
             m.faults |= Fault.ENCODER_JUMP.bit
-            raise EncoderJump(enc_node, "0x6004 load position value", dq * self.k_q, self.allowed_q + more, cycle)
-        if abs(dm * self.k_m) > self.allowed_m + more:
+            raise EncoderJump(enc_node, "0x6004 load position value", dq * k_q, self.allowed_q[j] + more, cycle)
+        if abs(dm * k_m) > self.allowed_m[j] + more:
             m.faults |= Fault.ENCODER_JUMP.bit
-            raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * self.k_m, self.allowed_m + more,
+            raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * k_m, self.allowed_m[j] + more,
                               cycle)
         self._u_q[j] += dq
         self._u_m[j] += dm
@@ -95,8 +97,8 @@ class Positions:
 
     def _angles(self, m: Measurement, j: int, qc: int, pos: int) -> tuple[float, float]:
         self._raw_q[j], self._raw_m[j] = qc, pos
-        q = self._u_q[j] * self.k_q - float(self.q_offset[j])
-        th = self._u_m[j] * self.k_m - float(self.theta_m_offset[j])
+        q = self._u_q[j] * self.k_q[j] - float(self.q_offset[j])
+        th = self._u_m[j] * self.k_m[j] - float(self.theta_m_offset[j])
         m.q[j] = q
         m.theta_m[j] = th
         return q, th

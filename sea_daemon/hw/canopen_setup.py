@@ -23,6 +23,7 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from sea_daemon.core.config import BusConfig
+from sea_daemon.core.hardware_config import joint_values
 from sea_daemon.io.configfile import data_root
 
 from sea_daemon.hw import cia402
@@ -57,17 +58,29 @@ def interpolation_period(period: float) -> tuple[int, int]:
     raise ValueError(f"period {period} s cannot be written to 0x60C2 (1..255 · 10^-6..10^0 s)")
 
 
+def _counts_key(counts: int, side: str) -> str:
+    """The configuration key that sets an encoder's counts per turn, as an error names it."""
+    bits = counts.bit_length() - 1
+    if counts == 1 << bits:
+        return f"hardware.encoder_bits = {bits} or hardware.encoder_counts.{side}"
+    return f"hardware.encoder_counts.{side}"
+
+
 class NodeSetup:
     """SDO checks and configuration of the drives and load encoders (see the module docstring).
 
-    ``res``: encoder counts per turn (2^``encoder_bits``); ``gear``: the gear ratio; ``period``:
-    the loop period [s]; ``max_permille``: max torque 0x6072 [‰ of rated torque].
+    Per joint of the bus (``j``, 0-based in ``bus_cfg``): ``res_load`` / ``res_motor`` the load
+    and motor encoders' counts per turn (``hardware.encoder_counts``, else 2^``encoder_bits``),
+    ``gear`` the gear ratio, ``max_permille`` the max torque 0x6072 [‰ of rated torque];
+    ``period``: the loop period [s].
     """
 
-    def __init__(self, bus_cfg: BusConfig, *, res: int, gear: float, period: float, max_permille: int,
+    def __init__(self, bus_cfg: BusConfig, *, res_load, res_motor, gear, period: float, max_permille,
                  keepalive: Callable[[], None]):
         self.bus_cfg = bus_cfg
-        self.res, self.gear, self.period, self.max_permille = res, gear, period, max_permille
+        self.res_load, self.res_motor, self.gear = list(res_load), list(res_motor), list(gear)
+        self.period, self.max_permille = period, list(max_permille)
+        self.rated = joint_values(bus_cfg.rated_torque, len(self.gear)).tolist()
         self.keepalive = keepalive
 
     # ---------------------------------------------------------------- SDO transfers
@@ -106,37 +119,39 @@ class NodeSetup:
                 raise WrongDevice(node.id, f"0x1018:{sub:02X} {what}",
                                   f"is 0x{got:08X}, expected 0x{expected:08X} ({kind} of our EDS)")
 
-    def check_drive(self, d) -> None:
-        """Device type, identity, motor encoder resolution, gear, CST support, rated torque."""
+    def check_drive(self, d, j: int = 0) -> None:
+        """Device type, identity, motor encoder resolution, gear, CST support, rated torque of
+        joint ``j``'s drive."""
         self._check_identity(d, PROFILE_DRIVE, "CiA 402 drive")
         inc = self.read(d, 0x608F, 1, "position encoder resolution, encoder increments")
         rev = self.read(d, 0x608F, 2, "position encoder resolution, motor revolutions")
-        if rev == 0 or inc != self.res * rev:
+        res, gear = self.res_motor[j], self.gear[j]
+        if rev == 0 or inc != res * rev:
             raise WrongDevice(d.id, "0x608F position encoder resolution",
-                              f"is {inc} increments per {rev} motor revolution(s), expected {self.res} per 1 "
-                              f"(hardware.encoder_bits = {self.res.bit_length() - 1})")
+                              f"is {inc} increments per {rev} motor revolution(s), expected {res} per 1 "
+                              f"({_counts_key(res, 'motor')})")
         motor = self.read(d, 0x6091, 1, "gear ratio, motor revolutions")
         shaft = self.read(d, 0x6091, 2, "gear ratio, shaft revolutions")
-        if shaft == 0 or abs(motor / shaft - self.gear) > 1e-9 * self.gear:
+        if shaft == 0 or abs(motor / shaft - gear) > 1e-9 * gear:
             raise WrongDevice(d.id, "0x6091 gear ratio",
-                              f"is {motor}:{shaft}, expected {self.gear:g}:1 (hardware.gear_ratio)")
+                              f"is {motor}:{shaft}, expected {gear:g}:1 (hardware.gear_ratio)")
         modes = self.read(d, 0x6502, 0, "supported drive modes")
         if not modes & cia402.SUPPORTED_MODE_BIT[cia402.MODE_CST]:
             raise WrongDevice(d.id, "0x6502 supported drive modes",
                               f"is 0x{modes:08X}, needs bit 9 (cyclic synchronous torque, mode 10)")
-        rated = self.read(d, 0x6076, 0, "motor rated torque")
-        if abs(rated - self.bus_cfg.rated_torque) > 1e-9 * self.bus_cfg.rated_torque:
+        rated, want = self.read(d, 0x6076, 0, "motor rated torque"), self.rated[j]
+        if abs(rated - want) > 1e-9 * want:
             raise WrongDevice(d.id, "0x6076 motor rated torque",
-                              f"is {rated} mN m, expected {self.bus_cfg.rated_torque:g} mN m "
-                              f"(hardware.bus.rated_torque)")
+                              f"is {rated} mN m, expected {want:g} mN m (hardware.bus.rated_torque)")
 
-    def check_encoder(self, e) -> int:
-        """Device type, identity, resolution; returns the counts the position value spans."""
+    def check_encoder(self, e, j: int = 0) -> int:
+        """Device type, identity, resolution of joint ``j``'s load encoder; returns the counts
+        the position value spans."""
         self._check_identity(e, PROFILE_ENCODER, "CiA 406 encoder")
-        res = self.read(e, 0x6501, 0, "singleturn resolution")
-        if res != self.res:
+        res, want = self.read(e, 0x6501, 0, "singleturn resolution"), self.res_load[j]
+        if res != want:
             raise WrongDevice(e.id, "0x6501 singleturn resolution",
-                              f"is {res}, expected {self.res} (hardware.encoder_bits = {self.res.bit_length() - 1})")
+                              f"is {res}, expected {want} ({_counts_key(want, 'load')})")
         turns = self.read(e, 0x6502, 0, "number of distinguishable revolutions")
         if not 1 <= turns <= (1 << 32) // res:
             raise WrongDevice(e.id, "0x6502 number of distinguishable revolutions",
@@ -171,12 +186,12 @@ class NodeSetup:
             raise WrongDevice(node.id, what, f"reads back {count} objects, {bits // 8} bytes; "
                                              f"expected {len(entries)} objects, {expected_bytes} bytes")
 
-    def configure_drive(self, network, d) -> None:
-        """Interpolation period, max torque, TPDO1 / RPDO1 mapped, the second ones disabled."""
+    def configure_drive(self, network, d, j: int = 0) -> None:
+        """Interpolation period, max torque (joint ``j``'s), TPDO1 / RPDO1 mapped, the second ones disabled."""
         value, index = interpolation_period(self.period)
         self.write(d, 0x60C2, 1, value, "interpolation time period value")
         self.write(d, 0x60C2, 2, index, "interpolation time index")
-        self.write(d, 0x6072, 0, self.max_permille, "max torque")
+        self.write(d, 0x6072, 0, self.max_permille[j], "max torque")
         self.map_pdo(network, d, d.tpdo, 1, DRIVE_TPDO_MAP, 0x180 + d.id, DRIVE_TPDO.size)
         self.map_pdo(network, d, d.tpdo, 2, (), 0x280 + d.id, None)
         self.map_pdo(network, d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size,

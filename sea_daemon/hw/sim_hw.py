@@ -24,10 +24,11 @@ class SimHardware(HardwareInterface):
     """The plant behind :class:`HardwareInterface`: ``read()`` steps it, ``write()`` sets the torque.
 
     ``tau_h_act(t)``: the subject's torque [N m] over the interval that starts at plant time t
-    (default zero); ``torque_limit`` clips the written torque like the drive's max torque.
+    (default zero); ``torque_limit`` (one, or each joint's) clips the written torque like the
+    drives' max torque.
     """
 
-    def __init__(self, plant, period: float, *, torque_limit: float = math.inf, actuation_delay: int = 0,
+    def __init__(self, plant, period: float, *, torque_limit=math.inf, actuation_delay: int = 0,
                  tau_h_act: Callable[[float], np.ndarray] | None = None):
         if actuation_delay not in (0, 1):
             raise ValueError(f"actuation_delay must be 0 or 1, got {actuation_delay!r}")
@@ -36,7 +37,7 @@ class SimHardware(HardwareInterface):
         self.sampled = SampledPlant(plant, period)
         self.n = self.sampled.n
         self.period = self.sampled.period
-        self.torque_limit = float(torque_limit)
+        self.torque_limit = np.array(np.broadcast_to(np.asarray(torque_limit, dtype=float), (self.n,)))
         self.actuation_delay = int(actuation_delay)
         self.tau_h_act = tau_h_act or (lambda t, _z=np.zeros(self.n): _z)
         self.meas = Measurement(self.n)

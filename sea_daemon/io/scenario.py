@@ -377,6 +377,12 @@ def human_torque(scenario) -> Callable[[float], np.ndarray]:
     def resist(t: float) -> np.ndarray:
         tp = t - t_est
         # Sec. V-C: the subject resists and holds the arm, τ_h,act = −τ_des (estimation phase only)
-        out[:] = -cosine_torque(tp, ctrl.amplitude, ctrl.frequency_hz, ctrl.offset) if tp >= -1e-9 else 0.0
+        if tp < -1e-9:
+            out[:] = 0.0
+        elif n > 1:                     # each joint's cosine (io.scenario_joints.JointsOpenLoop)
+            for j in range(n):
+                out[j] = -cosine_torque(tp, ctrl.amplitude[j], ctrl.frequency_hz[j], ctrl.offset[j])
+        else:
+            out[:] = -cosine_torque(tp, ctrl.amplitude, ctrl.frequency_hz, ctrl.offset)
         return out
     return resist

@@ -8,6 +8,15 @@ copied into a record of its own, :meth:`AKF.finish_step` on the worker's copy of
 bound's step or reset, the start-up gate), the result into the result slot — each sample's count
 written to the loop's pipe after its result (or, with total store order, stored in shared
 memory only); then it waits.  The memory order is :mod:`.bound_worker`'s docstring.
+
+A worker at SCHED_FIFO that falls behind never waits, and the kernel's budget for real-time
+tasks (``sched_rt_runtime_us``) would then stop every real-time task on its CPU, the loop's
+included, for the rest of the period.  So the worker holds its real-time priority only while
+it keeps up (:class:`Priority`): when a read of the heads finds more than
+:data:`YIELD_BEHIND` samples published and not yet computed it goes SCHED_OTHER, and it takes
+SCHED_FIFO again once a read finds it caught up (at most one sample waiting).  An overloaded
+worker then shows as the loop's stale bounds and, a whole ring behind, as BOUND_LOST; the
+real-time tasks keep their CPU.
 """
 from __future__ import annotations
 
@@ -52,6 +61,39 @@ def _schedule(rt_priority: int) -> int:
     return 0
 
 
+#: samples published and not yet computed past which the worker gives up SCHED_FIFO: more than
+#: the age of a bound the loop publishes (``bound_max_age``, 3 cycles), far less than the ring
+YIELD_BEHIND = 8
+
+
+class Priority:
+    """The worker's SCHED_FIFO priority ``rt_priority`` (0: SCHED_OTHER from the start, nothing
+    to give up), held only while it keeps up (module docstring); the state in ``hdr``
+    (:data:`~.bound_slots.H_YIELDS`, :data:`~.bound_slots.H_YIELDED`, :data:`~.bound_slots.H_SCHED`)."""
+
+    def __init__(self, rt_priority: int, hdr, behind: int = YIELD_BEHIND):
+        self.rt = int(rt_priority)
+        self.hdr = hdr
+        self.behind = int(behind)
+        self.yielded = False
+
+    def update(self, backlog: int) -> None:
+        """After a read of the heads: ``backlog`` samples published and not yet computed."""
+        if self.yielded:
+            if backlog <= 1:
+                taken = _schedule(self.rt)
+                self.yielded = False
+                self.hdr[bs.H_YIELDED] = 0
+                if not taken:              # no longer permitted: SCHED_OTHER from now on
+                    self.rt = 0
+                    self.hdr[bs.H_SCHED] = 0
+        elif self.rt and backlog > self.behind:
+            _schedule(0)
+            self.yielded = True
+            self.hdr[bs.H_YIELDED] = 1
+            self.hdr[bs.H_YIELDS] += 1
+
+
 def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: int,
                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
                 via_pipe: bool = True) -> None:
@@ -75,7 +117,7 @@ def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: 
         views = bs.map_shared(shm.buf, cap, width, rwidth, record)
         views.hdr[bs.H_SCHED] = sched
         views.hdr[bs.H_LOCKED] = 1 if locked else 0
-        Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe).serve()
+        Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe, sched).serve()
     finally:
         del views
         shm.close()
@@ -85,7 +127,7 @@ class Server:
     """The worker's loop over the ring (module docstring)."""
 
     def __init__(self, akf, views: bs.Shared, record: int, lay: dict, heads: int, counts: int, parent_pid: int,
-                 via_pipe: bool = True):
+                 via_pipe: bool = True, rt_priority: int = 0):
         self.akf = akf
         self.e = akf.est
         self.views = views
@@ -103,6 +145,7 @@ class Server:
         self.out = bytearray(8)
         self.head = self.done = 0
         self.stop = self.unsent = False
+        self.priority = Priority(rt_priority, views.hdr)
 
     def serve(self) -> None:
         """Every slot published, in order, then wait for more; return when asked to stop, when
@@ -128,6 +171,7 @@ class Server:
             fhdr[bs.F_PROC] = time.process_time()
             if self.stop or self.reader.eof or not self.wait():
                 return
+            self.priority.update(self.head - self.done)
 
     def compute(self, i: int) -> None:
         """Sample i: its record from the slot, the bound's step or reset and the gate on the

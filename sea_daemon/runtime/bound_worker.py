@@ -68,7 +68,8 @@ checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority
 loop's: the loop preempts it, and a machine busy with other work does not starve it of the CPU
 it needs, ≈ 0.1 ms per sample) with its memory locked where permitted
 (:func:`sea_daemon.runtime.realtime.lock_memory`), else SCHED_OTHER; what applied is in
-:meth:`BoundWorker.stats`.
+:meth:`BoundWorker.stats`.  A worker behind gives its priority up until it has caught up
+(:mod:`.bound_serve`; ``rt_yields`` in the stats).
 """
 from __future__ import annotations
 
@@ -425,7 +426,7 @@ class BoundWorker:
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
                 "counts": self.counts_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"),
-                "memory_locked": bool(self._hdr[bs.H_LOCKED]),
+                "memory_locked": bool(self._hdr[bs.H_LOCKED]), "rt_yields": int(self._hdr[bs.H_YIELDS]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
                 "worker_cpu_steps_s": float(self._fhdr[bs.F_STEPS]), "worker_cpu_process_s": float(self._fhdr[bs.F_PROC]),
                 "fault": self._fault}

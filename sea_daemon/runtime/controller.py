@@ -17,10 +17,10 @@ import numpy as np
 
 from sea_daemon.core.assist import STATES, AssistLaw
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm
+from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm, cosine_torque
 from sea_daemon.core.model import SEAModel
 from sea_daemon.io.scenario import PIDSpec, Scenario
-from sea_daemon.io.scenario_joints import JointsPID
+from sea_daemon.io.scenario_joints import JointsOpenLoop, JointsPID
 
 
 class ZeroTorque:
@@ -44,7 +44,9 @@ class ScenarioController:
       long as the run goes, with the configuration's torque limit.
     * Open loop (``open_loop``): τ_comp + τ_des in the estimation phase, τ_comp alone before.
       τ_des is that of the interval the command acts over (``delay``: the hardware's actuation
-      delay in periods) at the phase time (k + delay − ``estimation_from``)·dt.
+      delay in periods) at the phase time (k + delay − ``estimation_from``)·dt.  With n joints
+      (:class:`~sea_daemon.io.scenario_joints.JointsOpenLoop`) each joint has its own τ_comp and
+      its own cosine τ_des; :attr:`tau_des` is then the (n,) array of the last command.
 
     ``estimation_from``: the sample k at which the estimation phase starts — 0 for a run of the
     estimation phase, the training length for a run of both phases, None for a training run.
@@ -63,7 +65,7 @@ class ScenarioController:
         self.dt = cfg.dt
         self.delay = int(delay)
         self.estimation_from = estimation_from
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         self.hold = None if hold is None else np.asarray(hold, dtype=float).reshape(self.n)
         self._model = SEAModel.from_config(cfg)
         self._out = np.zeros(self.n)
@@ -89,7 +91,10 @@ class ScenarioController:
             self.tracker = ReferenceTracker(self.spec, self.traj, cfg.dt, self.limit)
             self.pid = self.tracker.pid
         self.q_ref = self.spec.q0
-        self.tau_des = 0.0
+        # n joints open loop: τ_des per joint, written in place (no allocation per cycle)
+        self._joints_ol = isinstance(self.spec, JointsOpenLoop)
+        self._td = np.zeros(self.n)
+        self.tau_des = self._td if self._joints_ol else 0.0
 
     def _hold(self, q) -> np.ndarray:
         if self.hold is not None:
@@ -106,17 +111,26 @@ class ScenarioController:
             self.tracker.start(q, theta_m, u0)
         else:
             c = self.spec
-            self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
-                                     offset=c.offset)
+            if self._joints_ol:
+                # each joint's cosine (io.scenario_joints.JointsOpenLoop), τ_des of every joint in _tau_des
+                self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=0.0, offset=0.0)
+            else:
+                self.ol = OpenLoopTorque(tau_comp=u0.copy(), amplitude=c.amplitude, frequency_hz=c.frequency_hz,
+                                         offset=c.offset)
             self.still = StillArm(self.ol.tau_comp, self._tau_des, self.limit, self.spec.q0)
 
-    def _tau_des(self, t: float) -> float:
+    def _tau_des(self, t: float) -> float | np.ndarray:
         """τ_des of the interval the command acts over: 0 before the estimation phase, else the
         cosine at the phase time (class docstring)."""
         k = round(t / self.dt)                    # t is k whole periods (class docstring)
         k0 = self.estimation_from
         active = k0 is not None and k + self.delay >= k0
         tp = (k - k0) * self.dt + self.delay * self.dt if active else t
+        if self._joints_ol:
+            c = self.spec
+            for j in range(self.n):
+                self._td[j] = cosine_torque(tp, c.amplitude[j], c.frequency_hz[j], c.offset[j]) if active else 0.0
+            return self._td
         return self.ol.tau_des(tp, active=active)
 
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
@@ -154,7 +168,7 @@ class AssistController:
     def __init__(self, cfg: ModelConfig, *, gain: float | None = None, dry_run: bool | None = None,
                  subject: np.ndarray | None = None):
         self.n = cfg.joints
-        self.limit = cfg.hardware.torque_limit
+        self.limit = cfg.hardware.torque_limits(self.n)           # each joint's
         a = cfg.assist if gain is None else dataclasses.replace(cfg.assist, gain=float(gain))
         if dry_run is not None:
             a = dataclasses.replace(a, dry_run=bool(dry_run))
@@ -169,11 +183,12 @@ class AssistController:
         self.trust = self.law.trust
         self.subject = subject
         self.steps = 0                              # updates since the start (the cycles it ran)
-        self._effort = np.zeros(2)                  # Σ|τ_h,act|², Σ|τ_h,act + τ_assist|² (with a subject)
+        self._effort = np.zeros((self.n, 2))        # per joint Σ τ_h,act², Σ (τ_h,act + τ_assist)² (with a subject)
 
     @property
     def gain(self) -> float:
-        return self.law.gain
+        """The assistance's gain: the largest of the joints' (0: no joint is assisted)."""
+        return float(self.law.gains.max())
 
     def update(self, t: float, q, theta_m, estimate) -> np.ndarray:
         if self._model is not None:
@@ -187,8 +202,8 @@ class AssistController:
             h = self.subject
             a = self.law.tau
             for j in range(self.n):
-                self._effort[0] += h[j] * h[j]
-                self._effort[1] += (h[j] + a[j]) * (h[j] + a[j])
+                self._effort[j, 0] += h[j] * h[j]
+                self._effort[j, 1] += (h[j] + a[j]) * (h[j] + a[j])
         if self.dry_run:
             self._out[:] = self.tau_comp
         else:
@@ -203,34 +218,54 @@ class AssistController:
         ``fault`` (the controller did not run: a latched fault, no sample), ``invalid`` (no
         valid estimate), ``rho_above_max``, ``below_bound`` — with counts; the mean averaged
         bound; the effort reduction where the subject's torque is known (None otherwise, with
-        the reason)."""
-        c = self.law.counts.sum(axis=0)
-        total = max(int(cycles), self.steps) * self.n
+        the reason).  Over all joints, and the same figures per joint in ``joints``."""
+        per = max(int(cycles), self.steps)
+        c = self.law.counts
+        law = self.law
+        out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
+               "gain": _one_or_each(law.gains), "rho_max": _one_or_each(law.rho_maxes),
+               **self._figures(c.sum(axis=0), per * self.n, float(law.rho_sum.sum()), self._effort.sum(axis=0))}
+        out["joints"] = [{"joint": j + 1, "gain": float(law.gains[j]), "rho_max": float(law.rho_maxes[j]),
+                          **self._figures(c[j], per, float(law.rho_sum[j]), self._effort[j])} for j in range(self.n)]
+        return out
+
+    def _figures(self, c, total: int, rho_sum: float, effort) -> dict:
+        """The figures of :meth:`summary` from the state counts ``c`` over ``total`` joint-cycles."""
         ran = int(c.sum())
         counts = {name: int(c[i]) for i, name in enumerate(STATES)}
         valid = ran - counts["invalid"]
-        out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
-               "gain": self.gain, "rho_max": self.law.rho_max, "joint_cycles": total,
+        out = {"joint_cycles": total,
                "engaged_share": counts["engaged"] / total if total else 0.0,
                # the gate open: a valid estimate with ρ̄ within rho_max (engaged, or nothing certified)
                "available_share": (counts["engaged"] + counts["below_bound"]) / total if total else 0.0,
                "not_engaged": {"fault": total - ran, "invalid": counts["invalid"],
                                "rho_above_max": counts["rho_above_max"], "below_bound": counts["below_bound"]},
-               "rho_avg_mean": float(self.law.rho_sum.sum() / valid) if valid else None}
-        out["effort_reduction"], out["effort_note"] = self._effort_reduction()
+               "rho_avg_mean": rho_sum / valid if valid else None}
+        out["effort_reduction"], out["effort_note"] = self._effort_reduction(effort)
         return out
 
-    def _effort_reduction(self) -> tuple[float | None, str]:
-        """1 − RMS(τ_h,act) / RMS(τ_h,act + τ_assist): the share of the active torque the task took
-        that the assistance gave, where the subject's torque is known."""
+    def _effort_reduction(self, effort) -> tuple[float | None, str]:
+        """1 − RMS(τ_h,act) / RMS(τ_h,act + τ_assist) from ``effort`` = (Σ τ_h,act², Σ (τ_h,act +
+        τ_assist)²): the share of the active torque the task took that the assistance gave, where
+        the subject's torque is known."""
         if self.subject is None:
             return None, "not measurable in this run: the subject's torque is not known (sea-daemon bench assist measures it)"
         if self.dry_run:
             return None, "dry run: no assistance commanded"
-        h, both = self._effort
+        h, both = effort
         if not both > 0.0:
             return None, "not measurable in this run: no active torque"
         return float(1.0 - np.sqrt(h / both)), "1 - RMS(tau_h_act) / RMS(tau_h_act + tau_assist), simulated subject"
+
+
+def _one_or_each(v: np.ndarray):
+    """A per-joint setting for the summary: one number when every joint has it, else the list."""
+    return float(v[0]) if np.all(v == v[0]) else [float(x) for x in v]
+
+
+def _g(v) -> str:
+    """A summary's setting (a number or one per joint) for a line."""
+    return f"{v:g}" if not isinstance(v, list) else "[" + ", ".join(f"{x:g}" for x in v) + "]"
 
 
 def describe_assist(a: dict) -> str:
@@ -240,11 +275,27 @@ def describe_assist(a: dict) -> str:
            "fault": "a fault latched or no sample", "below_bound": "the bound certified no effort"}
     parts = [f"{why[k]} {v} cycle(s)" for k, v in sorted(ne.items(), key=lambda kv: -kv[1]) if v]
     rho = a["rho_avg_mean"]
-    line = (f"assistance ({a['mode']}, gain {a['gain']:g}) engaged {100 * a['engaged_share']:.1f} % of "
+    line = (f"assistance ({a['mode']}, gain {_g(a['gain'])}) engaged {100 * a['engaged_share']:.1f} % of "
             f"{a['joint_cycles']} joint-cycles, available {100 * a['available_share']:.1f} %; not engaged: "
             + ("; ".join(parts) if parts else "never"))
     if rho is not None:
-        line += f"; mean averaged bound {rho:.3g} N m (rho_max {a['rho_max']:g})"
+        line += f"; mean averaged bound {rho:.3g} N m (rho_max {_g(a['rho_max'])})"
     if a["effort_reduction"] is not None:
         line += f"; effort reduction {100 * a['effort_reduction']:.1f} %"
+    joints = a.get("joints", [])
+    if len(joints) > 1:
+        line += "; per joint: " + ", ".join(_describe_joint(j, why) for j in joints)
     return line
+
+
+def _describe_joint(j: dict, why: dict) -> str:
+    """Joint ``j``'s part of :func:`describe_assist`: its shares and the most frequent reason it was not engaged."""
+    ne = {k: v for k, v in j["not_engaged"].items() if v}
+    txt = (f"joint {j['joint']} engaged {100 * j['engaged_share']:.1f} %, available "
+           f"{100 * j['available_share']:.1f} %")
+    if ne:
+        k = max(ne, key=ne.get)
+        txt += f" (mostly {why[k]})"
+    if j["effort_reduction"] is not None:
+        txt += f", effort reduction {100 * j['effort_reduction']:.1f} %"
+    return txt

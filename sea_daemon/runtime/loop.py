@@ -107,7 +107,9 @@ class LoopStats:
     overruns: int = 0
     max_late_s: float = 0.0
     periods: Series = field(default_factory=Series)   # filled only when record_periods=True
-    cpu: Series = field(default_factory=Series)       # the loop thread's CPU time per cycle [s] (record_periods)
+    # the loop thread's CPU time per cycle [s] (record_periods): from one cycle's end to the next's
+    # (the pacing between them counted with the next cycle; one clock read per cycle)
+    cpu: Series = field(default_factory=Series)
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
     extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
@@ -200,6 +202,7 @@ class FixedRateLoop:
         self._cycle = CycleState()
         self._t0 = 0.0                           # the pacing origin: cycle k's deadline is t0 + k·period
         self._last_start = 0.0                   # clock() at the start of the cycle before
+        self._cpu_end = 0.0                      # the thread's CPU clock at the end of the cycle before (record_periods)
         self.last_estimate = None
         self.cycle_start = 0.0
 
@@ -273,14 +276,17 @@ class FixedRateLoop:
         c = self._cycle
         self._t0 = self._last_start = self.clock()
         k = 0
-        if self.record_periods and cycles is not None:
-            st.cpu.reserve(len(st.cpu) + cycles)
-            st.periods.reserve(len(st.periods) + cycles)
+        if self.record_periods:
+            # the thread's CPU clock is a system call (no vDSO): read once per cycle, and only
+            # when recorded
+            self._cpu_end = self.cpu_clock()
+            if cycles is not None:
+                st.cpu.reserve(len(st.cpu) + cycles)
+                st.periods.reserve(len(st.periods) + cycles)
         while not self._stop and (cycles is None or k < cycles):
             link = self.bound_link                    # may be attached while the loop runs
             c.k = k
             c.start = start = self.clock()
-            cpu0 = self.cpu_clock()
             self.cycle_start = start
             if self._reset_requested:
                 self._operator_reset(k, start)
@@ -291,7 +297,7 @@ class FixedRateLoop:
             self._hold_when_latched(c)
             self._publish(c)
             self._record(c, link)
-            self._keep_alive(c, link, cpu0)
+            self._keep_alive(c, link)
             k += 1
             st.cycles = k
             self._pace(k)
@@ -440,7 +446,7 @@ class FixedRateLoop:
         else:
             row[L.tau_assist] = 0.0
 
-    def _keep_alive(self, c: CycleState, link, cpu0: float) -> None:
+    def _keep_alive(self, c: CycleState, link) -> None:
         """The cycle's sample to the bound worker (it computes while the loop sleeps; a worker
         that died or fell a whole ring behind: BOUND_LOST, once, again after a reset while it
         lasts), WATCHDOG=1, and the cycle's CPU time and period when recorded."""
@@ -456,7 +462,9 @@ class FixedRateLoop:
         if self.notifier is not None:
             self.notifier.watchdog()
         if self.record_periods:
-            self.stats.cpu.append(self.cpu_clock() - cpu0)
+            cpu = self.cpu_clock()
+            self.stats.cpu.append(cpu - self._cpu_end)
+            self._cpu_end = cpu
             if k > 0:
                 self.stats.periods.append(c.start - self._last_start)
         self._last_start = c.start

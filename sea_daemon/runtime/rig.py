@@ -172,7 +172,7 @@ def make_rig(cfg: ModelConfig, *, sim: str | None = None, device_model: str | No
         tau_h = subject_torque(sc, phase)
     hold = np.array(plant.hold_torque, dtype=float).reshape(n)
     if sim:
-        hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limit, tau_h_act=tau_h)
+        hw = SimHardware(plant, cfg.dt, torque_limit=cfg.hardware.torque_limits(n), tau_h_act=tau_h)
         return Rig(hw, f"simulator ({scen}), no CAN", hold, hold, tau_h, plant=plant, cfg=cfg)
     cfg = on_fresh_virtual_channel(cfg, "sea-daemon")
     return device_model_rig(cfg, plant, tau_h_act=tau_h, initial_torque=hold,

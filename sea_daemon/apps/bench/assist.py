@@ -48,11 +48,15 @@ import yaml
 
 from sea_daemon.apps.bench import add_json_argument, json_output, machine
 from sea_daemon.apps.bench._family import calibration_motion, draw_plant
+from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints
 from sea_daemon.apps.bench.generalize import parse_seeds
+from sea_daemon.apps.calibration.joints import plant_substep
 from sea_daemon.apps.calibration.modelio import save_calibrated
-from sea_daemon.apps.calibration.pipeline import calibrate_log
+from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate, calibrate_log
 from sea_daemon.apps.commands.run import run_estimator
+from sea_daemon.core.assist import BELOW_BOUND, ENGAGED, STATES
 from sea_daemon.core.config import CalibrationConfig
+from sea_daemon.core.effects import COULOMB, STRIBECK
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.plant import Plant
 from sea_daemon.core.sim.session import run_session
@@ -69,6 +73,8 @@ DESCRIPTION = __doc__
 TASK = data_root() / "configs" / "scenarios" / "assist_track.yaml"
 #: the plant seeds looked at while the assistance's settings were chosen (not for headline figures)
 DEVELOPMENT_SEEDS = (600, 601, 602)
+#: the same for ``--joints 2``: the two-joint family's development seeds (``bench generalize --joints 2``)
+DEVELOPMENT_SEEDS_JOINTS = (2, 3, 4)
 SKIP_S = 2.0                 # the task's start (the subject settling with the exoskeleton) is not scored
 
 
@@ -77,6 +83,8 @@ def add_arguments(p) -> None:
     p.add_argument("--rate", type=float, default=100.0, help="loop rate [Hz] of every plant (default 100)")
     p.add_argument("--seconds", type=float, default=36.0, help="task duration [s] per run (default 36: four cycles)")
     p.add_argument("--cal-s", type=float, default=60.0, help="calibration excitation [s] (default 60)")
+    p.add_argument("--joints", type=int, default=1,
+                   help="1: the one-joint family; 2: the two-joint family (shoulder-elbow arm from a URDF; default 1)")
     p.add_argument("--out", default=None, help="directory for the model files and arrays (default: a temp dir)")
     p.add_argument("--reuse-calibration", action="store_true",
                    help="use again the model files a calibration of the same plant left in --out (development)")
@@ -96,6 +104,8 @@ def _check(args) -> list[int]:
         raise InputError(f"--seconds {args.seconds:g}: must be in [4, 3600] s")
     if not (math.isfinite(args.cal_s) and 2.0 <= args.cal_s <= 600.0):
         raise InputError(f"--cal-s {args.cal_s:g}: must be in [2, 600] s")
+    if args.joints not in (1, 2):
+        raise InputError(f"--joints {args.joints}: must be 1 or 2")
     return seeds
 
 
@@ -132,16 +142,43 @@ def calibrated_files(seed: int, rate: float, cal_s: float, out: Path, reuse: boo
     t0 = time.perf_counter()
     log = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
     res = calibrate_log(log, cfg, load_yaml(out / "robot.yaml"))
+    return (pd, *assist_files(res, out, seed, t0))
+
+
+def calibrated_files_joints(seed: int, rate: float, cal_s: float, out: Path, reuse: bool = False):
+    """:func:`calibrated_files` for two-joint plant ``seed`` (:mod:`._family_joints`: the coupled
+    shoulder-elbow arm of ``configs/exo_2dof.yaml``, link masses and lengths ±30 %, hidden effects
+    per joint): its calibration excitation over each joint's working range, then the n-joint
+    calibration with the declared subject and working range, as ``bench generalize --joints 2``."""
+    pd = draw_plant_joints(seed, rate_hz=rate)
+    out.mkdir(parents=True, exist_ok=True)
+    key = json.dumps({"seed": seed, "joints": 2, "rate_hz": pd.nominal.rate_hz, "cal_s": cal_s})
+    kept = out / "model_assist.yaml", out / "model.npz", out / "calibration.json"
+    if reuse and all(f.is_file() for f in kept) and (out / "plant.json").read_text() == key:
+        return pd, kept[0], kept[1], {**json.loads(kept[2].read_text()), "reused": True}
+    atomic_write_text(out / "plant.json", key)
+    t0 = time.perf_counter()
+    log = run_session(pd.true, cal_s, reference=calibration_motion_joints(pd, cal_s, seed=seed), seed=1000 + seed,
+                      substep_hz=plant_substep(pd.true, 3e-3, pd.nominal.rate_hz))
+    res = calibrate(log, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
+                                                             working_range=pd.working_range))
+    return (pd, *assist_files(res, out, seed, t0))
+
+
+def assist_files(res, out: Path, seed: int, t0: float):
+    """The calibration ``res`` written as ``calibrate --fit`` writes it, then its model YAML with
+    ``assist.enabled: true`` and nothing else changed: (assist YAML, model file, calibration figures)."""
     yaml_path, npz_path = save_calibrated(out / "model", res, {"command": "bench assist", "seed": seed})
     d = load_yaml(yaml_path)
     d.setdefault("assist", {})["enabled"] = True
     save_yaml(d, out / "model_assist.yaml")
     rep = res.report
     info = {"calibration_s": round(time.perf_counter() - t0, 1), "gp_kept": bool(rep.get("gp_kept")),
-            "effects": [f"{e['type']}({e['side']})" for e in rep.get("diagnose", {}).get("effects_added", [])],
+            "effects": [f"{e['type']}({e['side']})" + (f"[{e['joint']}]" if "joint" in e else "")
+                        for e in rep.get("diagnose", {}).get("effects_added", [])],
             "q_tau": rep.get("tau_h_act_walk", {}).get("q_tau")}
-    atomic_write_text(kept[2], json.dumps(info))
-    return pd, out / "model_assist.yaml", npz_path, info
+    atomic_write_text(out / "calibration.json", json.dumps(info))
+    return out / "model_assist.yaml", npz_path, info
 
 
 # ---------------------------------------------------------------------------- one task run
@@ -156,7 +193,8 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
     q0 = np.full(n, math.radians(task.q_deg[0]))
     z = np.zeros(n)
     comp = SEAModel.from_config(ccfg).load_torque(q0, z, z)
-    kw = dict(seed=seed, substep_hz=max(1000.0, cfg.rate_hz), sign_eps=3e-3)
+    # 1 kHz or the rate, finer where the plant has a stiffer mode (a light distal link)
+    kw = dict(seed=seed, substep_hz=plant_substep(pd.true, 3e-3, cfg.rate_hz), sign_eps=3e-3)
     tau0 = Plant(pd.true, q0=q0, **kw).hold_torque - comp        # the subject holds what compensation does not
     plant = Plant(pd.true, q0=q0, tau_h_act0=tau0, **kw)
     subject = TrackingSubject(task, plant, dt, tau0=tau0)
@@ -164,7 +202,9 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
     est = run_estimator(cfg, model_path)
     ctl = AssistController(ccfg, gain=gain, subject=subject.tau)
     N = int(round(seconds * cfg.rate_hz))
-    rec = {k: np.zeros(N) for k in ("t", "q", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "state")}
+    # per cycle; per cycle and joint (one column a joint, squeezed for one joint)
+    rec = {k: np.zeros(N) for k in ("t", "valid", "hold")}
+    rec.update({k: np.zeros((N, n)) for k in ("q", "q_target", "tau_h_act", "hat", "rho", "tau_assist", "state")})
     box = {}
 
     def on(k, m, e, tau):
@@ -172,15 +212,16 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
             return
         t = m.t if m is not None else k * dt
         rec["t"][k] = t
-        rec["q"][k] = m.q[0] if m is not None else np.nan
-        rec["tau_h_act"][k] = subject(t)[0]          # what the subject applies over [t_k, t_k+1]
-        rec["q_target"][k] = subject.q_target[0]
+        rec["q"][k] = m.q if m is not None else np.nan
+        rec["tau_h_act"][k] = subject(t)          # what the subject applies over [t_k, t_k+1]
+        rec["q_target"][k] = subject.q_target
+        rec["hold"][k] = float(task.target(t)[1] == 0.0)    # the task holds its target (else a move)
         ok = e is not None and bool(e.valid) and box["loop"].supervisor.ok
         rec["valid"][k] = float(ok)
-        rec["hat"][k] = e.tau_h_act_hat[0] if ok else 0.0
-        rec["rho"][k] = e.tau_h_act_bound[0] if ok else math.inf
-        rec["tau_assist"][k] = ctl.tau_assist[0] if box["loop"].supervisor.ok else 0.0
-        rec["state"][k] = ctl.law.state[0]
+        rec["hat"][k] = e.tau_h_act_hat if ok else 0.0
+        rec["rho"][k] = e.tau_h_act_bound if ok else math.inf
+        rec["tau_assist"][k] = ctl.tau_assist if box["loop"].supervisor.ok else 0.0
+        rec["state"][k] = ctl.law.state
     t0 = time.perf_counter()
     hw.start(initial_torque=plant.hold_torque)
     try:
@@ -190,6 +231,8 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
     finally:
         hw.stop()
     sup = loop.supervisor
+    if n == 1:
+        rec.update({k: v[:, 0] for k, v in rec.items() if v.ndim == 2})
     rec.update(fault=sup.latched.name, fault_cycle=int(sup.latched_cycle), detail=sup.latched_detail,
                wall_s=time.perf_counter() - t0, summary=ctl.summary(N))
     return rec
@@ -197,6 +240,11 @@ def task_run(pd, cfg, model_path: Path, task, seconds: float, gain: float | None
 
 def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
+
+
+def joint_view(r: dict, j: int) -> dict:
+    """The record of joint ``j`` of :func:`task_run`'s record ``r`` (per-joint arrays as columns)."""
+    return {k: v[:, j] if isinstance(v, np.ndarray) and v.ndim == 2 else v for k, v in r.items()}
 
 
 def run_metrics(r: dict, dt: float) -> dict:
@@ -223,22 +271,49 @@ def run_metrics(r: dict, dt: float) -> dict:
             "against_share": float(np.mean(against)),
             "pushes_while_invalid": int(np.sum((~used) & (ta != 0.0))),
             "pushes_against_while_invalid": int(np.sum((~used) & (ta * tau_h < 0.0))),
+            "by_phase": {name: phase_metrics(r, m & (r["hold"] == flag)) for name, flag in (("hold", 1.0), ("move", 0.0))},
             "fault": r["fault"], "fault_cycle": r["fault_cycle"], "wall_s": round(r["wall_s"], 1)}
 
 
+def phase_metrics(r: dict, mask) -> dict:
+    """The controller's states (:data:`~sea_daemon.core.assist.STATES`) over the scored cycles of one
+    phase of the task (``mask``: its holds or its moves), the published bound's median there (valid
+    rows) and the subject's torque there: where the engaged time is lost, and against what."""
+    n = int(mask.sum())
+    if not n:
+        return {"share": 0.0}
+    st = np.bincount(r["state"][mask].astype(np.int64), minlength=len(STATES))
+    ok = mask & (r["valid"] > 0)
+    return {"share": n / float(np.sum(r["t"] >= SKIP_S)),
+            "engaged_share": float(st[ENGAGED] / n), "available_share": float((st[ENGAGED] + st[BELOW_BOUND]) / n),
+            "states": {name: int(st[i]) for i, name in enumerate(STATES)},
+            "rho_median": float(np.median(r["rho"][ok])) if ok.any() else None,
+            "tau_h_rms": _rms(r["tau_h_act"][mask])}
+
+
+def friction_at_rest(cfg, j: int = 0) -> float:
+    """The declared load-side friction's magnitude at rest on joint ``j`` (Coulomb F_c plus Stribeck
+    F_s) [N m]: at standstill the subject's torque is known only up to it, whatever the estimator."""
+    return float(sum(abs(e.vector[0]) for e in cfg.model.effects
+                     if e.side == "load" and e.joint == j and e.code in (COULOMB, STRIBECK)))
+
+
 def run_plant(seed: int, args, task, out: Path) -> dict:
-    """The README flow and the two task runs on plant ``seed``: its row of the JSON."""
+    """The README flow and the three task runs on plant ``seed``: its row of the JSON (with two
+    joints, the figures of each joint under ``joints`` and at the top the smallest of them)."""
     row: dict = {"seed": seed, "rate_hz": args.rate, "effort_reduction": None, "engaged_share": None, "faults": []}
+    files = calibrated_files_joints if args.joints == 2 else calibrated_files
     try:
-        pd, yaml_path, npz_path, info = calibrated_files(seed, args.rate, args.cal_s, out / f"plant_{seed}",
-                                                         reuse=args.reuse_calibration)
+        pd, yaml_path, npz_path, info = files(seed, args.rate, args.cal_s, out / f"plant_{seed}",
+                                              reuse=args.reuse_calibration)
     except Exception as e:        # a calibration that refuses or fails is this plant's result
         row.update(calibration_error=f"{type(e).__name__}: {e}"[:400], faults=["calibration: refused or failed"])
         return row
     row.update(plant=pd.summary, calibration=info)
     cfg = load_config(yaml_path)
-    robot = load_config(yaml_path.parent / "robot.yaml")
-    runs = {}
+    robot = pd.nominal if args.joints == 2 else load_config(yaml_path.parent / "robot.yaml")
+    n = cfg.joints
+    runs, per = {}, {}
     for name, gain, comp in (("reference", 0.0, None), ("assisted", None, None), ("robot_only", 0.0, robot)):
         try:
             r = task_run(pd, cfg, npz_path, task, args.seconds, gain, seed=3000 + seed, compensation=comp)
@@ -246,20 +321,44 @@ def run_plant(seed: int, args, task, out: Path) -> dict:
             row["faults"].append(f"{name}: internal error {type(e).__name__}: {e}"[:300])
             row.setdefault("traceback", traceback.format_exc()[-1500:])
             return row
-        runs[name] = {**run_metrics(r, cfg.dt), "controller": r["summary"]}
+        per[name] = [run_metrics(joint_view(r, j), cfg.dt) for j in range(n)]
+        runs[name] = {**per[name][0], "controller": r["summary"]} if n == 1 else \
+            {"joints": per[name], "controller": r["summary"]}
         if r["fault"] != "NONE":
             row["faults"].append(f"{name}: {r['fault']} at cycle {r['fault_cycle']}: {r['detail']}"[:300])
         if args.out:
             np.savez(out / f"plant_{seed}" / f"{name}.npz", **{k: v for k, v in r.items() if isinstance(v, np.ndarray)})
-    ref, ass, rob = runs["reference"], runs["assisted"], runs["robot_only"]
-    s = ass["controller"]
-    row.update(effort_reduction=1.0 - ass["tau_h_rms"] / rob["tau_h_rms"] if rob["tau_h_rms"] > 0 else None,
-               effort_reduction_gated=1.0 - ass["tau_h_rms"] / ref["tau_h_rms"] if ref["tau_h_rms"] > 0 else None,
-               engaged_share=s["engaged_share"], available_share=s["available_share"], not_engaged=s["not_engaged"],
-               rho_avg_mean=s["rho_avg_mean"],
-               coverage_acting=ass["coverage_acting"], pushes_against_while_invalid=ass["pushes_against_while_invalid"],
-               runs=runs)
+    s = runs["assisted"]["controller"]
+    rows = [joint_row(per["assisted"][j], per["reference"][j], per["robot_only"][j], friction_at_rest(cfg, j))
+            for j in range(n)]
+    row.update(engaged_share=s["engaged_share"], available_share=s["available_share"], not_engaged=s["not_engaged"],
+               rho_avg_mean=s["rho_avg_mean"])
+    if n == 1:
+        row.update(rows[0])
+    else:
+        for j, jr in enumerate(rows):
+            sj = s["joints"][j]
+            jr.update(joint=j + 1, engaged_share=sj["engaged_share"], available_share=sj["available_share"],
+                      not_engaged=sj["not_engaged"], rho_avg_mean=sj["rho_avg_mean"])
+        row.update({k: _least([jr[k] for jr in rows]) for k in ("effort_reduction", "effort_reduction_gated",
+                                                                 "coverage_acting")},
+                   pushes_against_while_invalid=sum(jr["pushes_against_while_invalid"] for jr in rows), joints=rows)
+    row["runs"] = runs
     return row
+
+
+def joint_row(ass: dict, ref: dict, rob: dict, friction: float) -> dict:
+    """One joint's figures of a plant from its metrics in the three runs (:func:`run_metrics`)."""
+    return {"effort_reduction": 1.0 - ass["tau_h_rms"] / rob["tau_h_rms"] if rob["tau_h_rms"] > 0 else None,
+            "effort_reduction_gated": 1.0 - ass["tau_h_rms"] / ref["tau_h_rms"] if ref["tau_h_rms"] > 0 else None,
+            "coverage_acting": ass["coverage_acting"], "pushes_against_while_invalid": ass["pushes_against_while_invalid"],
+            "by_phase": ass["by_phase"], "friction_at_rest": friction}
+
+
+def _least(xs):
+    """The smallest of the figures that exist (None if none does)."""
+    xs = [x for x in xs if x is not None]
+    return min(xs) if xs else None
 
 
 # ---------------------------------------------------------------------------- main
@@ -269,8 +368,10 @@ def run(args) -> int:
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench-assist-"))
     out.mkdir(parents=True, exist_ok=True)
     task = load_scenario(TASK).task
-    used = sorted(set(seeds) & set(DEVELOPMENT_SEEDS))
-    print(f"bench assist: {len(seeds)} plant(s) (seeds {args.seeds}) at {args.rate:g} Hz, calibration "
+    dev = DEVELOPMENT_SEEDS_JOINTS if args.joints == 2 else DEVELOPMENT_SEEDS
+    used = sorted(set(seeds) & set(dev))
+    print(f"bench assist: {len(seeds)} {'two-joint ' if args.joints == 2 else ''}plant(s) (seeds {args.seeds}) at "
+          f"{args.rate:g} Hz, calibration "
           f"{args.cal_s:g} s, task {args.seconds:g} s x 3 runs, in-process (the loop over the simulated rig, no "
           f"CAN); {machine()}; output {out}", flush=True)
     if used:
@@ -300,8 +401,9 @@ def _report(args, rows: list[dict]) -> dict:
                "coverage_acting_min": min(cov) if cov else None,
                "plants_with_faults": sum(1 for r in rows if r["faults"]),
                "pushes_against_while_invalid": sum(r.get("pushes_against_while_invalid", 0) for r in rows)}
-    return {"benchmark": "assist", "rate_hz": args.rate, "seconds": args.seconds, "cal_s": args.cal_s,
-            "seeds": args.seeds, "development_seeds": list(DEVELOPMENT_SEEDS), "machine": machine(),
+    return {"benchmark": "assist", "joints": args.joints, "rate_hz": args.rate, "seconds": args.seconds, "cal_s": args.cal_s,
+            "seeds": args.seeds, "machine": machine(),
+            "development_seeds": list(DEVELOPMENT_SEEDS_JOINTS if args.joints == 2 else DEVELOPMENT_SEEDS),
             "rig": "in-process: the daemon's loop over the simulated rig (SimHardware), lock-step, no CAN",
             "summary": summary, "plants": rows}
 
@@ -317,16 +419,44 @@ def _f3(x) -> str:
 def describe_row(row: dict) -> str:
     if "runs" not in row:
         return f"plant {row['seed']}: " + "; ".join(row["faults"])
-    a, ref = row["runs"]["assisted"], row["runs"]["reference"]
+    runs = row["runs"]
     ne = ", ".join(f"{k} {v}" for k, v in row["not_engaged"].items() if v) or "none"
-    return (f"plant {row['seed']}: effort reduction {_pct(row['effort_reduction'])} (the gated assistance's part "
+    head = (f"plant {row['seed']}: effort reduction {_pct(row['effort_reduction'])} (the gated assistance's part "
             f"{_pct(row['effort_reduction_gated'])}), engaged {_pct(row['engaged_share'])}, available "
             f"{_pct(row['available_share'])} (not engaged, cycles: {ne}; mean averaged bound "
-            f"{_f3(row['rho_avg_mean'])} N m); while assisting: "
-            f"coverage {_f3(a['coverage_acting'])}, RMSE {_f3(a['est_rmse_acting'])}, mean rho {_f3(a['rho_mean_acting'])} "
-            f"N m; reference run: RMSE {_f3(ref['est_rmse_valid'])}, coverage {_f3(ref['coverage_valid'])}; pushes "
-            f"against the subject while invalid {a['pushes_against_while_invalid']}; faults: "
-            f"{'; '.join(row['faults']) or 'none'}")
+            f"{_f3(row['rho_avg_mean'])} N m); ")
+    tail = f"; faults: {'; '.join(row['faults']) or 'none'}"
+    if "joints" not in row:
+        return head + _describe_acting(runs["assisted"], runs["reference"]) + tail + describe_phases(row)
+    lines = [head.rstrip("; ") + tail]
+    for j, jr in enumerate(row["joints"]):
+        lines.append(f"  joint {jr['joint']}: effort reduction {_pct(jr['effort_reduction'])} (gated part "
+                     f"{_pct(jr['effort_reduction_gated'])}), engaged {_pct(jr['engaged_share'])}, available "
+                     f"{_pct(jr['available_share'])}; "
+                     + _describe_acting(runs["assisted"]["joints"][j], runs["reference"]["joints"][j])
+                     + describe_phases(jr).replace("\n  ", "\n    "))
+    return "\n".join(lines)
+
+
+def _describe_acting(a: dict, ref: dict) -> str:
+    """While assisting and in the reference run: coverage and error of one joint."""
+    return (f"while assisting: coverage {_f3(a['coverage_acting'])}, RMSE {_f3(a['est_rmse_acting'])}, mean rho "
+            f"{_f3(a['rho_mean_acting'])} N m; reference run: RMSE {_f3(ref['est_rmse_valid'])}, coverage "
+            f"{_f3(ref['coverage_valid'])}; pushes against the subject while invalid {a['pushes_against_while_invalid']}")
+
+
+def describe_phases(row: dict) -> str:
+    """The holds' and the moves' part of :func:`describe_row`: where the engaged time went."""
+    parts = []
+    for name, label in (("hold", "holds"), ("move", "moves")):
+        p = row.get("by_phase", {}).get(name, {})
+        if p.get("share"):
+            parts.append(f"{label} ({_pct(p['share'])} of the task): engaged {_pct(p['engaged_share'])}, available "
+                         f"{_pct(p['available_share'])}, median rho {_f3(p['rho_median'])} N m, the subject's torque "
+                         f"{_f3(p['tau_h_rms'])} N m RMS")
+    if not parts:
+        return ""
+    return f"\n  {'; '.join(parts)}; declared load friction at rest {_f3(row.get('friction_at_rest'))} N m"
 
 
 def describe_summary(s: dict) -> str:

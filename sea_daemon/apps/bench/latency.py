@@ -61,8 +61,7 @@ def model_log(cfg, t, tau_m, tau_h, path: str = "<synthetic>") -> MeasuredLog:
     2π/2^bits on the load side, 2π/(2^bits · gear_ratio) joint side for the motor encoder."""
     m = SEAModel.from_config(cfg)
     n, N = m.n, len(t)
-    res = 2 * np.pi / 2 ** cfg.hardware.encoder_bits
-    res_m = res / cfg.hardware.gear_ratio
+    res, res_m = cfg.hardware.encoder_resolution(cfg.joints)
     x = np.zeros(5 * n)
     q, th = np.zeros((N, n)), np.zeros((N, n))
     for k in range(N):

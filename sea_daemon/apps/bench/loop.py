@@ -391,6 +391,8 @@ def _worker_figures(res, n_cycles: int, dt: float) -> dict | None:
     return {
         "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
         "memory_locked": bound_where.get("memory_locked"),
+        # times the worker gave SCHED_FIFO up for being behind (runtime/bound_serve.py)
+        "rt_yields": bound_where.get("rt_yields"),
         "max_age_cycles": link.max_age,
         "filter_steps": link.steps,
         "samples_done": bound_where.get("samples_done"),
@@ -512,7 +514,8 @@ def _report_cpu(out: dict, res) -> None:
             print(f"bound worker's share of one CPU at this rate: {worker['cpu_share'] * 100:.0f} % (mean CPU per "
                   f"sample / period); the kernel lets real-time tasks use {budget['runtime_us']} us of every "
                   f"{budget['period_us']} us of a CPU: a worker that keeps its CPU busy past that has every "
-                  f"real-time task on that CPU (the loop's, the device model's) stopped for the rest of the period")
+                  f"real-time task on that CPU (the loop's, the device model's) stopped for the rest of the period; "
+                  f"the worker gave SCHED_FIFO up for being behind {worker.get('rt_yields') or 0} times")
         if ag is not None:
             print(f"bound age (cycle of the estimate - cycle of the bound's sample): median {ag['median']:.0f}, "
                   f"p99 {ag['p99']:.0f}, max {ag['max']} cycles; filter steps with no bound within "

@@ -163,7 +163,7 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
     each sample as the estimator's discrete-time model holds it: one GP prediction per sample,
     and the plant's compiled integration)."""
     plant_cfg = dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, torque_noise=float(sigma_u),
-                                                                      torque_limit=max(cfg.hardware.torque_limit, 25.0)))
+                                                                      torque_limit=max(cfg.hardware.torque_limit_max, 25.0)))
     if cfg.joints > 1:
         return synthetic_sessions_joints(cfg, plant_cfg, log, human, duration_s, seed, gp=gp, power=power,
                                          v_gate=v_gate, var_ref=var_ref)

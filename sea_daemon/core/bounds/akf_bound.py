@@ -486,6 +486,7 @@ class AKFTheoremBound:
             sm.predict(record.F_k, Gamma=Gam, eta=eta, lin_err_box=self.prior_inputs_[3], Phi=Phi)
         else:
             self._predict_best_of_two(record, Gam, eta, b, Phi, fric, gp_range)
+        self.friction.cut(sm, record, akf.H)             # the measurement's strips (declared friction)
         sm.update(record.K_k, akf.H)
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means diverged (linearisation "

@@ -14,7 +14,10 @@ import math
 
 import numpy as np
 
+from scipy.special import ndtri
+
 from sea_daemon.core.effects import COULOMB, STRIBECK, evaluate as effect_torque
+from sea_daemon.core.bounds.measurement_strip import cut_generators, strip_halfwidths
 from sea_daemon.core.linalg import discretize
 from sea_daemon.core.model_core import lin_error_boxes
 
@@ -151,6 +154,24 @@ class FrictionRange:
         """A new run: the slope rule is chosen again at the next step."""
         self._steps = 0
         self.rule_ = 1
+
+    def cut(self, sm, record, H: np.ndarray) -> None:
+        """With declared friction, the prior set of means ``sm.Gprior_`` cut by the step's
+        measurement strips |h_iᵀa⁻| ≤ |e_i| + z √S_ii, z = z_{1−δ_N/(2m)}
+        (:mod:`.measurement_strip`): the measured velocities hold the set's velocity extent where
+        the filter's gain leaves it to the friction's slope (docs/bounds.md §4).  The angles' strips
+        always; a velocity's strip only if its cut does not widen the τ_h,act half-width after
+        (I − KH)."""
+        if not self.groups or sm.sets != "zonotope":
+            return
+        m = H.shape[0]
+        z = float(ndtri(1.0 - sm.delta_noise / (2 * m)))
+        keep = -(record.K_k[sm.tau_idx] @ H)           # the τ_h,act rows of I − KH
+        keep[np.arange(sm.tau_idx.size), sm.tau_idx] += 1.0
+        c = strip_halfwidths(record.innovation, record.S_k, z)
+        a = m // 2                                     # the angles' channels, then the velocities'
+        G = cut_generators(sm.Gprior_, H[:a], c[:a])
+        sm.Gprior_ = cut_generators(G, H[a:], c[a:], keep)
 
     def _widths(self, par, rule: int, w: np.ndarray) -> None:
         """w_g of every group under ``rule`` into ``w``, its κ_g into :attr:`kappa_`."""

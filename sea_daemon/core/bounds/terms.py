@@ -10,7 +10,9 @@ generators of each input: :class:`TermShadow` propagates one zonotope per input 
 transition and the gain the bound took at each step (the filter-slope or the range form) and
 reduces each the way the bound does (Girard, every ``reduce_every`` steps), so its terms add up to
 the bound's h up to the order reduction (which boxes generators of different inputs together in
-the bound, apart here).  The rest of ρ_k, ρ_k − h, is the Gaussian part (√(s P_g,ττ) and its
+the bound, apart here) — and, with declared friction, up to the measurement's strips that cut the
+bound's prior set (docs/bounds.md §4): the terms are then each input's half-width before the cuts,
+and ``cut`` = h − their sum (≤ 0 up to the reduction) what the strips took off.  The rest of ρ_k, ρ_k − h, is the Gaussian part (√(s P_g,ττ) and its
 combination with h, docs/bounds.md §3).  A diagnostic: ρ_k is unchanged.  Pure numerics.
 """
 from __future__ import annotations
@@ -89,8 +91,9 @@ class TermsRecorder:
     Python step (the compiled step does not hand out its inputs), publishing the same ρ_k, and
     per step a row of :data:`COLUMNS` in :attr:`rows_` (joint 1).  Everything else is the bound's."""
 
-    #: the columns of :attr:`rows_`: ρ_k, the set of means' τ half-width h, its terms, √P_g,ττ
-    COLUMNS = ("rho", "h") + TERMS + ("sigma_g",)
+    #: the columns of :attr:`rows_`: ρ_k, the set of means' τ half-width h, its terms, √P_g,ττ, and
+    #: h minus the terms' sum (the measurement's strips, module docstring)
+    COLUMNS = ("rho", "h") + TERMS + ("sigma_g", "cut")
 
     def __init__(self, akf):
         # local import: akf_bound builds on this package's modules; a recorder is a diagnostic on top
@@ -120,8 +123,9 @@ class TermsRecorder:
         h = self.shadow.step(*b.prior_inputs_, IKH)
         tau = int(b.sm.tau_idx[0])
         Pg = b.gauss.P if b.gauss.own else record.P
-        self.rows_.append((float(est.tau_h_act_bound[0]), float(b.sm.means_half_widths()[tau]),
-                           *(float(v) for v in h[:, 0]), float(np.sqrt(max(Pg[tau, tau], 0.0)))))
+        hw = float(b.sm.means_half_widths()[tau])
+        self.rows_.append((float(est.tau_h_act_bound[0]), hw, *(float(v) for v in h[:, 0]),
+                           float(np.sqrt(max(Pg[tau, tau], 0.0))), hw - float(h[:, 0].sum())))
 
     def table(self, valid: np.ndarray | None = None) -> dict:
         """Means of :data:`COLUMNS` over the steps (those with ``valid`` true, aligned with the

@@ -114,7 +114,7 @@ class AKF:
         # the first loop cycle
         warm_up()
         # the start-up gate (Estimate.valid, :class:`StartupGate`)
-        t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit
+        t_max = est.tau_h_act_max if est.tau_h_act_max is not None else cfg.hardware.torque_limit_max
         self.tau_h_act_max = float(t_max)
         self.gate = StartupGate(n, self.H, self.s, self.tau_h_act_max)
         # after the gate, whether ρ_k is a real estimate (validity.BoundValidity)
@@ -124,7 +124,7 @@ class AKF:
         # x̂_{k−1}, P_{k−1} kept for it before each step
         self.record = StepRecord(STEP, 0, self.dt, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), self.z,
                                  self.A_k, self.F_k, self.Gamma_mu, self.K_k, self.P, self.mu, self.dmu_dz,
-                                 self.gate.b0, self.Sigma_nom)
+                                 self.gate.b0, self.Sigma_nom, self.innovation, self.S_k)
         # the bound component, and what takes the records in its place (:meth:`attach`)
         self.consumer: BoundConsumer | None = None
         self.bound: Bound | None = None
@@ -197,7 +197,7 @@ class AKF:
         self._ddq = np.zeros(n)
         self.est = Estimate.zeros(n)
         # bounded P: caps of the variances of [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] (akf_core.cap_covariance)
-        lim = float(self.cfg.hardware.torque_limit)
+        lim = self.cfg.hardware.torque_limit_max
         self.P_max = np.repeat([P_CAP_ANGLE ** 2, P_CAP_ANGLE ** 2, P_CAP_VEL ** 2, P_CAP_VEL ** 2,
                                 (P_CAP_TORQUE * lim) ** 2], n)
         self.n_capped = 0

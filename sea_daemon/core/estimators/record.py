@@ -21,7 +21,8 @@ Theorem 1 (step k−1 → k) uses, from the filter:
   (Γ_μ = ∫₀^dt e^{A s} ds I_μ M⁻¹, the map of a torque error held over the step, eq:Dmuhat);
 * the filter step on the set and ρ_k: ``K_k`` (gain), ``P`` (posterior P_k), and ``Sigma_nom``
   (Σ_nom,k, the step's process noise without the GP's variance: what the bound's Gaussian part
-  propagates, docs/bounds.md §3).
+  propagates, docs/bounds.md §3), ``innovation`` (y_k − H x̂⁻_k) and ``S_k`` (its covariance
+  H P⁻ Hᵀ + R): the measurement's strips on the prior set (docs/bounds.md §4).
 
 and, for the start-up gate (:class:`~sea_daemon.core.estimators.gate.StartupGate`), ``gate_box``
 b₀ and ``gate_starts`` (how often the gate started).  ``kind`` is :data:`STEP` or :data:`RESET`
@@ -82,10 +83,14 @@ class StepRecord:
     gate_box: np.ndarray
     #: Σ_nom,k (d, d), the step's process noise without the GP's variance (Q_k = Σ_nom,k + Γ_μ σ² Γ_μᵀ)
     Sigma_nom: np.ndarray
+    #: y_k − H x̂⁻_k (m,), the step's innovation
+    innovation: np.ndarray
+    #: S_k (m, m) = H P⁻ Hᵀ + R, the innovation's covariance
+    S_k: np.ndarray
 
     #: the array fields, in the order a copy lays them out
     ARRAYS: ClassVar[tuple[str, ...]] = ("u", "x_prev", "P_prev", "z", "A_k", "F_k", "Gamma_mu", "K_k", "P",
-                                         "mu", "dmu_dz", "gate_box", "Sigma_nom")
+                                         "mu", "dmu_dz", "gate_box", "Sigma_nom", "innovation", "S_k")
 
     @classmethod
     def zeros(cls, n: int) -> "StepRecord":
@@ -93,7 +98,7 @@ class StepRecord:
         d, m = 5 * n, 4 * n
         return cls(STEP, 0, 0.0, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), np.zeros(3 * n),
                    np.zeros((d, d)), np.zeros((d, d)), np.zeros((d, n)), np.zeros((d, m)), np.zeros((d, d)),
-                   np.zeros(n), np.zeros((n, 3 * n)), np.zeros(d), np.zeros((d, d)))
+                   np.zeros(n), np.zeros((n, 3 * n)), np.zeros(d), np.zeros((d, d)), np.zeros(m), np.zeros((m, m)))
 
     def arrays(self) -> tuple[tuple[str, np.ndarray], ...]:
         """(name, array) of the array fields, in :attr:`ARRAYS` order."""

@@ -89,10 +89,12 @@ class Plant:
         self.n = n = m.n
         self.h_max = 1.0 / float(substep_hz)
         self.sign_eps = float(sign_eps)
-        self.torque_limit = float(cfg.hardware.torque_limit)
+        # |τ_m| limit: a number for one joint, each joint's (n,) for n (hardware.torque_limit per joint)
+        lims = cfg.hardware.torque_limits(n)
+        self.torque_limit = float(lims[0]) if n == 1 else lims
         self.noise_std = float(cfg.hardware.torque_noise if torque_noise is None else torque_noise)
         self.rng = np.random.default_rng(seed)
-        self.encoders = Encoders(cfg.hardware, m.offset_load, m.offset_motor)
+        self.encoders = Encoders(cfg.hardware, m.offset_load, m.offset_motor, n=n)
         self._check_substep()
 
         q0 = np.broadcast_to(np.asarray(q0, dtype=float), (n,)).copy()

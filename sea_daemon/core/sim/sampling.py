@@ -26,7 +26,8 @@ import numpy as np
 
 from sea_daemon.core.log import MeasuredLog
 
-#: the columns of a measured log (docs/interfaces.md §1); every other column is an extra (joint 0)
+#: the columns of a measured log (docs/interfaces.md §1); every other column is an extra (joint 0,
+#: and with n > 1 joints each joint's, suffixed: :meth:`SampleRecorder.log`)
 BASE = ("t", "q", "theta_m", "tau_m", "tau_h_act")
 
 #: the extras a :class:`SampleRecorder` fills at sample k: name → value from the sampled plant and the controller
@@ -111,11 +112,20 @@ class SampleRecorder:
             c[name][k] = value(sp, ctl)
 
     def log(self, rows: slice) -> MeasuredLog:
-        """The measured log of ``rows`` (copies): t and the extras of joint 0, the others per joint."""
+        """The measured log of ``rows`` (copies): t, the measured columns per joint, each extra
+        of joint 0 under its name and, with n > 1 joints, of every joint with the 1-based suffix
+        of docs/interfaces.md §1 (``q_true`` is ``q_true_1``; ``q_true_1 … q_true_n``)."""
         c = self.cols
+        extra = {}
+        for k, v in c.items():
+            if k in BASE:
+                continue
+            extra[k] = v[rows, 0].copy()
+            if v.shape[1] > 1:
+                for j in range(v.shape[1]):
+                    extra[f"{k}_{j + 1}"] = v[rows, j].copy()
         return MeasuredLog(t=c["t"][rows, 0].copy(), q=c["q"][rows].copy(), theta_m=c["theta_m"][rows].copy(),
-                           tau_m=c["tau_m"][rows].copy(), tau_h_act=c["tau_h_act"][rows].copy(),
-                           extra={k: v[rows, 0].copy() for k, v in c.items() if k not in BASE})
+                           tau_m=c["tau_m"][rows].copy(), tau_h_act=c["tau_h_act"][rows].copy(), extra=extra)
 
     def phases(self, training: int) -> tuple[MeasuredLog, MeasuredLog]:
         """(training log, estimation log): the first ``training`` rows, then the rest."""

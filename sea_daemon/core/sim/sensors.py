@@ -50,47 +50,53 @@ def quantize(angle: np.ndarray, quantum: float) -> np.ndarray:
 
 
 class Encoders:
-    """The two absolute encoders of each joint, with optional offsets (``encoder_offset``).
+    """The two absolute encoders of each of ``n`` joints, with optional offsets (``encoder_offset``).
 
+    Each joint's counts per turn (``hardware.encoder_counts``, else 2^``encoder_bits``) and gear
+    ratio (``hardware.gear_ratio``, one or per joint) give its quanta :attr:`q_loads`,
+    :attr:`q_motors` [rad, joint side]; :attr:`q_load`, :attr:`q_motor` are the first joint's.
     ``read(q, theta_m)`` returns the joint-side angles the daemon sees; ``raw(q, theta_m)``
     the counts a device would put on the bus.
     """
 
     def __init__(self, hardware: HardwareConfig, offset_load: np.ndarray | float = 0.0,
-                 offset_motor: np.ndarray | float = 0.0):
+                 offset_motor: np.ndarray | float = 0.0, n: int = 1):
         self.bits = int(hardware.encoder_bits)
-        self.gear_ratio = float(hardware.gear_ratio)
-        self.q_load = load_quantum(self.bits)
-        self.q_motor = motor_quantum(self.bits, self.gear_ratio)
+        self.counts_load, self.counts_motor = hardware.encoder_counts(n)
+        self.gear_ratios = hardware.gear_ratios(n)
+        self.q_loads = 2.0 * math.pi / self.counts_load.astype(float)
+        self.q_motors = 2.0 * math.pi / (self.counts_motor.astype(float) * self.gear_ratios)
+        self.gear_ratio = float(self.gear_ratios[0])
+        self.q_load = float(self.q_loads[0])
+        self.q_motor = float(self.q_motors[0])
         self.offset_load = np.asarray(offset_load, dtype=float)
         self.offset_motor = np.asarray(offset_motor, dtype=float)
 
     def counts(self, q: np.ndarray, theta_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Total (unwrapped) counts of the load and motor encoders."""
-        return (quantize(np.asarray(q) + self.offset_load, self.q_load),
-                quantize(np.asarray(theta_m) + self.offset_motor, self.q_motor))
+        return (quantize(np.asarray(q) + self.offset_load, self.q_loads),
+                quantize(np.asarray(theta_m) + self.offset_motor, self.q_motors))
 
     def read(self, q: np.ndarray, theta_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured joint-side angles (q_meas, θ_m,meas) = counts · quantum."""
         cl, cm = self.counts(q, theta_m)
-        return cl * self.q_load, cm * self.q_motor
+        return cl * self.q_loads, cm * self.q_motors
 
     def raw(self, q: np.ndarray, theta_m: np.ndarray) -> dict[str, np.ndarray]:
-        """What the hardware reports: single-turn counts in [0, 2^bits) and motor shaft turns.
+        """What the hardware reports: single-turn counts in [0, counts per turn) and motor shaft turns.
 
         ``load_count``: load encoder single-turn count; ``motor_count``: motor encoder
         single-turn count; ``motor_turns``: whole motor-shaft turns (multi-turn counter).
         """
         cl, cm = self.counts(q, theta_m)
-        full = np.int64(2**self.bits)
-        return {"load_count": np.mod(cl, full), "motor_count": np.mod(cm, full),
-                "motor_turns": np.floor_divide(cm, full)}
+        return {"load_count": np.mod(cl, self.counts_load), "motor_count": np.mod(cm, self.counts_motor),
+                "motor_turns": np.floor_divide(cm, self.counts_motor)}
 
     def angles_from_raw(self, load_count, motor_count, motor_turns) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`raw` (without offsets): q in [0, 2π), θ_m unwrapped, joint side."""
-        full = 2**self.bits
-        q = np.asarray(load_count, dtype=np.int64) * self.q_load
-        th = (np.asarray(motor_turns, dtype=np.int64) * full + np.asarray(motor_count, dtype=np.int64)) * self.q_motor
+        full = self.counts_motor
+        q = np.asarray(load_count, dtype=np.int64) * self.q_loads
+        th = (np.asarray(motor_turns, dtype=np.int64) * full + np.asarray(motor_count, dtype=np.int64)) * self.q_motors
         return q, th
 
 

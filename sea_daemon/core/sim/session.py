@@ -92,7 +92,7 @@ class BandLimitedTorque:
 SESSION_GAINS = PIDGains(40.0, 80.0, 2.0, velocity_filter_hz=30.0)
 
 
-#: the extras of a session's log (joint 0)
+#: the extras of a session's log (joint 0; with n > 1 joints also per joint, ``q_true_1`` …)
 SESSION_EXTRA = ("q_true", "dq_true", "q_ref", "theta_m_true", "dtheta_m_true")
 
 
@@ -114,7 +114,7 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
         float(hold_q) if np.ndim(hold_q) == 0 else np.asarray(hold_q, dtype=float))
     plant = Plant(true_cfg, q0=q0, seed=seed, substep_hz=sub, sign_eps=sign_eps, torque_noise=torque_noise,
                   extra_load_torque=extra_load_torque, extra_held=extra_held)
-    limit = true_cfg.hardware.torque_limit
+    limit = true_cfg.hardware.torque_limits(true_cfg.joints)      # each joint's
     if reference is not None:
         ctl = ReferenceTracker(gains, reference, dt, limit)
         ctl.start(*plant.measure(), plant.hold_torque)    # bumpless: the first command holds the arm
@@ -132,7 +132,7 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
             des = (lambda t: -float(human(t)))
         else:                         # n joints: τ_des (n,), the subject's torque on every joint
             des = (lambda t: -np.asarray(human(t), dtype=float).reshape(plant.n))
-        ctl = StillArm(plant.hold_torque.copy(), des, limit, float(np.ravel(q0)[0]))
+        ctl = StillArm(plant.hold_torque.copy(), des, limit, float(q0) if plant.n == 1 else np.ravel(q0).copy())
         subject = ctl.subject
     return _sample(SampledPlant(plant, dt), ctl, subject, N, t0)
 

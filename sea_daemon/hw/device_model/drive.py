@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import struct
 import time
+from fractions import Fraction
 
 from canopen.sdo import SdoAbortedError
 
@@ -50,6 +51,19 @@ class DriveNode(SlaveNode):
         self.max_permille = self._raw(0x6072, 0)   # 0x6072, kept by _on_write
         self.add_read_callback(self._on_read)
         self.add_write_callback(self._on_write)
+
+    def set_hardware(self, increments: int, gear: float, rated_mNm: float) -> None:
+        """Another drive than the EDS's (the configured joint's): motor encoder increments per
+        motor turn (0x608F), gear ratio (0x6091, motor:shaft revolutions), rated torque (0x6076)."""
+        g = Fraction(float(gear)).limit_denominator(1000)
+        for index, sub, value in ((0x608F, 1, int(increments)), (0x608F, 2, 1), (0x6091, 1, g.numerator),
+                                  (0x6091, 2, g.denominator), (0x6076, 0, int(round(rated_mNm)))):
+            obj = self.object_dictionary[index]
+            obj = obj if sub == 0 and not hasattr(obj, "subindices") else obj[sub]
+            self.set_data(index, sub, obj.encode_raw(value), check_writable=False)
+        self.increments = int(increments)
+        self.gear = g.numerator / g.denominator
+        self.rated_mNm = int(round(rated_mNm))
 
     def fast_getters(self) -> dict:
         return {0x6041: lambda: self.sm.statusword, 0x6077: lambda: self.applied_permille,

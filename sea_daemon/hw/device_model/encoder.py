@@ -18,6 +18,12 @@ class EncoderNode(SlaveNode):
         self.jump_counts = 0
         self.add_read_callback(self._on_read)
 
+    def set_resolution(self, counts: int) -> None:
+        """Another encoder than the EDS's (the configured joint's): ``counts`` per turn (0x6501)."""
+        self.set_data(0x6501, 0, self.object_dictionary[0x6501].encode_raw(int(counts)), check_writable=False)
+        self.resolution = int(counts)
+        self.range = self.resolution * max(1, self._raw(0x6502, 0))
+
     def fast_getters(self) -> dict:
         return {0x6004: lambda: self.position}
 

@@ -36,6 +36,7 @@ from sea_daemon.hw.device_model.encoder import EncoderNode
 from sea_daemon.hw.device_model.faults import FaultSpec
 from sea_daemon.hw.device_model.slave import DeviceNetwork
 from sea_daemon.core.buffers import resident_zeros
+from sea_daemon.core.hardware_config import joint_values
 
 TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
 #: the SYNC from which the handler's page faults are counted (after its start-up)
@@ -74,6 +75,7 @@ class DeviceModel:
         self.network = self.networks[0]
         self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
         self.encoders = [EncoderNode(i) for i in encoder_nodes]
+        self._configured_hardware(getattr(plant, "cfg", None))
         #: the nodes on each bus, and each node's network
         self.bus_nodes = [[] for _ in self.buses]
         self._net_of: dict[int, DeviceNetwork] = {}
@@ -113,6 +115,23 @@ class DeviceModel:
         self._faults_final: dict | None = None    # handler_page_faults() when stopped (the thread ends)
 
     # ------------------------------------------------------------------ life cycle
+    def _configured_hardware(self, cfg) -> None:
+        """Each joint's drive and load encoder as the plant's configuration ``cfg`` has them (gear
+        ratio, encoder counts, rated torque per joint; docs/configuration.md), where they differ
+        from the EDS's (a plant without a configuration of these joints: the EDS's)."""
+        if cfg is None or getattr(cfg, "joints", None) != self.n:
+            return
+        n, hw = self.n, cfg.hardware
+        gear = hw.gear_ratios(n)
+        load, motor = hw.encoder_counts(n)
+        rated = joint_values(hw.bus.rated_torque, n)
+        for j, (d, e) in enumerate(zip(self.drives, self.encoders)):
+            r = float(rated[j])
+            if (d.increments, d.gear, d.rated_mNm) != (int(motor[j]), float(gear[j]), r):
+                d.set_hardware(int(motor[j]), float(gear[j]), r)
+            if e.resolution != int(load[j]):
+                e.set_resolution(int(load[j]))
+
     def acceptance_filters(self, bus: int = 0) -> list[dict]:
         """What the CAN controllers of the devices on ``bus`` (an index) accept (python-can
         ``can_filters``): NMT, SYNC, their own RPDOs and SDO requests, heartbeats (the master's,
@@ -197,15 +216,17 @@ class DeviceModel:
             # the simulator's encoders (Encoders.counts: floor((angle + offset) / quantum)) on
             # its state vector [q, θ_m, q̇, θ̇_m], in float arithmetic: the same counts (the
             # offsets, one or one per joint, as floats once)
-            n, ql, qm = self.n, enc.q_load, enc.q_motor
+            n = self.n
             off = self._offsets
             if off is None or off[0] is not enc:
+                # the offsets and each joint's quanta as floats, once
                 off = self._offsets = (enc, np.broadcast_to(enc.offset_load, (n,)).tolist(),
-                                       np.broadcast_to(enc.offset_motor, (n,)).tolist())
-            _, ol, om = off
+                                       np.broadcast_to(enc.offset_motor, (n,)).tolist(),
+                                       enc.q_loads.tolist(), enc.q_motors.tolist())
+            _, ol, om, ql, qm = off
             for j in range(n):
-                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om[j]) / qm), float(y[3 * n + j]))
-                self.encoders[j].set_counts(math.floor((float(y[j]) + ol[j]) / ql))
+                self.drives[j].set_motor_counts(math.floor((float(y[n + j]) + om[j]) / qm[j]), float(y[3 * n + j]))
+                self.encoders[j].set_counts(math.floor((float(y[j]) + ol[j]) / ql[j]))
             return
         cq, cm = self._counts()
         dth = np.atleast_1d(self.plant.dtheta_m)
