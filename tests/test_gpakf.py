@@ -123,22 +123,31 @@ def _step_at(est, log, k):
 
 
 def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passive, trained):
-    """eq:linearization: A_k = ∂/∂x [f_nom(x, u) − I_μ M⁻¹ μ(z(x))] at x̂_{k−1}."""
+    """eq:linearization: A_k = ∂/∂x [f_nom(x, u) − I_μ M⁻¹ μ(z(x))] at x̂_{k−1}, μ's Jacobian the
+    experts' Σ ω_i ∂μ_i/∂z (the routing weights held at ẑ: the split ramps' ∂ω/∂z left out)."""
     cfg, _, log = passive
     est = trained
     model = SEAModel.from_config(cfg)
     G = model.I_mu @ model.Minv
     gp = est.gp
+    g = gp.gps[0]
+    in_overlap = 0
     for k in (150, 333, 520):                      # moving, in the learned region
         x0, _, u, z0 = _step_at(est, log, k)
         ddq = z0[2:]
+        routed = g.route(est.residual.box.clip(z0))
+        in_overlap += len(routed) > 1
 
-        def f(x):
+        def f(x, experts=True):
             z = np.concatenate([x[:1] + x[1:2], x[2:3] + x[3:4], ddq])
-            mu, _, _ = gp.predict(z)
+            if experts:         # the leaves' means with the weights of ẑ
+                mu = np.array([sum(w * g.leaf(node).predict(z)[0] for node, w, _ in routed)])
+            else:
+                mu, _, _ = gp.predict(z)
             # eq:fwdynwtorqueresidual1
             return model.f_nom(x, u) - G @ mu
 
+        assert np.allclose(f(x0, False), est.xdot_k, rtol=1e-10, atol=1e-10)
         assert np.allclose(f(x0), est.xdot_k, rtol=1e-10, atol=1e-10)
         h = np.array([1e-6, 1e-6, 1e-5, 1e-5, 1e-4])
         A_fd = np.column_stack([(f(x0 + h[i] * e) - f(x0 - h[i] * e)) / (2 * h[i]) for i, e in enumerate(np.eye(5))])
@@ -146,6 +155,7 @@ def test_linearisation_matches_finite_differences_of_the_gp_akf_prediction(passi
         assert np.allclose(est.A_k, A_fd, rtol=1e-5, atol=1e-6 * scale), (k, est.A_k - A_fd)
         # the GP part is really there (F_GP ≠ 0 in the θ̈_s row)
         assert np.abs(est.A_k - model.F_nom(x0, u)).max() > 1e-3
+    assert in_overlap                              # k = 333 lies in a split's overlap
 
 
 def test_process_noise_includes_the_gp_variance_exactly(passive, trained):
@@ -365,3 +375,41 @@ def test_frozen_sample_in_one_compiled_call_equals_the_python_step(passive, trai
     (a, xa, Pa, Ga, ca), (b, xb, Pb, Gb, cb) = runs
     assert np.array_equal(a, b) and np.array_equal(xa, xb) and np.array_equal(Pa, Pb) and np.array_equal(Ga, Gb)
     assert ca == cb and a[-1, 3] == 1.0 and np.all(np.isfinite(a[1:, 1]))
+
+
+def _disagreeing_experts(overlap: float):
+    """A one-joint residual GP of two leaves split at q̇ = 0 that disagree there: +1 N m below,
+    −1 N m above (seeded points, q̇ spanning ±0.2 rad/s: the split's ramp is 0.4·overlap wide)."""
+    from sea_daemon.core.config import LearningConfig
+    from sea_daemon.core.learning import ResidualGP
+    rng = np.random.default_rng(3)
+    res = ResidualGP(1, LearningConfig(max_points=20, overlap=overlap, sigma_f=1.0, lengthscales=(1.0, 1.0, 10.0),
+                                       sigma_n=0.05, hyperopt=False))
+    for i in range(21):
+        v = (-1.0 if i % 2 else 1.0) * (0.2 if i < 2 else rng.uniform(0.01, 0.2))
+        res.update(np.array([rng.uniform(0.45, 0.55), v, rng.uniform(-0.1, 0.1)]), [-np.sign(v)])
+    return res
+
+
+@pytest.mark.parametrize("overlap", [0.01, 0.1])
+def test_the_routing_ramp_between_disagreeing_leaves_stays_out_of_the_linearisation(overlap):
+    """eq:linearization takes the experts' Jacobian Σ ω_i ∂μ_i/∂z (eq:moejac per leaf), not the
+    ramp μ_i ∂ω_i/∂z of the split between them: on a still arm in the overlap of two leaves
+    2 N m apart (the merged mean falls 2 N m over 0.4·overlap rad/s: ∂μ/∂q̇ ≈ −5/overlap
+    N m s/rad, anti-damping) the filter runs, its covariance within its caps."""
+    res = _disagreeing_experts(overlap)
+    g = res.gps[0]
+    z = np.array([0.5, 0.0, 0.0])
+    nodes = g.route(z, True)
+    assert len(nodes) == 2 and g.predict_with_grad(z)[2][1] < -4.0 / overlap      # the merged mean's ramp
+    cfg = load_config(SETTINGS)
+    est = GPAKF(cfg, residual=res, learning=False)
+    q = np.array([0.5])
+    est.reset(q, q, np.zeros(1))
+    for _ in range(100):
+        e = est.update(q, q, np.zeros(1))
+    experts = np.zeros(3)
+    g.predict_grad_into(est.residual.box.clip(est.z), experts, False, False)
+    assert np.allclose(est.residual.jac[0], experts, rtol=0, atol=1e-12)
+    assert abs(experts[1]) < 1.0
+    assert np.all(np.isfinite(est.P)) and np.all(np.diag(est.P) <= est.P_max) and np.isfinite(e.tau_h_act_hat).all()

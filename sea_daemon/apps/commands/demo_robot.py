@@ -8,8 +8,7 @@ a cosine torque on each joint), each with its model set to the robot: the true p
 robot with the scenario's heavier, lighter or longer links and its hidden friction per joint,
 behind a CANopen drive and load encoder per joint on the virtual CAN bus (a bus per joint when
 the configuration names one).  As for one joint (:mod:`.demo`, the flow of :mod:`.demo_flow`): ``calibrate --fit`` from the
-nominal robot (the session's online GP learns with fixed hyperparameters, :data:`SESSION_GP`),
-``run`` with the calibrated GP-AKF and its Theorem-1 bound, then the estimation log
+nominal robot, ``run`` with the calibrated GP-AKF and its Theorem-1 bound, then the estimation log
 with the subject's true torque scored: the GP-AKF's own online estimate, the AKF on the
 nominal robot, the oracle AKF (the true plant's model with the same estimator settings: what a
 perfect model would give) and the spring torque — a table row per scenario, joint and
@@ -43,11 +42,6 @@ logger = logging.getLogger("sea_daemon.demo")
 
 #: the embedded scenario of each demo scenario name, for a robot of two joints
 SCENARIOS = {"passive": "two_joint_passive.yaml", "active": "two_joint_active.yaml"}
-#: the online GP of the calibration session (the model ``calibrate --fit`` writes replaces it) learns
-#: with fixed hyperparameters: adapted online on the elbow's friction step (the sign of a Coulomb
-#: friction, steep at rest) the GP's slope ∂μ/∂q̇ reached −60 N m s/rad and the learning filter's
-#: covariance diverged in the passive session (COVARIANCE_NOT_PD, the session stopped)
-SESSION_GP = {"hyperopt": False}
 #: the estimates that set a joint plot's torque axis (the spring torque, off by the arm's weight, and
 #: the bands of a bound far wider than the estimate's error would hide the others)
 ZOOM = ("akf", "oracle", "gp-akf")
@@ -71,7 +65,7 @@ def run(args) -> int:
     t_all = time.perf_counter()
     for name in args.scenario or tuple(SCENARIOS):
         sc_path = robot_scenario(Path(args.robot), name, out / f"{name}_scenario.yaml")
-        entry, est_log, sc = session(args, name, str(sc_path), out, cfg, cfg_path, cfg_rate, learning=SESSION_GP)
+        entry, est_log, sc = session(args, name, str(sc_path), out, cfg, cfg_path, cfg_rate)
         logger.info("demo %s: scoring the estimators per joint and plotting …", name)
         oracle = at_rate(dataclasses.replace(sc.true_config(), estimator=cfg.estimator, kinematics=cfg.kinematics),
                          args.rate)

@@ -109,8 +109,7 @@ class AKFTheoremBound:
         self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._init_geometry(has_gp, n_dirs, seed)
         self.gp_box_violations_ = 0
-        self._rho = np.zeros(n)
-        self._b = np.zeros(d)
+        self._rho, self._b = np.zeros(n), np.zeros(d)
         # the compiled step's other bounded inputs, contiguous: Γ_τ, or [Γ_μ e | Γ_τ r] (those declared)
         self._Gam_tau_c = np.zeros((d, n * (int(self._me_on) + int(self.tau_h_act_rate > 0))))
         self._empty = empty_pack()
@@ -124,6 +123,8 @@ class AKFTheoremBound:
         self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
         self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
+        # the Python step's X⁻ inputs as taken (F, Γ, η, b, Φ), for terms.TermShadow (docs/bounds.md)
+        self.prior_inputs_ = None
 
     def _init_rate(self, tau_h_act_rate) -> None:
         """The declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk and its work arrays."""
@@ -224,8 +225,7 @@ class AKFTheoremBound:
         self.sm.reset()
         self.friction.reset()
         self.gp_box_violations_ = 0
-        self.saturated_ = 0
-        self.range_steps_ = 0
+        self.saturated_ = self.range_steps_ = 0
         self.at_cap_ = False
         self.gauss.reset(record.P)
         if record.ready:
@@ -482,7 +482,8 @@ class AKFTheoremBound:
                 Gam, eta = self._Gam_all, self._eta_all
         # eq:predwLinErrsetandGPerrset, then the filter step on the set
         if fric is None and gp_range is None:
-            sm.predict(record.F_k, Gamma=Gam, eta=eta, lin_err_box=b if np.any(b) else None, Phi=Phi)
+            self.prior_inputs_ = (record.F_k, Gam, eta, b if np.any(b) else None, Phi)
+            sm.predict(record.F_k, Gamma=Gam, eta=eta, lin_err_box=self.prior_inputs_[3], Phi=Phi)
         else:
             self._predict_best_of_two(record, Gam, eta, b, Phi, fric, gp_range)
         self.friction.cut(sm, record, akf.H)             # the measurement's strips (declared friction)
@@ -567,13 +568,12 @@ class AKFTheoremBound:
         hA = np.abs(R @ GA).sum()
         hB = np.abs(R @ GB).sum()
         if hB < hA:
-            sm.Gprior_ = GB
-            sm.lin_err_ = bB
-            self.lin_err_ = bB
+            sm.Gprior_, sm.lin_err_, self.lin_err_ = GB, bB, bB
             self.range_steps_ += 1
+            self.prior_inputs_ = (FB, GamB, etB, bB if np.any(bB) else None, PhiB)
         else:
-            sm.Gprior_ = GA
-            sm.lin_err_ = b
+            sm.Gprior_, sm.lin_err_ = GA, b
+            self.prior_inputs_ = (rec.F_k, Gam, eta, b if np.any(b) else None, Phi)
 
     def _saturate(self, est, P) -> None:
         """A set of means beyond the physical caps of bounded P (``AKF.P_max``) carries no

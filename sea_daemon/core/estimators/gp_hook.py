@@ -48,8 +48,8 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
     """The GP-AKF's residual hook in one call (gpakf._ResidualHook.predict over frozen LoG-GPs):
     z clipped into the input box (``zc``, ``clipped``; health.box_clip), per joint j the merged
     LoG-GP μ_j, ∂μ_j/∂z (row j of ``jac``) and σ_j² (+ Σ ω σ_on² with ``noise``) at the clipped
-    input, as LoGGP.predict_grad_into, the same operations in the same order; the clipped
-    coordinates get a zero Jacobian.  Returns whether any coordinate was clipped."""
+    input, as LoGGP.predict_grad_into with ``weights_grad=False`` (the experts' Jacobian), the
+    same operations in the same order; the clipped coordinates get a zero Jacobian.  Returns whether any coordinate was clipped."""
     any_clipped = box_clip(z, box_lo, box_hi, zc, clipped)
     d = zc.shape[0]
     Zr = zc.reshape((1, d))
@@ -58,7 +58,7 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
     xc = np.empty(d)
     acc = np.empty(d)
     for j in range(links.shape[0]):
-        _, nodes, ws, dws = route(Zr, links[j], span[j], True)
+        _, nodes, ws, _ = route(Zr, links[j], span[j], False)
         k = nodes.shape[0]
         if k == 1:
             mu, var = _leaf_grad(leaf_of[j, nodes[0]], zc, nn, row, apo, A, beta, alpha, ap, center, il2, sf2, lo,
@@ -72,9 +72,10 @@ def hook_predict(z, box_lo, box_hi, zc, clipped, noise, mu_out, jac, var_out, li
                                   hi, clip, xc, dm, dv)
                 mu += w * m
                 m2 += w * (v + m * m)
-                # ∂(ω μ_i) = ω ∂μ_i + μ_i ∂ω
+                # the experts' Jacobian Σ ω_i ∂μ_i (eq:moejac per leaf), without the routing
+                # ramp's μ_i ∂ω_i: the experts' disagreement is in σ² (Q), not in F
                 for c in range(d):
-                    acc[c] += w * dm[c] + m * dws[i, c]
+                    acc[c] += w * dm[c]
             var = m2 - mu * mu
             if var < 0.0:
                 var = 0.0

@@ -99,7 +99,8 @@ class _ResidualHook:
             # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches)
             # with gp_noise_in_Q the predictive variance of the residual torque at z: σ² + σ_on²
             # (docs/gpakf.md)
-            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i], self.noise_in_Q)
+            # the Jacobian of the experts (Σ ω_i ∂μ_i/∂z, no routing ramp: docs/learning.md)
+            self.mu[i], self.var[i] = g.predict_grad_into(zc, self.jac[i], self.noise_in_Q, False)
         if self.box.any_clipped:
             self.jac[:, self.box.clipped] = 0.0
         return self._gate(z)

@@ -13,8 +13,8 @@ bit-identical to the Python path, ``tests/test_gpakf.py``):
    (:func:`~sea_daemon.core.kinematics.fir_push`, :meth:`AKF.measure`), this step's Σ_nom
    (:meth:`AKF.fill_sigma_nom`, :func:`~sea_daemon.core.estimators.akf_core.input_noise`);
 3. F_nom, f_nom (:func:`~sea_daemon.core.estimators.akf_core.nominal_affine`), x̂_{k−1} and
-   P_{k−1} kept for the bound, the residual hook (:func:`~sea_daemon.core.estimators.gp_hook.hook_predict`)
-   with σ² held over the configuration's step, :func:`~sea_daemon.core.estimators.akf_core.filter_step`;
+   P_{k−1} kept for the bound, the residual hook (:func:`~sea_daemon.core.estimators.gp_hook.hook_predict`:
+   μ, σ² and the experts' Jacobian Σ ω_i ∂μ_i/∂z) with σ² held over the configuration's step, :func:`~sea_daemon.core.estimators.akf_core.filter_step`;
 4. the largest predicted variance against its cap, bounded P
    (:func:`~sea_daemon.core.estimators.akf_core.cap_covariance`), the Cholesky attempt of P
    (:func:`~sea_daemon.core.linalg.is_pd`);

@@ -484,19 +484,24 @@ class LoGGP(LoGGPState):
         x, _ = self._check_x(x)
         return self._predict_with_grad(x, var_grad, None)
 
-    def predict_grad_into(self, x: np.ndarray, out: np.ndarray, noise: bool = False) -> tuple[float, float]:
+    def predict_grad_into(self, x: np.ndarray, out: np.ndarray, noise: bool = False,
+                          weights_grad: bool = True) -> tuple[float, float]:
         """``(μ, σ²)``, with ``∂μ/∂x`` written into ``out``: the GP-AKF's per-step call.
 
         ``noise``: σ² + :meth:`noise_variance` (the predictive variance of a new target), from
-        the same routing.  ``x`` must be a finite, C-contiguous float array of shape
-        (input_dim,) (the caller has validated it, e.g. clipped it into the input box); it is
-        not checked here.
+        the same routing.  ``weights_grad=False``: ``out`` is the experts' Jacobian
+        Σ ω_i ∂μ_i/∂x (eq:moejac of each leaf, merged with the weights), without the routing
+        ramp's μ_i ∂ω_i/∂x (the GP-AKF's linearisation, docs/learning.md).  ``x`` must be a
+        finite, C-contiguous float array of shape (input_dim,) (the caller has validated it,
+        e.g. clipped it into the input box); it is not checked here.
         """
-        r = self._predict_with_grad(x, False, out, noise)
+        r = self._predict_with_grad(x, False, out, noise, weights_grad)
         return r[0], r[1]
 
-    def _predict_with_grad(self, x: np.ndarray, var_grad: bool, out, noise: bool = False):
-        nodes, ws, dws = self.route_one(x, True)
+    def _predict_with_grad(self, x: np.ndarray, var_grad: bool, out, noise: bool = False,
+                           weights_grad: bool = True):
+        # without weights_grad the routing's ∂ω/∂x are zeros (route_one without grad)
+        nodes, ws, dws = self.route_one(x, weights_grad or var_grad)
         gps = self._gp
         if noise:
             # σ² + Σ ω_i σ_on,i² (noise_variance)
