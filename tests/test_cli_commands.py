@@ -12,8 +12,9 @@ from sea_daemon.apps import bench as bench_pkg
 from sea_daemon.apps import commands
 from sea_daemon.apps.commands.bench import BENCHMARKS
 
-#: modules of the commands package that are helpers of the commands, not commands
-HELPERS = {"daemon_args"}
+#: modules of the commands package that are helpers of the commands, not commands (demo --robot
+#: is demo_robot, the flow both demos share demo_flow)
+HELPERS = {"daemon_args", "demo_flow", "demo_robot"}
 
 
 @pytest.mark.parametrize("package, table, helpers", [

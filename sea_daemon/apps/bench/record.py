@@ -163,9 +163,19 @@ def attack_disk_full(tmp: Path, cycles: int, rng) -> dict:
     # fills after 25..75 % of the run (a row is about 150 bytes), in whole pages
     size = max(2, int(rng.uniform(0.25, 0.75) * cycles * ROW_BYTES) // 4096) * 4096
     with _small_disk(tmp, size) as (d, mounted):
+        writers = []
+
         def limit(w):                    # no tmpfs: the writer's files may grow to the same size
-            resource.prlimit(w.writer_pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
-        res, path, note = serve_with_action(d, cycles, -1, None, writer_hook=None if mounted else limit)
+            writers.append(w)
+            if not mounted:
+                resource.prlimit(w.writer_pid, resource.RLIMIT_FSIZE, (size, resource.RLIM_INFINITY))
+
+        def caught_up(rig):              # the unpaced loop waits for the writer (a loaded host lags
+            w = writers[-1]              # it): the disk fills while the run goes on, not after it
+            end = time.monotonic() + 60
+            while w.fault() is None and w.rows_written < w.appended and time.monotonic() < end:
+                time.sleep(0.002)
+        res, path, note = serve_with_action(d, cycles, 0, lambda rig: None, writer_hook=limit, after=caught_up)
         fin = res.log
         log = read_log(path, n=1) if fin["rows_written"] >= 2 else None
         rows_in_file = path.read_bytes().count(b"\n") - 1

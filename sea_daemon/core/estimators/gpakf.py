@@ -61,6 +61,10 @@ class _ResidualHook:
         # (ResidualGP.off_direction): mean and Jacobian 0 there, the physical model alone
         self.n_off_direction = 0
         self.off = False
+        # False while the GP-AKF learns online from its own data (GPAKF.learning): what one way
+        # taught it (a wrong mass, a stiffness) may hold the other way, and the pairs it gathers
+        # moving that way cover it within DIRECTION_MIN_PAIRS; a frozen GP is gated
+        self.gate = True
         self._off_direction = getattr(gp, "off_direction", None)     # a residual of one's own may lack it
         # the compiled path (freeze): LoG-GPs only
         self._loggp = all(type(g) is LoGGP for g in gp.gps)
@@ -108,7 +112,7 @@ class _ResidualHook:
     def _gate(self, z):
         """The direction gate: μ and ∂μ/∂z set to 0 where some joint moves at ``z`` in a
         direction the GP's training pairs did not cover (σ² kept: Q still has the GP's variance)."""
-        off = self.off = self._off_direction is not None and self._off_direction(z)
+        off = self.off = self.gate and self._off_direction is not None and self._off_direction(z)
         if off:
             self.n_off_direction += 1
             self.mu[:] = 0.0
@@ -128,6 +132,17 @@ class GPAKF(AKF):
     """
 
     name = "gp-akf"
+
+    @property
+    def learning(self) -> bool:
+        """Whether the GP learns online from the filter's own pairs (the direction gate of
+        :class:`_ResidualHook` is off meanwhile)."""
+        return self._learning
+
+    @learning.setter
+    def learning(self, on: bool) -> None:
+        self._learning = bool(on)
+        self.residual.gate = not self._learning
 
     def __init__(self, cfg: ModelConfig, dt: float | None = None, residual: ResidualGP | None = None,
                  learning: bool = True, model: SEAModel | None = None, tau_lag: int = 0, bound=None):
