@@ -51,8 +51,9 @@ def jsonable(x):
 
 
 def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) -> tuple[Path, Path]:
-    """Write ``prefix.yaml`` and ``prefix.npz`` (and ``prefix.urdf``, the wearer's arm as the
-    calibration corrected it, when it did); returns the paths of the first two."""
+    """Write ``prefix.yaml`` and ``prefix.npz`` (and ``prefix.urdf``, the rigid body -- the
+    robot's links and the wearer's arm -- as the calibration corrected it, when it did);
+    returns the paths of the first two."""
     prefix = Path(prefix)
     yaml_path, npz_path = prefix.with_suffix(".yaml"), prefix.with_suffix(".npz")
     rep = result.report
@@ -63,11 +64,11 @@ def save_calibrated(prefix: str | Path, result, provenance: dict | None = None) 
         header.append("kept as given: " + ", ".join(rep["given"]))
     cfg = result.cfg
     if (rep.get("body") or {}).get("kept"):
-        # the corrected wearer's arm: its URDF beside the configuration (prefix.urdf), which names it
+        # the corrected rigid body: its URDF beside the configuration (prefix.urdf), which names it
         urdf = prefix.with_suffix(".urdf")
         atomic_write_text(urdf, cfg.model.rigid.urdf)
         cfg = dataclasses.replace(cfg, source=str(yaml_path), model=dataclasses.replace(cfg.model, urdf=urdf.name))
-        header.append(f"the wearer's arm corrected by the calibration: {urdf.name}")
+        header.append(f"the rigid body (links and the wearer's arm) corrected by the calibration: {urdf.name}")
     save_config(cfg, yaml_path, header="\n".join(header))
     gp = result.gp if result.gp is not None else ResidualGP.from_config(result.cfg)
     prov = {"command": "calibration", **(provenance or {}),
