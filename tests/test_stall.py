@@ -101,3 +101,17 @@ def test_a_stalled_loop_goes_on_after_the_stall():
         assert loop.supervisor.ok, loop.supervisor.status_line()
     finally:
         rig.stop()
+
+
+def test_freeze_heap_moves_what_exists_out_of_the_collectors_reach():
+    # the device model's, the bound worker's and the loop's processes freeze their heap before
+    # serving: a full collection over it takes tens of ms, longer than the 1 kHz tolerance
+    import gc
+    from sea_daemon.runtime.realtime import freeze_heap
+    keep = [[i] for i in range(1000)]
+    try:
+        before = gc.get_freeze_count()
+        freeze_heap()
+        assert gc.get_freeze_count() >= before + len(keep)
+    finally:
+        gc.unfreeze()

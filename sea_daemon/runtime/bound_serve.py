@@ -34,7 +34,7 @@ from sea_daemon.core.estimators.validity import STARTUP
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
 from sea_daemon.runtime.counts import CountReader, write_count
-from sea_daemon.runtime.realtime import lock_memory
+from sea_daemon.runtime.realtime import freeze_heap, lock_memory
 
 
 def _pdeathsig() -> None:
@@ -117,6 +117,7 @@ def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: 
         views = bs.map_shared(shm.buf, cap, width, rwidth, record)
         views.hdr[bs.H_SCHED] = sched
         views.hdr[bs.H_LOCKED] = 1 if locked else 0
+        freeze_heap()          # the inherited heap out of the collector's reach (a full sweep: tens of ms)
         Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe, sched).serve()
     finally:
         del views

@@ -13,7 +13,6 @@ the controller from :mod:`sea_daemon.runtime.controller`.
 """
 from __future__ import annotations
 
-import gc
 import json
 import os
 import signal
@@ -30,7 +29,7 @@ from sea_daemon.core.log import DaemonLogLayout
 from sea_daemon.core.estimators.validity import reason_counts
 from sea_daemon.runtime.loop import Controller, FixedRateLoop
 from sea_daemon.runtime.notify import Notifier
-from sea_daemon.runtime.realtime import try_realtime
+from sea_daemon.runtime.realtime import freeze_heap, try_realtime
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.io.files import atomic_write_bytes
 
@@ -350,10 +349,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         # the drives watch our heartbeat from read(): the loop starts right away
         notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}")
         t_wall = time.monotonic()
-        # what exists now is never garbage: out of the collector's reach, so that a collection in
-        # the loop only walks what the loop's cycles create (short pauses, no full-heap sweeps)
-        gc.collect()
-        gc.freeze()
+        # what exists now is never garbage: a collection in the loop walks only what its cycles create
+        freeze_heap()
         stats = loop.run(cycles)
     finally:
         notifier.stopping()

@@ -24,7 +24,7 @@ from sea_daemon.hw.device_model.split_plant import SplitPlant
 from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.io.scenario import human_torque, load_scenario, make_plant, task_plant
-from sea_daemon.runtime.realtime import try_realtime
+from sea_daemon.runtime.realtime import freeze_heap, try_realtime
 from sea_daemon.runtime.rig import bus_overrides
 
 DESCRIPTION = __doc__
@@ -109,6 +109,8 @@ def run(args) -> int:
         # before the threads start: they inherit it
         r = try_realtime(args.rt_priority)
         rt = f"{r['sched']}, memory {r['mlockall']}"
+    # the SYNC handler's collections walk only what it creates, not the whole heap (tens of ms)
+    freeze_heap()
     model.start()
     try:
         for f in faults:
