@@ -15,8 +15,8 @@ Both never raise; they return what applied, for the READY status line and the JS
 from __future__ import annotations
 
 import ctypes
-import gc
 import ctypes.util
+import gc
 import os
 
 #: CAP_IPC_LOCK's bit in /proc/PID/status ``CapEff`` (linux/capability.h)
