@@ -19,7 +19,7 @@ import numpy as np
 
 from sea_daemon.core import validate
 from sea_daemon.core.effects import Effect, effect_from_dict
-from sea_daemon.core.hardware_config import BusConfig, HardwareConfig
+from sea_daemon.core.hardware_config import BusConfig, HardwareConfig, joint_values
 from sea_daemon.errors import ConfigError
 
 #: the largest seed of a random generator a configuration may give (numpy's and Python's take any
@@ -443,7 +443,7 @@ class AssistConfig:
 
     def per_joint(self, name: str, n: int) -> np.ndarray:
         """Setting ``name`` as an array of ``n`` values, one per joint."""
-        return np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (n,)).copy()
+        return joint_values(getattr(self, name), n)
 
     def to_dict(self) -> dict:
         return {key: list(v) if isinstance(v, tuple) else v for key, v in ((key, getattr(self, key)) for key in self.KEYS)}
@@ -581,7 +581,7 @@ class ModelConfig:
             learning=LearningConfig.from_dict(d.get("learning") or {}, n, source),
             hardware=hardware,
             source=source,
-            # the assistance of every joint within the smallest joint's torque limit
+            # each joint's assistance within its own joint's torque limit
             assist=AssistConfig.from_dict(d.get("assist") or {}, n, source, hardware.torque_limits(n)),
             calibration=CalibrationConfig.from_dict(d.get("calibration") or {}, n, source),
             publish=PublishConfig.from_dict(d.get("publish") or {}, n, source),
