@@ -121,18 +121,15 @@ def _online_gp(out: Path, name: str, sc, sc_path: str, cfg, cfg_path: Path, mode
     return cal, bound, run_cfg
 
 
-def _robot_config(cfg, sc, path: Path, learning: dict | None = None) -> None:
+def _robot_config(cfg, sc, path: Path) -> None:
     """The nominal robot a user starts from: the configuration's model and hardware, no
     estimator, kinematics or learning settings (the calibration identifies them), and the
-    scenario's declared human-torque rate when it declares one.  ``learning``: the learning
-    settings of the calibration session's online GP (the model file ``--fit`` writes replaces it)."""
+    scenario's declared human-torque rate when it declares one."""
     d = cfg.to_dict()
     for key in ("estimator", "kinematics", "learning"):
         d.pop(key, None)
     if cfg.model.rigid is not None:           # the robot description where the configuration's names it
         d["model"]["urdf"] = str(urdf_path(cfg.source, cfg.model.urdf).resolve())
-    if learning:
-        d["learning"] = dict(learning)
     if sc.tau_h_act_rate is not None:
         d["estimator"] = {"tau_h_act_rate": float(sc.tau_h_act_rate)}
     atomic_write_text(path, "# sea-daemon demo: the nominal robot the calibration starts from\n"
@@ -197,11 +194,9 @@ def prepare(args, config: str):
     return out, cfg, cfg_path, at_rate(cfg, args.rate)
 
 
-def session(args, name: str, sc_path: str, out: Path, cfg, cfg_path: Path, cfg_rate,
-            learning: dict | None = None) -> tuple[dict, MeasuredLog, object]:
+def session(args, name: str, sc_path: str, out: Path, cfg, cfg_path: Path, cfg_rate) -> tuple[dict, MeasuredLog, object]:
     """The scenario ``sc_path`` by the daemon on the virtual bus: calibration (``calibrate
-    --fit`` from the nominal robot, ``learning`` the session's online GP settings; or
-    ``--online-gp``), the
+    --fit`` from the nominal robot; or ``--online-gp``), the
     estimation phase (``run``), both logs with the subject's true torque written to ``out``.
     Returns (its entry of summary.json, estimators still empty; the estimation log; the scenario)."""
     n = cfg.joints
@@ -227,7 +222,7 @@ def session(args, name: str, sc_path: str, out: Path, cfg, cfg_path: Path, cfg_r
         # the calibration from the nominal robot alone: calibrate --fit writes the model file
         # and the complete configuration beside it
         robot_cfg = out / f"{name}_robot.yaml"
-        _robot_config(cfg, sc, robot_cfg, learning)
+        _robot_config(cfg, sc, robot_cfg)
         cal = daemon(["calibrate", *common(robot_cfg, sc_path, logs), "--out", str(model), "--cycles", str(n_tr),
                        "--fit", "--no-progress"])
         run_cfg = Path(cal["config_calibrated"])
