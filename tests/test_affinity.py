@@ -42,17 +42,27 @@ def test_pin_thread_pins_the_calling_thread(keep_affinity):
     assert pin_thread(LAST) == f"CPU {LAST}" and os.sched_getaffinity(0) == {LAST}
 
 
-def test_the_service_pins_the_loop_and_the_bound_worker(tmp_path, keep_affinity):
-    """serve(cpus=(loop, worker)): every cycle runs on the loop's CPU, the worker on its own."""
+@pytest.mark.skipif(len(allowed_cpus()) < 2, reason="one CPU: nothing to keep off the loop's")
+def test_the_service_pins_the_loop_and_the_bound_worker(tmp_path, keep_affinity, monkeypatch):
+    """serve(cpus=(loop, worker)): every cycle runs on the loop's CPU, the worker on its own, the
+    log writer's process on the CPUs other than the loop's."""
+    import sea_daemon.runtime.service as svc
+    made = []
+
+    class Recording(svc.LogWriter):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+    monkeypatch.setattr(svc, "LogWriter", Recording)
+    others = frozenset(allowed_cpus()) - {LAST}
     from sea_daemon.io.configfile import default_config_path, load_config
     from sea_daemon.runtime.rig import make_rig
     from sea_daemon.runtime.controller import ZeroTorque
-    from sea_daemon.runtime.service import serve
     from sea_daemon.core.estimators import make_estimator
     cfg = load_config(default_config_path())
     scen = str(repo_root() / "configs" / "scenarios" / "passive.yaml")
     rig = make_rig(cfg, sim=scen, phase="estimation")
-    seen, worker_cpus = [], []
+    seen, worker_cpus, writer_cpus = [], [], []
     est = make_estimator("akf", cfg, bound=True)
 
     def progress(k, e):
@@ -60,11 +70,13 @@ def test_the_service_pins_the_loop_and_the_bound_worker(tmp_path, keep_affinity)
         link = getattr(est, "consumer", None)
         if link is not None and k == 5:
             worker_cpus.append(frozenset(os.sched_getaffinity(link.pid)))
-    res = serve(rig, est, ZeroTorque(cfg.joints), cfg.joints, cfg.dt, tmp_path / "run.csv", cycles=30,
+            writer_cpus.append(frozenset(os.sched_getaffinity(made[0].writer_pid)))
+    res = svc.serve(rig, est, ZeroTorque(cfg.joints), cfg.joints, cfg.dt, tmp_path / "run.csv", cycles=30,
                 realtime=True, rt_priority=0, progress=progress, bound_in="worker", cpus=(LAST, 0))
     assert res.realtime["cpu"] == f"CPU {LAST}"
     assert seen and set(seen) == {frozenset({LAST})}
     assert worker_cpus == [frozenset({0})] and res.extra["bound"]["cpu"] == "CPU 0"
+    assert writer_cpus == [others]
 
 
 @pytest.mark.parametrize("argv, line", [

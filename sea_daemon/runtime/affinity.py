@@ -5,17 +5,19 @@ The loop, the bound worker and a device model in its own process are SCHED_FIFO 
 the kernel, a task woken on a CPU whose current task has a lower priority preempts it there: the
 device model answering a SYNC may land on the CPU of the worker, the worker on the loop's, and
 each switch leaves the caches of the task that comes back cold.  ``--cpus LOOP[,WORKER]`` keeps
-the loop on one CPU and the worker on another (docs/daemon.md "CPU placement"); the threads the
-loop's process starts after it is pinned (the CAN drivers', the log writer's) are left where the
-kernel puts them.  Not pinned by default.
+the loop alone on one CPU and the worker on another (docs/daemon.md "CPU placement"): the loop
+process's other threads (the CAN drivers') and the log writer's process go to the CPUs other than
+the loop's (:func:`keep_off`).  Not pinned by default.
 
 :func:`parse_cpus` checks the option (each CPU one this process may run on: exit 2 with one line
 otherwise); :func:`pin_thread` pins the calling thread (its threads started later inherit it),
-:func:`pin_pid` another process (the worker, after it started).
+:func:`pin_pid` another process (the worker, after it started), :func:`keep_off` moves this
+process's other threads and a few processes off a CPU.
 """
 from __future__ import annotations
 
 import os
+import threading
 
 from sea_daemon.errors import InputError
 
@@ -66,6 +68,24 @@ def pin_thread(cpu: int | None) -> str:
     except OSError as e:
         return f"not pinned to CPU {cpu} ({e.strerror or e})"
     return f"CPU {cpu}"
+
+
+def keep_off(cpu: int | None, pids=()) -> None:
+    """Every thread of this process but the calling one, and the processes ``pids`` (their main
+    threads), onto the CPUs allowed other than ``cpu`` (nothing for None, or with no other CPU)."""
+    others = set(allowed_cpus()) - {cpu}
+    if cpu is None or not others:
+        return
+    me = threading.get_native_id()
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = []
+    for tid in [t for t in tids if t != me] + [p for p in pids if p]:
+        try:
+            os.sched_setaffinity(tid, others)
+        except OSError:
+            pass                    # gone meanwhile, or not ours to move
 
 
 def pin_pid(pid: int, cpu: int | None) -> str:

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from sea_daemon.errors import InputError, shown
 from sea_daemon.io.owned import check_owned
-from sea_daemon.runtime.affinity import pin_thread
+from sea_daemon.runtime.affinity import keep_off, pin_thread
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.core.log import DaemonLogLayout
@@ -315,9 +315,9 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     (and an LSL outlet has waited its ``wait_s`` for an inlet; ``sinks_wait``: that longest wait),
     what they did is ``log["sinks"]``.
 
-    ``cpus``: (loop[, worker]) CPUs the loop's thread (once the hardware has started its threads)
-    and the bound worker are pinned to (:mod:`sea_daemon.runtime.affinity`; None: not pinned);
-    ``realtime["cpu"]`` says what applied."""
+    ``cpus``: (loop[, worker]) CPUs the loop's thread (once the hardware has started its threads,
+    which go with the log writer's process to the other CPUs) and the bound worker are pinned to
+    (:mod:`sea_daemon.runtime.affinity`; None: not pinned); ``realtime["cpu"]`` says what applied."""
     # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
     # local import: numba's kernels load only where a daemon runs, not for `sea-daemon reset`
     from sea_daemon.core.jit import warm_up
@@ -353,7 +353,9 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
                         socket=None if sock is None else str(sock))
         rig.start()
         started = True
-        # after the hardware's threads started: they stay where the kernel puts them
+        # after the hardware's threads started: they and the log writer off the loop's CPU
+        away = (log.writer_pid,) + ((link.pid,) if link is not None and link.cpu is None else ())
+        keep_off(cpus[0] if cpus else None, away)
         rt["cpu"] = pin_thread(cpus[0] if cpus else None)
         # the drives watch our heartbeat from read(): the loop starts right away
         notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}; loop {rt['cpu']}")
