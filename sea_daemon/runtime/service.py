@@ -354,9 +354,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
         rig.start()
         started = True
         # after the hardware's threads started: they and the log writer off the loop's CPU
-        away = (log.writer_pid,) + ((link.pid,) if link is not None and link.cpu is None else ())
-        keep_off(cpus[0] if cpus else None, away)
-        rt["cpu"] = pin_thread(cpus[0] if cpus else None)
+        rt["cpu"] = _place_loop(cpus, log, link)
         # the drives watch our heartbeat from read(): the loop starts right away
         notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}; loop {rt['cpu']}")
         t_wall = time.monotonic()
@@ -371,6 +369,14 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
             final, where = _shut_down(log, link, where, started, state, publisher, signals)
     return _result(loop, stats, final, rt, time.monotonic() - t_wall, signals.stopped, publisher, where, link,
                    label, notifier)
+
+
+def _place_loop(cpus: tuple[int, ...] | None, log: LogWriter, link) -> str:
+    """The calling thread (the loop's) pinned to ``cpus[0]``, the process's other threads, the log
+    writer and a worker without a CPU of its own moved to the other CPUs; what applied."""
+    loop = cpus[0] if cpus else None
+    keep_off(loop, (log.writer_pid,) + ((link.pid,) if link is not None and link.cpu is None else ()))
+    return pin_thread(loop)
 
 
 def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | None, max_age: int, record: int,
