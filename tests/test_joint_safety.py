@@ -23,20 +23,11 @@ from sea_daemon.hw.canopen_positions import Positions
 from sea_daemon.hw.device_model import FaultSpec
 from sea_daemon.hw.errors import EncoderJump, EncoderStuck
 from sea_daemon.hw.interface import Measurement
-from sea_daemon.io.configfile import data_root, load_config, load_yaml
+from sea_daemon.io.configfile import data_root, load_config
 from sea_daemon.runtime.rig import device_model_rig
+from test_hardware_joints import robot   # configs/exo_2dof.yaml with hardware settings
 
 URDF = data_root() / "configs" / "exo_2dof_arm.urdf"
-
-
-def robot(hw: dict | None = None, bus: dict | None = None) -> ModelConfig:
-    """configs/exo_2dof.yaml with ``hw`` (and ``bus``) in its hardware section."""
-    path = data_root() / "configs" / "exo_2dof.yaml"
-    raw = load_yaml(path)
-    raw["hardware"].update(hw or {})
-    raw["hardware"]["bus"] = {"heartbeat_ms": 20, "pdo_timeout_ms": 500, "heartbeat_timeout_ms": 2000,
-                              "sdo_timeout_ms": 3000, **(bus or {})}
-    return ModelConfig.from_dict(raw, str(path), urdf_text=URDF.read_text())
 
 
 # ---------------------------------------------------------------------------- configuration
