@@ -61,7 +61,7 @@ class BoundFloor:
                 "seen_by": list(self.seen_by), "tau_h_act_rate": self.rate, "tau_h_act_accel": self.accel}
 
 
-def _rest_jacobian(cfg: ModelConfig, q: np.ndarray) -> np.ndarray:
+def rest_jacobian(cfg: ModelConfig, q: np.ndarray) -> np.ndarray:
     """A (5n×5n) of the robot's inertia, spring and gravity at rest at q (declared inertia kept,
     every other declared effect dropped: see the module docstring)."""
     n = cfg.joints
@@ -160,7 +160,7 @@ def bound_floor(cfg: ModelConfig, rate: float | None = None, accel: float | None
         lo, hi = getattr(cal, "q_min_deg", None), getattr(cal, "q_max_deg", None)
         q = np.radians(0.5 * (np.asarray(lo, float) + np.asarray(hi, float))) if lo is not None and hi is not None else 0.0
     qv = np.broadcast_to(np.asarray(q, dtype=float), (n,)).copy()
-    A = _rest_jacobian(cfg, qv)
+    A = rest_jacobian(cfg, qv)
     dq, dth = cfg.hardware.encoder_resolution(n)
     names = [f"load {i + 1}" for i in range(n)] + [f"motor {i + 1}" for i in range(n)]
     rho, hidden, seen = np.empty(n), np.empty(n), []
