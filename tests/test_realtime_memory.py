@@ -164,3 +164,12 @@ def test_a_locked_process_has_no_transparent_huge_pages():
     # lock_memory) turn transparent huge pages off for themselves, whether the lock applies or not
     assert _thp_enabled("") == "['1']"          # the flag is inherited: this process has it on
     assert _thp_enabled("from sea_daemon.runtime.realtime import lock_memory; lock_memory()") == "['0']"
+
+
+def test_huge_page_state_reads_the_mode_and_the_collapses(tmp_path):
+    # bench loop prints the machine's mode and the collapses during its run (any process's)
+    (tmp_path / "khugepaged").mkdir()
+    (tmp_path / "enabled").write_text("always [madvise] never\n")
+    (tmp_path / "khugepaged" / "pages_collapsed").write_text("3142\n")
+    assert realtime.huge_page_state(str(tmp_path)) == {"mode": "madvise", "collapsed": 3142}
+    assert realtime.huge_page_state(str(tmp_path / "missing")) is None

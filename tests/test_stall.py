@@ -176,6 +176,18 @@ def test_a_loop_stall_beyond_the_missed_cycle_tolerance_latches_loop_stall(stall
         assert loop.supervisor.ok, loop.supervisor.status_line()
 
 
+def test_a_slow_first_cycle_is_start_up_not_a_stall():
+    # the first cycle of a run (the first calls into the estimator and the publisher) may take
+    # several periods: skipped deadlines, no fault; the same in a later cycle latches
+    for at, latches in ((0, False), (1, True)):
+        clock = StallClock(0.001, at=at, stall=10.5)
+        loop = FixedRateLoop(StillHardware(max_missed_cycles=3), None, clock, n=1, period=0.001, clock=clock,
+                             sleep=clock.sleep, realtime=True)
+        loop.run(20)
+        assert loop.stats.skipped == 9
+        assert (loop.supervisor.latched == Fault.LOOP_STALL) == latches, loop.supervisor.status_line()
+
+
 def test_a_stalled_loop_beyond_the_tolerance_commands_zero_torque_on_the_bus():
     # real time on the device model: the loop's thread stalls 60 ms (6 periods at 100 Hz) with a
     # tolerance of 3 missed cycles: LOOP_STALL latches, and the loop goes on writing zero torque

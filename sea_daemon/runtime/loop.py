@@ -39,8 +39,8 @@ that it gets the torque that acts over [t_k, t_k+1] — see :mod:`sea_daemon.hw.
    an overrun, and deadlines missed by a whole period or more are skipped (counted), not caught
    up in a burst; a stall of the loop that skipped more deadlines in a row than the hardware's
    missed-cycle tolerance (``hardware.bus.max_missed_cycles``: the cycles without a sample a
-   missing TPDO may take) latches LOOP_STALL — one within it is survived; lock-step runs
-   (``realtime=False``) do not sleep
+   missing TPDO may take) latches LOOP_STALL — one within it is survived, and so is a slow first
+   cycle of a run (its start-up); lock-step runs (``realtime=False``) do not sleep
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
 row vector and the cycle's state (:class:`CycleState`) are preallocated and overwritten, and
@@ -282,15 +282,16 @@ class FixedRateLoop:
         """
         st = self.stats
         c = self._cycle
-        self._t0 = self._last_start = self.clock()
         k = 0
+        if self.record_periods and cycles is not None:
+            st.cpu.reserve(len(st.cpu) + cycles)
+            st.periods.reserve(len(st.periods) + cycles)
+        # the pacing origin once the buffers are there (mapping them takes ms on a virtual machine)
+        self._t0 = self._last_start = self.clock()
         if self.record_periods:
             # the thread's CPU clock is a system call (no vDSO): read once per cycle, and only
             # when recorded
             self._cpu_end = self.cpu_clock()
-            if cycles is not None:
-                st.cpu.reserve(len(st.cpu) + cycles)
-                st.periods.reserve(len(st.periods) + cycles)
         while not self._stop and (cycles is None or k < cycles):
             link = self.bound_link                    # may be attached while the loop runs
             c.k = k
@@ -495,9 +496,10 @@ class FixedRateLoop:
                 skip = int(late // self.period)
                 st.skipped += skip
                 self._t0 += skip * self.period
-                if self.stall_cycles is not None and skip > self.stall_cycles:
+                if self.stall_cycles is not None and skip > self.stall_cycles and k > 1:
                     # as many cycles without a SYNC, a sample or a new command as the stall
-                    # lasted: beyond what a missing TPDO may take
+                    # lasted: beyond what a missing TPDO may take (the first cycle of a run, its
+                    # start-up — the first calls into the estimator and the publisher — aside)
                     self._trip(Fault.LOOP_STALL, k - 1, now,
                                f"the loop stalled {late * 1e3:.1f} ms: {skip} cycles skipped in a row, "
                                f"{self.stall_cycles} tolerated (hardware.bus.max_missed_cycles)")

@@ -63,6 +63,25 @@ def freeze_heap() -> None:
     gc.freeze()
 
 
+#: the machine's transparent huge page settings (sysfs)
+THP_DIR = "/sys/kernel/mm/transparent_hugepage"
+
+
+def huge_page_state(root: str = THP_DIR) -> dict | None:
+    """The machine's transparent huge pages: ``mode`` (``always``, ``madvise`` or ``never``) and
+    ``collapsed`` (huge pages ``khugepaged`` made so far, in any process); None where sysfs does
+    not tell.  Two readings around a run give the collapses during it (:func:`no_huge_pages`)."""
+    try:
+        with open(os.path.join(root, "enabled")) as f:
+            text = f.read()
+        with open(os.path.join(root, "khugepaged", "pages_collapsed")) as f:
+            collapsed = int(f.read())
+    except (OSError, ValueError):
+        return None
+    mode = text[text.index("[") + 1:text.index("]")] if "[" in text and "]" in text else text.strip()
+    return {"mode": mode, "collapsed": collapsed}
+
+
 def has_cap_ipc_lock(status_path: str = "/proc/self/status") -> bool:
     """Whether this process's effective capabilities hold CAP_IPC_LOCK (False where unknown)."""
     try:
