@@ -305,3 +305,27 @@ def test_each_joints_max_torque_within_its_own_torque_limit(tmp_path):
     with pytest.raises(ConfigError) as e:
         load_config(tmp_path / "arm.yaml")
     assert "assist.max_torque" in str(e.value) and "torque_limit = 2] N m (joint 2)" in str(e.value)
+
+
+def test_rho_max_below_the_encoders_floor_is_said_and_reported(caplog):
+    """A rho_max below the tightest bound the encoders allow for the declared wearer can never
+    open the gate: the controller says so at start and its summary carries the floor."""
+    from sea_daemon.runtime.controller import AssistController
+
+    raw = load_yaml(default_config_path())
+    raw["assist"] = {"enabled": True, "rho_max": 0.05}
+    raw.setdefault("estimator", {})["tau_h_act_rate"] = 40.0
+    cfg = ModelConfig.from_dict(raw, "test.yaml")
+    with caplog.at_level("WARNING", logger="sea_daemon.assist"):
+        c = AssistController(cfg)
+    assert 0.05 < c.rho_floor[0] < 0.5
+    assert any("below the tightest bound" in r.getMessage() for r in caplog.records)
+    assert c.summary(1)["rho_floor"] == pytest.approx(float(c.rho_floor[0]))
+    # within reach: nothing said; no declared rate: no floor
+    raw["assist"]["rho_max"] = 1.5
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="sea_daemon.assist"):
+        AssistController(ModelConfig.from_dict(raw, "test.yaml"))
+    assert not caplog.records
+    raw["estimator"]["tau_h_act_rate"] = 0.0
+    assert AssistController(ModelConfig.from_dict(raw, "test.yaml")).summary(1)["rho_floor"] is None
