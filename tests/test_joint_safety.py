@@ -56,6 +56,25 @@ def test_one_joint_files_keep_numbers():
     assert isinstance(d["bus"]["max_joint_speed"], float) and isinstance(d["bus"]["stuck_motion"], float)
 
 
+@pytest.mark.parametrize("check, value, words", [
+    ({"positive": True}, [1.0, 0.0], "must be a number > 0 or a list of 2 such numbers (one per joint), got "
+                                     "[1.0, 0.0] (joint 2: 0.0)"),
+    ({"non_negative": True}, -1, "must be a number >= 0 or a list of 2 such numbers (one per joint), got -1"),
+    ({"lo": 0.0, "hi": 10.0}, [1, 2, 3], "must be a number in [0.0, 10.0] or a list of 2 such numbers "
+                                         "(one per joint), got [1, 2, 3]"),
+    ({"lo": 1.0}, [0.5, 2.0], "must be a number >= 1.0 or a list of 2 such numbers (one per joint), got "
+                              "[0.5, 2.0] (joint 1: 0.5)"),
+    ({"hi": 2.0}, float("nan"), "must be a number <= 2.0 or a list of 2 such numbers (one per joint), got nan"),
+])
+def test_the_per_joint_validator_names_the_value_and_the_allowed_range(check, value, words):
+    from sea_daemon.core.hardware_config import per_joint
+    from sea_daemon.errors import ConfigError
+    with pytest.raises(ConfigError) as e:
+        per_joint("arm.yaml", "section.key", value, 2, **check)
+    assert str(e.value) == f"arm.yaml: section.key: {words}"
+    assert per_joint("arm.yaml", "section.key", [3.0], 1, lo=1.0) == 3.0       # one joint: its number
+
+
 # ---------------------------------------------------------------------------- the encoder checks per joint
 def positions(bus: BusConfig, period=0.01) -> tuple[Positions, Measurement]:
     """Counts -> angles of two joints with 2^16 counts per turn on both encoders and gear 1."""

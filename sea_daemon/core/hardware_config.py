@@ -25,8 +25,10 @@ def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
 
 def _allowed(positive=False, non_negative=False, lo=None, hi=None) -> str:
     """The range :func:`~sea_daemon.core.validate.num` checks with these arguments, as text."""
-    if lo is not None or hi is not None:
+    if lo is not None and hi is not None:
         return f"in [{lo}, {hi}]"
+    if lo is not None or hi is not None:
+        return f">= {lo}" if lo is not None else f"<= {hi}"
     return "> 0" if positive else ">= 0" if non_negative else f"within ±{MAX_ABS:g}"
 
 
