@@ -228,3 +228,24 @@ def test_a_local_sample_gives_each_joint_its_engagement():
     client.encode_into(buf, 2, 7, 0.07, 12.5, 0, client.FLAG_ASSIST_ON, 0b11,
                        [(0.1, 1.0, 0.5, 0.2, 0.05, 0.0), (0.2, 2.0, -0.5, 0.3, 0.05, -0.4)])
     assert client.decode(bytes(buf)).engaged == (False, True)
+
+
+def test_watch_says_which_joints_are_engaged():
+    from sea_daemon.apps.commands.watch import View
+
+    def sample(assist):
+        n = len(assist)
+        engaged = client.FLAG_ASSIST_ENGAGED if any(assist) else 0
+        return client.Sample(cycle=1, t=0.01, t_mono=0.0, fault=0, flags=client.FLAG_ASSIST_ON | engaged,
+                             valid=(True,) * n, q=(0.5,) * n, tau_m=(1.0,) * n, tau_h_act_hat=(1.0,) * n,
+                             tau_h_act_bound=(0.5,) * n, tau_h_act_sigma=(0.1,) * n, tau_assist=tuple(assist))
+    sub = type("Sub", (), {"received": 1, "missed": 0, "rejected": 0})()
+
+    def head(assist):
+        v = View(window=1.0, height=9, y_range=2.0)
+        v.add(sample(assist))
+        return v.status("d.sock", sub)[0]
+    assert "assist: on, engaged (joint 2)   " in head([0.0, 0.4])
+    assert "assist: on, engaged (joints 1, 2)   " in head([0.3, 0.4])
+    assert "assist: on, idle   " in head([0.0, 0.0])
+    assert "assist: on, engaged   " in head([0.4])                           # one joint: as it was
