@@ -63,8 +63,14 @@ def test_per_joint_settings_are_read_checked_and_written_back():
     assert read(back) == c
     # a torque limit per joint bounds each joint's max_torque (and its default)
     assert AssistConfig.from_dict({}, 2, "test.yaml", [40.0, 2.0]).max_torque == (3.0, 2.0)
-    for bad, words in (({"rho_max": [1.5]}, "list of 2"), ({"rho_max": [1.5, -1]}, "assist.rho_max[2]"),
-                       ({"max_torque": [3.0, 12.0]}, "(joint 2)"), ({"gain": [2, "x"]}, "assist.gain[2]")):
+    # the wording of every per-joint setting (hardware.gear_ratio, torque_limit, ... the same)
+    for bad, words in (({"rho_max": [1.5]}, "assist.rho_max: must be a number > 0 or a list of 2 such numbers "
+                                            "(one per joint), got [1.5]"),
+                       ({"rho_max": [1.5, -1]}, "assist.rho_max: must be a number > 0 or a list of 2 such numbers "
+                                                "(one per joint), got [1.5, -1] (joint 2: -1)"),
+                       ({"max_torque": [3.0, 12.0]}, "(joint 2)"),
+                       ({"gain": [2, "x"]}, "assist.gain: must be a number in [0.0, 10.0] or a list of 2 such "
+                                            "numbers (one per joint), got [2, 'x'] (joint 2: 'x')")):
         with pytest.raises(ConfigError) as e:
             read({"enabled": True, **bad})
         assert words in str(e.value)
