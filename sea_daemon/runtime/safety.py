@@ -4,7 +4,8 @@ Policy (docs/safety.md says the same in prose):
 
 * Any fault — a TPDO missing for k cycles, heartbeat timeout, EMCY, an encoder jump or a
   stuck encoder, bus-off or a failed send, NaN/inf or a covariance that lost positive
-  definiteness in the estimator, NIS divergence, a streak of loop overruns — **latches**.
+  definiteness in the estimator, NIS divergence, a streak of loop overruns, a stall of the loop
+  longer than the missed-cycle tolerance — **latches**.
 * In the same cycle the loop commands zero torque (and asks the drive for quick stop), the
   estimate is flagged invalid (``valid = 0`` in the log, NaN is never published), the cause
   is recorded with its cycle and monotonic time, and systemd is told with ``STATUS=``.
