@@ -3,6 +3,7 @@ controller, and the loop's fault policy with assistance (docs/assist.md)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 
 import numpy as np
@@ -313,7 +314,18 @@ def test_each_joints_max_torque_within_its_own_torque_limit(tmp_path):
     assert "assist.max_torque" in str(e.value) and "torque_limit = 2] N m (joint 2)" in str(e.value)
 
 
-def test_rho_max_below_the_encoders_floor_is_said_and_reported(caplog):
+class _Said(logging.Handler):
+    """The messages a logger was given (whatever the command line did to its propagation)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.said = []
+
+    def emit(self, record):
+        self.said.append(record.getMessage())
+
+
+def test_rho_max_below_the_encoders_floor_is_said_and_reported():
     """A rho_max below the tightest bound the encoders allow for the declared wearer can never
     open the gate: the controller says so at start and its summary carries the floor."""
     from sea_daemon.runtime.controller import AssistController
@@ -322,16 +334,19 @@ def test_rho_max_below_the_encoders_floor_is_said_and_reported(caplog):
     raw["assist"] = {"enabled": True, "rho_max": 0.05}
     raw.setdefault("estimator", {})["tau_h_act_rate"] = 40.0
     cfg = ModelConfig.from_dict(raw, "test.yaml")
-    with caplog.at_level("WARNING", logger="sea_daemon.assist"):
+    log, h = logging.getLogger("sea_daemon.assist"), _Said()
+    log.addHandler(h)
+    try:
         c = AssistController(cfg)
-    assert 0.05 < c.rho_floor[0] < 0.5
-    assert any("below the tightest bound" in r.getMessage() for r in caplog.records)
-    assert c.summary(1)["rho_floor"] == pytest.approx(float(c.rho_floor[0]))
-    # within reach: nothing said; no declared rate: no floor
-    raw["assist"]["rho_max"] = 1.5
-    caplog.clear()
-    with caplog.at_level("WARNING", logger="sea_daemon.assist"):
+        assert 0.05 < c.rho_floor[0] < 0.5
+        assert any("below the tightest bound" in m for m in h.said), h.said
+        assert c.summary(1)["rho_floor"] == pytest.approx(float(c.rho_floor[0]))
+        # within reach: nothing said; no declared rate: no floor
+        raw["assist"]["rho_max"] = 1.5
+        h.said.clear()
         AssistController(ModelConfig.from_dict(raw, "test.yaml"))
-    assert not caplog.records
+        assert not h.said
+    finally:
+        log.removeHandler(h)
     raw["estimator"]["tau_h_act_rate"] = 0.0
     assert AssistController(ModelConfig.from_dict(raw, "test.yaml")).summary(1)["rho_floor"] is None

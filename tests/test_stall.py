@@ -188,6 +188,20 @@ def test_a_slow_first_cycle_is_start_up_not_a_stall():
         assert (loop.supervisor.latched == Fault.LOOP_STALL) == latches, loop.supervisor.status_line()
 
 
+def test_timing_faults_off_lets_a_stall_be_counted_not_latched():
+    # --overrun-streak 0 (a run on a shared machine whose timing is not under test): the same
+    # stall is skipped and counted, no LOOP_STALL
+    from sea_daemon.apps.commands.daemon_args import supervisor
+
+    class Args:
+        overrun_streak = 0
+    clock = StallClock(0.001, at=50, stall=10.5)
+    loop = FixedRateLoop(StillHardware(max_missed_cycles=3), None, clock, n=1, period=0.001, clock=clock,
+                         sleep=clock.sleep, realtime=True, supervisor=supervisor(Args()))
+    loop.run(100)
+    assert loop.stats.skipped == 9 and loop.supervisor.ok, loop.supervisor.status_line()
+
+
 def test_a_stalled_loop_beyond_the_tolerance_commands_zero_torque_on_the_bus():
     # real time on the device model: the loop's thread stalls 60 ms (6 periods at 100 Hz) with a
     # tolerance of 3 missed cycles: LOOP_STALL latches, and the loop goes on writing zero torque

@@ -496,7 +496,7 @@ class FixedRateLoop:
                 skip = int(late // self.period)
                 st.skipped += skip
                 self._t0 += skip * self.period
-                if self.stall_cycles is not None and skip > self.stall_cycles and k > 1:
+                if self.stall_cycles is not None and skip > self.stall_cycles and k > 1 and sup.loop_stall:
                     # as many cycles without a SYNC, a sample or a new command as the stall
                     # lasted: beyond what a missing TPDO may take (the first cycle of a run, its
                     # start-up — the first calls into the estimator and the publisher — aside)

@@ -25,8 +25,11 @@ from sea_daemon.errors import Fault
 class SafetySupervisor:
     """Latches the first fault, remembers the later ones, resets only on request."""
 
-    def __init__(self, history: int = 256, overrun_streak: int = 5):
+    def __init__(self, history: int = 256, overrun_streak: int = 5, loop_stall: bool = True):
         self.overrun_streak_limit = int(overrun_streak)
+        #: False: the loop's stalls beyond the missed-cycle tolerance do not latch LOOP_STALL (timing
+        #: faults off, ``--overrun-streak 0``: a run whose timing is not under test on a shared machine)
+        self.loop_stall = bool(loop_stall)
         self._codes = np.zeros(history, dtype=np.int16)
         self._cycles = np.zeros(history, dtype=np.int64)
         self._times = np.zeros(history, dtype=np.float64)

@@ -478,7 +478,7 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
               f"{describe_host_wake(out['host_wake_after'])} -- a cycle starts after such a sleep")
     thp = out["huge_pages"]
     if thp is not None:
-        print(f"transparent huge pages on this machine: {thp['mode']}; khugepaged collapsed "
+        print(f"transparent huge pages (the host's setting): {thp['mode']}; khugepaged collapsed "
               f"{thp['collapsed_during_run']} during the run, in any process (each collapse holds a CPU for "
               f"milliseconds on a kernel without full preemption; this run's processes have huge pages off)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
