@@ -81,6 +81,10 @@ def run(args) -> int:
     q_tau = args.q_tau if args.q_tau is not None else res.report["tau_h_act_walk"].get("q_tau")
     print(f"plant {args.seed} at {pd.nominal.rate_hz:g} Hz: declared rate {est.tau_h_act_rate:.3g} N m/s, "
           f"q_tau {q_tau:.3g} N^2 m^2/s, GP kept {res.report['gp_kept']}")
+    floor = res.report.get("bound_floor")
+    if floor:
+        print(f"floor of any guaranteed bound (core/bounds/floor.py): {floor['rho'][0]:.3f} N m for the declared rate, "
+              f"{floor['band_limited']['rho'][0]:.3f} N m for the declared band's d2tau/dt2")
     cols = ("rmse_valid", "coverage_valid", "rho", "h") + TERMS + ("cut", "gaussian", "sigma_g")
     print(f"{'session':<13}{'kind':<8}" + "".join(f"{c[:10]:>11}" for c in cols))
     table = {}
@@ -92,7 +96,7 @@ def run(args) -> int:
             f"{d[c]:>11.3f}" if d.get(c) is not None else f"{'-':>11}" for c in cols), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps({"seed": args.seed, "rate_hz": pd.nominal.rate_hz, "q_tau": q_tau,
-                                               "sessions": table}, indent=1))
+                                               "bound_floor": floor, "sessions": table}, indent=1))
     return 0
 
 

@@ -36,7 +36,7 @@ from sea_daemon.errors import Fault, InputError
 
 __all__ = ["Sample", "Subscriber", "daemon_uid", "sender_uid", "decode", "encode_into", "record_size", "decode_tpdo", "tpdo_cob_ids", "tpdo_cycles",
            "SOCKET_NAME", "FLAG_FAULT", "FLAG_ASSIST_ON", "FLAG_ASSIST_ENGAGED", "FLAG_ESTIMATOR",
-           "FLAG_ASSIST_DRY_RUN",
+           "FLAG_ASSIST_DRY_RUN", "FLAG_ASSIST_ENGAGED_JOINT", "engaged_joints",
            "TPDO_JOINT", "TPDO_STATUS"]
 
 #: the daemon's socket in its state directory
@@ -55,6 +55,9 @@ FLAG_ASSIST_ON = 1 << 1        # the assist controller runs
 FLAG_ASSIST_ENGAGED = 1 << 2   # it commands assistance (τ_assist ≠ 0 on some joint)
 FLAG_ESTIMATOR = 1 << 3        # an estimator runs
 FLAG_ASSIST_DRY_RUN = 1 << 4   # dry run: τ_assist computed and published, not commanded
+#: it commands assistance on joint 1, 2, 3 (bits 5, 6, 7; set for models of 2 or 3 joints, beside
+#: FLAG_ASSIST_ENGAGED: with one joint that bit alone says it, and a one-joint frame is as before)
+FLAG_ASSIST_ENGAGED_JOINT = (1 << 5, 1 << 6, 1 << 7)
 
 # subscription requests (client -> daemon)
 SUBSCRIBE = struct.Struct("<4sHH")
@@ -86,7 +89,8 @@ def tpdo_cob_ids(node: int = 127, joints: int = 1) -> dict[str, int]:
 
 def decode_tpdo(cob_id: int, data: bytes, node: int = 127) -> dict:
     """One TPDO of the daemon's node as a dict: ``{"joint": j, "tau_h_act_hat": …, "tau_h_act_bound": …}``
-    (joint 1-based) or ``{"cycle": …, "fault": …, "fault_name": …, "valid": [...], "flags": …}``."""
+    (joint 1-based) or ``{"cycle": …, "fault": …, "fault_name": …, "valid": [...], "flags": …,
+    "engaged": [joint 1, 2, 3]}`` (:func:`engaged_joints`)."""
     f = cob_id - node
     if f in JOINT_FUNCTIONS:
         if len(data) != TPDO_JOINT.size:
@@ -99,9 +103,18 @@ def decode_tpdo(cob_id: int, data: bytes, node: int = 127) -> dict:
             raise InputError(f"TPDO 0x{cob_id:03X}: {len(data)} bytes, expected {TPDO_STATUS.size}")
         cycle, fault, valid, flags = TPDO_STATUS.unpack(bytes(data))
         return {"cycle": cycle, "fault": fault, "fault_name": _fault_name(fault),
-                "valid": [bool(valid >> j & 1) for j in range(8)], "flags": flags}
+                "valid": [bool(valid >> j & 1) for j in range(8)], "flags": flags, "engaged": engaged_joints(flags)}
     raise InputError(f"COB-ID 0x{cob_id:03X} is no TPDO of node {node} (allowed: "
                      + ", ".join(f"0x{c + node:03X}" for c in JOINT_FUNCTIONS + (STATUS_FUNCTION,)) + ")")
+
+
+def engaged_joints(flags: int) -> list[bool]:
+    """Whether the assistance is engaged on joint 1, 2, 3 from the flags (TPDO2 byte 7 or
+    :attr:`Sample.flags`): bits 5–7 when the daemon set any (a model of 2 or 3 joints), else
+    :data:`FLAG_ASSIST_ENGAGED` for joint 1 (a one-joint model sets that bit alone)."""
+    if flags & (FLAG_ASSIST_ENGAGED_JOINT[0] | FLAG_ASSIST_ENGAGED_JOINT[1] | FLAG_ASSIST_ENGAGED_JOINT[2]):
+        return [bool(flags & b) for b in FLAG_ASSIST_ENGAGED_JOINT]
+    return [bool(flags & FLAG_ASSIST_ENGAGED), False, False]
 
 
 def tpdo_cycles(frames, node: int = 127) -> dict[int, tuple[dict, dict]]:
@@ -160,6 +173,11 @@ class Sample:
     @property
     def faulted(self) -> bool:
         return bool(self.flags & FLAG_FAULT)
+
+    @property
+    def engaged(self) -> tuple[bool, ...]:
+        """Per joint: the assistance is engaged (τ_assist ≠ 0; it is 0 while a fault is latched)."""
+        return tuple(t != 0.0 for t in self.tau_assist)
 
 
 def encode_into(buf, n: int, cycle: int, t: float, t_mono: float, fault: int, flags: int, valid_mask: int,

@@ -3,6 +3,7 @@ controller, and the loop's fault policy with assistance (docs/assist.md)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 
 import numpy as np
@@ -63,8 +64,14 @@ def test_per_joint_settings_are_read_checked_and_written_back():
     assert read(back) == c
     # a torque limit per joint bounds each joint's max_torque (and its default)
     assert AssistConfig.from_dict({}, 2, "test.yaml", [40.0, 2.0]).max_torque == (3.0, 2.0)
-    for bad, words in (({"rho_max": [1.5]}, "list of 2"), ({"rho_max": [1.5, -1]}, "assist.rho_max[2]"),
-                       ({"max_torque": [3.0, 12.0]}, "(joint 2)"), ({"gain": [2, "x"]}, "assist.gain[2]")):
+    # the wording of every per-joint setting (hardware.gear_ratio, torque_limit, ... the same)
+    for bad, words in (({"rho_max": [1.5]}, "assist.rho_max: must be a number > 0 or a list of 2 such numbers "
+                                            "(one per joint), got [1.5]"),
+                       ({"rho_max": [1.5, -1]}, "assist.rho_max: must be a number > 0 or a list of 2 such numbers "
+                                                "(one per joint), got [1.5, -1] (joint 2: -1)"),
+                       ({"max_torque": [3.0, 12.0]}, "(joint 2)"),
+                       ({"gain": [2, "x"]}, "assist.gain: must be a number in [0.0, 10.0] or a list of 2 such "
+                                            "numbers (one per joint), got [2, 'x'] (joint 2: 'x')")):
         with pytest.raises(ConfigError) as e:
             read({"enabled": True, **bad})
         assert words in str(e.value)
@@ -305,3 +312,41 @@ def test_each_joints_max_torque_within_its_own_torque_limit(tmp_path):
     with pytest.raises(ConfigError) as e:
         load_config(tmp_path / "arm.yaml")
     assert "assist.max_torque" in str(e.value) and "torque_limit = 2] N m (joint 2)" in str(e.value)
+
+
+class _Said(logging.Handler):
+    """The messages a logger was given (whatever the command line did to its propagation)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.said = []
+
+    def emit(self, record):
+        self.said.append(record.getMessage())
+
+
+def test_rho_max_below_the_encoders_floor_is_said_and_reported():
+    """A rho_max below the tightest bound the encoders allow for the declared wearer can never
+    open the gate: the controller says so at start and its summary carries the floor."""
+    from sea_daemon.runtime.controller import AssistController
+
+    raw = load_yaml(default_config_path())
+    raw["assist"] = {"enabled": True, "rho_max": 0.05}
+    raw.setdefault("estimator", {})["tau_h_act_rate"] = 40.0
+    cfg = ModelConfig.from_dict(raw, "test.yaml")
+    log, h = logging.getLogger("sea_daemon.assist"), _Said()
+    log.addHandler(h)
+    try:
+        c = AssistController(cfg)
+        assert 0.05 < c.rho_floor[0] < 0.5
+        assert any("below the tightest bound" in m for m in h.said), h.said
+        assert c.summary(1)["rho_floor"] == pytest.approx(float(c.rho_floor[0]))
+        # within reach: nothing said; no declared rate: no floor
+        raw["assist"]["rho_max"] = 1.5
+        h.said.clear()
+        AssistController(ModelConfig.from_dict(raw, "test.yaml"))
+        assert not h.said
+    finally:
+        log.removeHandler(h)
+    raw["estimator"]["tau_h_act_rate"] = 0.0
+    assert AssistController(ModelConfig.from_dict(raw, "test.yaml")).summary(1)["rho_floor"] is None

@@ -135,6 +135,12 @@ def test_the_expected_accuracy_is_filled_when_the_walk_is_given(sim):
     assert (moving["rmse"] is not None and math.isfinite(moving["rmse"])) or "fault" in moving["why"], moving
     line = next(t for t in s["text"] if t.startswith("Expected accuracy"))
     assert not NAN.search(line)
+    # the floor of the bound for the declared wearer (1.5 N m RMS up to 1 Hz: 13.3 N m/s)
+    f = s["bound_floor"]
+    assert f["tau_h_act_rate"] == pytest.approx(res.cfg.estimator.tau_h_act_rate) and 0.0 < f["rho"][0] < 1.0
+    assert 0.0 < f["band_limited"]["rho"][0] < f["rho"][0]
+    floor = next(t for t in s["text"] if t.startswith("Tightest bound"))
+    assert f"{f['rho'][0]:.3g} N m" in floor and not NAN.search(floor)
 
 
 

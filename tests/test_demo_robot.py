@@ -76,6 +76,23 @@ def test_demo_robot_refuses_what_it_cannot_run_in_one_line(tmp_path, capsys, arg
     assert len(err) == 1 and words in err[0] and "internal error" not in err[0], err
 
 
+def test_a_step_stopped_by_overruns_says_why_and_what_runs_instead():
+    """--pace realtime at a rate the host cannot keep (two joints at 1 kHz on a busy host: the
+    calibration's first cycles overrun): the demo's line names the cause and lock-step."""
+    from sea_daemon.apps.commands.demo_flow import daemon
+    from sea_daemon.errors import RunFault
+
+    def calibrate(argv):
+        print('{"fault": "OVERRUN_STREAK", "cycles": 5}')
+        return 1
+    with pytest.raises(RunFault) as e:
+        daemon(["calibrate", "--pace", "realtime"], calibrate)
+    msg = str(e.value)
+    assert msg.startswith("sea-daemon calibrate stopped with exit status 1 (OVERRUN_STREAK: the daemon's cycles "
+                          "took longer than their period on this host; --pace lockstep")
+    assert "\n" not in msg and msg.endswith("the demo stops there")
+
+
 def test_the_robot_scenario_runs_the_robots_model(tmp_path, active):
     p = demo_robot.robot_scenario(ROBOT, "active", tmp_path / "active_scenario.yaml")
     sc = load_scenario(p)

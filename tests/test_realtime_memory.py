@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import mmap
 import resource
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -139,5 +140,36 @@ def test_memory_is_locked_where_the_limit_cannot_bite(monkeypatch, limit, cap, l
 def test_try_realtime_reports_what_applied(monkeypatch):
     monkeypatch.setattr(realtime.os, "sched_setscheduler", lambda *a: (_ for _ in ()).throw(PermissionError(1, "no")))
     monkeypatch.setattr(realtime, "lock_memory", lambda: "skipped (test)")
+    monkeypatch.setattr(realtime, "no_huge_pages", lambda: "on (test)")
     out = realtime.try_realtime(80)
-    assert out == {"sched": "other (SCHED_FIFO not permitted: no)", "mlockall": "skipped (test)"}
+    assert out == {"sched": "other (SCHED_FIFO not permitted: no)", "mlockall": "skipped (test)",
+                   "huge_pages": "on (test)"}
+
+
+def _thp_enabled(code: str) -> str:
+    """/proc/self/status ``THP_enabled`` of a fresh interpreter after ``code``."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", code + "\nprint([l.split()[1] for l in open('/proc/self/status') "
+                          "if l.startswith('THP_enabled:')])"], capture_output=True, text=True, check=True,
+                         cwd=str(Path(__file__).resolve().parents[1]))
+    return out.stdout.strip()
+
+
+@pytest.mark.skipif("THP_enabled:\t1" not in Path("/proc/self/status").read_text(),
+                    reason="the kernel does not report THP_enabled, or this process has them off already")
+def test_a_locked_process_has_no_transparent_huge_pages():
+    # khugepaged collapsing a process's pages holds a CPU ~5 ms without preemption (PREEMPT_NONE):
+    # the real-time processes (the loop's, the device model's, the bound worker's, each through
+    # lock_memory) turn transparent huge pages off for themselves, whether the lock applies or not
+    assert _thp_enabled("") == "['1']"          # the flag is inherited: this process has it on
+    assert _thp_enabled("from sea_daemon.runtime.realtime import lock_memory; lock_memory()") == "['0']"
+
+
+def test_huge_page_state_reads_the_mode_and_the_collapses(tmp_path):
+    # bench loop prints the machine's mode and the collapses during its run (any process's)
+    (tmp_path / "khugepaged").mkdir()
+    (tmp_path / "enabled").write_text("always [madvise] never\n")
+    (tmp_path / "khugepaged" / "pages_collapsed").write_text("3142\n")
+    assert realtime.huge_page_state(str(tmp_path)) == {"mode": "madvise", "collapsed": 3142}
+    assert realtime.huge_page_state(str(tmp_path / "missing")) is None

@@ -19,7 +19,7 @@ import numpy as np
 
 from sea_daemon.core import validate
 from sea_daemon.core.effects import Effect, effect_from_dict
-from sea_daemon.core.hardware_config import BusConfig, HardwareConfig, joint_values
+from sea_daemon.core.hardware_config import BusConfig, HardwareConfig, joint_values, per_joint
 from sea_daemon.errors import ConfigError
 
 #: the largest seed of a random generator a configuration may give (numpy's and Python's take any
@@ -412,7 +412,7 @@ class AssistConfig:
         limits = np.broadcast_to(np.asarray(torque_limit, dtype=float), (n,))
         default_max = [min(cls.max_torque, float(x)) for x in limits]
         default_max = default_max[0] if len(set(default_max)) == 1 else default_max
-        max_torque = cls._per_joint(source, "max_torque", d.get("max_torque", default_max), n, positive=True)
+        max_torque = per_joint(source, k + "max_torque", d.get("max_torque", default_max), n, positive=True)
         for j, (m, lim) in enumerate(zip(np.broadcast_to(max_torque, (n,)), limits)):
             if m > lim:
                 joint = f" (joint {j + 1})" if n > 1 else ""
@@ -420,26 +420,15 @@ class AssistConfig:
                                   f"must be in (0, hardware.torque_limit = {lim:g}] N m{joint}, got {m:g}")
         return cls(
             enabled=enabled,
-            gain=cls._per_joint(source, "gain", d.get("gain", cls.gain), n, lo=0.0, hi=10.0),
-            deadband=cls._per_joint(source, "deadband", d.get("deadband", cls.deadband), n, lo=0.0, hi=100.0),
-            rho_max=cls._per_joint(source, "rho_max", d.get("rho_max", cls.rho_max), n, positive=True),
+            gain=per_joint(source, k + "gain", d.get("gain", cls.gain), n, lo=0.0, hi=10.0),
+            deadband=per_joint(source, k + "deadband", d.get("deadband", cls.deadband), n, lo=0.0, hi=100.0),
+            rho_max=per_joint(source, k + "rho_max", d.get("rho_max", cls.rho_max), n, positive=True),
             max_torque=max_torque,
-            max_rate=cls._per_joint(source, "max_rate", d.get("max_rate", cls.max_rate), n, positive=True),
+            max_rate=per_joint(source, k + "max_rate", d.get("max_rate", cls.max_rate), n, positive=True),
             smoothing_s=validate.num(source, k + "smoothing_s", d.get("smoothing_s", cls.smoothing_s), lo=0.0, hi=10.0),
             innovation_max=validate.num(source, k + "innovation_max", d.get("innovation_max", cls.innovation_max),
                                         positive=True),
             compensation=comp, dry_run=dry_run)
-
-    @staticmethod
-    def _per_joint(source: str, name: str, v, n: int, **check):
-        """``assist.NAME``: one number for every joint, or a list of ``n`` (one per joint), each
-        checked as :func:`~sea_daemon.core.validate.num` checks it: a float, or a tuple of ``n``."""
-        key = "assist." + name
-        if not isinstance(v, (list, tuple)):
-            return validate.num(source, key, v, **check)
-        if len(v) != n:
-            raise ConfigError(source, key, f"must be a number or a list of {n} (one per joint), got {v!r}")
-        return tuple(validate.num(source, f"{key}[{j + 1}]", x, **check) for j, x in enumerate(v))
 
     def per_joint(self, name: str, n: int) -> np.ndarray:
         """Setting ``name`` as an array of ``n`` values, one per joint."""

@@ -10,6 +10,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from sea_daemon.core import validate
+from sea_daemon.core.effects import MAX_ABS
 from sea_daemon.errors import ConfigError
 
 
@@ -22,11 +23,34 @@ def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
     return tuple(vals)
 
 
-def per_joint(source: str, key: str, v: Any, n: int) -> float | tuple[float, ...]:
-    """A positive value of every joint (a number) or of each joint (a list of n numbers, n > 1)."""
-    if isinstance(v, (list, tuple)) and n > 1:
-        return tuple(float(x) for x in validate.vector(source, key, list(v), n, positive=True))
-    return validate.num(source, key, v, positive=True)
+def _allowed(positive=False, non_negative=False, lo=None, hi=None) -> str:
+    """The range :func:`~sea_daemon.core.validate.num` checks with these arguments, as text."""
+    if lo is not None and hi is not None:
+        return f"in [{lo}, {hi}]"
+    if lo is not None or hi is not None:
+        return f">= {lo}" if lo is not None else f"<= {hi}"
+    return "> 0" if positive else ">= 0" if non_negative else f"within ±{MAX_ABS:g}"
+
+
+def per_joint(source: str, key: str, v: Any, n: int, **check) -> float | tuple[float, ...]:
+    """A setting of every joint (a number) or of each joint (a list of n numbers), each checked as
+    :func:`~sea_daemon.core.validate.num` checks it with ``check`` (``positive=True``,
+    ``non_negative=True``, ``lo=``/``hi=``): a float, or a tuple of n (a list of one for one
+    joint: its float).  Anything else: one :class:`ConfigError` naming ``key``, the value and
+    the allowed range (and the joint whose value is out of it)."""
+    allowed = _allowed(**check)
+    shape = f"a number {allowed}" + (f" or a list of {n} such numbers (one per joint)" if n > 1 else "")
+    vals = list(v) if isinstance(v, (list, tuple)) else None
+    if vals is not None and len(vals) != n:
+        raise ConfigError(source, key, f"must be {shape}, got {v!r}")
+    out = []
+    for j, x in enumerate([v] if vals is None else vals):
+        try:
+            out.append(validate.num(source, key, x, **check))
+        except ConfigError:
+            where = f" (joint {j + 1}: {x!r})" if vals is not None and n > 1 else ""
+            raise ConfigError(source, key, f"must be {shape}, got {v!r}{where}") from None
+    return out[0] if vals is None or n == 1 else tuple(out)
 
 
 def joint_values(v: float | tuple[float, ...], n: int) -> np.ndarray:
@@ -53,7 +77,9 @@ class BusConfig:
 
     Angles and speeds are joint side [rad, rad/s]; ``rated_torque`` is the drive's 0x6076 on the
     MOTOR side in mN m (every drive's, or a tuple of each joint's drive), so one per mille of
-    0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m on the joint side.
+    0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m on the joint side.  ``rated_torque``,
+    ``max_joint_speed`` and ``stuck_motion`` are every joint's (a float) or each joint's (a tuple
+    of n): :func:`joint_values` gives the n joints' values.
     """
 
     interface: str = "virtual"            # virtual | socketcan | remote
@@ -69,9 +95,11 @@ class BusConfig:
     rated_torque: float | tuple[float, ...] = 100.0   # expected 0x6076, motor side [mN m] (per joint: a tuple)
     q_offset: tuple[float, ...] = (0.0,)        # load encoder zero: q = angle(counts) - q_offset [rad]
     theta_m_offset: tuple[float, ...] = (0.0,)  # motor encoder zero, joint side [rad]
-    max_joint_speed: float = 20.0         # encoder jump: |dq| > max_joint_speed*dt + 2 quanta [rad/s]
+    # encoder jump: |dq| > max_joint_speed*dt + 2 quanta [rad/s] (every joint's, or a tuple of each joint's)
+    max_joint_speed: float | tuple[float, ...] = 20.0
     stuck_cycles: int = 20                # encoder stuck: same count this many cycles ...
-    stuck_motion: float = 0.05            # ... while the other encoder of the joint moved this far [rad]
+    # ... while the other encoder of the joint moved this far [rad] (every joint's, or each joint's)
+    stuck_motion: float | tuple[float, ...] = 0.05
     sync_rpdo: bool = False               # false: the drive actuates the torque RPDO on reception (type 255);
     #                                       true: at the next SYNC (type 1, one cycle more delay)
     sdo_timeout_ms: int = 300             # start-up: wait this long for each SDO answer (one retry)
@@ -137,12 +165,20 @@ class BusConfig:
             interface=iface, channel=channel, joint_channel=joint_channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
             publish=publish,
             pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
-            rated_torque=per_joint(source, k + "rated_torque", d.get("rated_torque", 100.0), n),
+            rated_torque=per_joint(source, k + "rated_torque", d.get("rated_torque", 100.0), n, positive=True),
             q_offset=tuple(float(x) for x in validate.vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),
             theta_m_offset=tuple(float(x) for x in validate.vector(source, k + "theta_m_offset", d.get("theta_m_offset", 0.0), n)),
-            max_joint_speed=validate.num(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), positive=True),
-            stuck_motion=validate.num(source, k + "stuck_motion", d.get("stuck_motion", 0.05), positive=True),
+            max_joint_speed=per_joint(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), n, positive=True),
+            stuck_motion=per_joint(source, k + "stuck_motion", d.get("stuck_motion", 0.05), n, positive=True),
         )
+
+    def max_joint_speeds(self, n: int) -> np.ndarray:
+        """Each of the n joints' ``max_joint_speed`` [rad/s]."""
+        return joint_values(self.max_joint_speed, n)
+
+    def stuck_motions(self, n: int) -> np.ndarray:
+        """Each of the n joints' ``stuck_motion`` [rad]."""
+        return joint_values(self.stuck_motion, n)
 
     def channels(self) -> tuple[str, ...]:
         """The bus channel of each joint (``len(drive_node)`` of them)."""
@@ -158,10 +194,11 @@ class BusConfig:
     def for_joints(self, joints, channel: str) -> "BusConfig":
         """The configuration of one bus: ``channel`` with the devices of ``joints`` (0-based)."""
         pick = lambda v: tuple(v[j] for j in joints)  # noqa: E731
-        rated = self.rated_torque if isinstance(self.rated_torque, float) else pick(self.rated_torque)
+        each = lambda v: pick(v) if isinstance(v, tuple) else v  # noqa: E731  (a per_joint value)
         return dataclasses.replace(self, channel=channel, joint_channel=(), drive_node=pick(self.drive_node),
                                    encoder_node=pick(self.encoder_node), q_offset=pick(self.q_offset),
-                                   theta_m_offset=pick(self.theta_m_offset), rated_torque=rated)
+                                   theta_m_offset=pick(self.theta_m_offset), rated_torque=each(self.rated_torque),
+                                   max_joint_speed=each(self.max_joint_speed), stuck_motion=each(self.stuck_motion))
 
     def with_channel(self, text: str) -> "BusConfig":
         """``--channel``: one name (every joint on it) or a comma-separated name per joint."""
@@ -177,8 +214,9 @@ class BusConfig:
         for key in ("drive_node", "encoder_node", "q_offset", "theta_m_offset"):
             v = list(out[key])
             out[key] = v[0] if len(v) == 1 else v
-        if isinstance(self.rated_torque, tuple):
-            out["rated_torque"] = list(self.rated_torque)
+        for key in ("rated_torque", "max_joint_speed", "stuck_motion"):
+            if isinstance(out[key], tuple):
+                out[key] = list(out[key])
         return out
 
 
@@ -203,15 +241,15 @@ def _keyed(source: str, key: str, v: Any, allowed: tuple[str, ...], example: str
 class HardwareConfig:
     """The exoskeleton's sensors and actuator (Sec. V-A) and the CAN bus.
 
-    ``gear_ratio`` and ``torque_limit`` are every joint's (a number) or each joint's (a tuple of
-    n, from a list in the YAML): :meth:`gear_ratios` and :meth:`torque_limits` give the n
-    joints' values.
+    ``gear_ratio``, ``torque_limit`` and ``torque_noise`` are every joint's (a number) or each
+    joint's (a tuple of n, from a list in the YAML): :meth:`gear_ratios`, :meth:`torque_limits`
+    and :meth:`torque_noises` give the n joints' values.
     """
 
     gear_ratio: float | tuple[float, ...] = 100.0     # motor turns per joint turn
     encoder_bits: int = 19           # both absolute encoders
     torque_limit: float | tuple[float, ...] = 10.0    # |τ_m| limit, joint side [N m]
-    torque_noise: float = 0.02       # std of motor-torque noise, joint side [N m] (simulator)
+    torque_noise: float | tuple[float, ...] = 0.02   # std of motor-torque noise, joint side [N m] (simulator)
     bus: BusConfig = field(default_factory=BusConfig)   # CAN bus and CANopen devices (sea_daemon.hw)
     # counts per revolution of the shaft each encoder reads, per joint: the load encoder on the
     # joint, the motor encoder on the motor shaft (before the gear).  () = 2^encoder_bits.
@@ -232,6 +270,10 @@ class HardwareConfig:
     def torque_limits(self, n: int) -> np.ndarray:
         """Each of the n joints' motor-torque limit, joint side [N m]."""
         return joint_values(self.torque_limit, n)
+
+    def torque_noises(self, n: int) -> np.ndarray:
+        """Each of the n joints' simulated motor-torque noise (standard deviation, joint side) [N m]."""
+        return joint_values(self.torque_noise, n)
 
     @property
     def torque_limit_max(self) -> float:
@@ -257,7 +299,7 @@ class HardwareConfig:
         validate.check_keys(source, "hardware.", d, cls.KEYS, [])
         out = {}
         if "gear_ratio" in d:
-            out["gear_ratio"] = per_joint(source, "hardware.gear_ratio", d["gear_ratio"], n)
+            out["gear_ratio"] = per_joint(source, "hardware.gear_ratio", d["gear_ratio"], n, positive=True)
         if "encoder_bits" in d:
             b = d["encoder_bits"]
             if isinstance(b, bool) or not isinstance(b, int) or not 8 <= b <= 32:
@@ -266,9 +308,9 @@ class HardwareConfig:
         if "encoder_counts" in d:
             out.update(cls._counts(source, d["encoder_counts"], n))
         if "torque_limit" in d:
-            out["torque_limit"] = per_joint(source, "hardware.torque_limit", d["torque_limit"], n)
+            out["torque_limit"] = per_joint(source, "hardware.torque_limit", d["torque_limit"], n, positive=True)
         if "torque_noise" in d:
-            out["torque_noise"] = validate.num(source, "hardware.torque_noise", d["torque_noise"], non_negative=True)
+            out["torque_noise"] = per_joint(source, "hardware.torque_noise", d["torque_noise"], n, non_negative=True)
         out["bus"] = BusConfig.from_dict(d.get("bus") or {}, n, source)
         if "local_readers" in d:
             out.update(cls._readers(source, d["local_readers"]))
@@ -313,7 +355,7 @@ class HardwareConfig:
     def to_dict(self) -> dict:
         out = {k: v for k, v in dataclasses.asdict(self).items()
                if k not in ("bus", "encoder_counts_load", "encoder_counts_motor", "local_readers")}
-        for key in ("gear_ratio", "torque_limit"):
+        for key in ("gear_ratio", "torque_limit", "torque_noise"):
             if isinstance(out[key], tuple):
                 out[key] = list(out[key])
         counts = {}

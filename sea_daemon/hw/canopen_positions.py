@@ -5,9 +5,9 @@ load encoder's position value 0x6004 (single-turn on the first sample, centred o
 then unwrapped across its range) and the drive's position actual value 0x6064 (a multi-turn
 int32 count of the motor shaft, its wraps undone), through the gear ratio, minus the
 configured offsets.  From the second sample on it raises :class:`~sea_daemon.hw.errors.EncoderJump`
-when a count moves by more than ``max_joint_speed`` allows in a period (plus two counts), and
-:class:`~sea_daemon.hw.errors.EncoderStuck` when a count stays unchanged for ``stuck_cycles`` while
-the other encoder of the joint moves by more than ``stuck_motion``.
+when a count moves by more than the joint's ``max_joint_speed`` allows in a period (plus two
+counts), and :class:`~sea_daemon.hw.errors.EncoderStuck` when a count stays unchanged for
+``stuck_cycles`` while the other encoder of the joint moves by more than the joint's ``stuck_motion``.
 """
 from __future__ import annotations
 
@@ -36,9 +36,11 @@ class Positions:
         # conversions (joint side) per joint            counts → rad
         self.k_q = [2 * math.pi / res_load[j] for j in range(n)]                  # load encoder
         self.k_m = [2 * math.pi / (res_motor[j] * gear[j]) for j in range(n)]     # motor encoder through the gear
-        self.step_max = bus_cfg.max_joint_speed * period                  # largest motion in a period [rad]
-        self.allowed_q = [self.step_max + 2 * k for k in self.k_q]         # largest step in a period [rad]
-        self.allowed_m = [self.step_max + 2 * k for k in self.k_m]
+        # largest motion in a period [rad] per joint (its own max_joint_speed)
+        self.step_max = [float(v) * period for v in bus_cfg.max_joint_speeds(n)]
+        self.allowed_q = [self.step_max[j] + 2 * self.k_q[j] for j in range(n)]   # largest step in a period [rad]
+        self.allowed_m = [self.step_max[j] + 2 * self.k_m[j] for j in range(n)]
+        self.stuck_motion = [float(v) for v in bus_cfg.stuck_motions(n)]          # per joint [rad]
         self.q_offset = np.array(bus_cfg.q_offset, dtype=float)
         self.theta_m_offset = np.array(bus_cfg.theta_m_offset, dtype=float)
         self.enc_range = list(res_load)   # counts the load encoder's position value spans (from start-up)
@@ -70,7 +72,7 @@ class Positions:
         time), set ``m.q[j]`` / ``m.theta_m[j]``, check for a stuck encoder."""
         dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
         dm = _wrap(pos - self._raw_m[j], 1 << 32)
-        more = self.step_max * (periods - 1.0) if periods > 1.0 else 0.0
+        more = self.step_max[j] * (periods - 1.0) if periods > 1.0 else 0.0
         k_q, k_m = self.k_q[j], self.k_m[j]
         if abs(dq * k_q) > self.allowed_q[j] + more:
             m.faults |= Fault.ENCODER_JUMP.bit
@@ -84,12 +86,12 @@ class Positions:
         q, th = self._angles(m, j, qc, pos)
         # a stuck encoder: its count unchanged while the other encoder of the joint moves
         if qc == self._prev_q[j]:
-            self._stuck(m, self._stuck_q[j], th, enc_node, "0x6004 load position value", qc)
+            self._stuck(m, j, self._stuck_q[j], th, enc_node, "0x6004 load position value", qc)
         else:
             run = self._stuck_q[j]
             run[0], run[1] = 0, th
         if pos == self._prev_m[j]:
-            self._stuck(m, self._stuck_m[j], q, drive_node, "0x6064 motor position actual value", pos)
+            self._stuck(m, j, self._stuck_m[j], q, drive_node, "0x6064 motor position actual value", pos)
         else:
             run = self._stuck_m[j]
             run[0], run[1] = 0, q
@@ -103,12 +105,12 @@ class Positions:
         m.theta_m[j] = th
         return q, th
 
-    def _stuck(self, m: Measurement, run: list, other: float, node: int, obj: str, count: int) -> None:
-        """One more cycle of an unchanged count; raises once it has lasted ``stuck_cycles`` while
-        the other encoder moved by more than ``stuck_motion``."""
+    def _stuck(self, m: Measurement, j: int, run: list, other: float, node: int, obj: str, count: int) -> None:
+        """One more cycle of an unchanged count of joint ``j``; raises once it has lasted
+        ``stuck_cycles`` while the other encoder moved by more than the joint's ``stuck_motion``."""
         run[0] += 1
         moved = abs(other - run[1])
-        b = self.bus_cfg
-        if run[0] >= b.stuck_cycles and moved > b.stuck_motion:
+        limit = self.stuck_motion[j]
+        if run[0] >= self.bus_cfg.stuck_cycles and moved > limit:
             m.faults |= Fault.ENCODER_STUCK.bit
-            raise EncoderStuck(node, obj, count, run[0], moved, b.stuck_motion)
+            raise EncoderStuck(node, obj, count, run[0], moved, limit)

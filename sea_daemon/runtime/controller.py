@@ -12,10 +12,12 @@ What :class:`~sea_daemon.runtime.loop.FixedRateLoop` calls (its ``Controller`` p
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 
 from sea_daemon.core.assist import STATES, AssistLaw
+from sea_daemon.core.bounds.floor import bound_floor
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.control import PID, MinJerkTrajectory, OpenLoopTorque, ReferenceTracker, StillArm, cosine_torque
 from sea_daemon.core.model import SEAModel
@@ -183,7 +185,23 @@ class AssistController:
         self.trust = self.law.trust
         self.subject = subject
         self.steps = 0                              # updates since the start (the cycles it ran)
+        #: the tightest bound the encoders allow for the declared wearer, per joint [N m]
+        #: (core/bounds/floor.py; None without a declared rate or without assistance)
+        self.rho_floor = self._check_floor(cfg) if self.gain > 0.0 else None
         self._effort = np.zeros((self.n, 2))        # per joint Σ τ_h,act², Σ (τ_h,act + τ_assist)² (with a subject)
+
+    def _check_floor(self, cfg: ModelConfig) -> np.ndarray | None:
+        """ρ_floor per joint; a joint whose ``rho_max`` is below it can never be assisted: say so."""
+        f = bound_floor(cfg)
+        if f is None:
+            return None
+        for j in np.flatnonzero(self.law.rho_maxes < f.rho):
+            logging.getLogger("sea_daemon.assist").warning(
+                "assist.rho_max %.3g N m (joint %d) is below the tightest bound these encoders allow for the declared "
+                "wearer (%.3g N m for |dtau_h,act/dt| <= %.3g N m/s): the assistance can never engage on that joint; "
+                "raise assist.rho_max above it or declare a slower wearer (estimator.tau_h_act_rate)",
+                self.law.rho_maxes[j], j + 1, f.rho[j], f.rate)
+        return f.rho
 
     @property
     def gain(self) -> float:
@@ -224,6 +242,7 @@ class AssistController:
         law = self.law
         out = {"mode": "dry_run" if self.dry_run else ("transparent" if self.gain == 0.0 else "assist"),
                "gain": _one_or_each(law.gains), "rho_max": _one_or_each(law.rho_maxes),
+               "rho_floor": None if self.rho_floor is None else _one_or_each(self.rho_floor),
                **self._figures(c.sum(axis=0), per * self.n, float(law.rho_sum.sum()), self._effort.sum(axis=0))}
         out["joints"] = [{"joint": j + 1, "gain": float(law.gains[j]), "rho_max": float(law.rho_maxes[j]),
                           **self._figures(c[j], per, float(law.rho_sum[j]), self._effort[j])} for j in range(self.n)]

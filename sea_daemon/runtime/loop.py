@@ -37,7 +37,10 @@ that it gets the torque that acts over [t_k, t_k+1] — see :mod:`sea_daemon.hw.
    sends WATCHDOG=1 to systemd at most every 1/40 of its watchdog period)
 7. pace (``_pace``): sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is
    an overrun, and deadlines missed by a whole period or more are skipped (counted), not caught
-   up in a burst; lock-step runs (``realtime=False``) do not sleep
+   up in a burst; a stall of the loop that skipped more deadlines in a row than the hardware's
+   missed-cycle tolerance (``hardware.bus.max_missed_cycles``: the cycles without a sample a
+   missing TPDO may take) latches LOOP_STALL — one within it is survived, and so is a slow first
+   cycle of a run (its start-up); lock-step runs (``realtime=False``) do not sleep
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
 row vector and the cycle's state (:class:`CycleState`) are preallocated and overwritten, and
@@ -155,7 +158,9 @@ class FixedRateLoop:
     (:class:`sea_daemon.runtime.bound_worker.BoundWorker`): the loop tells it each cycle's index,
     hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample
     whose ρ it published (``bound_cycle``) and latches BOUND_LOST when it reports a fault (the
-    worker died or fell a whole ring behind).
+    worker died or fell a whole ring behind).  ``stall_cycles``: the deadlines the loop may skip in
+    a row before LOOP_STALL latches (None: the hardware's ``bus_cfg.max_missed_cycles`` where it
+    has one, else no such fault).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
@@ -165,7 +170,7 @@ class FixedRateLoop:
                  realtime: bool = True, record_periods: bool = False,
                  on_cycle: Callable[[int, Any, Any, np.ndarray], None] | None = None,
                  initial_torque: np.ndarray | None = None, fail_fast: bool = False, publisher=None,
-                 bound_link=None):
+                 bound_link=None, stall_cycles: int | None = None):
         self.hw, self.estimator, self.controller = hw, estimator, controller
         self.n, self.period = n, float(period)
         self.log, self.notifier = log, notifier
@@ -179,6 +184,9 @@ class FixedRateLoop:
         self.publisher = publisher
         self.bound_link = bound_link
         self._bound_fault_seen = False
+        if stall_cycles is None:
+            stall_cycles = getattr(getattr(hw, "bus_cfg", None), "max_missed_cycles", None)
+        self.stall_cycles = None if stall_cycles is None else int(stall_cycles)
         self.stats = LoopStats()
         #: the log row's columns, each quantity's index or slice (docs/interfaces.md §1)
         self.layout = DaemonLogLayout.of(n)
@@ -274,15 +282,16 @@ class FixedRateLoop:
         """
         st = self.stats
         c = self._cycle
-        self._t0 = self._last_start = self.clock()
         k = 0
+        if self.record_periods and cycles is not None:
+            st.cpu.reserve(len(st.cpu) + cycles)
+            st.periods.reserve(len(st.periods) + cycles)
+        # the pacing origin once the buffers are there (mapping them takes ms on a virtual machine)
+        self._t0 = self._last_start = self.clock()
         if self.record_periods:
             # the thread's CPU clock is a system call (no vDSO): read once per cycle, and only
             # when recorded
             self._cpu_end = self.cpu_clock()
-            if cycles is not None:
-                st.cpu.reserve(len(st.cpu) + cycles)
-                st.periods.reserve(len(st.periods) + cycles)
         while not self._stop and (cycles is None or k < cycles):
             link = self.bound_link                    # may be attached while the loop runs
             c.k = k
@@ -471,7 +480,8 @@ class FixedRateLoop:
 
     def _pace(self, k: int) -> None:
         """Sleep until ``t0 + k·period`` (k cycles done); a late wake-up is an overrun of cycle
-        k − 1, deadlines missed by a whole period or more are skipped (re-phased), not caught up."""
+        k − 1, deadlines missed by a whole period or more are skipped (re-phased), not caught up;
+        more skipped in a row than ``stall_cycles``: LOOP_STALL."""
         if not self.realtime:
             return
         st, sup = self.stats, self.supervisor
@@ -486,6 +496,13 @@ class FixedRateLoop:
                 skip = int(late // self.period)
                 st.skipped += skip
                 self._t0 += skip * self.period
+                if self.stall_cycles is not None and skip > self.stall_cycles and k > 1 and sup.loop_stall:
+                    # as many cycles without a SYNC, a sample or a new command as the stall
+                    # lasted: beyond what a missing TPDO may take (the first cycle of a run, its
+                    # start-up — the first calls into the estimator and the publisher — aside)
+                    self._trip(Fault.LOOP_STALL, k - 1, now,
+                               f"the loop stalled {late * 1e3:.1f} ms: {skip} cycles skipped in a row, "
+                               f"{self.stall_cycles} tolerated (hardware.bus.max_missed_cycles)")
             if sup.overrun(True, k - 1, now):
                 self._latched()
         else:

@@ -26,8 +26,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea_daemon.client import (CREDS, FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ON, FLAG_ESTIMATOR, FLAG_FAULT, HEADER,
-                               JOINT, LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE, UNSUB_MAGIC, VERSION, record_size)
+from sea_daemon.client import (CREDS, FLAG_ASSIST_DRY_RUN, FLAG_ASSIST_ENGAGED, FLAG_ASSIST_ENGAGED_JOINT, FLAG_ASSIST_ON,
+                               FLAG_ESTIMATOR, FLAG_FAULT, HEADER, JOINT, LEASE_S, MAGIC, SUB_MAGIC, SUBSCRIBE,
+                               UNSUB_MAGIC, VERSION, record_size)
 from sea_daemon.errors import InputError
 from sea_daemon.hw.canopen_publish import make_tpdo_publisher
 
@@ -244,6 +245,9 @@ class Publisher:
         # a dry run: the assistance is computed and published, the motor does not get it
         self.dry_run = FLAG_ASSIST_DRY_RUN if (self.assist_on and getattr(controller, "dry_run", False)) else 0
         self.has_estimator = has_estimator
+        # the flags a joint's assistance sets: "engaged", and with 2 or 3 joints the joint's own bit
+        self._engaged_bits = [FLAG_ASSIST_ENGAGED | (FLAG_ASSIST_ENGAGED_JOINT[j] if 1 < self.n <= 3 else 0)
+                              for j in range(self.n)]
         self.hat = [0.0] * self.n
         self.bound = [INF] * self.n
         self.published = 0
@@ -277,14 +281,14 @@ class Publisher:
                     vmask |= 1 << j
             else:
                 bound[j] = INF
-        engaged = False
-        if self.assist is not None:
+        engaged = 0
+        if self.assist is not None and not fault:
+            bits = self._engaged_bits
             for j in range(n):
                 if self.assist[j] != 0.0:
-                    engaged = True
+                    engaged |= bits[j]
         flags = ((FLAG_FAULT if fault else 0) | (FLAG_ASSIST_ON if self.assist_on else 0)
-                 | (FLAG_ASSIST_ENGAGED if engaged and not fault else 0) | (FLAG_ESTIMATOR if self.has_estimator else 0)
-                 | self.dry_run)
+                 | engaged | (FLAG_ESTIMATOR if self.has_estimator else 0) | self.dry_run)
         if self.tpdo is not None:
             self.tpdo.send(k, hat, bound, vmask, fault, flags)
         loc = self.local

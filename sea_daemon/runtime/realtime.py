@@ -1,4 +1,4 @@
-"""Real-time set-up of a process, best effort: SCHED_FIFO and locked memory.
+"""Real-time set-up of a process, best effort: SCHED_FIFO, locked memory, no transparent huge pages.
 
 * :func:`try_realtime` — SCHED_FIFO for the calling thread (threads started later inherit it)
   and :func:`lock_memory`; the daemon's loop and the device model's process call it.
@@ -9,6 +9,17 @@
   a finite limit and no capability MCL_FUTURE would make later allocations fail, so it is skipped
   (the buffers the loop fills per cycle are resident all the same: :mod:`sea_daemon.core.buffers`).
   The bound worker, a forked process (locks are not inherited), calls it for itself.
+  It calls :func:`no_huge_pages` first, whether the lock applies or not.
+* :func:`no_huge_pages` — ``prctl(PR_SET_THP_DISABLE)``: no transparent huge pages in this
+  process (and the processes it starts).  numpy asks for huge pages (``MADV_HUGEPAGE``) on every
+  array of 4 MiB or more, and the kernel's ``khugepaged`` then collapses such a region's small
+  pages into a huge page in the background.  One collapse holds a CPU for about 5 ms without a
+  preemption point on a kernel built without full preemption (``PREEMPT_NONE``, the default of
+  many distributions and virtual machines): a SCHED_FIFO thread woken on that CPU waits for it —
+  the loop 5 ms late, or the device model's answer to SYNC missing for 5 cycles at 1 kHz, several
+  collapses in a row tens of ms.  With the flag set ``khugepaged`` leaves the process alone.  It
+  cannot keep ``khugepaged`` off another process's memory; docs/daemon.md says how to turn it off
+  for the machine.
 
 Both never raise; they return what applied, for the READY status line and the JSON summaries.
 """
@@ -22,6 +33,24 @@ import os
 #: CAP_IPC_LOCK's bit in /proc/PID/status ``CapEff`` (linux/capability.h)
 CAP_IPC_LOCK = 14
 MCL_CURRENT, MCL_FUTURE = 1, 2
+#: prctl(2) option: no transparent huge pages for this process (linux/prctl.h)
+PR_SET_THP_DISABLE = 41
+
+
+def _libc():
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+
+
+def no_huge_pages() -> str:
+    """``prctl(PR_SET_THP_DISABLE, 1)``: no transparent huge pages in this process and its
+    children, so that ``khugepaged`` never collapses its pages while it runs (module docstring).
+    What applied: ``off`` or ``on (why)``; never raises."""
+    try:
+        if _libc().prctl(PR_SET_THP_DISABLE, 1, 0, 0, 0) == 0:
+            return "off"
+        return f"on (prctl refused: {os.strerror(ctypes.get_errno())})"
+    except Exception as e:  # noqa: BLE001 - best effort by design
+        return f"on ({type(e).__name__})"
 
 
 def freeze_heap() -> None:
@@ -32,6 +61,25 @@ def freeze_heap() -> None:
     at 1 kHz.  Call it after setting up, before serving."""
     gc.collect()
     gc.freeze()
+
+
+#: the machine's transparent huge page settings (sysfs)
+THP_DIR = "/sys/kernel/mm/transparent_hugepage"
+
+
+def huge_page_state(root: str = THP_DIR) -> dict | None:
+    """The machine's transparent huge pages: ``mode`` (``always``, ``madvise`` or ``never``) and
+    ``collapsed`` (huge pages ``khugepaged`` made so far, in any process); None where sysfs does
+    not tell.  Two readings around a run give the collapses during it (:func:`no_huge_pages`)."""
+    try:
+        with open(os.path.join(root, "enabled")) as f:
+            text = f.read()
+        with open(os.path.join(root, "khugepaged", "pages_collapsed")) as f:
+            collapsed = int(f.read())
+    except (OSError, ValueError):
+        return None
+    mode = text[text.index("[") + 1:text.index("]")] if "[" in text and "]" in text else text.strip()
+    return {"mode": mode, "collapsed": collapsed}
 
 
 def has_cap_ipc_lock(status_path: str = "/proc/self/status") -> bool:
@@ -47,8 +95,10 @@ def has_cap_ipc_lock(status_path: str = "/proc/self/status") -> bool:
 
 
 def lock_memory() -> str:
-    """``mlockall(MCL_CURRENT | MCL_FUTURE)`` when RLIMIT_MEMLOCK is unlimited or the process holds
-    CAP_IPC_LOCK; what applied: ``locked``, ``locked (CAP_IPC_LOCK: …)`` or ``skipped (why)``."""
+    """:func:`no_huge_pages`, then ``mlockall(MCL_CURRENT | MCL_FUTURE)`` when RLIMIT_MEMLOCK is
+    unlimited or the process holds CAP_IPC_LOCK; what applied to the lock: ``locked``,
+    ``locked (CAP_IPC_LOCK: …)`` or ``skipped (why)``."""
+    no_huge_pages()
     try:
         import resource
         soft, _ = resource.getrlimit(resource.RLIMIT_MEMLOCK)
@@ -57,7 +107,7 @@ def lock_memory() -> str:
             if not has_cap_ipc_lock():
                 return f"skipped (RLIMIT_MEMLOCK {soft} bytes, not unlimited, and no CAP_IPC_LOCK)"
             why = f" (CAP_IPC_LOCK: RLIMIT_MEMLOCK {soft} bytes does not apply)"
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc = _libc()
         if libc.mlockall(MCL_CURRENT | MCL_FUTURE) == 0:
             return "locked" + why
         return f"skipped ({os.strerror(ctypes.get_errno())})"
@@ -67,7 +117,8 @@ def lock_memory() -> str:
 
 def try_realtime(priority: int = 80) -> dict[str, str]:
     """SCHED_FIFO ``priority`` for this thread (threads started later inherit it) and
-    :func:`lock_memory`.  Returns what applied, e.g. ``{"sched": "fifo 80", "mlockall": "locked"}``."""
+    :func:`lock_memory` (with :func:`no_huge_pages`).  Returns what applied, e.g.
+    ``{"sched": "fifo 80", "mlockall": "locked", "huge_pages": "off"}``."""
     out = {}
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -75,4 +126,5 @@ def try_realtime(priority: int = 80) -> dict[str, str]:
     except (OSError, AttributeError) as e:
         out["sched"] = f"other (SCHED_FIFO not permitted: {getattr(e, 'strerror', e)})"
     out["mlockall"] = lock_memory()
+    out["huge_pages"] = no_huge_pages()
     return out

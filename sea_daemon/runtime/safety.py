@@ -4,7 +4,8 @@ Policy (docs/safety.md says the same in prose):
 
 * Any fault — a TPDO missing for k cycles, heartbeat timeout, EMCY, an encoder jump or a
   stuck encoder, bus-off or a failed send, NaN/inf or a covariance that lost positive
-  definiteness in the estimator, NIS divergence, a streak of loop overruns — **latches**.
+  definiteness in the estimator, NIS divergence, a streak of loop overruns, a stall of the loop
+  longer than the missed-cycle tolerance — **latches**.
 * In the same cycle the loop commands zero torque (and asks the drive for quick stop), the
   estimate is flagged invalid (``valid = 0`` in the log, NaN is never published), the cause
   is recorded with its cycle and monotonic time, and systemd is told with ``STATUS=``.
@@ -24,8 +25,11 @@ from sea_daemon.errors import Fault
 class SafetySupervisor:
     """Latches the first fault, remembers the later ones, resets only on request."""
 
-    def __init__(self, history: int = 256, overrun_streak: int = 5):
+    def __init__(self, history: int = 256, overrun_streak: int = 5, loop_stall: bool = True):
         self.overrun_streak_limit = int(overrun_streak)
+        #: False: the loop's stalls beyond the missed-cycle tolerance do not latch LOOP_STALL (timing
+        #: faults off, ``--overrun-streak 0``: a run whose timing is not under test on a shared machine)
+        self.loop_stall = bool(loop_stall)
         self._codes = np.zeros(history, dtype=np.int16)
         self._cycles = np.zeros(history, dtype=np.int64)
         self._times = np.zeros(history, dtype=np.float64)

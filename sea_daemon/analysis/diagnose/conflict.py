@@ -15,13 +15,21 @@ from sea_daemon.analysis.diagnose.records import Selection
 
 
 def undetermined(sel: Selection, i: int) -> bool:
-    """The interval test: an effect whose 95 % interval is wider than its value (a profile
-    interval: reaches 0).  Angles and rest positions (phi, q_h0) are not judged this way."""
-    cand, p = sel.chosen[i]
+    """The interval test: an effect with a parameter whose 95 % interval reaches 0 (for an
+    interval x ± h: wider than the value; a static friction's profile interval, bounded from
+    below only: its lower end at 0), or has no end on one side (the log does not bound that
+    parameter).  Angles and rest positions (phi, q_h0), which may rightly be near 0, are judged
+    by the second alone."""
     for k, (lo, hi) in sel.ci[i].items():
-        if not np.isfinite(lo) or k in ("phi", "q_h0"):
+        if np.isnan(lo) or np.isnan(hi):
+            continue                   # no interval at all (the refinement failed): not judged
+        if (i, k) in sel.profiled:
+            if lo <= 0.0:
+                return True
             continue
-        if (lo <= 0.0) if (i, k) in sel.profiled else (abs(hi - lo) / 2 > abs(p[k])):
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return True
+        if k not in ("phi", "q_h0") and lo <= 0.0 <= hi:
             return True
     return False
 

@@ -127,6 +127,10 @@ class Refinement:
         if prof:
             res = fun(x)
             rss = float(res @ res)
+        # a Gauss–Newton interval narrower than the log supports: the profile interval instead
+        for k, (a, b) in self._unsupported_wald(fun, x, se, prof, res, tau, lo, hi, scale).items():
+            i, name = idx[k]
+            ci[i][name] = (a, b)
         effects, params = self.effects(chosen, x, idx)
         explained, unexplained, rss_all_final = self.shares(effects)
         r_final = self.ctx.residual(effects)
@@ -200,6 +204,80 @@ class Refinement:
                 x[:] = xx
             out[k] = (lower, upper)
         return out
+
+    #: −2 log L rise at a Gauss–Newton interval's edge (that parameter moved there, the others
+    #: held) below which the interval is narrower than the log supports.  For a residual linear in
+    #: the parameters the rise there is Z95² ≈ 3.84 at least (holding the others can only raise
+    #: it); below 1 (the 68 % level) the edge is inside what the log cannot tell from the value
+    NARROW_EDGE = 1.0
+    #: outward steps (each 4× the last) and bisections of a profile interval's edge search
+    EDGE_STEPS, EDGE_BISECT = 12, 8
+
+    def _unsupported_wald(self, fun, x, se, skip, res, tau, lo, hi, scale) -> dict[int, tuple]:
+        """Parameters whose Gauss–Newton interval x ± Z95 se the log does not support, with their
+        profile-likelihood 95 % interval instead: {index: (lower edge, upper edge)}, an edge ±inf
+        where the fit never gets worse by Z95² on that side (the log does not bound it).
+
+        The linearised covariance s²(JᵀJ)⁻¹ shrinks to nothing in a direction the log does not
+        determine: a column of J that is (nearly) zero — a friction parameter acting only where
+        friction is set-valued, a hump no moving sample reaches — or two that are (nearly) the same;
+        the pseudo-inverse then drops that direction and reports a near-zero width.  Moving the
+        parameter to such an interval's edge, even with the others held, leaves the fit almost as
+        it was (a rise of −2 log L below :attr:`NARROW_EDGE`): the interval is replaced by the
+        values at which −2 log L, the others refitted, has risen by Z95².  ``skip``: indices that
+        have a profile interval already."""
+        out: dict[int, tuple] = {}
+        rss = float(res @ res)
+        if rss <= 0:
+            return out
+        n_eff = max(res.size / max(tau, 1.0), 2.0)
+        for k in range(x.size):
+            if k in skip or not np.isfinite(se[k]):
+                continue
+            half = Z95 * float(se[k])
+            narrow = False
+            for s in (-1.0, 1.0):
+                v = min(max(float(x[k]) + s * half, lo[k]), hi[k])
+                if v == x[k] and half > 0:
+                    continue                  # at its bound on this side: nothing beyond to test
+                xx = x.copy()
+                xx[k] = v
+                r = fun(xx)
+                narrow |= n_eff * math.log(max(float(r @ r), 1e-300) / rss) < self.NARROW_EDGE
+            if narrow:
+                step = max(half, 1e-3 * float(scale[k]))
+                out[k] = tuple(self._profile_edge(fun, x, k, s, step, lo, hi, scale, rss, n_eff)
+                               for s in (-1.0, 1.0))
+        return out
+
+    def _profile_edge(self, fun, x, k, s, step, lo, hi, scale, rss, n_eff) -> float:
+        """The edge on side ``s`` (−1, +1) of parameter k's profile 95 % interval: where −2 log L,
+        the others refitted, first exceeds Z95², searched outward from ``x[k]`` in steps growing
+        4× from ``step`` and then bisected; the parameter's bound when it does not exceed it
+        before, ±inf when it does not within :attr:`EDGE_STEPS` steps."""
+        level = Z95 * Z95
+        bound = float(lo[k] if s < 0 else hi[k])
+        inside, outside = float(x[k]), None
+        for j in range(self.EDGE_STEPS):
+            v = float(x[k]) + s * step * 4.0 ** j
+            at_bound = (v <= bound) if s < 0 else (v >= bound)
+            if at_bound:
+                v = bound
+            if self._profile_dev(fun, x, k, v, lo, hi, scale, rss, n_eff)[0] > level:
+                outside = v
+                break
+            if at_bound:
+                return bound
+            inside = v
+        if outside is None:
+            return s * math.inf
+        for _ in range(self.EDGE_BISECT):
+            mid = 0.5 * (inside + outside)
+            if self._profile_dev(fun, x, k, mid, lo, hi, scale, rss, n_eff)[0] > level:
+                outside = mid
+            else:
+                inside = mid
+        return outside
 
     def shares(self, effects) -> tuple[list[float], float, float]:
         """Shares of the initial mean square (whole log) per effect, and the unexplained share.

@@ -42,12 +42,14 @@ def clean(d):
 def effects_json(sel: Selection, n: int, warn: bool) -> list[dict]:
     """``effects_added`` of docs/interfaces.md §4 with the extensions of docs/diagnose.md."""
     added = []
-    for (cand, params), ci, frac, alts in zip(sel.chosen, sel.ci, sel.explained,
-                                              sel.alternatives + [[]] * len(sel.chosen)):
+    for i, ((cand, params), ci, frac, alts) in enumerate(zip(sel.chosen, sel.ci, sel.explained,
+                                                              sel.alternatives + [[]] * len(sel.chosen))):
         # relative CI half-widths (angles and rest positions, which may rightly be ≈ 0, aside)
         rel = [abs(hi - lo) / 2 / max(abs(params[p]), 1e-12) for p, (lo, hi) in ci.items()
                if p not in ("phi", "q_h0") and math.isfinite(hi)]
-        lower_only = [p for p, (lo, hi) in ci.items() if hi == math.inf]
+        # static friction the sticking phases bound from below only; any other interval without an
+        # end is one the log does not measure
+        lower_only = [p for p, (lo, hi) in ci.items() if hi == math.inf and (i, p) in sel.profiled]
         # an interval of zero width (or none at all) is not a precise value: the log did not
         # measure the parameter's uncertainty, so nothing about it is "high" confidence
         measured = bool(ci) and all(p in ci and math.isfinite(ci[p][0]) and math.isfinite(ci[p][1])
@@ -179,7 +181,7 @@ def statements(sel: Selection, added: list[dict], warn: bool, kin: Kinematics) -
     for name, params, ci, why in sel.dropped:
         ps = ", ".join(f"{k}={fmt(v, '.4g')} [{fmt(ci[k][0])}, {fmt(ci[k][1])}]" for k, v in params.items() if k in ci)
         out.append(f"{name} would explain part of the residual, but this log does not determine its parameters "
-                   + (f"({why}; 95 % intervals: {ps})" if why else f"(95 % intervals wider than the values: {ps})")
+                   + (f"({why}; 95 % intervals: {ps})" if why else f"(95 % intervals reaching 0 or without an end: {ps})")
                    + "; not added.")
     for c in sel.correlated:
         out.append(f"{c['kept']} and {c['dropped']} trade against each other on this log (parameter correlation "

@@ -78,6 +78,7 @@ from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.gpmodel import load_gp_model
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.hw.device_model.model import thread_page_faults
+from sea_daemon.runtime.realtime import huge_page_state
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.controller import ScenarioController
@@ -271,14 +272,25 @@ def run(args) -> int:
         if calibrated is None:
             return 1
         estimator, residual = calibrated
+        thp_before = huge_page_state()
         m = _measure(args, cfg, scen, tmp, estimator)
+        thp_after = huge_page_state()
     load_after = _loadavg()
     wake_after = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
     out = _figures(args, cfg, m, {"loadavg_before": load_before, "loadavg_after": load_after,
+                                  "huge_pages": _huge_pages(thp_before, thp_after),
                                   "host_wake_before": wake_before, "host_wake_after": wake_after})
     _report(args, cfg, m, out, residual)
     save(out)
     return 0
+
+
+def _huge_pages(before: dict | None, after: dict | None) -> dict | None:
+    """The machine's transparent huge pages mode and the huge pages ``khugepaged`` collapsed
+    during the measured run, in any process (None where the kernel does not tell)."""
+    if before is None or after is None:
+        return None
+    return {"mode": after["mode"], "collapsed_during_run": after["collapsed"] - before["collapsed"]}
 
 
 def _calibrated_estimator(args, cfg_model, cfg, scen: str, tmp: Path):
@@ -476,6 +488,11 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
         print(f"host: a fixed reference workload (not the daemon's code) costs, in thread CPU, before the run "
               f"{describe_host_wake(out['host_wake_before'])}; after the run "
               f"{describe_host_wake(out['host_wake_after'])} -- a cycle starts after such a sleep")
+    thp = out["huge_pages"]
+    if thp is not None:
+        print(f"transparent huge pages (the host's setting): {thp['mode']}; khugepaged collapsed "
+              f"{thp['collapsed_during_run']} during the run, in any process (each collapse holds a CPU for "
+              f"milliseconds on a kernel without full preemption; this run's processes have huge pages off)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "

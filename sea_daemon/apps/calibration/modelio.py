@@ -18,6 +18,7 @@ import numpy as np
 
 from sea_daemon.analysis.sufficiency import RECORD, Sufficiency
 from sea_daemon.apps.calibration.expected import expected_lines, with_figures
+from sea_daemon.core.bounds.floor import floor_line
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.calibrated import CalibratedAKF, CalibratedGPAKF
 from sea_daemon.core.excitation import coverage_from_dict
@@ -147,11 +148,14 @@ def summary(result) -> dict:
     exp = rep.get("expected_accuracy")
     if exp:
         lines += expected_lines(exp)
+    floor = floor_line(rep.get("bound_floor"))
+    if floor:
+        lines.append(floor)
     return {"text": lines, "effects": [f"{d['type']}({d['side']})" for d in eff], "ambiguous": pairs,
             "gp_directions": rep.get("gp_directions"), "q_tau": walk.get("q_tau"), "tau_m_noise": cfg.estimator.tau_m_noise, "gp_kept": rep.get("gp_kept"),
             "coverage": cov, "expected_rmse": with_figures(chosen, exp),
             "expected_accuracy": {k: v for k, v in (exp or {}).items() if k != "raw"},
-            "sufficiency": rep.get("sufficiency")}
+            "sufficiency": rep.get("sufficiency"), "bound_floor": rep.get("bound_floor")}
 
 
 def directions_lines(rec: dict | None) -> list[str]:

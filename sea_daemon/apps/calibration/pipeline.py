@@ -42,6 +42,7 @@ from sea_daemon.analysis.diagnose.engine import run_diagnosis
 from sea_daemon.analysis.diagnose.prepare import prepare_log
 from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.analysis.sufficiency import Sufficiency, assess, at_config_rate, decimate_by, finite
+from sea_daemon.core.bounds.floor import floor_record
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
@@ -437,10 +438,9 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
                 tick=None if progress is None else (
                     lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
     cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
+    report["bound_floor"] = floor_record(cfg, opts.human.band_hz, opts.human.rms)
     # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
-    # (default 0: the chosen q_τ everywhere): on the development plants newrobot2 and newrobot3 and
-    # the demo the declared walk there made the passive estimates worse (to 95°: 0.024 → 0.031,
-    # 0.023 → 0.025 N m; demo 0.0317 → 0.0334) and kept no fault away (docs/calibration.md)
+    # (default 0: the chosen q_τ everywhere; docs/calibration.md says why)
     report["tau_h_act_walk_outside"] = cfg.estimator.tau_h_act_walk_outside
     # 6. coverage
     step()

@@ -46,7 +46,8 @@ def add_common(p, *, cycles_help: str) -> None:
                         "the simulated plant steps once per cycle as fast as the loop goes (default with "
                         "--device-model / --sim)")
     p.add_argument("--overrun-streak", type=int, default=5,
-                   help="consecutive overruns that latch the OVERRUN_STREAK fault (default 5; 0: never)")
+                   help="consecutive overruns that latch the OVERRUN_STREAK fault (default 5; 0: never, and no "
+                        "LOOP_STALL either: timing faults off, for a run whose timing is not under test)")
     p.add_argument("--rt-priority", type=int, default=80,
                    help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
     p.add_argument("--cpus", metavar="LOOP[,WORKER]", default=None,
@@ -125,7 +126,7 @@ def log_name(log_dir: Path, prefix: str) -> Path:
 
 def supervisor(args):
     """The fault supervisor with the ``--overrun-streak`` limit."""
-    return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62)
+    return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62, loop_stall=args.overrun_streak != 0)
 
 
 def socket_path(args, state_dir: Path) -> Path | None:

@@ -93,6 +93,10 @@ def daemon(argv: list[str], command=None) -> dict:
     if rc != 0:                 # the step stopped on a latched fault (said on stderr): not a bug
         fault = summary.get("fault")
         fault = fault if fault and fault != "NONE" else "see the line above"
+        if fault == "OVERRUN_STREAK":
+            # --pace realtime on a host too slow or too busy for the rate: not the method's fault
+            fault += (": the daemon's cycles took longer than their period on this host; --pace lockstep (the "
+                      "default) runs the same sessions sample by sample")
         raise RunFault(f"sea-daemon {argv[0]} stopped with exit status {rc} ({fault}); the demo stops there")
     return summary
 

@@ -134,9 +134,11 @@ class View:
             return [f"sea-daemon watch  {sock}: waiting for the daemon's first sample …"]
         silent = time.monotonic() - self.last_wall
         fault = "none" if not s.fault else f"\x1b[1;31m{s.fault_name} — torque zero, reset needed\x1b[0m"
+        on = [str(j + 1) for j, e in enumerate(s.engaged) if e] if s.joints > 1 else []
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
                   ("dry run (not commanded)" if s.flags & FLAG_ASSIST_DRY_RUN else "on")
-                  + (", engaged" if s.flags & FLAG_ASSIST_ENGAGED else ", idle"))
+                  + ((", engaged" + (f" (joint{'s' if len(on) > 1 else ''} {', '.join(on)})" if on else ""))
+                     if s.flags & FLAG_ASSIST_ENGAGED else ", idle"))
         head = (f"sea-daemon watch  {sock}   cycle {s.cycle}   t {s.t:.2f} s   fault: {fault}   "
                 f"assist: {assist}   received {sub.received}, missed {sub.missed}, rejected {sub.rejected}")
         if silent > 1.0:

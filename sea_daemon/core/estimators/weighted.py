@@ -7,8 +7,14 @@ and Jacobian into the filter only as far as its variance allows:
 
     w(z) = clip(1 − σ²(z) / s²(z), 0, 1)^p                           (variance reduction)
     s²(z) = min(σ_f²(z), s_0²)
-    μ_w = w μ,   ∂μ_w/∂z = w ∂μ/∂z,   σ²_Q = σ² (+ σ_on²)            (eq:fwdynwtorqueresidual1,
+    μ_w = w μ,   ∂μ_w/∂z = w Σ ω_i ∂μ_i/∂z,   σ²_Q = σ² (+ σ_on²)    (eq:fwdynwtorqueresidual1,
                                                                         eq:linearization, eq:GPvarfwd)
+
+Σ ω_i ∂μ_i/∂z is the Jacobian the GP-AKF's own hook takes (the experts' Jacobian, eq:moejac
+per leaf merged with the routing weights, docs/learning.md): the same
+:meth:`~sea_daemon.core.gp.loggp.LoGGP.predict_grad_into` call, so the calibrated model's filter
+linearises the GP as the plain GP-AKF does; the routing ramp between two leaves that disagree
+(μ_i ∂ω_i/∂z) stays out of F_k, their disagreement being in σ² already.
 
 σ_f²(z) is the prior variance of the leaves z reaches; s_0² (``var_ref``) is what the physics
 alone costs on the calibration data: the leftover's mean square less the GP's noise variance
@@ -104,8 +110,10 @@ class WeightedResidual:
         zc = self.box.clip(z)
         clipped = self.box.any_clipped
         for i, g in enumerate(self.gp.gps):
-            # eq:GPmean, eq:GPvariance, eq:moejac (merged over the leaves z reaches), latent σ²
-            mu, var = g.predict_grad_into(zc, self.jac[i], False)
+            # eq:GPmean, eq:GPvariance (merged over the leaves z reaches), latent σ², and the
+            # GP-AKF's Jacobian: the experts' Σ ω_i ∂μ_i/∂z (eq:moejac per leaf), without the
+            # routing ramp's μ_i ∂ω_i/∂z (the leaves' disagreement is in σ², not in F_k)
+            mu, var = g.predict_grad_into(zc, self.jac[i], noise=False, weights_grad=False)
             # variance at the UNCLIPPED input: off the box the GP knows nothing
             if clipped:
                 var = g.predict(np.ascontiguousarray(np.clip(z, -1e6, 1e6), dtype=float))[1]

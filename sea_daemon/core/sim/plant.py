@@ -42,6 +42,7 @@ from scipy.optimize import brentq, root
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.dynamics import accel_1, example, motor_accel, side_torques, spring_torque
 from sea_daemon.core.effects import Effect
+from sea_daemon.core.hardware_config import joint_values
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
@@ -60,10 +61,10 @@ class Plant:
     cfg : the *true* model configuration (nominal model + hidden effects).
     q0 : initial link angle(s) [rad]; the plant starts at rest in static equilibrium there,
         with the motor holding it (:attr:`hold_torque`).  Default 0.
-    seed : seed of the motor-torque noise (std ``cfg.hardware.torque_noise``).
+    seed : seed of the motor-torque noise (std ``cfg.hardware.torque_noise``, each joint's own).
     substep_hz : internal RK4 rate [Hz].
     sign_eps : friction-sign smoothing of the true plant [rad/s].
-    torque_noise : override of ``cfg.hardware.torque_noise`` [N m].
+    torque_noise : override of ``cfg.hardware.torque_noise`` [N m]: a number (every joint) or one per joint.
     tau_h_act0 : active human torque present at rest before t = 0 (for the equilibrium).
     extra_load_torque : ``f(q, q̇) -> (n,)`` [N m], a load-side torque outside the effect
         vocabulary that the load must overcome (for tests and benchmarks: an effect no model
@@ -81,7 +82,7 @@ class Plant:
 
     def __init__(self, cfg: ModelConfig, q0=0.0, seed: int | None = None, *,
                  substep_hz: float = SUBSTEP_HZ, sign_eps: float = PLANT_SIGN_EPS,
-                 torque_noise: float | None = None, tau_h_act0=0.0, extra_load_torque=None,
+                 torque_noise=None, tau_h_act0=0.0, extra_load_torque=None,
                  extra_held: bool = False):
         self.cfg = cfg
         self.model = SEAModel(cfg.model, sign_eps=sign_eps)
@@ -92,7 +93,7 @@ class Plant:
         # |τ_m| limit: a number for one joint, each joint's (n,) for n (hardware.torque_limit per joint)
         lims = cfg.hardware.torque_limits(n)
         self.torque_limit = float(lims[0]) if n == 1 else lims
-        self.noise_std = float(cfg.hardware.torque_noise if torque_noise is None else torque_noise)
+        self.noise_std = cfg.hardware.torque_noise if torque_noise is None else torque_noise
         self.rng = np.random.default_rng(seed)
         self.encoders = Encoders(cfg.hardware, m.offset_load, m.offset_motor, n=n)
         self._check_substep()
@@ -278,7 +279,7 @@ class Plant:
             raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
         lim = self.torque_limit
         u = -lim if u < -lim else (lim if u > lim else u)          # np.clip
-        if self.noise_std > 0:
+        if self._noisy:
             u = u + float(self.rng.normal(0.0, self.noise_std, 1)[0])   # torque_noise
         ua = self._s_u
         ua[0] = u
@@ -309,8 +310,8 @@ class Plant:
         if not (np.isfinite(u).all() and np.isfinite(th).all()):
             raise ValueError(f"tau_m and tau_h_act must be finite, got {tau_m!r}, {tau_h_act!r}")
         np.clip(u, -self.torque_limit, self.torque_limit, out=u)
-        if self.noise_std > 0:
-            u += self.rng.normal(0.0, self.noise_std, n)          # torque_noise
+        if self._noisy:
+            u += self.rng.normal(0.0, self.noise_std, n)          # torque_noise, each joint's std
         self._u_applied = u.copy()
         self._tau_h = th.copy()
         self._hist_t[-1] = self.t
@@ -442,6 +443,18 @@ class Plant:
         else:
             _rk4_1(y, float(self._hist_u[-1][0]), tau_h, h, k, p)
         self._y = y.copy()
+
+    @property
+    def noise_std(self):
+        """Standard deviation of the motor-torque noise [N m]: a float for one joint, each
+        joint's (n,) for n (``hardware.torque_noise`` per joint)."""
+        return self._noise_std
+
+    @noise_std.setter
+    def noise_std(self, v) -> None:
+        std = joint_values(v, self.n)
+        self._noise_std = float(std[0]) if self.n == 1 else std
+        self._noisy = bool(np.any(std > 0))
 
     # ------------------------------------------------------------------ checks
 

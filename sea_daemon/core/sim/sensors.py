@@ -19,7 +19,7 @@ Encoders
 Motor torque
 ------------
 The torque the motor really applies is the commanded torque plus white Gaussian noise of
-standard deviation ``hardware.torque_noise`` (joint side), drawn once per sample and held
+standard deviation ``hardware.torque_noise`` (joint side, each joint's own), drawn once per sample and held
 for the sample (current-loop ripple, torque-constant error).  The *log* records the
 commanded torque: like the paper (τ_m "computed from the control input and torque
 constant"), the controller knows only what it commanded.  The simulator writes the
@@ -100,8 +100,8 @@ class Encoders:
         return q, th
 
 
-def torque_noise(rng: np.random.Generator, std: float, n: int) -> np.ndarray:
-    """One sample of the motor-torque noise [N m, joint side]."""
-    if std <= 0:
+def torque_noise(rng: np.random.Generator, std, n: int) -> np.ndarray:
+    """One sample of the motor-torque noise [N m, joint side]; ``std`` every joint's or each joint's (n,)."""
+    if np.all(np.asarray(std) <= 0):
         return np.zeros(n)
     return rng.normal(0.0, std, n)
