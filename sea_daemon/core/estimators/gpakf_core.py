@@ -1,4 +1,4 @@
-"""One sample of the frozen GP-AKF in one compiled call (:meth:`GPAKF.update`'s fast path).
+"""One sample of the frozen GP-AKF in compiled calls (:meth:`GPAKF.update`'s fast path).
 
 With learning off, the GP a LoG-GP pack (:class:`~sea_daemon.core.estimators.gpakf._ResidualHook`
 frozen), the nominal model without declared effects or encoder offsets, no declared input
@@ -19,7 +19,15 @@ bit-identical to the Python path, ``tests/test_gpakf.py``):
    (:func:`~sea_daemon.core.estimators.akf_core.cap_covariance`), the Cholesky attempt of P
    (:func:`~sea_daemon.core.linalg.is_pd`);
 
-and, once the caller's checks passed, :func:`frozen_finish`: the published estimate
+With a URDF's rigid body (:class:`~sea_daemon.core.model_core.RigidTables`) step 3's F_nom, f_nom
+need Pinocchio's ABA derivatives at x̂_{k−1}, which are no compiled code: the sample is then
+:func:`rigid_head` (steps 1-2 and what the forward dynamics takes), the caller's
+``RigidBody.forward_derivatives``, :func:`rigid_body` (F_nom, f_nom, G_μ, the residual) and
+:func:`sample_tail` (the rest of steps 3-4), the same kernels in the same order as
+``AKF.step``'s ``RigidTables.f_and_F``.  The residual hook's direction gate
+(:func:`direction_gate`, ResidualGP.off_direction) runs in the compiled call too.
+
+And, once the caller's checks passed, :func:`frozen_finish`: the published estimate
 (:func:`~sea_daemon.core.estimators.akf_core.fill_estimate`) and the input pushed into the
 history.  What raises (the typed faults with their messages), the NIS monitor, the bound and the
 start-up gate stay with the caller, between the two calls, as in :meth:`AKF.step`.  Pure numerics: no I/O, no
