@@ -85,6 +85,7 @@ from sea_daemon.core.estimators.record import RESET as KIND_RESET
 from sea_daemon.core.estimators.validity import BOUND_STALE, STARTUP
 from sea_daemon.errors import EstimatorFault
 from sea_daemon.runtime import bound_slots as bs
+from sea_daemon.runtime.affinity import pin_pid
 from sea_daemon.runtime.bound_serve import worker_main
 from sea_daemon.runtime.shared_block import SharedBlock
 from sea_daemon.runtime.bound_slots import FAILED, OK, STOP
@@ -141,11 +142,12 @@ class BoundWorker:
     (0: SCHED_OTHER; SCHED_OTHER too where SCHED_FIFO is not permitted).  ``counts``: how the
     worker's counts of samples done reach the loop — ``pipe``, ``memory`` (shared memory only:
     correct on a CPU with total store order, x86-64), ``auto`` (:func:`counts_path`: memory on
-    x86-64, the pipe on every other CPU).
+    x86-64, the pipe on every other CPU).  ``cpu``: the CPU the worker is pinned to once started
+    (:mod:`sea_daemon.runtime.affinity`; None: where the kernel puts it).
     """
 
     def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0,
-                 counts: str = "auto"):
+                 counts: str = "auto", cpu: int | None = None):
         if counts not in ("auto", "pipe", "memory"):
             raise ValueError(f"bound worker: counts must be auto, pipe or memory, got {counts!r}")
         self.counts_via = counts_path() if counts == "auto" else counts
@@ -157,6 +159,8 @@ class BoundWorker:
         self.capacity = cap = int(capacity)
         self.record = int(record)
         self.rt_priority = int(rt_priority)
+        self.cpu = cpu
+        self.placed = "not pinned"               # where the worker runs (pin_pid)
         self.n = n = akf.n
         self._map_shared(akf, n, cap)
         self.ages = np.full(max(self.record, 1), -1, dtype=np.int64)   # per step (record): age, −1 none
@@ -225,6 +229,7 @@ class BoundWorker:
                                        (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
                                        self.counts_via == "pipe"))
         self._proc.start()
+        self.placed = pin_pid(self._proc.pid, self.cpu)
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
         # until the worker has its scheduling and its memory locked (faulting a few hundred MB in
         # on one core): then the loop's first cycles do not run beside that
@@ -425,7 +430,7 @@ class BoundWorker:
         sched = int(self._hdr[bs.H_SCHED])
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
                 "counts": self.counts_via,
-                "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"),
+                "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"), "cpu": self.placed,
                 "memory_locked": bool(self._hdr[bs.H_LOCKED]), "rt_yields": int(self._hdr[bs.H_YIELDS]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
                 "worker_cpu_steps_s": float(self._fhdr[bs.F_STEPS]), "worker_cpu_process_s": float(self._fhdr[bs.F_PROC]),

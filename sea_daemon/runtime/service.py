@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from sea_daemon.errors import InputError, shown
 from sea_daemon.io.owned import check_owned
+from sea_daemon.runtime.affinity import keep_off, pin_thread
 from sea_daemon.runtime.bound_worker import BoundWorker, why_not
 from sea_daemon.runtime.logwriter import LogWriter
 from sea_daemon.core.log import DaemonLogLayout
@@ -294,7 +295,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
           state: StateFile | None = None, progress: Callable[[int, Any], None] | None = None,
           rt_priority: int | None = 80, record_periods: bool = False, label: str = "run",
           supervisor: SafetySupervisor | None = None, publisher=None, bound_in: str = "auto",
-          bound_max_age: int = 3, bound_record: int = 0, sinks=(), sinks_wait: float = 0.0) -> ServeResult:
+          bound_max_age: int = 3, bound_record: int = 0, sinks=(), sinks_wait: float = 0.0,
+          cpus: tuple[int, ...] | None = None) -> ServeResult:
     """Run ``estimator`` + ``controller`` on ``rig`` until ``cycles`` or a stop signal.
 
     ``bound_in`` (``estimator.bound_in``): where the estimator's Theorem-1 bound is computed —
@@ -311,7 +313,11 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     ``sinks``: the log writer's other outputs (:mod:`sea_daemon.runtime.sinks`: the LSL outlet,
     the MCAP recording), fed by its process with every row; the loop starts once they are open
     (and an LSL outlet has waited its ``wait_s`` for an inlet; ``sinks_wait``: that longest wait),
-    what they did is ``log["sinks"]``."""
+    what they did is ``log["sinks"]``.
+
+    ``cpus``: (loop[, worker]) CPUs the loop's thread (once the hardware has started its threads,
+    which go with the log writer's process to the other CPUs) and the bound worker are pinned to
+    (:mod:`sea_daemon.runtime.affinity`; None: not pinned); ``realtime["cpu"]`` says what applied."""
     # compile (or load) the numba kernels now: nothing compiles while the drives watch our heartbeat
     # local import: numba's kernels load only where a daemon runs, not for `sea-daemon reset`
     from sea_daemon.core.jit import warm_up
@@ -324,7 +330,8 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     log = LogWriter(log_path, list(layout.columns), sink_columns=layout.sink_columns if sinks else (), sinks=sinks)
     try:
         log.wait_sinks(sinks_wait + _SINKS_OPEN_S)
-        link, where = _bound_link(estimator, bound_in, realtime, rt_priority, bound_max_age, bound_record)
+        link, where = _bound_link(estimator, bound_in, realtime, rt_priority, bound_max_age, bound_record,
+                                  cpus[1] if cpus and len(cpus) > 1 else None)
     except BaseException:
         log.close()
         raise
@@ -346,8 +353,10 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
                         socket=None if sock is None else str(sock))
         rig.start()
         started = True
+        # after the hardware's threads started: they and the log writer off the loop's CPU
+        rt["cpu"] = _place_loop(cpus, log, link)
         # the drives watch our heartbeat from read(): the loop starts right away
-        notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}")
+        notifier.ready(f"{label}: {rig.description}; sched {rt['sched']}; mlockall {rt['mlockall']}; loop {rt['cpu']}")
         t_wall = time.monotonic()
         # what exists now is never garbage: a collection in the loop walks only what its cycles create
         freeze_heap()
@@ -362,7 +371,16 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
                    label, notifier)
 
 
-def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | None, max_age: int, record: int):
+def _place_loop(cpus: tuple[int, ...] | None, log: LogWriter, link) -> str:
+    """The calling thread (the loop's) pinned to ``cpus[0]``, the process's other threads, the log
+    writer and a worker without a CPU of its own moved to the other CPUs; what applied."""
+    loop = cpus[0] if cpus else None
+    keep_off(loop, (log.writer_pid,) + ((link.pid,) if link is not None and link.cpu is None else ()))
+    return pin_thread(loop)
+
+
+def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | None, max_age: int, record: int,
+                cpu: int | None = None):
     """The bound worker, when the estimator's bound runs in one (``serve``'s ``bound_in``), and
     where the bound runs: (worker or None, {"where": ..., "why_not_worker": ...})."""
     where = {"where": "loop"}
@@ -374,7 +392,7 @@ def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | Non
         return None, where
     # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
     prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
-    return BoundWorker(estimator, max_age=max_age, record=record, rt_priority=prio).start(), where
+    return BoundWorker(estimator, max_age=max_age, record=record, rt_priority=prio, cpu=cpu).start(), where
 
 
 class _StatusLine:

@@ -197,16 +197,17 @@ def _wait_line(proc, text: str, timeout: float) -> str:
     raise RuntimeError(f"no {text!r} within {timeout} s")
 
 
-def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70, dev_cfg=None):
+def device_model_process(cfg, tmp: Path, extra: list[str], rt_priority: int = 70, dev_cfg=None, cpu=None):
     """``sea-daemon device-model`` in its own process on ``cfg``'s bus or buses (``--stats``,
     SCHED_FIFO ``rt_priority``; ``extra``: its plant arguments; ``dev_cfg``: its --config, default
-    ``cfg``), and the driver's :class:`Rig` for it."""
+    ``cfg``; ``cpu``: its --cpu), and the driver's :class:`Rig` for it."""
     path = Path(tmp) / "device-model.yaml"
     save_config(dev_cfg or cfg, path)
     b = cfg.hardware.bus
     channels = ",".join(b.channels()) if b.joint_channel else b.channel
     proc = subprocess.Popen([sys.executable, "-m", "sea_daemon", "device-model", "--bus", b.interface, "--channel",
-                             channels, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra],
+                             channels, "--config", str(path), "--stats", "--rt-priority", str(rt_priority), *extra,
+                             *([] if cpu is None else ["--cpu", str(cpu)])],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                             env=dict(os.environ, PYTHONPATH=str(import_root())))
     try:
@@ -223,6 +224,7 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
     """The rig of --bus: the device model in this process (virtual) or in its own process
     (ipc, remote: appended to ``procs`` with the relay); (rig, device model process or None).
     One joint: the passive scenario's plant; more: ``cfg``'s plant at :data:`Q0` (no subject)."""
+    dev_cpu = args.cpus[2] if getattr(args, "cpus", None) and len(args.cpus) > 2 else None
     deadline_ms = args.tpdo_deadline * cfg.dt * 1e3
     timing = {"pdo_timeout_ms": deadline_ms, "max_missed_cycles": args.max_missed}
     if args.bus == "virtual":
@@ -249,16 +251,16 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
     else:
         cfg_r = fresh_channels(cfg, "ipc", **timing, **slow)
     if cfg.joints == 1:
-        dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority)
+        dev, rig = device_model_process(cfg_r, tmp, ["--scenario", scen], args.device_rt_priority, cpu=dev_cpu)
     elif cfg.model.urdf:
         # the coupled plant of the URDF behind a drive and an encoder per joint
-        dev, rig = device_model_process(cfg_r, tmp, ["--q0", str(Q0)], args.device_rt_priority)
+        dev, rig = device_model_process(cfg_r, tmp, ["--q0", str(Q0)], args.device_rt_priority, cpu=dev_cpu)
     else:
         one = one_joint_config(cfg.rate_hz)
         b1 = dataclasses.replace(cfg_r.hardware.bus.for_joints((0,), cfg_r.hardware.bus.channel))
         one = dataclasses.replace(one, hardware=dataclasses.replace(one.hardware, bus=b1))
         dev, rig = device_model_process(cfg_r, tmp, ["--joints", str(cfg.joints), "--q0", str(Q0)],
-                                        args.device_rt_priority, dev_cfg=one)
+                                        args.device_rt_priority, dev_cfg=one, cpu=dev_cpu)
     procs.append(dev)
     return rig, dev
 

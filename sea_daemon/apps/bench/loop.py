@@ -83,6 +83,8 @@ from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.controller import ScenarioController
 from sea_daemon.runtime.publish import make_publisher
+from sea_daemon.errors import InputError
+from sea_daemon.runtime.affinity import parse_cpus
 from sea_daemon.runtime.safety import SafetySupervisor
 from sea_daemon.runtime.service import serve
 
@@ -132,6 +134,9 @@ def add_arguments(p) -> None:
     p.add_argument("--uncoupled", action="store_true",
                    help="with --joints 2: two copies of the one-joint exoskeleton (default: the shoulder-elbow "
                         "exoskeleton of configs/exo_2dof.yaml, its joints coupled through the URDF's rigid body)")
+    p.add_argument("--cpus", metavar="LOOP[,WORKER[,DEVICE_MODEL]]", default=None,
+                   help="pin the loop's thread, the bound worker and the device model's process (ipc, remote) "
+                        "to these CPUs (as run --cpus, docs/daemon.md \"CPU placement\"; default: not pinned)")
     add_json_argument(p)
 
 
@@ -236,6 +241,12 @@ def _bad_args(args) -> str | None:
         return f"--joints must be in 1..3, got {args.joints}"
     if args.joints > 1 and args.bus == "remote":
         return "--joints > 1 runs on --bus virtual or ipc (a bus per joint)"
+    try:
+        args.cpus = parse_cpus(args.cpus, "--cpus", ("loop", "worker", "device model"))
+    except InputError as e:
+        return str(e)
+    if args.cpus and len(args.cpus) > 2 and args.bus == "virtual":
+        return f"--cpus {','.join(map(str, args.cpus))}: a device model's CPU needs --bus ipc or remote (its own process)"
     return None
 
 
@@ -341,7 +352,8 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                     progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
                     supervisor=None if args.overrun_fault else SafetySupervisor(overrun_streak=2 ** 62),
-                    publisher=publisher, bound_in=bound_in, bound_max_age=max_age, bound_record=n_cycles + 10)
+                    publisher=publisher, bound_in=bound_in, bound_max_age=max_age, bound_record=n_cycles + 10,
+                    cpus=args.cpus)
         if rig.device_model is not None:
             dev_stats = rig.device_model.answer_stats()
     finally:

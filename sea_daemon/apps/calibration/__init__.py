@@ -80,7 +80,8 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
               device_model: str | None = None, realtime: bool = True, rt_priority: int | None = 80,
               supervisor: SafetySupervisor | None = None, progress: bool = False,
               config_name: str = "<memory>", socket_path: Path | None = None, excitation: bool = False,
-              fit: bool = False, config_path: str | Path | None = None) -> tuple[int, dict, str]:
+              fit: bool = False, config_path: str | Path | None = None,
+              cpus: tuple[int, ...] | None = None) -> tuple[int, dict, str]:
     """Run the training phase and save the model to ``out``.
 
     ``excitation``: the PID tracks the calibration excitation over ``cfg.calibration``'s working
@@ -94,7 +95,8 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
     when a fault latched, the run was interrupted or the log lost rows (model not saved, the log
     kept).  The estimate is published
     every cycle like in ``run`` (the daemon's TPDOs; the local socket ``socket_path`` when given):
-    ``sea-daemon watch`` shows whether the subject stays passive.
+    ``sea-daemon watch`` shows whether the subject stays passive.  ``cpus``: as ``serve``'s (the
+    loop's CPU; the calibration's GP learns in the loop, no bound worker).
     """
     sc = load_scenario(scenario)
     if sc.nominal.joints != cfg.joints:
@@ -112,7 +114,7 @@ def calibrate(cfg: ModelConfig, scenario: str | Path, out: str | Path, log_path:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=cycles, realtime=realtime,
                     notifier=Notifier(), state=state,
                     progress=bar, rt_priority=rt_priority, supervisor=supervisor, label="calibrate",
-                    publisher=publisher)
+                    publisher=publisher, cpus=cpus)
     finally:
         bar.close(cycles)
     st, sup = res.stats, res.supervisor

@@ -67,7 +67,7 @@ def run(args) -> int:
         code, summary, message = calibrate(
             cfg, args.scenario, args.out, daemon_args.log_name(log_dir, "calibration"), state=state,
             cycles=args.cycles, sim=args.sim, device_model=args.device_model, realtime=realtime,
-            rt_priority=args.rt_priority, supervisor=daemon_args.supervisor(args),
+            rt_priority=args.rt_priority, cpus=args.cpus, supervisor=daemon_args.supervisor(args),
             progress=not args.no_progress and sys.stderr.isatty() and log.isEnabledFor(logging.INFO),
             config_name=str(args.config),
             socket_path=daemon_args.socket_path(args, state_dir), excitation=args.excitation, fit=args.fit,

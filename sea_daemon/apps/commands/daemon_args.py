@@ -14,6 +14,7 @@ from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import load_config
 from sea_daemon.io.files import check_output_dir, check_outputs
 from sea_daemon.io.owned import check_owned
+from sea_daemon.runtime.affinity import parse_cpus
 from sea_daemon.runtime.rig import bus_overrides
 from sea_daemon.runtime.safety import SafetySupervisor
 
@@ -49,6 +50,9 @@ def add_common(p, *, cycles_help: str) -> None:
                         "LOOP_STALL either: timing faults off, for a run whose timing is not under test)")
     p.add_argument("--rt-priority", type=int, default=80,
                    help="SCHED_FIFO priority tried in realtime pace (0: do not try; default 80)")
+    p.add_argument("--cpus", metavar="LOOP[,WORKER]", default=None,
+                   help="pin the loop's thread to CPU LOOP and the bound worker's process to CPU WORKER "
+                        "(docs/daemon.md \"CPU placement\"; default: not pinned, the kernel places them)")
     p.add_argument("--socket", metavar="PATH", default=None,
                    help="UNIX socket the estimate is published on every cycle for local readers "
                         "(sea-daemon watch, sea_daemon.client; default: STATE_DIR/sea-daemon.sock; none: off)")
@@ -81,6 +85,7 @@ def load(args, outputs: list | tuple = ()):
         raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
     if not 0 <= args.rt_priority <= 99:
         raise InputError(f"--rt-priority {args.rt_priority}: allowed 0..99")
+    args.cpus = parse_cpus(args.cpus, "--cpus", ("loop", "worker"))
     log_dir = check_output_dir("--log-dir", args.log_dir, inputs(args))
     state_dir = check_output_dir("--state-dir", args.state_dir, inputs(args)) if args.state_dir else log_dir
     check_owned("--log-dir", log_dir)

@@ -24,6 +24,7 @@ from sea_daemon.hw.device_model.split_plant import SplitPlant
 from sea_daemon.hw.errors import DeviceMismatch
 from sea_daemon.io.configfile import default_config_path, load_config
 from sea_daemon.io.scenario import human_torque, load_scenario, make_plant, task_plant
+from sea_daemon.runtime.affinity import parse_cpus, pin_thread
 from sea_daemon.runtime.realtime import freeze_heap, try_realtime
 from sea_daemon.runtime.rig import bus_overrides
 
@@ -52,6 +53,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rt-priority", type=int, default=0,
                    help="SCHED_FIFO priority for the device model's threads (0: not asked; stands in for hardware "
                         "that answers in its own time)")
+    p.add_argument("--cpu", type=int, default=None,
+                   help="pin the device model's threads to this CPU (docs/daemon.md \"CPU placement\"; default: "
+                        "not pinned)")
     p.add_argument("--stats", action="store_true",
                    help="print one JSON line 'device-model stats {...}' at exit: answer latency to SYNC and the "
                         "SYNC handler's CPU time")
@@ -79,6 +83,7 @@ def _plant(args, cfg):
 def run(args) -> int:
     cfg = load_config(args.config or default_config_path())
     faults = [parse_fault(f) for f in args.fault]
+    cpu = None if args.cpu is None else parse_cpus(str(args.cpu), "--cpu", ("device model",))[0]
     if not 1 <= args.joints <= 16 or (args.joints > 1 and (args.scenario or cfg.joints != 1)):
         raise InputError(f"--joints {args.joints}: allowed 1..16; more than 1 copies a one-joint --config's "
                          f"plant (its configuration has {cfg.joints}), without --scenario")
@@ -109,6 +114,8 @@ def run(args) -> int:
         # before the threads start: they inherit it
         r = try_realtime(args.rt_priority)
         rt = f"{r['sched']}, memory {r['mlockall']}"
+    # before the threads start: they inherit it
+    pin_thread(cpu)
     # the SYNC handler's collections walk only what it creates, not the whole heap (tens of ms)
     freeze_heap()
     model.start()

@@ -119,7 +119,7 @@ def _run(args, cfg, log_dir, state_dir, state, realtime) -> int:
     publisher = make_publisher(rig, cfg, controller, socket_path=daemon_args.socket_path(args, state_dir))
     sinks = _sinks(args, cfg, log_path)
     res = serve(rig, estimator, controller, cfg.joints, cfg.dt, log_path, cycles=args.cycles, realtime=realtime,
-                notifier=Notifier(), state=state, rt_priority=args.rt_priority,
+                notifier=Notifier(), state=state, rt_priority=args.rt_priority, cpus=args.cpus,
                 supervisor=daemon_args.supervisor(args), label="run", publisher=publisher,
                 bound_in=cfg.estimator.bound_in, bound_max_age=cfg.estimator.bound_max_age,
                 sinks=sinks, sinks_wait=cfg.publish.lsl_wait_s)

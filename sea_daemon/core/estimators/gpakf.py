@@ -72,6 +72,12 @@ class _ResidualHook:
         # (GPPack.args() and σ_on² per leaf: gp_hook.hook_predict's arguments)
         self.key = self._pack_key = None
         self.pack_args = ()
+        # the direction gate of the compiled path, made with the pack: each joint's gated
+        # directions (down, up) as off_direction tells them, the speed beyond which they count,
+        # and whether any direction is gated
+        self.gated = np.zeros((n, 2), dtype=np.bool_)
+        self.gate_speed = float(getattr(gp, "direction_speed", 0.0))
+        self.gate_any = False
 
     def freeze(self, key) -> None:
         """``key``: None while the GP learns (the Python path), else a value that changes whenever
@@ -84,7 +90,22 @@ class _ResidualHook:
             pack = GPPack(self.gp.gps)
             self.pack_args = pack.args() + (pack.sn2,)
             self._pack_key = key
+            self._gated_directions()
         self.key = key
+
+    def _gated_directions(self) -> None:
+        """:attr:`gated` from ``off_direction``: joint j alone moving down, then up, beyond the
+        gate's speed (the compiled path's gate, :func:`gpakf_core.direction_gate`, equal to it)."""
+        n = self.gp.n
+        self.gated[:] = False
+        if self._off_direction is not None:
+            z = np.zeros(3 * n)
+            for j in range(n):
+                for way, v in ((0, -1.0), (1, 1.0)):
+                    z[n + j] = v * (self.gate_speed + 1.0)
+                    self.gated[j, way] = bool(self._off_direction(z))
+                z[n + j] = 0.0
+        self.gate_any = bool(self.gated.any())
 
     def predict(self, z):
         if self.key is not None:
@@ -164,13 +185,19 @@ class GPAKF(AKF):
         S_dt = float(cfg.estimator.Sigma_nom_dt)
         self.learn_every = max(1, int(round(S_dt / self.dt))) if S_dt > 0 else 1
         self._tau_hist = np.zeros((max(self.tau_lag, 0) + 1, n))
-        # the frozen sample in one compiled call (gpakf_core) where it applies: no declared
-        # effects, offsets, delay or motor-torque noise, and the hook of this class
-        self._fz_ok = (self._affine and self._no_offsets and not self.has_delay
+        # the frozen sample in compiled calls (gpakf_core) where they apply: no offsets, delay or
+        # motor-torque noise, the hook of this class, and a model without declared effects (one
+        # call) or a rigid body whose effects are all compiled (Pinocchio's ABA derivatives
+        # between two calls)
+        rigid = self.model.rigid is not None and not self.model.outside_effects
+        self._fz_rigid = rigid and not self._affine
+        self._fz_ok = ((self._affine or self._fz_rigid) and self._no_offsets and not self.has_delay
                        and type(self.residual) is _ResidualHook)
         self._fz_args = ()
-        self._fz_iout = np.zeros(6, dtype=np.int64)
+        self._fz_iout = np.zeros(7, dtype=np.int64)
         self._fz_fout = np.zeros(2)
+        # the rigid body's q, q̇ and load-side torque at x̂_{k−1} (gpakf_core.rigid_head), a zero residual
+        self._fz_body = tuple(np.zeros(n) for _ in range(4))
 
     def reset(self, q=None, theta_m=None, tau_m=None, x0=None, P0=None) -> Estimate:
         """As :meth:`AKF.reset`; the learned model is kept."""
@@ -186,8 +213,7 @@ class GPAKF(AKF):
         freeze = getattr(self.residual, "freeze", None)       # a residual of one's own has none
         if freeze is not None:
             freeze(None if self.learning else self.n_learned)
-        # the one-call frozen sample has no direction gate: only for a GP without one
-        if (self._fz_ok and was_ready and not getattr(self.gp, "gated", False) and not self._filling and (dt is None or dt == self.dt)
+        if (self._fz_ok and was_ready and not self._filling and (dt is None or dt == self.dt)
                 and type(self.residual) is _ResidualHook and self.residual.key is not None and self.kin.primed):
             e = self._frozen_update(q, theta_m, tau_m)
         else:
@@ -210,7 +236,7 @@ class GPAKF(AKF):
 
     def _frozen_update(self, q, theta_m, tau_m) -> Estimate:
         """:meth:`AKF.update` of a sample at the nominal period with the GP frozen, its numerics in
-        two compiled calls (:mod:`.gpakf_core`); the checks, the bound and the start-up gate as
+        compiled calls (:mod:`.gpakf_core`); the checks, the bound and the start-up gate as
         in :meth:`AKF.step` (the input history is pushed before the bound's step, which does not
         read it)."""
         res = self.residual
@@ -230,8 +256,15 @@ class GPAKF(AKF):
         head = self._hhead
         iout[gpakf_core.I_KIN_HEAD] = kin.head
         iout[gpakf_core.I_HHEAD] = head
-        gpakf_core.frozen_sample(q, theta_m, dt, *a[1])
+        gate = res.gate and res.gate_any
+        if self._fz_rigid:
+            self._rigid_sample(q, theta_m, dt, a, gate, head)
+        else:
+            gpakf_core.frozen_sample(q, theta_m, dt, *a[1], gate, res.gated, res.gate_speed)
         kin.head = int(iout[gpakf_core.I_KIN_HEAD])
+        res.off = bool(iout[gpakf_core.I_OFF])
+        if res.off:
+            res.n_off_direction += 1
         box = res.box
         box.any_clipped = bool(iout[gpakf_core.I_CLIPPED])
         if box.any_clipped:
@@ -255,20 +288,44 @@ class GPAKF(AKF):
         self._hhead = int(iout[gpakf_core.I_HHEAD])
         return self._bound_and_gate(self.est, self._hu[head], dt)
 
+    def _rigid_sample(self, q, theta_m, dt, a, gate: bool, head: int) -> None:
+        """The frozen sample of a model with a rigid body: :func:`gpakf_core.rigid_head`, the
+        body's forward dynamics and their derivatives at x̂_{k−1} (Pinocchio, as
+        RigidTables.f_and_F), :func:`gpakf_core.rigid_body`, :func:`gpakf_core.sample_tail`."""
+        first, body, tail = a[5]
+        q_l, dq_l, tau_l, f0 = self._fz_body
+        gpakf_core.rigid_head(q, theta_m, dt, *first)
+        ddq, ddq_dq, ddq_dv, Minv = self.model.rigid.forward_derivatives(q_l, dq_l, tau_l)
+        res = self.residual
+        gpakf_core.rigid_body(*body[0], self._hu[head], body[1], ddq, ddq_dq, ddq_dv,
+                              Minv, *body[2], gate, res.gated, res.gate_speed)
+        gpakf_core.sample_tail(*tail)
+
     def _frozen_args(self, res: _ResidualHook) -> tuple:
-        """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` (the same objects
-        every sample; made again when the hook's pack changes)."""
+        """The arrays of :func:`gpakf_core.frozen_sample` / ``frozen_finish`` and of the rigid
+        body's calls (the same objects every sample; made again when the hook's pack changes)."""
         kin, box, e = self.kin, res.box, self.est
         self._sigma_base(self.dt)
         pack = res.pack_args[:-1]
         s_mode = (2 if self._tau_m_var > 0 else 1) if self._S_varies else 0
-        sample = (self._buf, self.d, self.m, self.n, self._ang, kin.buf, kin.C, kin.out, self._ddq, self.z,
-                  self._hu, s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u, self._A_lin, self._B_lin,
-                  self._MinvG, float(self._gp_var_scale), box.clip_lo, box.clip_hi, box.clipped_z, box.clipped,
-                  res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None, self.record.x_prev,
-                  self.record.P_prev, self.P_max, DIVERGED, self._fz_iout, self._fz_fout)
+        step = (self._buf, self.d, self.m, self.n)
+        head = (self._ang, kin.buf, kin.C, kin.out, self._ddq, self.z)
+        noise = (s_mode, self._S_base, self.B_u, self._tau_m_var, self.Gamma_u)
+        gp = (box.clip_lo, box.clip_hi, box.clipped_z, box.clipped, res.noise_in_Q, res.mu, res.jac, res.var, pack,
+              res.pack_args[-1], self.bound is not None, self.record.x_prev, self.record.P_prev)
+        iout, fout = self._fz_iout, self._fz_fout
         finish = (self.x, self.P, self._sqrt_s, e.x_hat, e.P, e.tau_h_act_hat, e.tau_h_act_sigma, e.tau_h_act_bound)
-        return res.pack_args, sample, finish, self.bound, self._S_base
+        if self._fz_rigid:
+            q_l, dq_l, tau_l, f0 = self._fz_body
+            kernel = self.model.kernel
+            rigid = ((*step, *head, *noise, iout, kernel, f0, q_l, dq_l, tau_l), (step, kernel, (f0, self.z, *gp, iout)),
+                     (*step, self.dt, float(self._gp_var_scale), res.mu, res.jac, res.var, self.P_max, DIVERGED,
+                      iout, fout))
+            return res.pack_args, (), finish, self.bound, self._S_base, rigid
+        sample = (*step, *head, self._hu, *noise, self._A_lin, self._B_lin, self._MinvG, float(self._gp_var_scale),
+                  *gp[:4], res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None,
+                  self.record.x_prev, self.record.P_prev, self.P_max, DIVERGED, iout, fout)
+        return res.pack_args, sample, finish, self.bound, self._S_base, None
 
     def training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
         """(z, f) of the current sample from the causal kinematics (eq:loadsidewmotor)."""
