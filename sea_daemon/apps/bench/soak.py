@@ -15,7 +15,8 @@ and dropped, and the rows counted back in the rotated files.
 
 A latched fault would stop the estimator (the loop's policy) and is reported; the overrun
 streak that would trip it when the host cannot hold the rate is configurable
-(``--overrun-streak``; 0 disables it for the soak, overruns are still counted).
+(``--overrun-streak``; 0 disables it, and LOOP_STALL, for the soak; overruns and skipped
+cycles are still counted).
 """
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ def add_arguments(p) -> None:
     p.add_argument("--max-leaves", type=int, default=None,
                    help="LoG-GP leaf bound (default: learning.max_leaves of the config)")
     p.add_argument("--overrun-streak", type=int, default=0,
-                   help="consecutive overruns that latch the fault (0: not for the soak; counted anyway)")
+                   help="consecutive overruns that latch the fault (0: neither it nor LOOP_STALL for the soak; counted anyway)")
     p.add_argument("--rotate-mb", type=float, default=64.0, help="log rotation size [MB] (default 64)")
     p.add_argument("--out", default=None, help="directory of the log files (default: a temporary one, removed)")
     p.add_argument("--samples", type=int, default=20, help="memory samples over the run (default 20)")
@@ -164,7 +165,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     est = make_estimator("gp-akf", cfg, bound=False)
     cfg, rig, dev, rt = _soak_rig(cfg, bus, out_dir, rate, max_missed)
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
-    sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10)
+    sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10, loop_stall=overrun_streak > 0)
     probe = _SoakProbe(est, log, rt, warmup, max(1, cycles // max(1, samples)), learn_cycles, bound, bound_in,
                        progress)
     loop = probe.loop = FixedRateLoop(rig.hw, est, SineTracker(cfg), n=cfg.joints, period=cfg.dt, log=log,
