@@ -24,10 +24,11 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import expm, solve_discrete_are
+from scipy.linalg import solve_discrete_are
 from scipy.special import ndtri
 
-from sea_daemon.core.bounds.floor import bound_floor, rest_jacobian
+from sea_daemon.core.bounds.floor import bound_floor, rest_jacobian, wearer_accel, wearer_rate
+from sea_daemon.core.linalg import discretize
 from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import data_root, load_config
 
@@ -47,16 +48,6 @@ def add_arguments(p) -> None:
     p.add_argument("--json", default=None, help="write the table as JSON here")
 
 
-def _discrete(Ac: np.ndarray, dt: float, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(e^{A dt}, ∫₀^dt e^{A s} ds g) from one block exponential."""
-    n = Ac.shape[0]
-    Z = np.zeros((n + 1, n + 1))
-    Z[:n, :n] = Ac
-    Z[:n, n] = g
-    E = expm(Z * dt)
-    return E[:n, :n], E[:n, n]
-
-
 def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: float, R: np.ndarray, z: float):
     """(worst-case lag, Gaussian part) [N m] of the steady-state KF with walk intensity ``q_walk``
     (of τ_h,act for ``rw``, of τ̇_h,act for ``irw``), or None where the filter does not settle."""
@@ -68,7 +59,7 @@ def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: floa
         Ac = np.zeros((6, 6))
         Ac[:5, :5] = A5
         Ac[4, 5] = 1.0                       # dτ/dt = τ̇
-    F, G = _discrete(Ac, dt, np.eye(n)[walk])
+    F, G = discretize(Ac, np.eye(n)[walk], dt)
     H = np.zeros((2, n))
     H[0, 0] = 1.0                            # θ_m
     H[1, 0] = H[1, 1] = 1.0                  # q = θ_m + θ_s
@@ -113,8 +104,7 @@ def run(args) -> int:
     if len(band) != 2 or not 0 < band[0] < band[1] <= 100 or not 0 < args.rms <= 100 or not 0 < args.delta < 1:
         raise InputError(f"--band {args.band} (two increasing numbers in (0, 100] Hz), --rms {args.rms:g} (in (0, 100] N m), "
                          f"--delta {args.delta:g} (in (0, 1))")
-    w = 2.0 * math.pi * band[1]
-    r, a = w * math.sqrt(2.0) * args.rms, w * w * math.sqrt(2.0) * args.rms
+    r, a = wearer_rate(band, args.rms), wearer_accel(band, args.rms)
     q0 = np.array([math.radians(args.q_deg)])
     A5 = rest_jacobian(cfg, q0)
     dq, dth = cfg.hardware.encoder_resolution(1)

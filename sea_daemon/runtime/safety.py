@@ -41,6 +41,12 @@ class SafetySupervisor:
         self._streak = 0
         self.trips = 0
 
+    @classmethod
+    def with_streak(cls, overrun_streak: int) -> "SafetySupervisor":
+        """The supervisor of ``--overrun-streak``: that many overruns in a row latch
+        OVERRUN_STREAK; 0 turns the timing faults off (neither it nor LOOP_STALL latches)."""
+        return cls(overrun_streak=overrun_streak or 2 ** 62, loop_stall=overrun_streak != 0)
+
     @property
     def ok(self) -> bool:
         return self.latched == Fault.NONE

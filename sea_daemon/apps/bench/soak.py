@@ -165,7 +165,7 @@ def soak(cycles: int, rate: float, warmup: int, max_leaves: int | None, overrun_
     est = make_estimator("gp-akf", cfg, bound=False)
     cfg, rig, dev, rt = _soak_rig(cfg, bus, out_dir, rate, max_missed)
     log = LogWriter(out_dir / "soak.csv", log_columns(cfg.joints), rotate_bytes=rotate_bytes, flush_interval=0.5)
-    sup = SafetySupervisor(overrun_streak=overrun_streak if overrun_streak > 0 else cycles + 10, loop_stall=overrun_streak > 0)
+    sup = SafetySupervisor.with_streak(overrun_streak)
     probe = _SoakProbe(est, log, rt, warmup, max(1, cycles // max(1, samples)), learn_cycles, bound, bound_in,
                        progress)
     loop = probe.loop = FixedRateLoop(rig.hw, est, SineTracker(cfg), n=cfg.joints, period=cfg.dt, log=log,
@@ -230,6 +230,8 @@ def run(args) -> int:
         raise InputError("--bound needs --learn-cycles (the bound's GP constants need the learned data)")
     if not 0 <= warmup < args.cycles:
         raise InputError(f"--warmup {warmup}: must be in 0..{args.cycles - 1}")
+    if args.overrun_streak < 0:
+        raise InputError(f"--overrun-streak {args.overrun_streak}: allowed >= 0 (0: never)")
     print(f"# sea-daemon bench soak on {machine()}")
     print(f"# FixedRateLoop (real clock, {args.rate:g} Hz) + CanopenHardware + device model ({args.bus} bus, lock-step) "
           f"+ GP-AKF learning online + LogWriter; {args.cycles} cycles, warm-up {warmup}", flush=True)

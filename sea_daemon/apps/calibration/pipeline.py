@@ -42,7 +42,7 @@ from sea_daemon.analysis.diagnose.engine import run_diagnosis
 from sea_daemon.analysis.diagnose.prepare import prepare_log
 from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.analysis.sufficiency import Sufficiency, assess, at_config_rate, decimate_by, finite
-from sea_daemon.core.bounds.floor import floor_record
+from sea_daemon.core.bounds.floor import floor_record, wearer_rate
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
@@ -78,7 +78,7 @@ class HumanSpec:
     @property
     def rate(self) -> float:
         """A bound of |dτ_h,act/dt| for a torque of this band and size [N m/s] (2π f_max √2 RMS)."""
-        return 2.0 * math.pi * self.band_hz[1] * math.sqrt(2.0) * self.rms
+        return wearer_rate(self.band_hz, self.rms)
 
 
 @dataclass

@@ -126,7 +126,7 @@ def log_name(log_dir: Path, prefix: str) -> Path:
 
 def supervisor(args):
     """The fault supervisor with the ``--overrun-streak`` limit."""
-    return SafetySupervisor(overrun_streak=args.overrun_streak or 2 ** 62, loop_stall=args.overrun_streak != 0)
+    return SafetySupervisor.with_streak(args.overrun_streak)
 
 
 def socket_path(args, state_dir: Path) -> Path | None:

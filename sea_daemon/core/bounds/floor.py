@@ -174,6 +174,17 @@ def bound_floor(cfg: ModelConfig, rate: float | None = None, accel: float | None
     return BoundFloor(rho, hidden, tuple(seen), r, None if accel is None else float(accel))
 
 
+def wearer_rate(band_hz, rms: float) -> float:
+    """A bound of |dτ_h,act/dt| [N m/s] for a wearer's torque of this band [Hz] and RMS [N m]:
+    2π f_max √2 RMS (a sine at the band's top with the RMS's amplitude)."""
+    return float(2.0 * np.pi * float(band_hz[1]) * np.sqrt(2.0) * float(rms))
+
+
+def wearer_accel(band_hz, rms: float) -> float:
+    """The same for |d²τ_h,act/dt²| [N m/s²]: (2π f_max)² √2 RMS."""
+    return float(2.0 * np.pi * float(band_hz[1]) * wearer_rate(band_hz, rms))
+
+
 def floor_record(cfg: ModelConfig, band_hz: tuple[float, float] | None = None, rms: float | None = None) -> dict | None:
     """The floor for the calibration's report and summaries (:meth:`BoundFloor.to_dict`): for
     the declared rate the bound rests on and, given the wearer's band [Hz] and RMS [N m], also
@@ -184,8 +195,7 @@ def floor_record(cfg: ModelConfig, band_hz: tuple[float, float] | None = None, r
         return None
     out = f.to_dict()
     if band_hz is not None and rms is not None and rms > 0:
-        accel = (2.0 * np.pi * float(band_hz[1])) ** 2 * np.sqrt(2.0) * float(rms)
-        out["band_limited"] = bound_floor(cfg, accel=accel).to_dict()
+        out["band_limited"] = bound_floor(cfg, accel=wearer_accel(band_hz, rms)).to_dict()
     return out
 
 
