@@ -115,6 +115,25 @@ def test_interpolation_period_encoding():
         interpolation_period(1000.0)
 
 
+def test_collect_reads_the_rest_of_the_burst_before_waiting_again():
+    """The devices answer a SYNC with a burst of TPDOs: collect asks the handle for the first one
+    without the ready hint (wait for it) and for every one after a frame with it (read on before
+    waiting: one wake-up for the burst)."""
+    from sea_daemon.hw.canopen_rx import TpdoWindow
+    w = TpdoWindow()
+    drive, enc = w.add(1, 0x181, 8), w.add(2, 0x182, 4)
+    queue = [(0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)]
+    hints = []
+
+    def recv(timeout, ready=False):
+        hints.append(ready)
+        return queue.pop(0) if queue else None
+    w._recv = recv
+    w.drain(queued=False)
+    w.collect(deadline=1.0, clock=lambda: 0.0)
+    assert (drive.snap_count, enc.snap_count) == (1, 1) and hints == [False, True]
+
+
 def test_tpdos_queued_by_a_late_collect_are_taken_without_waiting():
     """The TPDO deadline bounds the wait, not the taking: a loop thread that comes to collect
     after its deadline (preempted after the SYNC) takes the frames already queued, and does not
@@ -125,7 +144,7 @@ def test_tpdos_queued_by_a_late_collect_are_taken_without_waiting():
     queue = [(0x700 + 1, b"\x05", 0.0), (0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)]
     waits = []
 
-    def recv(timeout):
+    def recv(timeout, ready=False):
         waits.append(timeout)
         return queue.pop(0) if queue else None
     w._recv = recv

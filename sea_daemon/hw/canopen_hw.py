@@ -34,9 +34,10 @@ RPDO before the next SYNC, and the estimator runs after it, off the bus's critic
 ``read()`` takes the cycle's
 TPDOs (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
-structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` on a third
-handle, taken after the SYNC and again after the TPDOs; on ``virtual`` and ``remote`` on the
-TPDO handle, which sees every frame there).  A heartbeat counts from its arrival on the bus (the
+structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` the EMCY on
+the TPDO handle, in the order they came with the TPDOs, and the heartbeats on a third handle,
+taken after the SYNC; on ``virtual`` and ``remote`` both on the TPDO handle, which sees every
+frame there).  A heartbeat counts from its arrival on the bus (the
 frame's timestamp, :func:`sea_daemon.hw.canopen_rx.arrival`), so the heartbeat timeout does not grow
 by the time a thread took to get to the frame.
 Counts become joint-side radians (:class:`sea_daemon.hw.canopen_positions.Positions`: gear ratio,
@@ -113,8 +114,7 @@ class CanopenHardware(HardwareInterface):
         self._bus, self._owns_bus = bus, bus is None
         self._tpdo_bus = None
         self._hb_tap: FrameTap | None = None     # the heartbeats on the loop thread (once cycling)
-        self._queued: Queued | None = None       # one poll: the TPDO handle, the two taps (bits 1, 2, 4)
-        self._emcy_tap: FrameTap | None = None   # the EMCY on the loop thread (once cycling)
+        self._queued: Queued | None = None       # one poll: the TPDO handle (bit 1), the heartbeats' (bit 2)
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
         self.drives: list = []
@@ -232,26 +232,28 @@ class CanopenHardware(HardwareInterface):
         and the network's handle stops taking them: canopen's receive thread does not wake for
         them inside the cycle, and an EMCY queued before ``read()`` (or before the cycle's
         TPDOs) is raised by that ``read()``, whatever the scheduler does with canopen's thread.
-        Where the handles filter below python-can (SocketCAN, ipc) each comes on a handle of
-        its own (:class:`~sea_daemon.hw.canopen_rx.FrameTap`; EMCY apart from the heartbeats, so that
-        heartbeats filling a queue nobody takes — the ipc bus queues 10 frames — cannot crowd out
-        an EMCY); on ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and
-        hands them over (``TpdoWindow.watch``)."""
+        Where the handles filter below python-can (SocketCAN, ipc) the heartbeats come on a
+        handle of their own (:class:`~sea_daemon.hw.canopen_rx.FrameTap`: heartbeats filling a
+        queue nobody takes — the ipc bus queues 10 frames — cannot crowd out a TPDO or an EMCY)
+        and the EMCY on the TPDO handle, which takes them with the TPDOs in the order they came
+        (an EMCY sent before the cycle's TPDOs is taken before them, no poll of its own); on
+        ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and hands both over
+        (``TpdoWindow.watch``)."""
         nodes = self.drives + self.encoders
         hb_ids = [0x700 + node.id for node in nodes]
         emcy_ids = [0x80 + node.id for node in nodes]
         if self._rx.filtered:
-            for attr, ids, on_frame in (("_hb_tap", hb_ids, self._hb_frame), ("_emcy_tap", emcy_ids, self._on_emcy)):
-                bus = make_bus(self.bus_cfg)
-                try:
-                    setattr(self, attr, FrameTap(bus, ids, on_frame))
-                except BaseException:
-                    bus.shutdown()
-                    raise
-            self._queued = Queued.of([self._rx.bus, self._hb_tap.bus, self._emcy_tap.bus])
+            bus = make_bus(self.bus_cfg)
+            try:
+                self._hb_tap = FrameTap(bus, hb_ids, self._hb_frame)
+            except BaseException:
+                bus.shutdown()
+                raise
+            self._rx.watch(emcy_ids, self._on_emcy)
+            self._queued = Queued.of([self._rx.bus, self._hb_tap.bus])
         else:
             self._rx.watch(hb_ids + emcy_ids, self._tap_frame)
-            self._watching = True
+        self._watching = True
         # canopen's thread ignores them from now on (a bus that ignores filters — python-can-remote —
         # still brings them to it: taken twice, one EMCY would latch again after its reset)
         self._loop_takes_async = True
@@ -266,8 +268,6 @@ class CanopenHardware(HardwareInterface):
         one): for a caller that waits for a heartbeat between cycles."""
         if self._hb_tap is not None:
             self._hb_tap.take()
-        if self._emcy_tap is not None:
-            self._emcy_tap.take()
         if self._watching:
             # the TPDO handle: frames of an earlier cycle found here are reported by the next read()
             if self._rx.drain():
@@ -431,9 +431,6 @@ class CanopenHardware(HardwareInterface):
         self._send(self._sync_msg, "SYNC")
         if self._hb_tap is not None and mask & 2:
             self._hb_tap.take()
-        tap = self._emcy_tap
-        if tap is not None and mask & 4:
-            tap.take()
         self._check_async()
         self._send_master_heartbeat()
         return t_sync
@@ -442,11 +439,8 @@ class CanopenHardware(HardwareInterface):
         """The second half of :meth:`read`: this cycle's TPDOs until ``pdo_timeout`` after
         ``t_sync``, checked and decoded."""
         m = self.meas
-        tap = self._emcy_tap
-        self._rx.collect(t_sync + self.pdo_timeout, self.clock)
+        self._rx.collect(t_sync + self.pdo_timeout, self.clock)   # an EMCY sent before the TPDOs: taken too
         self._cycle += 1
-        if tap is not None:
-            tap.take()                     # an EMCY sent before the TPDOs is queued before them
         self._check_emcy()
         m.cycle = self._cycle
         m.t = self._cycle * self.period
@@ -584,10 +578,9 @@ class CanopenHardware(HardwareInterface):
         if self._tpdo_bus is not None:
             self._tpdo_bus.shutdown()
             self._tpdo_bus = None
-        for tap in (self._hb_tap, self._emcy_tap):
-            if tap is not None:
-                tap.bus.shutdown()
-        self._hb_tap = self._emcy_tap = None
+        if self._hb_tap is not None:
+            self._hb_tap.bus.shutdown()
+        self._hb_tap = None
         self._queued = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()

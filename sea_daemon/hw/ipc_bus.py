@@ -395,11 +395,14 @@ class IpcBus(can.BusABC):
                     continue                     # another frame: the queue is read on (no time check)
             return self._decode(raw), True
 
-    def recv_frame(self, timeout: float):
+    def recv_frame(self, timeout: float, ready: bool = False):
         """The cycle's receive path (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`): the next frame
         this member accepts as ``(arbitration id, data)`` — ``data`` a view of a receive buffer
         that the next call overwrites — or None after ``timeout`` seconds (0: only what is
-        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
+        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`.
+        ``ready``: a frame is probably queued (the rest of a burst): read before waiting or
+        polling (one system call when it is there; a read that finds none then waits as
+        without it)."""
         if self._pending:
             msg = self._pending.pop(0)
             self._pending_ts = msg.timestamp
@@ -409,10 +412,10 @@ class IpcBus(can.BusABC):
             return None
         sock, buf, acc = self._sock, self._rbuf, self._accept
         end = None
-        if timeout <= 0.0 and not self._poll.poll(0):
+        if not ready and timeout <= 0.0 and not self._poll.poll(0):
             return None                      # nothing queued (a poll, not an exception per empty read)
         while True:
-            if timeout > 0.0:
+            if timeout > 0.0 and not ready:
                 # wait first: after a SYNC the answer is not there yet (no exception per frame)
                 if end is None:
                     end = time.monotonic() + timeout
@@ -426,6 +429,11 @@ class IpcBus(can.BusABC):
             try:
                 nb = sock.recv_into(buf, 64, socket.MSG_DONTWAIT)
             except BlockingIOError:
+                if ready:
+                    ready = False            # not there after all: wait (or poll) as without the hint
+                    if timeout <= 0.0:
+                        return None
+                    continue
                 if timeout > 0.0:
                     continue
                 return None
