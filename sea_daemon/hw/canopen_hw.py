@@ -29,7 +29,7 @@ Cycle — PDOs only, pipelined as a CANopen master does: the loop calls ``read()
 heartbeat
 while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
 SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
-this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
+this cycle — held within the missed-cycle tolerance, ``max_missed_ms`` / ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
 RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
 ``read()`` takes the cycle's
 TPDOs (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
@@ -51,6 +51,7 @@ cycle ending at the sample time (see :mod:`sea_daemon.hw.interface` for the whol
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -107,6 +108,14 @@ class CanopenHardware(HardwareInterface):
         self.res_motor = [int(counts_motor[j]) for j in js]
         self.torque_limit = [float(hw.torque_limits(cfg.joints)[j]) for j in js]
         self.pdo_timeout = pdo_timeout if pdo_timeout is not None else b.pdo_timeout_ms / 1e3
+        if pdo_timeout is not None:
+            b = dataclasses.replace(b, pdo_timeout_ms=pdo_timeout * 1e3)
+            self.bus_cfg = b
+        #: the missed-cycle tolerance at this period (BusConfig.missed_cycles): missing TPDOs held, and
+        #: the deadlines the loop may skip in a row (FixedRateLoop's LOOP_STALL)
+        self.max_missed = self.stall_cycles = b.missed_cycles(self.period)
+        #: the drives' RPDO deadline [s] written to 0x1400:5 (0: off); InputError when too short
+        self.rpdo_timeout = b.rpdo_timeout_s(self.period)
         #: cycles between write() and the interval the torque acts over (see sea_daemon.hw.interface)
         self.actuation_delay = 1 if b.sync_rpdo else 0
         self.hb_timeout = b.heartbeat_timeout_ms / 1e3
@@ -464,7 +473,7 @@ class CanopenHardware(HardwareInterface):
                     m.late = True
         if missing is not None:
             self.missed_cycles += 1
-            if missing.missed > self.bus_cfg.max_missed_cycles or not self._primed:
+            if missing.missed > self.max_missed or not self._primed:
                 raise PdoTimeout(missing.node, missing.cob_id, self._cycle, self.pdo_timeout, missing.missed)
             return m                                   # values held from the last cycle
         self._decode(m)

@@ -115,8 +115,10 @@ def add_arguments(p) -> None:
                    help="SCHED_FIFO priority of the device model's process (ipc, remote; 0: do not)")
     p.add_argument("--tpdo-deadline", type=float, default=0.6,
                    help="TPDOs collected until this fraction of the period after the SYNC (default 0.6)")
-    p.add_argument("--max-missed", type=int, default=3,
-                   help="cycles in a row a late TPDO may be held before TPDO_MISSING latches (default 3)")
+    p.add_argument("--max-missed", type=int, default=None,
+                   help="cycles in a row without a sample (a late TPDO held, or deadlines the loop skipped) "
+                        "before TPDO_MISSING / LOOP_STALL latches (default: the configuration's missed-cycle "
+                        "tolerance, hardware.bus.max_missed_ms: 9 cycles at 1 kHz)")
     p.add_argument("--stages", action="store_true",
                    help="also time each stage of the cycle (read, controller, write, estimator and its bound, "
                         "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
@@ -233,6 +235,8 @@ class _Measured:
 def _bad_args(args) -> str | None:
     if args.cycles < 100:
         return "--cycles must be >= 100"
+    if args.max_missed is not None and not 0 <= args.max_missed <= 1000:
+        return f"--max-missed must be in 0..1000, got {args.max_missed}"
     if not 0.05 <= args.tpdo_deadline <= 50:
         return "--tpdo-deadline must be in 0.05..50 (fraction of the period)"
     if args.host_rounds < 0:
@@ -433,6 +437,12 @@ def _worker_figures(res, n_cycles: int, dt: float) -> dict | None:
     }
 
 
+def _rpdo_ms(hw) -> float:
+    """The drives' RPDO deadline the driver wrote [ms] (0: off)."""
+    sub = (getattr(hw, "subs", None) or [hw])[0]
+    return float(getattr(sub, "rpdo_timeout", 0.0)) * 1e3
+
+
 def _figures(args, cfg, m: _Measured, host: dict) -> dict:
     """The JSON summary's figures of the run; ``host``: the machine's load and wake-up figures
     before and after it."""
@@ -451,6 +461,8 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
         "bound_in": (res.extra.get("bound") or {}).get("where", "loop"),
         "bound_worker": _worker_figures(res, n_cycles, dt), "rt_budget": rt_budget(),
         "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": args.tpdo_deadline * dt * 1e3 * 1e3,
+        "missed_cycle_tolerance": {"cycles": int(getattr(hw, "max_missed", -1)),
+                                   "rpdo_timeout_ms": _rpdo_ms(hw)},
         **host,
         "jitter_us": _pcts(np.abs(periods - dt)),
         "daemon_cpu_us": _pcts(own_cpu), "loop_thread_cpu_us": _pcts(loop_cpu), "rx_thread_cpu_us": _pcts(rx),
@@ -505,8 +517,10 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
     ctl = "passive-scenario PID" if cfg.joints == 1 else f"{cfg.joints} joints, a PD per joint"
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
           f"{out['bound']} every cycle, {where}; {ctl}; real-time pace; {res.realtime}")
+    tol = out["missed_cycle_tolerance"]
     print(f"measured {n_cycles} cycles ({out['cycles_measured']} periods), TPDO deadline "
-          f"{out['tpdo_deadline_us']:.0f} us after SYNC, "
+          f"{out['tpdo_deadline_us']:.0f} us after SYNC, missed-cycle tolerance {tol['cycles']} cycles, "
+          f"drives' RPDO deadline {tol['rpdo_timeout_ms']:g} ms, "
           f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
           + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
              if out['fault'] != 'NONE' else ""))

@@ -74,6 +74,11 @@ class DeviceModel:
         self.networks = [DeviceNetwork(b) for b in self.buses]
         self.network = self.networks[0]
         self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
+        if lock_step:
+            # the drives' RPDO deadline on the device's time (SYNCs x period): the plant moves only
+            # with SYNCs, so a master that stops (no SYNC, no RPDO) holds it still, not its torque
+            for d in self.drives:
+                d.rpdo_clock = self._device_time
         self.encoders = [EncoderNode(i) for i in encoder_nodes]
         self._configured_hardware(getattr(plant, "cfg", None))
         #: the nodes on each bus, and each node's network
@@ -243,6 +248,10 @@ class DeviceModel:
         self.last_tau_h_act = tau_h
         self.plant.step(self._tau.copy(), dt, tau_h)
 
+    def _device_time(self) -> float:
+        """The lock-step device's time [s]: its cycles (SYNCs) times the interpolation period."""
+        return self.syncs * self.period
+
     def answer_stats(self) -> dict:
         """The device's answer to SYNC over the SYNCs seen (at most the last STATS_CAP): latency
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
@@ -296,6 +305,10 @@ class DeviceModel:
                 if cycle > self.syncs:                  # the first SYNC of a cycle on any bus
                     self.syncs = cycle
                     self._run_scheduled()
+                    if self.lock_step:
+                        now = self._device_time()
+                        for d in self.drives:
+                            d.check_rpdo(now)           # RPDO deadline on the device's time
                 while self.lock_step and self._steps < cycle - 1:
                     # the interval since the last SYNC, with the set-point in force now: a synchronous
                     # RPDO was actuated at that SYNC, an asynchronous one when it arrived
@@ -313,14 +326,25 @@ class DeviceModel:
             self.error = e
 
     def _watch_master(self) -> None:
-        """The drives' consumer heartbeat (0x1016): checked every 5 ms in real time."""
+        """The drives' consumer heartbeat (0x1016), checked every 5 ms in real time, and, in
+        free-running mode, their RPDO deadline (0x1400:5), checked at it (or every 5 ms, whichever
+        comes first; lock-step: at each SYNC, on the device's time)."""
         while self._running:
-            time.sleep(0.005)
+            wait = 0.005
+            now = time.monotonic()
+            real_time = not self.lock_step        # lock-step: the deadline is checked at each SYNC
+            for d in self.drives:
+                due = d.rpdo_deadline() if real_time else None
+                if due is not None:
+                    wait = min(wait, max(due - now, 0.0) + 1e-4)
+            time.sleep(wait)
             now = time.monotonic()
             with self._lock:
                 for d in self.drives:
                     try:
                         d.check_master(now)
+                        if real_time:
+                            d.check_rpdo(now)
                     except Exception as e:  # noqa: BLE001 - bus gone while stopping
                         self.error = self.error or e
 
