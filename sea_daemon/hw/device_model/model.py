@@ -34,6 +34,7 @@ from sea_daemon.hw.bus import set_controller_filters
 from sea_daemon.hw.device_model.drive import DriveNode
 from sea_daemon.hw.device_model.encoder import EncoderNode
 from sea_daemon.hw.device_model.faults import FaultSpec
+from sea_daemon.hw.device_model.receiver import SharedReceiver
 from sea_daemon.hw.device_model.slave import DeviceNetwork
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.core.hardware_config import joint_values
@@ -95,6 +96,7 @@ class DeviceModel:
             net.subscribe(0x80, lambda can_id, data, timestamp, _i=i: self._on_sync(can_id, data, timestamp, _i))
         self._bus_syncs = [0] * len(self.buses)  # SYNCs seen on each bus (the k-th of each: cycle k)
         self._steps = 0                          # plant steps (lock-step: one per cycle)
+        self._sampled_at = -1                    # the plant step the devices were last sampled at
         self.handled = 0                         # SYNCs handled on all buses
         self._lock = threading.RLock()
         self._tau = np.zeros(self.n)
@@ -151,9 +153,16 @@ class DeviceModel:
 
     def start(self) -> "DeviceModel":
         # the controllers' acceptance filter where the bus applies one below python-can
-        for i, (bus, net) in enumerate(zip(self.buses, self.networks)):
+        for i, bus in enumerate(self.buses):
             set_controller_filters(bus, self.acceptance_filters(i))
-            net.connect()
+        # several buses with descriptors: one receive thread for all of them (SharedReceiver: the
+        # cycle's SYNCs answered in bus order by one thread), else canopen's Notifier per network
+        shared = SharedReceiver.of(self.buses, self.networks, self.networks[0].NOTIFIER_CYCLE)
+        if shared is not None:
+            shared.start()
+        else:
+            for net in self.networks:
+                net.connect()
         self._sample()
         for node in self.drives + self.encoders:
             node.boot()
@@ -319,7 +328,9 @@ class DeviceModel:
                 nodes = self.bus_nodes[bus]
                 for node in nodes:
                     node.apply_pending_rpdos()          # synchronous RPDOs take effect now
-                self._sample()
+                if not (self.lock_step and self._sampled_at == self._steps):
+                    self._sample()                      # lock-step: once per plant step (every bus's)
+                    self._sampled_at = self._steps
                 for node in nodes:
                     node.transmit_sync_tpdos()
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
@@ -385,6 +396,7 @@ class DeviceModel:
         node = (self.drives if fault.target == "drive" else self.encoders)[fault.joint]
         k = fault.kind
         with self._lock:
+            self._sampled_at = -1                      # the next SYNC samples anew (stuck, jump)
             if k == "drop":
                 self._drop[node.id] = self._drop.get(node.id, 0) + int(fault["count"])
             elif k == "delay":
