@@ -5,8 +5,10 @@ bus.  The daemon sends every bus's SYNC at once; with a thread per bus the SYNC 
 wakes a second thread while the first still answers its own (the plant's step, its TPDOs), and
 the two take turns at the interpreter and the model's lock before the second bus's TPDOs go out.
 :class:`SharedReceiver` waits on every bus's descriptor in one ``select`` and, woken, takes what
-each bus has queued in bus order: the second bus's SYNC is answered right after the first's, by
-the thread that is already running.  For buses with a file descriptor (``ipc``, SocketCAN);
+every bus has queued and hands it over in the order it was sent (the frames' timestamps): the
+second bus's SYNC is answered right after the first's, by the thread that is already running,
+and a torque command sent on one bus before the SYNC of another is in force when that SYNC
+steps the plant (with a thread per bus, whichever thread ran first decided).  For buses with a file descriptor (``ipc``, SocketCAN);
 :meth:`SharedReceiver.of` gives None otherwise (each network keeps its own Notifier).
 """
 from __future__ import annotations
@@ -15,6 +17,10 @@ import select
 import threading
 
 import can
+
+
+def _sent(item) -> float:
+    return item[0]
 
 
 class SharedReceiver:
@@ -51,7 +57,7 @@ class SharedReceiver:
         return self
 
     def _run(self) -> None:
-        index = {fd: i for i, fd in enumerate(self.fds)}
+        batch: list = []
         while self._running:
             try:
                 ready = select.select(self.fds, (), (), self.cycle)[0]
@@ -59,11 +65,21 @@ class SharedReceiver:
                 if not self._running:
                     return
                 raise
-            for i in sorted(index[fd] for fd in ready):      # bus order: the first bus's SYNC first
-                self._take(i)
+            if not ready:
+                continue
+            # every bus's queue, in the order the frames were sent (their timestamps; a bus's own
+            # order for equal ones): the daemon's torque RPDO on the second bus, sent before the
+            # first bus's SYNC, is in force when that SYNC steps the plant
+            for i in range(len(self.buses)):
+                self._take(i, batch)
+            batch.sort(key=_sent)
+            for _, i, msg in batch:
+                for listener in self.networks[i].listeners:
+                    listener.on_message_received(msg)
+            batch.clear()
 
-    def _take(self, i: int) -> None:
-        bus, listeners = self.buses[i], self.networks[i].listeners
+    def _take(self, i: int, batch: list) -> None:
+        bus = self.buses[i]
         while self._running:
             try:
                 msg = bus.recv(0.0)
@@ -72,8 +88,7 @@ class SharedReceiver:
                 return
             if msg is None:
                 return
-            for listener in listeners:
-                listener.on_message_received(msg)
+            batch.append((msg.timestamp or 0.0, i, msg))
 
     def stop(self, timeout: float = 5.0) -> None:
         self._running = False
