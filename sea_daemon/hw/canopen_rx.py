@@ -32,7 +32,7 @@ import time
 
 import can
 
-from sea_daemon.hw.bus import set_controller_filters
+from sea_daemon.hw.bus import descriptors, set_controller_filters
 
 #: accept filters of the canopen network's handle: everything but the TPDO range 0x180..0x4FF
 #: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)
@@ -251,16 +251,8 @@ class Queued:
 
     @classmethod
     def of(cls, buses) -> "Queued | None":
-        fds = []
-        for bus in buses:
-            try:
-                fd = bus.fileno()
-            except (NotImplementedError, AttributeError, OSError, ValueError):
-                return None
-            if not isinstance(fd, int) or fd < 0:
-                return None
-            fds.append(fd)
-        return cls(fds)
+        fds = descriptors(buses)
+        return None if fds is None else cls(fds)
 
     def mask(self) -> int:
         """Bit i set: handle i (in the order given) has a frame queued, or an error pending."""

@@ -69,7 +69,7 @@ from sea_daemon.apps.bench._loop_rig import (
     joints_plant, trained_estimator)
 from sea_daemon.hw.busload import measured_load
 from sea_daemon.core.log import DaemonColumns
-from sea_daemon.runtime.loop import Series
+from sea_daemon.apps.bench._loop_stages import stage_timers
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.rates import at_rate
@@ -178,42 +178,6 @@ class ReceiveThreadsCpu:
         return sum(time.clock_gettime(c) for c in self.clocks)
 
 
-class _Stages:
-    """Thread CPU time of each stage of the cycle: the stage's method on its object replaced by a
-    wrapper that reads the thread's CPU clock around the call (an instance attribute: the class
-    and other instances are untouched); the times go into resident buffers for ``calls`` calls
-    (:class:`~sea_daemon.runtime.loop.Series`: no page fault added to the cycle)."""
-
-    def __init__(self, calls: int = 1024):
-        self.times: dict[str, Series] = {}
-        self.calls = calls
-
-    def wrap(self, label: str, obj, name: str) -> None:
-        if obj is None or not hasattr(obj, name):
-            return
-        f = getattr(obj, name)
-        acc = self.times.setdefault(label, Series(self.calls))
-        clock = time.thread_time
-
-        def timed(*a, **k):
-            c0 = clock()
-            try:
-                return f(*a, **k)
-            finally:
-                acc.append(clock() - c0)
-        setattr(obj, name, timed)
-
-    def summary(self, skip: int) -> dict:
-        """Median / p99 [µs] per stage over the calls after the first ``skip``."""
-        out = {}
-        for label, v in self.times.items():
-            v = np.asarray(v, dtype=float)[skip:]
-            if v.size:
-                out[label] = {"median": float(np.median(v) * 1e6), "p99": float(np.percentile(v, 99) * 1e6),
-                              "calls": int(v.size)}
-        return out
-
-
 @dataclasses.dataclass
 class _Measured:
     """What one bench run measured (:func:`_measure`), for the figures and the report."""
@@ -225,7 +189,7 @@ class _Measured:
     rx_cpu: np.ndarray             # the receive threads' CPU clock at each cycle's end [s]
     probe: dict                    # cycle -> the loop thread's (minor, major) page faults
     dev_stats: dict | None         # the device model's answer statistics
-    stages: Any                    # _Stages, or None
+    stages: Any                    # Stages, or None
     max_age: int                   # the worker's oldest bound [cycles]
     compute: np.ndarray            # the log's compute column [s]
     read_s: np.ndarray             # the log's read column [s]
@@ -351,7 +315,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     bound_in = cfg.estimator.bound_in if args.bound_in == "auto" else args.bound_in
     max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
     in_worker = bound_in in ("auto", "worker") and not args.no_bound
-    stages = _stage_timers(n_cycles, rig, controller, estimator, publisher, in_worker) if args.stages else None
+    stages = stage_timers(n_cycles, rig, controller, estimator, publisher, in_worker) if args.stages else None
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                     progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
@@ -366,18 +330,6 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     cols = DaemonColumns.of(log)
     return _Measured(res, rig, n_cycles, k_faults, rx_cpu, probe, dev_stats, stages, max_age,
                      cols.compute, cols.read, publisher)
-
-
-def _stage_timers(n_cycles: int, rig, controller, estimator, publisher, in_worker: bool) -> "_Stages":
-    stages = _Stages(n_cycles + 10)
-    for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
-                             ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
-                             ("estimator (with its bound)" if not in_worker else
-                              "estimator (filter, bound handed to the worker)", estimator, "update"),
-                             ("bound", None if in_worker else getattr(estimator, "bound", None), "step"),
-                             ("publication", publisher, "publish")):
-        stages.wrap(label, obj, name)
-    return stages
 
 
 def _bus_load(args, dev_stats: dict | None, pub_can: dict) -> tuple[float, float, float]:

@@ -132,6 +132,8 @@ class DriveNode(SlaveNode):
         if deadline is None or now <= deadline:
             return False
         self.rpdo_armed, self.rpdo_last = False, None   # once per loss; re-armed by cycling RPDOs
+        if self.sm.state is not cia402.State.OPERATION_ENABLED:
+            return False                        # no torque to stop (a master's quick stop, a disable)
         self._connection_lost(0x8250)
         return True
 

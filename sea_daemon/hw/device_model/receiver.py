@@ -18,6 +18,8 @@ import threading
 
 import can
 
+from sea_daemon.hw.bus import descriptors
+
 
 def _sent(item) -> float:
     return item[0]
@@ -37,18 +39,8 @@ class SharedReceiver:
 
     @classmethod
     def of(cls, buses, networks, cycle: float = 0.05) -> "SharedReceiver | None":
-        if len(buses) < 2:
-            return None
-        fds = []
-        for bus in buses:
-            try:
-                fd = bus.fileno()
-            except (NotImplementedError, AttributeError, OSError, ValueError):
-                return None
-            if not isinstance(fd, int) or fd < 0:
-                return None
-            fds.append(fd)
-        return cls(buses, networks, fds, cycle)
+        fds = descriptors(buses) if len(buses) > 1 else None
+        return None if fds is None else cls(buses, networks, fds, cycle)
 
     def start(self) -> "SharedReceiver":
         for net in self.networks:
