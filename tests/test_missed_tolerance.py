@@ -51,6 +51,11 @@ def test_the_rpdo_deadline_is_never_shorter_than_the_tolerance_allows():
         dataclasses.replace(b, rpdo_timeout_ms=5).rpdo_timeout_s(0.001)
     assert str(e.value) == ("hardware.bus.rpdo_timeout_ms: must be 0 (off) or >= 13 ms (the longest gap between two "
                             "torque commands the missed-cycle tolerance allows at 1000 Hz: 9 missed cycles), got 5")
+    # a tolerance longer than the drive's event timer can hold (UNSIGNED16 ms): one line, not an SDO abort
+    long = BusConfig.from_dict({"max_missed_cycles": 1000}, 1, "t")
+    with pytest.raises(InputError, match=r"needs a drive RPDO deadline of 100308 ms, more than 0x1400:5 holds"):
+        long.rpdo_timeout_s(0.1)
+    assert dataclasses.replace(long, rpdo_timeout_ms=0).rpdo_timeout_s(0.1) == 0.0
 
 
 def test_the_loop_takes_its_stall_tolerance_from_the_driver():

@@ -222,7 +222,13 @@ class BusConfig:
         stop a run the loop is told to keep)."""
         gap = self.longest_rpdo_gap(period)
         if self.rpdo_timeout_ms is None:
-            return math.ceil(gap * 1e3 - 1e-9) / 1e3
+            ms = math.ceil(gap * 1e3 - 1e-9)
+            if ms > 65535:
+                raise InputError(f"hardware.bus.max_missed_ms / max_missed_cycles: the tolerance at {1 / period:g} Hz "
+                                 f"({self.missed_cycles(period)} missed cycles) needs a drive RPDO deadline of {ms} ms, "
+                                 f"more than 0x1400:5 holds (65535 ms); allowed: a shorter tolerance, or "
+                                 f"hardware.bus.rpdo_timeout_ms: 0 (off)")
+            return ms / 1e3
         if 0 < self.rpdo_timeout_ms < gap * 1e3 - 1e-9:
             raise InputError(f"hardware.bus.rpdo_timeout_ms: must be 0 (off) or >= {math.ceil(gap * 1e3 - 1e-9)} ms "
                              f"(the longest gap between two torque commands the missed-cycle tolerance allows at "
