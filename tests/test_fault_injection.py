@@ -32,3 +32,25 @@ def test_every_injected_fault_is_detected_and_zeroes_torque_within_a_cycle(suite
 def test_no_false_alarm_without_faults(suite):
     ff = suite["fault_free"]
     assert ff["cycles"] == 1500 and ff["false_alarms"] == []
+
+
+def test_the_stuck_condition_uses_the_joints_own_stuck_motion():
+    """The evaluation's stuck condition reads joint 0's ``stuck_motion`` through the per-joint
+    helper, whether the bus declares it for every joint (a number) or per joint (a tuple)."""
+    import numpy as np
+    from sea_daemon.apps.bench._fault_run import BUS, FaultRun, Injection
+    from sea_daemon.apps.bench._rig import bench_config
+
+    cycles = 60
+    run = FaultRun.__new__(FaultRun)
+    run.cycles = cycles
+    run.qc = np.arange(cycles + 1, dtype=np.int64)
+    run.qc[10:] = 10                               # the load count stuck from cycle 10 on ...
+    run.mc = np.arange(cycles + 1, dtype=np.int64)
+    run.qa = np.zeros(cycles + 1)
+    run.ma = 0.004 * np.arange(cycles + 1)         # ... while the motor moves 4 mrad a cycle
+    for stuck_motion, want in ((0.05, 30), ((0.05,), 30), ((0.1,), 36)):
+        run.cfg = bench_config(**dict(BUS, stuck_motion=stuck_motion))
+        # from the last change (cycle 10), 20 unchanged cycles (stuck_cycles) reach cycle 30,
+        # where the motor has moved 0.08 rad > 0.05; more than 0.1 rad takes 26 cycles: cycle 36
+        assert run._stuck_cond(Injection("encoder_stuck", 10)) == want, stuck_motion
