@@ -348,7 +348,7 @@ class FaultRun:
         """The log has a row for every cycle (cycle column 0..N−1, time increasing), its fault
         column is non-zero exactly in the cycles the loop was latched, valid is 0 there, and the
         commanded torque of those rows is zero."""
-        log = read_log(self.log_path, n=1)
+        log = read_log(self.log_path, n=1, units=False)   # its own log: never a unit error
         ex = DaemonColumns.of(log)
         fault = ex.fault != 0
         n = self.loop.stats.cycles
