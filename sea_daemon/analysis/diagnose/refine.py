@@ -167,6 +167,7 @@ class Refinement:
     #: "at least" is a one-sided 95 % bound, z₀.₉₅² = χ²₁(0.90) ≈ 2.71.  An interval with both
     #: ends is two-sided 95 %: its edges where the rise is Z95² ≈ 3.84
     ONE_SIDED = 1.6448536269514722 ** 2
+    TWO_SIDED = Z95 * Z95
     #: factors of the value tried for the upper edge of a static-friction profile interval
     UPPER_FACTORS = (1.5, 2.0, 4.0, 8.0)
 
@@ -177,10 +178,11 @@ class Refinement:
         A sticking phase bounds static friction from below only, and a Stribeck hump trades
         its height against its width along a valley, so the linearised interval says little.
         The upper edge is the first of :attr:`UPPER_FACTORS` × the value at which −2 log L has
-        risen by more than Z95² (a 95 % interval, its upper end rounded outward); when there is
-        none, the log bounds the amplitude from below only, and the interval is one-sided 95 %:
-        its lower edge where the rise is :attr:`ONE_SIDED`, else Z95².  The amplitude is kept
-        when removing it raises −2 log L by more than that; with no upper end it is moved to its
+        risen by more than :attr:`TWO_SIDED` (a 95 % interval, its upper end rounded outward);
+        the lower edge is where it has risen by that much.  When there is no upper edge, the log
+        bounds the amplitude from below only and the interval is one-sided 95 %: its lower edge
+        where the rise is :attr:`ONE_SIDED`.  The amplitude is kept when removing it raises
+        −2 log L by more than the level of its lower edge; with no upper end it is moved to its
         lower edge (the least static friction the log requires) and reported as "at least".
         ``x`` is updated in place."""
         out: dict[int, tuple] = {}
@@ -199,8 +201,8 @@ class Refinement:
             d0 = dev(k, 0.0)
             if d0 <= self.ONE_SIDED:
                 continue                      # not needed at all: the interval test drops it
-            upper = next((f * float(x[k]) for f in self.UPPER_FACTORS if dev(k, f * x[k]) > Z95 * Z95), math.inf)
-            level = self.ONE_SIDED if upper == math.inf else Z95 * Z95
+            upper = next((f * float(x[k]) for f in self.UPPER_FACTORS if dev(k, f * x[k]) > self.TWO_SIDED), math.inf)
+            level = self.ONE_SIDED if upper == math.inf else self.TWO_SIDED
             if d0 <= level:
                 continue
             a, b = 0.0, float(x[k])
