@@ -23,7 +23,6 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.core.hardware_config import joint_values
 from sea_daemon.io.configfile import data_root
 
 from sea_daemon.hw import cia402
@@ -82,7 +81,7 @@ class NodeSetup:
         self.period, self.max_permille = period, list(max_permille)
         #: the drives' RPDO deadline 0x1400:5 [ms] (0: not written, off)
         self.rpdo_timeout_ms = int(round(bus_cfg.rpdo_timeout_s(period) * 1e3))
-        self.rated = joint_values(bus_cfg.rated_torque, len(self.gear)).tolist()
+        self.rated = bus_cfg.rated_torques(len(self.gear)).tolist()
         self.keepalive = keepalive
 
     # ---------------------------------------------------------------- SDO transfers
