@@ -6,11 +6,18 @@ from __future__ import annotations
 import uuid
 
 import numpy as np
+import pytest
 
 from _hil import recording_plant
 from sea_daemon.hw.device_model.receiver import SharedReceiver
 from sea_daemon.runtime.rig import device_model_rig
 from test_nbus import two_joint_config
+
+
+@pytest.fixture(scope="module", autouse=True)
+def compiled_plant():
+    """The two-joint plant's kernels compiled before a device model steps it in a SYNC handler."""
+    recording_plant(0.2, joints=2).step(np.zeros(2), 0.01, np.zeros(2))
 
 
 def test_one_receive_thread_steps_the_plant_with_every_joints_last_command():
