@@ -158,7 +158,7 @@ class AKFTheoremBound:
                              "see sea_daemon.core.bounds.calibration.gp_constants)")
         self._auto = has_gp and isinstance(gp_constants, str)
         self.refresh_every = 200          # 'auto': recompute after this many new training points
-        self._learned_at = 0
+        self._learned_at = self._growth = 0
         if self._auto and gp_constants != "auto":
             raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
@@ -194,8 +194,8 @@ class AKFTheoremBound:
 
     def refresh_gp_constants(self) -> None:
         """The GP constants and input box of the residual's current leaves (after it learned more)."""
-        gps = residual_gps(self.akf)
-        self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
+        self._growth = self.refresh_every if getattr(self.akf, "learning", False) else 0   # union_leaves
+        self.gp_constants, self.gp_box = gp_constants(residual_gps(self.akf), self.sm.delta_gp, beta=self.gp_beta, growth=self._growth)
         self._learned_at = self._n_learned()
         self._update_scales()
         self._pack = None
@@ -440,7 +440,7 @@ class AKFTheoremBound:
         gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
-        if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
+        if self._auto and self._n_learned() >= self._learned_at + max(self._growth, 1):
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source

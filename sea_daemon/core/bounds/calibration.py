@@ -25,16 +25,32 @@ def residual_gps(akf) -> list | None:
     return None
 
 
+def union_leaves(gp, growth: int | None = None) -> int:
+    """L of the union bound over a LoG-GP's leaves (docs/bounds.md §2): every leaf that can make
+    a prediction while the constants are used.  ``growth`` None: the tree's ``max_leaves`` cap
+    (valid however long it keeps learning; at least the leaves it has); a number: the leaves it has
+    plus ``growth``, capped — each training pair splits at most one leaf, so ``growth`` is the
+    number of pairs it may learn before the constants are made again (0: a frozen GP)."""
+    have = int(getattr(gp, "n_leaves", 0) or len(gp.leaves()))
+    cap = int(getattr(gp, "max_leaves", 0) or 0)
+    if growth is None:
+        return max(have, cap)
+    if isinstance(growth, bool) or not isinstance(growth, (int, np.integer)) or growth < 0:
+        raise ValueError(f"growth must be an integer >= 0 (training pairs), got {growth!r}")
+    return have + int(growth) if cap <= 0 else max(have, min(cap, have + int(growth)))
+
+
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
                  n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
-                 beta: str | float = "lederer"):
+                 beta: str | float = "lederer", growth: int | None = None):
     """GP error constants per joint for a :class:`sea_daemon.core.learning.ResidualGP` (one LoG-GP per
     joint) or a list of LoG-GPs.
 
     δ_GP is split over the n joints' GPs (union bound); within each, a share
     ``lipschitz_share`` goes to LUH19 Thm 3.2 (unless ``L_f`` is given) and the rest to the
-    union over the leaves (``n_leaves``, default the LoG-GP's ``max_leaves`` cap, so the
-    constants stay valid while the tree grows).  The input box is the box of all training
+    union over the leaves (``n_leaves``, default :func:`union_leaves` with ``growth``: the
+    LoG-GP's ``max_leaves`` cap without it, so the constants stay valid while the tree grows; the
+    leaves it has plus ``growth`` with it — 0 for a GP that learns no more).  The input box is the box of all training
     points widened by ``box_margin`` of its range.  ``beta``: 'lederer' (the above) or a
     number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
     Returns (constants list, (lo, hi)).
@@ -50,7 +66,7 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     consts = []
     for gp in gps:
         leaves = loggp_leaves(gp)
-        L = n_leaves if n_leaves is not None else max(len(leaves), int(getattr(gp, "max_leaves", 0) or 0))
+        L = n_leaves if n_leaves is not None else max(len(leaves), union_leaves(gp, growth))
         kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
         consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
     return consts, (lo, hi)
