@@ -82,3 +82,54 @@ def test_a_gp_that_learns_again_gets_the_allowance_at_its_first_new_pair():
     c = tb.gp_constants[0]
     assert tb.gp_constants is not frozen
     assert c.n_leaves == min(cfg.learning.max_leaves, gp.n_leaves + tb.refresh_every)
+
+
+# ---------------------------------------------------------------- the nested boxes (docs/bounds.md §2, "The box")
+
+def test_the_nested_boxes_share_delta_and_grow_by_doubling():
+    from sea_daemon.core.bounds.calibration import BOX_LEVELS, box_level, gp_constant_levels
+    gp, _ = _grown(max_leaves=40, pairs=150)
+    c0, (lo, hi), lev = gp_constant_levels([gp], 0.025, growth=0)
+    K = BOX_LEVELS
+    assert lev.sqrt_beta.shape == (K, 1) and lev.lo.shape == (K, 2)
+    np.testing.assert_allclose(lev.lo[0], lo)
+    np.testing.assert_allclose(lev.hi[0], hi)
+    np.testing.assert_allclose(lev.hi - lev.lo, (hi - lo)[None] * 2.0 ** np.arange(K)[:, None])
+    # a wider box and a smaller share of δ: a larger √β at every level
+    assert np.all(np.diff(lev.sqrt_beta[:, 0]) > 0) and c0[0].sqrt_beta == lev.sqrt_beta[0, 0]
+    # the shares 2^-(k+1)/(1 - 2^-K) of δ_GP add up to δ_GP (each level's constants carry their δ)
+    assert c0[0].delta == pytest.approx(0.025 * 0.5 / (1 - 0.5 ** K))
+    assert sum(0.025 * 0.5 ** (k + 1) / (1 - 0.5 ** K) for k in range(K)) == pytest.approx(0.025)
+    assert box_level(lev, lo, hi) == (0, False)
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    assert box_level(lev, mid - 1.5 * half, mid + half) == (1, False)
+    assert box_level(lev, mid - 3 * half, mid) == (2, False)
+    assert box_level(lev, mid - 2.0 ** K * half, mid) == (K - 1, True)
+
+
+def test_a_set_beyond_the_training_box_takes_a_wider_boxs_constants_in_both_steps():
+    """Trained on small motions, run on larger ones: the GP input set leaves the training box, and
+    each such step takes the constants of the smallest nested box that holds it — no step outside
+    every box, the Python and the compiled step alike."""
+    cfg = load_config(default_config_path())
+    cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, init_after_kinematics=False))
+    small = lambda t: np.full(1, 0.4 * np.sin(2 * np.pi * 0.5 * t))
+    train = simulate(SEAModel.from_config(cfg), T=1.5, seed=6, tau_m=small)
+    log = simulate(SEAModel.from_config(cfg), T=0.6, seed=8)
+    rho, levels, bounds = [], [], []
+    for compiled in (False, True):
+        est = make_estimator("gp-akf", cfg, train=train)
+        est.bound.compiled = compiled
+        est.reset(log.q[0], log.theta_m[0], log.tau_m[0])
+        r, lv = [], []
+        for k in range(1, len(log)):
+            e = est.update(log.q[k], log.theta_m[k], log.tau_m[k], log.t[k] - log.t[k - 1])
+            r.append(e.tau_h_act_bound[0])
+            lv.append(est.bound.box_level_)
+        rho.append(np.array(r))
+        levels.append(np.array(lv))
+        bounds.append(est.bound)
+    assert bounds[1]._compiled_pack() is not None and bounds[0]._compiled_pack() is None
+    assert levels[0].max() >= 1 and np.mean(levels[0] > 0) > 0.2
+    assert bounds[0].gp_box_violations_ == bounds[1].gp_box_violations_ == 0
+    np.testing.assert_allclose(rho[1], rho[0], rtol=1e-12, atol=1e-14)
