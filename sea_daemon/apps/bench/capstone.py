@@ -221,7 +221,7 @@ def bound_figures(rec: StepRecord, valid: np.ndarray, rows: int) -> dict:
     left = np.asarray(rec.left_[-rows:], bool)
     out = {"gp_sqrt_beta": None if c is None else float(c.sqrt_beta),
            "gp_union_leaves": None if c is None else int(c.n_leaves),
-           "gp_box_left": float(np.mean(left)) if left.size else None}
+           "gp_box_left": float(np.mean(left)) if left.size and c is not None else None}
     if isinstance(rec.inner, TermsRecorder):
         out["terms"] = rec.inner.table(valid) or None
     return out
