@@ -44,7 +44,8 @@ def union_leaves(gp, growth: int | None = None) -> int:
 
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
                  n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
-                 beta: str | float = "lederer", growth: int | None = None, box: tuple | None = None):
+                 beta: str | float = "lederer", growth: int | None = None, box: tuple | None = None,
+                 leaves: list | None = None):
     """GP error constants per joint for a :class:`sea_daemon.core.learning.ResidualGP` (one LoG-GP per
     joint) or a list of LoG-GPs.
 
@@ -53,7 +54,8 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     union over the leaves (``n_leaves``, default :func:`union_leaves` with ``growth``: the
     LoG-GP's ``max_leaves`` cap without it, so the constants stay valid while the tree grows; the
     leaves it has plus ``growth`` with it — 0 for a GP that learns no more).  The input box is the box of all training
-    points widened by ``box_margin`` of its range (``box``: (lo, hi) given instead).  ``beta``: 'lederer' (the above) or a
+    points widened by ``box_margin`` of its range (``box``: (lo, hi) given instead; ``leaves``: each
+    GP's :func:`loggp_leaves`, made once for several calls).  ``beta``: 'lederer' (the above) or a
     number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
     Returns (constants list, (lo, hi)).
     """
@@ -66,11 +68,11 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     if beta != "lederer":
         return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
     consts = []
-    for gp in gps:
-        leaves = loggp_leaves(gp)
-        L = n_leaves if n_leaves is not None else max(len(leaves), union_leaves(gp, growth))
+    for j, gp in enumerate(gps):
+        lv = loggp_leaves(gp) if leaves is None else leaves[j]
+        L = n_leaves if n_leaves is not None else max(len(lv), union_leaves(gp, growth))
         kw = dict(L_f=L_f) if L_f is not None else dict(delta_lipschitz=lipschitz_share * per_joint)
-        consts.append(error_bound(leaves, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
+        consts.append(error_bound(lv, lo, hi, per_joint, n_leaves=L, sigma_ref=sigma_ref, **kw))
     return consts, (lo, hi)
 
 
@@ -107,14 +109,17 @@ def gp_constant_levels(residual, delta_gp: float, *, levels: int = BOX_LEVELS, b
     statement holds at once with probability ≥ 1 − δ_GP, so each step may use the smallest box
     that holds its GP input set).  A configured β does not depend on the box: one level.
     Returns (constants of X_0, (lo, hi) of X_0, :class:`BoxLevels`)."""
-    consts, (lo, hi) = gp_constants(residual, delta_gp, beta=beta, growth=growth, box_margin=box_margin)
     if beta != "lederer" or levels <= 1:
-        return consts, (lo, hi), levels_of(consts, (lo, hi))
+        consts, box = gp_constants(residual, delta_gp, beta=beta, growth=growth, box_margin=box_margin)
+        return consts, box, levels_of(consts, box)
+    _, (lo, hi) = gp_constants(residual, delta_gp, beta=1.0, box_margin=box_margin)     # X_0 alone
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     w = 0.5 ** np.arange(1, levels + 1)
     w /= w.sum()
-    rows = [gp_constants(residual, delta_gp * w[k], growth=growth, box=(mid - 2.0 ** k * half, mid + 2.0 ** k * half))
-            for k in range(levels)]
+    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+    lv = [loggp_leaves(g) for g in gps]
+    rows = [gp_constants(gps, delta_gp * w[k], growth=growth, box=(mid - 2.0 ** k * half, mid + 2.0 ** k * half),
+                         leaves=lv) for k in range(levels)]
     out = BoxLevels(np.array([[c.sqrt_beta for c in cs] for cs, _ in rows], dtype=float),
                     np.array([[c.gamma for c in cs] for cs, _ in rows], dtype=float),
                     np.array([b[0] for _, b in rows], dtype=float), np.array([b[1] for _, b in rows], dtype=float))
