@@ -1,5 +1,5 @@
 """The device model's buses on one receive thread (sea_daemon.hw.device_model.receiver), lock-step,
-a bus per joint on the ipc bus: every plant step acts with the torque each joint's drive was
+a bus per joint on the ipc bus and on python-can's virtual bus: every plant step acts with the torque each joint's drive was
 last commanded before that step's SYNC, whichever bus it came on."""
 from __future__ import annotations
 
@@ -20,9 +20,10 @@ def compiled_plant():
     recording_plant(0.2, joints=2).step(np.zeros(2), 0.01, np.zeros(2))
 
 
-def test_one_receive_thread_steps_the_plant_with_every_joints_last_command():
+@pytest.mark.parametrize("interface", ["ipc", "virtual"])
+def test_one_receive_thread_steps_the_plant_with_every_joints_last_command(interface):
     tag = uuid.uuid4().hex[:6]
-    cfg = two_joint_config([f"sr1-{tag}", f"sr2-{tag}"], interface="ipc")
+    cfg = two_joint_config([f"sr1-{tag}", f"sr2-{tag}"], interface=interface)
     plant = recording_plant(0.2, joints=2)
     rig = device_model_rig(cfg, plant)
     sent = []

@@ -8,8 +8,11 @@ the two take turns at the interpreter and the model's lock before the second bus
 every bus has queued and hands it over in the order it was sent (the frames' timestamps): the
 second bus's SYNC is answered right after the first's, by the thread that is already running,
 and a torque command sent on one bus before the SYNC of another is in force when that SYNC
-steps the plant (with a thread per bus, whichever thread ran first decided).  For buses with a file descriptor (``ipc``, SocketCAN);
-:meth:`SharedReceiver.of` gives None otherwise (each network keeps its own Notifier).
+steps the plant (with a thread per bus, whichever thread ran first decided: in a lock-step run
+one joint's step often acted with its previous command).  On buses with file descriptors
+(``ipc``, SocketCAN) it waits in ``select``; on python-can's ``virtual`` bus (in-process, no
+descriptor) it waits on the first bus at most :data:`SharedReceiver.POLL` at a time and looks at
+the others in between.
 """
 from __future__ import annotations
 
@@ -30,8 +33,13 @@ class SharedReceiver:
     network (``networks[i]``'s, as canopen's Notifier would); :meth:`stop` ends it (the
     Notifier's ``stop(timeout)``: each network's ``notifier``)."""
 
+    #: without descriptors (python-can ``virtual``): the longest wait on the first bus before the
+    #: others are looked at again [s] (a frame on another bus waits at most this long)
+    POLL = 0.0005
+
     def __init__(self, buses, networks, fds, cycle: float = 0.05):
-        self.buses, self.networks, self.fds = list(buses), list(networks), list(fds)
+        self.buses, self.networks = list(buses), list(networks)
+        self.fds = None if fds is None else list(fds)
         self.cycle = cycle                    # the select timeout: a stop is seen within it
         self._running = True
         self.exception: BaseException | None = None
@@ -39,8 +47,9 @@ class SharedReceiver:
 
     @classmethod
     def of(cls, buses, networks, cycle: float = 0.05) -> "SharedReceiver | None":
-        fds = descriptors(buses) if len(buses) > 1 else None
-        return None if fds is None else cls(buses, networks, fds, cycle)
+        if len(buses) < 2:
+            return None
+        return cls(buses, networks, descriptors(buses), cycle)
 
     def start(self) -> "SharedReceiver":
         for net in self.networks:
@@ -51,13 +60,7 @@ class SharedReceiver:
     def _run(self) -> None:
         batch: list = []
         while self._running:
-            try:
-                ready = select.select(self.fds, (), (), self.cycle)[0]
-            except (OSError, ValueError):
-                if not self._running:
-                    return
-                raise
-            if not ready:
+            if not self._wait(batch):
                 continue
             # every bus's queue, in the order the frames were sent (their timestamps; a bus's own
             # order for equal ones): the daemon's torque RPDO on the second bus, sent before the
@@ -69,6 +72,26 @@ class SharedReceiver:
                 for listener in self.networks[i].listeners:
                     listener.on_message_received(msg)
             batch.clear()
+
+    def _wait(self, batch: list) -> bool:
+        """Until a frame is queued on some bus (False after ``cycle`` without one): ``select`` on
+        the descriptors, or without them a short wait on the first bus (its frame into ``batch``)
+        and a look at the others."""
+        if self.fds is not None:
+            try:
+                return bool(select.select(self.fds, (), (), self.cycle)[0])
+            except (OSError, ValueError):
+                if not self._running:
+                    return False
+                raise
+        try:
+            msg = self.buses[0].recv(self.POLL)
+        except can.CanError as e:
+            self.exception = e
+            return False
+        if msg is not None:
+            batch.append((msg.timestamp or 0.0, 0, msg))
+        return True
 
     def _take(self, i: int, batch: list) -> None:
         bus = self.buses[i]
