@@ -20,6 +20,7 @@ from sea_daemon.core.sim.session import run_session
 from sea_daemon.errors import ConfigError
 from sea_daemon.io.configfile import load_config
 from tests._paths import repo_root
+from tests.test_gpakf_compiled_paths import arm  # noqa: F401  (the 2-DoF arm fixture)
 
 
 def integrated(cfg, q_dtau: float, accel: float = 0.0, q_tau: float | None = None):
@@ -165,3 +166,15 @@ def test_the_floor_of_the_integrated_bound_rests_on_the_declared_acceleration(si
     assert "its bound rests on |d2tau_h,act/dt2| <= 750" in floor_line(rec)
     walk = dataclasses.replace(sim_cfg, estimator=dataclasses.replace(sim_cfg.estimator, tau_h_act_rate=40.0))
     assert "random walk" in floor_line(floor_record(walk, (0.1, 3.0), 1.5))
+
+
+def test_the_frozen_integrated_gpakf_on_a_rigid_body_equals_the_python_step(arm):
+    """The 2-DoF shoulder-elbow arm (a URDF's rigid body, Pinocchio between the compiled calls) with
+    the integrated walk: 12 states, the compiled sample and the Python step bit for bit."""
+    # local import: the helpers of the compiled-path tests, used here on the integrated walk
+    from tests.test_gpakf_compiled_paths import run, same
+    cfg, gp, test = arm
+    cfg = integrated(cfg, 3000.0, accel=750.0)
+    fused, python = run(cfg, gp, test, True), run(cfg, gp, test, False)
+    same(fused, python)
+    assert fused[1].shape == (12,) and np.all(np.isfinite(fused[0][1:]))
