@@ -178,3 +178,13 @@ def test_the_frozen_integrated_gpakf_on_a_rigid_body_equals_the_python_step(arm)
     fused, python = run(cfg, gp, test, True), run(cfg, gp, test, False)
     same(fused, python)
     assert fused[1].shape == (12,) and np.all(np.isfinite(fused[0][1:]))
+
+
+def test_settings_take_the_other_model_with_their_own_defaults_and_the_rest_kept(sim_cfg):
+    """What `bench generalize --tau-model` gives the calibration: the model's Sigma_nom and P0, R kept."""
+    e = sim_cfg.estimator
+    assert e.with_tau_model("walk", 1) is e
+    i = e.with_tau_model("integrated", 1)
+    assert i.d == 6 and i.tau_h_act_model == "integrated" and np.array_equal(i.R, e.R)
+    assert np.array_equal(i.P0[:4, :4], e.R) and i.Sigma_nom_dt == e.Sigma_nom_dt
+    assert i.with_tau_model("walk", 1).d == 5

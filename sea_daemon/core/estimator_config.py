@@ -156,6 +156,14 @@ class EstimatorConfig:
                    bound_limit=b_lim, model_error=model_error, tau_h_act_model=tau_model,
                    tau_h_act_accel=accel)
 
+    def with_tau_model(self, tau_model: str, n: int, source: str = "<tau_h_act_model>") -> "EstimatorConfig":
+        """These settings with the τ_h,act model ``tau_model`` (:data:`TAU_MODELS`): unchanged when it
+        is this one's, else with that model's default Sigma_nom and P0 (from R) and the rest kept."""
+        if tau_model == self.tau_h_act_model:
+            return self
+        d = {k: v for k, v in self.to_dict().items() if k not in ("Sigma_nom", "P0", "tau_h_act_model")}
+        return EstimatorConfig.from_dict({**d, "tau_h_act_model": tau_model}, n, source)
+
     def to_dict(self) -> dict:
         def dg(a):
             return np.diag(a).tolist() if np.allclose(a, np.diag(np.diag(a))) else a.tolist()
