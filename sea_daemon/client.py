@@ -108,13 +108,27 @@ def decode_tpdo(cob_id: int, data: bytes, node: int = 127) -> dict:
                      + ", ".join(f"0x{c + node:03X}" for c in JOINT_FUNCTIONS + (STATUS_FUNCTION,)) + ")")
 
 
-def engaged_joints(flags: int) -> list[bool]:
-    """Whether the assistance is engaged on joint 1, 2, 3 from the flags (TPDO2 byte 7 or
-    :attr:`Sample.flags`): bits 5–7 when the daemon set any (a model of 2 or 3 joints), else
-    :data:`FLAG_ASSIST_ENGAGED` for joint 1 (a one-joint model sets that bit alone)."""
+def engaged_joints(flags: int, joints: int | None = None) -> list[bool] | None:
+    """Whether the assistance is engaged on each joint, from the flags (TPDO2 byte 7 or
+    :attr:`Sample.flags`).
+
+    Without ``joints``: joints 1, 2, 3 — bits 5–7 when the daemon set any (a model of 2 or 3
+    joints), else :data:`FLAG_ASSIST_ENGAGED` for joint 1 (a one-joint model sets that bit alone).
+    With ``joints`` (the model's joints, e.g. :attr:`Sample.joints`): one entry per joint; a model
+    of more than 3 joints has no bit per joint, only :data:`FLAG_ASSIST_ENGAGED` ("engaged on some
+    joint"): None while it is set (the flags do not say which joint; :attr:`Sample.engaged` does,
+    from τ_assist), all False while it is not."""
+    if joints is not None and (isinstance(joints, bool) or not isinstance(joints, int) or not 1 <= joints <= MAX_JOINTS):
+        raise InputError(f"joints {joints!r}: allowed 1..{MAX_JOINTS}")
+    if joints is not None and joints > len(FLAG_ASSIST_ENGAGED_JOINT):
+        return None if flags & FLAG_ASSIST_ENGAGED else [False] * joints
+    if joints == 1:
+        return [bool(flags & FLAG_ASSIST_ENGAGED)]
     if flags & (FLAG_ASSIST_ENGAGED_JOINT[0] | FLAG_ASSIST_ENGAGED_JOINT[1] | FLAG_ASSIST_ENGAGED_JOINT[2]):
-        return [bool(flags & b) for b in FLAG_ASSIST_ENGAGED_JOINT]
-    return [bool(flags & FLAG_ASSIST_ENGAGED), False, False]
+        out = [bool(flags & b) for b in FLAG_ASSIST_ENGAGED_JOINT]
+    else:
+        out = [bool(flags & FLAG_ASSIST_ENGAGED), False, False]
+    return out if joints is None else out[:joints]
 
 
 def tpdo_cycles(frames, node: int = 127) -> dict[int, tuple[dict, dict]]:

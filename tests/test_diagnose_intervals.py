@@ -110,3 +110,49 @@ def test_an_interval_without_an_end_is_not_measured_nor_high_confidence():
     d = effects_json(sel, 1, False)[0]
     assert d["lower_bound_only"] == ["F_c"] and not undetermined(sel, 0)
 
+
+
+def _profiled_static_friction(upper_bounded: bool):
+    """:meth:`Refinement._lower_bounded` on one Coulomb amplitude x̂ = 1 whose residual is
+    r0 + g·min(v − 1, 0) (the log bounds it from below only) or r0 + g·(v − 1) (from both sides),
+    r0 ⟂ g, |r0|² = 1, 100 independent samples: −2 log L rises by 100 ln(1 + |g|²(v − 1)²)."""
+    rng = np.random.default_rng(3)
+    r0, g = rng.normal(size=100), rng.normal(size=100)
+    g -= (g @ r0) / (r0 @ r0) * r0
+    r0 /= np.linalg.norm(r0)
+    g *= 0.2 / np.linalg.norm(g)
+
+    def fun(x):
+        d = x[0] - 1.0
+        return r0 + g * (d if upper_bounded else min(d, 0.0))
+    x = np.array([1.0])
+    chosen = [CandidateFit(CoulombC("load"), None, np.zeros(0), math.nan, None, np.zeros((1, 0)))]
+    ref = Refinement.__new__(Refinement)
+    out = ref._lower_bounded(fun, x, [(0, "F_c")], chosen, fun(x), 1.0, np.array([1.0]),
+                             np.array([0.0]), np.array([100.0]), np.array([1.0]))
+    return out, x
+
+
+def edge(level):
+    """Where 100 ln(1 + 0.04 (v − 1)²) reaches ``level`` below 1."""
+    return 1.0 - math.sqrt(math.expm1(level / 100) / 0.04)
+
+
+def test_static_friction_bounded_from_below_only_is_at_least_its_one_sided_95_bound():
+    """The "at least" of a static friction (no upper end) is its one-sided 95 % lower bound: the
+    rise of −2 log L there is z₀.₉₅² ≈ 2.71 (not 1, a 68 % level); the amplitude moves to it."""
+    out, x = _profiled_static_friction(upper_bounded=False)
+    lower, upper = out[0]
+    assert upper == math.inf
+    assert lower == pytest.approx(edge(1.6448536269514722 ** 2), abs=1e-3)
+    assert x[0] == pytest.approx(lower)
+
+
+def test_static_friction_with_both_ends_gets_a_two_sided_95_interval():
+    """With an upper end, the interval is two-sided 95 %: its lower edge where the rise is
+    Z95² ≈ 3.84, its upper end the first tried multiple of the value beyond that (outward)."""
+    out, x = _profiled_static_friction(upper_bounded=True)
+    lower, upper = out[0]
+    assert lower == pytest.approx(edge(1.959963984540054 ** 2), abs=1e-3)
+    assert upper == 2.0 * 1.0 and 2.0 - 1.0 > 1.0 - edge(1.959963984540054 ** 2)
+    assert x[0] == 1.0

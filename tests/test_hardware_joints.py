@@ -45,6 +45,8 @@ def test_per_joint_values_and_their_round_trip():
     d = cfg.to_dict()["hardware"]
     assert d["gear_ratio"] == [100.0, 50.0] and d["torque_limit"] == [40.0, 5.0]
     assert d["bus"]["rated_torque"] == [100.0, 200.0]
+    assert h.bus.rated_torques(2).tolist() == [100.0, 200.0]
+    assert robot(HW).hardware.bus.rated_torques(2).tolist() == [100.0, 100.0]
     assert ModelConfig.from_dict(cfg.to_dict(), cfg.source,
                                  urdf_text=(data_root() / "configs" / "exo_2dof_arm.urdf").read_text()).hardware == h
 

@@ -18,7 +18,7 @@ from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.hardware_config import BusConfig
 from sea_daemon.core.sim.plant import Plant
-from sea_daemon.errors import Fault
+from sea_daemon.errors import Fault, InputError
 from sea_daemon.hw.canopen_positions import Positions
 from sea_daemon.hw.device_model import FaultSpec
 from sea_daemon.hw.errors import EncoderJump, EncoderStuck
@@ -249,3 +249,24 @@ def test_watch_says_which_joints_are_engaged():
     assert "assist: on, engaged (joints 1, 2)   " in head([0.3, 0.4])
     assert "assist: on, idle   " in head([0.0, 0.0])
     assert "assist: on, engaged   " in head([0.4])                           # one joint: as it was
+    # more than 3 joints (no bit per joint in the flags): named from τ_assist all the same
+    assert "assist: on, engaged (joints 4, 5)   " in head([0.0, 0.0, 0.0, 0.2, -0.1])
+    # the flags say engaged and no joint's τ_assist names it: "on some joint", not a bare "engaged"
+    v = View(window=1.0, height=9, y_range=2.0)
+    v.add(dataclasses.replace(sample([0.0] * 5), flags=client.FLAG_ASSIST_ON | client.FLAG_ASSIST_ENGAGED))
+    assert "assist: on, engaged (on some joint)   " in v.status("d.sock", sub)[0]
+
+
+def test_engaged_joints_from_the_flags_of_any_model():
+    """With the model's joints: one entry per joint; more than 3 joints have only "engaged on some
+    joint" (bit 2) in the flags, so which joint is not said (None), never joint 1."""
+    on, j2 = client.FLAG_ASSIST_ENGAGED, client.FLAG_ASSIST_ENGAGED_JOINT[1]
+    assert client.engaged_joints(on) == [True, False, False]                  # without joints: as it was
+    assert client.engaged_joints(on, 1) == [True]
+    assert client.engaged_joints(on | j2, 2) == [False, True]
+    assert client.engaged_joints(on | j2, 3) == [False, True, False]
+    assert client.engaged_joints(on, 5) is None
+    assert client.engaged_joints(client.FLAG_ASSIST_ON, 5) == [False] * 5
+    for bad in (0, 17, 2.0):
+        with pytest.raises(InputError, match=f"joints {bad!r}: allowed 1..16"):
+            client.engaged_joints(on, bad)

@@ -11,7 +11,7 @@ import yaml
 from sea_daemon.core.excitation import Coverage, JointsCoverage, WorkingRange, coverage_from_dict
 from sea_daemon.errors import ConfigError
 from sea_daemon.io.logcsv import read_log, write_log
-from sea_daemon.io.scenario import Scenario, load_scenario
+from sea_daemon.io.scenario import Scenario, load_scenario, make_plant
 from sea_daemon.runtime.sim_runner import simulate
 from tests._paths import repo_root
 
@@ -126,3 +126,24 @@ def test_scenario_controller_runs_the_moves_of_every_joint():
     ctl = ScenarioController(sc, sc.nominal, hold, estimation_from=None, reference=ref)
     ctl.update(0.0, q0, q0, None)
     assert ctl.update(2.0, q0, q0, None).shape == (2,)
+
+
+def test_plant_torque_noise_override_per_joint(tmp_path):
+    """``plant.torque_noise`` takes a number (every joint) or one per joint, as
+    ``hardware.torque_noise`` does; the true plant draws each joint's own noise."""
+    sc = load_with(tmp_path, lambda d: d["plant"].__setitem__("torque_noise", [0.03, 0.0]))
+    assert sc.plant.torque_noise == (0.03, 0.0)
+    assert make_plant(sc).noise_std.tolist() == [0.03, 0.0]
+    every = load_with(tmp_path, lambda d: d["plant"].__setitem__("torque_noise", 0.01))
+    assert every.plant.torque_noise == 0.01 and make_plant(every).noise_std.tolist() == [0.01, 0.01]
+    one = load_with(tmp_path, lambda d: d["plant"].__setitem__("torque_noise", 0.01), "passive.yaml")
+    assert one.plant.torque_noise == 0.01 and make_plant(one).noise_std == 0.01
+
+
+@pytest.mark.parametrize("value, got", [([0.03, 0.0, 0.01], "[0.03, 0.0, 0.01]"),
+                                        ([0.03, -0.01], "[0.03, -0.01] (joint 2: -0.01)")])
+def test_bad_plant_torque_noise_is_refused_in_one_line(tmp_path, value, got):
+    with pytest.raises(ConfigError) as e:
+        load_with(tmp_path, lambda d: d["plant"].__setitem__("torque_noise", value))
+    assert str(e.value).endswith("plant.torque_noise: must be a number >= 0 or a list of 2 such numbers "
+                                 f"(one per joint), got {got}")

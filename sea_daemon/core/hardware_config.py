@@ -79,7 +79,8 @@ class BusConfig:
     MOTOR side in mN m (every drive's, or a tuple of each joint's drive), so one per mille of
     0x6071/0x6077 is ``rated_torque/1e6 * gear_ratio`` N m on the joint side.  ``rated_torque``,
     ``max_joint_speed`` and ``stuck_motion`` are every joint's (a float) or each joint's (a tuple
-    of n): :func:`joint_values` gives the n joints' values.
+    of n): :meth:`rated_torques`, :meth:`max_joint_speeds` and :meth:`stuck_motions` give the n
+    joints' values.
     """
 
     interface: str = "virtual"            # virtual | socketcan | remote
@@ -171,6 +172,10 @@ class BusConfig:
             max_joint_speed=per_joint(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), n, positive=True),
             stuck_motion=per_joint(source, k + "stuck_motion", d.get("stuck_motion", 0.05), n, positive=True),
         )
+
+    def rated_torques(self, n: int) -> np.ndarray:
+        """Each of the n joints' drive ``rated_torque`` (0x6076), motor side [mN m]."""
+        return joint_values(self.rated_torque, n)
 
     def max_joint_speeds(self, n: int) -> np.ndarray:
         """Each of the n joints' ``max_joint_speed`` [rad/s]."""

@@ -59,7 +59,6 @@ import numpy as np
 from canopen.emcy import EmcyError
 
 from sea_daemon.core.config import ModelConfig
-from sea_daemon.core.hardware_config import joint_values
 
 from sea_daemon.hw import cia402
 from sea_daemon.hw.canopen_positions import Positions
@@ -120,7 +119,7 @@ class CanopenHardware(HardwareInterface):
         self.drives: list = []
         self.encoders: list = []
         n = self.n
-        rated = joint_values(b.rated_torque, n)
+        rated = b.rated_torques(n)
         # 1 ‰ of 0x6076 on the joint side, and the max torque 0x6072 [‰], per joint
         self.nm_per_permille = [float(rated[j]) / 1e6 * self.gear[j] for j in range(n)]
         self.max_permille = [min(32767, int(math.ceil(self.torque_limit[j] / self.nm_per_permille[j])))

@@ -23,7 +23,6 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from sea_daemon.core.config import BusConfig
-from sea_daemon.core.hardware_config import joint_values
 from sea_daemon.io.configfile import data_root
 
 from sea_daemon.hw import cia402
@@ -80,7 +79,7 @@ class NodeSetup:
         self.bus_cfg = bus_cfg
         self.res_load, self.res_motor, self.gear = list(res_load), list(res_motor), list(gear)
         self.period, self.max_permille = period, list(max_permille)
-        self.rated = joint_values(bus_cfg.rated_torque, len(self.gear)).tolist()
+        self.rated = bus_cfg.rated_torques(len(self.gear)).tolist()
         self.keepalive = keepalive
 
     # ---------------------------------------------------------------- SDO transfers

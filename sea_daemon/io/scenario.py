@@ -17,7 +17,8 @@ drives the exoskeleton, and how long the training and estimation phases are::
     plant:
       substep_hz: 1000             # internal RK4 rate [Hz]
       sign_eps: 0.003              # friction-sign smoothing of the true plant [rad/s]
-      torque_noise: 0.02           # optional override of hardware.torque_noise [N m]
+      torque_noise: 0.02           # optional override of hardware.torque_noise [N m]: a number
+                                   # (every joint) or a list of one per joint
       effects:                     # hidden effects, docs/interfaces.md §2 vocabulary
         - {type: coulomb, side: load, F_c: 0.4}
     controller:                    # one of:
@@ -48,6 +49,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from sea_daemon.core.config import ModelConfig
+from sea_daemon.core.hardware_config import per_joint
 from sea_daemon.core.validate import check_keys as _check_keys, num as _num
 from sea_daemon.core.control import PIDGains, cosine_torque
 from sea_daemon.io.configfile import load_config, load_yaml
@@ -83,7 +85,7 @@ class PlantSpec:
     effects: tuple[Effect, ...] = ()
     substep_hz: float = 1000.0
     sign_eps: float = 3e-3
-    torque_noise: float | None = None
+    torque_noise: float | tuple[float, ...] | None = None   # [N m] every joint's, or each joint's
     link_mass: tuple = ()           # ((URDF link, mass factor), ...) of the true arm (model.urdf)
     link_length: tuple = ()         # ((URDF link, length factor), ...)
 
@@ -102,7 +104,7 @@ class PlantSpec:
             substep_hz=_num(source, "plant.substep_hz", d.get("substep_hz", 1000.0), lo=10.0, hi=1e6),
             sign_eps=_num(source, "plant.sign_eps", d.get("sign_eps", 3e-3), positive=True),
             torque_noise=(None if d.get("torque_noise") is None else
-                          _num(source, "plant.torque_noise", d["torque_noise"], non_negative=True)),
+                          per_joint(source, "plant.torque_noise", d["torque_noise"], n, non_negative=True)),
             **({} if "links" not in d else dict(zip(("link_mass", "link_length"),
                                                     links_from_dict(d["links"], urdf, source)))),
         )

@@ -163,42 +163,56 @@ class Refinement:
         r = fun(xx)
         return n_eff * math.log(max(float(r @ r), 1e-300) / rss), xx
 
+    #: −2 log L rise at the lower edge of a static friction the log bounds from below only: its
+    #: "at least" is a one-sided 95 % bound, z₀.₉₅² = χ²₁(0.90) ≈ 2.71.  An interval with both
+    #: ends is two-sided 95 %: its edges where the rise is Z95² ≈ 3.84
+    ONE_SIDED = 1.6448536269514722 ** 2
+    TWO_SIDED = Z95 * Z95
+    #: factors of the value tried for the upper edge of a static-friction profile interval
+    UPPER_FACTORS = (1.5, 2.0, 4.0, 8.0)
+
     def _lower_bounded(self, fun, x, idx, chosen, res, tau, se, lo, hi, scale) -> dict[int, tuple]:
         """Friction amplitudes whose Gauss–Newton interval is wider than their value, from the
         profile likelihood instead (the others refitted): {index: (lower edge, upper edge)}.
 
         A sticking phase bounds static friction from below only, and a Stribeck hump trades
         its height against its width along a valley, so the linearised interval says little.
-        The profile interval is where −2 log L rises by less than 1 (about 68 %) ... the
-        amplitude is kept when removing it raises it by more; when the interval has no upper
-        end the amplitude is moved to its lower edge (the least static friction the log
-        requires) and reported as "at least".  ``x`` is updated in place."""
+        The upper edge is the first of :attr:`UPPER_FACTORS` × the value at which −2 log L has
+        risen by more than :attr:`TWO_SIDED` (a 95 % interval, its upper end rounded outward);
+        the lower edge is where it has risen by that much.  When there is no upper edge, the log
+        bounds the amplitude from below only and the interval is one-sided 95 %: its lower edge
+        where the rise is :attr:`ONE_SIDED`.  The amplitude is kept when removing it raises
+        −2 log L by more than the level of its lower edge; with no upper end it is moved to its
+        lower edge (the least static friction the log requires) and reported as "at least".
+        ``x`` is updated in place."""
         out: dict[int, tuple] = {}
         rss = float(res @ res)
         if rss <= 0:
             return out
         n_eff = max(res.size / max(tau, 1.0), 2.0)
+
+        def dev(k, v):
+            return self._profile_dev(fun, x, k, v, lo, hi, scale, rss, n_eff)[0]
         for k, (i, name) in enumerate(idx):
             if (chosen[i].cand.type, name) not in self._STATIC or x[k] <= 0:
                 continue
             if not (np.isfinite(se[k]) and Z95 * se[k] > x[k]):
                 continue
-            d0, _ = self._profile_dev(fun, x, k, 0.0, lo, hi, scale, rss, n_eff)
-            if d0 <= 1.0:
+            d0 = dev(k, 0.0)
+            if d0 <= self.ONE_SIDED:
                 continue                      # not needed at all: the interval test drops it
+            upper = next((f * float(x[k]) for f in self.UPPER_FACTORS if dev(k, f * x[k]) > self.TWO_SIDED), math.inf)
+            level = self.ONE_SIDED if upper == math.inf else self.TWO_SIDED
+            if d0 <= level:
+                continue
             a, b = 0.0, float(x[k])
             for _ in range(14):
                 mid = 0.5 * (a + b)
-                if self._profile_dev(fun, x, k, mid, lo, hi, scale, rss, n_eff)[0] > 1.0:
+                if dev(k, mid) > level:
                     a = mid
                 else:
                     b = mid
             lower = b
-            upper = math.inf
-            for f in (1.5, 2.0, 4.0, 8.0):
-                if self._profile_dev(fun, x, k, f * x[k], lo, hi, scale, rss, n_eff)[0] > 1.0:
-                    upper = f * float(x[k])
-                    break
             if upper == math.inf:
                 _, xx = self._profile_dev(fun, x, k, lower, lo, hi, scale, rss, n_eff)
                 x[:] = xx

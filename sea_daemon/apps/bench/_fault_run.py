@@ -348,7 +348,7 @@ class FaultRun:
         """The log has a row for every cycle (cycle column 0..N−1, time increasing), its fault
         column is non-zero exactly in the cycles the loop was latched, valid is 0 there, and the
         commanded torque of those rows is zero."""
-        log = read_log(self.log_path, n=1)
+        log = read_log(self.log_path, n=1, units=False)   # its own log: never a unit error
         ex = DaemonColumns.of(log)
         fault = ex.fault != 0
         n = self.loop.stats.cycles
@@ -366,7 +366,11 @@ class FaultRun:
             and closed["rows_lost"] == 0
 
     def _stuck_cond(self, inj: Injection) -> int:
+        """The cycle in which the driver's stuck condition is met for joint 0 (the joint the run
+        records): a count unchanged for ``stuck_cycles`` while the other encoder moved by more
+        than joint 0's ``stuck_motion``; -1 if never."""
         b = self.cfg.hardware.bus
+        limit = float(b.stuck_motions(self.cfg.joints)[0])
         end = inj.latched_cycle if inj.latched_cycle >= 0 else self.cycles
         for counts, other in ((self.qc, self.ma), (self.mc, self.qa)):
             run, ref = 0, other[inj.cycle - 1]
@@ -375,7 +379,7 @@ class FaultRun:
                     run, ref = 0, other[k]
                     continue
                 run += 1
-                if run >= b.stuck_cycles and abs(other[k] - ref) > b.stuck_motion:
+                if run >= b.stuck_cycles and abs(other[k] - ref) > limit:
                     if counts[inj.cycle:k + 1].min() == counts[inj.cycle:k + 1].max():
                         return k
                     break

@@ -358,7 +358,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
             dev_stats = rig.device_model.answer_stats()
     finally:
         dev_stats = stop_procs(procs, dev) or dev_stats
-    log = read_log(tmp / "run.csv", n=cfg.joints)
+    log = read_log(tmp / "run.csv", n=cfg.joints, units=False)   # its own log: never a unit error
     cols = DaemonColumns.of(log)
     return _Measured(res, rig, n_cycles, k_faults, rx_cpu, probe, dev_stats, stages, max_age,
                      cols.compute, cols.read, publisher)

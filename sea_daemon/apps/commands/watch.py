@@ -110,6 +110,16 @@ def wait_for_daemon(args, timeout: float | None, poll: float = POLL_S) -> tuple[
         time.sleep(poll if deadline is None else max(0.0, min(poll, deadline - time.monotonic())))
 
 
+def engaged_where(s) -> str:
+    """Which joints of sample ``s`` the assistance is engaged on, for the status line: the joints
+    whose τ_assist ≠ 0 (any number of joints), "on some joint" when the flags say engaged and no
+    joint's τ_assist names it, nothing for one joint."""
+    if s.joints == 1:
+        return ""
+    on = [str(j + 1) for j, e in enumerate(s.engaged) if e]
+    return f" (joint{'s' if len(on) > 1 else ''} {', '.join(on)})" if on else " (on some joint)"
+
+
 class View:
     """The history of the last ``window`` seconds and its drawing."""
 
@@ -134,11 +144,9 @@ class View:
             return [f"sea-daemon watch  {sock}: waiting for the daemon's first sample …"]
         silent = time.monotonic() - self.last_wall
         fault = "none" if not s.fault else f"\x1b[1;31m{s.fault_name} — torque zero, reset needed\x1b[0m"
-        on = [str(j + 1) for j, e in enumerate(s.engaged) if e] if s.joints > 1 else []
         assist = ("off" if not s.flags & FLAG_ASSIST_ON else
                   ("dry run (not commanded)" if s.flags & FLAG_ASSIST_DRY_RUN else "on")
-                  + ((", engaged" + (f" (joint{'s' if len(on) > 1 else ''} {', '.join(on)})" if on else ""))
-                     if s.flags & FLAG_ASSIST_ENGAGED else ", idle"))
+                  + (", engaged" + engaged_where(s) if s.flags & FLAG_ASSIST_ENGAGED else ", idle"))
         head = (f"sea-daemon watch  {sock}   cycle {s.cycle}   t {s.t:.2f} s   fault: {fault}   "
                 f"assist: {assist}   received {sub.received}, missed {sub.missed}, rejected {sub.rejected}")
         if silent > 1.0:

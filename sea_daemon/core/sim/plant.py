@@ -27,6 +27,9 @@ differs from the nominal model in its links takes a scaled description
 (:meth:`~sea_daemon.core.rigid.RigidBody.scaled`, :meth:`SEAParams.with_rigid`) and its
 hidden effects per joint.
 
+A URDF that declares its joints' ranges (``<limit lower upper>``) gives the arm end stops there:
+a stiff spring with a damper beyond each limit, zero within it (:mod:`.endstops`).
+
 For one joint the RK4 substeps are compiled (:func:`_rk4_1`, numba) around the one-joint
 dynamics kernel :func:`sea_daemon.core.dynamics.accel_1`; numpy's per-call overhead would
 dominate for n = 1.  ``tests/test_sim.py`` checks that it agrees with ``SEAModel.accelerations``.
@@ -45,6 +48,7 @@ from sea_daemon.core.effects import Effect
 from sea_daemon.core.hardware_config import joint_values
 from sea_daemon.core.jit import njit, warmer
 from sea_daemon.core.model import SEAModel
+from sea_daemon.core.sim.endstops import end_stops, stop_rate, stop_torque, stop_torques
 from sea_daemon.core.sim.sensors import Encoders, torque_noise
 
 #: default friction-sign smoothing of the true plant [rad/s]
@@ -93,6 +97,8 @@ class Plant:
         # |τ_m| limit: a number for one joint, each joint's (n,) for n (hardware.torque_limit per joint)
         lims = cfg.hardware.torque_limits(n)
         self.torque_limit = float(lims[0]) if n == 1 else lims
+        #: the joints' end stops where the URDF declares their range (:mod:`.endstops`), or None
+        self._stops = end_stops(m, lims)
         self.noise_std = cfg.hardware.torque_noise if torque_noise is None else torque_noise
         self.rng = np.random.default_rng(seed)
         self.encoders = Encoders(cfg.hardware, m.offset_load, m.offset_motor, n=n)
@@ -119,7 +125,7 @@ class Plant:
         #: load effects that evaluate themselves: added at every RK4 stage in Python around
         #: the compiled accelerations (:meth:`_rk4_outside`)
         self._py_load = tuple(e for e in m.load_effects if type(e).evaluate is not Effect.evaluate)
-        self._scalar = n == 1 and self.extra_load_torque is None and \
+        self._scalar = n == 1 and self.extra_load_torque is None and self._stops is None and \
             all(type(e).evaluate is Effect.evaluate for e in (*m.motor_effects, *m.spring_effects))
         if self._scalar:
             self._compile_scalar()
@@ -377,6 +383,10 @@ class Plant:
         x = np.concatenate([th, q - th, dth, dq - dth, self._tau_h])
         # eq:thetadd and eq:unknwn_load, f_res the torque outside the vocabulary (if any)
         f_x = None if self.extra_load_torque is None else self.extra_load_torque(q, dq)
+        if self._stops is not None:                 # the end stops: a torque the load overcomes
+            f_s = np.zeros(n)
+            if stop_torques(self._stops, q, dq, f_s):
+                f_x = f_s if f_x is None else f_x + f_s
         ddth, ddq = self.model.accelerations(x, u, f_x)
         return np.concatenate([dq, dth, ddq, ddth])
 
@@ -395,6 +405,9 @@ class Plant:
         self._r_q, self._r_dq, self._r_tau = np.zeros(n), np.zeros(n), np.zeros(n)
         self._r_u, self._r_tau_h, self._r_uh = np.zeros(n), np.zeros(n), np.zeros(n)
         self._delayed = bool(np.any(self.model.delay))
+        # the end stops (no range: ±inf, never touched)
+        self._r_stops = self._stops if self._stops is not None else \
+            np.column_stack([np.full(n, -np.inf), np.full(n, np.inf), np.zeros(n), np.zeros(n)])
         # compiled (or loaded from numba's cache) now, at construction, not in the first step
         self._rk4_rigid(self._y.copy(), self.h_max, np.zeros(n))
 
@@ -408,7 +421,7 @@ class Plant:
         ua[:] = u
         tau_h = self._tau_h
         for i, c in enumerate((0.0, 0.5 * h, 0.5 * h, h)):
-            _rigid_stage(p, y, K[i - 1], c, ua, tau_h, ys, K[i], q, dq, tau)
+            _rigid_stage(p, y, K[i - 1], c, ua, tau_h, ys, K[i], q, dq, tau, self._r_stops)
             K[i, 2 * n:3 * n] = aba(model, data, q, dq, tau)
         return _rk4_sum(y, h, K)
 
@@ -470,7 +483,7 @@ class Plant:
                 lam = max(lam, slope * float(np.max(np.abs(np.diag(inv)))))
         k_sp = float(np.max(np.diag(m.K_s))) + sum(float(getattr(e, "k_stop", 0.0)) for e in m.spring_effects)
         mu = float(np.max(np.abs(np.diag(m.Minv))) + np.max(np.abs(np.diag(m.Jinv))))
-        lam = max(lam, math.sqrt(k_sp * mu))
+        lam = max(lam, math.sqrt(k_sp * mu), stop_rate(self._stops, m.Minv))
         if lam * self.h_max > 2.5:
             raise ValueError(f"substep {self.h_max:g} s too coarse for the plant's stiffest mode "
                              f"(|λ| ≈ {lam:.0f} 1/s); use substep_hz >= {lam / 2.5:.0f}")
@@ -504,10 +517,11 @@ def pinocchio_aba():
 
 
 @njit
-def _rigid_stage(p, y, k_prev, c, u, tau_h, ys, k, q, dq, tau) -> None:
+def _rigid_stage(p, y, k_prev, c, u, tau_h, ys, k, q, dq, tau, stops) -> None:
     """One RK4 stage of a rigid body's plant, y = [q, θ_m, q̇, θ̇_m] (4n): ys = y + c k_prev; k gets
     [q̇, θ̇_m, ·, θ̈_m] at ys (q̈ left to the rigid body's ABA); q, dq, tau the ABA's inputs, tau =
-    τ_h,act − Σ_load e − τ_s (eq:unknwn_load, eq:thetadd, eq:spring_torque)."""
+    τ_h,act − Σ_load e − τ_s − f_stop (eq:unknwn_load, eq:thetadd, eq:spring_torque; ``stops`` the
+    end stops of :mod:`.endstops`, f_stop = 0 within the joints' ranges)."""
     n = q.shape[0]
     for i in range(4 * n):
         ys[i] = y[i] + c * k_prev[i] if c != 0.0 else y[i]
@@ -520,6 +534,9 @@ def _rigid_stage(p, y, k_prev, c, u, tau_h, ys, k, q, dq, tau) -> None:
     ddth = motor_accel(p, th_m, dth_m, u, tau_s)
     for j in range(n):
         tau[j] = tau_h[j] - lo[j] - tau_s[j]
+        f = stop_torque(stops, j, q[j], dq[j])
+        if f != 0.0:
+            tau[j] -= f
         k[j] = dq[j]
         k[n + j] = dth_m[j]
         k[3 * n + j] = ddth[j]

@@ -98,7 +98,7 @@ SESSION_EXTRA = ("q_true", "dq_true", "q_ref", "theta_m_true", "dtheta_m_true")
 
 def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hold_q: float | None = None,
                 human=None, seed: int = 0, gains: PIDGains = SESSION_GAINS, substep_hz: float | None = None,
-                sign_eps: float = 3e-3, torque_noise: float | None = None, t0: float = 0.0,
+                sign_eps: float = 3e-3, torque_noise: float | tuple | None = None, t0: float = 0.0,
                 extra_load_torque=None, extra_held: bool = False) -> MeasuredLog:
     """Simulate one session of the plant ``true_cfg`` (nominal model + hidden effects); see the
     module docstring (``extra_load_torque``, ``extra_held``: as :class:`~sea_daemon.core.sim.plant.Plant`).  Returns the measured log with the truth ``tau_h_act`` and, in ``extra``,

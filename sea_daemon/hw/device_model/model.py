@@ -36,7 +36,6 @@ from sea_daemon.hw.device_model.encoder import EncoderNode
 from sea_daemon.hw.device_model.faults import FaultSpec
 from sea_daemon.hw.device_model.slave import DeviceNetwork
 from sea_daemon.core.buffers import resident_zeros
-from sea_daemon.core.hardware_config import joint_values
 
 TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)
 #: the SYNC from which the handler's page faults are counted (after its start-up)
@@ -124,7 +123,7 @@ class DeviceModel:
         n, hw = self.n, cfg.hardware
         gear = hw.gear_ratios(n)
         load, motor = hw.encoder_counts(n)
-        rated = joint_values(hw.bus.rated_torque, n)
+        rated = hw.bus.rated_torques(n)
         for j, (d, e) in enumerate(zip(self.drives, self.encoders)):
             r = float(rated[j])
             if (d.increments, d.gear, d.rated_mNm) != (int(motor[j]), float(gear[j]), r):
