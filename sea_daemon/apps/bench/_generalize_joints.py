@@ -104,14 +104,15 @@ def score_joints(log, est, bound: bool = False) -> dict:
             "joints": [_joint_stats(e[:, j], r.tau_h_act_bound[:, j], v, bound) for j in range(e.shape[1])]}
 
 
-def calibrate_plant(cal, pd, row: dict, tau_model: str = "walk"):
+def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
     """The calibration of plant ``pd`` on its log ``cal`` (its declared subject and working range)
-    with the filter's τ_h,act model ``tau_model`` (``estimator.tau_h_act_model``);
-    ``row["calibration_s"]`` its time, or, for an internal error (a benchmark result), None and
-    ``row["calibration_error"]``."""
+    with the filter's τ_h,act model ``tau_model`` (``estimator.tau_h_act_model``; None: the plant's
+    configured one); ``row["calibration_s"]`` its time, or, for an internal error (a benchmark
+    result), None and ``row["calibration_error"]``."""
     nom = pd.nominal
-    pd = dataclasses.replace(pd, nominal=dataclasses.replace(
-        nom, estimator=nom.estimator.with_tau_model(tau_model, nom.joints)))
+    if tau_model is not None:
+        pd = dataclasses.replace(pd, nominal=dataclasses.replace(
+            nom, estimator=nom.estimator.with_tau_model(tau_model, nom.joints)))
     try:
         t0 = time.perf_counter()
         res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
