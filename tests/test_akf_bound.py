@@ -149,7 +149,8 @@ def test_make_estimator_gp_akf_with_residual_gp_gets_auto_constants():
     log = simulate(SEAModel.from_config(cfg), T=0.3, seed=4)
     out = run(est, log)
     assert tb.gp_constants is not None and len(tb.gp_constants) == 1
-    assert tb.gp_constants[0].n_leaves == cfg.learning.max_leaves
+    # the union over the leaves of the frozen residual (calibration.union_leaves)
+    assert tb.gp_constants[0].n_leaves == res.gps[0].n_leaves < cfg.learning.max_leaves
     assert np.all(tb.eta_ > 0) and np.all(np.isfinite(out[1:, 1]))
     # ρ ≥ the Gaussian part alone, at the GP-AKF's δ_N = δ/2
     s = chi2_quantile(1 - cfg.estimator.delta / 2, 5)

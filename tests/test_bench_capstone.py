@@ -90,6 +90,9 @@ def test_gp_akf_calibrated_per_block_of_the_bench(tmp_path, capsys):
                   row["gp_over_akf"]):
             assert math.isfinite(v) and v >= 0
         assert row["gp_over_akf"] == pytest.approx(g["rmse"] / row["akf_input"])
+        # the guaranteed GP bound: a union over the calibration's own leaves, and a statement at
+        # every step (the nested boxes hold each GP input set: none outside them all)
+        assert 1 <= g["gp_union_leaves"] < 100 and g["gp_sqrt_beta"] > 1 and g["gp_box_left"] == 0.0
         assert set(row["met"]) == {"gp_over_akf", "coverage", "bound_over_rmse", "valid_share"}
     assert set(res["gp_akf_met"]) == set(res["targets"])
     assert "| 0.00-5.00 | 5.00-9.99 |" in printed and "fit refuses it" in printed
@@ -109,3 +112,21 @@ def test_the_bench_declares_its_subject_from_the_push_it_measured():
     rate = np.abs(tau_s[w:] - tau_s[:-w]) / (w * log.dt)
     assert human.rate >= np.percentile(rate, 99), (human.rate, np.percentile(rate, 99))
     assert human.rate <= 3 * np.percentile(rate, 99)
+
+
+def test_the_bound_terms_of_one_calibration(tmp_path, capsys):
+    """--terms: the mean of each term of ρ_k over the valid samples, which add up to ρ (the set of
+    means' terms, the measurement's cut and the Gaussian part), the GP's the largest on this bench."""
+    out = tmp_path / "terms.json"
+    rc = main(["bench", "capstone", "--checks", "gp-akf", "--calibrate-on", "0-5", "--terms", "--json", str(out)])
+    printed = capsys.readouterr().out
+    assert rc == 0
+    (fold,) = json.loads(out.read_text())["gp_akf_per_block"]
+    (row,) = fold["scored"]
+    g = row["gp_akf"]
+    t = g["terms"]
+    assert t["rho"] == pytest.approx(g["mean_bound"], rel=1e-9)
+    assert t["rho"] == pytest.approx(t["h"] + t["gaussian"])
+    assert t["h"] == pytest.approx(t["gp"] + t["rate"] + t["friction"] + t["linearisation"] + t["cut"], abs=1e-9)
+    assert t["gp"] == max(t[k] for k in ("gp", "rate", "friction", "linearisation", "gaussian"))
+    assert "| gp | rate | friction | linearisation | gaussian |" in printed

@@ -18,7 +18,12 @@ Two checks (``--checks``), each per fold:
   Theorem-1 bound's coverage of the samples marked valid (``coverage``), the share valid, and
   the mean bound over the valid samples over their RMSE (``bound_over_rmse``), and the share of
   the block's samples moving a way the calibration's GP has no data for (``gp_off_direction``:
-  there the GP-AKF uses the physical model alone, :meth:`ResidualGP.off_direction`).
+  there the GP-AKF uses the physical model alone, :meth:`ResidualGP.off_direction`).  Of the
+  guaranteed GP error bound (docs/bounds.md §2): its √β and the leaves of its union
+  (``gp_sqrt_beta``, ``gp_union_leaves``, joint 1) and the share of the block's steps whose GP
+  input set left the box the bound is stated on (``gp_box_left``); with ``--terms``, the mean
+  over the valid samples of each term of ρ_k (:class:`~sea_daemon.core.bounds.terms.TermsRecorder`:
+  the bound's Python step, slower, the same ρ_k).
 
 Every estimator is run from :data:`WARM_S` before the block it is scored on (a filter needs its
 history; the truth is only scored).  Prints a table per check and, with ``--json``, writes the
@@ -43,6 +48,7 @@ from sea_daemon.analysis.diagnose.residuals import kinematics_from_log
 from sea_daemon.analysis.diagnose.select import SelectOptions
 from sea_daemon.analysis.sufficiency import Limits, assess, at_config_rate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
+from sea_daemon.core.bounds.terms import TERMS, TermsRecorder
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.validity import REASONS, reason_counts
 from sea_daemon.core.log import MeasuredLog
@@ -76,6 +82,9 @@ def add_arguments(p) -> None:
                    help="gp-akf: calibrate once on the samples from A to B seconds of the log and score on every "
                         "block outside it (default: on each block in turn)")
     add_choice_argument(p, "--checks", CHECKS)
+    p.add_argument("--terms", action="store_true",
+                   help="gp-akf: the mean of each term of the bound over the valid samples (the bound's Python "
+                        "step: slower)")
     add_json_argument(p)
 
 
@@ -172,10 +181,57 @@ def fit_verdict(block: MeasuredLog, cfg: ModelConfig) -> str | None:
     return assess(block, cfg).refusal
 
 
+class StepRecord:
+    """A GP-AKF's Theorem-1 bound component (``res.estimator(bound=StepRecord.of(terms))``) that
+    notes, per step, whether the GP input set left the box its GP constants are stated on
+    (:attr:`left_`); ``terms``: the bound's :class:`TermsRecorder` (its Python step) instead of the
+    compiled one.  Everything else is the bound's."""
+
+    def __init__(self, akf, terms: bool = False):
+        self.inner = TermsRecorder(akf) if terms else theorem_bound(akf)
+        self.left_: list = []
+        self._seen = 0
+
+    @classmethod
+    def of(cls, terms: bool):
+        return lambda akf: cls(akf, terms)
+
+    def __getattr__(self, name):
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def reset(self, est, record) -> None:
+        self.inner.reset(est, record)
+        self.left_ = []
+        self._seen = self.inner.gp_box_violations_
+
+    def step(self, est, record) -> None:
+        self.inner.step(est, record)
+        seen = self.inner.gp_box_violations_
+        self.left_.append(seen > self._seen)
+        self._seen = seen
+
+
+def bound_figures(rec: StepRecord, valid: np.ndarray, rows: int) -> dict:
+    """Of the GP error bound behind ``rec`` over the last ``rows`` steps (``valid``: the replay's
+    mask, aligned with its last rows): √β and the union's leaves (joint 1), the share of the steps
+    whose GP input set left the bound's box, and with terms the means of :meth:`TermsRecorder.table`."""
+    c = (rec.gp_constants or [None])[0]
+    left = np.asarray(rec.left_[-rows:], bool)
+    out = {"gp_sqrt_beta": None if c is None else float(c.sqrt_beta),
+           "gp_union_leaves": None if c is None else int(c.n_leaves),
+           "gp_box_left": float(np.mean(left)) if left.size and c is not None else None}
+    if isinstance(rec.inner, TermsRecorder):
+        out["terms"] = rec.inner.table(valid) or None
+    return out
+
+
 def scored(log: MeasuredLog, est, a: int, b: int) -> dict:
     """``est`` run over rows [a − WARM_S, b) of ``log`` and scored on rows [a, b): RMSE; with a
     bound, its coverage of the samples marked valid, the share valid, the mean bound over them
-    and its ratio to their RMSE.  ``{"fault": ...}`` when the estimator stops."""
+    and its ratio to their RMSE (and :func:`bound_figures` for a :class:`StepRecord` bound).
+    ``{"fault": ...}`` when the estimator stops."""
     lo = max(a - max(int(round(WARM_S / log.dt)), 1), 0)
     try:
         r = replay(log.slice(lo, b), est)
@@ -196,6 +252,10 @@ def scored(log: MeasuredLog, est, a: int, b: int) -> dict:
             rmse_v = float(np.sqrt(np.mean(e[v] ** 2)))
             out.update(coverage=float(np.mean(np.abs(e[v]) <= rho[v])), mean_bound=float(np.mean(rho[v])),
                        rmse_valid=rmse_v, bound_over_rmse=float(np.mean(rho[v]) / max(rmse_v, 1e-12)))
+        if isinstance(est.bound, StepRecord):
+            full = np.zeros(b - lo, bool)
+            full[a - lo:] = v
+            out.update(bound_figures(est.bound, full, b - a))
     return out
 
 
@@ -217,10 +277,11 @@ def off_direction_share(log: MeasuredLog, gp, a: int, b: int) -> float | None:
     return float(np.mean([gp.off_direction(z[k]) for k in range(a, b)])) if b > a else 0.0
 
 
-def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, windows: list | None = None) -> list[dict]:
+def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, windows: list | None = None,
+                terms: bool = False) -> list[dict]:
     """Per calibration window (default: each block): what fit says, the calibration on it (its
-    refusal set aside), the GP-AKF with its Theorem-1 bound and the AKF with the input model
-    scored on every block outside the window."""
+    refusal set aside), the GP-AKF with its Theorem-1 bound (``terms``: and its terms) and the AKF
+    with the input model scored on every block outside the window."""
     akf = BlockScorer(log)
     folds = []
     for k, (a, b) in enumerate(windows or blocks):
@@ -237,7 +298,7 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, win
                 continue
             mask = np.zeros(len(log), bool)
             mask[c:d] = True
-            g = scored(log, res.estimator(dt=log.dt, bound=theorem_bound), c, d)
+            g = scored(log, res.estimator(dt=log.dt, bound=StepRecord.of(terms)), c, d)
             seen = np.zeros(len(log), bool)
             seen[a:b] = True
             row = {"block": j + 1, "t_s": block_span(log, c, d), "q_unvisited": unvisited_share(log, cfg, seen, mask),
@@ -316,6 +377,28 @@ def print_gpakf(folds: list[dict]) -> None:
                   + f" | {_f(r['akf_input'])} | {_f(r['gp_over_akf'], '.2f')} | {_f(r['akf_calibrated'])} | "
                   f"{_f(g.get('coverage'), '.3f')} | {_f(g.get('valid_share'), '.3f')} | {_f(g.get('mean_bound'), '.3g')} | "
                   f"{_f(g.get('bound_over_rmse'), '.1f')} | {met} |")
+    print_bound_terms(folds)
+
+
+def print_bound_terms(folds: list[dict]) -> None:
+    """The guaranteed GP error bound per scored block with a GP: √β (of the smallest nested box),
+    the union's leaves, the steps whose GP input set left every box, and with --terms the mean of
+    each term of ρ_k over the valid samples."""
+    rows = [(f, r, r["gp_akf"]) for f in folds for r in f["scored"] if r["gp_akf"].get("gp_sqrt_beta") is not None]
+    if not rows:
+        return
+    terms = any(g.get("terms") for _, _, g in rows)
+    cols = ["rho", *TERMS, "gaussian"] if terms else []
+    print("\nthe GP error bound (docs/bounds.md §2), joint 1" + ("; terms: mean over the valid samples [N m]" if terms else ""))
+    print("| calibrated on [s] | scored on [s] | sqrt(beta) on the training box | leaves in the union | GP input set outside "
+          "the bound's boxes |"
+          + "".join(f" {c} |" for c in cols))
+    print("|---" * (5 + len(cols)) + "|")
+    for f, r, g in rows:
+        t = g.get("terms") or {}
+        left = g.get("gp_box_left")
+        print(f"| {_span(f['t_s'])} | {_span(r['t_s'])} | {_f(g['gp_sqrt_beta'], '.2f')} | {g['gp_union_leaves']} | "
+              f"{'-' if left is None else f'{100 * left:.0f} %'} |" + "".join(f" {_f(t.get(c))} |" for c in cols))
 
 
 def run(args) -> int:
@@ -332,7 +415,8 @@ def run(args) -> int:
         out["selection"] = selection_check(log, cfg, args.folds)
         print_selection(out["selection"])
     if "gp-akf" in checks:
-        out["gp_akf_per_block"] = gpakf_check(log, cfg, raw, blocks, calibration_window(args.calibrate_on, log))
+        out["gp_akf_per_block"] = gpakf_check(log, cfg, raw, blocks, calibration_window(args.calibrate_on, log),
+                                              args.terms)
         print_gpakf(out["gp_akf_per_block"])
         rows = [r for f in out["gp_akf_per_block"] for r in f["scored"]]
         out["gp_akf_met"] = {k: all(r["met"][k] for r in rows) for k in TARGETS}

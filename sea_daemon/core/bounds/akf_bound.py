@@ -54,7 +54,7 @@ from sea_daemon.errors import EstimatorFault
 from sea_daemon.core.linalg import discretize, zoh
 from sea_daemon.core.model_core import sampled_box
 from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
-from sea_daemon.core.bounds.calibration import gp_constants, residual_gps
+from sea_daemon.core.bounds.calibration import box_level, gp_constant_levels, levels_of, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
     REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
@@ -97,7 +97,8 @@ class AKFTheoremBound:
         if delta_gp is None:
             delta_gp = 0.5 * delta if has_gp else 0.0
         self._init_gp_constants(gp_constants, has_gp)
-        self.gp_box = gp_box
+        self.gp_box, self.box_level_ = gp_box, 0     # box_level_: the nested box of the last step (calibration)
+        self._levels = levels_of(self.gp_constants, gp_box) if self.gp_constants else None
         self._init_model_error(est_cfg, has_gp)        # declared model error (plain AKF)
         # P_g (docs/bounds.md §3): no GP variance, no walk with a rate; the filter's P with a configured β
         filt = (has_gp and self.gp_beta != "lederer") if filter_gaussian is None else filter_gaussian
@@ -158,7 +159,7 @@ class AKFTheoremBound:
                              "see sea_daemon.core.bounds.calibration.gp_constants)")
         self._auto = has_gp and isinstance(gp_constants, str)
         self.refresh_every = 200          # 'auto': recompute after this many new training points
-        self._learned_at = 0
+        self._learned_at = self._growth = 0
         if self._auto and gp_constants != "auto":
             raise ValueError(f"gp_constants must be a list of BoundConstants or 'auto', got {gp_constants!r}")
         self.gp_constants = (list(gp_constants) if (has_gp and not self._auto) else None)
@@ -194,8 +195,8 @@ class AKFTheoremBound:
 
     def refresh_gp_constants(self) -> None:
         """The GP constants and input box of the residual's current leaves (after it learned more)."""
-        gps = residual_gps(self.akf)
-        self.gp_constants, self.gp_box = gp_constants(gps, self.sm.delta_gp, beta=self.gp_beta)
+        self._growth = self.refresh_every if getattr(self.akf, "learning", False) else 0   # union_leaves
+        self.gp_constants, self.gp_box, self._levels = gp_constant_levels(residual_gps(self.akf), self.sm.delta_gp, beta=self.gp_beta, growth=self._growth)
         self._learned_at = self._n_learned()
         self._update_scales()
         self._pack = None
@@ -276,7 +277,7 @@ class AKFTheoremBound:
         local = self._scales is not None
         # σ (or s) is maximised over the points at the UNCLIPPED z, the centre ẑ included: the
         # filter's hook clips z to the training box, where σ can be far smaller than at z
-        out = False
+        out, self.box_level_ = False, 0
         gps = residual_gps(akf)
         pts = ellipsoid_points(Cz, self._Uz)     # pts[0] = ẑ: μ(ẑ) − μ(clip ẑ) is part of the error there
         Z = np.empty((len(pts), zhat.size))      # z = [p, q̈̂] per point
@@ -306,13 +307,12 @@ class AKFTheoremBound:
         self._E0 = np.abs(MU - mu0)
         self._J0 = J0
         if self.gp_box is not None:
-            # the whole projected set (its bounding box) and the measured q̈ inside the GP's box?
+            # the smallest nested box holding the whole projected set (its bounding box) and the measured q̈
             hw = Cz.axis_half_widths()
-            lo, hi = self.gp_box
             zl, zh = Z[0].copy(), Z[0].copy()      # [box of the projected set, measured q̈]
             zl[:2 * n] -= hw
             zh[:2 * n] += hw
-            out = bool(np.any(zl < lo) or np.any(zh > hi))
+            self.box_level_, out = box_level(self._levels, zl, zh)
         return E, S, X, out
 
     def _phi(self, A, b, dt, Gamma_mu):
@@ -349,9 +349,7 @@ class AKFTheoremBound:
             local_r = [sc.r_ for sc in self._scales] if self._scales is not None else None
             self._pack = GPPack(gps, local_r)
             self._pack_at = n_l
-            c = self.gp_constants
-            self._sqrt_beta = np.array([k.sqrt_beta for k in c], dtype=float)
-            self._gamma = np.array([k.gamma for k in c], dtype=float)
+            self._sqrt_beta, self._gamma = self._levels.sqrt_beta, self._levels.gamma     # (levels, n)
             self._pack_args = self._pack.arrays()
             self._args = None
         return self._pack_args
@@ -372,7 +370,7 @@ class AKFTheoremBound:
             else:
                 self._Gam_tau_c[:] = self._Gam_tau
         box = self.gp_box
-        lo, hi = (box if box is not None else (self._g, self._g))
+        lo, hi = (self._levels.lo, self._levels.hi) if box is not None else (self._g[None], self._g[None])
         P0, P = self.gauss.step(record)
         if self._rigid:                    # M(q̂_{k−1}) and the rigid body's box, before the compiled step
             self._rbox.at(record.x_prev, sm.G_, P0, self._b)
@@ -414,7 +412,7 @@ class AKFTheoremBound:
                                         self._E_q, self._grid, self._grid_step, self._Uz, sm.delta_noise / n, sm.z_tau,
                                         self._rigid)
             gpt = bound_core.GPTerms(has_gp, self._scales is not None, self._pack.c_ext if has_gp else 0.0,
-                                     self._sqrt_beta if has_gp else self._g, self._gamma if has_gp else self._g,
+                                     self._sqrt_beta if has_gp else self._g[None], self._gamma if has_gp else self._g[None],
                                      lo, hi, box is not None)
             rt = bound_core.RateTerm(self._Gam_tau_c, 1.0 if self._me_on else self.tau_h_act_rate,
                                      self._me_on or self.tau_h_act_rate > 0)
@@ -440,7 +438,7 @@ class AKFTheoremBound:
         gp_range = None
         if not np.all(np.isfinite(sm.means_half_widths())):
             raise EstimatorFault(f"Theorem-1 bound, step {est.k}: the set of means is not finite")
-        if self._auto and self._n_learned() >= self._learned_at + self.refresh_every:
+        if self._auto and self._n_learned() >= self._learned_at + max(self._growth, 1):
             # the GP keeps learning (GP-AKF with learning on): constants of the current data
             self.refresh_gp_constants()
         # eq:linerrsetdx / eq:linearerrellipsoid, split by source
@@ -452,7 +450,9 @@ class AKFTheoremBound:
             # eq:gpmeanbounds → lem:interval_bound: GP error η_j(z) = √β_j σ_j(z) + γ_j per point,
             # plus the extrapolation term x_j(z) off the data (docs/bounds.md §2d; 0 unless
             # learning.extrapolation_scale)
-            H = np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)]) + X
+            k = self.box_level_                  # the constants of the nested box the step's set is in
+            H = (np.column_stack([c.eta(S[:, j]) for j, c in enumerate(self.gp_constants)]) if k == 0 else
+                 self._levels.sqrt_beta[k] * S + self._levels.gamma[k]) + X
             # The GP error f_j(z) − μ_j(z) and the GP mean's linearisation error
             # μ_j(z) − μ_j(ẑ) − ∂μ_j/∂z (z − ẑ) are parts of ONE torque error at the same (true) z,
             # f_j(z) − [μ_j(ẑ) + ∂μ_j/∂z (z − ẑ)], which enters the state through Γ_μ (= Φ I_μ M⁻¹,

@@ -86,7 +86,9 @@ class SetConstants(NamedTuple):
 
 class GPTerms(NamedTuple):
     """The GP error's constants (eq:gpmeanbounds): with a GP, the local scale (or σ), the
-    extrapolation scale c, √β_j and γ_j per joint, the GP constants' input box (``has_box``)."""
+    extrapolation scale c, √β_j and γ_j per nested box and joint (levels, n), the nested input
+    boxes (levels, dz) (``has_box``; calibration.BoxLevels: each step takes the smallest box
+    holding its GP input set, level 0 without a box)."""
 
     has_gp: bool
     local: bool
@@ -186,6 +188,7 @@ def _gp_stage(G, st, c, gpt, pack, out):
     S = np.empty((npt, n))
     XT = np.empty((npt, n))
     gp_points(Z, gpt.local, gpt.c_ext, pack, MU, S, XT)
+    lev, leaves_box = _box_level(Xc, Z[0], n, gpt)
     DJ = np.zeros((npt, n))                  # (z − ẑ) ∂μ/∂z over the (q, q̇) columns of J0 (n, 3n)
     for p in range(npt):
         for j in range(n):
@@ -205,7 +208,7 @@ def _gp_stage(G, st, c, gpt, pack, out):
         bbest = -np.inf
         for p in range(npt):
             e = abs(MU[p, j] - mu0[j] - DJ[p, j])
-            h = gpt.sqrt_beta[j] * S[p, j] + gpt.gamma[j] + XT[p, j]
+            h = gpt.sqrt_beta[lev, j] * S[p, j] + gpt.gamma[lev, j] + XT[p, j]
             lm = (1.0 + margin) * e
             t = h + lm
             if t > best:
@@ -224,13 +227,28 @@ def _gp_stage(G, st, c, gpt, pack, out):
         for cc in range(d):
             q += JTP[j, cc] * JT[j, cc]
         eta_b[j] = bbest + math.sqrt(max(s_z * q, 0.0))
-    leaves_box = False
-    if gpt.has_box:
+    return eta, eta_b, JT, leaves_box
+
+
+@njit
+def _box_level(Xc, z0, n, gpt):
+    """(level, outside): the smallest nested box of ``gpt`` holding the projected set's bounding box
+    (half-widths √Xc_ii about z0 in the 2n state-dependent inputs) and the measured q̈; the largest
+    and True if none does (calibration.box_level); (0, False) without a box."""
+    if not gpt.has_box:
+        return 0, False
+    dz = z0.shape[0]
+    levels = gpt.box_lo.shape[0]
+    for k in range(levels):
+        inside = True
         for i in range(dz):
             hw = math.sqrt(max(Xc[i, i], 0.0)) if i < 2 * n else 0.0
-            if Z[0, i] - hw < gpt.box_lo[i] or Z[0, i] + hw > gpt.box_hi[i]:
-                leaves_box = True
-    return eta, eta_b, JT, leaves_box
+            if z0[i] - hw < gpt.box_lo[k, i] or z0[i] + hw > gpt.box_hi[k, i]:
+                inside = False
+                break
+        if inside:
+            return k, False
+    return levels - 1, True
 
 
 @njit
@@ -403,7 +421,7 @@ def _warm() -> None:
                      0.5, np.ones((2, 2)) / np.sqrt(2.0), 0.025, 2.0)
     out = BoundOutputs(np.empty(1), np.empty(1), np.empty(1), np.empty(d))
     for has_gp, local, has_rate in ((True, True, True), (True, False, False), (False, False, False)):
-        gpt = GPTerms(has_gp, local, 0.5, np.ones(1), np.zeros(1), -np.ones(3), np.ones(3), True)
+        gpt = GPTerms(has_gp, local, 0.5, np.ones((2, 1)), np.zeros((2, 1)), -np.ones((2, 3)), np.ones((2, 3)), True)
         rt = RateTerm(np.ones((d, 1)), 1.0, has_rate)
         bound_step(np.zeros((d, 2)), 40, st, c, gpt, rt, pack.arrays() if has_gp else empty_pack(), out)
     # the Python step's calls (AKFTheoremBound._gravity_box, the check after the compiled step)
