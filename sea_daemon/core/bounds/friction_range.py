@@ -45,14 +45,15 @@ class FrictionRange:
     the same for :func:`~sea_daemon.core.model_core.lin_error_boxes`.
     """
 
-    def __init__(self, model, tables, sets: str):
+    def __init__(self, model, tables, sets: str, state_extra: int = 0):
         """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
         with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
         column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
         eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
         Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
-        compiled vocabulary: ``tables`` None)."""
+        compiled vocabulary: ``tables`` None).  ``state_extra``: the states after the 5n (n with
+        τ̇_h,act, core.model.StateLayout), which no friction enters."""
         self.groups, self.arrays = [], None
         self.tables = tables
         self.kappa_ = np.zeros(0)         # the slope κ_g each group kept in the last candidate
@@ -62,7 +63,7 @@ class FrictionRange:
         self._w_chosen = np.zeros(0)      # the widths w_g when the rule was chosen
         if sets != "zonotope" or tables is None:
             return
-        n, d = model.n, 5 * model.n
+        n, d = model.n, 5 * model.n + int(state_extra)
         groups = {}
         for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
             for e in effs:
