@@ -54,6 +54,7 @@ KERNEL_MODULES = (
     "sea_daemon.core.bounds.zonotope",
     "sea_daemon.core.bounds.bound_core",
     "sea_daemon.core.bounds.rigid_box",
+    "sea_daemon.core.sim.endstops",
     "sea_daemon.core.sim.plant",
 )
 
