@@ -75,7 +75,7 @@ REDUCE_PERIOD_S = 0.05
 #: ``max_generators`` = this × d: 40 for one joint (d = 5).  The boxes of a reduction lose the
 #: correlation of the states they box, and the more states, the more of it is lost at a fixed
 #: count: on two joints (d = 10) with 40 generators ρ_k was 1.6× the nearly unreduced
-#: propagation's (400), with 80 within 2 % of it (development plant 2, 100 Hz).
+#: propagation's (400), with 80 within 8 % of it (development plant 2, 100 Hz).
 GENERATOR_ORDER = 8
 
 
