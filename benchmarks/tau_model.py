@@ -13,6 +13,10 @@ steady-state filter whose bound is smallest, split into
   the held input (the set of means' τ half-width in steady state, exact for a linear plant), and
 * the Gaussian part: z_{1−δ/2} √P_g,ττ, the quantisation noise through the filter alone,
 
+and, for the bound's other inputs, the torque-error gain: the ℓ1 norm of the τ_h,act error's
+response to a held load-side torque error of 1 N m (a GP error, a declared friction's range:
+every bounded torque error of the real bound enters the set of means with this factor; the
+random walk's is about 1, the integrated walk's, which turns the error into a rate as well, 2–3),
 next to the floor (:func:`~sea_daemon.core.bounds.floor.bound_floor`) for the same declaration.
 r and a come from the declared wearer (``--band``, ``--rms``: r = 2π f_max √2 RMS, a = (2π f_max)²
 √2 RMS) unless given.  Steady-state linear algebra: seconds, one core.
@@ -49,8 +53,9 @@ def add_arguments(p) -> None:
 
 
 def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: float, R: np.ndarray, z: float):
-    """(worst-case lag, Gaussian part) [N m] of the steady-state KF with walk intensity ``q_walk``
-    (of τ_h,act for ``rw``, of τ̇_h,act for ``irw``), or None where the filter does not settle."""
+    """(worst-case lag, Gaussian part [N m], torque-error gain) of the steady-state KF with walk
+    intensity ``q_walk`` (of τ_h,act for ``rw``, of τ̇_h,act for ``irw``), or None where the filter
+    does not settle."""
     if model == "rw":
         n, walk = 5, 4
         Ac = A5
@@ -59,7 +64,9 @@ def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: floa
         Ac = np.zeros((6, 6))
         Ac[:5, :5] = A5
         Ac[4, 5] = 1.0                       # dτ/dt = τ̇
-    F, G = discretize(Ac, np.eye(n)[walk], dt)
+    Bt = np.zeros(n)
+    Bt[:5] = A5[:, 4]                        # a load-side torque error enters as τ_h,act does
+    F, G = discretize(Ac, np.column_stack([np.eye(n)[walk], Bt]), dt)
     H = np.zeros((2, n))
     H[0, 0] = 1.0                            # θ_m
     H[1, 0] = H[1, 1] = 1.0                  # q = θ_m + θ_s
@@ -74,11 +81,11 @@ def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: floa
     T = IKH @ F
     if not np.all(np.isfinite(T)) or np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
         return None
-    e, l1 = IKH @ G, 0.0
-    for _ in range(200000):                  # ℓ1 norm of the τ error's response to the held input
-        l1 += abs(e[4])
-        e = T @ e
-        if np.max(np.abs(e)) < 1e-15:
+    E, l1 = IKH @ G, np.zeros(2)
+    for _ in range(200000):                  # ℓ1 norms of the τ error's responses to the held inputs
+        l1 += np.abs(E[4])
+        E = T @ E
+        if np.max(np.abs(E)) < 1e-15:
             break
     Pg = np.zeros((n, n))
     KRK = K @ R @ K.T
@@ -87,7 +94,7 @@ def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: floa
         if np.max(np.abs(Pn - Pg)) <= 1e-12 * max(np.max(np.abs(Pn)), 1e-30):
             break
         Pg = Pn
-    return amp * l1, z * math.sqrt(max(Pn[4, 4], 0.0))
+    return amp * l1[0], z * math.sqrt(max(Pn[4, 4], 0.0)), l1[1]
 
 
 def run(args) -> int:
@@ -113,7 +120,7 @@ def run(args) -> int:
     floors = {"rw": bound_floor(cfg, rate=r, q=q0).rho[0], "irw": bound_floor(cfg, rate=r, accel=a, q=q0).rho[0]}
     print(f"{args.config}: rest at {args.q_deg:g} deg, encoders {dq[0]:.3g} / {dth[0]:.3g} rad; wearer {band[0]:g}-{band[1]:g} Hz "
           f"at {args.rms:g} N m RMS: r = {r:.3g} N m/s, a = {a:.4g} N m/s^2; Gaussian factor z = {z:.3g}")
-    print(f"{'rate':>7} {'model':>5} {'walk':>10} {'lag':>8} {'Gaussian':>9} {'bound':>8} {'floor':>7}")
+    print(f"{'rate':>7} {'model':>5} {'walk':>10} {'lag':>8} {'Gaussian':>9} {'bound':>8} {'floor':>7} {'torque-error gain':>18}")
     table = []
     grids = {"rw": np.geomspace(1e-3, 1e5, 33), "irw": np.geomspace(1e-1, 1e9, 41)}
     for rate in rates:
@@ -121,16 +128,17 @@ def run(args) -> int:
             best = None
             for qw in grids[model]:
                 b = steady_bound(A5, 1.0 / rate, model, float(qw), r if model == "rw" else a, R, z)
-                if b is not None and (best is None or sum(b) < sum(best[1])):
+                if b is not None and (best is None or b[0] + b[1] < best[1][0] + best[1][1]):
                     best = (float(qw), b)
             if best is None:
                 print(f"{rate:7g} {model:>5} no walk intensity of the grid settles")
                 continue
-            qw, (lag, g) = best
+            qw, (lag, g, gain) = best
             row = {"rate_hz": rate, "model": model, "walk": qw, "lag": lag, "gaussian": g, "bound": lag + g,
-                   "floor": float(floors[model])}
+                   "floor": float(floors[model]), "torque_error_gain": float(gain)}
             table.append(row)
-            print(f"{rate:7g} {model:>5} {qw:10.3g} {lag:8.4f} {g:9.4f} {lag + g:8.4f} {row['floor']:7.4f}", flush=True)
+            print(f"{rate:7g} {model:>5} {qw:10.3g} {lag:8.4f} {g:9.4f} {lag + g:8.4f} {row['floor']:7.4f} {gain:18.2f}",
+                  flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps({"config": args.config, "r": r, "a": a, "rows": table}, indent=1))
     return 0

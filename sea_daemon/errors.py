@@ -43,7 +43,7 @@ class Fault(enum.IntEnum):
     LOG_FAILED = 14            # the measured log cannot be written (disk full, writer died, ring full)
     INNOVATION_OUTLIER = 15    # assist mode: one step's normalised innovation beyond assist.innovation_max
     BOUND_LOST = 16            # the bound worker died, or fell a whole ring of samples behind
-    LOOP_STALL = 17            # the loop itself missed more cycles in a row than max_missed_cycles tolerates
+    LOOP_STALL = 17            # the loop itself missed more cycles in a row than the missed-cycle tolerance allows
 
     @property
     def bit(self) -> int:

@@ -107,11 +107,13 @@ class RemoteServer:
 
 def hil_config(kind: str = "virtual", channel: str = "", **bus):
     """Default model config with a test bus section: fast heartbeats, and timeouts generous enough
-    for a loaded 2-core machine (tests that measure a timeout set their own)."""
+    for a loaded 2-core machine (tests that measure a timeout set their own); the drives' RPDO
+    deadline off (the tests read and write in their own order, not a loop's; the tests of the
+    deadline set it)."""
     cfg = load_config(default_config_path())
     b = dataclasses.replace(cfg.hardware.bus, interface=kind, channel=channel or f"hil-{uuid.uuid4().hex[:8]}",
                             heartbeat_ms=20, heartbeat_timeout_ms=1000, pdo_timeout_ms=1000.0,
-                            sdo_timeout_ms=2000)
+                            sdo_timeout_ms=2000, rpdo_timeout_ms=0)
     b = dataclasses.replace(b, **bus)
     return dataclasses.replace(cfg, hardware=dataclasses.replace(cfg.hardware, bus=b))
 

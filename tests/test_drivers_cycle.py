@@ -115,32 +115,50 @@ def test_interpolation_period_encoding():
         interpolation_period(1000.0)
 
 
+def _scripted_window(queue: list, calls: list):
+    """A TPDO window (drive 0x181, encoder 0x182) whose handle hands out ``queue``, each call's
+    (timeout, ready) appended to ``calls``; (window, drive slot, encoder slot)."""
+    from sea_daemon.hw.canopen_rx import TpdoWindow
+    w = TpdoWindow()
+    drive, enc = w.add(1, 0x181, 8), w.add(2, 0x182, 4)
+
+    def recv(timeout, ready=False):
+        calls.append((timeout, ready))
+        return queue.pop(0) if queue else None
+    w._recv = recv
+    w.drain(queued=False)
+    return w, drive, enc
+
+
+def test_collect_reads_the_rest_of_the_burst_before_waiting_again():
+    """The devices answer a SYNC with a burst of TPDOs: collect asks the handle for the first one
+    without the ready hint (wait for it) and for every one after a frame with it (read on before
+    waiting: one wake-up for the burst)."""
+    calls = []
+    w, drive, enc = _scripted_window([(0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)], calls)
+    w.collect(deadline=1.0, clock=lambda: 0.0)
+    assert (drive.snap_count, enc.snap_count) == (1, 1) and [r for _, r in calls] == [False, True]
+
+
 def test_tpdos_queued_by_a_late_collect_are_taken_without_waiting():
     """The TPDO deadline bounds the wait, not the taking: a loop thread that comes to collect
     after its deadline (preempted after the SYNC) takes the frames already queued, and does not
     wait for more."""
-    from sea_daemon.hw.canopen_rx import LATE_TAKE, TpdoWindow
-    w = TpdoWindow()
-    drive, enc = w.add(1, 0x181, 8), w.add(2, 0x182, 4)
+    from sea_daemon.hw.canopen_rx import LATE_TAKE
+    calls = []
     queue = [(0x700 + 1, b"\x05", 0.0), (0x181, bytes(range(8)), 0.0), (0x182, b"\x01\x02\x03\x04", 0.0)]
-    waits = []
-
-    def recv(timeout):
-        waits.append(timeout)
-        return queue.pop(0) if queue else None
-    w._recv = recv
-    w.drain(queued=False)
+    w, drive, enc = _scripted_window(queue, calls)
     w.collect(deadline=1.0, clock=lambda: 2.0)            # already past the deadline
     assert (drive.snap_count, enc.snap_count) == (1, 1)
     assert bytes(drive.snap) == bytes(range(8)) and bytes(enc.snap[:4]) == b"\x01\x02\x03\x04"
-    assert all(t == 0.0 for t in waits)                    # no waiting past the deadline
+    assert all(t == 0.0 for t, _ in calls)                 # no waiting past the deadline
     # an empty queue ends it at once; a flood of other frames after at most LATE_TAKE per slot
     w.drain(queued=False)
-    waits.clear()
+    calls.clear()
     w.collect(deadline=1.0, clock=lambda: 2.0)
-    assert (drive.snap_count, enc.snap_count) == (0, 0) and waits == [0.0]
+    assert (drive.snap_count, enc.snap_count) == (0, 0) and [t for t, _ in calls] == [0.0]
     queue[:] = [(0x123, b"", 0.0)] * 100
     w.drain(queued=False)
-    waits.clear()
+    calls.clear()
     w.collect(deadline=1.0, clock=lambda: 2.0)
-    assert len(waits) == LATE_TAKE * 2 and len(queue) == 100 - LATE_TAKE * 2
+    assert len(calls) == LATE_TAKE * 2 and len(queue) == 100 - LATE_TAKE * 2

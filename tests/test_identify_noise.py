@@ -81,3 +81,26 @@ def test_floor_is_each_encoders_own_quantisation():
     assert enc["theta_m"][0] == pytest.approx(q_var / hw.gear_ratio ** 2, rel=1e-12)
     assert floored == ["theta_m_1", "q_1"]
     assert R[0, 0] == pytest.approx(q_var / hw.gear_ratio ** 2, rel=1e-12)
+
+
+def test_identify_noise_on_an_integrated_walk_config(noisy_log, tmp_path, capsys):
+    """A model whose filter also tracks τ̇_h,act (6n state): the same encoder variances; the
+    written R runs; --with-Q writes a Σ_nom of the filter's own size that loads."""
+    from sea_daemon.io.configfile import save_config
+    cfg = load_config(default_config_path())
+    irw = tmp_path / "irw.yaml"
+    save_config(dataclasses.replace(cfg, kinematics=dataclasses.replace(cfg.kinematics, method="ma"),
+                                    estimator=cfg.estimator.with_tau_model("integrated", 1)), irw)
+    out = tmp_path / "identified.yaml"
+    assert main(["identify-noise", str(noisy_log), "--config", str(irw), "--write", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["encoder_variances"]["theta_m"][0] == pytest.approx(SIGMA ** 2, rel=0.15)
+    assert res["encoder_variances"]["q"][0] == pytest.approx(SIGMA ** 2, rel=0.15)
+    assert load_config(out).estimator.tau_h_act_model == "integrated"
+    assert main(["replay", str(noisy_log), "--config", str(out), "--estimator", "akf",
+                 "--out", str(tmp_path / "est.csv")]) == 0
+    capsys.readouterr()
+    with_q = tmp_path / "with_q.yaml"
+    assert main(["identify-noise", str(noisy_log), "--config", str(irw), "--with-Q", "--write", str(with_q)]) == 0
+    assert len(json.loads(capsys.readouterr().out)["Q"]) == 6
+    assert np.asarray(load_config(with_q).estimator.Sigma_nom).shape == (6, 6)

@@ -198,12 +198,15 @@ def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_heartbea
         node = rig.hw.bus_cfg.master_node
         assert not any(accepted(f + node) for f in (0x180, 0x280, 0x380, 0x480))    # the daemon's TPDOs
         assert all(accepted(i) for i in (0x000, 0x080, 0x201, 0x601, 0x700 + node))
-        # heartbeats and EMCY: on the loop thread's own handle, no longer on the network's
+        # heartbeats and EMCY: on the loop thread's handles (the heartbeats' own, the EMCY with the
+        # TPDOs), no longer on the network's
         nodes = rig.hw.bus_cfg.drive_node + rig.hw.bus_cfg.encoder_node
         ids = {0x700 + i for i in nodes}
+        emcy = {0x80 + i for i in nodes}
         assert rig.hw._hb_tap is not None and rig.hw._hb_tap.cob_ids == ids
-        assert rig.hw._emcy_tap is not None and rig.hw._emcy_tap.cob_ids == {0x80 + i for i in nodes}
-        assert not any((i & m) == (c & m) for i in ids | rig.hw._emcy_tap.cob_ids for c, m in net._accept)
+        tpdo_accept = rig.hw._rx.bus._accept
+        assert {i for i, _ in tpdo_accept} == emcy | {s.cob_id for s in rig.hw._rx.slots}
+        assert not any((i & m) == (c & m) for i in ids | emcy for c, m in net._accept)
         t0 = time.monotonic()
         for _ in range(10):
             rig.hw.read()
@@ -241,4 +244,33 @@ def test_one_poll_says_which_receive_handles_have_frames_queued():
     finally:
         v.shutdown()
         for bus in (tx, a, b, c):
+            bus.shutdown()
+
+
+def test_ipc_recv_frame_reads_the_rest_of_a_burst_without_waiting(monkeypatch):
+    """recv_frame(timeout, ready=True): a frame queued is read at once (no select before it);
+    none queued: it waits as without the hint (the frame that comes within the timeout, or None)."""
+    from sea_daemon.hw import ipc_bus
+    from sea_daemon.hw.ipc_bus import IpcBus
+    ch = f"t-{uuid.uuid4().hex[:8]}"
+    tx, rx = IpcBus(ch), IpcBus(ch)
+    waits = []
+    real_select = ipc_bus.select.select
+
+    def counting_select(*a):
+        waits.append(a[-1])
+        return real_select(*a)
+    monkeypatch.setattr(ipc_bus.select, "select", counting_select)
+    try:
+        tx.send(_msg(0x181, bytes(range(8))))
+        tx.send(_msg(0x182, b"\x01\x02\x03\x04"))
+        time.sleep(0.01)
+        got = rx.recv_frame(0.5)                              # no hint: waits first
+        assert got[0] == 0x181 and bytes(got[1]) == bytes(range(8)) and len(waits) == 1
+        got = rx.recv_frame(0.5, True)                        # the rest of the burst: no wait
+        assert got[0] == 0x182 and bytes(got[1]) == b"\x01\x02\x03\x04" and len(waits) == 1
+        assert rx.recv_frame(0.02, True) is None and len(waits) >= 2     # none left: waited
+        assert rx.recv_frame(0.0, True) is None                          # none queued, no timeout
+    finally:
+        for bus in (tx, rx):
             bus.shutdown()

@@ -243,7 +243,7 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     akf = AKF(cfg, dt=log.dt)
     Y, X, U = _akf_run(akf, log)
     x_op, u_op = X.mean(axis=0), U.mean(axis=0)
-    F, G_u, c = _linearised(akf.model, x_op, u_op, float(np.median(np.diff(log.t))))
+    F, G_u, c = _linearised(akf, x_op, u_op, float(np.median(np.diff(log.t))))
     if channels not in ("angles", "all"):
         raise InputError(f"channels must be 'angles' or 'all', got {channels!r}")
     p = 2 * n if channels == "angles" else 4 * n
@@ -254,14 +254,15 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
     L = _fixed_gain(F, H, Q0, R0)
     e = innovations(F, H, L, Y, x0=X[0], Bu=U @ G_u.T + c)
     basis = _encoder_basis(n) if channels == "angles" else None
-    # process noise enters through the velocity and τ_h,act states only (G = [0; I_3n]):
-    # angles integrate the velocities, so their own per-step noise is not identifiable from
-    # measurement noise on them and is physically negligible
-    Gq = np.eye(5 * n)[:, 2 * n:]
+    # process noise enters through the velocity and τ_h,act (and τ̇_h,act) states only
+    # (G = [0; I]): angles integrate the velocities, so their own per-step noise is not
+    # identifiable from measurement noise on them and is physically negligible
+    d = akf.d                      # 5n, or 6n with the integrated walk (StateLayout)
+    Gq = np.eye(d)[:, 2 * n:]
     Qhat, Rhat, theta_R = identify(F, Gq, H, L, e, lags=lags, diag=diag,
                                    Q=Q0[2 * n:, 2 * n:] if q_known else None, burn_in=burn_in,
                                    R_basis=basis, return_coefficients=True)
-    Q_full = np.zeros((5 * n, 5 * n))
+    Q_full = np.zeros((d, d))
     Q_full[2 * n:, 2 * n:] = Qhat
     Qhat = Q_full
     rad = float(np.max(np.abs(np.linalg.eigvals(F - F @ L @ H))))
@@ -276,10 +277,10 @@ def identify_noise(cfg, log, lags: int = 15, burn_in: int = 50, diag: bool = Tru
 
 def _akf_run(akf, log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1 of :func:`identify_noise`: the AKF over the log; per sample its measurement y (N, 4n),
-    its state x̂ (N, 5n) and the input u that acted over step k → k+1 (N, n)."""
+    its state x̂ (N, d: 5n or 6n) and the input u that acted over step k → k+1 (N, n)."""
     n, N = akf.model.n, len(log)
     Y = np.empty((N, 4 * n))
-    X = np.empty((N, 5 * n))
+    X = np.empty((N, akf.d))
     U = np.empty((N, n))
     akf.reset(log.q[0], log.theta_m[0], log.tau_m[0])
     Y[0], X[0] = akf.y, akf.x
@@ -291,15 +292,16 @@ def _akf_run(akf, log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return Y, X, U
 
 
-def _linearised(model, x_op: np.ndarray, u_op: np.ndarray, dt: float):
-    """Step 2 of :func:`identify_noise`: x⁺ ≈ F x + Γ_u u + c about the operating point."""
-    n = model.n
+def _linearised(akf, x_op: np.ndarray, u_op: np.ndarray, dt: float):
+    """Step 2 of :func:`identify_noise`: x⁺ ≈ F x + Γ_u u + c about the operating point, in the
+    filter's state (its :class:`~sea_daemon.core.model.StateLayout`)."""
+    model = akf.model
     A = model.F_nom(x_op, u_op)
     # ZOH at the operating point: F = e^{A dt}, [Δx_op, Γ_u] = ∫₀^dt e^{As} ds [f_nom, B]
-    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), model.B_nom()]), dt)
+    F, Gam = discretize(A, np.column_stack([model.f_nom(x_op, u_op), akf.layout.pad(model.B_nom())]), dt)
     dx_op, G_u = Gam[:, 0], Gam[:, 1:]
     # x⁺ ≈ x + Δx_op + (F − I)(x − x_op) + Γ_u (u − u_op)  (ΦA = F − I)
-    c = dx_op - (F - np.eye(5 * n)) @ x_op - G_u @ u_op
+    c = dx_op - (F - np.eye(F.shape[0])) @ x_op - G_u @ u_op
     return F, G_u, c
 
 

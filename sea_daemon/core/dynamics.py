@@ -304,6 +304,7 @@ def f_nom(p, x, u, f, xdot) -> None:
     ddth_m = motor_accel(p, th_m, dth_m, u, tau_s)
     ddq = load_accel(p, q, dq, tau_h, tau_s, f)
     state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot)
+    torque_rate_rows(n, x, xdot)
 
 
 @njit
@@ -351,6 +352,16 @@ def state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot) -> None:
 
 
 @njit
+def torque_rate_rows(n, x, xdot) -> None:
+    """The integrated random walk of τ_h,act (a state of 6n, ``estimator.tau_h_act_model:
+    integrated``): dτ_h,act/dt = τ̇_h,act, dτ̇_h,act/dt = 0 (the τ̇ rows after the 5n of
+    :func:`state_rates`); nothing for the random walk's 5n."""
+    for j in range(xdot.shape[0] - 5 * n):
+        xdot[4 * n + j] = x[5 * n + j]
+        xdot[5 * n + j] = 0.0
+
+
+@njit
 def F_nom(p, x, u, f_q, f_v, A) -> None:
     """A = ∂f_nom/∂x (5n × 5n) (eq:linearization without the GP); f_q, f_v as :func:`load_accel_jac`."""
     n = u.shape[0]
@@ -374,6 +385,8 @@ def state_jacobian(n, am0, am1, am2, am3, aq0, aq1, aq2, aq3, aq4, A) -> None:
     for j in range(n):
         A[j, 2 * n + j] = 1.0
         A[n + j, 3 * n + j] = 1.0
+    for j in range(A.shape[0] - 5 * n):     # the integrated random walk: dτ_h,act/dt = τ̇_h,act (torque_rate_rows)
+        A[4 * n + j, 5 * n + j] = 1.0
     for i in range(n):
         for j in range(n):
             A[2 * n + i, j] = am0[i, j]
@@ -405,6 +418,7 @@ def rigid_state(p, x, u, ddq, ddq_dq, ddq_dv, Minv, f_q, f_v, A, xdot, jacobian:
     tau_s = spring_torque(p, th_s, dth_s)
     ddth_m = motor_accel(p, th_m, dth_m, u, tau_s)
     state_rates(n, dth_m, dth_s, ddth_m, ddq, xdot)
+    torque_rate_rows(n, x, xdot)
     if not jacobian:
         return
     dts = spring_torque_jac(p, th_s)

@@ -4,6 +4,7 @@ frozen dataclasses: sensors, actuator and the CAN bus the drivers talk to.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -11,7 +12,7 @@ import numpy as np
 
 from sea_daemon.core import validate
 from sea_daemon.core.effects import MAX_ABS
-from sea_daemon.errors import ConfigError
+from sea_daemon.errors import ConfigError, InputError
 
 
 def _node_ids(source: str, key: str, v: Any, n: int) -> tuple[int, ...]:
@@ -92,7 +93,16 @@ class BusConfig:
     heartbeat_ms: int = 50                # producer heartbeat time written to 0x1017 of every node
     heartbeat_timeout_ms: int = 200       # consumer: a node is lost after this long without heartbeat
     pdo_timeout_ms: float = 8.0           # wait for a cycle's TPDOs after SYNC [ms]
-    max_missed_cycles: int = 0            # consecutive cycles with missing TPDOs tolerated (0: first raises)
+    # the missed-cycle tolerance (missed_cycles()): cycles in a row without a sample (a missing TPDO, or
+    # a stall of the loop: no SYNC, no new command) that are survived.  As a count (max_missed_cycles)
+    # or as a duration (max_missed_ms: the longest time from one sample and command to the next,
+    # (missed + 1) periods); neither: MAX_MISSED_MS
+    max_missed_cycles: int | None = None
+    max_missed_ms: float | None = None
+    # the drive's RPDO deadline monitoring (CiA 301 RPDO event timer 0x1400:5, EMCY 0x8250, reaction
+    # 0x6007): the longest a drive holds a torque command without a new RPDO [ms]; None: derived from
+    # the tolerance (rpdo_timeout_s()); 0: off
+    rpdo_timeout_ms: int | None = None
     rated_torque: float | tuple[float, ...] = 100.0   # expected 0x6076, motor side [mN m] (per joint: a tuple)
     q_offset: tuple[float, ...] = (0.0,)        # load encoder zero: q = angle(counts) - q_offset [rad]
     theta_m_offset: tuple[float, ...] = (0.0,)  # motor encoder zero, joint side [rad]
@@ -112,12 +122,16 @@ class BusConfig:
     #                                       joints of one name share its bus); (): every joint on channel
 
     KEYS = ["interface", "channel", "bitrate", "drive_node", "encoder_node", "heartbeat_ms",
-            "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "rated_torque", "q_offset",
+            "heartbeat_timeout_ms", "pdo_timeout_ms", "max_missed_cycles", "max_missed_ms", "rpdo_timeout_ms",
+            "rated_torque", "q_offset",
             "theta_m_offset", "max_joint_speed", "stuck_cycles", "stuck_motion", "sync_rpdo", "sdo_timeout_ms",
             "master_node", "publish"]
     #: joints the daemon's node publishes: joint 1 on TPDO1, joint 2 on TPDO3, joint 3 on TPDO4 (TPDO2: status)
     PUBLISH_JOINTS = 3
     INTERFACES = ("virtual", "socketcan", "remote", "ipc")
+    #: the missed-cycle tolerance when the configuration sets none [ms]: one period of the 100 Hz
+    #: daemon, the slowest rate of the shipped configurations (docs/daemon.md "Missed cycles")
+    MAX_MISSED_MS = 10.0
 
     @classmethod
     def default(cls, n: int) -> "BusConfig":
@@ -136,13 +150,23 @@ class BusConfig:
                 raise ConfigError(source, k + "channel", f"remote bus needs ws://HOST:PORT/, got {c!r}")
         ints = {}
         for key, lo, hi, default in (("bitrate", 10000, 1000000, 1000000), ("heartbeat_ms", 1, 65535, 50),
-                                     ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, 0),
+                                     ("heartbeat_timeout_ms", 1, 600000, 200), ("max_missed_cycles", 0, 1000, None),
+                                     ("rpdo_timeout_ms", 0, 65535, None),
                                      ("stuck_cycles", 2, 100000, 20), ("sdo_timeout_ms", 10, 60000, 300),
                                      ("master_node", 1, 127, 127)):
             v = d.get(key, default)
+            if v is None and default is None:
+                ints[key] = None                 # not set: derived (missed_cycles(), rpdo_timeout_s())
+                continue
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(source, k + key, f"must be an integer in {lo}..{hi}, got {v!r}")
             ints[key] = v
+        missed_ms = d.get("max_missed_ms")
+        if missed_ms is not None:
+            if ints["max_missed_cycles"] is not None:
+                raise ConfigError(source, k + "max_missed_ms", f"give max_missed_ms or max_missed_cycles, not both "
+                                                               f"(got {missed_ms!r} and {ints['max_missed_cycles']!r})")
+            missed_ms = validate.num(source, k + "max_missed_ms", missed_ms, lo=0.0, hi=60000.0)
         if ints["heartbeat_timeout_ms"] <= ints["heartbeat_ms"]:
             raise ConfigError(source, k + "heartbeat_timeout_ms",
                               f"must be > heartbeat_ms ({ints['heartbeat_ms']}), got {ints['heartbeat_timeout_ms']}")
@@ -164,7 +188,7 @@ class BusConfig:
                               f"the model has {n}; allowed: false (the local interface carries every joint)")
         return cls(
             interface=iface, channel=channel, joint_channel=joint_channel, drive_node=drive, encoder_node=enc, **ints, sync_rpdo=sync_rpdo,
-            publish=publish,
+            publish=publish, max_missed_ms=missed_ms,
             pdo_timeout_ms=validate.num(source, k + "pdo_timeout_ms", d.get("pdo_timeout_ms", 8.0), lo=0.1, hi=10000.0),
             rated_torque=per_joint(source, k + "rated_torque", d.get("rated_torque", 100.0), n, positive=True),
             q_offset=tuple(float(x) for x in validate.vector(source, k + "q_offset", d.get("q_offset", 0.0), n)),
@@ -172,6 +196,46 @@ class BusConfig:
             max_joint_speed=per_joint(source, k + "max_joint_speed", d.get("max_joint_speed", 20.0), n, positive=True),
             stuck_motion=per_joint(source, k + "stuck_motion", d.get("stuck_motion", 0.05), n, positive=True),
         )
+
+    def missed_cycles(self, period: float) -> int:
+        """The missed-cycle tolerance at the loop period ``period`` [s]: the cycles in a row without
+        a sample (a missing TPDO, or a stall of the loop) that are survived.  ``max_missed_cycles``
+        as set; else the most with (missed + 1) periods <= ``max_missed_ms`` (default
+        :data:`MAX_MISSED_MS`): 0 at 100 Hz, 1 at 200 Hz, 9 at 1 kHz."""
+        if self.max_missed_cycles is not None:
+            return self.max_missed_cycles
+        ms = self.MAX_MISSED_MS if self.max_missed_ms is None else self.max_missed_ms
+        return max(0, int(math.floor(ms / 1e3 / period + 1e-9)) - 1)
+
+    def longest_rpdo_gap(self, period: float) -> float:
+        """The longest time [s] between two of the daemon's RPDOs (its torque commands) in a run
+        that keeps every cycle the tolerance allows: the cycle before a stall writes its RPDO after
+        its start, the cycle after it up to ``missed_cycles`` + 1 periods later, after waiting up to
+        ``pdo_timeout_ms`` for its TPDOs, plus the work of both cycles before the write (a period
+        each at most)."""
+        return (self.missed_cycles(period) + 1) * period + self.pdo_timeout_ms / 1e3 + 2 * period
+
+    def rpdo_timeout_s(self, period: float) -> float:
+        """The drives' RPDO deadline [s] (0x1400:5, whole ms; 0: off) at the loop period
+        ``period``: ``rpdo_timeout_ms`` as set, else :meth:`longest_rpdo_gap` rounded up to a
+        whole ms — the tightest that a run keeping its tolerance never trips.  A set value
+        shorter than that gap: :class:`~sea_daemon.errors.InputError`, one line (the drive would
+        stop a run the loop is told to keep)."""
+        gap = self.longest_rpdo_gap(period)
+        if self.rpdo_timeout_ms is None:
+            ms = math.ceil(gap * 1e3 - 1e-9)
+            if ms > 65535:
+                raise InputError(f"hardware.bus.max_missed_ms / max_missed_cycles: the tolerance at {1 / period:g} Hz "
+                                 f"({self.missed_cycles(period)} missed cycles) needs a drive RPDO deadline of {ms} ms, "
+                                 f"more than 0x1400:5 holds (65535 ms); allowed: a shorter tolerance, or "
+                                 f"hardware.bus.rpdo_timeout_ms: 0 (off)")
+            return ms / 1e3
+        if 0 < self.rpdo_timeout_ms < gap * 1e3 - 1e-9:
+            raise InputError(f"hardware.bus.rpdo_timeout_ms: must be 0 (off) or >= {math.ceil(gap * 1e3 - 1e-9)} ms "
+                             f"(the longest gap between two torque commands the missed-cycle tolerance allows at "
+                             f"{1 / period:g} Hz: {self.missed_cycles(period)} missed cycles), "
+                             f"got {self.rpdo_timeout_ms}")
+        return self.rpdo_timeout_ms / 1e3
 
     def rated_torques(self, n: int) -> np.ndarray:
         """Each of the n joints' drive ``rated_torque`` (0x6076), motor side [mN m]."""
@@ -222,6 +286,9 @@ class BusConfig:
         for key in ("rated_torque", "max_joint_speed", "stuck_motion"):
             if isinstance(out[key], tuple):
                 out[key] = list(out[key])
+        for key in ("max_missed_cycles", "max_missed_ms", "rpdo_timeout_ms"):
+            if out[key] is None:
+                del out[key]                    # not set: derived
         return out
 
 

@@ -2,7 +2,8 @@
 
 Pure numerics: no I/O, no clock, no threads.  Everything on the joint side of the gear, SI.
 
-Augmented state (Sec. IV-B):  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act]  ∈ R^{5n},  u = τ_m ∈ R^n.
+Augmented state (Sec. IV-B):  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act]  ∈ R^{5n},  u = τ_m ∈ R^n;
+with ``estimator.tau_h_act_model: integrated`` also τ̇_h,act: x ∈ R^{6n} (:class:`StateLayout`).
 
 Load side    M q̈ + C(q) + Σ_load e(q, q̇, q̈) + f(z) + τ_s = τ_h,act          eq:unknwn_load
 Motor side   J θ̈_m + D_m θ̇_m + Σ_motor e(θ_m, θ̇_m, θ̈_m) − τ_s = κ τ_m      eq:motorside
@@ -26,10 +27,73 @@ import dataclasses
 
 import numpy as np
 
-from sea_daemon.core.config import ModelConfig, SEAParams
+from sea_daemon.core.config import TAU_MODELS, ModelConfig, SEAParams
 from sea_daemon.core import dynamics
 from sea_daemon.core.dynamics import make_dynamics
 from sea_daemon.core.effects import Delay, Effect, EncoderOffset, Inertia, SpringBacklash, TorqueScale
+
+
+@dataclasses.dataclass(frozen=True)
+class StateLayout:
+    """Where each part of the filter's state lies: x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] (5n, the
+    random walk) or [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act, τ̇_h,act] (6n, ``integrated``); the measured
+    part y = x[:4n] in both."""
+
+    n: int
+    integrated: bool = False
+
+    @classmethod
+    def of(cls, n: int, tau_model: str = "walk") -> "StateLayout":
+        if tau_model not in TAU_MODELS:
+            raise ValueError(f"tau_h_act_model must be one of {', '.join(TAU_MODELS)}, got {tau_model!r}")
+        return cls(int(n), tau_model == "integrated")
+
+    @property
+    def d(self) -> int:
+        """The state's dimension: 5n or 6n."""
+        return (6 if self.integrated else 5) * self.n
+
+    @property
+    def m(self) -> int:
+        """The measurement's dimension, 4n (y = [θ_m, θ_s, θ̇_m, θ̇_s])."""
+        return 4 * self.n
+
+    @property
+    def tau(self) -> slice:
+        """τ_h,act in x."""
+        return slice(4 * self.n, 5 * self.n)
+
+    @property
+    def dtau(self) -> slice | None:
+        """τ̇_h,act in x (None: the random walk has none)."""
+        return slice(5 * self.n, 6 * self.n) if self.integrated else None
+
+    @property
+    def tau_idx(self) -> np.ndarray:
+        """The indices of τ_h,act in x."""
+        return np.arange(4 * self.n, 5 * self.n)
+
+    @property
+    def rate_idx(self) -> np.ndarray:
+        """The indices of the state the bound's declared deterministic input drives: τ_h,act for the
+        random walk (|τ̇_h,act| ≤ r), τ̇_h,act for the integrated one (|τ̈_h,act| ≤ a)."""
+        return np.arange(5 * self.n, 6 * self.n) if self.integrated else self.tau_idx
+
+    def embed(self, A5: np.ndarray) -> np.ndarray:
+        """A (5n, 5n) matrix as (d, d): the integrated walk's dτ_h,act/dt = τ̇_h,act added."""
+        if not self.integrated:
+            return A5
+        n = self.n
+        A = np.zeros((self.d, self.d))
+        A[:5 * n, :5 * n] = A5
+        A[4 * n:5 * n, 5 * n:] = np.eye(n)
+        return A
+
+    def pad(self, B5: np.ndarray) -> np.ndarray:
+        """A (5n, k) matrix as (d, k): zero τ̇_h,act rows."""
+        if not self.integrated:
+            return B5
+        return np.vstack([B5, np.zeros((self.n, B5.shape[1]))])
 
 
 class SEAModel:
@@ -190,7 +254,7 @@ class SEAModel:
         """ẋ = f_nom(x, u) − I_μ M⁻¹ f(z) (eq:nonlindyn, eq:unknown; :func:`dynamics.f_nom`)."""
         x = _vec(x)
         n = self.n
-        xd = np.empty(5 * n)
+        xd = np.empty(x.shape[0])          # 5n, or 6n with the integrated walk of τ_h,act (StateLayout)
         f = self._f(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n], f_res)
         if self.rigid is not None:
             self.rigid_f_and_F(x, _vec(u), f, None, None, None, xd)
@@ -199,16 +263,17 @@ class SEAModel:
         return xd
 
     def F_nom(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Analytic Jacobian ∂f_nom/∂x (5n×5n) (Park et al.; eq:linearization without the GP)."""
+        """Analytic Jacobian ∂f_nom/∂x (5n×5n; 6n×6n for a state x of 6n, StateLayout) (Park et al.;
+        eq:linearization without the GP)."""
         x = _vec(x)
         n = self.n
-        A = np.empty((5 * n, 5 * n))
+        A = np.empty((x.shape[0], x.shape[0]))
         if self.outside_effects:
             f, f_q, f_v = self.outside_torque(x[:n] + x[n:2 * n], x[2 * n:3 * n] + x[3 * n:4 * n])
         else:
             f = f_q = f_v = np.zeros(n)
         if self.rigid is not None:
-            self.rigid_f_and_F(x, _vec(u), f, f_q, f_v, A, np.empty(5 * n))
+            self.rigid_f_and_F(x, _vec(u), f, f_q, f_v, A, np.empty(x.shape[0]))
             return A
         dynamics.F_nom(self.kernel, x, _vec(u), f_q, f_v, A)
         return A

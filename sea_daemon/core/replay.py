@@ -54,7 +54,7 @@ def replay(log: MeasuredLog, estimator, clock: Callable[[], float] | None = None
     hat = np.zeros((N, n))
     sig = np.zeros((N, n))
     bnd = np.zeros((N, n))
-    xs = np.zeros((N, 5 * n))
+    xs = np.zeros((N, int(getattr(estimator, "d", 5 * n))))     # 5n, or 6n with τ̇_h,act (StateLayout)
     ok = np.zeros(N, dtype=bool)
     why = np.zeros(N, dtype=np.int64)
     times = np.zeros(max(N - 1, 0)) if clock is not None else None

@@ -55,6 +55,21 @@ def make_bus(cfg: BusConfig, *, receive_own_messages: bool = False) -> can.BusAB
         raise DeviceMismatch(None, f"{iface} bus {channel!r}", f"cannot open: {e}") from None
 
 
+def descriptors(buses) -> list[int] | None:
+    """The file descriptor of each bus handle (to wait on them in one ``poll`` / ``select``), or
+    None when one has none (``virtual``, python-can-remote)."""
+    fds = []
+    for bus in buses:
+        try:
+            fd = bus.fileno()
+        except (NotImplementedError, AttributeError, OSError, ValueError):
+            return None
+        if not isinstance(fd, int) or fd < 0:
+            return None
+        fds.append(fd)
+    return fds
+
+
 def set_controller_filters(bus: can.BusABC, filters: list[dict]) -> bool:
     """Set acceptance ``filters`` (python-can's ``can_filters``) on ``bus`` where the bus applies
     them below python-can, as a CAN controller's acceptance filter does: SocketCAN's kernel

@@ -37,6 +37,8 @@ class CanopenBuses(HardwareInterface):
             s.peer_keepalive = self._peers
         first = self.subs[0]
         self.period, self.actuation_delay, self.pdo_timeout = first.period, first.actuation_delay, first.pdo_timeout
+        #: the missed-cycle tolerance (every bus's: one configuration)
+        self.max_missed = self.stall_cycles = first.max_missed
         self.meas = Measurement(self.n)
         self._act = np.zeros(self.n)
         self._t_sync = [0.0] * len(self.subs)

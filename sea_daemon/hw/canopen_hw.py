@@ -29,14 +29,15 @@ Cycle — PDOs only, pipelined as a CANopen master does: the loop calls ``read()
 heartbeat
 while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
 SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
-this cycle — held up to ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
+this cycle — held within the missed-cycle tolerance, ``max_missed_ms`` / ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
 RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
 ``read()`` takes the cycle's
 TPDOs (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
-structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` on a third
-handle, taken after the SYNC and again after the TPDOs; on ``virtual`` and ``remote`` on the
-TPDO handle, which sees every frame there).  A heartbeat counts from its arrival on the bus (the
+structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` the EMCY on
+the TPDO handle, in the order they came with the TPDOs, and the heartbeats on a third handle,
+taken after the SYNC; on ``virtual`` and ``remote`` both on the TPDO handle, which sees every
+frame there).  A heartbeat counts from its arrival on the bus (the
 frame's timestamp, :func:`sea_daemon.hw.canopen_rx.arrival`), so the heartbeat timeout does not grow
 by the time a thread took to get to the frame.
 Counts become joint-side radians (:class:`sea_daemon.hw.canopen_positions.Positions`: gear ratio,
@@ -50,6 +51,7 @@ cycle ending at the sample time (see :mod:`sea_daemon.hw.interface` for the whol
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -105,6 +107,14 @@ class CanopenHardware(HardwareInterface):
         self.res_motor = [int(counts_motor[j]) for j in js]
         self.torque_limit = [float(hw.torque_limits(cfg.joints)[j]) for j in js]
         self.pdo_timeout = pdo_timeout if pdo_timeout is not None else b.pdo_timeout_ms / 1e3
+        if pdo_timeout is not None:
+            b = dataclasses.replace(b, pdo_timeout_ms=pdo_timeout * 1e3)
+            self.bus_cfg = b
+        #: the missed-cycle tolerance at this period (BusConfig.missed_cycles): missing TPDOs held, and
+        #: the deadlines the loop may skip in a row (FixedRateLoop's LOOP_STALL)
+        self.max_missed = self.stall_cycles = b.missed_cycles(self.period)
+        #: the drives' RPDO deadline [s] written to 0x1400:5 (0: off); InputError when too short
+        self.rpdo_timeout = b.rpdo_timeout_s(self.period)
         #: cycles between write() and the interval the torque acts over (see sea_daemon.hw.interface)
         self.actuation_delay = 1 if b.sync_rpdo else 0
         self.hb_timeout = b.heartbeat_timeout_ms / 1e3
@@ -112,8 +122,7 @@ class CanopenHardware(HardwareInterface):
         self._bus, self._owns_bus = bus, bus is None
         self._tpdo_bus = None
         self._hb_tap: FrameTap | None = None     # the heartbeats on the loop thread (once cycling)
-        self._queued: Queued | None = None       # one poll: the TPDO handle, the two taps (bits 1, 2, 4)
-        self._emcy_tap: FrameTap | None = None   # the EMCY on the loop thread (once cycling)
+        self._queued: Queued | None = None       # one poll: the TPDO handle (bit 1), the heartbeats' (bit 2)
         self.drive_ids, self.encoder_ids = list(b.drive_node), list(b.encoder_node)
         self.network: canopen.Network | None = None
         self.drives: list = []
@@ -231,26 +240,28 @@ class CanopenHardware(HardwareInterface):
         and the network's handle stops taking them: canopen's receive thread does not wake for
         them inside the cycle, and an EMCY queued before ``read()`` (or before the cycle's
         TPDOs) is raised by that ``read()``, whatever the scheduler does with canopen's thread.
-        Where the handles filter below python-can (SocketCAN, ipc) each comes on a handle of
-        its own (:class:`~sea_daemon.hw.canopen_rx.FrameTap`; EMCY apart from the heartbeats, so that
-        heartbeats filling a queue nobody takes — the ipc bus queues 10 frames — cannot crowd out
-        an EMCY); on ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and
-        hands them over (``TpdoWindow.watch``)."""
+        Where the handles filter below python-can (SocketCAN, ipc) the heartbeats come on a
+        handle of their own (:class:`~sea_daemon.hw.canopen_rx.FrameTap`: heartbeats filling a
+        queue nobody takes — the ipc bus queues 10 frames — cannot crowd out a TPDO or an EMCY)
+        and the EMCY on the TPDO handle, which takes them with the TPDOs in the order they came
+        (an EMCY sent before the cycle's TPDOs is taken before them, no poll of its own); on
+        ``virtual`` and ``remote`` the TPDO handle sees every frame anyway and hands both over
+        (``TpdoWindow.watch``)."""
         nodes = self.drives + self.encoders
         hb_ids = [0x700 + node.id for node in nodes]
         emcy_ids = [0x80 + node.id for node in nodes]
         if self._rx.filtered:
-            for attr, ids, on_frame in (("_hb_tap", hb_ids, self._hb_frame), ("_emcy_tap", emcy_ids, self._on_emcy)):
-                bus = make_bus(self.bus_cfg)
-                try:
-                    setattr(self, attr, FrameTap(bus, ids, on_frame))
-                except BaseException:
-                    bus.shutdown()
-                    raise
-            self._queued = Queued.of([self._rx.bus, self._hb_tap.bus, self._emcy_tap.bus])
+            bus = make_bus(self.bus_cfg)
+            try:
+                self._hb_tap = FrameTap(bus, hb_ids, self._hb_frame)
+            except BaseException:
+                bus.shutdown()
+                raise
+            self._rx.watch(emcy_ids, self._on_emcy)
+            self._queued = Queued.of([self._rx.bus, self._hb_tap.bus])
         else:
             self._rx.watch(hb_ids + emcy_ids, self._tap_frame)
-            self._watching = True
+        self._watching = True
         # canopen's thread ignores them from now on (a bus that ignores filters — python-can-remote —
         # still brings them to it: taken twice, one EMCY would latch again after its reset)
         self._loop_takes_async = True
@@ -265,8 +276,6 @@ class CanopenHardware(HardwareInterface):
         one): for a caller that waits for a heartbeat between cycles."""
         if self._hb_tap is not None:
             self._hb_tap.take()
-        if self._emcy_tap is not None:
-            self._emcy_tap.take()
         if self._watching:
             # the TPDO handle: frames of an earlier cycle found here are reported by the next read()
             if self._rx.drain():
@@ -430,9 +439,6 @@ class CanopenHardware(HardwareInterface):
         self._send(self._sync_msg, "SYNC")
         if self._hb_tap is not None and mask & 2:
             self._hb_tap.take()
-        tap = self._emcy_tap
-        if tap is not None and mask & 4:
-            tap.take()
         self._check_async()
         self._send_master_heartbeat()
         return t_sync
@@ -441,11 +447,8 @@ class CanopenHardware(HardwareInterface):
         """The second half of :meth:`read`: this cycle's TPDOs until ``pdo_timeout`` after
         ``t_sync``, checked and decoded."""
         m = self.meas
-        tap = self._emcy_tap
-        self._rx.collect(t_sync + self.pdo_timeout, self.clock)
+        self._rx.collect(t_sync + self.pdo_timeout, self.clock)   # an EMCY sent before the TPDOs: taken too
         self._cycle += 1
-        if tap is not None:
-            tap.take()                     # an EMCY sent before the TPDOs is queued before them
         self._check_emcy()
         m.cycle = self._cycle
         m.t = self._cycle * self.period
@@ -469,7 +472,7 @@ class CanopenHardware(HardwareInterface):
                     m.late = True
         if missing is not None:
             self.missed_cycles += 1
-            if missing.missed > self.bus_cfg.max_missed_cycles or not self._primed:
+            if missing.missed > self.max_missed or not self._primed:
                 raise PdoTimeout(missing.node, missing.cob_id, self._cycle, self.pdo_timeout, missing.missed)
             return m                                   # values held from the last cycle
         self._decode(m)
@@ -583,10 +586,9 @@ class CanopenHardware(HardwareInterface):
         if self._tpdo_bus is not None:
             self._tpdo_bus.shutdown()
             self._tpdo_bus = None
-        for tap in (self._hb_tap, self._emcy_tap):
-            if tap is not None:
-                tap.bus.shutdown()
-        self._hb_tap = self._emcy_tap = None
+        if self._hb_tap is not None:
+            self._hb_tap.bus.shutdown()
+        self._hb_tap = None
         self._queued = None
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()

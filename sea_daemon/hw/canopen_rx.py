@@ -11,14 +11,17 @@ TPDO arrived or the deadline — no receive thread, no lock, no hand-over betwee
 cycle's path, nothing allocated beyond python-can's message object per frame (none on the
 ``ipc`` bus, whose :meth:`~sea_daemon.hw.ipc_bus.IpcBus.recv_frame` gives id and data from its own
 buffer).  canopen's own
-receive thread keeps the rest of the traffic (SDO, NMT; its handle is filtered to those).  Where
-the handles filter below python-can (SocketCAN, ``ipc``), the devices' heartbeats and EMCY, once
-the cycle runs, come on a third handle that the loop thread reads in ``read()``
-(:class:`FrameTap`): a few µs of Python in the loop thread instead of a wake-up of canopen's
-thread inside the cycle; on ``virtual`` and ``remote``, whose TPDO handle sees every frame anyway,
-the window hands them over as it meets them (:meth:`TpdoWindow.watch`).  Either way an EMCY
-queued before ``read()`` — or before the cycle's TPDOs — is seen by that ``read()``, whatever the
-scheduler does with canopen's thread.  A heartbeat counts from its arrival on the bus
+receive thread keeps the rest of the traffic (SDO, NMT; its handle is filtered to those).  Once
+the cycle runs, the devices' EMCY and heartbeats are the loop thread's too: a few µs of Python in
+the loop thread instead of a wake-up of canopen's thread inside the cycle.  Where the handles
+filter below python-can (SocketCAN, ``ipc``), the EMCY come on the TPDO handle (its filter takes
+them, :meth:`TpdoWindow.watch`) and the heartbeats on a third handle that the loop thread reads
+in ``read()`` (:class:`FrameTap`); on ``virtual`` and ``remote``, whose TPDO handle sees every
+frame anyway, the window hands both over as it meets them.  Either way an EMCY queued before
+``read()`` — or before the cycle's TPDOs — is seen by that ``read()``, whatever the scheduler
+does with canopen's thread.  The devices answer a SYNC with a burst of TPDOs: after a frame the
+window reads on before it waits (:meth:`TpdoWindow.collect`), one wake-up for the burst.
+A heartbeat counts from its arrival on the bus
 (:func:`arrival`), not from when a thread took it.  :class:`ErrorFrames` watches the bus for the
 bus-off flag.
 """
@@ -29,7 +32,7 @@ import time
 
 import can
 
-from sea_daemon.hw.bus import set_controller_filters
+from sea_daemon.hw.bus import descriptors, set_controller_filters
 
 #: accept filters of the canopen network's handle: everything but the TPDO range 0x180..0x4FF
 #: (NMT, SYNC/EMCY, SDO both ways, heartbeats; error frames pass on every interface)
@@ -56,21 +59,23 @@ def arrival(now: float, timestamp: float | None) -> float:
 
 
 def frame_receiver(bus: can.BusABC, stamped: bool = False):
-    """``recv(timeout) -> (arbitration id, data[, timestamp]) | None`` on ``bus``: the bus's own
-    frame path where it has one (the ipc bus: no can.Message per frame; the timestamp only when
-    ``stamped``), else python-can's ``recv`` (always with the frame's timestamp)."""
+    """``recv(timeout, ready=False) -> (arbitration id, data[, timestamp]) | None`` on ``bus``:
+    the bus's own frame path where it has one (the ipc bus: no can.Message per frame, and no
+    wait before a read when ``ready`` says a frame is probably queued, the rest of a burst; the
+    timestamp only when ``stamped``), else python-can's ``recv`` (always with the frame's
+    timestamp; ``ready`` changes nothing)."""
     fast = getattr(bus, "recv_frame", None)
     if fast is not None:
         if not stamped:
             return fast
         stamp = bus.frame_timestamp
 
-        def recv_stamped(timeout: float):
-            frame = fast(timeout)
+        def recv_stamped(timeout: float, ready: bool = False):
+            frame = fast(timeout, ready)
             return None if frame is None else (frame[0], frame[1], stamp())
         return recv_stamped
 
-    def recv(timeout: float):
+    def recv(timeout: float, ready: bool = False):
         msg = bus.recv(timeout)
         return None if msg is None else (msg.arbitration_id, msg.data, msg.timestamp)
     return recv
@@ -129,14 +134,17 @@ class TpdoWindow:
         self.filtered = set_controller_filters(bus, exact_filters(s.cob_id for s in self.slots))
 
     def watch(self, cob_ids, on_frame) -> None:
-        """On a handle that sees every frame (``virtual``, ``remote``): hand the frames of
-        ``cob_ids`` met while draining or collecting to ``on_frame(cob_id, data, timestamp)``
-        (the devices' heartbeats and EMCY, taken by the loop thread in the order they came
-        with the TPDOs)."""
-        if self.filtered:
-            raise ValueError("TpdoWindow.watch: the handle filters below python-can; use a FrameTap")
+        """Hand the frames of ``cob_ids`` met while draining or collecting to ``on_frame(cob_id,
+        data, timestamp)`` (timestamp None where the handle's own frame path has none), taken by
+        the loop thread in the order they came with the TPDOs.  On a handle that sees every
+        frame (``virtual``, ``remote``) the devices' heartbeats and EMCY; on one filtered below
+        python-can (SocketCAN, ipc) the filter takes ``cob_ids`` too (the devices' EMCY: an EMCY
+        sent before the cycle's TPDOs is queued before them, on the same handle)."""
         self._other = frozenset(cob_ids)
         self._on_other = on_frame
+        if self.filtered:
+            ids = [s.cob_id for s in self.slots] + sorted(self._other)
+            self.filtered = set_controller_filters(self.bus, exact_filters(ids))
 
     def drain(self, queued: bool = True) -> bool:
         """Before the SYNC: take what arrived since the last window (late frames) and reset the
@@ -152,7 +160,7 @@ class TpdoWindow:
             if frame[0] in by_cob:                 # a bus that ignores filters (python-can-remote)
                 late = True
             elif frame[0] in other:
-                self._on_other(frame[0], frame[1], frame[2])
+                self._on_other(frame[0], frame[1], frame[2] if len(frame) > 2 else None)
         for s in self.slots:
             s.count = 0
             s.bad_len = 0
@@ -163,12 +171,15 @@ class TpdoWindow:
         slot's ``snap`` gets its frame's bytes (a slot without a frame keeps the last ones),
         ``snap_count`` the number of frames.  The deadline bounds the wait, not the taking: a
         thread that comes to its TPDOs late (preempted after its SYNC) still takes the frames
-        already queued (at most :data:`LATE_TAKE` per slot past the deadline, without waiting)."""
+        already queued (at most :data:`LATE_TAKE` per slot past the deadline, without waiting).
+        The devices answer a SYNC with their TPDOs in a burst: after a frame the next is read
+        before waiting for one (one wake-up for the burst, not one per frame)."""
         recv = self._recv
         need = len(self.slots)
         arrived = 0
         late_take = LATE_TAKE * need
         by_cob, other = self._by_cob, self._other
+        ready = False
         while arrived < need:
             left = deadline - clock()
             if left <= 0.0:
@@ -176,13 +187,14 @@ class TpdoWindow:
                     break
                 late_take -= 1
                 left = 0.0
-            frame = recv(left)
+            frame = recv(left, ready)
             if frame is None:
                 break
+            ready = True
             s = by_cob.get(frame[0])
             if s is None:
                 if frame[0] in other:
-                    self._on_other(frame[0], frame[1], frame[2])
+                    self._on_other(frame[0], frame[1], frame[2] if len(frame) > 2 else None)
                 continue
             data = frame[1]
             k = len(data)
@@ -239,16 +251,8 @@ class Queued:
 
     @classmethod
     def of(cls, buses) -> "Queued | None":
-        fds = []
-        for bus in buses:
-            try:
-                fd = bus.fileno()
-            except (NotImplementedError, AttributeError, OSError, ValueError):
-                return None
-            if not isinstance(fd, int) or fd < 0:
-                return None
-            fds.append(fd)
-        return cls(fds)
+        fds = descriptors(buses)
+        return None if fds is None else cls(fds)
 
     def mask(self) -> int:
         """Bit i set: handle i (in the order given) has a frame queued, or an error pending."""

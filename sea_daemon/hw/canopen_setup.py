@@ -79,6 +79,8 @@ class NodeSetup:
         self.bus_cfg = bus_cfg
         self.res_load, self.res_motor, self.gear = list(res_load), list(res_motor), list(gear)
         self.period, self.max_permille = period, list(max_permille)
+        #: the drives' RPDO deadline 0x1400:5 [ms] (0: not written, off)
+        self.rpdo_timeout_ms = int(round(bus_cfg.rpdo_timeout_s(period) * 1e3))
         self.rated = bus_cfg.rated_torques(len(self.gear)).tolist()
         self.keepalive = keepalive
 
@@ -196,6 +198,10 @@ class NodeSetup:
         self.map_pdo(network, d, d.rpdo, 1, DRIVE_RPDO_MAP, 0x200 + d.id, DRIVE_RPDO.size,
                      1 if self.bus_cfg.sync_rpdo else 255)
         self.map_pdo(network, d, d.rpdo, 2, (), 0x300 + d.id, None)
+        if self.rpdo_timeout_ms:
+            # RPDO deadline monitoring (CiA 301): no torque command for this long -> EMCY 0x8250 and
+            # the reaction of 0x6007 (quick stop: torque to zero), as for a lost heartbeat
+            self.write(d, 0x1400, 5, self.rpdo_timeout_ms, "RPDO1 event timer (deadline monitoring)")
 
     def configure_encoder(self, network, e) -> None:
         """TPDO1 mapped, TPDO2 disabled."""

@@ -19,6 +19,8 @@ and the device model run on it unchanged, as they do on ``socketcan`` (the produ
   removes the file.  Every member
   sends each frame to each of the others — what a CAN bus does: every node sees every frame but
   its own (``receive_own_messages`` adds one's own).
+* A member sends to each other one on a socket connected to it (made at its first frame, closed
+  when it leaves): no look-up of its path per frame.
 * A frame is 24 bytes: arbitration id, flags (extended, remote, error frame), DLC, 8 data
   bytes, the sender's ``time.time()``.  Classic CAN only (no FD).
 * Sends never block: a member whose receive queue is full (not reading; a UNIX datagram socket
@@ -188,6 +190,7 @@ class IpcBus(can.BusABC):
         self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
         self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
         self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
+        self._conns: dict[str, socket.socket] = {}  # member -> a socket connected to it (send())
         try:
             self._members = self._join(self._sock.bind)
         except BaseException:
@@ -263,6 +266,8 @@ class IpcBus(can.BusABC):
         self._seen = c
         self._peers = peers
         self._dest = {}
+        for peer in [p for p in self._conns if p not in {q for q, _ in peers}]:
+            self._disconnect(peer)                 # a member that left: its connection closed
 
     def _rejoin(self) -> None:
         """The channel's directory went (removed under the members): make it again, bind anew."""
@@ -282,6 +287,7 @@ class IpcBus(can.BusABC):
             sock.close()
 
     def _gone(self, peer: str, stale: bool) -> None:
+        self._disconnect(peer)
         self._peers = [p for p in self._peers if p[0] != peer]
         self._dest = {}
         if stale:                                  # nobody bound to it any more: remove the files
@@ -318,21 +324,63 @@ class IpcBus(can.BusABC):
             return                                 # nobody takes it: nothing to send
         buf = self._buf
         _FRAME.pack_into(buf, 0, can_id, flags, dlc, data, time.time())
-        sendto = self._sock.sendto
+        conns = self._conns
         for peer in dest:
+            conn = conns.get(peer)
+            if conn is None:
+                conn = self._connect(peer)
             try:
-                sendto(buf, socket.MSG_DONTWAIT, peer)
+                if conn is not None:
+                    conn.send(buf, socket.MSG_DONTWAIT)
+                else:
+                    self._sock.sendto(buf, socket.MSG_DONTWAIT, peer)
             except BlockingIOError:
                 self.overruns += 1                 # that member is not reading: its frame is lost
-            except (ConnectionRefusedError, FileNotFoundError) as e:
-                self._gone(peer, isinstance(e, ConnectionRefusedError))
             except OSError as e:
-                if e.errno in (errno.ENOTSOCK, errno.ECONNREFUSED, errno.ENOENT):
-                    self._gone(peer, True)
+                if conn is not None:
+                    # the socket connected to has gone: once more by its path, which tells whether
+                    # the member has gone too (refused, removed) or bound anew (sent)
+                    self._disconnect(peer)
+                    self._send_to_path(buf, peer)
                 else:
-                    raise can.CanOperationError(f"ipc bus {self.channel}: send failed: {e}") from None
+                    self._send_failed(peer, e)
         if self._own:
             self._pending.append(self._decode(bytes(buf)))
+
+    def _connect(self, peer: str):
+        """A socket connected to ``peer`` (a send without the path's lookup), or None when it
+        cannot be connected now (the frame goes by the path, which reports why)."""
+        conn = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            conn.connect(peer)
+        except OSError:
+            conn.close()
+            return None
+        self._conns[peer] = conn
+        return conn
+
+    def _disconnect(self, peer: str) -> None:
+        conn = self._conns.pop(peer, None)
+        if conn is not None:
+            conn.close()
+
+    def _send_to_path(self, buf, peer: str) -> None:
+        try:
+            self._sock.sendto(buf, socket.MSG_DONTWAIT, peer)
+        except BlockingIOError:
+            self.overruns += 1
+        except OSError as e:
+            self._send_failed(peer, e)
+
+    def _send_failed(self, peer: str, e: OSError) -> None:
+        """A send by ``peer``'s path failed: a member gone is dropped (its files removed when no
+        socket is bound to them), anything else is the bus's error."""
+        if isinstance(e, (ConnectionRefusedError, FileNotFoundError)):
+            self._gone(peer, isinstance(e, ConnectionRefusedError))
+        elif e.errno in (errno.ENOTSOCK, errno.ECONNREFUSED, errno.ENOENT):
+            self._gone(peer, True)
+        else:
+            raise can.CanOperationError(f"ipc bus {self.channel}: send failed: {e}") from None
 
     @staticmethod
     def _decode(raw: bytes) -> can.Message:
@@ -395,11 +443,14 @@ class IpcBus(can.BusABC):
                     continue                     # another frame: the queue is read on (no time check)
             return self._decode(raw), True
 
-    def recv_frame(self, timeout: float):
+    def recv_frame(self, timeout: float, ready: bool = False):
         """The cycle's receive path (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`): the next frame
         this member accepts as ``(arbitration id, data)`` — ``data`` a view of a receive buffer
         that the next call overwrites — or None after ``timeout`` seconds (0: only what is
-        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`."""
+        queued).  The same frames as :meth:`recv`, without building a :class:`can.Message`.
+        ``ready``: a frame is probably queued (the rest of a burst): read before waiting or
+        polling (one system call when it is there; a read that finds none then waits as
+        without it)."""
         if self._pending:
             msg = self._pending.pop(0)
             self._pending_ts = msg.timestamp
@@ -409,10 +460,10 @@ class IpcBus(can.BusABC):
             return None
         sock, buf, acc = self._sock, self._rbuf, self._accept
         end = None
-        if timeout <= 0.0 and not self._poll.poll(0):
+        if not ready and timeout <= 0.0 and not self._poll.poll(0):
             return None                      # nothing queued (a poll, not an exception per empty read)
         while True:
-            if timeout > 0.0:
+            if timeout > 0.0 and not ready:
                 # wait first: after a SYNC the answer is not there yet (no exception per frame)
                 if end is None:
                     end = time.monotonic() + timeout
@@ -426,6 +477,11 @@ class IpcBus(can.BusABC):
             try:
                 nb = sock.recv_into(buf, 64, socket.MSG_DONTWAIT)
             except BlockingIOError:
+                if ready:
+                    ready = False            # not there after all: wait (or poll) as without the hint
+                    if timeout <= 0.0:
+                        return None
+                    continue
                 if timeout > 0.0:
                     continue
                 return None
@@ -457,6 +513,8 @@ class IpcBus(can.BusABC):
         if self._closed:
             return
         self._closed = True
+        for peer in list(self._conns):
+            self._disconnect(peer)
         try:
             self._sock.close()
         except OSError:

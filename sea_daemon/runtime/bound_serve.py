@@ -139,7 +139,7 @@ class Server:
         self.cap = views.ring.shape[0]
         # the slot's record is copied into one of the worker's own (the bound's compiled call
         # keeps its arrays from step to step)
-        self.rec = StepRecord.zeros(akf.n)
+        self.rec = StepRecord.zeros(akf.n, getattr(akf, "d", None))     # d: 5n, or 6n with τ̇_h,act
         self.slot_arrays = [bs.slot_arrays(views.ring[i], lay) for i in range(self.cap)]
         self.cpu_total = 0.0
         self.reader = CountReader(heads)

@@ -38,8 +38,8 @@ that it gets the torque that acts over [t_k, t_k+1] — see :mod:`sea_daemon.hw.
 7. pace (``_pace``): sleep until ``t0 + (k+1)·period`` on the monotonic clock; a late wake-up is
    an overrun, and deadlines missed by a whole period or more are skipped (counted), not caught
    up in a burst; a stall of the loop that skipped more deadlines in a row than the hardware's
-   missed-cycle tolerance (``hardware.bus.max_missed_cycles``: the cycles without a sample a
-   missing TPDO may take) latches LOOP_STALL — one within it is survived, and so is a slow first
+   missed-cycle tolerance (``hardware.bus.max_missed_ms`` / ``max_missed_cycles``: the cycles
+   without a sample a missing TPDO may take) latches LOOP_STALL — one within it is survived, and so is a slow first
    cycle of a run (its start-up); lock-step runs (``realtime=False``) do not sleep
 
 No allocation beyond what numpy's small ops do, no logging calls, no locks on the path: the
@@ -159,8 +159,9 @@ class FixedRateLoop:
     hands it the cycle's sample at the end of the cycle (``flush``), logs the cycle of the sample
     whose ρ it published (``bound_cycle``) and latches BOUND_LOST when it reports a fault (the
     worker died or fell a whole ring behind).  ``stall_cycles``: the deadlines the loop may skip in
-    a row before LOOP_STALL latches (None: the hardware's ``bus_cfg.max_missed_cycles`` where it
-    has one, else no such fault).
+    a row before LOOP_STALL latches (None: the hardware's missed-cycle tolerance, its
+    ``stall_cycles`` — ``hardware.bus.max_missed_ms`` / ``max_missed_cycles`` at the loop's
+    period — where it has one, else no such fault).
     """
 
     def __init__(self, hw: HardwareInterface, estimator: Estimator | None, controller: Controller, n: int,
@@ -184,6 +185,8 @@ class FixedRateLoop:
         self.publisher = publisher
         self.bound_link = bound_link
         self._bound_fault_seen = False
+        if stall_cycles is None:
+            stall_cycles = getattr(hw, "stall_cycles", None)
         if stall_cycles is None:
             stall_cycles = getattr(getattr(hw, "bus_cfg", None), "max_missed_cycles", None)
         self.stall_cycles = None if stall_cycles is None else int(stall_cycles)
@@ -502,7 +505,7 @@ class FixedRateLoop:
                     # start-up — the first calls into the estimator and the publisher — aside)
                     self._trip(Fault.LOOP_STALL, k - 1, now,
                                f"the loop stalled {late * 1e3:.1f} ms: {skip} cycles skipped in a row, "
-                               f"{self.stall_cycles} tolerated (hardware.bus.max_missed_cycles)")
+                               f"{self.stall_cycles} tolerated (hardware.bus.max_missed_ms / max_missed_cycles)")
             if sup.overrun(True, k - 1, now):
                 self._latched()
         else:

@@ -104,10 +104,15 @@ def score_joints(log, est, bound: bool = False) -> dict:
             "joints": [_joint_stats(e[:, j], r.tau_h_act_bound[:, j], v, bound) for j in range(e.shape[1])]}
 
 
-def calibrate_plant(cal, pd, row: dict):
-    """The calibration of plant ``pd`` on its log ``cal`` (its declared subject and working range);
-    ``row["calibration_s"]`` its time, or, for an internal error (a benchmark result), None and
-    ``row["calibration_error"]``."""
+def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
+    """The calibration of plant ``pd`` on its log ``cal`` (its declared subject and working range)
+    with the filter's τ_h,act model ``tau_model`` (``estimator.tau_h_act_model``; None: the plant's
+    configured one); ``row["calibration_s"]`` its time, or, for an internal error (a benchmark
+    result), None and ``row["calibration_error"]``."""
+    nom = pd.nominal
+    if tau_model is not None:
+        pd = dataclasses.replace(pd, nominal=dataclasses.replace(
+            nom, estimator=nom.estimator.with_tau_model(tau_model, nom.joints)))
     try:
         t0 = time.perf_counter()
         res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
@@ -121,16 +126,16 @@ def calibrate_plant(cal, pd, row: dict):
 
 
 def run_plant_joints(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
-                     rate_hz: float | None = None, names=None) -> dict:
+                     rate_hz: float | None = None, names=None, tau_model: str = "walk") -> dict:
     """Calibrate two-joint plant ``seed`` once and run every estimator on every test session."""
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs_joints(seed, cal_s, cache, rate_hz)
     if names is not None:
         tests = {k: v for k, v in tests.items() if k in names}
-    row: dict = {"seed": seed, "joints": 2, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
+    row: dict = {"seed": seed, "joints": 2, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary, "tau_h_act_model": tau_model,
                  "session_kinds": {sp.name: sp.kind for sp in sessions_joints(pd)}, "simulation_s": time.perf_counter() - t0}
     t0 = time.perf_counter()
-    res = calibrate_plant(cal, pd, row)
+    res = calibrate_plant(cal, pd, row, tau_model)
     if res is None:
         return row
     rep = res.report
@@ -235,7 +240,7 @@ def run_joints(args, seeds, rates, names, est, out: Path, cache, summarize, by_r
     print(f"bench generalize --joints 2: seeds held out {roles['held_out'] or 'none'}; development seeds "
           f"{roles['development'] or 'none'}; {len(seeds)} plants, rates {args.rates or '100 Hz'}, calibration "
           f"{args.cal_s:g} s, estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
-    jobs = [(s, args.cal_s, cache, est, args.bound, r, names) for s in seeds for r in rates]
+    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model) for s in seeds for r in rates]
     rows = []
     with mp.get_context("fork").Pool(max(1, min(args.jobs, len(jobs)))) as pool:
         for row in pool.imap_unordered(_job, jobs):

@@ -226,7 +226,10 @@ def bench_rig(args, cfg, scen: str, tmp: Path, procs: list):
     One joint: the passive scenario's plant; more: ``cfg``'s plant at :data:`Q0` (no subject)."""
     dev_cpu = args.cpus[2] if getattr(args, "cpus", None) and len(args.cpus) > 2 else None
     deadline_ms = args.tpdo_deadline * cfg.dt * 1e3
-    timing = {"pdo_timeout_ms": deadline_ms, "max_missed_cycles": args.max_missed}
+    timing = {"pdo_timeout_ms": deadline_ms}
+    if args.max_missed is not None:               # else the configuration's tolerance (a duration)
+        timing["max_missed_cycles"] = args.max_missed
+        timing["max_missed_ms"] = None
     if args.bus == "virtual":
         if cfg.joints == 1:
             rig = make_rig(cfg, device_model=scen, phase="estimation")

@@ -97,6 +97,9 @@ def add_arguments(p) -> None:
     p.add_argument("--joints", type=int, default=1,
                    help="1 (the one-joint family) or 2 (the two-joint shoulder-elbow family, "
                         "sea_daemon.apps.bench._family_joints; ratios per joint); default 1")
+    p.add_argument("--tau-model", choices=("walk", "integrated"), default="walk",
+                   help="the filter's model of the subject's torque (estimator.tau_h_act_model): walk (default) or "
+                        "integrated (tracks its rate too; docs/bounds.md §6)")
     p.add_argument("--cases", default=None,
                    help="with --degenerate: comma list of " + ", ".join(DEGENERATE) + " (default all of them) and "
                         + REFERENCE + " (the calibration excitation for --cal-s s, for comparison)")
@@ -145,18 +148,19 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
 
 
 def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
-              rate_hz: float | None = None) -> dict:
-    """Calibrate plant ``seed`` (at ``rate_hz``, default its own) once and run every estimator
-    on every test session."""
+              rate_hz: float | None = None, tau_model: str = "walk") -> dict:
+    """Calibrate plant ``seed`` (at ``rate_hz``, default its own; the filter's τ_h,act model
+    ``tau_model``) once and run every estimator on every test session."""
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs(seed, cal_s, cache, rate_hz)
     t_sim = time.perf_counter() - t0
     row: dict = {"seed": seed, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
                  "session_kinds": {sp.name: sp.kind for sp in sessions(pd)}}
     t0 = time.perf_counter()
-    res = calibrate_plant(cal, pd, row)
+    res = calibrate_plant(cal, pd, row, tau_model)
     if res is None:
         return row
+    row["tau_h_act_model"] = tau_model
     row["calibration"] = calibration_row(res.report)
     do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
     row["sessions"] = run_sessions(res, pd.nominal, pd.true, tests, estimators, do_bound)
@@ -315,8 +319,8 @@ def by_rate(rows: list[dict]) -> dict:
 
 
 def _job(args):
-    seed, cal_s, cache, est, bound, rate, names = args
-    row = run_plant(seed, cal_s, cache, est, bound, rate)
+    seed, cal_s, cache, est, bound, rate, names, tau_model = args
+    row = run_plant(seed, cal_s, cache, est, bound, rate, tau_model)
     if names is not None and "sessions" in row:
         row["sessions"] = {k: v for k, v in row["sessions"].items() if k in names}
     return row
@@ -376,8 +380,8 @@ def run(args) -> int:
         return run_joints(args, seeds, rates, names, est, out, cache, summarize, by_rate)
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), rates "
           f"{args.rates or 'of the seeds'}, calibration {args.cal_s:g} s, estimators {', '.join(est)}, "
-          f"bound {args.bound}; {machine()}", flush=True)
-    jobs = [(s, args.cal_s, cache, est, args.bound, r, names) for s in seeds for r in rates]
+          f"bound {args.bound}, tau_h_act model {args.tau_model}; {machine()}", flush=True)
+    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model) for s in seeds for r in rates]
     rows = _pool(jobs, _job, args.jobs, _print_row, out, "plants calibrated and tested")
     rows.sort(key=lambda r: (r["seed"], r.get("rate_hz", 0.0)))
     summary = summarize(rows)

@@ -69,7 +69,7 @@ from sea_daemon.apps.bench._loop_rig import (
     joints_plant, trained_estimator)
 from sea_daemon.hw.busload import measured_load
 from sea_daemon.core.log import DaemonColumns
-from sea_daemon.runtime.loop import Series
+from sea_daemon.apps.bench._loop_stages import stage_timers
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.rates import at_rate
@@ -115,8 +115,10 @@ def add_arguments(p) -> None:
                    help="SCHED_FIFO priority of the device model's process (ipc, remote; 0: do not)")
     p.add_argument("--tpdo-deadline", type=float, default=0.6,
                    help="TPDOs collected until this fraction of the period after the SYNC (default 0.6)")
-    p.add_argument("--max-missed", type=int, default=3,
-                   help="cycles in a row a late TPDO may be held before TPDO_MISSING latches (default 3)")
+    p.add_argument("--max-missed", type=int, default=None,
+                   help="cycles in a row without a sample (a late TPDO held, or deadlines the loop skipped) "
+                        "before TPDO_MISSING / LOOP_STALL latches (default: the configuration's missed-cycle "
+                        "tolerance, hardware.bus.max_missed_ms: 9 cycles at 1 kHz)")
     p.add_argument("--stages", action="store_true",
                    help="also time each stage of the cycle (read, controller, write, estimator and its bound, "
                         "publication) with the loop thread's CPU clock; the wrappers add about 1 us each")
@@ -176,42 +178,6 @@ class ReceiveThreadsCpu:
         return sum(time.clock_gettime(c) for c in self.clocks)
 
 
-class _Stages:
-    """Thread CPU time of each stage of the cycle: the stage's method on its object replaced by a
-    wrapper that reads the thread's CPU clock around the call (an instance attribute: the class
-    and other instances are untouched); the times go into resident buffers for ``calls`` calls
-    (:class:`~sea_daemon.runtime.loop.Series`: no page fault added to the cycle)."""
-
-    def __init__(self, calls: int = 1024):
-        self.times: dict[str, Series] = {}
-        self.calls = calls
-
-    def wrap(self, label: str, obj, name: str) -> None:
-        if obj is None or not hasattr(obj, name):
-            return
-        f = getattr(obj, name)
-        acc = self.times.setdefault(label, Series(self.calls))
-        clock = time.thread_time
-
-        def timed(*a, **k):
-            c0 = clock()
-            try:
-                return f(*a, **k)
-            finally:
-                acc.append(clock() - c0)
-        setattr(obj, name, timed)
-
-    def summary(self, skip: int) -> dict:
-        """Median / p99 [µs] per stage over the calls after the first ``skip``."""
-        out = {}
-        for label, v in self.times.items():
-            v = np.asarray(v, dtype=float)[skip:]
-            if v.size:
-                out[label] = {"median": float(np.median(v) * 1e6), "p99": float(np.percentile(v, 99) * 1e6),
-                              "calls": int(v.size)}
-        return out
-
-
 @dataclasses.dataclass
 class _Measured:
     """What one bench run measured (:func:`_measure`), for the figures and the report."""
@@ -223,7 +189,7 @@ class _Measured:
     rx_cpu: np.ndarray             # the receive threads' CPU clock at each cycle's end [s]
     probe: dict                    # cycle -> the loop thread's (minor, major) page faults
     dev_stats: dict | None         # the device model's answer statistics
-    stages: Any                    # _Stages, or None
+    stages: Any                    # Stages, or None
     max_age: int                   # the worker's oldest bound [cycles]
     compute: np.ndarray            # the log's compute column [s]
     read_s: np.ndarray             # the log's read column [s]
@@ -233,6 +199,8 @@ class _Measured:
 def _bad_args(args) -> str | None:
     if args.cycles < 100:
         return "--cycles must be >= 100"
+    if args.max_missed is not None and not 0 <= args.max_missed <= 1000:
+        return f"--max-missed must be in 0..1000, got {args.max_missed}"
     if not 0.05 <= args.tpdo_deadline <= 50:
         return "--tpdo-deadline must be in 0.05..50 (fraction of the period)"
     if args.host_rounds < 0:
@@ -347,7 +315,7 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     bound_in = cfg.estimator.bound_in if args.bound_in == "auto" else args.bound_in
     max_age = cfg.estimator.bound_max_age if args.bound_max_age is None else args.bound_max_age
     in_worker = bound_in in ("auto", "worker") and not args.no_bound
-    stages = _stage_timers(n_cycles, rig, controller, estimator, publisher, in_worker) if args.stages else None
+    stages = stage_timers(n_cycles, rig, controller, estimator, publisher, in_worker) if args.stages else None
     try:
         res = serve(rig, estimator, controller, cfg.joints, cfg.dt, tmp / "run.csv", cycles=n_cycles, realtime=True,
                     progress=progress, rt_priority=args.rt_priority, record_periods=True, label="bench",
@@ -362,18 +330,6 @@ def _measure(args, cfg, scen: str, tmp: Path, estimator) -> _Measured:
     cols = DaemonColumns.of(log)
     return _Measured(res, rig, n_cycles, k_faults, rx_cpu, probe, dev_stats, stages, max_age,
                      cols.compute, cols.read, publisher)
-
-
-def _stage_timers(n_cycles: int, rig, controller, estimator, publisher, in_worker: bool) -> "_Stages":
-    stages = _Stages(n_cycles + 10)
-    for label, obj, name in (("read", rig.hw, "read"), ("controller", controller, "update"),
-                             ("write", rig.hw, "write"), ("actuated", rig.hw, "actuated"),
-                             ("estimator (with its bound)" if not in_worker else
-                              "estimator (filter, bound handed to the worker)", estimator, "update"),
-                             ("bound", None if in_worker else getattr(estimator, "bound", None), "step"),
-                             ("publication", publisher, "publish")):
-        stages.wrap(label, obj, name)
-    return stages
 
 
 def _bus_load(args, dev_stats: dict | None, pub_can: dict) -> tuple[float, float, float]:
@@ -433,6 +389,12 @@ def _worker_figures(res, n_cycles: int, dt: float) -> dict | None:
     }
 
 
+def _rpdo_ms(hw) -> float:
+    """The drives' RPDO deadline the driver wrote [ms] (0: off)."""
+    sub = (getattr(hw, "subs", None) or [hw])[0]
+    return float(getattr(sub, "rpdo_timeout", 0.0)) * 1e3
+
+
 def _figures(args, cfg, m: _Measured, host: dict) -> dict:
     """The JSON summary's figures of the run; ``host``: the machine's load and wake-up figures
     before and after it."""
@@ -451,6 +413,8 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
         "bound_in": (res.extra.get("bound") or {}).get("where", "loop"),
         "bound_worker": _worker_figures(res, n_cycles, dt), "rt_budget": rt_budget(),
         "kinematics_window": cfg.kinematics.window, "tpdo_deadline_us": args.tpdo_deadline * dt * 1e3 * 1e3,
+        "missed_cycle_tolerance": {"cycles": int(getattr(hw, "max_missed", -1)),
+                                   "rpdo_timeout_ms": _rpdo_ms(hw)},
         **host,
         "jitter_us": _pcts(np.abs(periods - dt)),
         "daemon_cpu_us": _pcts(own_cpu), "loop_thread_cpu_us": _pcts(loop_cpu), "rx_thread_cpu_us": _pcts(rx),
@@ -505,8 +469,10 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
     ctl = "passive-scenario PID" if cfg.joints == 1 else f"{cfg.joints} joints, a PD per joint"
     print(f"{args.rate} Hz (kinematics window {cfg.kinematics.window}), {out['hardware']}; {what}; bound: "
           f"{out['bound']} every cycle, {where}; {ctl}; real-time pace; {res.realtime}")
+    tol = out["missed_cycle_tolerance"]
     print(f"measured {n_cycles} cycles ({out['cycles_measured']} periods), TPDO deadline "
-          f"{out['tpdo_deadline_us']:.0f} us after SYNC, "
+          f"{out['tpdo_deadline_us']:.0f} us after SYNC, missed-cycle tolerance {tol['cycles']} cycles, "
+          f"drives' RPDO deadline {tol['rpdo_timeout_ms']:g} ms, "
           f"OVERRUN_STREAK fault {'on' if args.overrun_fault else 'off'}, fault state at the end: {out['fault']}"
           + (f" (latched at cycle {res.supervisor.latched_cycle}: the cycles after it do not estimate)"
              if out['fault'] != 'NONE' else ""))

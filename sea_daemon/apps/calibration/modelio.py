@@ -135,7 +135,9 @@ def summary(result) -> dict:
     if "q_tau" in walk:
         h = walk["human"]
         q = ", ".join(f"{v:.3g}" for v in walk.get("q_tau_per_joint", [walk["q_tau"]]))
-        lines.append(f"Active-torque random walk {q} N^2 m^2/s{' (per joint)' if ', ' in q else ''}, chosen for a subject torque of "
+        what = ("Active-torque rate random walk (integrated walk)", "N^2 m^2/s^3") \
+            if cfg.estimator.tau_h_act_model == "integrated" else ("Active-torque random walk", "N^2 m^2/s")
+        lines.append(f"{what[0]} {q} {what[1]}{' (per joint)' if ', ' in q else ''}, chosen for a subject torque of "
                      f"{h['band_hz'][0]:g}-{h['band_hz'][1]:g} Hz at {h['rms']:g} N m RMS.")
     lines.append(f"What the physical model leaves: {rep['leftover']['rms']:.3g} N m RMS; residual GP "
                  f"{'kept' if rep.get('gp_kept') else 'not used (it did not predict the leftover better than zero on held-out parts of the log)'}.")

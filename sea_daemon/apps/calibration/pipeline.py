@@ -43,6 +43,7 @@ from sea_daemon.analysis.diagnose.prepare import prepare_log
 from sea_daemon.analysis.noise import choose_kinematics, measurement_noise, motor_torque_noise
 from sea_daemon.analysis.sufficiency import Sufficiency, assess, at_config_rate, decimate_by, finite
 from sea_daemon.core.bounds.floor import floor_record, wearer_rate
+from sea_daemon.apps.calibration.tau_model import declared_inputs, walk_scale
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.estimators.calibrated import CalibratedGPAKF, make_calibrated
@@ -139,13 +140,12 @@ def _replace_est(cfg: ModelConfig, **kw) -> ModelConfig:
 
 
 def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
-    """Estimator keys of the process noise: angles 1e-16 per step (conditioning), velocities
-    through the motor-torque noise only, τ_h,act random walk q_τ [N² m²/s] × dt (one q_τ, or one per joint)."""
-    n = cfg.joints
-    dt = cfg.dt
-    S = np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n),
-                                np.broadcast_to(np.asarray(q_tau, dtype=float) * dt, (n,))]))
-    return {"Sigma_nom": S, "Sigma_nom_dt": dt}
+    """Estimator keys of the process noise: angles 1e-16 per step (conditioning), velocities through the motor-torque
+    noise only, the walk q_τ × dt (one, or one per joint) of τ_h,act [N² m²/s] or, integrated, of τ̇_h,act [N² m²/s³]."""
+    n, dt = cfg.joints, cfg.dt
+    q = np.broadcast_to(np.asarray(q_tau, dtype=float) * dt, (n,))
+    walk = [np.zeros(n), q] if cfg.estimator.tau_h_act_model == "integrated" else [q]
+    return {"Sigma_nom": np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n), *walk])), "Sigma_nom_dt": dt}
 
 
 def with_R(cfg: ModelConfig, R: np.ndarray) -> ModelConfig:
@@ -228,7 +228,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
     active, synth_note = _synthetic_logs(cfg, log, human, sigma_u, T, opts, gp, v_gate, var_ref)
     scan = _WalkScan(cfg, gp, opts, tune_eps, v_gate, var_ref, tick)
-    q0 = declared_walk(human)
+    q0 = declared_walk(human) * walk_scale(cfg, human)
     eps = scan.best_eps(q0, passive)
     qt = scan.best_walk(eps, active, q0) if active else q0
     if cfg.joints > 1 and active:           # each joint's walk from its own errors
@@ -316,7 +316,7 @@ class _WalkScan:
         """q_τ on the synthetic sessions at ``eps``: decades of the grid, then the half-decades
         around the best; the smallest within 2 % of the best RMS (``q0`` when every replay
         faulted)."""
-        grid = np.asarray(self.opts.q_tau_grid, dtype=float)
+        grid = np.asarray(self.opts.q_tau_grid, dtype=float) * walk_scale(self.cfg, self.opts.human)
         for q in grid[::2]:
             self.evaluate(q, eps, active)
 
@@ -437,7 +437,7 @@ def calibrate(log: MeasuredLog, cfg: ModelConfig, given: set[str] | None = None,
     cfg = _walk(log, cfg, given, opts, gp, report, tune_eps=suff.identifies("sign_eps"),
                 tick=None if progress is None else (
                     lambda runs: progress(4, len(STEPS), f"{STEPS[4]} ({runs} filter runs)")))
-    cfg = _replace_est(cfg, tau_h_act_rate=cfg.estimator.tau_h_act_rate or opts.human.rate)
+    cfg = declared_inputs(cfg, opts.human)
     report["bound_floor"] = floor_record(cfg, opts.human.band_hz, opts.human.rms)
     # the τ_h,act walk off the covered region (core/estimators/calibrated.py) is left as configured
     # (default 0: the chosen q_τ everywhere; docs/calibration.md says why)

@@ -65,7 +65,7 @@ def run(args) -> int:
            "operating_point": {"x": res["x_op"].tolist(), "tau_m": res["u_op"].tolist()}}
     Q = np.array(res["Q"])
     if args.with_q:
-        Q[np.diag_indices(5 * n)] = np.maximum(np.diag(Q), R_FLOOR)
+        Q[np.diag_indices(Q.shape[0])] = np.maximum(np.diag(Q), R_FLOOR)
         out["Q"] = np.diag(Q).tolist() if not args.full else Q.tolist()
     if args.write:
         # Sec. V-B: P0's measurement block set to the measurement noise R

@@ -28,7 +28,8 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
 * without declared effects ε and η depend on x only through q and (q, q̇): the set they are
   bounded over is T·C_{k−1} with s = χ²_m(1 − δ_N), m = n (no GP) or 2n, not s_d = χ²_5n
 * declared human-torque rate r = ``estimator.tau_h_act_rate`` (docs/bounds.md §6),
-  |dτ_h,act/dt| ≤ r: one more bounded input, Γ_τ box(r), Γ_τ = ∫₀^dt e^{As} ds E_τ
+  |dτ_h,act/dt| ≤ r: one more bounded input, Γ_τ box(r), Γ_τ = ∫₀^dt e^{As} ds E_τ; the integrated
+  walk's (``tau_h_act_model``) |d²τ_h,act/dt²| ≤ a = ``tau_h_act_accel`` instead, E_τ̇ (its τ̇ rows)
 * X̂_k⁻ = F X̂ Fᵀ ⊕ Γ_μ box(η) ⊕ Γ_τ box(r) ⊕ Φ box(b);  X̂_k = (I − K H) X̂⁻ (I − K H)ᵀ;  ρ_k.
 * the range form (zonotope sets): the declared Coulomb/Stribeck friction and the GP mean
   linearised at zero slope instead of the filter's — the set propagated with the filter's
@@ -37,12 +38,11 @@ Per step (k−1 → k), with u the applied input and ẑ's measured q̈ held:
   plus the slope times the Gaussian part's extent (:mod:`.friction_range`, which also keeps a
   share of the friction's slope where that damps the set, and :meth:`_gp_range_candidate`);
   per step the form with the narrower τ_h,act half-width after (I − KH) is kept.
-* the Gaussian part: P_g (:mod:`.gaussian_part`), the filter's P without the GP's variance and
-  a declared rate's walk, for C_{k−1} and ρ_k.
+* the Gaussian part: P_g (:mod:`.gaussian_part`), the filter's P without the GP's variance and a declared input's walk.
 
-Plain AKF: no GP term, δ_N = δ, a declared ``estimator.model_error`` e enters as Γ_μ box(e).
-GP-AKF: δ_GP (default δ/2) for the GP constants (:func:`~.calibration.gp_constants`), ρ holding
-with probability ≥ 1 − δ; steps whose z leaves their input box: ``gp_box_violations_``.
+Plain AKF: no GP term, δ_N = δ, a declared ``estimator.model_error`` e enters as Γ_μ box(e). GP-AKF: δ_GP
+(default δ/2) for the GP constants (:func:`~.calibration.gp_constants`), ρ holding with probability ≥ 1 − δ;
+steps whose z leaves their input box: ``gp_box_violations_``.
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import box_level, gp_constant_levels, levels_of, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    GENERATOR_ORDER, REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
+    GENERATORS_PER_JOINT, REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
 from sea_daemon.core.bounds import bound_core, rigid_box
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
@@ -90,7 +90,8 @@ class AKFTheoremBound:
             raise ValueError(f"gp_beta must be 'lederer' or a number > 0, got {gp_beta!r}")
         self.gp_beta = gp_beta
         n, d = akf.n, akf.d
-        self._init_rate(getattr(est_cfg, "tau_h_act_rate", 0.0) if tau_h_act_rate is None else tau_h_act_rate)
+        key = "tau_h_act_accel" if akf.layout.integrated else "tau_h_act_rate"   # the τ_h,act model's declared input
+        self._init_rate(getattr(est_cfg, key, 0.0) if tau_h_act_rate is None else tau_h_act_rate)
         delta = akf.delta if delta is None else float(delta)
         has_gp = akf.residual is not None
         if delta_gp is None:
@@ -103,9 +104,9 @@ class AKFTheoremBound:
         filt = (has_gp and self.gp_beta != "lederer") if filter_gaussian is None else filter_gaussian
         drop = not filt and self.tau_h_act_rate > 0
         self.gauss = GaussianPart(akf, not filt and (has_gp or drop), drop)
-        self.sm = SetMembershipBound(d, np.arange(4 * n, 5 * n), delta, delta_gp=delta_gp if has_gp else 0.0,
+        self.sm = SetMembershipBound(d, akf.layout.tau_idx, delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
-                                     sets=sets, max_generators=GENERATOR_ORDER * d)
+                                     sets=sets, max_generators=GENERATORS_PER_JOINT * n)
         # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
         self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._init_geometry(has_gp, n_dirs, seed)
@@ -118,29 +119,28 @@ class AKFTheoremBound:
                        and (not has_gp or residual_gps(akf) is not None))
         # declared Coulomb/Stribeck friction: the bounded-range alternative of the linearisation
         # error (friction_range.FrictionRange; docs/bounds.md §4 "The range form")
-        self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets)
+        self.friction = FrictionRange(akf.model, None if akf.model.rigid is not None else akf.tables, sets,
+                                      d - 5 * n)
         self.friction.choose_every = self.sm.reduce_every      # its slope rule chosen every 50 ms
         self.range_steps_ = 0           # steps whose set of means took the range candidate
-        self.eta_ = np.zeros(n)                  # GP error alone, max over the points (N m)
-        self.gp_lin_err_ = np.zeros(n)           # GP mean's linearisation error alone (N m)
+        self.eta_, self.gp_lin_err_ = np.zeros(n), np.zeros(n)   # GP error alone, GP mean's linearisation error alone (N m)
         self.lin_err_ = np.zeros(d)              # nominal model's linearisation-error box (ẋ units)
         # the Python step's X⁻ inputs as taken (F, Γ, η, b, Φ), for terms.TermShadow (docs/bounds.md)
         self.prior_inputs_ = None
 
     def _init_rate(self, tau_h_act_rate) -> None:
-        """The declared |dτ_h,act/dt| ≤ r [N m/s] beyond the random walk and its work arrays."""
+        """The declared input of the τ_h,act model and its work arrays: the walk's |dτ_h,act/dt| ≤ r [N m/s] (τ_h,act
+        rows) or the integrated walk's |d²τ_h,act/dt²| ≤ a [N m/s²] (τ̇_h,act rows); :attr:`tau_h_act_rate` holds it."""
         n, d = self.akf.n, self.akf.d
-        if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate)
-                and tau_h_act_rate >= 0):
+        if not (isinstance(tau_h_act_rate, (int, float)) and math.isfinite(tau_h_act_rate) and tau_h_act_rate >= 0):
             raise ValueError(f"tau_h_act_rate must be a finite number >= 0 [N m/s], got {tau_h_act_rate!r}")
         self.tau_h_act_rate = float(tau_h_act_rate)
         self._E_tau = np.zeros((d, n))
-        self._E_tau[4 * n:, :] = np.eye(n)
+        self._E_tau[self.akf.layout.rate_idx, np.arange(n)] = 1.0
         self._aug_tau = np.zeros((d + n, d + n))         # zoh work matrix
         self._Ezoh_tau = np.zeros((d + n, d + n))        # e^{[[A, E_τ], [0, 0]] dt}
         self._Gam_tau = self._Ezoh_tau[:d, d:]           # Γ_τ of the step (a view)
-        self._Gam_all = np.zeros((d, 2 * n))             # [Γ_μ | Γ_τ]
-        self._eta_all = np.zeros(2 * n)                  # [η | r]
+        self._Gam_all, self._eta_all = np.zeros((d, 2 * n)), np.zeros(2 * n)     # [Γ_μ | Γ_τ], [η | r]
         self._rate = np.full(n, self.tau_h_act_rate)     # r per joint (plain AKF: the only bounded input)
 
     def _init_model_error(self, est_cfg, has_gp: bool) -> None:
@@ -468,8 +468,8 @@ class AKFTheoremBound:
         Phi = self._phi(record.A_k, b, dt, record.Gamma_mu)
         Gam = record.Gamma_mu
         if self.tau_h_act_rate > 0:
-            # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] beyond the random walk, held over the step:
-            # Γ_τ = ∫₀^dt e^{A s} ds E_τ (its τ rows are exactly dt I), one more bounded input
+            # docs/bounds.md §6: τ̇_h,act ∈ [−r, r] (integrated: τ̈_h,act ∈ [−a, a]) beyond the walk, held over
+            # the step: Γ_τ = ∫₀^dt e^{A s} ds E_τ (E_τ̇), one more bounded input
             zoh(record.A_k, self._E_tau, float(dt), self._aug_tau, self._Ezoh_tau)
             n = akf.n
             if eta is None:

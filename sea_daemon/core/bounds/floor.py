@@ -189,12 +189,18 @@ def floor_record(cfg: ModelConfig, band_hz: tuple[float, float] | None = None, r
     """The floor for the calibration's report and summaries (:meth:`BoundFloor.to_dict`): for
     the declared rate the bound rests on and, given the wearer's band [Hz] and RMS [N m], also
     for the same wearer's |d²τ_h,act/dt²| ≤ (2π f_max)² √2 RMS (``band_limited``: what a filter
-    that tracks τ̇_h,act could be held to).  None without a declared rate."""
+    that tracks τ̇_h,act could be held to; with the integrated walk and a declared
+    ``tau_h_act_accel``, for that one, and ``integrated`` true: the floor of the filter's own bound).
+    None without a declared rate."""
     f = bound_floor(cfg)
     if f is None:
         return None
     out = f.to_dict()
-    if band_hz is not None and rms is not None and rms > 0:
+    est = cfg.estimator
+    if est.tau_h_act_model == "integrated" and est.tau_h_act_accel > 0:
+        out["band_limited"] = bound_floor(cfg, accel=est.tau_h_act_accel).to_dict()
+        out["integrated"] = True
+    elif band_hz is not None and rms is not None and rms > 0:
         out["band_limited"] = bound_floor(cfg, accel=wearer_accel(band_hz, rms)).to_dict()
     return out
 
@@ -210,7 +216,10 @@ def floor_line(rec: dict | None) -> str | None:
             f"one encoder count for {1e3 * min(rec['hidden_s']):.2g} ms, so a smaller bound cannot hold for every "
             f"wearer so declared.")
     bl = rec.get("band_limited")
-    if bl:
+    if bl and rec.get("integrated"):
+        line += (f" The filter tracks dtau_h,act/dt and its bound rests on |d2tau_h,act/dt2| <= {bl['tau_h_act_accel']:.3g} "
+                 f"N m/s^2: for that declaration it is {', '.join(f'{v:.3g}' for v in bl['rho'])} N m.")
+    elif bl:
         line += (f" For the declared band (|d2tau_h,act/dt2| <= {bl['tau_h_act_accel']:.3g} N m/s^2) it would be "
                  f"{', '.join(f'{v:.3g}' for v in bl['rho'])} N m, but the filter models the torque as a random walk "
                  f"and its bound rests on the rate alone.")

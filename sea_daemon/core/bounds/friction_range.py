@@ -45,7 +45,7 @@ class FrictionRange:
     the same for :func:`~sea_daemon.core.model_core.lin_error_boxes`.
     """
 
-    def __init__(self, model, tables, sets: str):
+    def __init__(self, model, tables, sets: str, state_extra: int = 0):
         """The declared Coulomb/Stribeck effects grouped per (side, joint): [(ℓ, c, [(code, p)])]
         with v = ℓᵀx the group's velocity (load: q̇_j = θ̇_m,j + θ̇_s,j; motor: θ̇_m,j) and c the
         column through which its torque τ_g(v) enters ẋ (load: −I_θ̈s M⁻¹e_j, eq:unknwn_load with
@@ -54,7 +54,8 @@ class FrictionRange:
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
         compiled vocabulary: ``tables`` None for a model without a rigid body).  A rigid body's
         (``model.urdf``) M(q) varies: its load groups' c is taken at q̂ each step and its boxes are
-        sampled on f_nom in Python (``tables`` None, :meth:`_rigid_boxes`)."""
+        sampled on f_nom in Python (``tables`` None, :meth:`_rigid_boxes`).  ``state_extra``: the
+        states after the 5n (n with τ̇_h,act, core.model.StateLayout), which no friction enters."""
         self.groups, self.arrays = [], None
         self.tables = tables
         self.model = model
@@ -65,7 +66,7 @@ class FrictionRange:
         self._w_chosen = np.zeros(0)      # the widths w_g when the rule was chosen
         if sets != "zonotope" or (tables is None and getattr(model, "rigid", None) is None):
             return
-        n, d = model.n, 5 * model.n
+        n, d = model.n, 5 * model.n + int(state_extra)
         groups = {}
         for side, effs in (("load", model.load_effects), ("motor", model.motor_effects)):
             for e in effs:

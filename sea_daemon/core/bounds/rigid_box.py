@@ -36,12 +36,13 @@ def applies(model) -> bool:
             and not (model.load_effects or model.motor_effects or model.spring_effects or model.backlash))
 
 
-def rigid_map(model) -> np.ndarray:
-    """W (3n, 5n): x → w = (q, q̇, τ), τ = :func:`~sea_daemon.core.dynamics.load_side_torque` (linear
-    in x without declared effects: its columns are its values at the unit vectors)."""
+def rigid_map(model, d: int | None = None) -> np.ndarray:
+    """W (3n, d): x → w = (q, q̇, τ), τ = :func:`~sea_daemon.core.dynamics.load_side_torque` (linear
+    in x without declared effects: its columns are its values at the unit vectors); d = 5n, or 6n
+    with τ̇_h,act (which w does not depend on: zero columns)."""
     n = model.n
+    W = np.zeros((3 * n, 5 * n if d is None else int(d)))
     d = 5 * n
-    W = np.zeros((3 * n, d))
     W[:n, :n] = W[:n, n:2 * n] = np.eye(n)
     W[n:2 * n, 2 * n:3 * n] = W[n:2 * n, 3 * n:4 * n] = np.eye(n)
     f = np.zeros(n)
@@ -85,10 +86,10 @@ def rigid_error_box(Wp, ddq, D, margin, b):
 class RigidBox:
     """The box of one model (module docstring): W, the point directions, work arrays."""
 
-    def __init__(self, model, U: np.ndarray, margin: float, s_z: float = 0.0):
+    def __init__(self, model, U: np.ndarray, margin: float, s_z: float = 0.0, d: int | None = None):
         self.model = model
         self.n = model.n
-        self.W = rigid_map(model)
+        self.W = rigid_map(model, d)
         self.U = np.ascontiguousarray(U, dtype=float)
         self.margin = float(margin)
         self.s_z = float(s_z)          # χ²_3n(1 − δ_N): the Gaussian part's quantile of W·C
@@ -103,7 +104,7 @@ class RigidBox:
             return None
         n = model.n
         return cls(model, unit_directions(3 * n, n_dirs, seed), sm.margin,
-                   chi2_quantile(1.0 - sm.delta_noise, 3 * n))
+                   chi2_quantile(1.0 - sm.delta_noise, 3 * n), sm.d)
 
     def box(self, x0, G, P0, s: float, b: np.ndarray) -> np.ndarray:
         """The θ̈_s rows of ``b`` (5n,) over the set x̂ + Z(G) ⊕ E(0, s P_{k−1}) projected by W; returns b."""

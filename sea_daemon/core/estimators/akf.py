@@ -1,6 +1,6 @@
 """Augmented-state extended Kalman filter (AKF) of Park et al., with the GP-AKF hook.
 
-State (Sec. IV-B)  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] ∈ R^{5n},  input u = τ_m,
+State (Sec. IV-B)  x = [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] ∈ R^{5n} (integrated walk: τ̇_h,act too, 6n), input u = τ_m,
 measurement        y = [θ_m, θ_s, θ̇_m, θ̇_s] = H x + v,  H = [I_4n 0]   (eq:nonlinkOsys)
 
 from the two encoders: θ_s = q − θ_m, velocities from the causal differentiator of
@@ -45,7 +45,7 @@ import numpy as np
 from sea_daemon.core.jit import warm_up
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.kinematics import CausalDifferentiator
-from sea_daemon.core.model import SEAModel
+from sea_daemon.core.model import SEAModel, StateLayout
 from sea_daemon.core.model_core import ModelTables, RigidTables
 from sea_daemon.core.estimators import akf_core
 from sea_daemon.core.bounds.ellipsoid import chi2_quantile
@@ -65,8 +65,8 @@ class SampleGap(EstimatorFault):
     """A step much longer than the period (a gap in a log); raised before the filter moves."""
 
 
-#: caps of bounded P (standard deviations): angles [rad], velocities [rad/s], τ_h,act [× hardware.torque_limit]
-P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE = 1.0, 50.0, 10.0
+#: caps of bounded P (standard deviations): angles [rad], velocities [rad/s], τ_h,act [× hardware.torque_limit], τ̇_h,act [× that /s]
+P_CAP_ANGLE, P_CAP_VEL, P_CAP_TORQUE, P_CAP_TORQUE_RATE = 1.0, 50.0, 10.0, 1000.0
 #: a predicted variance beyond this many times its cap is divergence (the typed fault)
 DIVERGED = 1e12
 #: [s] the GP-AKF's residual error enters Q as held over this long (at least one step; eq:GPvarfwd)
@@ -100,10 +100,11 @@ class AKF:
         self.cfg = cfg
         self.model = model if model is not None else SEAModel.from_config(cfg)
         n = self.n = self.model.n
-        d = self.d = 5 * n
-        m = self.m = 4 * n
-        self.dt = float(dt) if dt else cfg.dt
         est = cfg.estimator
+        self.layout = StateLayout.of(n, est.tau_h_act_model)    # where τ_h,act (and τ̇_h,act) lie in x
+        d = self.d = self.layout.d
+        m = self.m = self.layout.m
+        self.dt = float(dt) if dt else cfg.dt
         self._init_step_arrays()
         self.R[:] = est.R
         self._init_process_noise(est)
@@ -171,10 +172,10 @@ class AKF:
         # eq:gaussianellipsoid: χ² quantile, dof = 5n, level 1 − δ
         self.s = chi2_quantile(1.0 - self.delta, d)
         self._sqrt_s = math.sqrt(self.s)
-        self.H = np.hstack([np.eye(m), np.zeros((m, n))])
+        self.H = np.hstack([np.eye(m), np.zeros((m, d - m))])
         self.residual = residual
-        # I_μ M⁻¹ (5n × n): how a load-side torque enters ẋ (eq:unknown)
-        self.G_mu[:] = self.model.I_mu @ self.model.Minv
+        # I_μ M⁻¹ (d × n): how a load-side torque enters ẋ (eq:unknown)
+        self.G_mu[:] = self.layout.pad(self.model.I_mu) @ self.model.Minv
         kin = self.cfg.kinematics
         self.kin = CausalDifferentiator(self.dt, kin.window, 2 * n, kin.method, kin.degree)
         # ∂z/∂x for z = [q, q̇, q̈]: q = θ_m + θ_s, q̇ = θ̇_m + θ̇_s; q̈ comes from the
@@ -187,19 +188,18 @@ class AKF:
         # --- other per-step quantities
         self.F_k[:] = np.eye(d)
         self.Q_k[:] = self.Sigma_nom
-        self.B_u = self.model.B_nom()                 # ∂f_nom/∂u (5n × n)
-        self.Gamma_u = np.zeros((d, n))               # ZOH map of a held motor-torque error
-        self.nis = 0.0
+        self.B_u = self.layout.pad(self.model.B_nom())    # ∂f_nom/∂u (d × n)
+        self.Gamma_u, self.nis = np.zeros((d, n)), 0.0     # ZOH map of a held motor-torque error; NIS
         self.z = np.zeros(3 * n)          # ẑ_{k−1} given to the residual
         self._bound0 = np.zeros(n)        # the bound published at reset (and while the kinematics fill)
         self.u_applied = np.zeros(n)
         self._ang = np.zeros(2 * n)
         self._ddq = np.zeros(n)
-        self.est = Estimate.zeros(n)
-        # bounded P: caps of the variances of [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act] (akf_core.cap_covariance)
+        self.est = Estimate.zeros(n, d)
+        # bounded P: caps of the variances of [θ_m, θ_s, θ̇_m, θ̇_s, τ_h,act(, τ̇_h,act)] (akf_core.cap_covariance)
         lim = self.cfg.hardware.torque_limit_max
         self.P_max = np.repeat([P_CAP_ANGLE ** 2, P_CAP_ANGLE ** 2, P_CAP_VEL ** 2, P_CAP_VEL ** 2,
-                                (P_CAP_TORQUE * lim) ** 2], n)
+                                (P_CAP_TORQUE * lim) ** 2, (P_CAP_TORQUE_RATE * lim) ** 2][:d // n], n)
         self.n_capped = 0
         # estimator hygiene (docs/safety.md): windowed NIS against its chi2 band, Cholesky of P
         self.health = EstimatorHealth(m, est.nis_window, est.nis_alpha, est.nis_scale)
@@ -236,12 +236,12 @@ class AKF:
         if self._affine:
             m_ = self.model
             # F_nom at q = 0 contains −M⁻¹ diag(g cos 0) in the θ̈_s rows; add it back
-            A_lin = m_.F_nom(np.zeros(d), np.zeros(n))
+            A_lin = m_.F_nom(np.zeros(d), np.zeros(n))          # (d, d): with the integrated walk's τ̇ rows
             self._MinvG = m_.Minv * m_.gravity[None, :]           # M⁻¹ diag(g)
             A_lin[3 * n:4 * n, :n] += self._MinvG
             A_lin[3 * n:4 * n, n:2 * n] += self._MinvG
             self._A_lin = A_lin
-            self._B_lin = m_.B_nom()
+            self._B_lin = self.B_u
 
     @property
     def ready(self) -> bool:

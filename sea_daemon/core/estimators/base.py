@@ -35,8 +35,10 @@ class Estimate:
     invalid_reason: int = STARTUP
 
     @classmethod
-    def zeros(cls, n: int) -> "Estimate":
-        return cls(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(5 * n), np.zeros((5 * n, 5 * n)))
+    def zeros(cls, n: int, d: int | None = None) -> "Estimate":
+        """n joints, a state of d (default 5n; 6n with τ̇_h,act, core.model.StateLayout)."""
+        d = 5 * n if d is None else int(d)
+        return cls(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(d), np.zeros((d, d)))
 
     def copy(self) -> "Estimate":
         return Estimate(self.tau_h_act_hat.copy(), self.tau_h_act_sigma.copy(), self.tau_h_act_bound.copy(),

@@ -28,7 +28,7 @@ class StartupGate:
     """
 
     def __init__(self, n: int, H: np.ndarray, s: float, tau_h_act_max: float):
-        d = 5 * n
+        d = H.shape[1]                       # 5n, or 6n with τ̇_h,act (core.model.StateLayout)
         self.n = n
         self.H = H
         self.s = float(s)
@@ -50,7 +50,7 @@ class StartupGate:
         torque when the filter starts; τ̂_h,act,0 = 0); Φ = I."""
         n = self.n
         np.sqrt(self.s * np.maximum(np.diag(P), 0.0), out=self.b0)
-        np.maximum(self.b0[4 * n:], self.tau_h_act_max, out=self.b0[4 * n:])
+        np.maximum(self.b0[4 * n:5 * n], self.tau_h_act_max, out=self.b0[4 * n:5 * n])
         self._restart()
 
     def start_box(self, b0: np.ndarray) -> None:
@@ -88,7 +88,7 @@ class StartupGate:
         np.dot(M, F, out=W)
         np.dot(W, self.Phi, out=M)
         self.Phi[:] = M
-        np.abs(self.Phi[4 * n:], out=self._absrow)
+        np.abs(self.Phi[4 * n:5 * n], out=self._absrow)
         np.dot(self._absrow, self.b0, out=self.transient)
         if np.all(self.transient <= TRANSIENT_SHARE * rho):
             self.converged, self.converged_at = True, k

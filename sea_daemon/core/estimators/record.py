@@ -93,9 +93,9 @@ class StepRecord:
                                          "mu", "dmu_dz", "gate_box", "Sigma_nom", "innovation", "S_k")
 
     @classmethod
-    def zeros(cls, n: int) -> "StepRecord":
-        """A record of n joints with arrays of its own (d = 5n, m = 4n)."""
-        d, m = 5 * n, 4 * n
+    def zeros(cls, n: int, d: int | None = None) -> "StepRecord":
+        """A record of n joints with arrays of its own (d = 5n unless given, m = 4n)."""
+        d, m = (5 * n if d is None else int(d)), 4 * n
         return cls(STEP, 0, 0.0, False, 0, np.zeros(n), np.zeros(d), np.zeros((d, d)), np.zeros(3 * n),
                    np.zeros((d, d)), np.zeros((d, d)), np.zeros((d, n)), np.zeros((d, m)), np.zeros((d, d)),
                    np.zeros(n), np.zeros((n, 3 * n)), np.zeros(d), np.zeros((d, d)), np.zeros(m), np.zeros((m, m)))

@@ -48,6 +48,13 @@ class DriveNode(SlaveNode):
         self.master_node = 0                 # 0x1016:1 consumer heartbeat: whose, and how long
         self.master_timeout = 0.0
         self.master_last: float | None = None  # time.monotonic() of its last heartbeat (None: not yet)
+        # RPDO deadline monitoring (0x1400:5 event timer, CiA 301): armed once two torque RPDOs in a
+        # row come within it while OPERATION ENABLED (the master cycles); disarmed when it fires
+        self.rpdo_timeout = 0.0              # [s]; 0: off
+        self.rpdo_last: float | None = None  # time.monotonic() of the last RPDO1
+        self.rpdo_armed = False
+        #: the clock of the deadline [s]: real time, or the device time of a lock-step model
+        self.rpdo_clock = time.monotonic
         self.max_permille = self._raw(0x6072, 0)   # 0x6072, kept by _on_write
         self.add_read_callback(self._on_read)
         self.add_write_callback(self._on_write)
@@ -98,16 +105,50 @@ class DriveNode(SlaveNode):
         if not self.master_timeout or self.master_last is None or now - self.master_last <= self.master_timeout:
             return False
         self.master_last = None                 # once per loss; re-armed by the next heartbeat
+        self._connection_lost(0x8130)           # life guard / heartbeat error
+        return True
+
+    def _on_rpdo(self, can_id, data, timestamp) -> None:
+        super()._on_rpdo(can_id, data, timestamp)
+        if self.rpdo_timeout and can_id == 0x200 + self.id and not self.muted:
+            now = self.rpdo_clock()
+            enabled = self.sm.state is cia402.State.OPERATION_ENABLED
+            # armed by the second of two RPDOs within the deadline while enabled: the master cycles
+            # (not by the start-up's one priming command, hours before the loop may start)
+            self.rpdo_armed = enabled and self.rpdo_last is not None and now - self.rpdo_last <= self.rpdo_timeout
+            self.rpdo_last = now if enabled else None
+
+    def rpdo_deadline(self) -> float | None:
+        """When the RPDO deadline monitoring fires if no RPDO1 comes first (None: not armed)."""
+        last = self.rpdo_last
+        return last + self.rpdo_timeout if self.rpdo_armed and last is not None else None
+
+    def check_rpdo(self, now: float) -> bool:
+        """RPDO deadline monitoring (0x1400:5): no torque RPDO for longer than the event timer
+        while armed → EMCY 0x8250 (RPDO timeout) and the reaction of 0x6007, as for a lost
+        heartbeat (quick stop: the torque goes to zero; a drive does not hold a command the master
+        stopped renewing).  True when it fired."""
+        deadline = self.rpdo_deadline()
+        if deadline is None or now <= deadline:
+            return False
+        self.rpdo_armed, self.rpdo_last = False, None   # once per loss; re-armed by cycling RPDOs
+        if self.sm.state is not cia402.State.OPERATION_ENABLED:
+            return False                        # no torque to stop (a master's quick stop, a disable)
+        self._connection_lost(0x8250)
+        return True
+
+    def _connection_lost(self, code: int) -> None:
+        """The reaction of 0x6007 (1 fault, 2 disable voltage, 3 quick stop) and EMCY ``code``
+        with the communication bit of the error register."""
         option = self._raw(0x6007, 0)
         if option == 1:
-            self.error_code = 0x8130
+            self.error_code = code
             self.sm.fault()
         elif option == 2:
             self.sm.controlword(cia402.CW_DISABLE_VOLTAGE)
         elif option == 3 and self.sm.state is cia402.State.OPERATION_ENABLED:
             self.sm.controlword(cia402.CW_QUICK_STOP)
-        self.emergency(0x8130, 0x11)            # life guard / heartbeat error; communication bit
-        return True
+        self.emergency(code, 0x11)
 
     # ------------------------------------------------------------ physics side
     def set_motor_counts(self, counts: int, dtheta_m_joint: float) -> None:
@@ -180,6 +221,9 @@ class DriveNode(SlaveNode):
             self.master_node, self.master_timeout, self.master_last = node, ms / 1000.0, None
             if node and ms:
                 self.network.subscribe(0x700 + node, self._on_master_heartbeat)
+        elif index == 0x1400 and subindex == 5:
+            self.rpdo_timeout = struct.unpack_from("<H", data)[0] / 1000.0
+            self.rpdo_armed, self.rpdo_last = False, None
         elif index == 0x60C2 and subindex == 2:
             if not -6 <= struct.unpack_from("<b", data)[0] <= 0:
                 raise SdoAbortedError(0x06090030)

@@ -34,6 +34,7 @@ from sea_daemon.hw.bus import set_controller_filters
 from sea_daemon.hw.device_model.drive import DriveNode
 from sea_daemon.hw.device_model.encoder import EncoderNode
 from sea_daemon.hw.device_model.faults import FaultSpec
+from sea_daemon.hw.device_model.receiver import SharedReceiver
 from sea_daemon.hw.device_model.slave import DeviceNetwork
 from sea_daemon.core.buffers import resident_zeros
 
@@ -73,6 +74,11 @@ class DeviceModel:
         self.networks = [DeviceNetwork(b) for b in self.buses]
         self.network = self.networks[0]
         self.drives = [DriveNode(i, position_preset=position_preset) for i in drive_nodes]
+        if lock_step:
+            # the drives' RPDO deadline on the device's time (SYNCs x period): the plant moves only
+            # with SYNCs, so a master that stops (no SYNC, no RPDO) holds it still, not its torque
+            for d in self.drives:
+                d.rpdo_clock = self._device_time
         self.encoders = [EncoderNode(i) for i in encoder_nodes]
         self._configured_hardware(getattr(plant, "cfg", None))
         #: the nodes on each bus, and each node's network
@@ -89,6 +95,7 @@ class DeviceModel:
             net.subscribe(0x80, lambda can_id, data, timestamp, _i=i: self._on_sync(can_id, data, timestamp, _i))
         self._bus_syncs = [0] * len(self.buses)  # SYNCs seen on each bus (the k-th of each: cycle k)
         self._steps = 0                          # plant steps (lock-step: one per cycle)
+        self._sampled_at = -1                    # the plant step the devices were last sampled at
         self.handled = 0                         # SYNCs handled on all buses
         self._lock = threading.RLock()
         self._tau = np.zeros(self.n)
@@ -145,9 +152,16 @@ class DeviceModel:
 
     def start(self) -> "DeviceModel":
         # the controllers' acceptance filter where the bus applies one below python-can
-        for i, (bus, net) in enumerate(zip(self.buses, self.networks)):
+        for i, bus in enumerate(self.buses):
             set_controller_filters(bus, self.acceptance_filters(i))
-            net.connect()
+        # several buses with descriptors: one receive thread for all of them (SharedReceiver: the
+        # cycle's SYNCs answered in bus order by one thread), else canopen's Notifier per network
+        shared = SharedReceiver.of(self.buses, self.networks, self.networks[0].NOTIFIER_CYCLE)
+        if shared is not None:
+            shared.start()
+        else:
+            for net in self.networks:
+                net.connect()
         self._sample()
         for node in self.drives + self.encoders:
             node.boot()
@@ -242,6 +256,10 @@ class DeviceModel:
         self.last_tau_h_act = tau_h
         self.plant.step(self._tau.copy(), dt, tau_h)
 
+    def _device_time(self) -> float:
+        """The lock-step device's time [s]: its cycles (SYNCs) times the interpolation period."""
+        return self.syncs * self.period
+
     def answer_stats(self) -> dict:
         """The device's answer to SYNC over the SYNCs seen (at most the last STATS_CAP): latency
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
@@ -295,6 +313,10 @@ class DeviceModel:
                 if cycle > self.syncs:                  # the first SYNC of a cycle on any bus
                     self.syncs = cycle
                     self._run_scheduled()
+                    if self.lock_step:
+                        now = self._device_time()
+                        for d in self.drives:
+                            d.check_rpdo(now)           # RPDO deadline on the device's time
                 while self.lock_step and self._steps < cycle - 1:
                     # the interval since the last SYNC, with the set-point in force now: a synchronous
                     # RPDO was actuated at that SYNC, an asynchronous one when it arrived
@@ -305,21 +327,34 @@ class DeviceModel:
                 nodes = self.bus_nodes[bus]
                 for node in nodes:
                     node.apply_pending_rpdos()          # synchronous RPDOs take effect now
-                self._sample()
+                if not (self.lock_step and self._sampled_at == self._steps):
+                    self._sample()                      # lock-step: once per plant step (every bus's)
+                    self._sampled_at = self._steps
                 for node in nodes:
                     node.transmit_sync_tpdos()
         except Exception as e:  # noqa: BLE001 - keep the notifier alive, report via .error
             self.error = e
 
     def _watch_master(self) -> None:
-        """The drives' consumer heartbeat (0x1016): checked every 5 ms in real time."""
+        """The drives' consumer heartbeat (0x1016), checked every 5 ms in real time, and, in
+        free-running mode, their RPDO deadline (0x1400:5), checked at it (or every 5 ms, whichever
+        comes first; lock-step: at each SYNC, on the device's time)."""
         while self._running:
-            time.sleep(0.005)
+            wait = 0.005
+            now = time.monotonic()
+            real_time = not self.lock_step        # lock-step: the deadline is checked at each SYNC
+            for d in self.drives:
+                due = d.rpdo_deadline() if real_time else None
+                if due is not None:
+                    wait = min(wait, max(due - now, 0.0) + 1e-4)
+            time.sleep(wait)
             now = time.monotonic()
             with self._lock:
                 for d in self.drives:
                     try:
                         d.check_master(now)
+                        if real_time:
+                            d.check_rpdo(now)
                     except Exception as e:  # noqa: BLE001 - bus gone while stopping
                         self.error = self.error or e
 
@@ -360,6 +395,7 @@ class DeviceModel:
         node = (self.drives if fault.target == "drive" else self.encoders)[fault.joint]
         k = fault.kind
         with self._lock:
+            self._sampled_at = -1                      # the next SYNC samples anew (stuck, jump)
             if k == "drop":
                 self._drop[node.id] = self._drop.get(node.id, 0) + int(fault["count"])
             elif k == "delay":
