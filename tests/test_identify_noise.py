@@ -104,3 +104,28 @@ def test_identify_noise_on_an_integrated_walk_config(noisy_log, tmp_path, capsys
     assert main(["identify-noise", str(noisy_log), "--config", str(irw), "--with-Q", "--write", str(with_q)]) == 0
     assert len(json.loads(capsys.readouterr().out)["Q"]) == 6
     assert np.asarray(load_config(with_q).estimator.Sigma_nom).shape == (6, 6)
+
+
+def test_an_identified_Q_is_written_only_if_the_filter_runs_with_it(noisy_log, tmp_path, capsys):
+    """ALS identifies Q for the model linearised at the log's mean operating point.  With the
+    default differentiator the AKF runs with it on this log, and it is written; with the paper's
+    moving average ('ma') the AKF with it latches its innovation monitor at 4.7 s: reported, not
+    written (Sigma_nom stays as configured), and the written file runs."""
+    from sea_daemon.io.configfile import save_config
+    cfg = load_config(default_config_path())
+    kept = tmp_path / "kept.yaml"
+    assert main(["identify-noise", str(noisy_log), "--config", str(default_config_path()), "--with-Q",
+                 "--write", str(kept)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert "Q_rejected" not in res
+    np.testing.assert_allclose(np.diag(load_config(kept).estimator.Sigma_nom), res["Q"])
+    ma = tmp_path / "ma.yaml"
+    save_config(dataclasses.replace(cfg, kinematics=dataclasses.replace(cfg.kinematics, method="ma")), ma)
+    out = tmp_path / "identified.yaml"
+    assert main(["identify-noise", str(noisy_log), "--config", str(ma), "--with-Q", "--write", str(out)]) == 0
+    cap = capsys.readouterr()
+    res = json.loads(cap.out)
+    assert "NIS" in res["Q_rejected"] and "not kept" in cap.err
+    np.testing.assert_array_equal(load_config(out).estimator.Sigma_nom, cfg.estimator.Sigma_nom)
+    assert main(["replay", str(noisy_log), "--config", str(out), "--estimator", "akf",
+                 "--out", str(tmp_path / "est.csv")]) == 0

@@ -8,15 +8,20 @@ the new R (and, as in Sec. V-B, P0's measurement block set to R).
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 
 from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
 from sea_daemon.io.configfile import load_config, save_config
-from sea_daemon.errors import InputError
+from sea_daemon.core.estimators.akf import AKF
+from sea_daemon.core.replay import replay
+from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.io.files import check_outputs
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.apps.commands import add_log_and_config
+
+logger = logging.getLogger("sea_daemon.identify_noise")
 
 DESCRIPTION = (
     "Run the AKF of --config over LOG.csv, linearise the SEA model at the log's mean operating "
@@ -24,8 +29,10 @@ DESCRIPTION = (
     "covariances from the innovations' autocovariances (ALS, Odelson et al. 2006); by default on "
     "the encoder angles, with the velocity entries from the differentiator's noise gain. Prints JSON "
     "with R (diagonal, y = [theta_m, theta_s, dtheta_m, dtheta_s]) and, with --with-Q, Q "
-    "(x = [theta_m, theta_s, dtheta_m, dtheta_s, tau_h_act]). --write OUT.yaml saves the config "
-    "with the new R (and P0's measurement block = R, as in the paper).")
+    "(x = [theta_m, theta_s, dtheta_m, dtheta_s, tau_h_act], and dtau_h_act with the integrated "
+    "walk). --write OUT.yaml saves the config with the new R (and P0's measurement block = R, as in "
+    "the paper). An identified Q is kept only if the AKF with it runs over the same log without an "
+    "estimator fault; else the configured Sigma_nom is kept and the reason printed.")
 
 def add_arguments(p) -> None:
     add_log_and_config(p)
@@ -64,18 +71,37 @@ def run(args) -> int:
            "floored": floored, "filter_spectral_radius": round(res["spectral_radius"], 6),
            "operating_point": {"x": res["x_op"].tolist(), "tau_m": res["u_op"].tolist()}}
     Q = np.array(res["Q"])
+    keep_q = False
     if args.with_q:
         Q[np.diag_indices(Q.shape[0])] = np.maximum(np.diag(Q), R_FLOOR)
         out["Q"] = np.diag(Q).tolist() if not args.full else Q.tolist()
+        rejected = q_rejected(config_with_R(cfg, R, Q), log)
+        keep_q = rejected is None
+        if not keep_q:
+            out["Q_rejected"] = rejected
+            logger.warning(f"the identified Q is not kept, Sigma_nom stays as configured: {rejected}")
     if args.write:
         # Sec. V-B: P0's measurement block set to the measurement noise R
-        new_cfg = config_with_R(cfg, R, Q if args.with_q else None)
+        new_cfg = config_with_R(cfg, R, Q if keep_q else None)
         try:
             save_config(new_cfg, args.write,
-                        header=f"identify-noise: R{' and Q' if args.with_q else ''} identified by ALS "
+                        header=f"identify-noise: R{' and Q' if keep_q else ''} identified by ALS "
                                f"from {args.log}")
         except OSError as e:
             raise InputError(f"--write {args.write}: cannot write: {e.strerror or e}") from None
         out["written"] = str(args.write)
     print(json.dumps(out))
     return 0
+
+
+def q_rejected(cfg, log) -> str | None:
+    """Why the AKF of ``cfg`` (the identified R and Q) cannot be used on ``log``, or None.
+
+    ALS identifies Q for the model linearised at the log's mean operating point; away from it
+    (gravity, friction) the filter may be far too confident, which its innovation monitor then
+    latches.  The same log is the least a written Q must pass."""
+    try:
+        replay(log, AKF(cfg, dt=log.dt))
+    except EstimatorFault as e:
+        return f"the AKF with it faults on this log ({e})"
+    return None
