@@ -57,7 +57,7 @@ from sea_daemon.core.bounds.ellipsoid import Ellipsoid, chi2_quantile
 from sea_daemon.core.bounds.calibration import box_level, gp_constant_levels, levels_of, residual_gps
 from sea_daemon.core.bounds.gp_bound import BoundConstants, LocalScale
 from sea_daemon.core.bounds.setmember import (
-    REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
+    GENERATORS_PER_JOINT, REDUCE_PERIOD_S, SetMembershipBound, ellipsoid_points, unit_directions)
 from sea_daemon.core.bounds import bound_core, rigid_box
 from sea_daemon.core.bounds.friction_range import FrictionRange
 from sea_daemon.core.gp.pack import GPPack, empty_pack
@@ -106,7 +106,7 @@ class AKFTheoremBound:
         self.gauss = GaussianPart(akf, not filt and (has_gp or drop), drop)
         self.sm = SetMembershipBound(d, akf.layout.tau_idx, delta, delta_gp=delta_gp if has_gp else 0.0,
                                      n_dirs=n_dirs, margin=margin, seed=seed, projection=projection,
-                                     sets=sets)
+                                     sets=sets, max_generators=GENERATORS_PER_JOINT * n)
         # order reduction at most every REDUCE_PERIOD_S (setmember): 5 at 100 Hz, 50 at 1 kHz
         self.sm.reduce_every = max(1, int(round(REDUCE_PERIOD_S / float(akf.dt))))
         self._init_geometry(has_gp, n_dirs, seed)

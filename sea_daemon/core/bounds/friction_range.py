@@ -52,16 +52,19 @@ class FrictionRange:
         eq:xsdd; motor: (−I_θ̈m + I_θ̈s) J⁻¹e_j, eq:thetadd), so f_nom = f_smooth + Σ_g c τ_g(ℓᵀx).
         Also the same as arrays for :func:`~sea_daemon.core.model_core.lin_error_boxes`.  ([], None) when
         the range candidate does not apply (no such effect, ellipsoid sets, effects outside the
-        compiled vocabulary: ``tables`` None).  ``state_extra``: the states after the 5n (n with
-        τ̇_h,act, core.model.StateLayout), which no friction enters."""
+        compiled vocabulary: ``tables`` None for a model without a rigid body).  A rigid body's
+        (``model.urdf``) M(q) varies: its load groups' c is taken at q̂ each step and its boxes are
+        sampled on f_nom in Python (``tables`` None, :meth:`_rigid_boxes`).  ``state_extra``: the
+        states after the 5n (n with τ̇_h,act, core.model.StateLayout), which no friction enters."""
         self.groups, self.arrays = [], None
         self.tables = tables
+        self.model = model
         self.kappa_ = np.zeros(0)         # the slope κ_g each group kept in the last candidate
         self.choose_every = 1             # steps between two choices of the slope rule (_choose)
         self.rule_ = 1                    # index into SLOPE_RULES of the rule in use
         self._steps = 0
         self._w_chosen = np.zeros(0)      # the widths w_g when the rule was chosen
-        if sets != "zonotope" or tables is None:
+        if sets != "zonotope" or (tables is None and getattr(model, "rigid", None) is None):
             return
         n, d = model.n, 5 * model.n + int(state_extra)
         groups = {}
@@ -335,10 +338,47 @@ class FrictionRange:
         # b_smooth (f_nom without the friction groups, with A_nom minus their slopes)
         b = np.zeros(d)
         b_s = np.zeros(d)
-        ell_a, col_a, eg, ec, ep = self.arrays
-        lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
-                        np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
-                        self.tables.dynamics, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
+        if self.tables is None:
+            self._rigid_boxes(pts, u, x0, A_nom, slopes, b, b_s)
+        else:
+            ell_a, col_a, eg, ec, ep = self.arrays
+            lin_error_boxes(np.ascontiguousarray(pts, dtype=float), np.ascontiguousarray(u, dtype=float),
+                            np.ascontiguousarray(x0, dtype=float), np.ascontiguousarray(A_nom, dtype=float),
+                            self.tables.dynamics, ell_a, col_a, slopes, eg, ec, ep, b, b_s)
         b_s *= 1.0 + sm.margin
         return dF, GamF, w, b_s, phi(A_k, b_s, dt, Gamma_mu), (1.0 + sm.margin) * b
 
+
+    def _group_torques(self, v: np.ndarray) -> np.ndarray:
+        """τ_g(v_g) of every group at its velocity v_g."""
+        return np.array([sum(effect_torque(code, p, 0.0, v[i], 0.0)[0] for code, p in g[3])
+                         for i, g in enumerate(self.groups)])
+
+    def _rigid_boxes(self, pts, u, x0, A_nom, slopes, b, b_s) -> None:
+        """:func:`~sea_daemon.core.model_core.lin_error_boxes` for a model with a rigid body: b and
+        b_smooth over the rows of ``pts``, f_nom in Python (Pinocchio's ABA per point).  A load
+        group's torque enters ẋ as c_g(q) τ_g, c_g(q) = −I_θ̈s M(q)⁻¹ e_j: f_smooth = f_nom − Σ_g c_g(q̂) τ_g
+        (M⁻¹ at x̂_{k−1}, :meth:`~sea_daemon.core.model.SEAModel.at`) has the Jacobian
+        A_nom − Σ_g c_g(q̂) s_g ℓᵀ at x̂ and keeps (c_g(q) − c_g(q̂)) τ_g(v), sampled at the points as
+        the rest of f_nom is."""
+        model = self.model
+        n = model.n
+        ells = np.array([g[1] for g in self.groups])
+        cols = np.array([g[2] for g in self.groups])
+        for i, (side, ell, c, effs) in enumerate(self.groups):
+            if side == "load":
+                j = int(np.flatnonzero(ell[3 * n:4 * n])[0])
+                cols[i, 3 * n:4 * n] = -model.Minv[:, j]
+        v0 = ells @ x0
+        t0 = self._group_torques(v0)
+        f0 = model.f_nom(x0, u)
+        for x in np.asarray(pts, dtype=float):
+            fx = model.f_nom(x, u)
+            lin = A_nom @ (x - x0)
+            e = fx - f0 - lin
+            v = ells @ x
+            es = e - cols.T @ (self._group_torques(v) - t0 - slopes * (v - v0))
+            # the rounding floor, so an exactly linear drift gives exactly 0
+            tol = 1e-12 * (np.abs(fx) + np.abs(f0) + np.abs(lin))
+            np.maximum(b, np.where(np.abs(e) <= tol, 0.0, np.abs(e)), out=b)
+            np.maximum(b_s, np.where(np.abs(es) <= tol, 0.0, np.abs(es)), out=b_s)
