@@ -86,6 +86,22 @@ def test_bench_latency_times_the_two_joint_gpakf_and_its_bound(capsys):
     assert "Theorem-1 bound on" in out
 
 
+def test_bench_latency_gp_akf_group_on_two_joints_leaves_out_the_one_joint_case(capsys):
+    """`--estimators gp-akf` on a 2-joint model times its GP-AKF cases without the calibrated one
+    (a one-joint residual fit, which failed there with an internal error); asking for that one is
+    refused in one line naming the model's cases."""
+    from sea_daemon.apps import cli
+    cfg = str(repo_root() / "configs" / "exo_2dof.yaml")
+    assert cli.main(["bench", "latency", "--config", cfg, "--estimators", "gp-akf-calibrated"]) == 2
+    err = capsys.readouterr().err
+    assert "one-joint model" in err and "gp-akf-frozen" in err
+    code = cli.main(["bench", "latency", "--config", cfg, "--seconds", "1.5", "--repeat", "1",
+                     "--max-points", "1000", "--estimators", "gp-akf"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "gp-akf-bound: per step median" in out and "gp-akf-calibrated" not in out
+
+
 COULOMB = [{"type": "coulomb", "side": "load", "F_c": 0.3, "joint": 1},
            {"type": "coulomb", "side": "load", "F_c": 0.2, "joint": 2},
            {"type": "coulomb", "side": "motor", "F_c": 0.1, "joint": 2}]

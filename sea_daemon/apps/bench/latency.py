@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from sea_daemon.apps.bench import machine, summarize
-from sea_daemon.apps.bench._gpakf_cases import register as register_gpakf_cases
+from sea_daemon.apps.bench._gpakf_cases import CALIBRATED, register as register_gpakf_cases
 from sea_daemon.core.estimators import make_estimator
 from sea_daemon.core.linalg import discretize
 from sea_daemon.core.log import MeasuredLog
@@ -170,10 +170,16 @@ def run(args) -> int:
         raise InputError(f"--hyper-every must be >= 1, got {args.hyper_every}")
     gp_labels = _register_gp_akf(args.max_points, args.hyper_every)
     labels = []
+    # the calibrated case fits one joint's residual GP from the log's pairs (a model of several
+    # joints gets its calibrated residual from `sea-daemon fit` / `calibrate`)
+    one_joint = {CALIBRATED} if cfg.joints > 1 else set()
     for s in args.estimators.split(","):
         s = s.strip()
         if s == "gp-akf":
-            labels += gp_labels
+            labels += [g for g in gp_labels if g not in one_joint]
+        elif s in one_joint:
+            raise InputError(f"--estimators: {s} is for a one-joint model; {args.config} has {cfg.joints} joints "
+                             f"(its GP-AKF cases: {', '.join(g for g in gp_labels if g not in one_joint)})")
         elif s:
             labels.append(s)
     unknown = [s for s in labels if s not in CASES]
