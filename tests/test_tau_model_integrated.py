@@ -165,7 +165,8 @@ def test_the_floor_of_the_integrated_bound_rests_on_the_declared_acceleration(si
     assert rec["band_limited"]["rho"][0] < rec["rho"][0]
     assert "its bound rests on |d2tau_h,act/dt2| <= 750" in floor_line(rec)
     walk = dataclasses.replace(sim_cfg, estimator=dataclasses.replace(sim_cfg.estimator, tau_h_act_rate=40.0))
-    assert "random walk" in floor_line(floor_record(walk, (0.1, 3.0), 1.5))
+    walk_line = floor_line(floor_record(walk, (0.1, 3.0), 1.5))
+    assert "random walk" in walk_line and "tau_h_act_model: integrated" in walk_line   # where to turn
 
 
 def test_the_frozen_integrated_gpakf_on_a_rigid_body_equals_the_python_step(arm):

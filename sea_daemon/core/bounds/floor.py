@@ -222,5 +222,6 @@ def floor_line(rec: dict | None) -> str | None:
     elif bl:
         line += (f" For the declared band (|d2tau_h,act/dt2| <= {bl['tau_h_act_accel']:.3g} N m/s^2) it would be "
                  f"{', '.join(f'{v:.3g}' for v in bl['rho'])} N m, but the filter models the torque as a random walk "
-                 f"and its bound rests on the rate alone.")
+                 f"and its bound rests on the rate alone (estimator.tau_h_act_model: integrated rests it on the band; "
+                 f"docs/bounds.md §6).")
     return line
