@@ -79,6 +79,11 @@ class EstimatorConfig:
         """The state's dimension per the τ_h,act model (5n or 6n)."""
         return self.Sigma_nom.shape[0]
 
+    @property
+    def integrated(self) -> bool:
+        """Whether the filter tracks τ̇_h,act too (``tau_h_act_model: integrated``)."""
+        return self.tau_h_act_model == "integrated"
+
     KEYS = ["R", "Sigma_nom", "P0", "P0_tau", "delta", "sign_eps", "nis_window", "nis_alpha", "nis_scale",
             "gp_input_margin", "Sigma_nom_dt", "tau_m_noise", "gp_noise_in_Q", "init_after_kinematics", "gp_beta",
             "tau_h_act_rate", "tau_h_act_max", "tau_h_act_walk_outside", "bound_in", "bound_max_age",

@@ -181,8 +181,8 @@ def fit_verdict(block: MeasuredLog, cfg: ModelConfig) -> str | None:
     return assess(block, cfg).refusal
 
 
-class StepRecord:
-    """A GP-AKF's Theorem-1 bound component (``res.estimator(bound=StepRecord.of(terms))``) that
+class BoxShareBound:
+    """A GP-AKF's Theorem-1 bound component (``res.estimator(bound=BoxShareBound.of(terms))``) that
     notes, per step, whether the GP input set left the box its GP constants are stated on
     (:attr:`left_`); ``terms``: the bound's :class:`TermsRecorder` (its Python step) instead of the
     compiled one.  Everything else is the bound's."""
@@ -213,7 +213,7 @@ class StepRecord:
         self._seen = seen
 
 
-def bound_figures(rec: StepRecord, valid: np.ndarray, rows: int) -> dict:
+def bound_figures(rec: BoxShareBound, valid: np.ndarray, rows: int) -> dict:
     """Of the GP error bound behind ``rec`` over the last ``rows`` steps (``valid``: the replay's
     mask, aligned with its last rows): √β and the union's leaves (joint 1), the share of the steps
     whose GP input set left the bound's box, and with terms the means of :meth:`TermsRecorder.table`."""
@@ -230,7 +230,7 @@ def bound_figures(rec: StepRecord, valid: np.ndarray, rows: int) -> dict:
 def scored(log: MeasuredLog, est, a: int, b: int) -> dict:
     """``est`` run over rows [a − WARM_S, b) of ``log`` and scored on rows [a, b): RMSE; with a
     bound, its coverage of the samples marked valid, the share valid, the mean bound over them
-    and its ratio to their RMSE (and :func:`bound_figures` for a :class:`StepRecord` bound).
+    and its ratio to their RMSE (and :func:`bound_figures` for a :class:`BoxShareBound` bound).
     ``{"fault": ...}`` when the estimator stops."""
     lo = max(a - max(int(round(WARM_S / log.dt)), 1), 0)
     try:
@@ -252,7 +252,7 @@ def scored(log: MeasuredLog, est, a: int, b: int) -> dict:
             rmse_v = float(np.sqrt(np.mean(e[v] ** 2)))
             out.update(coverage=float(np.mean(np.abs(e[v]) <= rho[v])), mean_bound=float(np.mean(rho[v])),
                        rmse_valid=rmse_v, bound_over_rmse=float(np.mean(rho[v]) / max(rmse_v, 1e-12)))
-        if isinstance(est.bound, StepRecord):
+        if isinstance(est.bound, BoxShareBound):
             full = np.zeros(b - lo, bool)
             full[a - lo:] = v
             out.update(bound_figures(est.bound, full, b - a))
@@ -298,7 +298,7 @@ def gpakf_check(log: MeasuredLog, cfg: ModelConfig, raw: dict, blocks: list, win
                 continue
             mask = np.zeros(len(log), bool)
             mask[c:d] = True
-            g = scored(log, res.estimator(dt=log.dt, bound=StepRecord.of(terms)), c, d)
+            g = scored(log, res.estimator(dt=log.dt, bound=BoxShareBound.of(terms)), c, d)
             seen = np.zeros(len(log), bool)
             seen[a:b] = True
             row = {"block": j + 1, "t_s": block_span(log, c, d), "q_unvisited": unvisited_share(log, cfg, seen, mask),

@@ -136,7 +136,7 @@ def summary(result) -> dict:
         h = walk["human"]
         q = ", ".join(f"{v:.3g}" for v in walk.get("q_tau_per_joint", [walk["q_tau"]]))
         what = ("Active-torque rate random walk (integrated walk)", "N^2 m^2/s^3") \
-            if cfg.estimator.tau_h_act_model == "integrated" else ("Active-torque random walk", "N^2 m^2/s")
+            if cfg.estimator.integrated else ("Active-torque random walk", "N^2 m^2/s")
         lines.append(f"{what[0]} {q} {what[1]}{' (per joint)' if ', ' in q else ''}, chosen for a subject torque of "
                      f"{h['band_hz'][0]:g}-{h['band_hz'][1]:g} Hz at {h['rms']:g} N m RMS.")
     lines.append(f"What the physical model leaves: {rep['leftover']['rms']:.3g} N m RMS; residual GP "

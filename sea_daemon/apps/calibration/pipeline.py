@@ -144,7 +144,7 @@ def sigma_nom_for(cfg: ModelConfig, q_tau: float) -> dict:
     noise only, the walk q_τ × dt (one, or one per joint) of τ_h,act [N² m²/s] or, integrated, of τ̇_h,act [N² m²/s³]."""
     n, dt = cfg.joints, cfg.dt
     q = np.broadcast_to(np.asarray(q_tau, dtype=float) * dt, (n,))
-    walk = [np.zeros(n), q] if cfg.estimator.tau_h_act_model == "integrated" else [q]
+    walk = [np.zeros(n), q] if cfg.estimator.integrated else [q]
     return {"Sigma_nom": np.diag(np.concatenate([np.full(2 * n, 1e-16), np.zeros(2 * n), *walk])), "Sigma_nom_dt": dt}
 
 

@@ -19,15 +19,10 @@ from sea_daemon.core.bounds.floor import wearer_accel, wearer_rate
 from sea_daemon.core.config import ModelConfig
 
 
-def integrated(cfg: ModelConfig) -> bool:
-    """Whether the configuration's filter tracks τ̇_h,act (the integrated walk)."""
-    return cfg.estimator.tau_h_act_model == "integrated"
-
-
 def walk_scale(cfg: ModelConfig, human) -> float:
     """The factor from the random walk's q_τ grid [N² m²/s] to the one scanned: 1, or (2π f_max)²
     [1/s²] for the integrated walk."""
-    return (2.0 * math.pi * float(human.band_hz[1])) ** 2 if integrated(cfg) else 1.0
+    return (2.0 * math.pi * float(human.band_hz[1])) ** 2 if cfg.estimator.integrated else 1.0
 
 
 def declared_inputs(cfg: ModelConfig, human) -> ModelConfig:
@@ -36,6 +31,6 @@ def declared_inputs(cfg: ModelConfig, human) -> ModelConfig:
     ``tau_h_act_accel`` for the integrated walk."""
     est = cfg.estimator
     kw = {"tau_h_act_rate": est.tau_h_act_rate or wearer_rate(human.band_hz, human.rms)}
-    if integrated(cfg):
+    if est.integrated:
         kw["tau_h_act_accel"] = est.tau_h_act_accel or wearer_accel(human.band_hz, human.rms)
     return dataclasses.replace(cfg, estimator=dataclasses.replace(est, **kw))

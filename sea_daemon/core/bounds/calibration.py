@@ -42,6 +42,19 @@ def union_leaves(gp, growth: int | None = None) -> int:
     return have + int(growth) if cap <= 0 else max(have, min(cap, have + int(growth)))
 
 
+def _gps(residual) -> list:
+    """The LoG-GPs of a ResidualGP, or the list given."""
+    return list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+
+
+def training_box(gps, box_margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): the box of every training input of ``gps`` widened by ``box_margin`` of its range
+    (:func:`~sea_daemon.core.bounds.gp_bound.input_box`), the box the GP constants are stated on."""
+    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
+                   if gp.leaf(node).n_ > 0])
+    return input_box(Z, box_margin)
+
+
 def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float = 0.1,
                  n_leaves: int | None = None, box_margin: float = 0.1, sigma_ref: float | None = None,
                  beta: str | float = "lederer", growth: int | None = None, box: tuple | None = None,
@@ -59,12 +72,10 @@ def gp_constants(residual, delta_gp: float, *, L_f=None, lipschitz_share: float 
     number β (η = β √(σ² + σ_n²), e.g. a split-conformal β; :func:`conformal_gp_constants`).
     Returns (constants list, (lo, hi)).
     """
-    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
+    gps = _gps(residual)
     n = len(gps)
     per_joint = delta_gp / n
-    Z = np.vstack([np.asarray(gp.leaf(node).X_[:gp.leaf(node).n_]) for gp in gps for node in gp.leaves()
-                   if gp.leaf(node).n_ > 0])
-    lo, hi = input_box(Z, box_margin) if box is None else (np.asarray(box[0], float), np.asarray(box[1], float))
+    lo, hi = training_box(gps, box_margin) if box is None else (np.asarray(box[0], float), np.asarray(box[1], float))
     if beta != "lederer":
         return [fixed_constants(float(beta), per_joint) for gp in gps], (lo, hi)
     consts = []
@@ -112,11 +123,11 @@ def gp_constant_levels(residual, delta_gp: float, *, levels: int = BOX_LEVELS, b
     if beta != "lederer" or levels <= 1:
         consts, box = gp_constants(residual, delta_gp, beta=beta, growth=growth, box_margin=box_margin)
         return consts, box, levels_of(consts, box)
-    _, (lo, hi) = gp_constants(residual, delta_gp, beta=1.0, box_margin=box_margin)     # X_0 alone
+    gps = _gps(residual)
+    lo, hi = training_box(gps, box_margin)                                   # X_0
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     w = 0.5 ** np.arange(1, levels + 1)
     w /= w.sum()
-    gps = list(residual) if isinstance(residual, (list, tuple)) else residual.gps
     lv = [loggp_leaves(g) for g in gps]
     rows = [gp_constants(gps, delta_gp * w[k], growth=growth, box=(mid - 2.0 ** k * half, mid + 2.0 ** k * half),
                          leaves=lv) for k in range(levels)]

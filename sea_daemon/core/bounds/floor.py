@@ -197,7 +197,7 @@ def floor_record(cfg: ModelConfig, band_hz: tuple[float, float] | None = None, r
         return None
     out = f.to_dict()
     est = cfg.estimator
-    if est.tau_h_act_model == "integrated" and est.tau_h_act_accel > 0:
+    if est.integrated and est.tau_h_act_accel > 0:
         out["band_limited"] = bound_floor(cfg, accel=est.tau_h_act_accel).to_dict()
         out["integrated"] = True
     elif band_hz is not None and rms is not None and rms > 0:

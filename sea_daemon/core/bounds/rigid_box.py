@@ -41,14 +41,14 @@ def rigid_map(model, d: int | None = None) -> np.ndarray:
     in x without declared effects: its columns are its values at the unit vectors); d = 5n, or 6n
     with τ̇_h,act (which w does not depend on: zero columns)."""
     n = model.n
-    W = np.zeros((3 * n, 5 * n if d is None else int(d)))
-    d = 5 * n
+    d5 = 5 * n
+    W = np.zeros((3 * n, d5 if d is None else int(d)))
     W[:n, :n] = W[:n, n:2 * n] = np.eye(n)
     W[n:2 * n, 2 * n:3 * n] = W[n:2 * n, 3 * n:4 * n] = np.eye(n)
     f = np.zeros(n)
-    t0 = load_side_torque(model.kernel, np.zeros(d), f)
-    for i in range(d):
-        e = np.zeros(d)
+    t0 = load_side_torque(model.kernel, np.zeros(d5), f)
+    for i in range(d5):
+        e = np.zeros(d5)
         e[i] = 1.0
         W[2 * n:, i] = load_side_torque(model.kernel, e, f) - t0
     return W

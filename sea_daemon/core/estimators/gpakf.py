@@ -323,8 +323,7 @@ class GPAKF(AKF):
                       iout, fout))
             return res.pack_args, (), finish, self.bound, self._S_base, rigid
         sample = (*step, *head, self._hu, *noise, self._A_lin, self._B_lin, self._MinvG, float(self._gp_var_scale),
-                  *gp[:4], res.noise_in_Q, res.mu, res.jac, res.var, pack, res.pack_args[-1], self.bound is not None,
-                  self.record.x_prev, self.record.P_prev, self.P_max, DIVERGED, iout, fout)
+                  *gp, self.P_max, DIVERGED, iout, fout)
         return res.pack_args, sample, finish, self.bound, self._S_base, None
 
     def training_pair(self, tau_m) -> tuple[np.ndarray, np.ndarray]:
