@@ -67,8 +67,7 @@ def test_the_loop_takes_its_stall_tolerance_from_the_driver():
     assert hw.stall_cycles == hw.max_missed == 9
     for stall, latches in ((10.5, False), (11.5, True)):
         clock = StallClock(0.001, at=50, stall=stall)
-        still = StillHardware(max_missed_cycles=0)
-        still.stall_cycles = hw.stall_cycles
+        still = StillHardware(max_missed_cycles=hw.stall_cycles)
         loop = FixedRateLoop(still, None, clock, n=1, period=0.001, clock=clock, sleep=clock.sleep, realtime=True)
         loop.run(100)
         assert loop.stats.skipped == int(stall) - 1

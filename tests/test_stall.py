@@ -125,21 +125,16 @@ class StallClock:
         return np.zeros(1)
 
 
-class Bus:
-    def __init__(self, max_missed_cycles):
-        self.max_missed_cycles = max_missed_cycles
-
-
 class StillHardware:
-    """A sample in every cycle, nothing else: the loop's pacing alone (its ``bus_cfg`` the
-    missed-cycle tolerance)."""
+    """A sample in every cycle, nothing else: the loop's pacing alone (``stall_cycles`` the
+    missed-cycle tolerance, as the CANopen driver's)."""
 
     actuation_delay = 0
 
     def __init__(self, max_missed_cycles: int):
         from sea_daemon.hw.interface import Measurement
         self.meas = Measurement(n=1, valid=True)
-        self.bus_cfg = Bus(max_missed_cycles)
+        self.stall_cycles = max_missed_cycles
         self.safe_stops = 0
 
     def read(self):

@@ -221,17 +221,16 @@ class BusConfig:
         whole ms — the tightest that a run keeping its tolerance never trips.  A set value
         shorter than that gap: :class:`~sea_daemon.errors.InputError`, one line (the drive would
         stop a run the loop is told to keep)."""
-        gap = self.longest_rpdo_gap(period)
+        ms = math.ceil(self.longest_rpdo_gap(period) * 1e3 - 1e-9)     # the gap in whole ms, rounded up
         if self.rpdo_timeout_ms is None:
-            ms = math.ceil(gap * 1e3 - 1e-9)
             if ms > 65535:
                 raise InputError(f"hardware.bus.max_missed_ms / max_missed_cycles: the tolerance at {1 / period:g} Hz "
                                  f"({self.missed_cycles(period)} missed cycles) needs a drive RPDO deadline of {ms} ms, "
                                  f"more than 0x1400:5 holds (65535 ms); allowed: a shorter tolerance, or "
                                  f"hardware.bus.rpdo_timeout_ms: 0 (off)")
             return ms / 1e3
-        if 0 < self.rpdo_timeout_ms < gap * 1e3 - 1e-9:
-            raise InputError(f"hardware.bus.rpdo_timeout_ms: must be 0 (off) or >= {math.ceil(gap * 1e3 - 1e-9)} ms "
+        if 0 < self.rpdo_timeout_ms < ms:
+            raise InputError(f"hardware.bus.rpdo_timeout_ms: must be 0 (off) or >= {ms} ms "
                              f"(the longest gap between two torque commands the missed-cycle tolerance allows at "
                              f"{1 / period:g} Hz: {self.missed_cycles(period)} missed cycles), "
                              f"got {self.rpdo_timeout_ms}")

@@ -329,21 +329,18 @@ class IpcBus(can.BusABC):
             conn = conns.get(peer)
             if conn is None:
                 conn = self._connect(peer)
+            if conn is None:
+                self._send_to_path(buf, peer)      # not connectable now: by its path, which says why
+                continue
             try:
-                if conn is not None:
-                    conn.send(buf, socket.MSG_DONTWAIT)
-                else:
-                    self._sock.sendto(buf, socket.MSG_DONTWAIT, peer)
+                conn.send(buf, socket.MSG_DONTWAIT)
             except BlockingIOError:
                 self.overruns += 1                 # that member is not reading: its frame is lost
-            except OSError as e:
-                if conn is not None:
-                    # the socket connected to has gone: once more by its path, which tells whether
-                    # the member has gone too (refused, removed) or bound anew (sent)
-                    self._disconnect(peer)
-                    self._send_to_path(buf, peer)
-                else:
-                    self._send_failed(peer, e)
+            except OSError:
+                # the socket connected to has gone: once more by its path, which tells whether
+                # the member has gone too (refused, removed) or bound anew (sent)
+                self._disconnect(peer)
+                self._send_to_path(buf, peer)
         if self._own:
             self._pending.append(self._decode(bytes(buf)))
 

@@ -61,13 +61,7 @@ def parse_cpus(text: str | None, flag: str, names: tuple[str, ...]) -> tuple[int
 
 def pin_thread(cpu: int | None) -> str:
     """Pin the calling thread to ``cpu`` (None: nothing); what applied, for the status line."""
-    if cpu is None:
-        return "not pinned"
-    try:
-        os.sched_setaffinity(0, {cpu})
-    except OSError as e:
-        return f"not pinned to CPU {cpu} ({e.strerror or e})"
-    return f"CPU {cpu}"
+    return pin_pid(0, cpu)                 # 0: the calling thread (sched_setaffinity)
 
 
 def keep_off(cpu: int | None, pids=()) -> None:
@@ -89,7 +83,8 @@ def keep_off(cpu: int | None, pids=()) -> None:
 
 
 def pin_pid(pid: int, cpu: int | None) -> str:
-    """Pin the process (its main thread) ``pid`` to ``cpu`` (None: nothing); what applied."""
+    """Pin the process (its main thread) ``pid`` — 0: the calling thread — to ``cpu`` (None:
+    nothing); what applied."""
     if cpu is None:
         return "not pinned"
     try:

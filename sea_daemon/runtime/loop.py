@@ -187,8 +187,6 @@ class FixedRateLoop:
         self._bound_fault_seen = False
         if stall_cycles is None:
             stall_cycles = getattr(hw, "stall_cycles", None)
-        if stall_cycles is None:
-            stall_cycles = getattr(getattr(hw, "bus_cfg", None), "max_missed_cycles", None)
         self.stall_cycles = None if stall_cycles is None else int(stall_cycles)
         self.stats = LoopStats()
         #: the log row's columns, each quantity's index or slice (docs/interfaces.md §1)
