@@ -8,10 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, walk_per_joint, fit_gp_hyper_joints, nominal_where_unidentified,
+from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, fit_gp_hyper_joints, nominal_where_unidentified,
                                                 plant_substep)
 from sea_daemon.apps.calibration.modelio import estimator_from_model, save_calibrated
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sigma_nom_for, sufficient_log
+from sea_daemon.apps.calibration.walk_bound import walk_per_joint_bound
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.excitation import PerJoint, JointsCoverage, WorkingRange, excitation, excitation_joints
@@ -156,18 +157,35 @@ def test_the_body_correction_moves_the_elbow_and_ignores_the_friction(cfg):
         assert (e.b if kind == "viscous" else e.F_c) == pytest.approx(0.3, rel=0.25), (kind, j)
 
 
-def test_each_joint_gets_the_walk_of_its_own_errors(cfg):
-    """The walk scan's rows (q_τ: the RMS of τ̂ of each joint on each synthetic session): a joint
-    whose error is least at a slow walk gets the slow walk, its neighbour the fast one — the
-    smallest q_τ within 2 % of each joint's own best — and Σ_nom carries each joint's q_τ."""
-    active = ("synthetic_moving", "synthetic_still")
-    err = {0.1: [0.40, 0.30], 0.3: [0.30, 0.25], 1.0: [0.35, 0.20], 3.0: [0.50, 0.199]}
-    table = {(q, 0.003): {"q_tau": q, "sign_eps": 0.003, "per_joint": {k: e for k in active}}
-             for q, e in err.items()}
-    table[(10.0, 0.003)] = {"q_tau": 10.0, "sign_eps": 0.003, "synthetic_moving": float("inf")}   # faulted
-    table[(0.3, 0.01)] = {"q_tau": 0.3, "sign_eps": 0.01, "per_joint": {k: [0.01, 0.01] for k in active}}
-    assert walk_per_joint(table, 0.003, active, 1.0, 2) == [0.3, 1.0]
-    assert walk_per_joint({}, 0.003, active, 1.0, 2) == [1.0, 1.0]
+def test_each_joint_gets_the_walk_of_its_own_errors_and_bound(cfg):
+    """The walk scan's rows (q_τ: the RMS of τ̂ and the bound's figures of each joint on each
+    synthetic session): each joint gets, among the walks within 10 % of its own best RMS, the one
+    whose mean bound is smallest with coverage kept; the estimate's rule (the smallest q_τ within
+    2 %) where no walk's bound covers — and Σ_nom carries each joint's q_τ."""
+    active = {"synthetic_moving": None, "synthetic_still": None}     # the logs: never replayed here
+    err = {0.1: [0.40, 0.30], 0.3: [0.30, 0.25], 1.0: [0.32, 0.20], 3.0: [0.50, 0.199]}
+    rho = {0.1: [2.0, 2.0], 0.3: [1.5, 1.0], 1.0: [1.0, 0.8], 3.0: [0.5, 0.6]}
+    cov = {0.1: [1.0, 1.0], 0.3: [1.0, 1.0], 1.0: [1.0, 0.9], 3.0: [1.0, 0.9]}
+
+    def row(q, e):
+        b = {k: {"rho": rho[q], "coverage": cov[q], "valid": 1.0} for k in active}
+        return {"q_tau": q, "sign_eps": 0.003, "per_joint": {k: e for k in active}, "bound": b}
+
+    class Scan:
+        table = {(q, 0.003): row(q, e) for q, e in err.items()}
+    Scan.table[(10.0, 0.003)] = {"q_tau": 10.0, "sign_eps": 0.003, "synthetic_moving": float("inf")}   # faulted
+    Scan.table[(0.3, 0.01)] = {"q_tau": 0.3, "sign_eps": 0.01, "per_joint": {k: [0.01, 0.01] for k in active}}
+    # joint 0: 0.3 and 1.0 within 10 % of its best RMS (0.30), 1.0's bound the smaller; joint 1: 1.0
+    # and 3.0 within 10 % of 0.199, neither covering: the estimate's rule, 1.0
+    qt, rec = walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)
+    assert qt == [1.0, 1.0] and rec["rule"] == ["bound", "rmse"]
+    for k in active:
+        Scan.table[(3.0, 0.003)]["bound"][k]["coverage"] = [1.0, 0.96]
+    assert walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)[0] == [1.0, 3.0]
+
+    class Empty:
+        table: dict = {}
+    assert walk_per_joint_bound(Empty(), 0.003, active, 1.0, 2)[0] == [1.0, 1.0]
     S = sigma_nom_for(cfg, [0.3, 1.0])["Sigma_nom"]
     np.testing.assert_allclose(np.diag(S)[8:], np.array([0.3, 1.0]) * cfg.dt)
     np.testing.assert_allclose(np.diag(sigma_nom_for(cfg, 2.0)["Sigma_nom"])[8:], 2.0 * cfg.dt)

@@ -262,24 +262,6 @@ def rmse_per_joint(log: MeasuredLog, est) -> np.ndarray:
     return np.sqrt(np.mean((res.tau_h_act_hat - truth) ** 2, axis=0))
 
 
-def walk_per_joint(table: dict, eps: float, active, common: float, n: int) -> list[float]:
-    """Each joint's τ_h,act random walk q_τ,j from the common scan's ``table`` at ``eps``: the
-    smallest q_τ of the scan within 2 % of the best RMS of that joint's own τ̂ over the synthetic
-    sessions ``active`` (the rule of the common walk, per joint), for the ``n`` joints.  A joint
-    whose inertia makes its τ̂ noisier is best served by a slower walk than its neighbour; the
-    common scan's ``common`` q_τ where no row has every session's figures."""
-    rows = [r for (q, e), r in table.items()
-            if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r.get("per_joint", {}) for k in active)]
-    if not rows:
-        return [float(common)] * n
-    out = []
-    for j in range(n):
-        obj = {id(r): math.sqrt(float(np.mean([r["per_joint"][k][j] ** 2 for k in active]))) for r in rows}
-        best = min(obj.values())
-        out.append(min(float(r["q_tau"]) for r in rows if obj[id(r)] <= 1.02 * best))
-    return out
-
-
 class _Interp:
     """The log's smoothed angles replayed as the reference of n joints (velocity and acceleration 0:
     the session's PID tracks the angle, as the one-joint synthetic session does)."""

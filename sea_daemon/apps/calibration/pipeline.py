@@ -57,8 +57,9 @@ from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
 from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, data_working_range, data_working_ranges, fit_gp_hyper_joints,
                                                 gp_cross_validation_joints, nominal_where_unidentified, pairs_report,
-                                                rmse_per_joint, synthetic_sessions_joints, walk_per_joint,
+                                                rmse_per_joint, synthetic_sessions_joints,
                                                 working_ranges)
+from sea_daemon.apps.calibration.walk_bound import walk_for_bound, walk_per_joint_bound
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -214,13 +215,12 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     * q_τ, how fast the subject's torque moves, from the synthetic active sessions alone (the
       identified model as the plant, a human torque of the declared band and size, moving and
       still arm): decades of :attr:`CalibrationOptions.q_tau_grid` then its half-decades around
-      the best, the smallest q_τ within 2 % of the best RMS (the objective is flat over decades
-      once the walk is fast enough: the smoothest estimate the data do not contradict).  A
-      passive log says nothing about the subject's torque (it only pulls q_τ to 0).
+      the best; among the walks within 10 % of the best RMS (the objective is flat over decades
+      once the walk is fast enough), the one whose Theorem-1 bound on those sessions is smallest
+      (:mod:`.walk_bound`).  A passive log says nothing about the subject's torque.
 
     sign_eps is chosen at the declared walk (:func:`declared_walk`), q_τ at that sign_eps, then
-    sign_eps again at the chosen q_τ.  When the identified model cannot be simulated, q_τ is the
-    declared walk."""
+    sign_eps again at the chosen q_τ.  Without a simulated model, q_τ is the declared walk."""
     # at most ~4000 samples per synthetic session (20 s at 100 Hz, 10 s at 1 kHz: the lowest
     # declared frequency still shows)
     T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
@@ -230,9 +230,9 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     scan = _WalkScan(cfg, gp, opts, tune_eps, v_gate, var_ref, tick)
     q0 = declared_walk(human) * walk_scale(cfg, human)
     eps = scan.best_eps(q0, passive)
-    qt = scan.best_walk(eps, active, q0) if active else q0
-    if cfg.joints > 1 and active:           # each joint's walk from its own errors
-        qt = walk_per_joint(scan.table, eps, active, qt, cfg.joints)
+    qt, rule = scan.best_walk(eps, active, q0) if active else (q0, {"rule": "declared"})
+    if cfg.joints > 1 and active:           # each joint's walk from its own errors and bound
+        qt, rule = walk_per_joint_bound(scan, eps, active, qt, cfg.joints)
     eps = scan.best_eps(qt, passive)
     logs = {**active, **passive}
     best = scan.evaluate(qt, eps, logs)
@@ -242,7 +242,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     # torque is not divergence
     scale = _nis_scale(cfg, gp, logs, best, opts, v_gate, var_ref)
     grid_rows = sorted(scan.table.values(), key=lambda r: (r["sign_eps"], float(np.max(r["q_tau"]))))
-    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale}
+    info = {"grid": grid_rows, "chosen": best, "nis_scale": scale, "choice": rule}
     if synth_note:
         info["note"] = synth_note
     return qt, eps, info
@@ -264,8 +264,7 @@ def _synthetic_logs(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_
 
 
 class _WalkScan:
-    """The scan of :func:`human_walk`: the RMS of τ̂ per log for each (q_τ, sign_eps) tried
-    (``table``; each filter run once), the AKF or, with ``gp``, the GP-AKF, health monitor off."""
+    """The scan of :func:`human_walk`: the RMS of τ̂ per log for each (q_τ, sign_eps) tried (``table``)."""
 
     def __init__(self, cfg: ModelConfig, gp, opts: CalibrationOptions, tune_eps: bool, v_gate: float,
                  var_ref: float, tick: Callable | None = None):
@@ -275,29 +274,35 @@ class _WalkScan:
         self.table: dict = {}
         self.has_friction = any(hasattr(e, "eps") for e in cfg.model.effects)
 
+    def estimator(self, q, eps, dt: float, bound=None):
+        """The filter at walk ``q`` and smoothing ``eps``, health monitor off; with ``bound`` (a bound
+        factory) on the configuration with the subject's declared inputs (the filter is the same)."""
+        c = _replace_est(self.cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(self.cfg, q))
+        c = c if bound is None else declared_inputs(c, self.opts.human)
+        if self.gp is None:
+            return AKF(c, dt=dt, bound=bound)
+        return CalibratedGPAKF(c, self.gp, dt=dt, power=self.opts.weight_power, v_gate=self.v_gate,
+                               var_ref=self.var_ref, bound=bound)
+
+    def ran(self) -> None:               # one filter run more (``tick``)
+        self.runs += 1
+        if self.tick is not None:
+            self.tick(self.runs)
+
     def evaluate(self, q, eps, logs) -> dict:
         """The table's row of (q, eps), with the RMS of τ̂ on each of ``logs`` (inf: faulted)."""
-        cfg, gp, opts = self.cfg, self.gp, self.opts
         qk = float(q) if np.ndim(q) == 0 else tuple(map(float, q))
         row = self.table.setdefault((qk, float(eps)), {"q_tau": qk if np.ndim(q) == 0 else list(qk), "sign_eps": float(eps)})
-        c = _replace_est(cfg, nis_scale=1e12, sign_eps=float(eps), **sigma_nom_for(cfg, row["q_tau"]))
         for name, lg in logs.items():
             if name in row:
                 continue
             try:
-                if gp is None:
-                    est = AKF(c, dt=lg.dt)
-                else:
-                    est = CalibratedGPAKF(c, gp, dt=lg.dt, power=opts.weight_power, v_gate=self.v_gate,
-                                          var_ref=self.var_ref)
-                e = rmse_per_joint(lg, est)
+                e = rmse_per_joint(lg, self.estimator(row["q_tau"], eps, lg.dt))
                 row[name] = float(np.sqrt(np.mean(e ** 2)))
                 row.setdefault("per_joint", {})[name] = e.tolist()
             except EstimatorFault:
                 row[name] = math.inf
-            self.runs += 1
-            if self.tick is not None:
-                self.tick(self.runs)
+            self.ran()
         return row
 
     @staticmethod
@@ -312,25 +317,20 @@ class _WalkScan:
             return float(self.cfg.estimator.sign_eps)
         return min(EPS_GRID, key=lambda e: self.objective(self.evaluate(q, e, passive), passive))
 
-    def best_walk(self, eps: float, active: dict, q0: float) -> float:
-        """q_τ on the synthetic sessions at ``eps``: decades of the grid, then the half-decades
-        around the best; the smallest within 2 % of the best RMS (``q0`` when every replay
-        faulted)."""
+    def best_walk(self, eps: float, active: dict, q0: float) -> tuple[float, dict]:
+        """(q_τ, how it was chosen) at ``eps``: decades of the grid, the half-decades around the best,
+        then :func:`.walk_bound.walk_for_bound` (``q0`` when every replay faulted)."""
         grid = np.asarray(self.opts.q_tau_grid, dtype=float) * walk_scale(self.cfg, self.opts.human)
         for q in grid[::2]:
             self.evaluate(q, eps, active)
-
-        def on():
-            return [r for (q, e), r in self.table.items() if e == eps and all(k in r for k in active)]
-        b = min(on(), key=lambda r: self.objective(r, active))
+        b = min((r for (q, e), r in self.table.items() if e == eps and all(k in r for k in active)),
+                key=lambda r: self.objective(r, active))
+        if not math.isfinite(self.objective(b, active)):      # every synthetic replay faulted
+            return q0, {"rule": "declared", "why": "every synthetic replay faulted"}
         i = int(np.argmin(np.abs(grid - b["q_tau"])))
-        for j in (i - 1, i + 1):
-            if 0 <= j < len(grid):
-                self.evaluate(grid[j], eps, active)
-        rows = on()
-        f_best = min(self.objective(r, active) for r in rows)
-        # every synthetic replay faulted: the declared walk
-        return min(r["q_tau"] for r in rows if self.objective(r, active) <= 1.02 * f_best) if math.isfinite(f_best) else q0
+        for j in [j for j in (i - 1, i + 1) if 0 <= j < len(grid)]:
+            self.evaluate(grid[j], eps, active)
+        return walk_for_bound(self, eps, active, grid)
 
 
 def declared_walk(human: HumanSpec) -> float:
