@@ -56,7 +56,7 @@ from sea_daemon.core.sim.session import BandLimitedTorque, run_session
 from sea_daemon.errors import EstimatorFault, InputError
 from sea_daemon.apps.calibration.expected import SYNTHETIC, expected_accuracy, scored
 from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, data_working_range, data_working_ranges, fit_gp_hyper_joints,
-                                                gp_cross_validation_joints, nominal_where_unidentified, pairs_report,
+                                                gp_cross_validation_joints, nominal_where_unidentified, pairs_report, plant_substep,
                                                 rmse_per_joint, synthetic_sessions_joints,
                                                 working_ranges)
 from sea_daemon.apps.calibration.walk_bound import walk_for_bound, walk_per_joint_bound
@@ -188,12 +188,12 @@ def synthetic_sessions(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sig
         def reference(self, tt):
             return float(np.interp(tt, t, qs)), 0.0, 0.0
 
-    f_lo, f_hi = human.band_hz
+    (f_lo, f_hi), sub = human.band_hz, plant_substep(plant_cfg, 3e-3, cfg.rate_hz)     # a stable internal rate
     out = [run_session(plant_cfg, t[-1], reference=_Ref(), human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 1),
-                       seed=seed + 11, extra_load_torque=extra, extra_held=True),
+                       seed=seed + 11, extra_load_torque=extra, extra_held=True, substep_hz=sub),
            run_session(plant_cfg, t[-1], hold_q=float(np.median(log.q[:N, 0])),
                        human=BandLimitedTorque(human.rms, f_lo, f_hi, seed=seed + 2), seed=seed + 12,
-                       extra_load_torque=extra, extra_held=True)]
+                       extra_load_torque=extra, extra_held=True, substep_hz=sub)]
     return out
 
 
