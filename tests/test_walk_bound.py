@@ -6,7 +6,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from sea_daemon.apps.calibration.walk_bound import (RMSE_TOL, bound_figures, bound_score, walk_for_bound)
+from sea_daemon.apps.calibration.pipeline import HumanSpec, synthetic_sessions
+from sea_daemon.apps.calibration.walk_bound import RMSE_TOL, bound_figures, bound_score, walk_for_bound
+from sea_daemon.core.effects import make_effect
+from sea_daemon.core.rates import at_rate
+from sea_daemon.core.sim.session import run_session
+from sea_daemon.io.configfile import default_config_path, load_config
 
 ACTIVE = {"synthetic_moving": None, "synthetic_still": None}     # the logs: never replayed here
 
@@ -84,3 +89,17 @@ def test_bound_figures_and_score_over_the_valid_samples():
     assert math.isclose(bound_score({"a": ok, "b": {**ok, "rho": [0.6]}}, ["a", "b"]), 0.5)
     assert bound_score({"a": {**ok, "valid": 0.9}}, ["a"]) == math.inf
     assert bound_score({"a": None}, ["a"]) == math.inf
+
+
+def test_the_synthetic_sessions_of_a_stiff_identified_friction_run_at_1khz():
+    """A load friction sharp enough to make a mode the 1 kHz plant step cannot hold (F/ε M⁻¹ beyond
+    2.5 per ms): the walk scan's synthetic sessions still run (at a finer internal rate), so the walk
+    is chosen by the scan, not left at the declared one."""
+    cfg = at_rate(load_config(default_config_path()), 1000.0)
+    stiff = cfg.with_effects([make_effect("coulomb", "load", F_c=3.0)])
+    log = run_session(cfg, 1.0, hold_q=0.6, seed=3)
+    out = synthetic_sessions(stiff, log, HumanSpec(), 0.0, 1.0, seed=0)
+    assert len(out) == 2
+    for lg in out:
+        assert len(lg) == len(log) - 1 or len(lg) == len(log)
+        assert np.all(np.isfinite(lg.q)) and np.all(np.isfinite(lg.tau_h_act))
