@@ -271,8 +271,9 @@ def test_friction_smoothing_from_the_passive_log_and_walk_from_the_synthetic_sub
     assert math.hypot(chosen["synthetic_moving"], chosen["synthetic_still"]) <= (1 + RMSE_TOL) * best + 1e-12
     if walk["choice"]["rule"] == "bound":
         active = ("synthetic_moving", "synthetic_still")
-        bounded = [bound_score(r["bound"], active) for r in synth if "bound" in r]
-        assert bound_score(chosen["bound"], active) == min(bounded) < math.inf
+        bounded = {r["q_tau"]: bound_score(r["bound"], active) for r in synth if "bound" in r}
+        q = min(bounded, key=bounded.get)
+        assert walk["choice"]["mean_rho"] == bounded[q] < math.inf and walk["q_tau"] == q
 
 
 def test_gp_akf_is_never_much_worse_than_the_physics_on_unlike_sessions(plant, calibrated):
