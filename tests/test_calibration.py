@@ -271,7 +271,8 @@ def test_friction_smoothing_from_the_passive_log_and_walk_from_the_synthetic_sub
     assert math.hypot(chosen["synthetic_moving"], chosen["synthetic_still"]) <= (1 + RMSE_TOL) * best + 1e-12
     if walk["choice"]["rule"] == "bound":
         active = ("synthetic_moving", "synthetic_still")
-        bounded = {r["q_tau"]: bound_score(r["bound"], active) for r in synth if "bound" in r}
+        bounded = {r["q_tau"]: bound_score(r["bound"], active) for r in synth if "bound" in r
+                   and math.hypot(r["synthetic_moving"], r["synthetic_still"]) <= (1 + RMSE_TOL) * best}
         q = min(bounded, key=bounded.get)
         assert walk["choice"]["mean_rho"] == bounded[q] < math.inf and walk["q_tau"] == q
 
