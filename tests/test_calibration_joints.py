@@ -173,15 +173,26 @@ def test_each_joint_gets_the_walk_of_its_own_errors_and_bound(cfg):
 
     class Scan:
         table = {(q, 0.003): row(q, e) for q, e in err.items()}
+        together = {(1.0, 3.0): 0.5, (0.3, 3.0): 0.7, (1.0, 1.0): 0.6, (0.3, 1.0): 0.9}    # the walks together
+
+        def evaluate(self, q, eps, logs):      # the joints' walks together: their bound on each session
+            b = {k: {"rho": [self.together[tuple(q)]] * 2, "coverage": [1.0, 1.0], "valid": 1.0} for k in logs}
+            return self.table.setdefault((tuple(q), eps), {"q_tau": list(q), "bound": b})
     Scan.table[(10.0, 0.003)] = {"q_tau": 10.0, "sign_eps": 0.003, "synthetic_moving": float("inf")}   # faulted
     Scan.table[(0.3, 0.01)] = {"q_tau": 0.3, "sign_eps": 0.01, "per_joint": {k: [0.01, 0.01] for k in active}}
     # joint 0: 0.3 and 1.0 within 10 % of its best RMS (0.30), 1.0's bound the smaller; joint 1: 1.0
     # and 3.0 within 10 % of 0.199, neither covering: the estimate's rule, 1.0
     qt, rec = walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)
-    assert qt == [1.0, 1.0] and rec["rule"] == ["bound", "rmse"]
+    assert qt == [1.0, 1.0] and rec["rule"] == ["bound", "rmse"] and rec["rmse_rule_walks"] == [0.3, 1.0]
     for k in active:
         Scan.table[(3.0, 0.003)]["bound"][k]["coverage"] = [1.0, 0.96]
     assert walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)[0] == [1.0, 3.0]
+    # the joints couple: walks chosen apart whose bound together is no tighter than the estimate's
+    # rule's walks are not kept
+    Scan.together[(1.0, 3.0)] = 1.0
+    Scan.table = {k: v for k, v in Scan.table.items() if np.ndim(v["q_tau"]) == 0}
+    qt, rec = walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)
+    assert qt == [0.3, 1.0] and rec["rule"] == ["rmse", "rmse"] and rec["mean_rho"] == 1.0
 
     class Empty:
         table: dict = {}

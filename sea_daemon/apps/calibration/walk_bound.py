@@ -137,7 +137,7 @@ def walk_per_joint_bound(scan, eps: float, active: dict, common: float, n: int) 
             if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r.get("per_joint", {}) for k in active)]
     if not rows:
         return [float(common)] * n, {"rule": "common"}
-    out, rules = [], []
+    out, rules, by_rmse = [], [], []
     for j in range(n):
         def rms(r, j=j):
             return math.sqrt(float(np.mean([r["per_joint"][k][j] ** 2 for k in active])))
@@ -146,6 +146,19 @@ def walk_per_joint_bound(scan, eps: float, active: dict, common: float, n: int) 
             if rms(r) <= (1.0 + RMSE_TOL) * best:
                 scan_bound(scan, r, eps, active)
         q, _ = choose(rows, rms, lambda r, j=j: bound_score(r.get("bound", {}), active, j))
-        out.append(rmse_rule(rows, rms) if q is None else q)
+        by_rmse.append(rmse_rule(rows, rms))
+        out.append(by_rmse[-1] if q is None else q)
         rules.append("rmse" if q is None else "bound")
-    return out, {"rule": rules, "rmse_tolerance": RMSE_TOL}
+    rec = {"rule": rules, "rmse_tolerance": RMSE_TOL, "rmse_rule_walks": by_rmse}
+    if out == by_rmse:
+        return out, rec
+    # the joints' walks were rated on the common walk's rows; together (the joints couple) their
+    # bound must beat the estimate's rule's walks on the same sessions, or those are kept
+    score = {}
+    for v in (out, by_rmse):
+        r = scan.evaluate(v, eps, active)
+        score[tuple(v)] = bound_score(scan_bound(scan, r, eps, active), active)
+    rec["mean_rho"], rec["rmse_rule_mean_rho"] = score[tuple(out)], score[tuple(by_rmse)]
+    if not score[tuple(out)] < score[tuple(by_rmse)]:
+        return by_rmse, {**rec, "rule": ["rmse"] * n, "why": "the joints' walks together bound no tighter"}
+    return out, rec
