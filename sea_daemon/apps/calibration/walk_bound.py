@@ -11,9 +11,10 @@ those same sessions is smallest: the mean ρ over the valid samples, averaged ov
 with the bound covering ≥ :data:`MIN_COVERAGE` of the valid samples and ≥ :data:`MIN_VALID` of the
 samples valid in each session (their true τ_h,act is known).  When no walk of the plateau
 qualifies, the smallest q_τ within 2 % of the best RMS (the estimate's rule) is kept.  Per joint,
-the same rule on each joint's own RMS and ρ.
+the same rule on each joint's own RMS and ρ, the walks kept only if together they bound tighter than
+the estimate's rule's walks.
 
-RMSE_TOL was chosen on the development seeds of ``bench generalize`` (1-DoF 0, 1; 2-DoF 2) only.
+RMSE_TOL was set on the development seeds of ``bench generalize`` (1-DoF 0, 2-DoF 2) only.
 """
 from __future__ import annotations
 
