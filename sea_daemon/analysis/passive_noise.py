@@ -16,7 +16,7 @@ input noise σ_u and the two encoders' angles as its measurements:
 
     filter  P = DARE(F, H, Q_walk + Γ_u σ_u² Γ_uᵀ, R),  K = P Hᵀ (H P Hᵀ + R)⁻¹
     error   e_k = (I − K H)(F e_{k−1} + Γ_u w_k) − K v_k          (no walk: the wearer is passive)
-    X = T X Tᵀ + (I − KH) Γ_u σ_u² Γ_uᵀ (I − KH)ᵀ + K R Kᵀ,  T = (I − KH) F   (discrete Lyapunov)
+    X = T X Tᵀ + (I − KH) Γ_u σ_u² Γ_uᵀ (I − KH)ᵀ + K R Kᵀ,  T = (I − KH) F   (discrete Lyapunov, by doubling)
 
 and the noise is √X_ττ per joint; and, for the same filter, the lag a wearer changing joint j's
 torque at 1 N m/s leaves in τ̂_j (the ℓ1 norm of the τ error's response to the held rate: the
@@ -36,7 +36,7 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+from scipy.linalg import solve_discrete_are
 
 from sea_daemon.core.bounds.floor import rest_jacobian
 from sea_daemon.core.config import ModelConfig
@@ -104,6 +104,18 @@ def _riccati(F: np.ndarray, H: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return None
 
 
+def _lyapunov(T: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """X = Σ_k T^k W (T^k)ᵀ (X = T X Tᵀ + W, T stable) by doubling: the encoders' scales (10⁻⁷ rad)
+    and the torque's (10⁻² N m) make the direct solve's Kronecker system too ill-conditioned."""
+    X, A = W.copy(), T.copy()
+    for _ in range(64):
+        X = X + A @ X @ A.T
+        A = A @ A
+        if np.max(np.abs(A)) < 1e-18:
+            break
+    return X
+
+
 def passive_noise(cfg: ModelConfig, q_tau, sigma_u: float | None = None, q=None,
                   dt: float | None = None) -> PassiveNoise:
     """The passive noise and the lag of the steady-state filter with walk ``q_tau`` [N² m²/s] (one,
@@ -139,7 +151,7 @@ def passive_noise(cfg: ModelConfig, q_tau, sigma_u: float | None = None, q=None,
     T = IKH @ F
     if not np.all(np.isfinite(T)) or np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
         raise ValueError(f"the filter with q_tau {qt.tolist()} does not settle")
-    X = solve_discrete_lyapunov(T, IKH @ Qu @ IKH.T + K @ R @ K.T)
+    X = _lyapunov(T, IKH @ Qu @ IKH.T + K @ R @ K.T)
     E, lag = IKH @ Gw, np.zeros(n)
     for _ in range(200000):              # ℓ1 norm of τ_j's error response to joint j's held unit rate
         lag += np.abs(E[tau, np.arange(n)])
