@@ -27,6 +27,22 @@ def test_two_joint_family_is_seeded_and_differs_from_the_nominal_arm():
     assert tau.shape == (2,) and tau[0] != tau[1]                     # a torque on each joint, its own
 
 
+def test_the_passive_moving_sessions_stay_in_the_declared_range_and_off_the_stops():
+    """The moving passive sessions, but ``wide`` (8° past the range on purpose), keep every joint's
+    reference inside its declared working range; ``wide`` stays clear of the URDF's end stops (what
+    a stop pushes would read as the wearer's torque on a passive session)."""
+    for seed in range(10):
+        pd = draw_plant_joints(seed)
+        rb = pd.true.model.rigid
+        for s in sessions_joints(pd):
+            if s.reference is None:
+                continue
+            Q = np.array([s.reference.reference(t)[0] for t in np.arange(0.0, s.duration_s, 0.01)])
+            for j, w in enumerate(pd.working_range):
+                lo, hi = (w.q_min, w.q_max) if s.name != "wide" else (rb.q_min[j] + math.radians(3), rb.q_max[j] - math.radians(3))
+                assert lo - 1e-9 <= Q[:, j].min() and Q[:, j].max() <= hi + 1e-9, (seed, s.name, j)
+
+
 def _res(rmse1, rmse2, bound=None):
     out = {"rmse": math.hypot(rmse1, rmse2) / math.sqrt(2), "finite": True,
            "joints": [{"rmse": rmse1, "finite": True}, {"rmse": rmse2, "finite": True}]}

@@ -24,11 +24,12 @@ Theorem-1 bound's lag term per N m/s of the declared rate, docs/bounds.md §6).
 :func:`walk_for_noise` inverts the first: the largest walk (one for all joints) whose passive
 noise on joint j stays at a target.
 
-The daemon's filter also uses the differentiator's velocities and a moving arm's friction, so
-its passive error differs from this figure (docs/benchmarks.md: within about ±20 % on the
-two-joint family's development plants); the figure shows which walk and which encoders a passive
-accuracy needs, before any session is run.  Pure numerics, one DARE and one Lyapunov solve per
-walk (milliseconds).
+The daemon's filter also uses the differentiator's velocities, a moving arm's friction and
+M(q) along the motion, so its passive error is not this figure: on the two-joint family's
+development plants (16-bit encoders, walks 0.1–3.16) the oracle AKF's passive RMSE was 1.2–1.6 ×
+it on the shoulder and 0.8–1.8 × on the elbow (docs/calibration.md, "Two joints").  It is an estimate, not
+a bound; it shows which walk and which encoders a passive accuracy needs before any session is
+run.  Pure numerics, one Riccati and one Lyapunov sum per walk (milliseconds).
 """
 from __future__ import annotations
 

@@ -33,6 +33,9 @@ from sea_daemon.io.configfile import data_root, load_config
 
 #: the joints' declared working ranges [deg] (shoulder flexion, elbow flexion) before the draw
 RANGE_DEG = ((10.0, 80.0), (20.0, 110.0))
+#: the revision of :func:`sessions_joints`' definitions: cached logs of another revision are simulated again
+#: (2: ``sines`` swings about the middle of each joint's range)
+SESSIONS_REV = 2
 
 
 def _u(rng, lo, hi):
@@ -133,8 +136,11 @@ def sessions_joints(pd: PlantDraw, duration_s: float | None = None) -> list[Sess
     for j, w in enumerate(wrs):
         amp = 0.3 * w.width
         f1 = 0.6 * w.v_max / (2 * math.pi * amp)
-        sines.append(SineReference(mid[j], (amp, 0.25 * amp), (f1, 2.7 * f1),
-                                   (float(rng.uniform(0, 6.28)), float(rng.uniform(0, 6.28)))))
+        ph = (float(rng.uniform(0, 6.28)), float(rng.uniform(0, 6.28)))
+        # the sines swing about the range's middle (SineReference starts at its centre and swings
+        # about centre − Σ a sin φ): within mid ± 1.25 amp, inside the declared range and clear of the stops
+        c = mid[j] + amp * math.sin(ph[0]) + 0.25 * amp * math.sin(ph[1])
+        sines.append(SineReference(c, (amp, 0.25 * amp), (f1, 2.7 * f1), ph))
     out.append(SessionSpec("sines", T, PerJoint(tuple(sines)), None, None, "passive"))
     slow = PerJoint(tuple(SineReference(mid[j], (0.25 * w.width,), (0.12 + 0.03 * j,), (0.0,))
                              for j, w in enumerate(wrs)))

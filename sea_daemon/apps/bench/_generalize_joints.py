@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints, sessions_joints
+from sea_daemon.apps.bench._family_joints import SESSIONS_REV, calibration_motion_joints, draw_plant_joints, sessions_joints
 from sea_daemon.apps.bench._degenerate import timed_replay
 from sea_daemon.apps.bench._logcache import load_logs, save_logs
 from sea_daemon.analysis.passive_noise import passive_noise, walk_for_noise
@@ -59,7 +59,7 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     name = f"joints2_plant_{seed}_{int(cal_s)}_{pd.nominal.rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
     key = {"seed": seed, "joints": 2, "cal_s": cal_s, "rate_hz": pd.nominal.rate_hz,
-           "sessions": [s.name for s in sessions_joints(pd)]}
+           "sessions": [s.name for s in sessions_joints(pd)], "sessions_rev": SESSIONS_REV}
     logs = None if p is None else load_logs(p, key)
     if logs is not None and "calibration" in logs:
         cal = logs.pop("calibration")
