@@ -34,8 +34,12 @@ from sea_daemon.io.configfile import data_root, load_config
 #: the joints' declared working ranges [deg] (shoulder flexion, elbow flexion) before the draw
 RANGE_DEG = ((10.0, 80.0), (20.0, 110.0))
 #: the revision of :func:`sessions_joints`' definitions: cached logs of another revision are simulated again
-#: (2: ``sines`` swings about the middle of each joint's range)
-SESSIONS_REV = 2
+#: (2: ``sines`` swings about the middle of each joint's range; 3: the still-arm subject holds the arm, :data:`HOLD`)
+SESSIONS_REV = 3
+#: the still-arm sessions' subject holds the arm where it started [N m/rad, N m s/rad] (a relaxed
+#: arm's stiffness and damping; ``run_session``'s ``hold``): without it an open-loop two-joint arm
+#: can drift into its end stops
+HOLD = (20.0, 2.0)
 
 
 def _u(rng, lo, hi):

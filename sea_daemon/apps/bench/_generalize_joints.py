@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.apps.bench._family_joints import SESSIONS_REV, calibration_motion_joints, draw_plant_joints, sessions_joints
+from sea_daemon.apps.bench._family_joints import (HOLD, SESSIONS_REV, calibration_motion_joints, draw_plant_joints,
+                                                  sessions_joints)
 from sea_daemon.apps.bench._degenerate import timed_replay
 from sea_daemon.apps.bench._logcache import load_logs, save_logs
 from sea_daemon.analysis.passive_noise import passive_noise, walk_for_noise
@@ -70,7 +71,7 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     tests = {}
     for i, s in enumerate(sessions_joints(pd)):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
-                                    seed=2000 + 100 * seed + i, substep_hz=sub)
+                                    seed=2000 + 100 * seed + i, substep_hz=sub, hold=HOLD if s.hold_q is not None else None)
     if p is not None:
         save_logs(p, key, {"calibration": cal} | tests)
     return pd, cal, tests
