@@ -13,9 +13,10 @@
 * the declared working range per joint and the human-torque band.
 
 :func:`sessions_joints` lists the test sessions of a plant, unlike its calibration (the
-one-joint family's kinds, on both joints at once): slow and fast moves, wider ranges, sines,
-active subjects on both joints (0.1–0.5 and 0.5–3 Hz) while moving, and still-arm active
-sessions (Sec. V-C: the cosine on both joints, and a band-limited torque).
+one-joint family's kinds, on both joints at once): slow and fast moves, wider ranges (8° past
+the declared ones, clear of the end stops), sines about the ranges' middles, active subjects on
+both joints (0.1–0.5 and 0.5–3 Hz) while moving, and still-arm active sessions (Sec. V-C: the
+cosine on both joints, and a band-limited torque; the subject also holds the arm, :data:`HOLD`).
 """
 from __future__ import annotations
 
