@@ -70,6 +70,7 @@ from sea_daemon.apps.bench._loop_rig import (
 from sea_daemon.hw.busload import measured_load
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.apps.bench._loop_stages import stage_timers
+from sea_daemon.apps.bench._loop_overruns import describe as describe_overruns, overrun_anatomy
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.rates import at_rate
@@ -438,7 +439,14 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
                                     if k_faults in probe and n_cycles - 1 in probe else None),
         # the start-up's priming read and the first cycle not counted
         "stages_cpu_us": m.stages.summary(2) if m.stages is not None else None,
+        "overrun_causes": _anatomy(st, m, loop_cpu, dt),
     }
+
+
+def _anatomy(st, m: _Measured, loop_cpu: np.ndarray, dt: float) -> dict:
+    """Where the time of each overrun went (:mod:`._loop_overruns`), the first cycle (the
+    start-up) left out."""
+    return overrun_anatomy(np.asarray(st.late), np.asarray(st.wake), m.compute, m.read_s, loop_cpu, dt)
 
 
 def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
@@ -484,6 +492,8 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
     _report_cpu(out, res)
     print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
     _report_bus(cfg, m, out)
+    for line in describe_overruns(out["overrun_causes"]):
+        print(line)
 
 
 def _report_cpu(out: dict, res) -> None:
