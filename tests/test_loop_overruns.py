@@ -84,3 +84,19 @@ def test_the_loop_records_no_start_or_end_unless_asked():
                          record_periods=True)
     st = loop.run(5)
     assert len(st.wake) == 0 and len(st.late) == 0 and len(st.cpu) == 5
+
+
+def test_the_kernels_preemption_model_as_far_as_the_machine_tells(tmp_path):
+    from sea_daemon.runtime.realtime import kernel_preemption
+    none = str(tmp_path / "absent")
+    debugfs = tmp_path / "preempt"
+    debugfs.write_text("none voluntary (full) lazy\n")
+    cmdline = tmp_path / "cmdline"
+    cmdline.write_text("console=ttyS0 preempt=voluntary quiet\n")
+    dyn = "#1 SMP PREEMPT_DYNAMIC @0"
+    assert kernel_preemption("#1 SMP PREEMPT_RT @0", str(debugfs), str(cmdline), none) == "PREEMPT_RT"
+    assert kernel_preemption(dyn, str(debugfs), str(cmdline), none) == "full (PREEMPT_DYNAMIC)"
+    assert kernel_preemption(dyn, none, str(cmdline), none).startswith("voluntary (preempt=")
+    assert kernel_preemption(dyn, none, none, none) == "PREEMPT_DYNAMIC, its mode not readable here (the build's default)"
+    assert kernel_preemption("#1 SMP PREEMPT @0", none, none, none) == "full (PREEMPT)"
+    assert kernel_preemption("#1 SMP @0", none, none, none).startswith("none or voluntary")

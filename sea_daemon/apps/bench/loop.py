@@ -79,7 +79,7 @@ from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.gpmodel import load_gp_model
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.hw.device_model.model import thread_page_faults
-from sea_daemon.runtime.realtime import huge_page_state
+from sea_daemon.runtime.realtime import huge_page_state, kernel_preemption
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.controller import ScenarioController
@@ -248,6 +248,7 @@ def run(args) -> int:
     wake_after = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
     out = _figures(args, cfg, m, {"loadavg_before": load_before, "loadavg_after": load_after,
                                   "huge_pages": _huge_pages(thp_before, thp_after),
+                                  "kernel_preemption": kernel_preemption(),
                                   "host_wake_before": wake_before, "host_wake_after": wake_after})
     _report(args, cfg, m, out, residual)
     save(out)
@@ -465,6 +466,8 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
         print(f"transparent huge pages (the host's setting): {thp['mode']}; khugepaged collapsed "
               f"{thp['collapsed_during_run']} during the run, in any process (each collapse holds a CPU for "
               f"milliseconds on a kernel without full preemption; this run's processes have huge pages off)")
+    print(f"kernel preemption: {out['kernel_preemption']} (with none or voluntary, a real-time thread woken while "
+          f"another task runs kernel code on its CPU waits for a preemption point: a late wake-up below)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
