@@ -100,3 +100,20 @@ def test_the_kernels_preemption_model_as_far_as_the_machine_tells(tmp_path):
     assert kernel_preemption(dyn, none, none, none) == "PREEMPT_DYNAMIC, its mode not readable here (the build's default)"
     assert kernel_preemption("#1 SMP PREEMPT @0", none, none, none) == "full (PREEMPT)"
     assert kernel_preemption("#1 SMP @0", none, none, none).startswith("none or voluntary")
+
+
+def test_a_long_read_is_split_by_the_device_models_slow_answers():
+    """The device model's slow answers (its cycle = the daemon's + 1): late without more CPU (it
+    waited for its CPU), late with its handler's CPU, or in time (the loop took the TPDOs late)."""
+    wake, read, compute, tail, cpu = _cycles()
+    for j in (10, 20, 30):
+        read[j] += 900e-6
+        compute[j] += 900e-6
+    late = _late(wake, compute, tail)
+    device = {"slow": {11: (1050e-6, 95e-6),          # cycle 10: answered late, its CPU as usual
+                       21: (1040e-6, 900e-6)},        # cycle 20: its handler took the time
+              "answer": 150e-6, "cpu": 90e-6}         # cycle 30: answered in time
+    a = overrun_anatomy(late, wake, compute, read, cpu, PERIOD, device=device)
+    causes = {r["cycle"]: r["cause"] for r in a["worst"]}
+    assert causes == {10: "model ran late", 20: "model's CPU", 30: "answer taken late"}
+    assert overrun_anatomy(late, wake, compute, read, cpu, PERIOD)["by_cause"]["device answer"] == 3

@@ -181,6 +181,9 @@ def test_device_model_reports_its_answer_latency_and_frames():
         rig.stop()
     assert st["syncs"] >= 20 and st["frames"] > 60 and st["data_bytes"] > 0
     assert 0 < st["answer_us"]["median"] < 1e6 and st["handler_cpu_us"]["median"] > 0
+    # the slow answers with their cycle (bench loop's overrun causes): [cycle, answer, CPU] in µs
+    slow = st["slow_answers"]
+    assert isinstance(slow, list) and all(len(s) == 3 and 1 <= s[0] <= st["syncs"] and s[1] > 400 for s in slow)
 
 
 def test_on_ipc_the_devices_filter_the_daemons_tpdos_out_and_read_takes_heartbeats_and_emcy():

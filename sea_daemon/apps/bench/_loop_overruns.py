@@ -17,7 +17,11 @@ normal cycle), and an overrun whose start was late because the cycle before over
 as such (a run-on, not a cause of its own).  A **work** or **tail** overrun is split by the
 loop thread's CPU time of the cycle (``LoopStats.cpu``): if the CPU time grew by at least half
 the excess, the cycle's own work (CPU); else the thread was off its CPU (preempted, or held in
-the kernel).
+the kernel).  With the device model's slow answers (its ``answer_stats``' ``slow_answers``:
+cycle, SYNC → last TPDO and its handler's CPU), a **device answer** is split: the model answered
+late without more CPU (it waited for its CPU: **model ran late**), its handler took the time
+(**model's CPU**), or it answered in time and the loop thread took the TPDOs late (**answer
+taken late**).
 """
 from __future__ import annotations
 
@@ -28,6 +32,9 @@ CAUSES = {
     "run-on": "started late because the cycle before overran",
     "late wake-up": "the sleep before it returned late",
     "device answer": "hw.read() long (waiting for the devices' TPDOs)",
+    "model ran late": "hw.read() long: the device model answered late without more CPU (it waited for its CPU)",
+    "model's CPU": "hw.read() long: the device model's SYNC handler took more CPU",
+    "answer taken late": "hw.read() long: the device model answered in time, the loop thread took the TPDOs late",
     "own CPU": "the cycle's own work took more CPU",
     "off CPU": "the loop thread was off its CPU during its work (preempted, or held in the kernel)",
 }
@@ -39,13 +46,28 @@ def _part_times(late, wake, compute, read, period: float) -> np.ndarray:
     return np.column_stack([wake, read, compute - read, total - compute])
 
 
-def overrun_anatomy(late, wake, compute, read, cpu, period: float, skip: int = 1, worst: int = 10) -> dict:
+def _device_cause(j: int, excess: float, device: dict) -> str:
+    """Which side of a long read of cycle j (``excess`` over the median read [s]): ``device``
+    holds ``slow`` {device cycle: (answer, handler CPU) [s]} and the medians ``answer``, ``cpu``
+    [s].  The daemon's cycle k is the device's cycle k + 1 (the start-up's priming SYNC is its
+    first); a cycle or so either way is searched."""
+    slow = device["slow"]
+    for c in (j + 1, j, j + 2):
+        if c in slow:
+            answer, cpu = slow[c]
+            return "model's CPU" if cpu - device["cpu"] >= 0.5 * (answer - device["answer"]) else "model ran late"
+    return "answer taken late"
+
+
+def overrun_anatomy(late, wake, compute, read, cpu, period: float, skip: int = 1, worst: int = 10,
+                    device: dict | None = None) -> dict:
     """Where the time of each overrun went (module docstring).
 
     Arrays per cycle j (the same length): ``late`` at the end of cycle j past the next deadline,
     ``wake`` its start past its own deadline, ``compute`` start → log row, ``read`` the read's
     wall time, ``cpu`` the loop thread's CPU of the cycle — all [s]; the first ``skip`` cycles
-    (the start-up) are left out.  Returns the count per
+    (the start-up) are left out; ``device`` (None: not split) the device model's slow answers
+    (:func:`_device_cause`).  Returns the count per
     cause, the medians of the parts [µs] and the ``worst`` overruns (latest first), each with its
     parts [µs] and cause."""
     k = min(len(late), len(wake), len(compute), len(read), len(cpu))
@@ -64,7 +86,7 @@ def overrun_anatomy(late, wake, compute, read, cpu, period: float, skip: int = 1
         if part == "start":
             cause = "run-on" if j > 0 and late[j - 1] > 0 else "late wake-up"
         elif part == "read":
-            cause = "device answer"
+            cause = "device answer" if device is None else _device_cause(int(j), excess[1], device)
         else:
             cause = "own CPU" if cpu[j] - cpu_med >= 0.5 * excess[PARTS.index(part)] else "off CPU"
         counts[cause] += 1

@@ -447,7 +447,12 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
 def _anatomy(st, m: _Measured, loop_cpu: np.ndarray, dt: float) -> dict:
     """Where the time of each overrun went (:mod:`._loop_overruns`), the first cycle (the
     start-up) left out."""
-    return overrun_anatomy(np.asarray(st.late), np.asarray(st.wake), m.compute, m.read_s, loop_cpu, dt)
+    ds = m.dev_stats or {}
+    device = None
+    if ds.get("slow_answers") is not None and ds.get("answer_us") and ds.get("handler_cpu_us"):
+        device = {"slow": {int(c): (a * 1e-6, h * 1e-6) for c, a, h in ds["slow_answers"]},
+                  "answer": ds["answer_us"]["median"] * 1e-6, "cpu": ds["handler_cpu_us"]["median"] * 1e-6}
+    return overrun_anatomy(np.asarray(st.late), np.asarray(st.wake), m.compute, m.read_s, loop_cpu, dt, device=device)
 
 
 def _report(args, cfg, m: _Measured, out: dict, residual) -> None:

@@ -55,6 +55,9 @@ class DeviceModel:
     """Drives + load encoders + plant on a bus.  ``start()`` boots the nodes, ``stop()`` leaves."""
 
     STATS_CAP = 1 << 21
+    #: answer_stats' slow answers: longer than this [s], at most this many
+    SLOW_ANSWER_S = 4e-4
+    SLOW_KEPT = 5000
 
     def __init__(self, bus, plant, *, drive_nodes: Sequence[int] = (1,), encoder_nodes: Sequence[int] = (2,),
                  tau_h_act: Callable[[float], np.ndarray] | None = None, lock_step: bool = True,
@@ -318,6 +321,13 @@ class DeviceModel:
             a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
             out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
                          "max": float(a.max() * 1e6)} if a.size else None)
+        # the slow answers, each with its cycle (the SYNCs of a cycle are handled one bus after
+        # the other; before the ring wrapped): [cycle, answer µs, handler CPU µs]
+        if self.handled <= self.STATS_CAP:
+            slow = np.flatnonzero(self.answer_s[:k] > self.SLOW_ANSWER_S)[:self.SLOW_KEPT]
+            nb = len(self.buses)
+            out["slow_answers"] = [[int(i // nb + 1), float(self.answer_s[i] * 1e6), float(self.handler_cpu_s[i] * 1e6)]
+                                   for i in slow]
         return out
 
     def _on_sync(self, can_id, data, timestamp, bus: int = 0) -> None:
