@@ -325,6 +325,15 @@ def dead_column(f: dict, path: str, lim: Limits = Limits()) -> str | None:
     return None
 
 
+def check_columns(log: MeasuredLog, lim: Limits = Limits()) -> None:
+    """InputError with :func:`dead_column`'s line when a sensor column of any joint of ``log``
+    reports nothing while that joint moves."""
+    for j in range(log.n):
+        line = dead_column({"samples": len(log), **column_figures(log, j)}, log.path, lim)
+        if line:
+            raise InputError(line)
+
+
 def _still_over_range(f: dict, cfg: ModelConfig, path: str) -> str | None:
     """The one line refusing a still-arm log when the configuration declares a working range
     (``calibration.q_min_deg`` and ``q_max_deg``: the model must hold over it), or None.  A

@@ -15,7 +15,7 @@ import logging
 import numpy as np
 
 from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
-from sea_daemon.analysis.sufficiency import at_config_rate, column_figures, dead_column
+from sea_daemon.analysis.sufficiency import at_config_rate, check_columns
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.replay import replay
@@ -67,10 +67,7 @@ def run(args) -> int:
     log, note = at_config_rate(log, cfg)
     if note:
         logger.info(note)
-    for j in range(cfg.joints):
-        dead = dead_column({"samples": len(log), **column_figures(log, j)}, str(args.log))
-        if dead:
-            raise InputError(dead)
+    check_columns(log)
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints
