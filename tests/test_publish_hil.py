@@ -144,7 +144,11 @@ def test_client_and_watch_against_a_run(model, tmp_path):
     reasons = worker.get("validity", {}).get("invalid", {})
     counted = sum(n for why, n in reasons.items() if why not in ("startup", "bound_stale"))
     assert invalid_after <= (worker.get("stale", 0) if max_age else 0) + counted, reasons
-    assert first_valid is not None and first_valid < 10 + max_age
+    # before the first valid sample, each cycle is invalid for a reason the daemon counts (the
+    # filter's start-up, or no bound from the worker yet: how long the worker takes to start
+    # depends on the machine's load), and the worker delivers within the first second
+    assert first_valid is not None and first_valid < 100
+    assert first_valid - cycles[0] <= reasons.get("startup", 0) + reasons.get("bound_stale", 0), reasons
     lines = [ln for ln in wout.splitlines() if ln.startswith("cycle ")]
     assert lines and "fault NONE" in lines[-1] and "tau_h_act_bound" in lines[-1]
 
