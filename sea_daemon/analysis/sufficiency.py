@@ -61,6 +61,7 @@ class Limits:
     rate_tolerance: float = 0.01      # sample period within this share of the configuration's
     smooth_s: float = 0.1             # the zero-phase smoother of the regressors
     min_range_share: float = 0.8      # of the declared working range's angles and speed, else a note
+    spring_slope_factor: float = 4.0  # τ_m against K_s (θ_m − q): a slope beyond ×/÷ this is refused
 
 
 @dataclass(frozen=True)
@@ -286,6 +287,12 @@ def _refusal(f: dict, lim: Limits, path: str) -> str | None:
         return (f"{path}: the motor torque pushes against the spring's deflection theta_m - q (slope "
                 f"{sp['slope']:.2f} x K_s; expected about +1): q and theta_m swapped, or tau_m of the other sign; "
                 "check the log's columns (docs/interfaces.md section 1)")
+    lo, hi = 1.0 / lim.spring_slope_factor, lim.spring_slope_factor
+    if sp.get("slope") is not None and (sp.get("explained") or 0.0) >= 0.5 and not lo <= sp["slope"] <= hi:
+        return (f"{path}: the motor torque is {sp['slope']:.3g} x K_s times the spring's deflection theta_m - q "
+                f"(allowed {lo:g}-{hi:g} x; expected about 1): model.K_s, hardware.gear_ratio (the motor angle on the "
+                "joint side) or the units of the angle or torque columns are off by about that factor; check them "
+                "(docs/interfaces.md section 1)")
     share = f.get("torque_limit_share", 0.0)
     if share >= lim.saturated_refuse:
         return (f"{path}: the motor torque is at the hardware limit (hardware.torque_limit) in {100 * share:.0f} % "
