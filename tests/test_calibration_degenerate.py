@@ -2,7 +2,8 @@
 
 Logs made with ``sea-daemon simulate`` on configs/scenarios/{passive,active}.yaml (seed 7) and by
 editing the passive calibration log's CSV: constant angles, q and theta_m swapped, 3 s, another
-rate, the torque at the limit — each ``fit`` refuses with one line saying what to record
+rate, the torque at the limit, a sensor column of zeros, the motor angle through a wrong gear —
+each ``fit`` refuses with one line saying what to record
 instead; a still arm (the active scenario's calibration phase) is calibrated with the nominal
 physics and a report that says so; no nan or inf printed or written, no internal error.
 ``calibrate-bound`` on a model without a GP is one clear line; the expected accuracy is filled
@@ -52,13 +53,22 @@ def _edited(sim, name, how):
         t, q, th, u = t[:300], q[:300], th[:300], u[:300]
     elif how == "rate":
         t = t * 1.25                                          # 80 Hz
+    elif how == "gear":                                       # the motor angle through a wrong gear ratio
+        th = th * 1.3
+    elif how.startswith("zero_"):                             # a sensor column that reports nothing
+        {"zero_q": q, "zero_theta_m": th, "zero_tau_m": u}[how][:] = 0.0
     out = sim / f"{name}.csv"
     write_log(out, MeasuredLog(t=t, q=q, theta_m=th, tau_m=u))
     return out
 
 
 @pytest.mark.parametrize("how, pattern", [("constant", "do not change"), ("swapped", "swapped"),
-                                          ("short", r"3\.0 s long.*each way"), ("rate", "recorded at 80 Hz")])
+                                          ("short", r"3\.0 s long.*each way"), ("rate", "recorded at 80 Hz"),
+                                          ("zero_q", r"column q is 0 rad in all \d+ rows while theta_m spans"),
+                                          ("zero_theta_m", r"column theta_m is 0 rad .*the motor encoder reports nothing"),
+                                          ("zero_tau_m", r"column tau_m is 0 N m .*the drive's torque is not in the log"),
+                                          ("gear", r"the motor torque is 0\.\d+ x K_s times the spring's deflection "
+                                                   r"theta_m - q \(allowed 0\.25-4 x.*hardware\.gear_ratio")])
 def test_fit_refuses_a_degenerate_log_with_one_line(sim, tmp_path, capsys, how, pattern):
     code, out, err = run(["fit", _edited(sim, how, how), "--config", ROBOT, "--out", tmp_path / "m"], capsys)
     refused(code, err, pattern)

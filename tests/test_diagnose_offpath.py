@@ -133,6 +133,23 @@ def test_swapped_columns_are_refused(moving, tmp_path, capsys):
     assert not (tmp_path / "d" / "diagnosis.json").exists()
 
 
+@pytest.mark.parametrize("column, what", [("q", "the load encoder"), ("theta_m", "the motor encoder"),
+                                          ("tau_m", "the drive's torque")])
+def test_a_column_of_zeros_is_refused(moving, tmp_path, capsys, column, what):
+    # a sensor that reports nothing while the joint moves: diagnose fitted a 113 N m offset or a
+    # 200 N m gravity term to such a log
+    log, cfg = moving
+    dead = dataclasses.replace(log, **{column: np.zeros_like(getattr(log, column))}, path="dead.csv")
+    with pytest.raises(InputError, match=f"column {column} is 0 .* while .*{what}"):
+        diagnose(dead, cfg, None, plots=False)
+    p = tmp_path / "dead.csv"
+    write_log(p, dead)
+    rc = main(["diagnose", str(p), "--config", str(EXO), "--out", str(tmp_path / "d"), "--no-plots"])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and what in err, err
+    assert not (tmp_path / "d" / "diagnosis.json").exists()
+
+
 def test_consistent_log_passes_the_balance_check(moving):
     from sea_daemon.analysis.diagnose.consistency import motor_balance_gain
     from sea_daemon.analysis.diagnose.residuals import kinematics_from_log

@@ -66,6 +66,30 @@ def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
     assert main(["identify-noise", str(noisy_log), "--config", cfg, "--lags", "1"]) == 2
 
 
+@pytest.mark.parametrize("edit, pattern", [
+    ("rate", r"recorded at 250 Hz, the configuration runs at 100 Hz \(rate_hz\); allowed: 100 Hz or a whole multiple"),
+    ("tau_m", r"column tau_m is 0 N m in all \d+ rows while the joint moves"),
+    ("theta_m", r"column theta_m is 0 rad in all \d+ rows while q spans .*the motor encoder reports nothing"),
+])
+def test_identify_noise_refuses_a_log_at_another_rate_or_with_a_dead_column(noisy_log, tmp_path, capsys, edit,
+                                                                             pattern):
+    # R is per sample at the configuration's rate: identified on a 250 Hz log it was written into
+    # the 100 Hz configuration as if it were its own; a column of zeros gave an R without a word
+    from _cli import refused, run
+    from sea_daemon.io.logcsv import read_log
+    log = read_log(noisy_log)
+    if edit == "rate":
+        log = dataclasses.replace(log, t=log.t * 0.4)
+    else:
+        log = dataclasses.replace(log, **{edit: np.zeros_like(getattr(log, edit))})
+    p = tmp_path / f"{edit}.csv"
+    write_log(p, log)
+    out = tmp_path / "out.yaml"
+    code, _, err = run(["identify-noise", p, "--config", default_config_path(), "--write", out], capsys)
+    refused(code, err, pattern)
+    assert not out.exists()
+
+
 def test_floor_is_each_encoders_own_quantisation():
     """The motor encoder sits before the 1:gear_ratio gear: its joint-side quantum is 2π/(2^bits·gear),
     so its floor is gear² below the load encoder's (2π/2^bits)²/12."""

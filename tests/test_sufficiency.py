@@ -85,6 +85,10 @@ def test_a_still_arm_is_refused_where_the_configuration_declares_a_working_range
     ("swapped", r"q and theta_m swapped"),
     ("constant", r"do not change.*check the encoders"),
     ("saturated", r"at the hardware limit \(hardware.torque_limit\) in \d+ %"),
+    ("zero_q", r"column q is 0 rad in all 2100 rows while theta_m spans 6[5-7]\.\d deg: the load encoder"),
+    ("zero_theta_m", r"column theta_m is 0 rad .* q spans 65\.\d deg: the motor encoder reports nothing"),
+    ("zero_tau_m", r"column tau_m is 0 N m in all 2100 rows while the joint moves over 6[5-7]\.\d deg"),
+    ("torque_x10", r"the motor torque is 10(\.\d+)? x K_s times the spring's deflection .*allowed 0\.25-4 x"),
 ])
 def test_degenerate_logs_are_refused_with_what_to_record(robot, case, pattern):
     t = np.arange(0, 21, 0.01)
@@ -97,6 +101,12 @@ def test_degenerate_logs_are_refused_with_what_to_record(robot, case, pattern):
     elif case == "constant":
         log = MeasuredLog(t=t, q=np.full((len(t), 1), 0.2), theta_m=np.full((len(t), 1), 0.21),
                           tau_m=np.ones((len(t), 1)), path="cal.csv")
+    elif case == "torque_x10":                      # tau_m in units ten times too small
+        t21 = _log(t, _moves(t))
+        log = dataclasses.replace(t21, tau_m=10 * t21.tau_m)
+    elif case.startswith("zero_"):                  # a sensor column that reports nothing
+        log = _log(t, _moves(t))
+        log = dataclasses.replace(log, **{case[5:]: np.zeros_like(getattr(log, case[5:]))})
     else:
         u = np.clip(np.random.default_rng(1).normal(0, 15, len(t)), -10.0, 10.0)
         log = _log(t, _moves(t), tau=u)

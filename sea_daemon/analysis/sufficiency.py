@@ -37,7 +37,7 @@ import numpy as np
 
 from sea_daemon.core.config import ModelConfig
 from sea_daemon.core.excitation import WorkingRange
-from sea_daemon.core.log import MeasuredLog
+from sea_daemon.core.log import MeasuredLog, column_names
 from sea_daemon.errors import InputError
 
 #: the quantities a calibration identifies, in its order
@@ -61,6 +61,7 @@ class Limits:
     rate_tolerance: float = 0.01      # sample period within this share of the configuration's
     smooth_s: float = 0.1             # the zero-phase smoother of the regressors
     min_range_share: float = 0.8      # of the declared working range's angles and speed, else a note
+    spring_slope_factor: float = 4.0  # τ_m against K_s (θ_m − q): a slope beyond ×/÷ this is refused
 
 
 @dataclass(frozen=True)
@@ -222,7 +223,7 @@ def measure(log: MeasuredLog, cfg: ModelConfig, lim: Limits = Limits(), joint: i
     duration = float(log.t[-1] - log.t[0]) + dt if len(log) > 1 else 0.0
     f: dict = {"samples": int(len(log)), "duration_s": finite(duration) or 0.0, "rate_hz": finite(1.0 / dt),
                "config_rate_hz": float(cfg.rate_hz),
-               "constant_angles": bool(np.ptp(q) == 0.0 and np.ptp(th) == 0.0)}
+               "constant_angles": bool(np.ptp(q) == 0.0 and np.ptp(th) == 0.0), **column_figures(log, joint)}
     if len(log) < 8:
         f.update(still=True, q_span_deg=0.0, strokes_up=0, strokes_down=0, snr={})
         return f
@@ -275,6 +276,9 @@ def _refusal(f: dict, lim: Limits, path: str) -> str | None:
     if f["constant_angles"]:
         return (f"{path}: q and theta_m do not change over its {f['samples']} rows: the encoders report neither "
                 f"motion nor noise; check the encoders, then {RECORD}")
+    dead = dead_column(f, path, lim)
+    if dead:
+        return dead
     if f["duration_s"] < lim.min_noise_s:
         return (f"{path}: {f['duration_s']:.2f} s of data; the calibration needs at least {lim.min_noise_s:g} s "
                 f"(the sensors' noise) and {lim.min_physics_s:g} s of motion (the physical effects); {RECORD}")
@@ -283,6 +287,12 @@ def _refusal(f: dict, lim: Limits, path: str) -> str | None:
         return (f"{path}: the motor torque pushes against the spring's deflection theta_m - q (slope "
                 f"{sp['slope']:.2f} x K_s; expected about +1): q and theta_m swapped, or tau_m of the other sign; "
                 "check the log's columns (docs/interfaces.md section 1)")
+    lo, hi = 1.0 / lim.spring_slope_factor, lim.spring_slope_factor
+    if sp.get("slope") is not None and (sp.get("explained") or 0.0) >= 0.5 and not lo <= sp["slope"] <= hi:
+        return (f"{path}: the motor torque is {sp['slope']:.3g} x K_s times the spring's deflection theta_m - q "
+                f"(allowed {lo:g}-{hi:g} x; expected about 1): model.K_s, hardware.gear_ratio (the motor angle on the "
+                "joint side) or the units of the angle or torque columns are off by about that factor; check them "
+                "(docs/interfaces.md section 1)")
     share = f.get("torque_limit_share", 0.0)
     if share >= lim.saturated_refuse:
         return (f"{path}: the motor torque is at the hardware limit (hardware.torque_limit) in {100 * share:.0f} % "
@@ -290,6 +300,45 @@ def _refusal(f: dict, lim: Limits, path: str) -> str | None:
                 "calibration's moves; lower calibration.v_max / a_max or check for a mechanical stop, then "
                 + RECORD.split(": ", 1)[1])
     return None
+
+
+def column_figures(log: MeasuredLog, joint: int = 0) -> dict:
+    """Joint ``joint``'s sensor columns: their names in the log, the span of each angle [deg], and
+    the value of each column that holds one value in every row (``constant``)."""
+    cols = {base: np.asarray(a, float)[:, joint] for base, a in (("q", log.q), ("theta_m", log.theta_m),
+                                                                   ("tau_m", log.tau_m))}
+    return {"columns": {base: column_names(base, log.n)[joint] for base in cols},
+            "angle_span_deg": {b: math.degrees(float(np.ptp(cols[b]))) if len(log) else 0.0 for b in ("q", "theta_m")},
+            "constant": {b: float(a[0]) for b, a in cols.items() if len(a) and np.ptp(a) == 0.0}}
+
+
+def dead_column(f: dict, path: str, lim: Limits = Limits()) -> str | None:
+    """The one line of a log one of whose sensor columns holds one value in every row while the
+    joint moves (the other angle spans at least ``lim.still_span_deg``): a sensor or a column
+    that reports nothing, on which nothing can be identified; or None.  ``f``: the figures of
+    :func:`column_figures` (and ``samples``)."""
+    const, span, col = f.get("constant", {}), f.get("angle_span_deg", {}), f.get("columns", {})
+    rows = f"in all {f.get('samples', 0)} rows"
+    for name, other, what in (("q", "theta_m", "the load encoder"), ("theta_m", "q", "the motor encoder")):
+        if name in const and span.get(other, 0.0) >= lim.still_span_deg:
+            return (f"{path}: column {col[name]} is {const[name]:.6g} rad {rows} while {col[other]} spans "
+                    f"{span[other]:.1f} deg: {what} reports nothing (the spring between them cannot deflect that "
+                    f"far); check it and the log's columns (docs/interfaces.md section 1), then {RECORD}")
+    moved = max(span.values(), default=0.0)
+    if "tau_m" in const and moved >= lim.still_span_deg:
+        return (f"{path}: column {col['tau_m']} is {const['tau_m']:.6g} N m {rows} while the joint moves over "
+                f"{moved:.1f} deg: the drive's torque is not in the log; check the drive's torque reading and the "
+                f"log's columns (docs/interfaces.md section 1), then {RECORD}")
+    return None
+
+
+def check_columns(log: MeasuredLog, lim: Limits = Limits()) -> None:
+    """InputError with :func:`dead_column`'s line when a sensor column of any joint of ``log``
+    reports nothing while that joint moves."""
+    for j in range(log.n):
+        line = dead_column({"samples": len(log), **column_figures(log, j)}, log.path, lim)
+        if line:
+            raise InputError(line)
 
 
 def _still_over_range(f: dict, cfg: ModelConfig, path: str) -> str | None:

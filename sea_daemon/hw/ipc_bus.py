@@ -191,6 +191,9 @@ class IpcBus(can.BusABC):
         self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
         self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
         self._conns: dict[str, socket.socket] = {}  # member -> a socket connected to it (send())
+        if kwargs.get("can_filters"):
+            # published as it joins: no sender sees this member without its filter
+            self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in kwargs["can_filters"])
         try:
             self._members = self._join(self._sock.bind)
         except BaseException:

@@ -113,6 +113,11 @@ class LoopStats:
     # the loop thread's CPU time per cycle [s] (record_periods): from one cycle's end to the next's
     # (the pacing between them counted with the next cycle; one clock read per cycle)
     cpu: Series = field(default_factory=Series)
+    # real-time pace with record_periods: how late cycle k started after its deadline [s] (a sleep
+    # that returned late, or the cycle before ran past it), and at the end of cycle k how far past
+    # the next cycle's deadline it was [s] (> 0: an overrun; < 0: the sleep that followed)
+    wake: Series = field(default_factory=Series)
+    late: Series = field(default_factory=Series)
     faults: int = 0
     skipped: int = 0                               # deadlines skipped after overruns >= 1 period
     extrapolated: int = 0                          # samples the hardware missed, extrapolated (run docstring)
@@ -285,8 +290,8 @@ class FixedRateLoop:
         c = self._cycle
         k = 0
         if self.record_periods and cycles is not None:
-            st.cpu.reserve(len(st.cpu) + cycles)
-            st.periods.reserve(len(st.periods) + cycles)
+            for series in (st.cpu, st.periods, st.wake, st.late):
+                series.reserve(len(series) + cycles)
         # the pacing origin once the buffers are there (mapping them takes ms on a virtual machine)
         self._t0 = self._last_start = self.clock()
         if self.record_periods:
@@ -298,6 +303,8 @@ class FixedRateLoop:
             c.k = k
             c.start = start = self.clock()
             self.cycle_start = start
+            if self.record_periods and self.realtime:
+                st.wake.append(start - (self._t0 + k * self.period))
             if self._reset_requested:
                 self._operator_reset(k, start)
             self._read(c, start_sample)
@@ -489,6 +496,8 @@ class FixedRateLoop:
         deadline = self._t0 + k * self.period
         now = self.clock()
         late = now - deadline
+        if self.record_periods:
+            st.late.append(late)
         if late > 0:
             st.overruns += 1
             st.max_late_s = max(st.max_late_s, late)

@@ -82,6 +82,62 @@ def huge_page_state(root: str = THP_DIR) -> dict | None:
     return {"mode": mode, "collapsed": collapsed}
 
 
+def _boot_log_preemption(kmsg: str) -> str | None:
+    """A PREEMPT_DYNAMIC kernel's boot line ``Dynamic Preempt: MODE`` in the kernel's log
+    (``/dev/kmsg``, read without waiting; None where it is not readable or no longer there)."""
+    try:
+        fd = os.open(kmsg, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        for _ in range(100000):
+            try:
+                rec = os.read(fd, 8192)
+            except BrokenPipeError:          # a record overwritten while read: go on
+                continue
+            except OSError:                  # EAGAIN: the end of the log
+                return None
+            i = rec.find(b"Dynamic Preempt: ")
+            if i >= 0:
+                return rec[i + 17:].split()[0].decode(errors="replace")
+    finally:
+        os.close(fd)
+    return None
+
+
+def kernel_preemption(version: str | None = None, debugfs: str = "/sys/kernel/debug/sched/preempt",
+                      cmdline: str = "/proc/cmdline", kmsg: str = "/dev/kmsg") -> str:
+    """The kernel's preemption model as far as the machine tells: ``PREEMPT_RT``; a
+    PREEMPT_DYNAMIC kernel's mode (``none``, ``voluntary``, ``full``, ``lazy``) from debugfs, the
+    ``preempt=`` boot parameter or the boot log; else the build's tag in ``uname -v`` (``version``).  With
+    ``none`` or ``voluntary`` a real-time thread that wakes while another task runs kernel code
+    on its CPU waits until that code reaches a preemption point (up to milliseconds)."""
+    version = os.uname().version if version is None else version
+    if "PREEMPT_RT" in version:
+        return "PREEMPT_RT"
+    try:
+        with open(debugfs) as f:
+            text = f.read()
+        if "(" in text and ")" in text:
+            return f"{text[text.index('(') + 1:text.index(')')]} (PREEMPT_DYNAMIC)"
+    except OSError:
+        pass
+    try:
+        with open(cmdline) as f:
+            for arg in f.read().split():
+                if arg.startswith("preempt="):
+                    return f"{arg.split('=', 1)[1]} (preempt= on the kernel command line)"
+    except OSError:
+        pass
+    if "PREEMPT_DYNAMIC" in version:
+        mode = _boot_log_preemption(kmsg)
+        return (f"{mode} (PREEMPT_DYNAMIC, the kernel's boot log)" if mode else
+                "PREEMPT_DYNAMIC, its mode not readable here (the build's default)")
+    words = version.split()
+    return "full (PREEMPT)" if "PREEMPT" in words else ("voluntary" if "PREEMPT_VOLUNTARY" in words else
+                                                        "none or voluntary (no PREEMPT in uname -v)")
+
+
 def has_cap_ipc_lock(status_path: str = "/proc/self/status") -> bool:
     """Whether this process's effective capabilities hold CAP_IPC_LOCK (False where unknown)."""
     try:

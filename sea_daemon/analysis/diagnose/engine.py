@@ -29,6 +29,7 @@ from sea_daemon.core.log import MeasuredLog
 from sea_daemon.errors import InputError, LogFormatError
 from sea_daemon.analysis.diagnose.candidates import Candidate, build_candidates
 from sea_daemon.analysis.diagnose.consistency import check_motor_balance
+from sea_daemon.analysis.sufficiency import check_columns
 from sea_daemon.analysis.diagnose.context import Context
 from sea_daemon.analysis.diagnose.crossval import (BlockScorer, CrossValidation, repeated_per_block, time_blocks,
                                                    without)
@@ -42,10 +43,12 @@ from sea_daemon.analysis.diagnose.summary import (ablation_statements, cv_statem
 
 
 def check_log(log: MeasuredLog, cfg: ModelConfig) -> None:
-    """The log fits the model's joints and is long enough to smooth (else InputError /
-    LogFormatError)."""
+    """The log fits the model's joints, each of its sensor columns reports something while the
+    joint moves (:func:`~sea_daemon.analysis.sufficiency.dead_column`), and it is long enough to
+    smooth (else InputError / LogFormatError)."""
     if log.n != cfg.joints:
         raise InputError(f"{log.path}: the log has {log.n} joint(s), the model {cfg.source} has {cfg.joints}")
+    check_columns(log)
     need = max(4 * window_samples(log.t), 50)
     if len(log) < need:
         raise LogFormatError(log.path, None, f"has {len(log)} data rows; diagnose needs at least {need} "

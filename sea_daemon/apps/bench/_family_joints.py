@@ -13,9 +13,10 @@
 * the declared working range per joint and the human-torque band.
 
 :func:`sessions_joints` lists the test sessions of a plant, unlike its calibration (the
-one-joint family's kinds, on both joints at once): slow and fast moves, wider ranges, sines,
-active subjects on both joints (0.1–0.5 and 0.5–3 Hz) while moving, and still-arm active
-sessions (Sec. V-C: the cosine on both joints, and a band-limited torque).
+one-joint family's kinds, on both joints at once): slow and fast moves, wider ranges (8° past
+the declared ones, clear of the end stops), sines about the ranges' middles, active subjects on
+both joints (0.1–0.5 and 0.5–3 Hz) while moving, and still-arm active sessions (Sec. V-C: the
+cosine on both joints, and a band-limited torque; the subject also holds the arm, :data:`HOLD`).
 """
 from __future__ import annotations
 
@@ -33,6 +34,13 @@ from sea_daemon.io.configfile import data_root, load_config
 
 #: the joints' declared working ranges [deg] (shoulder flexion, elbow flexion) before the draw
 RANGE_DEG = ((10.0, 80.0), (20.0, 110.0))
+#: the revision of :func:`sessions_joints`' definitions: cached logs of another revision are simulated again
+#: (2: ``sines`` swings about the middle of each joint's range; 3: the still-arm subject holds the arm, :data:`HOLD`)
+SESSIONS_REV = 3
+#: the still-arm sessions' subject holds the arm where it started [N m/rad, N m s/rad] (a relaxed
+#: arm's stiffness and damping; ``run_session``'s ``hold``): without it an open-loop two-joint arm
+#: can drift into its end stops
+HOLD = (20.0, 2.0)
 
 
 def _u(rng, lo, hi):
@@ -133,8 +141,11 @@ def sessions_joints(pd: PlantDraw, duration_s: float | None = None) -> list[Sess
     for j, w in enumerate(wrs):
         amp = 0.3 * w.width
         f1 = 0.6 * w.v_max / (2 * math.pi * amp)
-        sines.append(SineReference(mid[j], (amp, 0.25 * amp), (f1, 2.7 * f1),
-                                   (float(rng.uniform(0, 6.28)), float(rng.uniform(0, 6.28)))))
+        ph = (float(rng.uniform(0, 6.28)), float(rng.uniform(0, 6.28)))
+        # the sines swing about the range's middle (SineReference starts at its centre and swings
+        # about centre − Σ a sin φ): within mid ± 1.25 amp, inside the declared range and clear of the stops
+        c = mid[j] + amp * math.sin(ph[0]) + 0.25 * amp * math.sin(ph[1])
+        sines.append(SineReference(c, (amp, 0.25 * amp), (f1, 2.7 * f1), ph))
     out.append(SessionSpec("sines", T, PerJoint(tuple(sines)), None, None, "passive"))
     slow = PerJoint(tuple(SineReference(mid[j], (0.25 * w.width,), (0.12 + 0.03 * j,), (0.0,))
                              for j, w in enumerate(wrs)))

@@ -29,9 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from sea_daemon.apps.bench import machine
-from sea_daemon.apps.bench._family_joints import calibration_motion_joints, draw_plant_joints, sessions_joints
+from sea_daemon.apps.bench._family_joints import (HOLD, SESSIONS_REV, calibration_motion_joints, draw_plant_joints,
+                                                  sessions_joints)
 from sea_daemon.apps.bench._degenerate import timed_replay
 from sea_daemon.apps.bench._logcache import load_logs, save_logs
+from sea_daemon.analysis.passive_noise import passive_noise, walk_for_noise
 from sea_daemon.apps.calibration.joints import plant_substep
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
@@ -58,7 +60,7 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     name = f"joints2_plant_{seed}_{int(cal_s)}_{pd.nominal.rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
     key = {"seed": seed, "joints": 2, "cal_s": cal_s, "rate_hz": pd.nominal.rate_hz,
-           "sessions": [s.name for s in sessions_joints(pd)]}
+           "sessions": [s.name for s in sessions_joints(pd)], "sessions_rev": SESSIONS_REV}
     logs = None if p is None else load_logs(p, key)
     if logs is not None and "calibration" in logs:
         cal = logs.pop("calibration")
@@ -69,7 +71,7 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     tests = {}
     for i, s in enumerate(sessions_joints(pd)):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
-                                    seed=2000 + 100 * seed + i, substep_hz=sub)
+                                    seed=2000 + 100 * seed + i, substep_hz=sub, hold=HOLD if s.hold_q is not None else None)
     if p is not None:
         save_logs(p, key, {"calibration": cal} | tests)
     return pd, cal, tests
@@ -102,6 +104,21 @@ def score_joints(log, est, bound: bool = False) -> dict:
     v = r.valid if r.valid is not None else np.ones(len(log), dtype=bool)
     return {"rmse": float(np.sqrt(np.mean(e ** 2))), **base,
             "joints": [_joint_stats(e[:, j], r.tau_h_act_bound[:, j], v, bound) for j in range(e.shape[1])]}
+
+
+def passive_noise_record(cfg, walk: dict, pd) -> dict | None:
+    """The calibrated filter's computed passive noise per joint at its walk and the walk that keeps
+    it at :data:`DONE_WHEN`'s passive RMSE (:mod:`sea_daemon.analysis.passive_noise`; the arm at rest
+    in the middle of its declared ranges); None for the integrated walk or a filter that does not settle."""
+    if cfg.estimator.integrated or "q_tau" not in walk:
+        return None
+    q = np.array([0.5 * (w.q_min + w.q_max) for w in pd.working_range])
+    try:
+        p = passive_noise(cfg, walk.get("q_tau_per_joint", walk["q_tau"]), q=q)
+        target = DONE_WHEN["passive_rmse"]
+        return {**p.to_dict(), "walk_for_target": walk_for_noise(cfg, target, q=q).tolist(), "target": target}
+    except ValueError:
+        return None
 
 
 def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
@@ -143,7 +160,8 @@ def run_plant_joints(seed: int, cal_s: float, cache: Path | None, estimators, bo
                                       for d in rep.get("diagnose", {}).get("effects_added", [])],
                           "nominal_joints": rep.get("diagnose", {}).get("nominal_joints", []),
                           "q_tau": rep["tau_h_act_walk"].get("q_tau"), "gp_kept": rep["gp_kept"],
-                          "gp_cv": rep.get("gp_cv"), "leftover": rep["leftover"], "coverage": rep["coverage"]}
+                          "gp_cv": rep.get("gp_cv"), "leftover": rep["leftover"], "coverage": rep["coverage"],
+                          "passive_noise": passive_noise_record(res.cfg, rep["tau_h_act_walk"], pd)}
     do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
     cfg = res.cfg
     robot = dataclasses.replace(pd.nominal, estimator=dataclasses.replace(cfg.estimator, nis_scale=1e12),
@@ -281,6 +299,10 @@ def print_row_joints(row: dict) -> None:
     print(f"plant {row['seed']} (2 joints, {'development' if row['seed'] in DEVELOPMENT_SEEDS else 'held out'}, "
           f"{row['rate_hz']:g} Hz): effects {', '.join(c['effects']) or 'none'}; q_tau {c['q_tau']:.3g}, gp "
           f"{'kept' if c['gp_kept'] else 'off'}, calibration {row['calibration_s']:.0f} s", flush=True)
+    pn = c.get("passive_noise")
+    if pn:
+        print(f"  computed passive noise at the walk {'/'.join(f'{v:.3f}' for v in pn['rms'])} N m; walk for <= "
+              f"{pn['target']:g} N m: {'/'.join(f'{v:.3g}' for v in pn['walk_for_target'])}", flush=True)
     for name, r in row["sessions"].items():
         cells = []
         for k, v in r.items():

@@ -70,6 +70,7 @@ from sea_daemon.apps.bench._loop_rig import (
 from sea_daemon.hw.busload import measured_load
 from sea_daemon.core.log import DaemonColumns
 from sea_daemon.apps.bench._loop_stages import stage_timers
+from sea_daemon.apps.bench._loop_overruns import describe as describe_overruns, overrun_anatomy
 from sea_daemon.io.configfile import save_config
 from sea_daemon.io.configfile import load_config, data_root
 from sea_daemon.core.rates import at_rate
@@ -78,7 +79,7 @@ from sea_daemon.core.estimators import make_estimator
 from sea_daemon.io.gpmodel import load_gp_model
 from sea_daemon.core.buffers import resident_zeros
 from sea_daemon.hw.device_model.model import thread_page_faults
-from sea_daemon.runtime.realtime import huge_page_state
+from sea_daemon.runtime.realtime import huge_page_state, kernel_preemption
 from sea_daemon.io.logcsv import read_log
 from sea_daemon.io.scenario import load_scenario
 from sea_daemon.runtime.controller import ScenarioController
@@ -247,6 +248,7 @@ def run(args) -> int:
     wake_after = host_wake(cfg.dt, args.host_rounds) if args.host_rounds else None
     out = _figures(args, cfg, m, {"loadavg_before": load_before, "loadavg_after": load_after,
                                   "huge_pages": _huge_pages(thp_before, thp_after),
+                                  "kernel_preemption": kernel_preemption(),
                                   "host_wake_before": wake_before, "host_wake_after": wake_after})
     _report(args, cfg, m, out, residual)
     save(out)
@@ -438,7 +440,19 @@ def _figures(args, cfg, m: _Measured, host: dict) -> dict:
                                     if k_faults in probe and n_cycles - 1 in probe else None),
         # the start-up's priming read and the first cycle not counted
         "stages_cpu_us": m.stages.summary(2) if m.stages is not None else None,
+        "overrun_causes": _anatomy(st, m, loop_cpu, dt),
     }
+
+
+def _anatomy(st, m: _Measured, loop_cpu: np.ndarray, dt: float) -> dict:
+    """Where the time of each overrun went (:mod:`._loop_overruns`), the first cycle (the
+    start-up) left out."""
+    ds = m.dev_stats or {}
+    device = None
+    if ds.get("slow_answers") is not None and ds.get("answer_us") and ds.get("handler_cpu_us"):
+        device = {"slow": {int(c): (a * 1e-6, h * 1e-6) for c, a, h in ds["slow_answers"]},
+                  "answer": ds["answer_us"]["median"] * 1e-6, "cpu": ds["handler_cpu_us"]["median"] * 1e-6}
+    return overrun_anatomy(np.asarray(st.late), np.asarray(st.wake), m.compute, m.read_s, loop_cpu, dt, device=device)
 
 
 def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
@@ -457,6 +471,8 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
         print(f"transparent huge pages (the host's setting): {thp['mode']}; khugepaged collapsed "
               f"{thp['collapsed_during_run']} during the run, in any process (each collapse holds a CPU for "
               f"milliseconds on a kernel without full preemption; this run's processes have huge pages off)")
+    print(f"kernel preemption: {out['kernel_preemption']} (with none or voluntary, a real-time thread woken while "
+          f"another task runs kernel code on its CPU waits for a preemption point: a late wake-up below)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
@@ -484,6 +500,8 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
     _report_cpu(out, res)
     print(f"cycle wall time (read .. log row): median {c['median']:.0f} us, p99 {c['p99']:.0f} us, max {c['max']:.0f} us")
     _report_bus(cfg, m, out)
+    for line in describe_overruns(out["overrun_causes"]):
+        print(line)
 
 
 def _report_cpu(out: dict, res) -> None:

@@ -12,8 +12,8 @@ what was identified and the expected accuracy in plain words (stderr) and a JSON
 
 First, what the log can identify (:mod:`sea_daemon.analysis.sufficiency`): a log recorded at a
 whole multiple of the configuration's rate is decimated to it; a log that cannot be calibrated on
-(too short, moving one way only, swapped columns, constant angles, at the torque limit, another
-rate) is exit 2 with one line saying what to record instead; from a still arm the physical
+(too short, moving one way only, swapped columns, constant angles, a sensor column of zeros, at the
+torque limit, another rate) is exit 2 with one line saying what to record instead; from a still arm the physical
 effects are not identified (the configured model kept, and the report says so).  Exit 2 on bad
 input.
 """

@@ -3,7 +3,9 @@
 Autocovariance least squares (Odelson, Rajamani & Rawlings 2006; paper Sec. V-B) on a
 measured log: prints the identified measurement noise covariance R of the AKF (and the
 process noise Q with ``--with-Q``) as JSON, and can write a copy of the configuration with
-the new R (and, as in Sec. V-B, P0's measurement block set to R).
+the new R (and, as in Sec. V-B, P0's measurement block set to R).  The log is taken at the
+configuration's rate (R is per sample at ``rate_hz``): decimated from a whole multiple of it,
+refused (exit 2, one line) at another rate or with a sensor column that reports nothing.
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import logging
 import numpy as np
 
 from sea_daemon.analysis.als import R_FLOOR, config_with_R, floored_R, identify_noise
+from sea_daemon.analysis.sufficiency import at_config_rate, check_columns
 from sea_daemon.io.configfile import load_config, save_config
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.replay import replay
@@ -32,7 +35,9 @@ DESCRIPTION = (
     "(x = [theta_m, theta_s, dtheta_m, dtheta_s, tau_h_act], and dtau_h_act with the integrated "
     "walk). --write OUT.yaml saves the config with the new R (and P0's measurement block = R, as in "
     "the paper). An identified Q is kept only if the AKF with it runs over the same log without an "
-    "estimator fault; else the configured Sigma_nom is kept and the reason printed.")
+    "estimator fault; else the configured Sigma_nom is kept and the reason printed. A log at a whole "
+    "multiple of the configuration's rate_hz is decimated to it; one at another rate, or with a sensor "
+    "column that reports nothing while the joint moves, is refused (exit 2, one line).")
 
 def add_arguments(p) -> None:
     add_log_and_config(p)
@@ -57,6 +62,12 @@ def run(args) -> int:
     check_outputs([("--write", args.write)], inputs=[args.log, args.config])
     cfg = load_config(args.config)
     log = read_log(args.log, n=cfg.joints, min_rows=2)
+    # R is per sample at the configuration's rate (sea_daemon.core.rates scales it for others): a
+    # log at a whole multiple of the rate is decimated to it, one at another rate refused
+    log, note = at_config_rate(log, cfg)
+    if note:
+        logger.info(note)
+    check_columns(log)
     res = identify_noise(cfg, log, lags=args.lags, burn_in=args.burn_in, diag=not args.full,
                          channels=args.channels)
     n = cfg.joints

@@ -99,16 +99,24 @@ SESSION_EXTRA = ("q_true", "dq_true", "q_ref", "theta_m_true", "dtheta_m_true")
 def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hold_q: float | None = None,
                 human=None, seed: int = 0, gains: PIDGains = SESSION_GAINS, substep_hz: float | None = None,
                 sign_eps: float = 3e-3, torque_noise: float | tuple | None = None, t0: float = 0.0,
-                extra_load_torque=None, extra_held: bool = False) -> MeasuredLog:
+                extra_load_torque=None, extra_held: bool = False, hold: tuple[float, float] | None = None) -> MeasuredLog:
     """Simulate one session of the plant ``true_cfg`` (nominal model + hidden effects); see the
     module docstring (``extra_load_torque``, ``extra_held``: as :class:`~sea_daemon.core.sim.plant.Plant`).  Returns the measured log with the truth ``tau_h_act`` and, in ``extra``,
-    ``q_true``, ``dq_true``, ``q_ref``, ``theta_m_true``, ``dtheta_m_true``."""
+    ``q_true``, ``dq_true``, ``q_ref``, ``theta_m_true``, ``dtheta_m_true``.
+
+    ``hold`` = (K [N m/rad], B [N m s/rad]), still-arm sessions only: the subject also holds the
+    arm where it started, τ_h,act = −τ_des + K (q₀ − q) − B q̇ on the arm's state at the sample, as a
+    person keeping a limb still does.  Without it the open loop has nothing that brings a drifting
+    arm back (the spring's lag lets τ_des and the subject's torque part at a band's top), and a
+    two-joint arm can drift into its end stops."""
     rate = float(true_cfg.rate_hz)
     dt = 1.0 / rate
     N = int(round(duration_s * rate))
     sub = substep_hz if substep_hz is not None else max(1000.0, rate)
     if reference is None and hold_q is None:
         raise ValueError("run_session needs a reference or hold_q")
+    if hold is not None and reference is not None:
+        raise ValueError("run_session: hold applies to a still-arm session (hold_q), not to a reference")
     # hold_q: one angle, or the n joints' angles (a ``model.urdf``)
     q0 = reference.reference(0.0)[0] if reference is not None else (
         float(hold_q) if np.ndim(hold_q) == 0 else np.asarray(hold_q, dtype=float))
@@ -133,8 +141,20 @@ def run_session(true_cfg: ModelConfig, duration_s: float, *, reference=None, hol
         else:                         # n joints: τ_des (n,), the subject's torque on every joint
             des = (lambda t: -np.asarray(human(t), dtype=float).reshape(plant.n))
         ctl = StillArm(plant.hold_torque.copy(), des, limit, float(q0) if plant.n == 1 else np.ravel(q0).copy())
-        subject = ctl.subject
+        subject = ctl.subject if hold is None else _holding(ctl.subject, plant, ctl.q_ref, hold)
     return _sample(SampledPlant(plant, dt), ctl, subject, N, t0)
+
+
+def _holding(resist, plant: Plant, q_hold, hold: tuple[float, float]):
+    """The still-arm subject that resists τ_des (``resist``) and holds the arm at ``q_hold`` with
+    stiffness and damping ``hold`` = (K, B) on the plant's state (:func:`run_session`)."""
+    K, B = (float(v) for v in hold)
+    if not (K >= 0.0 and B >= 0.0 and np.isfinite(K) and np.isfinite(B)):
+        raise ValueError(f"run_session: hold = (K, B) must be finite and >= 0, got {hold!r}")
+
+    def subject(t):
+        return resist(t) + K * (q_hold - plant.q) - B * plant.dq
+    return subject
 
 
 def _sample(sp: SampledPlant, ctl, subject, rows: int, t0: float) -> MeasuredLog:

@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from sea_daemon.hw.bus import set_controller_filters
+from sea_daemon.hw.ipc_bus import IpcBus
 from sea_daemon.hw.device_model.drive import DriveNode
 from sea_daemon.hw.device_model.encoder import EncoderNode
 from sea_daemon.hw.device_model.faults import FaultSpec
@@ -54,6 +55,9 @@ class DeviceModel:
     """Drives + load encoders + plant on a bus.  ``start()`` boots the nodes, ``stop()`` leaves."""
 
     STATS_CAP = 1 << 21
+    #: answer_stats' slow answers: longer than this [s], at most this many
+    SLOW_ANSWER_S = 4e-4
+    SLOW_KEPT = 5000
 
     def __init__(self, bus, plant, *, drive_nodes: Sequence[int] = (1,), encoder_nodes: Sequence[int] = (2,),
                  tau_h_act: Callable[[float], np.ndarray] | None = None, lock_step: bool = True,
@@ -119,6 +123,9 @@ class DeviceModel:
         self.handler_cpu_s = resident_zeros(self.STATS_CAP)
         self._faults0: tuple | None = None        # (thread id, its faults) at SYNC _FAULTS_FROM_SYNC
         self._faults_final: dict | None = None    # handler_page_faults() when stopped (the thread ends)
+        # lock-step on ipc: each bus's RPDOs on a handle of their own that nobody waits on (one
+        # per bus, None where not), taken in the SYNC handler (:meth:`_take_rpdos`)
+        self._rpdo_taps: list = [None] * len(self.buses)
 
     # ------------------------------------------------------------------ life cycle
     def _configured_hardware(self, cfg) -> None:
@@ -138,22 +145,56 @@ class DeviceModel:
             if e.resolution != int(load[j]):
                 e.set_resolution(int(load[j]))
 
-    def acceptance_filters(self, bus: int = 0) -> list[dict]:
+    def acceptance_filters(self, bus: int = 0, rpdos: bool = True) -> list[dict]:
         """What the CAN controllers of the devices on ``bus`` (an index) accept (python-can
-        ``can_filters``): NMT, SYNC, their own RPDOs and SDO requests, heartbeats (the master's,
-        watched by the drives).  Other nodes' PDOs — the daemon's published TPDOs among them —
-        never reach the model."""
+        ``can_filters``): NMT, SYNC, their own RPDOs (``rpdos``) and SDO requests, heartbeats
+        (the master's, watched by the drives).  Other nodes' PDOs — the daemon's published TPDOs
+        among them — never reach the model."""
         ids = [0x000, 0x080]
         for node in self.bus_nodes[bus]:
-            ids += [f + node.id for f in (0x200, 0x300, 0x400, 0x500, 0x600)]
+            ids += [f + node.id for f in ((0x200, 0x300, 0x400, 0x500, 0x600) if rpdos else (0x600,))]
         out = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids]
         out.append({"can_id": 0x700, "can_mask": 0x780, "extended": False})
         return out
 
-    def start(self) -> "DeviceModel":
-        # the controllers' acceptance filter where the bus applies one below python-can
+    def _rpdo_ids(self, bus: int) -> list[int]:
+        return [f + node.id for node in self.bus_nodes[bus] for f in (0x200, 0x300, 0x400, 0x500)]
+
+    def _open_rpdo_taps(self) -> None:
+        """Lock-step on the ``ipc`` bus: each bus's RPDOs go to a handle of the model's own that
+        no thread waits on, and the SYNC handler takes them before it steps the plant
+        (:meth:`_take_rpdos`).  A lock-step device acts on a torque command only at the next
+        SYNC, and the master sends that SYNC after the command, so the commands are the same
+        ones; but the master's RPDO no longer wakes the model's receive thread between two
+        SYNCs (on a virtual machine waking a task on another CPU costs the sender about 18 µs
+        of CPU, the model a wake-up of its own)."""
         for i, bus in enumerate(self.buses):
-            set_controller_filters(bus, self.acceptance_filters(i))
+            if self.lock_step and isinstance(bus, IpcBus):
+                ids = self._rpdo_ids(i)
+                self._rpdo_taps[i] = IpcBus(channel=bus.channel, can_filters=[
+                    {"can_id": c, "can_mask": 0x7FF, "extended": False} for c in ids])
+
+    def _take_rpdos(self) -> None:
+        """The RPDOs queued on every bus's tap, to their network's subscribers as canopen's
+        receive thread would hand them (every bus's: the first SYNC of a cycle steps the plant
+        of all joints)."""
+        for net, tap in zip(self.networks, self._rpdo_taps):
+            if tap is None:
+                continue
+            while True:
+                frame = tap.recv_frame(0.0)
+                if frame is None:
+                    break
+                can_id, data = frame
+                if can_id & 0x780 in (0x200, 0x300, 0x400, 0x500):   # an RPDO (error frames pass every filter)
+                    net.notify(can_id, bytearray(data), tap.frame_timestamp())
+
+    def start(self) -> "DeviceModel":
+        # the controllers' acceptance filter where the bus applies one below python-can (the
+        # RPDOs on their taps first, then off the receiving handle)
+        self._open_rpdo_taps()
+        for i, bus in enumerate(self.buses):
+            set_controller_filters(bus, self.acceptance_filters(i, rpdos=self._rpdo_taps[i] is None))
         # several buses with descriptors: one receive thread for all of them (SharedReceiver: the
         # cycle's SYNCs answered in bus order by one thread), else canopen's Notifier per network
         shared = SharedReceiver.of(self.buses, self.networks, self.networks[0].NOTIFIER_CYCLE)
@@ -192,6 +233,10 @@ class DeviceModel:
         for net in self.networks:
             if net.notifier is not None:
                 net.notifier.stop(2.0)
+        for i, tap in enumerate(self._rpdo_taps):
+            if tap is not None:
+                tap.shutdown()
+                self._rpdo_taps[i] = None
         if self.owns_bus:
             for bus in self.buses:
                 bus.shutdown()
@@ -276,11 +321,19 @@ class DeviceModel:
             a = a[1:] if k > 1 else a                # the first SYNC (start-up) is not a cycle
             out[key] = ({"median": float(np.median(a) * 1e6), "p99": float(np.percentile(a, 99) * 1e6),
                          "max": float(a.max() * 1e6)} if a.size else None)
+        # the slow answers, each with its cycle (the SYNCs of a cycle are handled one bus after
+        # the other; before the ring wrapped): [cycle, answer µs, handler CPU µs]
+        if self.handled <= self.STATS_CAP:
+            slow = np.flatnonzero(self.answer_s[:k] > self.SLOW_ANSWER_S)[:self.SLOW_KEPT]
+            nb = len(self.buses)
+            out["slow_answers"] = [[int(i // nb + 1), float(self.answer_s[i] * 1e6), float(self.handler_cpu_s[i] * 1e6)]
+                                   for i in slow]
         return out
 
     def _on_sync(self, can_id, data, timestamp, bus: int = 0) -> None:
         c0 = time.thread_time()
         try:
+            self._take_rpdos()
             self._sync(timestamp, bus)
         finally:
             i = (self.handled - 1) % self.STATS_CAP
