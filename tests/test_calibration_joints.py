@@ -4,6 +4,7 @@ corrected (its links' masses and lengths, on every joint), the LoG-GP per
 joint on z ∈ R⁶ with each joint's length scales, the coverage per joint, and the calibrated model
 saved and read back (replay --model)."""
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -172,6 +173,7 @@ def test_each_joint_gets_the_walk_of_its_own_errors_and_bound(cfg):
         return {"q_tau": q, "sign_eps": 0.003, "per_joint": {k: e for k in active}, "bound": b}
 
     class Scan:
+        opts = SimpleNamespace(walk_for="bound")
         table = {(q, 0.003): row(q, e) for q, e in err.items()}
         together = {(1.0, 3.0): 0.5, (0.3, 3.0): 0.7, (1.0, 1.0): 0.6, (0.3, 1.0): 0.9}    # the walks together
 
@@ -195,8 +197,13 @@ def test_each_joint_gets_the_walk_of_its_own_errors_and_bound(cfg):
     assert qt == [0.3, 1.0] and rec["rule"] == ["rmse", "rmse"] and rec["mean_rho"] == 1.0
 
     class Empty:
+        opts = Scan.opts
         table: dict = {}
     assert walk_per_joint_bound(Empty(), 0.003, active, 1.0, 2)[0] == [1.0, 1.0]
+    # calibration.walk_for: estimate (the default): each joint's smallest q_τ within 2 % of its best RMS
+    Scan.opts = SimpleNamespace(walk_for="estimate")
+    assert walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2) == ([0.3, 1.0], {"rule": ["rmse", "rmse"],
+                                                                                "rmse_tolerance": 0.02})
     S = sigma_nom_for(cfg, [0.3, 1.0])["Sigma_nom"]
     np.testing.assert_allclose(np.diag(S)[8:], np.array([0.3, 1.0]) * cfg.dt)
     np.testing.assert_allclose(np.diag(sigma_nom_for(cfg, 2.0)["Sigma_nom"])[8:], 2.0 * cfg.dt)

@@ -1,4 +1,4 @@
-"""The calibration's τ_h,act walk chosen for the bound as well as the estimate (apps/calibration/walk_bound.py)."""
+"""The calibration's τ_h,act walk chosen for the estimate, or for the bound as well (apps/calibration/walk_bound.py)."""
 from __future__ import annotations
 
 import math
@@ -19,8 +19,9 @@ ACTIVE = {"synthetic_moving": None, "synthetic_still": None}     # the logs: nev
 class FakeScan:
     """A walk scan whose synthetic RMS and bound figures are functions of q_τ (no filter runs)."""
 
-    def __init__(self, rms, rho, cov):
+    def __init__(self, rms, rho, cov, walk_for="bound"):
         self.rms, self.rho, self.cov = rms, rho, cov
+        self.opts = SimpleNamespace(walk_for=walk_for)
         self.table: dict = {}
         self.evaluated: list[float] = []
 
@@ -58,6 +59,27 @@ def test_the_walk_with_the_smallest_covering_bound_within_the_rmse_tolerance():
     assert math.isclose(q, 10.0) and rec["rule"] == "bound"
     assert math.isclose(rec["rmse_rule_walk"], 1.0)
     assert any(math.isclose(g, 10 ** 1.5) for g in scan.evaluated)      # the half-decade above was tried
+    # calibration.walk_for: estimate (the default): the smallest q_τ within 2 % of the best RMS, no bound run
+    scan = scanned(FakeScan(rms, rho, lambda q: 1.0, walk_for="estimate"), grid)
+    n = len(scan.evaluated)
+    q, rec = walk_for_bound(scan, 0.003, ACTIVE, grid)
+    assert math.isclose(q, 1.0) and rec["rule"] == "rmse" and len(scan.evaluated) == n
+
+
+def test_walk_for_in_the_configuration():
+    """``calibration.walk_for`` is estimate by default, bound when asked, refused otherwise; the
+    calibration's options carry it."""
+    import pytest
+
+    from sea_daemon.apps.calibration.pipeline import options_from_config
+    from sea_daemon.core.config import CalibrationConfig
+    from sea_daemon.errors import ConfigError
+    cfg = load_config(default_config_path())
+    assert cfg.calibration.walk_for == "estimate" and options_from_config(cfg).walk_for == "estimate"
+    c = CalibrationConfig.from_dict({"walk_for": "bound"}, 1, "m.yaml")
+    assert c.walk_for == "bound" and CalibrationConfig.from_dict(c.to_dict(), 1, "m.yaml") == c
+    with pytest.raises(ConfigError, match="calibration.walk_for.*estimate, bound.*'tight'"):
+        CalibrationConfig.from_dict({"walk_for": "tight"}, 1, "m.yaml")
 
 
 def test_a_bound_that_does_not_cover_is_not_chosen():

@@ -292,7 +292,8 @@ class AssistConfig:
 class CalibrationConfig:
     """What the user declares for the calibration (``calibration``; docs/calibration.md): the
     joint's working range the excitation covers, and the band and size of the subject's active
-    torque (the τ_h,act random walk is chosen for it).  Absent: the working range is the
+    torque (the τ_h,act random walk is chosen for it: for the estimate, or with ``walk_for: bound`` for
+    the Theorem-1 bound as well).  Absent: the working range is the
     calibration log's own, the human torque 0.1–1 Hz at 1.5 N m RMS."""
 
     q_min_deg: float | None = None       # working range [deg]
@@ -303,8 +304,12 @@ class CalibrationConfig:
     human_band_hz: tuple[float, float] = (0.1, 1.0)   # band of τ_h,act [Hz]
     human_torque_rms: float = 1.5        # RMS of τ_h,act [N m]
     seed: int = 0                        # of the excitation's random moves
+    walk_for: str = "estimate"           # the τ_h,act walk chosen for: estimate | bound
 
-    KEYS = ["q_min_deg", "q_max_deg", "v_max", "a_max", "duration_s", "human_band_hz", "human_torque_rms", "seed"]
+    KEYS = ["q_min_deg", "q_max_deg", "v_max", "a_max", "duration_s", "human_band_hz", "human_torque_rms", "seed",
+            "walk_for"]
+    #: what the calibration may choose the τ_h,act walk for (docs/calibration.md step 5)
+    WALK_FOR = ("estimate", "bound")
     #: the largest speed [rad/s], acceleration [rad/s²], duration [s] and RMS torque [N m]: the
     #: calibration's moves are planned sample by sample over ``duration_s``
     MAX = {"v_max": 100.0, "a_max": 1e4, "duration_s": 3600.0, "human_torque_rms": 1e3}
@@ -332,6 +337,10 @@ class CalibrationConfig:
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
                 raise ConfigError(source, k + "seed", f"must be an integer in 0..{MAX_SEED}, got {v!r}")
             out["seed"] = v
+        if "walk_for" in d:
+            if d["walk_for"] not in cls.WALK_FOR:
+                raise ConfigError(source, k + "walk_for", f"must be one of {', '.join(cls.WALK_FOR)}, got {d['walk_for']!r}")
+            out["walk_for"] = d["walk_for"]
         if out.get("q_min_deg") is not None and out.get("q_max_deg") is not None \
                 and not out["q_min_deg"] < out["q_max_deg"]:
             raise ConfigError(source, k + "q_max_deg", "must be > q_min_deg")

@@ -121,11 +121,12 @@ def passive_noise_record(cfg, walk: dict, pd) -> dict | None:
         return None
 
 
-def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
+def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None, walk_for: str = "estimate"):
     """The calibration of plant ``pd`` on its log ``cal`` (its declared subject and working range)
     with the filter's τ_h,act model ``tau_model`` (``estimator.tau_h_act_model``; None: the plant's
-    configured one); ``row["calibration_s"]`` its time, or, for an internal error (a benchmark
-    result), None and ``row["calibration_error"]``."""
+    configured one), its walk chosen for ``walk_for`` (``calibration.walk_for``);
+    ``row["calibration_s"]`` its time, or, for an internal error (a benchmark result), None and
+    ``row["calibration_error"]``."""
     nom = pd.nominal
     if tau_model is not None:
         pd = dataclasses.replace(pd, nominal=dataclasses.replace(
@@ -133,7 +134,7 @@ def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
     try:
         t0 = time.perf_counter()
         res = calibrate(cal, pd.nominal, opts=CalibrationOptions(human=HumanSpec(pd.human_band_hz, pd.human_rms),
-                                                                 working_range=pd.working_range))
+                                                                 working_range=pd.working_range, walk_for=walk_for))
         row["calibration_s"] = time.perf_counter() - t0
         return res
     except Exception as e:        # an internal error of the calibration is a benchmark result
@@ -143,16 +144,17 @@ def calibrate_plant(cal, pd, row: dict, tau_model: str | None = None):
 
 
 def run_plant_joints(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
-                     rate_hz: float | None = None, names=None, tau_model: str = "walk") -> dict:
+                     rate_hz: float | None = None, names=None, tau_model: str = "walk",
+                     walk_for: str = "estimate") -> dict:
     """Calibrate two-joint plant ``seed`` once and run every estimator on every test session."""
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs_joints(seed, cal_s, cache, rate_hz)
     if names is not None:
         tests = {k: v for k, v in tests.items() if k in names}
     row: dict = {"seed": seed, "joints": 2, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary, "tau_h_act_model": tau_model,
-                 "session_kinds": {sp.name: sp.kind for sp in sessions_joints(pd)}, "simulation_s": time.perf_counter() - t0}
+                 "walk_for": walk_for, "session_kinds": {sp.name: sp.kind for sp in sessions_joints(pd)}, "simulation_s": time.perf_counter() - t0}
     t0 = time.perf_counter()
-    res = calibrate_plant(cal, pd, row, tau_model)
+    res = calibrate_plant(cal, pd, row, tau_model, walk_for)
     if res is None:
         return row
     rep = res.report
@@ -258,7 +260,7 @@ def run_joints(args, seeds, rates, names, est, out: Path, cache, summarize, by_r
     print(f"bench generalize --joints 2: seeds held out {roles['held_out'] or 'none'}; development seeds "
           f"{roles['development'] or 'none'}; {len(seeds)} plants, rates {args.rates or '100 Hz'}, calibration "
           f"{args.cal_s:g} s, estimators {', '.join(est)}, bound {args.bound}; {machine()}", flush=True)
-    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model) for s in seeds for r in rates]
+    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model, args.walk_for) for s in seeds for r in rates]
     rows = []
     with mp.get_context("fork").Pool(max(1, min(args.jobs, len(jobs)))) as pool:
         for row in pool.imap_unordered(_job, jobs):

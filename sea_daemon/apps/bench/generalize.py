@@ -100,6 +100,9 @@ def add_arguments(p) -> None:
     p.add_argument("--tau-model", choices=("walk", "integrated"), default="walk",
                    help="the filter's model of the subject's torque (estimator.tau_h_act_model): walk (default) or "
                         "integrated (tracks its rate too; docs/bounds.md §6)")
+    p.add_argument("--walk-for", choices=("estimate", "bound"), default="estimate",
+                   help="what the calibration chooses the subject's torque walk for (calibration.walk_for): estimate "
+                        "(default) or bound (the Theorem-1 bound as well; docs/calibration.md step 5)")
     p.add_argument("--cases", default=None,
                    help="with --degenerate: comma list of " + ", ".join(DEGENERATE) + " (default all of them) and "
                         + REFERENCE + " (the calibration excitation for --cal-s s, for comparison)")
@@ -148,19 +151,19 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
 
 
 def run_plant(seed: int, cal_s: float, cache: Path | None, estimators, bound_mode: str,
-              rate_hz: float | None = None, tau_model: str = "walk") -> dict:
+              rate_hz: float | None = None, tau_model: str = "walk", walk_for: str = "estimate") -> dict:
     """Calibrate plant ``seed`` (at ``rate_hz``, default its own; the filter's τ_h,act model
-    ``tau_model``) once and run every estimator on every test session."""
+    ``tau_model``, its walk chosen for ``walk_for``) once and run every estimator on every test session."""
     t0 = time.perf_counter()
     pd, cal, tests = plant_logs(seed, cal_s, cache, rate_hz)
     t_sim = time.perf_counter() - t0
     row: dict = {"seed": seed, "rate_hz": pd.nominal.rate_hz, "plant": pd.summary,
                  "session_kinds": {sp.name: sp.kind for sp in sessions(pd)}}
     t0 = time.perf_counter()
-    res = calibrate_plant(cal, pd, row, tau_model)
+    res = calibrate_plant(cal, pd, row, tau_model, walk_for)
     if res is None:
         return row
-    row["tau_h_act_model"] = tau_model
+    row["tau_h_act_model"], row["walk_for"] = tau_model, walk_for
     row["calibration"] = calibration_row(res.report)
     do_bound = bound_mode == "all" or (bound_mode == "100hz" and pd.nominal.rate_hz <= 200)
     row["sessions"] = run_sessions(res, pd.nominal, pd.true, tests, estimators, do_bound)
@@ -319,8 +322,8 @@ def by_rate(rows: list[dict]) -> dict:
 
 
 def _job(args):
-    seed, cal_s, cache, est, bound, rate, names, tau_model = args
-    row = run_plant(seed, cal_s, cache, est, bound, rate, tau_model)
+    seed, cal_s, cache, est, bound, rate, names, tau_model, walk_for = args
+    row = run_plant(seed, cal_s, cache, est, bound, rate, tau_model, walk_for)
     if names is not None and "sessions" in row:
         row["sessions"] = {k: v for k, v in row["sessions"].items() if k in names}
     return row
@@ -380,8 +383,8 @@ def run(args) -> int:
         return run_joints(args, seeds, rates, names, est, out, cache, summarize, by_rate)
     print(f"bench generalize: {len(seeds)} plants (seeds {args.seeds}), rates "
           f"{args.rates or 'of the seeds'}, calibration {args.cal_s:g} s, estimators {', '.join(est)}, "
-          f"bound {args.bound}, tau_h_act model {args.tau_model}; {machine()}", flush=True)
-    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model) for s in seeds for r in rates]
+          f"bound {args.bound}, tau_h_act model {args.tau_model}, walk for {args.walk_for}; {machine()}", flush=True)
+    jobs = [(s, args.cal_s, cache, est, args.bound, r, names, args.tau_model, args.walk_for) for s in seeds for r in rates]
     rows = _pool(jobs, _job, args.jobs, _print_row, out, "plants calibrated and tested")
     rows.sort(key=lambda r: (r["seed"], r.get("rate_hz", 0.0)))
     summary = summarize(rows)

@@ -96,6 +96,7 @@ class CalibrationOptions:
     hyper_points: int = 400                        # subsample for the ML hyperparameters
     diagnose: bool = True
     refuse: bool = True          # False: a log fit refuses is calibrated with the configured physics (benchmarks)
+    walk_for: str = "estimate"   # the τ_h,act walk for the estimate, or for the bound too (walk_bound)
 
 
 @dataclass
@@ -215,14 +216,13 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     * q_τ, how fast the subject's torque moves, from the synthetic active sessions alone (the
       identified model as the plant, a human torque of the declared band and size, moving and
       still arm): decades of :attr:`CalibrationOptions.q_tau_grid` then its half-decades around
-      the best; among the walks within 10 % of the best RMS (the objective is flat over decades
-      once the walk is fast enough), the one whose Theorem-1 bound on those sessions is smallest
-      (:mod:`.walk_bound`).  A passive log says nothing about the subject's torque.
+      the best; the smallest q_τ within 2 % of the best RMS (the smoothest estimate the data do
+      not contradict) or, with ``walk_for`` "bound", among those within 10 % the one whose
+      Theorem-1 bound there is smallest (:mod:`.walk_bound`).  A passive log says nothing of τ_h,act.
 
     sign_eps is chosen at the declared walk (:func:`declared_walk`), q_τ at that sign_eps, then
     sign_eps again at the chosen q_τ.  Without a simulated model, q_τ is the declared walk."""
-    # at most ~4000 samples per synthetic session (20 s at 100 Hz, 10 s at 1 kHz: the lowest
-    # declared frequency still shows)
+    # ≤ ~4000 samples per synthetic session (20 s at 100 Hz, 10 s at 1 kHz: the lowest band shows)
     T = max(min(opts.synth_s, 4000 * log.dt), min(opts.synth_s, 10.0))
     # the passive log's first 2 T seconds (the leakage of model error into τ̂)
     passive = {"passive_log": log.slice(0, min(len(log), int(round(2 * T / log.dt))))}
@@ -583,7 +583,7 @@ def options_from_config(cfg: ModelConfig, gp: str = "auto") -> CalibrationOption
     if c.q_min_deg is not None and c.q_max_deg is not None:
         wr = WorkingRange(math.radians(c.q_min_deg), math.radians(c.q_max_deg), c.v_max, c.a_max)
     return CalibrationOptions(human=HumanSpec(tuple(c.human_band_hz), c.human_torque_rms), working_range=wr,
-                              gp=gp, seed=c.seed)
+                              gp=gp, seed=c.seed, walk_for=c.walk_for)
 
 
 def calibrate_log(log: MeasuredLog, cfg: ModelConfig, raw: Mapping | None, gp: str = "auto",

@@ -1,4 +1,8 @@
-"""The τ_h,act walk for the bound as well as for the estimate (docs/calibration.md step 5, docs/bounds.md §9).
+"""The τ_h,act walk for the estimate, or for the bound as well (docs/calibration.md step 5, docs/bounds.md §9).
+
+By default (``calibration.walk_for: estimate``) the calibration keeps the smoothest estimate the
+data do not contradict: the smallest q_τ whose RMS of τ̂_h,act on the synthetic sessions is within
+:data:`RMSE_RULE_TOL` of the best (per joint on that joint's own RMS).  With ``walk_for: bound``:
 
 The walk scan (:class:`~.pipeline._WalkScan`) rates each q_τ by the RMS of τ̂_h,act on the
 synthetic active sessions (the identified model as the plant, a subject of the declared band and
@@ -105,6 +109,8 @@ def walk_for_bound(scan, eps: float, active: dict, grid: np.ndarray) -> tuple[fl
     def rms(r):
         return scan.objective(r, active)
     fallback = rmse_rule(rows(), rms)
+    if scan.opts.walk_for != "bound":
+        return fallback, {"rule": "rmse", "rmse_tolerance": RMSE_RULE_TOL}
     tried: set = set()
     q = None
     while True:
@@ -138,10 +144,14 @@ def walk_per_joint_bound(scan, eps: float, active: dict, common: float, n: int) 
             if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r.get("per_joint", {}) for k in active)]
     if not rows:
         return [float(common)] * n, {"rule": "common"}
+
+    def rms_of(j):
+        return lambda r: math.sqrt(float(np.mean([r["per_joint"][k][j] ** 2 for k in active])))
+    if scan.opts.walk_for != "bound":
+        return [rmse_rule(rows, rms_of(j)) for j in range(n)], {"rule": ["rmse"] * n, "rmse_tolerance": RMSE_RULE_TOL}
     out, rules, by_rmse = [], [], []
     for j in range(n):
-        def rms(r, j=j):
-            return math.sqrt(float(np.mean([r["per_joint"][k][j] ** 2 for k in active])))
+        rms = rms_of(j)
         best = min(rms(r) for r in rows)
         for r in rows:
             if rms(r) <= (1.0 + RMSE_TOL) * best:
