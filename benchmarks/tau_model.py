@@ -28,8 +28,9 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
 from scipy.special import ndtri
+
+from sea_daemon.analysis.passive_noise import l1_response, lyapunov_sum, steady_filter
 
 from sea_daemon.core.bounds.floor import bound_floor, rest_jacobian, wearer_accel, wearer_rate
 from sea_daemon.core.linalg import discretize
@@ -72,29 +73,13 @@ def steady_bound(A5: np.ndarray, dt: float, model: str, q_walk: float, amp: floa
     H[1, 0] = H[1, 1] = 1.0                  # q = θ_m + θ_s
     Q = np.zeros((n, n))
     Q[walk, walk] = q_walk * dt
-    try:
-        P = solve_discrete_are(F.T, H.T, Q + 1e-18 * np.eye(n), R)
-    except (np.linalg.LinAlgError, ValueError):
+    kf = steady_filter(F, H, Q + 1e-18 * np.eye(n), R)
+    if kf is None:
         return None
-    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
-    IKH = np.eye(n) - K @ H
-    T = IKH @ F
-    if not np.all(np.isfinite(T)) or np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
-        return None
-    E, l1 = IKH @ G, np.zeros(2)
-    for _ in range(200000):                  # ℓ1 norms of the τ error's responses to the held inputs
-        l1 += np.abs(E[4])
-        E = T @ E
-        if np.max(np.abs(E)) < 1e-15:
-            break
-    Pg = np.zeros((n, n))
-    KRK = K @ R @ K.T
-    for _ in range(200000):                  # the noise alone through the filter
-        Pn = T @ Pg @ T.T + KRK
-        if np.max(np.abs(Pn - Pg)) <= 1e-12 * max(np.max(np.abs(Pn)), 1e-30):
-            break
-        Pg = Pn
-    return amp * l1[0], z * math.sqrt(max(Pn[4, 4], 0.0)), l1[1]
+    K, IKH, T = kf
+    l1 = l1_response(T, IKH @ G, 4, slice(None))        # the τ error's responses to the held inputs
+    Pg = lyapunov_sum(T, K @ R @ K.T)                     # the noise alone through the filter
+    return amp * l1[0], z * math.sqrt(max(Pg[4, 4], 0.0)), l1[1]
 
 
 def run(args) -> int:

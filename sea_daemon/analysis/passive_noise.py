@@ -83,6 +83,32 @@ def _input_matrix(cfg: ModelConfig, q: np.ndarray) -> np.ndarray:
     return model.B_nom()
 
 
+def steady_filter(F: np.ndarray, H: np.ndarray, Q: np.ndarray, R: np.ndarray):
+    """(K, I − K H, T = (I − K H) F) of the steady-state Kalman filter of (F, H, Q, R), or None
+    where it does not settle (no finite Riccati solution, or T not stable)."""
+    P = _riccati(F, H, Q, R)
+    if P is None:
+        return None
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    IKH = np.eye(len(F)) - K @ H
+    T = IKH @ F
+    if not np.all(np.isfinite(T)) or np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
+        return None
+    return K, IKH, T
+
+
+def l1_response(T: np.ndarray, E: np.ndarray, rows, cols) -> np.ndarray:
+    """Σ_k |(T^k E)[rows, cols]|: the ℓ1 norm of a stable filter's error response, entry by entry, to
+    inputs held at the columns of ``E`` (the first step's error), summed until it has died out."""
+    out = np.zeros(np.shape(E[rows, cols]))
+    for _ in range(200000):
+        out += np.abs(E[rows, cols])
+        E = T @ E
+        if np.max(np.abs(E)) < 1e-15:
+            break
+    return out
+
+
 def _riccati(F: np.ndarray, H: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray | None:
     """The steady-state prior covariance of the Kalman filter (scipy's DARE; where its Schur
     reordering fails on the encoders' very different scales, the Riccati recursion to convergence)."""
@@ -105,7 +131,7 @@ def _riccati(F: np.ndarray, H: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return None
 
 
-def _lyapunov(T: np.ndarray, W: np.ndarray) -> np.ndarray:
+def lyapunov_sum(T: np.ndarray, W: np.ndarray) -> np.ndarray:
     """X = Σ_k T^k W (T^k)ᵀ (X = T X Tᵀ + W, T stable) by doubling: the encoders' scales (10⁻⁷ rad)
     and the torque's (10⁻² N m) make the direct solve's Kronecker system too ill-conditioned."""
     X, A = W.copy(), T.copy()
@@ -144,21 +170,13 @@ def passive_noise(cfg: ModelConfig, q_tau, sigma_u: float | None = None, q=None,
     Qu = su * su * (Gu @ Gu.T)
     Q = Qu.copy()
     Q[tau, tau] += qt * dt
-    P = _riccati(F, H, Q + 1e-18 * np.eye(d), R)
-    if P is None:
+    kf = steady_filter(F, H, Q + 1e-18 * np.eye(d), R)
+    if kf is None:
         raise ValueError(f"the filter with q_tau {qt.tolist()} does not settle")
-    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
-    IKH = np.eye(d) - K @ H
-    T = IKH @ F
-    if not np.all(np.isfinite(T)) or np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
-        raise ValueError(f"the filter with q_tau {qt.tolist()} does not settle")
-    X = _lyapunov(T, IKH @ Qu @ IKH.T + K @ R @ K.T)
-    E, lag = IKH @ Gw, np.zeros(n)
-    for _ in range(200000):              # ℓ1 norm of τ_j's error response to joint j's held unit rate
-        lag += np.abs(E[tau, np.arange(n)])
-        E = T @ E
-        if np.max(np.abs(E)) < 1e-15:
-            break
+    K, IKH, T = kf
+    X = lyapunov_sum(T, IKH @ Qu @ IKH.T + K @ R @ K.T)
+    # ℓ1 norm of τ_j's error response to joint j's held unit rate
+    lag = l1_response(T, IKH @ Gw, tau, np.arange(n))
     rms = np.sqrt(np.maximum(np.diag(X)[tau], 0.0))
     return PassiveNoise(rms, lag, qt, su, (tuple(map(float, dq)), tuple(map(float, dth))))
 
