@@ -187,13 +187,12 @@ class IpcBus(can.BusABC):
         self._rview = memoryview(self._rbuf)
         self._pending_ts: float | None = None       # frame_timestamp() of a frame from _pending
         self._closed = False
-        self._accept: tuple | None = None          # ((id, mask), ...) of set_filters; None: all
+        # ((id, mask), ...) of set_filters, None: all; the constructor's published as it joins (no
+        # sender sees this member without its filter)
+        self._accept: tuple | None = self._pairs(kwargs.get("can_filters"))
         self._accepts: dict[int, bool] = {}        # id -> whether _accept takes it (cache)
         self._dest: dict[int, tuple] = {}          # id -> the members a frame with it goes to (cache)
         self._conns: dict[str, socket.socket] = {}  # member -> a socket connected to it (send())
-        if kwargs.get("can_filters"):
-            # published as it joins: no sender sees this member without its filter
-            self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in kwargs["can_filters"])
         try:
             self._members = self._join(self._sock.bind)
         except BaseException:
@@ -389,13 +388,15 @@ class IpcBus(can.BusABC):
                            is_remote_frame=bool(flags & _RTR), is_error_frame=bool(flags & _ERR), dlc=dlc,
                            data=data[:dlc], channel=None, check=False)
 
+    @staticmethod
+    def _pairs(filters) -> tuple | None:
+        """python-can's ``can_filters`` as ((id, mask), ...); None (accept all) for none."""
+        return tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters) if filters else None
+
     def _apply_filters(self, filters) -> None:
         """python-can's accept filters, checked on the raw id before a frame is decoded (error
         frames always pass, as on SocketCAN)."""
-        if not filters:
-            self._accept = None
-        else:
-            self._accept = tuple((int(f["can_id"]), int(f["can_mask"])) for f in filters)
+        self._accept = self._pairs(filters)
         self._accepts = {}
         # published next to the socket: the senders skip this member for other ids (a member's
         # queue holds max_dgram_qlen datagrams, 10 by default: a handle read only once a cycle
