@@ -13,7 +13,7 @@ from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, fit
                                                 plant_substep)
 from sea_daemon.apps.calibration.modelio import estimator_from_model, save_calibrated
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, calibrate, sigma_nom_for, sufficient_log
-from sea_daemon.apps.calibration.walk_bound import walk_per_joint_bound
+from sea_daemon.apps.calibration.walk_bound import walk_per_joint
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.excitation import PerJoint, JointsCoverage, WorkingRange, excitation, excitation_joints
@@ -184,25 +184,25 @@ def test_each_joint_gets_the_walk_of_its_own_errors_and_bound(cfg):
     Scan.table[(0.3, 0.01)] = {"q_tau": 0.3, "sign_eps": 0.01, "per_joint": {k: [0.01, 0.01] for k in active}}
     # joint 0: 0.3 and 1.0 within 10 % of its best RMS (0.30), 1.0's bound the smaller; joint 1: 1.0
     # and 3.0 within 10 % of 0.199, neither covering: the estimate's rule, 1.0
-    qt, rec = walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)
+    qt, rec = walk_per_joint(Scan(), 0.003, active, 1.0, 2)
     assert qt == [1.0, 1.0] and rec["rule"] == ["bound", "rmse"] and rec["rmse_rule_walks"] == [0.3, 1.0]
     for k in active:
         Scan.table[(3.0, 0.003)]["bound"][k]["coverage"] = [1.0, 0.96]
-    assert walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)[0] == [1.0, 3.0]
+    assert walk_per_joint(Scan(), 0.003, active, 1.0, 2)[0] == [1.0, 3.0]
     # the joints couple: walks chosen apart whose bound together is no tighter than the estimate's
     # rule's walks are not kept
     Scan.together[(1.0, 3.0)] = 1.0
     Scan.table = {k: v for k, v in Scan.table.items() if np.ndim(v["q_tau"]) == 0}
-    qt, rec = walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2)
+    qt, rec = walk_per_joint(Scan(), 0.003, active, 1.0, 2)
     assert qt == [0.3, 1.0] and rec["rule"] == ["rmse", "rmse"] and rec["mean_rho"] == 1.0
 
     class Empty:
         opts = Scan.opts
         table: dict = {}
-    assert walk_per_joint_bound(Empty(), 0.003, active, 1.0, 2)[0] == [1.0, 1.0]
+    assert walk_per_joint(Empty(), 0.003, active, 1.0, 2)[0] == [1.0, 1.0]
     # calibration.walk_for: estimate (the default): each joint's smallest q_τ within 2 % of its best RMS
     Scan.opts = SimpleNamespace(walk_for="estimate")
-    assert walk_per_joint_bound(Scan(), 0.003, active, 1.0, 2) == ([0.3, 1.0], {"rule": ["rmse", "rmse"],
+    assert walk_per_joint(Scan(), 0.003, active, 1.0, 2) == ([0.3, 1.0], {"rule": ["rmse", "rmse"],
                                                                                 "rmse_tolerance": 0.02})
     S = sigma_nom_for(cfg, [0.3, 1.0])["Sigma_nom"]
     np.testing.assert_allclose(np.diag(S)[8:], np.array([0.3, 1.0]) * cfg.dt)

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from sea_daemon.apps.calibration.pipeline import HumanSpec, synthetic_sessions
-from sea_daemon.apps.calibration.walk_bound import RMSE_TOL, bound_figures, bound_score, walk_for_bound
+from sea_daemon.apps.calibration.walk_bound import RMSE_TOL, bound_figures, bound_score, common_walk
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.rates import at_rate
 from sea_daemon.core.sim.session import run_session
@@ -55,14 +55,14 @@ def test_the_walk_with_the_smallest_covering_bound_within_the_rmse_tolerance():
     def rho(q):
         return 1.0 / (1.0 + math.log10(max(q, 1e-3)) + 3.0)
     scan = scanned(FakeScan(rms, rho, lambda q: 1.0), grid)
-    q, rec = walk_for_bound(scan, 0.003, ACTIVE, grid)
+    q, rec = common_walk(scan, 0.003, ACTIVE, grid)
     assert math.isclose(q, 10.0) and rec["rule"] == "bound"
     assert math.isclose(rec["rmse_rule_walk"], 1.0)
     assert any(math.isclose(g, 10 ** 1.5) for g in scan.evaluated)      # the half-decade above was tried
     # calibration.walk_for: estimate (the default): the smallest q_τ within 2 % of the best RMS, no bound run
     scan = scanned(FakeScan(rms, rho, lambda q: 1.0, walk_for="estimate"), grid)
     n = len(scan.evaluated)
-    q, rec = walk_for_bound(scan, 0.003, ACTIVE, grid)
+    q, rec = common_walk(scan, 0.003, ACTIVE, grid)
     assert math.isclose(q, 1.0) and rec["rule"] == "rmse" and len(scan.evaluated) == n
 
 
@@ -90,10 +90,10 @@ def test_a_bound_that_does_not_cover_is_not_chosen():
     def rms(q):
         return 0.1 if q >= 1.0 else 0.5
     scan = scanned(FakeScan(rms, lambda q: 1.0 / q, lambda q: 0.9 if q > 3.2 else 0.97), grid)
-    q, rec = walk_for_bound(scan, 0.003, ACTIVE, grid)
+    q, rec = common_walk(scan, 0.003, ACTIVE, grid)
     assert math.isclose(q, 10 ** 0.5) and rec["rule"] == "bound"
     scan = scanned(FakeScan(rms, lambda q: 1.0 / q, lambda q: 0.9), grid)
-    q, rec = walk_for_bound(scan, 0.003, ACTIVE, grid)
+    q, rec = common_walk(scan, 0.003, ACTIVE, grid)
     assert math.isclose(q, 1.0) and rec["rule"] == "rmse"
 
 

@@ -59,7 +59,7 @@ from sea_daemon.apps.calibration.joints import (assess_joints, correct_body, dat
                                                 gp_cross_validation_joints, nominal_where_unidentified, pairs_report, plant_substep,
                                                 rmse_per_joint, synthetic_sessions_joints,
                                                 working_ranges)
-from sea_daemon.apps.calibration.walk_bound import walk_for_bound, walk_per_joint_bound
+from sea_daemon.apps.calibration.walk_bound import common_walk, walk_per_joint
 from sea_daemon.apps.calibration.residual_gp import (V_EXCLUDE, fit_gp_hyper, gp_cross_validation,
                                                      leftover_latent_variance, offline_gp, smooth_pairs,
                                                      stick_velocity_of)
@@ -232,7 +232,7 @@ def human_walk(cfg: ModelConfig, log: MeasuredLog, human: HumanSpec, sigma_u: fl
     eps = scan.best_eps(q0, passive)
     qt, rule = scan.best_walk(eps, active, q0) if active else (q0, {"rule": "declared"})
     if cfg.joints > 1 and active:           # each joint's walk from its own errors and bound
-        qt, rule = walk_per_joint_bound(scan, eps, active, qt, cfg.joints)
+        qt, rule = walk_per_joint(scan, eps, active, qt, cfg.joints)
     eps = scan.best_eps(qt, passive)
     logs = {**active, **passive}
     best = scan.evaluate(qt, eps, logs)
@@ -319,7 +319,7 @@ class _WalkScan:
 
     def best_walk(self, eps: float, active: dict, q0: float) -> tuple[float, dict]:
         """(q_τ, how it was chosen) at ``eps``: decades of the grid, the half-decades around the best,
-        then :func:`.walk_bound.walk_for_bound` (``q0`` when every replay faulted)."""
+        then :func:`.walk_bound.common_walk` (``q0`` when every replay faulted)."""
         grid = np.asarray(self.opts.q_tau_grid, dtype=float) * walk_scale(self.cfg, self.opts.human)
         for q in grid[::2]:
             self.evaluate(q, eps, active)
@@ -330,7 +330,7 @@ class _WalkScan:
         i = int(np.argmin(np.abs(grid - b["q_tau"])))
         for j in [j for j in (i - 1, i + 1) if 0 <= j < len(grid)]:
             self.evaluate(grid[j], eps, active)
-        return walk_for_bound(self, eps, active, grid)
+        return common_walk(self, eps, active, grid)
 
 
 def declared_walk(human: HumanSpec) -> float:

@@ -99,9 +99,10 @@ def rmse_rule(rows: list, rms: Callable[[dict], float]) -> float:
     return min(float(r["q_tau"]) for r in rows if rms(r) <= (1.0 + RMSE_RULE_TOL) * best)
 
 
-def walk_for_bound(scan, eps: float, active: dict, grid: np.ndarray) -> tuple[float, dict]:
-    """(q_τ, record): the common walk of the rule of the module docstring, from ``scan``'s rows at
-    ``eps`` (the grid's half-decades around the chosen one are tried as well)."""
+def common_walk(scan, eps: float, active: dict, grid: np.ndarray) -> tuple[float, dict]:
+    """(q_τ, record): the common walk by ``scan.opts.walk_for``'s rule (module docstring), from
+    ``scan``'s rows at ``eps`` (for the bound, the grid's half-decades around the chosen one are
+    tried as well)."""
     def rows():
         return [r for (q, e), r in scan.table.items()
                 if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r for k in active)]
@@ -135,11 +136,11 @@ def walk_for_bound(scan, eps: float, active: dict, grid: np.ndarray) -> tuple[fl
     return q, {"rule": "bound", "mean_rho": s, **rec}
 
 
-def walk_per_joint_bound(scan, eps: float, active: dict, common: float, n: int) -> tuple[list[float], dict]:
-    """Each joint's walk by the rule of the module docstring on that joint's own RMS and ρ, from the
-    common scan's rows at ``eps`` (the bound run on every row within :data:`RMSE_TOL` of a joint's
-    best); the estimate's rule on that joint where no walk qualifies, ``common`` where no row has
-    every session's figures."""
+def walk_per_joint(scan, eps: float, active: dict, common: float, n: int) -> tuple[list[float], dict]:
+    """Each joint's walk by ``scan.opts.walk_for``'s rule (module docstring) on that joint's own RMS
+    (and, for the bound, ρ: the bound run on every row within :data:`RMSE_TOL` of a joint's best;
+    the estimate's rule on a joint where no walk qualifies), from the common scan's rows at
+    ``eps``; ``common`` where no row has every session's figures."""
     rows = [r for (q, e), r in scan.table.items()
             if e == eps and np.ndim(r["q_tau"]) == 0 and all(k in r.get("per_joint", {}) for k in active)]
     if not rows:
