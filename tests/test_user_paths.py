@@ -37,3 +37,52 @@ def test_a_dead_encoder_column_is_named_before_any_estimator_runs(tmp_path, caps
     code, _, err = run(args, capsys)
     refused(code, err, r"column q is 0 rad in all 400 rows while theta_m spans 30\.1 deg: the load encoder reports nothing")
     assert not (tmp_path / "est.csv").exists()
+
+
+def _log(p, n: int, samples: int = 300):
+    """A valid log of ``n`` joints at 100 Hz (columns q or q_1 … q_n, as docs/interfaces.md section 1)."""
+    from sea_daemon.core.log import column_names
+    t = np.arange(samples) * 0.01
+    cols = ["t"] + [c for base in ("q", "theta_m", "tau_m") for c in column_names(base, n)]
+    q = 0.3 * np.sin(t)
+    vals = [t] + [q] * n + [q - 0.001] * n + [0.5 * np.cos(t)] * n
+    p.write_text(",".join(cols) + "\n" + "\n".join(",".join(f"{v[i]:.6f}" for v in vals) for i in range(samples)) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("log_joints, config", [(3, "exo_2dof.yaml"), (2, "exo_1dof.yaml"), (1, "exo_2dof.yaml")])
+def test_a_log_of_another_joint_count_is_refused_whole(tmp_path, capsys, log_joints, config):
+    # a three-joint log was read by the two-joint configuration as its first two joints
+    from _paths import repo_root
+    log = _log(tmp_path / "log.csv", log_joints)
+    cfg = repo_root() / "configs" / config
+    code, _, err = run(["replay", log, "--config", cfg, "--estimator", "spring", "--out", tmp_path / "est.csv"],
+                       capsys)
+    refused(code, err, rf"log.csv:1: has the columns of {log_joints} joint\(s\) \(q.*\); the configuration has "
+                       r"\d \(joints: \d, columns t, q")
+    assert not (tmp_path / "est.csv").exists()
+
+
+@pytest.mark.parametrize("argv, pattern", [
+    # an infinite window or range drew nan rows: ValueError in the drawing, once a daemon published
+    (["--window", "inf"], r"--window inf: allowed > 0 and <= 3600 s"),
+    (["--window", "0"], r"--window 0.0: allowed > 0 and <= 3600 s"),
+    (["--refresh", "inf"], r"--refresh inf: allowed > 0 and <= 60 s"),
+    (["--range", "inf"], r"--range inf: allowed a finite number > 0 N m"),
+    (["--height", "100000"], r"--height 100000: allowed 5-200 rows"),
+])
+def test_watch_refuses_a_view_it_cannot_draw(tmp_path, capsys, argv, pattern):
+    code, _, err = run(["watch", "--plain", "--timeout", "0", "--socket", tmp_path / "none.sock", *argv], capsys)
+    refused(code, err, pattern)
+
+
+def test_watch_draws_the_largest_window_and_range_allowed():
+    from types import SimpleNamespace
+    from sea_daemon.apps.commands.watch import MAX_HEIGHT, MAX_WINDOW_S, View
+    view = View(MAX_WINDOW_S, MAX_HEIGHT, 1e300)
+    for k in range(3):
+        one = np.array([0.1 * k])
+        view.add(SimpleNamespace(t=0.1 * k, tau_h_act_hat=one, tau_h_act_bound=one + 0.2, valid=np.array([1]),
+                                 tau_assist=0 * one, tau_m=0 * one, q=0 * one))
+    lines = view.joint_lines(0, 80)
+    assert len(lines) == MAX_HEIGHT + 2 and "nan" not in "".join(lines)
