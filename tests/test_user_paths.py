@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from _cli import refused, run
+from sea_daemon.errors import InputError
 from sea_daemon.io.configfile import default_config_path
 
 CFG = default_config_path()
@@ -86,3 +87,22 @@ def test_watch_draws_the_largest_window_and_range_allowed():
                                  tau_assist=0 * one, tau_m=0 * one, q=0 * one))
     lines = view.joint_lines(0, 80)
     assert len(lines) == MAX_HEIGHT + 2 and "nan" not in "".join(lines)
+
+
+def test_calibrate_takes_the_two_joint_scenario_for_a_two_joint_robot(tmp_path, capsys):
+    # without --scenario the one-joint passive.yaml was taken and refused: "--scenario .../passive.yaml:
+    # 1 joint(s), the configuration has 2", a file the user never named
+    import json
+    from _paths import repo_root
+    from sea_daemon.apps.commands.calibrate import default_scenario
+    from sea_daemon.io.scenario import load_scenario
+    configs = repo_root() / "configs"
+    code, out, err = run(["calibrate", "--config", configs / "exo_2dof.yaml", "--device-model",
+                          configs / "scenarios" / "two_joint_passive.yaml", "--cycles", "30", "--no-progress",
+                          "--out", tmp_path / "m.npz", "--log-dir", tmp_path / "L"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["cycles"] == 30 and (tmp_path / "m.npz").exists()
+    assert load_scenario(default_scenario(2)).nominal.joints == 2
+    assert load_scenario(default_scenario(1)).nominal.joints == 1
+    with pytest.raises(InputError, match=r"--scenario: none given and none embedded for 3 joints"):
+        default_scenario(3)
