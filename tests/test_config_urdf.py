@@ -109,3 +109,13 @@ def test_a_urdf_number_that_is_not_one_is_named(arm, old, new, message):
     urdf.write_text(text.replace(old, new, 1))
     with pytest.raises(InputError, match=message):
         load_config(arm)
+
+
+def test_a_working_range_per_joint_in_the_yaml_is_refused_naming_where_it_goes(arm):
+    # the list was refused as "must be a finite number within ±1e+09"
+    d = yaml.safe_load(arm.read_text())
+    d["calibration"] = {"q_min_deg": [10, 20], "q_max_deg": [80, 100]}
+    arm.write_text(yaml.safe_dump(d, sort_keys=False))
+    with pytest.raises(InputError, match=r"calibration.q_min_deg: must be one angle in -360..360 deg for every joint, "
+                                         r"got \[10, 20\] \(one range per joint: .*URDF <limit lower upper>\)"):
+        load_config(arm)
