@@ -102,18 +102,31 @@ class Sufficiency:
 
     @staticmethod
     def lines_of(d: dict) -> list[str]:
-        """The sentences of a :meth:`to_dict` form: the log, each quantity the log cannot
-        identify, the notes."""
+        """The sentences of a :meth:`to_dict` form: the log (each joint's motion, named, for an
+        n-joint log's ``per_joint``), each quantity the log cannot identify, the notes."""
         f = d["figures"]
-        motion = ("the arm held still" if f.get("still") else
-                  f"moves {f.get('strokes_up', 0)} up and {f.get('strokes_down', 0)} down over "
-                  f"{f.get('q_span_deg', 0.0):.0f} deg")
         rate = f"{f['rate_hz']:.0f} Hz" if f.get("rate_hz") is not None else "an unknown rate"
+        per = d.get("per_joint") or {}
+        if per:
+            motion = "; ".join(f"{name} {_motion(j['figures'], 'held still')}" for name, j in per.items())
+        else:
+            motion = _motion(f, "the arm held still")
         out = [f"This log: {f['duration_s']:.1f} s at {rate}, {motion}."]
-        for name, v in d["verdicts"].items():
+        nominal = ([(name, q, v) for name, j in per.items() for q, v in j["verdicts"].items()] if per else
+                   [(None, q, v) for q, v in d["verdicts"].items()])
+        for name, q, v in nominal:
             if v["status"] == "nominal":
-                out.append(f"Not identified from this log, the configured value kept: {name} ({v['why']}).")
+                on = f" on {name}" if name else ""
+                out.append(f"Not identified from this log, the configured value kept{on}: {q} ({v['why']}).")
         return out + list(d.get("notes", []))
+
+
+def _motion(f: dict, still: str) -> str:
+    """One joint's motion in words, from its figures (``still``: the words of a still joint)."""
+    if f.get("still"):
+        return still
+    return (f"moves {f.get('strokes_up', 0)} up and {f.get('strokes_down', 0)} down over "
+            f"{f.get('q_span_deg', 0.0):.0f} deg")
 
 
 def finite(x) -> float | None:

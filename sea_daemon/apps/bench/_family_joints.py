@@ -25,11 +25,11 @@ import math
 
 import numpy as np
 
-from sea_daemon.apps.bench._family import PlantDraw, SessionSpec
+from sea_daemon.apps.bench._family import PlantDraw, SessionSpec, one_direction_motion
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.excitation import PerJoint, WorkingRange, excitation_joints, paper_moves
 from sea_daemon.core.rigid import random_factors
-from sea_daemon.core.sim.session import BandLimitedTorque, SineReference
+from sea_daemon.core.sim.session import BandLimitedTorque, SineReference, run_session
 from sea_daemon.io.configfile import data_root, load_config
 
 #: the joints' declared working ranges [deg] (shoulder flexion, elbow flexion) before the draw
@@ -159,3 +159,37 @@ def sessions_joints(pd: PlantDraw, duration_s: float | None = None) -> list[Sess
     out.append(SessionSpec("still_band", T, None, q0 + 0.3 * np.array([w.width for w in wrs]), _Torques(
         [BandLimitedTorque(pd.human_rms, 0.3, 3.0, seed=s + 3 + 100 * j) for j in range(len(wrs))]), "still"))
     return out
+
+
+# --------------------------------------------------------------- degenerate calibrations of two joints
+
+#: the two-joint degenerate calibration logs: one joint frozen (held still by the drive at
+#: mid-range while the other runs the calibration excitation), one joint moving one way only,
+#: and a short log of the excitation on both joints
+DEGENERATE_JOINTS = ("frozen_elbow", "frozen_shoulder", "one_direction_elbow", "short")
+#: lengths [s] of the short log and of the others
+SHORT_JOINTS_S, DEGENERATE_JOINTS_S = 3.0, 21.0
+
+
+def degenerate_calibration_joints(pd: PlantDraw, case: str, cal_s: float = DEGENERATE_JOINTS_S):
+    """(log, what it is in one line) of two-joint degenerate case ``case`` (one of
+    :data:`DEGENERATE_JOINTS`) of plant ``pd``: passive (τ_h,act = 0), seeded by the plant's seed."""
+    wrs = pd.working_range
+    mids = [0.5 * (w.q_min + w.q_max) for w in wrs]
+    dur = SHORT_JOINTS_S if case == "short" else cal_s
+    exc = calibration_motion_joints(pd, dur, seed=pd.seed).joints
+    parts, what = list(exc), ""
+    if case in ("frozen_elbow", "frozen_shoulder"):
+        j = 1 if case == "frozen_elbow" else 0
+        parts[j] = SineReference(mids[j], (), (), ())
+        what = f"joint {j + 1} held still at {math.degrees(mids[j]):.0f} deg, the other moving, {dur:g} s"
+    elif case == "one_direction_elbow":
+        parts[1] = one_direction_motion(wrs[1], dur)
+        what = (f"joint 2 from {math.degrees(wrs[1].q_min):.0f} to {math.degrees(wrs[1].q_max):.0f} deg, never back, "
+                f"the other moving, {dur:g} s")
+    elif case == "short":
+        what = f"the calibration excitation on both joints for {dur:g} s"
+    else:
+        raise ValueError(f"degenerate_calibration_joints: unknown case {case!r}; one of {', '.join(DEGENERATE_JOINTS)}")
+    log = run_session(pd.true, dur, reference=PerJoint(tuple(parts)), seed=5000 + pd.seed)
+    return log, what

@@ -3,10 +3,10 @@
 :func:`~.pipeline.calibrate` runs the same steps for one joint and for n; what differs for n
 joints lives here:
 
-* sufficiency per joint (:func:`assess_joints`): each joint's log judged on its own
-  (:func:`~sea_daemon.analysis.sufficiency.assess` of that joint); a joint whose data cannot
-  identify the physical effects (held still) keeps the nominal model — the effects diagnose
-  finds on it are dropped, and the report says so (:func:`nominal_where_unidentified`);
+* sufficiency per joint (:func:`assess_joints`): each joint's log judged on its own by the rules
+  of one joint (:func:`~sea_daemon.analysis.sufficiency.assess` of that joint): what one joint's
+  log refuses refuses the log, naming the joint; a joint held still keeps the nominal model — the
+  effects found on it are dropped, and the report says so (:func:`nominal_where_unidentified`);
 * the residual GP's hyperparameters (:func:`fit_gp_hyper_joints`): fitted on each joint's own
   leftover, each joint's length scales of (q_j, q̇_j, q̈_j) from its own fit; one LoG-GP per
   joint on z ∈ R^{3n} sharing them (:class:`~sea_daemon.core.learning.ResidualGP`);
@@ -99,24 +99,15 @@ def joint_names(cfg: ModelConfig) -> list[str]:
 
 
 def assess_joints(log: MeasuredLog, cfg: ModelConfig) -> JointsSufficiency:
-    """Each joint of ``log`` assessed on its own; ``refusal`` the first joint's refusal, naming it.
-    A joint that moved, but too little to identify its physics, keeps the nominal model when
-    another joint identifies its own (refused when none does, as one joint's log is)."""
+    """Each joint of ``log`` assessed on its own, by the rules of one joint
+    (:func:`~sea_daemon.analysis.sufficiency.assess` of that joint): a joint one joint's log
+    would refuse (too short, too few moves each way, a dead encoder, ...) refuses the log, the
+    ``refusal`` naming the first such joint; a joint held still keeps the nominal model where
+    a still one-joint log keeps it (:func:`nominal_where_unidentified`)."""
     names = joint_names(cfg)
     per = [assess(log, cfg, joint=j) for j in range(cfg.joints)]
-    physics_only = [p.refusal is not None and p.verdicts["effects"].status == "refuse"
-                    and p.verdicts["effects"].why != "see the refusal" for p in per]
-    refusals = [f"{n}: {p.refusal}" for n, p, only in zip(names, per, physics_only) if p.refusal]
-    if any(p.refusal is None and p.identifies("effects") for p in per):
-        # another joint identifies the physics: a joint that moved too little for its own keeps
-        # the nominal model (a log that cannot be calibrated on at all is still refused)
-        refusals = [f"{n}: {p.refusal}" for n, p, only in zip(names, per, physics_only) if p.refusal and not only]
-        for p, only in zip(per, physics_only):
-            if only:
-                p.verdicts["effects"] = Verdict("effects", "nominal", p.verdicts["effects"].why)
-                p.refusal = None
     s = JointsSufficiency(per, names)
-    s.refusal = refusals[0] if refusals else None
+    s.refusal = next((f"{n}: {p.refusal}" for n, p in zip(names, per) if p.refusal), None)
     return s
 
 
@@ -375,6 +366,9 @@ def correct_body(log: MeasuredLog, cfg: ModelConfig, suff: Sufficiency, report: 
     if not keep:
         return cfg
     added = beside_effects(fit.coefficients.reshape(4, n), q[idx], kin.dq[idx], fit.rms_after)
+    # a joint whose data cannot identify its physics (held still) keeps the nominal model
+    per_joint = getattr(suff, "joint_identifies", None)
+    added = [e for e in added if per_joint is None or per_joint(e.joint, "effects")]
     report["body"]["effects_added"] = [f"{e.type}(load)[{e.joint + 1}]" for e in added]
     return dataclasses.replace(cfg, model=cfg.model.with_rigid(fit.body).with_effects((*cfg.model.effects, *added)))
 
