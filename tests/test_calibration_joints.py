@@ -51,10 +51,18 @@ class _Hold:
 
 
 def test_sufficiency_per_joint_and_the_nominal_model_where_a_joint_held_still(cfg, true):
-    """Shoulder moving, elbow held: the shoulder identifies the effects, the elbow keeps the nominal
-    model — an effect found there is dropped and the report names the joint and why."""
+    """Shoulder moving, elbow held by its drive: the shoulder's motion shakes the elbow over
+    1.4 deg without a move either way, which one joint's log refuses — refused, naming the elbow.
+    The elbow truly still (under 1 deg): the shoulder identifies the effects, the elbow keeps the
+    nominal model — an effect found there is dropped and the report names the joint and why."""
     ref = PerJoint((excitation(WRS[0], 14.0, seed=1), _Hold(1.0)))
     log = run_session(true, 14.0, reference=ref, seed=2, substep_hz=plant_substep(true, 3e-3, 100))
+    shaken = assess_joints(log, cfg)
+    assert shaken.refusal.startswith("joint 2 (elbow): ") and "0 move(s) up and 0 down" in shaken.refusal
+    rng = np.random.default_rng(3)
+    log = dataclasses.replace(log, q=log.q.copy(), theta_m=log.theta_m.copy())
+    log.q[:, 1] = 1.0 + 2e-5 * rng.standard_normal(len(log))
+    log.theta_m[:, 1] = log.q[:, 1] + log.tau_m[:, 1] / float(cfg.model.K_s[1, 1]) + 2e-5 * rng.standard_normal(len(log))
     s = assess_joints(log, cfg)
     assert s.refusal is None
     assert s.joints[0].identifies("effects") and not s.joints[1].identifies("effects")
