@@ -173,7 +173,8 @@ SHORT_JOINTS_S, DEGENERATE_JOINTS_S = 3.0, 21.0
 
 def degenerate_calibration_joints(pd: PlantDraw, case: str, cal_s: float = DEGENERATE_JOINTS_S):
     """(log, what it is in one line) of two-joint degenerate case ``case`` (one of
-    :data:`DEGENERATE_JOINTS`) of plant ``pd``: passive (τ_h,act = 0), seeded by the plant's seed."""
+    :data:`DEGENERATE_JOINTS`, or ``full``: the calibration excitation on both joints for
+    ``cal_s`` s, for comparison) of plant ``pd``: passive (τ_h,act = 0), seeded by the plant's seed."""
     wrs = pd.working_range
     mids = [0.5 * (w.q_min + w.q_max) for w in wrs]
     dur = SHORT_JOINTS_S if case == "short" else cal_s
@@ -189,6 +190,8 @@ def degenerate_calibration_joints(pd: PlantDraw, case: str, cal_s: float = DEGEN
                 f"the other moving, {dur:g} s")
     elif case == "short":
         what = f"the calibration excitation on both joints for {dur:g} s"
+    elif case == "full":        # not degenerate: the comparison (bench generalize --cases full)
+        what = f"the calibration excitation on both joints for {dur:g} s (not degenerate)"
     else:
         raise ValueError(f"degenerate_calibration_joints: unknown case {case!r}; one of {', '.join(DEGENERATE_JOINTS)}")
     log = run_session(pd.true, dur, reference=PerJoint(tuple(parts)), seed=5000 + pd.seed)

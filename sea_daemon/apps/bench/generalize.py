@@ -48,6 +48,8 @@ from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant,
                                                 summarize_degenerate)
 from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, producer, save_logs
+from sea_daemon.apps.bench._degenerate_joints import run_degenerate_plant_joints
+from sea_daemon.apps.bench._family_joints import DEGENERATE_JOINTS, draw_plant_joints
 from sea_daemon.apps.bench._generalize_joints import calibrate_plant, run_joints, seed_roles_joints
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
@@ -98,7 +100,8 @@ def add_arguments(p) -> None:
     p.add_argument("--degenerate", action="store_true",
                    help="calibrate each plant instead on degenerate logs (" + ", ".join(DEGENERATE)
                         + ") with sea-daemon fit, as a user does: refused, or the held-out error and coverage "
-                          "next to the AKF on the robot-only model, and the verdict")
+                          "next to the AKF on the robot-only model, and the verdict; with --joints 2 the two-joint "
+                        "cases (--cases)")
     p.add_argument("--joints", type=int, default=1,
                    help="1 (the one-joint family) or 2 (the two-joint shoulder-elbow family, "
                         "sea_daemon.apps.bench._family_joints; ratios per joint); default 1")
@@ -110,7 +113,10 @@ def add_arguments(p) -> None:
                         "(default) or bound (the Theorem-1 bound as well; docs/calibration.md step 5)")
     p.add_argument("--cases", default=None,
                    help="with --degenerate: comma list of " + ", ".join(DEGENERATE) + " (default all of them) and "
-                        + REFERENCE + " (the calibration excitation for --cal-s s, for comparison)")
+                        + REFERENCE + " (the calibration excitation for --cal-s s, for comparison); with --joints 2 "
+                        "of " + ", ".join(DEGENERATE_JOINTS) + " (default all; one joint held still or moving one "
+                        "way only for --cal-s s while the other runs the calibration excitation, a 3 s log) and "
+                        + REFERENCE)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -371,8 +377,6 @@ def run(args) -> int:
     names = None if not args.sessions else choose(args.sessions, SESSION_NAMES, "--sessions")
     if args.joints not in (1, 2):
         raise InputError(f"--joints {args.joints}: allowed 1 or 2")
-    if args.joints != 1 and args.degenerate:
-        raise InputError("--degenerate: one joint only (allowed with --joints 1)")
     roles = seed_roles(seeds) if args.joints == 1 else seed_roles_joints(seeds)
     print(f"bench generalize: seeds held out {roles['held_out'] or 'none'}; development seeds (they chose the "
           f"calibration's settings) {roles['development'] or 'none'}", flush=True)
@@ -432,10 +436,13 @@ def _pool(jobs, fn, n_jobs: int, show, out: Path, what: str) -> list[dict]:
 
 
 def run_degenerate(args, seeds, rates, names, out: Path, cache) -> int:
-    """``--degenerate``: every degenerate calibration of every plant and rate, its verdict."""
-    cases = choose(args.cases or ",".join(DEGENERATE), DEGENERATE + (REFERENCE,), "--cases")
-    print(f"bench generalize --degenerate: {len(seeds)} plants (seeds {args.seeds}), rates "
-          f"{args.rates or 'of the seeds'}, cases {', '.join(cases)}, the calibration by sea-daemon fit, "
+    """``--degenerate``: every degenerate calibration of every plant and rate, its verdict
+    (``--joints 2``: the two-joint cases of :mod:`._degenerate_joints`)."""
+    two = args.joints == 2
+    known = (DEGENERATE_JOINTS if two else DEGENERATE) + (REFERENCE,)
+    cases = choose(args.cases or ",".join(DEGENERATE_JOINTS if two else DEGENERATE), known, "--cases")
+    print(f"bench generalize --degenerate: {len(seeds)} {'two-joint ' if two else ''}plants (seeds {args.seeds}), "
+          f"rates {args.rates or 'of the seeds'}, cases {', '.join(cases)}, the calibration by sea-daemon fit, "
           f"held-out sessions {', '.join(names or SESSION_NAMES)}; {machine()}", flush=True)
     work = out / "degenerate"
     verbose = args.jobs <= 1
@@ -444,15 +451,22 @@ def run_degenerate(args, seeds, rates, names, out: Path, cache) -> int:
     def show(row):
         if not verbose:
             for c in row["cases"].values():
-                print_case(draw_plant(row["seed"], row["rate_hz"]), c)
-    rows = _pool(jobs, _degenerate_job, args.jobs, show, out, "plants calibrated on degenerate logs")
+                print_case((draw_plant_joints if two else draw_plant)(row["seed"], row["rate_hz"]), c)
+    rows = _pool(jobs, _degenerate_joints_job if two else _degenerate_job, args.jobs, show, out,
+                 "plants calibrated on degenerate logs")
     rows.sort(key=lambda r: (r["seed"], r["rate_hz"]))
-    summary = {"seeds": seed_roles(seeds), "degenerate": summarize_degenerate(rows)}
+    summary = {"seeds": (seed_roles_joints if two else seed_roles)(seeds), "degenerate": summarize_degenerate(rows)}
     atomic_write_text(out / "results.json", json.dumps({"summary": summary, "degenerate": rows}, indent=1,
                                                        default=float))
     _print_degenerate(summary["degenerate"], cases)
     print(f"results: {out / 'results.json'}, logs and models: {work}  (load average {os.getloadavg()[0]:.2f})")
     return 0
+
+
+def _degenerate_joints_job(args):
+    seed, rate, cal_s, cache, _, cases, work, verbose = args
+    return run_degenerate_plant_joints(seed, rate, work / f"joints2_plant_{seed}_{rate or 100:g}hz", cache, cal_s,
+                                       cases, on_case=print_case if verbose else None)
 
 
 def _print_degenerate(d: dict, cases) -> None:
