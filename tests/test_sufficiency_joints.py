@@ -10,6 +10,7 @@ refuse each in one line naming the joint and what to record; a joint truly held 
 angle spanning less than 1 deg, the still-arm log of one joint) keeps the nominal model and the
 report says so on that joint.
 """
+import json
 import re
 
 import numpy as np
@@ -97,3 +98,17 @@ def test_one_joint_report_reads_as_before():
          "verdicts": {"effects": {"status": "nominal", "why": "held"}}}
     assert Sufficiency.lines_of(d) == ["This log: 6.0 s at 100 Hz, the arm held still.",
                                        "Not identified from this log, the configured value kept: effects (held)."]
+
+
+def test_bench_generalize_joints_2_degenerate_reports_each_refusal(tmp_path, capsys):
+    """``bench generalize --joints 2 --degenerate`` (development plant 3, 12 s logs, two cases):
+    each case calibrated by ``fit`` in its own process, refused naming the joint, the table and
+    the counts the rule names."""
+    code, out, err = run(["bench", "generalize", "--joints", "2", "--degenerate", "--seeds", "3", "--rates", "100",
+                          "--cal-s", "12", "--cases", "frozen_elbow,short", "--out", tmp_path, "--no-cache"], capsys)
+    assert code == 0, err
+    assert "| frozen_elbow | refused 3 |" in out and "| short | refused 3 |" in out
+    assert "2 of 2 as the rule asks (2 refused, 0 held, 0 failed); invented effects 0, nan/inf printed or written 0, " \
+           "internal errors 0" in out
+    rows = json.loads((tmp_path / "results.json").read_text())["degenerate"]
+    assert rows[0]["cases"]["frozen_elbow"]["line"].startswith("sea-daemon fit: error: joint 2 (elbow): ")

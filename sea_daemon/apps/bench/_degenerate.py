@@ -152,7 +152,7 @@ def score_replay(log: MeasuredLog, est, bound: bool = False) -> dict:
     return out
 
 
-def _guarded(fn) -> dict:
+def guarded(fn) -> dict:
     """``fn()``; a refusal of the input (what ``replay`` exits 2 on) as ``{"refused": line}``,
     any other exception as ``{"internal_error": ...}``."""
     try:
@@ -168,7 +168,7 @@ def robot_akf_runs(pd, tests: dict) -> dict:
     health monitor off so that it gives its estimate) on every held-out log."""
     cfg = user_config(pd)
     cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, nis_scale=1e12))
-    return {name: _guarded(lambda log=log: score_replay(log, AKF(cfg, dt=log.dt))) for name, log in tests.items()}
+    return {name: guarded(lambda log=log: score_replay(log, AKF(cfg, dt=log.dt))) for name, log in tests.items()}
 
 
 # --------------------------------------------------------------- the user's calibration: sea-daemon fit
@@ -257,7 +257,7 @@ def calibrated_runs(prefix: Path, tests: dict) -> dict:
         cfg = load_config(prefix.with_suffix(".yaml"))
         est, _ = build_estimator("gp-akf", cfg, log.dt, model_path=prefix.with_suffix(".npz"))
         return score_replay(log, est, bound=True)
-    return {name: _guarded(lambda log=log: one(log)) for name, log in tests.items()}
+    return {name: guarded(lambda log=log: one(log)) for name, log in tests.items()}
 
 
 # --------------------------------------------------------------- the verdict

@@ -22,7 +22,7 @@ import json
 import traceback
 from pathlib import Path
 
-from sea_daemon.apps.bench._degenerate import FIT_TIMEOUT_S, _guarded, invented_effects, motion_of, run_fit, verdict
+from sea_daemon.apps.bench._degenerate import FIT_TIMEOUT_S, guarded, invented_effects, motion_of, run_fit, verdict
 from sea_daemon.apps.bench._family import DegenerateLog
 from sea_daemon.apps.bench._family_joints import (DEGENERATE_JOINTS, DEGENERATE_JOINTS_S,
                                                   degenerate_calibration_joints, draw_plant_joints)
@@ -62,7 +62,7 @@ def _with_joint(log, j: int):
 def _scored(tests: dict, make) -> dict:
     """{session: {"joint 1": figures, "joint 2": ...}} of the estimator ``make(log)`` on every log."""
     def one(log):
-        r = _guarded(lambda: score_joints(log, make(log), bound=True))
+        r = guarded(lambda: score_joints(log, make(log), bound=True))
         if "joints" not in r:
             return {f"joint {j + 1}": r for j in range(log.n)}
         return {f"joint {j + 1}": {**jr, "finite": r["finite"]} for j, jr in enumerate(r["joints"])}
