@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from sea_daemon.apps.bench._family import PlantDraw, SessionSpec, one_direction_motion
+from sea_daemon.apps.calibration.joints import plant_substep
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.excitation import PerJoint, WorkingRange, excitation_joints, paper_moves
 from sea_daemon.core.rigid import random_factors
@@ -194,5 +195,6 @@ def degenerate_calibration_joints(pd: PlantDraw, case: str, cal_s: float = DEGEN
         what = f"the calibration excitation on both joints for {dur:g} s (not degenerate)"
     else:
         raise ValueError(f"degenerate_calibration_joints: unknown case {case!r}; one of {', '.join(DEGENERATE_JOINTS)}")
-    log = run_session(pd.true, dur, reference=PerJoint(tuple(parts)), seed=5000 + pd.seed)
+    log = run_session(pd.true, dur, reference=PerJoint(tuple(parts)), seed=5000 + pd.seed,
+                      substep_hz=plant_substep(pd.true, 3e-3, pd.nominal.rate_hz))
     return log, what
