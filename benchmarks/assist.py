@@ -80,7 +80,7 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default=None, help="directory for models, logs and arrays (default: a temp dir)")
 
 
-def _scenario_copy(src: Path, dest: Path, **changes) -> Path:
+def scenario_copy(src: Path, dest: Path, **changes) -> Path:
     d = yaml.safe_load(src.read_text())
     d["model"] = str((src.parent / d["model"]).resolve())
     d.update(changes)
@@ -108,7 +108,7 @@ def calibrated(sc, cfg, rate: float, out: Path, motion: str = "excitation") -> t
                                 realtime=False, cycles=n_cal, excitation=excitation)
     if code:
         raise RuntimeError(f"calibration at {rate:g} Hz: {msg}")
-    held = _scenario_copy(src, out / "heldout.yaml", seed=sc.seed + 1000)
+    held = scenario_copy(src, out / "heldout.yaml", seed=sc.seed + 1000)
     code, _, msg = calibrate(cfg, str(held), out / f"heldout_{rate:g}.npz", out / f"heldout_{rate:g}.csv",
                              device_model=str(held), realtime=False, cycles=n_held)
     if code:
@@ -363,7 +363,7 @@ def run(args) -> int:
         seeds = [int(s) for s in (args.seeds if i == 0 else args.seeds_other).split(",")]
         rows = []
         for seed in seeds:
-            scen = _scenario_copy(src, out / f"task_seed{seed}.yaml", seed=seed)
+            scen = scenario_copy(src, out / f"task_seed{seed}.yaml", seed=seed)
             for g in (0.0, gain):
                 r = task_run(scen, cfg, residual, g, args.seconds)
                 np.savez(out / f"run_{rate:g}Hz_seed{seed}_gain{g:g}.npz",
