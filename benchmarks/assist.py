@@ -93,6 +93,14 @@ def rms(x) -> float:
 
 
 # ---------------------------------------------------------------------------- calibration
+def task_config(sc, rate: float):
+    """The scenario's model at ``rate`` with the assistance on and what the scenario declares about
+    its subject (``tau_h_act_rate``: the Theorem-1 bound's term for the subject's torque changes,
+    docs/bounds.md §6)."""
+    return sc.declared(dataclasses.replace(sc.nominal, rate_hz=rate,
+                                           assist=dataclasses.replace(sc.nominal.assist, enabled=True)))
+
+
 def calibrated(sc, cfg, rate: float, out: Path, motion: str = "excitation") -> tuple[object, float, dict]:
     """(GP residual, β, info) for ``cfg`` at ``rate``: calibration (``motion``: the working-range
     excitation of ``cfg.calibration``, or the task's moves), held-out session of the task's passive
@@ -352,8 +360,7 @@ def run(args) -> int:
           f"output {out}")
     report: dict = {"scenario": str(src), "rates": {}}
     for i, rate in enumerate(rates):
-        cfg = dataclasses.replace(sc.nominal, rate_hz=rate,
-                                  assist=dataclasses.replace(sc.nominal.assist, enabled=True))
+        cfg = task_config(sc, rate)
         gain = cfg.assist.gain if args.gain is None else args.gain
         residual, beta, info = calibrated(sc, cfg, rate, out, args.calibration)
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=beta))

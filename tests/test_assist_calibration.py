@@ -48,3 +48,11 @@ def test_the_working_range_calibration_covers_the_assisted_task(tmp_path):
     assert assisted["coverage"] >= 0.95, assisted
     assert assisted["est_rmse"] < 0.18, assisted
     assert 1.0 - assisted["tau_h_rms"] / runs[0.0]["tau_h_rms"] >= 0.5
+
+
+def test_the_task_configuration_carries_what_the_scenario_declares_about_its_subject(tmp_path):
+    """A ``tau_h_act_rate`` the scenario declares reaches the estimator's bound (docs/bounds.md §6)."""
+    src = bench.scenario_copy(bench.SCENARIO, tmp_path / "declared.yaml", tau_h_act_rate=4.0)
+    cfg = bench.task_config(load_scenario(src), 1000.0)
+    assert cfg.estimator.tau_h_act_rate == 4.0 and cfg.rate_hz == 1000.0 and cfg.assist.enabled
+    assert bench.task_config(load_scenario(bench.SCENARIO), 100.0).estimator.tau_h_act_rate == 0.0
