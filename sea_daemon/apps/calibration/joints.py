@@ -266,9 +266,10 @@ class _Interp:
 
 
 #: the still-arm synthetic subject also holds the arm where it started [N m/rad, N m s/rad] (a relaxed
-#: arm's stiffness and damping, ``run_session``'s ``hold``): without it the open-loop n-joint arm
-#: drifts under the subject's torque into its end stops, whose torque every estimator reads as the
-#: wearer's (the two-joint demo's still-arm calibration promised 2.52 N m where 0.03-0.05 was measured)
+#: arm's stiffness and damping, ``run_session``'s ``hold``, as the two-joint family's still sessions):
+#: without it the open-loop n-joint arm wanders under the subject's torque (the example's elbow over
+#: 10 deg in 6 s), away from the one angle a still-arm calibration knows, and the still-arm promise
+#: was the model's error there (the two-joint demo: 2.52 N m promised, 0.03-0.05 measured)
 STILL_HOLD = (20.0, 2.0)
 
 
