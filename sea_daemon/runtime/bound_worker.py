@@ -20,7 +20,13 @@ integers):
 * :meth:`BoundWorker.flush`, called by the loop at the end of the cycle (after its log row),
   publishes the slots written: it writes the number of samples handed over (the head, an int64)
   to the worker's pipe, which also wakes the worker: the worker computes while the loop sleeps,
-  not beside the loop's own work;
+  not beside the loop's own work.  In real-time pace on a CPU with total store order (``period``
+  given, counts through shared memory) the head is a store into shared memory instead, with the
+  loop's clock at that moment, and the worker polls it on its own timer in phase with the loop
+  (it wakes one period after the newest head was published, a little later, and again a
+  fraction of a period later while none came): the loop's cycle makes no system call and wakes
+  no other CPU for it (a write that wakes a process on another CPU cost the loop ≈ 18 µs a
+  cycle on a 2-vCPU virtual machine);
 * :meth:`BoundWorker.take` also reads, without waiting, the newest count of samples finished
   that the worker wrote to the loop's pipe, and fills the estimate with the result of that
   sample (cycle, ρ, valid): ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the
@@ -61,7 +67,8 @@ the worker's pipe full (8192 heads unread in a pipe of 64 KiB: the worker stoppe
 written at the next flush, a later head replacing it.  The worker writes its counts non-blocking
 too; a count that does not fit in the loop's pipe (the loop not reading) is written later, when
 the pipe has room or after the next sample, the newest count replacing it; meanwhile the loop
-sees fewer free slots, never a wrong result.  The worker exits when :meth:`close` asks (a head
+sees fewer free slots, never a wrong result.  With heads polled the loop writes the worker's pipe
+only to stop it (and closes it), and the worker waits on the pipe with the poll's timeout.  The worker exits when :meth:`close` asks (a head
 of −1, after the samples before it), when the writing end of its pipe closes, when the reading
 end of the loop's pipe closes, or when the parent dies (PR_SET_PDEATHSIG, and its parent id
 checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority (below the
@@ -143,14 +150,24 @@ class BoundWorker:
     worker's counts of samples done reach the loop — ``pipe``, ``memory`` (shared memory only:
     correct on a CPU with total store order, x86-64), ``auto`` (:func:`counts_path`: memory on
     x86-64, the pipe on every other CPU).  ``cpu``: the CPU the worker is pinned to once started
-    (:mod:`sea_daemon.runtime.affinity`; None: where the kernel puts it).
+    (:mod:`sea_daemon.runtime.affinity`; None: where the kernel puts it).  ``period``: the loop's
+    period [s] when it runs in real-time pace: with counts through shared memory the worker then
+    polls the heads there, in phase with the loop (module docstring; :attr:`heads_via`
+    ``memory``), else they go through its pipe (``pipe``; a lock-step loop, whose cycles come at
+    no fixed pace, always).
     """
 
     def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0,
-                 counts: str = "auto", cpu: int | None = None):
+                 counts: str = "auto", cpu: int | None = None, period: float | None = None):
         if counts not in ("auto", "pipe", "memory"):
             raise ValueError(f"bound worker: counts must be auto, pipe or memory, got {counts!r}")
         self.counts_via = counts_path() if counts == "auto" else counts
+        if period is not None and not 0.0 < period <= 1.0:
+            raise ValueError(f"bound worker: period must be in (0, 1] s, got {period!r}")
+        # the heads polled by the worker in shared memory (total store order and a fixed pace), or
+        # through its pipe
+        self.poll_period = float(period) if (period is not None and self.counts_via == "memory") else None
+        self.heads_via = "memory" if self.poll_period is not None else "pipe"
         why = why_not(estimator)
         if why is not None:
             raise ValueError(f"bound worker: {why}")
@@ -227,7 +244,7 @@ class BoundWorker:
                                  args=(self.akf, self._shm, self.capacity, self._width, self._rwidth,
                                        self._lay, self.record, self._heads_r, self._counts_w,
                                        (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
-                                       self.counts_via == "pipe"))
+                                       self.counts_via == "pipe", self.poll_period))
         self._proc.start()
         self.placed = pin_pid(self._proc.pid, self.cpu)
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
@@ -300,9 +317,17 @@ class BoundWorker:
 
     def flush(self) -> None:
         """Publish the slots written since the last call and wake the worker (the loop calls it
-        once per cycle, after the cycle's log row)."""
+        once per cycle, after the cycle's log row); with heads polled, store the head and the
+        clock for the worker's next poll instead."""
         h = self._head
-        if h != self._published and self._send(h):   # not sent: again at the next flush
+        if h == self._published:
+            return
+        if self.poll_period is not None:
+            # total store order: the slot's stores are visible before the head's
+            self._hdr[bs.H_HEAD] = h
+            self._fhdr[bs.F_FLUSH] = time.monotonic()
+            self._published = h
+        elif self._send(h):                           # not sent: again at the next flush
             self._published = h
 
     def take(self, est, record) -> None:
@@ -429,7 +454,7 @@ class BoundWorker:
         done = int(self._hdr[bs.H_DONE])
         sched = int(self._hdr[bs.H_SCHED])
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
-                "counts": self.counts_via,
+                "counts": self.counts_via, "heads": self.heads_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"), "cpu": self.placed,
                 "memory_locked": bool(self._hdr[bs.H_LOCKED]), "rt_yields": int(self._hdr[bs.H_YIELDS]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,
