@@ -506,21 +506,22 @@ class CanopenHardware(HardwareInterface):
         # sent no SYNC (the arm moved for that long: the jump check allows for it)
         periods = max(self._cycle - self._cycle_decoded, (m.t_mono - self._t_decoded) / self.period)
         self._cycle_decoded, self._t_decoded = self._cycle, m.t_mono
+        slots, primed = self._rx.slots, self._primed
         for j in range(n):
-            ds, es = self._rx.slots[2 * j], self._rx.slots[2 * j + 1]
+            ds, es = slots[2 * j], slots[2 * j + 1]
             sw, torque, pos = DRIVE_TPDO.unpack_from(ds.snap, 0)
             (qc,) = ENCODER_TPDO.unpack_from(es.snap, 0)
             m.statusword[j] = sw
             m.q_counts[j] = qc
             m.theta_m_counts[j] = pos
             m.tau_m_applied[j] = torque * self.nm_per_permille[j]
-            if sw & 0x6F != _OPERATION_ENABLED and self._primed:
+            if sw & 0x6F != _OPERATION_ENABLED and primed:
                 m.faults |= Fault.DEVICE_FAULT.bit
                 st = cia402.state_of(sw)
                 if not (self._quick_stopped and st is not cia402.State.FAULT):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")
                 # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
-            if self._primed:
+            if primed:
                 self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle, periods)
             else:
                 self.positions.reference(m, j, qc, pos)

@@ -26,6 +26,7 @@ H_DONE, H_SCHED, H_LOCKED, H_YIELDS, H_YIELDED, H_HEAD, N_HDR = 0, 1, 2, 3, 4, 5
 # the loop's clock when it published its newest head (heads polled: the worker's phase)
 F_STEPS, F_PROC, F_FLUSH, N_FHDR = 0, 1, 2, 4
 # input slot: kind, cycle, k, dt, ready, gate_starts, epoch, then the record's arrays
+# (the scalars 0..6 in this order: the loop writes them in one assignment)
 I_KIND, I_CYC, I_K, I_DT, I_READY, I_GATES, I_EPOCH, N_IN = 0, 1, 2, 3, 4, 5, 6, 8
 #: I_KIND: a filter step / a reset
 STEP, RESET = 1.0, 2.0

@@ -229,8 +229,16 @@ class BoundWorker:
         self._ring[:] = 0.0                      # pre-fault every page: no page fault in the loop
         self._res[:] = -1.0
         self._cpu_rec[:] = np.nan
-        # per slot: the slot and views of its arrays (the loop writes into them, nothing is made per cycle)
-        self._slots = [(self._ring[i], bs.slot_arrays(self._ring[i], self._lay)) for i in range(cap)]
+        # per slot: the slot, views of its arrays and the flat view of them all (the loop writes into
+        # them, nothing is made per cycle)
+        self._slots = [(self._ring[i], bs.slot_arrays(self._ring[i], self._lay), self._ring[i, bs.N_IN:w])
+                       for i in range(cap)]
+        # the AKF's record arrays (fixed views of its own arrays) as flat views, copied into a slot's
+        # in one call (np.concatenate); None where one is not C-contiguous (copied one by one)
+        self._rec = akf.record
+        flat = tuple(a.reshape(-1) for _, a in akf.record.arrays())
+        same = all(f.size == 0 or np.shares_memory(f, a) for f, (_, a) in zip(flat, akf.record.arrays()))
+        self._rec_flat = flat if same else None
         self._results = [(self._res[i], self._res[i, bs.N_RES:bs.N_RES + n]) for i in range(cap)]
 
     # ------------------------------------------------------------------ life
@@ -341,8 +349,6 @@ class BoundWorker:
             if slot is not None:
                 self._write(slot, bs.STEP, est, record)
         self._collect(est)
-        est.valid = self.valid
-        est.invalid_reason = self.invalid_reason
 
     def _reset(self, est, record) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""
@@ -357,16 +363,15 @@ class BoundWorker:
 
     def _write(self, slot, kind: float, est, record) -> None:
         """The record into the slot, published at the next :meth:`flush`."""
-        s, arrays = slot
-        s[bs.I_KIND] = kind
-        s[bs.I_CYC] = self.cycle
-        s[bs.I_K] = est.k
-        s[bs.I_DT] = record.dt
-        s[bs.I_READY] = 1.0 if record.ready else 0.0
-        s[bs.I_GATES] = record.gate_starts
-        s[bs.I_EPOCH] = self._epoch
-        for name, view in arrays:
-            view[...] = getattr(record, name)
+        s, arrays, flat = slot
+        # the scalars at I_KIND, I_CYC, I_K, I_DT, I_READY, I_GATES, I_EPOCH (0..6), one assignment
+        s[:bs.I_EPOCH + 1] = (kind, self.cycle, est.k, record.dt, 1.0 if record.ready else 0.0,
+                              record.gate_starts, self._epoch)
+        if record is self._rec and self._rec_flat is not None:
+            np.concatenate(self._rec_flat, out=flat)     # the arrays in layout order, one call
+        else:
+            for name, view in arrays:
+                view[...] = getattr(record, name)
         self._head += 1
 
     def _collect(self, est) -> None:
@@ -421,13 +426,13 @@ class BoundWorker:
         if fresh:
             est.tau_h_act_bound[:] = self._rho
             self.bound_cycle = c
-            self.valid = self._newest_valid
-            self.invalid_reason = self._newest_reason
+            est.valid = self.valid = self._newest_valid
+            est.invalid_reason = self.invalid_reason = self._newest_reason
         else:
             self.stale += 1
             self.bound_cycle = -1
-            self.valid = False
-            self.invalid_reason = BOUND_STALE
+            est.valid = self.valid = False
+            est.invalid_reason = self.invalid_reason = BOUND_STALE
 
     def fault(self) -> str | None:
         """None while the bound can come; else one line saying why not (a dead worker: the same
