@@ -130,10 +130,11 @@ class Server:
 
     #: heads polled: the first poll comes this fraction of a period after the newest head's
     #: period is over, and while no head came the next ones after this fraction of a period,
-    #: doubled each time up to :data:`POLL_MAX` periods
+    #: doubled each time up to :data:`POLL_MAX` periods (a head that comes after a pause — the
+    #: loop's start, a reset — waits at most that long)
     POLL_LATE = 0.05
     POLL_AGAIN = 0.125
-    POLL_MAX = 8.0
+    POLL_MAX = 1.0
 
     def __init__(self, akf, views: bs.Shared, record: int, lay: dict, heads: int, counts: int, parent_pid: int,
                  via_pipe: bool = True, rt_priority: int = 0, poll_period: float | None = None):
