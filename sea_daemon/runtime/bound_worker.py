@@ -398,10 +398,11 @@ class BoundWorker:
             # sample done − 1's result, complete: its count came through the pipe after it; and
             # not overwritten while read: that needs a sample the loop publishes after this
             r, rho = self._results[(done - 1) % self.capacity]
-            status, epoch, cyc, ok = r[bs.R_STATUS], r[bs.R_EPOCH], r[bs.R_CYC], r[bs.R_VALID] != 0.0
-            reason = int(r[bs.R_REASON])
+            head = r[:bs.N_RES].tolist()             # seq, cycle, k, valid, status, epoch, cpu, reason
+            status, epoch, cyc, ok = head[bs.R_STATUS], head[bs.R_EPOCH], head[bs.R_CYC], head[bs.R_VALID] != 0.0
+            reason = int(head[bs.R_REASON])
             self._rho_in[:] = rho
-            if r[bs.R_SEQ] != done - 1:
+            if head[bs.R_SEQ] != done - 1:
                 epoch = -1.0                         # not that sample's (the ring's order rules it out)
             if epoch == self._epoch:
                 if status == FAILED:
