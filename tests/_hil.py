@@ -127,23 +127,6 @@ def hil_rig(cfg, plant=None, position_preset: int = 0, lock_step: bool = True, t
     return rig
 
 
-def command_cycles(rig: Rig, cycles: int, period: float | None = None) -> list:
-    """``cycles`` cycles of the started driver: read (a valid sample, no fault), write a torque
-    that changes every cycle; the commands actuated, in order.  ``period``: each SYNC at its
-    deadline, as the loop in real-time pace sends it (None: as fast as the cycles run)."""
-    sent = []
-    t0 = time.monotonic()
-    for k in range(cycles):
-        if period is not None:
-            time.sleep(max(0.0, t0 + k * period - time.monotonic()))
-        m = rig.hw.read()
-        assert m.valid and m.faults == 0
-        cmd = np.array([0.4 + 0.01 * k])
-        rig.hw.write(cmd)
-        sent.append(rig.hw.actuated(cmd).copy())
-    return sent
-
-
 @pytest.fixture(scope="module")
 def remote_url():
     server = RemoteServer()

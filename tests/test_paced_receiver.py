@@ -3,9 +3,11 @@ once a master keeps the drives' period it sleeps on its own timer instead of wai
 (the master's SYNC wakes no process), and the plant steps with the same commands as before."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from _hil import command_cycles, hil_config, hil_rig, recording_plant
+from _hil import hil_config, hil_rig, recording_plant
 from sea_daemon.hw.device_model.receiver import SharedReceiver
 
 P = 0.002
@@ -46,12 +48,21 @@ def test_a_master_at_the_period_is_answered_off_the_timer_with_the_same_steps():
     cfg = hil_config("ipc")
     plant = recording_plant(0.3)
     rig = hil_rig(cfg, plant)
+    sent = []
     try:
         rig.hw.start()
         recv = rig.device_model.networks[0].notifier
         assert isinstance(recv, SharedReceiver) and recv.period is not None
         first = len(plant.steps)
-        sent = command_cycles(rig, 60, period=cfg.dt)     # the master at the drives' period
+        t0 = time.monotonic()
+        for k in range(60):
+            # the master's pace: each SYNC at its deadline, as the loop in real-time pace sends it
+            time.sleep(max(0.0, t0 + k * cfg.dt - time.monotonic()))
+            m = rig.hw.read()
+            assert m.valid and m.faults == 0
+            cmd = np.array([0.4 + 0.01 * k])
+            rig.hw.write(cmd)
+            sent.append(rig.hw.actuated(cmd).copy())
         rig.hw.read()
         waits = recv.paced_waits
     finally:

@@ -6,18 +6,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from _hil import command_cycles, hil_config, hil_rig, recording_plant
+from _hil import hil_config, hil_rig, recording_plant
 
 
 def _run(kind: str, cycles: int = 60):
     plant = recording_plant(0.3)
     rig = hil_rig(hil_config(kind), plant)
+    sent = []
     try:
         rig.hw.start()
         first = len(plant.steps)
         model = rig.device_model
         frames0 = model.network.frames
-        sent = command_cycles(rig, cycles)
+        for k in range(cycles):
+            m = rig.hw.read()
+            assert m.valid and m.faults == 0
+            cmd = np.array([0.4 + 0.01 * k])
+            rig.hw.write(cmd)
+            sent.append(rig.hw.actuated(cmd).copy())
         rig.hw.read()
         frames = model.network.frames - frames0
         taps = list(model._rpdo_taps)
