@@ -550,8 +550,7 @@ def _report_bus(cfg, m: _Measured, out: dict) -> None:
         a, h = ds["answer_us"], ds["handler_cpu_us"]
         print(f"device model answer latency (SYNC sent -> its last TPDO sent, in its process): median "
               f"{a['median']:.0f} us, p99 {a['p99']:.0f} us, max {a['max']:.0f} us; its SYNC handler CPU median "
-              f"{h['median']:.0f} us, p99 {h['p99']:.0f} us ({ds['syncs']} SYNCs; its receive thread waited "
-              f"{ds.get('paced_waits', 0)} times on its own timer, paced by the SYNCs, not on the bus)")
+              f"{h['median']:.0f} us, p99 {h['p99']:.0f} us ({ds['syncs']} SYNCs)")
     print(f"TPDO cycles missed at the deadline: {out['missed_tpdo_cycles']}, late: {out['late_tpdo_cycles']}; "
           f"samples the loop extrapolated over them: {out['extrapolated_samples']}")
     fpc, load_typ, load_worst = out["frames_per_cycle"], out["bus_load_1mbit_typical"], out["bus_load_1mbit_worst_stuffing"]

@@ -311,14 +311,11 @@ class DeviceModel:
         """The device's answer to SYNC over the SYNCs seen (at most the last STATS_CAP): latency
         from the SYNC's send time (frame timestamp) to the last TPDO sent, and the SYNC
         handler's CPU time, median / p99 / max in µs; the handler's page faults
-        (:meth:`handler_page_faults`); ``paced_waits``: the receive thread's waits that ended on
-        its own timer (:class:`~sea_daemon.hw.device_model.receiver.SharedReceiver`, paced)."""
+        (:meth:`handler_page_faults`)."""
         k = min(self.handled, self.STATS_CAP)
         out = {"syncs": int(self._bus_syncs[0]), "frames": int(sum(n.frames for n in self.networks)),
                "data_bytes": int(sum(n.data_bytes for n in self.networks)),
-               "handler_page_faults": self.handler_page_faults(),
-               # waits of the receive thread that ended on its timer, paced by the SYNCs (receiver.py)
-               "paced_waits": int(getattr(self.networks[0].notifier, "paced_waits", 0))}
+               "handler_page_faults": self.handler_page_faults()}
         if len(self.networks) > 1:
             out["buses"] = [{"syncs": int(c), "frames": int(n.frames), "data_bytes": int(n.data_bytes)}
                             for c, n in zip(self._bus_syncs, self.networks)]
