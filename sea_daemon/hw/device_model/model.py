@@ -196,10 +196,8 @@ class DeviceModel:
         for i, bus in enumerate(self.buses):
             set_controller_filters(bus, self.acceptance_filters(i, rpdos=self._rpdo_taps[i] is None))
         # several buses with descriptors: one receive thread for all of them (SharedReceiver: the
-        # cycle's SYNCs answered in bus order by one thread), and in lock-step one bus too, paced
-        # by the SYNCs (a master in real-time pace does not wake it); else canopen's Notifier
-        shared = SharedReceiver.of(self.buses, self.networks, self.networks[0].NOTIFIER_CYCLE,
-                                   period=(lambda: self.period) if self.lock_step else None)
+        # cycle's SYNCs answered in bus order by one thread), else canopen's Notifier per network
+        shared = SharedReceiver.of(self.buses, self.networks, self.networks[0].NOTIFIER_CYCLE)
         if shared is not None:
             shared.start()
         else:
