@@ -57,3 +57,27 @@ def test_als_rejects_unstable_gain_and_short_data(sea_data):
         identify(F * 1.2, np.eye(5), H, np.zeros_like(L), e)
     with pytest.raises(InputError, match="innovations"):
         identify(F, np.eye(5), H, L, e[:20], lags=15)
+
+
+def test_model_autocov_of_a_badly_scaled_filter_is_exact_and_raises_no_warning():
+    """States of very different scales (encoder angles 1e-7 rad, torques N m) make the direct
+    solve's Kronecker system I − Ā⊗Ā numerically singular (scipy warned, rcond ~1e-16, in the
+    middle of bench generalize's output at 1 kHz) although the covariance is well determined:
+    Ā = D⁻¹ M D with M well-conditioned, whose solution is D⁻¹ Y D⁻¹ for Y = M Y Mᵀ + I."""
+    import warnings
+    from scipy.linalg import LinAlgWarning, solve_discrete_lyapunov
+    rng = np.random.default_rng(7)
+    M = rng.standard_normal((5, 5))
+    M *= 0.95 / np.max(np.abs(np.linalg.eigvals(M)))
+    d = np.array([1e-7, 1e-5, 1e-2, 1.0, 1e2])
+    A = M * d[None, :] / d[:, None]                     # D⁻¹ M D
+    Q = np.eye(5) / np.outer(d, d)                      # D⁻¹ I D⁻¹
+    Y = solve_discrete_lyapunov(M, np.eye(5))           # well-conditioned, no warning
+    with pytest.warns(LinAlgWarning):                   # what the direct solve does on A
+        solve_discrete_lyapunov(A, Q)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        C = model_autocov(A, np.eye(5), np.eye(5), np.zeros((5, 5)), Q, np.zeros((5, 5)), 2)
+    P = Y / np.outer(d, d)
+    np.testing.assert_allclose(C[0], P, rtol=1e-9, atol=0)     # every entry, at its own scale
+    np.testing.assert_allclose(C[1], A @ P, rtol=1e-9, atol=0)

@@ -83,3 +83,39 @@ def test_saved_elsewhere_the_urdf_path_still_names_the_file(arm, tmp_path):
     np.testing.assert_array_equal(again.model.M, cfg.model.M)
     save_config(cfg, tmp_path / "beside.yaml")
     assert load_config(tmp_path / "beside.yaml").model.urdf == "exo_2dof_arm.urdf"
+
+
+@pytest.mark.parametrize("old,new,message", [
+    # Pinocchio's parser dropped these <inertial> elements (the forearm then had no mass) with only
+    # a console message, or took the value as given
+    ('<mass value="0.8"/>', '<mass value="nan"/>',
+     r"""link 'exo_forearm': <mass value="nan">: allowed a finite number >= 0 \[kg\]"""),
+    ('<mass value="0.8"/>', '<mass value="0.8kg"/>', r"""<mass value="0.8kg">: allowed a finite number >= 0"""),
+    ('<mass value="0.8"/>', '<mass value="-0.5"/>', r"""link 'exo_forearm': <mass value="-0.5">: allowed"""),
+    ('ixx="0.00435"', 'ixx="-1"', r"link 'exo_forearm': <inertia> ixx=-1 .* is not a physical inertia"),
+    ('ixx="0.00435"', 'ixx="inf"', r"""<inertia ixx="inf">: allowed a finite number \[kg m\^2\]"""),
+    ('ixx="0.00435" ', '', r"link 'exo_forearm': <inertia> has no ixx="),
+    ('<origin xyz="0 0 -0.12"/>', '<origin xyz="0 0"/>', r"""<origin xyz="0 0">: allowed 3 finite numbers \[m\]"""),
+    # joints: Pinocchio refused these, after several lines on the console
+    ('<origin xyz="0 0 -0.3255"/>', '<origin xyz="0 0 nan"/>', r"""joint 'elbow': <origin xyz="0 0 nan">"""),
+    ('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>', r"""joint 'shoulder': <axis xyz="0 0 0">: allowed 3 finite numbers, not all 0"""),
+    ('lower="0" upper="2.2689"', 'lower="3" upper="2.2689"', r"joint 'elbow': <limit lower=\"3\" upper=\"2.2689\">: allowed lower <= upper"),
+    ('effort="20"', 'effort="-20"', r"""joint 'elbow': <limit effort="-20">: allowed a finite number >= 0"""),
+])
+def test_a_urdf_number_that_is_not_one_is_named(arm, old, new, message):
+    urdf = arm.parent / "exo_2dof_arm.urdf"
+    text = urdf.read_text()
+    assert old in text
+    urdf.write_text(text.replace(old, new, 1))
+    with pytest.raises(InputError, match=message):
+        load_config(arm)
+
+
+def test_a_working_range_per_joint_in_the_yaml_is_refused_naming_where_it_goes(arm):
+    # the list was refused as "must be a finite number within ±1e+09"
+    d = yaml.safe_load(arm.read_text())
+    d["calibration"] = {"q_min_deg": [10, 20], "q_max_deg": [80, 100]}
+    arm.write_text(yaml.safe_dump(d, sort_keys=False))
+    with pytest.raises(InputError, match=r"calibration.q_min_deg: must be one angle in -360..360 deg for every joint, "
+                                         r"got \[10, 20\] \(one range per joint: .*URDF <limit lower upper>\)"):
+        load_config(arm)

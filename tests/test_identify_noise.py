@@ -70,6 +70,7 @@ def test_identify_noise_bad_input_exits_2(noisy_log, tmp_path, capsys):
     ("rate", r"recorded at 250 Hz, the configuration runs at 100 Hz \(rate_hz\); allowed: 100 Hz or a whole multiple"),
     ("tau_m", r"column tau_m is 0 N m in all \d+ rows while the joint moves"),
     ("theta_m", r"column theta_m is 0 rad in all \d+ rows while q spans .*the motor encoder reports nothing"),
+    ("q", r"column q is 0 rad in all \d+ rows while theta_m spans .*the load encoder reports nothing"),
 ])
 def test_identify_noise_refuses_a_log_at_another_rate_or_with_a_dead_column(noisy_log, tmp_path, capsys, edit,
                                                                              pattern):

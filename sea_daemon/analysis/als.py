@@ -29,9 +29,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+from scipy.linalg import solve_discrete_are
 from scipy.optimize import nnls
 
+from sea_daemon.analysis.passive_noise import lyapunov_sum
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.linalg import discretize
 from sea_daemon.errors import InputError
@@ -57,7 +58,10 @@ def model_autocov(A, G, C, L, Q, R, lags: int) -> np.ndarray:
     AL = A @ L
     Abar = A - AL @ C
     W = G @ Q @ G.T + AL @ R @ AL.T
-    P = solve_discrete_lyapunov(Abar, W)
+    # by doubling, not scipy's direct solve: the Kronecker system I − Ā⊗Ā of a filter whose states
+    # span the encoders' 1e-7 rad and the torque's N m is ill-conditioned by its scales alone
+    # (rcond ~1e-16 at 1 kHz) although P itself is well determined
+    P = lyapunov_sum(Abar, W)
     out = np.empty((lags, C.shape[0], C.shape[0]))
     out[0] = C @ P @ C.T + R
     Aj = np.eye(A.shape[0])            # Ā^{j−1}

@@ -312,11 +312,12 @@ def column_figures(log: MeasuredLog, joint: int = 0) -> dict:
             "constant": {b: float(a[0]) for b, a in cols.items() if len(a) and np.ptp(a) == 0.0}}
 
 
-def dead_column(f: dict, path: str, lim: Limits = Limits()) -> str | None:
+def dead_column(f: dict, path: str, lim: Limits = Limits(), torque: bool = True) -> str | None:
     """The one line of a log one of whose sensor columns holds one value in every row while the
     joint moves (the other angle spans at least ``lim.still_span_deg``): a sensor or a column
     that reports nothing, on which nothing can be identified; or None.  ``f``: the figures of
-    :func:`column_figures` (and ``samples``)."""
+    :func:`column_figures` (and ``samples``); ``torque=False``: the two angles only (a drive
+    commanding no torque while the wearer moves the joint logs a constant ``tau_m``)."""
     const, span, col = f.get("constant", {}), f.get("angle_span_deg", {}), f.get("columns", {})
     rows = f"in all {f.get('samples', 0)} rows"
     for name, other, what in (("q", "theta_m", "the load encoder"), ("theta_m", "q", "the motor encoder")):
@@ -325,18 +326,18 @@ def dead_column(f: dict, path: str, lim: Limits = Limits()) -> str | None:
                     f"{span[other]:.1f} deg: {what} reports nothing (the spring between them cannot deflect that "
                     f"far); check it and the log's columns (docs/interfaces.md section 1), then {RECORD}")
     moved = max(span.values(), default=0.0)
-    if "tau_m" in const and moved >= lim.still_span_deg:
+    if torque and "tau_m" in const and moved >= lim.still_span_deg:
         return (f"{path}: column {col['tau_m']} is {const['tau_m']:.6g} N m {rows} while the joint moves over "
                 f"{moved:.1f} deg: the drive's torque is not in the log; check the drive's torque reading and the "
                 f"log's columns (docs/interfaces.md section 1), then {RECORD}")
     return None
 
 
-def check_columns(log: MeasuredLog, lim: Limits = Limits()) -> None:
+def check_columns(log: MeasuredLog, lim: Limits = Limits(), torque: bool = True) -> None:
     """InputError with :func:`dead_column`'s line when a sensor column of any joint of ``log``
-    reports nothing while that joint moves."""
+    reports nothing while that joint moves (``torque=False``: an angle column)."""
     for j in range(log.n):
-        line = dead_column({"samples": len(log), **column_figures(log, j)}, log.path, lim)
+        line = dead_column({"samples": len(log), **column_figures(log, j)}, log.path, lim, torque)
         if line:
             raise InputError(line)
 

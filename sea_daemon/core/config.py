@@ -320,6 +320,10 @@ class CalibrationConfig:
         k = "calibration."
         out: dict = {}
         for key in ("q_min_deg", "q_max_deg"):
+            if isinstance(d.get(key), (list, tuple)):
+                raise ConfigError(source, k + key, f"must be one angle in -360..360 deg for every joint, got {d[key]!r} "
+                                                   "(one range per joint: leave it out and give each joint's URDF "
+                                                   "<limit lower upper>)")
             if d.get(key) is not None:
                 out[key] = validate.num(source, k + key, d[key], lo=-360.0, hi=360.0)
         for key in ("v_max", "a_max", "duration_s", "human_torque_rms"):

@@ -230,17 +230,109 @@ def _parse(urdf: str, source: str) -> ET.Element:
 
 def check_joints(urdf: str, source: str = "model.urdf") -> list[str]:
     """The movable joints' names in document order; refuses a joint type other than fixed,
-    revolute or prismatic (:class:`~sea_daemon.errors.ConfigError` naming the joint)."""
+    revolute or prismatic, and a number of a link's ``<inertial>`` or of a joint that is not what
+    it must be (:func:`_check_inertial`, :func:`_check_joint`): a :class:`~sea_daemon.errors.ConfigError`
+    naming the link or joint, the element and the allowed values.  Pinocchio's URDF parser drops
+    an ``<inertial>`` it cannot read (a mass of "nan", a missing ``ixz``) and builds the robot
+    without that mass, with only a message on the console; it takes a negative mass as given."""
+    root = _parse(urdf, source)
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is not None:
+            _check_inertial(inertial, f"link {link.get('name', '')!r}", source)
     names = []
-    for j in _parse(urdf, source).iter("joint"):
+    for j in root.iter("joint"):
         kind = j.get("type", "")
         if kind == "fixed":
+            _check_joint(j, False, source)
             continue
         if kind not in MOVABLE:
             raise ConfigError(source, "model.urdf",
                               f"joint {j.get('name')!r} has type {kind!r}: allowed fixed, revolute, prismatic")
+        _check_joint(j, True, source)
         names.append(j.get("name", ""))
     return names
+
+
+def _numbers(el: ET.Element, attr: str, count: int, where: str, source: str, required: bool = True,
+             allowed: str = ""):
+    """The ``count`` finite numbers of attribute ``attr`` of element ``el`` (None if absent and not
+    ``required``), or a ConfigError naming ``where``, the element, the text and ``allowed`` (what
+    the numbers must be; default "N finite numbers")."""
+    allowed = allowed or f"{count} finite number{'s' if count > 1 else ''}"
+    text = el.get(attr)
+    if text is None:
+        if not required:
+            return None
+        raise ConfigError(source, "model.urdf", f"{where}: <{el.tag}> has no {attr}=\"...\" (allowed {allowed})")
+    try:
+        values = [float(v) for v in text.split()]
+    except ValueError:
+        values = []
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ConfigError(source, "model.urdf", f"{where}: <{el.tag} {attr}=\"{text}\">: allowed {allowed}")
+    return values
+
+
+def _check_origin(parent: ET.Element, where: str, source: str) -> None:
+    origin = parent.find("origin")
+    if origin is not None:
+        for attr, unit in (("xyz", "m"), ("rpy", "rad")):
+            _numbers(origin, attr, 3, where, source, required=False, allowed=f"3 finite numbers [{unit}]")
+
+
+INERTIA = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+def _check_inertial(inertial: ET.Element, where: str, source: str) -> None:
+    """A link's ``<inertial>``: a mass >= 0 [kg], the six entries of a positive semi-definite
+    inertia tensor [kg m²], an origin of finite numbers."""
+    _check_origin(inertial, where, source)
+    mass, inertia = inertial.find("mass"), inertial.find("inertia")
+    for tag, el in (("mass", mass), ("inertia", inertia)):
+        if el is None:
+            raise ConfigError(source, "model.urdf", f"{where}: <inertial> has no <{tag}> (a URDF inertial needs "
+                                                    "both <mass> and <inertia>)")
+    kg = "a finite number >= 0 [kg]"
+    if _numbers(mass, "value", 1, where, source, allowed=kg)[0] < 0.0:
+        raise ConfigError(source, "model.urdf", f"{where}: <mass value=\"{mass.get('value')}\">: allowed {kg}")
+    xx, xy, xz, yy, yz, zz = (_numbers(inertia, a, 1, where, source, allowed="a finite number [kg m^2]")[0]
+                              for a in INERTIA)
+    tensor = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    if np.min(np.linalg.eigvalsh(tensor)) < -1e-9 * max(1e-12, float(np.max(np.abs(tensor)))):
+        raise ConfigError(source, "model.urdf", f"{where}: <inertia> ixx={xx:g} ixy={xy:g} ixz={xz:g} iyy={yy:g} "
+                                                f"iyz={yz:g} izz={zz:g} [kg m^2] is not a physical inertia "
+                                                "(allowed: a positive semi-definite tensor)")
+
+
+def _check_joint(joint: ET.Element, movable: bool, source: str) -> None:
+    """A joint's numbers: its origin finite; a movable joint's axis finite and not 0, and its
+    ``<limit>`` (which the URDF requires of it) with effort and velocity >= 0 and lower <= upper."""
+    where = f"joint {joint.get('name', '')!r}"
+    _check_origin(joint, where, source)
+    if not movable:                       # the URDF parser reads a fixed joint's origin only
+        return
+    axis = joint.find("axis")
+    xyz = None if axis is None else _numbers(axis, "xyz", 3, where, source, required=False,
+                                              allowed="3 finite numbers, not all 0")
+    if xyz is not None and not any(xyz):
+        raise ConfigError(source, "model.urdf", f"{where}: <axis xyz=\"{axis.get('xyz')}\">: allowed 3 finite "
+                                                "numbers, not all 0")
+    limit = joint.find("limit")
+    if limit is None:
+        raise ConfigError(source, "model.urdf", f"{where}: has no <limit> (a revolute or prismatic joint "
+                                                "needs lower, upper, effort and velocity)")
+    values = {a: _numbers(limit, a, 1, where, source, required=a in ("effort", "velocity"),
+                          allowed="a finite number" + (" >= 0" if a in ("effort", "velocity") else ""))
+              for a in ("lower", "upper", "effort", "velocity")}
+    for a in ("effort", "velocity"):
+        if values[a][0] < 0.0:
+            raise ConfigError(source, "model.urdf", f"{where}: <limit {a}=\"{limit.get(a)}\">: allowed a finite "
+                                                    "number >= 0")
+    lo, hi = (values[a][0] if values[a] else 0.0 for a in ("lower", "upper"))
+    if lo > hi:
+        raise ConfigError(source, "model.urdf", f"{where}: <limit lower=\"{limit.get('lower')}\" "
+                                                f"upper=\"{limit.get('upper')}\">: allowed lower <= upper")
 
 
 def link_masses(urdf: str, source: str = "model.urdf") -> dict[str, float]:

@@ -80,9 +80,9 @@ def _lines(p: str):
 def read_log(path: str | Path, n: int | None = None, min_rows: int = 2, units: bool = True) -> MeasuredLog:
     """Read and validate a measured log.
 
-    ``n``: number of joints expected (None: inferred from the header).  ``min_rows``: the
-    fewest data rows the caller's operation needs.  ``units``: check angles and torques for a
-    unit error (degrees for radians, a torque beyond any actuator's); False for a log the daemon
+    ``n``: number of joints expected (None: inferred from the header; a header with the columns
+    of another number of joints is refused).  ``min_rows``: the fewest data rows the caller's
+    operation needs.  ``units``: check angles and torques for a unit error (degrees for radians, a torque beyond any actuator's); False for a log the daemon
     wrote itself, read back by its benchmarks: its values are what its hardware measured (a
     simulated arm without end stops may turn past a full turn after a fault).  Every problem is a
     :class:`~sea_daemon.errors.LogFormatError` naming the file, the line and what was expected.
@@ -91,9 +91,15 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2, units: b
     lines = _lines(p)
     header = _header(p, lines)
     if n is None:
-        n = 1 if "q" in header else sum(1 for h in header if h.startswith("q_") and h[2:].isdigit())
-        n = max(n, 1)
+        n = max(header_joints(header), 1)
     need = ["t"] + [c for base in REQUIRED for c in column_names(base, n)]
+    m = header_joints(header)
+    if m and m != n:
+        # another robot's log (or this robot's log with another configuration): never read in part
+        cols = ", ".join(column_names("q", m))
+        raise LogFormatError(p, 1, f"has the columns of {m} joint(s) ({cols}, ...); the configuration has {n} "
+                                   f"(joints: {n}, columns {', '.join(need)}): give the log and the configuration "
+                                   "of one robot")
     missing = [c for c in need if c not in header]
     if missing:
         raise LogFormatError(p, 1, f"missing required column(s) {', '.join(missing)} "
@@ -121,6 +127,18 @@ def read_log(path: str | Path, n: int | None = None, min_rows: int = 2, units: b
     extra = {h: data[:, i] for h, i in col.items() if h not in known}
     return MeasuredLog(t=t, q=block("q"), theta_m=block("theta_m"), tau_m=block("tau_m"),
                        tau_h_act=tau_h, extra=extra, path=p)
+
+
+def header_joints(header) -> int:
+    """How many joints a log's header has columns for (docs/interfaces.md section 1): 1 when it has
+    ``q``, ``theta_m`` or ``tau_m``, else the highest k of its ``q_k``, ``theta_m_k`` and ``tau_m_k``;
+    0 when it has none of them."""
+    names = set(header)
+    if any(base in names for base in REQUIRED):
+        return 1
+    ks = [int(h[len(base) + 1:]) for base in REQUIRED for h in names
+          if h.startswith(base + "_") and h[len(base) + 1:].isdigit()]
+    return max(ks, default=0)
 
 
 def _header(p: str, lines) -> list[str]:

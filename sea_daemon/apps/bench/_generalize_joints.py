@@ -32,13 +32,14 @@ from sea_daemon.apps.bench import machine
 from sea_daemon.apps.bench._family_joints import (HOLD, SESSIONS_REV, calibration_motion_joints, draw_plant_joints,
                                                   sessions_joints)
 from sea_daemon.apps.bench._degenerate import timed_replay
-from sea_daemon.apps.bench._logcache import load_logs, save_logs
+from sea_daemon.apps.bench._logcache import load_logs, producer, save_logs
 from sea_daemon.analysis.passive_noise import passive_noise, walk_for_noise
 from sea_daemon.apps.calibration.joints import plant_substep
 from sea_daemon.apps.calibration.pipeline import CalibrationOptions, HumanSpec, calibrate
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.sim.session import run_session
+from sea_daemon.io.configfile import data_root
 from sea_daemon.io.files import atomic_write_text
 
 #: the two-joint plant seeds used while building the two-joint calibration (not for headline figures):
@@ -47,6 +48,10 @@ from sea_daemon.io.files import atomic_write_text
 #: length, undeclared friction and tissue bending the arm's factors; one walk for both joints) to
 #: correcting every link with the friction and a stiffness fitted beside, and a walk per joint
 DEVELOPMENT_SEEDS = (2, 3, 4)
+#: what makes the two-joint family's logs (the cache key's producer, :func:`._logcache.producer`):
+#: the family and the session simulator (with every module they import), the family's base model and its URDF
+PRODUCER_JOINTS = ("sea_daemon.apps.bench._family_joints", "sea_daemon.core.sim.session")
+PRODUCER_FILES_JOINTS = tuple(data_root() / "configs" / f for f in ("exo_2dof.yaml", "exo_2dof_arm.urdf"))
 #: what the held-out seeds must show per joint: GP-AKF / oracle AKF median and p90 at most, the
 #: largest passive RMSE [N m], the bound's coverage of every session at least, and its mean at
 #: most this many times the RMSE on active sessions
@@ -59,19 +64,22 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     pd = draw_plant_joints(seed, rate_hz)
     name = f"joints2_plant_{seed}_{int(cal_s)}_{pd.nominal.rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
+    specs = sessions_joints(pd)
+    noise_seeds = {"calibration": 1000 + seed, "sessions": [2000 + 100 * seed + i for i in range(len(specs))]}
+    sub = plant_substep(pd.true, 3e-3, pd.nominal.rate_hz)
     key = {"seed": seed, "joints": 2, "cal_s": cal_s, "rate_hz": pd.nominal.rate_hz,
-           "sessions": [s.name for s in sessions_joints(pd)], "sessions_rev": SESSIONS_REV}
+           "sessions": [s.name for s in specs], "sessions_rev": SESSIONS_REV, "noise_seeds": noise_seeds,
+           "substep_hz": sub, "hold": list(HOLD), "producer": producer(PRODUCER_JOINTS, PRODUCER_FILES_JOINTS)}
     logs = None if p is None else load_logs(p, key)
     if logs is not None and "calibration" in logs:
         cal = logs.pop("calibration")
         return pd, cal, logs
-    sub = plant_substep(pd.true, 3e-3, pd.nominal.rate_hz)
-    cal = run_session(pd.true, cal_s, reference=calibration_motion_joints(pd, cal_s, seed=seed), seed=1000 + seed,
-                      substep_hz=sub)
+    cal = run_session(pd.true, cal_s, reference=calibration_motion_joints(pd, cal_s, seed=seed),
+                      seed=noise_seeds["calibration"], substep_hz=sub)
     tests = {}
-    for i, s in enumerate(sessions_joints(pd)):
+    for s, noise_seed in zip(specs, noise_seeds["sessions"]):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
-                                    seed=2000 + 100 * seed + i, substep_hz=sub, hold=HOLD if s.hold_q is not None else None)
+                                    seed=noise_seed, substep_hz=sub, hold=HOLD if s.hold_q is not None else None)
     if p is not None:
         save_logs(p, key, {"calibration": cal} | tests)
     return pd, cal, tests

@@ -47,16 +47,21 @@ from sea_daemon.apps.bench import choose, machine
 from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant, score_replay,
                                                 summarize_degenerate)
 from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
-from sea_daemon.apps.bench._logcache import load_logs, private_dir, save_logs
+from sea_daemon.apps.bench._logcache import load_logs, private_dir, producer, save_logs
 from sea_daemon.apps.bench._generalize_joints import calibrate_plant, run_joints, seed_roles_joints
 from sea_daemon.apps.progress import Progress
 from sea_daemon.core.bounds.akf_bound import theorem_bound
 from sea_daemon.core.estimators.akf import AKF
 from sea_daemon.core.sim.session import run_session
 from sea_daemon.errors import InputError
+from sea_daemon.io.configfile import data_root
 from sea_daemon.io.files import atomic_write_text, check_output_dir
 
 ESTIMATORS = ("gp-akf", "akf-robot", "akf-aug", "oracle")
+#: what makes the one-joint family's logs (the cache key's producer, :func:`._logcache.producer`):
+#: the family and the session simulator (with every module they import), the family's base model
+PRODUCER = ("sea_daemon.apps.bench._family", "sea_daemon.core.sim.session")
+PRODUCER_FILES = (data_root() / "configs" / "exo_1dof.yaml",)
 #: the plant seeds used while choosing the calibration's settings (not for headline figures):
 #: 0–5 for the calibration's steps; 100–119 for the GP weight's reference (plants 101 and 104,
 #: 1 kHz, active subject 0.5–3 Hz, inspected; the others' figures looked at); 201 and 209 (inspected
@@ -131,7 +136,10 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
     if rate_hz is not None:
         name += f"_{rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
-    key = {"seed": seed, "cal_s": cal_s if calibration else None, "sessions": [s.name for s in sessions(pd)]}
+    specs = sessions(pd)
+    noise_seeds = {"calibration": 1000 + seed, "sessions": [2000 + 100 * seed + i for i in range(len(specs))]}
+    key = {"seed": seed, "cal_s": cal_s if calibration else None, "sessions": [s.name for s in specs],
+           "noise_seeds": noise_seeds, "producer": producer(PRODUCER, PRODUCER_FILES)}
     if rate_hz is not None:
         key["rate_hz"] = float(rate_hz)
     logs = None if p is None else load_logs(p, key)
@@ -140,11 +148,12 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
         return pd, cal, logs
     cal = None
     if calibration:
-        cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed), seed=1000 + seed)
+        cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed),
+                          seed=noise_seeds["calibration"])
     tests = {}
-    for i, s in enumerate(sessions(pd)):
+    for s, noise_seed in zip(specs, noise_seeds["sessions"]):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
-                                    seed=2000 + 100 * seed + i)
+                                    seed=noise_seed)
     if p is not None:
         save_logs(p, key, ({"calibration": cal} if calibration else {}) | tests)
     return pd, cal, tests

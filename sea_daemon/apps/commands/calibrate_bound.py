@@ -17,6 +17,7 @@ import logging
 
 import numpy as np
 
+from sea_daemon.analysis.sufficiency import check_columns
 from sea_daemon.apps.calibration.modelio import jsonable
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.progress import Progress
@@ -59,6 +60,7 @@ def run(args) -> int:
     check_outputs([("--write", args.write)], inputs=[args.log, args.config, args.model])
     cfg_file = load_config(args.config)
     log = read_log(args.log, n=cfg_file.joints, min_rows=2)
+    check_columns(log, torque=False)          # an encoder column that reports nothing
     # the configuration at the log's rate (sea_daemon.core.rates): a 1 kHz log with the 100 Hz file
     rate = round(1.0 / log.dt, 6)
     cfg = at_rate(cfg_file, rate if abs(rate - cfg_file.rate_hz) > 1e-6 * cfg_file.rate_hz else None)

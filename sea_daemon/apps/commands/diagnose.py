@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sea_daemon.analysis.sufficiency import check_columns
 from sea_daemon.apps.commands import add_log_and_config
 from sea_daemon.apps.diagnose import SelectOptions, diagnose
 from sea_daemon.analysis.diagnose.summary import fmt
@@ -83,6 +84,8 @@ def run(args) -> int:
             raise InputError(f"--max-rows: must be >= 0 (0: the whole log), got {args.max_rows}")
         opts.max_rows = args.max_rows or None
     others = [read_log(p, n=cfg.joints) for p in args.apply]
+    for other in others:
+        check_columns(other, torque=False)    # an encoder column that reports nothing
     with Progress("diagnose") as progress:
         res = diagnose(log, cfg, out, options=opts, passive=args.passive, plots=not args.no_plots, apply=others,
                        progress=progress)

@@ -15,6 +15,7 @@ import json
 import logging
 import time
 
+from sea_daemon.analysis.sufficiency import check_columns
 from sea_daemon.apps.calibration.modelio import estimator_from_model, jsonable
 from sea_daemon.apps.calibration.modelio import summary as cal_summary
 from sea_daemon.apps.calibration.pipeline import STEPS, calibrate_log
@@ -84,6 +85,8 @@ def run(args) -> int:
     check_outputs([("--out", args.out)], inputs=[args.log, args.config, args.train, args.model])
     cfg_file = load_config(args.config)
     log = read_log(args.log, n=cfg_file.joints, min_rows=2)
+    # an encoder column that reports nothing: its line, not an estimator fault a few hundred samples in
+    check_columns(log, torque=False)
     # the configuration at the log's rate (sea_daemon.core.rates: the differentiator's span in time
     # kept), as the daemon's --rate runs it: a 1 kHz log with a 100 Hz configuration
     cfg = at_rate(cfg_file, log_rate(log, cfg_file))

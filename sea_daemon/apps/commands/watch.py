@@ -40,11 +40,11 @@ def add_arguments(p) -> None:
     g.add_argument("--state-dir", "--log-dir", dest="state_dir", metavar="DIR", default=None,
                    help="the running daemon's state directory (its sea-daemon.pid names the socket)")
     g.add_argument("--socket", metavar="PATH", default=None, help="the daemon's publication socket")
-    p.add_argument("--window", type=float, default=10.0, help="seconds of history shown (default 10)")
-    p.add_argument("--refresh", type=float, default=0.1, help="seconds between redraws (default 0.1)")
+    p.add_argument("--window", type=float, default=10.0, help="seconds of history shown (default 10, at most 3600)")
+    p.add_argument("--refresh", type=float, default=0.1, help="seconds between redraws (default 0.1, at most 60)")
     p.add_argument("--range", dest="y_range", type=float, default=None,
                    help="torque axis ±RANGE [N m] (default: the data's, at least ±1)")
-    p.add_argument("--height", type=int, default=11, help="plot rows per joint (default 11)")
+    p.add_argument("--height", type=int, default=11, help="plot rows per joint (default 11; 5-200)")
     p.add_argument("--frames", type=int, default=None, help="stop after this many refreshes")
     p.add_argument("--plain", action="store_true", help="one text line per refresh, no terminal drawing")
     p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
@@ -120,11 +120,15 @@ def engaged_where(s) -> str:
     return f" (joint{'s' if len(on) > 1 else ''} {', '.join(on)})" if on else " (on some joint)"
 
 
+#: the longest history shown and the longest time between redraws [s], the plot's rows per joint
+MAX_WINDOW_S, MAX_REFRESH_S, MIN_HEIGHT, MAX_HEIGHT = 3600.0, 60.0, 5, 200
+
+
 class View:
     """The history of the last ``window`` seconds and its drawing."""
 
     def __init__(self, window: float, height: int, y_range: float | None):
-        self.window, self.height, self.y_range = window, max(5, height), y_range
+        self.window, self.height, self.y_range = window, max(MIN_HEIGHT, height), y_range
         self.hist: deque = deque()
         self.last = None
         self.last_wall = 0.0
@@ -223,12 +227,15 @@ class View:
 
 
 def run(args) -> int:
-    if not args.window > 0 or not args.refresh > 0:
-        raise InputError(f"--window {args.window} / --refresh {args.refresh}: allowed > 0 s")
+    for name, value, most in (("--window", args.window, MAX_WINDOW_S), ("--refresh", args.refresh, MAX_REFRESH_S)):
+        if not 0 < value <= most:
+            raise InputError(f"{name} {value}: allowed > 0 and <= {most:g} s")
+    if not MIN_HEIGHT <= args.height <= MAX_HEIGHT:
+        raise InputError(f"--height {args.height}: allowed {MIN_HEIGHT}-{MAX_HEIGHT} rows")
     if args.frames is not None and args.frames < 1:
         raise InputError(f"--frames {args.frames}: allowed >= 1")
-    if args.y_range is not None and not args.y_range > 0:
-        raise InputError(f"--range {args.y_range}: allowed > 0 N m")
+    if args.y_range is not None and not 0 < args.y_range < math.inf:
+        raise InputError(f"--range {args.y_range}: allowed a finite number > 0 N m")
     if args.timeout is not None and not 0 <= args.timeout < math.inf:
         raise InputError(f"--timeout {args.timeout}: allowed a finite number of seconds >= 0")
     try:
