@@ -5,7 +5,10 @@ assist_track.yaml``: the hypertonic elbow tracking 20–70 deg with muscle torqu
 stack, in lock-step, the daemon's own workflow:
 
 1. calibration (``sea_daemon.apps.calibration.calibrate``: the PID moves the passive arm, the GP
-   learns), a held-out calibration (another noise seed), β of the bound on it (``--target torque``);
+   learns) — ``--calibration excitation`` (default): ``calibrate --excitation`` over the working
+   range the configuration declares (``calibration``: angles, speeds and accelerations the assisted
+   arm reaches); ``task``: the task's own moves — then a held-out session of the task's passive
+   moves (another noise seed) and β of the bound on it (``--target torque``);
 2. the task with the exoskeleton only compensating itself (assist gain 0) and with assistance
    (the configuration's gain), GP-AKF with its bound in the loop, on ``--seeds`` noise seeds:
    the subject's active torque RMS, the tracking error, the estimate's error and the bound's
@@ -58,6 +61,8 @@ from sea_daemon.runtime.rig import make_rig
 NAME = "assist"
 HELP = "assist-as-needed in the device model's tracking task: effort, tracking, stability, corrupted estimates"
 SCENARIO = data_root() / "configs" / "scenarios" / "assist_track.yaml"
+#: the calibration's motion (``--calibration``): the working-range excitation, or the task's moves
+CALIBRATIONS = ("excitation", "task")
 
 
 def add_arguments(p) -> None:
@@ -67,12 +72,15 @@ def add_arguments(p) -> None:
     p.add_argument("--seeds-other", default="3", help="noise seeds at the other rates (default 3)")
     p.add_argument("--seconds", type=float, default=36.0, help="task duration [s] (default 36: four cycles)")
     p.add_argument("--gain", type=float, default=None, help="assist gain (default: the configuration's)")
+    p.add_argument("--calibration", choices=CALIBRATIONS, default="excitation",
+                   help="the calibration's motion: the excitation over the configuration's working range "
+                        "(calibrate --excitation; default) or the task's own moves")
     p.add_argument("--no-faults", action="store_true", help="skip the corrupted-estimate runs")
     p.add_argument("--can", action="store_true", help="also the publication check over python-can-remote")
     p.add_argument("--out", default=None, help="directory for models, logs and arrays (default: a temp dir)")
 
 
-def _scenario_copy(src: Path, dest: Path, **changes) -> Path:
+def scenario_copy(src: Path, dest: Path, **changes) -> Path:
     d = yaml.safe_load(src.read_text())
     d["model"] = str((src.parent / d["model"]).resolve())
     d.update(changes)
@@ -85,18 +93,30 @@ def rms(x) -> float:
 
 
 # ---------------------------------------------------------------------------- calibration
-def calibrated(sc, cfg, rate: float, out: Path) -> tuple[object, float, dict]:
-    """(GP residual, β, info) for ``cfg`` at ``rate``: calibration, held-out calibration, torque β."""
+def task_config(sc, rate: float):
+    """The scenario's model at ``rate`` with the assistance on and what the scenario declares about
+    its subject (``tau_h_act_rate``: the Theorem-1 bound's term for the subject's torque changes,
+    docs/bounds.md §6)."""
+    return sc.declared(dataclasses.replace(sc.nominal, rate_hz=rate,
+                                           assist=dataclasses.replace(sc.nominal.assist, enabled=True)))
+
+
+def calibrated(sc, cfg, rate: float, out: Path, motion: str = "excitation") -> tuple[object, float, dict]:
+    """(GP residual, β, info) for ``cfg`` at ``rate``: calibration (``motion``: the working-range
+    excitation of ``cfg.calibration``, or the task's moves), held-out session of the task's passive
+    moves, torque β."""
     src = Path(sc.source)
-    n_cal = int(round(sc.training_samples * sc.nominal.dt * rate))
-    n_held = min(n_cal, int(round(12.0 * rate)))                   # 12 s: the β replays are the cost
+    excitation = motion == "excitation"
+    task_s = sc.training_samples * sc.nominal.dt
+    n_cal = int(round((cfg.calibration.duration_s if excitation else task_s) * rate))
+    n_held = min(int(round(task_s * rate)), int(round(12.0 * rate)))   # 12 s: the β replays are the cost
     model = out / f"model_{rate:g}.npz"
     t0 = time.perf_counter()
     code, summ, msg = calibrate(cfg, str(src), model, out / f"calibration_{rate:g}.csv", device_model=str(src),
-                                realtime=False, cycles=n_cal)
+                                realtime=False, cycles=n_cal, excitation=excitation)
     if code:
         raise RuntimeError(f"calibration at {rate:g} Hz: {msg}")
-    held = _scenario_copy(src, out / "heldout.yaml", seed=sc.seed + 1000)
+    held = scenario_copy(src, out / "heldout.yaml", seed=sc.seed + 1000)
     code, _, msg = calibrate(cfg, str(held), out / f"heldout_{rate:g}.npz", out / f"heldout_{rate:g}.csv",
                              device_model=str(held), realtime=False, cycles=n_held)
     if code:
@@ -105,7 +125,7 @@ def calibrated(sc, cfg, rate: float, out: Path) -> tuple[object, float, dict]:
     log = read_log(out / f"heldout_{rate:g}.csv", n=cfg.joints)
     est = make_estimator("gp-akf", cfg, dt=log.dt, residual=residual, learning=False, bound=False)
     b = torque_calibrated_beta(est, log, cfg.estimator.delta, truth=np.zeros((len(log), cfg.joints)))
-    info = {"calibration_cycles": n_cal, "gp_points": summ["gp_points"], "heldout_cycles": n_held,
+    info = {"calibration": motion, "calibration_cycles": n_cal, "gp_points": summ["gp_points"], "heldout_cycles": n_held,
             "beta": b["beta"], "beta_coverage": b["coverage"], "wall_s": round(time.perf_counter() - t0, 1)}
     return residual, float(b["beta"]), info
 
@@ -120,7 +140,7 @@ def task_run(scenario: Path, cfg, residual, gain: float, seconds: float, *, inje
                           cfg.assist.innovation_max)
     ctl = AssistController(rig.cfg, gain=gain)
     N = int(round(seconds * cfg.rate_hz))
-    keys = ("t", "q", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "tau_m", "nis")
+    keys = ("t", "q", "theta_m", "q_target", "tau_h_act", "hat", "rho", "valid", "tau_assist", "tau_m", "nis")
     rec = {k: np.full(N, np.nan) for k in keys}
     loop = None
 
@@ -131,6 +151,7 @@ def task_run(scenario: Path, cfg, residual, gain: float, seconds: float, *, inje
         rec["t"][k] = t
         if m is not None:
             rec["q"][k] = m.q[0]
+            rec["theta_m"][k] = m.theta_m[0]
         rec["q_target"][k] = subject.q_target[0]
         rec["tau_h_act"][k] = subject(t)[0]
         rec["valid"][k] = 0.0
@@ -339,18 +360,17 @@ def run(args) -> int:
           f"output {out}")
     report: dict = {"scenario": str(src), "rates": {}}
     for i, rate in enumerate(rates):
-        cfg = dataclasses.replace(sc.nominal, rate_hz=rate,
-                                  assist=dataclasses.replace(sc.nominal.assist, enabled=True))
+        cfg = task_config(sc, rate)
         gain = cfg.assist.gain if args.gain is None else args.gain
-        residual, beta, info = calibrated(sc, cfg, rate, out)
+        residual, beta, info = calibrated(sc, cfg, rate, out, args.calibration)
         cfg = dataclasses.replace(cfg, estimator=dataclasses.replace(cfg.estimator, gp_beta=beta))
-        print(f"\n{rate:g} Hz: calibration {info['calibration_cycles']} cycles ({info['gp_points']} GP points), "
+        print(f"\n{rate:g} Hz: calibration ({info['calibration']}) {info['calibration_cycles']} cycles ({info['gp_points']} GP points), "
               f"held-out {info['heldout_cycles']} cycles, torque beta {beta:.3g} (coverage {info['beta_coverage']:.3f}); "
               f"{info['wall_s']} s")
         seeds = [int(s) for s in (args.seeds if i == 0 else args.seeds_other).split(",")]
         rows = []
         for seed in seeds:
-            scen = _scenario_copy(src, out / f"task_seed{seed}.yaml", seed=seed)
+            scen = scenario_copy(src, out / f"task_seed{seed}.yaml", seed=seed)
             for g in (0.0, gain):
                 r = task_run(scen, cfg, residual, g, args.seconds)
                 np.savez(out / f"run_{rate:g}Hz_seed{seed}_gain{g:g}.npz",
