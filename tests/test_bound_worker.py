@@ -137,6 +137,33 @@ def test_worker_bound_equals_the_in_loop_bound_sample_by_sample(cfg, counts):
     assert np.all(a[k_b, iv] == 1) and k_b.min() >= int(np.argmax(a[:, iv] > 0))
 
 
+def test_with_heads_polled_the_loop_wakes_no_worker_and_every_bound_is_the_in_loop_one(cfg):
+    # real-time pace on a CPU with total store order: the worker polls the heads in shared memory
+    # in phase with the loop (its period), and the loop's cycle writes nothing to the worker's pipe
+    if bw.counts_path() != "memory":
+        pytest.skip("heads polled in shared memory only on a CPU with total store order (x86-64)")
+    sent = []
+    real_send = BoundWorker._send
+
+    def send(self, head):
+        sent.append(head)
+        return real_send(self, head)
+    a, _, _, _ = _run(cfg, 300)
+    BoundWorker._send = send
+    try:
+        b, _, st, link = _run(cfg, 300, worker=True, pause=0.002, max_age=10 ** 6, period=0.002)
+    finally:
+        BoundWorker._send = real_send
+    assert link.heads_via == "memory" and st["heads"] == "memory" and st["samples_done"] == st["steps"] + 1
+    assert sent == [bs.STOP]                            # the stop only: no head through the pipe
+    iv, ic, ib = (COLS.index(c) for c in ("valid", "bound_cycle", "tau_h_act_bound"))
+    sel = b[:, iv] > 0
+    k_b = b[sel, ic].astype(int)
+    assert np.unique(k_b).size > 200 and np.array_equal(b[sel, ib], a[k_b, ib])
+    # a loop without a fixed pace (no period) keeps the heads in the pipe
+    assert BoundWorker(_estimator(cfg)).heads_via == "pipe"
+
+
 def test_a_killed_worker_latches_BOUND_LOST_and_the_loop_goes_on(cfg):
     rows, loop, st, link = _run(cfg, 200, worker=True, pause=0.002, kill_at=120, max_age=50)
     sup = loop.supervisor

@@ -30,16 +30,14 @@ heartbeat
 while the devices answer, then collects that cycle's TPDOs until ``pdo_timeout_ms`` after the
 SYNC (at 1 kHz a deadline inside the period, e.g. 0.6 ms; a TPDO later than that is missing in
 this cycle — held within the missed-cycle tolerance, ``max_missed_ms`` / ``max_missed_cycles`` — and late in the next); ``write(tau)`` sends the
-RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.
-``read()`` takes the cycle's
+RPDO before the next SYNC, and the estimator runs after it, off the bus's critical path.  ``read()`` takes the cycle's
 TPDOs (:class:`sea_daemon.hw.canopen_rx.TpdoWindow`: received by the loop thread on a bus handle of
 its own filtered to the TPDOs, no receive thread on the cycle's path; decoded with precompiled
 structs; the devices' heartbeats and EMCY too, once cycling: on SocketCAN and ``ipc`` the EMCY on
 the TPDO handle, in the order they came with the TPDOs, and the heartbeats on a third handle,
 taken after the SYNC; on ``virtual`` and ``remote`` both on the TPDO handle, which sees every
-frame there).  A heartbeat counts from its arrival on the bus (the
-frame's timestamp, :func:`sea_daemon.hw.canopen_rx.arrival`), so the heartbeat timeout does not grow
-by the time a thread took to get to the frame.
+frame there).  A heartbeat counts from its arrival on the bus (the frame's timestamp,
+:func:`sea_daemon.hw.canopen_rx.arrival`): the timeout does not grow by the time a thread took to get to it.
 Counts become joint-side radians (:class:`sea_daemon.hw.canopen_positions.Positions`: gear ratio,
 multi-turn unwrapping, offsets) and per mille of rated torque becomes N m.  Detected: missing
 TPDOs, late frames, heartbeat timeout, EMCY, drive leaving OPERATION_ENABLED, encoder jumps
@@ -147,6 +145,7 @@ class CanopenHardware(HardwareInterface):
         self._late_pending = False           # late TPDOs found by receive_pending()
         self._hb_state = {}
         self._emcy: dict[int, tuple[int, int, bytes] | None] = {}
+        self._emcy_any = False               # an EMCY in _emcy not yet raised
         self._errors = ErrorFrames()
         self._rpdo_msgs: list[can.Message] = []
         self._sync_msg = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
@@ -382,6 +381,7 @@ class CanopenHardware(HardwareInterface):
         if code == 0:                      # "error reset / no error"
             return
         self._emcy[can_id - 0x80] = (code, data[2], bytes(data[3:8]))
+        self._emcy_any = True
 
     # ================================================================== the cycle (PDO only)
     def write(self, tau_m: np.ndarray) -> None:
@@ -479,9 +479,13 @@ class CanopenHardware(HardwareInterface):
         return m
 
     def _check_emcy(self) -> None:
+        if not self._emcy_any:                 # none since the last look (twice a cycle)
+            return
+        self._emcy_any = False                 # set again below while another one is left
         for node, e in self._emcy.items():
             if e is not None:
                 self._emcy[node] = None
+                self._emcy_any = any(v is not None for v in self._emcy.values())
                 self.meas.faults |= Fault.EMCY.bit
                 raise EmcyReceived(node, e[0], e[1], e[2], EmcyError(e[0], e[1], e[2], 0.0).get_desc())
 
@@ -506,21 +510,22 @@ class CanopenHardware(HardwareInterface):
         # sent no SYNC (the arm moved for that long: the jump check allows for it)
         periods = max(self._cycle - self._cycle_decoded, (m.t_mono - self._t_decoded) / self.period)
         self._cycle_decoded, self._t_decoded = self._cycle, m.t_mono
+        slots, primed = self._rx.slots, self._primed
         for j in range(n):
-            ds, es = self._rx.slots[2 * j], self._rx.slots[2 * j + 1]
+            ds, es = slots[2 * j], slots[2 * j + 1]
             sw, torque, pos = DRIVE_TPDO.unpack_from(ds.snap, 0)
             (qc,) = ENCODER_TPDO.unpack_from(es.snap, 0)
             m.statusword[j] = sw
             m.q_counts[j] = qc
             m.theta_m_counts[j] = pos
             m.tau_m_applied[j] = torque * self.nm_per_permille[j]
-            if sw & 0x6F != _OPERATION_ENABLED and self._primed:
+            if sw & 0x6F != _OPERATION_ENABLED and primed:
                 m.faults |= Fault.DEVICE_FAULT.bit
                 st = cia402.state_of(sw)
                 if not (self._quick_stopped and st is not cia402.State.FAULT):
                     raise DriveFault(ds.node, sw, st.name if st else "invalid")
                 # after safe_stop() a quick-stopped / disabled drive is what was asked for: flag only
-            if self._primed:
+            if primed:
                 self.positions.update(m, j, qc, pos, es.node, ds.node, self._cycle, periods)
             else:
                 self.positions.reference(m, j, qc, pos)

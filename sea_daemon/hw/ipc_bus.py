@@ -313,7 +313,8 @@ class IpcBus(can.BusABC):
         if len(data) != dlc:
             data = bytes(data[:dlc])
         can_id = msg.arbitration_id
-        self._refresh()
+        if self._members._count.item(0) != self._seen or time.monotonic() >= self._next_link_check:
+            self._refresh()                        # (its checks, without a call when nothing is due)
         # the members that take this id (their published filters; error frames pass every filter)
         key = -1 if flags & _ERR else can_id
         dest = self._dest.get(key)

@@ -3,7 +3,7 @@
 :func:`worker_main` runs in the forked process: it takes its scheduling (SCHED_FIFO at the
 priority asked, else SCHED_OTHER) and locks its memory where permitted, maps the shared memory
 (:mod:`.bound_slots`) and runs a :class:`Server`: every slot up to the newest head read from the
-worker's pipe, in order — the slot's :class:`~sea_daemon.core.estimators.record.StepRecord`
+worker's pipe (or, heads polled, from shared memory: :meth:`Server.wait`), in order — the slot's :class:`~sea_daemon.core.estimators.record.StepRecord`
 copied into a record of its own, :meth:`AKF.finish_step` on the worker's copy of the filter (the
 bound's step or reset, the start-up gate), the result into the result slot — each sample's count
 written to the loop's pipe after its result (or, with total store order, stored in shared
@@ -96,11 +96,12 @@ class Priority:
 
 def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: int,
                 heads: int, counts: int, loop_ends: tuple, parent_pid: int, rt_priority: int,
-                via_pipe: bool = True) -> None:
+                via_pipe: bool = True, poll_period: float | None = None) -> None:
     """The worker process: ``akf`` its copy of the loop's filter (with the bound), the shared
     memory ``shm`` (a :class:`~sea_daemon.runtime.shared_block.SharedBlock` inherited from the
     loop's process) of ``cap`` slots, the pipes' ends ``heads`` (read) and ``counts``
-    (write); ``loop_ends`` the loop's ends, closed here."""
+    (write); ``loop_ends`` the loop's ends, closed here; ``poll_period``: the loop's period when
+    the worker polls the heads in shared memory (None: they come through ``heads``)."""
     _pdeathsig()
     for fd in loop_ends:                           # the loop's ends: EOF on ``heads`` once the parent is gone
         try:
@@ -118,7 +119,7 @@ def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: 
         views.hdr[bs.H_SCHED] = sched
         views.hdr[bs.H_LOCKED] = 1 if locked else 0
         freeze_heap()          # the inherited heap out of the collector's reach (a full sweep: tens of ms)
-        Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe, sched).serve()
+        Server(akf, views, record, lay, heads, counts, parent_pid, via_pipe, sched, poll_period).serve()
     finally:
         del views
         shm.close()
@@ -127,8 +128,16 @@ def worker_main(akf, shm, cap: int, width: int, rwidth: int, lay: dict, record: 
 class Server:
     """The worker's loop over the ring (module docstring)."""
 
+    #: heads polled: the first poll comes this fraction of a period after the newest head's
+    #: period is over, and while no head came the next ones after this fraction of a period,
+    #: doubled each time up to :data:`POLL_MAX` periods (a head that comes after a pause — the
+    #: loop's start, a reset — waits at most that long)
+    POLL_LATE = 0.05
+    POLL_AGAIN = 0.125
+    POLL_MAX = 1.0
+
     def __init__(self, akf, views: bs.Shared, record: int, lay: dict, heads: int, counts: int, parent_pid: int,
-                 via_pipe: bool = True, rt_priority: int = 0):
+                 via_pipe: bool = True, rt_priority: int = 0, poll_period: float | None = None):
         self.akf = akf
         self.e = akf.est
         self.views = views
@@ -147,6 +156,8 @@ class Server:
         self.head = self.done = 0
         self.stop = self.unsent = False
         self.priority = Priority(rt_priority, views.hdr)
+        self.poll_period = poll_period
+        self.misses = 0                  # heads polled: polls in a row that found no new head
 
     def serve(self) -> None:
         """Every slot published, in order, then wait for more; return when asked to stop, when
@@ -216,10 +227,35 @@ class Server:
         self.cpu_total += spent
         self.views.fhdr[bs.F_STEPS] = self.cpu_total
 
+    def _poll_timeout(self) -> float:
+        """Heads polled: how long to wait before looking at the head again — until a little after
+        one period since the newest head was published (when the loop publishes the next one), or,
+        that time past, a fraction of a period, doubled while no head comes."""
+        p = self.poll_period
+        due = self.views.fhdr.item(bs.F_FLUSH) + p * (1.0 + self.POLL_LATE) - time.monotonic()
+        if due > 0.0 and self.misses == 0:
+            return min(due, p * self.POLL_MAX)
+        self.misses += 1
+        return p * min(self.POLL_AGAIN * 2.0 ** min(self.misses - 1, 16), self.POLL_MAX)
+
     def wait(self) -> bool:
-        """Wait up to a second for heads (or room for an unsent count); False when the worker
-        should exit (the pipe unreadable, the parent gone)."""
-        ready, _, _ = select.select([self.reader.fd], [self.counts] if self.unsent else [], [], 1.0)
+        """Wait up to a second for heads (or room for an unsent count); heads polled, wait on the
+        pipe (which then carries only the stop) for :meth:`_poll_timeout` and look at the head in
+        shared memory.  False when the worker should exit (the pipe unreadable, the parent gone)."""
+        polled = self.poll_period is not None
+        if polled:
+            h = self.views.hdr.item(bs.H_HEAD)
+            if h > self.head:                 # came while the last samples were computed
+                self.head, self.misses = h, 0
+                return True
+        ready, _, _ = select.select([self.reader.fd], [self.counts] if self.unsent else [], [],
+                                    self._poll_timeout() if polled else 1.0)
+        if polled:
+            # total store order: the slots' stores are visible before the head's (after the pipe:
+            # the head stored before a stop written there is seen with it)
+            h = self.views.hdr.item(bs.H_HEAD)
+            if h > self.head:
+                self.head, self.misses = h, 0
         if ready:
             try:
                 got = self.reader.read()

@@ -3,8 +3,9 @@
 One block of shared memory holds, in order: a header of int64s (:data:`H_DONE` the worker's
 count of samples done, :data:`H_SCHED` its SCHED_FIFO priority — 0 SCHED_OTHER, −1 not known
 yet —, :data:`H_LOCKED` its memory locked, :data:`H_YIELDS` how often it gave its priority up
-for being behind, :data:`H_YIELDED` 1 while it has), a header of float64s (the worker's CPU time in bound
-steps and in the whole process [s]), a ring of input slots, a ring of result slots and the
+for being behind, :data:`H_YIELDED` 1 while it has, :data:`H_HEAD` the loop's head when the worker
+polls it), a header of float64s (the worker's CPU time in bound steps and in the whole process
+[s], :data:`F_FLUSH` when the loop published its newest head [s, monotonic clock]), a ring of input slots, a ring of result slots and the
 worker's CPU time per sample (the first ``record`` samples).
 
 An input slot holds a filter step's :class:`~sea_daemon.core.estimators.record.StepRecord`: its
@@ -20,10 +21,12 @@ from typing import NamedTuple
 import numpy as np
 
 # int64 header slots (read without order, bound_worker's docstring)
-H_DONE, H_SCHED, H_LOCKED, H_YIELDS, H_YIELDED, N_HDR = 0, 1, 2, 3, 4, 8
-# float64 header slots (after the int64 ones): the worker's CPU time [s]: in bound steps, whole process
-F_STEPS, F_PROC, N_FHDR = 0, 1, 4
+H_DONE, H_SCHED, H_LOCKED, H_YIELDS, H_YIELDED, H_HEAD, N_HDR = 0, 1, 2, 3, 4, 5, 8
+# float64 header slots (after the int64 ones): the worker's CPU time [s]: in bound steps, whole process;
+# the loop's clock when it published its newest head (heads polled: the worker's phase)
+F_STEPS, F_PROC, F_FLUSH, N_FHDR = 0, 1, 2, 4
 # input slot: kind, cycle, k, dt, ready, gate_starts, epoch, then the record's arrays
+# (the scalars 0..6 in this order: the loop writes them in one assignment)
 I_KIND, I_CYC, I_K, I_DT, I_READY, I_GATES, I_EPOCH, N_IN = 0, 1, 2, 3, 4, 5, 6, 8
 #: I_KIND: a filter step / a reset
 STEP, RESET = 1.0, 2.0

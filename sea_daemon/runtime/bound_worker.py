@@ -20,7 +20,13 @@ integers):
 * :meth:`BoundWorker.flush`, called by the loop at the end of the cycle (after its log row),
   publishes the slots written: it writes the number of samples handed over (the head, an int64)
   to the worker's pipe, which also wakes the worker: the worker computes while the loop sleeps,
-  not beside the loop's own work;
+  not beside the loop's own work.  In real-time pace on a CPU with total store order (``period``
+  given, counts through shared memory) the head is a store into shared memory instead, with the
+  loop's clock at that moment, and the worker polls it on its own timer in phase with the loop
+  (it wakes one period after the newest head was published, a little later, and again a
+  fraction of a period later while none came): the loop's cycle makes no system call and wakes
+  no other CPU for it (a write that wakes a process on another CPU cost the loop ≈ 18 µs a
+  cycle on a 2-vCPU virtual machine);
 * :meth:`BoundWorker.take` also reads, without waiting, the newest count of samples finished
   that the worker wrote to the loop's pipe, and fills the estimate with the result of that
   sample (cycle, ρ, valid): ``tau_h_act_bound`` = that sample's ρ, :attr:`bound_cycle` = the
@@ -61,7 +67,8 @@ the worker's pipe full (8192 heads unread in a pipe of 64 KiB: the worker stoppe
 written at the next flush, a later head replacing it.  The worker writes its counts non-blocking
 too; a count that does not fit in the loop's pipe (the loop not reading) is written later, when
 the pipe has room or after the next sample, the newest count replacing it; meanwhile the loop
-sees fewer free slots, never a wrong result.  The worker exits when :meth:`close` asks (a head
+sees fewer free slots, never a wrong result.  With heads polled the loop writes the worker's pipe
+only to stop it (and closes it), and the worker waits on the pipe with the poll's timeout.  The worker exits when :meth:`close` asks (a head
 of −1, after the samples before it), when the writing end of its pipe closes, when the reading
 end of the loop's pipe closes, or when the parent dies (PR_SET_PDEATHSIG, and its parent id
 checked every second).  With ``rt_priority`` it runs SCHED_FIFO at that priority (below the
@@ -143,14 +150,24 @@ class BoundWorker:
     worker's counts of samples done reach the loop — ``pipe``, ``memory`` (shared memory only:
     correct on a CPU with total store order, x86-64), ``auto`` (:func:`counts_path`: memory on
     x86-64, the pipe on every other CPU).  ``cpu``: the CPU the worker is pinned to once started
-    (:mod:`sea_daemon.runtime.affinity`; None: where the kernel puts it).
+    (:mod:`sea_daemon.runtime.affinity`; None: where the kernel puts it).  ``period``: the loop's
+    period [s] when it runs in real-time pace: with counts through shared memory the worker then
+    polls the heads there, in phase with the loop (module docstring; :attr:`heads_via`
+    ``memory``), else they go through its pipe (``pipe``; a lock-step loop, whose cycles come at
+    no fixed pace, always).
     """
 
     def __init__(self, estimator, max_age: int = 3, capacity: int = 1024, record: int = 0, rt_priority: int = 0,
-                 counts: str = "auto", cpu: int | None = None):
+                 counts: str = "auto", cpu: int | None = None, period: float | None = None):
         if counts not in ("auto", "pipe", "memory"):
             raise ValueError(f"bound worker: counts must be auto, pipe or memory, got {counts!r}")
         self.counts_via = counts_path() if counts == "auto" else counts
+        if period is not None and not 0.0 < period <= 1.0:
+            raise ValueError(f"bound worker: period must be in (0, 1] s, got {period!r}")
+        # the heads polled by the worker in shared memory (total store order and a fixed pace), or
+        # through its pipe
+        self.poll_period = float(period) if (period is not None and self.counts_via == "memory") else None
+        self.heads_via = "memory" if self.poll_period is not None else "pipe"
         why = why_not(estimator)
         if why is not None:
             raise ValueError(f"bound worker: {why}")
@@ -212,8 +229,16 @@ class BoundWorker:
         self._ring[:] = 0.0                      # pre-fault every page: no page fault in the loop
         self._res[:] = -1.0
         self._cpu_rec[:] = np.nan
-        # per slot: the slot and views of its arrays (the loop writes into them, nothing is made per cycle)
-        self._slots = [(self._ring[i], bs.slot_arrays(self._ring[i], self._lay)) for i in range(cap)]
+        # per slot: the slot, views of its arrays and the flat view of them all (the loop writes into
+        # them, nothing is made per cycle)
+        self._slots = [(self._ring[i], bs.slot_arrays(self._ring[i], self._lay), self._ring[i, bs.N_IN:w])
+                       for i in range(cap)]
+        # the AKF's record arrays (fixed views of its own arrays) as flat views, copied into a slot's
+        # in one call (np.concatenate); None where one is not C-contiguous (copied one by one)
+        self._rec = akf.record
+        flat = tuple(a.reshape(-1) for _, a in akf.record.arrays())
+        same = all(f.size == 0 or np.shares_memory(f, a) for f, (_, a) in zip(flat, akf.record.arrays()))
+        self._rec_flat = flat if same else None
         self._results = [(self._res[i], self._res[i, bs.N_RES:bs.N_RES + n]) for i in range(cap)]
 
     # ------------------------------------------------------------------ life
@@ -227,7 +252,7 @@ class BoundWorker:
                                  args=(self.akf, self._shm, self.capacity, self._width, self._rwidth,
                                        self._lay, self.record, self._heads_r, self._counts_w,
                                        (self._heads_w, self._counts_r), os.getpid(), self.rt_priority,
-                                       self.counts_via == "pipe"))
+                                       self.counts_via == "pipe", self.poll_period))
         self._proc.start()
         self.placed = pin_pid(self._proc.pid, self.cpu)
         self._close_fds("_heads_r", "_counts_w")          # the worker's ends
@@ -300,9 +325,17 @@ class BoundWorker:
 
     def flush(self) -> None:
         """Publish the slots written since the last call and wake the worker (the loop calls it
-        once per cycle, after the cycle's log row)."""
+        once per cycle, after the cycle's log row); with heads polled, store the head and the
+        clock for the worker's next poll instead."""
         h = self._head
-        if h != self._published and self._send(h):   # not sent: again at the next flush
+        if h == self._published:
+            return
+        if self.poll_period is not None:
+            # total store order: the slot's stores are visible before the head's
+            self._hdr[bs.H_HEAD] = h
+            self._fhdr[bs.F_FLUSH] = time.monotonic()
+            self._published = h
+        elif self._send(h):                           # not sent: again at the next flush
             self._published = h
 
     def take(self, est, record) -> None:
@@ -316,8 +349,6 @@ class BoundWorker:
             if slot is not None:
                 self._write(slot, bs.STEP, est, record)
         self._collect(est)
-        est.valid = self.valid
-        est.invalid_reason = self.invalid_reason
 
     def _reset(self, est, record) -> None:
         """The AKF was reset: a new chain of samples (results of the old one are not published)."""
@@ -332,16 +363,15 @@ class BoundWorker:
 
     def _write(self, slot, kind: float, est, record) -> None:
         """The record into the slot, published at the next :meth:`flush`."""
-        s, arrays = slot
-        s[bs.I_KIND] = kind
-        s[bs.I_CYC] = self.cycle
-        s[bs.I_K] = est.k
-        s[bs.I_DT] = record.dt
-        s[bs.I_READY] = 1.0 if record.ready else 0.0
-        s[bs.I_GATES] = record.gate_starts
-        s[bs.I_EPOCH] = self._epoch
-        for name, view in arrays:
-            view[...] = getattr(record, name)
+        s, arrays, flat = slot
+        # the scalars at I_KIND, I_CYC, I_K, I_DT, I_READY, I_GATES, I_EPOCH (0..6), one assignment
+        s[:bs.I_EPOCH + 1] = (kind, self.cycle, est.k, record.dt, 1.0 if record.ready else 0.0,
+                              record.gate_starts, self._epoch)
+        if record is self._rec and self._rec_flat is not None:
+            np.concatenate(self._rec_flat, out=flat)     # the arrays in layout order, one call
+        else:
+            for name, view in arrays:
+                view[...] = getattr(record, name)
         self._head += 1
 
     def _collect(self, est) -> None:
@@ -368,10 +398,11 @@ class BoundWorker:
             # sample done − 1's result, complete: its count came through the pipe after it; and
             # not overwritten while read: that needs a sample the loop publishes after this
             r, rho = self._results[(done - 1) % self.capacity]
-            status, epoch, cyc, ok = r[bs.R_STATUS], r[bs.R_EPOCH], r[bs.R_CYC], r[bs.R_VALID] != 0.0
-            reason = int(r[bs.R_REASON])
+            head = r[:bs.N_RES].tolist()             # seq, cycle, k, valid, status, epoch, cpu, reason
+            status, epoch, cyc, ok = head[bs.R_STATUS], head[bs.R_EPOCH], head[bs.R_CYC], head[bs.R_VALID] != 0.0
+            reason = int(head[bs.R_REASON])
             self._rho_in[:] = rho
-            if r[bs.R_SEQ] != done - 1:
+            if head[bs.R_SEQ] != done - 1:
                 epoch = -1.0                         # not that sample's (the ring's order rules it out)
             if epoch == self._epoch:
                 if status == FAILED:
@@ -396,13 +427,13 @@ class BoundWorker:
         if fresh:
             est.tau_h_act_bound[:] = self._rho
             self.bound_cycle = c
-            self.valid = self._newest_valid
-            self.invalid_reason = self._newest_reason
+            est.valid = self.valid = self._newest_valid
+            est.invalid_reason = self.invalid_reason = self._newest_reason
         else:
             self.stale += 1
             self.bound_cycle = -1
-            self.valid = False
-            self.invalid_reason = BOUND_STALE
+            est.valid = self.valid = False
+            est.invalid_reason = self.invalid_reason = BOUND_STALE
 
     def fault(self) -> str | None:
         """None while the bound can come; else one line saying why not (a dead worker: the same
@@ -429,7 +460,7 @@ class BoundWorker:
         done = int(self._hdr[bs.H_DONE])
         sched = int(self._hdr[bs.H_SCHED])
         return {"where": "worker", "pid": self.pid, "max_age": self.max_age, "capacity": self.capacity,
-                "counts": self.counts_via,
+                "counts": self.counts_via, "heads": self.heads_via,
                 "sched": "not started" if sched < 0 else (f"fifo {sched}" if sched else "other"), "cpu": self.placed,
                 "memory_locked": bool(self._hdr[bs.H_LOCKED]), "rt_yields": int(self._hdr[bs.H_YIELDS]),
                 "steps": self.steps, "samples_done": done, "stale": self.stale, "broken": self.broken,

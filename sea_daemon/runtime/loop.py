@@ -199,6 +199,11 @@ class FixedRateLoop:
         self._row = np.zeros(self.layout.width)
         # what the log takes: the whole row for a writer with the sinks' columns, else the CSV's part
         self._log_row = self._row[:getattr(log, "ncols", len(self.layout.columns))]
+        L = self.layout
+        # the loop's columns valid … bound_cycle, consecutive in the row: written in one assignment
+        self._loop_cols = slice(L.valid, L.bound_cycle + 1)
+        assert (L.valid, L.fault, L.cycle, L.period, L.compute, L.read, L.measured, L.bound_cycle) == \
+            tuple(range(L.valid, L.bound_cycle + 1)), "the loop's log columns are consecutive"
         self._assist = getattr(controller, "tau_assist", None)     # (n,) updated in place, or None
         self._zero = np.zeros(n)
         self._tau = np.zeros(n)                  # torque acting over [t_k, t_k+1] (row k's tau_m)
@@ -429,16 +434,18 @@ class FixedRateLoop:
         """The cycle's log row (docs/interfaces.md §1) in the preallocated vector."""
         row, L = self._row, self.layout
         meas = c.meas
+        t_row, period = self._t_row, self.period
         if meas is not None:
             # the hardware's time is whole periods; one that did not move on past a placeholder
             # row (a read that failed before its SYNC) continues from it
-            row[L.t] = meas.t if meas.t > self._t_row + 0.5 * self.period else self._t_row + self.period
+            t = meas.t
+            t = float(t if t > t_row + 0.5 * period else t_row + period)
             row[L.q] = c.q
             row[L.theta_m] = c.theta_m
         else:
             # no sample: the last measured angles held (zero before the first), the time one period on
-            row[L.t] = self._t_row + self.period if c.k else 0.0
-        self._t_row = row[L.t]
+            t = t_row + period if c.k else 0.0
+        row[L.t] = self._t_row = t
         row[L.tau_m] = self._tau
         est = c.est if c.valid else None
         if est is not None:
@@ -447,15 +454,12 @@ class FixedRateLoop:
             row[L.tau_h_act_sigma] = est.tau_h_act_sigma
         else:
             row[L.estimate] = 0.0
-        row[L.valid] = c.valid
-        row[L.fault] = float(self.supervisor.latched)
-        row[L.cycle] = c.k
-        row[L.period] = c.start - self._last_start
-        row[L.compute] = done - c.start
-        row[L.read] = c.t_read - c.start
-        row[L.measured] = 1.0 if c.measured else 0.0
-        # the cycle of the sample the published ρ belongs to (the worker's bound lags)
-        row[L.bound_cycle] = -1.0 if est is None else (c.k if link is None else link.bound_cycle)
+        start = c.start
+        # valid, fault, cycle, period, compute, read, measured, and the cycle of the sample the
+        # published ρ belongs to (bound_cycle: the worker's bound lags)
+        row[self._loop_cols] = (c.valid, float(self.supervisor.latched), c.k, start - self._last_start,
+                                done - start, c.t_read - start, 1.0 if c.measured else 0.0,
+                                -1.0 if est is None else (c.k if link is None else link.bound_cycle))
         # beyond the CSV's columns, for the log writer's sinks (the LSL stream, the MCAP file)
         row[L.cycle_start] = c.start
         if self._assist is not None and self.supervisor.ok:

@@ -21,6 +21,8 @@ import numpy as np
 
 from sea_daemon.errors import Fault
 
+_NONE = Fault.NONE          # read every cycle (an enum member's look-up costs ≈ 0.2 µs)
+
 
 class SafetySupervisor:
     """Latches the first fault, remembers the later ones, resets only on request."""
@@ -49,7 +51,7 @@ class SafetySupervisor:
 
     @property
     def ok(self) -> bool:
-        return self.latched == Fault.NONE
+        return self.latched == _NONE
 
     def trip(self, code: Fault, cycle: int, t: float, detail: str = "") -> bool:
         """Record a fault; returns True when it is the one that latched now."""

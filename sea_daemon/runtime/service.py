@@ -331,7 +331,7 @@ def serve(rig: Rig, estimator: Estimator, controller: Controller, n: int, period
     try:
         log.wait_sinks(sinks_wait + _SINKS_OPEN_S)
         link, where = _bound_link(estimator, bound_in, realtime, rt_priority, bound_max_age, bound_record,
-                                  cpus[1] if cpus and len(cpus) > 1 else None)
+                                  cpus[1] if cpus and len(cpus) > 1 else None, period)
     except BaseException:
         log.close()
         raise
@@ -380,7 +380,7 @@ def _place_loop(cpus: tuple[int, ...] | None, log: LogWriter, link) -> str:
 
 
 def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | None, max_age: int, record: int,
-                cpu: int | None = None):
+                cpu: int | None = None, period: float | None = None):
     """The bound worker, when the estimator's bound runs in one (``serve``'s ``bound_in``), and
     where the bound runs: (worker or None, {"where": ..., "why_not_worker": ...})."""
     where = {"where": "loop"}
@@ -392,7 +392,10 @@ def _bound_link(estimator, bound_in: str, realtime: bool, rt_priority: int | Non
         return None, where
     # forked before the hardware's threads start; in real-time pace SCHED_FIFO below the loop
     prio = max(1, rt_priority - WORKER_PRIORITY_BELOW) if (realtime and rt_priority) else 0
-    return BoundWorker(estimator, max_age=max_age, record=record, rt_priority=prio, cpu=cpu).start(), where
+    # in real-time pace the worker polls the heads in phase with the loop where the CPU allows it
+    # (BoundWorker's period): no wake-up of the worker from the loop's cycle
+    return BoundWorker(estimator, max_age=max_age, record=record, rt_priority=prio, cpu=cpu,
+                       period=period if realtime else None).start(), where
 
 
 class _StatusLine:

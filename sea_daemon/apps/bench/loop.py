@@ -372,6 +372,7 @@ def _worker_figures(res, n_cycles: int, dt: float) -> dict | None:
     wcpu = link.cpu_per_sample[np.isfinite(link.cpu_per_sample)]
     return {
         "pid": bound_where.get("pid"), "sched": bound_where.get("sched"), "counts": bound_where.get("counts"),
+        "heads": bound_where.get("heads"),
         "memory_locked": bound_where.get("memory_locked"),
         # times the worker gave SCHED_FIFO up for being behind (runtime/bound_serve.py)
         "rt_yields": bound_where.get("rt_yields"),
@@ -475,9 +476,12 @@ def _report(args, cfg, m: _Measured, out: dict, residual) -> None:
           f"another task runs kernel code on its CPU waits for a preemption point: a late wake-up below)")
     what = (f"GP-AKF ({residual.n_points} GP points, learned by {'calibrate' if cfg.joints == 1 else 'a lock-step run'} at {args.model_rate} Hz, {args.train} "
             f"lock-step cycles; learning frozen)" if args.estimator == "gp-akf" else "AKF (no GP)")
+    heads = ("polled by it in shared memory" if worker and worker.get("heads") == "memory" else
+             "through a pipe that wakes it")
     where = (f"computed in a worker process (sched {worker['sched'] if worker else ''}, memory "
              f"{'locked' if worker and worker.get('memory_locked') else 'not locked'}, its counts of samples "
-             f"done through {'shared memory' if worker and worker.get('counts') == 'memory' else 'a pipe'}), "
+             f"done through {'shared memory' if worker and worker.get('counts') == 'memory' else 'a pipe'}, "
+             f"the loop's heads {heads}), "
              f"published with its "
              f"sample's cycle, at most {m.max_age} cycles old"
              if worker is not None else "computed in the loop's estimator step"

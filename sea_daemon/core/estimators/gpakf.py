@@ -37,6 +37,19 @@ from sea_daemon.core.estimators.base import Estimate
 from sea_daemon.core.estimators.health import InputBox, check_pd
 from sea_daemon.core.estimators.validity import LEARNING
 
+_I_STATUS, _I_KIN_HEAD, _I_HHEAD, _I_CAPPED, _I_PD, _I_CLIPPED, _I_OFF = (
+    gpakf_core.I_STATUS, gpakf_core.I_KIN_HEAD, gpakf_core.I_HHEAD, gpakf_core.I_CAPPED, gpakf_core.I_PD,
+    gpakf_core.I_CLIPPED, gpakf_core.I_OFF)
+assert (gpakf_core.F_NIS, gpakf_core.F_PMAX) == (0, 1)
+_OK = akf_core.OK
+
+
+def _as_f64(a) -> np.ndarray:
+    """``a`` itself when it is a float64 C-contiguous ndarray, else such a copy of it."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=float)
+
 
 class _ResidualHook:
     """The AKF's residual hook over a :class:`ResidualGP` with preallocated outputs.
@@ -195,6 +208,7 @@ class GPAKF(AKF):
                        and type(self.residual) is _ResidualHook)
         self._fz_args = ()
         self._fz_iout = np.zeros(7, dtype=np.int64)
+        self._fz_seen = [None, None, None]       # q, θ_m, τ_m arrays last checked (_frozen_update)
         self._fz_fout = np.zeros(2)
         # the rigid body's q, q̇ and load-side torque at x̂_{k−1} (gpakf_core.rigid_head), a zero residual
         self._fz_body = tuple(np.zeros(n) for _ in range(4))
@@ -245,41 +259,43 @@ class GPAKF(AKF):
         if not a or a[0] is not res.pack_args or a[3] is not self.bound or a[4] is not self._sigma_base(dt):
             a = self._fz_args = self._frozen_args(res)
         # float64 C-contiguous (n,) arrays as the loop's measurement is (others converted: the
-        # compiled calls have one signature, made at construction)
-        if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous):
-            q = np.ascontiguousarray(q, dtype=float)
-        if not (type(theta_m) is np.ndarray and theta_m.dtype == np.float64 and theta_m.flags.c_contiguous):
-            theta_m = np.ascontiguousarray(theta_m, dtype=float)
-        if not (type(tau_m) is np.ndarray and tau_m.dtype == np.float64 and tau_m.flags.c_contiguous):
-            tau_m = np.ascontiguousarray(tau_m, dtype=float)
+        # compiled calls have one signature, made at construction); the loop hands the same
+        # arrays every sample: those checked last time are not checked again
+        seen = self._fz_seen
+        if q is not seen[0]:
+            q = seen[0] = _as_f64(q)
+        if theta_m is not seen[1]:
+            theta_m = seen[1] = _as_f64(theta_m)
+        if tau_m is not seen[2]:
+            tau_m = seen[2] = _as_f64(tau_m)
         iout, fout, kin = self._fz_iout, self._fz_fout, self.kin
         head = self._hhead
-        iout[gpakf_core.I_KIN_HEAD] = kin.head
-        iout[gpakf_core.I_HHEAD] = head
+        iout[_I_KIN_HEAD] = kin.head
+        iout[_I_HHEAD] = head
         gate = res.gate and res.gate_any
         if self._fz_rigid:
             self._rigid_sample(q, theta_m, dt, a, gate, head)
         else:
             gpakf_core.frozen_sample(q, theta_m, dt, *a[1], gate, res.gated, res.gate_speed)
-        kin.head = int(iout[gpakf_core.I_KIN_HEAD])
-        res.off = bool(iout[gpakf_core.I_OFF])
-        if res.off:
+        io = iout.tolist()                             # Python ints: one call, not one per value
+        nis, pmax = fout.tolist()                      # F_NIS, F_PMAX
+        kin.head = io[_I_KIN_HEAD]
+        res.off = off = io[_I_OFF] != 0
+        if off:
             res.n_off_direction += 1
         box = res.box
-        box.any_clipped = bool(iout[gpakf_core.I_CLIPPED])
-        if box.any_clipped:
+        box.any_clipped = clipped = io[_I_CLIPPED] != 0
+        if clipped:
             box.n_clipped += 1
-        nis = float(fout[gpakf_core.F_NIS])
-        status = int(iout[gpakf_core.I_STATUS])
-        if status != akf_core.OK:
+        status = io[_I_STATUS]
+        if status != _OK:
             self._step_failed(status, nis)
         self.nis = nis
-        pmax = float(fout[gpakf_core.F_PMAX])
         if not pmax < DIVERGED:
             self._diverged(pmax)
-        self.n_capped += int(iout[gpakf_core.I_CAPPED])
+        self.n_capped += io[_I_CAPPED]
         k = self.est.k + 1
-        if iout[gpakf_core.I_PD] != 0:
+        if io[_I_PD] != 0:
             check_pd(self.P, "P", k, full=False)       # raises CovarianceNotPD with the pivot
         self.health.nis.update(nis, k)
         self.est.k = k
