@@ -33,6 +33,7 @@ from sea_daemon.analysis.sufficiency import Sufficiency, Verdict, assess
 from sea_daemon.analysis.diagnose.residuals import kinematics_from_log, spring_torque, window_samples
 from sea_daemon.apps.calibration.residual_gp import V_EXCLUDE, fit_gp_hyper
 from sea_daemon.core.config import LearningConfig, ModelConfig
+from sea_daemon.core.control import PIDGains
 from sea_daemon.core.effects import make_effect
 from sea_daemon.core.estimators.weighted import WeightedResidual
 from sea_daemon.core.excitation import WorkingRange
@@ -255,7 +256,7 @@ def rmse_per_joint(log: MeasuredLog, est) -> np.ndarray:
 
 class _Interp:
     """The log's smoothed angles replayed as the reference of n joints (velocity and acceleration 0:
-    the session's PID tracks the angle, as the one-joint synthetic session does)."""
+    the session's PID tracks the angle, with :data:`SYNTHETIC_GAINS`)."""
 
     def __init__(self, t: np.ndarray, Q: np.ndarray):
         self.t, self.Q = t, Q
@@ -271,6 +272,16 @@ class _Interp:
 #: 10 deg in 6 s), away from the one angle a still-arm calibration knows, and the still-arm promise
 #: was the model's error there (the two-joint demo: 2.52 N m promised, 0.03-0.05 measured)
 STILL_HOLD = (20.0, 2.0)
+
+#: the PID gains with which the moving synthetic session tracks the log's own angles [N m/rad,
+#: N m/(rad s), N m s/rad]: stiff, so that the session moves as the log did.  The log's angles are
+#: already a closed loop's response, resonance included; tracked again by a session's usual soft
+#: gains (40, 80, 2) that resonance is amplified a second time (a two-joint log whose shoulder moved
+#: at 2.5 rad/s: the synthetic shoulder swung from -31 to 122 deg, 29 deg RMS from the log, against
+#: the torque limit), the estimate's error there is the end stops' and the saturation's, and the
+#: walk chosen on it is the smallest of the grid, too slow for a wearer who pushes.  With these
+#: gains the same sessions stay within 1-4 deg RMS of the log.
+SYNTHETIC_GAINS = PIDGains(200.0, 200.0, 10.0, velocity_filter_hz=30.0)
 
 
 def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: MeasuredLog, human, duration_s: float,
@@ -306,7 +317,7 @@ def synthetic_sessions_joints(cfg: ModelConfig, plant_cfg: ModelConfig, log: Mea
         return tau
     sub = plant_substep(plant_cfg, 3e-3, cfg.rate_hz)
     return [run_session(plant_cfg, t[-1], reference=_Interp(t, Q), human=subject(seed + 1), seed=seed + 11,
-                        extra_load_torque=extra, extra_held=True, substep_hz=sub),
+                        gains=SYNTHETIC_GAINS, extra_load_torque=extra, extra_held=True, substep_hz=sub),
             run_session(plant_cfg, t[-1], hold_q=np.median(log.q[:N], axis=0), human=subject(seed + 2),
                         seed=seed + 12, extra_load_torque=extra, extra_held=True, substep_hz=sub, hold=STILL_HOLD)]
 
