@@ -88,9 +88,9 @@ def run_degenerate_plant_joints(seed: int, rate_hz, workdir: Path, cache, cal_s:
             c.update(outcome="internal_error", line=f"bench: {type(e).__name__}: {e}",
                      traceback=traceback.format_exc()[-1500:])
         if c.get("outcome") == "calibrated":
-            c["effects"] = [f"{e}[{j + 1}]" for e, j in effects_by_joint(Path(c["prefix"]))]
-            c["invented"] = [f"{e}[{j + 1}]" for e, j in effects_by_joint(Path(c["prefix"]))
-                             if invented_effects([e], c["motion"][j])]
+            added = effects_by_joint(Path(c["prefix"]))
+            c["effects"] = [f"{e}[{j + 1}]" for e, j in added]
+            c["invented"] = [f"{e}[{j + 1}]" for e, j in added if invented_effects([e], c["motion"][j])]
             c["sessions"] = _calibrated_sessions(pd, cfg, Path(c["prefix"]), held, cal_s, cache)
         c.update(verdict(c))
         row["cases"][case] = c

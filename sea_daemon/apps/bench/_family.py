@@ -253,6 +253,12 @@ class SessionSpec:
     kind: str                       # passive | active | still
 
 
+def noise_seeds(seed: int, n_sessions: int) -> dict:
+    """The simulation noise seeds of plant ``seed``'s calibration log and of its ``n_sessions`` test
+    sessions, in order (the one- and two-joint families' logs, and their cache keys)."""
+    return {"calibration": 1000 + seed, "sessions": [2000 + 100 * seed + i for i in range(n_sessions)]}
+
+
 def calibration_motion(pd: PlantDraw, duration_s: float = 60.0, seed: int = 0) -> MoveSequence:
     """The calibration excitation over the plant's declared working range."""
     return excitation(pd.working_range, duration_s, seed=seed)

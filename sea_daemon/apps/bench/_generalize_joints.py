@@ -32,6 +32,7 @@ from sea_daemon.apps.bench import machine
 from sea_daemon.apps.bench._family_joints import (HOLD, SESSIONS_REV, calibration_motion_joints, draw_plant_joints,
                                                   sessions_joints)
 from sea_daemon.apps.bench._degenerate import timed_replay
+from sea_daemon.apps.bench._family import noise_seeds
 from sea_daemon.apps.bench._logcache import load_logs, producer, save_logs
 from sea_daemon.analysis.passive_noise import passive_noise, walk_for_noise
 from sea_daemon.apps.calibration.joints import plant_substep
@@ -65,19 +66,19 @@ def plant_logs_joints(seed: int, cal_s: float, cache: Path | None, rate_hz: floa
     name = f"joints2_plant_{seed}_{int(cal_s)}_{pd.nominal.rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
     specs = sessions_joints(pd)
-    noise_seeds = {"calibration": 1000 + seed, "sessions": [2000 + 100 * seed + i for i in range(len(specs))]}
+    seeds = noise_seeds(seed, len(specs))
     sub = plant_substep(pd.true, 3e-3, pd.nominal.rate_hz)
     key = {"seed": seed, "joints": 2, "cal_s": cal_s, "rate_hz": pd.nominal.rate_hz,
-           "sessions": [s.name for s in specs], "sessions_rev": SESSIONS_REV, "noise_seeds": noise_seeds,
+           "sessions": [s.name for s in specs], "sessions_rev": SESSIONS_REV, "noise_seeds": seeds,
            "substep_hz": sub, "hold": list(HOLD), "producer": producer(PRODUCER_JOINTS, PRODUCER_FILES_JOINTS)}
     logs = None if p is None else load_logs(p, key)
     if logs is not None and "calibration" in logs:
         cal = logs.pop("calibration")
         return pd, cal, logs
     cal = run_session(pd.true, cal_s, reference=calibration_motion_joints(pd, cal_s, seed=seed),
-                      seed=noise_seeds["calibration"], substep_hz=sub)
+                      seed=seeds["calibration"], substep_hz=sub)
     tests = {}
-    for s, noise_seed in zip(specs, noise_seeds["sessions"]):
+    for s, noise_seed in zip(specs, seeds["sessions"]):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
                                     seed=noise_seed, substep_hz=sub, hold=HOLD if s.hold_q is not None else None)
     if p is not None:

@@ -46,7 +46,7 @@ import numpy as np
 from sea_daemon.apps.bench import choose, machine
 from sea_daemon.apps.bench._degenerate import (print_case, run_degenerate_plant, score_replay,
                                                 summarize_degenerate)
-from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, sessions
+from sea_daemon.apps.bench._family import DEGENERATE, REFERENCE, calibration_motion, draw_plant, noise_seeds, sessions
 from sea_daemon.apps.bench._logcache import load_logs, private_dir, producer, save_logs
 from sea_daemon.apps.bench._degenerate_joints import run_degenerate_plant_joints
 from sea_daemon.apps.bench._family_joints import DEGENERATE_JOINTS, draw_plant_joints
@@ -143,9 +143,9 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
         name += f"_{rate_hz:g}hz"
     p = None if cache is None else cache / f"{name}.npz"
     specs = sessions(pd)
-    noise_seeds = {"calibration": 1000 + seed, "sessions": [2000 + 100 * seed + i for i in range(len(specs))]}
+    seeds = noise_seeds(seed, len(specs))
     key = {"seed": seed, "cal_s": cal_s if calibration else None, "sessions": [s.name for s in specs],
-           "noise_seeds": noise_seeds, "producer": producer(PRODUCER, PRODUCER_FILES)}
+           "noise_seeds": seeds, "producer": producer(PRODUCER, PRODUCER_FILES)}
     if rate_hz is not None:
         key["rate_hz"] = float(rate_hz)
     logs = None if p is None else load_logs(p, key)
@@ -155,9 +155,9 @@ def plant_logs(seed: int, cal_s: float, cache: Path | None, rate_hz: float | Non
     cal = None
     if calibration:
         cal = run_session(pd.true, cal_s, reference=calibration_motion(pd, cal_s, seed=seed),
-                          seed=noise_seeds["calibration"])
+                          seed=seeds["calibration"])
     tests = {}
-    for s, noise_seed in zip(specs, noise_seeds["sessions"]):
+    for s, noise_seed in zip(specs, seeds["sessions"]):
         tests[s.name] = run_session(pd.true, s.duration_s, reference=s.reference, hold_q=s.hold_q, human=s.human,
                                     seed=noise_seed)
     if p is not None:
