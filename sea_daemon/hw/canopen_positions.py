@@ -22,6 +22,11 @@ from sea_daemon.hw.errors import EncoderJump, EncoderStuck
 from sea_daemon.hw.interface import Measurement
 
 
+def _wrap(delta: int, span: int) -> int:
+    """Shortest signed difference of two counters that wrap at ``span``."""
+    return (delta + span // 2) % span - span // 2
+
+
 class Positions:
     """Counts → angles of ``n`` joints, per joint: ``res_load`` / ``res_motor`` counts per turn of
     the load encoder's joint and the motor encoder's shaft, ``gear`` motor turns per joint turn."""
@@ -67,11 +72,8 @@ class Positions:
         """A later sample, ``periods`` periods after the one before (more than 1 after held
         cycles or a stall of the loop): unwrap, check for jumps (``max_joint_speed`` over that
         time), set ``m.q[j]`` / ``m.theta_m[j]``, check for a stuck encoder."""
-        span = self.enc_range[j]
-        half = span // 2
-        # the shortest signed differences of the counters, which wrap at the encoder's range and at 2^32
-        dq = (qc - self._raw_q[j] + half) % span - half
-        dm = (pos - self._raw_m[j] + 0x80000000) % 0x100000000 - 0x80000000
+        dq = _wrap(qc - self._raw_q[j], self.enc_range[j])
+        dm = _wrap(pos - self._raw_m[j], 1 << 32)
         k_q, k_m = self.k_q[j], self.k_m[j]
         if periods > 1.0:
             more = self.step_max[j] * (periods - 1.0)
@@ -84,14 +86,9 @@ class Positions:
         if abs(dm * k_m) > lim_m:
             m.faults |= Fault.ENCODER_JUMP.bit
             raise EncoderJump(drive_node, "0x6064 motor position actual value", dm * k_m, lim_m, cycle)
-        u_q = self._u_q[j] = self._u_q[j] + dq
-        u_m = self._u_m[j] = self._u_m[j] + dm
-        # the angles (_angles, inline)
-        self._raw_q[j], self._raw_m[j] = qc, pos
-        q = u_q * k_q - self._q_off[j]
-        th = u_m * k_m - self._m_off[j]
-        m.q[j] = q
-        m.theta_m[j] = th
+        self._u_q[j] += dq
+        self._u_m[j] += dm
+        q, th = self._angles(m, j, qc, pos)
         # a stuck encoder: its count unchanged while the other encoder of the joint moves
         if qc == self._prev_q[j]:
             self._stuck(m, j, self._stuck_q[j], th, enc_node, "0x6004 load position value", qc)
